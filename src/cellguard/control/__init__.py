@@ -1,0 +1,1 @@
+"""Executor (chunks -> reference) and envelope (limits, watchdog, stops)."""

@@ -1,0 +1,1 @@
+"""Cycles, baseline, drift, last-good versus faulted, asymmetry, probable cause."""

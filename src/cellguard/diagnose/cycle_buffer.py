@@ -1,0 +1,42 @@
+"""The ticks of the cycle in progress, kept in preallocated arrays on the servo path.
+
+Per-cycle features are computed from this buffer when the cycle ends (not by rescanning the
+record later), so diagnosis over months reads one row per cycle.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from cellguard.robot.state import State
+
+
+class CycleBuffer:
+    """Rows of (t, reference, setpoint, q, qd, effort, current) for up to ``capacity`` ticks."""
+
+    def __init__(self, dof: int, capacity: int):
+        self.t_ns = np.zeros(capacity, dtype=np.int64)
+        self.reference = np.zeros((capacity, dof))
+        self.setpoint = np.zeros((capacity, dof))
+        self.q = np.zeros((capacity, dof))
+        self.qd = np.zeros((capacity, dof))
+        self.effort = np.zeros((capacity, dof))
+        self.current = np.zeros((capacity, dof))
+        self.n = 0
+
+    def clear(self) -> None:
+        self.n = 0
+
+    def add(self, reference: np.ndarray, setpoint: np.ndarray, state: State) -> None:
+        """Append one tick; past capacity the oldest rows are kept and the rest dropped."""
+        i = self.n
+        if i >= len(self.t_ns):
+            return
+        self.t_ns[i] = state.t_ns
+        self.reference[i] = reference
+        self.setpoint[i] = setpoint
+        self.q[i] = state.q
+        self.qd[i] = state.qd
+        self.effort[i] = state.effort
+        self.current[i] = state.current
+        self.n = i + 1

@@ -1,0 +1,58 @@
+"""Per-cycle features: the numbers a technician compares between a good and a faulted cycle.
+
+Computed once, when the cycle ends, from the cycle's ticks, its chunks' latencies, its events
+and the cell's own outcome (grasp pose, camera readings). Names are flat and stable
+(``current_peak.elbow``, ``grasp_x_mm``) so that they become Parquet columns as they are.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from cellguard.control.events import Event
+from cellguard.diagnose.cycle_buffer import CycleBuffer
+from cellguard.embodiment import Profile
+
+_XYZ = ("x", "y", "z")
+
+
+def cycle_features(
+    profile: Profile,
+    ticks: CycleBuffer,
+    outcome: dict,
+    latencies_ns: list[int],
+    events: list[Event],
+) -> dict[str, float]:
+    """Flat name -> value features of one cycle (SI unless the name says ``_mm`` or ``_ms``)."""
+    n = ticks.n
+    f: dict[str, float] = {}
+    current, error = ticks.current[:n], ticks.setpoint[:n] - ticks.q[:n]
+    for j, name in enumerate(profile.joint_names):
+        f[f"current_peak.{name}"] = float(np.abs(current[:, j]).max()) if n else 0.0
+        f[f"current_rms.{name}"] = float(np.sqrt(np.mean(current[:, j] ** 2))) if n else 0.0
+        f[f"tracking_rms.{name}"] = float(np.sqrt(np.mean(error[:, j] ** 2))) if n else 0.0
+        f[f"tracking_max.{name}"] = float(np.abs(error[:, j]).max()) if n else 0.0
+    f["latency_mean_ms"] = float(np.mean(latencies_ns)) * 1e-6 if latencies_ns else 0.0
+    f["latency_max_ms"] = float(np.max(latencies_ns)) * 1e-6 if latencies_ns else 0.0
+    f["interventions"] = float(sum(e.kind != "chunk_steps_dropped" for e in events))
+    f["chunks_rejected"] = float(sum(e.kind == "chunk_rejected" for e in events))
+    f["stale_chunks"] = float(sum(e.kind in ("chunk_steps_dropped", "chunk_stale") for e in events))
+    for key, value in outcome.items():
+        _flatten(f, key, value, profile)
+    return f
+
+
+def _flatten(f: dict[str, float], key: str, value, profile: Profile) -> None:
+    if isinstance(value, bool):
+        f[key] = float(value)
+    elif isinstance(value, (int, float)):
+        f[key] = float(value)
+    elif key.endswith("_q") and isinstance(value, list) and len(value) == profile.dof:
+        for name, v in zip(profile.joint_names, value):
+            f[f"{key}.{name}"] = float(v)
+    elif isinstance(value, list) and len(value) == 3:
+        stem, unit = key.rsplit("_", 1) if "_" in key else (key, "")
+        scale = 1e3 if unit == "m" else 1.0
+        unit = "mm" if unit in ("m", "mm") else unit
+        for axis, v in zip(_XYZ, value):
+            f[f"{stem}_{axis}_{unit}" if unit else f"{stem}_{axis}"] = float(v) * scale

@@ -1,0 +1,225 @@
+"""The embodiment profile: what this robot may do, and what was measured on it.
+
+A profile is a YAML file next to the robot's MJCF. Loading checks it against the model: a
+joint the model does not have, a limit outside the model's range, or a number without its
+unit is refused with an error that names the field.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import yaml
+
+from cellguard.errors import ProfileError
+from cellguard.units import parse_quantity
+
+_LINEAR = {"position": ("length",), "velocity": ("length/s",), "acceleration": ("length/s^2",),
+           "jerk": ("length/s^3",), "effort": ("force",), "torque_constant": ("force/A",)}
+_ANGULAR = {"position": ("angle",), "velocity": ("angle/s",), "acceleration": ("angle/s^2",),
+            "jerk": ("angle/s^3",), "effort": ("torque",), "torque_constant": ("torque/A",)}
+_PARAMETER_DIMENSIONS = ("torque", "force", "time", "angle", "length", "mass", "inertia", "damping")
+
+
+@dataclass(frozen=True)
+class JointLimits:
+    """Limits of one joint, SI: [rad] or [m], per second, per s^2, per s^3; effort [N·m] or [N]."""
+
+    name: str
+    kind: str  # "hinge" or "slide"
+    position: tuple[float, float]
+    velocity: float
+    acceleration: float
+    jerk: float
+    effort: float
+    torque_constant: float  # [N·m/A] or [N/A] at the joint: current = effort / torque_constant
+
+
+@dataclass(frozen=True)
+class MeasuredParameter:
+    """A value measured on this robot, with when and how, so a later reading can be compared."""
+
+    joint: str
+    parameter: str
+    value: float  # SI
+    unit: str  # as written in the profile
+    measured: str  # ISO date
+    method: str
+
+
+@dataclass(frozen=True)
+class SymmetryPair:
+    """``right`` mirrors ``left``: q_right = sign * q_left in a mirrored motion."""
+
+    left: str
+    right: str
+    sign: float
+
+
+@dataclass(frozen=True)
+class Profile:
+    """A robot's embodiment. The arrays are per joint in ``joint_names`` order, read-only."""
+
+    robot: str
+    version: str
+    joints: tuple[JointLimits, ...]
+    measured: tuple[MeasuredParameter, ...]
+    symmetry: tuple[SymmetryPair, ...]
+    sha256: str
+
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        return tuple(j.name for j in self.joints)
+
+    @property
+    def dof(self) -> int:
+        return len(self.joints)
+
+    def index(self, joint: str) -> int:
+        """Position of ``joint`` in the arrays; an unknown name lists the joints."""
+        try:
+            return self.joint_names.index(joint)
+        except ValueError:
+            raise ProfileError(f"unknown joint {joint!r}; joints: {', '.join(self.joint_names)}") from None
+
+    def array(self, attr: str) -> np.ndarray:
+        """A read-only float64 array of one limit over all joints, e.g. ``array('velocity')``."""
+        values = np.array([getattr(j, attr) for j in self.joints], dtype=np.float64)
+        values.setflags(write=False)
+        return values
+
+    @property
+    def q_min(self) -> np.ndarray:
+        return self.array_pos(0)
+
+    @property
+    def q_max(self) -> np.ndarray:
+        return self.array_pos(1)
+
+    def array_pos(self, side: int) -> np.ndarray:
+        values = np.array([j.position[side] for j in self.joints], dtype=np.float64)
+        values.setflags(write=False)
+        return values
+
+    def to_dict(self) -> dict:
+        return {
+            "robot": self.robot,
+            "version": self.version,
+            "sha256": self.sha256,
+            "joints": [j.__dict__ | {"position": list(j.position)} for j in self.joints],
+            "measured": [m.__dict__ for m in self.measured],
+            "symmetry": [s.__dict__ for s in self.symmetry],
+        }
+
+
+def load_profile(model: mujoco.MjModel, path: Path) -> Profile:
+    """Read ``path`` and check it against ``model``; raise ProfileError naming the bad field."""
+    raw_bytes = Path(path).read_bytes()
+    try:
+        raw = yaml.safe_load(raw_bytes)
+    except yaml.YAMLError as exc:
+        raise ProfileError(f"{path}: not valid YAML ({exc.__class__.__name__})") from None
+    if not isinstance(raw, dict):
+        raise ProfileError(f"{path}: expected a mapping at the top level")
+    allowed = {"robot", "model", "version", "joints", "measured", "symmetry"}
+    for key in raw:
+        if key not in allowed:
+            raise ProfileError(f"{key}: unknown key; allowed: {', '.join(sorted(allowed))}")
+    for key in ("robot", "version", "joints"):
+        if key not in raw:
+            raise ProfileError(f"{key}: missing")
+    if not isinstance(raw["joints"], dict) or not raw["joints"]:
+        raise ProfileError("joints: expected a mapping of joint name to limits")
+    joints = tuple(_joint(model, name, spec) for name, spec in raw["joints"].items())
+    names = {j.name for j in joints}
+    measured = tuple(_measured(i, m, names) for i, m in enumerate(raw.get("measured") or []))
+    symmetry = tuple(_symmetry(i, s, names) for i, s in enumerate(raw.get("symmetry") or []))
+    return Profile(
+        robot=str(raw["robot"]),
+        version=str(raw["version"]),
+        joints=joints,
+        measured=measured,
+        symmetry=symmetry,
+        sha256=hashlib.sha256(raw_bytes).hexdigest(),
+    )
+
+
+def _joint(model: mujoco.MjModel, name: str, spec: object) -> JointLimits:
+    jid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, name)
+    if jid < 0:
+        known = [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, i) for i in range(model.njnt)]
+        raise ProfileError(f"joints.{name}: unknown joint; the model has: {', '.join(k for k in known if k)}")
+    jtype = model.jnt_type[jid]
+    if jtype == mujoco.mjtJoint.mjJNT_HINGE:
+        kind, dims = "hinge", _ANGULAR
+    elif jtype == mujoco.mjtJoint.mjJNT_SLIDE:
+        kind, dims = "slide", _LINEAR
+    else:
+        raise ProfileError(f"joints.{name}: only hinge and slide joints can be profiled")
+    if not isinstance(spec, dict):
+        raise ProfileError(f"joints.{name}: expected a mapping of limits")
+    for key in spec:
+        if key not in dims:
+            raise ProfileError(f"joints.{name}.{key}: unknown key; allowed: {', '.join(dims)}")
+    for key in dims:
+        if key not in spec:
+            raise ProfileError(f"joints.{name}.{key}: missing")
+    pos = spec["position"]
+    if not isinstance(pos, list) or len(pos) != 2:
+        raise ProfileError(f"joints.{name}.position: expected [min, max] with units")
+    lo = parse_quantity(pos[0], f"joints.{name}.position[0]", dims["position"])
+    hi = parse_quantity(pos[1], f"joints.{name}.position[1]", dims["position"])
+    if not lo < hi:
+        raise ProfileError(f"joints.{name}.position: min {lo:g} must be below max {hi:g}")
+    if model.jnt_limited[jid]:
+        mlo, mhi = model.jnt_range[jid]
+        if lo < mlo - 1e-9 or hi > mhi + 1e-9:
+            raise ProfileError(
+                f"joints.{name}.position: [{lo:g}, {hi:g}] lies outside the model's range [{mlo:g}, {mhi:g}]"
+            )
+    values = {}
+    for key in ("velocity", "acceleration", "jerk", "effort", "torque_constant"):
+        values[key] = parse_quantity(spec[key], f"joints.{name}.{key}", dims[key])
+        if values[key] <= 0:
+            raise ProfileError(f"joints.{name}.{key}: must be positive, got {values[key]:g}")
+    return JointLimits(name=name, kind=kind, position=(lo, hi), **values)
+
+
+def _measured(i: int, spec: object, names: set[str]) -> MeasuredParameter:
+    field = f"measured[{i}]"
+    keys = ("joint", "parameter", "value", "measured", "method")
+    if not isinstance(spec, dict):
+        raise ProfileError(f"{field}: expected a mapping with {', '.join(keys)}")
+    for key in spec:
+        if key not in keys:
+            raise ProfileError(f"{field}.{key}: unknown key; allowed: {', '.join(keys)}")
+    for key in keys:
+        if key not in spec:
+            raise ProfileError(f"{field}.{key}: missing")
+    if spec["joint"] not in names:
+        raise ProfileError(f"{field}.joint: {spec['joint']!r} is not a profiled joint")
+    value = parse_quantity(spec["value"], f"{field}.value", _PARAMETER_DIMENSIONS)
+    return MeasuredParameter(
+        joint=spec["joint"],
+        parameter=str(spec["parameter"]),
+        value=value,
+        unit=str(spec["value"]).split()[1],
+        measured=str(spec["measured"]),
+        method=str(spec["method"]),
+    )
+
+
+def _symmetry(i: int, spec: object, names: set[str]) -> SymmetryPair:
+    field = f"symmetry[{i}]"
+    if not isinstance(spec, dict) or set(spec) != {"left", "right", "sign"}:
+        raise ProfileError(f"{field}: expected {{left, right, sign}}")
+    for side in ("left", "right"):
+        if spec[side] not in names:
+            raise ProfileError(f"{field}.{side}: {spec[side]!r} is not a profiled joint")
+    if spec["sign"] not in (1, -1):
+        raise ProfileError(f"{field}.sign: must be 1 or -1, got {spec['sign']!r}")
+    return SymmetryPair(left=spec["left"], right=spec["right"], sign=float(spec["sign"]))

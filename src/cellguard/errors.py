@@ -1,0 +1,45 @@
+"""The one exception root of cellguard and its subclasses.
+
+    CellguardError
+    ├── ConfigError          bad input in a file or argument (profile, scenario, action map)
+    │   ├── ProfileError     an embodiment profile that disagrees with its model
+    │   └── ScenarioError    a scenario file with an unknown key, wrong type or impossible value
+    ├── UnknownNameError     a registry lookup that failed; lists the names that exist
+    └── RecordError          a record that cannot be written or read
+
+Every message names the field (or file) and what was allowed, in one line, so that the CLI
+can print it and exit 2 without a traceback.
+"""
+
+from __future__ import annotations
+
+
+class CellguardError(Exception):
+    """Root of every error cellguard raises on purpose."""
+
+
+class ConfigError(CellguardError, ValueError):
+    """Bad input: the message names the field and the allowed range."""
+
+
+class ProfileError(ConfigError):
+    """An embodiment profile that disagrees with its MuJoCo model."""
+
+
+class ScenarioError(ConfigError):
+    """A scenario file that cannot run."""
+
+
+class UnknownNameError(CellguardError, KeyError):
+    """A name that is not registered; the message lists the names that are."""
+
+    def __init__(self, kind: str, name: str, known: list[str] | tuple[str, ...]):
+        self.kind, self.name, self.known = kind, name, tuple(known)
+        super().__init__(f"unknown {kind} {name!r}; known: {', '.join(sorted(known))}")
+
+    def __str__(self) -> str:  # KeyError would quote the whole message
+        return self.args[0]
+
+
+class RecordError(CellguardError):
+    """A fault record that cannot be written or read."""

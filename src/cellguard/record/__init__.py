@@ -1,0 +1,1 @@
+"""The fault record: writer, reader, context manifest, per-cycle index for long histories."""
