@@ -22,7 +22,7 @@ DEMO_SCENARIO = Path(__file__).parent / "scenarios" / "demo.yaml"
 
 
 def _fail(exc: CellguardError) -> None:
-    err.print(f"error: {exc}", markup=False, highlight=False)
+    sys.stderr.write(f"error: {exc}\n")
     raise typer.Exit(2)
 
 

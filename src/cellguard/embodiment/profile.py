@@ -15,7 +15,7 @@ import mujoco
 import numpy as np
 import yaml
 
-from cellguard.errors import ProfileError
+from cellguard.errors import ConfigError, ProfileError
 from cellguard.units import parse_quantity
 
 _LINEAR = {"position": ("length",), "velocity": ("length/s",), "acceleration": ("length/s^2",),
@@ -148,6 +148,13 @@ def load_profile(model: mujoco.MjModel, path: Path) -> Profile:
     )
 
 
+def _quantity(text: object, field: str, dimensions: tuple[str, ...]) -> float:
+    try:
+        return parse_quantity(text, field, dimensions)
+    except ConfigError as exc:
+        raise ProfileError(str(exc)) from None
+
+
 def _joint(model: mujoco.MjModel, name: str, spec: object) -> JointLimits:
     jid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, name)
     if jid < 0:
@@ -171,8 +178,8 @@ def _joint(model: mujoco.MjModel, name: str, spec: object) -> JointLimits:
     pos = spec["position"]
     if not isinstance(pos, list) or len(pos) != 2:
         raise ProfileError(f"joints.{name}.position: expected [min, max] with units")
-    lo = parse_quantity(pos[0], f"joints.{name}.position[0]", dims["position"])
-    hi = parse_quantity(pos[1], f"joints.{name}.position[1]", dims["position"])
+    lo = _quantity(pos[0], f"joints.{name}.position[0]", dims["position"])
+    hi = _quantity(pos[1], f"joints.{name}.position[1]", dims["position"])
     if not lo < hi:
         raise ProfileError(f"joints.{name}.position: min {lo:g} must be below max {hi:g}")
     if model.jnt_limited[jid]:
@@ -183,7 +190,7 @@ def _joint(model: mujoco.MjModel, name: str, spec: object) -> JointLimits:
             )
     values = {}
     for key in ("velocity", "acceleration", "jerk", "effort", "torque_constant"):
-        values[key] = parse_quantity(spec[key], f"joints.{name}.{key}", dims[key])
+        values[key] = _quantity(spec[key], f"joints.{name}.{key}", dims[key])
         if values[key] <= 0:
             raise ProfileError(f"joints.{name}.{key}: must be positive, got {values[key]:g}")
     return JointLimits(name=name, kind=kind, position=(lo, hi), **values)
@@ -202,7 +209,7 @@ def _measured(i: int, spec: object, names: set[str]) -> MeasuredParameter:
             raise ProfileError(f"{field}.{key}: missing")
     if spec["joint"] not in names:
         raise ProfileError(f"{field}.joint: {spec['joint']!r} is not a profiled joint")
-    value = parse_quantity(spec["value"], f"{field}.value", _PARAMETER_DIMENSIONS)
+    value = _quantity(spec["value"], f"{field}.value", _PARAMETER_DIMENSIONS)
     return MeasuredParameter(
         joint=spec["joint"],
         parameter=str(spec["parameter"]),

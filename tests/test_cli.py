@@ -1,0 +1,50 @@
+"""The command line: a short run writes its summary; bad input is one line and exit 2."""
+
+from __future__ import annotations
+
+import json
+
+from typer.testing import CliRunner
+
+from cellguard.cli import app
+
+runner = CliRunner()
+
+
+def test_run_writes_summary_with_ground_truth_apart(tmp_path):
+    scenario = tmp_path / "s.yaml"
+    scenario.write_text("cell: arm-pick-place\nacceptance_cycles: 1\nproduction_cycles: 1\n"
+                        "faults:\n  - {kind: fixture_shift, at_cycle: 1, dx_mm: 1.0}\n")
+    result = runner.invoke(app, ["run", str(scenario), "--out", str(tmp_path / "out"), "--json"])
+    assert result.exit_code == 0, result.output
+    doc = json.loads(result.stdout.strip().splitlines()[-1])
+    assert doc["phases"]["production"]["cycles"] == 1
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert [c["phase"] for c in summary["cycles"]] == ["acceptance", "production"]
+    assert summary["ground_truth"]["faults"] == [{"kind": "fixture_shift", "at_cycle": 1, "dx_mm": 1.0, "dy_mm": 0.0}]
+    assert "faults" not in summary["scenario"]
+    assert len(summary["context"]["policy_sha256"]) == 64
+
+
+def test_bad_scenario_is_one_line_and_exit_2(tmp_path):
+    scenario = tmp_path / "s.yaml"
+    scenario.write_text("cell: arm-pick-place\nproduction_cycles: lots\n")
+    result = runner.invoke(app, ["run", str(scenario), "--out", str(tmp_path / "out")])
+    assert result.exit_code == 2
+    assert result.stderr.strip().count("\n") == 0
+    assert "production_cycles" in result.stderr
+    assert not (tmp_path / "out").exists()
+
+
+def test_embodiment_show_json():
+    result = runner.invoke(app, ["embodiment", "show", "arm-pick-place", "--json"])
+    assert result.exit_code == 0
+    doc = json.loads(result.stdout)
+    assert [j["name"] for j in doc["joints"]][:2] == ["shoulder_pan", "shoulder_lift"]
+    assert doc["joints"][0]["velocity"] == 2.5
+
+
+def test_unknown_cell_lists_known():
+    result = runner.invoke(app, ["embodiment", "show", "lathe"])
+    assert result.exit_code == 2
+    assert "known: arm-pick-place" in result.stderr
