@@ -41,7 +41,7 @@ def test_embodiment_show_json():
     assert result.exit_code == 0
     doc = json.loads(result.stdout)
     assert [j["name"] for j in doc["joints"]][:2] == ["shoulder_pan", "shoulder_lift"]
-    assert doc["joints"][0]["velocity"] == 2.5
+    assert doc["joints"][0]["velocity"] == 3.0
 
 
 def test_unknown_cell_lists_known():

@@ -11,11 +11,13 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from cellguard.errors import CellguardError
+from cellguard.record.cli import record_app
 from cellguard.scenario import Scenario, load_scenario
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, help="Adapt, guard, record and diagnose robot policies.")
 embodiment_app = typer.Typer(no_args_is_help=True, help="Embodiment profiles of the registered cells.")
 app.add_typer(embodiment_app, name="embodiment")
+app.add_typer(record_app, name="record")
 err = Console(stderr=True)
 
 DEMO_SCENARIO = Path(__file__).parent / "scenarios" / "demo.yaml"
@@ -72,12 +74,97 @@ def demo(
     as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),
 ) -> None:
     """Acceptance then a production shift with site drift on the simulated arm cell."""
+    from cellguard.diagnose.from_record import diagnose_record
+    from cellguard.report.from_record import write_report
+
     try:
         sc = load_scenario(DEMO_SCENARIO)
         summary = _run(sc, out, quiet=as_json)
+        diagnosis = diagnose_record(out)
+        report_path = write_report(out, diagnosis=diagnosis)
     except CellguardError as exc:
         _fail(exc)
+    if as_json:
+        sys.stdout.write(json.dumps({"out": str(out), "phases": summary["phases"], "events": len(summary["events"]),
+                                     "diagnosis": diagnosis.to_dict(), "report": str(report_path)}) + "\n")
+        return
     _print_summary(summary, out, as_json)
+    _print_diagnosis(diagnosis)
+    Console().print(f"report: {report_path}")
+
+
+@app.command()
+def diagnose(
+    folder: Path = typer.Argument(..., help="A run folder holding the record (record.mcap)."),
+    as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),
+    acceptance: Path | None = typer.Option(None, "--acceptance", help="Take the baseline from this record instead."),
+) -> None:
+    """Read a record, find drift and faults against the acceptance baseline, name probable causes."""
+    from cellguard.diagnose.from_record import diagnose_record
+
+    try:
+        diagnosis = diagnose_record(folder, acceptance=acceptance)
+    except CellguardError as exc:
+        _fail(exc)
+    if as_json:
+        sys.stdout.write(json.dumps(diagnosis.to_dict()) + "\n")
+        return
+    _print_diagnosis(diagnosis)
+
+
+@app.command()
+def report(
+    folder: Path = typer.Argument(..., help="A run folder holding the record (record.mcap)."),
+    out: Path | None = typer.Option(None, "-o", "--out", help="HTML file to write (default FOLDER/report.html)."),
+) -> None:
+    """Write a self-contained HTML report: timeline, last good versus faulted, drift, asymmetry, context."""
+    from cellguard.report.from_record import write_report
+
+    try:
+        path = write_report(folder, out)
+    except CellguardError as exc:
+        _fail(exc)
+    Console().print(f"report: {path}")
+
+
+@app.command("train-demo-policy")
+def train_demo_policy(
+    out: Path = typer.Option(Path("demo-policy.onnx"), "--out", "-o", help="ONNX file to write."),
+    cycles: int = typer.Option(30, min=2, max=500, help="Scripted demonstration cycles to record."),
+    steps: int = typer.Option(6000, min=100, max=200_000, help="Training steps (Adam, batch 256)."),
+    seed: int = typer.Option(0, help="Seed of the demonstrations and the initial weights."),
+    as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),
+) -> None:
+    """Clone the scripted arm program into a small MLP on the CPU; run it with `policy: onnx:FILE`."""
+    from dataclasses import asdict
+
+    from cellguard.policy.bc import train_demo_policy as train
+
+    try:
+        report = train(out, cycles=cycles, steps=steps, seed=seed)
+    except CellguardError as exc:
+        _fail(exc)
+    if as_json:
+        sys.stdout.write(json.dumps(asdict(report)) + "\n")
+        return
+    Console().print(f"trained on {report.samples} samples from {report.cycles} cycles in {report.seconds:.0f} s "
+                    f"(loss {report.final_loss:.2e}, worst joint error {report.max_error_mrad:.1f} mrad); "
+                    f"written to {report.path}; run it with policy: onnx:{report.path}")
+
+
+def _print_diagnosis(d) -> None:
+    console = Console(highlight=False)
+    data = d.to_dict()
+    console.print(f"diagnosis: {data['cycles']} cycles, baseline {data['baseline_cycles']}, "
+                  f"{len(data['drift_alarms'])} drift alarm(s), last good cycle {data['last_good_cycle']}, "
+                  f"first faulted cycle {data['first_faulted_cycle']}", markup=False)
+    if not d.findings:
+        console.print("  no fault found", markup=False)
+    for f in d.findings:
+        joints = f" ({', '.join(f.joints)})" if f.joints else ""
+        console.print(f"  {f.cause}{joints} from cycle {f.cycle}, confidence {f.confidence:.2f}", markup=False)
+        for line in f.evidence:
+            console.print(f"    - {line}", markup=False)
 
 
 @embodiment_app.command("show")
@@ -104,3 +191,44 @@ def embodiment_show(
         table.add_row(j.name, j.kind, f"[{j.position[0]:.3g}, {j.position[1]:.3g}]", f"{j.velocity:g}",
                       f"{j.acceleration:g}", f"{j.jerk:g}", f"{j.effort:g}", f"{j.torque_constant:g}")
     Console().print(table)
+
+
+def _record_figures(quick: bool) -> dict:
+    from cellguard.record.bench import figures
+
+    return figures(quick=quick)
+
+
+def _guard_figures(quick: bool) -> dict:
+    from cellguard.control.bench import figures
+
+    return figures(quick=quick)
+
+
+BENCHMARKS: dict = {"record": _record_figures, "guard": _guard_figures}  # name -> function(quick) -> {figure: value}
+
+
+@app.command()
+def bench(
+    only: list[str] = typer.Option(None, "--only", help=f"Run only these groups: {', '.join(BENCHMARKS)}."),
+    quick: bool = typer.Option(False, "--quick", help="Shorter runs (rougher figures)."),
+    as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),
+) -> None:
+    """Performance figures (timings, sizes), one group per benchmark."""
+    from cellguard.errors import UnknownNameError
+
+    try:
+        for name in only or ():
+            if name not in BENCHMARKS:
+                raise UnknownNameError("benchmark", name, list(BENCHMARKS))
+    except CellguardError as exc:
+        _fail(exc)
+    results = {name: fn(quick) for name, fn in BENCHMARKS.items() if not only or name in only}
+    if as_json:
+        sys.stdout.write(json.dumps(results, indent=1) + "\n")
+        return
+    console = Console()
+    for name, figures in results.items():
+        console.print(f"[bold]{name}[/bold]")
+        for key, value in figures.items():
+            console.print(f"  {key:<32} {value:.4g}" if isinstance(value, float) else f"  {key:<32} {value}")

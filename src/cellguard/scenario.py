@@ -11,6 +11,7 @@ from pathlib import Path
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
+from cellguard.control.settings import GuardSettings
 from cellguard.errors import ScenarioError
 from cellguard.robot.faults import FAULTS, AnyFault
 
@@ -29,6 +30,7 @@ class Scenario(BaseModel):
     site: str = "sim-site"
     cell_id: str = "cell-1"
     faults: list[AnyFault] = Field(default_factory=list)
+    guard: GuardSettings = Field(default_factory=GuardSettings)
 
     @property
     def total_cycles(self) -> int:

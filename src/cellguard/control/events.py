@@ -10,7 +10,7 @@ class Event:
     """One intervention or incident. ``category`` is the IEC 60204-1 stop category, if a stop."""
 
     t_ns: int
-    kind: str  # e.g. "chunk_rejected", "position_clamp", "watchdog_stop"
+    kind: str  # e.g. "chunk_rejected", "limit_intervention", "watchdog_stop"
     reason: str
     joint: str | None = None
     asked: float | None = None

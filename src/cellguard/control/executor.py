@@ -1,64 +1,214 @@
 """Executor: action chunks in, a time-indexed joint reference out, at every servo tick.
 
-The newest valid chunk wins. Its steps that lie in the past when it arrives are dropped, not
-replayed; between the reference at the switch and the chunk's first step still ahead, the
-reference is interpolated linearly, so position stays continuous across chunk boundaries.
+A chunk is checked and fitted once, when it is received (``prepare``, off the servo path: on
+hardware, the thread that receives inference results); ``push`` at a servo tick only swaps
+it in, and ``reference`` evaluates a cubic per tick.
+
+Stitching: an offset blend, a crossfade that carries the old reference by its state. When a
+chunk arrives, the difference between the reference being played and the new chunk's curve,
+in position, velocity and acceleration, is carried as a quintic that decays to zero with zero
+velocity and acceleration over ``blend`` (default 200 ms): the reference is continuous in
+position, velocity and acceleration at the switch and at the end of the blend, and each chunk
+is itself a C2 cubic (see ``spline``). Unlike a weighted crossfade of two curves, the cost
+does not grow when chunks arrive faster than the blend (at 20 Hz, four would overlap):
+one curve and one polynomial per tick. The blend is long because consecutive chunks from the
+same plan differ by their interpolation error near the plan's jerk steps, and a short blend
+turns that into jerk (60 Δ/T³). Prefix-conditioned chunking (real-time chunking) would avoid
+the blend, but it needs a policy that takes the executed prefix as an input, which most cannot;
+the blend works for every source, and what it cannot make smooth (chunks that disagree by more
+than the limits allow within the blend) the tracker brings back within the limits.
+
+Time: chunks are stamped in the policy's (real) time; the reference is read on a playback
+clock that runs at ``scale`` (1 = real time). Speed scaling slows the clock, so the path keeps
+its geometry and only time stretches. A chunk's steps are placed on the playback clock from the
+time of the observation they answer; steps already behind the clock when the chunk arrives are
+dropped (the curve is never read before now), never replayed.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from dataclasses import dataclass
+
 import numpy as np
 
 from cellguard.control.events import Event
+from cellguard.control.spline import ChunkCurve
 from cellguard.embodiment import Profile
 from cellguard.policy.chunk import ActionChunk
 
+MAX_HORIZON = 1000  # steps; a longer chunk is refused as malformed
+MIN_STEP_NS, MAX_STEP_NS = 1_000_000, 1_000_000_000  # a chunk's step: 1 ms to 1 s
+HISTORY_TICKS = 8192  # playback clock remembered for mapping late chunks [ticks]
+
+
+@dataclass(frozen=True)
+class PreparedChunk:
+    """A chunk checked and fitted, or refused (``problem`` says why). Built off the servo path."""
+
+    t_obs_ns: int
+    dt_ns: int
+    curve: ChunkCurve | None = None
+    uncertainty: np.ndarray | None = None  # (H,), or None
+    tool_speed: np.ndarray | None = None  # (H-1,) chord speed of the tool between steps at scale 1 [m/s]
+    problem: str | None = None
+
+
+def _decay(d0: np.ndarray, d1: np.ndarray, d2: np.ndarray, t: float) -> np.ndarray:
+    """Quintic coefficients (6, D) from value, rate, rate of rate (d0, d1, d2) at 0 to zeros at ``t`` [s]."""
+    t2, t3 = t * t, t * t * t
+    return np.stack([d0, d1, 0.5 * d2,
+                     (-20.0 * d0 - 12.0 * d1 * t - 3.0 * d2 * t2) / (2.0 * t3),
+                     (30.0 * d0 + 16.0 * d1 * t + 3.0 * d2 * t2) / (2.0 * t3 * t),
+                     (-12.0 * d0 - 6.0 * d1 * t - d2 * t2) / (2.0 * t3 * t2)])
+
 
 class Executor:
-    """Holds the active chunk and answers ``reference(t_ns)``; validates chunks at its edge."""
+    """Holds the chunk being played and answers ``reference(t_ns)``; refuses bad chunks with events.
 
-    def __init__(self, profile: Profile, q0: np.ndarray):
-        self.profile = profile
-        self._times = np.zeros(1, dtype=np.int64)
-        self._points = np.asarray(q0, dtype=np.float64).reshape(1, -1).copy()
+    ``tool`` maps joint positions (D,) to the tool point (3,) [m]; with it, each chunk carries
+    its tool speeds so the envelope can slow down before a fast stretch, not during it.
+    """
+
+    def __init__(self, profile: Profile, q0: np.ndarray, dt_ns: int, blend_ns: int = 200_000_000,
+                 tool: Callable[[np.ndarray], np.ndarray] | None = None):
+        self.profile, self.dt_ns, self.blend_ns, self._tool = profile, int(dt_ns), int(blend_ns), tool
+        self._span = profile.q_max - profile.q_min
+        self._curve = ChunkCurve(0, 1, np.array(q0, dtype=np.float64)[None])  # a hold
+        self._blend: np.ndarray | None = None  # (6, D) quintic offset, from _blend_start for blend_ns
+        self._blend_start = 0
+        self._chunk: PreparedChunk | None = None
+        self._t_ns: int | None = None
+        self.tau_ns = 0  # playback clock
+        self._history = np.zeros(HISTORY_TICKS, dtype=np.int64)  # t - tau per tick, by tick index
         self.last_chunk_ns: int | None = None
+        self.uncertainty = 0.0
 
-    def push(self, chunk: ActionChunk, t_ns: int) -> list[Event]:
-        """Take ``chunk`` at ``t_ns``; a malformed or fully stale chunk is refused with an event."""
+    # -- off the servo path ------------------------------------------------------------------
+    def prepare(self, chunk: ActionChunk) -> PreparedChunk:
+        """Check ``chunk`` and fit its curve; a malformed chunk comes back with ``problem`` set."""
         problem = self._check(chunk)
         if problem is not None:
-            return [Event(t_ns, "chunk_rejected", problem)]
-        times = chunk.t_obs_ns + (np.arange(chunk.horizon, dtype=np.int64) + 1) * chunk.dt_ns
-        ahead = times > t_ns
-        if not ahead.any():
-            return [Event(t_ns, "chunk_stale", f"all {chunk.horizon} steps lie before now")]
-        now = self.reference(t_ns)
-        self._times = np.concatenate([[t_ns], times[ahead]])
-        self._points = np.vstack([now, np.asarray(chunk.actions, dtype=np.float64)[ahead]])
+            return PreparedChunk(0, 0, problem=problem)
+        actions = np.array(chunk.actions, dtype=np.float64)
+        actions.setflags(write=False)
+        curve = ChunkCurve(chunk.t_obs_ns + chunk.dt_ns, chunk.dt_ns, actions)
+        unc = None if chunk.uncertainty is None else np.array(chunk.uncertainty, dtype=np.float64)
+        speed = None
+        if self._tool is not None and len(actions) > 1:
+            tips = np.array([self._tool(q) for q in actions])
+            speed = np.linalg.norm(np.diff(tips, axis=0), axis=1) / (chunk.dt_ns * 1e-9)
+        return PreparedChunk(int(chunk.t_obs_ns), int(chunk.dt_ns), curve, unc, speed)
+
+    # -- on the servo path -------------------------------------------------------------------
+    def push(self, chunk: ActionChunk | PreparedChunk, t_ns: int) -> list[Event]:
+        """Take a chunk at servo tick ``t_ns``; a malformed, stale or out-of-order chunk is refused."""
+        if isinstance(chunk, ActionChunk):
+            chunk = self.prepare(chunk)
+        if chunk.problem is not None:
+            return [Event(t_ns, "chunk_rejected", chunk.problem)]
+        if self._chunk is not None and chunk.t_obs_ns == self._chunk.t_obs_ns:
+            return []  # the same answer again (a policy with nothing new): no new information
+        if self._chunk is not None and chunk.t_obs_ns < self._chunk.t_obs_ns:
+            return [Event(t_ns, "chunk_rejected", f"out of order: answers t={chunk.t_obs_ns * 1e-9:.3f} s, "
+                                                  f"not newer than the chunk in use ({self._chunk.t_obs_ns * 1e-9:.3f} s)")]
+        now = t_ns if self._t_ns is None else self.tau_ns + (t_ns - self._t_ns)  # playback time at t_ns
+        shift = self._offset_at(chunk.t_obs_ns, t_ns)
+        curve = chunk.curve
+        first, h = curve.t0_ns - shift, curve.h_ns
+        horizon = len(curve.points)
+        if first + (horizon - 1) * h <= now:
+            return [Event(t_ns, "chunk_stale", f"all {horizon} steps lie before now")]
+        placed = curve.shifted(first) if shift else curve
+        p0, v0, a0 = self._state(now)
+        p1, v1, a1 = placed.state(now)
+        self._blend = _decay(p0 - p1, v0 - v1, a0 - a1, self.blend_ns * 1e-9)
+        self._blend_start, self._curve = now, placed
+        self._chunk = PreparedChunk(chunk.t_obs_ns, chunk.dt_ns, placed, chunk.uncertainty, chunk.tool_speed)
         self.last_chunk_ns = t_ns
-        dropped = int((~ahead).sum())
+        dropped = int(min(max((now - first) // h + 1, 0), horizon))
         return [Event(t_ns, "chunk_steps_dropped", f"{dropped} steps already past")] if dropped else []
 
-    def reference(self, t_ns: int) -> np.ndarray:
-        """The joint reference at ``t_ns``: interpolated inside the chunk, held after its end."""
-        times = self._times
-        if t_ns >= times[-1]:
-            return self._points[-1].copy()
-        k = int(np.searchsorted(times, t_ns, side="right"))
-        if k == 0:
-            return self._points[0].copy()
-        u = (t_ns - times[k - 1]) / (times[k] - times[k - 1])
-        return self._points[k - 1] + u * (self._points[k] - self._points[k - 1])
+    def reference(self, t_ns: int, scale: float = 1.0) -> np.ndarray:
+        """The joint reference (D,) at servo tick ``t_ns``; the playback clock advances by ``scale``."""
+        if self._t_ns is None:
+            self.tau_ns = t_ns
+        elif scale == 1.0:
+            self.tau_ns += t_ns - self._t_ns
+        else:
+            self.tau_ns += round(scale * (t_ns - self._t_ns))
+        self._t_ns = t_ns
+        self._history[(t_ns // self.dt_ns) % HISTORY_TICKS] = t_ns - self.tau_ns
+        tau, chunk = self.tau_ns, self._chunk
+        if chunk is not None and chunk.uncertainty is not None:
+            k = (tau - chunk.curve.t0_ns) // chunk.dt_ns
+            self.uncertainty = float(chunk.uncertainty[min(max(k, 0), len(chunk.uncertainty) - 1)])
+        q = self._curve.at(tau)
+        if self._blend is not None:
+            u = (tau - self._blend_start) * 1e-9
+            if tau - self._blend_start >= self.blend_ns:
+                self._blend = None
+            else:
+                c = self._blend
+                q = q + (((((c[5] * u + c[4]) * u + c[3]) * u + c[2]) * u + c[1]) * u + c[0])
+        return q
+
+    def _state(self, tau: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Position, velocity, acceleration of the reference at playback time ``tau``."""
+        p, v, a = self._curve.state(tau)
+        if self._blend is not None and tau - self._blend_start < self.blend_ns:
+            u = (tau - self._blend_start) * 1e-9
+            c = self._blend
+            p = p + (((((c[5] * u + c[4]) * u + c[3]) * u + c[2]) * u + c[1]) * u + c[0])
+            v = v + ((((5.0 * c[5] * u + 4.0 * c[4]) * u + 3.0 * c[3]) * u + 2.0 * c[2]) * u + c[1])
+            a = a + (((20.0 * c[5] * u + 12.0 * c[4]) * u + 6.0 * c[3]) * u + 2.0 * c[2])
+        return p, v, a
+
+    def tool_speed_ahead(self, window_ns: int) -> float | None:
+        """Fastest tool chord speed of the chunk in use over the next ``window_ns`` of playback [m/s]."""
+        chunk = self._chunk
+        if chunk is None or chunk.tool_speed is None:
+            return None
+        c = chunk.curve
+        k0 = min(max((self.tau_ns - c.t0_ns) // c.h_ns, 0), len(chunk.tool_speed) - 1)
+        k1 = min(max((self.tau_ns + window_ns - c.t0_ns) // c.h_ns + 1, k0 + 1), len(chunk.tool_speed))
+        return float(chunk.tool_speed[k0:k1].max())
+
+    def _offset_at(self, t_obs_ns: int, t_ns: int) -> int:
+        """How far the playback clock was behind real time at ``t_obs_ns`` (0 if it never lagged)."""
+        if self._t_ns is None:
+            return 0
+        lag_now = self._t_ns - self.tau_ns
+        if t_obs_ns >= self._t_ns or lag_now == 0:
+            return int(lag_now)
+        if (self._t_ns - t_obs_ns) // self.dt_ns >= HISTORY_TICKS or t_obs_ns < 0:
+            return int(lag_now)
+        return int(self._history[(t_obs_ns // self.dt_ns) % HISTORY_TICKS])
 
     def _check(self, chunk: ActionChunk) -> str | None:
+        dof = self.profile.dof
         actions = chunk.actions
         if not isinstance(actions, np.ndarray) or actions.ndim != 2:
-            return f"actions must be a 2-D array (H, {self.profile.dof}), got shape {np.shape(actions)}"
-        if actions.shape[0] == 0 or actions.shape[1] != self.profile.dof:
-            return f"actions shape {actions.shape} does not match (H>0, {self.profile.dof})"
+            return f"actions must be a 2-D array (H, {dof}), got shape {np.shape(actions)}"
+        if not 0 < actions.shape[0] <= MAX_HORIZON or actions.shape[1] != dof:
+            return f"actions shape {actions.shape} does not match (1..{MAX_HORIZON}, {dof})"
+        if not np.issubdtype(actions.dtype, np.number) or np.issubdtype(actions.dtype, np.complexfloating):
+            return f"actions dtype {actions.dtype} is not real"
         if not np.isfinite(actions).all():
             bad = np.argwhere(~np.isfinite(actions))[0]
             return f"non-finite action at step {bad[0]}, joint {self.profile.joint_names[bad[1]]}"
-        if chunk.dt_ns <= 0:
-            return f"dt_ns must be positive, got {chunk.dt_ns}"
+        far = (actions < self.profile.q_min - self._span) | (actions > self.profile.q_max + self._span)
+        if far.any():
+            step, j = np.argwhere(far)[0]
+            return (f"action {actions[step, j]:.3g} at step {step}, joint {self.profile.joint_names[j]}, "
+                    f"lies a whole range beyond the limits [{self.profile.q_min[j]:g}, {self.profile.q_max[j]:g}]")
+        if not isinstance(chunk.dt_ns, (int, np.integer)) or not MIN_STEP_NS <= chunk.dt_ns <= MAX_STEP_NS:
+            return f"dt_ns must be an integer in [{MIN_STEP_NS}, {MAX_STEP_NS}] ns, got {chunk.dt_ns!r}"
+        if not isinstance(chunk.t_obs_ns, (int, np.integer)):
+            return f"t_obs_ns must be an integer [ns], got {chunk.t_obs_ns!r}"
+        unc = chunk.uncertainty
+        if unc is not None:
+            unc = np.asarray(unc)
+            if unc.shape != (actions.shape[0],) or not np.isfinite(unc).all() or (unc < 0).any():
+                return f"uncertainty must be ({actions.shape[0]},) finite and >= 0, got shape {unc.shape}"
         return None

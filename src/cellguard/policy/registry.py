@@ -28,8 +28,41 @@ def _scripted_arm(cell) -> Policy:
     return ScriptedArmPolicy(calibration=cell.context())
 
 
-SCRIPTED: dict[str, Callable[[object], Policy]] = {"arm-pick-place": _scripted_arm}
-SCHEMES: dict[str, Callable[[str, object], Policy]] = {"scripted": _scripted}
+def _scripted_quadruped(cell) -> Policy:
+    from cellguard.policy.scripted_quadruped import ScriptedQuadrupedPolicy
+
+    return ScriptedQuadrupedPolicy(cell.profile)
+
+
+SCRIPTED: dict[str, Callable[[object], Policy]] = {"arm-pick-place": _scripted_arm,
+                                                   "quadruped-turns": _scripted_quadruped}
+def _onnx(arg: str, cell) -> Policy:
+    from cellguard.policy.onnx import make_onnx_policy
+
+    return make_onnx_policy(arg, cell)
+
+
+def _openpi(arg: str, cell) -> Policy:
+    from cellguard.policy.openpi import make_openpi_policy
+
+    return make_openpi_policy(arg, cell)
+
+
+def _lerobot(arg: str, cell) -> Policy:
+    from cellguard.policy.lerobot import make_lerobot_policy
+
+    return make_lerobot_policy(arg, cell)
+
+
+def _replay(arg: str, cell) -> Policy:
+    from cellguard.policy.replay import make_replay_policy
+
+    return make_replay_policy(arg, cell)
+
+
+SCHEMES: dict[str, Callable[[str, object], Policy]] = {"scripted": _scripted, "replay": _replay, "onnx": _onnx,
+                                                       "openpi": _openpi,
+                                                       "lerobot": _lerobot}
 
 
 def make_policy(spec: str, cell) -> Policy:

@@ -15,6 +15,7 @@ import mujoco
 import numpy as np
 
 from cellguard.embodiment import load_profile
+from cellguard.robot.protocol import SafetyInputs
 from cellguard.robot.state import Observation, State
 
 ASSETS = Path(__file__).parent / "assets"
@@ -26,6 +27,9 @@ CAMERA_NOISE = 1e-4  # [m] 1-sigma noise of each camera coordinate
 CURRENT_NOISE = 0.01  # [A] 1-sigma noise of each motor current reading
 GRIPPER_CLOSED = 0.0155  # [m] finger opening below which the pads touch a centred part
 GRIPPER_RELEASED = 0.02  # [m] finger opening above which a held part is let go
+BRAKE_DAMPING = 200.0  # [N·m·s/rad] joint damping while the brakes hold (power removed)
+# Tool-point box the guard keeps the tool in by default [m]: above the table, inside the reach.
+WORKSPACE_BOX = ((-0.45, -0.45, 0.005), (0.45, 0.45, 0.55))
 # Camera frame: x along world x, z looking down.
 CAMERA_ROTATION = np.diag([1.0, -1.0, -1.0])
 
@@ -83,6 +87,10 @@ class ArmPickPlace:
         self._release_ns: int | None = None
         self._closed = False
         self._seen_at_start: dict = {}
+        self.safety_inputs = SafetyInputs()  # the simulated safety controller's outputs; set by scenario or test
+        self.tool_site, self.workspace_box = "tcp", WORKSPACE_BOX
+        self._fk = mujoco.MjData(m)
+        self._damping = m.dof_damping[self._dadr].copy()
 
     # -- Robot -------------------------------------------------------------------------
     @property
@@ -97,6 +105,20 @@ class ArmPickPlace:
     def write(self, setpoint: np.ndarray) -> np.ndarray:
         self.data.ctrl[self._act] = setpoint
         return self.data.ctrl[self._act].copy()
+
+    def safety(self) -> SafetyInputs:
+        return self.safety_inputs
+
+    def set_power(self, on: bool) -> None:
+        """Power off: the actuators are disabled and the joint brakes (high damping) engage."""
+        self.model.opt.disableactuator = 0 if on else 1  # all actuators are in group 0
+        self.model.dof_damping[self._dadr] = self._damping if on else BRAKE_DAMPING
+
+    def tool_point(self, q: np.ndarray) -> np.ndarray:
+        """Forward kinematics: the tool point (3,) [m] at joint positions ``q`` (dof,), off the live model state."""
+        self._fk.qpos[self._qadr] = q
+        mujoco.mj_kinematics(self.model, self._fk)
+        return self._fk.site_xpos[self._tcp].copy()
 
     def step(self) -> None:
         mujoco.mj_step(self.model, self.data)

@@ -2,12 +2,25 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
 
 from cellguard.embodiment import Profile
 from cellguard.robot.state import Observation, State
+
+
+@dataclass(frozen=True)
+class SafetyInputs:
+    """What the cell's certified safety controller tells the guard layer, read every tick.
+
+    ``stop``: a protective or emergency stop in force, with its IEC 60204-1 category (0, 1, 2),
+    or None. ``reduced_speed``: the controller asks for reduced speed (250 mm/s at the tool).
+    """
+
+    stop: int | None = None
+    reduced_speed: bool = False
 
 
 class Robot(Protocol):
@@ -20,6 +33,12 @@ class Robot(Protocol):
 
     def write(self, setpoint: np.ndarray) -> np.ndarray:
         """Command joint positions (dof,); return what was actually sent after the drive's own clipping."""
+
+    def safety(self) -> SafetyInputs:
+        """The certified safety controller's inputs now (simulated in the cells)."""
+
+    def set_power(self, on: bool) -> None:
+        """Drive power: off removes torque and engages the brakes (stop categories 0 and 1)."""
 
 
 class SimCell(Robot, Protocol):

@@ -4,8 +4,9 @@ from __future__ import annotations
 
 from cellguard.errors import UnknownNameError
 from cellguard.robot.arm_cell import ArmPickPlace
+from cellguard.robot.quadruped_cell import QuadrupedTurns
 
-CELLS: dict[str, type] = {ArmPickPlace.name: ArmPickPlace}
+CELLS: dict[str, type] = {ArmPickPlace.name: ArmPickPlace, QuadrupedTurns.name: QuadrupedTurns}
 
 
 def make_cell(name: str, seed: int = 0):

@@ -1,0 +1,127 @@
+"""Per-chunk inference latency and servo stalls, synchronous versus async inference, side by side.
+
+The arm cell runs in real time (a 1 ms tick paced by the wall clock) with the scripted program
+behind a policy that takes ``--latency-ms`` per call and answers ``--horizon`` steps of 20 ms.
+A new observation is sent when the steps left fall to half the horizon, in both modes.
+
+- sync: the servo loop calls ``infer`` itself. While it waits, ticks pass with the drive holding
+  its last setpoint: each is a stall (no fresh reference).
+- async: ``AsyncInference`` runs ``infer`` on its own thread; the loop never waits. A stall is a
+  tick whose reference has run past the end of the newest chunk.
+
+Stalls are counted from the first chunk on: before it the cell has not started moving.
+
+Prints one JSON document. Usage: ``python benchmarks/inference.py [--seconds 5]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+
+import numpy as np
+
+from cellguard.control.executor import Executor
+from cellguard.policy.async_inference import AsyncInference
+from cellguard.policy.scripted_arm import ScriptedArmPolicy
+from cellguard.robot.arm_cell import ArmPickPlace
+
+THRESHOLD = 0.5
+
+
+class SlowPolicy:
+    """The scripted program, made to take ``latency_s`` of wall time per call (a big model)."""
+
+    source = "scripted+sleep"
+
+    def __init__(self, policy, latency_s: float):
+        self.policy, self.latency_s = policy, latency_s
+
+    def reset(self) -> None:
+        self.policy.reset()
+
+    def content_hash(self) -> str:
+        return self.policy.content_hash()
+
+    def infer(self, observation):
+        time.sleep(self.latency_s)
+        return self.policy.infer(observation)
+
+
+def _steps_left(step_times: np.ndarray, t_ns: int) -> int:
+    return int(np.count_nonzero(step_times > t_ns))
+
+
+def run(mode: str, seconds: float, latency_s: float, horizon: int) -> dict:
+    cell = ArmPickPlace(seed=0)
+    cell.begin_cycle(0)
+    policy = SlowPolicy(ScriptedArmPolicy(horizon=horizon, calibration=cell.context()), latency_s)
+    executor = Executor(cell.profile, cell.read().q, cell.dt_ns)
+    worker = AsyncInference(policy, THRESHOLD) if mode == "async" else None
+    dt, n_ticks = cell.dt_ns, round(seconds * 1e9 / cell.dt_ns)
+    step_times = np.zeros(0, dtype=np.int64)
+    latencies, depths, stalls, late, dropped, sent = [], [], 0, 0, 0, cell.read().q
+    start, k = time.perf_counter_ns(), 0
+    while k < n_ticks:
+        lag = time.perf_counter_ns() - (start + k * dt)
+        if lag < 0:
+            time.sleep(-lag * 1e-9)
+        elif lag > dt:
+            late += 1
+        t = cell.t_ns
+        chunk = None
+        if worker is not None:
+            result = worker.take()
+            if result is not None and result.chunk is not None:
+                chunk = result.chunk
+                latencies.append(result.latency_ns)
+                depths.append(result.queue_depth)
+            if worker.wants_observation(t):
+                worker.submit(cell.observe())
+        elif len(step_times) == 0 or _steps_left(step_times, t) <= THRESHOLD * len(step_times):
+            depths.append(_steps_left(step_times, t))
+            began = time.perf_counter_ns()
+            chunk = policy.infer(cell.observe())
+            latencies.append(time.perf_counter_ns() - began)
+            for _ in range(min(latencies[-1] // dt, n_ticks - k)):  # the drive holds while the loop waits
+                cell.write(sent)
+                cell.step()
+                stalls += len(step_times) > 0
+                k += 1
+        if chunk is not None:
+            now = cell.t_ns
+            step_times = chunk.t_obs_ns + (np.arange(chunk.horizon, dtype=np.int64) + 1) * chunk.dt_ns
+            dropped += int(np.count_nonzero(step_times <= now))
+            executor.push(chunk, now)
+        if len(step_times) and _steps_left(step_times, cell.t_ns) == 0:
+            stalls += 1
+        sent = cell.write(executor.reference(cell.t_ns))
+        cell.step()
+        k += 1
+    if worker is not None:
+        worker.close()
+    ms = np.array(latencies) * 1e-6
+    return {
+        "mode": mode, "ticks": n_ticks, "chunks": len(latencies),
+        "latency_ms": {"mean": float(ms.mean()), "p50": float(np.median(ms)), "p99": float(np.percentile(ms, 99)),
+                       "max": float(ms.max())},
+        "stall_ticks": stalls, "stall_fraction": stalls / n_ticks,
+        "queue_depth_at_request": {"min": int(min(depths)), "mean": float(np.mean(depths))},
+        "stale_steps_dropped": dropped, "late_ticks": late,
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seconds", type=float, default=5.0, help="wall time per mode")
+    parser.add_argument("--latency-ms", type=float, default=100.0, help="policy time per call")
+    parser.add_argument("--horizon", type=int, default=50, help="steps of 20 ms per chunk")
+    args = parser.parse_args()
+    results = [run(mode, args.seconds, args.latency_ms * 1e-3, args.horizon) for mode in ("sync", "async")]
+    print(json.dumps({"benchmark": "inference", "policy_latency_ms": args.latency_ms, "horizon": args.horizon,
+                      "step_ms": 20, "threshold": THRESHOLD, "servo_period_ms": 1, "results": results}, indent=1))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,190 @@
+"""The guard layer against two common alternatives, on the arm cell; prints one JSON document.
+
+Three layers get the same joint reference (the executor's stitching of 20 Hz chunks of the
+arm's taught program) and send a setpoint at 1 kHz:
+
+* ``cellguard``: the tracker and envelope (pass-through inside the envelope, ruckig outside);
+* ``lowpass``: an exponential filter y += alpha (r - y), alpha chosen by bisection so that its
+  peak |acceleration| on the stream outside the envelope equals cellguard's there ("the same
+  smoothness");
+* ``relative_clamp``: LeRobot's ``max_relative_target``, each step clamped to
+  prev ± v_max·dt (the setting that matches the velocity limit).
+
+Two streams: ``inside``, the program slowed to 60 % of its speed so it lies inside every limit of
+the profile, and ``outside``, the program at its own speed (which exceeds the profile's
+shoulder-lift, wrist and gripper limits) with one chunk that disagrees with the plan by 50 mrad.
+Figures: limit violations (ticks whose finite-difference velocity or acceleration exceeds the
+limit by more than 0.2 % and 2 %, or position beyond the limit), tracking error against the
+reference, lag by cross-correlation of reference and setpoint velocity (inside only), and the
+per-tick cost of executor + envelope with the cell's forward kinematics (median, p99 [µs]),
+plus the cost of one ruckig call.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import ruckig
+
+from cellguard.control.envelope import Envelope, EnvelopeConfig
+from cellguard.control.executor import Executor
+from cellguard.policy.chunk import ActionChunk
+from cellguard.policy.scripted_arm import ScriptedArmPolicy
+from cellguard.robot.arm_cell import ArmPickPlace
+
+DT_NS = 1_000_000
+PERIOD_NS, LATENCY_NS, HORIZON, STEP_NS = 50_000_000, 10_000_000, 25, 20_000_000
+V_TOL, A_TOL = 2e-3, 2e-2
+
+
+def _program(cell: ArmPickPlace, speed: float):
+    policy = ScriptedArmPolicy(calibration=cell.context())
+    cell.begin_cycle(0)
+    policy._t0_ns = 0
+    policy._program = policy._plan(cell.observe())  # the cycle's taught waypoints, planned once
+    return lambda t_s: policy._at(np.asarray(t_s) * speed), 4.45 / speed
+
+
+def _chunks(program, duration_s: float, yank_at_s: float | None):
+    """(arrival tick, chunk) at 20 Hz; the chunk at ``yank_at_s`` disagrees with the plan by +50 mrad."""
+    out = []
+    for t_obs in range(0, round(duration_s * 1e9), PERIOD_NS):
+        steps = (t_obs + (np.arange(HORIZON) + 1) * STEP_NS) * 1e-9
+        actions, arrive = program(steps), t_obs + LATENCY_NS
+        if yank_at_s is not None and abs(t_obs * 1e-9 - yank_at_s) < 1e-9:
+            actions = actions + 0.05 * (np.arange(actions.shape[1]) < 5)  # the arm joints, not the gripper
+        out.append((arrive, ActionChunk(actions, t_obs, STEP_NS)))
+    return out
+
+
+def _reference_and_cellguard(cell, chunks, ticks):
+    """Executor reference and cellguard's setpoints per tick, and the per-tick cost [ns]."""
+    profile, q0 = cell.profile, cell.q_home
+    executor = Executor(profile, q0, DT_NS, tool=cell.tool_point)
+    envelope = Envelope(profile, q0, DT_NS, EnvelopeConfig(box=cell.workspace_box), tool=cell.tool_point)
+    ref, sp, cost = np.empty((ticks, profile.dof)), np.empty((ticks, profile.dof)), np.empty(ticks, dtype=np.int64)
+    arrivals = {}
+    for arrive, chunk in chunks:
+        arrivals[arrive] = executor.prepare(chunk)  # on the receiving thread, off the servo tick
+    for k in range(ticks):
+        t = k * DT_NS
+        began = time.perf_counter_ns()
+        if t in arrivals:
+            executor.push(arrivals[t], t)
+        r = executor.reference(t, envelope.scale)
+        s, _ = envelope.apply(t, r, None, last_chunk_ns=executor.last_chunk_ns, uncertainty=executor.uncertainty,
+                              tool_speed_ahead=executor.tool_speed_ahead(300_000_000))
+        cost[k] = time.perf_counter_ns() - began
+        ref[k], sp[k] = r, s
+    return ref, sp, cost
+
+
+def _lowpass(ref: np.ndarray, alpha: float) -> np.ndarray:
+    out = np.empty_like(ref)
+    y = ref[0].copy()
+    for k, r in enumerate(ref):
+        y += alpha * (r - y)
+        out[k] = y
+    return out
+
+
+def _relative_clamp(ref: np.ndarray, step: np.ndarray) -> np.ndarray:
+    out = np.empty_like(ref)
+    y = ref[0].copy()
+    for k, r in enumerate(ref):
+        y = y + np.clip(r - y, -step, step)
+        out[k] = y
+    return out
+
+
+def _derivatives(q: np.ndarray):
+    v = np.diff(q, axis=0) / (DT_NS * 1e-9)
+    return v, np.diff(v, axis=0) / (DT_NS * 1e-9)
+
+
+def _violations(q: np.ndarray, profile) -> dict:
+    v, a = _derivatives(q)
+    vmax, amax = profile.array("velocity"), profile.array("acceleration")
+    return {"position_ticks": int(((q < profile.q_min) | (q > profile.q_max)).any(axis=1).sum()),
+            "velocity_ticks": int((np.abs(v) > vmax * (1 + V_TOL)).any(axis=1).sum()),
+            "acceleration_ticks": int((np.abs(a) > amax * (1 + A_TOL)).any(axis=1).sum()),
+            "peak_velocity_ratio": float((np.abs(v) / vmax).max()),
+            "peak_acceleration_ratio": float((np.abs(a) / amax).max())}
+
+
+def _lag_ms(ref: np.ndarray, sp: np.ndarray, max_lag: int = 200) -> float:
+    """Lag of setpoint behind reference: the shift maximising the cross-correlation of their velocities [ms]."""
+    rv, sv = np.diff(ref, axis=0), np.diff(sp, axis=0)
+    lags = np.arange(0, max_lag + 1)
+    corr = [float(np.sum(rv[: len(rv) - k] * sv[k:])) for k in lags]
+    return float(lags[int(np.argmax(corr))]) * DT_NS * 1e-6
+
+
+def _p99_accel(q: np.ndarray) -> float:
+    return float(np.percentile(np.abs(_derivatives(q)[1]).max(axis=1), 99))
+
+
+def _peak_accel(q: np.ndarray, amax: np.ndarray) -> float:
+    """Largest |acceleration| as a fraction of each joint's limit."""
+    return float((np.abs(_derivatives(q)[1]) / amax).max())
+
+
+def _tune_alpha(ref: np.ndarray, target: float, amax: np.ndarray) -> float:
+    lo, hi = 1e-4, 1.0
+    for _ in range(30):
+        mid = np.sqrt(lo * hi)
+        lo, hi = (mid, hi) if _peak_accel(_lowpass(ref, mid), amax) < target else (lo, mid)
+    return lo
+
+
+def _ruckig_call_us(dof: int, n: int = 2000) -> dict:
+    otg, inp, out = ruckig.Ruckig(dof, 1e-3), ruckig.InputParameter(dof), ruckig.OutputParameter(dof)
+    inp.max_velocity, inp.max_acceleration, inp.max_jerk = [2.5] * dof, [12.0] * dof, [200.0] * dof
+    rng = np.random.default_rng(0)
+    times = np.empty(n)
+    for i in range(n):
+        inp.current_position, inp.current_velocity = rng.uniform(-1, 1, dof), rng.uniform(-2, 2, dof)
+        inp.current_acceleration, inp.target_position = rng.uniform(-5, 5, dof), rng.uniform(-1, 1, dof)
+        began = time.perf_counter_ns()
+        otg.update(inp, out)
+        times[i] = time.perf_counter_ns() - began
+    return {"median_us": float(np.median(times) / 1e3), "p99_us": float(np.percentile(times, 99) / 1e3)}
+
+
+def figures(quick: bool = False) -> dict:
+    """The comparison as one dict (``quick`` is accepted for the CLI; the run is short anyway, about 2 s)."""
+    cell = ArmPickPlace(seed=0)
+    profile = cell.profile
+    result: dict = {"cell": cell.name, "servo_hz": 1000, "chunk_hz": 20, "tolerance": {"velocity": V_TOL,
+                    "acceleration": A_TOL}}
+    streams = {}
+    for name, speed, yank in (("inside", 0.6, None), ("outside", 1.0, 1.5)):
+        program, duration = _program(cell, speed)
+        ticks = round(duration * 1e9 / DT_NS)
+        ref, sp, cost = _reference_and_cellguard(cell, _chunks(program, duration, yank), ticks)
+        streams[name] = (ref, sp, cost)
+    amax = profile.array("acceleration")
+    alpha = _tune_alpha(streams["outside"][0], _peak_accel(streams["outside"][1], amax), amax)
+    step = profile.array("velocity") * DT_NS * 1e-9
+    for name, (ref, sp, cost) in streams.items():
+        layers = {"cellguard": sp, "lowpass": _lowpass(ref, alpha), "relative_clamp": _relative_clamp(ref, step)}
+        block = {}
+        for layer, q in layers.items():
+            err = np.abs(q - ref)
+            entry = {"violations": _violations(q, profile), "tracking_error_max": float(err.max()),
+                     "tracking_error_rms": float(np.sqrt(np.mean(err**2))),
+                     "p99_acceleration": _p99_accel(q)}
+            if name == "inside":
+                entry["lag_ms"] = _lag_ms(ref, q)
+                entry["exact_ticks_fraction"] = float((q == ref).all(axis=1).mean())
+            block[layer] = entry
+        block["reference_violations"] = _violations(ref, profile)
+        result[name] = block
+    cost = np.concatenate([streams["inside"][2], streams["outside"][2]]) / 1e3
+    result["lowpass_alpha"] = alpha
+    result["tick_cost_us"] = {"median": float(np.median(cost)), "p99": float(np.percentile(cost, 99)),
+                              "max": float(cost.max()), "ticks": int(len(cost))}
+    result["ruckig_call_us"] = _ruckig_call_us(profile.dof)
+    return result
+

@@ -1,0 +1,91 @@
+"""A chunk's steps as one C2 curve: a not-a-knot cubic spline on uniform knots.
+
+The servo loop samples a chunk at 1 kHz between steps 10 to 50 ms apart. Linear interpolation
+would step the velocity at every knot (an acceleration spike of Δv/1 ms) and a C1 curve would
+step the acceleration (a jerk spike); a cubic spline is C2, so velocity and acceleration are
+continuous and the jerk is piecewise constant. Not-a-knot end conditions keep the first
+segments accurate, which matters because the executor plays a chunk mostly near its start.
+The coefficients are computed once per chunk (off the servo path); evaluation is a Horner step.
+"""
+
+from __future__ import annotations
+
+import copy
+from functools import lru_cache
+
+import numpy as np
+
+
+@lru_cache(maxsize=64)
+def _second_derivative_map(n: int) -> np.ndarray:
+    """Matrix K with M = K @ y / h²: knot second derivatives of the not-a-knot spline, shape (n, n)."""
+    a = np.zeros((n, n))
+    b = np.zeros((n, n))
+    for i in range(1, n - 1):
+        a[i, i - 1:i + 2] = (1.0, 4.0, 1.0)
+        b[i, i - 1:i + 2] = (6.0, -12.0, 6.0)
+    a[0, 0:3] = (1.0, -2.0, 1.0)  # third derivative continuous across knot 1
+    a[n - 1, n - 3:n] = (1.0, -2.0, 1.0)  # and across knot n-2
+    k = np.linalg.solve(a, b)
+    k.setflags(write=False)
+    return k
+
+
+class ChunkCurve:
+    """Cubic through ``points`` (n, D) at ``t0_ns + i * h_ns``; held at the ends beyond the knots.
+
+    ``coefficients`` has shape (n-1, 4, D): position, velocity, acceleration/2 and jerk/6 of
+    each segment at its start, in [rad] or [m] per seconds^k.
+    """
+
+    def __init__(self, t0_ns: int, h_ns: int, points: np.ndarray):
+        self.t0_ns, self.h_ns = int(t0_ns), int(h_ns)
+        self.points = points
+        self.end_ns = self.t0_ns + (len(points) - 1) * self.h_ns
+        self._h = h_ns * 1e-9
+        self.coefficients = self._fit(points, self._h)
+
+    def shifted(self, t0_ns: int) -> ChunkCurve:
+        """The same curve starting at ``t0_ns`` (no refit)."""
+        other = copy.copy(self)
+        other.t0_ns, other.end_ns = int(t0_ns), int(t0_ns) + (len(self.points) - 1) * self.h_ns
+        return other
+
+    @staticmethod
+    def _fit(y: np.ndarray, h: float) -> np.ndarray:
+        n = len(y)
+        if n == 1:  # a hold: one constant segment
+            y = np.vstack([y, y])
+            n = 2
+        if n == 2:
+            m = np.zeros_like(y)
+        elif n == 3:
+            m = np.repeat(((y[0] - 2.0 * y[1] + y[2]) / (h * h))[None], 3, axis=0)
+        else:
+            m = _second_derivative_map(n) @ y / (h * h)
+        c = np.empty((n - 1, 4, y.shape[1]))
+        c[:, 0] = y[:-1]
+        c[:, 1] = (y[1:] - y[:-1]) / h - h * (2.0 * m[:-1] + m[1:]) / 6.0
+        c[:, 2] = m[:-1] / 2.0
+        c[:, 3] = (m[1:] - m[:-1]) / (6.0 * h)
+        return c
+
+    def state(self, t_ns: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Position, velocity and acceleration at ``t_ns`` (each (D,)); zero rates once held."""
+        if t_ns >= self.end_ns:
+            zero = np.zeros_like(self.points[-1])
+            return self.points[-1], zero, zero
+        k = max((t_ns - self.t0_ns) // self.h_ns, 0)
+        u = (t_ns - self.t0_ns - k * self.h_ns) * 1e-9
+        c = self.coefficients[k]
+        return (((c[3] * u + c[2]) * u + c[1]) * u + c[0], (3.0 * c[3] * u + 2.0 * c[2]) * u + c[1],
+                6.0 * c[3] * u + 2.0 * c[2])
+
+    def at(self, t_ns: int) -> np.ndarray:
+        """Position at ``t_ns``: the first segment extended before the first knot, held after the last."""
+        if t_ns >= self.end_ns:
+            return self.points[-1]
+        k = max((t_ns - self.t0_ns) // self.h_ns, 0)
+        u = (t_ns - self.t0_ns - k * self.h_ns) * 1e-9
+        c = self.coefficients[k]
+        return ((c[3] * u + c[2]) * u + c[1]) * u + c[0]

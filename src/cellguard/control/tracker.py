@@ -1,0 +1,258 @@
+"""Tracker: the setpoint that follows the reference within the velocity, acceleration and jerk limits.
+
+Transparency first. Each tick, per joint, the reference sample is checked as the next
+setpoint: if the finite-difference velocity, acceleration and jerk of the setpoint sequence
+with that sample appended are inside the limits, and the joint could still stop before its
+soft position limit from there, the sample is sent exactly as it is (zero added delay, no
+filter). Only the joints where it is not are handed to ruckig (community edition), each joint
+on its own (no synchronisation, so one joint's intervention leaves the others untouched):
+
+* ``offset``: ruckig drives the *error* (setpoint minus reference) to zero within the headroom
+  the reference leaves, so the setpoint lands exactly back on a moving reference and hands
+  back to pass-through. Chasing the reference's position instead would lag it by velocity
+  times ruckig's horizon for as long as it moves.
+* ``absolute``: ruckig's velocity interface toward the reference's velocity plus a position
+  correction (the sample clipped to the soft limits), within the full limits; used when the offset candidate does not
+  fit (the reference itself is too fast, or it heads past a limit).
+* ``stop``: ruckig's velocity interface to zero velocity, each joint time-optimal.
+
+Position limits are never clamped: a sample is refused when the stopping distance from its
+velocity and acceleration no longer fits before the soft limit (a jerk-limited bound, more
+than v²/2a), and the refusal hands over to ruckig while a stop still fits. This edition of
+ruckig ignores position limits and raises on NaN, so it only ever sees finite, clipped inputs,
+and an error it raises becomes a stop, never an exception on the servo path.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import ruckig
+
+PASS, OFFSET, ABSOLUTE, STOP = 0, 1, 2, 3
+GAIN = 8.0  # [1/s] position feedback of the absolute recovery; slow against the jerk ramps (A/J ~ 60 ms)
+MODE_NAMES = ("pass", "offset", "absolute", "stop")
+
+
+class Tracker:
+    """Setpoint state: position and its finite-difference velocity and acceleration, per joint.
+
+    ``v_max``, ``a_max``, ``j_max``: shape (D,) [unit/s], [unit/s²], [unit/s³]; ``lo``, ``hi``:
+    soft position limits (D,); ``dt``: servo period [s]. ``mode`` (D,) says who drove each joint
+    on the last tick (PASS, OFFSET, ABSOLUTE, STOP).
+    """
+
+    def __init__(self, q0: np.ndarray, v_max, a_max, j_max, lo, hi, dt: float):
+        self.dt, self._inv_dt = dt, 1.0 / dt
+        self.v_max, self.a_max, self.j_max = (np.array(x, dtype=np.float64) for x in (v_max, a_max, j_max))
+        self.lo, self.hi = np.array(lo, dtype=np.float64), np.array(hi, dtype=np.float64)
+        self._limits = np.stack([self.v_max, self.a_max, self.j_max]) * (1.0 + 1e-9) + 1e-12
+        self._half_inv_j = 0.5 / self.j_max
+        self._tail = self.a_max**3 / (6.0 * self.j_max**2)  # distance of the final jerk-up phase
+        self._v3 = 0.5 * self.a_max**2 / self.j_max  # the velocity the final jerk-up phase removes
+        self._v3sq, self._inv_2a = self._v3**2, 0.5 / self.a_max
+        # a bound of the stopping distance at speed |v| for any |a| <= a_max: c0 + c1 |v| + v²/2a
+        t1 = 2.0 * self.a_max / self.j_max
+        self._far0, self._far1 = 0.5 * self.a_max * t1 * t1 + self._tail, t1
+        dof = len(self.v_max)
+        self._absolute_in, self._offset_in, self._stop_in = (
+            self._input(dof, ruckig.ControlInterface.Velocity), self._input(dof, ruckig.ControlInterface.Position),
+            self._input(dof, ruckig.ControlInterface.Velocity))
+        # one generator and output per input: ruckig continues the trajectory held in the output
+        # when it judges the input unchanged, and a shared output was seen to return another plan's
+        self._otg = {id(inp): (ruckig.Ruckig(dof, dt), ruckig.OutputParameter(dof))
+                     for inp in (self._absolute_in, self._offset_in, self._stop_in)}
+        self._stop_in.target_velocity = np.zeros(dof)
+        self._stop_in.target_acceleration = self._absolute_in.target_acceleration = np.zeros(dof)
+        self._fd = np.empty((3, dof))
+        self.failed: str | None = None
+        self.reset(q0)
+
+    def _input(self, dof: int, interface) -> ruckig.InputParameter:
+        inp = ruckig.InputParameter(dof)
+        inp.control_interface = interface
+        inp.synchronization = ruckig.Synchronization.No
+        inp.max_velocity, inp.max_acceleration, inp.max_jerk = self.v_max, self.a_max, self.j_max
+        return inp
+
+    def reset(self, q: np.ndarray) -> None:
+        """Standstill at ``q`` (D,)."""
+        self.p = np.array(q, dtype=np.float64)
+        self.v = np.zeros_like(self.p)
+        self.a = np.zeros_like(self.p)
+        self.mode = np.zeros(len(self.p), dtype=np.int8)
+        self._tv = np.zeros_like(self.p)  # ruckig's own velocity and acceleration of joints it drove
+        self._ta = np.zeros_like(self.p)
+        self._ref = (self.p.copy(), self.v.copy(), self.a.copy())  # last reference sample, its FD v, a
+
+    # -- the checks ------------------------------------------------------------------------
+    def _stop_distance(self, v, a):
+        """Distance [unit] a jerk-limited stop from velocity ``v`` and acceleration ``a`` covers in
+        the + direction (arrays (D,) or (2, D)): jerk down to -a_max, hold it, jerk back to zero
+        as velocity reaches zero. Exact for that profile; where the velocity runs out before
+        -a_max is reached it falls back to a looser bound, so it is never shorter than ruckig's
+        time-optimal stop.
+        """
+        amax, jmax = self.a_max, self.j_max
+        t1 = (np.maximum(a, -amax) + amax) / jmax
+        v1 = v + t1 * (a - 0.5 * jmax * t1)
+        full = t1 * (v + t1 * (0.5 * a - jmax * t1 / 6.0)) + (v1 * v1 - self._v3sq) * self._inv_2a + self._tail
+        loose = np.maximum(v, 0.0) * t1 + 0.5 * np.maximum(a, 0.0) * t1 * t1 + self._tail
+        return np.where(v1 >= self._v3, full, np.where((v > 0.0) | (a > 0.0), loose, 0.0))
+
+    def stop_fits(self, q, v, a) -> np.ndarray:
+        """Per joint (D,): would a jerk-limited stop from (q, v, a) end inside the soft limits?"""
+        d = self._stop_distance(np.stack((v, -v)), np.stack((a, -a)))
+        return (q + d[0] <= self.hi) & (q - d[1] >= self.lo)
+
+    def fits(self, q: np.ndarray) -> np.ndarray:
+        """Per joint (D,): can ``q`` be the next setpoint?
+
+        Yes when its finite-difference v, a, j are inside the limits, its acceleration can be
+        brought to zero before the velocity limit, and a stop from it still fits before the soft
+        position limits.
+        """
+        fd = self._fd
+        np.subtract(q, self.p, out=fd[0])
+        fd[0] *= self._inv_dt
+        np.subtract(fd[0], self.v, out=fd[1])
+        fd[1] *= self._inv_dt
+        np.subtract(fd[1], self.a, out=fd[2])
+        fd[2] *= self._inv_dt
+        ok = (np.abs(fd) <= self._limits).all(axis=0)
+        # the acceleration must still be brought to zero (jerk-limited) before the velocity limit
+        ok &= np.abs(fd[0] + fd[1] * np.abs(fd[1]) * self._half_inv_j) <= self._limits[0]
+        speed = np.abs(fd[0])
+        far = self._far0 + speed * (self._far1 + speed * self._inv_2a)
+        if ((q - far) < self.lo).any() or ((q + far) > self.hi).any():  # near a limit: the exact check
+            ok &= self.stop_fits(q, fd[0], fd[1])
+        return ok
+
+    # -- one tick --------------------------------------------------------------------------
+    def follow(self, r: np.ndarray) -> np.ndarray:
+        """The next setpoint (D,) for the finite reference sample ``r`` (D,); sets ``mode``."""
+        previous = self._ref
+        rv = (r - previous[0]) * self._inv_dt
+        ra = (rv - previous[1]) * self._inv_dt
+        self._ref = (r, rv, ra)
+        ok = self.fits(r)
+        if ok.all():
+            return self._commit(r, None, None, PASS)
+        q, mode = r.copy(), np.where(ok, PASS, ABSOLUTE).astype(np.int8)
+        tv, ta = self._tv.copy(), self._ta.copy()
+        recovering = ~ok & ((self.mode == OFFSET) | (self.mode == ABSOLUTE))
+        if recovering.any() and self._offset(r, rv, ra, previous):
+            out = self._out
+            cand = r + out.new_position
+            good = recovering & self.fits(cand)
+            q[good], mode[good] = cand[good], OFFSET
+            tv[good], ta[good] = (np.asarray(out.new_velocity) + rv)[good], (np.asarray(out.new_acceleration) + ra)[good]
+        rest = mode == ABSOLUTE
+        if rest.any():
+            if not self._absolute(r, rv):
+                return self.stop()
+            out = self._out
+            nq, nv, na = np.asarray(out.new_position), np.asarray(out.new_velocity), np.asarray(out.new_acceleration)
+            q[rest], tv[rest], ta[rest] = nq[rest], nv[rest], na[rest]
+            brake = rest & ~self.stop_fits(nq, nv, na)  # heading past a soft limit: brake these joints
+            if brake.any() and self._brake():
+                out = self._out
+                q[brake], mode[brake] = np.asarray(out.new_position)[brake], STOP
+                tv[brake], ta[brake] = np.asarray(out.new_velocity)[brake], np.asarray(out.new_acceleration)[brake]
+        return self._commit(q, tv, ta, mode)
+
+    def stop(self, r: np.ndarray | None = None) -> np.ndarray:
+        """One tick of a time-optimal stop of every joint (velocity interface to zero).
+
+        ``r``, this tick's reference sample, keeps the reference's derivatives current for when
+        tracking resumes.
+        """
+        if r is not None:
+            self._ref = (r, np.zeros_like(r), np.zeros_like(r))
+        zero = np.zeros_like(self.p)
+        if not self._brake():  # cannot happen with finite inputs; hold rather than raise
+            return self._commit(self.p.copy(), zero, zero, STOP)
+        out = self._out
+        v, a = np.asarray(out.new_velocity), np.asarray(out.new_acceleration)
+        if (np.abs(v) < 1e-9).all() and (np.abs(a) < 1e-6).all():  # at rest: hold exactly, no residual drift
+            return self._commit(self.p.copy(), zero, zero, STOP)
+        return self._commit(np.asarray(out.new_position), v, a, STOP)
+
+    def hold(self) -> np.ndarray:
+        """Standstill where the setpoint is, at once: power is removed, nothing is driven."""
+        self.reset(self.p)
+        self.mode[:] = STOP
+        return self.p.copy()
+
+    @property
+    def stopped(self) -> bool:
+        """Standstill: the last two setpoints are equal and the acceleration is zero."""
+        return not (self.v.any() or self.a.any())
+
+    # -- ruckig ------------------------------------------------------------------------------
+    def _handover(self, offset: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """ruckig's start state: its own where the same kind of plan drove the joint last tick,
+        else what the samples imply (velocity at the end of the last tick). A replanning tracker
+        must start from its own state: restarting from a lagging estimate each tick makes it
+        overshoot. An offset state rides on the reference's estimated derivatives, so a plan on
+        absolute positions starts from the samples instead.
+        """
+        own = self.mode != PASS if offset else self.mode >= ABSOLUTE
+        v = np.where(own, self._tv, self.v + self.a * (0.5 * self.dt))
+        a = np.where(own, self._ta, self.a)
+        if not offset:
+            v, a = np.clip(v, -self.v_max, self.v_max), np.clip(a, -self.a_max, self.a_max)
+        return v, a
+
+    def _brake(self) -> bool:
+        inp = self._stop_in
+        v, a = self._handover()
+        inp.current_position, inp.current_velocity, inp.current_acceleration = self.p, v, a
+        return self._step(inp)
+
+    def _absolute(self, r, rv) -> bool:
+        """ruckig's velocity interface toward the velocity that closes on the reference sample.
+
+        Target velocity: the sample's velocity plus ``GAIN`` times the position error (the
+        sample clipped to the soft limits), within the limit. A position target with the
+        sample's velocity as target state would be time-optimal for a *fixed* target, and may
+        back away first to get a run-up; a moving target makes that run-up permanent.
+        """
+        inp = self._absolute_in
+        v, a = self._handover()
+        inp.current_position, inp.current_velocity, inp.current_acceleration = self.p, v, a
+        target = np.clip(r, self.lo, self.hi)
+        closing = np.where(target == r, rv, 0.0) + GAIN * (target - self.p)
+        inp.target_velocity = np.clip(closing, -self.v_max, self.v_max) * 0.99
+        return self._step(inp)
+
+    def _offset(self, r, rv, ra, previous) -> bool:
+        """ruckig on the error e = setpoint - reference, from its state now to zero."""
+        v, a = self._handover(offset=True)
+        inp = self._offset_in
+        inp.current_position = self.p - previous[0]
+        inp.current_velocity = v - previous[1]
+        inp.current_acceleration = a - previous[2]
+        inp.max_velocity = np.maximum(self.v_max - np.abs(rv), 0.05 * self.v_max)
+        inp.max_acceleration = np.maximum(self.a_max - np.abs(ra), 0.05 * self.a_max)
+        inp.max_jerk = np.maximum(self.j_max - np.abs(ra - previous[2]) * self._inv_dt, 0.05 * self.j_max)
+        inp.target_position = np.zeros_like(r)
+        return self._step(inp)
+
+    def _step(self, inp) -> bool:
+        otg, self._out = self._otg[id(inp)]
+        try:
+            result = otg.update(inp, self._out)
+        except (ruckig.RuckigError, ValueError) as exc:  # ValueError: a result code the binding does not name
+            self.failed = str(exc).strip().splitlines()[0]
+            otg.reset()
+            return False
+        return result in (ruckig.Result.Working, ruckig.Result.Finished)
+
+    def _commit(self, q: np.ndarray, tv, ta, mode) -> np.ndarray:
+        v = (q - self.p) * self._inv_dt
+        self.a = (v - self.v) * self._inv_dt
+        self.v, self.p = v, q
+        self.mode[:] = mode
+        if tv is not None:
+            self._tv, self._ta = tv, ta
+        return q

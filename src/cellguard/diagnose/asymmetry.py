@@ -1,0 +1,150 @@
+"""Mirrored-motion asymmetry: each motion against its mirror, for cells with a symmetry map.
+
+A left turn on the left legs should look like a right turn on the right legs. So a per-joint
+feature of a left joint in a left turn is compared with the same feature of its mirror joint
+in a right turn (and the other way round); per-leg features (contact duty, step timing) use
+the legs the symmetry map implies (``fl_hip``/``fr_hip`` -> legs ``fl``/``fr``). Motion-level
+features (yaw rate reached over commanded) are compared between the two mirrored motions.
+No baseline is needed: the robot is its own reference, so a fault present since acceptance
+still shows.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from cellguard.diagnose.baseline import MAD_TO_SIGMA, scale_floor
+from cellguard.diagnose.cycles import Cycle
+from cellguard.embodiment.profile import SymmetryPair
+
+MIRROR_LABEL = {"left": "right", "right": "left"}
+MOTION_FEATURES = ("yaw_rate_ratio", "speed_reached", "cycle_time_s")
+MIN_RELATIVE = 0.05  # a mirrored difference below 5 % is not an asymmetry
+MIN_T = 4.0  # and it must stand this many standard errors above the cycle-to-cycle noise
+EXTREMES = ("current_peak", "tracking_max")  # one sample per cycle: too phase-dependent to mirror
+
+
+@dataclass(frozen=True)
+class MirrorDifference:
+    """``feature`` on the left member against its mirror; ``relative`` = (left - right) / mean."""
+
+    feature: str
+    left: str  # e.g. "tracking_rms.fl_hip during left turns"
+    right: str
+    left_value: float
+    right_value: float
+    relative: float
+    t: float  # difference over its standard error
+
+    @property
+    def significant(self) -> bool:
+        return abs(self.relative) >= MIN_RELATIVE and abs(self.t) >= MIN_T
+
+    def to_dict(self) -> dict:
+        return {"feature": self.feature, "left": self.left, "right": self.right,
+                "left_value": round(self.left_value, 6), "right_value": round(self.right_value, 6),
+                "relative": round(self.relative, 4), "t": round(self.t, 1)}
+
+
+@dataclass(frozen=True)
+class Asymmetry:
+    """The side that differs (``left``, ``right`` or None), its joints, and every comparison."""
+
+    side: str | None
+    joints: tuple[str, ...]
+    differences: tuple[MirrorDifference, ...]
+    evidence: tuple[str, ...]
+
+    @property
+    def significant(self) -> tuple[MirrorDifference, ...]:
+        return tuple(d for d in self.differences if d.significant)
+
+    def to_dict(self) -> dict:
+        return {"side": self.side, "joints": list(self.joints), "evidence": list(self.evidence),
+                "differences": [d.to_dict() for d in self.significant]}
+
+
+def mirror_map(pairs: Sequence[SymmetryPair]) -> dict[str, str]:
+    """Left member -> right member, for joints and for the legs their names imply."""
+    out = {p.left: p.right for p in pairs}
+    for p in pairs:
+        a, b = p.left, p.right
+        n = 0
+        while n < min(len(a), len(b)) and a[len(a) - 1 - n] == b[len(b) - 1 - n]:
+            n += 1
+        if 0 < n < min(len(a), len(b)):
+            out.setdefault(a[: len(a) - n].rstrip("_"), b[: len(b) - n].rstrip("_"))
+    return out
+
+
+def mirrored_asymmetry(cycles: Sequence[Cycle], pairs: Sequence[SymmetryPair]) -> Asymmetry | None:
+    """Compare mirrored motions over ``cycles``; None when the cell has no symmetry map."""
+    if not pairs or not cycles:
+        return None
+    mirror = mirror_map(pairs)
+    joints = {p.left for p in pairs} | {p.right for p in pairs}
+    labels = sorted({c.label for c in cycles if c.label in MIRROR_LABEL})
+    groups = {lab: [c for c in cycles if c.label == lab] for lab in labels} if len(labels) == 2 else {"": cycles}
+    names = sorted({k for c in cycles for k in c.features})
+    diffs: list[MirrorDifference] = []
+    for name in names:
+        kind, _, member = name.partition(".")
+        if kind in EXTREMES or member not in mirror or f"{kind}.{mirror[member]}" not in names:
+            continue
+        other = f"{kind}.{mirror[member]}"
+        for lab, group in groups.items():
+            mirror_group = groups[MIRROR_LABEL[lab]] if lab else group
+            suffix = f" during {lab} turns" if lab else ""
+            mirror_suffix = f" during {MIRROR_LABEL[lab]} turns" if lab else ""
+            d = _compare(name, other, group, mirror_group, f"{name}{suffix}", f"{other}{mirror_suffix}")
+            if d is not None:
+                diffs.append(d)
+    if len(labels) == 2:
+        for name in MOTION_FEATURES:
+            if name in names:
+                d = _compare(name, name, groups["left"], groups["right"], f"{name} in left turns",
+                             f"{name} in right turns")
+                if d is not None:
+                    diffs.append(d)
+    return _judge(tuple(diffs), mirror, joints)
+
+
+def _compare(a: str, b: str, ga: Sequence[Cycle], gb: Sequence[Cycle], la: str, lb: str) -> MirrorDifference | None:
+    x = np.array([c.features[a] for c in ga if a in c.features])
+    y = np.array([c.features[b] for c in gb if b in c.features])
+    if len(x) < 2 or len(y) < 2:
+        return None
+    mx, my = float(np.median(x)), float(np.median(y))
+    mean = 0.5 * (abs(mx) + abs(my))
+    if mean < 1e-9 or abs(abs(mx) - abs(my)) < 2.0 * scale_floor(a, mean):
+        return None  # smaller than a change that matters for this kind of feature
+    sx, sy = (max(MAD_TO_SIGMA * float(np.median(np.abs(v - np.median(v)))), 0.005 * mean) for v in (x, y))
+    se = 1.2533 * np.sqrt(sx * sx / len(x) + sy * sy / len(y))  # standard error of a median
+    return MirrorDifference(a, la, lb, mx, my, (abs(mx) - abs(my)) / mean, (abs(mx) - abs(my)) / se)
+
+
+def _judge(diffs: tuple[MirrorDifference, ...], mirror: dict[str, str], joint_names: set[str]) -> Asymmetry:
+    """Name the side whose joints track worse than their mirrors, and say by how much."""
+    sig = [d for d in diffs if d.significant]
+    joint_sig = [d for d in sig if d.feature.startswith("tracking_")]
+    vote = sum(np.sign(d.relative) for d in joint_sig)
+    side = None if not sig else "left" if vote > 0 else "right" if vote < 0 else None
+    if side is None and sig:
+        side = "left" if sum(np.sign(d.relative) for d in sig if "." in d.feature) > 0 else "right"
+    joints: list[str] = []
+    for d in sorted(sig, key=lambda d: -abs(d.relative)):
+        if "." not in d.feature:
+            continue
+        member = d.feature.split(".", 1)[1]
+        name = member if side == "left" else mirror.get(member, member)
+        if name not in joints and name in joint_names:
+            joints.append(name)
+    evidence = []
+    for d in sorted(sig, key=lambda d: -abs(d.relative))[:8]:
+        evidence.append(f"{d.left} {d.left_value:.4g} vs {d.right} {d.right_value:.4g} ({d.relative * 100:+.0f} %)")
+    if side:
+        evidence.insert(0, f"the {side} side differs from its mirror in {len(sig)} comparison(s)")
+    return Asymmetry(side, tuple(joints), diffs, tuple(evidence))

@@ -1,0 +1,272 @@
+"""Probable cause: the pattern of what changed, read the way a technician reads it.
+
+Rules from the physics of the cell, not a model of the injected faults (the diagnosis never
+sees them). Each alarmed feature belongs to a family; each family with alarms is one
+candidate finding, classified from the size and sign of its changes over the faulted cycles:
+
+- geometry (camera-seen part and fixture, grasp pose, part-to-tool offset at grasp): the
+  real part position at grasp is the grasp pose plus the offset. If the camera saw the part
+  move and the part really moved as far, the fixture moved; if the camera saw it move and it
+  did not, the camera moved; if the camera saw nothing and the part sat off the tool with the
+  joints' grasp pose unchanged, the tool slipped on its flange.
+- one joint (current, tracking error): friction raises the current the joint needs more than
+  its tracking error; a weaker servo gain raises the tracking error more than the current.
+- policy timing (latency, stale chunks) and policy output (rejected chunks) speak for
+  themselves; joint changes that start with a latency change are its consequence.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from cellguard.diagnose.baseline import Baseline, feature_matrix
+from cellguard.diagnose.cycles import Cycle
+from cellguard.diagnose.drift import DriftAlarm
+
+CAUSES = ("fixture_shift", "friction", "servo", "camera_shift", "tool_slip", "policy_latency", "policy_output",
+          "unknown")
+GEOMETRY = ("part_seen_", "fixture_seen_", "grasp_tcp_", "grasp_offset_", "grasp_q.")
+OUTCOME = ("success", "grasped", "place_error_mm", "timed_out")
+LATENCY = ("latency_mean_ms", "latency_max_ms", "stale_chunks")
+SIGNIFICANT_MM = 0.3  # [mm] a geometric change smaller than this is noise at this camera
+CONCURRENT = 2  # [cycles] changes this close together are one episode
+UNCHANGED_Z = 3.0  # |median residual| below this, in baseline scales, reads as "unchanged"
+
+
+@dataclass(frozen=True)
+class Finding:
+    """A probable cause from ``cycle`` on, with a confidence in [0, 1] and the evidence in words."""
+
+    cause: str
+    cycle: int
+    confidence: float
+    evidence: tuple[str, ...]
+    signals: tuple[str, ...] = ()
+    joints: tuple[str, ...] = ()
+
+    def to_dict(self) -> dict:
+        out = {"cause": self.cause, "cycle": self.cycle, "confidence": round(self.confidence, 2),
+               "evidence": list(self.evidence), "signals": list(self.signals)}
+        if self.joints:
+            out["joints"] = list(self.joints)
+        return out
+
+
+def family(signal: str) -> str:
+    """The group a feature belongs to: ``geometry``, ``latency``, ``output``, ``joint:<name>`` ..."""
+    if signal.startswith(GEOMETRY):
+        return "geometry"
+    if signal in OUTCOME:
+        return "outcome"
+    if signal in LATENCY:
+        return "latency"
+    if signal in ("chunks_rejected", "interventions"):
+        return "output"
+    if "." in signal and signal.split(".", 1)[0] in ("current_peak", "current_rms", "tracking_rms", "tracking_max"):
+        return "joint:" + signal.split(".", 1)[1]
+    return "other"
+
+
+class _Window:
+    """Changes over the faulted cycles of one episode: median minus baseline, in units and scales."""
+
+    def __init__(self, baseline: Baseline, cycles: Sequence[Cycle], z: np.ndarray):
+        self.baseline, self.cycles, self.z = baseline, cycles, z
+        centre, _ = baseline.centre_and_scale(cycles)
+        self._d = feature_matrix(cycles, baseline.names) - centre  # change from the motion's baseline
+
+    def delta(self, name: str, start: int) -> float:
+        """Median change of ``name`` over cycles >= ``start`` [its unit]; NaN if never read."""
+        if name not in self.baseline.names:
+            return float("nan")
+        j = self.baseline.names.index(name)
+        rows = [i for i, c in enumerate(self.cycles) if c.index >= start]
+        col = np.where(np.isnan(self.z[rows, j]), np.nan, self._d[rows, j])  # z is NaN at another load
+        col = col[~np.isnan(col)]
+        return float(np.median(col)) if len(col) else float("nan")
+
+    def zmed(self, name: str, start: int) -> float:
+        d = self.delta(name, start)
+        return d / self.baseline.scale(name) if np.isfinite(d) else float("nan")
+
+    def relative(self, name: str, start: int) -> float:
+        d = self.delta(name, start)
+        m = self.baseline.median(name) if name in self.baseline.names else 0.0
+        return d / abs(m) if np.isfinite(d) and m else float("nan")
+
+    def xy(self, stem: str, start: int) -> np.ndarray | None:
+        v = np.array([self.delta(f"{stem}_x_mm", start), self.delta(f"{stem}_y_mm", start)])
+        return v if np.all(np.isfinite(v)) else None
+
+
+def name_causes(baseline: Baseline, cycles: Sequence[Cycle], z: np.ndarray, alarms: Sequence[DriftAlarm],
+                rejected: Sequence[tuple[int, str]] = ()) -> list[Finding]:
+    """Findings from the drift alarms over ``cycles`` (those after the baseline), earliest first.
+
+    ``rejected`` lists (cycle, reason) of chunks the guard refused (non-finite or malformed output).
+    """
+    w = _Window(baseline, cycles, z)
+    groups: dict[str, list[DriftAlarm]] = {}
+    for a in alarms:
+        if a.signal != "multivariate":
+            groups.setdefault(family(a.signal), []).append(a)
+    findings: list[Finding] = []
+    if rejected:
+        first = min(c for c, _ in rejected)
+        n = len({c for c, _ in rejected})
+        findings.append(Finding("policy_output", first, 0.95, (
+            f"the guard rejected {len(rejected)} policy chunk(s) in {n} cycle(s), first in cycle {first}: "
+            f"{rejected[0][1]}", "a policy that emits non-finite or malformed actions"), ("chunks_rejected",)))
+    latency_at = None
+    if "latency" in groups:
+        f = _latency(w, groups.pop("latency"))
+        latency_at = f.cycle
+        findings.append(f)
+    groups.pop("output", None)
+    outcome = groups.pop("outcome", [])
+    if "geometry" in groups:
+        findings.append(_geometry(w, groups.pop("geometry"), outcome))
+        outcome = []
+    joint_groups = {k.split(":", 1)[1]: v for k, v in groups.items() if k.startswith("joint:")}
+    if latency_at is not None:
+        joint_groups = {j: v for j, v in joint_groups.items() if abs(_onset(v) - latency_at) > CONCURRENT}
+    findings.extend(_joints(w, joint_groups))
+    other = [a for k, v in groups.items() if not k.startswith("joint:") for a in v] + outcome
+    if other and not findings:
+        findings.append(Finding("unknown", _onset(other), 0.3, tuple(
+            f"{a.signal} went {'up' if a.direction > 0 else 'down'} from cycle {a.onset} "
+            f"({_fmt(w.delta(a.signal, a.onset))} vs baseline)" for a in other[:4]) + (
+            "no pattern of a known cause",), tuple(sorted({a.signal for a in other}))))
+    elif other:
+        first = min(findings, key=lambda f: abs(f.cycle - _onset(other)))
+        extra = tuple(f"also {a.signal} {'up' if a.direction > 0 else 'down'} "
+                      f"({_fmt(w.delta(a.signal, a.onset))})" for a in other[:3])
+        findings[findings.index(first)] = Finding(first.cause, first.cycle, first.confidence,
+                                                  first.evidence + extra, first.signals, first.joints)
+    return sorted(findings, key=lambda f: (f.cycle, f.cause))
+
+
+def _onset(alarms: Sequence[DriftAlarm]) -> int:
+    """The episode's start: the median change point of its alarms (robust to one early CUSUM)."""
+    return int(np.median([a.onset for a in alarms]))
+
+
+def _latency(w: _Window, alarms: list[DriftAlarm]) -> Finding:
+    start = _onset(alarms)
+    base = w.baseline.median("latency_mean_ms") if "latency_mean_ms" in w.baseline.names else float("nan")
+    d = w.delta("latency_mean_ms", start)
+    stale = w.delta("stale_chunks", start)
+    evidence = [f"policy latency {base + d:.0f} ms per chunk vs {base:.0f} ms at acceptance"]
+    if np.isfinite(stale) and stale > 0:
+        evidence.append(f"{stale:.0f} more stale chunk steps dropped per cycle")
+    evidence.append("late chunks answer old observations, so the arm tracks a stale plan")
+    conf = 0.95 if np.isfinite(d) and d > 5.0 else 0.6
+    return Finding("policy_latency", start, conf, tuple(evidence), tuple(sorted({a.signal for a in alarms})))
+
+
+def _geometry(w: _Window, alarms: list[DriftAlarm], outcome: list[DriftAlarm]) -> Finding:
+    start = _onset(alarms)
+    signals = tuple(sorted({a.signal for a in alarms + outcome}))
+    seen_parts = [v for v in (w.xy("part_seen", start), w.xy("fixture_seen", start)) if v is not None]
+    seen = np.mean(seen_parts, axis=0) if seen_parts else np.zeros(2)
+    tcp = w.xy("grasp_tcp", start)
+    off = w.xy("grasp_offset", start)
+    tcp = np.zeros(2) if tcp is None else tcp
+    off = np.zeros(2) if off is None else off
+    real = tcp + off  # where the part really sat at grasp, relative to acceptance
+    current = _unchanged_currents(w, start)
+    tail = [current] if current else []
+    tail += [f"success fell to {np.mean([c.success for c in w.cycles if c.index >= start]):.0%} of cycles"
+             ] if any(a.signal in ("success", "grasped") for a in outcome) else []
+    if np.linalg.norm(seen) >= SIGNIFICANT_MM:
+        d_fixture, d_camera = float(np.linalg.norm(seen - real)), float(np.linalg.norm(real))
+        moved = d_fixture <= d_camera
+        share = (d_camera if moved else d_fixture) / max(d_fixture + d_camera, 1e-9)
+        conf = _squash(share)
+        words = (f"camera-seen part and fixture moved {_vec(seen)}", f"grasp pose moved {_vec(tcp)}",
+                 f"part-to-tool offset at grasp changed {_vec(off)}")
+        if moved:
+            why = f"the part really sat {_vec(real)} from its acceptance place, as the camera saw: the fixture moved"
+            return Finding("fixture_shift", start, conf, words + (why,) + tuple(tail), signals)
+        why = (f"the part really sat only {_vec(real)} from its acceptance place: the camera moved "
+               "(its calibration no longer holds)")
+        return Finding("camera_shift", start, conf, words + (why,) + tuple(tail), signals)
+    if np.linalg.norm(off) >= SIGNIFICANT_MM:
+        q = [abs(w.zmed(n, start)) for n in w.baseline.names if n.startswith("grasp_q.")]
+        q_still = not q or np.nanmax(q) < UNCHANGED_Z
+        conf = _squash(np.linalg.norm(off) / (np.linalg.norm(off) + np.linalg.norm(seen))) if q_still else 0.4
+        words = (f"part-to-tool offset at grasp changed {_vec(off)}",
+                 f"camera-seen part unchanged ({_vec(seen)})",
+                 "joint grasp pose unchanged" if q_still else "joint grasp pose also changed",
+                 "the tool point moved on the flange: the tool slipped")
+        return Finding("tool_slip", start, conf, words + tuple(tail), signals)
+    return Finding("unknown", start, 0.3, (f"grasp pose moved {_vec(tcp)} with the camera and the offset unchanged",
+                                            *tail), signals)
+
+
+def _joints(w: _Window, groups: dict[str, list[DriftAlarm]]) -> list[Finding]:
+    """One finding per cause and episode: joints of the same kind of change that start together."""
+    rated = []
+    for joint, alarms in groups.items():
+        start = _onset(alarms)
+        cur = _largest(w.relative(f"current_rms.{joint}", start), w.relative(f"current_peak.{joint}", start))
+        trk = _largest(w.relative(f"tracking_rms.{joint}", start), w.relative(f"tracking_max.{joint}", start))
+        c, t = max(cur, 0.0), max(trk, 0.0)
+        if c + t <= 0.0:
+            cause, share = "unknown", 0.5
+        else:
+            share = c / (c + t)
+            cause = "friction" if share >= 0.5 else "servo"
+            share = share if cause == "friction" else 1.0 - share
+        rated.append((start, cause, joint, cur, trk, share, alarms))
+    rated.sort()
+    findings: list[Finding] = []
+    while rated:
+        start, cause = rated[0][0], rated[0][1]
+        same = [r for r in rated if r[1] == cause and abs(r[0] - start) <= CONCURRENT]
+        rated = [r for r in rated if r not in same]
+        joints = tuple(r[2] for r in same)
+        conf = _squash(float(np.mean([r[5] for r in same])))
+        evidence = [f"{r[2]}: current {_pct(r[3])}, tracking error {_pct(r[4])} vs baseline" for r in same[:6]]
+        if cause == "friction":
+            evidence.append("the current rose more than the tracking error: the joint needs more torque to "
+                            "follow the same motion, so friction grew")
+        elif cause == "servo":
+            evidence.append("the tracking error rose more than the current: the drive pushes less for the same "
+                            "error, so the servo gain dropped")
+        else:
+            conf = 0.3
+        findings.append(Finding(cause, start, conf, tuple(evidence),
+                                tuple(sorted({a.signal for r in same for a in r[6]})), joints))
+    return findings
+
+
+def _unchanged_currents(w: _Window, start: int) -> str:
+    zs = [abs(w.zmed(n, start)) for n in w.baseline.names if n.startswith("current_rms.")]
+    zs = [z for z in zs if np.isfinite(z)]
+    return "current unchanged" if zs and max(zs) < UNCHANGED_Z else ""
+
+
+def _largest(*values: float) -> float:
+    finite = [v for v in values if np.isfinite(v)]
+    return max(finite, key=abs) if finite else 0.0
+
+
+def _squash(share: float) -> float:
+    """Map a share in [0.5, 1] of the evidence for the winning reading onto a confidence."""
+    return float(np.clip(0.5 + 0.9 * (share - 0.5), 0.5, 0.95))
+
+
+def _vec(v: np.ndarray) -> str:
+    return f"{v[0]:+.1f} mm in x, {v[1]:+.1f} mm in y"
+
+
+def _pct(r: float) -> str:
+    return f"{r * 100:+.1f} %"
+
+
+def _fmt(v: float) -> str:
+    return f"{v:+.3g}"

@@ -1,0 +1,172 @@
+"""The diagnosis of a record: baseline, drift alarms, last good versus faulted, causes, asymmetry.
+
+A pure function of (cycles, events, context): it reads no ground truth and no files, so it
+gives the same answer from a run in memory and from a record read back months later.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+
+from cellguard.diagnose.asymmetry import Asymmetry, mirrored_asymmetry
+from cellguard.diagnose.baseline import Baseline
+from cellguard.diagnose.cause import Finding, name_causes
+from cellguard.diagnose.compare import FeatureChange, changes, last_good_and_faulted
+from cellguard.diagnose.cycles import Cycle, as_cycles
+from cellguard.diagnose.drift import DriftConfig, DriftResult, detect_drift
+from cellguard.embodiment.profile import SymmetryPair
+from cellguard.errors import RecordError
+
+ROUTINE_EVENTS = frozenset({"chunk_steps_dropped"})  # the executor's normal bookkeeping
+
+
+@dataclass(frozen=True)
+class Diagnosis:
+    """Everything ``cellguard diagnose`` prints and the report draws."""
+
+    cycles: tuple[Cycle, ...]
+    baseline: Baseline
+    drift: DriftResult
+    findings: tuple[Finding, ...]
+    changes: tuple[FeatureChange, ...]
+    last_good_cycle: int | None
+    first_faulted_cycle: int | None
+    safety_events: tuple[dict, ...]
+    asymmetry: Asymmetry | None
+    context: Mapping = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        """The JSON of DESIGN.md (``cycles`` ... ``safety_events``) plus detail fields."""
+        return {
+            "cycles": len(self.cycles),
+            "baseline_cycles": self.baseline.n,
+            "last_good_cycle": self.last_good_cycle,
+            "first_faulted_cycle": self.first_faulted_cycle,
+            "drift_alarms": [a.to_dict() for a in self.drift.alarms],
+            "findings": [f.to_dict() for f in self.findings],
+            "safety_events": list(self.safety_events),
+            "changes": [c.to_dict() for c in self.changes],
+            "asymmetry": self.asymmetry.to_dict() if self.asymmetry is not None else None,
+            "monitor": {"cusum_k": self.drift.k, "cusum_h": round(self.drift.threshold, 3),
+                        "mewma_limit": round(self.drift.mewma_threshold, 2), "features": len(self.drift.names),
+                        "set_arl_cycles": DriftConfig.set_arl, "baseline_source": self.baseline.source},
+        }
+
+
+def diagnose(rows: Iterable[object], events: Iterable[object] = (), context: Mapping | None = None,
+             baseline: Baseline | None = None, symmetry: Sequence[SymmetryPair] = (),
+             config: DriftConfig = DriftConfig()) -> Diagnosis:
+    """Diagnose a run from its cycles (any source, see ``as_cycle``), events and context.
+
+    ``baseline`` defaults to the acceptance cycles of the same run; pass one to compare with a
+    separate acceptance record. ``symmetry`` enables the mirrored-motion comparison.
+    """
+    cycles = as_cycles(rows)
+    if baseline is None:
+        acceptance = [c for c in cycles if c.phase == "acceptance"]
+        baseline = Baseline.from_cycles(acceptance)
+        watched = [c for c in cycles if c.phase != "acceptance"]
+    else:
+        watched = [c for c in cycles if c.phase != "acceptance"] or list(cycles)
+    if not watched:
+        raise RecordError("diagnose: the record has no production cycles to compare with the baseline")
+    drift = detect_drift(baseline, watched, config)
+    evs = [_event_dict(e) for e in events]
+    spans = _cycle_spans(cycles)
+    for e in evs:
+        if e.get("cycle") is None:
+            e["cycle"] = _cycle_of(e["t_ns"], spans)
+    rejected = _rejections(watched, evs)
+    findings = list(name_causes(baseline, watched, drift.z, drift.alarms, rejected))
+    asym = mirrored_asymmetry(watched, symmetry)
+    if asym is not None and asym.side:
+        findings = _fold_compensation(findings, asym, symmetry)
+        if not any(set(f.joints) & set(asym.joints) for f in findings):
+            findings.append(_asymmetry_finding(asym, watched[0].index))
+    findings.sort(key=lambda f: (f.cycle, f.cause))
+    first = findings[0].cycle if findings else None
+    good, faulted = last_good_and_faulted(cycles, first)
+    return Diagnosis(
+        cycles=tuple(cycles), baseline=baseline, drift=drift, findings=tuple(findings),
+        changes=tuple(changes(baseline, drift.alarms, good, faulted, watched)),
+        last_good_cycle=good.index if good else None, first_faulted_cycle=faulted.index if faulted else None,
+        safety_events=tuple(_safety(e) for e in evs if e.get("kind") not in ROUTINE_EVENTS),
+        asymmetry=asym, context=dict(context or {}))
+
+
+def _fold_compensation(findings: list[Finding], asym: Asymmetry, pairs: Sequence[SymmetryPair]) -> list[Finding]:
+    """Joint findings confined to the healthy side, starting with one on the faulty side, are the
+    healthy side compensating: fold them into that finding as evidence."""
+    healthy = {p.right for p in pairs} if asym.side == "left" else {p.left for p in pairs}
+    main = [f for f in findings if set(f.joints) & set(asym.joints)]
+    if not main:
+        return findings
+    folded = [f for f in findings if f.joints and set(f.joints) <= healthy
+              and any(abs(f.cycle - m.cycle) <= 2 for m in main)]
+    if not folded:
+        return findings
+    head = main[0]
+    note = (f"the {'right' if asym.side == 'left' else 'left'} side compensates "
+            f"({', '.join(j for f in folded for j in f.joints)}); mirrored motions differ on the {asym.side} side",)
+    merged = Finding(head.cause, head.cycle, head.confidence, head.evidence + note, head.signals, head.joints)
+    return [merged if f is head else f for f in findings if f not in folded]
+
+
+def _asymmetry_finding(asym: Asymmetry, cycle: int) -> Finding:
+    """A side that tracks worse than its mirror with little extra current reads as a servo fault."""
+    sig = asym.significant
+    trk = [abs(d.relative) for d in sig if d.feature.startswith("tracking_")]
+    cur = [abs(d.relative) for d in sig if d.feature.startswith("current_")]
+    t, c = (max(trk) if trk else 0.0), (max(cur) if cur else 0.0)
+    cause = "servo" if t >= c and trk else "friction" if cur else "unknown"
+    share = max(t, c) / (t + c) if t + c > 0 else 0.5
+    conf = float(min(0.95, 0.5 + 0.9 * (share - 0.5))) if cause != "unknown" else 0.3
+    return Finding(cause, cycle, conf, (f"mirrored motions differ on the {asym.side} side",) + asym.evidence[1:5],
+                   tuple(sorted({d.feature for d in sig})), asym.joints)
+
+
+def _event_dict(e: object) -> dict:
+    d = dict(e) if isinstance(e, Mapping) else {k: v for k, v in vars(e).items() if v is not None}
+    if "t_ns" not in d:
+        raise RecordError(f"event: needs 't_ns', got keys {sorted(d)}")
+    return d
+
+
+def _cycle_spans(cycles: Sequence[Cycle]) -> list[tuple[int, int, int]]:
+    """(start, end, index) per cycle; from the record's stamps, else from back-to-back cycle times."""
+    spans, t = [], 0
+    for c in cycles:
+        if c.t_start_ns is not None and c.t_end_ns is not None:
+            spans.append((int(c.t_start_ns), int(c.t_end_ns), c.index))
+            t = int(c.t_end_ns)
+        else:
+            end = t + round(c.features.get("cycle_time_s", 0.0) * 1e9)
+            spans.append((t, end, c.index))
+            t = end
+    return spans
+
+
+def _cycle_of(t_ns: int, spans: list[tuple[int, int, int]]) -> int | None:
+    for start, end, index in spans:
+        if start <= t_ns <= end:
+            return index
+    return None
+
+
+def _rejections(watched: Sequence[Cycle], events: list[dict]) -> list[tuple[int, str]]:
+    """(cycle, reason) of every rejected chunk in the watched cycles, from events or features."""
+    indices = {c.index for c in watched}
+    out = [(e["cycle"], e.get("reason", "")) for e in events
+           if e.get("kind") == "chunk_rejected" and e.get("cycle") in indices]
+    if not out:
+        out = [(c.index, "chunk rejected") for c in watched if c.features.get("chunks_rejected", 0) > 0]
+    return out
+
+
+def _safety(e: dict) -> dict:
+    out = {"t": round(e["t_ns"] * 1e-9, 3), "kind": e.get("kind"), "cycle": e.get("cycle")}
+    for k in ("category", "joint", "reason"):
+        if e.get(k) is not None:
+            out[k] = e[k]
+    return out

@@ -1,0 +1,148 @@
+"""What every learned-policy adapter shares: the action map in, a chunk in robot joints out.
+
+An adapter (ONNX, openpi, LeRobot) is a small ``Backend``: it turns ``PolicyInputs`` (the
+state in the policy's own order and units, time since reset, camera measurements, the task)
+into raw actions (H, A). ``MappedPolicy`` wraps it into the ``Policy`` protocol: it builds the
+inputs through the ``ActionMap``, maps the raw actions onto this robot's joints, stamps the
+chunk with the observation time and keeps the latency of every call.
+"""
+
+from __future__ import annotations
+
+import copy
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Protocol
+from urllib.parse import parse_qsl
+
+import numpy as np
+import yaml
+
+from cellguard.errors import CellguardError, ConfigError
+from cellguard.policy.action_map import ActionMap, load_action_map, parse_action_map
+from cellguard.policy.chunk import ActionChunk
+from cellguard.robot.state import Observation
+
+
+class InferenceError(CellguardError):
+    """A policy call that failed at run time: a timeout, a lost server, a malformed reply."""
+
+
+@dataclass(frozen=True)
+class PolicyInputs:
+    """What a backend sees: ``state`` (A,) in the policy's units, measurements by name, SI."""
+
+    state: np.ndarray
+    time_s: float  # since the last reset (the start of the episode)
+    measurements: dict[str, np.ndarray] = field(default_factory=dict)
+    task: str = ""
+
+
+class Backend(Protocol):
+    """A model that answers ``PolicyInputs`` with raw actions (H, A) in its own space."""
+
+    action_dim: int
+    action_names: tuple[str, ...] | None  # as the model names them, when it does
+    embedded_map: str | None  # an action map shipped with the model (YAML text), if any
+
+    def infer(self, inputs: PolicyInputs) -> np.ndarray: ...
+
+    def reset(self) -> None: ...
+
+    def content_hash(self) -> str: ...
+
+
+def split_options(arg: str, allowed: dict[str, str], scheme: str) -> tuple[str, dict[str, str]]:
+    """``"TARGET?k=v&k2=v2"`` -> (TARGET, options); an unknown option lists the allowed ones."""
+    target, _, query = arg.partition("?")
+    options = dict(parse_qsl(query, keep_blank_values=True))
+    for key in options:
+        if key not in allowed:
+            known = ", ".join(f"{k} ({v})" for k, v in allowed.items())
+            raise ConfigError(f"policy: {scheme}: unknown option {key!r}; options: {known}")
+    if not target:
+        raise ConfigError(f"policy: {scheme}: missing target, write {scheme}:TARGET")
+    return target, options
+
+
+def positive_float(options: dict[str, str], key: str, default: float, scheme: str) -> float:
+    """A positive float option, e.g. ``dt=0.02``; a bad value names the option."""
+    try:
+        value = float(options.get(key, default))
+    except ValueError:
+        raise ConfigError(f"policy: {scheme}: option {key}={options[key]!r} is not a number") from None
+    if not np.isfinite(value) or value <= 0:
+        raise ConfigError(f"policy: {scheme}: option {key} must be positive, got {value}")
+    return value
+
+
+def resolve_map(backend: Backend, cell, map_path: str | None, source: str) -> ActionMap:
+    """The action map for ``backend`` on ``cell``: a file, else the model's own, else by joint name."""
+    profile = cell.profile
+    if map_path:
+        amap = load_action_map(Path(map_path), profile)
+    elif backend.embedded_map:
+        amap = parse_action_map(yaml.safe_load(backend.embedded_map), profile, origin=f"{source} (embedded map)")
+    else:
+        names = backend.action_names
+        joints = tuple(n.removesuffix(".pos") for n in names) if names else profile.joint_names
+        if sorted(joints) != sorted(profile.joint_names) or backend.action_dim != profile.dof:
+            raise ConfigError(f"policy: {source} outputs {backend.action_dim} actions "
+                              f"({', '.join(names) if names else 'unnamed'}), which are not the joints of "
+                              f"{profile.robot!r}; give an action map: ?map=FILE")
+        order = {j: i for i, j in enumerate(joints)}
+        entries = [{"name": names[order[j.name]] if names else j.name, "joint": j.name,
+                    "unit": "rad" if j.kind == "hinge" else "m"} for j in profile.joints]
+        entries.sort(key=lambda e: order[e["joint"]])
+        amap = parse_action_map({"robot": profile.robot, "actions": entries}, profile, origin=source)
+    amap.check_policy(backend.action_dim, backend.action_names, source)
+    return amap
+
+
+class MappedPolicy:
+    """A backend behind the ``Policy`` protocol, mapped onto ``cell`` by ``action_map``."""
+
+    def __init__(self, backend: Backend, action_map: ActionMap, cell, source: str, dt_s: float, task: str = ""):
+        self.backend, self.action_map, self.source, self.task = backend, action_map, source, task
+        self.dt_ns = round(dt_s * 1e9)
+        self.solver = None
+        if action_map.ik is not None:
+            from cellguard.policy.ik import IkSolver
+
+            self.solver = IkSolver(copy.deepcopy(cell.model), cell.profile, action_map.ik)
+        self.latencies_ns: list[int] = []
+        self._t0_ns: int | None = None
+
+    def reset(self) -> None:
+        self._t0_ns = None
+        self.backend.reset()
+
+    def content_hash(self) -> str:
+        return self.backend.content_hash()
+
+    def close(self) -> None:
+        """Release what the backend holds (a connection); the policy is not used afterwards."""
+        close = getattr(self.backend, "close", None)
+        if close is not None:
+            close()
+
+    def infer(self, observation: Observation) -> ActionChunk:
+        start = time.perf_counter_ns()
+        if self._t0_ns is None:
+            self._t0_ns = observation.t_ns
+        inputs = PolicyInputs(
+            state=self.action_map.to_policy_state(observation.q, self.solver),
+            time_s=(observation.t_ns - self._t0_ns) * 1e-9,
+            measurements=observation.measurements,
+            task=self.task,
+        )
+        raw = np.asarray(self.backend.infer(inputs), dtype=np.float64)
+        if raw.ndim == 1:
+            raw = raw[None, :]
+        if raw.ndim != 2 or raw.shape[1] != self.action_map.action_dim:
+            raise InferenceError(f"policy: {self.source} returned actions of shape {raw.shape}, expected "
+                              f"(H, {self.action_map.action_dim})")
+        actions = self.action_map.to_robot(raw, observation.q, self.solver)
+        self.latencies_ns.append(time.perf_counter_ns() - start)
+        return ActionChunk(actions=actions, t_obs_ns=observation.t_ns, dt_ns=self.dt_ns)

@@ -1,0 +1,96 @@
+"""Differential IK with mink for end-effector actions: a target pose per chunk step -> joint targets.
+
+Runs off the servo path, once per chunk: each step starts from the previous step's solution, so
+a chunk of H poses costs H short solves. Joints outside ``IkSpec.joints`` (the gripper, a free
+part) are frozen; the model's joint ranges bound the solution.
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+
+from cellguard.embodiment import Profile
+from cellguard.errors import ConfigError
+from cellguard.policy.action_map import IkSpec
+
+POSITION_TOLERANCE = 1e-4  # [m] a step's solve stops when the site is this close to its target
+MAX_ITERATIONS = 30  # per chunk step
+
+
+def _mink():
+    try:
+        import mink
+    except ImportError:  # pragma: no cover - depends on the environment
+        raise ConfigError("action map: end-effector actions need mink; install it with "
+                          "pip install 'cellguard[ik]'") from None
+    return mink
+
+
+class IkSolver:
+    """Solves site poses (H, 6: x y z [m], roll pitch yaw [rad]) into joints ``spec.joints``."""
+
+    def __init__(self, model: mujoco.MjModel, profile: Profile, spec: IkSpec):
+        mink = self._mink = _mink()
+        if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, spec.site) < 0:
+            sites = [model.site(i).name for i in range(model.nsite)]
+            raise ConfigError(f"action map: ik.site: {spec.site!r} is not a site of the model; sites: {', '.join(sites)}")
+        self.model, self.spec = model, spec
+        self.joint_index = np.array([profile.index(j) for j in spec.joints])
+        jids = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, j) for j in profile.joint_names]
+        self._qadr = np.array([model.jnt_qposadr[j] for j in jids])
+        moved = {int(model.jnt_dofadr[jids[i]]) for i in self.joint_index}
+        self._frozen = [d for d in range(model.nv) if d not in moved]
+        limited = [j for j in range(model.njnt) if model.jnt_limited[j] and model.jnt_type[j] in (2, 3)]
+        self._limited_qadr = np.array([model.jnt_qposadr[j] for j in limited], dtype=int)
+        self._range = model.jnt_range[limited].T.copy()  # (2, n): a frozen joint outside its range makes the QP infeasible
+        self._configuration = mink.Configuration(model)
+        # Without yaw among the actions, only the tool axis direction is held: spin about it is free.
+        cost = spec.orientation_cost * (np.ones(3) if spec.full_orientation else np.array([1.0, 1.0, 0.0]))
+        self._task = mink.FrameTask(spec.site, "site", position_cost=1.0, orientation_cost=cost)
+        self._posture = mink.PostureTask(model, cost=1e-3)
+        self._limits = [mink.ConfigurationLimit(model)]
+        self._constraints = [mink.DofFreezingTask(model, dof_indices=self._frozen)] if self._frozen else []
+
+    def pose(self, q: np.ndarray) -> np.ndarray:
+        """The site pose (6,) at joint state ``q`` (dof,), profile order."""
+        self._set(q)
+        return self._pose_now()
+
+    def solve(self, targets: np.ndarray, q_now: np.ndarray, delta: bool) -> np.ndarray:
+        """Joint targets (H, len(spec.joints)) for pose targets (H, 6); NaN keeps that axis as now.
+
+        With ``delta`` the targets are offsets from the pose at ``q_now``.
+        """
+        mink = self._mink
+        self._set(q_now)
+        start = self._pose_now()
+        self._posture.set_target(self._configuration.q.copy())
+        goal = np.where(np.isnan(targets), 0.0 if delta else start, targets)
+        if delta:
+            goal = goal + start
+        out = np.empty((goal.shape[0], len(self.joint_index)))
+        tasks = [self._task, self._posture]
+        for h, pose in enumerate(goal):
+            rotation = mink.SO3.from_rpy_radians(pose[3], pose[4], pose[5])
+            self._task.set_target(mink.SE3.from_rotation_and_translation(rotation, pose[:3]))
+            for _ in range(MAX_ITERATIONS):
+                error = self._task.compute_error(self._configuration)
+                if np.linalg.norm(error[:3]) < POSITION_TOLERANCE:
+                    break
+                velocity = mink.solve_ik(self._configuration, tasks, 1.0, "daqp", damping=1e-3,
+                                         limits=self._limits, constraints=self._constraints)
+                self._configuration.integrate_inplace(velocity, 1.0)
+            out[h] = self._configuration.q[self._qadr[self.joint_index]]
+        return out
+
+    def _set(self, q: np.ndarray) -> None:
+        full = self._configuration.q.copy()
+        full[self._qadr] = q
+        full[self._limited_qadr] = np.clip(full[self._limited_qadr], *self._range)
+        self._configuration.update(full)
+
+    def _pose_now(self) -> np.ndarray:
+        transform = self._configuration.get_transform_frame_to_world(self.spec.site, "site")
+        rpy = transform.rotation().as_rpy_radians()
+        return np.concatenate([transform.translation(), [rpy.roll, rpy.pitch, rpy.yaw]])

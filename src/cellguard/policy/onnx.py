@@ -1,0 +1,87 @@
+"""ONNX adapter (``onnx:FILE``): a policy exported to ONNX, run by onnxruntime on the CPU.
+
+The model's inputs are fed by name: ``state`` (1, A) the state in the policy's own space,
+``time_s`` (1, 1) seconds since the episode began, and any camera measurement by its name
+(``part_in_camera`` (1, 3) [m]). Its first output is the chunk, (1, H, A), (H, A) or (1, A).
+Metadata properties the model may carry: ``cellguard.action_names`` (comma-separated),
+``cellguard.dt_s`` (step period), ``cellguard.action_map`` (an action map, YAML).
+"""
+
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+
+import numpy as np
+
+from cellguard.errors import ConfigError
+from cellguard.policy.adapter import MappedPolicy, PolicyInputs, positive_float, resolve_map, split_options
+
+OPTIONS = {"map": "action map YAML file", "dt": "step period [s], overrides the model's"}
+_FIXED_INPUTS = ("state", "time_s")
+
+
+class OnnxBackend:
+    """An onnxruntime session whose inputs are checked against what a cell can feed it."""
+
+    def __init__(self, path: Path, measurements: tuple[str, ...]):
+        try:
+            import onnxruntime as ort
+        except ImportError:  # pragma: no cover - depends on the environment
+            raise ConfigError("policy: onnx: needs onnxruntime; install it with pip install 'cellguard[onnx]'") from None
+        path = Path(path)
+        if not path.is_file():
+            raise ConfigError(f"policy: onnx:{path}: no such file")
+        self._bytes_hash = hashlib.sha256(path.read_bytes()).hexdigest()
+        options = ort.SessionOptions()
+        options.intra_op_num_threads, options.inter_op_num_threads = 1, 1
+        try:
+            self.session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+        except Exception as exc:  # onnxruntime raises its own untyped errors for a bad file
+            raise ConfigError(f"policy: onnx:{path}: not a loadable ONNX model ({type(exc).__name__})") from None
+        self.inputs = [(i.name, i.shape) for i in self.session.get_inputs()]
+        for name, _ in self.inputs:
+            if name not in _FIXED_INPUTS and name not in measurements:
+                raise ConfigError(f"policy: onnx:{path}: model input {name!r} cannot be fed; inputs a cell "
+                                  f"offers: {', '.join(_FIXED_INPUTS + measurements)}")
+        meta = self.session.get_modelmeta().custom_metadata_map
+        names = meta.get("cellguard.action_names")
+        self.action_names = tuple(names.split(",")) if names else None
+        self.embedded_map = meta.get("cellguard.action_map")
+        self.dt_s = float(meta["cellguard.dt_s"]) if "cellguard.dt_s" in meta else None
+        shape = self.session.get_outputs()[0].shape
+        last = shape[-1] if shape else None
+        if not isinstance(last, int):
+            raise ConfigError(f"policy: onnx:{path}: first output needs a fixed last dimension (actions), got {shape}")
+        self.action_dim = last
+        self._output = self.session.get_outputs()[0].name
+
+    def infer(self, inputs: PolicyInputs) -> np.ndarray:
+        feed = {}
+        for name, _ in self.inputs:
+            if name == "state":
+                value = inputs.state
+            elif name == "time_s":
+                value = np.array([inputs.time_s])
+            else:
+                value = inputs.measurements[name]
+            feed[name] = np.asarray(value, dtype=np.float32).reshape(1, -1)
+        out = self.session.run([self._output], feed)[0]
+        return out.reshape(-1, self.action_dim)
+
+    def reset(self) -> None:
+        """Stateless: nothing to clear."""
+
+    def content_hash(self) -> str:
+        return self._bytes_hash
+
+
+def make_onnx_policy(arg: str, cell) -> MappedPolicy:
+    """``onnx:FILE[?map=MAP.yaml&dt=0.02]`` for ``cell``."""
+    target, options = split_options(arg, OPTIONS, "onnx")
+    measurements = tuple(cell.observe().measurements)
+    backend = OnnxBackend(Path(target), measurements)
+    source = f"onnx:{target}"
+    amap = resolve_map(backend, cell, options.get("map"), source)
+    dt = positive_float(options, "dt", backend.dt_s or 0.02, "onnx")
+    return MappedPolicy(backend, amap, cell, source, dt)

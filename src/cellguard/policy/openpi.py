@@ -1,0 +1,149 @@
+"""openpi adapter (``openpi:ws://HOST:PORT``): a remote policy over openpi's websocket protocol.
+
+On connect the server sends its metadata; each request is an observation dict, each reply a
+dict with ``actions`` (H, A) and timings, all msgpack with numpy arrays (``cellguard.policy.wire``,
+never pickle). Unlike the reference client this one has a receive timeout, reconnects a bounded
+number of times, and sends ``Authorization: Api-Key ...`` when a key is given (read from an
+environment variable named in the spec, never from the scenario file).
+
+Observation keys sent: ``observation/state`` (A,) float32 in the policy's space (through the
+action map), ``observation/time_s`` (1,) since the episode began, ``observation/<measurement>``
+for each camera measurement, and ``prompt``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import json
+import os
+
+import numpy as np
+
+from cellguard.errors import ConfigError
+from cellguard.policy.adapter import InferenceError, MappedPolicy, PolicyInputs, positive_float, resolve_map, split_options
+from cellguard.policy.wire import WireError, packb, unpackb
+
+OPTIONS = {"map": "action map YAML file", "dt": "step period [s]", "timeout": "receive timeout [s]",
+           "api_key_env": "environment variable holding the API key", "prompt": "task text sent as prompt",
+           "retries": "reconnect attempts per call"}
+MAX_MESSAGE = 64 << 20  # [bytes] largest reply accepted
+
+
+class OpenpiBackend:
+    """A websocket connection to an openpi policy server, re-opened when it breaks."""
+
+    def __init__(self, uri: str, api_key: str | None, timeout_s: float, retries: int):
+        try:
+            import websockets.sync.client  # noqa: F401
+        except ImportError:  # pragma: no cover - depends on the environment
+            raise ConfigError("policy: openpi: needs websockets and msgpack; pip install 'cellguard[openpi]'") from None
+        if not uri.startswith(("ws://", "wss://")):
+            raise ConfigError(f"policy: openpi:{uri}: expected ws://HOST:PORT or wss://HOST:PORT")
+        self.uri, self.timeout_s, self.retries = uri, timeout_s, retries
+        self._headers = {"Authorization": f"Api-Key {api_key}"} if api_key else None
+        self._ws = None
+        self.reconnects = 0
+        try:
+            self.metadata = self._connect()
+        except InferenceError as exc:
+            raise ConfigError(str(exc)) from None
+        names = self.metadata.get("action_names")
+        self.action_names = tuple(str(n) for n in names) if isinstance(names, (list, tuple)) else None
+        dim = self.metadata.get("action_dim", len(self.action_names) if self.action_names else None)
+        if not isinstance(dim, int) or dim <= 0:
+            raise ConfigError(f"policy: openpi:{uri}: the server's metadata gives no action_dim or action_names; "
+                              f"metadata keys: {', '.join(map(str, self.metadata)) or 'none'}")
+        self.action_dim = dim
+        self.embedded_map = None
+
+    def _connect(self) -> dict:
+        from websockets.exceptions import InvalidHandshake, WebSocketException
+        from websockets.sync.client import connect
+
+        self.close()
+        try:
+            self._stack = contextlib.ExitStack()  # websockets >= 17 wants connect() used as a context manager
+            self._ws = self._stack.enter_context(connect(
+                self.uri, additional_headers=self._headers, compression=None, max_size=MAX_MESSAGE,
+                open_timeout=self.timeout_s, close_timeout=self.timeout_s))
+            metadata = unpackb(self._ws.recv(timeout=self.timeout_s))
+        except (OSError, TimeoutError, InvalidHandshake, WebSocketException, WireError) as exc:
+            self.close()
+            raise InferenceError(f"policy: openpi:{self.uri}: cannot connect ({type(exc).__name__}: {exc})") from None
+        if not isinstance(metadata, dict):
+            raise InferenceError(f"policy: openpi:{self.uri}: server metadata is not a mapping")
+        return metadata
+
+    def infer(self, inputs: PolicyInputs) -> np.ndarray:
+        obs = {"observation/state": np.asarray(inputs.state, dtype=np.float32),
+               "observation/time_s": np.array([inputs.time_s]), "prompt": inputs.task}
+        for name, value in inputs.measurements.items():
+            obs[f"observation/{name}"] = np.asarray(value, dtype=np.float32)
+        message = packb(obs)
+        last = None
+        for _ in range(self.retries + 1):
+            try:
+                return self._exchange(message)
+            except InferenceError as exc:
+                last = exc
+                self.close()  # a late reply must never be taken as the answer to the next request
+        raise last
+
+    def _exchange(self, message: bytes) -> np.ndarray:
+        from websockets.exceptions import WebSocketException
+
+        if self._ws is None:
+            self._connect()
+            self.reconnects += 1
+        try:
+            self._ws.send(message)
+            reply = self._ws.recv(timeout=self.timeout_s)
+        except TimeoutError:
+            raise InferenceError(f"policy: openpi:{self.uri}: no reply within {self.timeout_s} s") from None
+        except (OSError, WebSocketException) as exc:
+            raise InferenceError(f"policy: openpi:{self.uri}: connection lost ({type(exc).__name__})") from None
+        if isinstance(reply, str):
+            first = reply.strip().splitlines()[-1] if reply.strip() else "empty"
+            raise InferenceError(f"policy: openpi:{self.uri}: server error: {first}")
+        try:
+            decoded = unpackb(reply, MAX_MESSAGE)
+        except WireError as exc:
+            raise InferenceError(f"policy: openpi:{self.uri}: bad reply ({exc})") from None
+        actions = decoded.get("actions") if isinstance(decoded, dict) else None
+        if not isinstance(actions, np.ndarray):
+            raise InferenceError(f"policy: openpi:{self.uri}: reply has no 'actions' array")
+        return actions
+
+    def reset(self) -> None:
+        """The protocol has no reset message; the server's policy keeps no episode state here."""
+
+    def content_hash(self) -> str:
+        meta = {k: v for k, v in self.metadata.items() if isinstance(v, (str, int, float, list, bool))}
+        return hashlib.sha256(json.dumps({"uri": self.uri, "metadata": meta}, sort_keys=True).encode()).hexdigest()
+
+    def close(self) -> None:
+        if self._ws is not None:
+            self._ws = None
+            self._stack.close()
+
+
+def make_openpi_policy(arg: str, cell) -> MappedPolicy:
+    """``openpi:ws://HOST:PORT[?map=FILE&timeout=1&api_key_env=VAR&prompt=...&dt=0.02&retries=1]``."""
+    target, options = split_options(arg, OPTIONS, "openpi")
+    key = None
+    if "api_key_env" in options:
+        key = os.environ.get(options["api_key_env"])
+        if not key:
+            raise ConfigError(f"policy: openpi: api_key_env: environment variable {options['api_key_env']!r} is not set")
+    try:
+        retries = int(options.get("retries", 1))
+    except ValueError:
+        raise ConfigError(f"policy: openpi: option retries={options['retries']!r} is not an integer") from None
+    if not 0 <= retries <= 5:
+        raise ConfigError(f"policy: openpi: option retries must be in [0, 5], got {retries}")
+    backend = OpenpiBackend(target, key, positive_float(options, "timeout", 2.0, "openpi"), retries)
+    source = f"openpi:{target}"
+    amap = resolve_map(backend, cell, options.get("map"), source)
+    dt = positive_float(options, "dt", float(backend.metadata.get("dt_s", 0.02)), "openpi")
+    return MappedPolicy(backend, amap, cell, source, dt, task=options.get("prompt", ""))

@@ -1,0 +1,162 @@
+"""``cellguard record``: look into a fault record, export its ticks, recover a damaged one, query the index.
+
+Exit codes: 0 the record is complete; 1 it was read but is truncated or damaged (the message says
+what was recovered); 2 bad input or nothing readable.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from collections import Counter
+from pathlib import Path
+
+import typer
+from rich.console import Console
+
+from cellguard.errors import CellguardError, RecordError
+
+record_app = typer.Typer(no_args_is_help=True, help="Read, export, recover and query fault records.")
+_err = Console(stderr=True, soft_wrap=True)
+FORMATS = ("csv", "parquet")
+
+
+def _fail(exc: CellguardError) -> None:
+    _err.print(f"error: {exc}", markup=False, highlight=False)
+    raise typer.Exit(2)
+
+
+def _warn_if_damaged(health, folder: Path) -> int:
+    if health.ok:
+        return 0
+    hint = (f"; `cellguard record recover {folder} -o NEW_DIR` writes a finished copy"
+            if health.damage or not health.finished else "")
+    _err.print(f"warning: {folder}: {health.describe()}{hint}", markup=False, highlight=False)
+    return 1
+
+
+@record_app.command()
+def info(
+    folder: Path = typer.Argument(..., help="Run folder (holding record.mcap) or the .mcap file."),
+    as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),
+) -> None:
+    """Context, time span, cycles, events and the health of a record."""
+    from cellguard.record.reader import open_record
+
+    try:
+        with open_record(folder) as rec:
+            health = rec.health()
+            contexts = rec.contexts
+            cycles = list(rec.cycles())
+            events = list(rec.events())
+    except CellguardError as exc:
+        _fail(exc)
+    context = contexts[0].context if contexts else {}
+    doc = {
+        "file": str(rec.file), "health": {"ok": health.ok, "status": health.describe(), "finished": health.finished,
+                                          "truncated": health.truncated, "damage": list(health.damage)},
+        "span_s": None if health.span_ns is None else [health.span_ns[0] * 1e-9, health.span_ns[1] * 1e-9],
+        "messages": health.messages,
+        "context": {k: context.get(k) for k in ("site", "cell_id", "cell", "policy", "embodiment", "fixture_datum",
+                                                 "envelope", "software")},
+        "context_changes": [{"t_s": c.t_ns * 1e-9, "version": c.version, "changed": list(c.changed)}
+                            for c in contexts[1:]],
+        "cycles": {phase: {"cycles": sum(c.phase == phase for c in cycles),
+                           "succeeded": sum(c.success for c in cycles if c.phase == phase)}
+                   for phase in ("acceptance", "production")},
+        "events": dict(Counter(e.kind for e in events)),
+        "stops": [{"t_s": e.t_ns * 1e-9, "kind": e.kind, "category": e.category, "reason": e.reason}
+                  for e in events if e.category is not None],
+    }
+    if as_json:
+        sys.stdout.write(json.dumps(doc, indent=1, default=str) + "\n")
+    else:
+        _print_info(doc)
+    raise typer.Exit(_warn_if_damaged(health, folder))
+
+
+def _print_info(doc: dict) -> None:
+    out = Console(highlight=False, soft_wrap=True)
+    ctx = doc["context"]
+    policy, emb = ctx.get("policy") or {}, ctx.get("embodiment") or {}
+    out.print(f"record   {doc['file']}  [{doc['health']['status']}]", markup=False)
+    out.print(f"site     {ctx.get('site')} / {ctx.get('cell_id')} ({ctx.get('cell')})", markup=False)
+    out.print(f"policy   {policy.get('source')}  sha256 {str(policy.get('sha256'))[:12]}", markup=False)
+    out.print(f"profile  {emb.get('robot')} {emb.get('version')}  sha256 {str(emb.get('sha256'))[:12]}  "
+              f"calibrated {', '.join(emb.get('calibration_dates') or [])}", markup=False)
+    out.print(f"datum    {ctx.get('fixture_datum')}", markup=False)
+    if doc["span_s"]:
+        out.print(f"span     {doc['span_s'][0]:.3f} s to {doc['span_s'][1]:.3f} s", markup=False)
+    for phase, stats in doc["cycles"].items():
+        out.print(f"{phase:<12} {stats['cycles']} cycles, {stats['succeeded']} succeeded", markup=False)
+    out.print(f"events   {sum(doc['events'].values())}: "
+              + ", ".join(f"{k} {v}" for k, v in sorted(doc["events"].items())), markup=False)
+    for stop in doc["stops"]:
+        out.print(f"stop     t={stop['t_s']:.3f} s {stop['kind']} (category {stop['category']}): {stop['reason']}",
+                  markup=False)
+    for change in doc["context_changes"]:
+        out.print(f"context  changed at t={change['t_s']:.3f} s: {', '.join(change['changed'])}", markup=False)
+
+
+@record_app.command()
+def export(
+    folder: Path = typer.Argument(..., help="Run folder (holding record.mcap) or the .mcap file."),
+    fmt: str = typer.Option("csv", "--format", help="csv or parquet."),
+    output: Path = typer.Option(..., "-o", "--output", help="File to write."),
+    rate: str = typer.Option("all", "--rate", help="all (full rate where kept, else decimated), decimated, full."),
+    cycle: int | None = typer.Option(None, "--cycle", help="Only this cycle."),
+) -> None:
+    """Ticks as rows: t_ns, cycle, joint, q_ref, q_cmd, q_meas, qd_meas, effort, current."""
+    from cellguard.record.export import write_ticks
+    from cellguard.record.reader import open_record
+
+    try:
+        if fmt not in FORMATS:
+            raise RecordError(f"--format: {fmt!r} is not one of {', '.join(FORMATS)}")
+        with open_record(folder) as rec:
+            rows = write_ticks(rec.ticks(cycle=cycle, rate=rate), output, fmt)
+            health = rec.health()
+    except CellguardError as exc:
+        _fail(exc)
+    _err.print(f"{rows} rows written to {output}", markup=False, highlight=False)
+    raise typer.Exit(_warn_if_damaged(health, folder))
+
+
+@record_app.command()
+def recover(
+    folder: Path = typer.Argument(..., help="Run folder (holding record.mcap) or the .mcap file."),
+    output: Path = typer.Option(..., "-o", "--output", help="New folder for the recovered record and index."),
+) -> None:
+    """Copy every readable chunk into a finished file with a fresh summary, and rebuild the index."""
+    from cellguard.record.recovery import recover as run_recover
+
+    try:
+        health = run_recover(folder, output)
+    except CellguardError as exc:
+        _fail(exc)
+    _err.print(f"source {health.describe()}; recovered record written to {output}", markup=False, highlight=False)
+
+
+@record_app.command()
+def query(
+    folder: Path = typer.Argument(..., help="Run folder holding index/ (or the index folder)."),
+    sql: str = typer.Argument(..., help="DuckDB SQL over the views `cycles` and `events`."),
+) -> None:
+    """Run SQL on the per-cycle index; one JSON object per row on stdout."""
+    import duckdb
+
+    from cellguard.record.index import connect
+    from cellguard.record.writer import INDEX_DIR
+
+    folder = Path(folder)
+    try:
+        con = connect(folder / INDEX_DIR if (folder / INDEX_DIR).is_dir() else folder)
+        try:
+            result = con.execute(sql)
+        except duckdb.Error as exc:
+            raise RecordError(f"sql: {str(exc).splitlines()[0]}") from None
+    except CellguardError as exc:
+        _fail(exc)
+    names = [d[0] for d in result.description]
+    for row in result.fetchall():
+        sys.stdout.write(json.dumps(dict(zip(names, row)), default=str) + "\n")

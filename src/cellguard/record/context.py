@@ -1,0 +1,91 @@
+"""The context manifest: what a technician needs months later to read a record correctly.
+
+Policy source and content hash, embodiment profile hash and calibration dates, envelope
+configuration, fixture datum, site, cell id, scenario and software versions. Short version
+stamps (``policy``, ``calibration``, ``datum``, ``context``) are hashes of the relevant parts;
+every index row carries them so that a query can separate cycles run under different versions.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import platform
+from dataclasses import asdict, is_dataclass
+from importlib import metadata
+
+_SOFTWARE = ("cellguard", "mujoco", "numpy", "mcap", "pyarrow", "duckdb", "ruckig")
+
+
+def build_context(*, scenario, cell, policy, envelope, software: dict | None = None) -> dict:
+    """The context of a run, from the objects that make it (all plain JSON values)."""
+    profile = cell.profile
+    return {
+        "site": scenario.site,
+        "cell_id": scenario.cell_id,
+        "cell": cell.name,
+        "policy": {"source": policy.source, "sha256": policy.content_hash()},
+        "embodiment": {"robot": profile.robot, "version": profile.version, "sha256": profile.sha256,
+                       "joints": list(profile.joint_names),
+                       "calibration_dates": sorted({m.measured for m in profile.measured})},
+        **cell.context(),
+        "envelope": envelope_config(envelope),
+        "servo_period_ns": cell.dt_ns,
+        "scenario": scenario.model_dump(mode="json", exclude={"faults"}),
+        "software": software or software_versions(),
+    }
+
+
+def envelope_config(envelope) -> dict:
+    """The envelope's settings: its own ``to_dict()`` when it offers one, else the limits it enforces."""
+    if hasattr(envelope, "to_dict"):
+        return envelope.to_dict()
+    if is_dataclass(getattr(envelope, "config", None)):
+        return _plain(asdict(envelope.config))
+    profile = envelope.profile
+    return {"position_limits": {j.name: list(j.position) for j in profile.joints}}
+
+
+def software_versions() -> dict:
+    out = {"python": platform.python_version()}
+    for name in _SOFTWARE:
+        try:
+            out[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            out[name] = None
+    return out
+
+
+def versions(context: dict) -> dict[str, str]:
+    """Short stamps of the parts that change how a cycle reads: policy, calibration, datum, whole."""
+    calibration = {k: context.get(k) for k in ("embodiment", "camera_calibration", "tool_offset")}
+    return {
+        "policy_version": _digest(context.get("policy")),
+        "calibration_version": _digest(calibration),
+        "datum_version": _digest(context.get("fixture_datum")),
+        "context_version": _digest(context),
+    }
+
+
+def changed_keys(before: dict | None, after: dict) -> list[str]:
+    """Top-level keys whose value differs (all of them for the first context)."""
+    if before is None:
+        return sorted(after)
+    return sorted(k for k in before.keys() | after.keys() if before.get(k) != after.get(k))
+
+
+def _digest(value) -> str:
+    return hashlib.sha256(json.dumps(value, sort_keys=True, default=str).encode()).hexdigest()[:12]
+
+
+def _plain(value):
+    """JSON-safe copy of a config (tuples to lists, sets sorted, numpy to lists)."""
+    if isinstance(value, dict):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    if isinstance(value, (set, frozenset)):
+        return sorted(_plain(v) for v in value)
+    if hasattr(value, "tolist"):
+        return value.tolist()
+    return value

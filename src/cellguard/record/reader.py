@@ -1,0 +1,335 @@
+"""Reading a cellguard record: the API that diagnosis, reports and the CLI build on.
+
+Contract (fields may be added, not renamed)::
+
+    from cellguard.record.reader import open_record
+
+    rec = open_record("out/")        # a run folder holding record.mcap, or the .mcap file itself
+    rec.context                      # dict: context at the start (policy source and sha256, embodiment
+                                     #   profile sha256 and calibration dates, envelope, fixture_datum,
+                                     #   camera_calibration, site, cell_id, scenario, software versions)
+    rec.contexts                     # [ContextChange(t_ns, version, changed, versions, context)], one per change
+    rec.epoch_wall_ns                # wall clock at t_ns == 0 (display only; order by t_ns)
+    for c in rec.cycles():           # CycleRecord, in time order, one per completed cycle:
+        c.cycle, c.phase             #   int, "acceptance" | "production"
+        c.t_start_ns, c.t_end_ns     #   int ns, the record's clock
+        c.success, c.features        #   bool, {name: float} computed at cycle end (NaN where not finite)
+        c.outcome, c.versions        #   the cell's outcome (SI), {policy_version, calibration_version, ...}
+    for e in rec.events():           # EventRecord, in time order: t_ns, kind, category (0/1/2 or None),
+        ...                          #   joint, asked, sent, reason, cycle
+    rec.ticks(cycle=12)              # Ticks: t_ns (n,), cycle (n,), joints, q_ref, q_cmd, q_meas, qd_meas,
+                                     #   effort, current (n, dof) float64; rate="decimated" | "full" | "all"
+    rec.chunks()                     # RecordedChunk: the policy's chunks as received
+    rec.health()                     # Health: finished, truncated, chunks ok/damaged, sequence gaps
+
+A truncated or damaged file opens: every chunk that passes its CRC is read, a damaged one is
+skipped, and ``health()`` says what was lost. ``open_record`` raises RecordError only when nothing
+can be read; ``strict=True`` also raises when anything was lost.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pyarrow.dataset as ds
+from mcap.records import Message
+
+from cellguard.errors import RecordError
+from cellguard.record.scan import ChunkRef, Layout, open_buffer, read_chunk, scan
+from cellguard.record.schemas import BY_TOPIC, CHUNK, TICK_FIELDS, TICKS
+from cellguard.record.writer import INDEX_DIR, RECORD_FILE
+
+RATES = ("decimated", "full", "all")
+
+
+@dataclass(frozen=True)
+class ContextChange:
+    t_ns: int
+    version: str
+    changed: tuple[str, ...]
+    versions: dict
+    context: dict
+
+
+@dataclass(frozen=True)
+class CycleRecord:
+    cycle: int
+    phase: str
+    t_start_ns: int
+    t_end_ns: int
+    success: bool
+    features: dict[str, float]
+    outcome: dict
+    versions: dict[str, str]
+
+
+@dataclass(frozen=True)
+class EventRecord:
+    t_ns: int
+    kind: str
+    reason: str
+    category: int | None = None
+    joint: str | None = None
+    asked: float | None = None
+    sent: float | None = None
+    cycle: int | None = None
+
+
+@dataclass(frozen=True)
+class RecordedChunk:
+    t_obs_ns: int
+    t_received_ns: int
+    latency_ns: int
+    dt_ns: int
+    actions: np.ndarray  # (H, dof), SI
+    uncertainty: np.ndarray | None
+
+
+@dataclass(frozen=True)
+class Ticks:
+    """Ticks in time order; arrays (n,) and (n, dof), SI, float64."""
+
+    joints: tuple[str, ...]
+    t_ns: np.ndarray
+    cycle: np.ndarray
+    q_ref: np.ndarray
+    q_cmd: np.ndarray
+    q_meas: np.ndarray
+    qd_meas: np.ndarray
+    effort: np.ndarray
+    current: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.t_ns)
+
+
+@dataclass(frozen=True)
+class Health:
+    """What a full read found. ``ok`` only for a finished file with nothing skipped."""
+
+    finished: bool
+    truncated: bool
+    chunks_ok: int
+    chunks_damaged: int
+    damage: tuple[str, ...]
+    gaps: dict[str, tuple[tuple[int, int], ...]]  # topic -> missing sequence ranges (first, last)
+    messages: dict[str, int]
+    span_ns: tuple[int, int] | None  # first and last message time read
+
+    @property
+    def ok(self) -> bool:
+        return self.finished and not self.truncated and not self.damage and not any(self.gaps.values())
+
+    def describe(self) -> str:
+        if self.ok:
+            return f"complete: {self.chunks_ok} chunks, {sum(self.messages.values())} messages"
+        state = ("truncated" if self.truncated else "not finished" if not self.finished
+                 else "damaged" if self.damage else "finished, with gaps")
+        lost = sum(b - a + 1 for g in self.gaps.values() for a, b in g)
+        span = ("" if self.span_ns is None
+                else f", readable {self.span_ns[0] * 1e-9:.3f} s to {self.span_ns[1] * 1e-9:.3f} s")
+        return (f"{state}: recovered {self.chunks_ok} chunks ({sum(self.messages.values())} messages{span}); "
+                f"{self.chunks_damaged} damaged chunks skipped, {lost} messages missing by sequence number")
+
+
+def open_record(path: Path | str, strict: bool = False) -> Record:
+    """Open a record folder (or .mcap file). RecordError if nothing is readable (or, strict, if anything is lost)."""
+    path = Path(path)
+    file = path / RECORD_FILE if path.is_dir() else path
+    if not file.exists():
+        raise RecordError(f"{file}: no record here")
+    record = Record(file, scan(file))
+    if not record.layout.chunks:
+        problems = "; ".join(d.why for d in record.layout.damage) or "no chunk in the file"
+        raise RecordError(f"{file}: nothing can be recovered ({problems})")
+    if strict and not (health := record.health()).ok:
+        raise RecordError(f"{file}: {health.describe()}")
+    return record
+
+
+class Record:
+    """One record file, read lazily chunk by chunk; see the module docstring for the contract."""
+
+    def __init__(self, file: Path, layout: Layout):
+        self.file, self.layout = file, layout
+        self._buf = open_buffer(file)
+        self._late_damage: dict[int, str] = {}
+        topics = {c.topic: c.id for c in layout.channels.values()}
+        self._ids = {topic: topics.get(topic, spec.id) for topic, spec in BY_TOPIC.items()}
+        self._contexts: list[ContextChange] | None = None
+        self.epoch_wall_ns = 0
+
+    def close(self) -> None:
+        self._buf.close()
+
+    def __enter__(self) -> Record:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # -- context --------------------------------------------------------------------------
+    @property
+    def contexts(self) -> list[ContextChange]:
+        if self._contexts is None:
+            self._contexts = []
+            for m in self.messages(["/context"]):
+                d = json.loads(m.data)
+                self.epoch_wall_ns = d.get("epoch_wall_ns", self.epoch_wall_ns)
+                self._contexts.append(ContextChange(d["t_ns"], d["version"], tuple(d.get("changed", ())),
+                                                    d.get("versions", {}), d["context"]))
+        return self._contexts
+
+    @property
+    def context(self) -> dict:
+        if not self.contexts:
+            raise RecordError(f"{self.file}: the context record is missing or damaged")
+        return self.contexts[0].context
+
+    # -- cycles, events, chunks -----------------------------------------------------------
+    def cycles(self) -> Iterator[CycleRecord]:
+        for m in self.messages(["/cycles"]):
+            d = json.loads(m.data)
+            if d["marker"] != "end":
+                continue
+            features = {k: math.nan if v is None else float(v) for k, v in d.get("features", {}).items()}
+            versions = {k: d[k] for k in ("policy_version", "calibration_version", "datum_version",
+                                          "context_version") if k in d}
+            yield CycleRecord(d["cycle"], d["phase"], d["t_start_ns"], d["t_end_ns"], bool(d["success"]),
+                              features, d.get("outcome", {}), versions)
+
+    def events(self) -> Iterator[EventRecord]:
+        for m in self.messages(["/events"]):
+            d = json.loads(m.data)
+            yield EventRecord(d["t_ns"], d["kind"], d["reason"], d.get("category"), d.get("joint"),
+                              d.get("asked"), d.get("sent"), d.get("cycle"))
+
+    def chunks(self) -> Iterator[RecordedChunk]:
+        for m in self.messages(["/chunks"]):
+            d = CHUNK.decode(m.data)
+            dof = max(int(d["dof"]), 1)
+            u = d["uncertainty"].astype(np.float64)
+            yield RecordedChunk(d["t_obs_ns"], d["t_received_ns"], d["latency_ns"], d["dt_ns"],
+                                d["actions"].astype(np.float64).reshape(-1, dof), u if u.size else None)
+
+    # -- ticks ----------------------------------------------------------------------------
+    def ticks(self, cycle: int | None = None, rate: str = "all", start_ns: int | None = None,
+              end_ns: int | None = None) -> Ticks:
+        """Ticks of one cycle or a time span; ``all`` merges the full-rate windows into the decimated stream."""
+        if rate not in RATES:
+            raise RecordError(f"rate: {rate!r} is not one of {', '.join(RATES)}")
+        if cycle is not None:
+            start_ns, end_ns = self._cycle_span(cycle)
+        topics = {"decimated": ["/ticks/decimated"], "full": ["/ticks/full"],
+                  "all": ["/ticks/decimated", "/ticks/full"]}[rate]
+        lo = None if start_ns is None else start_ns - self._batch_span_ns()
+        parts = [TICKS.decode(m.data) for m in self.messages(topics, lo, end_ns)]
+        return _merge(parts, cycle, start_ns, end_ns)
+
+    def _cycle_span(self, cycle: int) -> tuple[int, int | None]:
+        """Where a cycle lies in time: from the index if there is one, else from the cycle markers."""
+        index = self.file.parent / INDEX_DIR / "cycles"
+        if self.file.name == RECORD_FILE and index.is_dir():
+            table = ds.dataset(index, format="parquet", partitioning="hive").to_table(
+                columns=["t_start_ns", "t_end_ns"], filter=ds.field("cycle") == cycle)
+            if table.num_rows:
+                return table["t_start_ns"][0].as_py(), table["t_end_ns"][0].as_py()
+        start = end = None
+        for m in self.messages(["/cycles"]):
+            d = json.loads(m.data)
+            if d["cycle"] == cycle:
+                start, end = d["t_start_ns"], d.get("t_end_ns")
+        if start is None:
+            raise RecordError(f"cycle: {cycle} is not in {self.file}")
+        return start, end
+
+    def _batch_span_ns(self) -> int:
+        """How far before its log time a tick batch may reach: one chunk of ticks."""
+        context = self.contexts[0].context if self.contexts else {}
+        return context.get("record", {}).get("chunk_ns", 100_000_000) + context.get("servo_period_ns", 1_000_000)
+
+    # -- health ---------------------------------------------------------------------------
+    def health(self) -> Health:
+        """Read every chunk: CRCs, sequence gaps per channel, message counts."""
+        names = {i: t for t, i in self._ids.items()}
+        last: dict[int, int] = {}
+        gaps: dict[str, list[tuple[int, int]]] = {t: [] for t in self._ids}
+        counts = dict.fromkeys(self._ids, 0)
+        first_t = last_t = None
+        for m in self.messages(list(self._ids)):
+            topic = names.get(m.channel_id)
+            if topic is None:
+                continue
+            counts[topic] += 1
+            previous = last.get(m.channel_id, 0)
+            if m.sequence > previous + 1:
+                gaps[topic].append((previous + 1, m.sequence - 1))
+            last[m.channel_id] = max(previous, m.sequence)
+            first_t = m.log_time if first_t is None else min(first_t, m.log_time)
+            last_t = m.log_time if last_t is None else max(last_t, m.log_time)
+        damage = [d.why for d in self.layout.damage] + list(self._late_damage.values())
+        damaged = len(self._late_damage) + sum("chunk at byte" in d.why for d in self.layout.damage)
+        return Health(self.layout.finished, self.layout.truncated, len(self.layout.chunks) - len(self._late_damage),
+                      damaged, tuple(damage), {t: tuple(g) for t, g in gaps.items()}, counts,
+                      None if first_t is None else (first_t, last_t))
+
+    # -- raw messages ---------------------------------------------------------------------
+    def messages(self, topics: list[str], start_ns: int | None = None, end_ns: int | None = None
+                 ) -> Iterator[Message]:
+        """Raw MCAP messages of ``topics`` from every readable chunk overlapping the span, by log time."""
+        unknown = set(topics) - set(self._ids)
+        if unknown:
+            raise RecordError(f"topics: {', '.join(sorted(unknown))} not in a cellguard record; "
+                              f"known: {', '.join(self._ids)}")
+        wanted = {self._ids[t] for t in topics}
+        out = []
+        for ref in self.layout.chunks:
+            if not _overlaps(ref, wanted, start_ns, end_ns) or ref.offset in self._late_damage:
+                continue
+            try:
+                records = read_chunk(self._buf, ref)
+            except RecordError as exc:
+                self._late_damage[ref.offset] = str(exc)
+                continue
+            for r in records:
+                if isinstance(r, Message) and r.channel_id in wanted:
+                    out.append(r)
+        out.sort(key=lambda m: m.log_time)  # stable: file order within equal times
+        return iter(out)
+
+
+def _overlaps(ref: ChunkRef, wanted: set[int], start_ns: int | None, end_ns: int | None) -> bool:
+    if ref.channels is not None and not (ref.channels & wanted):
+        return False
+    if start_ns is not None and ref.end_ns < start_ns:
+        return False
+    return end_ns is None or ref.start_ns <= end_ns
+
+
+def _merge(parts: list[dict], cycle: int | None, start_ns: int | None, end_ns: int | None) -> Ticks:
+    joints = tuple(parts[0]["joints"]) if parts else ()
+    dof = len(joints)
+    t = np.concatenate([p["t_ns"] for p in parts]) if parts else np.zeros(0, np.int64)
+    cyc = np.concatenate([p["cycle"] for p in parts]) if parts else np.zeros(0, np.int32)
+    values = {f: (np.concatenate([p[f] for p in parts]).astype(np.float64).reshape(-1, dof) if parts
+                  else np.zeros((0, dof))) for f in TICK_FIELDS}
+    keep = np.ones(len(t), dtype=bool)
+    if cycle is not None:
+        keep &= cyc == cycle
+    if start_ns is not None and cycle is None:
+        keep &= t >= start_ns
+    if end_ns is not None and cycle is None:
+        keep &= t <= end_ns
+    t, cyc = t[keep], cyc[keep]
+    order = np.argsort(t, kind="stable")
+    t_sorted = t[order]
+    unique = np.ones(len(order), dtype=bool)
+    unique[1:] = t_sorted[1:] != t_sorted[:-1]
+    order = order[unique]
+    picked = {f: v[keep][order] for f, v in values.items()}
+    return Ticks(joints, t[order], cyc[order].astype(np.int64), **picked)

@@ -1,0 +1,73 @@
+"""Rewrite a truncated or damaged record as a finished file, with a fresh summary and index.
+
+The original is never modified: the recovered copy goes to another folder. Every message that
+passed its chunk CRC is copied with its original times and sequence numbers (so the gaps stay
+visible), into chunks of the usual span; the Parquet index is rebuilt from the cycle markers and
+events that survived.
+"""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+from mcap.writer import CompressionType, Writer
+
+from cellguard.errors import RecordError
+from cellguard.record.index import IndexWriter, cycle_row, event_row
+from cellguard.record.reader import Health, open_record
+from cellguard.record.schemas import CHANNELS
+from cellguard.record.writer import INDEX_DIR, PROFILE, RECORD_FILE
+
+CHUNK_SPAN_NS = 100_000_000  # recovered chunks hold this much log time
+
+
+def recover(source: Path, target: Path) -> Health:
+    """Copy what is readable of ``source`` (folder or .mcap) into ``target/record.mcap`` and ``target/index``.
+
+    Returns the health of the source as read; RecordError if nothing is readable or ``target``
+    would overwrite the source.
+    """
+    source, target = Path(source), Path(target)
+    with open_record(source) as record:
+        if target.resolve() in (record.file.parent.resolve(), record.file.resolve()):
+            raise RecordError(f"-o {target}: would overwrite the record being recovered; choose another folder")
+        health = record.health()
+        try:
+            target.mkdir(parents=True, exist_ok=True)
+            shutil.rmtree(target / INDEX_DIR, ignore_errors=True)
+            with open(target / RECORD_FILE, "wb") as f:
+                _copy_messages(record, f)
+            _rebuild_index(record, target / INDEX_DIR)
+        except OSError as exc:
+            raise RecordError(f"{target}: cannot write the recovered record ({exc.strerror or exc})") from None
+    return health
+
+
+def _copy_messages(record, stream) -> None:
+    writer = Writer(stream, chunk_size=1 << 30, compression=CompressionType.ZSTD, enable_crcs=True)
+    writer.start(profile=PROFILE, library="cellguard record recover")
+    for c in CHANNELS:
+        schema = writer.register_schema(c.schema_name, c.schema_encoding, c.schema_text.encode())
+        writer.register_channel(c.topic, c.message_encoding, schema)
+    ids = {c.topic: c.id for c in CHANNELS}
+    chunk_end = None
+    for m in record.messages(list(ids)):
+        if chunk_end is not None and m.log_time >= chunk_end:
+            writer.flush()
+            chunk_end = None
+        if chunk_end is None:
+            chunk_end = m.log_time + CHUNK_SPAN_NS
+        writer.add_message(m.channel_id, m.log_time, m.data, m.publish_time, m.sequence)
+    writer.finish()
+
+
+def _rebuild_index(record, folder: Path) -> None:
+    contexts = record.contexts
+    index = IndexWriter(folder, record.epoch_wall_ns)
+    for c in record.cycles():
+        index.add("cycles", cycle_row(c.cycle, c.phase, c.t_start_ns, c.t_end_ns, c.success, c.versions, c.features))
+    for e in record.events():
+        versions = next((x.versions for x in reversed(contexts) if x.t_ns <= e.t_ns), {})
+        index.add("events", event_row(e.__dict__, e.cycle, versions))
+    index.flush()

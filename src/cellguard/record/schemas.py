@@ -1,0 +1,111 @@
+"""The channels of a cellguard record and the schema each one declares.
+
+High-rate data (ticks, action chunks) is CDR with a ``ros2msg`` schema; low-rate data (context,
+events, cycle markers, camera and fixture measurements) is JSON with a ``jsonschema``. Channels
+are registered in this order, so channel ids are fixed (1..7): a reader can still name the
+messages of a file whose first chunk, the one that holds the channel records, was damaged.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+
+from cellguard.record.cdr import CdrLayout
+
+TICKS = CdrLayout(
+    "cellguard_msgs/TickBatch",
+    "Consecutive servo ticks of all joints. Arrays are row-major [tick][joint] in `joints` order.\n"
+    "SI units: position rad or m, velocity rad/s or m/s, effort N*m or N, current A.",
+    (
+        ("joints", "string[]", "joint names, profile order"),
+        ("t_ns", "int64[]", "tick time [ns], simulated or monotonic clock"),
+        ("cycle", "int32[]", "cycle index per tick"),
+        ("q_ref", "float32[]", "reference from the executor (what the policy asked)"),
+        ("q_cmd", "float32[]", "setpoint actually sent after the envelope and the drive"),
+        ("q_meas", "float32[]", "measured position"),
+        ("qd_meas", "float32[]", "measured velocity"),
+        ("effort", "float32[]", "measured effort"),
+        ("current", "float32[]", "measured motor current [A]"),
+    ),
+)
+TICK_FIELDS = ("q_ref", "q_cmd", "q_meas", "qd_meas", "effort", "current")
+
+CHUNK = CdrLayout(
+    "cellguard_msgs/ActionChunk",
+    "One action chunk as the policy returned it, before the executor or the envelope touched it.\n"
+    "Step i targets t_obs_ns + (i + 1) * dt_ns. actions is row-major [horizon][dof].",
+    (
+        ("t_obs_ns", "int64", "time of the observation the chunk answers [ns]"),
+        ("t_received_ns", "int64", "time the chunk reached the executor [ns]"),
+        ("latency_ns", "int64", "inference latency [ns]"),
+        ("dt_ns", "int64", "step period [ns]"),
+        ("dof", "uint32", "action dimension"),
+        ("actions", "float32[]", "targets, SI"),
+        ("uncertainty", "float32[]", "per-step uncertainty in the policy's scale; empty if none"),
+    ),
+)
+
+
+def _json_schema(title: str, properties: dict, required: list[str]) -> dict:
+    return {"$schema": "https://json-schema.org/draft/2020-12/schema", "title": title, "type": "object",
+            "properties": properties, "required": required}
+
+
+_INT, _NUM, _STR = {"type": "integer"}, {"type": "number"}, {"type": "string"}
+_OPT_NUM, _OPT_STR, _OPT_INT = {"type": ["number", "null"]}, {"type": ["string", "null"]}, {"type": ["integer", "null"]}
+
+CONTEXT_SCHEMA = _json_schema("cellguard.Context", {
+    "t_ns": _INT, "epoch_wall_ns": {"type": "integer", "description": "wall clock at t_ns = 0, for display only"},
+    "version": _STR, "changed": {"type": "array", "items": _STR},
+    "versions": {"type": "object", "additionalProperties": _STR, "description": "policy, calibration, datum"},
+    "context": {"type": "object", "description": "policy, embodiment, calibration, envelope, datum, site, software"},
+}, ["t_ns", "version", "context"])
+EVENT_SCHEMA = _json_schema("cellguard.Event", {
+    "t_ns": _INT, "cycle": _OPT_INT, "kind": _STR, "reason": _STR, "joint": _OPT_STR,
+    "asked": _OPT_NUM, "sent": _OPT_NUM, "category": {"type": ["integer", "null"], "enum": [0, 1, 2, None]},
+}, ["t_ns", "kind", "reason"])
+CYCLE_SCHEMA = _json_schema("cellguard.CycleMarker", {
+    "marker": {"enum": ["begin", "end"]}, "cycle": _INT, "phase": {"enum": ["acceptance", "production"]},
+    "t_start_ns": _INT, "t_end_ns": _INT, "success": {"type": "boolean"}, "context_version": _STR,
+    "outcome": {"type": "object", "description": "the cell's measured outcome, SI"},
+    "features": {"type": "object", "additionalProperties": _NUM, "description": "per-cycle features"},
+}, ["marker", "cycle", "phase", "t_start_ns"])
+MEASUREMENT_SCHEMA = _json_schema("cellguard.Measurements", {
+    "t_ns": _INT, "cycle": _INT,
+    "measurements": {"type": "object", "additionalProperties": {"type": "array", "items": _NUM},
+                     "description": "camera and fixture readings shown to the policy, SI, sensor frame"},
+}, ["t_ns", "measurements"])
+
+
+@dataclass(frozen=True)
+class ChannelSpec:
+    """One channel: topic, and the schema it declares in the file."""
+
+    id: int
+    topic: str
+    schema_name: str
+    schema_encoding: str  # "ros2msg" or "jsonschema"
+    schema_text: str
+    message_encoding: str  # "cdr" or "json"
+
+
+def _cdr(i: int, topic: str, layout: CdrLayout) -> ChannelSpec:
+    return ChannelSpec(i, topic, layout.name, "ros2msg", layout.ros2msg(), "cdr")
+
+
+def _json(i: int, topic: str, schema: dict) -> ChannelSpec:
+    return ChannelSpec(i, topic, schema["title"], "jsonschema", json.dumps(schema), "json")
+
+
+CHANNELS: tuple[ChannelSpec, ...] = (
+    _json(1, "/context", CONTEXT_SCHEMA),
+    _cdr(2, "/ticks/decimated", TICKS),
+    _cdr(3, "/ticks/full", TICKS),
+    _cdr(4, "/chunks", CHUNK),
+    _json(5, "/events", EVENT_SCHEMA),
+    _json(6, "/cycles", CYCLE_SCHEMA),
+    _json(7, "/measurements", MEASUREMENT_SCHEMA),
+)
+BY_TOPIC = {c.topic: c for c in CHANNELS}
+BY_ID = {c.id: c for c in CHANNELS}

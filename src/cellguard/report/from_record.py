@@ -1,0 +1,33 @@
+"""Write the report of a record folder: diagnosis from the record, overlay from its ticks."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from cellguard.diagnose.diagnosis import Diagnosis
+from cellguard.diagnose.from_record import diagnose_record
+from cellguard.report.html import render_report
+
+REPORT_FILE = "report.html"
+
+def write_report(folder: Path, out: Path | None = None, diagnosis: Diagnosis | None = None) -> Path:
+    """Diagnose ``folder`` (unless ``diagnosis`` is given) and write the HTML; return its path."""
+    from cellguard.record.reader import open_record
+
+    folder = Path(folder)
+    out = Path(out) if out is not None else folder / REPORT_FILE
+    d = diagnosis if diagnosis is not None else diagnose_record(folder)
+    with open_record(folder) as rec:
+
+        def trace(cycle: int) -> dict | None:
+            ticks = rec.ticks(cycle=cycle)
+            if len(ticks) == 0:
+                return None
+            return {"t": (ticks.t_ns - ticks.t_ns[0]) * 1e-9, "current": ticks.current,
+                    "error": ticks.q_cmd - ticks.q_meas, "joints": list(ticks.joints)}
+
+        page = render_report(d, trace)
+    out.write_text(page, encoding="utf-8")
+    return out
+
+__all__ = ["REPORT_FILE", "write_report"]

@@ -1,0 +1,116 @@
+"""The incident report: findings first, then the evidence a technician checks, then context.
+
+One HTML file with its charts inline as SVG: it opens offline, months later, on any machine.
+"""
+
+from __future__ import annotations
+
+import html
+import json
+from collections.abc import Callable, Mapping
+
+from cellguard.diagnose.diagnosis import Diagnosis
+from cellguard.report import plots
+
+Trace = Mapping  # {"t": (n,) s into the cycle, "current": (n, dof) A, "error": (n, dof) rad, "joints": names}
+
+_CSS = """
+body{font-family:system-ui,sans-serif;margin:24px auto;max-width:1180px;color:#1d3557;background:#fff}
+h1{font-size:22px;margin-bottom:4px}h2{font-size:17px;border-bottom:1px solid #ccd;padding-bottom:3px;margin-top:28px}
+table{border-collapse:collapse;font-size:13px}td,th{border:1px solid #dde;padding:3px 8px;text-align:left;vertical-align:top}
+.finding{border-left:5px solid #e63946;padding:6px 12px;margin:10px 0;background:#fdf1f2}
+.ok{border-left:5px solid #2a9d8f;padding:6px 12px;background:#eef8f6}
+figure.plot{margin:8px 0}figure.plot svg{max-width:100%;height:auto}.muted{color:#667}
+"""
+
+
+def render_report(d: Diagnosis, trace: Callable[[int], Trace | None] | None = None) -> str:
+    """The report of ``d``; ``trace(cycle)`` gives a cycle's ticks for the overlay, if recorded."""
+    ctx = d.context
+    parts = [f"<h1>cellguard incident report: {_e(ctx.get('cell', 'cell'))}</h1>",
+             f"<p class=muted>{len(d.cycles)} cycles, baseline of {d.baseline.n} "
+             f"({_e(d.baseline.source)}); site {_e(ctx.get('site', '?'))}, cell id {_e(ctx.get('cell_id', '?'))}</p>",
+             "<h2>Findings</h2>", _findings(d), "<h2>Timeline</h2>", _figure("timeline", plots.timeline(d)),
+             "<h2>Last good versus faulted</h2>", _last_good(d, trace), _changes(d),
+             "<h2>Drift</h2>", _figure("drift", plots.drift_charts(d)),
+             "<h2>Mirrored asymmetry</h2>", _asymmetry(d), "<h2>Guard events</h2>", _events(d),
+             "<h2>Context</h2>", _context(ctx)]
+    return ("<!doctype html><html lang=en><head><meta charset=utf-8><title>cellguard report</title>"
+            f"<style>{_CSS}</style></head><body>{''.join(parts)}</body></html>")
+
+
+def _e(v: object) -> str:
+    return html.escape(str(v))
+
+
+def _figure(name: str, svg: str) -> str:
+    return f'<figure class=plot id="plot-{name}">{svg}</figure>'
+
+
+def _findings(d: Diagnosis) -> str:
+    if not d.findings:
+        return "<div class=ok>No drift, fault or asymmetry found against the baseline.</div>"
+    out = []
+    for f in d.findings:
+        joints = f" on {', '.join(f.joints)}" if f.joints else ""
+        items = "".join(f"<li>{_e(x)}</li>" for x in f.evidence)
+        out.append(f"<div class=finding><b>{_e(f.cause)}</b>{_e(joints)} from cycle {f.cycle} "
+                   f"(confidence {f.confidence:.2f})<ul>{items}</ul></div>")
+    return "".join(out)
+
+
+def _last_good(d: Diagnosis, trace: Callable[[int], Trace | None] | None) -> str:
+    if d.first_faulted_cycle is None:
+        return "<p>No faulted cycle.</p>"
+    good, bad = d.last_good_cycle, d.first_faulted_cycle
+    head = f"<p>Last good cycle <b>{good}</b>, first faulted cycle <b>{bad}</b>.</p>"
+    labels = (f"cycle {good} (last good)", f"cycle {bad} (first faulted)")
+    joints = sorted({k.split(".", 1)[1] for c in d.cycles[:1] for k in c.features if k.startswith("current_rms.")},
+                    key=lambda j: [k for k in d.cycles[0].features].index(f"current_rms.{j}"))
+    latest = d.cycles[-1].index
+    wanted = [(good, labels[0]), (bad, labels[1])] + ([(latest, f"cycle {latest} (latest)")] if latest > bad else [])
+    traces = [(trace(c), label) for c, label in wanted if c is not None] if trace is not None else []
+    traces = [(t, label) for t, label in traces if t is not None]
+    if traces:
+        return head + _figure("overlay", plots.overlay(traces[0][0].get("joints", joints), traces))
+    by = {c.index: c.features for c in d.cycles}
+    return head + "<p class=muted>No tick data in the record for these cycles: per-cycle features shown.</p>" + \
+        _figure("overlay", plots.feature_bars(joints, by.get(good, {}), by.get(bad, {}), labels))
+
+
+def _changes(d: Diagnosis) -> str:
+    if not d.changes:
+        return ""
+    rows = "".join(f"<tr><td>{_e(c.signal)}</td><td>{c.onset}</td><td>{c.alarm_cycle}</td><td>{c.baseline:.4g}</td>"
+                   f"<td>{c.last_good:.4g}</td><td>{c.first_faulted:.4g}</td><td>{c.at_alarm:.4g}</td>"
+                   f"<td>{c.change:+.4g}</td><td>{c.scales:+.1f}</td></tr>" for c in d.changes)
+    return ("<p>What changed, in the order it began:</p><table><tr><th>feature</th><th>onset</th><th>alarm</th>"
+            "<th>baseline</th><th>last good</th><th>first faulted</th><th>at alarm</th><th>change</th>"
+            f"<th>scales</th></tr>{rows}</table>")
+
+
+def _asymmetry(d: Diagnosis) -> str:
+    a = d.asymmetry
+    if a is None:
+        return "<p class=muted>This cell has no symmetry map: no mirrored comparison.</p>"
+    verdict = (f"<div class=finding>The <b>{_e(a.side)}</b> side differs from its mirror "
+               f"({_e(', '.join(a.joints))}).</div>" if a.side else "<div class=ok>Mirrored motions agree.</div>")
+    return verdict + _figure("asymmetry", plots.asymmetry_chart(d))
+
+
+def _events(d: Diagnosis) -> str:
+    if not d.safety_events:
+        return "<p>None.</p>"
+    rows = "".join(f"<tr><td>{e['t']:.3f}</td><td>{_e(e.get('cycle'))}</td><td>{_e(e.get('kind'))}</td>"
+                   f"<td>{_e(e.get('category', ''))}</td><td>{_e(e.get('reason', ''))}</td></tr>"
+                   for e in d.safety_events[:200])
+    more = f"<p class=muted>{len(d.safety_events) - 200} more not shown.</p>" if len(d.safety_events) > 200 else ""
+    return f"<table><tr><th>t [s]</th><th>cycle</th><th>kind</th><th>stop cat.</th><th>reason</th></tr>{rows}</table>{more}"
+
+
+def _context(ctx: Mapping) -> str:
+    if not ctx:
+        return "<p class=muted>The record holds no context.</p>"
+    rows = "".join(f"<tr><th>{_e(k)}</th><td><code>{_e(v if isinstance(v, str) else json.dumps(v, default=str))}"
+                   "</code></td></tr>" for k, v in ctx.items())
+    return f"<table>{rows}</table>"

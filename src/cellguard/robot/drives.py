@@ -1,0 +1,62 @@
+"""The joint drives of a MuJoCo cell: position servos, their current sensing, and what faults change.
+
+Any cell whose profiled joints each have a position actuator of the same name uses this: it
+maps the profile's joint order onto the model once, reads the state a drive would report
+(current = actuator force / torque constant + noise), and sets friction and servo gain as
+absolute multiples of the commissioned values, so re-applying a fault is harmless.
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+
+from cellguard.embodiment import Profile
+from cellguard.robot.state import State
+
+
+class PositionDrives:
+    """The position servos of ``profile``'s joints in ``model``; arrays in profile joint order."""
+
+    def __init__(self, model: mujoco.MjModel, data: mujoco.MjData, profile: Profile,
+                 rng: np.random.Generator, current_noise: float, brake_damping: float):
+        self.model, self.data, self.profile, self.rng = model, data, profile, rng
+        self.current_noise = current_noise  # [A] 1-sigma noise of each current reading
+        self.brake_damping = brake_damping  # [N·m·s/rad] joint damping while power is off
+        jids = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, n) for n in profile.joint_names]
+        self.qadr = np.array([model.jnt_qposadr[j] for j in jids])
+        self.dadr = np.array([model.jnt_dofadr[j] for j in jids])
+        self.act = np.array([mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, n) for n in profile.joint_names])
+        self._kt = profile.array("torque_constant")
+        self.nominal_frictionloss = model.dof_frictionloss[self.dadr].copy()
+        self.nominal_gain = model.actuator_gainprm[self.act, 0].copy()
+        self.nominal_bias = model.actuator_biasprm[self.act, 1:3].copy()
+        self.nominal_damping = model.dof_damping[self.dadr].copy()
+
+    def read(self, t_ns: int) -> State:
+        """What the drives report now: position, velocity, effort and motor current."""
+        d = self.data
+        effort = d.actuator_force[self.act].copy()
+        current = effort / self._kt + self.rng.normal(0.0, self.current_noise, effort.shape)
+        return State(t_ns, d.qpos[self.qadr].copy(), d.qvel[self.dadr].copy(), effort, current)
+
+    def write(self, setpoint: np.ndarray) -> np.ndarray:
+        """Command joint positions; return what the drives took."""
+        self.data.ctrl[self.act] = setpoint
+        return self.data.ctrl[self.act].copy()
+
+    def set_power(self, on: bool) -> None:
+        """Power off: every actuator disabled and the joints braked (high damping); on: as commissioned."""
+        self.model.opt.disableactuator = 0 if on else 1  # the drives are in actuator group 0
+        self.model.dof_damping[self.dadr] = self.nominal_damping if on else self.brake_damping
+
+    def set_friction_scale(self, joint: str, factor: float) -> None:
+        """Dry friction of ``joint`` = commissioned value x ``factor``."""
+        i = self.profile.index(joint)
+        self.model.dof_frictionloss[self.dadr[i]] = self.nominal_frictionloss[i] * factor
+
+    def set_servo_gain(self, joint: str, factor: float) -> None:
+        """Position and velocity gains of ``joint``'s servo = commissioned values x ``factor``."""
+        i = self.profile.index(joint)
+        self.model.actuator_gainprm[self.act[i], 0] = self.nominal_gain[i] * factor
+        self.model.actuator_biasprm[self.act[i], 1:3] = self.nominal_bias[i] * factor

@@ -1,0 +1,110 @@
+"""Synthetic recordings for the record tests: every value is a known function of the tick index.
+
+Run as a script it records ticks until killed, writing the last completed tick index to a
+progress file after every tick (the SIGKILL test reads it after the kill).
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from cellguard.control.events import Event
+from cellguard.record.writer import RecordConfig, Recorder
+from cellguard.robot.state import State
+
+JOINTS = ("shoulder_pan", "shoulder_lift", "elbow", "wrist_flex", "wrist_roll", "gripper")
+DT_NS = 1_000_000
+
+
+def values(k: int) -> dict[str, np.ndarray]:
+    """The six tick fields of tick ``k`` (exactly representable in float32)."""
+    base = (k % 4096) / 64.0 + np.arange(len(JOINTS))
+    return {"q_ref": base, "q_cmd": base + 0.5, "q_meas": base + 0.25, "qd_meas": -base,
+            "effort": base * 2.0, "current": base / 4.0}
+
+
+def tick(rec: Recorder, k: int, cycle: int) -> None:
+    v = values(k)
+    rec.tick(cycle, v["q_ref"], v["q_cmd"], State(k * DT_NS, v["q_meas"], v["qd_meas"], v["effort"], v["current"]))
+
+
+def context(**extra) -> dict:
+    return {"site": "test-site", "cell_id": "cell-7", "servo_period_ns": DT_NS, "policy": {"source": "scripted",
+            "sha256": "ab" * 32}, "fixture_datum": [0.3, 0.1, 0.0], **extra}
+
+
+def record(folder: Path, cycles: int, ticks_per_cycle: int, events: dict[int, str] | None = None,
+           config: RecordConfig = RecordConfig(), opener=None, failed: set[int] = frozenset()) -> Recorder:
+    """Write ``cycles`` cycles; ``events`` maps a tick index to an event kind; ``failed`` cycles fail."""
+    kwargs = {} if opener is None else {"opener": opener}
+    rec = Recorder.create(folder, joints=JOINTS, dt_ns=DT_NS, context=context(record=config.to_dict()),
+                          config=config, epoch_wall_ns=1_790_000_000_000_000_000, **kwargs)
+    k = 0
+    for c in range(cycles):
+        phase = "acceptance" if c < cycles // 2 else "production"
+        rec.cycle_begin(c, phase, k * DT_NS)
+        for _ in range(ticks_per_cycle):
+            tick(rec, k, c)
+            if events and k in events:
+                rec.event(Event(k * DT_NS, events[k], "test", joint="elbow", asked=1.0, sent=0.5), c)
+            k += 1
+        rec.cycle_end({"cycle": c, "phase": phase, "success": c not in failed,
+                       "features": {"current_peak.elbow": float(c), "cycle": float(c)}}, k * DT_NS)
+    rec.close()
+    return rec
+
+
+class FullDisk:
+    """A file that accepts ``capacity`` bytes, shared by every file of a folder, then raises ENOSPC."""
+
+    def __init__(self, capacity: int):
+        self.left = capacity
+
+    def __call__(self, path: Path):
+        return _FullDiskFile(open(path, "wb"), self)
+
+
+class _FullDiskFile:
+    def __init__(self, f, disk: FullDisk):
+        self.f, self.disk = f, disk
+
+    def write(self, data) -> int:
+        data = bytes(data)
+        if len(data) > self.disk.left:
+            self.f.write(data[:self.disk.left])  # a real full disk takes what fits
+            self.disk.left = 0
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        self.disk.left -= len(data)
+        return self.f.write(data)
+
+    def __getattr__(self, name):
+        return getattr(self.f, name)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.f.close()
+
+
+def _run_until_killed(folder: Path, progress: Path) -> None:
+    config = RecordConfig(decimated_hz=1000.0, pre_trigger_s=0.0, post_trigger_s=0.0)
+    rec = Recorder.create(folder, joints=JOINTS, dt_ns=DT_NS, context=context(record=config.to_dict()), config=config)
+    fd = os.open(progress, os.O_WRONLY | os.O_CREAT)
+    k = 0
+    while True:
+        tick(rec, k, k // 1000)
+        os.pwrite(fd, k.to_bytes(8, "little"), 0)
+        k += 1
+        if k % 20 == 0:
+            time.sleep(0.001)
+
+
+if __name__ == "__main__":
+    _run_until_killed(Path(sys.argv[1]), Path(sys.argv[2]))

@@ -1,0 +1,103 @@
+"""AsyncInference: a real worker thread; chunks come back stamped, the servo side never blocks."""
+
+import threading
+import time
+
+import numpy as np
+
+from cellguard.policy.async_inference import AsyncInference
+from cellguard.policy.chunk import ActionChunk
+from cellguard.robot.state import Observation
+
+
+class GatedPolicy:
+    """Answers only when the test opens the gate, so the test controls 'inference is slow'."""
+
+    source = "gated"
+
+    def __init__(self, horizon: int = 10):
+        self.gate = threading.Event()
+        self.horizon = horizon
+        self.fail_next = False
+
+    def reset(self) -> None:
+        pass
+
+    def content_hash(self) -> str:
+        return "gated"
+
+    def infer(self, observation: Observation) -> ActionChunk:
+        assert self.gate.wait(5.0)
+        self.gate.clear()
+        if self.fail_next:
+            self.fail_next = False
+            raise RuntimeError("model exploded")
+        actions = np.tile(observation.q, (self.horizon, 1))
+        return ActionChunk(actions, observation.t_ns, 20_000_000)
+
+
+def _obs(t_ns: int) -> Observation:
+    return Observation(t_ns, np.full(6, t_ns * 1e-9), np.zeros(6))
+
+
+def _wait_for(inference: AsyncInference):
+    for _ in range(500):  # bounded: 5 s
+        result = inference.take()
+        if result is not None:
+            return result
+        time.sleep(0.01)
+    raise AssertionError("no result")
+
+
+def test_submit_returns_at_once_and_the_chunk_answers_the_observation_it_was_given():
+    policy = GatedPolicy()
+    inference = AsyncInference(policy, threshold=0.5)
+    try:
+        assert inference.wants_observation(0)
+        inference.submit(_obs(1_000_000))  # returns although the policy is blocked
+        assert not inference.wants_observation(2_000_000)  # one request in flight at most
+        assert inference.take() is None
+        policy.gate.set()
+        result = _wait_for(inference)
+        assert result.error is None and result.chunk.t_obs_ns == 1_000_000
+        assert result.chunk.actions[0, 0] == 1e-3  # built from the submitted observation
+        assert result.latency_ns > 0 and result.queue_depth == 0
+    finally:
+        policy.gate.set()
+        inference.close()
+
+
+def test_a_new_observation_is_wanted_when_the_steps_left_fall_to_the_threshold():
+    policy = GatedPolicy(horizon=10)
+    inference = AsyncInference(policy, threshold=0.5)
+    try:
+        inference.submit(_obs(0))
+        policy.gate.set()
+        _wait_for(inference)
+        # steps at 20, 40, ..., 200 ms: more than 5 left until 100 ms
+        assert inference.remaining_steps(50_000_000) == 8 and not inference.wants_observation(50_000_000)
+        assert inference.remaining_steps(100_000_000) == 5 and inference.wants_observation(100_000_000)
+        inference.submit(_obs(100_000_000))
+        policy.gate.set()
+        assert _wait_for(inference).queue_depth == 5
+    finally:
+        policy.gate.set()
+        inference.close()
+
+
+def test_a_failing_policy_is_recorded_not_raised_and_the_worker_keeps_serving():
+    policy = GatedPolicy()
+    policy.fail_next = True
+    inference = AsyncInference(policy)
+    try:
+        inference.submit(_obs(0))
+        policy.gate.set()
+        failed = _wait_for(inference)
+        assert failed.chunk is None and "model exploded" in failed.error
+        inference.submit(_obs(5_000_000))
+        policy.gate.set()
+        assert _wait_for(inference).chunk is not None
+        assert len(inference.results) == 2
+    finally:
+        policy.gate.set()
+        inference.close()

@@ -1,0 +1,53 @@
+"""`cellguard diagnose` and `cellguard report` on a real record written by `cellguard run`."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+import yaml
+from typer.testing import CliRunner
+
+from cellguard.cli import app
+
+runner = CliRunner()
+
+
+@pytest.fixture(scope="module")
+def recorded(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("run")
+    scenario = folder / "scenario.yaml"
+    scenario.write_text(yaml.safe_dump({"cell": "arm-pick-place", "seed": 3, "acceptance_cycles": 6,
+                                        "production_cycles": 4,
+                                        "faults": [{"kind": "fixture_shift", "at_cycle": 7, "dx_mm": 4.0}]}))
+    out = folder / "out"
+    result = runner.invoke(app, ["run", str(scenario), "--out", str(out), "--json"])
+    assert result.exit_code == 0, result.output
+    return out
+
+
+def test_diagnose_json_reads_the_record_and_keeps_the_baseline(recorded):
+    result = runner.invoke(app, ["diagnose", str(recorded), "--json"])
+    assert result.exit_code == 0, result.output
+    data = json.loads(result.stdout)
+    assert data["cycles"] == 10 and data["baseline_cycles"] == 6
+    assert data["findings"][0]["cause"] == "fixture_shift" and data["first_faulted_cycle"] == 7
+    assert data["last_good_cycle"] == 6 and data["drift_alarms"][0]["cycle"] >= 7
+    assert (recorded / "baseline.json").is_file()
+    again = json.loads(runner.invoke(app, ["diagnose", str(recorded), "--json"]).stdout)
+    assert again["findings"] == data["findings"]  # the stored baseline gives the same answer
+
+
+def test_report_writes_one_html_file_with_the_overlay_from_ticks(recorded, tmp_path):
+    out = tmp_path / "r.html"
+    result = runner.invoke(app, ["report", str(recorded), "-o", str(out)])
+    assert result.exit_code == 0, result.output
+    page = out.read_text()
+    assert 'id="plot-overlay"><svg' in page and "fixture_shift" in page
+    assert "No tick data" not in page  # the record's ticks were drawn
+
+
+def test_a_folder_without_a_record_is_one_line_and_exit_2(tmp_path):
+    result = runner.invoke(app, ["diagnose", str(tmp_path / "nothing")])
+    assert result.exit_code == 2
+    assert result.output.strip().count("\n") == 0 and result.output.startswith("error:")

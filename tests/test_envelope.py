@@ -1,0 +1,177 @@
+"""The envelope on the MuJoCo arm cell: transparency, stops 0/1/2, safety inputs, watchdog, gate, box."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from cellguard.control.settings import GuardSettings, build_guard
+from cellguard.policy.chunk import ActionChunk
+from cellguard.policy.scripted_arm import ScriptedArmPolicy
+from cellguard.robot.protocol import SafetyInputs
+from cellguard.robot.registry import make_cell
+from cellguard.runner import Run
+from cellguard.scenario import load_scenario
+
+SCENARIOS = __import__("pathlib").Path(__file__).parents[1] / "scenarios"
+
+
+class Loop:
+    """The tick path of the runner, on the arm cell, with a hook per tick."""
+
+    def __init__(self, settings: GuardSettings | None = None, speed: float = 1.0):
+        self.cell = make_cell("arm-pick-place", seed=1)
+        self.executor, self.envelope = build_guard(self.cell, settings)
+        self.policy = ScriptedArmPolicy(calibration=self.cell.context())
+        self.cell.begin_cycle(0)
+        self.policy._t0_ns = 0
+        self.policy._program = self.policy._plan(self.cell.observe())
+        self.program = lambda t: self.policy._at(np.asarray(t) * speed)
+        self.events, self.log = [], []
+
+    def run(self, ticks: int, hook=None, silent_after: int | None = None) -> np.ndarray:
+        cell, ex, env = self.cell, self.executor, self.envelope
+        for k in range(ticks):
+            t = cell.t_ns
+            if k % 50 == 0 and (silent_after is None or k < silent_after):
+                # a taught program reads the playback clock (speed override), so a slowed clock slows it
+                steps = ((ex.tau_ns if k else t) + (np.arange(25) + 1) * 20_000_000) * 1e-9
+                self.events += ex.push(ActionChunk(self.program(steps), t, 20_000_000), t)
+            if hook is not None:
+                hook(k, self)
+            reference = ex.reference(t, env.scale)
+            setpoint, events = env.apply(t, reference, cell.read(), cell.safety(), ex.last_chunk_ns,
+                                         ex.uncertainty, ex.tool_speed_ahead(300_000_000))
+            self.events += events
+            if not env.power:
+                cell.set_power(False)
+            cell.write(setpoint)
+            cell.step()
+            self.log.append((reference.copy(), setpoint.copy(), env.tool_speed, env.power))
+        return np.array([s for _, s, _, _ in self.log])
+
+
+def _kinds(events) -> list[str]:
+    return [e.kind for e in events]
+
+
+def test_a_reference_inside_the_envelope_passes_exactly():
+    loop = Loop(speed=0.6)  # the taught program slowed into every limit of the profile
+    loop.run(2000)
+    ref = np.array([r for r, _, _, _ in loop.log])
+    sent = np.array([s for _, s, _, _ in loop.log])
+    assert np.array_equal(ref, sent)
+    assert not [e for e in loop.events if e.kind not in ("chunk_steps_dropped",)]
+
+
+@pytest.mark.parametrize("category", [0, 1, 2])
+def test_protective_stop_input_is_obeyed_through_the_cell(category):
+    loop = Loop(speed=0.6)
+
+    def hook(k, lp):
+        if k == 700:
+            lp.cell.safety_inputs = SafetyInputs(stop=category)
+
+    sent = loop.run(1400, hook)
+    v = np.diff(sent, axis=0) / 1e-3
+    moving = np.flatnonzero(np.abs(v[699:]).max(axis=1) > 0)
+    settle_ms = (moving[-1] + 1) if len(moving) else 0
+    kinds = _kinds(loop.events)
+    assert "protective_stop" in kinds
+    stop = next(e for e in loop.events if e.kind == "protective_stop")
+    assert stop.category == category
+    if category == 0:
+        assert settle_ms <= 1 and "power_removed" in kinds
+    else:
+        assert settle_ms <= 400
+        assert ("power_removed" in kinds) == (category == 1)
+    assert loop.envelope.power == (category == 2)
+    if category != 2:  # brakes hold the arm where it stopped
+        qd = loop.cell.read().qd
+        assert np.abs(qd).max() < 0.05
+
+
+def test_protective_stop_released_resumes_motion():
+    loop = Loop(speed=0.6)
+
+    def hook(k, lp):
+        lp.cell.safety_inputs = SafetyInputs(stop=2) if 600 <= k < 900 else SafetyInputs()
+
+    loop.run(1500, hook)
+    assert _kinds(loop.events).count("resume") == 1
+    tail = np.array([s for _, s, _, _ in loop.log[-100:]])
+    assert np.abs(np.diff(tail, axis=0)).max() > 0  # moving again
+
+
+def test_watchdog_stops_a_silent_policy():
+    loop = Loop(GuardSettings(watchdog_s=0.1), speed=0.6)
+    sent = loop.run(900, silent_after=300)
+    stop = [e for e in loop.events if e.kind == "watchdog_stop"]
+    assert len(stop) == 1 and stop[0].category == 2
+    assert 0.35e9 < stop[0].t_ns < 0.45e9  # last chunk at 0.25 s, watchdog 0.1 s
+    assert np.abs(np.diff(sent[-100:], axis=0)).max() == 0.0
+
+
+def test_reduced_speed_input_caps_the_tool_speed_and_keeps_the_path():
+    fast = Loop()
+    fast.run(1300)
+    slow = Loop()
+
+    def hook(k, lp):
+        lp.cell.safety_inputs = SafetyInputs(reduced_speed=True)
+
+    slow.run(1300, hook)
+    assert max(s for _, _, s, _ in fast.log) > 0.4
+    assert max(s for _, _, s, _ in slow.log[400:]) <= 0.25 * 1.05  # after the ramp-down
+    assert "reduced_speed_input" in _kinds(slow.events)
+
+
+def test_uncertainty_gate_holds_when_the_policy_is_unsure():
+    loop = Loop(GuardSettings(uncertainty_threshold=0.5, uncertainty_action="hold"), speed=0.6)
+    cell, ex = loop.cell, loop.executor
+    for k in range(600):
+        t = cell.t_ns
+        if k % 50 == 0:
+            steps = (t + (np.arange(25) + 1) * 20_000_000) * 1e-9
+            unsure = np.full(25, 0.9 if k >= 300 else 0.1)
+            loop.events += ex.push(ActionChunk(loop.program(steps), t, 20_000_000, unsure), t)
+        setpoint, events = loop.envelope.apply(t, ex.reference(t), None, SafetyInputs(), ex.last_chunk_ns,
+                                               ex.uncertainty)
+        loop.events += events
+        cell.write(setpoint)
+        cell.step()
+    assert [e.category for e in loop.events if e.kind == "uncertainty_hold"] == [2]
+    assert loop.envelope.tracker.stopped
+
+
+def test_workspace_box_stops_before_the_tool_leaves_it():
+    box = ((-0.45, -0.45, 0.05), (0.45, 0.45, 0.55))  # floor raised above the pick height
+    loop = Loop(GuardSettings(box=box), speed=0.6)
+    sent = loop.run(2500)
+    assert "workspace_stop" in _kinds(loop.events)
+    tips = np.array([loop.cell.tool_point(q) for q in sent])
+    assert tips[:, 2].min() > 0.05 - 0.005  # stopped within 5 mm of the floor, from look-ahead
+
+
+@pytest.mark.parametrize("name, kind", [("latency.yaml", "chunk_steps_dropped"), ("nan.yaml", "chunk_rejected")])
+def test_fault_scenarios_run_to_completion_inside_the_limits(name, kind):
+    run = Run(load_scenario(SCENARIOS / name))
+    profile = run.cell.profile
+    seen = []
+    original = run.envelope.apply
+
+    def apply(*args, **kwargs):
+        setpoint, events = original(*args, **kwargs)
+        seen.append(setpoint.copy())
+        return setpoint, events
+
+    run.envelope.apply = apply
+    outcomes = [run.cycle() for _ in range(run.scenario.total_cycles)]
+    assert len(outcomes) == 3 and outcomes[0]["success"]  # the fault starts at cycle 1
+    assert kind in _kinds(run.events)
+    sent = np.array(seen)
+    assert (sent >= profile.q_min).all() and (sent <= profile.q_max).all()
+    v = np.diff(sent, axis=0) / 1e-3
+    a = np.diff(v, axis=0) / 1e-3
+    assert (np.abs(v) <= profile.array("velocity") * 1.002).all()
+    assert (np.abs(a) <= profile.array("acceleration") * 1.02).all()

@@ -1,0 +1,139 @@
+"""Properties of executor + envelope over arbitrary chunk streams, at 1 kHz, without physics.
+
+Tolerances: position inside the hard limits to 1e-9; finite-difference velocity within 0.2 %
+of the limit and acceleration within 2 % (the hand-over between pass-through and ruckig
+re-estimates the continuous state from samples; measured excess is far below these). After a
+category 0 stop the drives are off: the setpoint freezes at once and is no longer a command.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from cellguard.control.envelope import Envelope, EnvelopeConfig
+from cellguard.control.executor import Executor
+from cellguard.policy.chunk import ActionChunk
+from cellguard.robot.protocol import SafetyInputs
+from cellguard.robot.registry import make_cell
+
+DT_NS = 1_000_000
+V_TOL, A_TOL, P_TOL = 2e-3, 2e-2, 1e-9
+
+CELL = make_cell("arm-pick-place")
+PROFILE = CELL.profile
+Q0 = CELL.read().q
+LO, HI = PROFILE.q_min, PROFILE.q_max
+V, A, J = PROFILE.array("velocity"), PROFILE.array("acceleration"), PROFILE.array("jerk")
+
+KINDS = ("valid", "valid", "valid", "edge", "nan", "inf", "huge", "empty", "wrong_shape", "late", "old", "silence")
+
+
+@st.composite
+def streams(draw):
+    """A list of (gap_ms, kind, seed): what the policy sends, and when."""
+    n = draw(st.integers(1, 14))
+    return [(draw(st.integers(5, 150)), draw(st.sampled_from(KINDS)), draw(st.integers(0, 2**31 - 1)))
+            for _ in range(n)]
+
+
+def _chunk(kind: str, t_ns: int, seed: int) -> ActionChunk | None:
+    rng = np.random.default_rng(seed)
+    h = int(rng.integers(1, 30))
+    span = HI - LO
+    actions = rng.uniform(LO + 0.1 * span, HI - 0.1 * span, (h, PROFILE.dof))
+    t_obs = t_ns - int(rng.integers(0, 30)) * DT_NS
+    if kind == "edge":  # targets at and a little beyond the limits
+        actions = np.where(rng.random(actions.shape) < 0.5, LO - 0.05 * span, HI + 0.05 * span)
+    elif kind == "nan":
+        actions[rng.integers(h), rng.integers(PROFILE.dof)] = np.nan
+    elif kind == "inf":
+        actions[rng.integers(h), rng.integers(PROFILE.dof)] = -np.inf
+    elif kind == "huge":
+        actions *= 1e12
+    elif kind == "empty":
+        actions = np.zeros((0, PROFILE.dof))
+    elif kind == "wrong_shape":
+        actions = rng.uniform(-1, 1, (h, PROFILE.dof + 1))
+    elif kind == "late":
+        t_obs = t_ns - int(rng.integers(100, 2000)) * DT_NS
+    elif kind == "old":  # older than what came before: out of order
+        t_obs = t_ns - 5_000_000_000
+    elif kind == "silence":
+        return None
+    return ActionChunk(actions, t_obs, int(rng.choice([10, 20, 50])) * DT_NS)
+
+
+def _run(stream, stop_at: int | None = None, category: int = 2, ticks: int = 1500):
+    executor = Executor(PROFILE, Q0, DT_NS)
+    envelope = Envelope(PROFILE, Q0, DT_NS, EnvelopeConfig(watchdog_s=0.2))
+    schedule, t = {}, 0
+    for gap, kind, seed in stream:
+        t += gap * DT_NS
+        schedule[t] = (kind, seed)
+    out = np.empty((ticks, PROFILE.dof))
+    powered = np.ones(ticks, dtype=bool)
+    for k in range(ticks):
+        t = (k + 1) * DT_NS
+        if t in schedule:
+            chunk = _chunk(*schedule[t], t)
+            if chunk is not None:
+                executor.push(chunk, t)
+        safety = SafetyInputs(stop=category) if stop_at is not None and k >= stop_at else SafetyInputs()
+        reference = executor.reference(t, envelope.scale)
+        out[k], _ = envelope.apply(t, reference, None, safety, executor.last_chunk_ns, executor.uncertainty)
+        powered[k] = envelope.power
+    return out, powered
+
+
+def _check_limits(setpoints: np.ndarray, powered: np.ndarray) -> None:
+    assert np.isfinite(setpoints).all()
+    assert (setpoints >= LO - P_TOL).all() and (setpoints <= HI + P_TOL).all()
+    q = np.vstack([Q0, setpoints[powered]])
+    v = np.diff(q, axis=0) / (DT_NS * 1e-9)
+    a = np.diff(v, axis=0) / (DT_NS * 1e-9)
+    assert (np.abs(v) <= V * (1 + V_TOL)).all(), np.abs(v).max(axis=0) / V
+    assert (np.abs(a) <= A * (1 + A_TOL)).all(), np.abs(a).max(axis=0) / A
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(streams())
+def test_setpoints_never_exceed_the_limits(stream):
+    setpoints, powered = _run(stream)
+    _check_limits(setpoints, powered)
+
+
+def _stop_bound_s(v: np.ndarray, a: np.ndarray) -> float:
+    """Time a time-optimal jerk-limited stop from (v, a) may take, per joint, the slowest."""
+    peak = np.abs(v) + a * a / (2 * J)
+    return float(((np.abs(a) + 2 * A) / J + peak / A).max()) + 3e-3
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(streams(), st.integers(100, 900), st.sampled_from([0, 1, 2]))
+def test_every_stop_reaches_zero_velocity_within_its_bound(stream, stop_at, category):
+    setpoints, powered = _run(stream, stop_at, category)
+    _check_limits(setpoints, powered)
+    q = np.vstack([Q0, setpoints])
+    v = np.diff(q, axis=0) / 1e-3
+    a = np.diff(np.vstack([np.zeros(PROFILE.dof), v]), axis=0) / 1e-3
+    if category == 0:  # power off at once: the setpoint freezes on the stop tick
+        assert not powered[stop_at]
+        assert np.abs(v[stop_at + 1:]).max() == 0.0
+        return
+    bound = _stop_bound_s(v[stop_at - 1], a[stop_at - 1])
+    still = np.flatnonzero(np.abs(v[stop_at:]).max(axis=1) > 0)
+    took = (still[-1] + 1 if len(still) else 0) * 1e-3
+    assert took <= bound, (took, bound)
+    assert powered[-1] == (category == 2)
+
+
+@pytest.mark.parametrize("kind", ["nan", "inf", "huge", "empty", "wrong_shape", "old"])
+def test_a_bad_chunk_leaves_motion_on_the_last_valid_reference(kind):
+    good = [(10, "valid", 1)]
+    with_bad = good + [(30, kind, 2)]
+    a, _ = _run(good, ticks=400)
+    b, _ = _run(with_bad, ticks=400)
+    assert np.array_equal(a, b)

@@ -1,0 +1,95 @@
+"""Executor: validation at the edge, stale steps dropped, stitching continuous in position and velocity."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from cellguard.control.executor import Executor
+from cellguard.policy.chunk import ActionChunk
+from cellguard.robot.registry import make_cell
+
+PROFILE = make_cell("arm-pick-place").profile
+Q0 = np.array([0.0, -0.3, 1.9, 1.55, 0.0, 0.025])
+MS = 1_000_000
+
+
+def _wave(t_s: np.ndarray, phase: float = 0.0) -> np.ndarray:
+    t = np.asarray(t_s)[:, None]
+    return Q0 + 0.2 * np.sin(2.0 * t + phase) * (np.arange(6) < 5) + 0.002 * np.sin(3.0 * t) * (np.arange(6) == 5)
+
+
+def _chunk(t_obs_ns: int, phase: float = 0.0, h: int = 25, dt_ns: int = 20 * MS) -> ActionChunk:
+    return ActionChunk(_wave((t_obs_ns + (np.arange(h) + 1) * dt_ns) * 1e-9, phase), t_obs_ns, dt_ns)
+
+
+@pytest.mark.parametrize("actions, dt, why", [
+    (np.full((5, 6), np.nan), 20 * MS, "non-finite"),
+    (np.full((5, 6), np.inf), 20 * MS, "non-finite"),
+    (np.zeros((0, 6)), 20 * MS, "shape"),
+    (np.zeros((5, 7)), 20 * MS, "shape"),
+    (np.zeros(6), 20 * MS, "2-D"),
+    (np.full((5, 6), 1e9), 20 * MS, "beyond the limits"),
+    (np.zeros((5, 6)), 0, "dt_ns"),
+    (np.zeros((5, 6)), 0.02, "dt_ns"),
+])
+def test_malformed_chunks_become_events(actions, dt, why):
+    ex = Executor(PROFILE, Q0, MS)
+    events = ex.push(ActionChunk(actions, 0, dt), 0)
+    assert [e.kind for e in events] == ["chunk_rejected"] and why in events[0].reason
+    assert np.array_equal(ex.reference(MS), Q0)
+
+
+def test_late_steps_are_dropped_not_replayed():
+    ex = Executor(PROFILE, Q0, MS)
+    ex.reference(0)
+    late = _chunk(0)
+    events = ex.push(late, 250 * MS)  # arrives 250 ms after its observation
+    assert events[0].kind == "chunk_steps_dropped" and events[0].reason.startswith("12 ")
+    stale = ex.push(_chunk(-600 * MS + 1), 250 * MS)  # older than the one in use
+    assert stale[0].kind == "chunk_rejected" and "out of order" in stale[0].reason
+
+
+def test_a_fully_stale_chunk_is_refused():
+    ex = Executor(PROFILE, Q0, MS)
+    assert ex.push(_chunk(0, h=5), 500 * MS)[0].kind == "chunk_stale"
+
+
+def test_stitching_keeps_position_velocity_and_acceleration_continuous():
+    ex = Executor(PROFILE, Q0, MS)
+    ref = []
+    for k in range(1500):
+        t = k * MS
+        if k % 50 == 10:
+            ex.push(_chunk(t - 10 * MS, phase=0.02 * (k // 50)), t)  # each chunk disagrees a little more
+        ref.append(ex.reference(t))
+    ref = np.array(ref[300:])  # after the first blend, from standstill onto the moving chunk
+    v = np.diff(ref, axis=0) / 1e-3
+    a = np.diff(v, axis=0) / 1e-3
+    j = np.diff(a, axis=0) / 1e-3
+    # a step of velocity or acceleration would show as a spike: bounded jerk means neither steps
+    assert np.abs(j).max() < 200.0
+    assert np.abs(np.diff(v, axis=0)).max() < 0.02
+
+
+def test_a_chunk_inside_the_limits_is_read_exactly_at_its_steps():
+    ex = Executor(PROFILE, Q0, MS, blend_ns=20 * MS)
+    chunk = _chunk(0)
+    ex.push(chunk, 0)
+    ex.reference(0)
+    for i in range(5, 20):
+        t = (i + 1) * 20 * MS
+        for tick in range(t - 20 * MS + MS, t + MS, MS):
+            r = ex.reference(tick)
+        assert np.allclose(r, chunk.actions[i], atol=1e-12)
+
+
+def test_speed_scale_stretches_time_along_the_same_path():
+    ex = Executor(PROFILE, Q0, MS)
+    ex.push(_chunk(0, h=50), 0)
+    full = [ex.reference(k * MS) for k in range(400)]
+    ex2 = Executor(PROFILE, Q0, MS)
+    ex2.push(_chunk(0, h=50), 0)
+    half = [ex2.reference(k * MS, 0.5) for k in range(799)]
+    assert np.allclose(half[-1], full[399 // 1], atol=1e-3)
+    assert ex2.tau_ns == pytest.approx(399 * MS, abs=MS)

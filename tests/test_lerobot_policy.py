@@ -1,0 +1,81 @@
+"""LeRobot adapter: a real ACT policy built from its config with random weights (no hub download),
+saved with its processors, loaded through ``lerobot:DIR`` and run in the arm cell's tick path.
+
+Runs only where LeRobot is installed (its own CI step: it brings torch)."""
+
+import numpy as np
+import pytest
+import yaml
+
+torch = pytest.importorskip("torch")
+pytest.importorskip("lerobot")
+
+from foreign_arm import MAP, to_foreign  # noqa: E402
+from lerobot.configs.types import FeatureType, PolicyFeature  # noqa: E402
+from lerobot.policies.act.configuration_act import ACTConfig  # noqa: E402
+from lerobot.policies.act.modeling_act import ACTPolicy  # noqa: E402
+from lerobot.policies.factory import make_pre_post_processors  # noqa: E402
+
+from cellguard.errors import ConfigError  # noqa: E402
+from cellguard.policy.registry import make_policy  # noqa: E402
+from cellguard.robot.arm_cell import ArmPickPlace  # noqa: E402
+from cellguard.runner import Run  # noqa: E402
+from cellguard.scenario import parse_scenario  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def act_dir(tmp_path_factory):
+    """A small ACT (state + environment state in, 50-step chunks out) trained on a foreign arm's units."""
+    torch.manual_seed(0)
+    config = ACTConfig(
+        input_features={"observation.state": PolicyFeature(FeatureType.STATE, (6,)),
+                        "observation.environment_state": PolicyFeature(FeatureType.ENV, (6,))},
+        output_features={"action": PolicyFeature(FeatureType.ACTION, (6,))},
+        chunk_size=50, n_action_steps=50, dim_model=128, dim_feedforward=512, n_encoder_layers=2,
+        n_decoder_layers=1, use_vae=False, pretrained_backbone_weights=None, device="cpu")
+    home = torch.tensor(to_foreign(ArmPickPlace().q_home), dtype=torch.float32)
+    stats = {"observation.state": {"mean": home, "std": torch.full((6,), 30.0)},
+             "observation.environment_state": {"mean": torch.zeros(6), "std": torch.ones(6)},
+             "action": {"mean": home, "std": torch.full((6,), 0.5)}}  # degrees and mm: near home
+    folder = tmp_path_factory.mktemp("act")
+    pre, post = make_pre_post_processors(config, dataset_stats=stats)
+    ACTPolicy(config).save_pretrained(folder)
+    pre.save_pretrained(folder)
+    post.save_pretrained(folder)
+    (folder / "foreign.yaml").write_text(yaml.safe_dump(MAP))
+    return folder
+
+
+def test_act_policy_runs_the_arm_cell_through_the_tick_path(act_dir):
+    scenario = parse_scenario({"cell": "arm-pick-place", "acceptance_cycles": 1, "production_cycles": 0,
+                               "policy": f"lerobot:{act_dir}?map={act_dir / 'foreign.yaml'}"})
+    run = Run(scenario)
+    outcome = run.cycle()
+    assert outcome["inference"]["chunks"] > 50 and outcome["inference"]["wall_ms_mean"] > 0
+    n = run.ticks.n
+    assert n > 0
+    assert (run.ticks.setpoint[:n] >= run.cell.profile.q_min).all()
+    assert (run.ticks.setpoint[:n] <= run.cell.profile.q_max).all()
+    assert not any(e.kind == "chunk_rejected" for e in run.events)
+    # Random weights around home: the arm stays within a few degrees of home, mapped from the foreign units.
+    assert np.abs(run.ticks.setpoint[:n, :5] - run.cell.q_home[:5]).max() < 0.2
+
+
+def test_a_chunk_comes_back_in_robot_joints_and_stamped(act_dir):
+    cell = ArmPickPlace()
+    policy = make_policy(f"lerobot:{act_dir}?map={act_dir / 'foreign.yaml'}", cell)
+    obs = cell.observe()
+    chunk = policy.infer(obs)
+    assert chunk.actions.shape == (50, 6) and chunk.t_obs_ns == obs.t_ns
+    assert policy.latencies_ns[-1] > 0
+
+
+def test_missing_folder_and_wrong_dimension_are_named(act_dir, tmp_path):
+    cell = ArmPickPlace()
+    with pytest.raises(ConfigError, match="no config.json"):
+        make_policy(f"lerobot:{tmp_path}", cell)
+    short = {**MAP, "actions": MAP["actions"][:5], "hold": {"shoulder_pan": "0 rad"}}
+    path = tmp_path / "short.yaml"
+    path.write_text(yaml.safe_dump(short))
+    with pytest.raises(ConfigError, match="outputs 6 actions per step, the map declares 5"):
+        make_policy(f"lerobot:{act_dir}?map={path}", cell)

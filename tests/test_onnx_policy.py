@@ -1,0 +1,94 @@
+"""ONNX adapter: models the tests build with the onnx helper API, run by onnxruntime in the arm cell."""
+
+import numpy as np
+import pytest
+import yaml
+
+ort = pytest.importorskip("onnxruntime")
+pytest.importorskip("onnx")
+
+from foreign_arm import FOREIGN_NAMES, MAP, taught_program, to_foreign  # noqa: E402
+
+from cellguard.errors import ConfigError  # noqa: E402
+from cellguard.policy.onnx_export import Mlp, save_mlp_onnx, trajectory_mlp  # noqa: E402
+from cellguard.policy.registry import make_policy  # noqa: E402
+from cellguard.robot.arm_cell import ArmPickPlace  # noqa: E402
+from cellguard.runner import Run  # noqa: E402
+from cellguard.scenario import parse_scenario  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def foreign_model(tmp_path_factory):
+    """The taught program as a ReLU network emitting 10-step chunks in the foreign action space."""
+    folder = tmp_path_factory.mktemp("onnx")
+    times, points = taught_program()
+    mlp = trajectory_mlp(times, to_foreign(points), horizon=10, dt_s=0.02)
+    model = save_mlp_onnx(mlp, folder / "foreign.onnx", {"cellguard.action_names": ",".join(FOREIGN_NAMES),
+                                                          "cellguard.dt_s": "0.02"})
+    amap = folder / "foreign.yaml"
+    amap.write_text(yaml.safe_dump(MAP))
+    return model, amap, mlp
+
+
+def test_exported_graph_computes_what_the_numpy_network_computes(tmp_path):
+    rng = np.random.default_rng(0)
+    mlp = Mlp(inputs=(("state", 6), ("time_s", 1)), weights=(rng.normal(size=(7, 16)), rng.normal(size=(16, 12))),
+              biases=(rng.normal(size=16), rng.normal(size=12)), x_mean=rng.normal(size=7), x_std=np.full(7, 2.0),
+              y_mean=rng.normal(size=12), y_std=np.full(12, 0.5), horizon=2)
+    path = save_mlp_onnx(mlp, tmp_path / "m.onnx", {})
+    session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+    x = rng.normal(size=(1, 7)).astype(np.float32)
+    out = session.run(None, {"state": x[:, :6], "time_s": x[:, 6:]})[0]
+    assert out.shape == (1, 2, 6)
+    np.testing.assert_allclose(out.reshape(1, -1), mlp.forward(x.astype(np.float64)), rtol=1e-4, atol=1e-4)
+
+
+def test_onnx_policy_in_a_foreign_action_space_runs_the_arm_cell(foreign_model):
+    model, amap, _ = foreign_model
+    scenario = parse_scenario({"cell": "arm-pick-place", "seed": 5, "acceptance_cycles": 2, "production_cycles": 0,
+                               "policy": f"onnx:{model}?map={amap}"})
+    run = Run(scenario)
+    outcomes = [run.cycle() for _ in range(2)]
+    assert all(o["success"] for o in outcomes), outcomes
+    assert all(o["inference"]["chunks"] > 10 and o["inference"]["wall_ms_mean"] > 0 for o in outcomes)
+    n = run.ticks.n
+    assert (run.ticks.setpoint[:n] >= run.cell.profile.q_min).all()
+    assert (run.ticks.setpoint[:n] <= run.cell.profile.q_max).all()
+    assert not any(e.kind == "chunk_rejected" for e in run.events)
+    assert len(run.summary()["context"]["policy_sha256"]) == 64
+
+
+def test_the_same_model_without_its_map_is_refused(foreign_model):
+    model, _, _ = foreign_model
+    with pytest.raises(ConfigError, match="which are not the joints of 'arm-pick-place'; give an action map"):
+        make_policy(f"onnx:{model}", ArmPickPlace())
+
+
+def test_a_map_that_ignores_the_flipped_elbow_fails_the_task(foreign_model, tmp_path):
+    """The mapping matters: drop the elbow's sign and the same model no longer picks the part."""
+    model, _, _ = foreign_model
+    wrong = {**MAP, "actions": [{**a, "sign": 1} if a["joint"] == "elbow" else a for a in MAP["actions"]]}
+    path = tmp_path / "wrong.yaml"
+    path.write_text(yaml.safe_dump(wrong))
+    run = Run(parse_scenario({"cell": "arm-pick-place", "acceptance_cycles": 1, "production_cycles": 0,
+                              "policy": f"onnx:{model}?map={path}"}))
+    outcome = run.cycle()
+    assert not outcome["success"]
+    assert any(e.kind in ("limit_intervention", "limit_brake") for e in run.events)  # the guard held the wrong targets
+
+
+def test_bad_models_and_options_are_named(tmp_path, foreign_model):
+    cell = ArmPickPlace()
+    with pytest.raises(ConfigError, match="no such file"):
+        make_policy(f"onnx:{tmp_path / 'none.onnx'}", cell)
+    junk = tmp_path / "junk.onnx"
+    junk.write_bytes(b"not a model")
+    with pytest.raises(ConfigError, match="not a loadable ONNX model"):
+        make_policy(f"onnx:{junk}", cell)
+    odd = Mlp(inputs=(("lidar", 3),), weights=(np.ones((3, 6)),), biases=(np.zeros(6),), x_mean=np.zeros(3),
+              x_std=np.ones(3), y_mean=np.zeros(6), y_std=np.ones(6), horizon=1)
+    path = save_mlp_onnx(odd, tmp_path / "odd.onnx", {})
+    with pytest.raises(ConfigError, match="model input 'lidar' cannot be fed"):
+        make_policy(f"onnx:{path}", cell)
+    with pytest.raises(ConfigError, match="unknown option 'mapp'"):
+        make_policy(f"onnx:{foreign_model[0]}?mapp=x", cell)

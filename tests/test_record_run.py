@@ -1,0 +1,86 @@
+"""A real run writes its record: the mcap package opens it, and a full disk stops the cell (category 2)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from mcap.reader import make_reader
+from record_synth import FullDisk
+
+from cellguard.record.reader import open_record
+from cellguard.record.schemas import CHANNELS
+from cellguard.record.session import RunRecording
+from cellguard.runner import Run, run_scenario
+from cellguard.scenario import load_scenario
+
+DEMO = Path(__file__).parents[1] / "src" / "cellguard" / "scenarios" / "demo.yaml"
+
+
+def _short_demo(cycles: int = 3):
+    return load_scenario(DEMO).model_copy(update={"acceptance_cycles": 2, "production_cycles": cycles - 2})
+
+
+@pytest.fixture(scope="module")
+def run_folder(tmp_path_factory):
+    out = tmp_path_factory.mktemp("run")
+    summary = run_scenario(_short_demo(), out)
+    return out, summary
+
+
+def test_the_mcap_package_lists_every_channel_with_its_schema(run_folder):
+    out, _ = run_folder
+    with open(out / "record.mcap", "rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        counts = summary.statistics.channel_message_counts
+        for channel in summary.channels.values():
+            schema = summary.schemas[channel.schema_id]
+            assert schema.name and schema.encoding in ("jsonschema", "ros2msg") and len(schema.data) > 50
+        topics = {c.topic for c in summary.channels.values()}
+        assert topics == {c.topic for c in CHANNELS}
+        by_topic = {c.topic: counts.get(c.id, 0) for c in summary.channels.values()}
+        for topic in ("/context", "/ticks/decimated", "/chunks", "/cycles", "/measurements"):
+            assert by_topic[topic] > 0, topic
+        for _, channel, message in reader.iter_messages(topics=["/cycles", "/context", "/measurements"]):
+            assert isinstance(json.loads(message.data), dict)
+
+
+def test_the_record_agrees_with_the_run(run_folder):
+    out, summary = run_folder
+    with open_record(out, strict=True) as rec:
+        cycles = list(rec.cycles())
+        events = list(rec.events())
+        context = rec.context
+        chunks = list(rec.chunks())
+        ticks = rec.ticks(cycle=1)
+    assert [c.cycle for c in cycles] == [c["cycle"] for c in summary["cycles"]]
+    assert [c.success for c in cycles] == [c["success"] for c in summary["cycles"]]
+    for got, want in zip(cycles, summary["cycles"]):
+        assert got.features["current_peak.elbow"] == pytest.approx(want["features"]["current_peak.elbow"])
+    assert len(events) == len(summary["events"])
+    assert context["policy"]["sha256"] == summary["context"]["policy_sha256"]
+    assert context["embodiment"]["sha256"] == summary["context"]["profile_sha256"]
+    assert context["site"] and context["cell_id"] and context["software"]["mcap"]
+    assert "faults" not in context["scenario"]  # ground truth stays out of the record
+    assert chunks and chunks[0].actions.shape[1] == 6
+    assert len(ticks) > 0 and set(ticks.cycle) == {1}
+
+
+def test_a_full_disk_stops_the_cell_with_a_category_2_event(tmp_path):
+    run = Run(_short_demo(4))
+    run.recording = RunRecording.start(tmp_path, run, opener=FullDisk(150_000))
+    for _ in range(4):
+        run.cycle()
+        if run.stopped:
+            break
+    run.recording.close()
+    assert run.stopped and "ENOSPC" in run.stopped
+    stop = run.events[-1]
+    assert stop.kind == "record_failed" and stop.category == 2
+    with open_record(tmp_path) as rec:  # what was written before reads back
+        health = rec.health()
+        ticks = rec.ticks(rate="decimated")
+    assert not health.ok and health.chunks_damaged == 0
+    assert len(ticks) > 10 and ticks.t_ns[-1] <= stop.t_ns

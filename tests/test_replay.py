@@ -1,0 +1,93 @@
+"""``policy: replay:FILE.npz``: recorded streams replay as recorded; bad files give one clear error."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from cellguard.errors import ConfigError
+from cellguard.policy.registry import make_policy
+from cellguard.robot.registry import make_cell
+from cellguard.runner import Run
+from cellguard.scenario import parse_scenario
+
+CELL = make_cell("arm-pick-place")
+
+
+def _write(path, **arrays):
+    np.savez(path, **arrays)
+    return path
+
+
+@pytest.mark.parametrize("arrays, says", [
+    ({"actions": np.zeros((2, 3, 6))}, "missing array 't'"),
+    ({"t": np.zeros(2)}, "missing array 'actions'"),
+    ({"t": np.zeros(2), "actions": np.zeros((2, 3, 5))}, "actions must have shape (N=2, H>0, D=6)"),
+    ({"t": np.zeros(3), "actions": np.zeros((2, 3, 6))}, "actions must have shape"),
+    ({"t": np.array([0.0, np.nan]), "actions": np.zeros((2, 3, 6))}, "t must be"),
+    ({"t": np.zeros(2), "actions": np.zeros((2, 3, 6)), "uncertainty": np.zeros(2)}, "uncertainty must have shape"),
+    ({"t": np.zeros(2), "actions": np.zeros((2, 3, 6)), "dt": np.array([0.02, 0.02])}, "dt must be"),
+    ({"t": np.zeros(2), "actions": np.zeros((2, 3, 6)), "extra": np.zeros(1)}, "unknown array"),
+])
+def test_bad_files_raise_one_error_naming_what_is_wrong(tmp_path, arrays, says):
+    path = _write(tmp_path / "bad.npz", **arrays)
+    with pytest.raises(ConfigError) as info:
+        make_policy(f"replay:{path}", CELL)
+    assert says in str(info.value) and str(path) in str(info.value)
+
+
+def test_missing_and_unreadable_files(tmp_path):
+    with pytest.raises(ConfigError, match="no such file"):
+        make_policy(f"replay:{tmp_path / 'none.npz'}", CELL)
+    (tmp_path / "junk.npz").write_bytes(b"not a zip")
+    with pytest.raises(ConfigError, match="not a readable .npz"):
+        make_policy(f"replay:{tmp_path / 'junk.npz'}", CELL)
+    with pytest.raises(ConfigError, match="needs a file"):
+        make_policy("replay:", CELL)
+
+
+def test_records_are_handed_out_in_order_once_due(tmp_path):
+    actions = np.repeat(CELL.q_home[None, None], 3, axis=0).repeat(4, axis=1)
+    path = _write(tmp_path / "s.npz", t=np.array([0.0, 0.1, 0.05]), actions=actions, uncertainty=np.zeros((3, 4)))
+    policy = make_policy(f"replay:{path}", CELL)
+    obs = CELL.observe()
+    first = policy.infer(obs)
+    assert first.t_obs_ns == obs.t_ns and first.uncertainty.shape == (4,)
+    from dataclasses import replace
+
+    assert policy.infer(replace(obs, t_ns=obs.t_ns + 50_000_000)) is first  # the next is due only at 0.1 s
+    second = policy.infer(replace(obs, t_ns=obs.t_ns + 100_000_000))
+    third = policy.infer(replace(obs, t_ns=obs.t_ns + 120_000_000))  # recorded out of order: replayed so
+    assert second.t_obs_ns - obs.t_ns == 100_000_000 and third.t_obs_ns - obs.t_ns == 50_000_000
+
+
+def test_an_adversarial_replay_runs_through_the_arm_cell_inside_the_limits(tmp_path):
+    rng = np.random.default_rng(4)
+    n, h = 40, 10
+    home = CELL.q_home
+    actions = home + rng.normal(0.0, 0.3, (n, h, 6)) * (np.arange(6) < 5)
+    actions[5, 3, 1] = np.nan
+    actions[9] *= 1e9
+    t = np.arange(n) * 0.05
+    t[20:] += 0.6  # a silence the watchdog must catch
+    path = _write(tmp_path / "adversarial.npz", t=t, actions=actions, dt=np.array(0.02))
+    scenario = parse_scenario({"cell": "arm-pick-place", "policy": f"replay:{path}", "acceptance_cycles": 1,
+                               "production_cycles": 0})
+    run = Run(scenario)
+    sent = []
+    original = run.envelope.apply
+
+    def apply(*args, **kwargs):
+        setpoint, events = original(*args, **kwargs)
+        sent.append(setpoint.copy())
+        return setpoint, events
+
+    run.envelope.apply = apply
+    run.cycle()
+    kinds = {e.kind for e in run.events}
+    assert {"chunk_rejected", "watchdog_stop"} <= kinds
+    q = np.array(sent)
+    profile = CELL.profile
+    assert (q >= profile.q_min).all() and (q <= profile.q_max).all()
+    v = np.diff(q, axis=0) / 1e-3
+    assert (np.abs(v) <= profile.array("velocity") * 1.002).all()
