@@ -39,7 +39,7 @@ def test_offset_faults_start_at_their_cycle(spec, read):
 def test_friction_grows_per_cycle():
     cell, fault = ArmPickPlace(), _fault({"kind": "friction_growth", "joint": "elbow", "from_cycle": 10, "per_cycle": 0.1})
     i = cell.profile.index("elbow")
-    nominal = cell.nominal["frictionloss"][i]
+    nominal = cell.drives.nominal_frictionloss[i]
     fault.apply(cell, 9)
     assert cell.model.dof_frictionloss[cell._dadr[i]] == pytest.approx(nominal)
     fault.apply(cell, 14)
@@ -49,7 +49,7 @@ def test_friction_grows_per_cycle():
 def test_servo_gain_scales_stiffness_and_damping():
     cell, fault = ArmPickPlace(), _fault({"kind": "servo_gain", "joint": "shoulder_lift", "factor": 0.85})
     fault.apply(cell, 0)
-    a = cell._act[cell.profile.index("shoulder_lift")]
+    a = cell.drives.act[cell.profile.index("shoulder_lift")]
     assert cell.model.actuator_gainprm[a, 0] == pytest.approx(400 * 0.85)
     assert cell.model.actuator_biasprm[a, 1] == pytest.approx(-400 * 0.85)
 

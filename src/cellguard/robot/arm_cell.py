@@ -15,6 +15,7 @@ import mujoco
 import numpy as np
 
 from cellguard.embodiment import load_profile
+from cellguard.robot.drives import PositionDrives
 from cellguard.robot.protocol import SafetyInputs
 from cellguard.robot.state import Observation, State
 
@@ -49,11 +50,8 @@ class ArmPickPlace:
         self.dt_ns = round(self.model.opt.timestep * 1e9)
         self.rng = np.random.default_rng(seed)
         m = self.model
-        jids = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, n) for n in self.profile.joint_names]
-        self._qadr = np.array([m.jnt_qposadr[j] for j in jids])
-        self._dadr = np.array([m.jnt_dofadr[j] for j in jids])
-        self._act = np.array([mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_ACTUATOR, n) for n in self.profile.joint_names])
-        self._kt = self.profile.array("torque_constant")
+        self.drives = PositionDrives(m, self.data, self.profile, self.rng, CURRENT_NOISE, BRAKE_DAMPING)
+        self._qadr, self._dadr = self.drives.qadr, self.drives.dadr
         self._part_body = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "part")
         self._part_qadr = m.jnt_qposadr[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, "part")]
         self._part_dadr = m.jnt_dofadr[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, "part")]
@@ -69,16 +67,13 @@ class ArmPickPlace:
             "fixture": self.data.mocap_pos[self._fixture_mocap].copy(),
             "camera": self.data.mocap_pos[self._camera_mocap].copy(),
             "tool": m.body_pos[self._tool_body].copy(),
-            "frictionloss": m.dof_frictionloss[self._dadr].copy(),
-            "gainprm": m.actuator_gainprm[self._act, 0].copy(),
-            "biasprm": m.actuator_biasprm[self._act, 1:3].copy(),
         }
         # The camera extrinsic as calibrated at commissioning; the policy side uses this.
         self.camera_calibration = {"position": self.nominal["camera"].tolist(), "rotation": CAMERA_ROTATION.tolist(),
                                    "calibrated": "2026-10-14"}
         self.q_home = np.array([0.0, -0.3, 1.9, 1.55, 0.0, 0.025])
         self.data.qpos[self._qadr] = self.q_home
-        self.data.ctrl[self._act] = self.q_home
+        self.drives.write(self.q_home)
         mujoco.mj_forward(m, self.data)
         self._cycle_start_ns = 0
         self._left_home = False
@@ -90,7 +85,6 @@ class ArmPickPlace:
         self.safety_inputs = SafetyInputs()  # the simulated safety controller's outputs; set by scenario or test
         self.tool_site, self.workspace_box = "tcp", WORKSPACE_BOX
         self._fk = mujoco.MjData(m)
-        self._damping = m.dof_damping[self._dadr].copy()
 
     # -- Robot -------------------------------------------------------------------------
     @property
@@ -98,21 +92,17 @@ class ArmPickPlace:
         return round(self.data.time * 1e9)
 
     def read(self) -> State:
-        effort = self.data.actuator_force[self._act].copy()
-        current = effort / self._kt + self.rng.normal(0.0, CURRENT_NOISE, effort.shape)
-        return State(self.t_ns, self.data.qpos[self._qadr].copy(), self.data.qvel[self._dadr].copy(), effort, current)
+        return self.drives.read(self.t_ns)
 
     def write(self, setpoint: np.ndarray) -> np.ndarray:
-        self.data.ctrl[self._act] = setpoint
-        return self.data.ctrl[self._act].copy()
+        return self.drives.write(setpoint)
 
     def safety(self) -> SafetyInputs:
         return self.safety_inputs
 
     def set_power(self, on: bool) -> None:
         """Power off: the actuators are disabled and the joint brakes (high damping) engage."""
-        self.model.opt.disableactuator = 0 if on else 1  # all actuators are in group 0
-        self.model.dof_damping[self._dadr] = self._damping if on else BRAKE_DAMPING
+        self.drives.set_power(on)
 
     def tool_point(self, q: np.ndarray) -> np.ndarray:
         """Forward kinematics: the tool point (3,) [m] at joint positions ``q`` (dof,), off the live model state."""
@@ -249,10 +239,7 @@ class ArmPickPlace:
         self.model.body_pos[self._tool_body] = self.nominal["tool"] + offset
 
     def set_friction_scale(self, joint: str, factor: float) -> None:
-        i = self.profile.index(joint)
-        self.model.dof_frictionloss[self._dadr[i]] = self.nominal["frictionloss"][i] * factor
+        self.drives.set_friction_scale(joint, factor)
 
     def set_servo_gain(self, joint: str, factor: float) -> None:
-        i = self.profile.index(joint)
-        self.model.actuator_gainprm[self._act[i], 0] = self.nominal["gainprm"][i] * factor
-        self.model.actuator_biasprm[self._act[i], 1:3] = self.nominal["biasprm"][i] * factor
+        self.drives.set_servo_gain(joint, factor)
