@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from cellguard.diagnose import Baseline, DriftConfig, as_cycles, detect_drift, diagnose
+from cellguard.diagnose import Baseline, DriftConfig, as_cycles, diagnose
 from cellguard.diagnose.baseline import scale_floor
 from cellguard.errors import RecordError
 

@@ -130,8 +130,8 @@ def report(
 @app.command("train-demo-policy")
 def train_demo_policy(
     out: Path = typer.Option(Path("demo-policy.onnx"), "--out", "-o", help="ONNX file to write."),
-    cycles: int = typer.Option(30, min=2, max=500, help="Scripted demonstration cycles to record."),
-    steps: int = typer.Option(6000, min=100, max=200_000, help="Training steps (Adam, batch 256)."),
+    cycles: int = typer.Option(10, min=2, max=500, help="Scripted demonstration cycles to record."),
+    random_features: int = typer.Option(64, min=0, max=4096, help="Random tanh units beside the time basis."),
     seed: int = typer.Option(0, help="Seed of the demonstrations and the initial weights."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),
 ) -> None:
@@ -141,14 +141,15 @@ def train_demo_policy(
     from cellguard.policy.bc import train_demo_policy as train
 
     try:
-        report = train(out, cycles=cycles, steps=steps, seed=seed)
+        report = train(out, cycles=cycles, random_features=random_features, seed=seed)
     except CellguardError as exc:
         _fail(exc)
     if as_json:
         sys.stdout.write(json.dumps(asdict(report)) + "\n")
         return
     Console().print(f"trained on {report.samples} samples from {report.cycles} cycles in {report.seconds:.0f} s "
-                    f"(loss {report.final_loss:.2e}, worst joint error {report.max_error_mrad:.1f} mrad); "
+                    f"({report.hidden} hidden units, joint error rms {report.rms_error_mrad:.2f} mrad, "
+                    f"worst {report.max_error_mrad:.2f} mrad); "
                     f"written to {report.path}; run it with policy: onnx:{report.path}")
 
 

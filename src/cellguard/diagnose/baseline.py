@@ -1,9 +1,10 @@
 """The acceptance baseline: per feature a robust centre and scale, stored with the record.
 
 Median and a MAD-based sigma so that one odd acceptance cycle does not move the baseline,
-inflated for the error of a scale estimated from a few cycles. A simulated or well-repeating cell has features that barely vary (MAD near
-zero); a floor on the scale, per kind of feature, keeps noise-sized changes from reading as
-hundreds of sigma: a change must matter physically before it counts.
+inflated for the error of a scale estimated from a few cycles. A simulated or well-repeating
+cell has features that barely vary (MAD near zero); a floor on the scale, per kind of feature,
+keeps noise-sized changes from reading as hundreds of sigma: a change must matter physically
+before it counts.
 
 Cells that alternate mirrored motions (left and right turns) get one set of statistics per
 motion, so a left turn is compared with the left turns of acceptance.

@@ -50,7 +50,7 @@ class Diagnosis:
             "asymmetry": self.asymmetry.to_dict() if self.asymmetry is not None else None,
             "monitor": {"cusum_k": self.drift.k, "cusum_h": round(self.drift.threshold, 3),
                         "mewma_limit": round(self.drift.mewma_threshold, 2), "features": len(self.drift.names),
-                        "set_arl_cycles": DriftConfig.set_arl, "baseline_source": self.baseline.source},
+                        "set_arl_cycles": self.drift.set_arl, "baseline_source": self.baseline.source},
         }
 
 

@@ -68,8 +68,9 @@ class DriftAlarm:
     direction: int  # +1 up, -1 down, 0 for the multivariate check
 
     def to_dict(self) -> dict:
+        direction = "up" if self.direction > 0 else "down" if self.direction < 0 else "any"
         return {"signal": self.signal, "cycle": self.cycle, "statistic": round(self.statistic, 2),
-                "onset": self.onset, "direction": "up" if self.direction > 0 else "down" if self.direction < 0 else "any"}
+                "onset": self.onset, "direction": direction}
 
 
 @dataclass(frozen=True)
@@ -86,6 +87,7 @@ class DriftResult:
     mewma: np.ndarray  # Shape (cycles,)
     mewma_threshold: float
     alarms: tuple[DriftAlarm, ...]
+    set_arl: float  # fault-free cycles between false alarms of the whole set, by design
 
     def series(self, name: str) -> tuple[np.ndarray, np.ndarray]:
         """(upper, lower) CUSUM of one feature."""
@@ -126,7 +128,8 @@ def detect_drift(baseline: Baseline, cycles: Sequence[Cycle], config: DriftConfi
     if mv_alarm is not None:
         alarms.append(mv_alarm)
     alarms.sort(key=lambda a: (a.cycle, a.onset, a.signal))
-    return DriftResult(baseline.names, tuple(index), config.k, z, upper, lower, h, mewma, limit, tuple(alarms))
+    return DriftResult(baseline.names, tuple(index), config.k, z, upper, lower, h, mewma, limit, tuple(alarms),
+                       config.set_arl)
 
 
 def _mewma(baseline: Baseline, z: np.ndarray, index: list[int], config: DriftConfig):

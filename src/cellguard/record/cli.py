@@ -122,6 +122,31 @@ def export(
     raise typer.Exit(_warn_if_damaged(health, folder))
 
 
+@record_app.command("to-lerobot")
+def to_lerobot(
+    folder: Path = typer.Argument(..., help="Run folder (holding record.mcap) or the .mcap file."),
+    output: Path = typer.Option(..., "-o", "--output", help="New folder for the dataset."),
+    fps: int = typer.Option(50, "--fps", help="Frames per second; must divide the record's decimated rate."),
+    task: str | None = typer.Option(None, "--task", help="Task string of every episode (default: the cell's name)."),
+    success_only: bool = typer.Option(False, "--success-only", help="Only cycles that succeeded."),
+) -> None:
+    """Cycles as a LeRobotDataset v3 (one episode per cycle): state, action sent, camera readings, task."""
+    from cellguard.record.lerobot_export import export_lerobot
+    from cellguard.record.reader import open_record
+
+    try:
+        with open_record(folder) as rec:
+            result = export_lerobot(rec, output, fps=fps, task=task, success_only=success_only)
+            health = rec.health()
+    except CellguardError as exc:
+        _fail(exc)
+    for why in result.skipped:
+        _err.print(f"skipped {why}", markup=False, highlight=False)
+    _err.print(f"{len(result.episodes)} episodes, {result.frames} frames at {result.fps} fps written to {output}",
+               markup=False, highlight=False)
+    raise typer.Exit(_warn_if_damaged(health, folder))
+
+
 @record_app.command()
 def recover(
     folder: Path = typer.Argument(..., help="Run folder (holding record.mcap) or the .mcap file."),

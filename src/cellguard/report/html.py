@@ -105,7 +105,8 @@ def _events(d: Diagnosis) -> str:
                    f"<td>{_e(e.get('category', ''))}</td><td>{_e(e.get('reason', ''))}</td></tr>"
                    for e in d.safety_events[:200])
     more = f"<p class=muted>{len(d.safety_events) - 200} more not shown.</p>" if len(d.safety_events) > 200 else ""
-    return f"<table><tr><th>t [s]</th><th>cycle</th><th>kind</th><th>stop cat.</th><th>reason</th></tr>{rows}</table>{more}"
+    head = "<tr><th>t [s]</th><th>cycle</th><th>kind</th><th>stop cat.</th><th>reason</th></tr>"
+    return f"<table>{head}{rows}</table>{more}"
 
 
 def _context(ctx: Mapping) -> str:

@@ -1,0 +1,213 @@
+"""A record's cycles as a LeRobotDataset v3, for fine-tuning a policy on this robot's own data.
+
+One completed cycle is one episode. Frames come from the record's continuous decimated tick
+stream (``decimated_hz``, 50 Hz by default), every ``k``-th tick for ``fps = decimated_hz / k``;
+the full-rate windows around events are not used, so every episode has the same frame period.
+Per frame: ``observation.state`` the measured joint positions, ``observation.velocity`` and
+``observation.effort`` the measured velocities and efforts, ``action`` the setpoint actually
+sent (after the envelope, not what the policy asked), ``observation.environment_state`` the
+latest camera and fixture readings the policy was shown (held between requests), all SI and
+named by joint. The cells record no images, so the dataset has no video features.
+
+The layout is what lerobot 0.4 (``CODEBASE_VERSION = "v3.0"``) writes and reads: ``meta/info.json``,
+``meta/stats.json``, ``meta/tasks.parquet``, ``meta/episodes/chunk-000/file-000.parquet`` and
+``data/chunk-000/file-000.parquet``; written with pyarrow alone, so lerobot is not needed here.
+``LeRobotDataset(repo_id, root=DATASET)`` loads it without the hub.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from cellguard.errors import RecordError
+from cellguard.record.reader import Record
+
+CODEBASE_VERSION = "v3.0"
+DATA_FILE = "data/chunk-000/file-000.parquet"
+EPISODES_FILE = "meta/episodes/chunk-000/file-000.parquet"
+QUANTILES = (0.01, 0.10, 0.50, 0.90, 0.99)
+INDEX_FEATURES = ("timestamp", "frame_index", "episode_index", "index", "task_index")
+_TICK_FEATURES = {"observation.state": "q_meas", "observation.velocity": "qd_meas",
+                  "observation.effort": "effort", "action": "q_cmd"}
+
+
+@dataclass(frozen=True)
+class LeRobotExport:
+    """What was written: episodes (cycle numbers), frames, and the cycles left out with why."""
+
+    path: str
+    fps: int
+    episodes: tuple[int, ...]  # the record's cycle number of each episode, in order
+    frames: int
+    skipped: tuple[str, ...]
+
+
+def export_lerobot(rec: Record, output: Path, fps: int = 50, task: str | None = None, success_only: bool = False,
+                   robot_type: str | None = None) -> LeRobotExport:
+    """Write the completed cycles of ``rec`` into the new folder ``output`` as a LeRobotDataset v3."""
+    output = Path(output)
+    context = rec.context
+    stride = _stride(context, fps)
+    task = task or context.get("cell", "cycle").replace("-", " ")
+    measurements = _measurements(rec)
+    columns: dict[str, list[np.ndarray]] = {}
+    episodes, kept, skipped = [], [], []
+    joints: tuple[str, ...] = ()
+    for cycle in rec.cycles():
+        if success_only and not cycle.success:
+            continue
+        ticks = rec.ticks(cycle=cycle.cycle, rate="decimated")
+        t = ticks.t_ns[::stride]
+        if len(t) < 2 or np.any(np.diff(t) != round(1e9 / fps)):
+            skipped.append(f"cycle {cycle.cycle}: " + ("no ticks" if len(t) < 2 else "gap in the decimated ticks"))
+            continue
+        joints = ticks.joints
+        frames = {name: getattr(ticks, field)[::stride] for name, field in _TICK_FEATURES.items()}
+        if measurements:
+            frames["observation.environment_state"] = _held(measurements, cycle.cycle, t)
+        n, start = len(t), sum(len(c) for c in columns.get("index", []))
+        frames |= {"timestamp": np.arange(n) / fps, "frame_index": np.arange(n), "episode_index": np.full(n, len(kept)),
+                   "index": start + np.arange(n), "task_index": np.zeros(n, np.int64)}
+        for name, values in frames.items():
+            columns.setdefault(name, []).append(values)
+        episodes.append({"episode_index": len(kept), "tasks": [task], "length": n, "data/chunk_index": 0,
+                         "data/file_index": 0, "dataset_from_index": start, "dataset_to_index": start + n,
+                         **{f"stats/{k}/{s}": v for k, vals in frames.items() for s, v in _stats(vals).items()},
+                         "meta/episodes/chunk_index": 0, "meta/episodes/file_index": 0,
+                         "cellguard/cycle": cycle.cycle, "cellguard/phase": cycle.phase,
+                         "cellguard/success": cycle.success, "cellguard/t_start_ns": cycle.t_start_ns})
+        kept.append(cycle.cycle)
+    if not kept:
+        raise RecordError(f"{rec.file}: no cycle to export" + (f" ({'; '.join(skipped)})" if skipped else ""))
+    data = {k: np.concatenate(v) for k, v in columns.items()}
+    features = _features(data, joints, measurements)
+    _prepare(output)
+    _write_parquet(output / DATA_FILE, _data_table(data, features))
+    _write_parquet(output / EPISODES_FILE, pa.Table.from_pylist(episodes))
+    _write_parquet(output / "meta/tasks.parquet", _tasks_table([task]))
+    robot_type = robot_type or context.get("embodiment", {}).get("robot")
+    info = {"codebase_version": CODEBASE_VERSION, "robot_type": robot_type,
+            "total_episodes": len(kept), "total_frames": len(data["index"]), "total_tasks": 1, "chunks_size": 1000,
+            "data_files_size_in_mb": 100, "video_files_size_in_mb": 200, "fps": fps,
+            "splits": {"train": f"0:{len(kept)}"},
+            "data_path": "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet",
+            "video_path": None, "features": features}
+    _write_json(output / "meta/info.json", info)
+    _write_json(output / "meta/stats.json", {k: _stats(v) for k, v in data.items()})
+    return LeRobotExport(str(output), fps, tuple(kept), len(data["index"]), tuple(skipped))
+
+
+def _stride(context: dict, fps: int) -> int:
+    """Every how many decimated ticks one frame is taken; RecordError unless fps divides the stream's rate."""
+    dt_ns = context.get("servo_period_ns")
+    hz = context.get("record", {}).get("decimated_hz")
+    if not dt_ns or not hz:
+        raise RecordError("record context: servo_period_ns or record.decimated_hz is missing; "
+                          "cannot tell the tick rate")
+    period_ns = max(1, round(1e9 / dt_ns / hz)) * dt_ns
+    frame_ns = 1e9 / fps if fps > 0 else 0.0
+    stride = round(frame_ns / period_ns)
+    if fps <= 0 or stride < 1 or stride * period_ns != frame_ns:
+        raise RecordError(f"--fps: {fps} must divide the record's continuous tick rate "
+                          f"{1e9 / period_ns:g} Hz (e.g. {1e9 / period_ns:g}, {1e9 / period_ns / 2:g})")
+    return stride
+
+
+def _measurements(rec: Record) -> dict[int, tuple[np.ndarray, np.ndarray, tuple[str, ...]]]:
+    """Per cycle: request times (n,), readings (n, m) and their names, in the order first seen."""
+    rows: dict[int, list[tuple[int, dict]]] = {}
+    for m in rec.messages(["/measurements"]):
+        d = json.loads(m.data)
+        rows.setdefault(d.get("cycle"), []).append((d["t_ns"], d["measurements"]))
+    out = {}
+    for cycle, items in rows.items():
+        keys = tuple(items[0][1])
+        names = tuple(f"{k}.{i}" for k in keys for i in range(len(items[0][1][k])))
+        values = np.array([np.concatenate([np.ravel(v[k]) for k in keys]) for _, v in items], dtype=np.float64)
+        out[cycle] = (np.array([t for t, _ in items], dtype=np.int64), values, names)
+    return out
+
+
+def _held(measurements: dict, cycle: int, t: np.ndarray) -> np.ndarray:
+    """The latest reading at or before each frame time (the first one before any was taken)."""
+    times, values, _ = measurements.get(cycle, (None, None, None))
+    if times is None:
+        width = len(next(iter(measurements.values()))[2])
+        return np.full((len(t), width), np.nan)
+    return values[np.clip(np.searchsorted(times, t, side="right") - 1, 0, len(times) - 1)]
+
+
+def _features(data: dict, joints: tuple[str, ...], measurements: dict) -> dict:
+    features = {}
+    for name in (*_TICK_FEATURES, "observation.environment_state"):
+        if name in data:
+            names = list(joints) if name in _TICK_FEATURES else list(next(iter(measurements.values()))[2])
+            features[name] = {"dtype": "float32", "shape": [data[name].shape[1]], "names": names}
+    features["timestamp"] = {"dtype": "float32", "shape": [1], "names": None}
+    for name in INDEX_FEATURES[1:]:
+        features[name] = {"dtype": "int64", "shape": [1], "names": None}
+    return features
+
+
+def _data_table(data: dict, features: dict) -> pa.Table:
+    arrays = {}
+    for name, spec in features.items():
+        values = data[name]
+        if spec["dtype"] == "float32" and spec["shape"] != [1]:
+            flat = pa.array(values.astype(np.float32).reshape(-1))
+            arrays[name] = pa.FixedSizeListArray.from_arrays(flat, spec["shape"][0])
+        else:
+            arrays[name] = pa.array(values.astype(spec["dtype"]))
+    return pa.table(arrays)
+
+
+def _tasks_table(tasks: list[str]) -> pa.Table:
+    """``task_index`` with the task strings as the pandas index, as lerobot reads it (``pd.read_parquet``)."""
+    table = pa.table({"task_index": pa.array(range(len(tasks)), pa.int64()),
+                      "__index_level_0__": pa.array(tasks, pa.string())})
+    pandas_meta = {"index_columns": ["__index_level_0__"], "column_indexes": [], "columns": [
+        {"name": "task_index", "field_name": "task_index", "pandas_type": "int64", "numpy_type": "int64",
+         "metadata": None},
+        {"name": None, "field_name": "__index_level_0__", "pandas_type": "unicode", "numpy_type": "object",
+         "metadata": None}], "attributes": {}, "creator": {"library": "pyarrow", "version": pa.__version__}}
+    return table.replace_schema_metadata({b"pandas": json.dumps(pandas_meta).encode()})
+
+
+def _stats(values: np.ndarray) -> dict[str, list]:
+    """min, max, mean, std, count and the quantiles lerobot normalises with, per dimension."""
+    v = np.asarray(values, dtype=np.float64).reshape(len(values), -1)
+    q = np.quantile(v, QUANTILES, axis=0)
+    return {"min": v.min(0).tolist(), "max": v.max(0).tolist(), "mean": v.mean(0).tolist(), "std": v.std(0).tolist(),
+            "count": [len(v)], **{f"q{round(p * 100):02d}": q[i].tolist() for i, p in enumerate(QUANTILES)}}
+
+
+def _prepare(output: Path) -> None:
+    if output.exists() and any(output.iterdir()):
+        raise RecordError(f"-o {output}: exists and is not empty; give a new folder")
+    try:
+        for sub in ("data/chunk-000", "meta/episodes/chunk-000"):
+            (output / sub).mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        shutil.rmtree(output, ignore_errors=True)
+        raise RecordError(f"-o {output}: cannot write ({exc.strerror})") from None
+
+
+def _write_parquet(path: Path, table: pa.Table) -> None:
+    try:
+        pq.write_table(table, str(path))
+    except OSError as exc:
+        raise RecordError(f"-o {path}: cannot write ({exc})") from None
+
+
+def _write_json(path: Path, doc: dict) -> None:
+    try:
+        path.write_text(json.dumps(doc, indent=4))
+    except OSError as exc:
+        raise RecordError(f"-o {path}: cannot write ({exc.strerror})") from None
