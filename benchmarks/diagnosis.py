@@ -61,17 +61,20 @@ def run(seed: int, production: int, fault_list: list[dict]):
 
 
 def score(kind: str, r: Run) -> dict:
+    """Detected at the first drift alarm at or after the fault (a rejected chunk is an incident:
+    detected in its own cycle); cause from the first finding from the fault on."""
     t0 = time.perf_counter()
     d = diagnose(r.cycles, r.events, {})
     elapsed = time.perf_counter() - t0
     early = [a for a in d.drift.alarms if a.cycle < AT] + [f for f in d.findings if f.cycle < AT - 1]
     after = [f for f in d.findings if f.cycle >= AT - 1]
-    alarm_cycles = [a.cycle for a in d.drift.alarms if a.cycle >= AT] + [f.cycle for f in after]
-    first = min(alarm_cycles) if alarm_cycles else None
+    alarms = [a.cycle for a in d.drift.alarms if a.cycle >= AT]
+    alarms += [f.cycle for f in after if f.cause == "policy_output"]
+    first = min(alarms) if alarms else None
     named = after[0].cause if after else None
     return {"detected": first is not None, "delay": (first - AT) if first is not None else None,
             "cause": named, "correct": named == EXPECTED[kind], "false_alarms": len(early),
-            "diagnose_s": elapsed}
+            "onset": after[0].cycle if after else None, "diagnose_s": elapsed}
 
 
 def fault_free(seed: int, production: int) -> dict:

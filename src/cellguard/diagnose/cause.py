@@ -6,9 +6,9 @@ candidate finding, classified from the size and sign of its changes over the fau
 
 - geometry (camera-seen part and fixture, grasp pose, part-to-tool offset at grasp): the
   real part position at grasp is the grasp pose plus the offset. If the camera saw the part
-  move and the part really moved as far, the fixture moved; if the camera saw it move and it
-  did not, the camera moved; if the camera saw nothing and the part sat off the tool with the
-  joints' grasp pose unchanged, the tool slipped on its flange.
+  move (its readings alarmed) and the part really moved as far, the fixture moved; if the
+  camera saw it move and it did not, the camera moved; if the camera saw nothing and the part
+  sat off the tool with the joints' grasp pose unchanged, the tool slipped on its flange.
 - one joint (current, tracking error): friction raises the current the joint needs more than
   its tracking error; a weaker servo gain raises the tracking error more than the current.
 - policy timing (latency, stale chunks) and policy output (rejected chunks) speak for
@@ -181,7 +181,8 @@ def _geometry(w: _Window, alarms: list[DriftAlarm], outcome: list[DriftAlarm]) -
     tail = [current] if current else []
     tail += [f"success fell to {np.mean([c.success for c in w.cycles if c.index >= start]):.0%} of cycles"
              ] if any(a.signal in ("success", "grasped") for a in outcome) else []
-    if np.linalg.norm(seen) >= SIGNIFICANT_MM:
+    seen_alarmed = any(a.signal.startswith(("part_seen_", "fixture_seen_")) for a in alarms)
+    if seen_alarmed and np.linalg.norm(seen) >= SIGNIFICANT_MM:
         d_fixture, d_camera = float(np.linalg.norm(seen - real)), float(np.linalg.norm(real))
         moved = d_fixture <= d_camera
         share = (d_camera if moved else d_fixture) / max(d_fixture + d_camera, 1e-9)
