@@ -34,6 +34,7 @@ LATENCY = ("latency_mean_ms", "latency_max_ms", "stale_chunks")
 SIGNIFICANT_MM = 0.3  # [mm] a geometric change smaller than this is noise at this camera
 CONCURRENT = 2  # [cycles] changes this close together are one episode
 UNCHANGED_Z = 3.0  # |median residual| below this, in baseline scales, reads as "unchanged"
+MATERIAL = 0.03  # a joint whose current and tracking error moved less than 3 % stays an alarm, not a cause
 
 
 @dataclass(frozen=True)
@@ -216,6 +217,8 @@ def _joints(w: _Window, groups: dict[str, list[DriftAlarm]]) -> list[Finding]:
         cur = _largest(w.relative(f"current_rms.{joint}", start), w.relative(f"current_peak.{joint}", start))
         trk = _largest(w.relative(f"tracking_rms.{joint}", start), w.relative(f"tracking_max.{joint}", start))
         c, t = max(cur, 0.0), max(trk, 0.0)
+        if max(abs(cur), abs(trk)) < MATERIAL:
+            continue  # statistically there, physically too small to name a cause for
         if c + t <= 0.0:
             cause, share = "unknown", 0.5
         else:
