@@ -8,12 +8,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from cellguard.control.settings import GuardSettings
 from cellguard.errors import ScenarioError
 from cellguard.robot.faults import FAULTS, AnyFault
+from cellguard.yaml_file import read_yaml
 
 
 class Scenario(BaseModel):
@@ -71,14 +71,7 @@ def parse_scenario(raw: object, origin: str = "scenario") -> Scenario:
 
 def load_scenario(path: Path) -> Scenario:
     """Read and validate a scenario file."""
-    path = Path(path)
-    try:
-        raw = yaml.safe_load(path.read_text())
-    except FileNotFoundError:
-        raise ScenarioError(f"{path}: no such scenario file") from None
-    except yaml.YAMLError as exc:
-        raise ScenarioError(f"{path}: not valid YAML ({exc.__class__.__name__})") from None
-    return parse_scenario(raw, origin=str(path))
+    return parse_scenario(read_yaml(path, "scenario", ScenarioError), origin=str(path))
 
 
 def _format_loc(loc: tuple) -> str:

@@ -23,11 +23,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from cellguard.embodiment import Profile
 from cellguard.errors import ConfigError
 from cellguard.units import parse_quantity
+from cellguard.yaml_file import read_yaml
 
 _JOINT_DIM = {"hinge": ("angle",), "slide": ("length",)}
 _DIMENSIONLESS = {"1": 1.0, "%": 0.01}
@@ -131,13 +131,7 @@ def identity_map(profile: Profile, names: tuple[str, ...] | None = None) -> Acti
 
 def load_action_map(path: Path, profile: Profile) -> ActionMap:
     """Read an action map file and check it against ``profile``."""
-    path = Path(path)
-    try:
-        raw = yaml.safe_load(path.read_text())
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: no such action map file") from None
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}: not valid YAML ({exc.__class__.__name__})") from None
+    raw = read_yaml(path, "action map")
     return parse_action_map(raw, profile, origin=str(path))
 
 

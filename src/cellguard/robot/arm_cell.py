@@ -15,9 +15,9 @@ import mujoco
 import numpy as np
 
 from cellguard.embodiment import load_profile
-from cellguard.robot.drives import PositionDrives
+from cellguard.robot.drives import DrivenCell, PositionDrives
 from cellguard.robot.protocol import SafetyInputs
-from cellguard.robot.state import Observation, State
+from cellguard.robot.state import Observation
 
 ASSETS = Path(__file__).parent / "assets"
 PART_HALF = 0.015  # [m] half edge of the cube part
@@ -35,7 +35,7 @@ WORKSPACE_BOX = ((-0.45, -0.45, 0.005), (0.45, 0.45, 0.55))
 CAMERA_ROTATION = np.diag([1.0, -1.0, -1.0])
 
 
-class ArmPickPlace:
+class ArmPickPlace(DrivenCell):
     """A simulated arm cell at a 1 ms servo period. Joint order is the profile's."""
 
     name = "arm-pick-place"
@@ -87,23 +87,6 @@ class ArmPickPlace:
         self._fk = mujoco.MjData(m)
 
     # -- Robot -------------------------------------------------------------------------
-    @property
-    def t_ns(self) -> int:
-        return round(self.data.time * 1e9)
-
-    def read(self) -> State:
-        return self.drives.read(self.t_ns)
-
-    def write(self, setpoint: np.ndarray) -> np.ndarray:
-        return self.drives.write(setpoint)
-
-    def safety(self) -> SafetyInputs:
-        return self.safety_inputs
-
-    def set_power(self, on: bool) -> None:
-        """Power off: the actuators are disabled and the joint brakes (high damping) engage."""
-        self.drives.set_power(on)
-
     def tool_point(self, q: np.ndarray) -> np.ndarray:
         """Forward kinematics: the tool point (3,) [m] at joint positions ``q`` (dof,), off the live model state."""
         self._fk.qpos[self._qadr] = q
@@ -238,8 +221,3 @@ class ArmPickPlace:
     def set_tool_offset(self, offset: np.ndarray) -> None:
         self.model.body_pos[self._tool_body] = self.nominal["tool"] + offset
 
-    def set_friction_scale(self, joint: str, factor: float) -> None:
-        self.drives.set_friction_scale(joint, factor)
-
-    def set_servo_gain(self, joint: str, factor: float) -> None:
-        self.drives.set_servo_gain(joint, factor)

@@ -12,6 +12,7 @@ import mujoco
 import numpy as np
 
 from cellguard.embodiment import Profile
+from cellguard.robot.protocol import SafetyInputs
 from cellguard.robot.state import State
 
 
@@ -60,3 +61,39 @@ class PositionDrives:
         i = self.profile.index(joint)
         self.model.actuator_gainprm[self.act[i], 0] = self.nominal_gain[i] * factor
         self.model.actuator_biasprm[self.act[i], 1:3] = self.nominal_bias[i] * factor
+
+
+class DrivenCell:
+    """The Robot calls of a MuJoCo cell whose joints are ``PositionDrives``; a cell adds its task.
+
+    The cell sets ``model``, ``data``, ``drives`` and ``safety_inputs`` (what its simulated
+    certified safety controller says; scenarios and tests set it).
+    """
+
+    model: mujoco.MjModel
+    data: mujoco.MjData
+    drives: PositionDrives
+    safety_inputs: SafetyInputs
+
+    @property
+    def t_ns(self) -> int:
+        return round(self.data.time * 1e9)
+
+    def read(self) -> State:
+        return self.drives.read(self.t_ns)
+
+    def write(self, setpoint: np.ndarray) -> np.ndarray:
+        return self.drives.write(setpoint)
+
+    def safety(self) -> SafetyInputs:
+        return self.safety_inputs
+
+    def set_power(self, on: bool) -> None:
+        """Power off: the actuators are disabled and the joint brakes (high damping) engage."""
+        self.drives.set_power(on)
+
+    def set_friction_scale(self, joint: str, factor: float) -> None:
+        self.drives.set_friction_scale(joint, factor)
+
+    def set_servo_gain(self, joint: str, factor: float) -> None:
+        self.drives.set_servo_gain(joint, factor)

@@ -16,9 +16,9 @@ import mujoco
 import numpy as np
 
 from cellguard.embodiment import load_profile
-from cellguard.robot.drives import PositionDrives
+from cellguard.robot.drives import DrivenCell, PositionDrives
 from cellguard.robot.protocol import SafetyInputs
-from cellguard.robot.state import Observation, State
+from cellguard.robot.state import Observation
 
 ASSETS = Path(__file__).parent / "assets"
 LEGS = ("fl", "fr", "rl", "rr")
@@ -44,7 +44,7 @@ def _yaw(quat: np.ndarray) -> float:
     return float(np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z)))
 
 
-class QuadrupedTurns:
+class QuadrupedTurns(DrivenCell):
     """A simulated quadruped at a 1 ms servo period. Joint order is the profile's."""
 
     name = "quadruped-turns"
@@ -87,22 +87,6 @@ class QuadrupedTurns:
         self._fallen = False
 
     # -- Robot -------------------------------------------------------------------------
-    @property
-    def t_ns(self) -> int:
-        return round(self.data.time * 1e9)
-
-    def read(self) -> State:
-        return self.drives.read(self.t_ns)
-
-    def write(self, setpoint: np.ndarray) -> np.ndarray:
-        return self.drives.write(setpoint)
-
-    def safety(self) -> SafetyInputs:
-        return self.safety_inputs
-
-    def set_power(self, on: bool) -> None:
-        self.drives.set_power(on)
-
     def step(self) -> None:
         mujoco.mj_step(self.model, self.data)
         self._ticks += 1
@@ -228,10 +212,3 @@ class QuadrupedTurns:
             "turn_command": {"speed_m_s": SPEED, "yaw_rate_rad_s": YAW_RATE, "duration_s": TURN_S},
             "steady_window_s": [STEADY_FROM_S, TURN_S],
         }
-
-    # -- Faults (absolute settings from the commissioned values) ---------------------------
-    def set_friction_scale(self, joint: str, factor: float) -> None:
-        self.drives.set_friction_scale(joint, factor)
-
-    def set_servo_gain(self, joint: str, factor: float) -> None:
-        self.drives.set_servo_gain(joint, factor)
