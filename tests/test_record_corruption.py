@@ -24,6 +24,8 @@ def original(tmp_path_factory) -> bytes:
 
 def _check_values(ticks) -> None:
     k = (ticks.t_ns // DT_NS).astype(int)
+    if not len(k):  # cut before the first tick chunk: nothing to compare
+        return
     for name in ("q_ref", "q_cmd", "q_meas", "qd_meas", "effort", "current"):
         np.testing.assert_array_equal(getattr(ticks, name), np.stack([values(i)[name] for i in k]).reshape(-1, 6))
 

@@ -10,8 +10,8 @@ arm's taught program) and send a setpoint at 1 kHz:
 * ``relative_clamp``: LeRobot's ``max_relative_target``, each step clamped to
   prev ± v_max·dt (the setting that matches the velocity limit).
 
-Two streams: ``inside``, the program slowed to 60 % of its speed so it lies inside every limit of
-the profile, and ``outside``, the program at its own speed (which exceeds the profile's
+Two streams: ``inside``, the taught program at its own speed (inside every limit of the
+profile, with headroom), and ``outside``, the program played 1.6 times faster (which exceeds the profile's
 shoulder-lift, wrist and gripper limits) with one chunk that disagrees with the plan by 50 mrad.
 Figures: limit violations (ticks whose finite-difference velocity or acceleration exceeds the
 limit by more than 0.2 % and 2 %, or position beyond the limit), tracking error against the
@@ -78,6 +78,12 @@ def _reference_and_cellguard(cell, chunks, ticks):
         cost[k] = time.perf_counter_ns() - began
         ref[k], sp[k] = r, s
     return ref, sp, cost
+
+
+def _cost(ns: np.ndarray) -> dict:
+    us = ns / 1e3
+    return {"median": float(np.median(us)), "p99": float(np.percentile(us, 99)), "max": float(us.max()),
+            "ticks": int(len(us))}
 
 
 def _lowpass(ref: np.ndarray, alpha: float) -> np.ndarray:
@@ -159,7 +165,7 @@ def figures(quick: bool = False) -> dict:
     result: dict = {"cell": cell.name, "servo_hz": 1000, "chunk_hz": 20, "tolerance": {"velocity": V_TOL,
                     "acceleration": A_TOL}}
     streams = {}
-    for name, speed, yank in (("inside", 0.6, None), ("outside", 1.0, 1.5)):
+    for name, speed, yank in (("inside", 1.0, None), ("outside", 1.6, 1.5)):
         program, duration = _program(cell, speed)
         ticks = round(duration * 1e9 / DT_NS)
         ref, sp, cost = _reference_and_cellguard(cell, _chunks(program, duration, yank), ticks)
@@ -181,10 +187,10 @@ def figures(quick: bool = False) -> dict:
             block[layer] = entry
         block["reference_violations"] = _violations(ref, profile)
         result[name] = block
-    cost = np.concatenate([streams["inside"][2], streams["outside"][2]]) / 1e3
     result["lowpass_alpha"] = alpha
-    result["tick_cost_us"] = {"median": float(np.median(cost)), "p99": float(np.percentile(cost, 99)),
-                              "max": float(cost.max()), "ticks": int(len(cost))}
+    # per stream: inside, the layer passes the reference through; outside, ruckig works on many ticks
+    result["tick_cost_us"] = {name: _cost(streams[name][2]) for name in streams}
+    result["tick_cost_us"]["all"] = _cost(np.concatenate([streams[name][2] for name in streams]))
     result["ruckig_call_us"] = _ruckig_call_us(profile.dof)
     return result
 

@@ -20,6 +20,7 @@ why; a lasting condition raises one event when it starts.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -79,11 +80,12 @@ class Envelope:
         self._effort_max = profile.array("effort") * c.effort_fraction
         self._effort_ticks = np.zeros(profile.dof, dtype=np.int64)
         self._effort_hold = max(1, round(c.effort_hold_s * 1e9 / dt_ns))
-        self._box = None if c.box is None else (np.array(c.box[0]), np.array(c.box[1]))
+        self._box = None if c.box is None else (tuple(map(float, c.box[0])), tuple(map(float, c.box[1])))
         if self._box is not None and tool is None:
             raise ValueError("box: a tool model (forward kinematics) is needed to check the tool point")
-        self._tip = None if tool is None else np.array(tool(np.asarray(q0, dtype=np.float64)))
-        self._inv_a = 1.0 / profile.array("acceleration")
+        # tool point of the last setpoint [m], plain floats: three coordinates are cheaper so on the tick
+        self._tip = None if tool is None else tuple(tool(np.asarray(q0, dtype=np.float64)).tolist())
+        self._inv_a = (1.0 / profile.array("acceleration")).tolist()
         self._t_jerk = float((profile.array("acceleration") / profile.array("jerk")).max())
         self.scale, self._scale_rate = 1.0, 0.0
         self.stop_category: int | None = None  # of the stop in force
@@ -139,7 +141,7 @@ class Envelope:
     def _settle_tool(self) -> None:
         """Tool point of the setpoint at standstill: the tool-speed estimate restarts from rest."""
         if self._tool is not None:
-            self._tip = np.array(self._tool(self.tracker.p))
+            self._tip = tuple(self._tool(self.tracker.p).tolist())
 
     # -- stops -----------------------------------------------------------------------------
     def _stop_request(self, t_ns, reference, finite, state, safety, last_chunk_ns, uncertainty, events):
@@ -232,18 +234,20 @@ class Envelope:
                                 joint=names[j], asked=float(reference[j]), sent=float(setpoint[j])))
 
     def _check_tool(self, t_ns: int, setpoint: np.ndarray, events: list[Event]) -> None:
-        tip = np.array(self._tool(setpoint))
-        dt = self.dt_ns * 1e-9
-        velocity = (tip - self._tip) / dt
-        self._tip = tip
-        self.tool_speed = float(np.sqrt(velocity @ velocity))
+        x, y, z = self._tool(setpoint).tolist()
+        px, py, pz = self._tip
+        inv_dt = 1e9 / self.dt_ns
+        vx, vy, vz = (x - px) * inv_dt, (y - py) * inv_dt, (z - pz) * inv_dt
+        self._tip = (x, y, z)
+        self.tool_speed = math.sqrt(vx * vx + vy * vy + vz * vz)
         if self._box is not None:
             # where a stop from here could end: the tool coasts at most v * T / 2 + v * (jerk ramp) while the
             # slowest joint brakes for T = |v| / a_max
-            t_stop = float((np.abs(self.tracker.v) * self._inv_a).max())
-            if self._outside(tip + velocity * (0.5 * t_stop + self._t_jerk)):
+            t_stop = max(abs(v) * ia for v, ia in zip(self.tracker.v.tolist(), self._inv_a))
+            k = 0.5 * t_stop + self._t_jerk
+            if self._outside((x + vx * k, y + vy * k, z + vz * k)):
                 self._begin_stop(t_ns, 2, "workspace_stop", "workspace box", events)
 
-    def _outside(self, point: np.ndarray) -> bool:
+    def _outside(self, point) -> bool:
         lo, hi = self._box
-        return bool(((point < lo) | (point > hi)).any())
+        return any(p < low or p > high for p, low, high in zip(point, lo, hi))

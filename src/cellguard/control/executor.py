@@ -149,8 +149,8 @@ class Executor:
             if tau - self._blend_start >= self.blend_ns:
                 self._blend = None
             else:
-                c = self._blend
-                q = q + (((((c[5] * u + c[4]) * u + c[3]) * u + c[2]) * u + c[1]) * u + c[0])
+                u2 = u * u
+                q = q + np.dot((1.0, u, u2, u2 * u, u2 * u2, u2 * u2 * u), self._blend)
         return q
 
     def _state(self, tau: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

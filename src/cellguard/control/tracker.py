@@ -53,6 +53,9 @@ class Tracker:
         # a bound of the stopping distance at speed |v| for any |a| <= a_max: c0 + c1 |v| + v²/2a
         t1 = 2.0 * self.a_max / self.j_max
         self._far0, self._far1 = 0.5 * self.a_max * t1 * t1 + self._tail, t1
+        # the same constants as plain floats, for the per-joint stop check
+        self._amax_f, self._jmax_f, self._v3_f, self._v3sq_f, self._inv_2a_f, self._tail_f, self._lo_f, self._hi_f = (
+            x.tolist() for x in (self.a_max, self.j_max, self._v3, self._v3sq, self._inv_2a, self._tail, self.lo, self.hi))
         dof = len(self.v_max)
         self._absolute_in, self._offset_in, self._stop_in = (
             self._input(dof, ruckig.ControlInterface.Velocity), self._input(dof, ruckig.ControlInterface.Position),
@@ -83,33 +86,45 @@ class Tracker:
         self._tv = np.zeros_like(self.p)  # ruckig's own velocity and acceleration of joints it drove
         self._ta = np.zeros_like(self.p)
         self._ref = (self.p.copy(), self.v.copy(), self.a.copy())  # last reference sample, its FD v, a
+        self._passing = True  # every joint passed through on the last tick
 
     # -- the checks ------------------------------------------------------------------------
-    def _stop_distance(self, v, a):
-        """Distance [unit] a jerk-limited stop from velocity ``v`` and acceleration ``a`` covers in
-        the + direction (arrays (D,) or (2, D)): jerk down to -a_max, hold it, jerk back to zero
-        as velocity reaches zero. Exact for that profile; where the velocity runs out before
-        -a_max is reached it falls back to a looser bound, so it is never shorter than ruckig's
-        time-optimal stop.
+    def _stop_distance(self, j: int, v: float, a: float) -> float:
+        """Distance [unit] a jerk-limited stop of joint ``j`` from velocity ``v`` and acceleration
+        ``a`` covers in the + direction: jerk down to -a_max, hold it, jerk back to zero as
+        velocity reaches zero. Exact for that profile; where the velocity runs out before -a_max
+        is reached it falls back to a looser bound, so it is never shorter than ruckig's
+        time-optimal stop. Plain floats: for a handful of joints near a limit this is several
+        times cheaper than array arithmetic on the servo tick.
         """
-        amax, jmax = self.a_max, self.j_max
-        t1 = (np.maximum(a, -amax) + amax) / jmax
+        amax, jmax = self._amax_f[j], self._jmax_f[j]
+        t1 = (max(a, -amax) + amax) / jmax
         v1 = v + t1 * (a - 0.5 * jmax * t1)
-        full = t1 * (v + t1 * (0.5 * a - jmax * t1 / 6.0)) + (v1 * v1 - self._v3sq) * self._inv_2a + self._tail
-        loose = np.maximum(v, 0.0) * t1 + 0.5 * np.maximum(a, 0.0) * t1 * t1 + self._tail
-        return np.where(v1 >= self._v3, full, np.where((v > 0.0) | (a > 0.0), loose, 0.0))
+        if v1 >= self._v3_f[j]:
+            return (t1 * (v + t1 * (0.5 * a - jmax * t1 / 6.0)) + (v1 * v1 - self._v3sq_f[j]) * self._inv_2a_f[j]
+                    + self._tail_f[j])
+        if v > 0.0 or a > 0.0:
+            return max(v, 0.0) * t1 + 0.5 * max(a, 0.0) * t1 * t1 + self._tail_f[j]
+        return 0.0
 
-    def stop_fits(self, q, v, a) -> np.ndarray:
-        """Per joint (D,): would a jerk-limited stop from (q, v, a) end inside the soft limits?"""
-        d = self._stop_distance(np.stack((v, -v)), np.stack((a, -a)))
-        return (q + d[0] <= self.hi) & (q - d[1] >= self.lo)
+    def stop_fits(self, q, v, a, joints=None) -> np.ndarray:
+        """Per joint (D,): would a jerk-limited stop from (q, v, a) end inside the soft limits?
+
+        ``joints``: indices to check (the others count as fitting); default all.
+        """
+        ok = np.ones(len(self.p), dtype=bool)
+        lo, hi = self._lo_f, self._hi_f
+        for j in range(len(self.p)) if joints is None else joints:
+            qj, vj, aj = float(q[j]), float(v[j]), float(a[j])
+            ok[j] = qj + self._stop_distance(j, vj, aj) <= hi[j] and qj - self._stop_distance(j, -vj, -aj) >= lo[j]
+        return ok
 
     def fits(self, q: np.ndarray) -> np.ndarray:
         """Per joint (D,): can ``q`` be the next setpoint?
 
         Yes when its finite-difference v, a, j are inside the limits, its acceleration can be
         brought to zero before the velocity limit, and a stop from it still fits before the soft
-        position limits.
+        position limits (checked exactly only for joints a loose bound puts near a limit).
         """
         fd = self._fd
         np.subtract(q, self.p, out=fd[0])
@@ -123,18 +138,26 @@ class Tracker:
         ok &= np.abs(fd[0] + fd[1] * np.abs(fd[1]) * self._half_inv_j) <= self._limits[0]
         speed = np.abs(fd[0])
         far = self._far0 + speed * (self._far1 + speed * self._inv_2a)
-        if ((q - far) < self.lo).any() or ((q + far) > self.hi).any():  # near a limit: the exact check
-            ok &= self.stop_fits(q, fd[0], fd[1])
+        near = np.flatnonzero(((q - far) < self.lo) | ((q + far) > self.hi))
+        if near.size:
+            ok &= self.stop_fits(q, fd[0], fd[1], near)
         return ok
 
     # -- one tick --------------------------------------------------------------------------
     def follow(self, r: np.ndarray) -> np.ndarray:
         """The next setpoint (D,) for the finite reference sample ``r`` (D,); sets ``mode``."""
+        ok = self.fits(r)
+        if ok.all() and self._passing:
+            # pass-through after pass-through: the setpoint state is the reference's, and fits()
+            # has just computed its finite differences
+            v, a = self._fd[0].copy(), self._fd[1].copy()
+            self._ref = (r, v, a)
+            self.p, self.v, self.a = r, v, a
+            return r
         previous = self._ref
         rv = (r - previous[0]) * self._inv_dt
         ra = (rv - previous[1]) * self._inv_dt
         self._ref = (r, rv, ra)
-        ok = self.fits(r)
         if ok.all():
             return self._commit(r, None, None, PASS)
         q, mode = r.copy(), np.where(ok, PASS, ABSOLUTE).astype(np.int8)
@@ -181,6 +204,7 @@ class Tracker:
         """Standstill where the setpoint is, at once: power is removed, nothing is driven."""
         self.reset(self.p)
         self.mode[:] = STOP
+        self._passing = False
         return self.p.copy()
 
     @property
@@ -253,6 +277,7 @@ class Tracker:
         self.a = (v - self.v) * self._inv_dt
         self.v, self.p = v, q
         self.mode[:] = mode
+        self._passing = mode is PASS
         if tv is not None:
             self._tv, self._ta = tv, ta
         return q
