@@ -34,7 +34,7 @@ LATENCY = ("latency_mean_ms", "latency_max_ms", "stale_chunks")
 SIGNIFICANT_MM = 0.3  # [mm] a geometric change smaller than this is noise at this camera
 CONCURRENT = 2  # [cycles] changes this close together are one episode
 UNCHANGED_Z = 3.0  # |median residual| below this, in baseline scales, reads as "unchanged"
-MATERIAL = 0.03  # a joint whose current and tracking error moved less than 3 % stays an alarm, not a cause
+MATERIAL = 0.02  # a joint whose current and tracking error moved less than 2 % stays an alarm, not a cause
 
 
 @dataclass(frozen=True)
