@@ -48,3 +48,13 @@ def test_unknown_cell_lists_known():
     result = runner.invoke(app, ["embodiment", "show", "lathe"])
     assert result.exit_code == 2
     assert "known: arm-pick-place" in result.stderr
+
+
+def test_an_out_folder_that_cannot_be_made_is_one_line(tmp_path):
+    scenario = tmp_path / "s.yaml"
+    scenario.write_text("cell: arm-pick-place\nacceptance_cycles: 1\nproduction_cycles: 0\n")
+    blocker = tmp_path / "a-file"
+    blocker.write_text("")
+    result = runner.invoke(app, ["run", str(scenario), "--out", str(blocker / "out")])
+    assert result.exit_code == 2
+    assert result.stderr.startswith("error: --out ") and "cannot create the folder" in result.stderr

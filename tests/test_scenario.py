@@ -25,6 +25,10 @@ BASE = {"cell": "arm-pick-place", "acceptance_cycles": 1, "production_cycles": 1
         ({"faults": [{"kind": "fixture_shift", "dx_mm": 1}]}, "faults[0].at_cycle: Field required"),
         ({"faults": [{"kind": "tool_slip", "at_cycle": 1, "dq_mm": 1}]}, "faults[0].dq_mm: unknown key"),
         ({"faults": [{"kind": "servo_gain", "joint": "elbow", "factor": 0}]}, "faults[0].factor"),
+        ({"seed": -1}, "seed: Input should be greater than or equal to 0"),
+        ({"faults": [{"kind": "policy_latency", "at_cycle": 5, "ms": 50, "until_cycle": 2}]},
+         "until_cycle 2 is before at_cycle 5"),
+        ({"guard": {"box": [[0.5, -0.5, 0.0], [0.4, 0.5, 0.5]]}}, "guard.box: Value error, each minimum must be below"),
     ],
 )
 def test_bad_scenario_names_the_key(patch, message):

@@ -8,9 +8,17 @@ from pathlib import Path
 
 import typer
 from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    TextColumn,
+    TimeElapsedColumn,
+)
 
+from cellguard.cli_errors import fail
 from cellguard.errors import CellguardError
+from cellguard.output import make_folder
 from cellguard.record.cli import record_app
 from cellguard.scenario import Scenario, load_scenario
 
@@ -23,14 +31,10 @@ err = Console(stderr=True)
 DEMO_SCENARIO = Path(__file__).parent / "scenarios" / "demo.yaml"
 
 
-def _fail(exc: CellguardError) -> None:
-    sys.stderr.write(f"error: {exc}\n")
-    raise typer.Exit(2)
-
-
 def _run(scenario: Scenario, out: Path, quiet: bool) -> dict:
     from cellguard.runner import run_scenario
 
+    make_folder(out, "--out")  # before the progress bar: a bad folder is one line and nothing else
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                   console=err, disable=quiet, transient=False) as progress:
         task = progress.add_task(f"{scenario.cell} cycles", total=scenario.total_cycles)
@@ -64,7 +68,7 @@ def run(
         sc = load_scenario(scenario)
         summary = _run(sc, out, quiet=as_json)
     except CellguardError as exc:
-        _fail(exc)
+        fail(exc)
     _print_summary(summary, out, as_json)
 
 
@@ -83,7 +87,7 @@ def demo(
         diagnosis = diagnose_record(out)
         report_path = write_report(out, diagnosis=diagnosis)
     except CellguardError as exc:
-        _fail(exc)
+        fail(exc)
     if as_json:
         sys.stdout.write(json.dumps({"out": str(out), "phases": summary["phases"], "events": len(summary["events"]),
                                      "diagnosis": diagnosis.to_dict(), "report": str(report_path)}) + "\n")
@@ -105,7 +109,7 @@ def diagnose(
     try:
         diagnosis = diagnose_record(folder, acceptance=acceptance)
     except CellguardError as exc:
-        _fail(exc)
+        fail(exc)
     if as_json:
         sys.stdout.write(json.dumps(diagnosis.to_dict()) + "\n")
         return
@@ -123,7 +127,7 @@ def report(
     try:
         path = write_report(folder, out)
     except CellguardError as exc:
-        _fail(exc)
+        fail(exc)
     Console().print(f"report: {path}")
 
 
@@ -143,7 +147,7 @@ def train_demo_policy(
     try:
         report = train(out, cycles=cycles, random_features=random_features, seed=seed)
     except CellguardError as exc:
-        _fail(exc)
+        fail(exc)
     if as_json:
         sys.stdout.write(json.dumps(asdict(report)) + "\n")
         return
@@ -179,7 +183,7 @@ def embodiment_show(
     try:
         profile = make_cell(cell).profile
     except CellguardError as exc:
-        _fail(exc)
+        fail(exc)
     if as_json:
         sys.stdout.write(json.dumps(profile.to_dict(), indent=1) + "\n")
         return
@@ -223,7 +227,7 @@ def bench(
             if name not in BENCHMARKS:
                 raise UnknownNameError("benchmark", name, list(BENCHMARKS))
     except CellguardError as exc:
-        _fail(exc)
+        fail(exc)
     results = {name: fn(quick) for name, fn in BENCHMARKS.items() if not only or name in only}
     if as_json:
         sys.stdout.write(json.dumps(results, indent=1) + "\n")

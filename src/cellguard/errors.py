@@ -5,7 +5,8 @@
     │   ├── ProfileError     an embodiment profile that disagrees with its model
     │   └── ScenarioError    a scenario file with an unknown key, wrong type or impossible value
     ├── UnknownNameError     a registry lookup that failed; lists the names that exist
-    └── RecordError          a record that cannot be written or read
+    ├── RecordError          a record that cannot be written or read
+    └── OutputError          another output file or folder that cannot be written
 
 Every message names the field (or file) and what was allowed, in one line, so that the CLI
 can print it and exit 2 without a traceback.
@@ -43,3 +44,7 @@ class UnknownNameError(CellguardError, KeyError):
 
 class RecordError(CellguardError):
     """A fault record that cannot be written or read."""
+
+
+class OutputError(CellguardError):
+    """An output file or folder (report, summary, model) that cannot be written."""

@@ -21,6 +21,7 @@ from cellguard.control.settings import build_guard
 from cellguard.diagnose.cycle_buffer import CycleBuffer
 from cellguard.diagnose.features import cycle_features
 from cellguard.errors import RecordError
+from cellguard.output import make_folder
 from cellguard.policy.chunk import ActionChunk
 from cellguard.policy.registry import make_policy
 from cellguard.record.session import RunRecording
@@ -82,16 +83,21 @@ class Run:
                 self.events.extend(executor.push(pending[1], t))
                 pending = None
             if pending is None and t >= next_request:
-                began = time.perf_counter_ns()
-                chunk = self.policy.infer(observation := cell.observe())
-                if rec is not None:
-                    rec.request(t, observation)
-                wall_ns.append(time.perf_counter_ns() - began)
-                if corrupt and t - start >= NAN_AFTER_S * 1e9:
-                    chunk, corrupt = _with_nan(chunk), False
-                pending = (t + latency_ns, chunk)
-                latencies.append(latency_ns)
                 next_request = t + self._period_ns
+                began = time.perf_counter_ns()
+                try:
+                    chunk = self.policy.infer(observation := cell.observe())
+                except Exception as exc:  # noqa: BLE001 - a failing policy is an event; the watchdog stops the cell
+                    self.events.append(Event(t, "inference_failed", f"{type(exc).__name__}: {exc}"))
+                    chunk = None
+                wall_ns.append(time.perf_counter_ns() - began)
+                if chunk is not None:
+                    if rec is not None:
+                        rec.request(t, observation)
+                    if corrupt and t - start >= NAN_AFTER_S * 1e9:
+                        chunk, corrupt = _with_nan(chunk), False
+                    pending = (t + latency_ns, chunk)
+                    latencies.append(latency_ns)
             reference = executor.reference(t, envelope.scale)
             setpoint, events = envelope.apply(t, reference, state, cell.safety(), executor.last_chunk_ns,
                                               executor.uncertainty, executor.tool_speed_ahead(GUARD_LOOKAHEAD_NS))
@@ -149,8 +155,7 @@ class Run:
 
 def run_scenario(scenario: Scenario, out: Path, on_cycle: Callable[[dict], None] | None = None) -> dict:
     """Run every cycle of ``scenario`` and write ``out/summary.json``; return the summary."""
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    out = make_folder(Path(out), "--out")
     run = Run(scenario)
     run.recording = RunRecording.start(out, run)  # RecordError here: nothing runs
     try:

@@ -22,7 +22,7 @@ class Scenario(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     cell: str
-    seed: int = 0
+    seed: int = Field(default=0, ge=0)
     policy: str = "scripted"
     policy_hz: float = Field(default=20.0, ge=10.0, le=50.0, description="inference cadence [Hz]")
     acceptance_cycles: int = Field(default=20, ge=0, le=100_000)

@@ -122,6 +122,9 @@ class Envelope:
         self._update_scale(safety, uncertainty, tool_speed_ahead, t_ns, events)
         before = tracker.mode.copy()
         setpoint = tracker.follow(reference)
+        if tracker.failed is not None:  # ruckig refused its input: this tick braked every joint
+            events.append(Event(t_ns, "tracker_failed", f"ruckig: {tracker.failed}; braking this tick"))
+            tracker.failed = None
         if tracker.mode.any():
             self._report_tracking(t_ns, reference, setpoint, before, events)
         if self._tool is not None:

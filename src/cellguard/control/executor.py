@@ -113,7 +113,7 @@ class Executor:
             return [Event(t_ns, "chunk_rejected", f"out of order: answers t={chunk.t_obs_ns * 1e-9:.3f} s, "
                                                   f"not newer than the chunk in use ({self._chunk.t_obs_ns * 1e-9:.3f} s)")]
         now = t_ns if self._t_ns is None else self.tau_ns + (t_ns - self._t_ns)  # playback time at t_ns
-        shift = self._offset_at(chunk.t_obs_ns, t_ns)
+        shift = self._offset_at(chunk.t_obs_ns)
         curve = chunk.curve
         first, h = curve.t0_ns - shift, curve.h_ns
         horizon = len(curve.points)
@@ -174,7 +174,7 @@ class Executor:
         k1 = min(max((self.tau_ns + window_ns - c.t0_ns) // c.h_ns + 1, k0 + 1), len(chunk.tool_speed))
         return float(chunk.tool_speed[k0:k1].max())
 
-    def _offset_at(self, t_obs_ns: int, t_ns: int) -> int:
+    def _offset_at(self, t_obs_ns: int) -> int:
         """How far the playback clock was behind real time at ``t_obs_ns`` (0 if it never lagged)."""
         if self._t_ns is None:
             return 0

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from cellguard.control.envelope import Envelope, EnvelopeConfig
 from cellguard.control.executor import Executor
@@ -24,6 +24,13 @@ class GuardSettings(BaseModel):
     blend_s: float = Field(default=0.2, gt=0.0, le=1.0, description="chunk stitching blend [s]")
     box: tuple[tuple[float, float, float], tuple[float, float, float]] | None = Field(
         default=None, description="tool-point box [[xmin, ymin, zmin], [xmax, ymax, zmax]] [m]; default: the cell's")
+
+    @field_validator("box")
+    @classmethod
+    def _min_below_max(cls, box):
+        if box is not None and not all(lo < hi for lo, hi in zip(*box)):
+            raise ValueError(f"each minimum must be below its maximum, got {box}")
+        return box
 
 
 def build_guard(cell, settings: GuardSettings | None = None) -> tuple[Executor, Envelope]:

@@ -20,7 +20,8 @@ Position limits are never clamped: a sample is refused when the stopping distanc
 velocity and acceleration no longer fits before the soft limit (a jerk-limited bound, more
 than v²/2a), and the refusal hands over to ruckig while a stop still fits. This edition of
 ruckig ignores position limits and raises on NaN, so it only ever sees finite, clipped inputs,
-and an error it raises becomes a stop, never an exception on the servo path.
+and an error it raises brakes every joint for that tick (the envelope reports it as an event),
+never an exception on the servo path.
 """
 
 from __future__ import annotations
@@ -30,7 +31,6 @@ import ruckig
 
 PASS, OFFSET, ABSOLUTE, STOP = 0, 1, 2, 3
 GAIN = 8.0  # [1/s] position feedback of the absolute recovery; slow against the jerk ramps (A/J ~ 60 ms)
-MODE_NAMES = ("pass", "offset", "absolute", "stop")
 
 
 class Tracker:

@@ -25,6 +25,7 @@ import numpy as np
 
 from cellguard.diagnose.cycles import Cycle
 from cellguard.errors import RecordError
+from cellguard.output import write_output
 
 MAD_TO_SIGMA = 1.4826
 NOT_MONITORED = frozenset({"cycle"})  # identifiers, not measurements
@@ -150,7 +151,7 @@ class Baseline:
             raise RecordError(f"baseline: malformed ({exc.__class__.__name__}: {exc})") from None
 
     def save(self, path: Path) -> None:
-        Path(path).write_text(json.dumps(self.to_dict(), indent=1))
+        write_output(Path(path), json.dumps(self.to_dict(), indent=1), "baseline")
 
     @classmethod
     def load(cls, path: Path) -> Baseline:

@@ -1,9 +1,9 @@
 """Drift monitors: a two-sided CUSUM per feature and a multivariate EWMA over all of them.
 
 Thresholds are set for the whole feature set: with ``p`` features watched in both directions,
-each one-sided CUSUM gets an in-control run length of ``2 p`` times the target for the set
-(Siegmund's approximation for unit-variance residuals), so adding features does not add
-false alarms. ``k = 1`` tunes the CUSUM to shifts of two baseline scales and keeps it blind to
+each one-sided CUSUM gets an in-control run length of ``4 p`` times the target for the set
+(half the false-alarm budget goes to the CUSUMs, half to the multivariate check; Siegmund's
+approximation for unit-variance residuals), so adding features does not add false alarms. ``k = 1`` tunes the CUSUM to shifts of two baseline scales and keeps it blind to
 the error of a median taken from twenty acceptance cycles (about 0.3 scale).
 
 Residuals are clipped before they enter a CUSUM so that one odd cycle (a single bad grasp, a
@@ -37,7 +37,8 @@ class DriftConfig:
     ewma_clip: float = 4.0
 
     def cusum_threshold(self, features: int) -> float:
-        """``h`` such that each of the ``2 * features`` one-sided CUSUMs has ARL0 = 2 p x set_arl."""
+        """``h`` such that each of the ``2 * features`` one-sided CUSUMs has ARL0 = 4 p x set_arl
+        (the ``2 p`` CUSUMs share half of the set's false-alarm budget)."""
         target = 2.0 * max(features, 1) * self.set_arl * 2.0  # half the budget to the CUSUMs
         lo, hi = 0.1, 100.0
         for _ in range(60):

@@ -87,8 +87,7 @@ class AsyncInference:
             return None
         self.results.append(result)
         if result.chunk is not None:
-            c = result.chunk
-            self._step_times = c.t_obs_ns + (np.arange(c.horizon, dtype=np.int64) + 1) * c.dt_ns
+            self._step_times = result.chunk.step_times_ns()
         return result
 
     def close(self, timeout_s: float = 5.0) -> None:

@@ -26,5 +26,6 @@ class ActionChunk:
     def horizon(self) -> int:
         return int(np.shape(self.actions)[0]) if np.ndim(self.actions) >= 1 else 0
 
-    def step_time_ns(self, i: int) -> int:
-        return self.t_obs_ns + (i + 1) * self.dt_ns
+    def step_times_ns(self) -> np.ndarray:
+        """(H,) int64: when each step is due [ns]."""
+        return self.t_obs_ns + (np.arange(self.horizon, dtype=np.int64) + 1) * self.dt_ns

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from cellguard.errors import ConfigError
+from cellguard.output import write_output
 
 
 @dataclass(frozen=True)
@@ -81,10 +82,7 @@ def save_mlp_onnx(mlp: Mlp, path: Path, metadata: dict[str, str]) -> Path:
     model.ir_version = 8
     helper.set_model_props(model, metadata)
     onnx.checker.check_model(model)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    onnx.save(model, str(path))
-    return path
+    return write_output(Path(path), model.SerializeToString(), "ONNX model")
 
 
 def trajectory_mlp(times: np.ndarray, points: np.ndarray, horizon: int, dt_s: float) -> Mlp:

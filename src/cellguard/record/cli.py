@@ -14,16 +14,12 @@ from pathlib import Path
 import typer
 from rich.console import Console
 
+from cellguard.cli_errors import fail
 from cellguard.errors import CellguardError, RecordError
 
 record_app = typer.Typer(no_args_is_help=True, help="Read, export, recover and query fault records.")
 _err = Console(stderr=True, soft_wrap=True)
 FORMATS = ("csv", "parquet")
-
-
-def _fail(exc: CellguardError) -> None:
-    _err.print(f"error: {exc}", markup=False, highlight=False)
-    raise typer.Exit(2)
 
 
 def _warn_if_damaged(health, folder: Path) -> int:
@@ -50,7 +46,7 @@ def info(
             cycles = list(rec.cycles())
             events = list(rec.events())
     except CellguardError as exc:
-        _fail(exc)
+        fail(exc)
     context = contexts[0].context if contexts else {}
     doc = {
         "file": str(rec.file), "health": {"ok": health.ok, "status": health.describe(), "finished": health.finished,
@@ -117,7 +113,7 @@ def export(
             rows = write_ticks(rec.ticks(cycle=cycle, rate=rate), output, fmt)
             health = rec.health()
     except CellguardError as exc:
-        _fail(exc)
+        fail(exc)
     _err.print(f"{rows} rows written to {output}", markup=False, highlight=False)
     raise typer.Exit(_warn_if_damaged(health, folder))
 
@@ -139,7 +135,7 @@ def to_lerobot(
             result = export_lerobot(rec, output, fps=fps, task=task, success_only=success_only)
             health = rec.health()
     except CellguardError as exc:
-        _fail(exc)
+        fail(exc)
     for why in result.skipped:
         _err.print(f"skipped {why}", markup=False, highlight=False)
     _err.print(f"{len(result.episodes)} episodes, {result.frames} frames at {result.fps} fps written to {output}",
@@ -158,7 +154,7 @@ def recover(
     try:
         health = run_recover(folder, output)
     except CellguardError as exc:
-        _fail(exc)
+        fail(exc)
     _err.print(f"source {health.describe()}; recovered record written to {output}", markup=False, highlight=False)
 
 
@@ -181,7 +177,7 @@ def query(
         except duckdb.Error as exc:
             raise RecordError(f"sql: {str(exc).splitlines()[0]}") from None
     except CellguardError as exc:
-        _fail(exc)
+        fail(exc)
     names = [d[0] for d in result.description]
     for row in result.fetchall():
         sys.stdout.write(json.dumps(dict(zip(names, row)), default=str) + "\n")

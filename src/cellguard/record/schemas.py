@@ -108,4 +108,3 @@ CHANNELS: tuple[ChannelSpec, ...] = (
     _json(7, "/measurements", MEASUREMENT_SCHEMA),
 )
 BY_TOPIC = {c.topic: c for c in CHANNELS}
-BY_ID = {c.id: c for c in CHANNELS}

@@ -6,6 +6,7 @@ from pathlib import Path
 
 from cellguard.diagnose.diagnosis import Diagnosis
 from cellguard.diagnose.from_record import diagnose_record
+from cellguard.output import write_output
 from cellguard.report.html import render_report
 
 REPORT_FILE = "report.html"
@@ -27,7 +28,6 @@ def write_report(folder: Path, out: Path | None = None, diagnosis: Diagnosis | N
                     "error": ticks.q_cmd - ticks.q_meas, "joints": list(ticks.joints)}
 
         page = render_report(d, trace)
-    out.write_text(page, encoding="utf-8")
-    return out
+    return write_output(out, page, "report")
 
 __all__ = ["REPORT_FILE", "write_report"]

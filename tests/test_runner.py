@@ -1,0 +1,43 @@
+"""The tick loop survives a policy that fails: the failure is an event and the watchdog stops the cell."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from cellguard.runner import Run
+from cellguard.scenario import parse_scenario
+
+
+class _FailsAfter:
+    """Wraps a working policy; every call after ``calls`` raises, like a lost inference server."""
+
+    def __init__(self, policy, calls: int):
+        self._policy, self._left = policy, calls
+        self.source = "test:fails-after"
+
+    def reset(self) -> None:
+        self._policy.reset()
+
+    def content_hash(self) -> str:
+        return self._policy.content_hash()
+
+    def infer(self, observation):
+        self._left -= 1
+        if self._left < 0:
+            raise ConnectionError("inference server went away")
+        return self._policy.infer(observation)
+
+
+def test_a_failing_policy_becomes_events_and_a_watchdog_stop():
+    run = Run(parse_scenario({"cell": "arm-pick-place", "acceptance_cycles": 1, "production_cycles": 0}))
+    run.policy = _FailsAfter(run.policy, calls=20)  # one second of chunks, then nothing
+    outcome = run.cycle()
+    kinds = [e.kind for e in run.events]
+    assert "inference_failed" in kinds and "watchdog_stop" in kinds
+    assert kinds.index("watchdog_stop") > kinds.index("inference_failed")
+    assert "ConnectionError: inference server went away" in next(e.reason for e in run.events
+                                                                 if e.kind == "inference_failed")
+    assert not outcome["success"]
+    n = run.ticks.n
+    assert np.isfinite(run.ticks.setpoint[:n]).all()
+    assert abs(run.ticks.qd[n - 1]).max() < 0.05  # the arm came to rest
