@@ -41,3 +41,14 @@ def taught_program(period_s: float = 0.05) -> tuple[np.ndarray, np.ndarray]:
     points = [policy.infer(Observation(round(t * 1e9) - policy.dt_ns, obs.q, obs.qd, obs.measurements)).actions[0]
               for t in times]
     return times, np.array(points)
+
+
+def assert_ran_inside_the_limits(run, outcomes: list[dict]) -> None:
+    """A policy run through the whole tick path: every cycle succeeded with its chunks timed, every
+    setpoint inside the profile's position limits, no chunk refused."""
+    assert all(o["success"] for o in outcomes), outcomes
+    assert all(o["inference"]["chunks"] > 10 and o["inference"]["wall_ms_max"] > 0 for o in outcomes)
+    n = run.ticks.n
+    assert (run.ticks.setpoint[:n] >= run.cell.profile.q_min).all()
+    assert (run.ticks.setpoint[:n] <= run.cell.profile.q_max).all()
+    assert not any(e.kind == "chunk_rejected" for e in run.events)

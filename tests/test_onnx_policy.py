@@ -7,7 +7,7 @@ import yaml
 ort = pytest.importorskip("onnxruntime")
 pytest.importorskip("onnx")
 
-from foreign_arm import FOREIGN_NAMES, MAP, taught_program, to_foreign  # noqa: E402
+from foreign_arm import FOREIGN_NAMES, MAP, assert_ran_inside_the_limits, taught_program, to_foreign  # noqa: E402
 
 from cellguard.errors import ConfigError  # noqa: E402
 from cellguard.policy.onnx_export import Mlp, save_mlp_onnx, trajectory_mlp  # noqa: E402
@@ -49,12 +49,7 @@ def test_onnx_policy_in_a_foreign_action_space_runs_the_arm_cell(foreign_model):
                                "policy": f"onnx:{model}?map={amap}"})
     run = Run(scenario)
     outcomes = [run.cycle() for _ in range(2)]
-    assert all(o["success"] for o in outcomes), outcomes
-    assert all(o["inference"]["chunks"] > 10 and o["inference"]["wall_ms_mean"] > 0 for o in outcomes)
-    n = run.ticks.n
-    assert (run.ticks.setpoint[:n] >= run.cell.profile.q_min).all()
-    assert (run.ticks.setpoint[:n] <= run.cell.profile.q_max).all()
-    assert not any(e.kind == "chunk_rejected" for e in run.events)
+    assert_ran_inside_the_limits(run, outcomes)
     assert len(run.summary()["context"]["policy_sha256"]) == 64
 
 

@@ -20,7 +20,7 @@ pytest.importorskip("msgpack")
 server_module = pytest.importorskip("openpi_server.websocket_policy_server")
 openpi_msgpack = pytest.importorskip("openpi_client.msgpack_numpy")
 
-from foreign_arm import FOREIGN_NAMES, MAP, from_foreign, to_foreign  # noqa: E402
+from foreign_arm import FOREIGN_NAMES, MAP, assert_ran_inside_the_limits, from_foreign, to_foreign  # noqa: E402
 
 from cellguard.errors import ConfigError  # noqa: E402
 from cellguard.policy.adapter import InferenceError  # noqa: E402
@@ -125,12 +125,7 @@ def test_openpi_policy_runs_the_arm_cell_through_a_foreign_action_space(foreign_
                                "policy": f"openpi:{foreign_server}?map={map_file}&timeout=5"})
     run = Run(scenario)
     outcomes = [run.cycle() for _ in range(2)]
-    assert all(o["success"] for o in outcomes), outcomes
-    assert all(o["inference"]["chunks"] > 10 and o["inference"]["wall_ms_max"] > 0 for o in outcomes)
-    n = run.ticks.n
-    assert (run.ticks.setpoint[:n] >= run.cell.profile.q_min).all()
-    assert (run.ticks.setpoint[:n] <= run.cell.profile.q_max).all()
-    assert not any(e.kind == "chunk_rejected" for e in run.events)
+    assert_ran_inside_the_limits(run, outcomes)
     run.policy.close()
 
 

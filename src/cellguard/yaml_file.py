@@ -1,7 +1,8 @@
-"""Reading a YAML input file: a missing or malformed file is one error that names it."""
+"""Reading a YAML input file: a missing or malformed file, or an unknown key, is one error that names it."""
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 
 import yaml
@@ -20,3 +21,12 @@ def read_yaml(path: Path, what: str, error: type[ConfigError] = ConfigError) -> 
         raise error(f"{path}: cannot read the {what} file ({exc.__class__.__name__})") from None
     except yaml.YAMLError as exc:
         raise error(f"{path}: not valid YAML ({exc.__class__.__name__})") from None
+
+
+def reject_unknown_keys(mapping: Mapping, allowed: Iterable[str], prefix: str,
+                        error: type[ConfigError] = ConfigError) -> None:
+    """Raise ``error`` naming the first key of ``mapping`` not in ``allowed``, as ``<prefix><key>``."""
+    allowed = list(allowed)
+    for key in mapping:
+        if key not in allowed:
+            raise error(f"{prefix}{key}: unknown key; allowed: {', '.join(allowed)}")

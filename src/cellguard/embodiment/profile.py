@@ -17,6 +17,7 @@ import yaml
 
 from cellguard.errors import ConfigError, ProfileError
 from cellguard.units import parse_quantity
+from cellguard.yaml_file import reject_unknown_keys
 
 _LINEAR = {"position": ("length",), "velocity": ("length/s",), "acceleration": ("length/s^2",),
            "jerk": ("length/s^3",), "effort": ("force",), "torque_constant": ("force/A",)}
@@ -126,9 +127,7 @@ def load_profile(model: mujoco.MjModel, path: Path) -> Profile:
     if not isinstance(raw, dict):
         raise ProfileError(f"{path}: expected a mapping at the top level")
     allowed = {"robot", "model", "version", "joints", "measured", "symmetry"}
-    for key in raw:
-        if key not in allowed:
-            raise ProfileError(f"{key}: unknown key; allowed: {', '.join(sorted(allowed))}")
+    reject_unknown_keys(raw, sorted(allowed), "", ProfileError)
     for key in ("robot", "version", "joints"):
         if key not in raw:
             raise ProfileError(f"{key}: missing")
@@ -169,9 +168,7 @@ def _joint(model: mujoco.MjModel, name: str, spec: object) -> JointLimits:
         raise ProfileError(f"joints.{name}: only hinge and slide joints can be profiled")
     if not isinstance(spec, dict):
         raise ProfileError(f"joints.{name}: expected a mapping of limits")
-    for key in spec:
-        if key not in dims:
-            raise ProfileError(f"joints.{name}.{key}: unknown key; allowed: {', '.join(dims)}")
+    reject_unknown_keys(spec, dims, f"joints.{name}.", ProfileError)
     for key in dims:
         if key not in spec:
             raise ProfileError(f"joints.{name}.{key}: missing")
@@ -201,9 +198,7 @@ def _measured(i: int, spec: object, names: set[str]) -> MeasuredParameter:
     keys = ("joint", "parameter", "value", "measured", "method")
     if not isinstance(spec, dict):
         raise ProfileError(f"{field}: expected a mapping with {', '.join(keys)}")
-    for key in spec:
-        if key not in keys:
-            raise ProfileError(f"{field}.{key}: unknown key; allowed: {', '.join(keys)}")
+    reject_unknown_keys(spec, keys, f"{field}.", ProfileError)
     for key in keys:
         if key not in spec:
             raise ProfileError(f"{field}.{key}: missing")

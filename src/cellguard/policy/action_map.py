@@ -27,7 +27,7 @@ import numpy as np
 from cellguard.embodiment import Profile
 from cellguard.errors import ConfigError
 from cellguard.units import parse_quantity
-from cellguard.yaml_file import read_yaml
+from cellguard.yaml_file import read_yaml, reject_unknown_keys
 
 _JOINT_DIM = {"hinge": ("angle",), "slide": ("length",)}
 _DIMENSIONLESS = {"1": 1.0, "%": 0.01}
@@ -139,9 +139,7 @@ def parse_action_map(raw: object, profile: Profile, origin: str = "action map") 
     """Validate a decoded action map against ``profile``; raise ConfigError naming the field."""
     if not isinstance(raw, dict):
         raise ConfigError(f"{origin}: expected a mapping with keys {', '.join(sorted(_TOP_KEYS))}")
-    for key in raw:
-        if key not in _TOP_KEYS:
-            raise ConfigError(f"{origin}: {key}: unknown key; allowed: {', '.join(sorted(_TOP_KEYS))}")
+    reject_unknown_keys(raw, sorted(_TOP_KEYS), f"{origin}: ")
     robot = raw.get("robot")
     if robot != profile.robot:
         raise ConfigError(f"{origin}: robot: the map is for {robot!r}, this cell is {profile.robot!r}")
@@ -157,9 +155,7 @@ def parse_action_map(raw: object, profile: Profile, origin: str = "action map") 
         field = f"{origin}: actions[{i}]"
         if not isinstance(entry, dict):
             raise ConfigError(f"{field}: expected a mapping with name, joint or ee, unit")
-        for key in entry:
-            if key not in _ACTION_KEYS:
-                raise ConfigError(f"{field}.{key}: unknown key; allowed: {', '.join(sorted(_ACTION_KEYS))}")
+        reject_unknown_keys(entry, sorted(_ACTION_KEYS), f"{field}.")
         name = entry.get("name")
         if not isinstance(name, str) or not name:
             raise ConfigError(f"{field}.name: expected the policy's name for this action")
