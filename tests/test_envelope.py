@@ -21,7 +21,8 @@ class Loop:
 
     def __init__(self, settings: GuardSettings | None = None, speed: float = 1.0):
         self.cell = make_cell("arm-pick-place", seed=1)
-        self.executor, self.envelope = build_guard(self.cell, settings)
+        self.guard = build_guard(self.cell, settings)
+        self.executor, self.envelope = self.guard.executor, self.guard.envelope
         self.policy = ScriptedArmPolicy(calibration=self.cell.context())
         self.cell.begin_cycle(0)
         self.policy._t0_ns = 0
@@ -158,14 +159,14 @@ def test_fault_scenarios_run_to_completion_inside_the_limits(name, kind):
     run = Run(load_scenario(SCENARIOS / name))
     profile = run.cell.profile
     seen = []
-    original = run.envelope.apply
+    original = run.guard.envelope.apply
 
     def apply(*args, **kwargs):
         setpoint, events = original(*args, **kwargs)
         seen.append(setpoint.copy())
         return setpoint, events
 
-    run.envelope.apply = apply
+    run.guard.envelope.apply = apply
     outcomes = [run.cycle() for _ in range(run.scenario.total_cycles)]
     assert len(outcomes) == 3 and outcomes[0]["success"]  # the fault starts at cycle 1
     assert kind in _kinds(run.events)

@@ -75,14 +75,14 @@ def test_an_adversarial_replay_runs_through_the_arm_cell_inside_the_limits(tmp_p
                                "production_cycles": 0})
     run = Run(scenario)
     sent = []
-    original = run.envelope.apply
+    original = run.guard.envelope.apply
 
     def apply(*args, **kwargs):
         setpoint, events = original(*args, **kwargs)
         sent.append(setpoint.copy())
         return setpoint, events
 
-    run.envelope.apply = apply
+    run.guard.envelope.apply = apply
     run.cycle()
     kinds = {e.kind for e in run.events}
     assert {"chunk_rejected", "watchdog_stop"} <= kinds

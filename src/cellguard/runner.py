@@ -30,7 +30,6 @@ from cellguard.scenario import Scenario
 
 NOMINAL_INFERENCE_S = 0.010  # simulated inference latency of a healthy policy [s]
 CYCLE_TIMEOUT_S = 12.0  # a cycle that has not finished by then is ended as failed [s]
-GUARD_LOOKAHEAD_NS = 300_000_000  # the envelope slows down for tool speed this far ahead [ns]
 NAN_AFTER_S = 1.0  # a policy_nan fault corrupts the first chunk this long into its cycle [s]
 STOP_SETTLE_S = 0.3  # a category 2 stop holds the measured position this long before the run ends [s]
 
@@ -43,7 +42,7 @@ class Run:
         self.cell = make_cell(scenario.cell, seed=scenario.seed)
         scenario.check_against(self.cell)
         self.policy = make_policy(scenario.policy, self.cell)
-        self.executor, self.envelope = build_guard(self.cell, scenario.guard)
+        self.guard = build_guard(self.cell, scenario.guard)
         self.events: list[Event] = []
         self.cycles: list[dict] = []
         self._period_ns = round(1e9 / scenario.policy_hz)
@@ -54,7 +53,7 @@ class Run:
     def cycle(self) -> dict:
         """Run the next cycle; return its outcome (success, timing, measured poses)."""
         index = len(self.cycles)
-        cell, executor, envelope, ticks = self.cell, self.executor, self.envelope, self.ticks
+        cell, guard, ticks = self.cell, self.guard, self.ticks
         for fault in self.scenario.faults:
             fault.apply(cell, index)
         latency_ns = round((NOMINAL_INFERENCE_S + sum(f.extra_latency_s(index) for f in self.scenario.faults)) * 1e9)
@@ -70,9 +69,9 @@ class Run:
         pending: tuple[int, ActionChunk] | None = None
         first_event, latencies, wall_ns = len(self.events), [], []
         ticks.clear()
-        if not envelope.power:  # a category 0/1 stop in the last cycle: the operator resets the cell
+        if not guard.power:  # a category 0/1 stop in the last cycle: the operator resets the cell
             cell.set_power(True)
-            envelope.reset(cell.read().q)
+            guard.reset(cell.read().q)
             self.events.append(Event(start, "reset", "operator reset after a stop with power removed"))
         state = cell.read()
         while True:
@@ -80,7 +79,7 @@ class Run:
             if pending is not None and pending[0] <= t:
                 if rec is not None:
                     rec.chunk(pending[1], t, latency_ns)
-                self.events.extend(executor.push(pending[1], t))
+                self.events.extend(guard.push(pending[1], t))
                 pending = None
             if pending is None and t >= next_request:
                 next_request = t + self._period_ns
@@ -98,18 +97,16 @@ class Run:
                         chunk, corrupt = _with_nan(chunk), False
                     pending = (t + latency_ns, chunk)
                     latencies.append(latency_ns)
-            reference = executor.reference(t, envelope.scale)
-            setpoint, events = envelope.apply(t, reference, state, cell.safety(), executor.last_chunk_ns,
-                                              executor.uncertainty, executor.tool_speed_ahead(GUARD_LOOKAHEAD_NS))
+            setpoint, events = guard.tick(t, state, cell.safety())
             if events:
                 self.events.extend(events)
-                if not envelope.power:
+                if not guard.power:
                     cell.set_power(False)
             sent = cell.write(setpoint)
             cell.step()
             state = cell.read()
-            ticks.add(reference, sent, state)
-            if rec is not None and not rec.tick(reference, sent, state):
+            ticks.add(guard.reference, sent, state)
+            if rec is not None and not rec.tick(guard.reference, sent, state):
                 break
             if cell.cycle_finished() or cell.t_ns >= timeout:
                 break

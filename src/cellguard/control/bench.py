@@ -27,8 +27,8 @@ import time
 import numpy as np
 import ruckig
 
-from cellguard.control.envelope import Envelope, EnvelopeConfig
-from cellguard.control.executor import Executor
+from cellguard.control.envelope import EnvelopeConfig
+from cellguard.control.guard import Guard
 from cellguard.policy.chunk import ActionChunk
 from cellguard.policy.scripted_arm import ScriptedArmPolicy
 from cellguard.robot.arm_cell import ArmPickPlace
@@ -61,22 +61,19 @@ def _chunks(program, duration_s: float, yank_at_s: float | None):
 def _reference_and_cellguard(cell, chunks, ticks):
     """Executor reference and cellguard's setpoints per tick, and the per-tick cost [ns]."""
     profile, q0 = cell.profile, cell.q_home
-    executor = Executor(profile, q0, DT_NS, tool=cell.tool_point)
-    envelope = Envelope(profile, q0, DT_NS, EnvelopeConfig(box=cell.workspace_box), tool=cell.tool_point)
+    guard = Guard(profile, q0, DT_NS, EnvelopeConfig(box=cell.workspace_box), tool=cell.tool_point)
     ref, sp, cost = np.empty((ticks, profile.dof)), np.empty((ticks, profile.dof)), np.empty(ticks, dtype=np.int64)
     arrivals = {}
     for arrive, chunk in chunks:
-        arrivals[arrive] = executor.prepare(chunk)  # on the receiving thread, off the servo tick
+        arrivals[arrive] = guard.executor.prepare(chunk)  # on the receiving thread, off the servo tick
     for k in range(ticks):
         t = k * DT_NS
         began = time.perf_counter_ns()
         if t in arrivals:
-            executor.push(arrivals[t], t)
-        r = executor.reference(t, envelope.scale)
-        s, _ = envelope.apply(t, r, None, last_chunk_ns=executor.last_chunk_ns, uncertainty=executor.uncertainty,
-                              tool_speed_ahead=executor.tool_speed_ahead(300_000_000))
+            guard.push(arrivals[t], t)
+        s, _ = guard.tick(t)
         cost[k] = time.perf_counter_ns() - began
-        ref[k], sp[k] = r, s
+        ref[k], sp[k] = guard.reference, s
     return ref, sp, cost
 
 

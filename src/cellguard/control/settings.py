@@ -6,8 +6,8 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-from cellguard.control.envelope import Envelope, EnvelopeConfig
-from cellguard.control.executor import Executor
+from cellguard.control.envelope import EnvelopeConfig
+from cellguard.control.guard import Guard
 
 
 class GuardSettings(BaseModel):
@@ -33,8 +33,8 @@ class GuardSettings(BaseModel):
         return box
 
 
-def build_guard(cell, settings: GuardSettings | None = None) -> tuple[Executor, Envelope]:
-    """Executor and envelope for ``cell``, with its forward kinematics and workspace box if it has them."""
+def build_guard(cell, settings: GuardSettings | None = None) -> Guard:
+    """The guard layer for ``cell``, with its forward kinematics and workspace box if it has them."""
     s = settings or GuardSettings()
     tool = getattr(cell, "tool_point", None)
     box = s.box if s.box is not None else getattr(cell, "workspace_box", None)
@@ -42,6 +42,4 @@ def build_guard(cell, settings: GuardSettings | None = None) -> tuple[Executor, 
                             uncertainty_threshold=s.uncertainty_threshold, uncertainty_action=s.uncertainty_action,
                             tool_speed_max=s.tool_speed_max, reduced_speed=s.reduced_speed,
                             box=box if tool is not None else None)
-    q0 = cell.read().q
-    executor = Executor(cell.profile, q0, cell.dt_ns, blend_ns=round(s.blend_s * 1e9), tool=tool)
-    return executor, Envelope(cell.profile, q0, cell.dt_ns, config, tool=tool)
+    return Guard(cell.profile, cell.read().q, cell.dt_ns, config, blend_ns=round(s.blend_s * 1e9), tool=tool)

@@ -34,7 +34,7 @@ class RunRecording:
 
     @staticmethod
     def _context(run, config: RecordConfig, software: dict) -> dict:
-        context = build_context(scenario=run.scenario, cell=run.cell, policy=run.policy, envelope=run.envelope,
+        context = build_context(scenario=run.scenario, cell=run.cell, policy=run.policy, envelope=run.guard.envelope,
                                 software=software)
         return {**context, "record": config.to_dict()}
 

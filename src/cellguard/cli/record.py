@@ -14,10 +14,12 @@ from pathlib import Path
 import typer
 from rich.console import Console
 
-from cellguard.cli_errors import fail
+from cellguard.cli.app import app
+from cellguard.cli.errors import fail
 from cellguard.errors import CellguardError, RecordError
 
 record_app = typer.Typer(no_args_is_help=True, help="Read, export, recover and query fault records.")
+app.add_typer(record_app, name="record")
 _err = Console(stderr=True, soft_wrap=True)
 FORMATS = ("csv", "parquet")
 

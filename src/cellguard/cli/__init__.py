@@ -1,0 +1,10 @@
+"""The ``cellguard`` command line, one module per command group. Bad input: one line, exit 2.
+
+A new command group is a new module here that imports ``app`` from ``cellguard.cli.app`` and
+registers its commands; add its import below.
+"""
+
+from cellguard.cli import bench, diagnose, embodiment, policy, record, run  # noqa: F401  (register commands)
+from cellguard.cli.app import app
+
+__all__ = ["app"]

@@ -1,0 +1,63 @@
+"""`cellguard diagnose` and `cellguard report`: read a record, name causes, write the HTML page."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import typer
+from rich.console import Console
+
+from cellguard.cli.app import app
+from cellguard.cli.errors import fail
+from cellguard.errors import CellguardError
+
+
+@app.command()
+def diagnose(
+    folder: Path = typer.Argument(..., help="A run folder holding the record (record.mcap)."),
+    as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),
+    acceptance: Path | None = typer.Option(None, "--acceptance", help="Take the baseline from this record instead."),
+) -> None:
+    """Read a record, find drift and faults against the acceptance baseline, name probable causes."""
+    from cellguard.diagnose.from_record import diagnose_record
+
+    try:
+        diagnosis = diagnose_record(folder, acceptance=acceptance)
+    except CellguardError as exc:
+        fail(exc)
+    if as_json:
+        sys.stdout.write(json.dumps(diagnosis.to_dict()) + "\n")
+        return
+    print_diagnosis(diagnosis)
+
+
+@app.command()
+def report(
+    folder: Path = typer.Argument(..., help="A run folder holding the record (record.mcap)."),
+    out: Path | None = typer.Option(None, "-o", "--out", help="HTML file to write (default FOLDER/report.html)."),
+) -> None:
+    """Write a self-contained HTML report: timeline, last good versus faulted, drift, asymmetry, context."""
+    from cellguard.report.from_record import write_report
+
+    try:
+        path = write_report(folder, out)
+    except CellguardError as exc:
+        fail(exc)
+    Console().print(f"report: {path}")
+
+
+def print_diagnosis(d) -> None:
+    console = Console(highlight=False)
+    data = d.to_dict()
+    console.print(f"diagnosis: {data['cycles']} cycles, baseline {data['baseline_cycles']}, "
+                  f"{len(data['drift_alarms'])} drift alarm(s), last good cycle {data['last_good_cycle']}, "
+                  f"first faulted cycle {data['first_faulted_cycle']}", markup=False)
+    if not d.findings:
+        console.print("  no fault found", markup=False)
+    for f in d.findings:
+        joints = f" ({', '.join(f.joints)})" if f.joints else ""
+        console.print(f"  {f.cause}{joints} from cycle {f.cycle}, confidence {f.confidence:.2f}", markup=False)
+        for line in f.evidence:
+            console.print(f"    - {line}", markup=False)

@@ -1,0 +1,40 @@
+"""`cellguard train-demo-policy`: a small learned policy for the demos and tests."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import typer
+from rich.console import Console
+
+from cellguard.cli.app import app
+from cellguard.cli.errors import fail
+from cellguard.errors import CellguardError
+
+
+@app.command("train-demo-policy")
+def train_demo_policy(
+    out: Path = typer.Option(Path("demo-policy.onnx"), "--out", "-o", help="ONNX file to write."),
+    cycles: int = typer.Option(10, min=2, max=500, help="Scripted demonstration cycles to record."),
+    random_features: int = typer.Option(64, min=0, max=4096, help="Random tanh units beside the time basis."),
+    seed: int = typer.Option(0, help="Seed of the demonstrations and the initial weights."),
+    as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),
+) -> None:
+    """Clone the scripted arm program into a small MLP on the CPU; run it with `policy: onnx:FILE`."""
+    from dataclasses import asdict
+
+    from cellguard.policy.bc import train_demo_policy as train
+
+    try:
+        report = train(out, cycles=cycles, random_features=random_features, seed=seed)
+    except CellguardError as exc:
+        fail(exc)
+    if as_json:
+        sys.stdout.write(json.dumps(asdict(report)) + "\n")
+        return
+    Console().print(f"trained on {report.samples} samples from {report.cycles} cycles in {report.seconds:.0f} s "
+                    f"({report.hidden} hidden units, joint error rms {report.rms_error_mrad:.2f} mrad, "
+                    f"worst {report.max_error_mrad:.2f} mrad); "
+                    f"written to {report.path}; run it with policy: onnx:{report.path}")

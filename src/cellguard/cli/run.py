@@ -1,0 +1,87 @@
+"""`cellguard run` and `cellguard demo`: a scenario through the tick path, and the main job."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import typer
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+from cellguard.cli.app import app
+from cellguard.cli.diagnose import print_diagnosis
+from cellguard.cli.errors import fail
+from cellguard.errors import CellguardError
+from cellguard.output import make_folder
+from cellguard.scenario import Scenario, load_scenario
+
+err = Console(stderr=True)
+DEMO_SCENARIO = Path(__file__).parents[1] / "scenarios" / "demo.yaml"
+
+
+def _run(scenario: Scenario, out: Path, quiet: bool) -> dict:
+    from cellguard.runner import run_scenario
+
+    make_folder(out, "--out")  # before the progress bar: a bad folder is one line and nothing else
+    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                  console=err, disable=quiet, transient=False) as progress:
+        task = progress.add_task(f"{scenario.cell} cycles", total=scenario.total_cycles)
+
+        def advance(outcome: dict) -> None:
+            progress.update(task, advance=1, description=f"{scenario.cell} [{outcome['phase']}]")
+
+        return run_scenario(scenario, out, on_cycle=advance)
+
+
+def _print_summary(summary: dict, out: Path, as_json: bool) -> None:
+    if as_json:
+        sys.stdout.write(json.dumps({"out": str(out), "phases": summary["phases"],
+                                     "events": len(summary["events"])}) + "\n")
+        return
+    console = Console()
+    for phase, stats in summary["phases"].items():
+        if stats["cycles"]:
+            console.print(f"{phase}: {stats['cycles']} cycles, success {stats['success_rate']:.0%}")
+    console.print(f"events: {len(summary['events'])}; written to {out}")
+
+
+@app.command()
+def run(
+    scenario: Path = typer.Argument(..., help="Scenario YAML file."),
+    out: Path = typer.Option(..., "--out", help="Folder for the record and summary.json."),
+    as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),
+) -> None:
+    """Run a scenario file on its simulated cell."""
+    try:
+        sc = load_scenario(scenario)
+        summary = _run(sc, out, quiet=as_json)
+    except CellguardError as exc:
+        fail(exc)
+    _print_summary(summary, out, as_json)
+
+
+@app.command()
+def demo(
+    out: Path = typer.Option(Path("cellguard-demo"), "--out", help="Folder for the demo's outputs."),
+    as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),
+) -> None:
+    """Acceptance then a production shift with site drift on the simulated arm cell."""
+    from cellguard.diagnose.from_record import diagnose_record
+    from cellguard.report.from_record import write_report
+
+    try:
+        sc = load_scenario(DEMO_SCENARIO)
+        summary = _run(sc, out, quiet=as_json)
+        diagnosis = diagnose_record(out)
+        report_path = write_report(out, diagnosis=diagnosis)
+    except CellguardError as exc:
+        fail(exc)
+    if as_json:
+        sys.stdout.write(json.dumps({"out": str(out), "phases": summary["phases"], "events": len(summary["events"]),
+                                     "diagnosis": diagnosis.to_dict(), "report": str(report_path)}) + "\n")
+        return
+    _print_summary(summary, out, as_json)
+    print_diagnosis(diagnosis)
+    Console().print(f"report: {report_path}")
