@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from cellguard.diagnose import diagnose
-from cellguard.runner import Run
+from cellguard.runtime import Run
 from cellguard.scenario import parse_scenario
 
 ACCEPTANCE, PRODUCTION, AT = 20, 12, 24  # fault runs: 4 clean production cycles, then 8 with the fault
@@ -103,7 +103,7 @@ def _task(task: tuple) -> tuple:
 def one_hour() -> dict:
     """A recorded hour of the arm cell (about 810 cycles), then ``diagnose DIR`` on the record."""
     from cellguard.diagnose.from_record import diagnose_record
-    from cellguard.runner import run_scenario
+    from cellguard.runtime import run_scenario
 
     cycles = round(3600 / 4.444)
     scenario = parse_scenario({"cell": "arm-pick-place", "seed": 5, "acceptance_cycles": ACCEPTANCE,

@@ -10,7 +10,7 @@ import sys
 import time
 
 from cellguard.robot.registry import CELLS
-from cellguard.runner import Run
+from cellguard.runtime import Run
 from cellguard.scenario import parse_scenario
 
 

@@ -7,7 +7,7 @@ import pytest
 from cellguard.diagnose import as_cycles, diagnose, mirrored_asymmetry
 from cellguard.diagnose.asymmetry import mirror_map
 from cellguard.embodiment.profile import SymmetryPair
-from cellguard.runner import Run
+from cellguard.runtime import Run
 from cellguard.scenario import parse_scenario
 
 LEFT = ["fl_abduction", "fl_hip", "fl_knee", "rl_abduction", "rl_hip", "rl_knee"]

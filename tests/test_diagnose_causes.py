@@ -12,7 +12,7 @@ from functools import lru_cache
 import pytest
 
 from cellguard.diagnose import diagnose
-from cellguard.runner import Run
+from cellguard.runtime import Run
 from cellguard.scenario import parse_scenario
 
 ACCEPTANCE, AT = 6, 7  # the faults start at the second production cycle

@@ -10,7 +10,7 @@ from cellguard.policy.chunk import ActionChunk
 from cellguard.policy.scripted_arm import ScriptedArmPolicy
 from cellguard.robot.protocol import SafetyInputs
 from cellguard.robot.registry import make_cell
-from cellguard.runner import Run
+from cellguard.runtime import Run
 from cellguard.scenario import load_scenario
 
 SCENARIOS = __import__("pathlib").Path(__file__).parents[1] / "scenarios"

@@ -19,7 +19,7 @@ import pyarrow.parquet as pq  # noqa: E402
 
 from cellguard.record.lerobot_export import export_lerobot  # noqa: E402
 from cellguard.record.reader import open_record  # noqa: E402
-from cellguard.runner import run_scenario  # noqa: E402
+from cellguard.runtime import run_scenario  # noqa: E402
 from cellguard.scenario import parse_scenario  # noqa: E402
 
 LeRobotDataset = lerobot_dataset.LeRobotDataset

@@ -11,7 +11,7 @@ from typer.testing import CliRunner
 
 from cellguard.cli import app
 from cellguard.record.reader import open_record
-from cellguard.runner import run_scenario
+from cellguard.runtime import run_scenario
 from cellguard.scenario import parse_scenario
 
 runner = CliRunner()

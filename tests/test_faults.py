@@ -7,7 +7,7 @@ import pytest
 
 from cellguard.robot.arm_cell import ArmPickPlace
 from cellguard.robot.faults import FAULTS
-from cellguard.runner import Run
+from cellguard.runtime import Run
 from cellguard.scenario import parse_scenario
 
 

@@ -13,7 +13,7 @@ from cellguard.errors import ConfigError  # noqa: E402
 from cellguard.policy.onnx_export import Mlp, save_mlp_onnx, trajectory_mlp  # noqa: E402
 from cellguard.policy.registry import make_policy  # noqa: E402
 from cellguard.robot.arm_cell import ArmPickPlace  # noqa: E402
-from cellguard.runner import Run  # noqa: E402
+from cellguard.runtime import Run  # noqa: E402
 from cellguard.scenario import parse_scenario  # noqa: E402
 
 

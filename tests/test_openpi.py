@@ -29,7 +29,7 @@ from cellguard.policy.scripted_arm import ScriptedArmPolicy  # noqa: E402
 from cellguard.policy.wire import WireError, packb, unpackb  # noqa: E402
 from cellguard.robot.arm_cell import ArmPickPlace  # noqa: E402
 from cellguard.robot.state import Observation  # noqa: E402
-from cellguard.runner import Run  # noqa: E402
+from cellguard.runtime import Run  # noqa: E402
 from cellguard.scenario import parse_scenario  # noqa: E402
 
 class ForeignScriptedPolicy:

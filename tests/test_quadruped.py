@@ -18,7 +18,7 @@ from cellguard.errors import ProfileError, ScenarioError
 from cellguard.policy.scripted_quadruped import ScriptedQuadrupedPolicy
 from cellguard.robot.quadruped_cell import ASSETS, LEGS, QuadrupedTurns
 from cellguard.robot.state import Observation
-from cellguard.runner import Run
+from cellguard.runtime import Run
 from cellguard.scenario import parse_scenario
 
 LEFT_JOINTS = [f"{leg}_{j}" for leg in ("fl", "rl") for j in ("abduction", "hip", "knee")]

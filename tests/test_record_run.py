@@ -12,7 +12,7 @@ from record_synth import FullDisk
 from cellguard.record.reader import open_record
 from cellguard.record.schemas import CHANNELS
 from cellguard.record.session import RunRecording
-from cellguard.runner import Run, run_scenario
+from cellguard.runtime import Run, run_scenario
 from cellguard.scenario import load_scenario
 
 DEMO = Path(__file__).parents[1] / "src" / "cellguard" / "scenarios" / "demo.yaml"

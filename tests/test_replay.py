@@ -8,7 +8,7 @@ import pytest
 from cellguard.errors import ConfigError
 from cellguard.policy.registry import make_policy
 from cellguard.robot.registry import make_cell
-from cellguard.runner import Run
+from cellguard.runtime import Run
 from cellguard.scenario import parse_scenario
 
 CELL = make_cell("arm-pick-place")

@@ -7,7 +7,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from cellguard.errors import ScenarioError, UnknownNameError
-from cellguard.runner import Run
+from cellguard.runtime import Run
 from cellguard.scenario import load_scenario, parse_scenario
 
 BASE = {"cell": "arm-pick-place", "acceptance_cycles": 1, "production_cycles": 1}

@@ -8,12 +8,42 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from typing import Literal
+
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from cellguard.control.settings import GuardSettings
 from cellguard.errors import ScenarioError
 from cellguard.robot.faults import FAULTS, AnyFault
 from cellguard.yaml_file import read_yaml
+
+
+class CycleSettings(BaseModel):
+    """Where a cycle ends. ``task``: the simulated cell's own task (the default on a cell);
+    ``input``: a digital input of the robot turns true (a PLC's part-done signal); ``home``: the
+    robot left its home pose and came back within ``tolerance``; ``policy``: the policy says its
+    episode is over; ``time``: a fixed episode length."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    source: Literal["task", "input", "home", "policy", "time"] = "task"
+    input: str = Field(default="cycle_done", min_length=1, description="digital input name (source: input)")
+    tolerance: float = Field(default=0.01, gt=0.0, le=0.5, description="home pose tolerance per joint [rad] or [m]")
+    seconds: float = Field(default=10.0, gt=0.0, le=3600.0, description="episode length (source: time) [s]")
+
+
+class RealtimeSettings(BaseModel):
+    """The wall-clock loop: inference worker, overrun budget, and the robot link's watchdogs."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    inference: Literal["thread", "process"] = "thread"
+    overrun_budget: int = Field(default=50, ge=0, le=1_000_000,
+                                description="ticks later than one period allowed before a stop")
+    stale_s: float = Field(default=0.02, gt=0.0, le=5.0, description="robot state older than this is stale [s]")
+    read_timeout_s: float = Field(default=0.05, gt=0.0, le=5.0, description="a read waits at most this long [s]")
+    drop_budget: int = Field(default=100, ge=0, le=1_000_000, description="lost robot packets allowed before a stop")
+    stop_category: Literal[0, 1, 2] = Field(default=1, description="stop category of a robot link fault")
 
 
 class Scenario(BaseModel):
@@ -31,6 +61,9 @@ class Scenario(BaseModel):
     cell_id: str = "cell-1"
     faults: list[AnyFault] = Field(default_factory=list)
     guard: GuardSettings = Field(default_factory=GuardSettings)
+    robot: str = Field(default="sim", min_length=1, description="sim, or a bridge: SCHEME:ARGUMENT")
+    cycle: CycleSettings = Field(default_factory=CycleSettings)
+    realtime: RealtimeSettings = Field(default_factory=RealtimeSettings)
 
     @property
     def total_cycles(self) -> int:

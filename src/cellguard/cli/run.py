@@ -21,8 +21,8 @@ err = Console(stderr=True)
 DEMO_SCENARIO = Path(__file__).parents[1] / "scenarios" / "demo.yaml"
 
 
-def _run(scenario: Scenario, out: Path, quiet: bool) -> dict:
-    from cellguard.runner import run_scenario
+def _run(scenario: Scenario, out: Path, quiet: bool, realtime: bool = False) -> dict:
+    from cellguard.runtime import run_scenario
 
     make_folder(out, "--out")  # before the progress bar: a bad folder is one line and nothing else
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
@@ -32,7 +32,7 @@ def _run(scenario: Scenario, out: Path, quiet: bool) -> dict:
         def advance(outcome: dict) -> None:
             progress.update(task, advance=1, description=f"{scenario.cell} [{outcome['phase']}]")
 
-        return run_scenario(scenario, out, on_cycle=advance)
+        return run_scenario(scenario, out, on_cycle=advance, realtime=realtime)
 
 
 def _print_summary(summary: dict, out: Path, as_json: bool) -> None:
@@ -52,11 +52,12 @@ def run(
     scenario: Path = typer.Argument(..., help="Scenario YAML file."),
     out: Path = typer.Option(..., "--out", help="Folder for the record and summary.json."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),
+    realtime: bool = typer.Option(False, "--realtime", help="Run a simulated cell on wall time (a bridge always is)."),
 ) -> None:
-    """Run a scenario file on its simulated cell."""
+    """Run a scenario file on its simulated cell or robot bridge (the robot picks the clock)."""
     try:
         sc = load_scenario(scenario)
-        summary = _run(sc, out, quiet=as_json)
+        summary = _run(sc, out, quiet=as_json, realtime=realtime)
     except CellguardError as exc:
         fail(exc)
     _print_summary(summary, out, as_json)

@@ -10,7 +10,9 @@ moment it was asked for; a failed call is kept as an error, never raised on the 
 
 from __future__ import annotations
 
+import multiprocessing
 import threading
+from collections import deque
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -21,6 +23,8 @@ from cellguard.errors import ConfigError
 from cellguard.policy.chunk import ActionChunk
 from cellguard.policy.protocol import Policy
 from cellguard.robot.state import Observation
+
+RESULTS_KEPT = 1000  # newest results kept in memory; the record holds every chunk
 
 
 @dataclass(frozen=True)
@@ -39,14 +43,77 @@ class InferenceResult:
         return self.t_done_ns - self.t_submit_ns
 
 
-class AsyncInference:
-    """One worker thread running ``policy.infer``; at most one request in flight."""
+class PolicyProcess:
+    """A policy built by ``factory`` (picklable, e.g. a ``functools.partial``) in its own process.
 
-    def __init__(self, policy: Policy, threshold: float = 0.5, clock: Callable[[], int] = time.monotonic_ns):
+    A pure-Python policy holds the GIL while it computes; in its own process it cannot stall
+    the servo thread. ``infer`` sends the observation over a pipe and waits for the chunk (the
+    waiting thread releases the GIL); an exception in the child comes back as a RuntimeError.
+    """
+
+    def __init__(self, factory: Callable[[], Policy]):
+        ctx = multiprocessing.get_context("spawn")
+        self._conn, child = ctx.Pipe()
+        self._process = ctx.Process(target=_serve_policy, args=(child, factory), name="cellguard-policy", daemon=True)
+        self._process.start()
+        child.close()
+
+    def reset(self) -> None:
+        self._conn.send(("reset", None))
+        self._answer()
+
+    def infer(self, observation: Observation) -> ActionChunk:
+        self._conn.send(("infer", observation))
+        return self._answer()
+
+    def _answer(self):
+        kind, value = self._conn.recv()
+        if kind == "error":
+            raise RuntimeError(value)
+        return value
+
+    def close(self) -> None:
+        try:
+            self._conn.send(("close", None))
+        except OSError:
+            pass
+        self._process.join(5.0)
+        if self._process.is_alive():
+            self._process.kill()
+
+
+def _serve_policy(conn, factory) -> None:
+    policy = factory()
+    while True:
+        kind, value = conn.recv()
+        if kind == "close":
+            close = getattr(policy, "close", None)
+            if callable(close):
+                close()
+            return
+        try:
+            conn.send(("ok", policy.reset() if kind == "reset" else policy.infer(value)))
+        except Exception as exc:  # noqa: BLE001 - reported to the parent as the call's error
+            conn.send(("error", f"{type(exc).__name__}: {exc}"))
+
+
+class AsyncInference:
+    """One worker thread running ``policy.infer``; at most one request in flight.
+
+    ``worker="process"`` runs the policy built by ``factory`` in its own process instead (the
+    thread only waits on the pipe); ``policy`` is then the parent's copy, for its hash and source.
+    """
+
+    def __init__(self, policy: Policy, threshold: float = 0.5, clock: Callable[[], int] = time.monotonic_ns,
+                 worker: str = "thread", factory: Callable[[], Policy] | None = None):
         if not 0.0 <= threshold <= 1.0:
             raise ConfigError(f"async inference: threshold must be in [0, 1], got {threshold}")
+        if worker not in ("thread", "process") or (worker == "process" and factory is None):
+            raise ConfigError(f"async inference: worker must be 'thread' or 'process' (with a factory), got {worker!r}")
         self.policy, self.threshold, self.clock = policy, threshold, clock
-        self.results: list[InferenceResult] = []
+        self._remote = PolicyProcess(factory) if worker == "process" else None
+        self._reset_remote = False
+        self.results: deque[InferenceResult] = deque(maxlen=RESULTS_KEPT)
         self._lock = threading.Lock()
         self._wake = threading.Condition(self._lock)
         self._request: tuple[Observation, int, int] | None = None
@@ -90,12 +157,29 @@ class AsyncInference:
             self._step_times = result.chunk.step_times_ns()
         return result
 
+    def warm_up(self, observation: Observation) -> None:
+        """One call before the loop starts (loads, compiles, fills caches); its chunk is dropped."""
+        if self._remote is None:
+            self.policy.infer(observation)
+        else:
+            self._remote.infer(observation)
+
+    def discard(self) -> None:
+        """A new episode: forget the queue and a finished result (one still in flight arrives late)."""
+        with self._lock:
+            if self._done is not None:
+                self._done, self._in_flight = None, False
+            self._reset_remote = self._remote is not None
+        self._step_times = np.zeros(0, dtype=np.int64)
+
     def close(self, timeout_s: float = 5.0) -> None:
         """Stop the worker after its current call (bounded wait)."""
         with self._wake:
             self._closed = True
             self._wake.notify()
         self._thread.join(timeout_s)
+        if self._remote is not None:
+            self._remote.close()
 
     def _work(self) -> None:
         while True:
@@ -105,9 +189,15 @@ class AsyncInference:
                 if self._closed:
                     return
                 (observation, t_submit, depth), self._request = self._request, None
+                reset, self._reset_remote = self._reset_remote, False
             chunk, error = None, None
             try:
-                chunk = self.policy.infer(observation)
+                if self._remote is None:
+                    chunk = self.policy.infer(observation)
+                else:
+                    if reset:
+                        self._remote.reset()
+                    chunk = self._remote.infer(observation)
             except Exception as exc:  # a policy failure becomes a recorded result, never a dead servo loop
                 error = f"{type(exc).__name__}: {exc}"
             with self._lock:

@@ -79,7 +79,7 @@ class _Recorder:
 
 def collect_demonstrations(cycles: int, seed: int, horizon: int) -> tuple[np.ndarray, np.ndarray, float, tuple]:
     """Run the scripted program for ``cycles``: inputs (N, 4), targets (N, horizon*dof), dt [s], joint names."""
-    from cellguard.runner import Run
+    from cellguard.runtime import Run
     from cellguard.scenario import parse_scenario
 
     scenario = parse_scenario({"cell": "arm-pick-place", "seed": seed, "policy": "scripted",

@@ -77,7 +77,7 @@ def bytes_per_hour(cycles: int = 6) -> dict:
     (``events_per_hour``); ``mb_per_event_window`` is what one window adds at most.
     """
     from cellguard.record.session import RunRecording
-    from cellguard.runner import Run
+    from cellguard.runtime import Run
     from cellguard.scenario import parse_scenario
 
     configs = {"continuous_only": RecordConfig(pre_trigger_s=0.0, post_trigger_s=0.0), "default": RecordConfig(),

@@ -8,6 +8,7 @@ from typing import Protocol
 import numpy as np
 
 from cellguard.embodiment import Profile
+from cellguard.errors import CellguardError
 from cellguard.robot.state import Observation, State
 
 
@@ -65,3 +66,11 @@ class SimCell(Robot, Protocol):
 
     def context(self) -> dict:
         """Calibration, fixture datum and other context a record needs to be read later."""
+
+
+class RobotLinkError(CellguardError):
+    """A robot bridge's read or write failed; ``kind`` names the event, ``lost`` says the link is gone."""
+
+    def __init__(self, kind: str, message: str, lost: bool = False):
+        super().__init__(message)
+        self.kind, self.lost = kind, lost

@@ -1,0 +1,48 @@
+"""Robot bridges by scheme: a plain dict from scheme to factory, each bridge one module.
+
+A scenario's ``robot: SCHEME:ARGUMENT`` (``sim-server:udp://127.0.0.1:PORT``, ``lerobot:TYPE?...``)
+is parsed once into a ``BridgeSpec``; the factory gets it and the scenario. A bridge implements
+the ``Robot`` protocol (``read``, ``write``, ``safety``, ``set_power``) plus ``observe``,
+``profile``, ``dt_ns`` and ``context()``; its failures raise ``RobotLinkError``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from cellguard.errors import ScenarioError, UnknownNameError
+
+
+@dataclass(frozen=True)
+class BridgeSpec:
+    """``robot: SCHEME:ARGUMENT`` split at the first colon."""
+
+    scheme: str
+    argument: str
+
+
+def _sim_server(spec: BridgeSpec, scenario):
+    from cellguard.robot.bridges.sim_server import connect_sim_server
+
+    return connect_sim_server(spec, scenario)
+
+
+BRIDGES: dict[str, Callable[[BridgeSpec, object], object]] = {"sim-server": _sim_server}
+
+
+def parse_bridge(text: str) -> BridgeSpec:
+    scheme, sep, argument = text.partition(":")
+    if not sep or not argument:
+        raise ScenarioError(f"robot: expected 'sim' or SCHEME:ARGUMENT, got {text!r}")
+    return BridgeSpec(scheme, argument)
+
+
+def make_bridge(text: str, scenario):
+    """Connect the bridge ``text`` names; an unknown scheme lists the known ones."""
+    spec = parse_bridge(text)
+    try:
+        factory = BRIDGES[spec.scheme]
+    except KeyError:
+        raise UnknownNameError("robot bridge", spec.scheme, list(BRIDGES)) from None
+    return factory(spec, scenario)

@@ -1,0 +1,224 @@
+"""The sim-server bridge: a simulated cell in another process, reached over UDP on 127.0.0.1.
+
+Wire format (little-endian). The client says hello (``H``); the server answers with its
+metadata as JSON (``M``: cell, seed, joints, dt_ns, measurement sizes, home pose) and from then
+on sends one state packet per servo period to that client; the client sends one command
+packet per tick. Every packet has a sequence number and a monotonic timestamp [ns] (both
+processes read the same CLOCK_MONOTONIC), so the client counts lost packets and sees stale
+state. A ``?`` asks the server for its counters (commands received, non-finite commands).
+
+    state   b"S" seq:u64 t_ns:i64 cmd_seq:u64  then float64: q, qd, effort, current, sent (dof each),
+            measurements (concatenated), cycle_done, safety_stop (-1: none), reduced_speed
+    command b"C" seq:u64 t_ns:i64 power:u8     then float64: setpoint (dof)
+
+The profile, forward kinematics and home pose come from the registered cell's own model (a
+robot's kinematic model is known to its controller); the state comes only over the wire.
+"""
+
+from __future__ import annotations
+
+import json
+import socket
+import struct
+import time
+from urllib.parse import urlsplit
+
+import numpy as np
+
+from cellguard.errors import ScenarioError
+from cellguard.robot.protocol import RobotLinkError, SafetyInputs
+from cellguard.robot.state import Observation, State
+
+STATE_HEAD = struct.Struct("<cQqQ")
+COMMAND_HEAD = struct.Struct("<cQqB")
+HELLO_TIMEOUT_S = 2.0
+LOOPBACK = ("127.0.0.1", "localhost")
+
+
+def parse_address(argument: str) -> tuple[str, int]:
+    """``udp://127.0.0.1:PORT`` (loopback only) -> (host, port)."""
+    url = urlsplit(argument if "://" in argument else f"udp://{argument}")
+    try:
+        port = url.port
+    except ValueError:
+        port = None
+    if url.scheme != "udp" or url.hostname not in LOOPBACK or not port:
+        raise ScenarioError(f"robot: sim-server address must be udp://127.0.0.1:PORT (loopback, port 1-65535), "
+                            f"got {argument!r}")
+    return "127.0.0.1", port
+
+
+class Layout:
+    """Where each field sits in a state packet's float64 body, for ``dof`` joints and the measurements."""
+
+    def __init__(self, dof: int, measurements: dict[str, int]):
+        self.dof, self.measurements = dof, dict(measurements)
+        self.size = 5 * dof + sum(self.measurements.values()) + 3
+
+    def pack_state(self, seq: int, t_ns: int, cmd_seq: int, state: State, sent, measurements: dict,
+                   cycle_done: bool, safety: SafetyInputs) -> bytes:
+        body = np.concatenate([state.q, state.qd, state.effort, state.current, sent,
+                               *[np.asarray(measurements[k], dtype=np.float64).ravel() for k in self.measurements],
+                               [float(cycle_done), -1.0 if safety.stop is None else float(safety.stop),
+                                float(safety.reduced_speed)]])
+        return STATE_HEAD.pack(b"S", seq, t_ns, cmd_seq) + body.astype("<f8").tobytes()
+
+    def unpack_state(self, packet: bytes):
+        _, seq, t_ns, cmd_seq = STATE_HEAD.unpack_from(packet)
+        body = np.frombuffer(packet, dtype="<f8", offset=STATE_HEAD.size)
+        if body.size != self.size:
+            raise RobotLinkError("robot_read_failed", f"state packet of {body.size} values, expected {self.size}")
+        d = self.dof
+        state = State(t_ns, body[0:d].copy(), body[d:2 * d].copy(), body[2 * d:3 * d].copy(), body[3 * d:4 * d].copy())
+        i, measurements = 5 * d, {}
+        for name, n in self.measurements.items():
+            measurements[name] = body[i:i + n].copy()
+            i += n
+        stop = int(body[i + 1])
+        return seq, state, measurements, bool(body[i]), SafetyInputs(None if stop < 0 else stop, bool(body[i + 2]))
+
+
+def pack_command(seq: int, t_ns: int, power: bool, setpoint: np.ndarray) -> bytes:
+    return COMMAND_HEAD.pack(b"C", seq, t_ns, int(power)) + np.asarray(setpoint, dtype="<f8").tobytes()
+
+
+def unpack_command(packet: bytes, dof: int):
+    _, seq, t_ns, power = COMMAND_HEAD.unpack_from(packet)
+    setpoint = np.frombuffer(packet, dtype="<f8", offset=COMMAND_HEAD.size)
+    if setpoint.size != dof:
+        return None
+    return seq, t_ns, bool(power), setpoint
+
+
+class SimServerRobot:
+    """A Robot whose state and commands travel over UDP to ``cellguard sim-server``.
+
+    ``read`` returns the newest state packet (never blocks longer than ``read_timeout_s``);
+    ``dropped`` counts sequence gaps; a refused port (the server gone) or silence longer than the
+    timeout raises ``RobotLinkError``. ``write`` refuses a non-finite setpoint before packing it.
+    """
+
+    def __init__(self, address: tuple[str, int], read_timeout_s: float = 0.05):
+        self.address, self.read_timeout_ns = address, round(read_timeout_s * 1e9)
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.connect(address)
+        self.meta = self._hello()
+        from cellguard.robot.registry import make_cell
+
+        self._model = make_cell(self.meta["cell"], seed=self.meta["seed"])  # kinematics and profile only
+        self.name, self.profile, self.dt_ns = self._model.name, self._model.profile, int(self.meta["dt_ns"])
+        self.q_home = np.asarray(self.meta["q_home"], dtype=np.float64)
+        self.tool_point = self._model.tool_point if hasattr(self._model, "tool_point") else None
+        self.workspace_box = getattr(self._model, "workspace_box", None)
+        self.layout = Layout(self.profile.dof, self.meta["measurements"])
+        self.dropped = 0
+        self._seq = self._cmd_seq = 0
+        self._power = True
+        self._latest = None
+        self._last_packet_ns = time.monotonic_ns()
+        self.sock.setblocking(False)
+        self._wait_first()
+
+    # -- connection -------------------------------------------------------------------------
+    def _hello(self) -> dict:
+        self.sock.settimeout(HELLO_TIMEOUT_S)
+        try:
+            self.sock.send(b"H")
+            while True:
+                packet = self.sock.recv(65536)
+                if packet[:1] == b"M":
+                    return json.loads(packet[1:])
+        except (TimeoutError, ConnectionRefusedError) as exc:
+            raise RobotLinkError("robot_server_gone", f"sim-server at {self.address[0]}:{self.address[1]} does not "
+                                 f"answer ({type(exc).__name__}); start it with: cellguard sim-server CELL "
+                                 f"--port {self.address[1]}", lost=True) from None
+
+    def _wait_first(self) -> None:
+        deadline = time.monotonic_ns() + round(HELLO_TIMEOUT_S * 1e9)
+        while self._latest is None:
+            self._drain()
+            if time.monotonic_ns() > deadline:
+                raise RobotLinkError("robot_read_timeout", "sim-server sent no state after hello", lost=True)
+            time.sleep(0.001)
+
+    def _drain(self) -> None:
+        """Take every packet waiting; keep the newest state; count sequence gaps as lost packets."""
+        while True:
+            try:
+                packet = self.sock.recv(65536)
+            except BlockingIOError:
+                return
+            except ConnectionRefusedError:
+                raise RobotLinkError("robot_server_gone", "sim-server refused the connection (process gone)",
+                                     lost=True) from None
+            if packet[:1] != b"S":
+                continue
+            seq, *rest = self.layout.unpack_state(packet)
+            if self._latest is not None:
+                if seq <= self._seq:
+                    continue  # reordered or duplicate: older than what we have
+                self.dropped += seq - self._seq - 1
+            self._seq, self._latest = seq, rest
+            self._last_packet_ns = time.monotonic_ns()
+
+    # -- Robot ----------------------------------------------------------------------------------
+    def read(self) -> State:
+        self._drain()
+        silent = time.monotonic_ns() - self._last_packet_ns
+        if silent > self.read_timeout_ns:
+            raise RobotLinkError("robot_read_timeout", f"no state from the sim-server for {silent * 1e-6:.0f} ms",
+                                 lost=silent > 4 * self.read_timeout_ns)
+        return self._latest[0]
+
+    def observe(self) -> Observation:
+        state, measurements = self._latest[0], self._latest[1]
+        return Observation(state.t_ns, state.q, state.qd, measurements)
+
+    def write(self, setpoint: np.ndarray) -> np.ndarray:
+        setpoint = np.asarray(setpoint, dtype=np.float64)
+        if setpoint.shape != (self.profile.dof,) or not np.isfinite(setpoint).all():
+            raise RobotLinkError("robot_write_failed", f"setpoint refused before the wire: shape {setpoint.shape}, "
+                                 "every value must be finite")
+        self._cmd_seq += 1
+        try:
+            self.sock.send(pack_command(self._cmd_seq, time.monotonic_ns(), self._power, setpoint))
+        except ConnectionRefusedError:
+            raise RobotLinkError("robot_server_gone", "sim-server refused the command (process gone)",
+                                 lost=True) from None
+        except OSError as exc:
+            raise RobotLinkError("robot_write_failed", f"send failed: {exc.strerror}") from None
+        return setpoint.copy()
+
+    def safety(self) -> SafetyInputs:
+        return self._latest[3]
+
+    def digital_input(self, name: str) -> bool:
+        if name != "cycle_done":
+            raise RobotLinkError("robot_read_failed", f"sim-server has no digital input {name!r}; it has: cycle_done")
+        return self._latest[2]
+
+    def set_power(self, on: bool) -> None:
+        self._power = bool(on)
+
+    def context(self) -> dict:
+        return {**self._model.context(), "robot": f"sim-server:udp://{self.address[0]}:{self.address[1]}"}
+
+    def counters(self) -> dict:
+        """The server's counters (commands received, non-finite commands) [blocking, for tests]."""
+        self.sock.setblocking(True)
+        self.sock.settimeout(1.0)
+        try:
+            self.sock.send(b"?")
+            while True:
+                packet = self.sock.recv(65536)
+                if packet[:1] == b"R":
+                    return json.loads(packet[1:])
+        finally:
+            self.sock.setblocking(False)
+
+    def close(self) -> None:
+        self.sock.close()
+
+
+def connect_sim_server(spec, scenario) -> SimServerRobot:
+    return SimServerRobot(parse_address(spec.argument), read_timeout_s=scenario.realtime.read_timeout_s)

@@ -1,0 +1,73 @@
+"""Clocks of the tick loop: simulated time that steps physics, or monotonic wall time.
+
+``advance()`` ends one servo period. ``SimClock`` steps the cell's physics by one period and
+never waits. ``WallClock`` sleeps until shortly before the next deadline, then spins to it
+(``time.sleep`` alone wakes up to a scheduler quantum late); a simulated cell on wall time is
+stepped once per period too. Each period's lateness and compute time go to ``TickTiming``.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+
+from cellguard.runtime.timing import TickTiming
+
+SPIN_NS = 300_000  # the last stretch before a deadline is spun, not slept [ns]
+
+
+class SimClock:
+    """Simulated time: ``now`` is the cell's time; ``advance`` steps its physics one period."""
+
+    realtime = False
+
+    def __init__(self, cell):
+        self.period_ns = int(cell.dt_ns)
+        self.timing = TickTiming(self.period_ns)
+        self.now = lambda: cell.t_ns
+        self.advance = cell.step
+
+    def start(self) -> None:
+        """Nothing to align in simulated time."""
+
+
+class WallClock:
+    """Monotonic wall time paced to ``period_ns``; ``step`` (if given) advances a simulated cell.
+
+    ``now`` is the loop's time: the simulated cell's time when it steps one, else monotonic ns.
+    A tick that ends later than one period past its deadline is an overrun: the next deadline
+    is then taken from now (the loop never tries to catch up with a burst of short ticks).
+    """
+
+    realtime = True
+
+    def __init__(self, period_ns: int, step: Callable[[], None] | None = None,
+                 now: Callable[[], int] | None = None, spin_ns: int = SPIN_NS):
+        self.period_ns, self._step, self._spin_ns = int(period_ns), step, int(spin_ns)
+        self.timing = TickTiming(self.period_ns)
+        self.now = now or time.monotonic_ns
+        self._deadline = 0
+        self._began = 0
+
+    def start(self) -> None:
+        """Align the first deadline one period from now."""
+        self._began = time.monotonic_ns()
+        self._deadline = self._began + self.period_ns
+
+    def advance(self) -> None:
+        """Step (a simulated cell), then wait for the deadline; account lateness and compute time."""
+        if self._step is not None:
+            self._step()
+        clock = time.monotonic_ns
+        compute = clock() - self._began
+        deadline = self._deadline
+        left = deadline - clock() - self._spin_ns
+        if left > 0:
+            time.sleep(left * 1e-9)
+        while clock() < deadline:
+            pass
+        woke = clock()
+        late = woke - deadline
+        self.timing.add(late, compute)
+        self._began = woke
+        self._deadline = deadline + self.period_ns if late < self.period_ns else woke + self.period_ns

@@ -1,0 +1,123 @@
+"""Cycle sources: where one cycle of the loop ends, chosen by the scenario's ``cycle.source``.
+
+A source has ``begin(index, t_ns)``, ``finished(state) -> bool`` (once per tick) and
+``end(t_ns) -> dict`` (the cycle's outcome: ``success`` plus measured values, SI). The
+simulated cell's task is one source; on hardware a digital input (a PLC's part-done signal), a
+return to the home pose, the policy's own episode end or a fixed episode time end a cycle.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from cellguard.errors import ScenarioError
+
+LEFT_HOME = 5.0  # a cycle has left home once a joint is this many tolerances away
+
+
+class CellTask:
+    """The simulated cell's own task: a part picked and placed, a turn walked."""
+
+    def __init__(self, cell):
+        self._cell = cell
+        self.finished = lambda state: cell.cycle_finished()
+
+    def begin(self, index: int, t_ns: int) -> None:
+        self._cell.begin_cycle(index)
+
+    def end(self, t_ns: int) -> dict:
+        return self._cell.end_cycle()
+
+
+class _Timed:
+    """Outcome common to the hardware sources: success and the cycle time."""
+
+    def begin(self, index: int, t_ns: int) -> None:
+        self._t0, self._done = t_ns, False
+
+    def end(self, t_ns: int) -> dict:
+        return {"success": self._done, "cycle_time_s": (t_ns - self._t0) * 1e-9}
+
+
+class DigitalInput(_Timed):
+    """The cycle ends on a rising edge of the robot's digital input ``name``."""
+
+    def __init__(self, robot, name: str):
+        if not hasattr(robot, "digital_input"):
+            raise ScenarioError(f"cycle.source: 'input' needs a robot with digital inputs; {robot.name!r} has none")
+        self._read, self._name = robot.digital_input, name
+
+    def begin(self, index: int, t_ns: int) -> None:
+        super().begin(index, t_ns)
+        self._was = bool(self._read(self._name))
+
+    def finished(self, state) -> bool:
+        now = bool(self._read(self._name))
+        rising, self._was = now and not self._was, now
+        self._done = self._done or rising
+        return rising
+
+
+class HomeReturn(_Timed):
+    """The cycle ends when the robot, having left ``home``, is back within ``tolerance`` and slow."""
+
+    def __init__(self, home: np.ndarray, tolerance: float):
+        self._home, self._tol = np.asarray(home, dtype=np.float64), float(tolerance)
+
+    def begin(self, index: int, t_ns: int) -> None:
+        super().begin(index, t_ns)
+        self._left = False
+
+    def finished(self, state) -> bool:
+        away = float(np.abs(state.q - self._home).max())
+        if not self._left:
+            self._left = away > LEFT_HOME * self._tol
+            return False
+        self._done = away < self._tol and float(np.abs(state.qd).max()) < LEFT_HOME * self._tol
+        return self._done
+
+
+class PolicyEpisodeEnd(_Timed):
+    """The cycle ends when the policy says its episode is over (``episode_done()``)."""
+
+    def __init__(self, policy):
+        if not callable(getattr(policy, "episode_done", None)):
+            raise ScenarioError(f"cycle.source: 'policy' needs a policy with episode_done(); {policy.source!r} has none")
+        self._done_fn: Callable[[], bool] = policy.episode_done
+
+    def finished(self, state) -> bool:
+        self._done = bool(self._done_fn())
+        return self._done
+
+
+class FixedTime(_Timed):
+    """The cycle ends ``seconds`` after it began."""
+
+    def __init__(self, seconds: float):
+        self._ns = round(seconds * 1e9)
+
+    def finished(self, state) -> bool:
+        self._done = state.t_ns - self._t0 >= self._ns
+        return self._done
+
+
+def make_cycle_source(settings, robot, policy):
+    """The source the scenario's ``cycle:`` section names, for this robot and policy."""
+    source = settings.source
+    if source == "task":
+        if not hasattr(robot, "cycle_finished"):
+            raise ScenarioError(f"cycle.source: 'task' needs a simulated cell; for {robot.name!r} choose "
+                                "input, home, policy or time")
+        return CellTask(robot)
+    if source == "input":
+        return DigitalInput(robot, settings.input)
+    if source == "home":
+        home = getattr(robot, "q_home", None)
+        if home is None:
+            raise ScenarioError(f"cycle.source: 'home' needs a home pose; {robot.name!r} has none")
+        return HomeReturn(home, settings.tolerance)
+    if source == "policy":
+        return PolicyEpisodeEnd(policy)
+    return FixedTime(settings.seconds)

@@ -1,0 +1,102 @@
+"""Inference as the tick loop sees it: ``due``, ``submit``, ``take``, never a wait on the servo path.
+
+``SimulatedInference`` (simulated time): a request at the policy's cadence, one at a time; the
+policy is called at once and its chunk reaches the loop ``latency_ns`` later in simulated time
+(the latency a fault may raise). ``WorkerInference`` (wall time): the policy runs on its own
+thread or process (``policy.async_inference``) and the chunk arrives when it is done.
+Both measure the wall time of every call.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from cellguard.policy.chunk import ActionChunk
+
+NOMINAL_INFERENCE_S = 0.010  # simulated inference latency of a healthy policy [s]
+
+
+@dataclass(frozen=True)
+class Arrival:
+    """A finished request: the chunk (None if the call failed), its latency [ns], the error."""
+
+    chunk: ActionChunk | None
+    latency_ns: int
+    wall_ns: int
+    error: str | None = None
+
+
+class SimulatedInference:
+    """A request every ``period_ns`` while none is pending; the chunk arrives ``latency_ns`` later."""
+
+    def __init__(self, policy, period_ns: int):
+        self.policy, self.period_ns = policy, int(period_ns)
+        self.latency_ns = round(NOMINAL_INFERENCE_S * 1e9)
+        self._pending: tuple[int, Arrival] | None = None
+        self._next = 0
+
+    def begin_cycle(self, t_ns: int) -> None:
+        self._pending, self._next = None, t_ns
+
+    def due(self, t_ns: int) -> bool:
+        return self._pending is None and t_ns >= self._next
+
+    def submit(self, t_ns: int, observation) -> Arrival | None:
+        """Call the policy now; a failure comes back at once (an Arrival with its error)."""
+        self._next = t_ns + self.period_ns
+        began = time.perf_counter_ns()
+        try:
+            chunk = self.policy.infer(observation)
+        except Exception as exc:  # noqa: BLE001 - a failing policy is an event; the watchdog stops the cell
+            return Arrival(None, 0, time.perf_counter_ns() - began, f"{type(exc).__name__}: {exc}")
+        self._pending = (t_ns + self.latency_ns, Arrival(chunk, self.latency_ns, time.perf_counter_ns() - began))
+        return None
+
+    def corrupt_pending(self, corrupt: Callable[[ActionChunk], ActionChunk]) -> None:
+        """Replace the pending chunk by ``corrupt(chunk)`` (a simulated fault in the policy's output)."""
+        at, arrival = self._pending
+        self._pending = (at, Arrival(corrupt(arrival.chunk), arrival.latency_ns, arrival.wall_ns))
+
+    def take(self, t_ns: int) -> Arrival | None:
+        if self._pending is not None and self._pending[0] <= t_ns:
+            arrival, self._pending = self._pending[1], None
+            return arrival
+        return None
+
+    def close(self) -> None:
+        """Nothing runs in the background."""
+
+
+class WorkerInference:
+    """The policy on a worker (thread or process); the chunk arrives when the worker is done."""
+
+    def __init__(self, worker):
+        self.worker = worker
+
+    def warm_up(self, observation) -> None:
+        """A first call off the clock: a cold policy's first answer is not its latency."""
+        try:
+            self.worker.warm_up(observation)
+        except Exception:  # noqa: BLE001 - the loop's first request reports the failure as an event
+            pass
+
+    def begin_cycle(self, t_ns: int) -> None:
+        self.worker.discard()
+
+    def due(self, t_ns: int) -> bool:
+        return self.worker.wants_observation(t_ns)
+
+    def submit(self, t_ns: int, observation) -> Arrival | None:
+        self.worker.submit(observation)
+        return None
+
+    def take(self, t_ns: int) -> Arrival | None:
+        result = self.worker.take()
+        if result is None:
+            return None
+        return Arrival(result.chunk, result.latency_ns, result.latency_ns, result.error)
+
+    def close(self) -> None:
+        self.worker.close()

@@ -1,0 +1,83 @@
+"""The robot link as the loop uses it: reads and writes that never raise, watched every tick.
+
+A read that raises, times out or returns a stale stamp (a dead bus reads as a frozen but healthy
+robot), a write that fails, and more lost packets than the budget each raise one named event
+and ask the guard for the scenario's stop category. A setpoint that is not finite never
+reaches the robot: the last finite one is sent again and the refusal is an event.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from cellguard.control.events import Event
+from cellguard.robot.protocol import RobotLinkError
+
+
+class RobotLink:
+    """Wraps a Robot's ``read``/``write``; ``stop`` is the stop category asked for, or None."""
+
+    def __init__(self, robot, events: list, stop_category: int, stale_ns: int | None = None,
+                 drop_budget: int | None = None):
+        self.robot, self.events, self.category = robot, events, int(stop_category)
+        self.stale_ns, self.drop_budget = stale_ns, drop_budget
+        self.stop: int | None = None
+        self.lost = False  # no state at all any more: the loop cannot command the robot
+        self.refused = 0  # non-finite setpoints never sent
+        self.state = None  # the last good state, once read
+        self._last_sent: np.ndarray | None = None
+        self._raised: set[str] = set()
+
+    def read(self, t_ns: int):
+        """The measured state; after a failure the last good one (and a stop request)."""
+        try:
+            state = self.robot.read()
+        except RobotLinkError as exc:
+            self._fault(t_ns, exc.kind, str(exc))
+            self.lost = self.lost or exc.lost
+            return self.state
+        except Exception as exc:  # noqa: BLE001 - a bridge bug must stop the robot, not kill the loop
+            self._fault(t_ns, "robot_read_failed", f"{type(exc).__name__}: {exc}")
+            return self.state
+        if self.stale_ns is not None and t_ns - state.t_ns > self.stale_ns:
+            self._fault(t_ns, "robot_state_stale", f"state stamp {(t_ns - state.t_ns) * 1e-6:.1f} ms old "
+                        f"(limit {self.stale_ns * 1e-6:.0f} ms)")
+        if self.drop_budget is not None and getattr(self.robot, "dropped", 0) > self.drop_budget:
+            self._fault(t_ns, "robot_packets_dropped", f"{self.robot.dropped} packets lost "
+                        f"(budget {self.drop_budget})")
+        self.state = state
+        if self._last_sent is None:
+            self._last_sent = np.array(state.q, dtype=np.float64)
+        return state
+
+    def write(self, t_ns: int, setpoint: np.ndarray) -> np.ndarray:
+        """Send ``setpoint`` if every value is finite, else the last finite one; return what was sent."""
+        if not math.isfinite(float(np.sum(setpoint))):
+            self.refused += 1
+            self._event(t_ns, "setpoint_not_finite", "a non-finite setpoint was not sent; the last one is held")
+            setpoint = self._last_sent
+        try:
+            sent = self.robot.write(setpoint)
+        except RobotLinkError as exc:
+            self._fault(t_ns, exc.kind, str(exc))
+            self.lost = self.lost or exc.lost
+            return self._last_sent
+        except Exception as exc:  # noqa: BLE001
+            self._fault(t_ns, "robot_write_failed", f"{type(exc).__name__}: {exc}")
+            return self._last_sent
+        self._last_sent = setpoint
+        return sent
+
+    def _fault(self, t_ns: int, kind: str, reason: str) -> None:
+        if self._event(t_ns, kind, reason, self.category):
+            self.stop = self.category if self.stop is None else min(self.stop, self.category)
+
+    def _event(self, t_ns: int, kind: str, reason: str, category: int | None = None) -> bool:
+        """One event per kind and run (a lasting condition is not repeated every tick)."""
+        if kind in self._raised:
+            return False
+        self._raised.add(kind)
+        self.events.append(Event(t_ns, kind, reason, category=category))
+        return True

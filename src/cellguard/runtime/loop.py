@@ -1,0 +1,329 @@
+"""The one tick loop: policy -> executor -> envelope -> robot -> recorder, cycle after cycle.
+
+Simulation and hardware share it. The ``Clock`` paces it (simulated time steps physics; wall
+time sleeps and spins to each deadline), a cycle source says where a cycle ends, inference is
+simulated (simulated time) or runs on a worker (wall time) and never blocks a tick, and the
+robot is reached through ``RobotLink`` (watched reads, finite writes). Fault injection is a
+simulated cell's concern only: it is applied when the robot is a simulated cell.
+
+Start-up (the first request of the run): the checks of ``startup`` may refuse to move; a first
+target far from the measured pose is approached with a limit-respecting trajectory first.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+from cellguard.control.events import Event
+from cellguard.control.settings import build_guard
+from cellguard.diagnose.cycle_buffer import CycleBuffer
+from cellguard.diagnose.features import cycle_features
+from cellguard.errors import RecordError
+from cellguard.output import make_folder
+from cellguard.policy.chunk import ActionChunk
+from cellguard.policy.registry import make_policy
+from cellguard.record.session import RunRecording
+from cellguard.robot.protocol import SafetyInputs
+from cellguard.runtime.build import make_clock, make_inference, make_robot
+from cellguard.runtime.cycles import make_cycle_source
+from cellguard.runtime.history import CycleWindow, EventLog
+from cellguard.runtime.inference import NOMINAL_INFERENCE_S
+from cellguard.runtime.link import RobotLink
+from cellguard.runtime.startup import check_startup
+from cellguard.runtime.transitions import Transition
+from cellguard.scenario import Scenario
+
+CYCLE_TIMEOUT_S = 12.0  # a cycle that has not finished by then is ended as failed [s]
+NAN_AFTER_S = 1.0  # a policy_nan fault corrupts the first chunk this long into its cycle [s]
+STOP_SETTLE_S = 0.3  # a category 2 stop holds the measured position this long before the run ends [s]
+
+
+class Run:
+    """One scenario on one robot (a simulated cell or a bridge); ``cycle()`` runs the next cycle."""
+
+    def __init__(self, scenario: Scenario, realtime: bool = False):
+        self.scenario = scenario
+        self.cell = make_robot(scenario)
+        self.simulated = hasattr(self.cell, "step")  # fault injection and simulated inference
+        if self.simulated:
+            scenario.check_against(self.cell)
+        self.policy = make_policy(scenario.policy, self.cell)
+        self.guard = build_guard(self.cell, scenario.guard)
+        self.events = EventLog()
+        self.cycles = CycleWindow()
+        self.clock = make_clock(self.cell, realtime)
+        rt = scenario.realtime
+        self.link = RobotLink(self.cell, self.events, rt.stop_category,
+                              stale_ns=round(rt.stale_s * 1e9) if self.clock.realtime else None,
+                              drop_budget=rt.drop_budget)
+        self._period_ns = round(1e9 / scenario.policy_hz)
+        self.ticks = CycleBuffer(self.cell.profile.dof, round(CYCLE_TIMEOUT_S * 1e9 / self.cell.dt_ns) + 1)
+        self.recording: RunRecording | None = None  # set by run_scenario, fed every tick
+        self.stopped: str | None = None  # why the run stopped early, if it did
+        self.inference = None  # built at the first cycle (the policy may be swapped before)
+        self.source = None
+        self._started = False  # the first chunk has come and the start-up checks passed
+        self._clock_started = False
+        self._armed_at = 0
+        self._first_observation = None
+
+    # -- one cycle ---------------------------------------------------------------------------
+    def cycle(self) -> dict:
+        """Run the next cycle; return its outcome (success, timing, measured poses)."""
+        if self.inference is None:
+            self.inference = make_inference(self, self.clock.realtime)
+            self.source = make_cycle_source(self.scenario.cycle, self.cell, self.policy)
+        index = self.cycles.total
+        cell, clock, link, inference, events = self.cell, self.clock, self.link, self.inference, self.events
+        corrupt = False
+        if self.simulated:
+            for fault in self.scenario.faults:
+                fault.apply(cell, index)
+            if not clock.realtime:
+                inference.latency_ns = round((NOMINAL_INFERENCE_S + sum(f.extra_latency_s(index)
+                                                                        for f in self.scenario.faults)) * 1e9)
+            corrupt = any(f.corrupts_output(index) for f in self.scenario.faults)
+        self.source.begin(index, clock.now())
+        self.policy.reset()
+        start = link.read(clock.now()).t_ns if self.simulated else clock.now()
+        rec = self.recording
+        if rec is not None:
+            rec.begin_cycle(index, self._phase(index), start)
+        timeout = start + round(CYCLE_TIMEOUT_S * 1e9)
+        inference.begin_cycle(start)
+        first_event, latencies, wall_ns = events.total, [], []
+        ticks = self.ticks
+        ticks.clear()
+        if not self.guard.power:  # a category 0/1 stop in the last cycle: the operator resets the cell
+            cell.set_power(True)
+            self.guard.reset(link.read(start).q)
+            events.append(Event(start, "reset", "operator reset after a stop with power removed"))
+        state = link.read(start)
+        if not self._clock_started:
+            self._clock_started = True
+            if clock.realtime:
+                inference.warm_up(cell.observe())
+                self.policy.reset()
+            clock.start()
+            self._armed_at = start  # the watchdog runs from the start, not from the first chunk
+        t = start
+        while True:
+            t = clock.now()
+            guard = self.guard
+            arrival = inference.take(t)
+            if arrival is not None and arrival.chunk is not None and not self._started:
+                arrival = self._start(arrival)
+                guard = self.guard
+            if arrival is not None and arrival.chunk is not None:
+                if rec is not None:
+                    rec.chunk(arrival.chunk, t, arrival.latency_ns)
+                events.extend(guard.push(arrival.chunk, t))
+                latencies.append(arrival.latency_ns)
+                wall_ns.append(arrival.wall_ns)
+            elif arrival is not None:
+                events.append(Event(t, "inference_failed", arrival.error))
+                wall_ns.append(arrival.wall_ns)
+            if inference.due(t):
+                observation = cell.observe()
+                failed = inference.submit(t, observation)
+                if failed is not None:
+                    events.append(Event(t, "inference_failed", failed.error))
+                    wall_ns.append(failed.wall_ns)
+                else:
+                    self._first_observation = self._first_observation or observation
+                    if rec is not None:
+                        rec.request(t, observation)
+                    if corrupt and t - start >= NAN_AFTER_S * 1e9:
+                        inference.corrupt_pending(_with_nan)
+                        corrupt = False
+            safety = cell.safety()
+            stop = self._stop_input(t, guard)
+            if stop is not None:
+                safety = SafetyInputs(stop if safety.stop is None else min(stop, safety.stop), safety.reduced_speed)
+            setpoint, new = guard.tick(t, state, safety)
+            if new:
+                events.extend(new)
+                if not guard.power:
+                    cell.set_power(False)
+            sent = link.write(t, setpoint)
+            clock.advance()
+            if clock.timing.new_overrun:
+                self._overrun(t)
+            state = link.read(clock.now())
+            ticks.add(guard.reference, sent, state)
+            if rec is not None and not rec.tick(guard.reference, sent, state):
+                break
+            if link.stop is not None and (link.lost or guard.envelope.tracker.stopped):
+                self.stopped = self.stopped or f"robot link: {events.last_stop_reason()}"
+                break
+            if self.source.finished(state) or clock.now() >= timeout:
+                break
+        t_end = clock.now()
+        outcome = {"cycle": index, "phase": self._phase(index), **self.source.end(t_end)}
+        outcome["timed_out"] = t_end >= timeout
+        outcome["inference"] = _wall_latency(wall_ns)
+        outcome["features"] = cycle_features(cell.profile, ticks, outcome, latencies, events.since(first_event))
+        if rec is not None:
+            rec.end_cycle(outcome, t_end)
+            if rec.failed:
+                self._stop_unrecorded(rec.failed)
+        self.cycles.append(outcome)
+        return outcome
+
+    # -- start, stops ---------------------------------------------------------------------------
+    def _start(self, arrival):
+        """The run's first chunk: start-up checks (may refuse to move), then the approach if needed.
+
+        Returns the arrival to push, or None when an approach was played (the chunk answered the
+        pose before it; a fresh request follows).
+        """
+        self._started = True
+        chunk = arrival.chunk
+        check_startup(self.policy, self._first_observation, chunk, arrival.latency_ns, self.scenario.guard.blend_s)
+        target = np.asarray(chunk.actions[0], dtype=np.float64)
+        approach = Transition.plan(self.cell.profile, self.link.state.q, target, self.clock.period_ns)
+        if approach is None:
+            return arrival
+        self._play(approach, "approach", self.clock.now())
+        self.guard = build_guard(self.cell, self.scenario.guard)
+        self._armed_at = self.clock.now()
+        self.inference.begin_cycle(self._armed_at)
+        return None
+
+    def retreat(self) -> None:
+        """At the end of the run (or after a stop with power kept): back to the home pose."""
+        home = getattr(self.cell, "q_home", None)
+        if home is None or not self.guard.power or self.link.lost:
+            return
+        plan = Transition.plan(self.cell.profile, self.link.state.q, np.asarray(home), self.clock.period_ns)
+        if plan is not None:
+            self._play(plan, "retreat", self.clock.now())
+
+    def _play(self, plan: Transition, name: str, t0: int) -> None:
+        """Play a transition tick by tick; a stop input or a link fault aborts it (hold where it is)."""
+        events, link, clock, rec = self.events, self.link, self.clock, self.recording
+        events.append(Event(t0, f"{name}_begin", f"{name}: {plan.duration_s:.2f} s to {np.round(plan.target, 3).tolist()}"))
+        t_end = t0
+        for setpoint in plan.setpoints():
+            t = clock.now()
+            if self.cell.safety().stop is not None or link.stop is not None:
+                events.append(Event(t, f"{name}_aborted", "stop input or robot link fault during the transition",
+                                    category=2))
+                return
+            sent = link.write(t, setpoint)
+            clock.advance()
+            state = link.read(clock.now())
+            if rec is not None:
+                rec.tick(setpoint, sent, state)
+            t_end = clock.now()
+        events.append(Event(t_end, f"{name}_done", f"{name} complete"))
+
+    def _stop_input(self, t_ns: int, guard) -> int | None:
+        """The stop the loop itself asks for: a robot link fault, or no first chunk within the watchdog."""
+        stop = self.link.stop
+        if guard.executor.last_chunk_ns is None:
+            watchdog = self.scenario.guard
+            if t_ns - self._armed_at > watchdog.watchdog_s * 1e9:
+                if not self.events.has("watchdog_no_first_chunk"):
+                    self.events.append(Event(t_ns, "watchdog_no_first_chunk", f"no chunk within "
+                                             f"{watchdog.watchdog_s * 1e3:.0f} ms of the start",
+                                             category=watchdog.watchdog_category))
+                stop = watchdog.watchdog_category if stop is None else min(stop, watchdog.watchdog_category)
+        return stop
+
+    def _overrun(self, t_ns: int) -> None:
+        timing = self.clock.timing
+        budget = self.scenario.realtime.overrun_budget
+        if timing.overruns <= 3 or timing.overruns == budget + 1:
+            self.events.append(Event(t_ns, "overrun", f"tick {timing.ticks} woke {timing.max_late_ns * 1e-3:.0f} us "
+                                     f"late at most; {timing.overruns} overruns", ))
+        if timing.overruns > budget and self.link.stop is None:
+            self.link._fault(t_ns, "overrun_budget", f"{timing.overruns} overruns, budget {budget}")
+
+    def _stop_unrecorded(self, why: str) -> None:
+        """Category 2 stop when the record cannot be written: hold the measured position, power kept."""
+        t = self.clock.now()
+        self.link.write(t, self.link.read(t).q)
+        for _ in range(round(STOP_SETTLE_S * 1e9 / self.cell.dt_ns)):
+            self.clock.advance()
+        self.events.append(Event(t, "record_failed", f"an unrecorded run is not allowed: {why}", category=2))
+        self.stopped = why
+
+    def _phase(self, index: int) -> str:
+        return "acceptance" if index < self.scenario.acceptance_cycles else "production"
+
+    def close(self) -> None:
+        """Stop the inference worker and close the policy's connections."""
+        if self.inference is not None:
+            self.inference.close()
+        close = getattr(self.policy, "close", None)
+        if callable(close):
+            close()
+        close = getattr(self.cell, "close", None)
+        if callable(close):
+            close()
+
+    def summary(self) -> dict:
+        """Per-cycle outcomes, events, and the injected faults as ground truth, kept apart."""
+        summary = {
+            "scenario": self.scenario.model_dump(mode="json", exclude={"faults"}),
+            "context": {**self.cell.context(), "policy": self.policy.source,
+                        "policy_sha256": self.policy.content_hash(), "profile_sha256": self.cell.profile.sha256},
+            "phases": self.cycles.phases(),
+            "cycles": list(self.cycles),
+            "events": [e.to_dict() for e in self.events],
+            "ground_truth": {"faults": [f.model_dump(mode="json") for f in self.scenario.faults]},
+        }
+        if self.clock.realtime:
+            summary["timing"] = {**self.clock.timing.summary(), "setpoints_refused": self.link.refused,
+                                 "packets_dropped": getattr(self.cell, "dropped", 0)}
+        return summary
+
+
+def run_scenario(scenario: Scenario, out: Path, on_cycle: Callable[[dict], None] | None = None,
+                 realtime: bool = False) -> dict:
+    """Run every cycle of ``scenario`` and write ``out/summary.json``; return the summary."""
+    out = make_folder(Path(out), "--out")
+    run = Run(scenario, realtime=realtime)
+    try:
+        run.recording = RunRecording.start(out, run)  # RecordError here: nothing runs
+        try:
+            for _ in range(scenario.total_cycles):
+                outcome = run.cycle()
+                if on_cycle is not None:
+                    on_cycle(outcome)
+                if run.stopped:
+                    break
+            run.retreat()
+        finally:
+            run.recording.events()
+            run.recording.close()
+    finally:
+        run.close()
+    summary = run.summary()
+    if run.stopped:
+        summary["stopped"] = run.stopped
+    try:
+        (out / "summary.json").write_text(json.dumps(summary, indent=1))
+    except OSError as exc:
+        raise RecordError(f"{out / 'summary.json'}: cannot write ({exc.strerror}); "
+                          f"run stopped: {run.stopped or 'no'}") from None
+    return summary
+
+
+def _with_nan(chunk: ActionChunk) -> ActionChunk:
+    actions = np.array(chunk.actions, dtype=np.float64)
+    actions[actions.shape[0] // 2:, 1] = np.nan
+    return ActionChunk(actions, chunk.t_obs_ns, chunk.dt_ns, chunk.uncertainty)
+
+
+def _wall_latency(wall_ns: list[int]) -> dict:
+    """Measured (wall-clock) inference time of the cycle's chunks; kept out of the drift features."""
+    ms = np.asarray(wall_ns, dtype=np.float64) * 1e-6
+    return {"chunks": len(wall_ns), "wall_ms_mean": float(ms.mean()) if len(ms) else 0.0,
+            "wall_ms_p99": float(np.percentile(ms, 99)) if len(ms) else 0.0, "wall_ms_max": float(ms.max()) if len(ms) else 0.0}

@@ -1,0 +1,130 @@
+"""``cellguard sim-server``: a simulated cell served as a robot, stepping on wall time in its own process.
+
+One servo period per tick, paced by ``WallClock``: take the newest command (a non-finite one is
+counted and never applied), step the physics, and send the client one state packet stamped
+with the monotonic clock. The cell runs its own task: when a cycle is over the next part
+arrives at once and the digital input ``cycle_done`` is high for ``PULSE_S``.
+
+For tests of the robot link, the server can misbehave on purpose: ``delay_ms`` holds every
+state packet back, ``drop_every`` loses every n-th one. These are transport faults of the
+simulated robot, not cell faults.
+"""
+
+from __future__ import annotations
+
+import json
+import socket
+import sys
+import time
+from collections import deque
+from dataclasses import replace
+
+import numpy as np
+
+from cellguard.robot.bridges.sim_server import Layout, unpack_command
+from cellguard.robot.registry import make_cell
+from cellguard.runtime.clock import WallClock
+
+PULSE_S = 0.05  # the cycle_done input stays high this long [s]
+
+
+class SimServer:
+    """The server's state: the cell, its socket, the client, the counters."""
+
+    def __init__(self, cell_name: str, port: int, seed: int = 0, delay_ms: float = 0.0, drop_every: int = 0):
+        self.cell = make_cell(cell_name, seed=seed)
+        cell = self.cell
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", port))
+        self.sock.setblocking(False)
+        self.port = self.sock.getsockname()[1]
+        self.delay_ns, self.drop_every = round(delay_ms * 1e6), int(drop_every)
+        obs = cell.observe()
+        self.meta = {"cell": cell.name, "seed": seed, "dt_ns": cell.dt_ns, "joints": list(cell.profile.joint_names),
+                     "measurements": {k: int(np.asarray(v).size) for k, v in obs.measurements.items()},
+                     "q_home": np.asarray(getattr(cell, "q_home", cell.read().q)).tolist(), "inputs": ["cycle_done"]}
+        self.layout = Layout(cell.profile.dof, self.meta["measurements"])
+        self.client = None
+        self.counters = {"commands": 0, "nonfinite_commands": 0, "states_sent": 0, "states_dropped": 0, "cycles": 0}
+        self._power, self._cmd_seq, self._seq = True, 0, 0
+        self._pulse_until = 0
+        self._delayed: deque = deque()
+        self._cycle = 0
+        cell.begin_cycle(0)
+
+    def tick(self) -> None:
+        cell, now = self.cell, time.monotonic_ns()
+        self._receive()
+        if cell.cycle_finished():
+            cell.end_cycle()
+            self._cycle += 1
+            self.counters["cycles"] += 1
+            cell.begin_cycle(self._cycle)
+            self._pulse_until = now + round(PULSE_S * 1e9)
+        cell.step()
+        if self.client is None:
+            return
+        state = replace(cell.read(), t_ns=time.monotonic_ns())
+        obs = cell.observe()
+        self._seq += 1
+        packet = self.layout.pack_state(self._seq, state.t_ns, self._cmd_seq, state, cell.data.ctrl[cell.drives.act],
+                                        obs.measurements, now < self._pulse_until, cell.safety())
+        if self.drop_every and self._seq % self.drop_every == 0:
+            self.counters["states_dropped"] += 1
+        else:
+            self._delayed.append((now + self.delay_ns, packet))
+        while self._delayed and self._delayed[0][0] <= now:
+            self._send(self._delayed.popleft()[1])
+
+    def _receive(self) -> None:
+        while True:
+            try:
+                packet, addr = self.sock.recvfrom(65536)
+            except (BlockingIOError, ConnectionRefusedError):
+                return
+            kind = packet[:1]
+            if kind == b"H":
+                self.client = addr
+                self._delayed.clear()
+                self.sock.sendto(b"M" + json.dumps(self.meta).encode(), addr)
+            elif kind == b"?":
+                self.sock.sendto(b"R" + json.dumps(self.counters).encode(), addr)
+            elif kind == b"C":
+                self._command(packet)
+
+    def _command(self, packet: bytes) -> None:
+        parsed = unpack_command(packet, self.cell.profile.dof)
+        if parsed is None:
+            return
+        seq, _, power, setpoint = parsed
+        self.counters["commands"] += 1
+        if not np.isfinite(setpoint).all():
+            self.counters["nonfinite_commands"] += 1
+            return
+        if seq <= self._cmd_seq:
+            return  # older than the command in force
+        self._cmd_seq = seq
+        if power != self._power:
+            self._power = power
+            self.cell.set_power(power)
+        self.cell.write(setpoint)
+
+    def _send(self, packet: bytes) -> None:
+        try:
+            self.sock.sendto(packet, self.client)
+            self.counters["states_sent"] += 1
+        except OSError:
+            pass  # the client went away; it says hello again when it comes back
+
+
+def serve(cell_name: str, port: int, seed: int = 0, delay_ms: float = 0.0, drop_every: int = 0,
+          duration_s: float | None = None) -> None:
+    """Serve ``cell_name`` on udp://127.0.0.1:``port`` until killed (or for ``duration_s``)."""
+    server = SimServer(cell_name, port, seed, delay_ms, drop_every)
+    clock = WallClock(server.cell.dt_ns, step=server.tick)
+    sys.stdout.write(f"sim-server {cell_name} on udp://127.0.0.1:{server.port}\n")
+    sys.stdout.flush()
+    end = None if duration_s is None else time.monotonic_ns() + round(duration_s * 1e9)
+    clock.start()
+    while end is None or time.monotonic_ns() < end:
+        clock.advance()

@@ -1,0 +1,49 @@
+"""Start-up checks that refuse to move, each with one line naming the dimension.
+
+Run on the run's first chunk, before the robot moves: the observation lies inside the policy's
+normalisation statistics (per-dimension q01..q99, widened by a margin of the range), when the
+policy offers them as ``normalisation_stats() -> {name: (q01, q99)}``; and the inference
+latency fits the chunk (latency < horizon minus the blend time), else the robot would run out
+of steps before the next chunk arrives.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from cellguard.errors import ConfigError
+
+STATS_MARGIN = 0.1  # fraction of q99 - q01 allowed outside the statistics' range
+
+
+class StartupRefused(ConfigError):
+    """A start-up check failed: the robot does not move."""
+
+
+def check_startup(policy, observation, chunk, latency_ns: int, blend_s: float, margin: float = STATS_MARGIN) -> None:
+    """Raise StartupRefused naming the first dimension out of range or a latency the chunk cannot cover."""
+    stats = getattr(policy, "normalisation_stats", None)
+    if callable(stats) and observation is not None:
+        for name, (q01, q99) in stats().items():
+            value = _observed(observation, name)
+            if value is None:
+                continue
+            q01, q99 = np.asarray(q01, dtype=np.float64), np.asarray(q99, dtype=np.float64)
+            pad = margin * (q99 - q01)
+            out = np.flatnonzero((value < q01 - pad) | (value > q99 + pad))
+            if out.size:
+                i = int(out[0])
+                raise StartupRefused(f"start-up: observation {name}[{i}] = {value[i]:.4g} is outside the policy's "
+                                     f"normalisation range [{q01[i] - pad[i]:.4g}, {q99[i] + pad[i]:.4g}] "
+                                     f"(q01..q99 with {margin:.0%} margin); not moving")
+    horizon_s = chunk.actions.shape[0] * chunk.dt_ns * 1e-9
+    if latency_ns * 1e-9 >= horizon_s - blend_s:
+        raise StartupRefused(f"start-up: inference latency {latency_ns * 1e-6:.0f} ms does not fit the chunk: "
+                             f"horizon {horizon_s * 1e3:.0f} ms minus blend {blend_s * 1e3:.0f} ms; not moving")
+
+
+def _observed(observation, name: str) -> np.ndarray | None:
+    if name in ("q", "state", "observation.state"):
+        return np.asarray(observation.q, dtype=np.float64)
+    value = observation.measurements.get(name)
+    return None if value is None else np.asarray(value, dtype=np.float64)

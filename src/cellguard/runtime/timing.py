@@ -1,0 +1,51 @@
+"""Period error and compute time of the wall-clock loop, in bounded memory.
+
+Per tick: lateness (woke minus deadline) and compute time (tick start to the wait) [ns]. The
+last ``window`` ticks are kept for percentiles; counts and maxima cover the whole run. An
+overrun is a tick that woke at least one period late.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+WINDOW = 65_536  # ticks kept for percentiles (about a minute at 1 kHz)
+
+
+class TickTiming:
+    """Lateness and compute time per tick; overrun count; the last ``window`` ticks for percentiles."""
+
+    def __init__(self, period_ns: int, window: int = WINDOW):
+        self.period_ns = int(period_ns)
+        self._late = np.zeros(window, dtype=np.int64)
+        self._compute = np.zeros(window, dtype=np.int64)
+        self.ticks = 0
+        self.overruns = 0
+        self.late_twice = 0  # ticks two or more periods late
+        self.max_late_ns = 0
+        self.max_compute_ns = 0
+        self.new_overrun = False  # the last tick was an overrun (the loop raises the event)
+
+    def add(self, late_ns: int, compute_ns: int) -> None:
+        i = self.ticks % len(self._late)
+        self._late[i], self._compute[i] = late_ns, compute_ns
+        self.ticks += 1
+        self.new_overrun = late_ns >= self.period_ns
+        if self.new_overrun:
+            self.overruns += 1
+            self.late_twice += late_ns >= 2 * self.period_ns
+        self.max_late_ns = max(self.max_late_ns, late_ns)
+        self.max_compute_ns = max(self.max_compute_ns, compute_ns)
+
+    def summary(self) -> dict:
+        """Period error and compute time [us] (p50/p99 over the window, max over the run), overruns."""
+        n = min(self.ticks, len(self._late))
+        if n == 0:
+            return {"ticks": 0, "overruns": 0}
+        late, compute = self._late[:n] * 1e-3, self._compute[:n] * 1e-3
+        return {"ticks": self.ticks, "period_us": self.period_ns * 1e-3,
+                "period_error_us": {"p50": float(np.percentile(late, 50)), "p99": float(np.percentile(late, 99)),
+                                    "max": self.max_late_ns * 1e-3},
+                "compute_us": {"p50": float(np.percentile(compute, 50)), "p99": float(np.percentile(compute, 99)),
+                               "max": self.max_compute_ns * 1e-3},
+                "overruns": self.overruns, "later_than_two_periods": self.late_twice}

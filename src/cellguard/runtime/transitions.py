@@ -1,0 +1,58 @@
+"""Safe transitions: a limit-respecting trajectory between two poses, played before the policy moves
+the robot (approach to its first target) and at the end (retreat to the home pose).
+
+Planned once with ruckig under the profile's velocity, acceleration and jerk limits, from rest
+to rest; never a jump. A pose within ``tolerance`` of the target needs no transition.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import ruckig
+
+from cellguard.embodiment import Profile
+
+TOLERANCE = 0.01  # [rad] or [m]: closer than this, no transition is played
+
+
+@dataclass(frozen=True)
+class Transition:
+    """A planned trajectory; ``setpoints()`` yields one position (dof,) per servo period."""
+
+    trajectory: object
+    target: np.ndarray
+    period_ns: int
+
+    @property
+    def duration_s(self) -> float:
+        return float(self.trajectory.duration)
+
+    @classmethod
+    def plan(cls, profile: Profile, start: np.ndarray, target: np.ndarray, period_ns: int,
+             tolerance: float = TOLERANCE) -> Transition | None:
+        """The transition from ``start`` to ``target`` (clipped into the limits), or None if already there."""
+        target = np.clip(np.asarray(target, dtype=np.float64), profile.q_min, profile.q_max)
+        start = np.asarray(start, dtype=np.float64)
+        if not np.isfinite(target).all() or float(np.abs(target - start).max()) < tolerance:
+            return None
+        dof = profile.dof
+        otg, inp, traj = ruckig.Ruckig(dof), ruckig.InputParameter(dof), ruckig.Trajectory(dof)
+        inp.current_position, inp.target_position = start.tolist(), target.tolist()
+        inp.current_velocity = inp.current_acceleration = [0.0] * dof
+        inp.target_velocity = inp.target_acceleration = [0.0] * dof
+        inp.max_velocity = profile.array("velocity").tolist()
+        inp.max_acceleration = profile.array("acceleration").tolist()
+        inp.max_jerk = profile.array("jerk").tolist()
+        result = otg.calculate(inp, traj)
+        if result not in (ruckig.Result.Working, ruckig.Result.Finished):
+            return None
+        return cls(traj, target, int(period_ns))
+
+    def setpoints(self):
+        dt = self.period_ns * 1e-9
+        steps = int(np.ceil(self.duration_s / dt))
+        for k in range(1, steps + 1):
+            position, _, _ = self.trajectory.at_time(min(k * dt, self.duration_s))
+            yield np.asarray(position, dtype=np.float64)

@@ -1,0 +1,58 @@
+"""Helpers for the sim-server tests: a real server process on a free loopback port, a replay policy file."""
+
+from __future__ import annotations
+
+import os
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+HOME = np.array([0.0, -0.3, 1.9, 1.55, 0.0, 0.025])  # the arm cell's home pose
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def start_server(*args: str, cell: str = "arm-pick-place", timeout_s: float = 60.0) -> tuple[subprocess.Popen, int]:
+    """``cellguard sim-server`` in its own process; returns once it listens."""
+    port = free_port()
+    proc = subprocess.Popen([sys.executable, "-c", "from cellguard.cli import app; app()", "sim-server", cell,
+                             "--port", str(port), *args], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    deadline = time.monotonic() + timeout_s
+    line = proc.stdout.readline()
+    if "udp://127.0.0.1" not in line or time.monotonic() > deadline:
+        proc.kill()
+        raise RuntimeError(f"sim-server did not start: {line}{proc.stdout.read()}")
+    return proc, port
+
+
+def sway_file(path: Path, seconds: float = 30.0, nan_at_s: float | None = None) -> Path:
+    """Replay chunks (every 50 ms, 25 steps of 20 ms) that sway the shoulder around the home pose."""
+    t = np.arange(0.0, seconds, 0.05)
+    steps = t[:, None] + np.arange(25)[None, :] * 0.02
+    actions = np.broadcast_to(HOME, (len(t), 25, 6)).copy()
+    actions[:, :, 0] = 0.1 * np.sin(2 * np.pi * 0.5 * steps)
+    if nan_at_s is not None:
+        actions[int(nan_at_s / 0.05):, :, 1] = np.nan
+    np.savez(path, t=t, actions=actions, dt=0.02)
+    return path
+
+
+# Wide link limits: eight processes share two cores here, so ticks wake milliseconds late;
+# each test narrows the one limit it is about.
+LOADED = {"stale_s": 0.25, "read_timeout_s": 0.1, "overrun_budget": 1_000_000}
+
+
+def scenario(port: int, policy: Path, **realtime) -> dict:
+    realtime = {**LOADED, **realtime}
+    return {"cell": "arm-pick-place", "robot": f"sim-server:udp://127.0.0.1:{port}", "policy": f"replay:{policy}",
+            "acceptance_cycles": 1, "production_cycles": 0, "cycle": {"source": "time", "seconds": 2.0},
+            "realtime": realtime}

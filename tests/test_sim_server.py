@@ -1,0 +1,103 @@
+"""The tick loop against `cellguard sim-server` in another process, over UDP on 127.0.0.1.
+
+Robot-link faults each become a named event and the scenario's stop category: the server
+killed mid-cycle, replies delayed 50 ms, packets dropped past the budget; a NaN chunk never
+reaches the wire.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+import pytest
+from sim_server_util import HOME, scenario, start_server, sway_file
+
+from cellguard.errors import CellguardError
+from cellguard.record.reader import open_record
+from cellguard.runtime import Run, run_scenario
+from cellguard.scenario import parse_scenario
+
+
+@pytest.fixture
+def server(request):
+    proc, port = start_server(*getattr(request, "param", ()))
+    yield proc, port
+    proc.kill()
+    proc.wait()
+
+
+def test_a_bridge_run_follows_the_policy_and_records_wall_time(server, tmp_path):
+    _, port = server
+    summary = run_scenario(parse_scenario(scenario(port, sway_file(tmp_path / "sway.npz"))), tmp_path / "out")
+    assert "stopped" not in summary, summary["events"]
+    timing = summary["timing"]
+    assert timing["ticks"] > 100  # two seconds paced by the wall clock (1 kHz asked; late ticks on a loaded host)
+    with open_record(tmp_path / "out") as record:
+        ticks = record.ticks()
+        assert len(ticks) > 50  # the record keeps a reduced rate between events
+        q0 = np.asarray(ticks.q_meas)[:, 0]
+    assert q0.max() - q0.min() > 0.01  # the served arm really moved with the policy
+
+
+def test_server_killed_mid_cycle_stops_within_the_watchdog_and_the_record_names_it(server, tmp_path):
+    proc, port = server
+    killed = {}
+
+    def kill():
+        time.sleep(1.0)
+        killed["t_ns"] = time.monotonic_ns()
+        proc.kill()
+
+    threading.Thread(target=kill, daemon=True).start()
+    summary = run_scenario(parse_scenario(scenario(port, sway_file(tmp_path / "sway.npz"))), tmp_path / "out")
+    assert summary["stopped"].startswith("robot link")
+    link = [e for e in summary["events"] if e["kind"] in ("robot_read_timeout", "robot_server_gone", "robot_state_stale")]
+    assert link and link[0]["category"] == 1  # the scenario's default stop category for a link fault
+    watchdog_ns = 0.3e9
+    assert link[0]["t_ns"] - killed["t_ns"] < watchdog_ns
+    with open_record(tmp_path / "out") as record:
+        kinds = [e.kind for e in record.events()]
+    assert link[0]["kind"] in kinds
+
+
+@pytest.mark.parametrize("server", [("--delay-ms", "50")], indirect=True)
+def test_replies_delayed_50_ms_are_a_staleness_stop(server, tmp_path):
+    _, port = server
+    summary = run_scenario(parse_scenario(scenario(port, sway_file(tmp_path / "sway.npz"), stale_s=0.02)),
+                           tmp_path / "out")
+    stale = [e for e in summary["events"] if e["kind"] == "robot_state_stale"]
+    assert stale and stale[0]["category"] == 1
+    assert summary["stopped"]
+
+
+@pytest.mark.parametrize("server", [("--drop-every", "4")], indirect=True)
+def test_dropped_packets_are_counted_and_stop_past_the_budget(server, tmp_path):
+    _, port = server
+    summary = run_scenario(parse_scenario(scenario(port, sway_file(tmp_path / "sway.npz"), drop_budget=40,
+                                                   stop_category=2)), tmp_path / "out")
+    assert summary["timing"]["packets_dropped"] > 40
+    dropped = [e for e in summary["events"] if e["kind"] == "robot_packets_dropped"]
+    assert len(dropped) == 1 and dropped[0]["category"] == 2
+    assert summary["stopped"]
+
+
+def test_a_nan_chunk_never_reaches_the_wire(server, tmp_path):
+    _, port = server
+    run = Run(parse_scenario(scenario(port, sway_file(tmp_path / "nan.npz", nan_at_s=0.5))))
+    try:
+        run.cycle()
+        before = run.cell.counters()
+        t = run.clock.now()
+        run.link.write(t, np.full(6, np.nan))  # straight at the link: refused before the bridge
+        with pytest.raises(CellguardError, match="finite"):
+            run.cell.write(HOME + np.array([np.nan, 0, 0, 0, 0, 0]))  # the bridge refuses before packing
+        time.sleep(0.05)
+        after = run.cell.counters()
+    finally:
+        run.close()
+    kinds = [e.kind for e in run.events]
+    assert "chunk_rejected" in kinds  # the executor refused the NaN chunks
+    assert "setpoint_not_finite" in kinds
+    assert before["commands"] > 100 and after["nonfinite_commands"] == 0
