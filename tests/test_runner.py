@@ -41,3 +41,15 @@ def test_a_failing_policy_becomes_events_and_a_watchdog_stop():
     n = run.ticks.n
     assert np.isfinite(run.ticks.setpoint[:n]).all()
     assert abs(run.ticks.qd[n - 1]).max() < 0.05  # the arm came to rest
+
+
+def test_the_watchdog_arms_at_start_when_no_chunk_ever_comes():
+    run = Run(parse_scenario({"cell": "arm-pick-place", "acceptance_cycles": 1, "production_cycles": 0}))
+    run.policy = _FailsAfter(run.policy, calls=0)  # not a single chunk
+    run.cycle()
+    first = next(e for e in run.events if e.kind == "watchdog_no_first_chunk")
+    assert first.category == 2
+    assert first.t_ns <= 0.3e9 + 2 * run.cell.dt_ns  # the guard's watchdog time after the start
+    assert "protective_stop" in [e.kind for e in run.events]
+    n = run.ticks.n
+    assert abs(run.ticks.qd[n - 1]).max() < 0.05  # nothing moved on

@@ -192,6 +192,8 @@ class Run:
         self._play(approach, "approach", self.clock.now())
         self.guard = build_guard(self.cell, self.scenario.guard)
         self._armed_at = self.clock.now()
+        self.source.begin(self.cycles.total, self._armed_at)  # the cycle (and episode) starts at the approached pose
+        self.policy.reset()
         self.inference.begin_cycle(self._armed_at)
         return None
 

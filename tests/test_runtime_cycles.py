@@ -1,0 +1,87 @@
+"""Cycle sources: where a cycle ends on a simulated cell and on hardware."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from cellguard.errors import ScenarioError
+from cellguard.robot.state import State
+from cellguard.runtime import Run
+from cellguard.runtime.cycles import DigitalInput, FixedTime, HomeReturn, make_cycle_source
+from cellguard.runtime.history import CycleWindow, EventLog
+from cellguard.control.events import Event
+from cellguard.scenario import CycleSettings, parse_scenario
+
+
+def _state(t_s, q, qd=0.0):
+    q = np.asarray(q, dtype=np.float64)
+    return State(round(t_s * 1e9), q, np.full(q.shape, qd), np.zeros(q.shape), np.zeros(q.shape))
+
+
+def test_home_return_needs_leaving_home_first_then_arriving_slow():
+    home = np.zeros(2)
+    source = HomeReturn(home, tolerance=0.01)
+    source.begin(0, 0)
+    assert not source.finished(_state(0.1, [0.0, 0.0]))  # still at home: has not left
+    assert not source.finished(_state(0.5, [0.3, 0.0]))  # left
+    assert not source.finished(_state(0.9, [0.005, 0.0], qd=0.2))  # back but still moving
+    assert source.finished(_state(1.0, [0.005, 0.0]))
+    assert source.end(round(1.0e9)) == {"success": True, "cycle_time_s": 1.0}
+
+
+def test_fixed_time_and_digital_input_edges():
+    timed = FixedTime(2.0)
+    timed.begin(0, round(1e9))
+    assert not timed.finished(_state(2.9, [0.0])) and timed.finished(_state(3.0, [0.0]))
+
+    class Plc:
+        name, level = "plc", True
+
+        def digital_input(self, name):
+            assert name == "part_done"
+            return self.level
+
+    plc = Plc()
+    source = DigitalInput(plc, "part_done")
+    source.begin(0, 0)  # high at the start: not an edge
+    assert not source.finished(None)
+    plc.level = False
+    assert not source.finished(None)
+    plc.level = True
+    assert source.finished(None)
+
+
+def test_a_source_the_robot_cannot_offer_is_refused_naming_the_key():
+    class Bridge:
+        name = "some-bridge"
+
+    with pytest.raises(ScenarioError, match="cycle.source: 'task' needs a simulated cell"):
+        make_cycle_source(CycleSettings(source="task"), Bridge(), None)
+    with pytest.raises(ScenarioError, match="cycle.source: 'input'"):
+        make_cycle_source(CycleSettings(source="input"), Bridge(), None)
+    with pytest.raises(ScenarioError, match="cycle.source: 'policy'"):
+        make_cycle_source(CycleSettings(source="policy"), Bridge(), type("P", (), {"source": "x"})())
+
+
+def test_the_arm_cell_ends_cycles_on_its_home_pose_like_its_task_does():
+    task = Run(parse_scenario({"cell": "arm-pick-place", "seed": 4, "acceptance_cycles": 1, "production_cycles": 0}))
+    home = Run(parse_scenario({"cell": "arm-pick-place", "seed": 4, "acceptance_cycles": 1, "production_cycles": 0,
+                               "cycle": {"source": "home", "tolerance": 0.01}}))
+    a, b = task.cycle(), home.cycle()
+    assert a["success"] and b["success"]
+    assert abs(a["cycle_time_s"] - b["cycle_time_s"]) < 0.2
+
+
+def test_event_and_cycle_windows_stay_bounded_and_keep_absolute_indices():
+    log = EventLog(window=100)
+    for i in range(1000):
+        log.append(Event(i, "overrun" if i % 2 else "resume", "x"))
+    assert len(log) == 1000 and len(list(log)) == 100
+    assert [e.t_ns for e in log[995:]] == [995, 996, 997, 998, 999]
+    assert log.since(0)[0].t_ns == 900  # older ones live in the record only
+    cycles = CycleWindow(window=50)
+    for i in range(500):
+        cycles.append({"cycle": i, "phase": "production", "success": i % 4 != 0})
+    assert len(cycles) <= 55 and cycles[-1]["cycle"] == 499
+    assert cycles.phases()["production"] == {"cycles": 500, "success_rate": 0.75}

@@ -1,0 +1,100 @@
+"""Start-up checks refuse to move with one line naming the dimension; transitions never jump."""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+import pytest
+
+from cellguard.policy.chunk import ActionChunk
+from cellguard.robot.state import Observation
+from cellguard.runtime import Run
+from cellguard.runtime.startup import StartupRefused, check_startup
+from cellguard.runtime.transitions import Transition
+from cellguard.scenario import parse_scenario
+
+
+class _WithStats:
+    """A policy that offers LeRobot/openpi-style normalisation statistics (q01, q99) per observation key."""
+
+    def __init__(self, policy, stats):
+        self._policy, self._stats, self.source = policy, stats, "test:with-stats"
+
+    def normalisation_stats(self):
+        return self._stats
+
+    def reset(self):
+        self._policy.reset()
+
+    def content_hash(self):
+        return self._policy.content_hash()
+
+    def infer(self, observation):
+        return self._policy.infer(observation)
+
+
+def _obs(q):
+    return Observation(0, np.asarray(q, dtype=np.float64), np.zeros(len(q)), {"part_in_camera": np.array([0.1, 0.2, 1.0])})
+
+
+def _chunk(h=25, dt_ms=20):
+    return ActionChunk(np.zeros((h, 3)), 0, dt_ms * 1_000_000)
+
+
+def test_an_observation_outside_the_statistics_is_refused_naming_the_dimension():
+    stats = {"q": (np.array([-1.0, -1.0, -1.0]), np.array([1.0, 1.0, 1.0]))}
+    policy = _WithStats(None, stats)
+    check_startup(policy, _obs([0.5, 1.1, -0.9]), _chunk(), 10_000_000, 0.2)  # 1.1 is inside the 10 % margin
+    with pytest.raises(StartupRefused, match=r"observation q\[2\] = -1.5 .* not moving"):
+        check_startup(policy, _obs([0.5, 0.0, -1.5]), _chunk(), 10_000_000, 0.2)
+    camera = {"part_in_camera": (np.array([0.0, 0.0, 0.0]), np.array([0.05, 0.5, 2.0]))}
+    with pytest.raises(StartupRefused, match=r"part_in_camera\[0\]"):
+        check_startup(_WithStats(None, camera), _obs([0, 0, 0]), _chunk(), 10_000_000, 0.2)
+
+
+def test_a_latency_the_chunk_cannot_cover_is_refused():
+    check_startup(object(), None, _chunk(h=25, dt_ms=20), 290_000_000, 0.2)  # 290 ms < 500 - 200
+    with pytest.raises(StartupRefused, match="latency 300 ms does not fit the chunk: horizon 500 ms minus blend 200"):
+        check_startup(object(), None, _chunk(h=25, dt_ms=20), 300_000_000, 0.2)
+
+
+def test_a_run_with_an_out_of_distribution_observation_does_not_move():
+    run = Run(parse_scenario({"cell": "arm-pick-place", "acceptance_cycles": 1, "production_cycles": 0}))
+    q0 = run.cell.read().q
+    lo = q0 + 0.5  # the statistics of a robot whose joints sat half a radian away
+    run.policy = _WithStats(run.policy, {"q": (lo, lo + 0.01)})
+    with pytest.raises(StartupRefused, match=r"observation q\[0\]"):
+        run.cycle()
+    assert np.abs(run.cell.read().q - q0).max() < 1e-3  # nothing moved
+
+
+def _limits_ok(profile, setpoints, dt):
+    v = np.diff(setpoints, axis=0) / dt
+    a = np.diff(v, axis=0) / dt
+    return (np.abs(v) <= profile.array("velocity") * 1.001 + 1e-9).all() and \
+        (np.abs(a) <= profile.array("acceleration") * 1.01 + 1e-6).all()
+
+
+def test_a_transition_respects_the_profile_limits_and_ends_on_target():
+    run = Run(parse_scenario({"cell": "arm-pick-place", "acceptance_cycles": 1, "production_cycles": 0}))
+    profile, q0 = run.cell.profile, run.cell.read().q
+    target = q0 + np.array([0.6, -0.3, 0.4, 0.0, 0.5, -0.005])
+    plan = Transition.plan(profile, q0, target, 1_000_000)
+    points = np.array([q0, *plan.setpoints()])
+    assert np.allclose(points[-1], target, atol=1e-9)
+    assert _limits_ok(profile, points, 1e-3)
+    assert Transition.plan(profile, q0, q0 + 0.001, 1_000_000) is None  # already there: no transition
+
+
+def test_a_robot_away_from_the_first_target_is_approached_first_and_the_cycle_still_works():
+    run = Run(parse_scenario({"cell": "arm-pick-place", "seed": 3, "acceptance_cycles": 1, "production_cycles": 0}))
+    cell = run.cell
+    q = cell.q_home + np.array([0.3, 0.2, -0.3, 0.0, 0.0, 0.0])
+    cell.data.qpos[cell.drives.qadr] = q
+    cell.write(q)
+    mujoco.mj_forward(cell.model, cell.data)
+    outcome = run.cycle()
+    kinds = [e.kind for e in run.events]
+    assert kinds[:2] == ["approach_begin", "approach_done"], kinds
+    assert outcome["success"]
+    assert "watchdog_stop" not in kinds
