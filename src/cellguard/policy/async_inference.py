@@ -59,15 +59,24 @@ class PolicyProcess:
         child.close()
 
     def reset(self) -> None:
-        self._conn.send(("reset", None))
+        try:
+            self._conn.send(("reset", None))
+        except OSError:
+            raise RuntimeError(f"policy process ended (exit code {self._process.exitcode})") from None
         self._answer()
 
     def infer(self, observation: Observation) -> ActionChunk:
-        self._conn.send(("infer", observation))
+        try:
+            self._conn.send(("infer", observation))
+        except OSError:
+            raise RuntimeError(f"policy process ended (exit code {self._process.exitcode})") from None
         return self._answer()
 
     def _answer(self):
-        kind, value = self._conn.recv()
+        try:
+            kind, value = self._conn.recv()
+        except (EOFError, OSError):
+            raise RuntimeError(f"policy process ended (exit code {self._process.exitcode})") from None
         if kind == "error":
             raise RuntimeError(value)
         return value
@@ -83,9 +92,15 @@ class PolicyProcess:
 
 
 def _serve_policy(conn, factory) -> None:
-    policy = factory()
+    try:
+        policy, broken = factory(), None
+    except Exception as exc:  # noqa: BLE001 - every request is answered with why the policy is missing
+        policy, broken = None, f"policy could not be built: {type(exc).__name__}: {exc}"
     while True:
         kind, value = conn.recv()
+        if broken is not None and kind != "close":
+            conn.send(("error", broken))
+            continue
         if kind == "close":
             close = getattr(policy, "close", None)
             if callable(close):

@@ -1,0 +1,72 @@
+"""The wall clock paces the loop; the same loop runs a simulated cell on wall time; inference in a process."""
+
+from __future__ import annotations
+
+import time
+from functools import partial
+
+import numpy as np
+from sim_server_util import sway_file
+
+from cellguard.policy.async_inference import AsyncInference
+from cellguard.robot.registry import make_cell
+from cellguard.runtime import Run
+from cellguard.runtime.build import policy_in_process
+from cellguard.runtime.clock import WallClock
+from cellguard.scenario import parse_scenario
+
+
+def test_the_wall_clock_never_wakes_before_a_deadline_and_counts_every_tick():
+    steps = []
+    clock = WallClock(2_000_000, step=lambda: steps.append(time.monotonic_ns()))
+    began = time.monotonic_ns()
+    clock.start()
+    for _ in range(50):
+        clock.advance()
+    assert len(steps) == 50 and clock.timing.ticks == 50
+    assert time.monotonic_ns() - began >= 50 * 2_000_000  # never early: 50 periods at least
+    assert clock.timing.summary()["period_error_us"]["p50"] >= 0.0
+    assert clock.timing.overruns == clock.timing.summary()["overruns"]
+
+
+def test_a_simulated_cell_runs_the_same_loop_on_wall_time(tmp_path):
+    run = Run(parse_scenario({"cell": "arm-pick-place", "policy": f"replay:{sway_file(tmp_path / 's.npz')}",
+                              "acceptance_cycles": 1, "production_cycles": 0,
+                              "cycle": {"source": "time", "seconds": 0.5},
+                              "realtime": {"overrun_budget": 1_000_000}}), realtime=True)
+    began = time.monotonic_ns()
+    outcome = run.cycle()
+    run.close()
+    assert run.clock.realtime and run.clock.timing.ticks >= 500
+    assert time.monotonic_ns() - began >= 0.5e9  # simulated time did not run ahead of the wall
+    assert outcome["cycle_time_s"] >= 0.5
+    assert "timing" in run.summary()
+
+
+def test_inference_in_its_own_process_answers_and_reports_failures():
+    cell = make_cell("arm-pick-place")
+    cell.begin_cycle(0)
+    worker = AsyncInference(None, worker="process", factory=partial(policy_in_process, "scripted", "arm-pick-place", 0))
+    try:
+        worker.submit(cell.observe())
+        result = None
+        deadline = time.monotonic() + 60
+        while result is None and time.monotonic() < deadline:
+            time.sleep(0.01)
+            result = worker.take()
+        assert result is not None and result.error is None
+        assert result.chunk.actions.shape[1] == 6 and np.isfinite(result.chunk.actions).all()
+    finally:
+        worker.close()
+    broken = AsyncInference(None, worker="process", factory=partial(policy_in_process, "replay:/nonexistent.npz",
+                                                                    "arm-pick-place", 0))
+    try:
+        broken.submit(cell.observe())
+        result = None
+        deadline = time.monotonic() + 60
+        while result is None and time.monotonic() < deadline:
+            time.sleep(0.01)
+            result = broken.take()
+        assert result.chunk is None and "policy could not be built" in result.error
+    finally:
+        broken.close()
