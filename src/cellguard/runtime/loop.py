@@ -184,7 +184,9 @@ class Run:
         """
         self._started = True
         chunk = arrival.chunk
-        check_startup(self.policy, self._first_observation, chunk, arrival.latency_ns, self.scenario.guard.blend_s)
+        # Simulated time: the healthy latency; an injected latency fault is an incident to diagnose, not a refusal.
+        latency = arrival.latency_ns if self.clock.realtime else round(NOMINAL_INFERENCE_S * 1e9)
+        check_startup(self.policy, self._first_observation, chunk, latency, self.scenario.guard.blend_s)
         target = np.asarray(chunk.actions[0], dtype=np.float64)
         approach = Transition.plan(self.cell.profile, self.link.state.q, target, self.clock.period_ns)
         if approach is None:
