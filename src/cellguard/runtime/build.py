@@ -34,8 +34,8 @@ def make_inference(run, realtime: bool):
     from cellguard.policy.async_inference import AsyncInference
 
     kind = run.scenario.realtime.inference
-    factory = partial(policy_in_process, run.scenario.policy, run.cell.name, run.scenario.seed) if kind == "process" else None
-    worker = AsyncInference(run.policy, worker=kind, factory=factory)
+    factory = run.policy_factory or partial(policy_in_process, run.scenario.policy, run.cell.name, run.scenario.seed)
+    worker = AsyncInference(run.policy, worker=kind, factory=factory if kind == "process" else None)
     return WorkerInference(worker)
 
 

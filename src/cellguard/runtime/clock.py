@@ -8,6 +8,7 @@ stepped once per period too. Each period's lateness and compute time go to ``Tic
 
 from __future__ import annotations
 
+import sys
 import time
 from collections.abc import Callable
 
@@ -50,7 +51,13 @@ class WallClock:
         self._began = 0
 
     def start(self) -> None:
-        """Align the first deadline one period from now."""
+        """Align the first deadline one period from now.
+
+        A Python thread holding the GIL (a pure-Python policy on the inference thread) keeps the
+        servo thread waiting up to the interpreter's switch interval (5 ms by default); it is
+        lowered to a quarter period so the servo thread gets the GIL back within its period.
+        """
+        sys.setswitchinterval(min(sys.getswitchinterval(), self.period_ns * 0.25e-9))
         self._began = time.monotonic_ns()
         self._deadline = self._began + self.period_ns
 

@@ -46,13 +46,15 @@ STOP_SETTLE_S = 0.3  # a category 2 stop holds the measured position this long b
 class Run:
     """One scenario on one robot (a simulated cell or a bridge); ``cycle()`` runs the next cycle."""
 
-    def __init__(self, scenario: Scenario, realtime: bool = False):
+    def __init__(self, scenario: Scenario, realtime: bool = False, policy_factory: Callable[[], object] | None = None):
         self.scenario = scenario
         self.cell = make_robot(scenario)
         self.simulated = hasattr(self.cell, "step")  # fault injection and simulated inference
         if self.simulated:
             scenario.check_against(self.cell)
-        self.policy = make_policy(scenario.policy, self.cell)
+        # a policy_factory (picklable, for the process worker) replaces the scenario's policy source
+        self.policy_factory = policy_factory
+        self.policy = policy_factory() if policy_factory is not None else make_policy(scenario.policy, self.cell)
         self.guard = build_guard(self.cell, scenario.guard)
         self.events = EventLog()
         self.cycles = CycleWindow()
@@ -290,10 +292,10 @@ class Run:
 
 
 def run_scenario(scenario: Scenario, out: Path, on_cycle: Callable[[dict], None] | None = None,
-                 realtime: bool = False) -> dict:
+                 realtime: bool = False, policy_factory: Callable[[], object] | None = None) -> dict:
     """Run every cycle of ``scenario`` and write ``out/summary.json``; return the summary."""
     out = make_folder(Path(out), "--out")
-    run = Run(scenario, realtime=realtime)
+    run = Run(scenario, realtime=realtime, policy_factory=policy_factory)
     try:
         run.recording = RunRecording.start(out, run)  # RecordError here: nothing runs
         try:

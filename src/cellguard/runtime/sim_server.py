@@ -31,16 +31,20 @@ PULSE_S = 0.05  # the cycle_done input stays high this long [s]
 class SimServer:
     """The server's state: the cell, its socket, the client, the counters."""
 
-    def __init__(self, cell_name: str, port: int, seed: int = 0, delay_ms: float = 0.0, drop_every: int = 0):
+    def __init__(self, cell_name: str, port: int, seed: int = 0, delay_ms: float = 0.0, drop_every: int = 0,
+                 rate_hz: float | None = None):
         self.cell = make_cell(cell_name, seed=seed)
         cell = self.cell
+        # servo rate of the served robot: whole physics steps per period (the physics step is the cell's)
+        self.substeps = 1 if rate_hz is None else max(1, round(1e9 / rate_hz / cell.dt_ns))
+        self.dt_ns = self.substeps * cell.dt_ns
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.bind(("127.0.0.1", port))
         self.sock.setblocking(False)
         self.port = self.sock.getsockname()[1]
         self.delay_ns, self.drop_every = round(delay_ms * 1e6), int(drop_every)
         obs = cell.observe()
-        self.meta = {"cell": cell.name, "seed": seed, "dt_ns": cell.dt_ns, "joints": list(cell.profile.joint_names),
+        self.meta = {"cell": cell.name, "seed": seed, "dt_ns": self.dt_ns, "joints": list(cell.profile.joint_names),
                      "measurements": {k: int(np.asarray(v).size) for k, v in obs.measurements.items()},
                      "q_home": np.asarray(getattr(cell, "q_home", cell.read().q)).tolist(), "inputs": ["cycle_done"]}
         self.layout = Layout(cell.profile.dof, self.meta["measurements"])
@@ -61,7 +65,8 @@ class SimServer:
             self.counters["cycles"] += 1
             cell.begin_cycle(self._cycle)
             self._pulse_until = now + round(PULSE_S * 1e9)
-        cell.step()
+        for _ in range(self.substeps):
+            cell.step()
         if self.client is None:
             return
         state = replace(cell.read(), t_ns=time.monotonic_ns())
@@ -118,10 +123,10 @@ class SimServer:
 
 
 def serve(cell_name: str, port: int, seed: int = 0, delay_ms: float = 0.0, drop_every: int = 0,
-          duration_s: float | None = None) -> None:
+          duration_s: float | None = None, rate_hz: float | None = None) -> None:
     """Serve ``cell_name`` on udp://127.0.0.1:``port`` until killed (or for ``duration_s``)."""
-    server = SimServer(cell_name, port, seed, delay_ms, drop_every)
-    clock = WallClock(server.cell.dt_ns, step=server.tick)
+    server = SimServer(cell_name, port, seed, delay_ms, drop_every, rate_hz)
+    clock = WallClock(server.dt_ns, step=server.tick)
     sys.stdout.write(f"sim-server {cell_name} on udp://127.0.0.1:{server.port}\n")
     sys.stdout.flush()
     end = None if duration_s is None else time.monotonic_ns() + round(duration_s * 1e9)

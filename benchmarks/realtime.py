@@ -1,0 +1,214 @@
+"""The real-time loop against ``cellguard sim-server``: period error, overruns, inference latency.
+
+For each servo rate (1 kHz, 200 Hz), policy and inference worker (thread, process), a sim-server
+is started in its own process at that rate and one scenario runs for ``--seconds`` of wall time:
+
+- ``onnx100``: an ONNX model whose heavy branch (a chain of 256x256 matmuls on an input-dependent
+  matrix) is sized at start to take about 100 ms per call; its chunk sways the shoulder.
+- ``python``: a pure-Python CPU-bound policy (about 50 ms of interpreter work per call, holding
+  the GIL) with the same chunk.
+
+Prints one JSON document: the host's load and reference costs measured in the same run (one
+``mj_step``, one ruckig update) and per run: period error p50/p99/max [us], compute time,
+overruns, ticks two or more periods late, inference latency [ms], packets lost, link events,
+and the recorder queue high-water mark when the recorder offers one.
+
+Usage: ``python benchmarks/realtime.py --seconds 300`` (the figure), ``--seconds 20`` (CI).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from collections import Counter
+from functools import partial
+from pathlib import Path
+
+import numpy as np
+
+from cellguard.policy.chunk import ActionChunk
+from cellguard.runtime import run_scenario
+from cellguard.scenario import parse_scenario
+
+HOME = np.array([0.0, -0.3, 1.9, 1.55, 0.0, 0.025])
+JOINTS = "shoulder_pan,shoulder_lift,elbow,wrist_flex,wrist_roll,gripper"
+HORIZON, DT_S = 25, 0.02
+
+
+def sway(t_s: np.ndarray) -> np.ndarray:
+    """Chunk (H, 6) swaying the shoulder around home from episode time ``t_s``."""
+    steps = t_s + np.arange(HORIZON) * DT_S
+    actions = np.broadcast_to(HOME, (HORIZON, 6)).copy()
+    actions[:, 0] = 0.1 * np.sin(np.pi * steps)
+    return actions
+
+
+class PythonPolicy:
+    """Pure-Python work of ``work`` loop iterations per call (holds the GIL), then a sway chunk."""
+
+    source = "bench:python"
+
+    def __init__(self, work: int):
+        self.work = work
+        self.reset()
+
+    def reset(self) -> None:
+        self._t0 = None
+
+    def content_hash(self) -> str:
+        return f"python-{self.work}"
+
+    def infer(self, observation) -> ActionChunk:
+        acc = 0
+        for i in range(self.work):
+            acc = (acc + i * i) % 7919
+        if self._t0 is None:
+            self._t0 = observation.t_ns
+        return ActionChunk(sway((observation.t_ns - self._t0) * 1e-9), observation.t_ns, round(DT_S * 1e9))
+
+
+def python_work_for(ms: float) -> int:
+    n = 200_000
+    t = time.perf_counter()
+    PythonPolicy(n).infer(type("O", (), {"t_ns": 0})())
+    return max(1000, int(n * ms * 1e-3 / (time.perf_counter() - t)))
+
+
+def onnx_model(path: Path, target_ms: float) -> Path:
+    """An ONNX policy taking about ``target_ms`` per call on this host (layers sized by a trial run)."""
+    import onnx
+    import onnxruntime as ort
+    from onnx import TensorProto, helper, numpy_helper
+
+    def build(layers: int) -> bytes:
+        n = 256
+        rng = np.random.default_rng(0)
+        inits = [numpy_helper.from_array(rng.normal(0, 1 / 16, (6, n)).astype(np.float32), "P"),
+                 numpy_helper.from_array((rng.normal(0, 1 / 16, (n, n))).astype(np.float32), "W"),
+                 numpy_helper.from_array(np.zeros(1, np.float32), "zero"),
+                 numpy_helper.from_array((np.arange(HORIZON) * DT_S).astype(np.float32)[None], "steps"),
+                 numpy_helper.from_array(np.float32([np.pi]), "pi"), numpy_helper.from_array(np.float32([0.1]), "amp"),
+                 numpy_helper.from_array(np.broadcast_to(HOME, (HORIZON, 6)).astype(np.float32), "home"),
+                 numpy_helper.from_array(np.eye(6, dtype=np.float32)[:1], "e0"),
+                 numpy_helper.from_array(np.array([1, HORIZON, 6], np.int64), "shape"),
+                 numpy_helper.from_array(np.array([HORIZON, 1], np.int64), "col")]
+        nodes = [helper.make_node("MatMul", ["state", "P"], ["x"]), helper.make_node("Transpose", ["x"], ["xt"]),
+                 helper.make_node("MatMul", ["xt", "x"], ["y0"])]
+        for k in range(layers):
+            nodes += [helper.make_node("MatMul", [f"y{k}", "W"], [f"m{k}"]), helper.make_node("Tanh", [f"m{k}"], [f"y{k + 1}"])]
+        nodes += [helper.make_node("ReduceSum", [f"y{layers}"], ["s"], keepdims=0),
+                  helper.make_node("Mul", ["s", "zero"], ["s0"]),
+                  helper.make_node("Add", ["time_s", "steps"], ["tt"]), helper.make_node("Mul", ["tt", "pi"], ["ph"]),
+                  helper.make_node("Sin", ["ph"], ["sn"]), helper.make_node("Mul", ["sn", "amp"], ["sw"]),
+                  helper.make_node("Reshape", ["sw", "col"], ["swc"]), helper.make_node("MatMul", ["swc", "e0"], ["d"]),
+                  helper.make_node("Add", ["home", "d"], ["a0"]), helper.make_node("Add", ["a0", "s0"], ["a1"]),
+                  helper.make_node("Reshape", ["a1", "shape"], ["actions"])]
+        graph = helper.make_graph(nodes, "bench", [helper.make_tensor_value_info("state", TensorProto.FLOAT, [1, 6]),
+                                                   helper.make_tensor_value_info("time_s", TensorProto.FLOAT, [1, 1])],
+                                  [helper.make_tensor_value_info("actions", TensorProto.FLOAT, [1, HORIZON, 6])], inits)
+        model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
+        model.ir_version = 8
+        for key, value in (("cellguard.action_names", JOINTS), ("cellguard.dt_s", str(DT_S))):
+            entry = model.metadata_props.add()
+            entry.key, entry.value = key, value
+        onnx.checker.check_model(model)
+        return model.SerializeToString()
+
+    def per_call_ms(data: bytes) -> float:
+        options = ort.SessionOptions()
+        options.intra_op_num_threads = options.inter_op_num_threads = 1
+        session = ort.InferenceSession(data, options, providers=["CPUExecutionProvider"])
+        feed = {"state": np.ones((1, 6), np.float32), "time_s": np.zeros((1, 1), np.float32)}
+        session.run(None, feed)
+        t = time.perf_counter()
+        for _ in range(3):
+            session.run(None, feed)
+        return (time.perf_counter() - t) / 3 * 1e3
+
+    trial = per_call_ms(build(8)) / 8
+    path.write_bytes(build(max(1, round(target_ms / trial))))
+    return path
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def one_run(rate_hz: float, policy: str, worker: str, seconds: float, onnx_path: Path, work: int, out: Path) -> dict:
+    port = free_port()
+    server = subprocess.Popen([sys.executable, "-c", "from cellguard.cli import app; app()", "sim-server",
+                               "arm-pick-place", "--port", str(port), "--rate-hz", str(rate_hz)],
+                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                              env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    try:
+        server.stdout.readline()
+        spec = {"cell": "arm-pick-place", "robot": f"sim-server:udp://127.0.0.1:{port}",
+                "policy": f"onnx:{onnx_path}" if policy == "onnx100" else "scripted",
+                "acceptance_cycles": 1, "production_cycles": 0, "cycle": {"source": "time", "seconds": seconds},
+                "realtime": {"inference": worker, "overrun_budget": 1_000_000, "stale_s": 1.0, "read_timeout_s": 0.5,
+                             "drop_budget": 1_000_000}}
+        factory = partial(PythonPolicy, work) if policy == "python" else None
+        summary = run_scenario(parse_scenario(spec), out, policy_factory=factory)
+    finally:
+        server.kill()
+        server.wait()
+    cycle = summary["cycles"][0] if summary["cycles"] else {}
+    events = Counter(e["kind"] for e in summary["events"])
+    return {"rate_hz": rate_hz, "policy": policy, "worker": worker, "seconds": seconds,
+            **summary["timing"], "inference_ms": cycle.get("inference"), "events": dict(events),
+            "stopped": summary.get("stopped"), "recorder_queue_high_water": summary.get("recorder_queue_high_water")}
+
+
+def reference_costs() -> dict:
+    """One mj_step of the arm cell and one ruckig update (7 DoF, full recompute) [us], measured now."""
+    import mujoco
+    import ruckig
+
+    from cellguard.robot.registry import make_cell
+
+    cell = make_cell("arm-pick-place")
+    t = time.perf_counter()
+    for _ in range(2000):
+        mujoco.mj_step(cell.model, cell.data)
+    step_us = (time.perf_counter() - t) / 2000 * 1e6
+    otg, inp, out = ruckig.Ruckig(7, 0.001), ruckig.InputParameter(7), ruckig.OutputParameter(7)
+    inp.max_velocity, inp.max_acceleration, inp.max_jerk = [1.0] * 7, [5.0] * 7, [100.0] * 7
+    t = time.perf_counter()
+    for k in range(2000):
+        inp.target_position = [0.1 * ((k % 7) + 1)] * 7
+        otg.update(inp, out)
+    return {"mj_step_us": round(step_us, 2), "ruckig_update_us": round((time.perf_counter() - t) / 2000 * 1e6, 2)}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seconds", type=float, default=20.0, help="wall time per run (300 for the real figure)")
+    parser.add_argument("--rates", default="1000,200", help="servo rates [Hz], comma-separated")
+    parser.add_argument("--policies", default="onnx100,python")
+    parser.add_argument("--workers", default="thread,process")
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        onnx_path = onnx_model(tmp / "onnx100.onnx", 100.0)
+        work = python_work_for(50.0)
+        runs = []
+        for rate in (float(r) for r in args.rates.split(",")):
+            for policy in args.policies.split(","):
+                for worker in args.workers.split(","):
+                    runs.append(one_run(rate, policy, worker, args.seconds, onnx_path, work,
+                                        tmp / f"{rate:.0f}-{policy}-{worker}"))
+    load = os.getloadavg()
+    print(json.dumps({"host": {"cpus": os.cpu_count(), "load_avg_1_5_15": [round(x, 2) for x in load]},
+                      "reference": reference_costs(), "runs": runs}, indent=1))
+
+
+if __name__ == "__main__":
+    main()
