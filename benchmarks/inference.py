@@ -8,6 +8,11 @@ A new observation is sent when the steps left fall to half the horizon, in both 
   its last setpoint: each is a stall (no fresh reference).
 - async: ``AsyncInference`` runs ``infer`` on its own thread; the loop never waits. A stall is a
   tick whose reference has run past the end of the newest chunk.
+- async-process: the same, with the policy in its own process (``worker="process"``).
+
+With ``--busy`` the policy spends its latency in pure-Python work that holds the GIL instead of
+sleeping: the thread worker then competes with the servo loop for the interpreter, the process
+worker does not (compare ``late_ticks``).
 
 Stalls are counted from the first chunk on: before it the cell has not started moving.
 
@@ -19,6 +24,7 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from functools import partial
 
 import numpy as np
 
@@ -35,8 +41,8 @@ class SlowPolicy:
 
     source = "scripted+sleep"
 
-    def __init__(self, policy, latency_s: float):
-        self.policy, self.latency_s = policy, latency_s
+    def __init__(self, policy, latency_s: float, busy: bool = False):
+        self.policy, self.latency_s, self.busy = policy, latency_s, busy
 
     def reset(self) -> None:
         self.policy.reset()
@@ -45,20 +51,36 @@ class SlowPolicy:
         return self.policy.content_hash()
 
     def infer(self, observation):
-        time.sleep(self.latency_s)
+        if self.busy:
+            end, acc = time.perf_counter() + self.latency_s, 0
+            while time.perf_counter() < end:
+                for i in range(1000):
+                    acc = (acc + i * i) % 7919
+        else:
+            time.sleep(self.latency_s)
         return self.policy.infer(observation)
+
+
+def slow_policy(latency_s: float, horizon: int, busy: bool, calibration: dict) -> SlowPolicy:
+    """The benchmark's policy, built where it runs (this process or the inference process)."""
+    return SlowPolicy(ScriptedArmPolicy(horizon=horizon, calibration=calibration), latency_s, busy)
 
 
 def _steps_left(step_times: np.ndarray, t_ns: int) -> int:
     return int(np.count_nonzero(step_times > t_ns))
 
 
-def run(mode: str, seconds: float, latency_s: float, horizon: int) -> dict:
+def run(mode: str, seconds: float, latency_s: float, horizon: int, busy: bool = False) -> dict:
     cell = ArmPickPlace(seed=0)
     cell.begin_cycle(0)
-    policy = SlowPolicy(ScriptedArmPolicy(horizon=horizon, calibration=cell.context()), latency_s)
+    factory = partial(slow_policy, latency_s, horizon, busy, cell.context())
+    policy = factory()
     executor = Executor(cell.profile, cell.read().q, cell.dt_ns)
-    worker = AsyncInference(policy, THRESHOLD) if mode == "async" else None
+    worker = None
+    if mode.startswith("async"):
+        worker = AsyncInference(policy, THRESHOLD, worker="process" if mode == "async-process" else "thread",
+                                factory=factory)
+        worker.warm_up(cell.observe())
     dt, n_ticks = cell.dt_ns, round(seconds * 1e9 / cell.dt_ns)
     step_times = np.zeros(0, dtype=np.int64)
     latencies, depths, stalls, late, dropped, sent = [], [], 0, 0, 0, cell.read().q
@@ -117,9 +139,12 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=5.0, help="wall time per mode")
     parser.add_argument("--latency-ms", type=float, default=100.0, help="policy time per call")
     parser.add_argument("--horizon", type=int, default=50, help="steps of 20 ms per chunk")
+    parser.add_argument("--busy", action="store_true", help="pure-Python work instead of a sleep (holds the GIL)")
     args = parser.parse_args()
-    results = [run(mode, args.seconds, args.latency_ms * 1e-3, args.horizon) for mode in ("sync", "async")]
-    print(json.dumps({"benchmark": "inference", "policy_latency_ms": args.latency_ms, "horizon": args.horizon,
+    results = [run(mode, args.seconds, args.latency_ms * 1e-3, args.horizon, args.busy)
+               for mode in ("sync", "async", "async-process")]
+    print(json.dumps({"benchmark": "inference", "policy_latency_ms": args.latency_ms, "busy": args.busy,
+                      "horizon": args.horizon,
                       "step_ms": 20, "threshold": THRESHOLD, "servo_period_ms": 1, "results": results}, indent=1))
 
 
