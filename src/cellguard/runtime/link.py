@@ -22,7 +22,8 @@ class RobotLink:
     def __init__(self, robot, events: list, stop_category: int, stale_ns: int | None = None,
                  drop_budget: int | None = None):
         self.robot, self.events, self.category = robot, events, int(stop_category)
-        self.stale_ns, self.drop_budget = stale_ns, drop_budget
+        self.stale_ns = stale_ns
+        self.drop_budget = drop_budget if hasattr(robot, "dropped") else None  # only a bridge counts lost packets
         self.stop: int | None = None
         self.lost = False  # no state at all any more: the loop cannot command the robot
         self.refused = 0  # non-finite setpoints never sent
@@ -44,7 +45,7 @@ class RobotLink:
         if self.stale_ns is not None and t_ns - state.t_ns > self.stale_ns:
             self._fault(t_ns, "robot_state_stale", f"state stamp {(t_ns - state.t_ns) * 1e-6:.1f} ms old "
                         f"(limit {self.stale_ns * 1e-6:.0f} ms)")
-        if self.drop_budget is not None and getattr(self.robot, "dropped", 0) > self.drop_budget:
+        if self.drop_budget is not None and self.robot.dropped > self.drop_budget:
             self._fault(t_ns, "robot_packets_dropped", f"{self.robot.dropped} packets lost "
                         f"(budget {self.drop_budget})")
         self.state = state
@@ -54,7 +55,7 @@ class RobotLink:
 
     def write(self, t_ns: int, setpoint: np.ndarray) -> np.ndarray:
         """Send ``setpoint`` if every value is finite, else the last finite one; return what was sent."""
-        if not math.isfinite(float(np.sum(setpoint))):
+        if not math.isfinite(setpoint.dot(setpoint)):  # NaN or inf anywhere (or an absurd 1e154) -> not finite
             self.refused += 1
             self._event(t_ns, "setpoint_not_finite", "a non-finite setpoint was not sent; the last one is held")
             setpoint = self._last_sent
