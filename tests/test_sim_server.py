@@ -101,3 +101,21 @@ def test_a_nan_chunk_never_reaches_the_wire(server, tmp_path):
     assert "chunk_rejected" in kinds  # the executor refused the NaN chunks
     assert "setpoint_not_finite" in kinds
     assert before["commands"] > 100 and after["nonfinite_commands"] == 0
+
+
+def test_a_bridge_that_does_not_answer_is_one_line_and_exit_2(tmp_path):
+    from typer.testing import CliRunner
+
+    from cellguard.cli import app
+    from sim_server_util import free_port
+
+    path = tmp_path / "s.yaml"
+    path.write_text(f"cell: arm-pick-place\nrobot: sim-server:udp://127.0.0.1:{free_port()}\n"
+                    "cycle: {source: time, seconds: 1}\n")
+    result = CliRunner().invoke(app, ["run", str(path), "--out", str(tmp_path / "out")])
+    assert result.exit_code == 2
+    assert "does not answer" in result.output and "Traceback" not in result.output
+    bad = tmp_path / "b.yaml"
+    bad.write_text("cell: arm-pick-place\nrobot: sim-server:udp://10.0.0.5:9000\n")
+    result = CliRunner().invoke(app, ["run", str(bad), "--out", str(tmp_path / "out2")])
+    assert result.exit_code == 2 and "loopback" in result.output

@@ -37,8 +37,9 @@ def _run(scenario: Scenario, out: Path, quiet: bool, realtime: bool = False) -> 
 
 def _print_summary(summary: dict, out: Path, as_json: bool) -> None:
     if as_json:
+        extra = {k: summary[k] for k in ("timing", "stopped") if k in summary}
         sys.stdout.write(json.dumps({"out": str(out), "phases": summary["phases"],
-                                     "events": len(summary["events"])}) + "\n")
+                                     "events": len(summary["events"]), **extra}) + "\n")
         return
     console = Console()
     for phase, stats in summary["phases"].items():

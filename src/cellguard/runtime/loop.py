@@ -23,7 +23,7 @@ from cellguard.control.events import Event
 from cellguard.control.settings import build_guard
 from cellguard.diagnose.cycle_buffer import CycleBuffer
 from cellguard.diagnose.features import cycle_features
-from cellguard.errors import RecordError
+from cellguard.errors import RecordError, ScenarioError
 from cellguard.output import make_folder
 from cellguard.policy.chunk import ActionChunk
 from cellguard.policy.registry import make_policy
@@ -52,6 +52,8 @@ class Run:
         self.simulated = hasattr(self.cell, "step")  # fault injection and simulated inference
         if self.simulated:
             scenario.check_against(self.cell)
+        elif scenario.faults:
+            raise ScenarioError(f"faults: injected into simulated cells only; robot {scenario.robot!r} is a bridge")
         # a policy_factory (picklable, for the process worker) replaces the scenario's policy source
         self.policy_factory = policy_factory
         self.policy = policy_factory() if policy_factory is not None else make_policy(scenario.policy, self.cell)
@@ -96,7 +98,9 @@ class Run:
         rec = self.recording
         if rec is not None:
             rec.begin_cycle(index, self._phase(index), start)
-        timeout = start + round(CYCLE_TIMEOUT_S * 1e9)
+        cycle = self.scenario.cycle
+        limit_s = cycle.seconds + CYCLE_TIMEOUT_S if cycle.source == "time" else CYCLE_TIMEOUT_S
+        timeout = start + round(limit_s * 1e9)
         inference.begin_cycle(start)
         first_event, latencies, wall_ns = events.total, [], []
         ticks = self.ticks
