@@ -37,12 +37,12 @@ LOOPBACK = ("127.0.0.1", "localhost")
 
 def parse_address(argument: str) -> tuple[str, int]:
     """``udp://127.0.0.1:PORT`` (loopback only) -> (host, port)."""
-    url = urlsplit(argument if "://" in argument else f"udp://{argument}")
     try:
-        port = url.port
+        url = urlsplit(argument if "://" in argument else f"udp://{argument}")
+        scheme, host, port = url.scheme, url.hostname, url.port
     except ValueError:
-        port = None
-    if url.scheme != "udp" or url.hostname not in LOOPBACK or not port:
+        scheme = host = port = None
+    if scheme != "udp" or host not in LOOPBACK or not port:
         raise ScenarioError(f"robot: sim-server address must be udp://127.0.0.1:PORT (loopback, port 1-65535), "
                             f"got {argument!r}")
     return "127.0.0.1", port
