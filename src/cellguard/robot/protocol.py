@@ -1,4 +1,4 @@
-"""The two calls a robot offers cellguard, and the extra calls a simulated cell offers the runner."""
+"""The two calls a robot offers cellguard, the extra calls a simulated cell offers the tick loop, and link errors."""
 
 from __future__ import annotations
 

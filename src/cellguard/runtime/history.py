@@ -60,12 +60,6 @@ class EventLog:
     def has(self, kind: str) -> bool:
         return any(e.kind == kind for e in self._items)
 
-    def last_stop_reason(self) -> str:
-        for e in reversed(self._items):
-            if e.category is not None:
-                return f"{e.kind}: {e.reason}"
-        return "unknown"
-
 
 class CycleWindow(list):
     """The newest cycle outcomes (between ``window`` and 1.1 x ``window`` of them), and per-phase

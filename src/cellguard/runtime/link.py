@@ -25,6 +25,7 @@ class RobotLink:
         self.stale_ns = stale_ns
         self.drop_budget = drop_budget if hasattr(robot, "dropped") else None  # only a bridge counts lost packets
         self.stop: int | None = None
+        self.reason: str | None = None  # the first fault, "kind: why"
         self.lost = False  # no state at all any more: the loop cannot command the robot
         self.refused = 0  # non-finite setpoints never sent
         self.state = None  # the last good state, once read
@@ -36,17 +37,17 @@ class RobotLink:
         try:
             state = self.robot.read()
         except RobotLinkError as exc:
-            self._fault(t_ns, exc.kind, str(exc))
+            self.fault(t_ns, exc.kind, str(exc))
             self.lost = self.lost or exc.lost
             return self.state
         except Exception as exc:  # noqa: BLE001 - a bridge bug must stop the robot, not kill the loop
-            self._fault(t_ns, "robot_read_failed", f"{type(exc).__name__}: {exc}")
+            self.fault(t_ns, "robot_read_failed", f"{type(exc).__name__}: {exc}")
             return self.state
         if self.stale_ns is not None and t_ns - state.t_ns > self.stale_ns:
-            self._fault(t_ns, "robot_state_stale", f"state stamp {(t_ns - state.t_ns) * 1e-6:.1f} ms old "
+            self.fault(t_ns, "robot_state_stale", f"state stamp {(t_ns - state.t_ns) * 1e-6:.1f} ms old "
                         f"(limit {self.stale_ns * 1e-6:.0f} ms)")
         if self.drop_budget is not None and self.robot.dropped > self.drop_budget:
-            self._fault(t_ns, "robot_packets_dropped", f"{self.robot.dropped} packets lost "
+            self.fault(t_ns, "robot_packets_dropped", f"{self.robot.dropped} packets lost "
                         f"(budget {self.drop_budget})")
         self.state = state
         if self._last_sent is None:
@@ -62,17 +63,19 @@ class RobotLink:
         try:
             sent = self.robot.write(setpoint)
         except RobotLinkError as exc:
-            self._fault(t_ns, exc.kind, str(exc))
+            self.fault(t_ns, exc.kind, str(exc))
             self.lost = self.lost or exc.lost
             return self._last_sent
         except Exception as exc:  # noqa: BLE001
-            self._fault(t_ns, "robot_write_failed", f"{type(exc).__name__}: {exc}")
+            self.fault(t_ns, "robot_write_failed", f"{type(exc).__name__}: {exc}")
             return self._last_sent
         self._last_sent = setpoint
         return sent
 
-    def _fault(self, t_ns: int, kind: str, reason: str) -> None:
+    def fault(self, t_ns: int, kind: str, reason: str) -> None:
+        """A link fault: one event of its kind, and the stop category asked from the guard from now on."""
         if self._event(t_ns, kind, reason, self.category):
+            self.reason = self.reason or f"{kind}: {reason}"
             self.stop = self.category if self.stop is None else min(self.stop, self.category)
 
     def _event(self, t_ns: int, kind: str, reason: str, category: int | None = None) -> bool:

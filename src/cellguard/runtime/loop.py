@@ -117,7 +117,6 @@ class Run:
                 self.policy.reset()
             clock.start()
             self._armed_at = start  # the watchdog runs from the start, not from the first chunk
-        t = start
         while True:
             t = clock.now()
             guard = self.guard
@@ -165,7 +164,7 @@ class Run:
             if rec is not None and not rec.tick(guard.reference, sent, state):
                 break
             if link.stop is not None and (link.lost or guard.envelope.tracker.stopped):
-                self.stopped = self.stopped or f"robot link: {events.last_stop_reason()}"
+                self.stopped = self.stopped or f"robot link: {link.reason}"
                 break
             if self.source.finished(state) or clock.now() >= timeout:
                 break
@@ -208,7 +207,7 @@ class Run:
     def retreat(self) -> None:
         """At the end of the run (or after a stop with power kept): back to the home pose."""
         home = getattr(self.cell, "q_home", None)
-        if home is None or not self.guard.power or self.link.lost:
+        if home is None or not self.guard.power or self.link.stop is not None:  # a link fault: no more motion
             return
         plan = Transition.plan(self.cell.profile, self.link.state.q, np.asarray(home), self.clock.period_ns)
         if plan is not None:
@@ -253,7 +252,7 @@ class Run:
             self.events.append(Event(t_ns, "overrun", f"tick {timing.ticks} woke {timing.max_late_ns * 1e-3:.0f} us "
                                      f"late at most; {timing.overruns} overruns", ))
         if timing.overruns > budget and self.link.stop is None:
-            self.link._fault(t_ns, "overrun_budget", f"{timing.overruns} overruns, budget {budget}")
+            self.link.fault(t_ns, "overrun_budget", f"{timing.overruns} overruns, budget {budget}")
 
     def _stop_unrecorded(self, why: str) -> None:
         """Category 2 stop when the record cannot be written: hold the measured position, power kept."""
