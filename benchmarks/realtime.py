@@ -32,13 +32,14 @@ from pathlib import Path
 
 import numpy as np
 
+from cellguard.errors import CellguardError
 from cellguard.policy.chunk import ActionChunk
 from cellguard.runtime import run_scenario
 from cellguard.scenario import parse_scenario
 
 HOME = np.array([0.0, -0.3, 1.9, 1.55, 0.0, 0.025])
 JOINTS = "shoulder_pan,shoulder_lift,elbow,wrist_flex,wrist_roll,gripper"
-HORIZON, DT_S = 25, 0.02
+HORIZON, DT_S = 50, 0.02  # a 1 s chunk, like ACT / pi0 chunks of 50
 
 
 def sway(t_s: np.ndarray) -> np.ndarray:
@@ -156,7 +157,10 @@ def one_run(rate_hz: float, policy: str, worker: str, seconds: float, onnx_path:
                 "realtime": {"inference": worker, "overrun_budget": 1_000_000, "stale_s": 1.0, "read_timeout_s": 0.5,
                              "drop_budget": 1_000_000}}
         factory = partial(PythonPolicy, work) if policy == "python" else None
-        summary = run_scenario(parse_scenario(spec), out, policy_factory=factory)
+        try:
+            summary = run_scenario(parse_scenario(spec), out, policy_factory=factory)
+        except CellguardError as exc:  # e.g. a start-up check refused: reported, the other runs go on
+            return {"rate_hz": rate_hz, "policy": policy, "worker": worker, "refused": str(exc)}
     finally:
         server.kill()
         server.wait()
@@ -164,7 +168,7 @@ def one_run(rate_hz: float, policy: str, worker: str, seconds: float, onnx_path:
     events = Counter(e["kind"] for e in summary["events"])
     return {"rate_hz": rate_hz, "policy": policy, "worker": worker, "seconds": seconds,
             **summary["timing"], "inference_ms": cycle.get("inference"), "events": dict(events),
-            "stopped": summary.get("stopped"), "recorder_queue_high_water": summary.get("recorder_queue_high_water")}
+            "stopped": summary.get("stopped")}
 
 
 def reference_costs() -> dict:

@@ -53,3 +53,20 @@ def test_the_watchdog_arms_at_start_when_no_chunk_ever_comes():
     assert "protective_stop" in [e.kind for e in run.events]
     n = run.ticks.n
     assert abs(run.ticks.qd[n - 1]).max() < 0.05  # nothing moved on
+
+
+def test_the_loop_closes_the_policy_at_the_end_of_the_run(tmp_path):
+    from cellguard.policy.registry import make_policy
+    from cellguard.robot.registry import make_cell
+    from cellguard.runtime import run_scenario
+
+    closed = []
+
+    class Closing(_FailsAfter):
+        def close(self):
+            closed.append(True)
+
+    sc = parse_scenario({"cell": "arm-pick-place", "acceptance_cycles": 1, "production_cycles": 0})
+    run_scenario(sc, tmp_path / "out",
+                 policy_factory=lambda: Closing(make_policy("scripted", make_cell("arm-pick-place")), calls=10**6))
+    assert closed == [True]

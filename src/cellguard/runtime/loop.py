@@ -290,7 +290,9 @@ class Run:
         }
         if self.clock.realtime:
             summary["timing"] = {**self.clock.timing.summary(), "setpoints_refused": self.link.refused,
-                                 "packets_dropped": getattr(self.cell, "dropped", 0)}
+                                 "packets_dropped": getattr(self.cell, "dropped", 0),
+                                 # the recorder's bounded queue off the servo thread, when it has one
+                                 "recorder_queue_high_water": getattr(self.recording, "queue_high_water", None)}
         return summary
 
 
