@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cellguard.control.events import Event
+from cellguard.control.events import Event, EventKind
 from cellguard.control.settings import build_guard
 from cellguard.diagnose.cycle_buffer import CycleBuffer
 from cellguard.diagnose.features import cycle_features
@@ -72,7 +72,7 @@ class Run:
         if not guard.power:  # a category 0/1 stop in the last cycle: the operator resets the cell
             cell.set_power(True)
             guard.reset(cell.read().q)
-            self.events.append(Event(start, "reset", "operator reset after a stop with power removed"))
+            self.events.append(Event(start, EventKind.RESET, "operator reset after a stop with power removed"))
         state = cell.read()
         while True:
             t = cell.t_ns
@@ -87,7 +87,7 @@ class Run:
                 try:
                     chunk = self.policy.infer(observation := cell.observe())
                 except Exception as exc:  # noqa: BLE001 - a failing policy is an event; the watchdog stops the cell
-                    self.events.append(Event(t, "inference_failed", f"{type(exc).__name__}: {exc}"))
+                    self.events.append(Event(t, EventKind.INFERENCE_FAILED, f"{type(exc).__name__}: {exc}"))
                     chunk = None
                 wall_ns.append(time.perf_counter_ns() - began)
                 if chunk is not None:
@@ -127,7 +127,7 @@ class Run:
         self.cell.write(self.cell.read().q)
         for _ in range(round(STOP_SETTLE_S * 1e9 / self.cell.dt_ns)):
             self.cell.step()
-        self.events.append(Event(t, "record_failed", f"an unrecorded run is not allowed: {why}", category=2))
+        self.events.append(Event(t, EventKind.RECORD_FAILED, f"an unrecorded run is not allowed: {why}", category=2))
         self.stopped = why
 
     def _phase(self, index: int) -> str:
