@@ -13,7 +13,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from cellguard.control.envelope import Envelope, EnvelopeConfig
+from cellguard.control.config import GuardConfig
+from cellguard.control.envelope import Envelope
 from cellguard.control.executor import Executor
 from cellguard.policy.chunk import ActionChunk
 from cellguard.robot.protocol import SafetyInputs
@@ -68,7 +69,7 @@ def _chunk(kind: str, t_ns: int, seed: int) -> ActionChunk | None:
 
 def _run(stream, stop_at: int | None = None, category: int = 2, ticks: int = 1500):
     executor = Executor(PROFILE, Q0, DT_NS)
-    envelope = Envelope(PROFILE, Q0, DT_NS, EnvelopeConfig(watchdog_s=0.2))
+    envelope = Envelope(PROFILE, Q0, DT_NS, GuardConfig(watchdog_s=0.2))
     schedule, t = {}, 0
     for gap, kind, seed in stream:
         t += gap * DT_NS

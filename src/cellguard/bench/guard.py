@@ -27,7 +27,7 @@ import time
 import numpy as np
 import ruckig
 
-from cellguard.control.envelope import EnvelopeConfig
+from cellguard.control.config import GuardConfig
 from cellguard.control.guard import Guard
 from cellguard.policy.chunk import ActionChunk
 from cellguard.policy.scripted_arm import ScriptedArmPolicy
@@ -61,7 +61,7 @@ def _chunks(program, duration_s: float, yank_at_s: float | None):
 def _reference_and_cellguard(cell, chunks, ticks):
     """Executor reference and cellguard's setpoints per tick, and the per-tick cost [ns]."""
     profile, q0 = cell.profile, cell.q_home
-    guard = Guard(profile, q0, DT_NS, EnvelopeConfig(box=cell.workspace_box), tool=cell.tool_point)
+    guard = Guard(profile, q0, DT_NS, GuardConfig(box=cell.workspace_box), tool=cell.tool_point)
     ref, sp, cost = np.empty((ticks, profile.dof)), np.empty((ticks, profile.dof)), np.empty(ticks, dtype=np.int64)
     arrivals = {}
     for arrive, chunk in chunks:
