@@ -117,6 +117,10 @@ class Envelope:
                     self._begin_stop(t_ns, r, events)
         return setpoint, events
 
+    def to_dict(self) -> dict:
+        """The settings in force, for the record's context (JSON types)."""
+        return self.config.model_dump(mode="json")
+
     def reset(self, q: np.ndarray) -> None:
         """Operator reset after a stop: power back on, standstill at ``q`` (measured)."""
         self.tracker.reset(q)
