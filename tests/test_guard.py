@@ -57,3 +57,26 @@ def test_event_kinds_keep_their_record_strings():
     assert ROUTINE_EVENTS == {"chunk_steps_dropped"}
     assert EventKind.REFERENCE_INVALID.category == 2 and EventKind.PROTECTIVE_STOP.category is None
     assert all(EventKind(f"{k}_cleared") for k in (EventKind.REDUCED_SPEED_INPUT, EventKind.UNCERTAINTY_GATE))
+
+
+def test_kinematics_from_the_mjcf_agrees_with_the_cell_and_names_what_exists():
+    from cellguard.embodiment import Kinematics
+    from cellguard.errors import UnknownNameError
+    from cellguard.robot.arm_cell import ASSETS
+
+    kinematics = Kinematics.from_mjcf(ASSETS / "arm.xml", "tcp", PROFILE.joint_names)
+    rng = np.random.default_rng(0)
+    for q in rng.uniform(PROFILE.q_min, PROFILE.q_max, (20, PROFILE.dof)):
+        np.testing.assert_allclose(kinematics.tool_point(q), CELL.tool_point(q), atol=1e-12)
+    with pytest.raises(UnknownNameError, match="tcp"):
+        Kinematics.from_mjcf(ASSETS / "arm.xml", "flange", PROFILE.joint_names)
+
+
+def test_build_guard_prefers_the_cells_kinematics_to_its_live_model():
+    from cellguard.embodiment import Kinematics
+    from cellguard.robot.arm_cell import ASSETS, ArmPickPlace
+
+    cell = ArmPickPlace(seed=0)
+    cell.kinematics = Kinematics.from_mjcf(ASSETS / "arm.xml", "tcp", cell.profile.joint_names)
+    guard = build_guard(cell)
+    assert guard.envelope._tool.__self__ is cell.kinematics and guard.executor._tool.__self__ is cell.kinematics

@@ -12,13 +12,15 @@ GuardSettings = GuardConfig
 
 
 def build_guard(cell, settings: GuardConfig | None = None) -> Guard:
-    """The guard layer for ``cell``, with its forward kinematics and workspace box if it has them.
+    """The guard layer for ``cell``, with its kinematics and workspace box if it has them.
 
-    The box is the scenario's if it sets one, else the cell's; it is checked only where the cell
-    has a tool model (``tool_point``).
+    The tool model is the cell's ``kinematics`` (an ``embodiment.Kinematics`` of its nominal MJCF)
+    where it offers one, else its ``tool_point``. The box is the scenario's if it sets one, else the
+    cell's; it is checked only where there is a tool model.
     """
     config = settings or GuardConfig()
-    tool = getattr(cell, "tool_point", None)
+    kinematics = getattr(cell, "kinematics", None)
+    tool = kinematics.tool_point if kinematics is not None else getattr(cell, "tool_point", None)
     box = config.box if config.box is not None else getattr(cell, "workspace_box", None)
     config = config.model_copy(update={"box": box if tool is not None else None})
     return Guard(cell.profile, cell.read().q, cell.dt_ns, config, tool=tool)
