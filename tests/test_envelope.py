@@ -156,7 +156,7 @@ def test_workspace_box_stops_before_the_tool_leaves_it():
     sent = loop.run(2500)
     assert "workspace_stop" in _kinds(loop.events)
     tips = np.array([loop.cell.tool_point(q) for q in sent])
-    assert tips[:, 2].min() > 0.05 - 0.005  # stopped within 5 mm of the floor, from look-ahead
+    assert tips[:, 2].min() > 0.05  # the stop ends inside the box: look-ahead (without it: 4.8 mm below)
 
 
 @pytest.mark.parametrize("name, kind", [("latency.yaml", "chunk_steps_dropped"), ("nan.yaml", "chunk_rejected")])

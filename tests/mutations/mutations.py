@@ -1,6 +1,6 @@
 """The curated mutations: each disables or weakens one safety check the README promises.
 
-``old`` must occur exactly once in ``path``; ``tests`` are the tests that guard the check (node ids
+``old`` must occur exactly once in ``path`` (and each of ``also``'s in its own); ``tests`` are the tests that guard the check (node ids
 relative to the repository root), run with ``-x``. A mutation that no test kills is a safety
 claim without a test.
 """
@@ -33,6 +33,7 @@ class Mutation:
     old: str
     new: str
     tests: tuple[str, ...]
+    also: tuple[tuple[str, str, str], ...] = ()  # further (path, old, new) edits of the same mutation
 
 
 MUTATIONS = (
@@ -41,8 +42,9 @@ MUTATIONS = (
              "        if False:\n            ok &= self.stop_fits(q, fd[0], fd[1], near)", (POSITION, LIMITS)),
     Mutation("soft_margin_zero", "position: soft limits inside the hard limits", ENVELOPE,
              "margin = c.soft_margin * (hi - lo)", "margin = 0.0 * (hi - lo)", (POSITION,)),
-    Mutation("recovery_target_unclipped", "position: ruckig's target clipped to the soft limits", TRACKER,
-             "target = np.clip(r, self.lo, self.hi)", "target = r", (POSITION, LIMITS)),
+    Mutation("recovery_ignores_position", "position: the recovery brakes and aims inside the soft limits", TRACKER,
+             "target = np.clip(r, self.lo, self.hi)", "target = r", (POSITION, LIMITS),
+             also=((TRACKER, "brake = rest & ~self.stop_fits(nq, nv, na)", "brake = rest & False"),)),
     Mutation("velocity_limit_x10", "velocity limit", TRACKER,
              "np.stack([self.v_max, self.a_max, self.j_max])", "np.stack([self.v_max * 10, self.a_max, self.j_max])",
              (f"{OVER}[velocity]", LIMITS)),

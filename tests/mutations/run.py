@@ -42,11 +42,12 @@ def _copy(dest: Path) -> None:
 
 
 def _apply(m: Mutation, dest: Path) -> None:
-    path = dest / m.path
-    text = path.read_text()
-    if text.count(m.old) != 1:
-        raise LookupError(f"{m.name}: the text to mutate occurs {text.count(m.old)} times in {m.path}, not once")
-    path.write_text(text.replace(m.old, m.new))
+    for rel, old, new in ((m.path, m.old, m.new), *m.also):
+        path = dest / rel
+        text = path.read_text()
+        if text.count(old) != 1:
+            raise LookupError(f"{m.name}: the text to mutate occurs {text.count(old)} times in {rel}, not once")
+        path.write_text(text.replace(old, new))
 
 
 def run_one(m: Mutation) -> dict:
