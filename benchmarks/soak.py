@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import resource
 import time
 from collections import Counter
 from pathlib import Path
@@ -97,7 +96,6 @@ def soak(hours: float, dt_ms: float, chunk_ms: float, record: Path | None) -> di
     return {"simulated_hours": hours, "dt_ms": dt_ms, "chunk_ms": chunk_ms, "ticks": ticks, "events": dict(events),
             "recorded": record is not None, "rss_start_mib": start, "rss_end_mib": end,
             "rss_growth_mib": round(end - start, 1),
-            "max_rss_mib": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1),
             "wall_s": round(time.perf_counter() - began, 1), "rss_by_hour": samples}
 
 

@@ -83,6 +83,7 @@ class Executor:
         self._history = np.zeros(HISTORY_TICKS, dtype=np.int64)  # t - tau per tick, by tick index
         self.last_chunk_ns: int | None = None
         self.uncertainty = 0.0
+        self._ahead: tuple = (None, 0, 0, 0.0)  # (chunk, k0, k1, fastest tool speed there) of the last call
 
     # -- off the servo path ------------------------------------------------------------------
     def prepare(self, chunk: ActionChunk) -> PreparedChunk:
@@ -172,7 +173,10 @@ class Executor:
         c = chunk.curve
         k0 = min(max((self.tau_ns - c.t0_ns) // c.h_ns, 0), len(chunk.tool_speed) - 1)
         k1 = min(max((self.tau_ns + window_ns - c.t0_ns) // c.h_ns + 1, k0 + 1), len(chunk.tool_speed))
-        return float(chunk.tool_speed[k0:k1].max())
+        ahead = self._ahead  # the window moves once per chunk step, not every tick: keep its maximum
+        if ahead[0] is not chunk or ahead[1] != k0 or ahead[2] != k1:
+            ahead = self._ahead = (chunk, k0, k1, float(chunk.tool_speed[k0:k1].max()))
+        return ahead[3]
 
     def _offset_at(self, t_obs_ns: int) -> int:
         """How far the playback clock was behind real time at ``t_obs_ns`` (0 if it never lagged)."""
