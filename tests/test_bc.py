@@ -8,7 +8,7 @@ import pytest
 pytest.importorskip("onnxruntime")
 pytest.importorskip("onnx")
 
-from cellguard.policy.bc import collect_demonstrations, train_demo_policy  # noqa: E402
+from cellguard.train.demo_policy import collect_demonstrations, train_demo_policy  # noqa: E402
 from cellguard.runtime import Run  # noqa: E402
 from cellguard.scenario import parse_scenario  # noqa: E402
 

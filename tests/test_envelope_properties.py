@@ -1,9 +1,13 @@
 """Properties of executor + envelope over arbitrary chunk streams, at 1 kHz, without physics.
 
 Tolerances: position inside the hard limits to 1e-9; finite-difference velocity within 0.2 %
-of the limit and acceleration within 2 % (the hand-over between pass-through and ruckig
-re-estimates the continuous state from samples; measured excess is far below these). After a
-category 0 stop the drives are off: the setpoint freezes at once and is no longer a command.
+of the limit, acceleration within 2 % and jerk within 20 % (the hand-over between pass-through
+and ruckig re-estimates the continuous state from samples; the measured excess is far below the
+first two, and at most 1/6 of the jerk limit, on the tick of a hand-over). After a category 0
+stop the drives are off: the setpoint freezes at once and is no longer a command.
+
+Effort: the stop is a pure function of the measured efforts, checked against a plain model of
+the rule (|effort| above the fraction of the limit on consecutive ticks for the hold time).
 """
 
 from __future__ import annotations
@@ -13,14 +17,16 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from cellguard.control.envelope import Envelope, EnvelopeConfig
+from cellguard.control.config import GuardConfig
+from cellguard.control.envelope import Envelope
 from cellguard.control.executor import Executor
 from cellguard.policy.chunk import ActionChunk
 from cellguard.robot.protocol import SafetyInputs
+from cellguard.robot.state import State
 from cellguard.robot.registry import make_cell
 
 DT_NS = 1_000_000
-V_TOL, A_TOL, P_TOL = 2e-3, 2e-2, 1e-9
+V_TOL, A_TOL, J_TOL, P_TOL = 2e-3, 2e-2, 0.2, 1e-9
 
 CELL = make_cell("arm-pick-place")
 PROFILE = CELL.profile
@@ -68,7 +74,7 @@ def _chunk(kind: str, t_ns: int, seed: int) -> ActionChunk | None:
 
 def _run(stream, stop_at: int | None = None, category: int = 2, ticks: int = 1500):
     executor = Executor(PROFILE, Q0, DT_NS)
-    envelope = Envelope(PROFILE, Q0, DT_NS, EnvelopeConfig(watchdog_s=0.2))
+    envelope = Envelope(PROFILE, Q0, DT_NS, GuardConfig(watchdog_s=0.2))
     schedule, t = {}, 0
     for gap, kind, seed in stream:
         t += gap * DT_NS
@@ -96,6 +102,8 @@ def _check_limits(setpoints: np.ndarray, powered: np.ndarray) -> None:
     a = np.diff(v, axis=0) / (DT_NS * 1e-9)
     assert (np.abs(v) <= V * (1 + V_TOL)).all(), np.abs(v).max(axis=0) / V
     assert (np.abs(a) <= A * (1 + A_TOL)).all(), np.abs(a).max(axis=0) / A
+    j = np.diff(a, axis=0) / (DT_NS * 1e-9)
+    assert (np.abs(j) <= J * (1 + J_TOL)).all(), np.abs(j).max(axis=0) / J
 
 
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -137,3 +145,59 @@ def test_a_bad_chunk_leaves_motion_on_the_last_valid_reference(kind):
     a, _ = _run(good, ticks=400)
     b, _ = _run(with_bad, ticks=400)
     assert np.array_equal(a, b)
+
+
+EFFORT = PROFILE.array("effort")
+CONFIG = GuardConfig()
+HOLD = round(CONFIG.effort_hold_s * 1e9 / DT_NS)
+
+
+@st.composite
+def effort_traces(draw):
+    """Per tick, the measured efforts as fractions of each joint's limit: runs of calm and of overload."""
+    rows = []
+    for _ in range(draw(st.integers(1, 6))):
+        joint = draw(st.integers(0, PROFILE.dof - 1))
+        level = draw(st.sampled_from([0.5, 0.97, 0.99, 1.2]))
+        sign = draw(st.sampled_from([-1.0, 1.0]))
+        row = np.full(PROFILE.dof, 0.3)
+        row[joint] = sign * level
+        rows += [row] * draw(st.integers(1, 2 * HOLD))
+    return np.array(rows)
+
+
+def _expected_effort_stop(trace: np.ndarray) -> int | None:
+    """The tick of the first effort stop by the rule, or None."""
+    run = np.zeros(PROFILE.dof, dtype=int)
+    for k, row in enumerate(trace):
+        run = np.where(np.abs(row) * EFFORT > EFFORT * CONFIG.effort_fraction, run + 1, 0)
+        if (run >= HOLD).any():
+            return k
+    return None
+
+
+@settings(max_examples=60, deadline=None)
+@given(effort_traces())
+def test_an_effort_stop_follows_exactly_from_the_measured_efforts(trace):
+    envelope = Envelope(PROFILE, Q0, DT_NS, CONFIG)
+    zero = np.zeros(PROFILE.dof)
+    stop_at = None
+    for k, row in enumerate(trace):
+        state = State(k * DT_NS, Q0, zero, row * EFFORT, zero)
+        _, events = envelope.apply(k * DT_NS, Q0, state)
+        kinds = [e.kind for e in events]
+        if "effort_stop" in kinds and stop_at is None:
+            stop_at = k
+            assert kinds[0] == "effort_limit" and events[0].joint in PROFILE.joint_names
+            assert [e.category for e in events if e.kind == "effort_stop"] == [2]
+    assert stop_at == _expected_effort_stop(trace)
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
+def test_a_non_finite_reference_is_never_sent(bad):
+    envelope = Envelope(PROFILE, Q0, DT_NS, CONFIG)
+    reference = Q0.copy()
+    reference[2] = bad
+    setpoint, events = envelope.apply(DT_NS, reference)
+    assert np.isfinite(setpoint).all() and np.array_equal(setpoint, Q0)
+    assert [(e.kind, e.category) for e in events] == [("reference_invalid", 2)]

@@ -48,6 +48,10 @@ def test_late_steps_are_dropped_not_replayed():
     assert events[0].kind == "chunk_steps_dropped" and events[0].reason.startswith("12 ")
     stale = ex.push(_chunk(-600 * MS + 1), 250 * MS)  # older than the one in use
     assert stale[0].kind == "chunk_rejected" and "out of order" in stale[0].reason
+    # once the blend from the old reference has decayed, the reference is the late chunk's curve at now,
+    # not its first steps replayed from now on
+    q = [ex.reference(t * MS) for t in range(251, 500)][-1]
+    assert np.abs(q - _wave(np.array([0.499]))[0]).max() < 1e-3
 
 
 def test_a_fully_stale_chunk_is_refused():

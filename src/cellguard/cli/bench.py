@@ -20,7 +20,7 @@ def _record_figures(quick: bool) -> dict:
 
 
 def _guard_figures(quick: bool) -> dict:
-    from cellguard.control.bench import figures
+    from cellguard.bench.guard import figures
 
     return figures(quick=quick)
 

@@ -25,7 +25,7 @@ def train_demo_policy(
     """Clone the scripted arm program into a small MLP on the CPU; run it with `policy: onnx:FILE`."""
     from dataclasses import asdict
 
-    from cellguard.policy.bc import train_demo_policy as train
+    from cellguard.train.demo_policy import train_demo_policy as train
 
     try:
         report = train(out, cycles=cycles, random_features=random_features, seed=seed)

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cellguard.control.events import Event
+from cellguard.control.events import Event, EventKind
 from cellguard.control.spline import ChunkCurve
 from cellguard.embodiment import Profile
 from cellguard.policy.chunk import ActionChunk
@@ -83,6 +83,7 @@ class Executor:
         self._history = np.zeros(HISTORY_TICKS, dtype=np.int64)  # t - tau per tick, by tick index
         self.last_chunk_ns: int | None = None
         self.uncertainty = 0.0
+        self._ahead: tuple = (None, 0, 0, 0.0)  # (chunk, k0, k1, fastest tool speed there) of the last call
 
     # -- off the servo path ------------------------------------------------------------------
     def prepare(self, chunk: ActionChunk) -> PreparedChunk:
@@ -106,11 +107,11 @@ class Executor:
         if isinstance(chunk, ActionChunk):
             chunk = self.prepare(chunk)
         if chunk.problem is not None:
-            return [Event(t_ns, "chunk_rejected", chunk.problem)]
+            return [Event(t_ns, EventKind.CHUNK_REJECTED, chunk.problem)]
         if self._chunk is not None and chunk.t_obs_ns == self._chunk.t_obs_ns:
             return []  # the same answer again (a policy with nothing new): no new information
         if self._chunk is not None and chunk.t_obs_ns < self._chunk.t_obs_ns:
-            return [Event(t_ns, "chunk_rejected", f"out of order: answers t={chunk.t_obs_ns * 1e-9:.3f} s, "
+            return [Event(t_ns, EventKind.CHUNK_REJECTED, f"out of order: answers t={chunk.t_obs_ns * 1e-9:.3f} s, "
                                                   f"not newer than the chunk in use ({self._chunk.t_obs_ns * 1e-9:.3f} s)")]
         now = t_ns if self._t_ns is None else self.tau_ns + (t_ns - self._t_ns)  # playback time at t_ns
         shift = self._offset_at(chunk.t_obs_ns)
@@ -118,7 +119,7 @@ class Executor:
         first, h = curve.t0_ns - shift, curve.h_ns
         horizon = len(curve.points)
         if first + (horizon - 1) * h <= now:
-            return [Event(t_ns, "chunk_stale", f"all {horizon} steps lie before now")]
+            return [Event(t_ns, EventKind.CHUNK_STALE, f"all {horizon} steps lie before now")]
         placed = curve.shifted(first) if shift else curve
         p0, v0, a0 = self._state(now)
         p1, v1, a1 = placed.state(now)
@@ -127,7 +128,7 @@ class Executor:
         self._chunk = PreparedChunk(chunk.t_obs_ns, chunk.dt_ns, placed, chunk.uncertainty, chunk.tool_speed)
         self.last_chunk_ns = t_ns
         dropped = int(min(max((now - first) // h + 1, 0), horizon))
-        return [Event(t_ns, "chunk_steps_dropped", f"{dropped} steps already past")] if dropped else []
+        return [Event(t_ns, EventKind.CHUNK_STEPS_DROPPED, f"{dropped} steps already past")] if dropped else []
 
     def reference(self, t_ns: int, scale: float = 1.0) -> np.ndarray:
         """The joint reference (D,) at servo tick ``t_ns``; the playback clock advances by ``scale``."""
@@ -172,7 +173,10 @@ class Executor:
         c = chunk.curve
         k0 = min(max((self.tau_ns - c.t0_ns) // c.h_ns, 0), len(chunk.tool_speed) - 1)
         k1 = min(max((self.tau_ns + window_ns - c.t0_ns) // c.h_ns + 1, k0 + 1), len(chunk.tool_speed))
-        return float(chunk.tool_speed[k0:k1].max())
+        ahead = self._ahead  # the window moves once per chunk step, not every tick: keep its maximum
+        if ahead[0] is not chunk or ahead[1] != k0 or ahead[2] != k1:
+            ahead = self._ahead = (chunk, k0, k1, float(chunk.tool_speed[k0:k1].max()))
+        return ahead[3]
 
     def _offset_at(self, t_obs_ns: int) -> int:
         """How far the playback clock was behind real time at ``t_obs_ns`` (0 if it never lagged)."""

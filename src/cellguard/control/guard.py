@@ -11,7 +11,8 @@ from collections.abc import Callable
 
 import numpy as np
 
-from cellguard.control.envelope import NO_INPUTS, Envelope, EnvelopeConfig
+from cellguard.control.config import GuardConfig
+from cellguard.control.envelope import NO_INPUTS, Envelope
 from cellguard.control.events import Event
 from cellguard.control.executor import Executor, PreparedChunk
 from cellguard.embodiment import Profile
@@ -22,11 +23,16 @@ LOOKAHEAD_NS = 300_000_000  # the envelope slows down for tool speed this far ah
 
 
 class Guard:
-    """One guard layer: chunks in (``push``), one setpoint per servo tick out (``tick``)."""
+    """One guard layer: chunks in (``push``), one setpoint per servo tick out (``tick``).
 
-    def __init__(self, profile: Profile, q0: np.ndarray, dt_ns: int, config: EnvelopeConfig | None = None,
-                 blend_ns: int = 200_000_000, tool: Callable[[np.ndarray], np.ndarray] | None = None):
-        self.executor = Executor(profile, q0, dt_ns, blend_ns=blend_ns, tool=tool)
+    ``tool``: joint positions (D,) -> tool point (3,) [m], for the box and the tool-speed cap.
+    """
+
+    def __init__(self, profile: Profile, q0: np.ndarray, dt_ns: int, config: GuardConfig | None = None,
+                 tool: Callable[[np.ndarray], np.ndarray] | None = None):
+        config = config or GuardConfig()
+        self.config = config
+        self.executor = Executor(profile, q0, dt_ns, blend_ns=round(config.blend_s * 1e9), tool=tool)
         self.envelope = Envelope(profile, q0, dt_ns, config, tool=tool)
         self.reference = np.array(q0, dtype=np.float64)
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
+from cellguard.control.events import ROUTINE_EVENTS, EventKind
 from cellguard.diagnose.asymmetry import Asymmetry, mirrored_asymmetry
 from cellguard.diagnose.baseline import Baseline
 from cellguard.diagnose.cause import Finding, name_causes
@@ -18,7 +19,6 @@ from cellguard.diagnose.drift import DriftConfig, DriftResult, detect_drift
 from cellguard.embodiment.profile import SymmetryPair
 from cellguard.errors import RecordError
 
-ROUTINE_EVENTS = frozenset({"chunk_steps_dropped"})  # the executor's normal bookkeeping
 
 
 @dataclass(frozen=True)
@@ -158,7 +158,7 @@ def _rejections(watched: Sequence[Cycle], events: list[dict]) -> list[tuple[int,
     """(cycle, reason) of every rejected chunk in the watched cycles, from events or features."""
     indices = {c.index for c in watched}
     out = [(e["cycle"], e.get("reason", "")) for e in events
-           if e.get("kind") == "chunk_rejected" and e.get("cycle") in indices]
+           if e.get("kind") == EventKind.CHUNK_REJECTED and e.get("cycle") in indices]
     if not out:
         out = [(c.index, "chunk rejected") for c in watched if c.features.get("chunks_rejected", 0) > 0]
     return out

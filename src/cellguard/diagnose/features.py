@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from cellguard.control.events import Event
+from cellguard.control.events import ROUTINE_EVENTS, Event, EventKind
 from cellguard.diagnose.cycle_buffer import CycleBuffer
 from cellguard.embodiment import Profile
 
@@ -34,9 +34,9 @@ def cycle_features(
         f[f"tracking_max.{name}"] = float(np.abs(error[:, j]).max()) if n else 0.0
     f["latency_mean_ms"] = float(np.mean(latencies_ns)) * 1e-6 if latencies_ns else 0.0
     f["latency_max_ms"] = float(np.max(latencies_ns)) * 1e-6 if latencies_ns else 0.0
-    f["interventions"] = float(sum(e.kind != "chunk_steps_dropped" for e in events))
-    f["chunks_rejected"] = float(sum(e.kind == "chunk_rejected" for e in events))
-    f["stale_chunks"] = float(sum(e.kind in ("chunk_steps_dropped", "chunk_stale") for e in events))
+    f["interventions"] = float(sum(e.kind not in ROUTINE_EVENTS for e in events))
+    f["chunks_rejected"] = float(sum(e.kind == EventKind.CHUNK_REJECTED for e in events))
+    f["stale_chunks"] = float(sum(e.kind in (EventKind.CHUNK_STEPS_DROPPED, EventKind.CHUNK_STALE) for e in events))
     for key, value in outcome.items():
         _flatten(f, key, value, profile)
     return f

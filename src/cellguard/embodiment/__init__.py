@@ -1,5 +1,6 @@
-"""Robot profile: joints, limits, measured parameters (value, unit, when, how), symmetry."""
+"""Robot profile: joints, limits, measured parameters (value, unit, when, how), symmetry; kinematics."""
 
+from cellguard.embodiment.kinematics import Kinematics
 from cellguard.embodiment.profile import (
     JointLimits,
     MeasuredParameter,
@@ -8,4 +9,4 @@ from cellguard.embodiment.profile import (
     load_profile,
 )
 
-__all__ = ["JointLimits", "MeasuredParameter", "Profile", "SymmetryPair", "load_profile"]
+__all__ = ["JointLimits", "Kinematics", "MeasuredParameter", "Profile", "SymmetryPair", "load_profile"]

@@ -8,13 +8,11 @@ a large fixture shift or a knocked camera makes grasps fail. It knows nothing of
 
 from __future__ import annotations
 
-import hashlib
-import inspect
-
 import mujoco
 import numpy as np
 
 from cellguard.policy.chunk import ActionChunk
+from cellguard.policy.protocol import Policy, behaviour_hash
 from cellguard.robot.arm_cell import ASSETS, CAMERA_ROTATION, PART_HALF
 from cellguard.robot.kinematics import solve_tool_down
 from cellguard.robot.state import Observation
@@ -29,13 +27,18 @@ def _min_jerk(u: np.ndarray) -> np.ndarray:
     return u * u * u * (10.0 - 15.0 * u + 6.0 * u * u)
 
 
-class ScriptedArmPolicy:
-    """Emits ``horizon`` steps of ``dt`` seconds along the taught program, from the observation."""
+class ScriptedArmPolicy(Policy):
+    """Emits ``horizon`` steps of ``dt`` seconds along the taught program, from the observation.
+
+    ``vision_range`` [m]: the largest correction of the taught pick position the camera may make;
+    ``calibration``: the cell's fixture datum and camera calibration (default: the nominal model's).
+    """
 
     source = "scripted"
 
-    def __init__(self, horizon: int = 25, dt: float = 0.02, calibration: dict | None = None):
-        self.horizon, self.dt_ns = horizon, round(dt * 1e9)
+    def __init__(self, horizon: int = 25, dt: float = 0.02, calibration: dict | None = None,
+                 vision_range: float = VISION_RANGE):
+        self.horizon, self.dt_ns, self.vision_range = horizon, round(dt * 1e9), float(vision_range)
         self._model = mujoco.MjModel.from_xml_path(str(ASSETS / "arm.xml"))
         data = mujoco.MjData(self._model)
         fixture = data.mocap_pos[0] if calibration is None else np.asarray(calibration["fixture_datum"])
@@ -57,8 +60,9 @@ class ScriptedArmPolicy:
         self._program, self._t0_ns = None, None
 
     def content_hash(self) -> str:
-        text = inspect.getsource(type(self)) + repr((self.horizon, self.dt_ns, self.taught_part.tolist()))
-        return hashlib.sha256(text.encode()).hexdigest()
+        return behaviour_hash(self, self.horizon, self.dt_ns, self.vision_range, self.taught_part, self._cam_pos,
+                              self._cam_rot, self.home, self._drop_q, self._above_drop_q,
+                              (ASSETS / "arm.xml").read_bytes())
 
     def infer(self, observation: Observation) -> ActionChunk:
         if self._program is None:
@@ -73,7 +77,7 @@ class ScriptedArmPolicy:
         delta = seen - self.taught_part
         delta[2] = 0.0
         norm = float(np.linalg.norm(delta))
-        self.correction = delta if norm <= VISION_RANGE else delta * (VISION_RANGE / norm)
+        self.correction = delta if norm <= self.vision_range else delta * (self.vision_range / norm)
         pick = self._ik(self.taught_part + self.correction)
         above = self._ik(self.taught_part + self.correction + [0.0, 0.0, APPROACH])
 

@@ -18,15 +18,13 @@ one, all four feet down, in the stance.
 
 from __future__ import annotations
 
-import hashlib
-import inspect
-
 import mujoco
 import numpy as np
 
 from cellguard.embodiment import Profile
 from cellguard.errors import ConfigError
 from cellguard.policy.chunk import ActionChunk
+from cellguard.policy.protocol import Policy, behaviour_hash
 from cellguard.robot.quadruped_cell import ASSETS, LEGS
 from cellguard.robot.state import Observation
 
@@ -45,7 +43,7 @@ def _smoothstep_rate(u: np.ndarray) -> np.ndarray:
     return 30.0 * u * u * (1.0 - u) * (1.0 - u)
 
 
-class ScriptedQuadrupedPolicy:
+class ScriptedQuadrupedPolicy(Policy):
     """Emits ``horizon`` steps of ``dt`` seconds of the trot, from the observation's commands.
 
     ``period`` [s] is the gait cycle, ``duty`` the share of it each foot is down, ``swing_height``
@@ -81,10 +79,9 @@ class ScriptedQuadrupedPolicy:
         self._t0_ns, self._t_down = None, None
 
     def content_hash(self) -> str:
-        taught = (self.horizon, self.dt_ns, self.period, self.duty, self.swing_height, self.stand.tolist(),
-                  self._hips.tolist(), self._thigh, self._calf)
-        text = inspect.getsource(type(self)) + repr(taught)
-        return hashlib.sha256(text.encode()).hexdigest()
+        return behaviour_hash(self, self.horizon, self.dt_ns, self.period, self.duty, self.swing_height, self.stand,
+                              self._hips, self._thigh, self._calf, self._cols, self._mirror, self._sign,
+                              (ASSETS / "quadruped.xml").read_bytes())
 
     def infer(self, observation: Observation) -> ActionChunk:
         speed = float(observation.measurements["speed_command"][0])

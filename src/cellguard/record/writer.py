@@ -25,14 +25,14 @@ import os
 import shutil
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import BinaryIO
 
 import numpy as np
 from mcap.writer import CompressionType, Writer
 
-from cellguard.control.events import Event
+from cellguard.control.events import ROUTINE_EVENTS, Event
 from cellguard.errors import RecordError
 from cellguard.record.context import changed_keys, versions
 from cellguard.record.index import IndexWriter, cycle_row, default_opener, event_row
@@ -53,7 +53,7 @@ class RecordConfig:
     decimated_hz: float = 50.0  # continuous tick stream [Hz]
     pre_trigger_s: float = 10.0  # full rate kept before an event [s]
     post_trigger_s: float = 5.0  # and after it [s]
-    routine_events: frozenset[str] = field(default_factory=lambda: frozenset({"chunk_steps_dropped"}))
+    routine_events: frozenset[str] = ROUTINE_EVENTS
     index_part_rows: int = 5000  # Parquet rows per part file: about one file per day at a 20 s cycle
 
     def __post_init__(self):

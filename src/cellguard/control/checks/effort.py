@@ -1,0 +1,40 @@
+"""Effort limit: measured |effort| above a fraction of the joint's limit for a while -> category 2 stop.
+
+Collisions and jams show as effort; a short peak (a grasp, a bump) is not one, hence the hold time.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from cellguard.control.checks.check import Check, Stop, Tick
+from cellguard.control.events import Event, EventKind
+from cellguard.embodiment import Profile
+
+
+class EffortLimit(Check):
+    """Stop when a joint's |effort| stays above ``fraction`` of its limit for ``hold_s`` [s]."""
+
+    def __init__(self, profile: Profile, fraction: float, hold_s: float, dt_ns: int):
+        self._names, self._limit = profile.joint_names, profile.array("effort")
+        self._max = self._limit * fraction
+        self._ticks = np.zeros(profile.dof, dtype=np.int64)
+        self._hold = max(1, round(hold_s * 1e9 / dt_ns))
+        self._reason = f"effort above {fraction:.0%} of the limit for {hold_s * 1e3:.0f} ms"
+
+    def request(self, tick: Tick) -> Stop | None:
+        state = tick.state
+        if state is None:
+            return None
+        over = np.abs(state.effort) > self._max
+        self._ticks = np.where(over, self._ticks + 1, 0)
+        if tick.stop_kind == EventKind.EFFORT_STOP or not (self._ticks >= self._hold).any():
+            return None
+        j = int(np.argmax(self._ticks))
+        self._ticks[:] = 0
+        detail = Event(tick.t_ns, EventKind.EFFORT_LIMIT, self._reason, joint=self._names[j],
+                       asked=float(state.effort[j]), sent=float(self._limit[j]))
+        return Stop(2, EventKind.EFFORT_STOP, "effort limit", detail)
+
+    def reset(self) -> None:
+        self._ticks[:] = 0

@@ -1,0 +1,128 @@
+"""The curated mutations: each disables or weakens one safety check the README promises.
+
+``old`` must occur exactly once in ``path`` (and each of ``also``'s in its own); ``tests`` are the tests that guard the check (node ids
+relative to the repository root), run with ``-x``. A mutation that no test kills is a safety
+claim without a test.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+PROPS = "tests/test_envelope_properties.py"
+ENV = "tests/test_envelope.py"
+EXE = "tests/test_executor.py"
+GUARD = "tests/test_guard.py"
+LIM = "tests/test_guard_limits.py"
+POSITION = f"{LIM}::test_a_reference_past_the_hard_limits_stops_inside_the_soft_ones"
+OVER = f"{LIM}::test_a_reference_over_one_derivative_limit_is_brought_inside"
+LIMITS = f"{PROPS}::test_setpoints_never_exceed_the_limits"
+STOP = f"{LIM}::test_a_stop_from_speed_reaches_zero_velocity_within_its_bound"
+STOPS = f"{PROPS}::test_every_stop_reaches_zero_velocity_within_its_bound"
+TRACKER = "src/cellguard/control/tracker.py"
+ENVELOPE = "src/cellguard/control/envelope.py"
+CHECKS = "src/cellguard/control/checks"
+EXECUTOR = "src/cellguard/control/executor.py"
+
+
+@dataclass(frozen=True)
+class Mutation:
+    name: str
+    check: str  # the promise it breaks
+    path: str
+    old: str
+    new: str
+    tests: tuple[str, ...]
+    also: tuple[tuple[str, str, str], ...] = ()  # further (path, old, new) edits of the same mutation
+
+
+MUTATIONS = (
+    Mutation("position_lookahead_off", "position soft limit: stopping-distance look-ahead", TRACKER,
+             "        if near.size:\n            ok &= self.stop_fits(q, fd[0], fd[1], near)",
+             "        if False:\n            ok &= self.stop_fits(q, fd[0], fd[1], near)", (POSITION, LIMITS)),
+    Mutation("soft_margin_zero", "position: soft limits inside the hard limits", ENVELOPE,
+             "margin = c.soft_margin * (hi - lo)", "margin = 0.0 * (hi - lo)", (POSITION,)),
+    Mutation("recovery_ignores_position", "position: the recovery brakes and aims inside the soft limits", TRACKER,
+             "target = np.clip(r, self.lo, self.hi)", "target = r", (POSITION, LIMITS),
+             also=((TRACKER, "brake = rest & ~self.stop_fits(nq, nv, na)", "brake = rest & False"),)),
+    Mutation("velocity_limit_x10", "velocity limit", TRACKER,
+             "np.stack([self.v_max, self.a_max, self.j_max])", "np.stack([self.v_max * 10, self.a_max, self.j_max])",
+             (f"{OVER}[velocity]", LIMITS)),
+    Mutation("acceleration_limit_x10", "acceleration limit", TRACKER,
+             "np.stack([self.v_max, self.a_max, self.j_max])", "np.stack([self.v_max, self.a_max * 10, self.j_max])",
+             (f"{OVER}[acceleration]", LIMITS)),
+    Mutation("jerk_limit_infinite", "jerk limit (pass-through)", TRACKER,
+             "np.stack([self.v_max, self.a_max, self.j_max])", "np.stack([self.v_max, self.a_max, self.j_max * np.inf])",
+             (f"{OVER}[jerk]", LIMITS)),
+    Mutation("ruckig_jerk_x1000", "jerk limit (ruckig)", TRACKER,
+             "inp.max_velocity, inp.max_acceleration, inp.max_jerk = self.v_max, self.a_max, self.j_max",
+             "inp.max_velocity, inp.max_acceleration, inp.max_jerk = self.v_max, self.a_max, self.j_max * 1000",
+             (f"{OVER}[jerk]", f"{OVER}[acceleration]", STOP)),
+    Mutation("effort_off", "effort limit", f"{CHECKS}/effort.py",
+             "        if state is None:\n            return None", "        if True:\n            return None",
+             (f"{PROPS}::test_an_effort_stop_follows_exactly_from_the_measured_efforts",)),
+    Mutation("effort_hold_x3", "effort limit: hold time", f"{CHECKS}/effort.py",
+             "self._hold = max(1, round(hold_s * 1e9 / dt_ns))", "self._hold = 3 * max(1, round(hold_s * 1e9 / dt_ns))",
+             (f"{PROPS}::test_an_effort_stop_follows_exactly_from_the_measured_efforts",)),
+    Mutation("box_off", "tool box", f"{CHECKS}/__init__.py",
+             "        after.append(WorkspaceLookahead(c.box, profile))", "        pass",
+             (f"{ENV}::test_workspace_box_stops_before_the_tool_leaves_it",)),
+    Mutation("box_lookahead_off", "tool box: look-ahead", f"{CHECKS}/workspace.py",
+             "k = 0.5 * t_stop + self._t_jerk", "k = 0.0",
+             (f"{ENV}::test_workspace_box_stops_before_the_tool_leaves_it",)),
+    Mutation("tool_speed_cap_off", "tool speed cap", f"{CHECKS}/tool_speed.py",
+             "        return self._cap", "        return None",
+             (f"{ENV}::test_tool_speed_cap_holds_in_normal_operation",)),
+    Mutation("reduced_speed_input_off", "reduced speed (safety controller input)", f"{CHECKS}/safety_input.py",
+             "return self._cap if tick.safety.reduced_speed else None", "return None",
+             (f"{ENV}::test_reduced_speed_input_caps_the_tool_speed_and_keeps_the_path",)),
+    Mutation("reduced_speed_ignores_tool_speed", "reduced speed: cap on the tool speed ahead", ENVELOPE,
+             "target = min(1.0, 0.9 * cap.cap / speed_ahead)", "target = min(1.0, 0.9 * cap.cap / speed_ahead * 4)",
+             (f"{ENV}::test_reduced_speed_input_caps_the_tool_speed_and_keeps_the_path",)),
+    Mutation("watchdog_x10", "watchdog", f"{CHECKS}/watchdog.py",
+             "tick.t_ns - last > self._silence_ns", "tick.t_ns - last > 10 * self._silence_ns",
+             (f"{ENV}::test_watchdog_stops_a_silent_policy",)),
+    Mutation("uncertainty_hold_off", "uncertainty gate (hold)", f"{CHECKS}/uncertainty.py",
+             "return self._stop if tick.uncertainty > self._threshold else None", "return None",
+             (f"{ENV}::test_uncertainty_gate_holds_when_the_policy_is_unsure",)),
+    Mutation("uncertainty_reduce_off", "uncertainty gate (reduced speed)", f"{CHECKS}/uncertainty.py",
+             "return self._cap if tick.uncertainty > self._threshold else None", "return None",
+             (f"{ENV}::test_uncertainty_gate_reduces_the_tool_speed_when_the_policy_is_unsure",)),
+    Mutation("protective_stop_input_off", "safety controller protective-stop input", f"{CHECKS}/safety_input.py",
+             "return None if stop is None else self._stops[stop]", "return None",
+             (f"{ENV}::test_protective_stop_input_is_obeyed_through_the_cell",)),
+    Mutation("category0_keeps_power", "stop category 0: power removed at once", ENVELOPE,
+             "if category == 0 and self.power:", "if False:",
+             (f"{ENV}::test_protective_stop_input_is_obeyed_through_the_cell",)),
+    Mutation("category1_keeps_power", "stop category 1: power removed at standstill", ENVELOPE,
+             "if self.stop_category == 1 and tracker.stopped:", "if False:",
+             (STOP,)),
+    Mutation("stop_never_reaches_zero", "stop categories 1/2: zero velocity within the bound", TRACKER,
+             "self._stop_in.target_velocity = np.zeros(dof)", "self._stop_in.target_velocity = np.full(dof, 0.05)",
+             (STOP, STOPS)),
+    Mutation("stop_slow_deceleration", "stop categories 1/2: time-optimal within the bound", TRACKER,
+             "        inp = self._stop_in\n        v, a = self._handover()",
+             "        inp = self._stop_in\n        inp.max_acceleration = self.a_max * 0.3\n"
+             "        v, a = self._handover()", (STOP, STOPS)),
+    Mutation("strictest_stop_not_chosen", "stops: the strictest request wins", ENVELOPE,
+             "if request is None or r.category < request.category:", "if request is None:",
+             (f"{GUARD}::test_the_strictest_of_two_stops_asked_on_one_tick_wins",)),
+    Mutation("stricter_stop_ignored", "stops: a stricter stop overrides the one in force", ENVELOPE,
+             "if self.stop_category is not None and self.stop_category <= category:",
+             "if self.stop_category is not None:", (f"{GUARD}::test_a_stricter_stop_overrides_the_one_in_force",)),
+    Mutation("nan_chunk_accepted", "NaN/inf rejection (chunks)", EXECUTOR,
+             "if not np.isfinite(actions).all():", "if False:",
+             (f"{EXE}::test_malformed_chunks_become_events",)),
+    Mutation("nan_reference_sent", "NaN/inf rejection (reference)", f"{CHECKS}/finite.py",
+             "return None if tick.finite else STOP", "return None",
+             (f"{PROPS}::test_a_non_finite_reference_is_never_sent",)),
+    Mutation("stale_steps_replayed", "stale-step dropping: late steps are not replayed", EXECUTOR,
+             "placed = curve.shifted(first) if shift else curve", "placed = curve.shifted(max(first, now))",
+             (f"{EXE}::test_late_steps_are_dropped_not_replayed",)),
+    Mutation("stale_chunk_accepted", "stale-step dropping: a wholly stale chunk is refused", EXECUTOR,
+             "if first + (horizon - 1) * h <= now:", "if False:",
+             (f"{EXE}::test_a_fully_stale_chunk_is_refused",)),
+    Mutation("out_of_order_accepted", "stale-step dropping: an older chunk never replaces a newer one", EXECUTOR,
+             "chunk.t_obs_ns < self._chunk.t_obs_ns", "chunk.t_obs_ns < -(2**62)",
+             (f"{EXE}::test_late_steps_are_dropped_not_replayed",)),
+)

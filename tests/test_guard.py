@@ -1,0 +1,82 @@
+"""The Guard facade and how the envelope combines its checks: the strictest stop wins, a stricter stop overrides."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from pydantic import ValidationError
+
+from cellguard.control.config import GuardConfig
+from cellguard.control.events import ROUTINE_EVENTS, EventKind
+from cellguard.control.guard import Guard
+from cellguard.control.settings import GuardSettings, build_guard
+from cellguard.policy.chunk import ActionChunk
+from cellguard.robot.protocol import SafetyInputs
+from cellguard.robot.registry import make_cell
+
+CELL = make_cell("arm-pick-place")
+PROFILE, Q0, MS = CELL.profile, CELL.read().q, 1_000_000
+
+
+def test_the_strictest_of_two_stops_asked_on_one_tick_wins():
+    guard = Guard(PROFILE, Q0, MS, GuardConfig(watchdog_s=0.1, watchdog_category=0))
+    guard.push(ActionChunk(np.repeat(Q0[None], 5, axis=0), 0, 20 * MS), 0)
+    guard.tick(MS)
+    _, events = guard.tick(200 * MS, None, SafetyInputs(stop=2))  # watchdog (category 0) and the input (2)
+    assert [(e.kind, e.category) for e in events] == [("watchdog_stop", 0), ("power_removed", 0)]
+    assert not guard.power
+
+
+def test_a_stricter_stop_overrides_the_one_in_force():
+    guard = Guard(PROFILE, Q0, MS)
+    guard.tick(MS, None, SafetyInputs(stop=2))
+    assert guard.power
+    _, events = guard.tick(2 * MS, None, SafetyInputs(stop=0))
+    assert [(e.kind, e.category) for e in events] == [("protective_stop", 0), ("power_removed", 0)]
+    assert not guard.power
+    guard.reset(Q0)
+    setpoint, events = guard.tick(3 * MS)
+    assert guard.power and not events and np.array_equal(setpoint, Q0)
+
+
+def test_build_guard_takes_the_cells_box_and_a_scenarios_settings():
+    guard = build_guard(CELL, GuardSettings(watchdog_s=0.5))
+    assert guard.config.box == CELL.workspace_box and guard.config.watchdog_s == 0.5
+    assert GuardSettings is GuardConfig
+
+
+@pytest.mark.parametrize("key, value", [("watchdog_s", 0.0), ("reduced_speed", 0.3), ("soft_margin", 0.5),
+                                        ("effort_fraction", 1.5), ("box", ((0, 0, 0), (0, 1, 1))), ("nope", 1)])
+def test_a_bad_setting_is_refused_naming_its_key(key, value):
+    with pytest.raises(ValidationError, match=key):
+        GuardConfig(**{key: value})
+
+
+def test_event_kinds_keep_their_record_strings():
+    assert EventKind.WATCHDOG_STOP == "watchdog_stop" and str(EventKind.CHUNK_STEPS_DROPPED) == "chunk_steps_dropped"
+    assert ROUTINE_EVENTS == {"chunk_steps_dropped"}
+    assert EventKind.REFERENCE_INVALID.category == 2 and EventKind.PROTECTIVE_STOP.category is None
+    assert all(EventKind(f"{k}_cleared") for k in (EventKind.REDUCED_SPEED_INPUT, EventKind.UNCERTAINTY_GATE))
+
+
+def test_kinematics_from_the_mjcf_agrees_with_the_cell_and_names_what_exists():
+    from cellguard.embodiment import Kinematics
+    from cellguard.errors import UnknownNameError
+    from cellguard.robot.arm_cell import ASSETS
+
+    kinematics = Kinematics.from_mjcf(ASSETS / "arm.xml", "tcp", PROFILE.joint_names)
+    rng = np.random.default_rng(0)
+    for q in rng.uniform(PROFILE.q_min, PROFILE.q_max, (20, PROFILE.dof)):
+        np.testing.assert_allclose(kinematics.tool_point(q), CELL.tool_point(q), atol=1e-12)
+    with pytest.raises(UnknownNameError, match="tcp"):
+        Kinematics.from_mjcf(ASSETS / "arm.xml", "flange", PROFILE.joint_names)
+
+
+def test_build_guard_prefers_the_cells_kinematics_to_its_live_model():
+    from cellguard.embodiment import Kinematics
+    from cellguard.robot.arm_cell import ASSETS, ArmPickPlace
+
+    cell = ArmPickPlace(seed=0)
+    cell.kinematics = Kinematics.from_mjcf(ASSETS / "arm.xml", "tcp", cell.profile.joint_names)
+    guard = build_guard(cell)
+    assert guard.envelope._tool.__self__ is cell.kinematics and guard.executor._tool.__self__ is cell.kinematics
