@@ -20,8 +20,7 @@ from cellguard.control.events import Event
 from cellguard.control.settings import build_guard
 from cellguard.diagnose.cycle_buffer import CycleBuffer
 from cellguard.diagnose.features import cycle_features
-from cellguard.errors import RecordError
-from cellguard.output import make_folder
+from cellguard.output import make_folder, write_output
 from cellguard.policy.chunk import ActionChunk
 from cellguard.policy.registry import make_policy
 from cellguard.record.session import RunRecording
@@ -167,11 +166,7 @@ def run_scenario(scenario: Scenario, out: Path, on_cycle: Callable[[dict], None]
     summary = run.summary()
     if run.stopped:
         summary["stopped"] = run.stopped
-    try:
-        (out / "summary.json").write_text(json.dumps(summary, indent=1))
-    except OSError as exc:
-        raise RecordError(f"{out / 'summary.json'}: cannot write ({exc.strerror}); "
-                          f"run stopped: {run.stopped or 'no'}") from None
+    write_output(out / "summary.json", json.dumps(summary, indent=1), "summary")
     return summary
 
 

@@ -1,7 +1,7 @@
 """Figures for the fault record: cost per servo tick, bytes per hour, read time, 30-day index query.
 
 Timings only (never asserted in tests). ``benchmarks/record.py`` prints them as JSON and
-``cellguard bench`` includes them.
+``cellguard bench --only record`` includes them.
 """
 
 from __future__ import annotations
@@ -17,8 +17,11 @@ from cellguard.control.events import Event
 from cellguard.policy.chunk import ActionChunk
 from cellguard.record.index import IndexWriter, cycle_row, cycles_above_baseline
 from cellguard.record.reader import open_record
+from cellguard.record.session import RunRecording
 from cellguard.record.writer import RECORD_FILE, RecordConfig, Recorder
 from cellguard.robot.state import State
+from cellguard.runner import Run
+from cellguard.scenario import parse_scenario
 
 DT_NS = 1_000_000
 JOINTS = ("shoulder_pan", "shoulder_lift", "elbow", "wrist_flex", "wrist_roll", "gripper")
@@ -76,10 +79,6 @@ def bytes_per_hour(cycles: int = 6) -> dict:
     The default figure depends on how often events open full-rate windows in this run
     (``events_per_hour``); ``mb_per_event_window`` is what one window adds at most.
     """
-    from cellguard.record.session import RunRecording
-    from cellguard.runner import Run
-    from cellguard.scenario import parse_scenario
-
     configs = {"continuous_only": RecordConfig(pre_trigger_s=0.0, post_trigger_s=0.0), "default": RecordConfig(),
                "full_rate": RecordConfig(decimated_hz=1000.0)}
     out, events_per_hour = {}, 0.0

@@ -1,0 +1,1 @@
+"""Benchmarks that drive the whole tick path (they may import the runner); figures only, never asserted."""
