@@ -149,11 +149,14 @@ class Run:
         }
 
 
-def run_scenario(scenario: Scenario, out: Path, on_cycle: Callable[[dict], None] | None = None) -> dict:
-    """Run every cycle of ``scenario`` and write ``out/summary.json``; return the summary."""
+def run_scenario(scenario: Scenario, out: Path, on_cycle: Callable[[dict], None] | None = None,
+                 overwrite: bool = False) -> dict:
+    """Run every cycle of ``scenario`` and write ``out/summary.json``; return the summary.
+
+    A folder that holds a record already is refused unless ``overwrite``."""
     out = make_folder(Path(out), "--out")
     run = Run(scenario)
-    run.recording = RunRecording.start(out, run)  # RecordError here: nothing runs
+    run.recording = RunRecording.start(out, run, replace=overwrite)  # RecordError here: nothing runs
     try:
         for _ in range(scenario.total_cycles):
             outcome = run.cycle()

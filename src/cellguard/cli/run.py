@@ -21,9 +21,11 @@ err = Console(stderr=True)
 DEMO_SCENARIO = Path(__file__).parents[1] / "scenarios" / "demo.yaml"
 
 
-def _run(scenario: Scenario, out: Path, quiet: bool) -> dict:
+def _run(scenario: Scenario, out: Path, quiet: bool, overwrite: bool = False) -> dict:
+    from cellguard.record.writer import refuse_existing
     from cellguard.runner import run_scenario
 
+    refuse_existing(out, overwrite)  # a run never overwrites a record unless asked
     make_folder(out, "--out")  # before the progress bar: a bad folder is one line and nothing else
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                   console=err, disable=quiet, transient=False) as progress:
@@ -32,7 +34,7 @@ def _run(scenario: Scenario, out: Path, quiet: bool) -> dict:
         def advance(outcome: dict) -> None:
             progress.update(task, advance=1, description=f"{scenario.cell} [{outcome['phase']}]")
 
-        return run_scenario(scenario, out, on_cycle=advance)
+        return run_scenario(scenario, out, on_cycle=advance, overwrite=overwrite)
 
 
 def _print_summary(summary: dict, out: Path, as_json: bool) -> None:
@@ -52,11 +54,12 @@ def run(
     scenario: Path = typer.Argument(..., help="Scenario YAML file."),
     out: Path = typer.Option(..., "--out", help="Folder for the record and summary.json."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace a record already in --out (never by default)."),
 ) -> None:
     """Run a scenario file on its simulated cell."""
     try:
         sc = load_scenario(scenario)
-        summary = _run(sc, out, quiet=as_json)
+        summary = _run(sc, out, quiet=as_json, overwrite=overwrite)
     except CellguardError as exc:
         fail(exc)
     _print_summary(summary, out, as_json)
@@ -66,6 +69,7 @@ def run(
 def demo(
     out: Path = typer.Option(Path("cellguard-demo"), "--out", help="Folder for the demo's outputs."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace a record already in --out (never by default)."),
 ) -> None:
     """Acceptance then a production shift with site drift on the simulated arm cell."""
     from cellguard.diagnose.from_record import diagnose_record
@@ -73,7 +77,7 @@ def demo(
 
     try:
         sc = load_scenario(DEMO_SCENARIO)
-        summary = _run(sc, out, quiet=as_json)
+        summary = _run(sc, out, quiet=as_json, overwrite=overwrite)
         diagnosis = diagnose_record(out)
         report_path = write_report(out, diagnosis=diagnosis)
     except CellguardError as exc:
