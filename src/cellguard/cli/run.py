@@ -63,6 +63,15 @@ def run(
     except CellguardError as exc:
         fail(exc)
     _print_summary(summary, out, as_json)
+    _exit_if_stopped(summary, out)
+
+
+def _exit_if_stopped(summary: dict, out: Path) -> None:
+    """A run stopped because its record could not be written: one line on stderr and exit 1."""
+    if summary.get("stopped"):
+        err.print(f"error: the cell was stopped (category 2, record_failed): {summary['stopped']}; "
+                  f"{out / 'summary.json'} says what ran", markup=False, highlight=False, soft_wrap=True)
+        raise typer.Exit(1)
 
 
 @app.command()

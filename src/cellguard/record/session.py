@@ -29,7 +29,7 @@ from cellguard.record.writer import RecordConfig, Recorder, refuse_existing
 
 SWITCH_INTERVAL_S = 5e-5  # longest GIL hold the servo thread may wait for behind the writer [s]
 POLL_S = 0.002  # the writer thread looks at the queue at least this often [s]
-RESERVE_BYTES = 1 << 20  # disk kept free for summary.json, released at close [bytes]
+RESERVE_BYTES = (256 << 10, 8 << 10)  # disk kept free for summary.json: base + per cycle, released at close [bytes]
 RESERVE_FILE = ".cellguard-reserve"
 
 
@@ -67,7 +67,8 @@ class RunRecording:
         """
         folder = Path(folder)
         refuse_existing(folder, replace)  # before anything is written there
-        reserve = _reserve(folder / RESERVE_FILE)
+        cycles = getattr(run.scenario, "total_cycles", 100)
+        reserve = _reserve(folder / RESERVE_FILE, RESERVE_BYTES[0] + RESERVE_BYTES[1] * cycles)
         context = cls._context(run, config, software_versions())
         profile = run.cell.profile
         model = getattr(run.cell, "model", None)
@@ -167,13 +168,13 @@ class RunRecording:
             self._wake.clear()
 
 
-def _reserve(path: Path) -> Path | None:
-    """Set ``RESERVE_BYTES`` aside in ``path``; None (no reserve) if the disk has not even that."""
+def _reserve(path: Path, size: int) -> Path | None:
+    """Set ``size`` bytes aside in ``path``; None (no reserve) if the disk has not even that."""
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
         try:
-            os.posix_fallocate(fd, 0, RESERVE_BYTES)
+            os.posix_fallocate(fd, 0, size)
         finally:
             os.close(fd)
     except OSError:

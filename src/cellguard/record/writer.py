@@ -31,6 +31,7 @@ the per-cycle summaries are continuous.
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import json
 import math
@@ -147,8 +148,16 @@ class Recorder:
                               f"nothing was run") from None
         epoch = time.time_ns() if epoch_wall_ns is None else epoch_wall_ns
         index = IndexWriter(folder / INDEX_DIR, epoch, config.index_part_rows, opener)
-        return cls(stream, joints=joints, dt_ns=dt_ns, context=context, config=config, index=index,
-                   name=str(folder / RECORD_FILE), epoch_wall_ns=epoch, description=description)
+        try:
+            return cls(stream, joints=joints, dt_ns=dt_ns, context=context, config=config, index=index,
+                       name=str(folder / RECORD_FILE), epoch_wall_ns=epoch, description=description)
+        except RecordError:  # not even the start fitted: leave no empty record behind
+            with contextlib.suppress(OSError):
+                stream.close()
+            with contextlib.suppress(OSError):
+                (folder / RECORD_FILE).unlink()
+            raise RecordError(f"{folder / RECORD_FILE}: cannot start the record (no space or no access); "
+                              f"nothing was run") from None
 
     # -- servo path ------------------------------------------------------------------------
     def tick(self, cycle: int, reference: np.ndarray, sent: np.ndarray, state) -> None:
@@ -218,14 +227,15 @@ class Recorder:
 
     def close(self) -> None:
         """Write the pending ticks, the context again, the summary and the index; fsync; close the file."""
-        if self._failed is not None:
-            self._stream.close()
-            return
         try:
-            self._guard(self._flush, self._ring.last_t_ns())
-            self._guard(self._finish)
+            if self._failed is None:
+                self._guard(self._flush, self._ring.last_t_ns())
+                self._guard(self._finish)
         finally:
-            self._stream.close()
+            try:
+                self._stream.close()  # after a failure, this may fail too (buffered bytes on a full disk)
+            except OSError as exc:
+                self._failed = self._failed or _why(exc)
 
     @property
     def failed(self) -> str | None:
