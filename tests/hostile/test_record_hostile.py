@@ -168,7 +168,8 @@ def test_recover_onto_a_record_is_refused(recorded, tmp_path):
     result = cellguard("record", "recover", recorded, "-o", other)
     assert result.returncode == 2
     assert "never overwrites" in one_error_line(result)
-    assert digests(recorded) == before and (other / "record.mcap").read_bytes() == (recorded / "record.mcap").read_bytes()
+    assert digests(recorded) == before
+    assert (other / "record.mcap").read_bytes() == (recorded / "record.mcap").read_bytes()
 
 
 # -- class 4: a damaged context chunk -----------------------------------------------------------------

@@ -96,7 +96,8 @@ def _paced_run(folder: Path, seconds: float, event_every_s: float = 10.0) -> tup
     rng = np.random.default_rng(0)
     run = Run(parse_scenario({"cell": "arm-pick-place", "seed": 3, "acceptance_cycles": 1, "production_cycles": 0}))
     recording = RunRecording.start(folder, run)
-    n, per_cycle, per_event = round(seconds * 1e9 / DT_NS), round(CYCLE_S * 1e9 / DT_NS), round(event_every_s * 1e9 / DT_NS)
+    n, per_cycle = round(seconds * 1e9 / DT_NS), round(CYCLE_S * 1e9 / DT_NS)
+    per_event = round(event_every_s * 1e9 / DT_NS)
     q, costs, deadline = np.zeros(6), [], time.perf_counter_ns()
     for k in range(n):
         t = k * DT_NS

@@ -309,6 +309,7 @@ class Record:
         counts = dict.fromkeys(self._ids, 0)
         first_t = last_t = None
         self.contexts  # noqa: B018 - read first, so that a lost context is known
+        offset = self._offset or 0
         for m in self.messages(list(self._ids)):
             topic = names.get(m.channel_id)
             if topic is None:
@@ -324,7 +325,7 @@ class Record:
         damaged = len(self._late_damage) + sum("chunk at byte" in d.why for d in self.layout.damage)
         return Health(self.layout.finished, self.layout.truncated, len(self.layout.chunks) - len(self._late_damage),
                       damaged, tuple(damage), {t: tuple(g) for t, g in gaps.items()}, counts,
-                      None if first_t is None else (first_t - (self._offset or 0), last_t - (self._offset or 0)), self.context_loss)
+                      None if first_t is None else (first_t - offset, last_t - offset), self.context_loss)
 
     # -- raw messages ---------------------------------------------------------------------
     def messages(self, topics: list[str], start_ns: int | None = None, end_ns: int | None = None

@@ -22,9 +22,10 @@ from xml.sax.saxutils import quoteattr
 import mujoco
 import numpy as np
 
-_HINGE, _SLIDE, _FREE = int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE), int(mujoco.mjtJoint.mjJNT_FREE)
-_BOX, _SPHERE, _ELLIPSOID = int(mujoco.mjtGeom.mjGEOM_BOX), int(mujoco.mjtGeom.mjGEOM_SPHERE), int(mujoco.mjtGeom.mjGEOM_ELLIPSOID)
-_CYLINDER, _CAPSULE = int(mujoco.mjtGeom.mjGEOM_CYLINDER), int(mujoco.mjtGeom.mjGEOM_CAPSULE)
+_J, _G = mujoco.mjtJoint, mujoco.mjtGeom
+_HINGE, _SLIDE, _FREE = int(_J.mjJNT_HINGE), int(_J.mjJNT_SLIDE), int(_J.mjJNT_FREE)
+_BOX, _SPHERE, _ELLIPSOID = int(_G.mjGEOM_BOX), int(_G.mjGEOM_SPHERE), int(_G.mjGEOM_ELLIPSOID)
+_CYLINDER, _CAPSULE = int(_G.mjGEOM_CYLINDER), int(_G.mjGEOM_CAPSULE)
 
 
 @dataclass(frozen=True)
