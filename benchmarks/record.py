@@ -11,7 +11,7 @@ import argparse
 import json
 import sys
 
-from cellguard.record.bench import figures
+from cellguard.bench.record import figures
 
 if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])

@@ -65,7 +65,7 @@ def test_full_disk_raises_and_the_earlier_record_reads_back_whole(tmp_path):
 
 
 def test_after_a_write_error_the_recorder_refuses_everything(tmp_path):
-    rec = Recorder.create(tmp_path, joints=JOINTS, dt_ns=DT_NS, context=context(), opener=FullDisk(2_000))
+    rec = Recorder.create(tmp_path, joints=JOINTS, dt_ns=DT_NS, context=context(), opener=FullDisk(5_000))
     z = np.zeros(6)
     from cellguard.robot.state import State
     with pytest.raises(RecordError, match="cannot write"):

@@ -117,7 +117,8 @@ def test_every_channel_declares_its_schema(folder):
     with open(folder / "record.mcap", "rb") as f:
         summary = make_reader(f).get_summary()
     assert {c.topic for c in summary.channels.values()} == {
-        "/context", "/ticks/decimated", "/ticks/full", "/chunks", "/events", "/cycles", "/measurements"}
+        "/context", "/ticks/decimated", "/ticks/full", "/chunks", "/events", "/cycles", "/measurements",
+        "/joint_states", "/joint_states/full", "/tf", "/tf_static", "/robot_description", "/events/log"}
     for channel in summary.channels.values():
         schema = summary.schemas[channel.schema_id]
         assert schema.encoding in ("jsonschema", "ros2msg") and schema.data

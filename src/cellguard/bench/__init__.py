@@ -1,1 +1,1 @@
-"""Benchmarks: figures printed as JSON by `cellguard bench` and `benchmarks/`; above the runner, never imported by the library."""
+"""Benchmarks that drive the whole tick path (they may import the runtime); figures only, never asserted."""

@@ -14,7 +14,7 @@ from cellguard.errors import CellguardError
 
 
 def _record_figures(quick: bool) -> dict:
-    from cellguard.record.bench import figures
+    from cellguard.bench.record import figures
 
     return figures(quick=quick)
 

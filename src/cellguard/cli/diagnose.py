@@ -11,6 +11,7 @@ from rich.console import Console
 
 from cellguard.cli.app import app
 from cellguard.cli.errors import fail
+from cellguard.cli.record import warn_if_damaged
 from cellguard.errors import CellguardError
 
 
@@ -25,12 +26,15 @@ def diagnose(
 
     try:
         diagnosis = diagnose_record(folder, acceptance=acceptance)
+        health = record_health(folder)
     except CellguardError as exc:
         fail(exc)
     if as_json:
-        sys.stdout.write(json.dumps(diagnosis.to_dict()) + "\n")
-        return
-    print_diagnosis(diagnosis)
+        sys.stdout.write(json.dumps({**diagnosis.to_dict(), "record": {"ok": health.ok, "status": health.describe()}})
+                         + "\n")
+    else:
+        print_diagnosis(diagnosis)
+    raise typer.Exit(warn_if_damaged(health, folder))
 
 
 @app.command()
@@ -43,9 +47,19 @@ def report(
 
     try:
         path = write_report(folder, out)
+        health = record_health(folder)
     except CellguardError as exc:
         fail(exc)
     Console().print(f"report: {path}")
+    raise typer.Exit(warn_if_damaged(health, folder))
+
+
+def record_health(folder: Path):
+    """What a full read of the record finds (truncation, damaged chunks, a lost context)."""
+    from cellguard.record.reader import open_record
+
+    with open_record(folder) as rec:
+        return rec.health()
 
 
 def print_diagnosis(d) -> None:

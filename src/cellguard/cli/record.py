@@ -24,7 +24,14 @@ _err = Console(stderr=True, soft_wrap=True)
 FORMATS = ("csv", "parquet")
 
 
-def _warn_if_damaged(health, folder: Path) -> int:
+def _utc(wall_ns: int) -> str:
+    import datetime as dt
+
+    return dt.datetime.fromtimestamp(wall_ns * 1e-9, dt.timezone.utc).isoformat(timespec="milliseconds")
+
+
+def warn_if_damaged(health, folder: Path) -> int:
+    """Print one warning line saying what was lost (stderr); the exit code: 0 complete, 1 truncated or damaged."""
     if health.ok:
         return 0
     hint = (f"; `cellguard record recover {folder} -o NEW_DIR` writes a finished copy"
@@ -51,8 +58,10 @@ def info(
         fail(exc)
     context = contexts[0].context if contexts else {}
     doc = {
-        "file": str(rec.file), "health": {"ok": health.ok, "status": health.describe(), "finished": health.finished,
-                                          "truncated": health.truncated, "damage": list(health.damage)},
+        "file": str(rec.file), "record_id": rec.record_id, "record_version": rec.version,
+        "start_utc": _utc(rec.epoch_wall_ns) if rec.epoch_wall_ns else None,
+        "health": {"ok": health.ok, "status": health.describe(), "finished": health.finished,
+                   "truncated": health.truncated, "damage": list(health.damage), "context_loss": health.context_loss},
         "span_s": None if health.span_ns is None else [health.span_ns[0] * 1e-9, health.span_ns[1] * 1e-9],
         "messages": health.messages,
         "context": {k: context.get(k) for k in ("site", "cell_id", "cell", "policy", "embodiment", "fixture_datum",
@@ -70,7 +79,7 @@ def info(
         sys.stdout.write(json.dumps(doc, indent=1, default=str) + "\n")
     else:
         _print_info(doc)
-    raise typer.Exit(_warn_if_damaged(health, folder))
+    raise typer.Exit(warn_if_damaged(health, folder))
 
 
 def _print_info(doc: dict) -> None:
@@ -78,6 +87,8 @@ def _print_info(doc: dict) -> None:
     ctx = doc["context"]
     policy, emb = ctx.get("policy") or {}, ctx.get("embodiment") or {}
     out.print(f"record   {doc['file']}  [{doc['health']['status']}]", markup=False)
+    out.print(f"run      {doc['record_id']}  started {doc['start_utc']}  (record format {doc['record_version']})",
+              markup=False)
     out.print(f"site     {ctx.get('site')} / {ctx.get('cell_id')} ({ctx.get('cell')})", markup=False)
     out.print(f"policy   {policy.get('source')}  sha256 {str(policy.get('sha256'))[:12]}", markup=False)
     out.print(f"profile  {emb.get('robot')} {emb.get('version')}  sha256 {str(emb.get('sha256'))[:12]}  "
@@ -105,19 +116,20 @@ def export(
     cycle: int | None = typer.Option(None, "--cycle", help="Only this cycle."),
 ) -> None:
     """Ticks as rows: t_ns, cycle, joint, q_ref, q_cmd, q_meas, qd_meas, effort, current."""
-    from cellguard.record.export import write_ticks
+    from cellguard.record.export import refuse_record, write_ticks
     from cellguard.record.reader import open_record
 
     try:
         if fmt not in FORMATS:
             raise RecordError(f"--format: {fmt!r} is not one of {', '.join(FORMATS)}")
         with open_record(folder) as rec:
+            refuse_record(output)  # before the ticks are read
             rows = write_ticks(rec.ticks(cycle=cycle, rate=rate), output, fmt)
             health = rec.health()
     except CellguardError as exc:
         fail(exc)
     _err.print(f"{rows} rows written to {output}", markup=False, highlight=False)
-    raise typer.Exit(_warn_if_damaged(health, folder))
+    raise typer.Exit(warn_if_damaged(health, folder))
 
 
 @record_app.command("to-lerobot")
@@ -142,7 +154,7 @@ def to_lerobot(
         _err.print(f"skipped {why}", markup=False, highlight=False)
     _err.print(f"{len(result.episodes)} episodes, {result.frames} frames at {result.fps} fps written to {output}",
                markup=False, highlight=False)
-    raise typer.Exit(_warn_if_damaged(health, folder))
+    raise typer.Exit(warn_if_damaged(health, folder))
 
 
 @record_app.command()

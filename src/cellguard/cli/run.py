@@ -21,9 +21,11 @@ err = Console(stderr=True)
 DEMO_SCENARIO = Path(__file__).parents[1] / "scenarios" / "demo.yaml"
 
 
-def _run(scenario: Scenario, out: Path, quiet: bool, realtime: bool = False) -> dict:
+def _run(scenario: Scenario, out: Path, quiet: bool, realtime: bool = False, overwrite: bool = False) -> dict:
+    from cellguard.record.writer import refuse_existing
     from cellguard.runtime import run_scenario
 
+    refuse_existing(out, overwrite)  # a run never overwrites a record unless asked
     make_folder(out, "--out")  # before the progress bar: a bad folder is one line and nothing else
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                   console=err, disable=quiet, transient=False) as progress:
@@ -32,7 +34,7 @@ def _run(scenario: Scenario, out: Path, quiet: bool, realtime: bool = False) -> 
         def advance(outcome: dict) -> None:
             progress.update(task, advance=1, description=f"{scenario.cell} [{outcome['phase']}]")
 
-        return run_scenario(scenario, out, on_cycle=advance, realtime=realtime)
+        return run_scenario(scenario, out, on_cycle=advance, realtime=realtime, overwrite=overwrite)
 
 
 def _print_summary(summary: dict, out: Path, as_json: bool) -> None:
@@ -54,20 +56,31 @@ def run(
     out: Path = typer.Option(..., "--out", help="Folder for the record and summary.json."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),
     realtime: bool = typer.Option(False, "--realtime", help="Run a simulated cell on wall time (a bridge always is)."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace a record already in --out (never by default)."),
 ) -> None:
     """Run a scenario file on its simulated cell or robot bridge (the robot picks the clock)."""
     try:
         sc = load_scenario(scenario)
-        summary = _run(sc, out, quiet=as_json, realtime=realtime)
+        summary = _run(sc, out, quiet=as_json, realtime=realtime, overwrite=overwrite)
     except CellguardError as exc:
         fail(exc)
     _print_summary(summary, out, as_json)
+    _exit_if_stopped(summary, out)
+
+
+def _exit_if_stopped(summary: dict, out: Path) -> None:
+    """A run stopped because its record could not be written: one line on stderr and exit 1."""
+    if summary.get("stopped"):
+        err.print(f"error: the cell was stopped (category 2, record_failed): {summary['stopped']}; "
+                  f"{out / 'summary.json'} says what ran", markup=False, highlight=False, soft_wrap=True)
+        raise typer.Exit(1)
 
 
 @app.command()
 def demo(
     out: Path = typer.Option(Path("cellguard-demo"), "--out", help="Folder for the demo's outputs."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace a record already in --out (never by default)."),
 ) -> None:
     """Acceptance then a production shift with site drift on the simulated arm cell."""
     from cellguard.diagnose.from_record import diagnose_record
@@ -75,7 +88,7 @@ def demo(
 
     try:
         sc = load_scenario(DEMO_SCENARIO)
-        summary = _run(sc, out, quiet=as_json)
+        summary = _run(sc, out, quiet=as_json, overwrite=overwrite)
         diagnosis = diagnose_record(out)
         report_path = write_report(out, diagnosis=diagnosis)
     except CellguardError as exc:

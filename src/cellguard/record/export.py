@@ -10,7 +10,10 @@ import pyarrow.csv as pacsv
 import pyarrow.parquet as pq
 
 from cellguard.errors import RecordError
+from cellguard.output import atomic_file
 from cellguard.record.reader import Ticks
+from cellguard.record.scan import MAGIC
+from cellguard.record.writer import RECORD_FILE
 from cellguard.record.schemas import TICK_FIELDS
 
 
@@ -28,13 +31,32 @@ def ticks_table(ticks: Ticks) -> pa.Table:
 
 
 def write_ticks(ticks: Ticks, output: Path, fmt: str) -> int:
-    """Write the table as csv or parquet; the number of rows written."""
+    """Write the table as csv or parquet (beside the target, then renamed); the number of rows written.
+
+    RecordError if ``output`` is a record: an export never overwrites one.
+    """
+    output = Path(output)
+    refuse_record(output)
     table = ticks_table(ticks)
     try:
-        if fmt == "csv":
-            pacsv.write_csv(table.set_column(2, "joint", table["joint"].cast(pa.string())), str(output))
-        else:
-            pq.write_table(table, str(output), compression="zstd")
-    except OSError as exc:
+        with atomic_file(output, "-o") as f:
+            if fmt == "csv":
+                pacsv.write_csv(table.set_column(2, "joint", table["joint"].cast(pa.string())), f)
+            else:
+                pq.write_table(table, f, compression="zstd")
+    except pa.ArrowException as exc:
         raise RecordError(f"-o {output}: cannot write ({exc})") from None
     return table.num_rows
+
+
+def refuse_record(output: Path) -> None:
+    """RecordError if ``output`` is a record file (by name in a run folder, or by its MCAP magic)."""
+    output = Path(output)
+    if output.is_dir():
+        raise RecordError(f"-o {output}: is a folder; name a file to write")
+    head = b""
+    if output.is_file():
+        with open(output, "rb") as f:
+            head = f.read(len(MAGIC))
+    if head == MAGIC or (output.name == RECORD_FILE and output.exists()):
+        raise RecordError(f"-o {output}: is a record; an export never overwrites a record; choose another file")

@@ -27,12 +27,30 @@ _BASE_TYPES = {
     "success": pa.bool_(), "t_ns": pa.int64(), "kind": pa.string(), "reason": pa.string(), "joint": pa.string(),
     "asked": pa.float64(), "sent": pa.float64(), "category": pa.int64(), "policy_version": pa.string(),
     "calibration_version": pa.string(), "datum_version": pa.string(), "context_version": pa.string(),
+    "site": pa.string(), "cell_id": pa.string(),
 }
 _TIME_KEY = {"cycles": "t_start_ns", "events": "t_ns"}
 
 
 def default_opener(path: Path) -> BinaryIO:
     return open(path, "wb")
+
+
+def clear_index(folder: Path) -> None:
+    """Remove the Parquet parts an index writer made under ``folder`` and the folders they leave empty.
+
+    Never a recursive delete: a file that is not an index part (a technician's notes, another
+    tool's output) stays where it is, and so do the folders holding it.
+    """
+    folder = Path(folder)
+    for table in TABLES:
+        for part in (folder / table).glob("day=*/part-*.parquet"):
+            part.unlink()
+        for day in (folder / table).glob("day=*"):
+            if day.is_dir() and not any(day.iterdir()):
+                day.rmdir()
+        if (folder / table).is_dir() and not any((folder / table).iterdir()):
+            (folder / table).rmdir()
 
 
 class IndexWriter:
@@ -78,7 +96,7 @@ class IndexWriter:
 
 def cycle_row(cycle: int, phase: str, t_start_ns: int, t_end_ns: int, success: bool, versions: dict,
               features: dict) -> dict:
-    """One row of ``cycles``: identity, timing, outcome, context versions, then the features (NaN as null).
+    """One row of ``cycles``: identity, timing, outcome, context versions and site / cell id, then the features.
 
     A feature that repeats an identity column (``cycle``, ``success``) is left out: the column has it.
     """

@@ -9,7 +9,9 @@ Contract (fields may be added, not renamed)::
                                      #   profile sha256 and calibration dates, envelope, fixture_datum,
                                      #   camera_calibration, site, cell_id, scenario, software versions)
     rec.contexts                     # [ContextChange(t_ns, version, changed, versions, context)], one per change
-    rec.epoch_wall_ns                # wall clock at t_ns == 0 (display only; order by t_ns)
+    rec.epoch_wall_ns                # wall clock at t_ns == 0 [ns since 1970] (display only; order by t_ns)
+    rec.record_id, rec.version       # 32 hex digits (None before version 2); record format version (1 or 2)
+    rec.context_loss                 # None, or a sentence: the first context was lost and where it came from
     for c in rec.cycles():           # CycleRecord, in time order, one per completed cycle:
         c.cycle, c.phase             #   int, "acceptance" | "production"
         c.t_start_ns, c.t_end_ns     #   int ns, the record's clock
@@ -42,7 +44,7 @@ from mcap.records import Message
 from cellguard.errors import RecordError
 from cellguard.record.scan import ChunkRef, Layout, open_buffer, read_chunk, scan
 from cellguard.record.schemas import BY_TOPIC, CHUNK, TICK_FIELDS, TICKS
-from cellguard.record.writer import INDEX_DIR, RECORD_FILE
+from cellguard.record.writer import INDEX_DIR, RECORD_FILE, RECORD_VERSION
 
 RATES = ("decimated", "full", "all")
 
@@ -119,22 +121,25 @@ class Health:
     damage: tuple[str, ...]
     gaps: dict[str, tuple[tuple[int, int], ...]]  # topic -> missing sequence ranges (first, last)
     messages: dict[str, int]
-    span_ns: tuple[int, int] | None  # first and last message time read
+    span_ns: tuple[int, int] | None  # first and last message time read, on the record's clock
+    context_loss: str | None = None  # the first context could not be read (and where it came from instead)
 
     @property
     def ok(self) -> bool:
-        return self.finished and not self.truncated and not self.damage and not any(self.gaps.values())
+        return (self.finished and not self.truncated and not self.damage and not any(self.gaps.values())
+                and self.context_loss is None)
 
     def describe(self) -> str:
         if self.ok:
             return f"complete: {self.chunks_ok} chunks, {sum(self.messages.values())} messages"
         state = ("truncated" if self.truncated else "not finished" if not self.finished
-                 else "damaged" if self.damage else "finished, with gaps")
+                 else "damaged" if self.damage or self.context_loss else "finished, with gaps")
+        context = f"; {self.context_loss}" if self.context_loss else ""
         lost = sum(b - a + 1 for g in self.gaps.values() for a, b in g)
         span = ("" if self.span_ns is None
                 else f", readable {self.span_ns[0] * 1e-9:.3f} s to {self.span_ns[1] * 1e-9:.3f} s")
         return (f"{state}: recovered {self.chunks_ok} chunks ({sum(self.messages.values())} messages{span}); "
-                f"{self.chunks_damaged} damaged chunks skipped, {lost} messages missing by sequence number")
+                f"{self.chunks_damaged} damaged chunks skipped, {lost} messages missing by sequence number{context}")
 
 
 def open_record(path: Path | str, strict: bool = False) -> Record:
@@ -162,7 +167,17 @@ class Record:
         topics = {c.topic: c.id for c in layout.channels.values()}
         self._ids = {topic: topics.get(topic, spec.id) for topic, spec in BY_TOPIC.items()}
         self._contexts: list[ContextChange] | None = None
-        self.epoch_wall_ns = 0
+        self.context_loss: str | None = None
+        facts = layout.metadata.get("cellguard", {})
+        self.version = int(facts.get("record_version", "1")) if facts.get("record_version", "1").isdigit() else 1
+        self.record_id: str | None = facts.get("record_id")
+        self.epoch_wall_ns = int(facts["epoch_wall_ns"]) if facts.get("epoch_wall_ns", "").isdigit() else 0
+        if facts and self.version > RECORD_VERSION:
+            raise RecordError(f"{file}: record format version {self.version} is newer than this cellguard reads "
+                              f"(1 to {RECORD_VERSION}); update cellguard")
+        self._offset = self.epoch_wall_ns if self.version >= 2 else 0  # log time = record time + offset
+        if not facts and layout.channels and any(c.topic == "/joint_states" for c in layout.channels.values()):
+            self._offset = None  # version 2 with its metadata record lost: learn the offset from a context
 
     def close(self) -> None:
         self._buf.close()
@@ -176,13 +191,29 @@ class Record:
     # -- context --------------------------------------------------------------------------
     @property
     def contexts(self) -> list[ContextChange]:
+        """One entry per context change; a periodic repeat stands in for a change whose chunk was lost."""
         if self._contexts is None:
             self._contexts = []
-            for m in self.messages(["/context"]):
+            for m in self._raw(["/context"]):
                 d = json.loads(m.data)
                 self.epoch_wall_ns = d.get("epoch_wall_ns", self.epoch_wall_ns)
+                self.record_id = d.get("record_id", self.record_id)
+                if self._offset is None:
+                    self._offset = m.log_time - d["t_ns"] if d.get("record_version", 1) >= 2 else 0
+                if self._contexts and self._contexts[-1].version == d["version"]:
+                    continue  # a repeat of the context in force
                 self._contexts.append(ContextChange(d["t_ns"], d["version"], tuple(d.get("changed", ())),
                                                     d.get("versions", {}), d["context"]))
+            saved = self.layout.metadata.get("cellguard.context")
+            if not self._contexts and saved:
+                self._contexts.append(_saved_context(saved))
+                self.context_loss = ("the context chunk is lost; the context was taken from the copy "
+                                     "at the end of the file")
+            elif self._contexts and self._contexts[0].t_ns > 0:
+                self.context_loss = (f"the first context chunk is lost; the context was taken from its repeat at "
+                                     f"t={self._contexts[0].t_ns * 1e-9:.3f} s")
+            elif not self._contexts:
+                self.context_loss = "the context is lost (no readable copy)"
         return self._contexts
 
     @property
@@ -228,7 +259,8 @@ class Record:
         topics = {"decimated": ["/ticks/decimated"], "full": ["/ticks/full"],
                   "all": ["/ticks/decimated", "/ticks/full"]}[rate]
         lo = None if start_ns is None else start_ns - self._batch_span_ns()
-        parts = [TICKS.decode(m.data) for m in self.messages(topics, lo, end_ns)]
+        hi = None if end_ns is None else end_ns + self._backlog_ns()
+        parts = [TICKS.decode(m.data) for m in self.messages(topics, lo, hi)]
         return _merge(parts, cycle, start_ns, end_ns)
 
     def _cycle_span(self, cycle: int) -> tuple[int, int | None]:
@@ -253,6 +285,21 @@ class Record:
         context = self.contexts[0].context if self.contexts else {}
         return context.get("record", {}).get("chunk_ns", 100_000_000) + context.get("servo_period_ns", 1_000_000)
 
+    def _backlog_ns(self) -> int:
+        """How far after its ticks a full-rate backlog may be logged: the pre-trigger window and one chunk."""
+        context = self.contexts[0].context if self.contexts else {}
+        return round(context.get("record", {}).get("pre_trigger_s", 10.0) * 1e9) + self._batch_span_ns()
+
+    def attachment(self, name: str) -> bytes | None:
+        """The data of attachment ``name`` (e.g. ``robot_description.urdf``), or None if absent or unreadable."""
+        from mcap.records import Attachment
+
+        from cellguard.record.scan import read_attachment
+
+        where = self.layout.attachments.get(name)
+        record = None if where is None else read_attachment(self._buf, *where)
+        return record.data if isinstance(record, Attachment) else None
+
     # -- health ---------------------------------------------------------------------------
     def health(self) -> Health:
         """Read every chunk: CRCs, sequence gaps per channel, message counts."""
@@ -261,6 +308,8 @@ class Record:
         gaps: dict[str, list[tuple[int, int]]] = {t: [] for t in self._ids}
         counts = dict.fromkeys(self._ids, 0)
         first_t = last_t = None
+        self.contexts  # noqa: B018 - read first, so that a lost context is known
+        offset = self._offset or 0
         for m in self.messages(list(self._ids)):
             topic = names.get(m.channel_id)
             if topic is None:
@@ -276,16 +325,27 @@ class Record:
         damaged = len(self._late_damage) + sum("chunk at byte" in d.why for d in self.layout.damage)
         return Health(self.layout.finished, self.layout.truncated, len(self.layout.chunks) - len(self._late_damage),
                       damaged, tuple(damage), {t: tuple(g) for t, g in gaps.items()}, counts,
-                      None if first_t is None else (first_t, last_t))
+                      None if first_t is None else (first_t - offset, last_t - offset), self.context_loss)
 
     # -- raw messages ---------------------------------------------------------------------
     def messages(self, topics: list[str], start_ns: int | None = None, end_ns: int | None = None
                  ) -> Iterator[Message]:
-        """Raw MCAP messages of ``topics`` from every readable chunk overlapping the span, by log time."""
+        """Raw MCAP messages of ``topics`` from every readable chunk overlapping the span (record clock), by log time.
+
+        Log times are wall-clock ns since 1970 from version 2 on: ``log_time - rec.epoch_wall_ns``
+        is the record clock (for a backlog logged late, ``publish_time`` is).
+        """
         unknown = set(topics) - set(self._ids)
         if unknown:
             raise RecordError(f"topics: {', '.join(sorted(unknown))} not in a cellguard record; "
                               f"known: {', '.join(self._ids)}")
+        if self._offset is None:
+            self.contexts  # noqa: B018 - learns the log-time offset
+        offset = self._offset or 0
+        return self._raw(topics, None if start_ns is None else start_ns + offset,
+                         None if end_ns is None else end_ns + offset)
+
+    def _raw(self, topics: list[str], start_ns: int | None = None, end_ns: int | None = None) -> Iterator[Message]:
         wanted = {self._ids[t] for t in topics}
         out = []
         for ref in self.layout.chunks:
@@ -301,6 +361,16 @@ class Record:
                     out.append(r)
         out.sort(key=lambda m: m.log_time)  # stable: file order within equal times
         return iter(out)
+
+
+def _saved_context(saved: dict[str, str]) -> ContextChange:
+    """The context from the ``cellguard.context`` metadata record written at close."""
+    from cellguard.record.context import versions
+
+    context = json.loads(saved["context"])
+    stamps = versions(context)
+    return ContextChange(int(saved.get("t_ns", "0")), stamps["context_version"], tuple(sorted(context)), stamps,
+                         context)
 
 
 def _overlaps(ref: ChunkRef, wanted: set[int], start_ns: int | None, end_ns: int | None) -> bool:

@@ -8,13 +8,12 @@ events that survived.
 
 from __future__ import annotations
 
-import shutil
 from pathlib import Path
 
 from mcap.writer import CompressionType, Writer
 
 from cellguard.errors import RecordError
-from cellguard.record.index import IndexWriter, cycle_row, event_row
+from cellguard.record.index import IndexWriter, clear_index, cycle_row, event_row
 from cellguard.record.reader import Health, open_record
 from cellguard.record.schemas import CHANNELS
 from cellguard.record.writer import INDEX_DIR, PROFILE, RECORD_FILE
@@ -34,8 +33,11 @@ def recover(source: Path, target: Path) -> Health:
             raise RecordError(f"-o {target}: would overwrite the record being recovered; choose another folder")
         health = record.health()
         try:
+            if (target / RECORD_FILE).exists():
+                raise RecordError(f"-o {target}: already holds a record; recovery never overwrites one; "
+                                  f"choose another folder")
             target.mkdir(parents=True, exist_ok=True)
-            shutil.rmtree(target / INDEX_DIR, ignore_errors=True)
+            clear_index(target / INDEX_DIR)
             with open(target / RECORD_FILE, "wb") as f:
                 _copy_messages(record, f)
             _rebuild_index(record, target / INDEX_DIR)
@@ -47,6 +49,12 @@ def recover(source: Path, target: Path) -> Health:
 def _copy_messages(record, stream) -> None:
     writer = Writer(stream, chunk_size=1 << 30, compression=CompressionType.ZSTD, enable_crcs=True)
     writer.start(profile=PROFILE, library="cellguard record recover")
+    for name, values in record.layout.metadata.items():  # foxglove, cellguard, cellguard.context
+        writer.add_metadata(name, values)
+    for name in record.layout.attachments:
+        data = record.attachment(name)
+        if data is not None:
+            writer.add_attachment(record.epoch_wall_ns, record.epoch_wall_ns, name, "application/xml", data)
     for c in CHANNELS:
         schema = writer.register_schema(c.schema_name, c.schema_encoding, c.schema_text.encode())
         writer.register_channel(c.topic, c.message_encoding, schema)
@@ -64,10 +72,12 @@ def _copy_messages(record, stream) -> None:
 
 def _rebuild_index(record, folder: Path) -> None:
     contexts = record.contexts
+    where = {k: contexts[0].context.get(k) for k in ("site", "cell_id")} if contexts else {}
     index = IndexWriter(folder, record.epoch_wall_ns)
     for c in record.cycles():
-        index.add("cycles", cycle_row(c.cycle, c.phase, c.t_start_ns, c.t_end_ns, c.success, c.versions, c.features))
+        index.add("cycles", cycle_row(c.cycle, c.phase, c.t_start_ns, c.t_end_ns, c.success, {**c.versions, **where},
+                                      c.features))
     for e in record.events():
         versions = next((x.versions for x in reversed(contexts) if x.t_ns <= e.t_ns), {})
-        index.add("events", event_row(e.__dict__, e.cycle, versions))
+        index.add("events", event_row(e.__dict__, e.cycle, {**versions, **where}))
     index.flush()

@@ -20,7 +20,7 @@ from pathlib import Path
 
 from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
-from mcap.records import Channel, Chunk, Message, Schema
+from mcap.records import AttachmentIndex, Channel, Chunk, Message, Metadata, MetadataIndex, Schema
 from mcap.stream_reader import breakup_chunk
 
 from cellguard.errors import RecordError
@@ -63,6 +63,8 @@ class Layout:
     truncated: bool = False  # the file ends inside a record or without a footer
     schemas: dict[int, Schema] = field(default_factory=dict)
     channels: dict[int, Channel] = field(default_factory=dict)
+    metadata: dict[str, dict[str, str]] = field(default_factory=dict)  # name -> key/values (the last of a name)
+    attachments: dict[str, tuple[int, int]] = field(default_factory=dict)  # name -> (offset, length) of the record
 
 
 def scan(path: Path) -> Layout:
@@ -76,8 +78,14 @@ def scan(path: Path) -> Layout:
         raise RecordError(f"{path}: cannot open the record ({exc.strerror or exc})") from None
     if size == 0:
         raise RecordError(f"{path}: the record is empty (0 bytes); nothing can be recovered")
-    layout = _from_summary(path, size) if data == MAGIC else None
-    return layout if layout is not None else _linear(path, size, magic_ok=data == MAGIC)
+    try:
+        layout = _from_summary(path, size) if data == MAGIC else None
+    except Exception:  # noqa: BLE001 - a summary that parses badly despite its CRC: scan the file instead
+        layout = None
+    try:
+        return layout if layout is not None else _linear(path, size, magic_ok=data == MAGIC)
+    except (OSError, ValueError, struct.error) as exc:
+        raise RecordError(f"{path}: cannot be read ({type(exc).__name__}: {exc})") from None
 
 
 def read_chunk(buf, ref: ChunkRef) -> list:
@@ -94,6 +102,19 @@ def read_chunk(buf, ref: ChunkRef) -> list:
         raise
     except Exception as exc:  # the mcap package raises many kinds on a corrupt chunk (zstd, CRC, struct)
         raise RecordError(f"chunk at byte {ref.offset}: damaged ({type(exc).__name__}: {exc})") from None
+
+
+def read_attachment(buf, offset: int, length: int):
+    """The attachment record at ``offset`` (its CRC checked), or None if it is damaged."""
+    from mcap.records import Attachment
+
+    try:
+        if buf[offset] != Opcode.ATTACHMENT:
+            return None
+        record = Attachment.read(ReadDataStream(BytesIO(buf[offset + 9:offset + length])))
+    except Exception:  # noqa: BLE001 - damaged bytes
+        return None
+    return record
 
 
 def open_buffer(path: Path):
@@ -132,6 +153,12 @@ def _from_summary(path: Path, size: int) -> Layout | None:
             elif op == Opcode.CHANNEL:
                 channel = Channel.read(ReadDataStream(BytesIO(body)))
                 layout.channels[channel.id] = channel
+            elif op == Opcode.METADATA_INDEX:
+                entry = MetadataIndex.read(ReadDataStream(BytesIO(body)))
+                _metadata(buf, entry.offset, layout)
+            elif op == Opcode.ATTACHMENT_INDEX:
+                entry = AttachmentIndex.read(ReadDataStream(BytesIO(body)))
+                layout.attachments[entry.name] = (entry.offset, entry.length)
             pos += 9 + length
     layout.chunks.sort(key=lambda r: r.offset)
     return layout
@@ -164,11 +191,38 @@ def _linear(path: Path, size: int, magic_ok: bool) -> Layout:
                     pos = _resync(buf, pos + 1, tried)
                     continue
                 floor = end
+            elif op == Opcode.METADATA:
+                _metadata(buf, pos, layout)
+            elif op == Opcode.ATTACHMENT:
+                name = _attachment_name(buf, pos)
+                if name is not None:
+                    layout.attachments[name] = (pos, end - pos)
             elif op == Opcode.FOOTER:
                 layout.truncated = end + len(MAGIC) > size or buf[end:end + len(MAGIC)] != MAGIC
                 break
             pos = end
     return layout
+
+
+def _metadata(buf, pos: int, layout: Layout) -> None:
+    """Read the metadata record at ``pos`` into the layout; a damaged one is noted, not raised."""
+    try:
+        if buf[pos] != Opcode.METADATA:
+            raise ValueError("not a metadata record")
+        length = int.from_bytes(buf[pos + 1:pos + 9], "little")
+        record = Metadata.read(ReadDataStream(BytesIO(buf[pos + 9:pos + 9 + length])))
+        layout.metadata[record.name] = dict(record.metadata)
+    except Exception as exc:  # noqa: BLE001 - any parse failure of damaged bytes is damage, not a crash
+        layout.damage.append(Damage(pos, f"metadata record at byte {pos}: unreadable ({type(exc).__name__})"))
+
+
+def _attachment_name(buf, pos: int) -> str | None:
+    """The name of the attachment record at ``pos`` (after log and create times), or None if unreadable."""
+    try:
+        size = int.from_bytes(buf[pos + 25:pos + 29], "little")
+        return bytes(buf[pos + 29:pos + 29 + size]).decode()
+    except (ValueError, UnicodeDecodeError):
+        return None
 
 
 def _check_chunk(buf, pos: int, length: int, layout: Layout) -> ChunkRef | None:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 
+from cellguard.record import ros2
 from cellguard.record.cdr import CdrLayout
 
 TICKS = CdrLayout(
@@ -56,7 +57,10 @@ _INT, _NUM, _STR = {"type": "integer"}, {"type": "number"}, {"type": "string"}
 _OPT_NUM, _OPT_STR, _OPT_INT = {"type": ["number", "null"]}, {"type": ["string", "null"]}, {"type": ["integer", "null"]}
 
 CONTEXT_SCHEMA = _json_schema("cellguard.Context", {
-    "t_ns": _INT, "epoch_wall_ns": {"type": "integer", "description": "wall clock at t_ns = 0, for display only"},
+    "t_ns": _INT, "epoch_wall_ns": {"type": "integer", "description": "wall clock at t_ns = 0 [ns since 1970]; "
+                                                                      "log time = epoch_wall_ns + t_ns"},
+    "record_id": _STR, "record_version": _INT,
+    "repeat": {"type": "boolean", "description": "a periodic copy of the unchanged context, for damaged records"},
     "version": _STR, "changed": {"type": "array", "items": _STR},
     "versions": {"type": "object", "additionalProperties": _STR, "description": "policy, calibration, datum"},
     "context": {"type": "object", "description": "policy, embodiment, calibration, envelope, datum, site, software"},
@@ -98,6 +102,10 @@ def _json(i: int, topic: str, schema: dict) -> ChannelSpec:
     return ChannelSpec(i, topic, schema["title"], "jsonschema", json.dumps(schema), "json")
 
 
+def _ros2(i: int, topic: str, message: tuple[str, str]) -> ChannelSpec:
+    return ChannelSpec(i, topic, message[0], "ros2msg", message[1], "cdr")
+
+
 CHANNELS: tuple[ChannelSpec, ...] = (
     _json(1, "/context", CONTEXT_SCHEMA),
     _cdr(2, "/ticks/decimated", TICKS),
@@ -106,5 +114,12 @@ CHANNELS: tuple[ChannelSpec, ...] = (
     _json(5, "/events", EVENT_SCHEMA),
     _json(6, "/cycles", CYCLE_SCHEMA),
     _json(7, "/measurements", MEASUREMENT_SCHEMA),
+    # standard ROS 2 messages for viewers (record version 2): Foxglove's plot, 3D and log panels
+    _ros2(8, "/joint_states", ros2.JOINT_STATE),  # measured, at the decimated rate
+    _ros2(9, "/joint_states/full", ros2.JOINT_STATE),  # measured, at servo rate around events
+    _ros2(10, "/tf", ros2.TF_MESSAGE),  # moving joints, at the decimated rate
+    _ros2(11, "/tf_static", ros2.TF_MESSAGE),  # fixed joints, once
+    _ros2(12, "/robot_description", ros2.STRING),  # URDF, once
+    _ros2(13, "/events/log", ros2.LOG),  # every event, level by stop category
 )
 BY_TOPIC = {c.topic: c for c in CHANNELS}

@@ -1,5 +1,18 @@
 """The recorder: every tick, chunk, event and cycle of a run, written so that a crash loses little.
 
+Record format version 2 (version 1 is still read): log and publish times are the wall-clock
+epoch of the run's start plus the run's clock (``epoch_wall_ns + t_ns``, integer ns; the payloads
+keep ``t_ns``), so viewers show the real date; a ``foxglove`` metadata record names the device
+(site / cell id) and a ``cellguard`` one the context's key facts; next to cellguard's own tick
+batches, every kept tick is also a ROS 2 ``sensor_msgs/msg/JointState``, the moving joints' poses
+go on ``/tf``, events also go on ``/events/log`` (``rcl_interfaces/msg/Log``), and the robot's URDF
+is an attachment and a ``/robot_description`` message. Messages go to the file in log-time order:
+each chunk's messages are sorted before it is closed, and a pre-trigger backlog that reaches back
+before what is already written keeps its true time in ``publish_time`` and in its payload
+(``t_ns``, ``header.stamp``) but is logged at the time it was written. The context is repeated
+every ``context_every_s`` and, at close, as a metadata record, so a damaged first chunk does not
+take it away.
+
 Durability policy (see the README, "Fault record"):
 
 * Each servo tick is copied into the pre-trigger ring (no I/O). Every ``chunk_ns`` of ticks
@@ -18,12 +31,13 @@ the per-cycle summaries are continuous.
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import json
 import math
 import os
-import shutil
 import time
+import uuid
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -34,14 +48,20 @@ from mcap.writer import CompressionType, Writer
 
 from cellguard.control.events import ROUTINE_EVENTS, Event
 from cellguard.errors import RecordError
+from cellguard.record import ros2
 from cellguard.record.context import changed_keys, versions
-from cellguard.record.index import IndexWriter, cycle_row, default_opener, event_row
+from cellguard.record.index import IndexWriter, clear_index, cycle_row, default_opener, event_row
 from cellguard.record.ring import TickRing
 from cellguard.record.schemas import CHANNELS, CHUNK, TICKS
+from cellguard.record.urdf import JointFrames
 
 RECORD_FILE = "record.mcap"
 INDEX_DIR = "index"
 PROFILE = "cellguard"
+RECORD_VERSION = 2  # 1: log time = t_ns, cellguard channels only
+DESCRIPTION_FILE = "robot_description.urdf"
+_LOG_LEVEL = {0: ros2.FATAL, 1: ros2.ERROR, 2: ros2.WARN}  # stop category -> log level; else INFO (routine: DEBUG)
+_CHUNK_BYTES = 1 << 20  # a long backlog is split into chunks of about this many bytes
 
 
 @dataclass(frozen=True)
@@ -55,11 +75,13 @@ class RecordConfig:
     post_trigger_s: float = 5.0  # and after it [s]
     routine_events: frozenset[str] = ROUTINE_EVENTS
     index_part_rows: int = 5000  # Parquet rows per part file: about one file per day at a 20 s cycle
+    context_every_s: float = 60.0  # repeat the unchanged context at a cycle start at least this often [s]
 
     def __post_init__(self):
         checks = {"chunk_ns": self.chunk_ns > 0, "fsync_ns": self.fsync_ns >= self.chunk_ns,
                   "decimated_hz": self.decimated_hz > 0, "pre_trigger_s": self.pre_trigger_s >= 0,
-                  "post_trigger_s": self.post_trigger_s >= 0, "index_part_rows": self.index_part_rows >= 1}
+                  "post_trigger_s": self.post_trigger_s >= 0, "index_part_rows": self.index_part_rows >= 1,
+                  "context_every_s": self.context_every_s > 0}
         for name, ok in checks.items():
             if not ok:
                 raise RecordError(f"record config {name}: {getattr(self, name)!r} is not allowed "
@@ -68,17 +90,19 @@ class RecordConfig:
     def to_dict(self) -> dict:
         return {"chunk_ns": self.chunk_ns, "fsync_ns": self.fsync_ns, "decimated_hz": self.decimated_hz,
                 "pre_trigger_s": self.pre_trigger_s, "post_trigger_s": self.post_trigger_s,
-                "routine_events": sorted(self.routine_events)}
+                "routine_events": sorted(self.routine_events), "context_every_s": self.context_every_s}
 
 
 class Recorder:
-    """Writes one record (``record.mcap`` and ``index/``) into a folder. Not thread-safe."""
+    """Writes one record (``record.mcap`` and ``index/``) into a folder. Not thread-safe: one thread calls it."""
 
     def __init__(self, stream: BinaryIO, *, joints: tuple[str, ...], dt_ns: int, context: dict,
                  config: RecordConfig = RecordConfig(), index: IndexWriter | None = None, name: str = RECORD_FILE,
-                 epoch_wall_ns: int | None = None):
+                 epoch_wall_ns: int | None = None, description: tuple[str, JointFrames] | None = None,
+                 record_id: str | None = None):
         self.config, self.joints, self.dt_ns, self.name = config, tuple(joints), int(dt_ns), name
         self.epoch_wall_ns = time.time_ns() if epoch_wall_ns is None else int(epoch_wall_ns)
+        self.record_id = record_id or uuid.uuid4().hex
         self._stream, self._index = stream, index
         self._failed: str | None = None
         self._stride = max(1, round(1e9 / dt_ns / config.decimated_hz))
@@ -86,6 +110,10 @@ class Recorder:
         self._back = math.ceil(config.pre_trigger_s * 1e9 / dt_ns)
         self._ring = TickRing(len(self.joints), self._back + 4 * self._batch + self._stride)
         self._seq = {c.id: 0 for c in CHANNELS}
+        self._pending: list[tuple[int, int, int, bytes, int]] = []  # (wall ns, order, channel, data, sequence)
+        self._floor = 0  # log time of the last message written [ns since 1970]
+        self._joint_states = ros2.JointStateEncoder(self.joints)
+        self._urdf, self._frames = description if description is not None else (None, None)
         self._dec_next = 0  # next tick index the decimated stream has not considered
         self._full_done = 0  # ticks before this are on the full-rate channel or were skipped
         self._full_start = 0  # first tick of the current full-rate window
@@ -94,26 +122,42 @@ class Recorder:
         self._next_flush_ns = 0
         self._next_fsync_ns = config.fsync_ns
         self._context: dict | None = None
+        self._context_t_ns = 0
         self._versions: dict[str, str] = {}
+        self._where: dict[str, str | None] = {}
         self._cycle_start: dict[int, int] = {}
         self._guard(self._start, context)
 
     @classmethod
     def create(cls, folder: Path, *, joints, dt_ns: int, context: dict, config: RecordConfig = RecordConfig(),
-               opener: Callable[[Path], BinaryIO] = default_opener, epoch_wall_ns: int | None = None) -> Recorder:
-        """Start a record in ``folder`` (replacing an earlier one there); RecordError if it cannot be written."""
+               opener: Callable[[Path], BinaryIO] = default_opener, epoch_wall_ns: int | None = None,
+               description: tuple[str, JointFrames] | None = None, replace: bool = False) -> Recorder:
+        """Start a record in ``folder``; RecordError if it cannot be written or one is there already.
+
+        A record already in ``folder`` is refused unless ``replace``; then its file is overwritten
+        and only the index parts cellguard wrote are removed (other files under ``index/`` stay).
+        """
         folder = Path(folder)
+        refuse_existing(folder, replace)
         try:
             folder.mkdir(parents=True, exist_ok=True)
-            shutil.rmtree(folder / INDEX_DIR, ignore_errors=True)
+            clear_index(folder / INDEX_DIR)
             stream = opener(folder / RECORD_FILE)
         except OSError as exc:
             raise RecordError(f"{folder / RECORD_FILE}: cannot start the record ({_why(exc)}); "
                               f"nothing was run") from None
         epoch = time.time_ns() if epoch_wall_ns is None else epoch_wall_ns
         index = IndexWriter(folder / INDEX_DIR, epoch, config.index_part_rows, opener)
-        return cls(stream, joints=joints, dt_ns=dt_ns, context=context, config=config, index=index,
-                   name=str(folder / RECORD_FILE), epoch_wall_ns=epoch)
+        try:
+            return cls(stream, joints=joints, dt_ns=dt_ns, context=context, config=config, index=index,
+                       name=str(folder / RECORD_FILE), epoch_wall_ns=epoch, description=description)
+        except RecordError:  # not even the start fitted: leave no empty record behind
+            with contextlib.suppress(OSError):
+                stream.close()
+            with contextlib.suppress(OSError):
+                (folder / RECORD_FILE).unlink()
+            raise RecordError(f"{folder / RECORD_FILE}: cannot start the record (no space or no access); "
+                              f"nothing was run") from None
 
     # -- servo path ------------------------------------------------------------------------
     def tick(self, cycle: int, reference: np.ndarray, sent: np.ndarray, state) -> None:
@@ -137,20 +181,27 @@ class Recorder:
         self._guard(self._json, 7, t_ns, {"t_ns": t_ns, "cycle": cycle, "measurements": values})
 
     def event(self, event: Event, cycle: int | None = None) -> None:
-        """An event; anything not routine opens a full-rate window around it."""
+        """An event (JSON and log line); anything not routine opens a full-rate window around it."""
         fields = _event_fields(event)
+        routine = event.kind in self.config.routine_events
         self._guard(self._json, 5, event.t_ns, {"cycle": cycle, **fields})
+        level = _LOG_LEVEL.get(event.category, ros2.DEBUG if routine else ros2.INFO)
+        self._guard(self._add, 13, event.t_ns, ros2.log_message(self.epoch_wall_ns + event.t_ns, level,
+                                                                "cellguard", _log_text(fields, cycle)))
         if self._index is not None:
-            self._guard(self._index.add, "events", event_row(fields, cycle, self._versions))
-        if event.kind not in self.config.routine_events:
+            self._guard(self._index.add, "events", event_row(fields, cycle, {**self._versions, **self._where}))
+        if not routine:
             self._trigger(event.t_ns)
-        if event.category is not None:
+        if event.category is not None:  # a stop: on disk now
+            self._guard(self._flush, max(event.t_ns, self._ring.last_t_ns()))
             self._guard(self._sync)
 
     def set_context(self, context: dict, t_ns: int) -> None:
-        """Record the context if it changed (a new policy, a recalibration, a moved datum)."""
+        """Record the context if it changed (a new policy, a recalibration, a moved datum), or repeat it when due."""
         if context != self._context:
             self._guard(self._write_context, context, t_ns)
+        elif t_ns - self._context_t_ns >= self.config.context_every_s * 1e9:
+            self._guard(self._write_context, context, t_ns, True)
 
     def cycle_begin(self, cycle: int, phase: str, t_ns: int) -> None:
         self._cycle_start[cycle] = t_ns
@@ -163,7 +214,7 @@ class Recorder:
         features = {k: _finite(v) for k, v in outcome.get("features", {}).items()}
         base = {"cycle": cycle, "phase": outcome["phase"], "t_start_ns": self._cycle_start.pop(cycle, t_ns),
                 "t_end_ns": t_ns, "success": bool(outcome["success"])}
-        row = cycle_row(**base, versions=self._versions, features=features)
+        row = cycle_row(**base, versions={**self._versions, **self._where}, features=features)
         rest = {k: v for k, v in outcome.items() if k not in ("features", *base)}
         self._guard(self._json, 6, t_ns, {"marker": "end", **base, **self._versions, "outcome": rest,
                                           "features": features})
@@ -171,18 +222,20 @@ class Recorder:
             self._guard(self._index.add, "cycles", row)
         if not row["success"]:
             self._trigger(t_ns)
+        self._guard(self._flush, max(t_ns, self._ring.last_t_ns()))
         self._guard(self._sync)
 
     def close(self) -> None:
-        """Write the pending ticks, the summary and the index; fsync; close the file."""
-        if self._failed is not None:
-            self._stream.close()
-            return
+        """Write the pending ticks, the context again, the summary and the index; fsync; close the file."""
         try:
-            self._guard(self._flush, self._ring.last_t_ns())
-            self._guard(self._finish)
+            if self._failed is None:
+                self._guard(self._flush, self._ring.last_t_ns())
+                self._guard(self._finish)
         finally:
-            self._stream.close()
+            try:
+                self._stream.close()  # after a failure, this may fail too (buffered bytes on a full disk)
+            except OSError as exc:
+                self._failed = self._failed or _why(exc)
 
     @property
     def failed(self) -> str | None:
@@ -203,37 +256,79 @@ class Recorder:
     def _start(self, context: dict) -> None:
         self._writer = Writer(self._stream, chunk_size=1 << 30, compression=CompressionType.ZSTD, enable_crcs=True)
         self._writer.start(profile=PROFILE, library="cellguard")
+        self._writer.add_metadata("foxglove", _foxglove_metadata(context, self.record_id))
+        self._writer.add_metadata("cellguard", self._facts(context))
+        if self._urdf is not None:
+            self._writer.add_attachment(self.epoch_wall_ns, self.epoch_wall_ns, DESCRIPTION_FILE, "application/xml",
+                                        self._urdf.encode())
         for c in CHANNELS:
             schema = self._writer.register_schema(c.schema_name, c.schema_encoding, c.schema_text.encode())
             meta = {"joints": ",".join(self.joints)} if c.message_encoding == "cdr" and "ticks" in c.topic else {}
             self._writer.register_channel(c.topic, c.message_encoding, schema, meta)
         self._write_context(context, 0)
-        self._writer.flush()
+        if self._urdf is not None:
+            self._add(12, 0, ros2.string_message(self._urdf))
+            self._add(11, 0, ros2.tf_message(self.epoch_wall_ns, self._frames.fixed))
+        self._write_pending()
         self._stream.flush()
         _fsync(self._stream)
 
-    def _write_context(self, context: dict, t_ns: int) -> None:
-        changed = changed_keys(self._context, context)
-        self._context, self._versions = context, versions(context)
-        self._json(1, t_ns, {"t_ns": t_ns, "epoch_wall_ns": self.epoch_wall_ns,
+    def _facts(self, context: dict) -> dict[str, str]:
+        """The ``cellguard`` metadata record: what identifies the run, as strings (MCAP metadata is str -> str)."""
+        policy, emb = context.get("policy") or {}, context.get("embodiment") or {}
+        stamps = versions(context)
+        facts = {"record_version": RECORD_VERSION, "record_id": self.record_id, "epoch_wall_ns": self.epoch_wall_ns,
+                 "start_utc": _utc(self.epoch_wall_ns), "site": context.get("site"), "cell_id": context.get("cell_id"),
+                 "cell": context.get("cell"), "robot": emb.get("robot"), "profile_version": emb.get("version"),
+                 "profile_sha256": emb.get("sha256"), "calibration_dates": ",".join(emb.get("calibration_dates", [])),
+                 "policy_source": policy.get("source"), "policy_sha256": policy.get("sha256"),
+                 "servo_period_ns": context.get("servo_period_ns"), "joints": ",".join(self.joints), **stamps}
+        return {k: "" if v is None else str(v) for k, v in facts.items()}
+
+    def _write_context(self, context: dict, t_ns: int, repeat: bool = False) -> None:
+        changed = [] if repeat else changed_keys(self._context, context)
+        self._context, self._versions, self._context_t_ns = context, versions(context), t_ns
+        self._where = {"site": context.get("site"), "cell_id": context.get("cell_id")}
+        self._json(1, t_ns, {"t_ns": t_ns, "epoch_wall_ns": self.epoch_wall_ns, "record_id": self.record_id,
+                             "record_version": RECORD_VERSION, "repeat": repeat,
                              "version": self._versions["context_version"], "changed": changed,
                              "versions": self._versions, "context": context})
 
-    def _add(self, channel: int, log_time: int, data: bytes) -> None:
+    def _add(self, channel: int, t_ns: int, data: bytes) -> None:
+        """Queue a message of the open chunk; it is written, in time order, when the chunk closes."""
         self._seq[channel] += 1
-        self._writer.add_message(channel, log_time, data, max(log_time, self._ring.last_t_ns()), self._seq[channel])
+        self._pending.append((self.epoch_wall_ns + int(t_ns), len(self._pending), channel, data, self._seq[channel]))
 
     def _json(self, channel: int, t_ns: int, payload: dict) -> None:
         self._add(channel, t_ns, json.dumps(_plain(payload), allow_nan=False).encode())
 
+    def _write_pending(self) -> None:
+        """Write the queued messages sorted by time (none before one already written) and close the chunk."""
+        self._pending.sort()
+        size = 0
+        for wall, _, channel, data, seq in self._pending:
+            self._floor = max(self._floor, wall)
+            self._writer.add_message(channel, self._floor, data, wall, seq)
+            size += len(data)
+            if size >= _CHUNK_BYTES:  # a long backlog goes out in chunks of about the usual size
+                self._writer.flush()
+                size = 0
+        self._pending = []
+        self._writer.flush()
+
     def _ticks(self, channel: int, start: int, stop: int, step: int) -> None:
         span = self._batch * step
+        decimated = channel == 2
         for first in range(start, stop, span):
             batch = self._ring.batch(first, min(stop, first + span), step)
             batch["joints"] = self.joints
             self._add(channel, int(batch["t_ns"][0]), TICKS.encode(batch))
-            if first + span < stop:  # a long pre-trigger backlog goes out in chunks of the usual size
-                self._writer.flush()
+            wall = self.epoch_wall_ns + batch["t_ns"]
+            states = self._joint_states.encode(wall, batch["q_meas"], batch["qd_meas"], batch["effort"])
+            for t, q, data in zip(batch["t_ns"].tolist(), batch["q_meas"], states):
+                self._add(8 if decimated else 9, t, data)
+                if decimated and self._frames is not None and self._frames.moving:
+                    self._add(10, t, ros2.tf_message(self.epoch_wall_ns + t, self._frames.transforms(q)))
 
     def _trigger(self, t_ns: int) -> None:
         if self._back == 0 and self.config.post_trigger_s == 0:
@@ -253,7 +348,7 @@ class Recorder:
             if start < n:
                 self._ticks(3, start, n, 1)
             self._full_done = n
-        self._writer.flush()
+        self._write_pending()
         self._last_flush_ns = t_ns
         self._next_flush_ns = t_ns + self.config.chunk_ns
         if t_ns >= self._next_fsync_ns:
@@ -265,10 +360,37 @@ class Recorder:
         self._next_fsync_ns = self._ring.last_t_ns() + self.config.fsync_ns
 
     def _finish(self) -> None:
+        if self._context is not None:  # the context once more, outside any chunk, indexed in the summary
+            self._writer.add_metadata("cellguard.context", {
+                "record_id": self.record_id, "t_ns": str(self._context_t_ns),
+                "context": json.dumps(_plain(self._context), allow_nan=False)})
         self._writer.finish()
         if self._index is not None:
             self._index.flush()
         self._sync()
+
+
+def refuse_existing(folder: Path, replace: bool = False) -> None:
+    """RecordError if ``folder`` holds a record already and replacing it was not asked for."""
+    if (Path(folder) / RECORD_FILE).exists() and not replace:
+        raise RecordError(f"--out {folder}: already holds a record ({RECORD_FILE}); a run never overwrites one: "
+                          f"choose another --out folder (or pass --overwrite to replace it)")
+
+
+def _foxglove_metadata(context: dict, record_id: str) -> dict[str, str]:
+    """What Foxglove's data platform and Edge Sites read: the device by name, and an idempotency key."""
+    device = "/".join(str(x) for x in (context.get("site"), context.get("cell_id")) if x) or str(context.get("cell"))
+    return {"deviceName": device, "key": record_id}
+
+
+def _utc(wall_ns: int) -> str:
+    return time.strftime("%Y-%m-%dT%H:%M:%S", time.gmtime(wall_ns // 1_000_000_000)) + f".{wall_ns % 10**9:09d}Z"
+
+
+def _log_text(fields: dict, cycle: int | None) -> str:
+    where = f" joint {fields['joint']}" if fields.get("joint") else ""
+    stop = f" (stop category {fields['category']})" if fields.get("category") is not None else ""
+    return f"[{fields['kind']}] cycle {cycle}{where}{stop}: {fields['reason']}"
 
 
 def _event_fields(event: Event) -> dict:

@@ -24,7 +24,7 @@ from cellguard.control.settings import build_guard
 from cellguard.diagnose.cycle_buffer import CycleBuffer
 from cellguard.diagnose.features import cycle_features
 from cellguard.errors import RecordError, ScenarioError
-from cellguard.output import make_folder
+from cellguard.output import make_folder, write_output
 from cellguard.policy.chunk import ActionChunk
 from cellguard.policy.registry import make_policy
 from cellguard.record.session import RunRecording
@@ -297,12 +297,15 @@ class Run:
 
 
 def run_scenario(scenario: Scenario, out: Path, on_cycle: Callable[[dict], None] | None = None,
-                 realtime: bool = False, policy_factory: Callable[[], object] | None = None) -> dict:
-    """Run every cycle of ``scenario`` and write ``out/summary.json``; return the summary."""
+                 realtime: bool = False, policy_factory: Callable[[], object] | None = None,
+                 overwrite: bool = False) -> dict:
+    """Run every cycle of ``scenario`` and write ``out/summary.json``; return the summary.
+
+    A folder that holds a record already is refused unless ``overwrite``."""
     out = make_folder(Path(out), "--out")
     run = Run(scenario, realtime=realtime, policy_factory=policy_factory)
     try:
-        run.recording = RunRecording.start(out, run)  # RecordError here: nothing runs
+        run.recording = RunRecording.start(out, run, replace=overwrite)  # RecordError here: nothing runs
         try:
             for _ in range(scenario.total_cycles):
                 outcome = run.cycle()
@@ -319,11 +322,7 @@ def run_scenario(scenario: Scenario, out: Path, on_cycle: Callable[[dict], None]
     summary = run.summary()
     if run.stopped:
         summary["stopped"] = run.stopped
-    try:
-        (out / "summary.json").write_text(json.dumps(summary, indent=1))
-    except OSError as exc:
-        raise RecordError(f"{out / 'summary.json'}: cannot write ({exc.strerror}); "
-                          f"run stopped: {run.stopped or 'no'}") from None
+    write_output(out / "summary.json", json.dumps(summary, indent=1), "summary")
     return summary
 
 
