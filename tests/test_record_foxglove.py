@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 
 from cellguard.record.reader import open_record
-from cellguard.runner import run_scenario
+from cellguard.runtime import run_scenario
 from cellguard.scenario import parse_scenario
 
 JS = Path(__file__).parent / "js"

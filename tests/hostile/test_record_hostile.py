@@ -26,7 +26,7 @@ from cellguard.record.reader import open_record
 from cellguard.record.scan import scan
 from cellguard.record.session import RunRecording
 from cellguard.record.writer import RecordConfig
-from cellguard.runner import Run, run_scenario
+from cellguard.runtime import Run, run_scenario
 from cellguard.scenario import parse_scenario
 
 SCENARIO = "cell: arm-pick-place\nseed: 7\nacceptance_cycles: {a}\nproduction_cycles: {p}\n"
