@@ -163,23 +163,15 @@ def recover(
 @record_app.command()
 def query(
     folder: Path = typer.Argument(..., help="Run folder holding index/ (or the index folder)."),
-    sql: str = typer.Argument(..., help="DuckDB SQL over the views `cycles` and `events`."),
+    sql: str = typer.Argument(..., help="One read-only DuckDB SELECT over the tables `cycles` and `events`."),
+    timeout_s: float = typer.Option(60.0, "--timeout", help="Stop a query still running after this many seconds."),
 ) -> None:
-    """Run SQL on the per-cycle index; one JSON object per row on stdout."""
-    import duckdb
+    """Run one SELECT on the per-cycle index, read-only and confined to it; one JSON object per row on stdout."""
+    from cellguard.record.query import run_query
 
-    from cellguard.record.index import connect
-    from cellguard.record.writer import INDEX_DIR
-
-    folder = Path(folder)
     try:
-        con = connect(folder / INDEX_DIR if (folder / INDEX_DIR).is_dir() else folder)
-        try:
-            result = con.execute(sql)
-        except duckdb.Error as exc:
-            raise RecordError(f"sql: {str(exc).splitlines()[0]}") from None
+        names, rows = run_query(folder, sql, timeout_s)
+        for row in rows:
+            sys.stdout.write(json.dumps(dict(zip(names, row)), default=str) + "\n")
     except CellguardError as exc:
         fail(exc)
-    names = [d[0] for d in result.description]
-    for row in result.fetchall():
-        sys.stdout.write(json.dumps(dict(zip(names, row)), default=str) + "\n")
