@@ -13,11 +13,10 @@ from pathlib import Path
 
 import mujoco
 import numpy as np
-import yaml
 
 from cellguard.errors import ConfigError, ProfileError
 from cellguard.units import parse_quantity
-from cellguard.yaml_file import reject_unknown_keys
+from cellguard.yaml_file import parse_yaml, read_bounded, reject_unknown_keys
 
 _LINEAR = {"position": ("length",), "velocity": ("length/s",), "acceleration": ("length/s^2",),
            "jerk": ("length/s^3",), "effort": ("force",), "torque_constant": ("force/A",)}
@@ -119,11 +118,8 @@ class Profile:
 
 def load_profile(model: mujoco.MjModel, path: Path) -> Profile:
     """Read ``path`` and check it against ``model``; raise ProfileError naming the bad field."""
-    raw_bytes = Path(path).read_bytes()
-    try:
-        raw = yaml.safe_load(raw_bytes)
-    except yaml.YAMLError as exc:
-        raise ProfileError(f"{path}: not valid YAML ({exc.__class__.__name__})") from None
+    raw_bytes = read_bounded(path, "profile", ProfileError)
+    raw = parse_yaml(raw_bytes, str(path), ProfileError)
     if not isinstance(raw, dict):
         raise ProfileError(f"{path}: expected a mapping at the top level")
     allowed = {"robot", "model", "version", "joints", "measured", "symmetry"}

@@ -17,12 +17,12 @@ from typing import Protocol
 from urllib.parse import parse_qsl
 
 import numpy as np
-import yaml
 
 from cellguard.errors import CellguardError, ConfigError
 from cellguard.policy.action_map import ActionMap, load_action_map, parse_action_map
 from cellguard.policy.chunk import ActionChunk
 from cellguard.robot.state import Observation
+from cellguard.yaml_file import parse_yaml
 
 
 class InferenceError(CellguardError):
@@ -83,7 +83,8 @@ def resolve_map(backend: Backend, cell, map_path: str | None, source: str) -> Ac
     if map_path:
         amap = load_action_map(Path(map_path), profile)
     elif backend.embedded_map:
-        amap = parse_action_map(yaml.safe_load(backend.embedded_map), profile, origin=f"{source} (embedded map)")
+        amap = parse_action_map(parse_yaml(backend.embedded_map, f"{source} (embedded map)"), profile,
+                                origin=f"{source} (embedded map)")
     else:
         names = backend.action_names
         joints = tuple(n.removesuffix(".pos") for n in names) if names else profile.joint_names
