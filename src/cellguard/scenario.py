@@ -59,11 +59,12 @@ def parse_scenario(raw: object, origin: str = "scenario") -> Scenario:
 
     Validation is pydantic's strict mode on the document as JSON: a string or a boolean is never
     taken for a number (``acceptance_cycles: "1"``, ``seed: true``), while YAML lists still fill
-    tuples; and every number must be finite (``.inf``, ``.nan`` are refused wherever they appear).
+    tuples; every number must be finite (``.inf``, ``.nan`` are refused wherever they appear) and
+    no text may hold control characters.
     """
     if not isinstance(raw, dict):
         raise ScenarioError(f"{origin}: expected a mapping of keys, got {type(raw).__name__}")
-    _reject_non_finite(raw, (), origin)
+    _check_values(raw, (), origin)
     try:
         document = json.dumps(raw, default=str)  # YAML dates and timestamps become the strings they were
     except (TypeError, ValueError) as exc:
@@ -83,15 +84,19 @@ def parse_scenario(raw: object, origin: str = "scenario") -> Scenario:
         raise ScenarioError(f"{origin}: {loc}: {msg}") from None
 
 
-def _reject_non_finite(value: object, loc: tuple, origin: str) -> None:
+def _check_values(value: object, loc: tuple, origin: str) -> None:
+    """Refuse NaN and infinities, and text with control characters (a ``site:`` that recolours a terminal)."""
     if isinstance(value, float) and not math.isfinite(value):
         raise ScenarioError(f"{origin}: {_format_loc(loc)}: {value} is not a finite number")
+    if isinstance(value, str) and not value.isprintable():
+        raise ScenarioError(f"{origin}: {_format_loc(loc)}: {value!r} holds control characters")
     if isinstance(value, dict):
         for key, item in value.items():
-            _reject_non_finite(item, (*loc, str(key)), origin)
+            _check_values(key, loc, origin)
+            _check_values(item, (*loc, str(key)), origin)
     elif isinstance(value, list):
         for i, item in enumerate(value):
-            _reject_non_finite(item, (*loc, i), origin)
+            _check_values(item, (*loc, i), origin)
 
 
 def load_scenario(path: Path) -> Scenario:

@@ -16,6 +16,7 @@ from rich.console import Console
 
 from cellguard.cli.app import app
 from cellguard.cli.errors import fail
+from cellguard.cli.text import printable_tree
 from cellguard.errors import CellguardError, RecordError
 
 record_app = typer.Typer(no_args_is_help=True, help="Read, export, recover and query fault records.")
@@ -74,6 +75,7 @@ def info(
 
 
 def _print_info(doc: dict) -> None:
+    doc = printable_tree(doc)  # the record's text (site, policy source, reasons) may hold escape codes
     out = Console(highlight=False, soft_wrap=True)
     ctx = doc["context"]
     policy, emb = ctx.get("policy") or {}, ctx.get("embodiment") or {}

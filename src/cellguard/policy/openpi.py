@@ -21,13 +21,15 @@ import os
 import numpy as np
 
 from cellguard.errors import ConfigError
-from cellguard.policy.adapter import InferenceError, MappedPolicy, PolicyInputs, positive_float, resolve_map, split_options
+from cellguard.policy.adapter import (DT_RANGE_S, TIMEOUT_RANGE_S, InferenceError, MappedPolicy, PolicyInputs,
+                                      bounded_float, option_float, resolve_map, split_options)
 from cellguard.policy.wire import WireError, packb, unpackb
 
 OPTIONS = {"map": "action map YAML file", "dt": "step period [s]", "timeout": "receive timeout [s]",
            "api_key_env": "environment variable holding the API key", "prompt": "task text sent as prompt",
            "retries": "reconnect attempts per call"}
-MAX_MESSAGE = 64 << 20  # [bytes] largest reply accepted
+MAX_MESSAGE = 8 << 20  # [bytes] largest message accepted; a reply of 100 steps x 64 actions is 26 kB
+MAX_ACTION_DIM = 256
 
 
 class OpenpiBackend:
@@ -51,7 +53,7 @@ class OpenpiBackend:
         names = self.metadata.get("action_names")
         self.action_names = tuple(str(n) for n in names) if isinstance(names, (list, tuple)) else None
         dim = self.metadata.get("action_dim", len(self.action_names) if self.action_names else None)
-        if not isinstance(dim, int) or dim <= 0:
+        if isinstance(dim, bool) or not isinstance(dim, int) or not 0 < dim <= MAX_ACTION_DIM:
             raise ConfigError(f"policy: openpi:{uri}: the server's metadata gives no action_dim or action_names; "
                               f"metadata keys: {', '.join(map(str, self.metadata)) or 'none'}")
         self.action_dim = dim
@@ -142,8 +144,9 @@ def make_openpi_policy(arg: str, cell) -> MappedPolicy:
         raise ConfigError(f"policy: openpi: option retries={options['retries']!r} is not an integer") from None
     if not 0 <= retries <= 5:
         raise ConfigError(f"policy: openpi: option retries must be in [0, 5], got {retries}")
-    backend = OpenpiBackend(target, key, positive_float(options, "timeout", 2.0, "openpi"), retries)
+    backend = OpenpiBackend(target, key, option_float(options, "timeout", 2.0, "openpi", TIMEOUT_RANGE_S), retries)
     source = f"openpi:{target}"
     amap = resolve_map(backend, cell, options.get("map"), source)
-    dt = positive_float(options, "dt", float(backend.metadata.get("dt_s", 0.02)), "openpi")
+    server_dt = bounded_float(backend.metadata.get("dt_s", 0.02), f"policy: {source}: server metadata dt_s", *DT_RANGE_S)
+    dt = option_float(options, "dt", server_dt, "openpi", DT_RANGE_S)
     return MappedPolicy(backend, amap, cell, source, dt, task=options.get("prompt", ""))
