@@ -118,8 +118,12 @@ class Profile:
 
 def load_profile(model: mujoco.MjModel, path: Path) -> Profile:
     """Read ``path`` and check it against ``model``; raise ProfileError naming the bad field."""
-    raw_bytes = read_bounded(path, "profile", ProfileError)
-    raw = parse_yaml(raw_bytes, str(path), ProfileError)
+    return parse_profile(model, read_bounded(path, "profile", ProfileError), str(path))
+
+
+def parse_profile(model: mujoco.MjModel, raw_bytes: bytes, path: str = "profile") -> Profile:
+    """Check the YAML text ``raw_bytes`` (from ``path``) against ``model``; its sha256 is the profile's."""
+    raw = parse_yaml(raw_bytes, path, ProfileError)
     if not isinstance(raw, dict):
         raise ProfileError(f"{path}: expected a mapping at the top level")
     allowed = {"robot", "model", "version", "joints", "measured", "symmetry"}

@@ -105,17 +105,7 @@ class OpenpiBackend:
             raise InferenceError(f"policy: openpi:{self.uri}: no reply within {self.timeout_s} s") from None
         except (OSError, WebSocketException) as exc:
             raise InferenceError(f"policy: openpi:{self.uri}: connection lost ({type(exc).__name__})") from None
-        if isinstance(reply, str):
-            first = reply.strip().splitlines()[-1] if reply.strip() else "empty"
-            raise InferenceError(f"policy: openpi:{self.uri}: server error: {first}")
-        try:
-            decoded = unpackb(reply, MAX_MESSAGE)
-        except WireError as exc:
-            raise InferenceError(f"policy: openpi:{self.uri}: bad reply ({exc})") from None
-        actions = decoded.get("actions") if isinstance(decoded, dict) else None
-        if not isinstance(actions, np.ndarray):
-            raise InferenceError(f"policy: openpi:{self.uri}: reply has no 'actions' array")
-        return actions
+        return decode_reply(reply, self.uri)
 
     def reset(self) -> None:
         """The protocol has no reset message; the server's policy keeps no episode state here."""
@@ -128,6 +118,21 @@ class OpenpiBackend:
         if self._ws is not None:
             self._ws = None
             self._stack.close()
+
+
+def decode_reply(reply: bytes | str, uri: str) -> np.ndarray:
+    """The ``actions`` array of one reply; a server error (text) or a malformed reply is an InferenceError."""
+    if isinstance(reply, str):
+        first = reply.strip().splitlines()[-1] if reply.strip() else "empty"
+        raise InferenceError(f"policy: openpi:{uri}: server error: {first[:200]}")
+    try:
+        decoded = unpackb(reply, MAX_MESSAGE)
+    except WireError as exc:
+        raise InferenceError(f"policy: openpi:{uri}: bad reply ({exc})") from None
+    actions = decoded.get("actions") if isinstance(decoded, dict) else None
+    if not isinstance(actions, np.ndarray) or actions.dtype.kind not in "iuf" or actions.ndim not in (1, 2):
+        raise InferenceError(f"policy: openpi:{uri}: reply has no 'actions' array of numbers, shape (H, A)")
+    return actions
 
 
 def make_openpi_policy(arg: str, cell) -> MappedPolicy:
