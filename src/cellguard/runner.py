@@ -150,10 +150,15 @@ class Run:
         }
 
 
-def run_scenario(scenario: Scenario, out: Path, on_cycle: Callable[[dict], None] | None = None) -> dict:
-    """Run every cycle of ``scenario`` and write ``out/summary.json``; return the summary."""
+def run_scenario(scenario: Scenario, out: Path, on_cycle: Callable[[dict], None] | None = None,
+                 run: Run | None = None) -> dict:
+    """Run every cycle of ``scenario`` and write ``out/summary.json``; return the summary.
+
+    ``run``: the scenario's ``Run`` if the caller built it already (to check everything before
+    it creates ``out``).
+    """
+    run = run if run is not None else Run(scenario)  # every check before the folder is created
     out = make_folder(Path(out), "--out")
-    run = Run(scenario)
     run.recording = RunRecording.start(out, run)  # RecordError here: nothing runs
     try:
         for _ in range(scenario.total_cycles):
