@@ -113,6 +113,8 @@ def export(
     try:
         if fmt not in FORMATS:
             raise RecordError(f"--format: {fmt!r} is not one of {', '.join(FORMATS)}")
+        if cycle is not None and not 0 <= cycle < 2**63:
+            raise RecordError(f"--cycle: {cycle} is outside [0, 2^63); cycles are numbered from 0")
         with open_record(folder) as rec:
             rows = write_ticks(rec.ticks(cycle=cycle, rate=rate), output, fmt)
             health = rec.health()
