@@ -57,17 +57,24 @@ def test_five_hundred_brackets(tmp_path):
     run_refused(tmp_path, scenario_file(tmp_path, text="[" * 500), contains="nested deeper")
 
 
-def test_non_numeric_and_out_of_range_dt(tmp_path):
-    pytest.importorskip("onnx")
+ARM_JOINTS = "shoulder_pan,shoulder_lift,elbow,wrist_flex,wrist_roll,gripper"
+
+
+def small_onnx(path, action_names: str = ARM_JOINTS, **metadata):
+    """A one-layer ONNX model of ``time_s`` with six actions named ``action_names``."""
     from cellguard.policy.onnx_export import Mlp, save_mlp_onnx
 
     rng = np.random.default_rng(0)
     mlp = Mlp(inputs=(("time_s", 1),), weights=(rng.normal(size=(1, 4)), rng.normal(size=(4, 6))),
               biases=(np.zeros(4), np.zeros(6)), x_mean=np.zeros(1), x_std=np.ones(1), y_mean=np.zeros(6),
               y_std=np.ones(6), horizon=1)
-    names = {"cellguard.action_names": "shoulder_pan,shoulder_lift,elbow,wrist_flex,wrist_roll,gripper"}
-    bad = save_mlp_onnx(mlp, tmp_path / "bad-dt.onnx", {**names, "cellguard.dt_s": "fast"})
-    good = save_mlp_onnx(mlp, tmp_path / "good.onnx", names)
+    return save_mlp_onnx(mlp, path, {"cellguard.action_names": action_names, **metadata})
+
+
+def test_non_numeric_and_out_of_range_dt(tmp_path):
+    pytest.importorskip("onnx")
+    bad = small_onnx(tmp_path / "bad-dt.onnx", **{"cellguard.dt_s": "fast"})
+    good = small_onnx(tmp_path / "good.onnx")
     run_refused(tmp_path, scenario_file(tmp_path, policy=f"onnx:{bad}"), contains="cellguard.dt_s")
     for dt in ("1e300", "1e-12", "nan", "-0.02", "inf"):
         run_refused(tmp_path, scenario_file(tmp_path, policy=f"onnx:{good}?dt={dt}"), contains="option dt")
