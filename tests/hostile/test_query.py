@@ -70,6 +70,10 @@ def test_every_write_read_attach_install_is_refused(run_dir):
      lambda rows: rows == [{"cycle": 3, "peak": 3.0}]),
     ("SELECT phase, count(*) AS n FROM cycles GROUP BY phase ORDER BY phase",
      lambda rows: rows == [{"phase": "acceptance", "n": 2}, {"phase": "production", "n": 2}]),
+    ("SELECT phase, count(*) AS cycles, avg(success::INT) AS success FROM cycles GROUP BY phase ORDER BY phase",
+     lambda rows: rows == [{"phase": "acceptance", "cycles": 2, "success": 1.0},
+                           {"phase": "production", "cycles": 2, "success": 0.5}]),  # docs/hardening.md item 9
+    ("SELECT t_ns, kind, reason FROM events WHERE category IS NOT NULL", lambda rows: rows == []),  # item 9
     ("SELECT kind, cycle FROM events", lambda rows: rows == [{"kind": "position_clamp", "cycle": 1}]),
     ("SELECT c.cycle, e.kind FROM cycles c JOIN events e USING (cycle)",
      lambda rows: rows == [{"cycle": 1, "kind": "position_clamp"}]),
