@@ -6,6 +6,8 @@ ScenarioError naming the key (``faults[1].dx_mm: ...``).
 
 from __future__ import annotations
 
+import json
+import math
 from pathlib import Path
 
 from typing import Literal
@@ -59,7 +61,7 @@ class Scenario(BaseModel):
     production_cycles: int = Field(default=60, ge=0, le=1_000_000)
     site: str = "sim-site"
     cell_id: str = "cell-1"
-    faults: list[AnyFault] = Field(default_factory=list)
+    faults: list[AnyFault] = Field(default_factory=list, max_length=10_000)
     guard: GuardSettings = Field(default_factory=GuardSettings)
     robot: str = Field(default="sim", min_length=1, description="sim, or a bridge: SCHEME:ARGUMENT")
     cycle: CycleSettings = Field(default_factory=CycleSettings)
@@ -86,11 +88,22 @@ class Scenario(BaseModel):
 
 
 def parse_scenario(raw: object, origin: str = "scenario") -> Scenario:
-    """Validate a decoded YAML document; raise ScenarioError naming the first bad key."""
+    """Validate a decoded YAML document; raise ScenarioError naming the first bad key.
+
+    Validation is pydantic's strict mode on the document as JSON: a string or a boolean is never
+    taken for a number (``acceptance_cycles: "1"``, ``seed: true``), while YAML lists still fill
+    tuples; every number must be finite (``.inf``, ``.nan`` are refused wherever they appear) and
+    no text may hold control characters.
+    """
     if not isinstance(raw, dict):
         raise ScenarioError(f"{origin}: expected a mapping of keys, got {type(raw).__name__}")
+    _check_values(raw, (), origin)
     try:
-        return Scenario.model_validate(raw)
+        document = json.dumps(raw, default=str)  # YAML dates and timestamps become the strings they were
+    except (TypeError, ValueError) as exc:
+        raise ScenarioError(f"{origin}: cannot be read as a scenario ({exc})") from None
+    try:
+        return Scenario.model_validate_json(document, strict=True)
     except ValidationError as exc:
         err = exc.errors()[0]
         loc = _format_loc(err["loc"])
@@ -99,7 +112,24 @@ def parse_scenario(raw: object, origin: str = "scenario") -> Scenario:
             msg = "unknown key"
         elif err["type"] == "union_tag_invalid":
             msg = f"unknown fault kind; known: {err['ctx']['expected_tags']}"
+        elif err["type"].endswith("_type") or err["type"].endswith("_parsing"):
+            msg = f"{msg}, got {err['input']!r}"
         raise ScenarioError(f"{origin}: {loc}: {msg}") from None
+
+
+def _check_values(value: object, loc: tuple, origin: str) -> None:
+    """Refuse NaN and infinities, and text with control characters (a ``site:`` that recolours a terminal)."""
+    if isinstance(value, float) and not math.isfinite(value):
+        raise ScenarioError(f"{origin}: {_format_loc(loc)}: {value} is not a finite number")
+    if isinstance(value, str) and not value.isprintable():
+        raise ScenarioError(f"{origin}: {_format_loc(loc)}: {value!r} holds control characters")
+    if isinstance(value, dict):
+        for key, item in value.items():
+            _check_values(key, loc, origin)
+            _check_values(item, (*loc, str(key)), origin)
+    elif isinstance(value, list):
+        for i, item in enumerate(value):
+            _check_values(item, (*loc, i), origin)
 
 
 def load_scenario(path: Path) -> Scenario:

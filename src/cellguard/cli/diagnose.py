@@ -12,6 +12,7 @@ from rich.console import Console
 from cellguard.cli.app import app
 from cellguard.cli.errors import fail
 from cellguard.cli.record import warn_if_damaged
+from cellguard.cli.text import printable_tree
 from cellguard.errors import CellguardError
 
 
@@ -41,12 +42,14 @@ def diagnose(
 def report(
     folder: Path = typer.Argument(..., help="A run folder holding the record (record.mcap)."),
     out: Path | None = typer.Option(None, "-o", "--out", help="HTML file to write (default FOLDER/report.html)."),
+    acceptance: Path | None = typer.Option(None, "--acceptance", help="Take the baseline from this record instead."),
 ) -> None:
     """Write a self-contained HTML report: timeline, last good versus faulted, drift, asymmetry, context."""
+    from cellguard.diagnose.from_record import diagnose_record
     from cellguard.report.from_record import write_report
 
     try:
-        path = write_report(folder, out)
+        path = write_report(folder, out, diagnosis=diagnose_record(folder, acceptance=acceptance))
         health = record_health(folder)
     except CellguardError as exc:
         fail(exc)
@@ -64,14 +67,14 @@ def record_health(folder: Path):
 
 def print_diagnosis(d) -> None:
     console = Console(highlight=False)
-    data = d.to_dict()
+    data = printable_tree(d.to_dict())  # joint and signal names come from the record
     console.print(f"diagnosis: {data['cycles']} cycles, baseline {data['baseline_cycles']}, "
                   f"{len(data['drift_alarms'])} drift alarm(s), last good cycle {data['last_good_cycle']}, "
                   f"first faulted cycle {data['first_faulted_cycle']}", markup=False)
-    if not d.findings:
+    if not data["findings"]:
         console.print("  no fault found", markup=False)
-    for f in d.findings:
-        joints = f" ({', '.join(f.joints)})" if f.joints else ""
-        console.print(f"  {f.cause}{joints} from cycle {f.cycle}, confidence {f.confidence:.2f}", markup=False)
-        for line in f.evidence:
+    for f in data["findings"]:
+        joints = f" ({', '.join(f['joints'])})" if f.get("joints") else ""
+        console.print(f"  {f['cause']}{joints} from cycle {f['cycle']}, confidence {f['confidence']:.2f}", markup=False)
+        for line in f["evidence"]:
             console.print(f"    - {line}", markup=False)

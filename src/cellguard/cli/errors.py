@@ -6,10 +6,11 @@ import sys
 
 import typer
 
+from cellguard.cli.text import printable
 from cellguard.errors import CellguardError
 
 
 def fail(exc: CellguardError) -> None:
-    """Print ``error: <message>`` on stderr and exit 2, without a traceback."""
-    sys.stderr.write(f"error: {exc}\n")
+    """Print ``error: <message>`` on stderr, on one line with no control characters, and exit 2."""
+    sys.stderr.write(f"error: {printable(exc)}\n")
     raise typer.Exit(2)

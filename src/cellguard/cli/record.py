@@ -16,6 +16,7 @@ from rich.console import Console
 
 from cellguard.cli.app import app
 from cellguard.cli.errors import fail
+from cellguard.cli.text import printable_tree
 from cellguard.errors import CellguardError, RecordError
 
 record_app = typer.Typer(no_args_is_help=True, help="Read, export, recover and query fault records.")
@@ -83,6 +84,7 @@ def info(
 
 
 def _print_info(doc: dict) -> None:
+    doc = printable_tree(doc)  # the record's text (site, policy source, reasons) may hold escape codes
     out = Console(highlight=False, soft_wrap=True)
     ctx = doc["context"]
     policy, emb = ctx.get("policy") or {}, ctx.get("embodiment") or {}
@@ -122,6 +124,8 @@ def export(
     try:
         if fmt not in FORMATS:
             raise RecordError(f"--format: {fmt!r} is not one of {', '.join(FORMATS)}")
+        if cycle is not None and not 0 <= cycle < 2**63:
+            raise RecordError(f"--cycle: {cycle} is outside [0, 2^63); cycles are numbered from 0")
         with open_record(folder) as rec:
             refuse_record(output)  # before the ticks are read
             rows = write_ticks(rec.ticks(cycle=cycle, rate=rate), output, fmt)
@@ -175,23 +179,15 @@ def recover(
 @record_app.command()
 def query(
     folder: Path = typer.Argument(..., help="Run folder holding index/ (or the index folder)."),
-    sql: str = typer.Argument(..., help="DuckDB SQL over the views `cycles` and `events`."),
+    sql: str = typer.Argument(..., help="One read-only DuckDB SELECT over the tables `cycles` and `events`."),
+    timeout_s: float = typer.Option(60.0, "--timeout", help="Stop a query still running after this many seconds."),
 ) -> None:
-    """Run SQL on the per-cycle index; one JSON object per row on stdout."""
-    import duckdb
+    """Run one SELECT on the per-cycle index, read-only and confined to it; one JSON object per row on stdout."""
+    from cellguard.record.query import run_query
 
-    from cellguard.record.index import connect
-    from cellguard.record.writer import INDEX_DIR
-
-    folder = Path(folder)
     try:
-        con = connect(folder / INDEX_DIR if (folder / INDEX_DIR).is_dir() else folder)
-        try:
-            result = con.execute(sql)
-        except duckdb.Error as exc:
-            raise RecordError(f"sql: {str(exc).splitlines()[0]}") from None
+        names, rows = run_query(folder, sql, timeout_s)
+        for row in rows:
+            sys.stdout.write(json.dumps(dict(zip(names, row)), default=str) + "\n")
     except CellguardError as exc:
         fail(exc)
-    names = [d[0] for d in result.description]
-    for row in result.fetchall():
-        sys.stdout.write(json.dumps(dict(zip(names, row)), default=str) + "\n")

@@ -23,18 +23,27 @@ DEMO_SCENARIO = Path(__file__).parents[1] / "scenarios" / "demo.yaml"
 
 def _run(scenario: Scenario, out: Path, quiet: bool, realtime: bool = False, overwrite: bool = False) -> dict:
     from cellguard.record.writer import refuse_existing
-    from cellguard.runtime import run_scenario
+    from cellguard.runtime import Run, run_scenario
 
     refuse_existing(out, overwrite)  # a run never overwrites a record unless asked
-    make_folder(out, "--out")  # before the progress bar: a bad folder is one line and nothing else
-    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                  console=err, disable=quiet, transient=False) as progress:
-        task = progress.add_task(f"{scenario.cell} cycles", total=scenario.total_cycles)
+    run = Run(scenario, realtime=realtime)  # every check (cell, faults, policy) before anything is created or printed
+    created = not out.exists()
+    progress = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                        console=err, disable=quiet, transient=False)
+    task = progress.add_task(f"{scenario.cell} cycles", total=scenario.total_cycles)
 
-        def advance(outcome: dict) -> None:
-            progress.update(task, advance=1, description=f"{scenario.cell} [{outcome['phase']}]")
+    def advance(outcome: dict) -> None:
+        progress.start()  # shown from the first cycle on: an error while the record starts is one line alone
+        progress.update(task, advance=1, description=f"{scenario.cell} [{outcome['phase']}]")
 
-        return run_scenario(scenario, out, on_cycle=advance, realtime=realtime, overwrite=overwrite)
+    try:
+        return run_scenario(scenario, out, on_cycle=advance, overwrite=overwrite, run=run)
+    except CellguardError:
+        if created and out.is_dir() and not any(out.iterdir()):
+            out.rmdir()  # refused before anything was written: leave no empty folder behind
+        raise
+    finally:
+        progress.stop()
 
 
 def _print_summary(summary: dict, out: Path, as_json: bool) -> None:
@@ -48,6 +57,15 @@ def _print_summary(summary: dict, out: Path, as_json: bool) -> None:
         if stats["cycles"]:
             console.print(f"{phase}: {stats['cycles']} cycles, success {stats['success_rate']:.0%}")
     console.print(f"events: {len(summary['events'])}; written to {out}")
+
+
+def _warn_short_acceptance(scenario: Scenario) -> None:
+    """Say so when the run cannot serve as its own baseline: diagnose and report need MIN_CYCLES per motion."""
+    from cellguard.diagnose.baseline import MIN_CYCLES
+
+    if scenario.acceptance_cycles < MIN_CYCLES:
+        sys.stderr.write(f"warning: acceptance_cycles: {scenario.acceptance_cycles} is below the {MIN_CYCLES} (per "
+                         f"motion) that diagnose and report need for a baseline; give them --acceptance OTHER_RUN\n")
 
 
 @app.command()
@@ -65,6 +83,7 @@ def run(
     except CellguardError as exc:
         fail(exc)
     _print_summary(summary, out, as_json)
+    _warn_short_acceptance(sc)
     _exit_if_stopped(summary, out)
 
 

@@ -19,7 +19,7 @@ class GuardConfig(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     watchdog_s: float = Field(default=0.3, gt=0.0, le=10.0, description="policy silence before a stop [s]")
-    watchdog_category: Literal[0, 1, 2] = 2
+    watchdog_category: int = Field(default=2, ge=0, le=2, description="IEC 60204-1 stop category on silence")
     uncertainty_threshold: float | None = Field(default=None, ge=0.0, description="chunk uncertainty above it: gate")
     uncertainty_action: Literal["reduce", "hold"] = Field(
         default="reduce", description="reduce: reduced speed; hold: category 2 stop until it clears")

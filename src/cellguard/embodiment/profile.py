@@ -13,11 +13,10 @@ from pathlib import Path
 
 import mujoco
 import numpy as np
-import yaml
 
 from cellguard.errors import ConfigError, ProfileError
 from cellguard.units import parse_quantity
-from cellguard.yaml_file import reject_unknown_keys
+from cellguard.yaml_file import parse_yaml, read_bounded, reject_unknown_keys
 
 _LINEAR = {"position": ("length",), "velocity": ("length/s",), "acceleration": ("length/s^2",),
            "jerk": ("length/s^3",), "effort": ("force",), "torque_constant": ("force/A",)}
@@ -119,11 +118,12 @@ class Profile:
 
 def load_profile(model: mujoco.MjModel, path: Path) -> Profile:
     """Read ``path`` and check it against ``model``; raise ProfileError naming the bad field."""
-    raw_bytes = Path(path).read_bytes()
-    try:
-        raw = yaml.safe_load(raw_bytes)
-    except yaml.YAMLError as exc:
-        raise ProfileError(f"{path}: not valid YAML ({exc.__class__.__name__})") from None
+    return parse_profile(model, read_bounded(path, "profile", ProfileError), str(path))
+
+
+def parse_profile(model: mujoco.MjModel, raw_bytes: bytes, path: str = "profile") -> Profile:
+    """Check the YAML text ``raw_bytes`` (from ``path``) against ``model``; its sha256 is the profile's."""
+    raw = parse_yaml(raw_bytes, path, ProfileError)
     if not isinstance(raw, dict):
         raise ProfileError(f"{path}: expected a mapping at the top level")
     allowed = {"robot", "model", "version", "joints", "measured", "symmetry"}
@@ -135,8 +135,8 @@ def load_profile(model: mujoco.MjModel, path: Path) -> Profile:
         raise ProfileError("joints: expected a mapping of joint name to limits")
     joints = tuple(_joint(model, name, spec) for name, spec in raw["joints"].items())
     names = {j.name for j in joints}
-    measured = tuple(_measured(i, m, names) for i, m in enumerate(raw.get("measured") or []))
-    symmetry = tuple(_symmetry(i, s, names) for i, s in enumerate(raw.get("symmetry") or []))
+    measured = tuple(_measured(i, m, names) for i, m in enumerate(_list(raw, "measured")))
+    symmetry = tuple(_symmetry(i, s, names) for i, s in enumerate(_list(raw, "symmetry")))
     return Profile(
         robot=str(raw["robot"]),
         version=str(raw["version"]),
@@ -147,6 +147,17 @@ def load_profile(model: mujoco.MjModel, path: Path) -> Profile:
     )
 
 
+def _list(raw: dict, key: str) -> list:
+    value = raw.get(key) or []
+    if not isinstance(value, list):
+        raise ProfileError(f"{key}: expected a list, got {type(value).__name__}")
+    return value
+
+
+def _is_joint(value: object, names: set[str]) -> bool:
+    return isinstance(value, str) and value in names
+
+
 def _quantity(text: object, field: str, dimensions: tuple[str, ...]) -> float:
     try:
         return parse_quantity(text, field, dimensions)
@@ -154,8 +165,8 @@ def _quantity(text: object, field: str, dimensions: tuple[str, ...]) -> float:
         raise ProfileError(str(exc)) from None
 
 
-def _joint(model: mujoco.MjModel, name: str, spec: object) -> JointLimits:
-    jid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, name)
+def _joint(model: mujoco.MjModel, name: object, spec: object) -> JointLimits:
+    jid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, name) if isinstance(name, str) else -1
     if jid < 0:
         known = [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, i) for i in range(model.njnt)]
         raise ProfileError(f"joints.{name}: unknown joint; the model has: {', '.join(k for k in known if k)}")
@@ -202,7 +213,7 @@ def _measured(i: int, spec: object, names: set[str]) -> MeasuredParameter:
     for key in keys:
         if key not in spec:
             raise ProfileError(f"{field}.{key}: missing")
-    if spec["joint"] not in names:
+    if not _is_joint(spec["joint"], names):
         raise ProfileError(f"{field}.joint: {spec['joint']!r} is not a profiled joint")
     value = _quantity(spec["value"], f"{field}.value", _PARAMETER_DIMENSIONS)
     return MeasuredParameter(
@@ -220,8 +231,8 @@ def _symmetry(i: int, spec: object, names: set[str]) -> SymmetryPair:
     if not isinstance(spec, dict) or set(spec) != {"left", "right", "sign"}:
         raise ProfileError(f"{field}: expected {{left, right, sign}}")
     for side in ("left", "right"):
-        if spec[side] not in names:
+        if not _is_joint(spec[side], names):
             raise ProfileError(f"{field}.{side}: {spec[side]!r} is not a profiled joint")
-    if spec["sign"] not in (1, -1):
+    if isinstance(spec["sign"], bool) or spec["sign"] not in (1, -1):
         raise ProfileError(f"{field}.sign: must be 1 or -1, got {spec['sign']!r}")
     return SymmetryPair(left=spec["left"], right=spec["right"], sign=float(spec["sign"]))

@@ -31,6 +31,7 @@ from cellguard.yaml_file import read_yaml, reject_unknown_keys
 
 _JOINT_DIM = {"hinge": ("angle",), "slide": ("length",)}
 _DIMENSIONLESS = {"1": 1.0, "%": 0.01}
+FACTOR_RANGE = (1e-9, 1e3)  # |SI per policy unit|: from 1 nm (or nrad) to 1 km per unit
 EE_AXES = ("x", "y", "z", "roll", "pitch", "yaw")
 _TOP_KEYS = {"robot", "actions", "hold", "ik"}
 _ACTION_KEYS = {"name", "joint", "ee", "unit", "sign", "offset", "scale"}
@@ -165,11 +166,11 @@ def parse_action_map(raw: object, profile: Profile, origin: str = "action map") 
         if ("joint" in entry) == ("ee" in entry):
             raise ConfigError(f"{field}: give exactly one of joint (a robot joint) or ee (one of {', '.join(EE_AXES)})")
         sign = entry.get("sign", 1)
-        if sign not in (1, -1):
+        if isinstance(sign, bool) or sign not in (1, -1):
             raise ConfigError(f"{field}.sign: expected 1 or -1, got {sign!r}")
         if "ee" in entry:
             axis = entry["ee"]
-            if axis not in EE_AXES:
+            if not isinstance(axis, str) or axis not in EE_AXES:
                 raise ConfigError(f"{field}.ee: {axis!r} is not an end-effector axis; axes: {', '.join(EE_AXES)}")
             dims = ("length",) if axis in ("x", "y", "z") else ("angle",)
             factor = sign * _unit_factor(entry, dims, f"{field}")
@@ -180,7 +181,7 @@ def parse_action_map(raw: object, profile: Profile, origin: str = "action map") 
             ee_actions.append(EeAction(name, i, axis, factor))
             continue
         joint = entry["joint"]
-        if joint not in kinds:
+        if not isinstance(joint, str) or joint not in kinds:
             raise ConfigError(f"{field}.joint: {joint!r} is not a joint of {profile.robot!r}; "
                               f"joints: {', '.join(profile.joint_names)}")
         if joint in driven:
@@ -201,6 +202,17 @@ def parse_action_map(raw: object, profile: Profile, origin: str = "action map") 
 
 
 def _unit_factor(entry: dict, dims: tuple[str, ...], field: str, joint: str | None = None) -> float:
+    """SI per policy unit from ``unit`` and ``scale``; its size must lie in FACTOR_RANGE (never zero: the
+    state sent to the policy divides by it)."""
+    factor = _raw_factor(entry, dims, field, joint)
+    lo, hi = FACTOR_RANGE
+    if not lo <= abs(factor) <= hi:
+        raise ConfigError(f"{field}.scale: unit {entry.get('unit')!r} with scale {entry.get('scale', 1)!r} gives "
+                          f"{factor:g} SI per policy unit; its size must lie in [{lo:g}, {hi:g}]")
+    return factor
+
+
+def _raw_factor(entry: dict, dims: tuple[str, ...], field: str, joint: str | None) -> float:
     unit = entry.get("unit")
     what = f"joint {joint!r}" if joint else "this axis"
     if unit is None:
@@ -225,7 +237,7 @@ def _held(raw: object, profile: Profile, kinds: dict, driven: dict, origin: str)
         raise ConfigError(f"{origin}: hold: expected a mapping of joint to value, e.g. {{wrist_roll: '0 rad'}}")
     held = []
     for joint, value in raw.items():
-        if joint not in kinds:
+        if not isinstance(joint, str) or joint not in kinds:
             raise ConfigError(f"{origin}: hold.{joint}: not a joint of {profile.robot!r}; "
                               f"joints: {', '.join(profile.joint_names)}")
         if joint in driven:
@@ -256,7 +268,7 @@ def _ik(raw: object, profile: Profile, driven: dict, held: tuple, ee: list, orig
         raise ConfigError(f"{origin}: ik.joints: expected the list of joints the IK moves")
     held_names = {profile.joint_names[j] for j, _ in held}
     for joint in joints:
-        if joint not in profile.joint_names:
+        if not isinstance(joint, str) or joint not in profile.joint_names:
             raise ConfigError(f"{origin}: ik.joints: {joint!r} is not a joint of {profile.robot!r}; "
                               f"joints: {', '.join(profile.joint_names)}")
         if joint in driven or joint in held_names:

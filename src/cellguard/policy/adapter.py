@@ -17,12 +17,12 @@ from typing import Protocol
 from urllib.parse import parse_qsl
 
 import numpy as np
-import yaml
 
 from cellguard.errors import CellguardError, ConfigError
 from cellguard.policy.action_map import ActionMap, load_action_map, parse_action_map
 from cellguard.policy.chunk import ActionChunk
 from cellguard.robot.state import Observation
+from cellguard.yaml_file import parse_yaml
 
 
 class InferenceError(CellguardError):
@@ -66,15 +66,32 @@ def split_options(arg: str, allowed: dict[str, str], scheme: str) -> tuple[str, 
     return target, options
 
 
-def positive_float(options: dict[str, str], key: str, default: float, scheme: str) -> float:
-    """A positive float option, e.g. ``dt=0.02``; a bad value names the option."""
+DT_RANGE_S = (0.001, 1.0)  # a chunk's step period [s]: from a 1 kHz servo step to 1 s
+TIMEOUT_RANGE_S = (0.01, 60.0)  # a receive timeout [s]
+
+
+def bounded_float(value: object, field: str, lo: float, hi: float) -> float:
+    """A number written as text or carried in metadata (``"0.02"``, ``0.02``) that lies in [lo, hi].
+
+    The one gate for numbers that arrive as strings: option values (``?dt=``) and model or server
+    metadata (``cellguard.dt_s``, ``dt_s``). A non-number, a boolean, NaN, infinity or a value out
+    of range raises ConfigError naming ``field`` and the range.
+    """
+    if isinstance(value, bool) or not isinstance(value, (str, int, float)):
+        raise ConfigError(f"{field}: expected a number in [{lo:g}, {hi:g}], got {value!r}")
     try:
-        value = float(options.get(key, default))
-    except ValueError:
-        raise ConfigError(f"policy: {scheme}: option {key}={options[key]!r} is not a number") from None
-    if not np.isfinite(value) or value <= 0:
-        raise ConfigError(f"policy: {scheme}: option {key} must be positive, got {value}")
-    return value
+        number = float(value)
+    except (ValueError, OverflowError):
+        raise ConfigError(f"{field}: {value!r} is not a number; expected one in [{lo:g}, {hi:g}]") from None
+    if not lo <= number <= hi:  # NaN fails this too
+        raise ConfigError(f"{field}: {value!r} is outside [{lo:g}, {hi:g}]")
+    return number
+
+
+def option_float(options: dict[str, str], key: str, default: float, scheme: str,
+                 limits: tuple[float, float]) -> float:
+    """The option ``key`` (e.g. ``dt=0.02``) within ``limits``, else ``default``; a bad value names the option."""
+    return bounded_float(options.get(key, default), f"policy: {scheme}: option {key}", *limits)
 
 
 def resolve_map(backend: Backend, cell, map_path: str | None, source: str) -> ActionMap:
@@ -83,7 +100,8 @@ def resolve_map(backend: Backend, cell, map_path: str | None, source: str) -> Ac
     if map_path:
         amap = load_action_map(Path(map_path), profile)
     elif backend.embedded_map:
-        amap = parse_action_map(yaml.safe_load(backend.embedded_map), profile, origin=f"{source} (embedded map)")
+        amap = parse_action_map(parse_yaml(backend.embedded_map, f"{source} (embedded map)"), profile,
+                                origin=f"{source} (embedded map)")
     else:
         names = backend.action_names
         joints = tuple(n.removesuffix(".pos") for n in names) if names else profile.joint_names

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from cellguard.errors import ConfigError
-from cellguard.policy.adapter import MappedPolicy, PolicyInputs, positive_float, resolve_map, split_options
+from cellguard.policy.adapter import DT_RANGE_S, MappedPolicy, PolicyInputs, option_float, resolve_map, split_options
 
 OPTIONS = {"map": "action map YAML file", "dt": "step period [s]", "task": "task text for language-conditioned policies"}
 
@@ -87,5 +87,5 @@ def make_lerobot_policy(arg: str, cell) -> MappedPolicy:
     backend = load_backend(Path(target))
     source = f"lerobot:{target}"
     amap = resolve_map(backend, cell, options.get("map"), source)
-    dt = positive_float(options, "dt", 0.02, "lerobot")
+    dt = option_float(options, "dt", 0.02, "lerobot", DT_RANGE_S)
     return MappedPolicy(backend, amap, cell, source, dt, task=options.get("task", ""))

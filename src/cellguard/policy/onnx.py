@@ -15,7 +15,8 @@ from pathlib import Path
 import numpy as np
 
 from cellguard.errors import ConfigError
-from cellguard.policy.adapter import MappedPolicy, PolicyInputs, positive_float, resolve_map, split_options
+from cellguard.policy.adapter import (DT_RANGE_S, MappedPolicy, PolicyInputs, bounded_float, option_float, resolve_map,
+                                      split_options)
 
 OPTIONS = {"map": "action map YAML file", "dt": "step period [s], overrides the model's"}
 _FIXED_INPUTS = ("state", "time_s")
@@ -48,7 +49,8 @@ class OnnxBackend:
         names = meta.get("cellguard.action_names")
         self.action_names = tuple(names.split(",")) if names else None
         self.embedded_map = meta.get("cellguard.action_map")
-        self.dt_s = float(meta["cellguard.dt_s"]) if "cellguard.dt_s" in meta else None
+        self.dt_s = (bounded_float(meta["cellguard.dt_s"], f"policy: onnx:{path}: metadata cellguard.dt_s", *DT_RANGE_S)
+                     if "cellguard.dt_s" in meta else None)
         shape = self.session.get_outputs()[0].shape
         last = shape[-1] if shape else None
         if not isinstance(last, int):
@@ -83,5 +85,5 @@ def make_onnx_policy(arg: str, cell) -> MappedPolicy:
     backend = OnnxBackend(Path(target), measurements)
     source = f"onnx:{target}"
     amap = resolve_map(backend, cell, options.get("map"), source)
-    dt = positive_float(options, "dt", backend.dt_s or 0.02, "onnx")
+    dt = option_float(options, "dt", backend.dt_s or 0.02, "onnx", DT_RANGE_S)
     return MappedPolicy(backend, amap, cell, source, dt)

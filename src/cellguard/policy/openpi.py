@@ -21,13 +21,15 @@ import os
 import numpy as np
 
 from cellguard.errors import ConfigError
-from cellguard.policy.adapter import InferenceError, MappedPolicy, PolicyInputs, positive_float, resolve_map, split_options
+from cellguard.policy.adapter import (DT_RANGE_S, TIMEOUT_RANGE_S, InferenceError, MappedPolicy, PolicyInputs,
+                                      bounded_float, option_float, resolve_map, split_options)
 from cellguard.policy.wire import WireError, packb, unpackb
 
 OPTIONS = {"map": "action map YAML file", "dt": "step period [s]", "timeout": "receive timeout [s]",
            "api_key_env": "environment variable holding the API key", "prompt": "task text sent as prompt",
            "retries": "reconnect attempts per call"}
-MAX_MESSAGE = 64 << 20  # [bytes] largest reply accepted
+MAX_MESSAGE = 8 << 20  # [bytes] largest message accepted; a reply of 100 steps x 64 actions is 26 kB
+MAX_ACTION_DIM = 256
 
 
 class OpenpiBackend:
@@ -51,7 +53,7 @@ class OpenpiBackend:
         names = self.metadata.get("action_names")
         self.action_names = tuple(str(n) for n in names) if isinstance(names, (list, tuple)) else None
         dim = self.metadata.get("action_dim", len(self.action_names) if self.action_names else None)
-        if not isinstance(dim, int) or dim <= 0:
+        if isinstance(dim, bool) or not isinstance(dim, int) or not 0 < dim <= MAX_ACTION_DIM:
             raise ConfigError(f"policy: openpi:{uri}: the server's metadata gives no action_dim or action_names; "
                               f"metadata keys: {', '.join(map(str, self.metadata)) or 'none'}")
         self.action_dim = dim
@@ -103,17 +105,7 @@ class OpenpiBackend:
             raise InferenceError(f"policy: openpi:{self.uri}: no reply within {self.timeout_s} s") from None
         except (OSError, WebSocketException) as exc:
             raise InferenceError(f"policy: openpi:{self.uri}: connection lost ({type(exc).__name__})") from None
-        if isinstance(reply, str):
-            first = reply.strip().splitlines()[-1] if reply.strip() else "empty"
-            raise InferenceError(f"policy: openpi:{self.uri}: server error: {first}")
-        try:
-            decoded = unpackb(reply, MAX_MESSAGE)
-        except WireError as exc:
-            raise InferenceError(f"policy: openpi:{self.uri}: bad reply ({exc})") from None
-        actions = decoded.get("actions") if isinstance(decoded, dict) else None
-        if not isinstance(actions, np.ndarray):
-            raise InferenceError(f"policy: openpi:{self.uri}: reply has no 'actions' array")
-        return actions
+        return decode_reply(reply, self.uri)
 
     def reset(self) -> None:
         """The protocol has no reset message; the server's policy keeps no episode state here."""
@@ -126,6 +118,21 @@ class OpenpiBackend:
         if self._ws is not None:
             self._ws = None
             self._stack.close()
+
+
+def decode_reply(reply: bytes | str, uri: str) -> np.ndarray:
+    """The ``actions`` array of one reply; a server error (text) or a malformed reply is an InferenceError."""
+    if isinstance(reply, str):
+        first = reply.strip().splitlines()[-1] if reply.strip() else "empty"
+        raise InferenceError(f"policy: openpi:{uri}: server error: {first[:200]}")
+    try:
+        decoded = unpackb(reply, MAX_MESSAGE)
+    except WireError as exc:
+        raise InferenceError(f"policy: openpi:{uri}: bad reply ({exc})") from None
+    actions = decoded.get("actions") if isinstance(decoded, dict) else None
+    if not isinstance(actions, np.ndarray) or actions.dtype.kind not in "iuf" or actions.ndim not in (1, 2):
+        raise InferenceError(f"policy: openpi:{uri}: reply has no 'actions' array of numbers, shape (H, A)")
+    return actions
 
 
 def make_openpi_policy(arg: str, cell) -> MappedPolicy:
@@ -142,8 +149,9 @@ def make_openpi_policy(arg: str, cell) -> MappedPolicy:
         raise ConfigError(f"policy: openpi: option retries={options['retries']!r} is not an integer") from None
     if not 0 <= retries <= 5:
         raise ConfigError(f"policy: openpi: option retries must be in [0, 5], got {retries}")
-    backend = OpenpiBackend(target, key, positive_float(options, "timeout", 2.0, "openpi"), retries)
+    backend = OpenpiBackend(target, key, option_float(options, "timeout", 2.0, "openpi", TIMEOUT_RANGE_S), retries)
     source = f"openpi:{target}"
     amap = resolve_map(backend, cell, options.get("map"), source)
-    dt = positive_float(options, "dt", float(backend.metadata.get("dt_s", 0.02)), "openpi")
+    server_dt = bounded_float(backend.metadata.get("dt_s", 0.02), f"policy: {source}: server metadata dt_s", *DT_RANGE_S)
+    dt = option_float(options, "dt", server_dt, "openpi", DT_RANGE_S)
     return MappedPolicy(backend, amap, cell, source, dt, task=options.get("prompt", ""))

@@ -23,6 +23,9 @@ from cellguard.policy.chunk import ActionChunk
 from cellguard.robot.state import Observation
 
 DEFAULT_DT_S = 0.02
+MAX_BYTES = 512 << 20  # [bytes] the largest replay file, and the most its arrays may expand to
+_MAX_HEADER = 10_000  # [bytes] numpy's own default limit for one .npy header
+_NUMERIC_KINDS = frozenset("biuf")  # bool, signed, unsigned, float
 
 
 class ReplayPolicy:
@@ -60,35 +63,82 @@ class ReplayPolicy:
 
 def _load(path: Path, dof: int):
     where = f"replay file {path}"
-    try:
-        data = np.load(path, allow_pickle=False)
-    except FileNotFoundError:
-        raise ConfigError(f"{where}: no such file") from None
-    except (ValueError, OSError, zipfile.BadZipFile) as exc:
-        raise ConfigError(f"{where}: not a readable .npz archive ({exc.__class__.__name__})") from None
-    with data:
-        for key in ("t", "actions"):
-            if key not in data.files:
-                raise ConfigError(f"{where}: missing array {key!r}; it has: {', '.join(data.files) or 'nothing'}")
-        unknown = set(data.files) - {"t", "actions", "uncertainty", "dt"}
-        if unknown:
-            raise ConfigError(f"{where}: unknown array(s) {', '.join(sorted(unknown))}; "
-                              f"allowed: t, actions, uncertainty, dt")
-        t, actions = np.asarray(data["t"]), np.asarray(data["actions"])
-        unc = np.asarray(data["uncertainty"]) if "uncertainty" in data.files else None
-        dt = np.asarray(data["dt"]) if "dt" in data.files else np.asarray(DEFAULT_DT_S)
-    if t.ndim != 1 or len(t) == 0 or not np.issubdtype(t.dtype, np.number) or not np.isfinite(t).all():
+    data = read_npz(path, where, ("t", "actions", "uncertainty", "dt"), ("t", "actions"))
+    t, actions, unc = data["t"], data["actions"], data.get("uncertainty")
+    dt = data.get("dt", np.asarray(DEFAULT_DT_S))
+    if t.ndim != 1 or len(t) == 0 or not np.isfinite(t).all():
         raise ConfigError(f"{where}: t must be a non-empty 1-D array of finite seconds, got shape {t.shape}")
     if actions.ndim != 3 or actions.shape[0] != len(t) or actions.shape[1] == 0 or actions.shape[2] != dof:
         raise ConfigError(f"{where}: actions must have shape (N={len(t)}, H>0, D={dof}), got {actions.shape}")
-    if not np.issubdtype(actions.dtype, np.number):
-        raise ConfigError(f"{where}: actions must be numbers, got dtype {actions.dtype}")
     if unc is not None and unc.shape != actions.shape[:2]:
         raise ConfigError(f"{where}: uncertainty must have shape {actions.shape[:2]}, got {unc.shape}")
-    if dt.shape != () or not np.issubdtype(dt.dtype, np.number) or not 0.001 <= float(dt) <= 1.0:
+    if dt.shape != () or not 0.001 <= float(dt) <= 1.0:
         raise ConfigError(f"{where}: dt must be a scalar in [0.001, 1] s, got {dt.tolist()!r}")
     actions = actions.astype(np.float64)
     return t.astype(np.float64), actions, None if unc is None else unc.astype(np.float64), float(dt)
+
+
+def read_npz(path: Path, where: str, allowed: tuple[str, ...], required: tuple[str, ...],
+             max_bytes: int = MAX_BYTES) -> dict[str, np.ndarray]:
+    """The numeric arrays of an ``.npz`` archive, bounded before anything is allocated.
+
+    Each member's ``.npy`` header is read first: its dtype must be a plain number or bool (no
+    object arrays, strings or records, so nothing is unpickled) and its declared shape, times its
+    item size, must fit in what is left of ``max_bytes`` [bytes] and in the member's declared
+    uncompressed size, which bounds decompression. Anything else is one ConfigError naming it.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise ConfigError(f"{where}: no such file")
+    if not path.is_file():
+        raise ConfigError(f"{where}: not a regular file")
+    if path.stat().st_size > max_bytes:
+        raise ConfigError(f"{where}: {path.stat().st_size} bytes is over the limit of {max_bytes} bytes")
+    arrays: dict[str, np.ndarray] = {}
+    budget = max_bytes
+    try:
+        with zipfile.ZipFile(path) as archive:
+            for info in archive.infolist():
+                name = info.filename.removesuffix(".npy")
+                if name not in allowed:
+                    raise ConfigError(f"{where}: unknown array {name!r}; allowed: {', '.join(allowed)}")
+                if name in arrays:
+                    raise ConfigError(f"{where}: array {name!r} appears twice")
+                if info.file_size > budget:
+                    raise ConfigError(f"{where}: array {name!r} expands to {info.file_size} bytes, over the limit "
+                                      f"of {max_bytes} bytes for the whole file")
+                with archive.open(info) as member:
+                    arrays[name] = _read_member(member, info.file_size, f"{where}: array {name!r}")
+                budget -= info.file_size
+    except (zipfile.BadZipFile, zipfile.LargeZipFile, EOFError, OSError, NotImplementedError) as exc:
+        raise ConfigError(f"{where}: not a readable .npz archive ({exc.__class__.__name__})") from None
+    for key in required:
+        if key not in arrays:
+            raise ConfigError(f"{where}: missing array {key!r}; it has: {', '.join(arrays) or 'nothing'}")
+    return arrays
+
+
+def _read_member(member, declared: int, what: str) -> np.ndarray:
+    try:
+        version = np.lib.format.read_magic(member)
+        read_header = {(1, 0): np.lib.format.read_array_header_1_0,
+                       (2, 0): np.lib.format.read_array_header_2_0}.get(version)
+        if read_header is None:
+            raise ConfigError(f"{what}: .npy format version {version} is not supported")
+        shape, fortran, dtype = read_header(member, max_header_size=_MAX_HEADER)
+    except (ValueError, TypeError, SyntaxError, EOFError) as exc:
+        raise ConfigError(f"{what}: not a readable .npy array ({exc.__class__.__name__})") from None
+    if dtype.kind not in _NUMERIC_KINDS or dtype.hasobject or dtype.fields is not None or dtype.subdtype is not None:
+        raise ConfigError(f"{what}: dtype {dtype.str!r} is not allowed; arrays hold numbers (bool, int, float)")
+    count = int(np.prod(shape, dtype=object))
+    if count * dtype.itemsize > declared:
+        raise ConfigError(f"{what}: its header declares shape {shape}, {count * dtype.itemsize} bytes, but the "
+                          f"member holds at most {declared}")
+    raw = member.read(count * dtype.itemsize)
+    if len(raw) != count * dtype.itemsize:
+        raise ConfigError(f"{what}: truncated: {len(raw)} of {count * dtype.itemsize} bytes")
+    array = np.frombuffer(raw, dtype=dtype)
+    return array.reshape(shape[::-1]).T if fortran else array.reshape(shape)
 
 
 def make_replay_policy(arg: str, cell) -> ReplayPolicy:

@@ -11,10 +11,12 @@ from __future__ import annotations
 import msgpack
 import numpy as np
 
+from cellguard.errors import CellguardError
+
 _ALLOWED_KINDS = frozenset("biuf")  # bool, signed, unsigned, float
 
 
-class WireError(ValueError):
+class WireError(CellguardError, ValueError):
     """A message that is not a well-formed openpi msgpack document."""
 
 

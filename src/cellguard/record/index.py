@@ -124,10 +124,12 @@ def connect(folder: Path) -> duckdb.DuckDBPyConnection:
     con = duckdb.connect()
     found = False
     for table in TABLES:
-        if any((folder / table).glob("day=*/*.parquet")):
+        parts = sorted((folder / table).glob("day=*/*.parquet"))
+        if parts:
             found = True
-            glob = str(folder / table / "day=*" / "*.parquet").replace("'", "''")
-            con.execute(f"CREATE VIEW {table} AS SELECT * FROM read_parquet('{glob}', hive_partitioning = true, "
+            # the files by name, not a glob: a folder named like a pattern ("[1]*?") is not expanded by DuckDB
+            files = ", ".join("'" + str(p).replace("'", "''") + "'" for p in parts)
+            con.execute(f"CREATE VIEW {table} AS SELECT * FROM read_parquet([{files}], hive_partitioning = true, "
                         f"union_by_name = true)")
         else:
             con.execute(f"CREATE VIEW {table} AS SELECT NULL::BIGINT AS {_TIME_KEY[table]} WHERE false")

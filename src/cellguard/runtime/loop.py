@@ -298,13 +298,15 @@ class Run:
 
 def run_scenario(scenario: Scenario, out: Path, on_cycle: Callable[[dict], None] | None = None,
                  realtime: bool = False, policy_factory: Callable[[], object] | None = None,
-                 overwrite: bool = False) -> dict:
+                 overwrite: bool = False, run: Run | None = None) -> dict:
     """Run every cycle of ``scenario`` and write ``out/summary.json``; return the summary.
 
-    A folder that holds a record already is refused unless ``overwrite``."""
-    out = make_folder(Path(out), "--out")
-    run = Run(scenario, realtime=realtime, policy_factory=policy_factory)
+    A folder that holds a record already is refused unless ``overwrite``. ``run``: the scenario's
+    ``Run`` if the caller built it already (every check before ``out`` is created), or a subclass
+    that observes the loop (the release's shadow run)."""
+    run = run if run is not None else Run(scenario, realtime=realtime, policy_factory=policy_factory)
     try:
+        out = make_folder(Path(out), "--out")
         run.recording = RunRecording.start(out, run, replace=overwrite)  # RecordError here: nothing runs
         try:
             for _ in range(scenario.total_cycles):

@@ -1,0 +1,36 @@
+"""Text from files, records and servers, made safe to print on a technician's terminal.
+
+A record's ``site:``, a key in a hostile YAML file or a server's error can hold terminal escape
+codes (which recolour, retitle or clear the screen) and line breaks (which turn one error line
+into several). Everything the CLI prints from such sources goes through ``printable``: control
+characters are shown as escapes (``\\x1b``, ``\\n``), the rest is unchanged.
+"""
+
+from __future__ import annotations
+
+import unicodedata
+
+
+def printable(text: object) -> str:
+    """``text`` as a string with every control or format character written as its escape."""
+    text = str(text)
+    if text.isprintable():
+        return text
+    return "".join(ch if ch.isprintable() or (ch == " ") else _escape(ch) for ch in text)
+
+
+def _escape(ch: str) -> str:
+    if unicodedata.category(ch) == "Zs":  # a space of another width: harmless, keep it
+        return ch
+    return ch.encode("unicode_escape").decode("ascii")
+
+
+def printable_tree(value):
+    """``value`` (dicts, lists, strings, numbers) with ``printable`` applied to every string in it."""
+    if isinstance(value, str):
+        return printable(value)
+    if isinstance(value, dict):
+        return {printable_tree(k): printable_tree(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return type(value)(printable_tree(v) for v in value)
+    return value
