@@ -9,7 +9,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 from cellguard.errors import ConfigError
-from cellguard.fleet.lake import has_data
+from cellguard.fleet.lake import EFFECTS, SIGNATURES, has_data
 from cellguard.fleet.queries import named, plain, render
 
 
@@ -31,12 +31,14 @@ class SparkEngine:
         session = _pyspark()
         self.spark = (session.builder.master(master).appName("cellguard-fleet")
                       .config("spark.ui.enabled", "false").config("spark.sql.session.timeZone", "UTC")
+                      .config("spark.ui.showConsoleProgress", "false")
                       .config("spark.sql.shuffle.partitions", "8").config("spark.driver.bindAddress", "127.0.0.1")
                       .config("spark.driver.host", "127.0.0.1").getOrCreate())
         self.spark.sparkContext.setLogLevel("ERROR")
-        for rel in ("signatures", "effects"):
-            root = str(Path(lake).resolve() / rel)
-            self.spark.read.option("basePath", root).parquet(root + "/*/*/*.parquet").createOrReplaceTempView(rel)
+        for rel, schema in (("signatures", SIGNATURES), ("effects", EFFECTS)):
+            root = str(Path(lake).resolve() / rel)  # the schema given: no footer is read to infer it
+            (self.spark.read.schema(_ddl(schema)).option("basePath", root).parquet(root + "/*/*/*.parquet")
+             .createOrReplaceTempView(rel))
 
     def run(self, query: str, params: Mapping | None = None, probe: Sequence[tuple[str, float]] = ()) -> list[dict]:
         q = named(query)
@@ -46,3 +48,11 @@ class SparkEngine:
 
     def close(self) -> None:
         self.spark.stop()
+
+
+_SPARK_TYPES = {"string": "string", "date32[day]": "date", "double": "double", "int64": "bigint", "int32": "int"}
+
+
+def _ddl(schema) -> str:
+    """The lake's arrow schema as a Spark DDL string."""
+    return ", ".join(f"{f.name} {_SPARK_TYPES[str(f.type)]}" for f in schema)
