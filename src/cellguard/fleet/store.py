@@ -20,8 +20,10 @@ Uploads are idempotent: the key is (tenant, content hash), inserts are ``ON CONF
 
 from __future__ import annotations
 
+import os
 import secrets
 from collections.abc import Mapping, Sequence
+from pathlib import Path
 
 from cellguard.errors import CellguardError, ConfigError
 from cellguard.fleet.export import Batch
@@ -42,6 +44,16 @@ class StoreUnavailable(StoreError):
 
 class RefusedAggregate(StoreError):
     """A cross-customer result over fewer than k customers."""
+
+
+def ci_admin_dsn() -> str | None:
+    """The admin DSN of the server ``.ci/fleet.sh`` started: ``CELLGUARD_FLEET_ADMIN_DSN``, else the file
+    ``CELLGUARD_FLEET_DSN_FILE`` (default /tmp/cellguard-fleet-dsn) writes; None when neither is there."""
+    dsn = os.environ.get("CELLGUARD_FLEET_ADMIN_DSN")
+    if dsn:
+        return dsn
+    path = Path(os.environ.get("CELLGUARD_FLEET_DSN_FILE", "/tmp/cellguard-fleet-dsn"))
+    return path.read_text().strip() if path.is_file() else None
 
 
 def _psycopg():
