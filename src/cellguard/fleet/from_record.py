@@ -34,8 +34,10 @@ def site_signatures(folder: Path, policy: DataPolicy) -> list[Signature]:
     out = []
     for run in run_folders(folder):
         with open_record(run) as rec:
+            _ = rec.context  # the wall-clock epoch is stated in the context messages
             epoch_ns = rec.epoch_wall_ns
         diagnosis = diagnose_record(run)
-        day = dt.datetime.fromtimestamp(epoch_ns * 1e-9, dt.timezone.utc).date()
+        day = (dt.datetime.fromtimestamp(epoch_ns * 1e-9, dt.timezone.utc) if epoch_ns > 0
+               else dt.datetime.now(dt.timezone.utc)).date()  # no epoch stated: the day of export
         out.extend(signatures_of(diagnosis.to_dict(), diagnosis.context, policy.tenant, policy.site, day))
     return out
