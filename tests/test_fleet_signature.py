@@ -112,6 +112,19 @@ def test_policy_bad_values_name_the_key(raw, match):
         parse_policy(raw)
 
 
+@settings(max_examples=150, deadline=None)
+@given(st.dictionaries(st.sampled_from(KEYS + ("extra", "Tenant", "")),
+                       st.one_of(st.none(), st.booleans(), st.integers(-5, 10**7), st.text(max_size=12),
+                                 st.lists(st.sampled_from(WITHHOLDABLE + ("cause", "x")), max_size=3)), max_size=7))
+def test_policy_parser_accepts_or_names_the_problem(raw):
+    try:
+        policy = parse_policy(raw)
+    except PolicyError as exc:
+        assert "\n" not in str(exc) and str(exc).startswith("policy: ")
+    else:
+        assert policy.export in ("signatures", "aggregates_only", "nothing") and len(policy.version) == 12
+
+
 def test_nothing_exports_nothing_and_aggregates_respect_the_group_size():
     many = [s for d in range(6) for s in sigs(day=TODAY - dt.timedelta(days=d))]
     nothing = export_batch(many, DataPolicy("t-acme", "s-01", export="nothing"), TODAY)

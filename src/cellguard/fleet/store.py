@@ -98,7 +98,7 @@ class FleetStore:
 
     def install(self, reset: bool = False) -> None:
         """Create the database, roles, tables, policies and functions (``reset``: drop them first)."""
-        psycopg = _psycopg()
+        _psycopg()
         from psycopg import sql
         with connect(self.admin_dsn) as con:
             con.autocommit = True
@@ -122,7 +122,6 @@ class FleetStore:
                 for q in QUERIES.values():
                     if q.cross_customer:
                         con.execute(self._function_sql(q))
-        del psycopg
 
     def add_tenant(self, tenant_id: str, host: str = "127.0.0.1") -> str:
         """Create the tenant's login role with a fresh password; return the tenant's DSN."""
@@ -262,6 +261,9 @@ class TenantStore:
             except psycopg.errors.InsufficientPrivilege as exc:
                 raise StoreError(f"fleet store {self.where}: refused the batch of tenant {batch.tenant_id} "
                                  f"({exc.diag.message_primary})") from None
+            except psycopg.OperationalError as exc:  # the server went away mid-batch: rolled back, still queued
+                raise StoreUnavailable(f"fleet store {self.where} lost during the upload ({exc.__class__.__name__})") \
+                    from None
         return new, batch.rows - new
 
     def run(self, query: str, params: Mapping | None = None, probe: Sequence[tuple[str, float]] = (),
