@@ -24,6 +24,8 @@ def synthetic_fleet(seeds: Sequence[Mapping], n: int, tenants: int = 8, sites_pe
     tenant = rng.integers(0, tenants, n)
     site = rng.integers(0, sites_per_tenant, n)
     day = rng.integers(0, days, n)
+    order = np.lexsort((tenant, day))  # partition by partition: each is one slice (see write_fleet)
+    pick, tenant, site, day = pick[order], tenant[order], site[order], day[order]
     version = np.minimum(day * versions // days + rng.integers(0, 2, n), versions - 1)  # rolled out over time
     ids = np.char.add("syn", np.char.zfill(np.arange(n).astype(str), 9))
     tid = np.char.add("t", tenant.astype(str))
@@ -39,12 +41,14 @@ def synthetic_fleet(seeds: Sequence[Mapping], n: int, tenants: int = 8, sites_pe
     }
     signatures = pa.table({k: pa.array(v, type=SIGNATURES.field(k).type) for k, v in sig.items()})
     feats = [list((s.get("effects") or {}).items()) for s in seeds]
-    counts = np.array([len(f) for f in feats])[pick]
-    flat_names = [np.array([k for k, _ in f], dtype=object) for f in feats]
-    flat_vals = [np.array([v for _, v in f], dtype=np.float64) for f in feats]
+    all_names = np.array([k for f in feats for k, _ in f], dtype=object)
+    all_vals = np.array([v for f in feats for _, v in f], dtype=np.float64)
+    per_seed = np.array([len(f) for f in feats])
+    counts = per_seed[pick]
     rows = np.repeat(np.arange(n), counts)
-    names = np.concatenate([flat_names[p] for p in pick]) if len(rows) else np.array([], object)
-    vals = np.concatenate([flat_vals[p] for p in pick]) if len(rows) else np.array([])
+    first = np.repeat(np.cumsum(counts) - counts, counts)  # where each signature's effects begin
+    idx = np.repeat((np.cumsum(per_seed) - per_seed)[pick], counts) + np.arange(len(rows)) - first
+    names, vals = all_names[idx], all_vals[idx]
     vals = vals * rng.lognormal(0.0, 0.25, len(vals))
     effects = pa.table({"tenant_id": pa.array(tid[rows]), "signature_id": pa.array(ids[rows]),
                         "feature": pa.array(names, pa.string()), "effect": pa.array(vals, pa.float64())})
@@ -52,18 +56,19 @@ def synthetic_fleet(seeds: Sequence[Mapping], n: int, tenants: int = 8, sites_pe
 
 
 def write_fleet(lake, signatures: pa.Table, effects: pa.Table, name: str = "synthetic") -> int:
-    """Write the tables into the lake, one file per (date, tenant) partition; returns files written."""
-    import pyarrow.compute as pc
-
-    files = 0
-    keys = pa.table({"d": signatures["created_date"], "t": signatures["tenant_id"]}).group_by(["d", "t"]).aggregate([])
-    for d, t in zip(keys["d"].to_pylist(), keys["t"].to_pylist()):
-        mask = pc.and_(pc.equal(signatures["created_date"], pa.scalar(d, pa.date32())), pc.equal(signatures["tenant_id"], t))
-        part = signatures.filter(mask)
-        emask = pc.is_in(effects["signature_id"], value_set=part["signature_id"])
-        write_tables(lake, part, effects.filter(emask), name)
-        files += 1
-    return files
+    """Write tables sorted by (date, tenant), effects in signature order (as ``synthetic_fleet``
+    makes them) into the lake, one file per partition; returns the files written."""
+    keys = np.char.add(np.asarray(signatures["created_date"].cast(pa.string())).astype(str),
+                       np.asarray(signatures["tenant_id"]).astype(str))
+    starts = np.flatnonzero(np.r_[True, keys[1:] != keys[:-1]])
+    ends = np.r_[starts[1:], len(keys)]
+    eff_ids = np.asarray(effects["signature_id"]).astype(str)
+    sig_ids = np.asarray(signatures["signature_id"]).astype(str)
+    for a, b in zip(starts, ends):
+        lo = np.searchsorted(eff_ids, sig_ids[a], "left")
+        hi = np.searchsorted(eff_ids, sig_ids[b - 1], "right")
+        write_tables(lake, signatures.slice(a, b - a), effects.slice(lo, hi - lo), name)
+    return len(starts)
 
 
 def rows_of(signatures: pa.Table, effects: pa.Table) -> list[dict]:
