@@ -165,7 +165,7 @@ def main() -> None:
         tenants = build_fleet(runs, store, work / "sites", lake)
         alpha = tenants["t-alpha"].pop("dsn")
         for t in tenants.values():
-            t.pop("dsn")
+            t.pop("dsn", None)
         try:
             TenantStore(alpha).run("frequency")
             refusal = None
