@@ -1,0 +1,164 @@
+"""`cellguard fleet push/query/similar/audit`: fault signatures pooled across sites under each
+customer's data policy. The store's DSN (the tenant's own credentials) comes from ``--store`` or
+``CELLGUARD_FLEET_DSN``; the site's audit log and outbox live in ``--site-dir``."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import typer
+from rich.console import Console
+
+from cellguard.cli.app import app
+from cellguard.cli.errors import fail
+from cellguard.errors import CellguardError
+
+fleet_app = typer.Typer(no_args_is_help=True, help="Fault signatures pooled across sites under each customer's data policy.")
+app.add_typer(fleet_app, name="fleet")
+
+STORE = typer.Option(None, "--store", envvar="CELLGUARD_FLEET_DSN", show_envvar=True,
+                     help="The fleet store's DSN with this tenant's credentials.")
+SITE_DIR = typer.Option(Path("cellguard-fleet"), "--site-dir", help="This site's audit log and outbox.")
+JSON = typer.Option(False, "--json", help="Print one JSON document on stdout.")
+
+
+def _store(dsn: str | None):
+    from cellguard.fleet.store import TenantStore
+    return TenantStore(dsn) if dsn else None
+
+
+@fleet_app.command()
+def push(
+    folder: Path = typer.Argument(..., help="A run folder (record.mcap) or a folder of run folders."),
+    policy: Path = typer.Option(..., "--policy", help="The customer's data policy (YAML)."),
+    store: str | None = STORE,
+    site_dir: Path = SITE_DIR,
+    lake: Path | None = typer.Option(None, "--lake", help="Also land the sent signatures as Parquet here."),
+    as_json: bool = JSON,
+) -> None:
+    """Diagnose the runs in FOLDER and send their fault signatures as the policy allows; queue if the store is down."""
+    from cellguard.fleet.from_record import site_signatures
+    from cellguard.fleet.policy import load_policy
+    from cellguard.fleet.push import push as do_push
+
+    try:
+        pol = load_policy(policy)
+        sigs = site_signatures(folder, pol) if pol.export != "nothing" else []
+        result = do_push(sigs, pol, site_dir, _store(store), lake)
+    except CellguardError as exc:
+        fail(exc)
+    if as_json:
+        sys.stdout.write(json.dumps(result.to_dict()) + "\n")
+    else:
+        b = result.batch
+        Console(highlight=False).print(
+            f"fleet push: {b.export}, {b.rows} row(s) exported, {b.withheld_rows} kept at the site "
+            f"(policy {b.policy_version}); {result.new_rows} new, {result.duplicate_rows} already in the store; "
+            f"{result.queued} batch(es) queued", markup=False)
+    if result.unavailable:
+        sys.stderr.write(f"{result.unavailable}; {result.queued} batch(es) kept in {Path(site_dir) / 'outbox'}, "
+                         f"sent on the next push\n")
+    elif store is None and result.queued:
+        sys.stderr.write(f"no --store given: {result.queued} batch(es) kept in {Path(site_dir) / 'outbox'}\n")
+
+
+@fleet_app.command()
+def query(
+    name: str = typer.Argument(..., help="frequency, introduced, fixes or similar."),
+    lake: Path | None = typer.Option(None, "--lake", help="Run on this Parquet lake instead of the store."),
+    engine: str = typer.Option("duckdb", "--engine", help="On a lake: duckdb or spark."),
+    spark_master: str = typer.Option("local[2]", "--spark-master", help="Spark master URL (spark://HOST:7077)."),
+    k: int = typer.Option(5, "--k", help="Least number of distinct customers behind a cross-customer row."),
+    scope: str = typer.Option("fleet", "--scope", help="On the store: fleet (cross-customer) or own."),
+    store: str | None = STORE,
+    as_json: bool = JSON,
+) -> None:
+    """Run a named fleet query on the store (as this tenant) or on a Parquet lake (DuckDB or Spark)."""
+    from cellguard.errors import ConfigError
+    from cellguard.fleet.queries import named
+
+    try:
+        q = named(name)
+        params = {"k": k} if "k" in q.defaults else {}
+        if lake is not None:
+            if engine == "duckdb":
+                from cellguard.fleet.duckdb_engine import DuckDBEngine
+                eng = DuckDBEngine(lake)
+            elif engine == "spark":
+                from cellguard.fleet.spark_engine import SparkEngine
+                eng = SparkEngine(lake, spark_master)
+            else:
+                raise ConfigError(f"--engine: {engine!r}; allowed: duckdb, spark")
+            rows = eng.run(name, params)
+            eng.close()
+        else:
+            if not store:
+                raise ConfigError("--store: no fleet store DSN (or CELLGUARD_FLEET_DSN); or give --lake")
+            rows = _store(store).run(name, params, scope=scope)
+    except CellguardError as exc:
+        fail(exc)
+    if as_json:
+        sys.stdout.write(json.dumps({"query": name, "rows": rows}) + "\n")
+        return
+    console = Console(highlight=False)
+    console.print(f"{name}: {q.doc} ({len(rows)} row(s))", markup=False)
+    for r in rows:
+        console.print("  " + ", ".join(f"{c}={v}" for c, v in r.items()), markup=False)
+
+
+@fleet_app.command()
+def similar(
+    target: str = typer.Argument(..., help="A run folder (its findings) or one of your signature ids."),
+    policy: Path | None = typer.Option(None, "--policy", help="For a run folder: this site's data policy."),
+    limit: int = typer.Option(5, "--limit", help="Neighbours per finding."),
+    store: str | None = STORE,
+    as_json: bool = JSON,
+) -> None:
+    """The nearest signatures from other sites (same robot model first), with what fixed them and how often."""
+    from cellguard.errors import ConfigError
+    from cellguard.fleet import similar as sim
+
+    try:
+        if not store:
+            raise ConfigError("--store: no fleet store DSN (or CELLGUARD_FLEET_DSN)")
+        st = _store(store)
+        if Path(target).is_dir():
+            from cellguard.fleet.from_record import site_signatures
+            from cellguard.fleet.policy import load_policy
+            if policy is None:
+                raise ConfigError("--policy: needed with a run folder (it names this site)")
+            probes = site_signatures(Path(target), load_policy(policy))
+        else:
+            probes = [sim.probe_of(st, target)]
+        out = [{"cause": p.cause, "neighbours": [n.to_dict() for n in sim.similar(st, p, limit)]} for p in probes]
+    except CellguardError as exc:
+        fail(exc)
+    if as_json:
+        sys.stdout.write(json.dumps({"findings": out}) + "\n")
+        return
+    console = Console(highlight=False)
+    for f in out:
+        console.print(f"finding {f['cause']}: {len(f['neighbours'])} similar signature(s)", markup=False)
+        for n in f["neighbours"]:
+            fixes = "; ".join(f"{x['recovery'] or 'no recovery recorded'} fixed {x['fixed']}/{x['signatures']} "
+                              f"({x['scope']})" for x in n["fixes"]) or "no fix known"
+            console.print(f"  {n['similarity']:.3f} {n['cause']} at site {n['site_id']} "
+                          f"({n['robot_model']}): {fixes}", markup=False)
+
+
+@fleet_app.command()
+def audit(site_dir: Path = SITE_DIR, as_json: bool = JSON) -> None:
+    """This site's audit log: every export, when, how many rows, under which policy version."""
+    from cellguard.fleet.audit import read_audit
+
+    entries = read_audit(site_dir)
+    if as_json:
+        sys.stdout.write(json.dumps({"entries": entries}) + "\n")
+        return
+    console = Console(highlight=False)
+    console.print(f"audit log of {site_dir}: {len(entries)} entr{'y' if len(entries) == 1 else 'ies'}", markup=False)
+    for e in entries:
+        console.print(f"  {e['when_utc']} {e['status']:<9} {e['what']:<15} rows={e['rows']} "
+                      f"kept={e['withheld_rows']} policy={e['policy_version']} batch={e['batch_id'][:12]}", markup=False)

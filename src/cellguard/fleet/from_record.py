@@ -1,0 +1,43 @@
+"""A site's signatures from its run folders: each folder's record diagnosed, each finding one row.
+
+Reads the record (``record.mcap``) through the diagnosis, never the run's summary (its ground
+truth holds the injected faults). DIR is a run folder or a folder of run folders.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+from pathlib import Path
+
+from cellguard.errors import RecordError
+from cellguard.fleet.policy import DataPolicy
+from cellguard.fleet.signature import Signature, signatures_of
+
+RECORD = "record.mcap"
+
+
+def run_folders(folder: Path) -> list[Path]:
+    folder = Path(folder)
+    if (folder / RECORD).is_file():
+        return [folder]
+    found = sorted(p.parent for p in folder.glob(f"*/{RECORD}")) if folder.is_dir() else []
+    if not found:
+        raise RecordError(f"{folder}: no {RECORD} in it or in its sub-folders")
+    return found
+
+
+def site_signatures(folder: Path, policy: DataPolicy) -> list[Signature]:
+    """Every finding of every run under ``folder``, as signatures of the policy's tenant and site."""
+    from cellguard.diagnose.from_record import diagnose_record
+    from cellguard.record.reader import open_record
+
+    out = []
+    for run in run_folders(folder):
+        with open_record(run) as rec:
+            _ = rec.context  # the wall-clock epoch is stated in the context messages
+            epoch_ns = rec.epoch_wall_ns
+        diagnosis = diagnose_record(run)
+        day = (dt.datetime.fromtimestamp(epoch_ns * 1e-9, dt.timezone.utc) if epoch_ns > 0
+               else dt.datetime.now(dt.timezone.utc)).date()  # no epoch stated: the day of export
+        out.extend(signatures_of(diagnosis.to_dict(), diagnosis.context, policy.tenant, policy.site, day))
+    return out

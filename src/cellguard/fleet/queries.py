@@ -1,0 +1,150 @@
+"""The named fleet queries: one SQL text each, run unchanged on DuckDB, Spark and PostgreSQL.
+
+Written in the SQL the three engines share (``NULLS LAST`` spelled out, decimals cast
+explicitly, no dialect functions) against three relations: ``signatures`` (one row per
+signature, the columns of ``signature.Signature``), ``effects`` (``tenant_id, signature_id,
+feature, effect``: one row per changed feature) and, for ``similar``, ``probe`` (``feature,
+effect``: the signature looked for). Parameters (``:k``, ``:site``, ...) are validated and
+written in as literals by ``render``.
+
+A cross-customer query returns only groups seen at ``:k`` or more distinct customers.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import re
+from collections.abc import Mapping
+from dataclasses import dataclass
+from decimal import Decimal
+
+from cellguard.errors import ConfigError, UnknownNameError
+
+MIN_CUSTOMERS = 5  # default k: a cross-customer result covers at least this many customers
+
+
+@dataclass(frozen=True)
+class NamedQuery:
+    name: str
+    doc: str
+    sql: str
+    columns: tuple[tuple[str, str], ...]  # (name, PostgreSQL type) of each result column
+    defaults: Mapping[str, object]
+    cross_customer: bool = True  # False: rows of single signatures, only within the caller's rights
+
+
+_FREQUENCY = """
+SELECT cause, robot_model, cellguard_version,
+       count(*) AS signatures, count(DISTINCT site_id) AS sites, count(DISTINCT tenant_id) AS customers
+FROM signatures
+GROUP BY cause, robot_model, cellguard_version
+HAVING count(DISTINCT tenant_id) >= :k
+ORDER BY signatures DESC, cause, robot_model NULLS LAST, cellguard_version NULLS LAST
+"""
+
+_INTRODUCED = """
+WITH per_version AS (
+  SELECT cause, policy_version, min(created_date) AS first_seen, count(*) AS signatures,
+         count(DISTINCT site_id) AS sites, count(DISTINCT tenant_id) AS customers
+  FROM signatures WHERE policy_version IS NOT NULL
+  GROUP BY cause, policy_version),
+deployed AS (
+  SELECT policy_version, min(created_date) AS deployed FROM signatures
+  WHERE policy_version IS NOT NULL GROUP BY policy_version),
+earliest AS (SELECT cause, min(first_seen) AS first_seen FROM per_version GROUP BY cause)
+SELECT v.cause, v.policy_version, d.deployed, v.first_seen, v.signatures, v.sites, v.customers
+FROM per_version v
+JOIN earliest e ON v.cause = e.cause AND v.first_seen = e.first_seen
+JOIN deployed d ON v.policy_version = d.policy_version
+WHERE v.customers >= :k
+ORDER BY v.cause, v.policy_version
+"""
+
+_FIXES = """
+SELECT cause, robot_model, recovery, count(*) AS signatures,
+       sum(CASE WHEN recovery_outcome = 'success' THEN 1 ELSE 0 END) AS fixed,
+       count(DISTINCT tenant_id) AS customers
+FROM signatures
+GROUP BY cause, robot_model, recovery
+HAVING count(DISTINCT tenant_id) >= :k
+ORDER BY cause, robot_model NULLS LAST, signatures DESC, recovery NULLS LAST
+"""
+
+_SIMILAR = """
+WITH p AS (SELECT feature, sign(effect) * ln(1 + abs(effect)) AS w FROM probe),
+pn AS (SELECT sqrt(sum(w * w)) AS norm FROM p),
+s AS (SELECT signature_id, feature, sign(effect) * ln(1 + abs(effect)) AS w FROM effects),
+sn AS (SELECT signature_id, sqrt(sum(w * w)) AS norm FROM s GROUP BY signature_id),
+d AS (SELECT s.signature_id, sum(s.w * p.w) AS dot FROM s JOIN p ON s.feature = p.feature GROUP BY s.signature_id)
+SELECT g.signature_id, g.site_id, g.cause, g.robot_model, g.recovery, g.recovery_outcome,
+       CAST(d.dot / (sn.norm * pn.norm) AS DECIMAL(12, 9)) AS similarity
+FROM d
+JOIN sn ON d.signature_id = sn.signature_id
+JOIN signatures g ON g.signature_id = d.signature_id
+CROSS JOIN pn
+WHERE g.site_id <> :site AND sn.norm > 0 AND pn.norm > 0
+ORDER BY CASE WHEN g.robot_model = :robot_model THEN 0 ELSE 1 END, similarity DESC, g.signature_id
+LIMIT :limit
+"""
+
+QUERIES: dict[str, NamedQuery] = {q.name: q for q in (
+    NamedQuery("frequency", "signatures by cause, robot model and cellguard version", _FREQUENCY,
+               (("cause", "text"), ("robot_model", "text"), ("cellguard_version", "text"),
+                ("signatures", "bigint"), ("sites", "bigint"), ("customers", "bigint")), {"k": MIN_CUSTOMERS}),
+    NamedQuery("introduced", "the policy version under which each cause was first seen", _INTRODUCED,
+               (("cause", "text"), ("policy_version", "text"), ("deployed", "date"), ("first_seen", "date"),
+                ("signatures", "bigint"), ("sites", "bigint"), ("customers", "bigint")), {"k": MIN_CUSTOMERS}),
+    NamedQuery("fixes", "the recoveries taken per cause and how often they fixed it", _FIXES,
+               (("cause", "text"), ("robot_model", "text"), ("recovery", "text"), ("signatures", "bigint"),
+                ("fixed", "bigint"), ("customers", "bigint")), {"k": MIN_CUSTOMERS}),
+    NamedQuery("similar", "the signatures nearest to a probe (cosine of log-scaled effect sizes), "
+               "same robot model first, other sites only", _SIMILAR,
+               (("signature_id", "text"), ("site_id", "text"), ("cause", "text"), ("robot_model", "text"),
+                ("recovery", "text"), ("recovery_outcome", "text"), ("similarity", "numeric")),
+               {"site": "", "robot_model": "", "limit": 5}, cross_customer=False),
+)}
+
+_TEXT = re.compile(r"^[A-Za-z0-9_.:-]{0,64}$")
+
+
+def named(name: str) -> NamedQuery:
+    if name not in QUERIES:
+        raise UnknownNameError("fleet query", name, list(QUERIES))
+    return QUERIES[name]
+
+
+def render(query: NamedQuery, params: Mapping[str, object] | None = None, k_expr: str | None = None) -> str:
+    """The query's SQL with its parameters written in; ``k_expr`` replaces ``:k`` with an expression."""
+    values = {**query.defaults, **(params or {})}
+    for key in values:
+        if key not in query.defaults:
+            raise ConfigError(f"query {query.name}: parameter {key!r} unknown; allowed: {', '.join(query.defaults)}")
+
+    def literal(m: re.Match) -> str:
+        key = m.group(1)
+        if key == "k" and k_expr is not None:
+            return k_expr
+        v = values[key]
+        if isinstance(v, bool) or not isinstance(v, (int, str)):
+            raise ConfigError(f"query {query.name}: parameter {key} must be an integer or text, got {v!r}")
+        if isinstance(v, int):
+            if not 1 <= v <= 1_000_000:
+                raise ConfigError(f"query {query.name}: parameter {key} must be 1..1000000, got {v}")
+            return str(v)
+        if not _TEXT.match(v):
+            raise ConfigError(f"query {query.name}: parameter {key} must match {_TEXT.pattern}, got {v!r}")
+        return f"'{v}'"
+
+    return re.sub(r":([a-z_]+)\b", literal, query.sql)
+
+
+def plain(row: Mapping[str, object]) -> dict:
+    """A result row with engine types made plain: decimals to float, dates to ISO text."""
+    out = {}
+    for k, v in row.items():
+        if isinstance(v, Decimal):
+            v = float(v)
+        elif isinstance(v, (dt.date, dt.datetime)):
+            v = v.isoformat()[:10]
+        out[k] = v
+    return out

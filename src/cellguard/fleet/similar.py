@@ -1,0 +1,63 @@
+"""Similar faults: the signatures nearest to a fault, from other sites, with what fixed them.
+
+Nearest by the named ``similar`` query (cosine of log-scaled effect sizes, same robot model
+first), run as the caller's tenant role, so the store's row-level security decides what it may
+see. What fixed each neighbour's cause, and how often, comes from the cross-customer ``fixes``
+query when at least k customers back it, else from the caller's own signatures.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from cellguard.errors import ConfigError
+from cellguard.fleet.signature import Signature
+from cellguard.fleet.store import RefusedAggregate, TenantStore
+
+
+@dataclass(frozen=True)
+class Neighbour:
+    signature_id: str
+    site_id: str
+    cause: str
+    robot_model: str | None
+    similarity: float
+    fixes: tuple[dict, ...]  # {recovery, signatures, fixed, scope}
+
+    def to_dict(self) -> dict:
+        return {**{k: getattr(self, k) for k in ("signature_id", "site_id", "cause", "robot_model", "similarity")},
+                "fixes": list(self.fixes)}
+
+
+def probe_of(store: TenantStore, signature_id: str) -> Signature:
+    """The caller's own signature by id (another tenant's id reads as not found)."""
+    with store.connection() as con:
+        row = con.execute("SELECT site_id, robot_model, cause FROM fleet.signatures WHERE signature_id = %s",
+                          (signature_id,)).fetchone()
+        if row is None:
+            raise ConfigError(f"SIGNATURE_ID {signature_id!r}: no such signature among yours")
+        effects = dict(con.execute("SELECT feature, effect FROM fleet.effects WHERE signature_id = %s",
+                                   (signature_id,)).fetchall())
+    return Signature(tenant_id="", site_id=row[0], created_date="1970-01-01", cause=row[2], robot_model=row[1],
+                     effects=effects)
+
+
+def similar(store: TenantStore, probe: Signature, limit: int = 5) -> list[Neighbour]:
+    """The ``limit`` nearest signatures to ``probe`` from sites other than its own."""
+    if not probe.effects:
+        return []
+    rows = store.run("similar", {"site": probe.site_id, "robot_model": probe.robot_model or "", "limit": limit},
+                     probe=sorted(probe.effects.items()), scope="own")
+    fixes = _fixes(store)
+    return [Neighbour(r["signature_id"], r["site_id"], r["cause"], r["robot_model"], r["similarity"],
+                      tuple(f for f in fixes if f["cause"] == r["cause"] and f["robot_model"] == r["robot_model"]))
+            for r in rows]
+
+
+def _fixes(store: TenantStore) -> list[dict]:
+    try:
+        rows, scope = store.run("fixes"), "fleet"
+    except RefusedAggregate:
+        rows, scope = store.run("fixes", scope="own"), "own"
+    return [{"cause": r["cause"], "robot_model": r["robot_model"], "recovery": r["recovery"],
+             "signatures": r["signatures"], "fixed": r["fixed"], "scope": scope} for r in rows]

@@ -1,0 +1,58 @@
+"""The named queries on the Parquet lake with Apache Spark: local mode, or a cluster by URL.
+
+``pyspark`` is an extra (``pip install 'cellguard[spark]'``, Java 17) imported only here.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+from cellguard.errors import ConfigError
+from cellguard.fleet.lake import EFFECTS, SIGNATURES, has_data
+from cellguard.fleet.queries import named, plain, render
+
+
+def _pyspark():
+    try:
+        from pyspark.sql import SparkSession
+    except ImportError:
+        raise ConfigError("--engine spark: pyspark is not installed; pip install 'cellguard[spark]' "
+                          "(needs Java 17)") from None
+    return SparkSession
+
+
+class SparkEngine:
+    name = "spark"
+
+    def __init__(self, lake: Path, master: str = "local[2]"):
+        if not has_data(lake):
+            raise ConfigError(f"--lake {lake}: no signatures in it (expected signatures/date=*/tenant=*/*.parquet)")
+        session = _pyspark()
+        self.spark = (session.builder.master(master).appName("cellguard-fleet")
+                      .config("spark.ui.enabled", "false").config("spark.sql.session.timeZone", "UTC")
+                      .config("spark.ui.showConsoleProgress", "false")
+                      .config("spark.sql.shuffle.partitions", "8").config("spark.driver.bindAddress", "127.0.0.1")
+                      .config("spark.driver.host", "127.0.0.1").getOrCreate())
+        self.spark.sparkContext.setLogLevel("ERROR")
+        for rel, schema in (("signatures", SIGNATURES), ("effects", EFFECTS)):
+            root = str(Path(lake).resolve() / rel)  # the schema given: no footer is read to infer it
+            (self.spark.read.schema(_ddl(schema)).option("basePath", root).parquet(root + "/*/*/*.parquet")
+             .createOrReplaceTempView(rel))
+
+    def run(self, query: str, params: Mapping | None = None, probe: Sequence[tuple[str, float]] = ()) -> list[dict]:
+        q = named(query)
+        schema = "feature string, effect double"
+        self.spark.createDataFrame([(f, float(e)) for f, e in probe], schema).createOrReplaceTempView("probe")
+        return [plain(r.asDict()) for r in self.spark.sql(render(q, params)).collect()]
+
+    def close(self) -> None:
+        self.spark.stop()
+
+
+_SPARK_TYPES = {"string": "string", "date32[day]": "date", "double": "double", "int64": "bigint", "int32": "int"}
+
+
+def _ddl(schema) -> str:
+    """The lake's arrow schema as a Spark DDL string."""
+    return ", ".join(f"{f.name} {_SPARK_TYPES[str(f.type)]}" for f in schema)

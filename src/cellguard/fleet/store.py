@@ -1,0 +1,288 @@
+"""The fleet store on PostgreSQL: every tenant's rows in one database, each tenant fenced off by
+row-level security that no SQL it can send removes.
+
+Roles (``D`` is the database name):
+
+- ``D_owner`` (no login) owns the tables, with ``FORCE ROW LEVEL SECURITY``: even it sees no row
+  without a policy.
+- ``D_t_<tenant>``, one login role per tenant, member of ``D_app``. The tenant is bound at
+  connect time by the password it authenticates with: the policies compare rows with
+  ``fleet.session_tenant()``, a SECURITY DEFINER lookup of ``session_user``, which only a
+  superuser can change (``SET ROLE`` changes ``current_user``, not ``session_user``; there is
+  no GUC to forge). Tenants may SELECT, INSERT and DELETE their own rows; nobody may UPDATE.
+- ``D_agg`` (no login) reads every row, but only inside the cross-customer functions
+  ``fleet.q_<query>(k)``, generated from the named queries (``queries.py``): each refuses when
+  fewer than k customers have signatures (k = max(the caller's, the store's setting, default 5))
+  and drops every group seen at fewer than k.
+
+Uploads are idempotent: the key is (tenant, content hash), inserts are ``ON CONFLICT DO NOTHING``.
+"""
+
+from __future__ import annotations
+
+import os
+import secrets
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+from cellguard.errors import CellguardError, ConfigError
+from cellguard.fleet.export import Batch
+from cellguard.fleet.queries import MIN_CUSTOMERS, QUERIES, named, plain, render
+
+SIGNATURE_COLUMNS = ("signature_id", "tenant_id", "site_id", "created_date", "cause", "confidence", "robot_model",
+                     "cell_type", "onset_cycle", "detection_delay_cycles", "policy_version", "calibration_version",
+                     "cellguard_version", "recovery", "recovery_outcome", "schema_version")
+
+
+class StoreError(CellguardError):
+    """The fleet store refused or failed an operation (not a connection problem)."""
+
+
+class StoreUnavailable(StoreError):
+    """The fleet store cannot be reached; what was to be sent stays in the outbox."""
+
+
+class RefusedAggregate(StoreError):
+    """A cross-customer result over fewer than k customers."""
+
+
+def ci_admin_dsn() -> str | None:
+    """The admin DSN of the server ``.ci/fleet.sh`` started: ``CELLGUARD_FLEET_ADMIN_DSN``, else the file
+    ``CELLGUARD_FLEET_DSN_FILE`` (default /tmp/cellguard-fleet-dsn) writes; None when neither is there."""
+    dsn = os.environ.get("CELLGUARD_FLEET_ADMIN_DSN")
+    if dsn:
+        return dsn
+    path = Path(os.environ.get("CELLGUARD_FLEET_DSN_FILE", "/tmp/cellguard-fleet-dsn"))
+    return path.read_text().strip() if path.is_file() else None
+
+
+def _psycopg():
+    try:
+        import psycopg
+    except ImportError:
+        raise ConfigError("the fleet store needs psycopg; pip install 'cellguard[fleet]'") from None
+    return psycopg
+
+
+def connect(dsn: str, timeout_s: float = 3.0):
+    """A connection, or StoreUnavailable naming the server (never the password)."""
+    psycopg = _psycopg()
+    try:
+        return psycopg.connect(dsn, connect_timeout=max(1, round(timeout_s)))
+    except psycopg.OperationalError as exc:
+        where = _where(dsn)
+        reason = str(exc).strip().splitlines()[-1] if str(exc).strip() else exc.__class__.__name__
+        raise StoreUnavailable(f"fleet store {where} unreachable ({reason})") from None
+
+
+def _where(dsn: str) -> str:
+    from psycopg.conninfo import conninfo_to_dict
+    try:
+        d = conninfo_to_dict(dsn)
+    except Exception:  # noqa: BLE001 - a malformed DSN is named as such, never echoed (it may hold a password)
+        return "(malformed DSN)"
+    return f"{d.get('host', 'localhost')}:{d.get('port', 5432)}/{d.get('dbname', '?')}"
+
+
+class FleetStore:
+    """The operator's side: install the schema, add tenants, set k. Runs as a superuser."""
+
+    def __init__(self, admin_dsn: str, database: str = "cellguard_fleet"):
+        if not database.replace("_", "").isalnum() or not database.islower() or len(database) > 20:
+            raise ConfigError(f"database: {database!r}; expected lower-case letters, digits and _ (at most 20)")
+        self.admin_dsn, self.database = admin_dsn, database
+        self.owner, self.agg, self.app = f"{database}_owner", f"{database}_agg", f"{database}_app"
+
+    def tenant_role(self, tenant_id: str) -> str:
+        return f"{self.database}_t_{tenant_id}"
+
+    def install(self, reset: bool = False) -> None:
+        """Create the database, roles, tables, policies and functions (``reset``: drop them first)."""
+        _psycopg()
+        from psycopg import sql
+        with connect(self.admin_dsn) as con:
+            con.autocommit = True
+            exists = con.execute("SELECT 1 FROM pg_database WHERE datname = %s", (self.database,)).fetchone()
+            if exists and not reset:
+                return
+            con.execute(sql.SQL("DROP DATABASE IF EXISTS {} WITH (FORCE)").format(sql.Identifier(self.database)))
+            roles = con.execute("SELECT rolname FROM pg_roles WHERE rolname LIKE %s",
+                                (self.database.replace("_", r"\_") + r"\_%",)).fetchall()
+            for (role,) in roles:
+                con.execute(sql.SQL("DROP ROLE {}").format(sql.Identifier(role)))
+            for role in (self.owner, self.agg, self.app):
+                con.execute(sql.SQL("CREATE ROLE {} NOLOGIN NOINHERIT").format(sql.Identifier(role)))
+            con.execute(sql.SQL("CREATE DATABASE {}").format(sql.Identifier(self.database)))
+            con.execute(sql.SQL("REVOKE ALL ON DATABASE {} FROM PUBLIC").format(sql.Identifier(self.database)))
+            con.execute(sql.SQL("GRANT CONNECT, TEMPORARY ON DATABASE {} TO {}").format(
+                sql.Identifier(self.database), sql.Identifier(self.app)))
+        with connect(self._admin_db()) as con:
+            with con.transaction():
+                con.execute(self._schema_sql())
+                for q in QUERIES.values():
+                    if q.cross_customer:
+                        con.execute(self._function_sql(q))
+
+    def add_tenant(self, tenant_id: str, host: str = "127.0.0.1") -> str:
+        """Create the tenant's login role with a fresh password; return the tenant's DSN."""
+        from psycopg import sql
+        from psycopg.conninfo import conninfo_to_dict, make_conninfo
+        role, password = self.tenant_role(tenant_id), secrets.token_urlsafe(24)
+        with connect(self._admin_db()) as con, con.transaction():
+            con.execute(sql.SQL("CREATE ROLE {} LOGIN INHERIT NOSUPERUSER NOCREATEDB NOCREATEROLE NOBYPASSRLS "
+                                "PASSWORD {} IN ROLE {}").format(sql.Identifier(role), sql.Literal(password),
+                                                                 sql.Identifier(self.app)))
+            con.execute("INSERT INTO fleet.tenants (tenant_id, role_name) VALUES (%s, %s)", (tenant_id, role))
+        port = conninfo_to_dict(self.admin_dsn).get("port", "5432")
+        return make_conninfo(host=host, port=port, dbname=self.database, user=role, password=password)
+
+    def set_min_customers(self, k: int) -> None:
+        if isinstance(k, bool) or not isinstance(k, int) or not 2 <= k <= 1000:
+            raise ConfigError(f"min_customers: expected an integer 2..1000, got {k!r}")
+        with connect(self._admin_db()) as con, con.transaction():
+            con.execute("UPDATE fleet.settings SET min_customers = %s", (k,))
+
+    def admin(self):
+        """A superuser connection to the fleet database (tests, retention jobs)."""
+        return connect(self._admin_db())
+
+    def _admin_db(self) -> str:
+        from psycopg.conninfo import make_conninfo
+        return make_conninfo(self.admin_dsn, dbname=self.database)
+
+    def _schema_sql(self) -> str:
+        o, a, g = f'"{self.owner}"', f'"{self.app}"', f'"{self.agg}"'
+        return f"""
+REVOKE ALL ON SCHEMA public FROM PUBLIC;
+CREATE SCHEMA fleet AUTHORIZATION {o};
+GRANT USAGE ON SCHEMA fleet TO {a}, {g};
+CREATE TABLE fleet.tenants (tenant_id text PRIMARY KEY, role_name name UNIQUE NOT NULL);
+CREATE TABLE fleet.settings (one boolean PRIMARY KEY DEFAULT true CHECK (one),
+                             min_customers int NOT NULL CHECK (min_customers >= 2));
+INSERT INTO fleet.settings (min_customers) VALUES ({MIN_CUSTOMERS});
+CREATE FUNCTION fleet.session_tenant() RETURNS text LANGUAGE sql STABLE SECURITY DEFINER
+  SET search_path = pg_catalog AS $$ SELECT tenant_id FROM fleet.tenants WHERE role_name = session_user $$;
+CREATE TABLE fleet.signatures (
+  signature_id text NOT NULL, tenant_id text NOT NULL REFERENCES fleet.tenants, site_id text NOT NULL,
+  created_date date NOT NULL, cause text NOT NULL, confidence double precision, robot_model text, cell_type text,
+  onset_cycle bigint, detection_delay_cycles bigint, policy_version text, calibration_version text,
+  cellguard_version text, recovery text, recovery_outcome text, schema_version int NOT NULL,
+  PRIMARY KEY (tenant_id, signature_id));
+CREATE TABLE fleet.effects (
+  tenant_id text NOT NULL, signature_id text NOT NULL, feature text NOT NULL, effect double precision NOT NULL,
+  PRIMARY KEY (tenant_id, signature_id, feature),
+  FOREIGN KEY (tenant_id, signature_id) REFERENCES fleet.signatures ON DELETE CASCADE);
+CREATE TABLE fleet.aggregates (
+  row_id text NOT NULL, tenant_id text NOT NULL REFERENCES fleet.tenants, site_id text NOT NULL, month text NOT NULL,
+  cause text NOT NULL, robot_model text, cell_type text, signatures bigint NOT NULL, policy_version text NOT NULL,
+  PRIMARY KEY (tenant_id, row_id));
+ALTER TABLE fleet.tenants OWNER TO {o};
+ALTER TABLE fleet.settings OWNER TO {o};
+ALTER TABLE fleet.signatures OWNER TO {o};
+ALTER TABLE fleet.effects OWNER TO {o};
+ALTER TABLE fleet.aggregates OWNER TO {o};
+ALTER FUNCTION fleet.session_tenant() OWNER TO {o};
+REVOKE ALL ON FUNCTION fleet.session_tenant() FROM PUBLIC;
+GRANT EXECUTE ON FUNCTION fleet.session_tenant() TO {a};
+GRANT SELECT ON fleet.settings TO {g};
+""" + "".join(f"""
+ALTER TABLE fleet.{t} ENABLE ROW LEVEL SECURITY;
+ALTER TABLE fleet.{t} FORCE ROW LEVEL SECURITY;
+CREATE POLICY own_rows ON fleet.{t} FOR ALL TO {a}
+  USING (tenant_id = fleet.session_tenant()) WITH CHECK (tenant_id = fleet.session_tenant());
+CREATE POLICY cross_customer ON fleet.{t} FOR SELECT TO {g} USING (true);
+GRANT SELECT, INSERT, DELETE ON fleet.{t} TO {a};
+GRANT SELECT ON fleet.{t} TO {g};
+""" for t in ("signatures", "effects", "aggregates"))
+
+    def _function_sql(self, q) -> str:
+        cols = ", ".join(f"{c} {t}" for c, t in q.columns)
+        body = render(q, k_expr="k_eff")
+        return f"""
+CREATE FUNCTION fleet.q_{q.name}(min_customers int DEFAULT {MIN_CUSTOMERS}) RETURNS TABLE ({cols})
+LANGUAGE plpgsql STABLE SECURITY DEFINER SET search_path = fleet, pg_catalog AS $fn$
+#variable_conflict use_column
+DECLARE
+  k_eff int := greatest(min_customers, (SELECT s.min_customers FROM fleet.settings s));
+  n int := (SELECT count(DISTINCT t.tenant_id) FROM fleet.signatures t);
+BEGIN
+  IF n < k_eff THEN
+    RAISE EXCEPTION 'cross-customer query {q.name} refused: signatures from % customer(s), at least % needed', n, k_eff
+      USING ERRCODE = 'insufficient_privilege';
+  END IF;
+  RETURN QUERY {body};
+END $fn$;
+ALTER FUNCTION fleet.q_{q.name}(int) OWNER TO "{self.agg}";
+REVOKE ALL ON FUNCTION fleet.q_{q.name}(int) FROM PUBLIC;
+GRANT EXECUTE ON FUNCTION fleet.q_{q.name}(int) TO "{self.app}";
+"""
+
+
+class TenantStore:
+    """A tenant's side: push batches and query, every statement as the tenant's own role."""
+
+    def __init__(self, dsn: str, timeout_s: float = 3.0):
+        self.dsn, self.timeout_s = dsn, timeout_s
+        self.where = _where(dsn)
+
+    def connection(self):
+        con = connect(self.dsn, self.timeout_s)
+        con.execute("SET search_path = fleet, pg_catalog")
+        con.commit()
+        return con
+
+    def push(self, batch: Batch, retention_days: int | None = None) -> tuple[int, int]:
+        """Insert the batch's rows in one transaction: (new rows, rows already there)."""
+        psycopg = _psycopg()
+        with self.connection() as con:
+            try:
+                with con.transaction(), con.cursor() as cur:
+                    new = 0
+                    for s in batch.signatures:
+                        cur.execute(
+                            f"INSERT INTO fleet.signatures ({', '.join(SIGNATURE_COLUMNS)}) VALUES "
+                            f"({', '.join(['%s'] * len(SIGNATURE_COLUMNS))}) ON CONFLICT DO NOTHING",
+                            [s.get(c) for c in SIGNATURE_COLUMNS])
+                        new += cur.rowcount
+                        cur.executemany("INSERT INTO fleet.effects (tenant_id, signature_id, feature, effect) "
+                                        "VALUES (%s, %s, %s, %s) ON CONFLICT DO NOTHING",
+                                        [(s["tenant_id"], s["signature_id"], f, e)
+                                         for f, e in (s.get("effects") or {}).items()])
+                    for i, r in enumerate(batch.aggregates):
+                        cur.execute("INSERT INTO fleet.aggregates (row_id, tenant_id, site_id, month, cause, robot_model,"
+                                    " cell_type, signatures, policy_version) VALUES (%s, %s, %s, %s, %s, %s, %s, %s, %s)"
+                                    " ON CONFLICT DO NOTHING",
+                                    (f"{batch.batch_id}-{i}", batch.tenant_id, batch.site_id, r["month"], r["cause"],
+                                     r["robot_model"], r["cell_type"], r["signatures"], batch.policy_version))
+                        new += cur.rowcount
+                    if retention_days is not None:
+                        cur.execute("DELETE FROM fleet.signatures WHERE site_id = %s AND "
+                                    "created_date < current_date - %s::int", (batch.site_id, retention_days))
+            except psycopg.errors.InsufficientPrivilege as exc:
+                raise StoreError(f"fleet store {self.where}: refused the batch of tenant {batch.tenant_id} "
+                                 f"({exc.diag.message_primary})") from None
+            except psycopg.OperationalError as exc:  # the server went away mid-batch: rolled back, still queued
+                raise StoreUnavailable(f"fleet store {self.where} lost during the upload ({exc.__class__.__name__})") \
+                    from None
+        return new, batch.rows - new
+
+    def run(self, query: str, params: Mapping | None = None, probe: Sequence[tuple[str, float]] = (),
+            scope: str = "fleet") -> list[dict]:
+        """A named query: ``scope`` "fleet" (cross-customer, k applies) or "own" (this tenant's rows)."""
+        psycopg = _psycopg()
+        q = named(query)
+        if scope not in ("fleet", "own"):
+            raise ConfigError(f"--scope: {scope!r}; allowed: fleet, own")
+        with self.connection() as con, con.transaction(), con.cursor() as cur:
+            if scope == "fleet" and q.cross_customer:
+                k = int((params or {}).get("k", MIN_CUSTOMERS))
+                try:
+                    cur.execute(f"SELECT * FROM fleet.q_{q.name}(%s)", (k,))
+                except psycopg.errors.InsufficientPrivilege as exc:
+                    raise RefusedAggregate(exc.diag.message_primary) from None
+            else:
+                cur.execute("CREATE TEMP TABLE probe (feature text, effect double precision) ON COMMIT DROP")
+                cur.executemany("INSERT INTO probe VALUES (%s, %s)", [(f, float(e)) for f, e in probe])
+                cur.execute(render(q, params, k_expr="1"))
+            cols = [d.name for d in cur.description]
+            return [plain(dict(zip(cols, r))) for r in cur.fetchall()]

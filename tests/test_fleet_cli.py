@@ -1,0 +1,104 @@
+"""`cellguard fleet push/query/similar/audit` end to end: a real run, its record diagnosed, its
+signatures pushed to the real PostgreSQL server and a Parquet lake, a server that is down."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from typer.testing import CliRunner
+
+from cellguard.cli import app
+from cellguard.runner import run_scenario
+from cellguard.scenario import parse_scenario
+
+psycopg = pytest.importorskip("psycopg", reason="the fleet CLI tests need psycopg: pip install 'cellguard[fleet]'")
+
+from cellguard.fleet.store import FleetStore, ci_admin_dsn  # noqa: E402
+
+DOWN = "host=127.0.0.1 port=1 dbname=x user=x password=x"
+
+
+@pytest.fixture(scope="module")
+def env(tmp_path_factory):
+    dsn = ci_admin_dsn()
+    if dsn is None:
+        pytest.skip("no fleet store server: run .ci/fleet.sh (or set CELLGUARD_FLEET_ADMIN_DSN)")
+    try:
+        psycopg.connect(dsn, connect_timeout=3).close()
+    except psycopg.OperationalError:
+        pytest.skip("fleet store server not reachable: run .ci/fleet.sh")
+    root = tmp_path_factory.mktemp("fleetcli")
+    run_scenario(parse_scenario({"cell": "arm-pick-place", "seed": 11, "acceptance_cycles": 5, "production_cycles": 4,
+                                 "faults": [{"kind": "fixture_shift", "at_cycle": 6, "dx_mm": 5.0, "dy_mm": 1.0}]}),
+                 root / "run")
+    store = FleetStore(dsn, "cgtest_cli")
+    store.install(reset=True)
+    tenants = {t: store.add_tenant(t) for t in ("ta", "tb")}
+    for tenant, site in (("ta", "s1"), ("ta", "s2"), ("tb", "s9")):
+        (root / f"{tenant}-{site}.yaml").write_text(f"tenant: {tenant}\nsite: {site}\nexport: signatures\n")
+    return root, tenants
+
+
+def cli(*args, dsn=None):
+    result = CliRunner().invoke(app, ["fleet", *map(str, args)], env={"CELLGUARD_FLEET_DSN": dsn} if dsn else None)
+    return result
+
+
+def test_push_is_idempotent_and_lands_in_the_lake(env):
+    root, tenants = env
+    args = ("push", root / "run", "--policy", root / "ta-s1.yaml", "--site-dir", root / "site1", "--lake", root / "lake",
+            "--json")
+    first = json.loads(cli(*args, dsn=tenants["ta"]).stdout)
+    assert first["rows"] >= 1 and first["new_rows"] == first["rows"] and first["queued"] == 0
+    again = json.loads(cli(*args, dsn=tenants["ta"]).stdout)
+    assert (again["new_rows"], again["duplicate_rows"]) == (0, first["rows"])
+    out = cli("query", "frequency", "--lake", root / "lake", "--k", "1", "--json")
+    assert out.exit_code == 0, out.output
+    rows = json.loads(out.stdout)["rows"]
+    assert sum(r["signatures"] for r in rows) == first["rows"]  # the retry replaced its file, no duplicate
+    assert "fixture_shift" in {r["cause"] for r in rows}
+    audit = json.loads(cli("audit", "--site-dir", root / "site1", "--json").stdout)["entries"]
+    assert [e["status"] for e in audit] == ["queued", "sent", "queued", "duplicate"]
+
+
+def test_similar_from_a_folder_and_by_id_within_the_callers_rights(env):
+    root, tenants = env
+    for tenant, site in (("ta", "s2"), ("tb", "s9")):
+        r = cli("push", root / "run", "--policy", root / f"{tenant}-{site}.yaml", "--site-dir", root / site,
+                dsn=tenants[tenant])
+        assert r.exit_code == 0, r.output
+    out = cli("similar", root / "run", "--policy", root / "ta-s1.yaml", "--json", dsn=tenants["ta"])
+    assert out.exit_code == 0, out.output
+    findings = json.loads(out.stdout)["findings"]
+    top = findings[0]["neighbours"]
+    assert top and top[0]["site_id"] == "s2" and top[0]["similarity"] > 0.999  # same run at ta's other site
+    assert all(n["site_id"] == "s2" for f in findings for n in f["neighbours"])  # never tb's s9
+    with psycopg.connect(tenants["tb"]) as con:
+        theirs = con.execute("SELECT signature_id FROM fleet.signatures").fetchone()[0]
+    refused = cli("similar", theirs, dsn=tenants["ta"])
+    assert refused.exit_code == 2 and "no such signature among yours" in refused.output
+    mine = cli("similar", top[0]["signature_id"], dsn=tenants["ta"])
+    assert mine.exit_code == 0 and "similar signature" in mine.output
+
+
+def test_cross_customer_query_under_k_is_one_line_exit_2(env):
+    _, tenants = env
+    out = cli("query", "frequency", dsn=tenants["ta"])
+    assert out.exit_code == 2
+    assert out.output.strip() == ("error: cross-customer query frequency refused: signatures from 2 customer(s), "
+                                  "at least 5 needed")
+
+
+def test_server_down_keeps_the_batch_and_says_so(env):
+    root, tenants = env
+    args = ("push", root / "run", "--policy", root / "ta-s1.yaml", "--site-dir", root / "down")
+    out = cli(*args, dsn=DOWN)
+    assert out.exit_code == 0
+    line = out.stderr.strip()
+    assert "fleet store 127.0.0.1:1/x unreachable" in line and "1 batch(es) kept in" in line
+    assert "\n" not in line and "password" not in line
+    assert len(list((root / "down" / "outbox").glob("*.json"))) == 1
+    back = cli(*args[:-2], "--site-dir", root / "down", "--json", dsn=tenants["ta"])
+    assert json.loads(back.stdout)["queued"] == 0
+    assert not list((root / "down" / "outbox").glob("*.json"))

@@ -1,0 +1,110 @@
+"""One set of named queries, the same answers on every engine: DuckDB against Spark (local mode)
+on a Parquet lake, and DuckDB against PostgreSQL under row-level security."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from cellguard.errors import ConfigError, UnknownNameError
+from cellguard.fleet.duckdb_engine import DuckDBEngine
+from cellguard.fleet.queries import QUERIES, named, render
+from cellguard.fleet.synthetic import rows_of, synthetic_fleet, write_fleet
+
+SEEDS = [
+    {"cause": "friction", "robot_model": "arm5", "cell_type": "arm-pick-place", "confidence": 0.8,
+     "onset_cycle": 7, "detection_delay_cycles": 2, "effects": {"current_rms.elbow": 6.0, "tracking_rms.elbow": 1.1}},
+    {"cause": "fixture_shift", "robot_model": "arm5", "cell_type": "arm-pick-place", "confidence": 0.9,
+     "onset_cycle": 7, "detection_delay_cycles": 0, "effects": {"part_seen_x_mm": 11.0, "grasp_tcp_x_mm": 5.0}},
+    {"cause": "servo", "robot_model": "quad12", "cell_type": "quadruped-turns", "confidence": 0.7,
+     "onset_cycle": 16, "detection_delay_cycles": 3, "effects": {"tracking_rms.lf_knee": 8.0, "current_rms.lf_knee": 0.4}},
+]
+PROBE = [("current_rms.elbow", 5.0), ("tracking_rms.elbow", 1.5)]
+PARAMS = {"frequency": {"k": 2}, "introduced": {"k": 2}, "fixes": {"k": 2},
+          "similar": {"site": "t0-s0", "robot_model": "arm5", "limit": 7}}
+
+
+@pytest.fixture(scope="module")
+def lake(tmp_path_factory):
+    sig, eff = synthetic_fleet(SEEDS, 400, tenants=3, sites_per_tenant=3, days=3, versions=2, seed=3)
+    root = tmp_path_factory.mktemp("lake")
+    write_fleet(root, sig, eff)
+    return root, sig, eff
+
+
+def equal(a: list[dict], b: list[dict]) -> bool:
+    return len(a) == len(b) and all(
+        x.keys() == y.keys() and all(math.isclose(x[k], y[k], rel_tol=1e-9) if isinstance(x[k], float) else x[k] == y[k]
+                                     for k in x) for x, y in zip(a, b))
+
+
+def test_duckdb_answers_are_consistent_with_the_data(lake):
+    root, sig, _ = lake
+    eng = DuckDBEngine(root)
+    freq = eng.run("frequency", {"k": 2})
+    assert sum(r["signatures"] for r in freq) == sig.num_rows  # 3 customers: every group passes k=2
+    assert all(r["customers"] >= 2 for r in freq)
+    assert eng.run("frequency", {"k": 4}) == []  # no group has 4 customers
+    near = eng.run("similar", PARAMS["similar"], PROBE)
+    assert len(near) == 7 and all(r["site_id"] != "t0-s0" for r in near)
+    assert [r["cause"] for r in near] == ["friction"] * 7
+    assert near == sorted(near, key=lambda r: -r["similarity"])
+    intro = eng.run("introduced", {"k": 2})
+    assert {r["cause"] for r in intro} == {"friction", "fixture_shift", "servo"}
+    assert all(r["first_seen"] == "2026-10-01" and r["deployed"] == "2026-10-01" for r in intro)  # day 0 has pv0, pv1
+
+
+def test_queries_refuse_unknown_names_and_unsafe_parameters():
+    with pytest.raises(UnknownNameError, match="unknown fleet query 'everything'; known: fixes, frequency"):
+        named("everything")
+    with pytest.raises(ConfigError, match="parameter site must match"):
+        render(QUERIES["similar"], {"site": "x' OR '1'='1"})
+    with pytest.raises(ConfigError, match="parameter 'tenant' unknown"):
+        render(QUERIES["frequency"], {"tenant": "t0"})
+    with pytest.raises(ConfigError, match="parameter k must be 1..1000000"):
+        render(QUERIES["frequency"], {"k": 0})
+
+
+def test_duckdb_and_spark_agree_on_every_query(lake):
+    pytest.importorskip("pyspark", reason="the Spark engine needs pyspark: pip install 'cellguard[spark]'")
+    from cellguard.fleet.spark_engine import SparkEngine
+
+    root, _, _ = lake
+    duck, spark = DuckDBEngine(root), SparkEngine(root, "local[2]")
+    try:
+        for name in QUERIES:
+            a = duck.run(name, PARAMS[name], PROBE)
+            b = spark.run(name, PARAMS[name], PROBE)
+            assert a and equal(a, b), name
+    finally:
+        spark.close()
+
+
+def test_duckdb_and_postgresql_agree_within_one_tenants_rights(lake, tmp_path):
+    psycopg = pytest.importorskip("psycopg", reason="needs psycopg: pip install 'cellguard[fleet]'")
+    from cellguard.fleet.export import Batch
+    from cellguard.fleet.store import FleetStore, TenantStore, ci_admin_dsn
+
+    dsn = ci_admin_dsn()
+    try:
+        psycopg.connect(dsn, connect_timeout=3).close() if dsn else pytest.skip("no server: run .ci/fleet.sh")
+    except psycopg.OperationalError:
+        pytest.skip("fleet store server not reachable: run .ci/fleet.sh")
+    _, sig, eff = lake
+    rows = [r for r in rows_of(sig, eff) if r["tenant_id"] == "t0"]
+    store = FleetStore(dsn, "cgtest_engines")
+    store.install(reset=True)
+    tenant = TenantStore(store.add_tenant("t0"))
+    for site in sorted({r["site_id"] for r in rows}):
+        tenant.push(Batch("t0", site, "v", "signatures", tuple(r for r in rows if r["site_id"] == site)))
+    own = tmp_path / "own"
+    import pyarrow.compute as pc
+    keep = pc.equal(sig["tenant_id"], "t0")
+    write_fleet(own, sig.filter(keep), eff.filter(pc.equal(eff["tenant_id"], "t0")))
+    duck = DuckDBEngine(own)
+    for name in QUERIES:
+        params = {**PARAMS[name], "k": 1} if "k" in PARAMS[name] else PARAMS[name]
+        a = duck.run(name, params, PROBE)
+        b = tenant.run(name, params, PROBE, scope="own")
+        assert a and equal(a, b), name

@@ -1,0 +1,186 @@
+"""Fault signatures, data policies and their enforcement at export, the audit log and the outbox.
+No server needed: these run everywhere."""
+
+from __future__ import annotations
+
+import datetime as dt
+import json
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from typer.testing import CliRunner
+
+from cellguard.cli import app
+from cellguard.fleet.audit import append_audit, read_audit
+from cellguard.fleet.export import Batch, export_batch
+from cellguard.fleet.outbox import Outbox
+from cellguard.fleet.policy import KEYS, DataPolicy, PolicyError, load_policy, parse_policy
+from cellguard.fleet.signature import (SCHEMA_VERSION, WITHHOLDABLE, Signature, SignatureError, from_dict,
+                                       signatures_of)
+
+TODAY = dt.date(2026, 11, 23)
+CONTEXT = {"site": "Acme Plant Lyon", "cell_id": "line-3", "cell": "arm-pick-place",
+           "policy": {"source": "scripted", "sha256": "ab" * 32},
+           "embodiment": {"robot": "cellguard-arm5", "version": 1, "sha256": "cd" * 32},
+           "camera_calibration": [0.0, 0.0, 1.5], "software": {"cellguard": "0.1.0"}}
+DIAGNOSIS = {"findings": [{"cause": "fixture_shift", "cycle": 8, "confidence": 0.92, "evidence": ["moved +4.0 mm"],
+                           "signals": ["part_seen_x_mm", "grasp_tcp_x_mm"]},
+                          {"cause": "friction", "cycle": 9, "confidence": 0.7, "evidence": [],
+                           "signals": ["current_rms.elbow"], "joints": ["elbow"]}],
+             "changes": [{"signal": "part_seen_x_mm", "onset": 7, "alarm_cycle": 8, "baseline": 412.25,
+                          "last_good": 412.31, "first_faulted": 416.27, "at_alarm": 416.21, "change": 3.96,
+                          "scales": 11.32},
+                         {"signal": "grasp_tcp_x_mm", "onset": 7, "alarm_cycle": 9, "baseline": 398.5,
+                          "last_good": 398.6, "first_faulted": 401.5, "at_alarm": 401.55, "change": 3.05, "scales": 5.1},
+                         {"signal": "current_rms.elbow", "onset": 6, "alarm_cycle": 9, "baseline": 0.731,
+                          "last_good": 0.74, "first_faulted": 0.95, "at_alarm": 0.97, "change": 0.239, "scales": 7.9}]}
+
+
+def sigs(tenant="t-acme", site="s-01", day=TODAY):
+    return signatures_of(DIAGNOSIS, CONTEXT, tenant, site, day)
+
+
+def test_one_signature_per_finding_with_effect_sizes_and_no_raw_values_or_names():
+    a, b = sigs()
+    assert (a.cause, b.cause) == ("fixture_shift", "friction")
+    assert a.effects == {"part_seen_x_mm": 11.32, "grasp_tcp_x_mm": 5.1}
+    assert (a.onset_cycle, a.detection_delay_cycles) == (7, 1)  # onset 7, first alarm of its signals 8
+    assert (b.onset_cycle, b.detection_delay_cycles) == (6, 3)
+    assert a.robot_model == "cellguard-arm5" and a.cell_type == "arm-pick-place" and a.cellguard_version == "0.1.0"
+    assert len(a.policy_version) == 12 and len(a.calibration_version) == 12
+    assert a.recovery is None and a.recovery_outcome is None
+    text = json.dumps([s.to_dict() for s in (a, b)])
+    for raw in ("412.25", "416.21", "398.5", "0.731", "0.97", "3.96", "Acme", "Lyon", "line-3", "moved"):
+        assert raw not in text  # no raw feature values, no site or customer names, no evidence text
+
+
+def test_signature_id_is_a_content_hash():
+    a = sigs()[0]
+    assert a.signature_id == sigs()[0].signature_id
+    assert a.signature_id != sigs(site="s-02")[0].signature_id
+
+
+def test_newer_schema_version_is_refused_in_one_line():
+    raw = sigs()[0].to_dict()
+    raw["schema_version"] = SCHEMA_VERSION + 1
+    with pytest.raises(SignatureError, match=r"schema_version: 2 is newer than this cellguard reads") as info:
+        from_dict(raw)
+    assert "\n" not in str(info.value)
+
+
+def test_unknown_field_and_forged_id_are_refused():
+    raw = sigs()[0].to_dict()
+    with pytest.raises(SignatureError, match="signature.raw_ticks: unknown field"):
+        from_dict({**raw, "raw_ticks": [1, 2]})
+    with pytest.raises(SignatureError, match="does not match its content"):
+        from_dict({**raw, "cause": "servo"})
+
+
+@settings(max_examples=60, deadline=None)
+@given(cause=st.sampled_from(["fixture_shift", "servo", "friction"]),
+       effects=st.dictionaries(st.text("abcdefgh_.", min_size=1, max_size=12),
+                               st.floats(-1e6, 1e6, allow_nan=False), max_size=6),
+       withheld=st.lists(st.sampled_from(WITHHOLDABLE), unique=True, max_size=4))
+def test_round_trip_and_withheld_fields_are_empty(cause, effects, withheld):
+    sig = Signature("t-a", "s-1", "2026-11-01", cause, 0.5, "arm5", "arm-pick-place", effects, 3, 1, "p" * 12,
+                    "c" * 12, "0.1.0")
+    assert from_dict(sig.to_dict()) == sig
+    policy = DataPolicy("t-a", "s-1", withheld=tuple(withheld))
+    row = export_batch([sig], policy, dt.date(2026, 11, 2)).signatures[0]
+    assert all(row[name] is None for name in withheld)
+    assert from_dict(row).signature_id == row["signature_id"]
+
+
+def test_policy_unknown_key_names_it(tmp_path):
+    path = tmp_path / "policy.yaml"
+    path.write_text("tenant: t-a\nsite: s-1\nexport: signatures\nshare_raw_records: true\n")
+    with pytest.raises(PolicyError, match=r"share_raw_records: unknown key; allowed: " + ", ".join(KEYS)):
+        load_policy(path)
+
+
+@pytest.mark.parametrize("raw, match", [
+    ({"tenant": "Acme Corp", "site": "s-1"}, "policy.tenant: expected an opaque id"),
+    ({"tenant": "t-a", "site": "s-1", "export": "everything"}, "policy.export: 'everything'; allowed"),
+    ({"tenant": "t-a", "site": "s-1", "min_group_size": 1}, r"min_group_size: expected an integer 2\.\.1000000"),
+    ({"tenant": "t-a", "site": "s-1", "withheld": ["cause"]}, "'cause' cannot be withheld"),
+    ({"tenant": "t-a", "site": "s-1", "retention_days": 0}, r"retention_days: expected an integer 1\.\.36500"),
+    ({"tenant": "t-a"}, "site: required"),
+])
+def test_policy_bad_values_name_the_key(raw, match):
+    with pytest.raises(PolicyError, match=match):
+        parse_policy(raw)
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.dictionaries(st.sampled_from(KEYS + ("extra", "Tenant", "")),
+                       st.one_of(st.none(), st.booleans(), st.integers(-5, 10**7), st.text(max_size=12),
+                                 st.lists(st.sampled_from(WITHHOLDABLE + ("cause", "x")), max_size=3)), max_size=7))
+def test_policy_parser_accepts_or_names_the_problem(raw):
+    try:
+        policy = parse_policy(raw)
+    except PolicyError as exc:
+        assert "\n" not in str(exc) and str(exc).startswith("policy: ")
+    else:
+        assert policy.export in ("signatures", "aggregates_only", "nothing") and len(policy.version) == 12
+
+
+def test_nothing_exports_nothing_and_aggregates_respect_the_group_size():
+    many = [s for d in range(6) for s in sigs(day=TODAY - dt.timedelta(days=d))]
+    nothing = export_batch(many, DataPolicy("t-acme", "s-01", export="nothing"), TODAY)
+    assert nothing.rows == 0 and nothing.signatures == () and nothing.withheld_rows == len(many)
+    agg = export_batch(many, DataPolicy("t-acme", "s-01", export="aggregates_only", min_group_size=6), TODAY)
+    assert agg.signatures == ()
+    assert {(r["cause"], r["signatures"]) for r in agg.aggregates} == {("fixture_shift", 6), ("friction", 6)}
+    small = export_batch(many[:8], DataPolicy("t-acme", "s-01", export="aggregates_only", min_group_size=5), TODAY)
+    assert small.aggregates == () and small.withheld_rows == 8  # 4 and 4: under the group size
+
+
+def test_retention_keeps_old_signatures_at_the_site():
+    old = sigs(day=TODAY - dt.timedelta(days=40))
+    new = sigs()
+    batch = export_batch(old + new, DataPolicy("t-acme", "s-01", retention_days=30), TODAY)
+    assert {s["created_date"] for s in batch.signatures} == {TODAY.isoformat()} and batch.withheld_rows == 2
+
+
+def test_a_signature_of_another_site_is_not_sent():
+    with pytest.raises(PolicyError, match="is not the policy's t-acme/s-01"):
+        export_batch(sigs(site="s-99"), DataPolicy("t-acme", "s-01"), TODAY)
+
+
+def test_audit_appends_and_outbox_is_idempotent(tmp_path):
+    batch = export_batch(sigs(), DataPolicy("t-acme", "s-01"), TODAY)
+    box = Outbox(tmp_path)
+    box.put(batch)
+    box.put(batch)
+    (path, queued), = box.pending()
+    assert queued == batch and not list(tmp_path.glob("outbox/*.tmp"))
+    append_audit(tmp_path, batch, "queued", "nowhere")
+    append_audit(tmp_path, Batch("t-acme", "s-01", "v", "nothing"), "nothing", "nowhere")
+    entries = read_audit(tmp_path)
+    assert [(e["status"], e["rows"]) for e in entries] == [("queued", 2), ("nothing", 0)]
+    assert entries[0]["policy_version"] == DataPolicy("t-acme", "s-01").version
+    box.done(path)
+    assert box.pending() == []
+
+
+def test_cli_policy_with_unknown_key_is_one_line_exit_2(tmp_path):
+    policy = tmp_path / "p.yaml"
+    policy.write_text("tenant: t-a\nsite: s-1\nsend_everything: yes\n")
+    result = CliRunner().invoke(app, ["fleet", "push", str(tmp_path), "--policy", str(policy),
+                                      "--site-dir", str(tmp_path / "site")])
+    assert result.exit_code == 2
+    assert result.output.strip().count("\n") == 0 and "send_everything: unknown key" in result.output
+    assert not (tmp_path / "site").exists()  # nothing exported, nothing logged
+
+
+def test_cli_nothing_policy_logs_an_empty_export_without_reading_records(tmp_path):
+    policy = tmp_path / "p.yaml"
+    policy.write_text("tenant: t-a\nsite: s-1\nexport: nothing\n")
+    result = CliRunner().invoke(app, ["fleet", "push", str(tmp_path), "--policy", str(policy),
+                                      "--site-dir", str(tmp_path / "site"), "--json"])
+    assert result.exit_code == 0, result.output
+    assert json.loads(result.stdout)["rows"] == 0
+    (entry,) = read_audit(tmp_path / "site")
+    assert (entry["what"], entry["rows"], entry["status"]) == ("nothing", 0, "nothing")
+    assert not (tmp_path / "site" / "outbox").exists()

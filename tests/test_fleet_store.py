@@ -1,0 +1,259 @@
+"""The fleet store against a real PostgreSQL server (``.ci/fleet.sh`` starts one): tenant
+isolation under any SQL a tenant can send, k-anonymous cross-customer results, idempotent
+uploads, data policies enforced, and a server that is down losing nothing."""
+
+from __future__ import annotations
+
+import datetime as dt
+
+import pytest
+
+psycopg = pytest.importorskip("psycopg", reason="the fleet store tests need psycopg: pip install 'cellguard[fleet]'")
+
+from cellguard.fleet.audit import read_audit  # noqa: E402
+from cellguard.fleet.export import Batch, export_batch  # noqa: E402
+from cellguard.fleet.outbox import Outbox  # noqa: E402
+from cellguard.fleet.policy import DataPolicy  # noqa: E402
+from cellguard.fleet.push import push  # noqa: E402
+from cellguard.fleet.signature import Signature  # noqa: E402
+from cellguard.fleet.store import (FleetStore, RefusedAggregate, StoreError, StoreUnavailable,  # noqa: E402
+                                   TenantStore, ci_admin_dsn)
+
+TODAY = dt.datetime.now(dt.timezone.utc).date()
+DOWN = "host=127.0.0.1 port=1 dbname=x user=x password=x"  # nothing listens on port 1
+
+
+def _server() -> str:
+    dsn = ci_admin_dsn()
+    if dsn is None:
+        pytest.skip("no fleet store server: run .ci/fleet.sh (or set CELLGUARD_FLEET_ADMIN_DSN)")
+    try:
+        psycopg.connect(dsn, connect_timeout=3).close()
+    except psycopg.OperationalError as exc:
+        pytest.skip(f"fleet store server not reachable ({str(exc).strip().splitlines()[-1]}): run .ci/fleet.sh")
+    return dsn
+
+
+def sig(tenant: str, site: str, cause: str, effects: dict, model: str = "arm5", day: dt.date = TODAY) -> Signature:
+    return Signature(tenant, site, day.isoformat(), cause, 0.8, model, "arm-pick-place", effects, 7, 1,
+                     "pv-" + tenant, "cal-" + tenant, "0.1.0")
+
+
+def site_sigs(tenant: str, site: str) -> list[Signature]:
+    return [sig(tenant, site, "friction", {"current_rms.elbow": 6.0 + len(site), "tracking_rms.elbow": 1.2}),
+            sig(tenant, site, "fixture_shift", {"part_seen_x_mm": 11.0, "grasp_tcp_x_mm": 5.0 + len(site)}),
+            sig(tenant, site, "servo", {"tracking_rms.shoulder_lift": 9.0, "current_rms.shoulder_lift": 0.5})]
+
+
+@pytest.fixture(scope="module")
+def fleet(tmp_path_factory):
+    store = FleetStore(_server(), "cgtest_fleet")
+    store.install(reset=True)
+    dsns = {t: store.add_tenant(t) for t in ("ta", "tb", "tc", "td")}
+    for tenant, sites in (("ta", ("sa1", "sa2")), ("tb", ("sb1",)), ("tc", ("sc1",))):
+        for site in sites:
+            batch = export_batch(site_sigs(tenant, site), DataPolicy(tenant, site))
+            assert TenantStore(dsns[tenant]).push(batch) == (3, 0)
+    return store, dsns
+
+
+def count(store: FleetStore, where: str = "true") -> int:
+    with store.admin() as con:
+        return con.execute(f"SELECT count(*) FROM fleet.signatures WHERE {where}").fetchone()[0]
+
+
+def as_tenant(dsn: str, sql: str):
+    """Run ``sql`` as the tenant, then read what the same session sees; (rows of sql | error, tenants seen)."""
+    with psycopg.connect(dsn, autocommit=True) as con:
+        try:
+            cur = con.execute(sql)
+            result = cur.fetchall() if cur.description else cur.rowcount
+        except psycopg.Error as exc:
+            result = exc
+        seen = {r[0] for r in con.execute("SELECT tenant_id FROM fleet.signatures").fetchall()}
+        seen |= {r[0] for r in con.execute("SELECT tenant_id FROM fleet.effects").fetchall()}
+    return result, seen
+
+
+@pytest.mark.parametrize("sql", [
+    "SELECT tenant_id FROM fleet.signatures WHERE tenant_id = 'tb'",
+    "SELECT tenant_id FROM fleet.signatures WHERE tenant_id <> 'ta' OR true",
+    "SELECT tenant_id FROM fleet.signatures WHERE 1 = 1 UNION ALL SELECT tenant_id FROM fleet.effects",
+    "SELECT tenant_id FROM fleet.signatures s WHERE EXISTS (SELECT 1 FROM fleet.effects e WHERE e.tenant_id = 'tb')",
+    "SELECT tenant_id FROM fleet.signatures WHERE fleet.session_tenant() IS NOT NULL OR tenant_id = 'tb'",
+    "WITH x AS (SELECT * FROM fleet.signatures) SELECT tenant_id FROM x WHERE tenant_id IN ('tb', 'tc')",
+])
+def test_crafted_where_clauses_read_only_own_rows(fleet, sql):
+    _, dsns = fleet
+    rows, seen = as_tenant(dsns["ta"], sql)
+    assert not isinstance(rows, Exception), rows
+    assert {r[0] for r in rows} <= {"ta"} and seen == {"ta"}
+
+
+@pytest.mark.parametrize("sql", [
+    "SET app.tenant_id = 'tb'",
+    "SELECT set_config('app.tenant_id', 'tb', false)",
+    "SET ROLE cgtest_fleet_t_tb",
+    "SET ROLE cgtest_fleet_owner",
+    "SET ROLE cgtest_fleet_agg",
+    "SET ROLE cgtest_fleet_app",
+    "SET SESSION AUTHORIZATION cgtest_fleet_t_tb",
+    "ALTER TABLE fleet.signatures DISABLE ROW LEVEL SECURITY",
+    "ALTER TABLE fleet.signatures NO FORCE ROW LEVEL SECURITY",
+    "DROP POLICY own_rows ON fleet.signatures",
+    "CREATE POLICY mine ON fleet.signatures USING (true)",
+    "ALTER ROLE cgtest_fleet_t_ta BYPASSRLS",
+    "GRANT cgtest_fleet_agg TO cgtest_fleet_t_ta",
+    "CREATE OR REPLACE FUNCTION fleet.session_tenant() RETURNS text LANGUAGE sql AS $$ SELECT 'tb' $$",
+    "CREATE FUNCTION public.peek() RETURNS text LANGUAGE sql AS $$ SELECT 'tb' $$",
+    "UPDATE fleet.tenants SET role_name = 'cgtest_fleet_t_ta' WHERE tenant_id = 'tb'",
+    "INSERT INTO fleet.tenants VALUES ('tb2', 'cgtest_fleet_t_ta')",
+    "SELECT * FROM fleet.tenants",
+    "UPDATE fleet.settings SET min_customers = 1",
+    "SELECT * FROM fleet.q_frequency(1)",
+])
+def test_set_and_ddl_attempts_do_not_widen_what_a_tenant_sees(fleet, sql):
+    store, dsns = fleet
+    result, seen = as_tenant(dsns["ta"], sql)
+    assert seen == {"ta"}
+    if sql.startswith(("SET app.", "SELECT set_config", "SET ROLE cgtest_fleet_app")):
+        return  # accepted, and harmless: no policy reads a setting or current_user
+    assert isinstance(result, psycopg.Error), f"{sql!r} was accepted: {result!r}"
+    with store.admin() as con:
+        assert con.execute("SELECT min_customers FROM fleet.settings").fetchone()[0] >= 2
+        assert con.execute("SELECT role_name FROM fleet.tenants WHERE tenant_id = 'tb'").fetchone()[0] \
+            == "cgtest_fleet_t_tb"
+
+
+def test_row_security_off_makes_reads_fail_not_bypass(fleet):
+    _, dsns = fleet
+    with psycopg.connect(dsns["ta"], autocommit=True) as con:
+        con.execute("SET row_security = off")
+        with pytest.raises(psycopg.errors.InsufficientPrivilege, match="row-level security"):
+            con.execute("SELECT count(*) FROM fleet.signatures")
+
+
+def test_cannot_update_or_delete_or_insert_another_tenants_rows(fleet):
+    store, dsns = fleet
+    before = count(store, "tenant_id = 'tb'")
+    result, _ = as_tenant(dsns["ta"], "UPDATE fleet.signatures SET cause = 'x' WHERE tenant_id = 'tb'")
+    assert isinstance(result, psycopg.errors.InsufficientPrivilege)
+    deleted, _ = as_tenant(dsns["ta"], "DELETE FROM fleet.signatures WHERE tenant_id = 'tb' OR true "
+                                       "AND site_id = 'nonexistent'")
+    assert deleted == 0
+    deleted, _ = as_tenant(dsns["ta"], "DELETE FROM fleet.effects WHERE tenant_id <> 'ta'")
+    assert deleted == 0
+    result, _ = as_tenant(dsns["ta"], "INSERT INTO fleet.signatures (signature_id, tenant_id, site_id, created_date,"
+                                      " cause, schema_version) VALUES ('x', 'tb', 'sb1', current_date, 'servo', 1)")
+    assert isinstance(result, psycopg.errors.InsufficientPrivilege)  # row-level security's WITH CHECK
+    assert count(store, "tenant_id = 'tb'") == before == 3
+    with store.admin() as con:
+        assert con.execute("SELECT count(*) FROM fleet.effects WHERE tenant_id = 'tb'").fetchone()[0] == 6
+
+
+def test_statistics_do_not_leak_other_tenants_values(fleet):
+    store, dsns = fleet
+    with store.admin() as con:
+        con.execute("ANALYZE fleet.signatures")
+        con.commit()
+    rows, _ = as_tenant(dsns["ta"], "SELECT most_common_vals::text FROM pg_stats WHERE tablename = 'signatures'")
+    assert rows == []
+
+
+def test_cross_customer_aggregate_under_k_customers_is_refused(fleet):
+    store, dsns = fleet
+    with pytest.raises(RefusedAggregate, match="refused: signatures from 3 customer.s., at least 5 needed"):
+        TenantStore(dsns["ta"]).run("frequency", {"k": 5})
+    with pytest.raises(RefusedAggregate, match="at least 5 needed"):
+        TenantStore(dsns["ta"]).run("frequency", {"k": 2})  # the caller cannot go under the store's k
+    store.set_min_customers(3)
+    try:
+        rows = TenantStore(dsns["tb"]).run("frequency", {"k": 3})
+        assert {r["cause"] for r in rows} == {"friction", "fixture_shift", "servo"}
+        assert all(r["customers"] == 3 and r["signatures"] == 4 for r in rows)
+        with pytest.raises(RefusedAggregate, match="at least 4 needed"):
+            TenantStore(dsns["tb"]).run("fixes", {"k": 4})
+    finally:
+        store.set_min_customers(5)
+
+
+def test_own_scope_sees_only_own_rows(fleet):
+    _, dsns = fleet
+    rows = TenantStore(dsns["ta"]).run("frequency", scope="own")
+    assert {(r["cause"], r["signatures"], r["sites"], r["customers"]) for r in rows} == {
+        ("friction", 2, 2, 1), ("fixture_shift", 2, 2, 1), ("servo", 2, 2, 1)}
+
+
+def test_upload_is_idempotent(fleet):
+    store, dsns = fleet
+    batch = export_batch(site_sigs("tc", "sc2"), DataPolicy("tc", "sc2"))
+    assert TenantStore(dsns["tc"]).push(batch) == (3, 0)
+    assert TenantStore(dsns["tc"]).push(batch) == (0, 3)
+    assert count(store, "site_id = 'sc2'") == 3
+
+
+def test_a_batch_under_another_tenants_name_is_refused(fleet):
+    _, dsns = fleet
+    batch = export_batch(site_sigs("tb", "sb9"), DataPolicy("tb", "sb9"))
+    with pytest.raises(StoreError, match="refused the batch of tenant tb"):
+        TenantStore(dsns["ta"]).push(batch)
+
+
+def test_withheld_fields_never_reach_the_store(fleet, tmp_path):
+    store, dsns = fleet
+    policy = DataPolicy("td", "sd1", withheld=("policy_version", "calibration_version", "effects", "robot_model"))
+    result = push(site_sigs("td", "sd1"), policy, tmp_path, TenantStore(dsns["td"]))
+    assert (result.new_rows, result.queued) == (3, 0)
+    with store.admin() as con:
+        rows = con.execute("SELECT policy_version, calibration_version, robot_model FROM fleet.signatures "
+                           "WHERE tenant_id = 'td'").fetchall()
+        assert rows == [(None, None, None)] * 3
+        assert con.execute("SELECT count(*) FROM fleet.effects WHERE tenant_id = 'td'").fetchone()[0] == 0
+        con.execute("DELETE FROM fleet.signatures WHERE tenant_id = 'td'")  # td stays a non-customer below
+
+
+def test_nothing_policy_sends_nothing(fleet, tmp_path):
+    store, dsns = fleet
+    result = push(site_sigs("td", "sd2"), DataPolicy("td", "sd2", export="nothing"), tmp_path, TenantStore(dsns["td"]))
+    assert (result.batch.rows, result.sent_batches, result.queued) == (0, 0, 0)
+    assert count(store, "tenant_id = 'td'") == 0
+    (entry,) = read_audit(tmp_path)
+    assert (entry["what"], entry["rows"], entry["withheld_rows"]) == ("nothing", 0, 3)
+
+
+def test_aggregates_only_sends_counts_not_signatures(fleet, tmp_path):
+    store, dsns = fleet
+    many = [s for d in range(4) for s in site_sigs("td", "sd3") for s in [
+        Signature(**{**s.__dict__, "created_date": (TODAY - dt.timedelta(days=d)).isoformat()})]]
+    policy = DataPolicy("td", "sd3", export="aggregates_only", min_group_size=4)
+    push(many, policy, tmp_path, TenantStore(dsns["td"]))
+    with store.admin() as con:
+        assert con.execute("SELECT count(*) FROM fleet.signatures WHERE tenant_id = 'td'").fetchone()[0] == 0
+        counts = con.execute("SELECT sum(signatures) FROM fleet.aggregates WHERE tenant_id = 'td'").fetchone()[0]
+    assert counts == sum(r["signatures"] for r in export_batch(many, policy).aggregates) > 0
+
+
+def test_server_down_queues_and_the_next_push_sends(fleet, tmp_path):
+    store, dsns = fleet
+    policy = DataPolicy("tc", "sc3")
+    with pytest.raises(StoreUnavailable, match="fleet store 127.0.0.1:1/x unreachable"):
+        TenantStore(DOWN).push(Batch("tc", "sc3", "v", "signatures"))
+    first = push(site_sigs("tc", "sc3"), policy, tmp_path, TenantStore(DOWN))
+    assert first.unavailable and "password" not in first.unavailable and first.queued == 1
+    assert count(store, "site_id = 'sc3'") == 0
+    second = push([], policy, tmp_path, TenantStore(dsns["tc"]))  # nothing new; the queued batch goes
+    assert (second.sent_batches, second.new_rows, second.queued) == (1, 3, 0)
+    assert count(store, "site_id = 'sc3'") == 3
+    assert [e["status"] for e in read_audit(tmp_path)] == ["queued", "nothing", "sent"]
+    assert Outbox(tmp_path).pending() == []
+
+
+def test_similar_finds_own_other_sites_only(fleet):
+    from cellguard.fleet.similar import similar
+
+    _, dsns = fleet
+    probe = sig("ta", "sa1", "friction", {"current_rms.elbow": 7.0, "tracking_rms.elbow": 1.0})
+    found = similar(TenantStore(dsns["ta"]), probe, limit=3)
+    assert found and {n.site_id for n in found} == {"sa2"}
+    assert found[0].cause == "friction" and found[0].similarity > 0.95
+    assert all(f["scope"] == "own" for n in found for f in n.fixes)  # 3 customers < k: no fleet figures
