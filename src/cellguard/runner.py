@@ -25,6 +25,7 @@ from cellguard.output import make_folder
 from cellguard.policy.chunk import ActionChunk
 from cellguard.policy.registry import make_policy
 from cellguard.record.session import RunRecording
+from cellguard.robot.process import apply_process_changes
 from cellguard.robot.registry import make_cell
 from cellguard.scenario import Scenario
 
@@ -54,6 +55,7 @@ class Run:
         """Run the next cycle; return its outcome (success, timing, measured poses)."""
         index = len(self.cycles)
         cell, guard, ticks = self.cell, self.guard, self.ticks
+        apply_process_changes(self.scenario.process_changes, cell, index)
         for fault in self.scenario.faults:
             fault.apply(cell, index)
         latency_ns = round((NOMINAL_INFERENCE_S + sum(f.extra_latency_s(index) for f in self.scenario.faults)) * 1e9)
@@ -140,13 +142,14 @@ class Run:
             done = [c["success"] for c in self.cycles if c["phase"] == phase]
             by_phase[phase] = {"cycles": len(done), "success_rate": float(np.mean(done)) if done else None}
         return {
-            "scenario": self.scenario.model_dump(mode="json", exclude={"faults"}),
+            "scenario": self.scenario.model_dump(mode="json", exclude={"faults", "process_changes"}),
             "context": {**self.cell.context(), "policy": self.policy.source,
                         "policy_sha256": self.policy.content_hash(), "profile_sha256": self.cell.profile.sha256},
             "phases": by_phase,
             "cycles": self.cycles,
             "events": [e.to_dict() for e in self.events],
-            "ground_truth": {"faults": [f.model_dump(mode="json") for f in self.scenario.faults]},
+            "ground_truth": {"faults": [f.model_dump(mode="json") for f in self.scenario.faults],
+                             "process_changes": [c.model_dump(mode="json") for c in self.scenario.process_changes]},
         }
 
 

@@ -13,6 +13,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from cellguard.control.settings import GuardSettings
 from cellguard.errors import ScenarioError
 from cellguard.robot.faults import FAULTS, AnyFault
+from cellguard.robot.process import PROCESS_CHANGES, AnyProcessChange, declared_changes
 from cellguard.yaml_file import read_yaml
 
 
@@ -30,11 +31,16 @@ class Scenario(BaseModel):
     site: str = "sim-site"
     cell_id: str = "cell-1"
     faults: list[AnyFault] = Field(default_factory=list)
+    process_changes: list[AnyProcessChange] = Field(default_factory=list)
     guard: GuardSettings = Field(default_factory=GuardSettings)
 
     @property
     def total_cycles(self) -> int:
         return self.acceptance_cycles + self.production_cycles
+
+    def declared_process(self, cycle: int) -> list[dict]:
+        """The process changes declared by ``cycle`` (what the record's context says; undeclared ones stay out)."""
+        return declared_changes(self.process_changes, cycle)
 
     def check_against(self, cell) -> None:
         """Refuse faults the cell cannot simulate and joints its profile does not have."""
@@ -50,6 +56,10 @@ class Scenario(BaseModel):
                         f"faults[{i}].joint: {joint!r} is not a joint of {cell.name!r}; "
                         f"joints: {', '.join(cell.profile.joint_names)}"
                     )
+        for i, change in enumerate(self.process_changes):
+            if not hasattr(cell, change.hook):
+                raise ScenarioError(f"process_changes[{i}].kind: {change.kind!r} cannot be simulated in cell "
+                                    f"{cell.name!r}")
 
 
 def parse_scenario(raw: object, origin: str = "scenario") -> Scenario:
@@ -65,7 +75,8 @@ def parse_scenario(raw: object, origin: str = "scenario") -> Scenario:
         if err["type"] == "extra_forbidden":
             msg = "unknown key"
         elif err["type"] == "union_tag_invalid":
-            msg = f"unknown fault kind; known: {err['ctx']['expected_tags']}"
+            known = "fault" if loc.startswith("faults") else "process change"
+            msg = f"unknown {known} kind; known: {err['ctx']['expected_tags']}"
         raise ScenarioError(f"{origin}: {loc}: {msg}") from None
 
 
@@ -79,7 +90,7 @@ def _format_loc(loc: tuple) -> str:
     for part in loc:
         if isinstance(part, int):
             out += f"[{part}]"
-        elif part in FAULTS or part in ("str", "list[str]"):
+        elif part in FAULTS or part in PROCESS_CHANGES or part in ("str", "list[str]"):
             continue  # pydantic's union branch names, not keys the user wrote
         else:
             out += f".{part}" if out else str(part)

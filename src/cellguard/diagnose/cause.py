@@ -25,12 +25,10 @@ import numpy as np
 from cellguard.diagnose.baseline import Baseline, feature_matrix
 from cellguard.diagnose.cycles import Cycle
 from cellguard.diagnose.drift import DriftAlarm
+from cellguard.diagnose.feature_kinds import kind_of, member_of
 
 CAUSES = ("fixture_shift", "friction", "servo", "camera_shift", "tool_slip", "policy_latency", "policy_output",
           "unknown")
-GEOMETRY = ("part_seen_", "fixture_seen_", "grasp_tcp_", "grasp_offset_", "grasp_q.")
-OUTCOME = ("success", "grasped", "place_error_mm", "timed_out")
-LATENCY = ("latency_mean_ms", "latency_max_ms", "stale_chunks")
 SIGNIFICANT_MM = 0.3  # [mm] a geometric change smaller than this is noise at this camera
 CONCURRENT = 2  # [cycles] changes this close together are one episode
 UNCHANGED_Z = 3.0  # |median residual| below this, in baseline scales, reads as "unchanged"
@@ -57,18 +55,10 @@ class Finding:
 
 
 def family(signal: str) -> str:
-    """The group a feature belongs to: ``geometry``, ``latency``, ``output``, ``joint:<name>`` ..."""
-    if signal.startswith(GEOMETRY):
-        return "geometry"
-    if signal in OUTCOME:
-        return "outcome"
-    if signal in LATENCY:
-        return "latency"
-    if signal in ("chunks_rejected", "interventions"):
-        return "output"
-    if "." in signal and signal.split(".", 1)[0] in ("current_peak", "current_rms", "tracking_rms", "tracking_max"):
-        return "joint:" + signal.split(".", 1)[1]
-    return "other"
+    """The group a feature belongs to: ``geometry``, ``latency``, ``output``, ``joint:<name>`` ...
+    (declared in ``feature_kinds``; per-joint families are split by joint)."""
+    kind = kind_of(signal)
+    return f"joint:{member_of(signal)}" if kind.family == "joint" else kind.family
 
 
 class _Window:
