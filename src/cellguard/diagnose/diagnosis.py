@@ -110,8 +110,10 @@ def _on_legs(findings: list[Finding], pairs: Sequence[SymmetryPair]) -> list[Fin
                    for leg in (left, right)})
     if not legs:
         return findings
-    out = [replace(f, legs=tuple(sorted({leg for j in f.joints for leg in legs if j.startswith(f"{leg}_")})))
-           if f.joints else f for f in findings]
+    out = []
+    for f in findings:
+        on = tuple(sorted({leg for j in f.joints for leg in legs if j.startswith(f"{leg}_")}))
+        out.append(replace(f, legs=on, evidence=(f"on leg {', '.join(on)}",) + f.evidence) if on else f)
     explained = {leg for f in out if f.joints for leg in f.legs}
     return [f for f in out if not (f.cause == "foot_contact" and set(f.legs) <= explained)]
 
