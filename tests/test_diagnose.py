@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from cellguard.diagnose import Baseline, DriftConfig, as_cycles, diagnose
-from cellguard.diagnose.baseline import scale_floor
+from cellguard.diagnose.feature_kinds import scale_floor
 from cellguard.errors import RecordError
 
 NAMES = ("grasp_tcp_x_mm", "current_rms.elbow", "tracking_rms.elbow", "latency_mean_ms", "cycle_time_s")

@@ -17,7 +17,7 @@ def _fault(spec: dict):
 
 def test_registry_covers_the_design_kinds():
     assert set(FAULTS) == {"fixture_shift", "friction_growth", "servo_gain", "camera_shift", "tool_slip",
-                           "policy_latency", "policy_nan"}
+                           "policy_latency", "policy_nan", "friction_step", "intermittent_slip", "part_misplaced"}
 
 
 @pytest.mark.parametrize(("spec", "read"), [
@@ -73,3 +73,43 @@ def test_policy_nan_is_rejected_not_executed():
     assert [e.kind for e in run.events] == ["chunk_rejected"]
     assert "non-finite" in run.events[0].reason
     assert run.cycles[0]["success"]
+
+
+@pytest.mark.parametrize("kind", ["intermittent_slip", "part_misplaced"])
+def test_intermittent_faults_hit_about_their_rate_and_replay(kind):
+    fault = _fault({"kind": kind, "at_cycle": 10, "rate": 0.2, "seed": 3, "dx_mm": 2.0})
+    cell = ArmPickPlace()
+    read = ((lambda: cell.model.body_pos[cell._tool_body] - cell.nominal["tool"]) if kind == "intermittent_slip"
+            else (lambda: cell._part_offset))
+    hit = []
+    for cycle in range(400):
+        fault.apply(cell, cycle)
+        hit.append(bool(np.abs(read()).max() > 0))
+        if hit[-1]:
+            np.testing.assert_allclose(read()[:2], [0.002, 0.0])
+    assert not any(hit[:10]) and abs(np.mean(hit[10:]) - 0.2) < 0.05
+    again = []
+    for cycle in range(400):
+        fault.apply(cell, cycle)
+        again.append(bool(np.abs(read()).max() > 0))
+    assert again == hit
+
+
+def test_a_misplaced_part_is_presented_off_its_datum():
+    cell = ArmPickPlace()
+    cell.begin_cycle(0)
+    nominal = cell.data.xpos[cell._part_body].copy()
+    cell.set_part_offset(np.array([0.002, 0.0, 0.0]))
+    cell.begin_cycle(1)
+    assert cell.data.xpos[cell._part_body][0] - nominal[0] == pytest.approx(0.002, abs=1e-3)
+
+
+def test_friction_step_is_a_constant_multiple():
+    cell, fault = ArmPickPlace(), _fault({"kind": "friction_step", "joint": "elbow", "at_cycle": 3, "factor": 1.5})
+    i = cell.profile.index("elbow")
+    nominal = cell.drives.nominal_frictionloss[i]
+    fault.apply(cell, 2)
+    assert cell.model.dof_frictionloss[cell._dadr[i]] == pytest.approx(nominal)
+    for cycle in (3, 30):
+        fault.apply(cell, cycle)
+        assert cell.model.dof_frictionloss[cell._dadr[i]] == pytest.approx(nominal * 1.5)

@@ -17,6 +17,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from cellguard.control.settings import GuardSettings
 from cellguard.errors import ScenarioError
 from cellguard.robot.faults import FAULTS, AnyFault
+from cellguard.robot.process import PROCESS_CHANGES, AnyProcessChange, declared_changes
 from cellguard.yaml_file import read_yaml
 
 
@@ -62,6 +63,7 @@ class Scenario(BaseModel):
     site: str = "sim-site"
     cell_id: str = "cell-1"
     faults: list[AnyFault] = Field(default_factory=list, max_length=10_000)
+    process_changes: list[AnyProcessChange] = Field(default_factory=list, max_length=10_000)
     guard: GuardSettings = Field(default_factory=GuardSettings)
     robot: str = Field(default="sim", min_length=1, description="sim, or a bridge: SCHEME:ARGUMENT")
     cycle: CycleSettings = Field(default_factory=CycleSettings)
@@ -70,6 +72,10 @@ class Scenario(BaseModel):
     @property
     def total_cycles(self) -> int:
         return self.acceptance_cycles + self.production_cycles
+
+    def declared_process(self, cycle: int) -> list[dict]:
+        """The process changes declared by ``cycle`` (what the record's context says; undeclared ones stay out)."""
+        return declared_changes(self.process_changes, cycle)
 
     def check_against(self, cell) -> None:
         """Refuse faults the cell cannot simulate and joints its profile does not have."""
@@ -85,6 +91,10 @@ class Scenario(BaseModel):
                         f"faults[{i}].joint: {joint!r} is not a joint of {cell.name!r}; "
                         f"joints: {', '.join(cell.profile.joint_names)}"
                     )
+        for i, change in enumerate(self.process_changes):
+            if not hasattr(cell, change.hook):
+                raise ScenarioError(f"process_changes[{i}].kind: {change.kind!r} cannot be simulated in cell "
+                                    f"{cell.name!r}")
 
 
 def parse_scenario(raw: object, origin: str = "scenario") -> Scenario:
@@ -111,7 +121,8 @@ def parse_scenario(raw: object, origin: str = "scenario") -> Scenario:
         if err["type"] == "extra_forbidden":
             msg = "unknown key"
         elif err["type"] == "union_tag_invalid":
-            msg = f"unknown fault kind; known: {err['ctx']['expected_tags']}"
+            known = "fault" if loc.startswith("faults") else "process change"
+            msg = f"unknown {known} kind; known: {err['ctx']['expected_tags']}"
         elif err["type"].endswith("_type") or err["type"].endswith("_parsing"):
             msg = f"{msg}, got {err['input']!r}"
         raise ScenarioError(f"{origin}: {loc}: {msg}") from None
@@ -142,7 +153,7 @@ def _format_loc(loc: tuple) -> str:
     for part in loc:
         if isinstance(part, int):
             out += f"[{part}]"
-        elif part in FAULTS or part in ("str", "list[str]"):
+        elif part in FAULTS or part in PROCESS_CHANGES or part in ("str", "list[str]"):
             continue  # pydantic's union branch names, not keys the user wrote
         else:
             out += f".{part}" if out else str(part)

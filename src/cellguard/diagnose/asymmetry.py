@@ -16,7 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cellguard.diagnose.baseline import MAD_TO_SIGMA, scale_floor
+from cellguard.diagnose.baseline import MAD_TO_SIGMA
+from cellguard.diagnose.feature_kinds import scale_floor
 from cellguard.diagnose.cycles import Cycle
 from cellguard.embodiment.profile import SymmetryPair
 

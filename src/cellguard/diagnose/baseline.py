@@ -18,39 +18,19 @@ from __future__ import annotations
 
 import json
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
 from cellguard.diagnose.cycles import Cycle
+from cellguard.diagnose.feature_kinds import NOT_MONITORED, kind_of, scale_floor
 from cellguard.errors import RecordError
 from cellguard.output import write_output
 
 MAD_TO_SIGMA = 1.4826
-NOT_MONITORED = frozenset({"cycle"})  # identifiers, not measurements
 LOAD_FEATURE = "grasped"
-LOAD_DEPENDENT = ("current_", "tracking_")
 MIN_CYCLES = 5
-
-
-def scale_floor(name: str, median: float) -> float:
-    """Smallest scale a feature may have: the size of a change that does not matter [its unit]."""
-    if name.endswith("_mm"):
-        return 0.05
-    if name.endswith("_ms"):
-        return 1.0
-    if name.endswith("_s") or "_s." in name:
-        return 0.002  # two servo ticks
-    if name in ("interventions", "chunks_rejected", "stale_chunks"):
-        return 0.5  # counts: one event is two scales
-    if name in ("success", "grasped", "timed_out", "fallen"):
-        return 0.25
-    if name.startswith("current_"):
-        return max(0.01, 0.01 * abs(median))  # [A] sensor noise, or 1 %
-    if name.startswith(("tracking_", "grasp_q.")):
-        return max(1e-4, 0.01 * abs(median))  # [rad] or [m]; 1 % of the usual error
-    return max(1e-6, 0.01 * abs(median))
 
 
 @dataclass(frozen=True)
@@ -78,6 +58,20 @@ class Baseline:
     n: int
     load: float | None  # the usual value of ``grasped`` in acceptance, if the cell reports it
     source: str = "acceptance cycles of this record"
+    bound_to: Mapping[str, str | None] = field(default_factory=dict)  # robot, profile_sha256, record_id
+
+    def bind(self, context: Mapping) -> Baseline:
+        """This baseline bound to the record whose ``context`` it came from."""
+        return replace(self, bound_to=binding_of(context))
+
+    def check_binding(self, context: Mapping, path: object) -> None:
+        """Refuse to apply this baseline to a record other than the one it came from (robot, profile,
+        record id; a key either side lacks, as in records written before it existed, is not compared)."""
+        mine = binding_of(context)
+        for key, value in self.bound_to.items():
+            if value is not None and mine.get(key) is not None and mine[key] != value:
+                raise RecordError(f"{path}: baseline is bound to {key} {value!r}, this record has {mine[key]!r}; "
+                                  "delete it or pass --acceptance DIR")
 
     @classmethod
     def from_cycles(cls, cycles: Sequence[Cycle], source: str = "acceptance cycles of this record") -> Baseline:
@@ -112,7 +106,7 @@ class Baseline:
         z = (feature_matrix(cycles, self.names) - centre) / scale
         if self.load is not None:
             other_load = np.array([c.features.get(LOAD_FEATURE, self.load) != self.load for c in cycles])
-            dependent = np.array([n.startswith(LOAD_DEPENDENT) for n in self.names])
+            dependent = np.array([kind_of(n).load for n in self.names])
             z[np.ix_(other_load, dependent)] = np.nan
         return z
 
@@ -131,7 +125,7 @@ class Baseline:
 
     def to_dict(self) -> dict:
         return {"source": self.source, "cycles": list(self.cycles), "n": self.n, "load": self.load,
-                "names": list(self.names), "motions": {k: m.to_dict(self.names) for k, m in self.motions.items()}}
+                "bound_to": dict(self.bound_to), "names": list(self.names), "motions": {k: m.to_dict(self.names) for k, m in self.motions.items()}}
 
     @classmethod
     def from_dict(cls, raw: dict) -> Baseline:
@@ -142,11 +136,16 @@ class Baseline:
                 feats, corr = m["features"], m["correlation"]
                 if len(corr) != len(names) or any(len(r) != len(names) for r in corr):
                     raise ValueError(f"motion {label!r}: correlation is not {len(names)} x {len(names)}")
-                motions[label] = MotionStats(int(m["n"]), tuple(float(feats[k]["median"]) for k in names),
-                                             tuple(float(feats[k]["scale"]) for k in names),
+                scales = tuple(float(feats[k]["scale"]) for k in names)
+                for k, v in zip(names, scales):
+                    if not (np.isfinite(v) and v > 0.0):
+                        raise RecordError(f"baseline: motions.{label or '(all)'}.features.{k}.scale must be a "
+                                          f"positive finite number, got {v}")
+                motions[label] = MotionStats(int(m["n"]), tuple(float(feats[k]["median"]) for k in names), scales,
                                              tuple(tuple(float(v) for v in r) for r in corr))
+            bound = {str(k): (None if v is None else str(v)) for k, v in dict(raw.get("bound_to") or {}).items()}
             return cls(names, motions, tuple(raw["cycles"]), int(raw["n"]), raw.get("load"),
-                       raw.get("source", "stored baseline"))
+                       raw.get("source", "stored baseline"), bound)
         except (KeyError, TypeError, ValueError, AttributeError) as exc:
             raise RecordError(f"baseline: malformed ({exc.__class__.__name__}: {exc})") from None
 
@@ -160,6 +159,16 @@ class Baseline:
         except (OSError, json.JSONDecodeError) as exc:
             raise RecordError(f"{path}: cannot read the baseline ({exc.__class__.__name__})") from None
         return cls.from_dict(raw)
+
+
+def binding_of(context: Mapping) -> dict[str, str | None]:
+    """What ties a baseline to its record: robot, embodiment profile hash and record id (None when
+    the context does not carry it)."""
+    emb = context.get("embodiment") if isinstance(context.get("embodiment"), Mapping) else {}
+    rec = context.get("record") if isinstance(context.get("record"), Mapping) else {}
+    record_id = context.get("record_id") or rec.get("record_id") or rec.get("id")
+    values = {"robot": emb.get("robot"), "profile_sha256": emb.get("sha256"), "record_id": record_id}
+    return {k: (None if v is None else str(v)) for k, v in values.items()}
 
 
 def feature_matrix(cycles: Sequence[Cycle], names: Sequence[str]) -> np.ndarray:

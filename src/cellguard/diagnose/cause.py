@@ -25,16 +25,15 @@ import numpy as np
 from cellguard.diagnose.baseline import Baseline, feature_matrix
 from cellguard.diagnose.cycles import Cycle
 from cellguard.diagnose.drift import DriftAlarm
+from cellguard.diagnose.feature_kinds import kind_of, member_of
 
 CAUSES = ("fixture_shift", "friction", "servo", "camera_shift", "tool_slip", "policy_latency", "policy_output",
-          "unknown")
-GEOMETRY = ("part_seen_", "fixture_seen_", "grasp_tcp_", "grasp_offset_", "grasp_q.")
-OUTCOME = ("success", "grasped", "place_error_mm", "timed_out")
-LATENCY = ("latency_mean_ms", "latency_max_ms", "stale_chunks")
+          "unknown", "load_change", "part_misplaced", "foot_contact")
 SIGNIFICANT_MM = 0.3  # [mm] a geometric change smaller than this is noise at this camera
 CONCURRENT = 2  # [cycles] changes this close together are one episode
 UNCHANGED_Z = 3.0  # |median residual| below this, in baseline scales, reads as "unchanged"
-MATERIAL = 0.02  # a joint whose current and tracking error moved less than 2 % stays an alarm, not a cause
+MATERIAL = 0.01  # a joint whose current and tracking error moved less than 1 % stays an alarm, not a cause
+CARRY_ONLY = 0.5  # current while carrying rose, while not less than this share of it: the load changed
 
 
 @dataclass(frozen=True)
@@ -47,28 +46,27 @@ class Finding:
     evidence: tuple[str, ...]
     signals: tuple[str, ...] = ()
     joints: tuple[str, ...] = ()
+    rate: float | None = None  # share of cycles hit, for an intermittent fault
+    legs: tuple[str, ...] = ()  # the legs the joints belong to, on a legged robot
 
     def to_dict(self) -> dict:
         out = {"cause": self.cause, "cycle": self.cycle, "confidence": round(self.confidence, 2),
                "evidence": list(self.evidence), "signals": list(self.signals)}
         if self.joints:
             out["joints"] = list(self.joints)
+        if self.legs:
+            out["legs"] = list(self.legs)
+        if self.rate is not None:
+            out["rate"] = round(self.rate, 3)
+            out["first_cycle"] = self.cycle
         return out
 
 
 def family(signal: str) -> str:
-    """The group a feature belongs to: ``geometry``, ``latency``, ``output``, ``joint:<name>`` ..."""
-    if signal.startswith(GEOMETRY):
-        return "geometry"
-    if signal in OUTCOME:
-        return "outcome"
-    if signal in LATENCY:
-        return "latency"
-    if signal in ("chunks_rejected", "interventions"):
-        return "output"
-    if "." in signal and signal.split(".", 1)[0] in ("current_peak", "current_rms", "tracking_rms", "tracking_max"):
-        return "joint:" + signal.split(".", 1)[1]
-    return "other"
+    """The group a feature belongs to: ``geometry``, ``latency``, ``output``, ``joint:<name>`` ...
+    (declared in ``feature_kinds``; per-joint families are split by joint)."""
+    kind = kind_of(signal)
+    return f"joint:{member_of(signal)}" if kind.family == "joint" else kind.family
 
 
 class _Window:
@@ -135,6 +133,7 @@ def name_causes(baseline: Baseline, cycles: Sequence[Cycle], z: np.ndarray, alar
     if latency_at is not None:
         joint_groups = {j: v for j, v in joint_groups.items() if abs(_onset(v) - latency_at) > CONCURRENT}
     findings.extend(_joints(w, joint_groups))
+    findings.extend(_feet(w, groups.pop("gait", [])))
     other = [a for k, v in groups.items() if not k.startswith("joint:") for a in v] + outcome
     if other and not findings:
         findings.append(Finding("unknown", _onset(other), 0.3, tuple(
@@ -183,6 +182,13 @@ def _geometry(w: _Window, alarms: list[DriftAlarm], outcome: list[DriftAlarm]) -
     tail += [f"success fell to {np.mean([c.success for c in w.cycles if c.index >= start]):.0%} of cycles"
              ] if any(a.signal in ("success", "grasped") for a in outcome) else []
     seen_alarmed = any(a.signal.startswith(("part_seen_", "fixture_seen_")) for a in alarms)
+    part, fiducial = w.xy("part_seen", start), w.xy("fixture_seen", start)
+    if (seen_alarmed and part is not None and fiducial is not None and np.linalg.norm(part) >= SIGNIFICANT_MM
+            and np.linalg.norm(fiducial) < SIGNIFICANT_MM):
+        share = np.linalg.norm(part) / (np.linalg.norm(part) + np.linalg.norm(fiducial))
+        words = (f"camera-seen part moved {_vec(part)}", f"camera-seen fixture fiducial unchanged ({_vec(fiducial)})",
+                 "the part was presented off its place in a fixture that did not move: the part was misplaced")
+        return Finding("part_misplaced", start, _squash(share), words + tuple(tail), signals)
     if seen_alarmed and np.linalg.norm(seen) >= SIGNIFICANT_MM:
         d_fixture, d_camera = float(np.linalg.norm(seen - real)), float(np.linalg.norm(real))
         moved = d_fixture <= d_camera
@@ -219,6 +225,10 @@ def _joints(w: _Window, groups: dict[str, list[DriftAlarm]]) -> list[Finding]:
         c, t = max(cur, 0.0), max(trk, 0.0)
         if max(abs(cur), abs(trk)) < MATERIAL:
             continue  # statistically there, physically too small to name a cause for
+        carry, free = w.relative(f"current_carry_rms.{joint}", start), w.relative(f"current_free_rms.{joint}", start)
+        if np.isfinite(carry) and np.isfinite(free) and carry >= MATERIAL and free < CARRY_ONLY * carry:
+            rated.append((start, "load_change", joint, carry, free, min(0.95, 1.0 - max(free, 0.0) / carry), alarms))
+            continue
         if c + t <= 0.0:
             cause, share = "unknown", 0.5
         else:
@@ -234,18 +244,54 @@ def _joints(w: _Window, groups: dict[str, list[DriftAlarm]]) -> list[Finding]:
         rated = [r for r in rated if r not in same]
         joints = tuple(r[2] for r in same)
         conf = _squash(float(np.mean([r[5] for r in same])))
-        evidence = [f"{r[2]}: current {_pct(r[3])}, tracking error {_pct(r[4])} vs baseline" for r in same[:6]]
+        if cause == "load_change":
+            evidence = [f"{r[2]}: current while carrying {_pct(r[3])}, while not {_pct(r[4])} vs baseline"
+                        for r in same[:6]]
+            evidence.append("the joints need more current only while they carry the part: the part's weight "
+                            "changed (a new product variant?), not the joints")
+        else:
+            evidence = [f"{r[2]}: current {_pct(r[3])}, tracking error {_pct(r[4])} vs baseline" for r in same[:6]]
         if cause == "friction":
             evidence.append("the current rose more than the tracking error: the joint needs more torque to "
                             "follow the same motion, so friction grew")
         elif cause == "servo":
             evidence.append("the tracking error rose more than the current: the drive pushes less for the same "
                             "error, so the servo gain dropped")
-        else:
+        elif cause != "load_change":
             conf = 0.3
         findings.append(Finding(cause, start, conf, tuple(evidence),
                                 tuple(sorted({a.signal for r in same for a in r[6]})), joints))
     return findings
+
+
+def _feet(w: _Window, alarms: list[DriftAlarm]) -> list[Finding]:
+    """Gait timing of one leg changed (contact duty, touchdown lag): a foot contact change, per leg.
+    The diagnosis drops it where a joint finding on the same leg explains it."""
+    legs: dict[str, list[DriftAlarm]] = {}
+    for a in alarms:
+        legs.setdefault(member_of(a.signal), []).append(a)
+    out = []
+    for leg, group in sorted(legs.items()):
+        start = _onset(group)
+        evidence = tuple(f"{a.signal} {_fmt(w.delta(a.signal, start))} vs baseline" for a in group[:4])
+        out.append(Finding("foot_contact", start, 0.6, evidence + (
+            f"leg {leg}'s foot meets the ground differently with its joints' drive unchanged: a worn or "
+            "slipping foot, or the ground under it",), tuple(sorted({a.signal for a in group})), legs=(leg,)))
+    return out
+
+
+def intermittent_finding(baseline: Baseline, cycles: Sequence[Cycle], z: np.ndarray, found) -> Finding:
+    """Name an intermittent pattern from its hit cycles alone, the way a persistent one is named."""
+    rows = [i for i, c in enumerate(cycles) if c.index in set(found.cycles)]
+    hits = [cycles[i] for i in rows]
+    w = _Window(baseline, hits, z[rows])
+    alarms = [DriftAlarm(s, found.first, 0.0, found.first, 0) for s in found.signals]
+    named = _geometry(w, alarms, []) if found.family == "geometry" else Finding(
+        "unknown", found.first, 0.3, (f"{', '.join(found.signals[:4])} off on some cycles",), found.signals)
+    watched = len(cycles) - next(i for i, c in enumerate(cycles) if c.index == found.first)
+    head = (f"intermittent: {len(hits)} of {watched} cycles from cycle {found.first} on ({found.rate:.0%}), "
+            f"cycles {', '.join(str(i) for i in found.cycles[:8])}{' ...' if len(hits) > 8 else ''}",)
+    return Finding(named.cause, found.first, named.confidence, head + named.evidence, named.signals, rate=found.rate)
 
 
 def _unchanged_currents(w: _Window, start: int) -> str:

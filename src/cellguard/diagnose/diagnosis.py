@@ -7,15 +7,17 @@ gives the same answer from a run in memory and from a record read back months la
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from cellguard.control.events import ROUTINE_EVENTS, EventKind
-from cellguard.diagnose.asymmetry import Asymmetry, mirrored_asymmetry
+from cellguard.diagnose.asymmetry import Asymmetry, mirror_map, mirrored_asymmetry
 from cellguard.diagnose.baseline import Baseline
-from cellguard.diagnose.cause import Finding, name_causes
+from cellguard.diagnose.cause import Finding, intermittent_finding, name_causes
 from cellguard.diagnose.compare import FeatureChange, changes, last_good_and_faulted
 from cellguard.diagnose.cycles import Cycle, as_cycles
 from cellguard.diagnose.drift import DriftConfig, DriftResult, detect_drift
+from cellguard.diagnose.intermittent import find_intermittent, without_outliers
+from cellguard.diagnose.process import ProcessNote, condition, declared
 from cellguard.embodiment.profile import SymmetryPair
 from cellguard.errors import RecordError
 
@@ -35,6 +37,7 @@ class Diagnosis:
     safety_events: tuple[dict, ...]
     asymmetry: Asymmetry | None
     context: Mapping = field(default_factory=dict)
+    process: tuple[ProcessNote, ...] = ()  # what was done with each declared process change
 
     def to_dict(self) -> dict:
         """The JSON of DESIGN.md (``cycles`` ... ``safety_events``) plus detail fields."""
@@ -48,7 +51,9 @@ class Diagnosis:
             "safety_events": list(self.safety_events),
             "changes": [c.to_dict() for c in self.changes],
             "asymmetry": self.asymmetry.to_dict() if self.asymmetry is not None else None,
+            "process": [n.to_dict() for n in self.process],
             "monitor": {"cusum_k": self.drift.k, "cusum_h": round(self.drift.threshold, 3),
+                        "pooled_k": self.drift.pooled_k, "pooled_h": round(self.drift.pooled_threshold, 3),
                         "mewma_limit": round(self.drift.mewma_threshold, 2), "features": len(self.drift.names),
                         "set_arl_cycles": self.drift.set_arl, "baseline_source": self.baseline.source},
         }
@@ -71,7 +76,9 @@ def diagnose(rows: Iterable[object], events: Iterable[object] = (), context: Map
         watched = [c for c in cycles if c.phase != "acceptance"] or list(cycles)
     if not watched:
         raise RecordError("diagnose: the record has no production cycles to compare with the baseline")
-    drift = detect_drift(baseline, watched, config)
+    z, notes = condition(baseline, watched, baseline.residuals(watched), declared(context))
+    found = find_intermittent(baseline.names, watched, z)
+    drift = detect_drift(baseline, watched, config, residuals=without_outliers(baseline.names, watched, z, found))
     evs = [_event_dict(e) for e in events]
     spans = _cycle_spans(cycles)
     for e in evs:
@@ -79,12 +86,13 @@ def diagnose(rows: Iterable[object], events: Iterable[object] = (), context: Map
             e["cycle"] = _cycle_of(e["t_ns"], spans)
     rejected = _rejections(watched, evs)
     findings = list(name_causes(baseline, watched, drift.z, drift.alarms, rejected))
+    findings += [intermittent_finding(baseline, watched, z, f) for f in found]
     asym = mirrored_asymmetry(watched, symmetry)
     if asym is not None and asym.side:
         findings = _fold_compensation(findings, asym, symmetry)
         if not any(set(f.joints) & set(asym.joints) for f in findings):
             findings.append(_asymmetry_finding(asym, watched[0].index))
-    findings.sort(key=lambda f: (f.cycle, f.cause))
+    findings = sorted(_on_legs(findings, symmetry), key=lambda f: (f.cycle, f.cause))
     first = findings[0].cycle if findings else None
     good, faulted = last_good_and_faulted(cycles, first)
     return Diagnosis(
@@ -92,7 +100,22 @@ def diagnose(rows: Iterable[object], events: Iterable[object] = (), context: Map
         changes=tuple(changes(baseline, drift.alarms, good, faulted, watched)),
         last_good_cycle=good.index if good else None, first_faulted_cycle=faulted.index if faulted else None,
         safety_events=tuple(_safety(e) for e in evs if e.get("kind") not in ROUTINE_EVENTS),
-        asymmetry=asym, context=dict(context or {}))
+        asymmetry=asym, context=dict(context or {}), process=notes)
+
+
+def _on_legs(findings: list[Finding], pairs: Sequence[SymmetryPair]) -> list[Finding]:
+    """On a legged robot (its symmetry map implies legs), say which legs a joint finding is on, and
+    drop a foot contact finding on a leg whose joints already explain it."""
+    legs = sorted({leg for left, right in mirror_map(pairs).items() if left not in {p.left for p in pairs}
+                   for leg in (left, right)})
+    if not legs:
+        return findings
+    out = []
+    for f in findings:
+        on = tuple(sorted({leg for j in f.joints for leg in legs if j.startswith(f"{leg}_")}))
+        out.append(replace(f, legs=on, evidence=(f"on leg {', '.join(on)}",) + f.evidence) if on else f)
+    explained = {leg for f in out if f.joints for leg in f.legs}
+    return [f for f in out if not (f.cause == "foot_contact" and set(f.legs) <= explained)]
 
 
 def _fold_compensation(findings: list[Finding], asym: Asymmetry, pairs: Sequence[SymmetryPair]) -> list[Finding]:

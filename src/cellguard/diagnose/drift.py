@@ -1,14 +1,22 @@
-"""Drift monitors: a two-sided CUSUM per feature and a multivariate EWMA over all of them.
+"""Drift monitors: CUSUMs per feature, pooled CUSUMs per joint, and a multivariate EWMA.
 
-Thresholds are set for the whole feature set: with ``p`` features watched in both directions,
-each one-sided CUSUM gets an in-control run length of ``4 p`` times the target for the set
-(half the false-alarm budget goes to the CUSUMs, half to the multivariate check; Siegmund's
-approximation for unit-variance residuals), so adding features does not add false alarms. ``k = 1`` tunes the CUSUM to shifts of two baseline scales and keeps it blind to
-the error of a median taken from twenty acceptance cycles (about 0.3 scale).
+- Per feature, a two-sided CUSUM with ``k = 1``: tuned to shifts of two baseline scales and blind
+  to the error of a median taken from twenty acceptance cycles (about 0.3 scale).
+- Per joint, two pooled channels: the mean of its current features and the mean of its
+  tracking-error features, each standardised by its spread under the baseline correlation, with
+  a smaller ``k = 0.5``. One physical cause moves these together (a weaker servo raises the
+  tracking error over the whole motion of that joint, friction its current), so a change too
+  small for any one feature adds up in the pooled channel.
+- A multivariate EWMA (T^2 with a shrunk correlation) over all features.
+
+Thresholds are set for the whole set: a third of the false-alarm budget to each bank. Each of
+the ``m`` one-sided CUSUMs of a bank gets an in-control run length of ``3 m`` times the target
+for the set (Siegmund's approximation for unit-variance residuals), so adding features does not
+add false alarms.
 
 Residuals are clipped before they enter a CUSUM so that one odd cycle (a single bad grasp, a
 sensor spike) cannot raise a drift alarm by itself; a change that persists alarms on its
-second cycle. One-off incidents are the events' business, not drift's.
+second cycle. One-off incidents are the events' business (and the intermittent monitor's), not drift's.
 """
 
 from __future__ import annotations
@@ -22,6 +30,7 @@ import numpy as np
 
 from cellguard.diagnose.baseline import Baseline
 from cellguard.diagnose.cycles import Cycle
+from cellguard.diagnose.feature_kinds import kind_of, member_of
 
 SIEGMUND_OFFSET = 1.166
 
@@ -35,24 +44,21 @@ class DriftConfig:
     set_arl: float = 100_000.0
     ewma_lambda: float = 0.2
     ewma_clip: float = 4.0
+    pooled_k: float = 0.5
+    banks: int = 3  # the budget is split evenly: per-feature CUSUMs, pooled CUSUMs, multivariate EWMA
 
-    def cusum_threshold(self, features: int) -> float:
-        """``h`` such that each of the ``2 * features`` one-sided CUSUMs has ARL0 = 4 p x set_arl
-        (the ``2 p`` CUSUMs share half of the set's false-alarm budget)."""
-        target = 2.0 * max(features, 1) * self.set_arl * 2.0  # half the budget to the CUSUMs
-        lo, hi = 0.1, 100.0
-        for _ in range(60):
-            h = 0.5 * (lo + hi)
-            lo, hi = (h, hi) if _siegmund_arl(h, self.k) < target else (lo, h)
-        return hi
+    def cusum_threshold(self, features: int, k: float | None = None) -> float:
+        """``h`` such that each of the ``2 * features`` one-sided CUSUMs of a bank (reference value
+        ``k``, default ``self.k``) has ARL0 = 2 p x banks x set_arl: the bank's share of the budget."""
+        return siegmund_threshold(2.0 * max(features, 1) * self.banks * self.set_arl, self.k if k is None else k)
 
-    def clip(self, h: float) -> float:
+    def clip(self, h: float, k: float | None = None) -> float:
         """Largest residual one cycle may add: half the threshold, so two cycles are needed."""
-        return 0.5 * h + self.k + 0.25
+        return 0.5 * h + (self.k if k is None else k) + 0.25
 
     def mewma_threshold(self, features: int) -> float:
-        """Chi-square quantile (Wilson-Hilferty) at a per-cycle rate of 1 / (2 set_arl)."""
-        z = NormalDist().inv_cdf(1.0 - 1.0 / (2.0 * self.set_arl))
+        """Chi-square quantile (Wilson-Hilferty) at a per-cycle rate of 1 / (banks x set_arl)."""
+        z = NormalDist().inv_cdf(1.0 - 1.0 / (self.banks * self.set_arl))
         p = max(features, 1)
         return p * (1.0 - 2.0 / (9.0 * p) + z * math.sqrt(2.0 / (9.0 * p))) ** 3
 
@@ -89,6 +95,9 @@ class DriftResult:
     mewma_threshold: float
     alarms: tuple[DriftAlarm, ...]
     set_arl: float  # fault-free cycles between false alarms of the whole set, by design
+    pooled: tuple[str, ...] = ()  # pooled channel names (``tracking_pooled.<joint>`` ...)
+    pooled_k: float = 0.5
+    pooled_threshold: float = float("nan")
 
     def series(self, name: str) -> tuple[np.ndarray, np.ndarray]:
         """(upper, lower) CUSUM of one feature."""
@@ -96,41 +105,75 @@ class DriftResult:
         return self.upper[:, j], self.lower[:, j]
 
 
-def detect_drift(baseline: Baseline, cycles: Sequence[Cycle], config: DriftConfig = DriftConfig()) -> DriftResult:
-    """Run the monitors over ``cycles`` (those after the baseline) in order."""
-    z = baseline.residuals(cycles)
+def detect_drift(baseline: Baseline, cycles: Sequence[Cycle], config: DriftConfig = DriftConfig(),
+                 residuals: np.ndarray | None = None) -> DriftResult:
+    """Run the monitors over ``cycles`` (those after the baseline) in order; ``residuals`` replaces
+    ``baseline.residuals(cycles)`` when the caller has conditioned them (declared process changes)."""
+    z = baseline.residuals(cycles) if residuals is None else residuals
     n, p = z.shape
-    h = config.cusum_threshold(p)
-    clip = config.clip(h)
-    zc = np.clip(z, -clip, clip)
-    upper, lower = np.zeros((n, p)), np.zeros((n, p))
-    s_up, s_lo = np.zeros(p), np.zeros(p)
-    start_up, start_lo = np.zeros(p, dtype=int), np.zeros(p, dtype=int)
-    fired_up, fired_lo = np.zeros(p, dtype=bool), np.zeros(p, dtype=bool)
     index = [c.index for c in cycles]
-    alarms: list[DriftAlarm] = []
-    for i in range(n):
-        row = zc[i]
-        seen = ~np.isnan(row)
-        r = np.where(seen, row, 0.0)
-        new_up = np.where(seen, np.maximum(0.0, s_up + r - config.k), s_up)
-        new_lo = np.where(seen, np.maximum(0.0, s_lo - r - config.k), s_lo)
-        start_up = np.where((s_up == 0) & (new_up > 0), i, start_up)
-        start_lo = np.where((s_lo == 0) & (new_lo > 0), i, start_lo)
-        s_up, s_lo = new_up, new_lo
-        upper[i], lower[i] = s_up, s_lo
-        for j in np.flatnonzero((s_up > h) & ~fired_up):
-            alarms.append(DriftAlarm(baseline.names[j], index[i], float(s_up[j]), index[start_up[j]], +1))
-        for j in np.flatnonzero((s_lo > h) & ~fired_lo):
-            alarms.append(DriftAlarm(baseline.names[j], index[i], float(s_lo[j]), index[start_lo[j]], -1))
-        fired_up |= s_up > h
-        fired_lo |= s_lo > h
+    h = config.cusum_threshold(p)
+    zc = np.clip(z, -config.clip(h), config.clip(h))
+    upper, lower, alarms = _cusums(zc, config.k, h, baseline.names, index)
+    names, pooled = pooled_channels(baseline, zc)
+    hp = config.cusum_threshold(len(names), config.pooled_k)
+    if names:
+        clip = config.clip(hp, config.pooled_k)
+        alarms += _cusums(np.clip(pooled, -clip, clip), config.pooled_k, hp, names, index)[2]
     mewma, limit, mv_alarm = _mewma(baseline, z, index, config)
     if mv_alarm is not None:
         alarms.append(mv_alarm)
     alarms.sort(key=lambda a: (a.cycle, a.onset, a.signal))
     return DriftResult(baseline.names, tuple(index), config.k, z, upper, lower, h, mewma, limit, tuple(alarms),
-                       config.set_arl)
+                       config.set_arl, names, config.pooled_k, hp)
+
+
+def pooled_channels(baseline: Baseline, zc: np.ndarray) -> tuple[tuple[str, ...], np.ndarray]:
+    """Per joint, the mean of its current and of its tracking-error residuals, each over its standard
+    deviation under the baseline correlation; Shape (cycles, channels). NaN where a member is NaN."""
+    groups: dict[str, list[int]] = {}
+    for j, name in enumerate(baseline.names):
+        kind = kind_of(name)
+        if kind.family == "joint" and kind.per == "joint":
+            quantity = "current" if kind.stem.startswith("current") else "tracking"
+            groups.setdefault(f"{quantity}_pooled.{member_of(name)}", []).append(j)
+    groups = {k: v for k, v in groups.items() if len(v) > 1}
+    if not groups:
+        return (), np.zeros((len(zc), 0))
+    corr = baseline.correlation()
+    out = np.empty((len(zc), len(groups)))
+    for c, cols in enumerate(groups.values()):
+        w = np.full(len(cols), 1.0 / len(cols))
+        sd = float(np.sqrt(w @ corr[np.ix_(cols, cols)] @ w))
+        out[:, c] = zc[:, cols] @ w / sd  # NaN propagates: a cycle at another load is skipped
+    return tuple(groups), out
+
+
+def _cusums(zc: np.ndarray, k: float, h: float, names: Sequence[str], index: list[int]):
+    """Two-sided CUSUMs of the columns of ``zc`` (NaN: no reading, the sum holds); first alarm per side."""
+    n, p = zc.shape
+    upper, lower = np.zeros((n, p)), np.zeros((n, p))
+    s_up, s_lo = np.zeros(p), np.zeros(p)
+    start_up, start_lo = np.zeros(p, dtype=int), np.zeros(p, dtype=int)
+    fired_up, fired_lo = np.zeros(p, dtype=bool), np.zeros(p, dtype=bool)
+    alarms: list[DriftAlarm] = []
+    for i in range(n):
+        row = zc[i]
+        seen = ~np.isnan(row)
+        r = np.where(seen, row, 0.0)
+        new_up = np.where(seen, np.maximum(0.0, s_up + r - k), s_up)
+        new_lo = np.where(seen, np.maximum(0.0, s_lo - r - k), s_lo)
+        start_up = np.where((s_up == 0) & (new_up > 0), i, start_up)
+        start_lo = np.where((s_lo == 0) & (new_lo > 0), i, start_lo)
+        s_up, s_lo = new_up, new_lo
+        upper[i], lower[i] = s_up, s_lo
+        for j in np.flatnonzero((s_up > h) & ~fired_up):
+            alarms.append(DriftAlarm(names[j], index[i], float(s_up[j]), index[start_up[j]], +1))
+        for j in np.flatnonzero((s_lo > h) & ~fired_lo):
+            alarms.append(DriftAlarm(names[j], index[i], float(s_lo[j]), index[start_lo[j]], -1))
+        fired_up |= s_up > h
+        fired_lo |= s_lo > h
+    return upper, lower, alarms
 
 
 def _mewma(baseline: Baseline, z: np.ndarray, index: list[int], config: DriftConfig):
@@ -148,6 +191,15 @@ def _mewma(baseline: Baseline, z: np.ndarray, index: list[int], config: DriftCon
         if alarm is None and out[i] > limit:
             alarm = DriftAlarm("multivariate", index[i], float(out[i]), index[i], 0)
     return out, limit, alarm
+
+
+def siegmund_threshold(arl: float, k: float) -> float:
+    """``h`` of a one-sided CUSUM with reference value ``k`` whose in-control ARL is ``arl``."""
+    lo, hi = 0.1, 200.0
+    for _ in range(60):
+        h = 0.5 * (lo + hi)
+        lo, hi = (h, hi) if _siegmund_arl(h, k) < arl else (lo, h)
+    return hi
 
 
 def _siegmund_arl(h: float, k: float) -> float:

@@ -39,7 +39,25 @@ def cycle_features(
     f["stale_chunks"] = float(sum(e.kind in (EventKind.CHUNK_STEPS_DROPPED, EventKind.CHUNK_STALE) for e in events))
     for key, value in outcome.items():
         _flatten(f, key, value, profile)
+    _carry_currents(f, profile, ticks, outcome)
     return f
+
+
+def _carry_currents(f: dict[str, float], profile: Profile, ticks: CycleBuffer, outcome: dict) -> None:
+    """RMS current per joint while carrying a part (grasp to release) and while not: a load change
+    moves only the first, friction both."""
+    n = ticks.n
+    grasp, release = outcome.get("grasp_time_s"), outcome.get("release_time_s")
+    if not n or not outcome.get("grasped") or grasp is None or release is None:
+        return
+    t = (ticks.t_ns[:n] - ticks.t_ns[0]) * 1e-9
+    carry = (t >= grasp) & (t < release)
+    if carry.sum() < 2 or (~carry).sum() < 2:
+        return
+    current = ticks.current[:n]
+    for j, name in enumerate(profile.joint_names):
+        f[f"current_carry_rms.{name}"] = float(np.sqrt(np.mean(current[carry, j] ** 2)))
+        f[f"current_free_rms.{name}"] = float(np.sqrt(np.mean(current[~carry, j] ** 2)))
 
 
 def _flatten(f: dict[str, float], key: str, value, profile: Profile) -> None:

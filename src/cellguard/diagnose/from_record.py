@@ -26,6 +26,7 @@ def diagnose_record(folder: Path, acceptance: Path | None = None) -> Diagnosis:
     folder = Path(folder)
     with open_record(folder) as rec:
         cycles, events, context = list(rec.cycles()), list(rec.events()), rec.context
+        declared = rec.contexts[-1].context.get("process", [])  # process changes declared up to the end
     baseline = None
     if acceptance is not None:
         with open_record(acceptance) as acc:
@@ -33,9 +34,11 @@ def diagnose_record(folder: Path, acceptance: Path | None = None) -> Diagnosis:
         baseline = Baseline.from_cycles(rows, source=f"acceptance cycles of {acceptance}")
     elif (folder / BASELINE_FILE).is_file():
         baseline = Baseline.load(folder / BASELINE_FILE)
-    result = diagnose(cycles, events, context, baseline=baseline, symmetry=symmetry_of(context))
+        baseline.check_binding(context, folder / BASELINE_FILE)
+    result = diagnose(cycles, events, {**context, "process": declared}, baseline=baseline,
+                      symmetry=symmetry_of(context))
     if baseline is None and folder.is_dir():
-        result.baseline.save(folder / BASELINE_FILE)
+        result.baseline.bind(context).save(folder / BASELINE_FILE)
     return result
 
 

@@ -31,7 +31,7 @@ def build_context(*, scenario, cell, policy, envelope, software: dict | None = N
         **cell.context(),
         "envelope": envelope_config(envelope),
         "servo_period_ns": cell.dt_ns,
-        "scenario": scenario.model_dump(mode="json", exclude={"faults"}),
+        "scenario": scenario.model_dump(mode="json", exclude={"faults", "process_changes"}),
         "software": software or software_versions(),
     }
 

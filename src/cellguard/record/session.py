@@ -90,7 +90,9 @@ class RunRecording:
     # -- servo thread ------------------------------------------------------------------------
     def begin_cycle(self, cycle: int, phase: str, t_ns: int) -> None:
         self._cycle = cycle
-        self._put(self.recorder.set_context, self._context(self.run, self.recorder.config, self._software), t_ns)
+        context = self._context(self.run, self.recorder.config, self._software)
+        context["process"] = self.run.scenario.declared_process(cycle)  # process changes declared so far
+        self._put(self.recorder.set_context, context, t_ns)
         self._put(self.recorder.cycle_begin, cycle, phase, t_ns)
 
     def request(self, t_ns: int, observation) -> None:

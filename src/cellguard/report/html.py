@@ -48,9 +48,10 @@ def _figure(name: str, svg: str) -> str:
 
 
 def _findings(d: Diagnosis) -> str:
+    notes = "".join(f"<div class=ok>{_e(n.text)}</div>" for n in d.process)  # declared process changes
     if not d.findings:
-        return "<div class=ok>No drift, fault or asymmetry found against the baseline.</div>"
-    out = []
+        return notes + "<div class=ok>No drift, fault or asymmetry found against the baseline.</div>"
+    out = [notes]
     for f in d.findings:
         joints = f" on {', '.join(f.joints)}" if f.joints else ""
         items = "".join(f"<li>{_e(x)}</li>" for x in f.evidence)

@@ -40,7 +40,8 @@ class ArmPickPlace(DrivenCell):
 
     name = "arm-pick-place"
     supported_faults = frozenset(
-        {"fixture_shift", "friction_growth", "servo_gain", "camera_shift", "tool_slip", "policy_latency", "policy_nan"}
+        {"fixture_shift", "friction_growth", "servo_gain", "camera_shift", "tool_slip", "policy_latency", "policy_nan",
+         "friction_step", "intermittent_slip", "part_misplaced"}
     )
 
     def __init__(self, seed: int = 0):
@@ -67,7 +68,10 @@ class ArmPickPlace(DrivenCell):
             "fixture": self.data.mocap_pos[self._fixture_mocap].copy(),
             "camera": self.data.mocap_pos[self._camera_mocap].copy(),
             "tool": m.body_pos[self._tool_body].copy(),
+            "part_mass": float(m.body_mass[self._part_body]),
+            "part_inertia": m.body_inertia[self._part_body].copy(),
         }
+        self._part_offset = np.zeros(3)  # [m] where this cycle's part is presented, off the datum
         # The camera extrinsic as calibrated at commissioning; the policy side uses this.
         self.camera_calibration = {"position": self.nominal["camera"].tolist(), "rotation": CAMERA_ROTATION.tolist(),
                                    "calibrated": "2026-10-14"}
@@ -122,7 +126,7 @@ class ArmPickPlace(DrivenCell):
         self.data.eq_active[self._grasp_eq] = 0
         datum = self.data.mocap_pos[self._fixture_mocap] + np.array([0.0, 0.0, 0.006 + PART_HALF])
         jitter = self.rng.normal(0.0, 2e-4, 3) * np.array([1.0, 1.0, 0.0])
-        self.data.qpos[self._part_qadr:self._part_qadr + 3] = datum + jitter
+        self.data.qpos[self._part_qadr:self._part_qadr + 3] = datum + jitter + self._part_offset
         self.data.qpos[self._part_qadr + 3:self._part_qadr + 7] = [1.0, 0.0, 0.0, 0.0]
         self.data.qvel[self._part_dadr:self._part_dadr + 6] = 0.0
         mujoco.mj_forward(self.model, self.data)
@@ -221,3 +225,13 @@ class ArmPickPlace(DrivenCell):
     def set_tool_offset(self, offset: np.ndarray) -> None:
         self.model.body_pos[self._tool_body] = self.nominal["tool"] + offset
 
+    def set_part_offset(self, offset: np.ndarray) -> None:
+        """Present the next part ``offset`` [m] off its fixture datum (a mis-seated part)."""
+        self._part_offset = np.asarray(offset, dtype=np.float64)
+
+    # -- Process changes --------------------------------------------------------------------
+    def set_payload(self, extra_kg: float) -> None:
+        """The part carried weighs ``extra_kg`` more than at commissioning (a new product variant)."""
+        mass = self.nominal["part_mass"] + extra_kg
+        self.model.body_mass[self._part_body] = mass
+        self.model.body_inertia[self._part_body] = self.nominal["part_inertia"] * mass / self.nominal["part_mass"]

@@ -48,7 +48,7 @@ class QuadrupedTurns(DrivenCell):
     """A simulated quadruped at a 1 ms servo period. Joint order is the profile's."""
 
     name = "quadruped-turns"
-    supported_faults = frozenset({"friction_growth", "servo_gain", "policy_latency", "policy_nan"})
+    supported_faults = frozenset({"friction_growth", "friction_step", "servo_gain", "policy_latency", "policy_nan"})
 
     def __init__(self, seed: int = 0):
         self.model = mujoco.MjModel.from_xml_path(str(ASSETS / "quadruped.xml"))

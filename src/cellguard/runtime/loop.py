@@ -28,6 +28,7 @@ from cellguard.output import make_folder, write_output
 from cellguard.policy.chunk import ActionChunk
 from cellguard.policy.registry import make_policy
 from cellguard.record.session import RunRecording
+from cellguard.robot.process import apply_process_changes
 from cellguard.robot.protocol import SafetyInputs
 from cellguard.runtime.build import make_clock, make_inference, make_robot
 from cellguard.runtime.cycles import make_cycle_source
@@ -88,6 +89,7 @@ class Run:
         if self.simulated:
             for fault in self.scenario.faults:
                 fault.apply(cell, index)
+            apply_process_changes(self.scenario.process_changes, cell, index)
             if not clock.realtime:
                 inference.latency_ns = round((NOMINAL_INFERENCE_S + sum(f.extra_latency_s(index)
                                                                         for f in self.scenario.faults)) * 1e9)
@@ -280,13 +282,14 @@ class Run:
     def summary(self) -> dict:
         """Per-cycle outcomes, events, and the injected faults as ground truth, kept apart."""
         summary = {
-            "scenario": self.scenario.model_dump(mode="json", exclude={"faults"}),
+            "scenario": self.scenario.model_dump(mode="json", exclude={"faults", "process_changes"}),
             "context": {**self.cell.context(), "policy": self.policy.source,
                         "policy_sha256": self.policy.content_hash(), "profile_sha256": self.cell.profile.sha256},
             "phases": self.cycles.phases(),
             "cycles": list(self.cycles),
             "events": [e.to_dict() for e in self.events],
-            "ground_truth": {"faults": [f.model_dump(mode="json") for f in self.scenario.faults]},
+            "ground_truth": {"faults": [f.model_dump(mode="json") for f in self.scenario.faults],
+                             "process_changes": [c.model_dump(mode="json") for c in self.scenario.process_changes]},
         }
         if self.clock.realtime:
             summary["timing"] = {**self.clock.timing.summary(), "setpoints_refused": self.link.refused,

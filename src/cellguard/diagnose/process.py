@@ -1,0 +1,103 @@
+"""Legitimate process changes the record declares, and how the diagnosis conditions on them.
+
+The record's context lists the process changes declared so far (``context["process"]``: a new
+product variant's payload, a restart after idle). A change the line declared is not a fault:
+
+- ``payload``: every load-dependent feature (declared in ``feature_kinds``) moves with the new
+  load. From the change on, those features are compared with a new centre, the median of the
+  first ``REBASE`` cycles at the new load, keeping the acceptance scale; those cycles themselves
+  are not watched. A fault that begins inside them is seen only once it grows further.
+- ``warmup``: cold joints have more friction for the first cycles after idle, decaying. Each
+  friction-dependent feature is not watched from the restart until it is back within
+  ``SETTLED`` scales of its baseline (at most ``WARMUP_MAX`` cycles; a joint that never settles
+  is watched again and alarms as it would).
+
+An undeclared payload change is named by ``cause`` (``load_change``), never as a joint fault.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from cellguard.diagnose.baseline import Baseline
+from cellguard.diagnose.cycles import Cycle
+from cellguard.diagnose.feature_kinds import kind_of
+
+REBASE = 5  # [cycles] at a declared new load that set the new centre
+SETTLED = 2.0  # [scales] a warm-up is over for a feature once it is back this close to its baseline
+WARMUP_MAX = 40  # [cycles] longest warm-up allowed for
+
+
+@dataclass(frozen=True)
+class ProcessNote:
+    """What the diagnosis did with one declared process change."""
+
+    kind: str
+    cycle: int
+    text: str
+
+    def to_dict(self) -> dict:
+        return {"kind": self.kind, "cycle": self.cycle, "text": self.text}
+
+
+def declared(context: Mapping | None) -> list[dict]:
+    """The declared process changes in a record's context, earliest first (malformed entries skipped)."""
+    raw = (context or {}).get("process") or []
+    out = [c for c in raw if isinstance(c, Mapping) and isinstance(c.get("kind"), str)
+           and isinstance(c.get("at_cycle"), int)]
+    return sorted(out, key=lambda c: c["at_cycle"])
+
+
+def condition(baseline: Baseline, cycles: Sequence[Cycle], z: np.ndarray,
+              changes: Sequence[Mapping]) -> tuple[np.ndarray, tuple[ProcessNote, ...]]:
+    """Residuals ``z`` (Shape (cycles, features)) with the declared changes accounted for, and notes."""
+    z = z.copy()
+    index = np.array([c.index for c in cycles])
+    notes = []
+    for change in changes:
+        at = int(change["at_cycle"])
+        rows = np.flatnonzero(index >= at)
+        if not len(rows):
+            continue
+        if change["kind"] == "payload":
+            notes.append(_rebase(baseline, z, index, rows, change))
+        elif change["kind"] == "warmup":
+            notes.append(_warmup(baseline, z, index, rows, change))
+    return z, tuple(notes)
+
+
+def _rebase(baseline: Baseline, z: np.ndarray, index: np.ndarray, rows: np.ndarray, change: Mapping) -> ProcessNote:
+    cols = np.array([j for j, n in enumerate(baseline.names) if kind_of(n).load], dtype=int)
+    window = rows[:REBASE]
+    with np.errstate(all="ignore"):
+        shift = np.nanmedian(z[np.ix_(window, cols)], axis=0) if len(cols) else np.zeros(0)
+    shift = np.where(np.isnan(shift), 0.0, shift)
+    z[np.ix_(rows, cols)] -= shift
+    z[np.ix_(window, cols)] = np.nan
+    grams = change.get("grams")
+    what = f"payload {grams:+g} g" if isinstance(grams, (int, float)) else "payload change"
+    return ProcessNote("payload", int(change["at_cycle"]),
+                       f"{what} declared at cycle {change['at_cycle']}: {len(cols)} load-dependent features "
+                       f"re-baselined on cycles {index[window[0]]}-{index[window[-1]]}")
+
+
+def _warmup(baseline: Baseline, z: np.ndarray, index: np.ndarray, rows: np.ndarray, change: Mapping) -> ProcessNote:
+    cols = [j for j, n in enumerate(baseline.names) if kind_of(n).friction]
+    span = rows[:WARMUP_MAX]
+    settled_by = index[span[0]]
+    for j in cols:
+        col = z[span, j]
+        back = np.flatnonzero(np.abs(col) <= SETTLED)
+        end = back[0] if len(back) else len(span)
+        z[span[:end], j] = np.nan
+        if end:
+            settled_by = max(settled_by, index[span[min(end, len(span) - 1)]])
+    idle = change.get("idle_min")
+    after = f" after {idle:g} min idle" if isinstance(idle, (int, float)) else ""
+    return ProcessNote("warmup", int(change["at_cycle"]),
+                       f"restart{after} declared at cycle {change['at_cycle']}: warm-up recognised, "
+                       f"friction-dependent features watched again once back within {SETTLED:g} scales "
+                       f"(all by cycle {settled_by})")
