@@ -47,7 +47,7 @@ def runs() -> list[tuple[str, str, dict]]:
 
 
 def _make(folder: Path, scenario: dict) -> str:
-    from cellguard.runner import run_scenario
+    from cellguard.runtime import run_scenario
     from cellguard.scenario import parse_scenario
 
     tmp = folder.with_name(folder.name + ".partial")

@@ -160,7 +160,7 @@ def test_joint_findings_name_their_legs_on_a_legged_robot():
 
 
 def test_every_feature_the_cells_report_is_declared():
-    from cellguard.runner import Run
+    from cellguard.runtime import Run
     from cellguard.scenario import parse_scenario
 
     run = Run(parse_scenario({"cell": "arm-pick-place", "acceptance_cycles": 1, "production_cycles": 0}))

@@ -9,7 +9,7 @@ import pytest
 from typer.testing import CliRunner
 
 from cellguard.cli import app
-from cellguard.runner import run_scenario
+from cellguard.runtime import run_scenario
 from cellguard.scenario import parse_scenario
 
 psycopg = pytest.importorskip("psycopg", reason="the fleet CLI tests need psycopg: pip install 'cellguard[fleet]'")
