@@ -43,7 +43,8 @@ def _run(scenario: Scenario, out: Path, quiet: bool, realtime: bool = False, ove
             out.rmdir()  # refused before anything was written: leave no empty folder behind
         raise
     finally:
-        progress.stop()
+        if progress.live.is_started:  # stopping one never shown prints a blank line on a pipe
+            progress.stop()
 
 
 def _print_summary(summary: dict, out: Path, as_json: bool) -> None:
