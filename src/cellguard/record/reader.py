@@ -256,11 +256,13 @@ class Record:
             raise RecordError(f"rate: {rate!r} is not one of {', '.join(RATES)}")
         if cycle is not None:
             start_ns, end_ns = self._cycle_span(cycle)
-        topics = {"decimated": ["/ticks/decimated"], "full": ["/ticks/full"],
-                  "all": ["/ticks/decimated", "/ticks/full"]}[rate]
         lo = None if start_ns is None else start_ns - self._batch_span_ns()
-        hi = None if end_ns is None else end_ns + self._backlog_ns()
-        parts = [TICKS.decode(m.data) for m in self.messages(topics, lo, hi)]
+        parts = []
+        if rate in ("decimated", "all"):
+            parts += [TICKS.decode(m.data) for m in self.messages(["/ticks/decimated"], lo, end_ns)]
+        if rate in ("full", "all"):  # a pre-trigger backlog is logged up to one window after its ticks
+            hi = None if end_ns is None else end_ns + self._backlog_ns()
+            parts += [TICKS.decode(m.data) for m in self.messages(["/ticks/full"], lo, hi)]
         return _merge(parts, cycle, start_ns, end_ns)
 
     def _cycle_span(self, cycle: int) -> tuple[int, int | None]:
