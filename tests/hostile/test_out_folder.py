@@ -52,3 +52,25 @@ def test_report_takes_the_baseline_from_another_record(runs, tmp_path):
     assert result.exit_code == 0, result.output
     assert "<html" in (tmp_path / "r.html").read_text()
     assert snapshot(root / "acceptance") == before  # the acceptance record is read, never written
+
+
+def test_escape_codes_in_a_records_site_are_never_printed_raw(tmp_path):
+    """A record written elsewhere (not through a scenario, which refuses them) with escape codes in its text."""
+    from record_synth import DT_NS, JOINTS, context, tick
+
+    from cellguard.control.events import Event
+    from cellguard.record.writer import RecordConfig, Recorder
+
+    hostile = "plant\x1b[2J\x1b]0;owned\x07\nsecond line"
+    rec = Recorder.create(tmp_path / "run", joints=JOINTS, dt_ns=DT_NS, context=context(site=hostile),
+                          config=RecordConfig(), epoch_wall_ns=1_790_000_000_000_000_000)
+    rec.cycle_begin(0, "acceptance", 0)
+    for k in range(200):
+        tick(rec, k, 0)
+    rec.event(Event(100 * DT_NS, "protective_stop", hostile, category=2), 0)
+    rec.cycle_end({"cycle": 0, "phase": "acceptance", "success": True, "features": {}}, 200 * DT_NS)
+    rec.close()
+    result = runner.invoke(app, ["record", "info", str(tmp_path / "run")])
+    assert result.exit_code == 0, result.output
+    assert "\x1b" not in result.output and "\x07" not in result.output
+    assert "plant\\x1b[2J" in result.stdout and "second line" not in result.stdout.splitlines()[2]

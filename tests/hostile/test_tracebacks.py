@@ -110,3 +110,16 @@ def test_a_folder_named_like_a_glob_pattern_works(recorded):
     assert result.exit_code == 0 and result.stdout.strip() == '{"n": 3}', result.output
     result = runner.invoke(app, ["record", "info", str(recorded), "--json"])
     assert result.exit_code == 0, result.output
+
+
+def test_a_damaged_index_part_does_not_stop_export(tmp_path):
+    """The index is derived: ``export --cycle`` falls back on the record's own cycle markers."""
+    folder = tmp_path / "run"
+    record(folder, 2, 300)
+    part = next((folder / "index" / "cycles").rglob("*.parquet"))
+    part.write_bytes(part.read_bytes()[:40] + b"\0" * 64)
+    before = snapshot(folder)
+    result = runner.invoke(app, ["record", "export", str(folder), "-o", str(tmp_path / "c.csv"), "--cycle", "1"])
+    assert result.exit_code == 0, result.output
+    assert len((tmp_path / "c.csv").read_text().splitlines()) > 1
+    assert snapshot(folder) == before

@@ -38,6 +38,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import pyarrow as pa
 import pyarrow.dataset as ds
 from mcap.records import Message
 
@@ -269,9 +270,12 @@ class Record:
         """Where a cycle lies in time: from the index if there is one, else from the cycle markers."""
         index = self.file.parent / INDEX_DIR / "cycles"
         if self.file.name == RECORD_FILE and index.is_dir():
-            table = ds.dataset(index, format="parquet", partitioning="hive").to_table(
-                columns=["t_start_ns", "t_end_ns"], filter=ds.field("cycle") == cycle)
-            if table.num_rows:
+            try:
+                table = ds.dataset(index, format="parquet", partitioning="hive").to_table(
+                    columns=["t_start_ns", "t_end_ns"], filter=ds.field("cycle") == cycle)
+            except (pa.ArrowException, OSError):  # a damaged index part: the record's own markers still say
+                table = None
+            if table is not None and table.num_rows:
                 return table["t_start_ns"][0].as_py(), table["t_end_ns"][0].as_py()
         start = end = None
         for m in self.messages(["/cycles"]):
