@@ -175,17 +175,21 @@ def test_recover_onto_a_record_is_refused(recorded, tmp_path):
 # -- class 4: a damaged context chunk -----------------------------------------------------------------
 @pytest.fixture(scope="module")
 def damaged(tmp_path_factory):
-    """Six cycles with the context repeated every 5 s; then the first chunk (the context) is damaged."""
+    """Six cycles with the context repeated every 5 s; then the chunks holding the start's context are damaged."""
     out = tmp_path_factory.mktemp("damaged")
     run = Run(parse_scenario({"cell": "arm-pick-place", "seed": 7, "acceptance_cycles": 5, "production_cycles": 1}))
     run.recording = RunRecording.start(out, run, config=RecordConfig(context_every_s=5.0))
     for _ in range(6):
         run.cycle()
     run.recording.close()
-    first = scan(out / "record.mcap").chunks[0]
+    layout = scan(out / "record.mcap")
+    context = next(i for i, c in layout.channels.items() if c.topic == "/context")
+    start = layout.chunks[0].start_ns
     with open(out / "record.mcap", "r+b") as f:
-        f.seek(first.offset + first.length // 2)
-        f.write(b"\xff" * 16)
+        for chunk in layout.chunks:  # the context at start, and again as cycle 0 begins: not the 5 s repeats
+            if context in chunk.channels and chunk.start_ns - start < 1_000_000_000:
+                f.seek(chunk.offset + chunk.length // 2)
+                f.write(b"\xff" * 16)
     return out
 
 
