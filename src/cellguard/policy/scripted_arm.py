@@ -18,7 +18,7 @@ import mujoco
 import numpy as np
 
 from cellguard.policy.chunk import ActionChunk
-from cellguard.robot import arm_cell
+from cellguard.robot import arm_cell, so101_cell
 from cellguard.robot.kinematics import solve_tool_down
 from cellguard.robot.pick_place import CAMERA_ROTATION
 from cellguard.robot.state import Observation
@@ -42,6 +42,11 @@ class Teaching:
 
 ARM = Teaching(arm_cell.load_model, ("shoulder_pan", "shoulder_lift", "elbow", "wrist_flex"),
                arm_cell.LAYOUT.q_home, gripper_open=0.025, gripper_shut=0.008, part_half=arm_cell.PART_HALF)
+# The SO-101's jaw travels 0.35 rad and its wrist roll joins the IK (its axis sits 2 deg off the arm's plane);
+# tempo 1.3 keeps the program inside the STS3215 profile.
+SO101 = Teaching(so101_cell.load_model, ("shoulder_pan", "shoulder_lift", "elbow_flex", "wrist_flex", "wrist_roll"),
+                 so101_cell.LAYOUT.q_home, gripper_open=0.55, gripper_shut=0.2, part_half=so101_cell.PART_HALF,
+                 approach=0.05, tempo=1.3)
 # The program's waypoints: (time [s] at tempo 1, pose, gripper): pose is home, above, pick, above_drop or drop.
 PROGRAM = ((0.8, "above", "open"), (1.2, "pick", "open"), (1.4, "pick", "open"), (1.65, "pick", "shut"),
            (2.05, "above", "shut"), (2.85, "above_drop", "shut"), (3.25, "drop", "shut"), (3.45, "drop", "open"),
