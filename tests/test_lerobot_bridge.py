@@ -28,6 +28,7 @@ from cellguard.control.settings import build_guard  # noqa: E402
 from cellguard.diagnose.cycle_buffer import CycleBuffer  # noqa: E402
 from cellguard.diagnose.features import cycle_features  # noqa: E402
 from cellguard.diagnose.from_record import diagnose_record  # noqa: E402
+from cellguard.errors import ConfigError  # noqa: E402
 from cellguard.policy.chunk import ActionChunk  # noqa: E402
 from cellguard.policy.scripted_arm import SO101, ScriptedArmPolicy  # noqa: E402
 from cellguard.record.reader import open_record  # noqa: E402
@@ -191,16 +192,16 @@ def test_a_nan_never_reaches_send_action(tmp_path):
 def test_full_cycles_through_lerobots_factory_are_recorded_and_diagnosed(tmp_path):
     bridge = _bridge(tmp_path)
     spy = _Spy(bridge.robot)
-    scenario = parse_scenario({"cell": "so101-pick-place", "seed": 4, "acceptance_cycles": 6, "production_cycles": 3,
-                               "faults": [{"kind": "fixture_shift", "at_cycle": 7, "dx_mm": 3.0}]})
+    scenario = parse_scenario({"cell": "so101-pick-place", "seed": 4, "acceptance_cycles": 6, "production_cycles": 2,
+                               "faults": [{"kind": "fixture_shift", "at_cycle": 6, "dx_mm": 3.0}]})
     run = _drive(tmp_path / "run", bridge, scenario)
     bridge.close()
     assert all(c["success"] for c in run.cycles[:6]), [c["success"] for c in run.cycles]
-    assert len(spy.asked) > 9 * 5000  # every tick went through LeRobot's send_action
+    assert len(spy.asked) > 8 * 5000  # every tick went through LeRobot's send_action
     with open_record(tmp_path / "run") as rec:
         assert rec.context["cell"] == "lerobot:cellguard_so101"
-        assert len(list(rec.cycles())) == 9
-        ticks = rec.ticks(cycle=3, rate="full")
+        assert len(list(rec.cycles())) == 8
+        ticks = rec.ticks(cycle=3, rate="all")
         assert rec.health().ok
     # the record holds what send_action returned (mapped to SI), tick by tick
     names = bridge.units.names
@@ -212,4 +213,25 @@ def test_full_cycles_through_lerobots_factory_are_recorded_and_diagnosed(tmp_pat
     d = diagnose_record(tmp_path / "run")
     causes = {f.cause for f in d.findings}
     assert causes == {"fixture_shift"}, [f.to_dict() for f in d.findings]
-    assert 6 <= d.first_faulted_cycle <= 8
+    assert 5 <= d.first_faulted_cycle <= 7
+
+
+def test_power_off_goes_through_the_robots_motor_bus(tmp_path):
+    bridge = _bridge(tmp_path)
+    bridge.set_power(False)
+    assert bridge.robot.cell.model.opt.disableactuator == 1
+    bridge.set_power(True)
+    assert bridge.robot.cell.model.opt.disableactuator == 0
+    bridge.close()
+    assert not bridge.robot.is_connected
+
+
+def test_bad_specs_are_one_line_errors_that_name_the_choices(tmp_path):
+    with pytest.raises(ConfigError, match="no embodiment profile for this type"):
+        make_robot("lerobot:koch_follower?port=/dev/null")
+    with pytest.raises(ConfigError, match="unknown robot type 'so102_follower'.*so101_follower"):
+        make_robot("lerobot:so102_follower?embodiment=so101")
+    with pytest.raises(ConfigError, match="fields: .*max_relative_target"):
+        make_robot(f"lerobot:cellguard_so101?calibration_dir={tmp_path}&speed=3")
+    with pytest.raises(ConfigError, match="hz must be in"):
+        make_robot(f"lerobot:cellguard_so101?calibration_dir={tmp_path}&hz=0")

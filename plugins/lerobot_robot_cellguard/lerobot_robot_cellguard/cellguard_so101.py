@@ -20,12 +20,26 @@ from cellguard.policy.action_map import load_action_map
 from cellguard.robot.so101_cell import ASSETS, SO101PickPlace
 from lerobot_robot_cellguard.config_cellguard_so101 import CellguardSO101Config
 
+class SimulatedTorque:
+    """The two torque calls of LeRobot's motor buses (``enable_torque``/``disable_torque``) on the simulated drives."""
+
+    def __init__(self, cell: SO101PickPlace):
+        self.cell = cell
+
+    def enable_torque(self) -> None:
+        self.cell.set_power(True)
+
+    def disable_torque(self) -> None:
+        self.cell.set_power(False)  # actuators off, joints braked
+
+
 MOTORS = ("shoulder_pan", "shoulder_lift", "elbow_flex", "wrist_flex", "wrist_roll", "gripper")
 MEASUREMENTS = ("part_in_camera", "fixture_in_camera")
 
 
 class CellguardSO101(Robot):
-    """A simulated SO-101 follower; ``cell`` is the simulated cell once connected (its task, its faults)."""
+    """A simulated SO-101 follower; ``cell`` is the simulated cell once connected (its task, its faults),
+    ``bus`` switches its torque as a LeRobot motor bus does."""
 
     config_class = CellguardSO101Config
     name = "cellguard_so101"
@@ -57,6 +71,7 @@ class CellguardSO101(Robot):
         if self.cell is not None:
             raise DeviceAlreadyConnectedError(f"{self} already connected")
         self.cell = SO101PickPlace(seed=self.config.seed)
+        self.bus = SimulatedTorque(self.cell)
         self.units = load_action_map(self.config.units or ASSETS / "so101_lerobot_units.yaml", self.cell.profile)
         if self.units.names != self._keys:
             raise ValueError(f"units map actions {self.units.names} must be {self._keys}, in that order")
@@ -85,7 +100,8 @@ class CellguardSO101(Robot):
         goal = {k: float(v) for k, v in action.items() if k in self._keys}
         if not all(np.isfinite(list(goal.values()))):
             raise ValueError(f"{self}: non-finite goal position {goal}; nothing written")
-        present = dict(zip(self._keys, self.units.to_policy_state(self.cell.read().q).tolist()))
+        q_now = self.cell.read().q
+        present = dict(zip(self._keys, self.units.to_policy_state(q_now).tolist()))
         if self.config.max_relative_target is not None:
             cap = self.config.max_relative_target
             if isinstance(cap, dict):
@@ -94,7 +110,7 @@ class CellguardSO101(Robot):
         row = np.array([goal.get(k, present[k]) for k in self._keys])
         row = np.clip(row, self._range[0], self._range[1])  # the servo's position limits
         sent = {k: float(v) for k, v in zip(self._keys, row) if k in goal}
-        self.cell.write(self.units.to_robot(row[None], self.cell.read().q)[0])
+        self.cell.write(self.units.to_robot(row[None], q_now)[0])
         for _ in range(self._steps):
             self.cell.step()
         return sent
