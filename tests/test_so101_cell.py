@@ -7,7 +7,6 @@ about 6 s of simulated time.
 from __future__ import annotations
 
 import importlib.util
-from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -27,10 +26,9 @@ LEROBOT_JOINTS = ("shoulder_pan", "shoulder_lift", "elbow_flex", "wrist_flex", "
 ACCEPTANCE, AT = 6, 7
 
 
-@lru_cache(maxsize=None)
-def _run(cycles: int, faults: tuple = (), seed: int = 4) -> Run:
+def _run(cycles: int, faults: list[dict] | None = None, seed: int = 4) -> Run:
     run = Run(parse_scenario({"cell": "so101-pick-place", "seed": seed, "acceptance_cycles": cycles,
-                              "production_cycles": 0, "faults": list(faults)}))
+                              "production_cycles": 0, "faults": faults or []}))
     for _ in range(cycles):
         run.cycle()
     return run
@@ -55,7 +53,7 @@ def test_healthy_cycles_pick_and_place_without_interventions():
 
 
 def test_a_large_fixture_shift_makes_the_grasp_miss():
-    run = _run(1, ({"kind": "fixture_shift", "at_cycle": 0, "dx_mm": 6.0},))
+    run = _run(1, [{"kind": "fixture_shift", "at_cycle": 0, "dx_mm": 6.0}])
     c = run.cycles[0]
     assert not c["grasped"] and c["grasp_time_s"] > 0 and c["grasp_offset_mm"][0] > 2.5
 
