@@ -28,6 +28,12 @@ def _scripted_arm(cell) -> Policy:
     return ScriptedArmPolicy(calibration=cell.context())
 
 
+def _scripted_so101(cell) -> Policy:
+    from cellguard.policy.scripted_arm import SO101, ScriptedArmPolicy
+
+    return ScriptedArmPolicy(calibration=cell.context(), teaching=SO101)
+
+
 def _scripted_quadruped(cell) -> Policy:
     from cellguard.policy.scripted_quadruped import ScriptedQuadrupedPolicy
 
@@ -35,6 +41,7 @@ def _scripted_quadruped(cell) -> Policy:
 
 
 SCRIPTED: dict[str, Callable[[object], Policy]] = {"arm-pick-place": _scripted_arm,
+                                                   "so101-pick-place": _scripted_so101,
                                                    "quadruped-turns": _scripted_quadruped}
 def _onnx(arg: str, cell) -> Policy:
     from cellguard.policy.onnx import make_onnx_policy

@@ -1,10 +1,7 @@
-"""The arm-pick-place cell: pick a part from a fixture, place it in the drop zone, go home.
+"""The arm-pick-place cell: the project's own 5-axis arm with a parallel gripper (``assets/arm.xml``).
 
-The camera is a ceiling sensor that reports the part and the fixture fiducial in its own frame;
-the policy maps that to the world with the *calibrated* extrinsic, so a knocked camera is a
-different fault from a moved fixture. The gripper's V-pads capture a part whose centre lies
-within ``CAPTURE_RADIUS`` of the tool point when the fingers close; the part is then held by a
-weld constraint until the fingers open.
+The task (fixture, part, camera, drop zone, grasp) is ``cellguard.robot.pick_place``; this module
+holds what is particular to this arm: its model, profile and layout.
 """
 
 from __future__ import annotations
@@ -12,226 +9,37 @@ from __future__ import annotations
 from pathlib import Path
 
 import mujoco
-import numpy as np
 
 from cellguard.embodiment import load_profile
-from cellguard.robot.drives import DrivenCell, PositionDrives
-from cellguard.robot.protocol import SafetyInputs
-from cellguard.robot.state import Observation
+from cellguard.robot.pick_place import CAMERA_ROTATION, Layout, PickPlaceCell
+
+__all__ = ["ASSETS", "CAMERA_ROTATION", "LAYOUT", "PART_HALF", "ArmPickPlace"]
 
 ASSETS = Path(__file__).parent / "assets"
 PART_HALF = 0.015  # [m] half edge of the cube part
-CAPTURE_RADIUS = 0.0025  # [m] horizontal offset the finger pads still centre
-CAPTURE_HEIGHT = 0.004  # [m] vertical offset the pads still grip
-DROP_TOLERANCE = 0.012  # [m] a placed part must rest this close to the drop zone centre
-CAMERA_NOISE = 1e-4  # [m] 1-sigma noise of each camera coordinate
-CURRENT_NOISE = 0.01  # [A] 1-sigma noise of each motor current reading
-GRIPPER_CLOSED = 0.0155  # [m] finger opening below which the pads touch a centred part
-GRIPPER_RELEASED = 0.02  # [m] finger opening above which a held part is let go
-BRAKE_DAMPING = 200.0  # [N·m·s/rad] joint damping while the brakes hold (power removed)
-# Tool-point box the guard keeps the tool in by default [m]: above the table, inside the reach.
-WORKSPACE_BOX = ((-0.45, -0.45, 0.005), (0.45, 0.45, 0.55))
-# Camera frame: x along world x, z looking down.
-CAMERA_ROTATION = np.diag([1.0, -1.0, -1.0])
+LAYOUT = Layout(
+    part_half=PART_HALF,
+    capture_radius=0.0025,
+    capture_height=0.004,
+    drop_tolerance=0.012,
+    gripper_closed=0.0155,  # [m] finger opening below which the pads touch a centred part
+    gripper_released=0.02,  # [m]
+    q_home=(0.0, -0.3, 1.9, 1.55, 0.0, 0.025),
+    # Tool-point box the guard keeps the tool in by default [m]: above the table, inside the reach.
+    workspace_box=((-0.45, -0.45, 0.005), (0.45, 0.45, 0.55)),
+)
 
 
-class ArmPickPlace(DrivenCell):
+def load_model() -> mujoco.MjModel:
+    """The cell's model as commissioned (no fault applied)."""
+    return mujoco.MjModel.from_xml_path(str(ASSETS / "arm.xml"))
+
+
+class ArmPickPlace(PickPlaceCell):
     """A simulated arm cell at a 1 ms servo period. Joint order is the profile's."""
 
     name = "arm-pick-place"
-    supported_faults = frozenset(
-        {"fixture_shift", "friction_growth", "servo_gain", "camera_shift", "tool_slip", "policy_latency", "policy_nan",
-         "friction_step", "intermittent_slip", "part_misplaced"}
-    )
 
     def __init__(self, seed: int = 0):
-        self.model = mujoco.MjModel.from_xml_path(str(ASSETS / "arm.xml"))
-        self.data = mujoco.MjData(self.model)
-        self.profile = load_profile(self.model, ASSETS / "arm_profile.yaml")
-        self.dt_ns = round(self.model.opt.timestep * 1e9)
-        self.rng = np.random.default_rng(seed)
-        m = self.model
-        self.drives = PositionDrives(m, self.data, self.profile, self.rng, CURRENT_NOISE, BRAKE_DAMPING)
-        self._qadr, self._dadr = self.drives.qadr, self.drives.dadr
-        self._part_body = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "part")
-        self._part_qadr = m.jnt_qposadr[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, "part")]
-        self._part_dadr = m.jnt_dofadr[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, "part")]
-        self._tool_body = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "tool")
-        self._tcp = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, "tcp")
-        self._datum = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, "fixture_datum")
-        self._drop = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, "drop_zone")
-        self._grasp_eq = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_EQUALITY, "grasp")
-        self._fixture_mocap = m.body_mocapid[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "fixture")]
-        self._camera_mocap = m.body_mocapid[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "camera_mount")]
-        # Nominal (commissioned) values that faults perturb; faults set absolute values from these.
-        self.nominal = {
-            "fixture": self.data.mocap_pos[self._fixture_mocap].copy(),
-            "camera": self.data.mocap_pos[self._camera_mocap].copy(),
-            "tool": m.body_pos[self._tool_body].copy(),
-            "part_mass": float(m.body_mass[self._part_body]),
-            "part_inertia": m.body_inertia[self._part_body].copy(),
-        }
-        self._part_offset = np.zeros(3)  # [m] where this cycle's part is presented, off the datum
-        # The camera extrinsic as calibrated at commissioning; the policy side uses this.
-        self.camera_calibration = {"position": self.nominal["camera"].tolist(), "rotation": CAMERA_ROTATION.tolist(),
-                                   "calibrated": "2026-10-14"}
-        self.q_home = np.array([0.0, -0.3, 1.9, 1.55, 0.0, 0.025])
-        self.data.qpos[self._qadr] = self.q_home
-        self.drives.write(self.q_home)
-        mujoco.mj_forward(m, self.data)
-        self._cycle_start_ns = 0
-        self._left_home = False
-        self._attempt: dict | None = None  # tool pose when the fingers last closed
-        self._grasped = False
-        self._release_ns: int | None = None
-        self._closed = False
-        self._seen_at_start: dict = {}
-        self.safety_inputs = SafetyInputs()  # the simulated safety controller's outputs; set by scenario or test
-        self.tool_site, self.workspace_box = "tcp", WORKSPACE_BOX
-        self._fk = mujoco.MjData(m)
-
-    # -- Robot -------------------------------------------------------------------------
-    def tool_point(self, q: np.ndarray) -> np.ndarray:
-        """Forward kinematics: the tool point (3,) [m] at joint positions ``q`` (dof,), off the live model state."""
-        self._fk.qpos[self._qadr] = q
-        mujoco.mj_kinematics(self.model, self._fk)
-        return self._fk.site_xpos[self._tcp].copy()
-
-    def step(self) -> None:
-        mujoco.mj_step(self.model, self.data)
-        self._update_grasp()
-
-    # -- Task ------------------------------------------------------------------------
-    def observe(self) -> Observation:
-        return Observation(
-            t_ns=self.t_ns,
-            q=self.data.qpos[self._qadr].copy(),
-            qd=self.data.qvel[self._dadr].copy(),
-            measurements={
-                "part_in_camera": self._in_camera(self.data.xpos[self._part_body]),
-                "fixture_in_camera": self._in_camera(self.data.site_xpos[self._datum]),
-            },
-        )
-
-    def _in_camera(self, world: np.ndarray) -> np.ndarray:
-        """What the camera reports of a world point: its own frame, with noise."""
-        rel = CAMERA_ROTATION.T @ (world - self.data.mocap_pos[self._camera_mocap])
-        return rel + self.rng.normal(0.0, CAMERA_NOISE, 3)
-
-    def _seen(self, world: np.ndarray) -> list[float]:
-        """A camera reading mapped to the world through the commissioning calibration [m]."""
-        return (CAMERA_ROTATION @ self._in_camera(world) + self.nominal["camera"]).tolist()
-
-    def begin_cycle(self, cycle: int) -> None:
-        self.data.eq_active[self._grasp_eq] = 0
-        datum = self.data.mocap_pos[self._fixture_mocap] + np.array([0.0, 0.0, 0.006 + PART_HALF])
-        jitter = self.rng.normal(0.0, 2e-4, 3) * np.array([1.0, 1.0, 0.0])
-        self.data.qpos[self._part_qadr:self._part_qadr + 3] = datum + jitter + self._part_offset
-        self.data.qpos[self._part_qadr + 3:self._part_qadr + 7] = [1.0, 0.0, 0.0, 0.0]
-        self.data.qvel[self._part_dadr:self._part_dadr + 6] = 0.0
-        mujoco.mj_forward(self.model, self.data)
-        self._cycle_start_ns = self.t_ns
-        self._seen_at_start = {"part_seen_m": self._seen(self.data.xpos[self._part_body]),
-                               "fixture_seen_m": self._seen(self.data.site_xpos[self._datum])}
-        self._left_home = False
-        self._attempt = None
-        self._grasped = False
-        self._release_ns = None
-
-    def cycle_finished(self) -> bool:
-        away = np.abs(self.data.qpos[self._qadr[:5]] - self.q_home[:5])
-        if not self._left_home:
-            self._left_home = bool(away.max() > 0.05)
-            return False
-        slow = np.abs(self.data.qvel[self._dadr[:5]]).max() < 0.05
-        return bool(away.max() < 0.01 and slow)
-
-    def end_cycle(self) -> dict:
-        part = self.data.xpos[self._part_body]
-        drop = self.data.site_xpos[self._drop]
-        placed = (
-            self._grasped
-            and self._release_ns is not None
-            and float(np.linalg.norm(part[:2] - drop[:2])) < DROP_TOLERANCE
-            and part[2] < PART_HALF + 0.003
-        )
-        outcome = {
-            "success": bool(placed),
-            "cycle_time_s": (self.t_ns - self._cycle_start_ns) * 1e-9,
-            "grasped": self._grasped,
-            "place_error_mm": float(np.linalg.norm(part[:2] - drop[:2]) * 1e3),
-            **self._seen_at_start,
-        }
-        if self._attempt is not None:
-            outcome.update(self._attempt)
-        if self._release_ns is not None:
-            outcome["release_time_s"] = (self._release_ns - self._cycle_start_ns) * 1e-9
-        return outcome
-
-    def context(self) -> dict:
-        return {
-            "cell": self.name,
-            "fixture_datum": self.nominal["fixture"].tolist(),
-            "camera_calibration": self.camera_calibration,
-            "tool_offset": self.nominal["tool"].tolist(),
-        }
-
-    def _update_grasp(self) -> None:
-        opening = self.data.qpos[self._qadr[5]]
-        held = bool(self.data.eq_active[self._grasp_eq])
-        if held and opening > GRIPPER_RELEASED:
-            self.data.eq_active[self._grasp_eq] = 0
-            self._release_ns = self.t_ns
-        closed = opening < GRIPPER_CLOSED
-        closing, self._closed = closed and not self._closed, closed
-        if closing and not held:
-            tcp = self.data.site_xpos[self._tcp]
-            offset = self.data.xpos[self._part_body] - tcp
-            self._attempt = {
-                "grasp_time_s": (self.t_ns - self._cycle_start_ns) * 1e-9,
-                "grasp_tcp_m": tcp.tolist(),
-                "grasp_q": self.data.qpos[self._qadr].tolist(),
-                "grasp_offset_mm": (offset * 1e3).tolist(),  # part centre minus tool point, world frame
-            }
-            if np.linalg.norm(offset[:2]) < CAPTURE_RADIUS and abs(offset[2]) < CAPTURE_HEIGHT:
-                self._grasped = True
-                self._weld_part()
-
-    def _weld_part(self) -> None:
-        """Hold the part where it sits in the hand: weld at the current relative pose."""
-        m, d = self.model, self.data
-        tool_pos, part_pos = d.xpos[self._tool_body], d.xpos[self._part_body]
-        tool_quat, part_quat = d.xquat[self._tool_body], d.xquat[self._part_body]
-        inv = np.zeros(4)
-        mujoco.mju_negQuat(inv, tool_quat)
-        rel_pos = np.zeros(3)
-        mujoco.mju_rotVecQuat(rel_pos, part_pos - tool_pos, inv)
-        rel_quat = np.zeros(4)
-        mujoco.mju_mulQuat(rel_quat, inv, part_quat)
-        # weld eq_data: anchor(3), relpose pos(3), relpose quat(4), torquescale(1); relpose is body2 in body1
-        m.eq_data[self._grasp_eq, 0:3] = 0.0
-        m.eq_data[self._grasp_eq, 3:6] = rel_pos
-        m.eq_data[self._grasp_eq, 6:10] = rel_quat
-        m.eq_data[self._grasp_eq, 10] = 1.0
-        d.eq_active[self._grasp_eq] = 1
-
-    # -- Faults (absolute settings from the nominal values) --------------------------------
-    def set_fixture_offset(self, offset: np.ndarray) -> None:
-        self.data.mocap_pos[self._fixture_mocap] = self.nominal["fixture"] + offset
-
-    def set_camera_offset(self, offset: np.ndarray) -> None:
-        self.data.mocap_pos[self._camera_mocap] = self.nominal["camera"] + offset
-
-    def set_tool_offset(self, offset: np.ndarray) -> None:
-        self.model.body_pos[self._tool_body] = self.nominal["tool"] + offset
-
-    def set_part_offset(self, offset: np.ndarray) -> None:
-        """Present the next part ``offset`` [m] off its fixture datum (a mis-seated part)."""
-        self._part_offset = np.asarray(offset, dtype=np.float64)
-
-    # -- Process changes --------------------------------------------------------------------
-    def set_payload(self, extra_kg: float) -> None:
-        """The part carried weighs ``extra_kg`` more than at commissioning (a new product variant)."""
-        mass = self.nominal["part_mass"] + extra_kg
-        self.model.body_mass[self._part_body] = mass
-        self.model.body_inertia[self._part_body] = self.nominal["part_inertia"] * mass / self.nominal["part_mass"]
+        model = load_model()
+        super().__init__(model, load_profile(model, ASSETS / "arm_profile.yaml"), LAYOUT, seed)

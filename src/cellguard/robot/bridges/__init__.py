@@ -28,7 +28,13 @@ def _sim_server(spec: BridgeSpec, scenario):
     return connect_sim_server(spec, scenario)
 
 
-BRIDGES: dict[str, Callable[[BridgeSpec, object], object]] = {"sim-server": _sim_server}
+def _lerobot(spec: BridgeSpec, scenario):
+    from cellguard.robot.bridges.lerobot import make_lerobot_robot
+
+    return make_lerobot_robot(spec.argument)
+
+
+BRIDGES: dict[str, Callable[[BridgeSpec, object], object]] = {"sim-server": _sim_server, "lerobot": _lerobot}
 
 
 def parse_bridge(text: str) -> BridgeSpec:

@@ -1,0 +1,230 @@
+"""LeRobot bridge (``robot: lerobot:TYPE?port=...&id=...``): any registered LeRobot ``Robot`` as a cellguard Robot.
+
+The robot is built by LeRobot itself: its config class from LeRobot's config registry
+(``RobotConfig.get_choice_class``, after LeRobot's third-party plugin discovery), the options
+parsed by draccus as LeRobot's own command line parses them, the robot from
+``make_robot_from_config``. Then ``connect`` once, ``get_observation`` per ``read``,
+``send_action`` per ``write``, ``disconnect`` at ``close``.
+
+Units are data, not code: the units map (an ``ActionMap`` file whose action names are the
+robot's action keys, e.g. ``shoulder_pan.pos`` in degrees, ``gripper.pos`` 0..100) turns SI
+setpoints into LeRobot's units and the robot's readings back. ``write`` returns what
+``send_action`` *returned* (what the robot really sent after its own clipping), mapped back to SI,
+never the request. Non-finite setpoints never reach ``send_action``: ``write`` refuses them.
+
+Readings: joint positions from the ``<motor>.pos`` keys; velocity by finite difference of two
+reads on the monotonic clock; motor current [A] from ``<motor>.current`` keys where the robot
+reports them (LeRobot's SO follower does not: current and effort then read 0, and the
+diagnosis cannot name friction or servo causes on that robot); any other float keys
+``<name>.x/.y/.z`` are measurements the policy sees (``Observation.measurements[name]``).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from urllib.parse import parse_qsl
+
+import numpy as np
+
+from typing import TYPE_CHECKING
+
+from cellguard.embodiment import Profile, load_profile
+from cellguard.errors import CellguardError, ConfigError
+from cellguard.robot.protocol import SafetyInputs
+from cellguard.robot.state import Observation, State
+
+OPTIONS = {"units": "units map YAML (default: the embodiment's LeRobot units map)",
+           "embodiment": "profile to guard with (default from the robot type)",
+           "hz": "servo rate [Hz] of the loop that drives it (default 50)"}
+_AXES = ("x", "y", "z")
+
+if TYPE_CHECKING:
+    from cellguard.policy.action_map import ActionMap
+
+
+class BridgeError(CellguardError):
+    """A bridge call that failed at run time: a refused setpoint, a robot that raised."""
+
+
+@dataclass(frozen=True)
+class Embodiment:
+    """What cellguard needs to guard a robot type: its profile (checked on a model) and its units map."""
+
+    load_model: Callable[[], object]  # the MuJoCo model the profile is checked against
+    profile: Path
+    units: Path
+
+
+def _so101() -> Embodiment:
+    from cellguard.robot import so101_cell
+
+    return Embodiment(so101_cell.load_model, so101_cell.ASSETS / "so101_profile.yaml",
+                      so101_cell.ASSETS / "so101_lerobot_units.yaml")
+
+
+EMBODIMENTS: dict[str, Callable[[], Embodiment]] = {"so101": _so101}
+# LeRobot robot types and the embodiment they default to; others need ?embodiment=NAME.
+TYPE_EMBODIMENT = {"so101_follower": "so101", "cellguard_so101": "so101"}
+
+
+class LeRobotBridge:
+    """A connected LeRobot ``Robot`` behind cellguard's Robot calls; arrays in the profile's joint order, SI."""
+
+    def __init__(self, robot, profile: Profile, units: ActionMap, dt_ns: int, clock=time.monotonic_ns):
+        if units.ee_actions:
+            raise ConfigError("units map: end-effector entries cannot drive a LeRobot robot's joints; "
+                              "map each action key to a joint")
+        missing = [n for n in units.names if n not in robot.action_features]
+        if missing:
+            raise ConfigError(f"units map: actions {', '.join(missing)} are not action keys of LeRobot robot "
+                              f"{robot.name!r}; its keys: {', '.join(robot.action_features)}")
+        self.robot, self.profile, self.units, self.dt_ns = robot, profile, units, dt_ns
+        self.clock = clock  # [ns] stamps of reads; the loop sets its clock here (monotonic, or simulated time)
+        self.name = f"lerobot:{robot.name}"
+        self._kt = profile.array("torque_constant")
+        self._current_keys = [f"{j}.current" for j in profile.joint_names]
+        self._last: State | None = None
+        self._obs: dict = {}
+        if not robot.is_connected:
+            robot.connect()
+
+    # -- Robot -------------------------------------------------------------------------
+    def read(self) -> State:
+        """One ``get_observation``: positions in SI, velocity from the previous read, current if reported."""
+        try:
+            obs = self.robot.get_observation()
+        except Exception as exc:  # noqa: BLE001 - a dead bus is an error the loop must see, by name
+            raise BridgeError(f"lerobot {self.robot.name}: get_observation failed: {type(exc).__name__}: {exc}") from exc
+        t = self.clock()
+        q = self._to_si(obs, self._last.q if self._last is not None else np.zeros(self.profile.dof))
+        if self._last is not None and t > self._last.t_ns:
+            qd = (q - self._last.q) / ((t - self._last.t_ns) * 1e-9)
+        else:
+            qd = np.zeros_like(q)
+        current = np.array([float(obs.get(k, 0.0)) for k in self._current_keys])
+        self._last = State(t, q, qd, current * self._kt, current)
+        self._obs = obs
+        return self._last
+
+    def write(self, setpoint: np.ndarray) -> np.ndarray:
+        """Send joint targets (dof,) [SI]; return what ``send_action`` says it sent, in SI."""
+        setpoint = np.asarray(setpoint, dtype=np.float64)
+        if setpoint.shape != (self.profile.dof,) or not np.isfinite(setpoint).all():
+            raise BridgeError(f"lerobot {self.robot.name}: refused setpoint {setpoint.tolist()}: expected "
+                              f"{self.profile.dof} finite joint positions; nothing was sent")
+        values = self.units.to_policy_state(setpoint)
+        action = {name: float(v) for name, v in zip(self.units.names, values)}
+        try:
+            sent = self.robot.send_action(action)
+        except Exception as exc:  # noqa: BLE001
+            raise BridgeError(f"lerobot {self.robot.name}: send_action failed: {type(exc).__name__}: {exc}") from exc
+        return self._to_si(sent, setpoint)
+
+    def safety(self) -> SafetyInputs:
+        """LeRobot robots report no safety controller; a certified one is wired to the cell, not read here."""
+        return SafetyInputs()
+
+    def set_power(self, on: bool) -> None:
+        """Torque on or off through the robot's motor bus where it has one (LeRobot's motor arms do)."""
+        bus = getattr(self.robot, "bus", None)
+        if bus is None:
+            raise BridgeError(f"lerobot {self.robot.name}: no motor bus to switch torque; "
+                              "remove power with the cell's safety controller")
+        bus.enable_torque() if on else bus.disable_torque()
+
+    # -- What a loop needs besides read/write ----------------------------------------------
+    def observe(self) -> Observation:
+        """The last read as the policy sees it: joints plus the robot's other float readings by name."""
+        state = self._last if self._last is not None else self.read()
+        groups: dict[str, list[float]] = {}
+        for key, value in self._obs.items():
+            stem, _, axis = key.rpartition(".")
+            if axis in _AXES and isinstance(value, (int, float)):
+                groups.setdefault(stem, []).append(float(value))
+        return Observation(state.t_ns, state.q, state.qd, {k: np.array(v) for k, v in groups.items()})
+
+    def context(self) -> dict:
+        return {"cell": self.name, "lerobot_robot": {"type": self.robot.name, "id": self.robot.id},
+                "units_map": list(self.units.names)}
+
+    def close(self) -> None:
+        if self.robot.is_connected:
+            self.robot.disconnect()
+
+    def _to_si(self, values: dict, fallback: np.ndarray) -> np.ndarray:
+        """Joint vector (dof,) SI from a LeRobot dict; joints the dict leaves out keep ``fallback``."""
+        names = self.units.names
+        row = np.array([float(values[n]) if n in values else np.nan for n in names])
+        out = self.units.to_robot(np.nan_to_num(row)[None], fallback)[0]
+        for a in self.units.joint_actions:
+            if np.isnan(row[a.column]):
+                out[a.joint] = fallback[a.joint]
+        return out
+
+
+def make_lerobot_robot(arg: str) -> LeRobotBridge:
+    """``TYPE?opt=value&...``: LeRobot's robot ``TYPE`` with its config options, plus ``units``/``embodiment``/``hz``."""
+    robot_type, _, query = arg.partition("?")
+    if not robot_type:
+        raise ConfigError("robot: lerobot: missing the robot type, write lerobot:TYPE?port=...&id=...")
+    options = dict(parse_qsl(query, keep_blank_values=True))
+    ours = {k: options.pop(k) for k in list(options) if k in OPTIONS}
+    name = ours.get("embodiment", TYPE_EMBODIMENT.get(robot_type))
+    if name not in EMBODIMENTS:
+        raise ConfigError(f"robot: lerobot:{robot_type}: no embodiment profile for this type; give "
+                          f"?embodiment=NAME (known: {', '.join(EMBODIMENTS)})")
+    from cellguard.policy.action_map import load_action_map  # the units map is an action map (data, checked)
+
+    embodiment = EMBODIMENTS[name]()
+    profile = load_profile(embodiment.load_model(), embodiment.profile)
+    units = load_action_map(Path(ours.get("units", embodiment.units)), profile)
+    try:
+        hz = float(ours.get("hz", 50.0))
+    except ValueError:
+        raise ConfigError(f"robot: lerobot: option hz={ours['hz']!r} is not a number") from None
+    if not 1.0 <= hz <= 1000.0:
+        raise ConfigError(f"robot: lerobot: option hz must be in [1, 1000], got {hz:g}")
+    return LeRobotBridge(lerobot_robot(robot_type, options), profile, units, round(1e9 / hz))
+
+
+def lerobot_robot(robot_type: str, options: dict[str, str]):
+    """LeRobot's own robot for ``robot_type``, its config parsed from ``options`` by draccus (not connected)."""
+    try:
+        import draccus
+        from lerobot.robots import RobotConfig, make_robot_from_config
+        from lerobot.utils.import_utils import register_third_party_plugins
+    except ImportError:
+        raise ConfigError("robot: lerobot: needs LeRobot; install it with pip install 'cellguard[lerobot]' "
+                          "(several GB: it brings torch)") from None
+    register_third_party_plugins()
+    if robot_type not in RobotConfig.get_known_choices():
+        _import_builtin_robots()
+    known = RobotConfig.get_known_choices()
+    if robot_type not in known:
+        raise ConfigError(f"robot: lerobot: unknown robot type {robot_type!r}; known: {', '.join(sorted(known))}")
+    config_class = RobotConfig.get_choice_class(robot_type)
+    try:
+        config = draccus.parse(config_class, args=[f"--{k}={v}" for k, v in options.items()])
+    except SystemExit:  # argparse's way of refusing an option
+        fields = sorted(getattr(config_class, "__dataclass_fields__", {}))
+        raise ConfigError(f"robot: lerobot:{robot_type}: options {sorted(options)} do not fit its config; "
+                          f"fields: {', '.join(fields)}") from None
+    return make_robot_from_config(config)
+
+
+def _import_builtin_robots() -> None:
+    """LeRobot registers a built-in robot's config when its subpackage is imported, as its scripts do."""
+    import importlib
+    import pkgutil
+
+    import lerobot.robots
+
+    for module in pkgutil.iter_modules(lerobot.robots.__path__):
+        if module.ispkg:
+            try:
+                importlib.import_module(f"lerobot.robots.{module.name}")
+            except Exception:  # noqa: BLE001, S112 - a robot whose optional SDK is absent cannot be built anyway
+                continue

@@ -1,0 +1,252 @@
+"""The pick-place task both arm cells share: pick a part from a fixture, place it in the drop zone, go home.
+
+The camera is a ceiling sensor that reports the part and the fixture fiducial in its own frame;
+the policy maps that to the world with the *calibrated* extrinsic, so a knocked camera is a
+different fault from a moved fixture. The gripper captures a part whose centre lies within
+``Layout.capture_radius`` of the tool point when the fingers close; the part is then held by a
+weld constraint until the fingers open.
+
+A cell model provides, by name: bodies ``part`` (free joint ``part``), ``tool`` (rigid on the
+last wrist link, carrying site ``tcp``), mocap bodies ``fixture`` and ``camera_mount``; sites
+``fixture_datum`` and ``drop_zone``; a weld equality ``grasp`` (tool to part, inactive); one
+position actuator per profiled joint, named as the joint; the gripper is the last joint.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from cellguard.embodiment import Profile
+from cellguard.robot.drives import DrivenCell, PositionDrives
+from cellguard.robot.protocol import SafetyInputs
+from cellguard.robot.state import Observation
+
+# Camera frame: x along world x, z looking down.
+CAMERA_ROTATION = np.diag([1.0, -1.0, -1.0])
+FAULT_KINDS = frozenset(
+    {"fixture_shift", "friction_growth", "servo_gain", "camera_shift", "tool_slip", "policy_latency", "policy_nan",
+     "friction_step", "intermittent_slip", "part_misplaced"}
+)
+
+
+@dataclass(frozen=True)
+class Layout:
+    """What differs between pick-place cells: part size, gripper thresholds, home pose, noise, box.
+
+    Gripper values are in the gripper joint's own unit: [m] of finger opening for a slide
+    gripper, [rad] of jaw angle for a hinge gripper; larger is more open.
+    """
+
+    part_half: float  # [m] half edge of the cube part
+    capture_radius: float  # [m] horizontal offset the finger pads still centre
+    capture_height: float  # [m] vertical offset the pads still grip
+    drop_tolerance: float  # [m] a placed part must rest this close to the drop zone centre
+    gripper_closed: float  # opening below which the pads touch a centred part
+    gripper_released: float  # opening above which a held part is let go
+    q_home: tuple[float, ...]  # (dof,) profile order
+    workspace_box: tuple[tuple[float, float, float], tuple[float, float, float]]  # tool-point box [m]
+    camera_noise: float = 1e-4  # [m] 1-sigma noise of each camera coordinate
+    current_noise: float = 0.01  # [A] 1-sigma noise of each motor current reading
+    brake_damping: float = 200.0  # [N·m·s/rad] joint damping while the brakes hold (power removed)
+
+
+class PickPlaceCell(DrivenCell):
+    """A simulated pick-place cell at the model's servo period; joint order is the profile's."""
+
+    name: str
+    supported_faults = FAULT_KINDS
+
+    def __init__(self, model: mujoco.MjModel, profile: Profile, layout: Layout, seed: int = 0):
+        self.model, self.profile, self.layout = model, profile, layout
+        self.data = mujoco.MjData(model)
+        self.dt_ns = round(model.opt.timestep * 1e9)
+        self.rng = np.random.default_rng(seed)
+        m = model
+        self.drives = PositionDrives(m, self.data, profile, self.rng, layout.current_noise, layout.brake_damping)
+        self._qadr, self._dadr = self.drives.qadr, self.drives.dadr
+        self._part_body = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "part")
+        part_joint = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, "part")
+        self._part_qadr, self._part_dadr = m.jnt_qposadr[part_joint], m.jnt_dofadr[part_joint]
+        self._tool_body = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "tool")
+        self._tcp = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, "tcp")
+        self._datum = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, "fixture_datum")
+        self._drop = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, "drop_zone")
+        self._grasp_eq = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_EQUALITY, "grasp")
+        self._fixture_mocap = m.body_mocapid[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "fixture")]
+        self._camera_mocap = m.body_mocapid[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "camera_mount")]
+        # Nominal (commissioned) values that faults perturb; faults set absolute values from these.
+        self.nominal = {
+            "fixture": self.data.mocap_pos[self._fixture_mocap].copy(),
+            "camera": self.data.mocap_pos[self._camera_mocap].copy(),
+            "tool": m.body_pos[self._tool_body].copy(),
+            "part_mass": float(m.body_mass[self._part_body]),
+            "part_inertia": m.body_inertia[self._part_body].copy(),
+        }
+        self._part_offset = np.zeros(3)  # [m] where this cycle's part is presented, off the datum
+        # The camera extrinsic as calibrated at commissioning; the policy side uses this.
+        self.camera_calibration = {"position": self.nominal["camera"].tolist(), "rotation": CAMERA_ROTATION.tolist(),
+                                   "calibrated": "2026-10-14"}
+        self.q_home = np.array(layout.q_home, dtype=np.float64)
+        self.data.qpos[self._qadr] = self.q_home
+        self.drives.write(self.q_home)
+        mujoco.mj_forward(m, self.data)
+        self._cycle_start_ns = 0
+        self._left_home = False
+        self._attempt: dict | None = None  # tool pose when the fingers last closed
+        self._grasped = False
+        self._release_ns: int | None = None
+        self._closed = False
+        self._seen_at_start: dict = {}
+        self.safety_inputs = SafetyInputs()  # the simulated safety controller's outputs; set by scenario or test
+        self.tool_site, self.workspace_box = "tcp", layout.workspace_box
+        self._fk = mujoco.MjData(m)
+
+    # -- Robot -------------------------------------------------------------------------
+    def tool_point(self, q: np.ndarray) -> np.ndarray:
+        """Forward kinematics: the tool point (3,) [m] at joint positions ``q`` (dof,), off the live model state."""
+        self._fk.qpos[self._qadr] = q
+        mujoco.mj_kinematics(self.model, self._fk)
+        return self._fk.site_xpos[self._tcp].copy()
+
+    def step(self) -> None:
+        mujoco.mj_step(self.model, self.data)
+        self._update_grasp()
+
+    # -- Task ------------------------------------------------------------------------
+    def observe(self) -> Observation:
+        return Observation(
+            t_ns=self.t_ns,
+            q=self.data.qpos[self._qadr].copy(),
+            qd=self.data.qvel[self._dadr].copy(),
+            measurements={
+                "part_in_camera": self._in_camera(self.data.xpos[self._part_body]),
+                "fixture_in_camera": self._in_camera(self.data.site_xpos[self._datum]),
+            },
+        )
+
+    def _in_camera(self, world: np.ndarray) -> np.ndarray:
+        """What the camera reports of a world point: its own frame, with noise."""
+        rel = CAMERA_ROTATION.T @ (world - self.data.mocap_pos[self._camera_mocap])
+        return rel + self.rng.normal(0.0, self.layout.camera_noise, 3)
+
+    def _seen(self, world: np.ndarray) -> list[float]:
+        """A camera reading mapped to the world through the commissioning calibration [m]."""
+        return (CAMERA_ROTATION @ self._in_camera(world) + self.nominal["camera"]).tolist()
+
+    def begin_cycle(self, cycle: int) -> None:
+        self.data.eq_active[self._grasp_eq] = 0
+        datum = (self.data.mocap_pos[self._fixture_mocap] + self.model.site_pos[self._datum]
+                 + np.array([0.0, 0.0, self.layout.part_half]))
+        jitter = self.rng.normal(0.0, 2e-4, 3) * np.array([1.0, 1.0, 0.0])
+        self.data.qpos[self._part_qadr:self._part_qadr + 3] = datum + jitter + self._part_offset
+        self.data.qpos[self._part_qadr + 3:self._part_qadr + 7] = [1.0, 0.0, 0.0, 0.0]
+        self.data.qvel[self._part_dadr:self._part_dadr + 6] = 0.0
+        mujoco.mj_forward(self.model, self.data)
+        self._cycle_start_ns = self.t_ns
+        self._seen_at_start = {"part_seen_m": self._seen(self.data.xpos[self._part_body]),
+                               "fixture_seen_m": self._seen(self.data.site_xpos[self._datum])}
+        self._left_home = False
+        self._attempt = None
+        self._grasped = False
+        self._release_ns = None
+
+    def cycle_finished(self) -> bool:
+        away = np.abs(self.data.qpos[self._qadr[:-1]] - self.q_home[:-1])
+        if not self._left_home:
+            self._left_home = bool(away.max() > 0.05)
+            return False
+        slow = np.abs(self.data.qvel[self._dadr[:-1]]).max() < 0.05
+        return bool(away.max() < 0.01 and slow)
+
+    def end_cycle(self) -> dict:
+        part = self.data.xpos[self._part_body]
+        drop = self.data.site_xpos[self._drop]
+        placed = (
+            self._grasped
+            and self._release_ns is not None
+            and float(np.linalg.norm(part[:2] - drop[:2])) < self.layout.drop_tolerance
+            and part[2] < self.layout.part_half + 0.003  # resting on the table (z = 0)
+        )
+        outcome = {
+            "success": bool(placed),
+            "cycle_time_s": (self.t_ns - self._cycle_start_ns) * 1e-9,
+            "grasped": self._grasped,
+            "place_error_mm": float(np.linalg.norm(part[:2] - drop[:2]) * 1e3),
+            **self._seen_at_start,
+        }
+        if self._attempt is not None:
+            outcome.update(self._attempt)
+        if self._release_ns is not None:
+            outcome["release_time_s"] = (self._release_ns - self._cycle_start_ns) * 1e-9
+        return outcome
+
+    def context(self) -> dict:
+        return {
+            "cell": self.name,
+            "fixture_datum": self.nominal["fixture"].tolist(),
+            "camera_calibration": self.camera_calibration,
+            "tool_offset": self.nominal["tool"].tolist(),
+        }
+
+    def _update_grasp(self) -> None:
+        opening = self.data.qpos[self._qadr[-1]]
+        held = bool(self.data.eq_active[self._grasp_eq])
+        if held and opening > self.layout.gripper_released:
+            self.data.eq_active[self._grasp_eq] = 0
+            self._release_ns = self.t_ns
+        closed = opening < self.layout.gripper_closed
+        closing, self._closed = closed and not self._closed, closed
+        if closing and not held:
+            tcp = self.data.site_xpos[self._tcp]
+            offset = self.data.xpos[self._part_body] - tcp
+            self._attempt = {
+                "grasp_time_s": (self.t_ns - self._cycle_start_ns) * 1e-9,
+                "grasp_tcp_m": tcp.tolist(),
+                "grasp_q": self.data.qpos[self._qadr].tolist(),
+                "grasp_offset_mm": (offset * 1e3).tolist(),  # part centre minus tool point, world frame
+            }
+            if np.linalg.norm(offset[:2]) < self.layout.capture_radius and abs(offset[2]) < self.layout.capture_height:
+                self._grasped = True
+                self._weld_part()
+
+    def _weld_part(self) -> None:
+        """Hold the part where it sits in the hand: weld at the current relative pose."""
+        m, d = self.model, self.data
+        tool_pos, part_pos = d.xpos[self._tool_body], d.xpos[self._part_body]
+        tool_quat, part_quat = d.xquat[self._tool_body], d.xquat[self._part_body]
+        inv = np.zeros(4)
+        mujoco.mju_negQuat(inv, tool_quat)
+        rel_pos = np.zeros(3)
+        mujoco.mju_rotVecQuat(rel_pos, part_pos - tool_pos, inv)
+        rel_quat = np.zeros(4)
+        mujoco.mju_mulQuat(rel_quat, inv, part_quat)
+        # weld eq_data: anchor(3), relpose pos(3), relpose quat(4), torquescale(1); relpose is body2 in body1
+        m.eq_data[self._grasp_eq, 0:3] = 0.0
+        m.eq_data[self._grasp_eq, 3:6] = rel_pos
+        m.eq_data[self._grasp_eq, 6:10] = rel_quat
+        m.eq_data[self._grasp_eq, 10] = 1.0
+        d.eq_active[self._grasp_eq] = 1
+
+    # -- Faults (absolute settings from the nominal values) --------------------------------
+    def set_fixture_offset(self, offset: np.ndarray) -> None:
+        self.data.mocap_pos[self._fixture_mocap] = self.nominal["fixture"] + offset
+
+    def set_camera_offset(self, offset: np.ndarray) -> None:
+        self.data.mocap_pos[self._camera_mocap] = self.nominal["camera"] + offset
+
+    def set_tool_offset(self, offset: np.ndarray) -> None:
+        self.model.body_pos[self._tool_body] = self.nominal["tool"] + offset
+
+    def set_part_offset(self, offset: np.ndarray) -> None:
+        """Present the next part ``offset`` [m] off its fixture datum (a mis-seated part)."""
+        self._part_offset = np.asarray(offset, dtype=np.float64)
+
+    # -- Process changes --------------------------------------------------------------------
+    def set_payload(self, extra_kg: float) -> None:
+        """The part carried weighs ``extra_kg`` more than at commissioning (a new product variant)."""
+        mass = self.nominal["part_mass"] + extra_kg
+        self.model.body_mass[self._part_body] = mass
+        self.model.body_inertia[self._part_body] = self.nominal["part_inertia"] * mass / self.nominal["part_mass"]

