@@ -19,7 +19,7 @@ import cellguard  # noqa: E402
 from cellguard.diagnose import diagnose  # noqa: E402
 from cellguard.policy.action_map import load_action_map  # noqa: E402
 from cellguard.robot.so101_cell import ASSETS, SO101PickPlace, mjcf_path  # noqa: E402
-from cellguard.runner import Run  # noqa: E402
+from cellguard.runtime import Run  # noqa: E402
 from cellguard.scenario import parse_scenario  # noqa: E402
 
 LEROBOT_JOINTS = ("shoulder_pan", "shoulder_lift", "elbow_flex", "wrist_flex", "wrist_roll", "gripper")
