@@ -115,6 +115,10 @@ class Run:
             if clock.realtime:
                 inference.warm_up(cell.observe())
                 self.policy.reset()
+                resync = getattr(cell, "resync", None)  # a bridge drops what queued up during the warm-up
+                if callable(resync):
+                    resync()
+                state = link.read(clock.now())
             clock.start()
             self._armed_at = start  # the watchdog runs from the start, not from the first chunk
         while True:
