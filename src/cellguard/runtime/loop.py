@@ -13,7 +13,6 @@ target far from the measured pose is approached with a limit-respecting trajecto
 from __future__ import annotations
 
 import json
-import time
 from collections.abc import Callable
 from pathlib import Path
 
