@@ -154,6 +154,8 @@ def one_run(rate_hz: float, policy: str, worker: str, seconds: float, onnx_path:
         spec = {"cell": "arm-pick-place", "robot": f"sim-server:udp://127.0.0.1:{port}",
                 "policy": f"onnx:{onnx_path}" if policy == "onnx100" else "scripted",
                 "acceptance_cycles": 1, "production_cycles": 0, "cycle": {"source": "time", "seconds": seconds},
+                # a new chunk is asked for at half the 1 s horizon: chunks come every ~0.5 s + latency
+                "guard": {"watchdog_s": 1.0},
                 "realtime": {"inference": worker, "overrun_budget": 1_000_000, "stale_s": 1.0, "read_timeout_s": 0.5,
                              "drop_budget": 1_000_000}}
         factory = partial(PythonPolicy, work) if policy == "python" else None

@@ -69,7 +69,9 @@ def test_a_map_that_ignores_the_flipped_elbow_fails_the_task(foreign_model, tmp_
                               "policy": f"onnx:{model}?map={path}"}))
     outcome = run.cycle()
     assert not outcome["success"]
-    assert any(e.kind in ("limit_intervention", "limit_brake") for e in run.events)  # the guard held the wrong targets
+    # a first target that far from the measured pose is approached under the limits, never jumped to,
+    # or the guard holds the wrong targets
+    assert any(e.kind in ("limit_intervention", "limit_brake", "approach_begin") for e in run.events)
 
 
 def test_bad_models_and_options_are_named(tmp_path, foreign_model):

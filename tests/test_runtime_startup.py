@@ -98,3 +98,9 @@ def test_a_robot_away_from_the_first_target_is_approached_first_and_the_cycle_st
     assert kinds[:2] == ["approach_begin", "approach_done"], kinds
     assert outcome["success"]
     assert "watchdog_stop" not in kinds
+
+
+def test_a_short_chunk_counts_at_most_half_its_horizon_as_blend():
+    check_startup(object(), None, _chunk(h=10, dt_ms=20), 90_000_000, 0.2)  # 200 ms chunk: 100 ms budget
+    with pytest.raises(StartupRefused, match="horizon 200 ms minus blend 100 ms"):
+        check_startup(object(), None, _chunk(h=10, dt_ms=20), 100_000_000, 0.2)

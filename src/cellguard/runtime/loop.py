@@ -13,7 +13,6 @@ target far from the measured pose is approached with a limit-respecting trajecto
 from __future__ import annotations
 
 import json
-import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -85,6 +84,8 @@ class Run:
             self.source = make_cycle_source(self.scenario.cycle, self.cell, self.policy)
         index = self.cycles.total
         cell, clock, link, inference, events = self.cell, self.clock, self.link, self.inference, self.events
+        if clock.realtime and not self._clock_started:
+            self._warm_up()
         corrupt = False
         if self.simulated:
             for fault in self.scenario.faults:
@@ -114,9 +115,6 @@ class Run:
         state = link.read(start)
         if not self._clock_started:
             self._clock_started = True
-            if clock.realtime:
-                inference.warm_up(cell.observe())
-                self.policy.reset()
             clock.start()
             self._armed_at = start  # the watchdog runs from the start, not from the first chunk
         while True:
@@ -183,6 +181,15 @@ class Run:
         return outcome
 
     # -- start, stops ---------------------------------------------------------------------------
+    def _warm_up(self) -> None:
+        """Wall time, before the first cycle: one policy call off the clock (a cold policy's first answer
+        is not its latency), then a bridge drops the states that queued up meanwhile."""
+        self.inference.warm_up(self.cell.observe())
+        self.policy.reset()
+        resync = getattr(self.cell, "resync", None)
+        if callable(resync):
+            resync()
+
     def _start(self, arrival):
         """The run's first chunk: start-up checks (may refuse to move), then the approach if needed.
 

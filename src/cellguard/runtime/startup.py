@@ -3,8 +3,8 @@
 Run on the run's first chunk, before the robot moves: the observation lies inside the policy's
 normalisation statistics (per-dimension q01..q99, widened by a margin of the range), when the
 policy offers them as ``normalisation_stats() -> {name: (q01, q99)}``; and the inference
-latency fits the chunk (latency < horizon minus the blend time), else the robot would run out
-of steps before the next chunk arrives.
+latency fits the chunk (latency < horizon minus the blend time, the blend counted at most half
+the horizon), else the robot would run out of steps before the next chunk arrives.
 """
 
 from __future__ import annotations
@@ -37,6 +37,7 @@ def check_startup(policy, observation, chunk, latency_ns: int, blend_s: float, m
                                      f"normalisation range [{q01[i] - pad[i]:.4g}, {q99[i] + pad[i]:.4g}] "
                                      f"(q01..q99 with {margin:.0%} margin); not moving")
     horizon_s = chunk.actions.shape[0] * chunk.dt_ns * 1e-9
+    blend_s = min(blend_s, 0.5 * horizon_s)  # a chunk shorter than two blends is re-asked for within its first half
     if latency_ns * 1e-9 >= horizon_s - blend_s:
         raise StartupRefused(f"start-up: inference latency {latency_ns * 1e-6:.0f} ms does not fit the chunk: "
                              f"horizon {horizon_s * 1e3:.0f} ms minus blend {blend_s * 1e3:.0f} ms; not moving")

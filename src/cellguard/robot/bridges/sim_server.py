@@ -161,6 +161,16 @@ class SimServerRobot:
             self._seq, self._latest = seq, rest
             self._last_packet_ns = time.monotonic_ns()
 
+    def resync(self) -> None:
+        """Before the clock starts: drop what queued up while the loop was busy (a slow policy warm-up
+        fills the socket buffer with old states and the kernel drops the rest) and wait for a fresh state."""
+        deadline = time.monotonic_ns() + round(HELLO_TIMEOUT_S * 1e9)
+        self._drain()
+        while time.monotonic_ns() - self._latest[0].t_ns > 2 * self.dt_ns and time.monotonic_ns() < deadline:
+            time.sleep(self.dt_ns * 0.5e-9)
+            self._drain()
+        self.dropped = 0
+
     # -- Robot ----------------------------------------------------------------------------------
     def read(self) -> State:
         self._drain()
