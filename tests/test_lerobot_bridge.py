@@ -33,7 +33,7 @@ from cellguard.policy.chunk import ActionChunk  # noqa: E402
 from cellguard.policy.scripted_arm import SO101, ScriptedArmPolicy  # noqa: E402
 from cellguard.record.reader import open_record  # noqa: E402
 from cellguard.record.session import RunRecording  # noqa: E402
-from cellguard.robot.bridges import make_robot  # noqa: E402
+from cellguard.robot.bridges import make_bridge  # noqa: E402
 from cellguard.robot.bridges.lerobot import BridgeError, LeRobotBridge  # noqa: E402
 from cellguard.scenario import Scenario, parse_scenario  # noqa: E402
 
@@ -42,7 +42,7 @@ CYCLE_TIMEOUT_NS = 12_000_000_000
 
 
 def _bridge(tmp_path, extra: str = "") -> LeRobotBridge:
-    bridge = make_robot(f"lerobot:cellguard_so101?seed=4&calibration_dir={tmp_path / 'calibration'}&hz=1000{extra}")
+    bridge = make_bridge(f"lerobot:cellguard_so101?seed=4&calibration_dir={tmp_path / 'calibration'}&hz=1000{extra}", None)
     sim_time = bridge.robot.cell  # lock-step: the simulated arm's own clock stamps the reads
     bridge.clock = lambda: sim_time.t_ns
     return bridge
@@ -228,10 +228,10 @@ def test_power_off_goes_through_the_robots_motor_bus(tmp_path):
 
 def test_bad_specs_are_one_line_errors_that_name_the_choices(tmp_path):
     with pytest.raises(ConfigError, match="no embodiment profile for this type"):
-        make_robot("lerobot:koch_follower?port=/dev/null")
+        make_bridge("lerobot:koch_follower?port=/dev/null", None)
     with pytest.raises(ConfigError, match="unknown robot type 'so102_follower'.*so101_follower"):
-        make_robot("lerobot:so102_follower?embodiment=so101")
+        make_bridge("lerobot:so102_follower?embodiment=so101", None)
     with pytest.raises(ConfigError, match="fields: .*max_relative_target"):
-        make_robot(f"lerobot:cellguard_so101?calibration_dir={tmp_path}&speed=3")
+        make_bridge(f"lerobot:cellguard_so101?calibration_dir={tmp_path}&speed=3", None)
     with pytest.raises(ConfigError, match="hz must be in"):
-        make_robot(f"lerobot:cellguard_so101?calibration_dir={tmp_path}&hz=0")
+        make_bridge(f"lerobot:cellguard_so101?calibration_dir={tmp_path}&hz=0", None)
