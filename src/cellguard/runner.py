@@ -150,10 +150,12 @@ class Run:
         }
 
 
-def run_scenario(scenario: Scenario, out: Path, on_cycle: Callable[[dict], None] | None = None) -> dict:
-    """Run every cycle of ``scenario`` and write ``out/summary.json``; return the summary."""
+def run_scenario(scenario: Scenario, out: Path, on_cycle: Callable[[dict], None] | None = None,
+                 make_run: Callable[[Scenario], Run] = Run) -> dict:
+    """Run every cycle of ``scenario`` and write ``out/summary.json``; return the summary.
+    ``make_run`` builds the run (a subclass, e.g. the release's shadow run, may observe it)."""
     out = make_folder(Path(out), "--out")
-    run = Run(scenario)
+    run = make_run(scenario)
     run.recording = RunRecording.start(out, run)  # RecordError here: nothing runs
     try:
         for _ in range(scenario.total_cycles):

@@ -4,7 +4,7 @@ A new command group is a new module here that imports ``app`` from ``cellguard.c
 registers its commands; add its import below.
 """
 
-from cellguard.cli import bench, diagnose, embodiment, policy, record, run  # noqa: F401  (register commands)
+from cellguard.cli import bench, diagnose, embodiment, policy, record, release, run  # noqa: F401  (register commands)
 from cellguard.cli.app import app
 
 __all__ = ["app"]
