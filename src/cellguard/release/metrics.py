@@ -153,7 +153,7 @@ def _shadow(runs) -> list[tuple[dict, RunEvidence]]:
 
 def shadow_distance_p95(runs) -> Measure:
     """Candidate against incumbent per chunk: max joint distance over the shared steps, p95 [mrad]."""
-    rows = _shadow(runs)
+    rows = [(s, r) for s, r in _shadow(runs) if s["distance_rad"] is not None]
     return _percentile(runs, [(s["distance_rad"] * 1e3, f"{r.label(s['cycle'])} chunk at t={s['t_ns'] * 1e-9:.3f} s")
                               for s, r in rows], 95, "mrad") if rows else Measure(None, 0)
 

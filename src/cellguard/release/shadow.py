@@ -83,16 +83,16 @@ class ShadowedPolicy:
                 row["clamped"] = True
 
 
-def _distance(a, b) -> float:
-    """Max |a - b| over joints at a's steps that both chunks cover [rad]; NaN anywhere is infinite."""
-    worst = 0.0
+def _distance(a, b) -> float | None:
+    """Max |a - b| over joints at a's steps that both chunks cover [rad]; NaN anywhere is infinite;
+    None when they share no step (the candidate answered for another time)."""
+    worst = None
     for k in range(len(a.actions)):
-        t = a.t_obs_ns + k * a.dt_ns
-        other = action_at(b, t)
+        other = action_at(b, a.t_obs_ns + k * a.dt_ns)
         if other is None:
-            break
+            continue
         d = np.abs(np.asarray(a.actions[k]) - other)
-        worst = max(worst, float(d.max()) if np.all(np.isfinite(d)) else float("inf"))
+        worst = max(worst or 0.0, float(d.max()) if np.all(np.isfinite(d)) else float("inf"))
     return worst
 
 
