@@ -29,7 +29,7 @@ STAGES = {
 }
 
 
-def _through_every_stage(site, plan, note: str) -> str:
+def _through_every_stage(site, plan, note: str, last_run: str = "production") -> str:
     made = cli("create", "--policy", "scripted", "--profile", CELL, "--note", note, "--site", str(site), "--json")
     rid = json.loads(made.stdout)["id"]
     for stage in STAGES:
@@ -37,6 +37,8 @@ def _through_every_stage(site, plan, note: str) -> str:
         result = cli("run", "--cell", CELL, "--stage", stage, "--plan", str(plan), "--site", str(site), "--json")
         assert result.exit_code == 0, result.output
         assert json.loads(result.stdout)["verdict"] == "pass"
+        if stage == last_run:
+            break
     return rid
 
 
@@ -46,13 +48,14 @@ def test_a_production_failure_rolls_back_to_last_good_and_the_next_run_records_i
     second = _through_every_stage(site, plan, "v2")
     status = json.loads(cli("status", "--site", str(site), "--json").stdout)["stages"]
     production = next(s for s in status if s["stage"] == "production")
-    assert production["current"] == second and production["last_good"] == second
+    assert production["current"] == second and production["last_good"] == first
     # the pilot ran v2 in shadow beside v1, which drove
     pilot = open_record(next((site / "runs" / CELL / "pilot").glob("*-shadow")))
     assert pilot.context["release"]["mode"] == "shadow"
 
     # a third release reaches production, where a fault breaks it: back to v2 automatically
-    third = _through_every_stage(site, plan, "v3")
+    third = _through_every_stage(site, plan, "v3", last_run="pilot")
+    assert cli("promote", third, "--cell", CELL, "--to", "production", "--site", str(site)).exit_code == 0
     fault = tmp_path / "fault.yaml"
     fault.write_text("{name: knocked-fixture, seed: 11, acceptance_cycles: 2, "
                      "faults: [{kind: fixture_shift, at_cycle: 0, dx_mm: 6.0}]}\n")

@@ -3,8 +3,10 @@
 As Kargo's stages: a release enters a stage only from the stage before it, and only when its
 last gate evaluation there passed (``sim`` is entered from nothing). ``run_stage`` runs the
 stage's plan with the stage's ``current`` release, evaluates the gates on those runs (against
-``last_good``'s runs on the same stage), logs the result with the record ids, moves ``last_good``
-on a pass, and in production rolls ``current`` back to ``last_good`` on a fail.
+``last_good``'s runs on the same stage), logs the result with the record ids, and in production
+rolls ``current`` back to ``last_good`` on a fail. ``last_good`` is the release that passed there
+before the current one: a promotion moves it to the outgoing release when that one had passed
+(the first release to pass a stage is its own last_good).
 """
 
 from __future__ import annotations
@@ -68,8 +70,10 @@ def promote(store: Store, release: str, cell: str, to: str) -> log.LogEntry:
     p = store.pointers(cell, to)
     if p.current == bundle.id:
         raise StageError(f"--to {to}: release {bundle.id} is already current at {to} on {cell}")
+    outgoing = last_evaluation(store, cell, to, p.current) if p.current else None
+    last_good = p.current if outgoing is not None and outgoing.body["verdict"] == PASS else p.last_good
     with store.transaction():
-        store.set_pointers(cell, to, bundle.id, p.last_good)
+        store.set_pointers(cell, to, bundle.id, last_good)
         return log.append(store, {"kind": "promote", "cell": cell, "stage": to, "release": bundle.id,
                                   "from": p.current, "to": bundle.id,
                                   "gates": evaluation.body["gates"] if evaluation else [],
@@ -152,7 +156,7 @@ def evaluate_stage(store: Store, plan: StagePlan, cell: str, stage: str, folders
         entry = log.append(store, {"kind": "gates", "cell": cell, "stage": stage, "release": p.current,
                                    "verdict": outcome, "gates": [r.to_dict() for r in results],
                                    "evidence": evidence, "last_good_evidence": [r.record_id for r in good]})
-        if outcome == PASS:
+        if outcome == PASS and p.last_good is None:  # the first release to pass here
             store.set_pointers(cell, stage, p.current, p.current)
         elif outcome == FAIL and stage == "production" and p.last_good and p.last_good != p.current:
             failing = [r.metric for r in results if r.status == FAIL]
