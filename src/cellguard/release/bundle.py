@@ -14,6 +14,8 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
+from pydantic import ValidationError
+
 from cellguard import __version__
 from cellguard.control.settings import GuardSettings
 from cellguard.embodiment.profile import load_profile
@@ -160,10 +162,8 @@ def _envelope(path: Path | None) -> GuardSettings:
     raw = read_yaml(Path(path), "envelope", ReleaseError) or {}
     try:
         return GuardSettings.model_validate(raw)
-    except Exception as exc:  # pydantic's ValidationError: name the first bad key
-        err = exc.errors()[0] if hasattr(exc, "errors") else None
-        if err is None:
-            raise
+    except ValidationError as exc:
+        err = exc.errors()[0]
         where = ".".join(str(p) for p in err["loc"]) or "envelope"
         msg = "unknown key" if err["type"] == "extra_forbidden" else err["msg"]
         raise ReleaseError(f"--envelope {path}: {where}: {msg}") from None

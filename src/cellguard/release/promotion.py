@@ -178,19 +178,21 @@ def _driver(store: Store, plan: StagePlan, cell: str, bundle: Bundle) -> tuple[s
 
 
 def _maker(store: Store, plan: StagePlan, cell: str, bundle: Bundle, context: dict):
-    make = CLOCKS[plan.clock]
+    """``make_run(scenario)`` for the stage: the plan's clock, or the shadow run in pilot (simulated time)."""
     if plan.shadow:
         from cellguard.release.shadow import ShadowRun
 
-        incumbent = store.pointers(cell, "production").current or INCUMBENT_FALLBACK
-        context = {**context, "mode": "shadow", "incumbent": incumbent}
+        context = {**context, "mode": "shadow",
+                   "incumbent": store.pointers(cell, "production").current or INCUMBENT_FALLBACK}
 
-        def make(sc):  # noqa: F811 - the shadow run replaces the plain loop in pilot
+        def make(sc):
             return ShadowRun(sc, bundle.policy_spec, bundle.guard)
+    else:
+        make = CLOCKS[plan.clock]
 
     def build(sc):
         run = make(sc)
-        run.release = context
+        run.release = context  # written into the record's context (cellguard.record.session)
         return run
 
     return build
