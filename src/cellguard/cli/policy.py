@@ -20,6 +20,8 @@ def train_demo_policy(
     cycles: int = typer.Option(10, min=2, max=500, help="Scripted demonstration cycles to record."),
     random_features: int = typer.Option(64, min=0, max=4096, help="Random tanh units beside the time basis."),
     seed: int = typer.Option(0, help="Seed of the demonstrations and the initial weights."),
+    fixture_dx_mm: float = typer.Option(0.0, "--fixture-dx-mm", min=-5.0, max=5.0,
+                                        help="Record the demonstrations with the fixture moved this far in x [mm]."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),
 ) -> None:
     """Clone the scripted arm program into a small MLP on the CPU; run it with `policy: onnx:FILE`."""
@@ -28,7 +30,7 @@ def train_demo_policy(
     from cellguard.train.demo_policy import train_demo_policy as train
 
     try:
-        report = train(out, cycles=cycles, random_features=random_features, seed=seed)
+        report = train(out, cycles=cycles, random_features=random_features, seed=seed, fixture_dx_mm=fixture_dx_mm)
     except CellguardError as exc:
         fail(exc)
     if as_json:

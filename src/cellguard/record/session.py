@@ -85,7 +85,8 @@ class RunRecording:
     def _context(run, config: RecordConfig, software: dict) -> dict:
         context = build_context(scenario=run.scenario, cell=run.cell, policy=run.policy, envelope=run.guard.envelope,
                                 software=software)
-        return {**context, "record": config.to_dict()}
+        release = getattr(run, "release", None)  # set by cellguard.release: the release and any pointer switch
+        return {**context, **({"release": release} if release else {}), "record": config.to_dict()}
 
     # -- servo thread ------------------------------------------------------------------------
     def begin_cycle(self, cycle: int, phase: str, t_ns: int) -> None:

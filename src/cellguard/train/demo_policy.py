@@ -77,13 +77,17 @@ class _Recorder:
         self.y.append(np.asarray(chunk.actions[: self.horizon]).reshape(-1))
 
 
-def collect_demonstrations(cycles: int, seed: int, horizon: int) -> tuple[np.ndarray, np.ndarray, float, tuple]:
-    """Run the scripted program for ``cycles``: inputs (N, 4), targets (N, horizon*dof), dt [s], joint names."""
+def collect_demonstrations(cycles: int, seed: int, horizon: int,
+                           fixture_dx_mm: float = 0.0) -> tuple[np.ndarray, np.ndarray, float, tuple]:
+    """Run the scripted program for ``cycles``: inputs (N, 4), targets (N, horizon*dof), dt [s], joint names.
+    ``fixture_dx_mm``: demonstrations with the fixture moved in x (a clone taught on a mis-set cell)."""
     from cellguard.runtime import Run
     from cellguard.scenario import parse_scenario
 
     scenario = parse_scenario({"cell": "arm-pick-place", "seed": seed, "policy": "scripted",
-                               "acceptance_cycles": cycles, "production_cycles": 0})
+                               "acceptance_cycles": cycles, "production_cycles": 0,
+                               "faults": [{"kind": "fixture_shift", "at_cycle": 0, "dx_mm": fixture_dx_mm}]
+                               if fixture_dx_mm else []})
     run = Run(scenario)
     recorder = _Recorder(run.policy, horizon, round(1e9 / scenario.policy_hz))
     run.policy = recorder
@@ -122,16 +126,17 @@ def fit_network(x: np.ndarray, y: np.ndarray, horizon: int, random_features: int
 
 
 def train_demo_policy(out: Path, cycles: int = 10, random_features: int = 64, horizon: int = 10,
-                      seed: int = 0) -> TrainingReport:
+                      seed: int = 0, fixture_dx_mm: float = 0.0) -> TrainingReport:
     """Record ``cycles`` scripted demonstrations, clone them, and save ``out`` (ONNX)."""
     began = time.perf_counter()
-    x, y, dt, joints = collect_demonstrations(cycles, seed, horizon)
+    x, y, dt, joints = collect_demonstrations(cycles, seed, horizon, fixture_dx_mm)
     mlp = fit_network(x, y, horizon, random_features, seed)
     error = mlp.forward(x) - y
     path = save_mlp_onnx(mlp, Path(out), {
         "cellguard.action_names": ",".join(joints),
         "cellguard.dt_s": repr(dt),
-        "cellguard.trained_on": f"{cycles} scripted arm-pick-place cycles, seed {seed}",
+        "cellguard.trained_on": f"{cycles} scripted arm-pick-place cycles, seed {seed}"
+                                   + (f", fixture moved {fixture_dx_mm} mm in x" if fixture_dx_mm else ""),
     })
     return TrainingReport(str(path), cycles, len(x), mlp.weights[0].shape[1], float(np.sqrt(np.mean(error**2))) * 1e3,
                           float(np.abs(error).max()) * 1e3, time.perf_counter() - began)

@@ -1,0 +1,217 @@
+"""`cellguard release ...`: bundles, stages, gates, shadow mode, rollback and the hash-chained log."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import typer
+from rich.console import Console
+
+from cellguard.cli.app import app
+from cellguard.cli.errors import fail
+from cellguard.errors import CellguardError
+
+HELP = """Staged release of a policy on a cell: sim -> bench -> pilot (shadow) -> production.
+
+\b
+From download to production (the arm cell; every step logs to SITE/release.sqlite):
+  cellguard train-demo-policy -o pick.onnx          # or your downloaded ONNX / LeRobot / openpi policy
+  cellguard release create --policy onnx:pick.onnx --profile arm-pick-place --envelope guard.yaml
+  cellguard release promote ID --cell arm-pick-place --to sim
+  cellguard release run --cell arm-pick-place --stage sim          # the testnet, fault scenarios included
+  cellguard release promote ID --cell arm-pick-place --to bench
+  cellguard release run --cell arm-pick-place --stage bench        # wall-clock loop
+  cellguard release promote ID --cell arm-pick-place --to pilot
+  cellguard release run --cell arm-pick-place --stage pilot        # shadow: the incumbent drives
+  cellguard release promote ID --cell arm-pick-place --to production
+  cellguard release run --cell arm-pick-place --stage production   # a failing gate rolls back to last_good
+  cellguard release status; cellguard release verify; cellguard release report ID -o release.html
+"""
+
+release_app = typer.Typer(no_args_is_help=True, help=HELP)
+app.add_typer(release_app, name="release")
+
+SITE = typer.Option(Path("cellguard-site"), "--site", envvar="CELLGUARD_SITE",
+                    help="The site's folder: release store, run records.")
+out = Console()
+err = Console(stderr=True)
+
+
+def _store(site: Path):
+    from cellguard.release import Store
+
+    return Store(site)
+
+
+def _plan(site: Path, plan: Path | None):
+    from cellguard.release import load_plan
+
+    if plan is None and (site / "release-plan.yaml").is_file():
+        plan = site / "release-plan.yaml"
+    return load_plan(plan)
+
+
+@release_app.command()
+def create(
+    policy: str = typer.Option(..., "--policy", help="Policy spec: scripted, onnx:FILE, lerobot:DIR, openpi:ws://..."),
+    action_map: Path = typer.Option(None, "--map", help="Action map YAML (the policy's actions onto this robot)."),
+    profile: str = typer.Option(..., "--profile", help="Embodiment profile YAML, or a cell name for its own."),
+    envelope: Path = typer.Option(None, "--envelope", help="Envelope settings YAML (a scenario's guard: section)."),
+    note: str = typer.Option("", "--note", help="Free text kept in the manifest."),
+    site: Path = SITE,
+    as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),
+) -> None:
+    """Freeze a policy, its action map, the profile and the envelope into a release bundle."""
+    from cellguard.release import create_bundle
+
+    try:
+        bundle = create_bundle(policy, action_map, profile, envelope, note)
+        store = _store(site)
+        new = store.add_bundle(bundle)
+    except CellguardError as exc:
+        fail(exc)
+    if as_json:
+        sys.stdout.write(json.dumps({"id": bundle.id, "new": new, "manifest": bundle.manifest}) + "\n")
+        return
+    out.print(f"release {bundle.id} ({'created' if new else 'already there, unchanged'}): "
+              f"{bundle.manifest['policy']['spec']} on {bundle.cell}")
+
+
+@release_app.command()
+def promote(
+    release: str = typer.Argument(..., help="Release id (a unique prefix is enough)."),
+    cell: str = typer.Option(..., "--cell"),
+    to: str = typer.Option(..., "--to", help="sim, bench, pilot or production: only the stage after one passed."),
+    site: Path = SITE,
+) -> None:
+    """Make a release current at a stage, from the stage before it with its gates passed."""
+    from cellguard.release import promote as do
+
+    try:
+        entry = do(_store(site), release, cell, to)
+    except CellguardError as exc:
+        fail(exc)
+    out.print(f"{entry.body['release']} is current at {to} on {cell} (was {entry.body['from']}); log entry {entry.seq}")
+
+
+@release_app.command("run")
+def run_stage(
+    cell: str = typer.Option(..., "--cell"),
+    stage: str = typer.Option(..., "--stage"),
+    plan: Path = typer.Option(None, "--plan", help="Release plan YAML (default: SITE/release-plan.yaml, else the "
+                                                  "packaged one)."),
+    scenario: Path = typer.Option(None, "--scenario", help="One run (scenario keys without cell, policy, guard) "
+                                                          "instead of the plan's runs, e.g. with a fault."),
+    site: Path = SITE,
+    as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),
+) -> None:
+    """Run a stage's plan with its current release and evaluate its gates (production: roll back on fail)."""
+    from cellguard.release import run_stage as do
+    from cellguard.release.errors import GateError
+    from cellguard.release.plan import check_run
+    from cellguard.release.store import check_stage
+    from cellguard.yaml_file import read_yaml
+
+    try:
+        plans = _plan(site, plan)
+        runs = None
+        if scenario is not None:
+            runs = [read_yaml(scenario, "run", GateError)]
+            check_run(runs[0], str(scenario))
+        result = do(_store(site), plans[check_stage(stage)], cell, stage, runs,
+                    on_run=None if as_json else err.print)
+    except CellguardError as exc:
+        fail(exc)
+    if as_json:
+        sys.stdout.write(json.dumps({"cell": cell, "stage": stage, "release": result.release,
+                                     "verdict": result.verdict, "gates": [g.to_dict() for g in result.gates],
+                                     "evidence": list(result.evidence), "rolled_back_to": result.rolled_back_to,
+                                     "log_seq": result.log_seq}) + "\n")
+    else:
+        for g in result.gates:
+            value = "-" if g.value is None else f"{g.value:.4g}"
+            out.print(f"  {g.status:<12} {g.metric:<26} {value:>10}  {g.condition}  {g.detail}")
+            for e in g.evidence[:3] if g.status != "pass" else ():
+                out.print(f"               evidence: {e}")
+        out.print(f"{stage} on {cell}, release {result.release}: {result.verdict} (log entry {result.log_seq}; "
+                  f"records {', '.join(result.evidence)})")
+        if result.rolled_back_to:
+            out.print(f"rolled back: production on {cell} is {result.rolled_back_to} again (last_good)")
+    if result.verdict != "pass":
+        raise typer.Exit(1)
+
+
+@release_app.command()
+def rollback(
+    cell: str = typer.Option(..., "--cell"),
+    stage: str = typer.Option("production", "--stage"),
+    reason: str = typer.Option("operator", "--reason"),
+    site: Path = SITE,
+) -> None:
+    """Move a stage's current release back to its last_good; the next run there records the switch."""
+    from cellguard.release import rollback as do
+
+    try:
+        entry = do(_store(site), cell, stage, reason=reason)
+    except CellguardError as exc:
+        fail(exc)
+    out.print(f"{stage} on {cell}: {entry.body['from']} -> {entry.body['to']} (last_good); log entry {entry.seq}")
+
+
+@release_app.command()
+def status(site: Path = SITE, as_json: bool = typer.Option(False, "--json")) -> None:
+    """Every cell's stages: current, last_good and the latest verdict."""
+    from cellguard.release import status as do
+
+    try:
+        rows = do(_store(site))
+    except CellguardError as exc:
+        fail(exc)
+    if as_json:
+        sys.stdout.write(json.dumps({"site": str(site), "stages": rows}) + "\n")
+        return
+    if not rows:
+        out.print("no release promoted yet")
+    for r in rows:
+        out.print(f"{r['cell']:<18} {r['stage']:<11} current {r['current'] or '-':<17} "
+                  f"last_good {r['last_good'] or '-':<17} {r['verdict'] or ''}")
+
+
+@release_app.command()
+def verify(site: Path = SITE, as_json: bool = typer.Option(False, "--json")) -> None:
+    """Check the promotion log's hash chain; exit 1 naming each edited or deleted entry."""
+    from cellguard.release import verify_log
+    from cellguard.release.log import entries
+
+    try:
+        store = _store(site)
+        problems, n = verify_log(store), len(entries(store))
+    except CellguardError as exc:
+        fail(exc)
+    if as_json:
+        sys.stdout.write(json.dumps({"entries": n, "ok": not problems, "problems": problems}) + "\n")
+    elif problems:
+        for p in problems:
+            out.print(f"broken: {p}")
+    else:
+        out.print(f"log whole: {n} entries, chain verified")
+    if problems:
+        raise typer.Exit(1)
+
+
+@release_app.command()
+def report(
+    release: str = typer.Argument(..., help="Release id (a unique prefix is enough)."),
+    output: Path = typer.Option(Path("release.html"), "--out", "-o", help="HTML file to write."),
+    site: Path = SITE,
+) -> None:
+    """The release page: gates per stage with their evidence, against last_good's figures."""
+    from cellguard.report.release import write_release_page
+
+    try:
+        path = write_release_page(_store(site), release, output)
+    except CellguardError as exc:
+        fail(exc)
+    out.print(f"release page: {path}")

@@ -1,0 +1,180 @@
+"""Release bundles: a manifest freezing everything that decides how a policy behaves on a cell.
+
+The manifest holds the policy's content hash (weights file, program source or server metadata,
+as its adapter computes it), the action map's bytes hash, the embodiment profile with its
+calibration version, the envelope settings and the cellguard version. The release id is the
+sha256 of the manifest's canonical JSON (sorted keys, no spaces), so identical inputs give the
+same id and an edited manifest no longer matches its id.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+from pydantic import ValidationError
+
+from cellguard import __version__
+from cellguard.control.settings import GuardSettings
+from cellguard.embodiment.profile import load_profile
+from cellguard.errors import CellguardError
+from cellguard.release.errors import BundleMismatch, ReleaseError
+from cellguard.robot.registry import CELLS, make_cell
+from cellguard.yaml_file import read_yaml
+
+ID_CHARS = 16  # hex characters of the sha256 shown as the release id
+
+
+def canonical_json(value) -> bytes:
+    """The one byte form that is hashed: sorted keys, no whitespace, UTF-8."""
+    return json.dumps(value, sort_keys=True, separators=(",", ":"), ensure_ascii=False).encode()
+
+
+def sha256_file(path: Path, what: str) -> str:
+    try:
+        return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+    except OSError as exc:
+        raise ReleaseError(f"{what} {path}: cannot read ({exc.strerror or exc.__class__.__name__})") from None
+
+
+@dataclass(frozen=True)
+class Bundle:
+    """A frozen release: ``manifest`` (plain JSON) and its id (``sha256(canonical_json)[:16]``)."""
+
+    id: str
+    manifest: dict
+
+    @property
+    def cell(self) -> str:
+        return self.manifest["profile"]["cell"]
+
+    @property
+    def policy_spec(self) -> str:
+        """The scenario ``policy:`` string, the action map attached as ``?map=``."""
+        spec, amap = self.manifest["policy"]["spec"], self.manifest["action_map"]
+        if amap is None:
+            return spec
+        return f"{spec}{'&' if '?' in spec else '?'}map={amap['path']}"
+
+    @property
+    def guard(self) -> GuardSettings:
+        return GuardSettings.model_validate(self.manifest["envelope"])
+
+    def short(self) -> dict:
+        """What a record's context and the log say about this release."""
+        return {"id": self.id, "policy": self.manifest["policy"]["spec"],
+                "policy_sha256": self.manifest["policy"]["sha256"], "note": self.manifest.get("note", "")}
+
+
+def release_id(manifest: dict) -> str:
+    return hashlib.sha256(canonical_json(manifest)).hexdigest()[:ID_CHARS]
+
+
+def create_bundle(policy: str, action_map: Path | None, profile: str, envelope: Path | None, note: str = "") -> Bundle:
+    """Freeze the inputs into a manifest; every file is read and checked (a bad one names itself)."""
+    cell_name, profile_path = _resolve_profile(profile)
+    cell = make_cell(cell_name)
+    prof = cell.profile if profile_path is None else load_profile(cell.model, profile_path)
+    if prof.sha256 != cell.profile.sha256:
+        raise ReleaseError(f"--profile {profile_path}: differs from the profile cell {cell_name!r} runs with "
+                           f"(sha256 {prof.sha256[:12]} vs {cell.profile.sha256[:12]}); install it with the cell first")
+    settings = _envelope(envelope)
+    amap = None
+    if action_map is not None:
+        path = Path(action_map).resolve()
+        amap = {"path": str(path), "sha256": sha256_file(path, "--map")}
+    manifest = {
+        "format": 1,
+        "policy": {"spec": _absolute_spec(policy), "sha256": ""},
+        "action_map": amap,
+        "profile": {"cell": cell_name, "robot": prof.robot, "version": prof.version, "sha256": prof.sha256,
+                    "calibration_version": calibration_version(prof)},
+        "envelope": settings.model_dump(mode="json"),
+        "cellguard": __version__,
+        "note": note,
+    }
+    manifest["policy"]["sha256"] = policy_hash(Bundle("", manifest))
+    return Bundle(release_id(manifest), manifest)
+
+
+def verify_bundle(bundle: Bundle) -> None:
+    """Raise BundleMismatch, one line naming the input, if anything frozen has changed since create."""
+    if release_id(bundle.manifest) != bundle.id:
+        raise BundleMismatch(f"release {bundle.id}: manifest edited (hashes to {release_id(bundle.manifest)})")
+    m = bundle.manifest
+    if m["action_map"] is not None:
+        now = sha256_file(Path(m["action_map"]["path"]), "action map")
+        if now != m["action_map"]["sha256"]:
+            raise BundleMismatch(f"release {bundle.id}: action map {m['action_map']['path']} changed since create "
+                                 f"(sha256 {now[:12]}, frozen {m['action_map']['sha256'][:12]})")
+    cell = make_cell(bundle.cell)
+    if cell.profile.sha256 != m["profile"]["sha256"]:
+        raise BundleMismatch(f"release {bundle.id}: profile of {bundle.cell!r} changed since create "
+                             f"(sha256 {cell.profile.sha256[:12]}, frozen {m['profile']['sha256'][:12]})")
+    now = policy_hash(bundle, cell)
+    if now != m["policy"]["sha256"]:
+        raise BundleMismatch(f"release {bundle.id}: policy {m['policy']['spec']} changed since create "
+                             f"(sha256 {now[:12]}, frozen {m['policy']['sha256'][:12]})")
+
+
+def policy_hash(bundle: Bundle, cell=None) -> str:
+    """The content hash the policy's own adapter reports (weights, program, server metadata)."""
+    from cellguard.policy.registry import make_policy
+
+    cell = cell if cell is not None else make_cell(bundle.cell)
+    try:
+        policy = make_policy(bundle.policy_spec, cell)
+    except CellguardError as exc:
+        raise ReleaseError(f"--policy: {exc}") from None
+    try:
+        return policy.content_hash()
+    finally:
+        close = getattr(policy, "close", None)
+        if close is not None:
+            close()
+
+
+def calibration_version(profile) -> str:
+    """A short stamp of what was measured on the robot, and when (changes with every recalibration)."""
+    measured = sorted((m.joint, m.parameter, m.value, m.measured, m.method) for m in profile.measured)
+    return hashlib.sha256(canonical_json([profile.version, measured])).hexdigest()[:12]
+
+
+def _resolve_profile(profile: str) -> tuple[str, Path | None]:
+    """``--profile`` is a profile YAML file (its ``robot:`` names the cell) or a registered cell's name."""
+    path = Path(profile)
+    if path.is_file():
+        raw = read_yaml(path, "profile", ReleaseError)
+        robot = raw.get("robot") if isinstance(raw, dict) else None
+        if robot not in CELLS:
+            raise ReleaseError(f"--profile {path}: robot {robot!r} is not a registered cell; cells: {', '.join(CELLS)}")
+        return str(robot), path.resolve()
+    if profile in CELLS:
+        return profile, None
+    raise ReleaseError(f"--profile {profile}: neither a profile file nor a cell; cells: {', '.join(CELLS)}")
+
+
+def _envelope(path: Path | None) -> GuardSettings:
+    if path is None:
+        return GuardSettings()
+    raw = read_yaml(Path(path), "envelope", ReleaseError) or {}
+    try:
+        return GuardSettings.model_validate(raw)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        where = ".".join(str(p) for p in err["loc"]) or "envelope"
+        msg = "unknown key" if err["type"] == "extra_forbidden" else err["msg"]
+        raise ReleaseError(f"--envelope {path}: {where}: {msg}") from None
+
+
+def _absolute_spec(spec: str) -> str:
+    """A policy file named relative to here is frozen by its absolute path."""
+    scheme, sep, arg = spec.partition(":")
+    if scheme in ("onnx", "lerobot", "replay") and sep:
+        target, q, query = arg.partition("?")
+        if "map=" in query:
+            raise ReleaseError("--policy: give the action map with --map, not ?map=")
+        return f"{scheme}:{Path(target).resolve()}{q}{query}"
+    return spec

@@ -1,0 +1,125 @@
+"""Gates: a condition on a metric of a stage's runs, ending ``pass``, ``fail`` or ``inconclusive``.
+
+As Argo Rollouts' analysis: a condition against an absolute value (``min`` / ``max``) or against
+``last_good``'s figure on the same stage (``max_vs_last_good: 1.05`` = at most 5 % worse), and
+``min_cycles``: with less data a gate is inconclusive, never pass. A hard gate (a safety count:
+protective stops, limit violations, shadow stops) has a failure limit of 0 and fails on the first
+occurrence, however few cycles ran.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from cellguard.release.errors import GateError
+from cellguard.release.evidence import RunEvidence
+from cellguard.release.metrics import METRICS, Measure
+
+PASS, FAIL, INCONCLUSIVE = "pass", "fail", "inconclusive"
+
+
+class Gate(BaseModel):
+    """One gate of a stage, as declared in the plan's YAML."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    metric: str
+    min: float | None = None
+    max: float | None = None
+    min_vs_last_good: float | None = Field(default=None, gt=0.0, description="value >= factor x last_good's")
+    max_vs_last_good: float | None = Field(default=None, gt=0.0, description="value <= factor x last_good's")
+    min_cycles: int = Field(default=1, ge=1)
+    hard: bool = False
+
+    @model_validator(mode="after")
+    def _check(self):
+        if self.metric not in METRICS:
+            raise ValueError(f"unknown metric {self.metric!r}; known: {', '.join(METRICS)}")
+        if self.is_hard and (self.max != 0 or self.min is not None):
+            raise ValueError(f"{self.metric} is a hard gate: its failure limit is 0, write max: 0")
+        if all(v is None for v in (self.min, self.max, self.min_vs_last_good, self.max_vs_last_good)):
+            raise ValueError("no condition: give min, max, min_vs_last_good or max_vs_last_good")
+        return self
+
+    @property
+    def is_hard(self) -> bool:
+        return self.hard or METRICS[self.metric].hard
+
+    def condition(self) -> str:
+        parts = [f">= {self.min:g}" if self.min is not None else "", f"<= {self.max:g}" if self.max is not None else "",
+                 f">= {self.min_vs_last_good:g} x last_good" if self.min_vs_last_good else "",
+                 f"<= {self.max_vs_last_good:g} x last_good" if self.max_vs_last_good else ""]
+        return " and ".join(p for p in parts if p)
+
+
+@dataclass(frozen=True)
+class GateResult:
+    metric: str
+    status: str  # pass | fail | inconclusive
+    value: float | None
+    last_good: float | None
+    condition: str
+    cycles: int
+    min_cycles: int
+    hard: bool
+    detail: str
+    evidence: tuple[str, ...]
+
+    def to_dict(self) -> dict:
+        return {**self.__dict__, "evidence": list(self.evidence)}
+
+
+def evaluate(gate: Gate, runs: Sequence[RunEvidence], last_good_runs: Sequence[RunEvidence] = ()) -> GateResult:
+    """The gate's result on ``runs``; ``last_good_runs`` are last_good's runs on the same stage."""
+    metric = METRICS[gate.metric]
+    m = metric.compute(runs)
+    lg = metric.compute(last_good_runs).value if last_good_runs else None
+
+    def result(status: str, detail: str, measure: Measure = m) -> GateResult:
+        return GateResult(gate.metric, status, measure.value, lg, gate.condition(), measure.cycles, gate.min_cycles,
+                          gate.is_hard, detail, measure.evidence)
+
+    if m.value is None:
+        return result(INCONCLUSIVE, "no data in these runs")
+    if gate.is_hard and m.value > 0:
+        return result(FAIL, f"{m.value:g} {metric.unit} where the failure limit is 0")
+    if m.cycles < gate.min_cycles:
+        return result(INCONCLUSIVE, f"{m.cycles} cycles, fewer than min_cycles {gate.min_cycles}")
+    broken = []
+    if gate.min is not None and m.value < gate.min:
+        broken.append(f"{m.value:.4g} < {gate.min:g}")
+    if gate.max is not None and m.value > gate.max:
+        broken.append(f"{m.value:.4g} > {gate.max:g}")
+    relative = gate.min_vs_last_good is not None or gate.max_vs_last_good is not None
+    if relative and lg is not None:
+        if gate.min_vs_last_good is not None and m.value < gate.min_vs_last_good * lg:
+            broken.append(f"{m.value:.4g} < {gate.min_vs_last_good:g} x last_good {lg:.4g}")
+        if gate.max_vs_last_good is not None and m.value > gate.max_vs_last_good * lg:
+            broken.append(f"{m.value:.4g} > {gate.max_vs_last_good:g} x last_good {lg:.4g}")
+    if broken:
+        return result(FAIL, "; ".join(broken))
+    if relative and lg is None and gate.min is None and gate.max is None:
+        return result(INCONCLUSIVE, "no last_good figure on this stage to compare with")
+    note = " (no last_good on this stage: absolute limit only)" if relative and lg is None else ""
+    return result(PASS, f"{m.value:.4g} {metric.unit}{note}")
+
+
+def verdict(results: Sequence[GateResult]) -> str:
+    """fail if any gate failed, else inconclusive if any was, else pass (no gates: inconclusive)."""
+    statuses = {r.status for r in results}
+    if FAIL in statuses:
+        return FAIL
+    if INCONCLUSIVE in statuses or not results:
+        return INCONCLUSIVE
+    return PASS
+
+
+def gate_error(where: str, exc) -> GateError:
+    """A pydantic error on a gate as one line naming it."""
+    err = exc.errors()[0]
+    loc = ".".join(str(p) for p in err["loc"])
+    msg = "unknown key" if err["type"] == "extra_forbidden" else err["msg"].removeprefix("Value error, ")
+    return GateError(f"{where}{'.' + loc if loc else ''}: {msg}")

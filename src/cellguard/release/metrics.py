@@ -1,0 +1,188 @@
+"""Gate metrics, each computed from a stage's run records; one registry, one small function each.
+
+A metric returns ``Measure(value, cycles, evidence)``: ``cycles`` is how much data it saw (a
+gate with fewer than ``min_cycles`` is inconclusive), ``evidence`` names the records and cycles
+that made the value what it is (a failed cycle, a stop, the worst seam). ``value`` is None when
+the runs hold nothing to measure (no shadow data, no acceptance baseline).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from cellguard.diagnose.diagnosis import ROUTINE_EVENTS, diagnose
+from cellguard.errors import CellguardError
+from cellguard.release.evidence import RunEvidence
+from cellguard.robot.registry import make_cell
+
+VELOCITY_MARGIN = 1.05  # a measured speed this far over the profile's limit counts as a violation (noise)
+
+
+@dataclass(frozen=True)
+class Measure:
+    value: float | None
+    cycles: int
+    evidence: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class Metric:
+    name: str
+    unit: str
+    compute: Callable[[Sequence[RunEvidence]], Measure]
+    hard: bool = False  # a safety count: failure limit 0, decided even on too few cycles
+    doc: str = ""
+
+
+def _n(runs) -> int:
+    return sum(len(r.cycles) for r in runs)
+
+
+def success_rate(runs) -> Measure:
+    failed = [r.label(c.cycle) for r in runs for c in r.cycles if not c.success]
+    n = _n(runs)
+    return Measure(1.0 - len(failed) / n if n else None, n, tuple(f"{x}: failed" for x in failed[:10]))
+
+
+def _percentile(runs, values: list[tuple[float, str]], q: float, unit: str) -> Measure:
+    vals = [(v, where) for v, where in values if np.isfinite(v)]
+    if not vals:
+        return Measure(None, 0)
+    x = np.array([v for v, _ in vals])
+    worst = max(vals)
+    return Measure(float(np.percentile(x, q)), _n(runs), (f"worst {worst[0]:.3g} {unit} in {worst[1]}",))
+
+
+def cycle_time_p95(runs) -> Measure:
+    return _percentile(runs, [((c.t_end_ns - c.t_start_ns) * 1e-9, r.label(c.cycle)) for r in runs for c in r.cycles],
+                       95, "s")
+
+
+def place_error_p95(runs) -> Measure:
+    return _percentile(runs, [(c.features.get("place_error_mm", np.nan), r.label(c.cycle))
+                              for r in runs for c in r.cycles if c.success], 95, "mm")
+
+
+def interventions_per_hour(runs) -> Measure:
+    hours = sum(c.t_end_ns - c.t_start_ns for r in runs for c in r.cycles) / 3.6e12
+    found = [(r.label(e.cycle), e.kind) for r in runs for e in r.events if e.kind not in ROUTINE_EVENTS]
+    ev = tuple(f"{where}: {kind}" for where, kind in found[:10])
+    return Measure(len(found) / hours if hours else None, _n(runs), ev)
+
+
+def protective_stops(runs) -> Measure:
+    stops = [f"{r.label(e.cycle)}: {e.kind} (category {e.category}): {e.reason}"
+             for r in runs for e in r.events if e.category is not None]
+    return Measure(float(len(stops)), _n(runs), tuple(stops[:10]))
+
+
+def limit_violations(runs) -> Measure:
+    """Measured joint positions outside the profile's range or speeds over its limit (50 Hz ticks)."""
+    count, ev = 0, []
+    for r in runs:
+        if not len(r.ticks):
+            continue
+        profile = make_cell(str(r.context.get("cell"))).profile
+        q, qd = r.ticks.q_meas, r.ticks.qd_meas
+        bad = (q < profile.q_min) | (q > profile.q_max) | (np.abs(qd) > profile.array("velocity") * VELOCITY_MARGIN)
+        rows = np.flatnonzero(bad.any(axis=1))
+        count += len(rows)
+        if len(rows):
+            j = int(np.flatnonzero(bad[rows[0]])[0])
+            ev.append(f"{r.label(int(r.ticks.cycle[rows[0]]))}: {profile.joint_names[j]} outside its limits "
+                      f"({len(rows)} ticks)")
+    return Measure(float(count), _n(runs), tuple(ev))
+
+
+def drift_alarms(runs) -> Measure:
+    """Alarms of the diagnosis (CUSUM/MEWMA against the run's own acceptance cycles)."""
+    count, n, ev = 0, 0, []
+    for r in runs:
+        try:
+            d = diagnose(r.cycles, r.events, r.context)
+        except CellguardError:  # too few acceptance cycles for a baseline: this run gives no data
+            continue
+        n += sum(c.phase != "acceptance" for c in r.cycles)
+        count += len(d.drift.alarms)
+        ev += [f"{r.label(a.cycle)}: {a.signal} (statistic {a.statistic:.1f})" for a in d.drift.alarms[:5]]
+        ev += [f"{r.label(f.cycle)}: probable cause {f.cause}" for f in d.findings[:3]]
+    return Measure(float(count) if n else None, n, tuple(ev))
+
+
+def chunk_seam_jump_max(runs) -> Measure:
+    """Largest step between the outgoing and incoming chunk at each switch [mrad], as received."""
+    worst, where, seams = 0.0, "", 0
+    for r in runs:
+        for old, new in zip(r.chunks, r.chunks[1:]):
+            t = new.t_received_ns
+            a_old = action_at(old, t)
+            if a_old is None:
+                continue
+            jump = float(np.abs(action_at(new, t) - a_old).max()) * 1e3
+            seams += 1
+            if jump > worst:
+                worst, where = jump, f"{r.label()} at t={t * 1e-9:.3f} s"
+    ev = (f"largest seam {worst:.1f} mrad in {where}",) if where else ()
+    return Measure(worst if seams else None, _n(runs), ev)
+
+
+def action_at(chunk, t_ns: int):
+    """The chunk's action at ``t_ns`` (linear between steps), or None past its end."""
+    s = (t_ns - chunk.t_obs_ns) / chunk.dt_ns
+    if s < 0 or s > len(chunk.actions) - 1:
+        return None
+    i = min(int(s), len(chunk.actions) - 2) if len(chunk.actions) > 1 else 0
+    if len(chunk.actions) == 1:
+        return chunk.actions[0]
+    f = s - i
+    return (1 - f) * chunk.actions[i] + f * chunk.actions[i + 1]
+
+
+def inference_latency_p99(runs) -> Measure:
+    """Observation-to-chunk latency the loop applied, p99 over chunks [ms]."""
+    lat = [(c.latency_ns * 1e-6, r.label()) for r in runs for c in r.chunks]
+    return _percentile(runs, lat, 99, "ms")
+
+
+def _shadow(runs) -> list[tuple[dict, RunEvidence]]:
+    return [(s, r) for r in runs for s in (r.shadow or ())]
+
+
+def shadow_distance_p95(runs) -> Measure:
+    """Candidate against incumbent per chunk: max joint distance over the shared steps, p95 [mrad]."""
+    rows = [(s, r) for s, r in _shadow(runs) if s["distance_rad"] is not None]
+    return _percentile(runs, [(s["distance_rad"] * 1e3, f"{r.label(s['cycle'])} chunk at t={s['t_ns'] * 1e-9:.3f} s")
+                              for s, r in rows], 95, "mrad") if rows else Measure(None, 0)
+
+
+def shadow_would_clamp(runs) -> Measure:
+    """Fraction of the candidate's chunks the envelope would have clamped (a limit intervention)."""
+    rows = _shadow(runs)
+    hits = [f"{r.label(s['cycle'])} t={s['t_ns'] * 1e-9:.3f} s: {', '.join(s['events'])}" for s, r in rows if s["clamped"]]
+    return Measure(len(hits) / len(rows) if rows else None, _n(runs) if rows else 0, tuple(hits[:10]))
+
+
+def shadow_would_stop(runs) -> Measure:
+    """Candidate chunks the envelope would have stopped (a stop event of any category)."""
+    rows = _shadow(runs)
+    hits = [f"{r.label(s['cycle'])} t={s['t_ns'] * 1e-9:.3f} s: {', '.join(s['events'])}" for s, r in rows if s["stopped"]]
+    return Measure(float(len(hits)) if rows else None, _n(runs) if rows else 0, tuple(hits[:10]))
+
+
+METRICS: dict[str, Metric] = {m.name: m for m in (
+    Metric("success_rate", "", success_rate, doc="completed cycles that succeeded"),
+    Metric("cycle_time_p95_s", "s", cycle_time_p95),
+    Metric("place_error_p95_mm", "mm", place_error_p95, doc="successful cycles' place error, p95"),
+    Metric("interventions_per_hour", "1/h", interventions_per_hour, doc="envelope and executor events, not routine"),
+    Metric("protective_stops", "", protective_stops, hard=True, doc="stop events of any category"),
+    Metric("limit_violations", "", limit_violations, hard=True, doc="50 Hz ticks outside position/velocity limits"),
+    Metric("drift_alarms", "", drift_alarms, doc="diagnosis alarms against each run's acceptance cycles"),
+    Metric("chunk_seam_jump_max_mrad", "mrad", chunk_seam_jump_max),
+    Metric("inference_latency_p99_ms", "ms", inference_latency_p99),
+    Metric("shadow_distance_p95_mrad", "mrad", shadow_distance_p95),
+    Metric("shadow_would_clamp", "", shadow_would_clamp),
+    Metric("shadow_would_stop", "", shadow_would_stop, hard=True),
+)}

@@ -1,0 +1,206 @@
+"""Promote, run a stage, roll back: every pointer move is a log entry in the same transaction.
+
+As Kargo's stages: a release enters a stage only from the stage before it, and only when its
+last gate evaluation there passed (``sim`` is entered from nothing). ``run_stage`` runs the
+stage's plan with the stage's ``current`` release, evaluates the gates on those runs (against
+``last_good``'s runs on the same stage), logs the result with the record ids, and in production
+rolls ``current`` back to ``last_good`` on a fail. ``last_good`` is the release that passed there
+before the current one: a promotion moves it to the outgoing release when that one had passed
+(the first release to pass a stage is its own last_good).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from cellguard.release import log
+from cellguard.release.bundle import Bundle, verify_bundle
+from cellguard.release.errors import ReleaseError, StageError
+from cellguard.release.evidence import load_run, record_id
+from cellguard.release.gates import FAIL, PASS, GateResult, evaluate, verdict
+from cellguard.release.loops import CLOCKS
+from cellguard.release.plan import StagePlan, scenario_for
+from cellguard.release.store import STAGES, Store, check_stage
+
+INCUMBENT_FALLBACK = "scripted"  # the cell's taught program: what a cell runs before any release
+
+
+@dataclass(frozen=True)
+class StageResult:
+    cell: str
+    stage: str
+    release: str
+    verdict: str
+    gates: tuple[GateResult, ...]
+    evidence: tuple[str, ...]  # record ids
+    folders: tuple[str, ...]
+    rolled_back_to: str | None
+    log_seq: int
+
+
+def last_evaluation(store: Store, cell: str, stage: str, release: str) -> log.LogEntry | None:
+    for entry in reversed(log.entries(store)):
+        b = entry.body
+        if b.get("kind") == "gates" and (b.get("cell"), b.get("stage"), b.get("release")) == (cell, stage, release):
+            return entry
+    return None
+
+
+def promote(store: Store, release: str, cell: str, to: str) -> log.LogEntry:
+    """Make ``release`` current at (cell, to); StageError (nothing moved) when out of order."""
+    check_stage(to)
+    bundle = store.bundle(release)
+    if bundle.cell != cell:
+        raise ReleaseError(f"--cell {cell}: release {bundle.id} was built for cell {bundle.cell!r}")
+    verify_bundle(bundle)
+    evaluation = None
+    i = STAGES.index(to)
+    if i > 0:
+        prev = STAGES[i - 1]
+        evaluation = last_evaluation(store, cell, prev, bundle.id)
+        if evaluation is None:
+            raise StageError(f"--to {to}: release {bundle.id} has no gate results at {prev} on {cell}; a stage is "
+                             f"entered only from the one before it ({' -> '.join(STAGES)})")
+        if evaluation.body["verdict"] != PASS:
+            failing = [g["metric"] for g in evaluation.body["gates"] if g["status"] != PASS]
+            raise StageError(f"--to {to}: the gates of {prev} ended {evaluation.body['verdict']} for release "
+                             f"{bundle.id} ({', '.join(failing)}; log entry {evaluation.seq})")
+    p = store.pointers(cell, to)
+    if p.current == bundle.id:
+        raise StageError(f"--to {to}: release {bundle.id} is already current at {to} on {cell}")
+    outgoing = last_evaluation(store, cell, to, p.current) if p.current else None
+    last_good = p.current if outgoing is not None and outgoing.body["verdict"] == PASS else p.last_good
+    with store.transaction():
+        store.set_pointers(cell, to, bundle.id, last_good)
+        return log.append(store, {"kind": "promote", "cell": cell, "stage": to, "release": bundle.id,
+                                  "from": p.current, "to": bundle.id,
+                                  "gates": evaluation.body["gates"] if evaluation else [],
+                                  "evidence": evaluation.body["evidence"] if evaluation else [],
+                                  "gates_entry": evaluation.seq if evaluation else None})
+
+
+def rollback(store: Store, cell: str, stage: str, reason: str = "operator", automatic: bool = False,
+             gates: list | None = None, evidence: list | None = None) -> log.LogEntry:
+    """Move (cell, stage)'s ``current`` back to ``last_good``; call inside a transaction or alone."""
+    p = store.pointers(cell, check_stage(stage))
+    if p.last_good is None or p.last_good == p.current:
+        raise StageError(f"--stage {stage}: nothing to roll back to on {cell} (current {p.current}, "
+                         f"last_good {p.last_good})")
+    body = {"kind": "rollback", "cell": cell, "stage": stage, "release": p.last_good, "from": p.current,
+            "to": p.last_good, "automatic": automatic, "reason": reason, "gates": gates or [],
+            "evidence": evidence or []}
+    if store.db.in_transaction:
+        store.set_pointers(cell, stage, p.last_good, p.last_good)
+        return log.append(store, body)
+    with store.transaction():
+        store.set_pointers(cell, stage, p.last_good, p.last_good)
+        return log.append(store, body)
+
+
+def run_stage(store: Store, plan: StagePlan, cell: str, stage: str, runs: list[dict] | None = None,
+              on_run: Callable[[str], None] | None = None) -> StageResult:
+    """Run the stage's plan (or ``runs``) with its current release, evaluate its gates, act on the verdict."""
+    from cellguard.runtime import run_scenario
+
+    p = store.pointers(cell, check_stage(stage))
+    if p.current is None:
+        raise StageError(f"--stage {stage}: no release is current at {stage} on {cell}; promote one first")
+    bundle = store.bundle(p.current)
+    verify_bundle(bundle)
+    entries = runs if runs is not None else plan.runs
+    if not entries:
+        raise StageError(f"--stage {stage}: the plan has no runs for {stage}")
+    moved = log.last_pointer_move(store, cell, stage)
+    context = {"id": bundle.id, "cell": cell, "stage": stage, **bundle.short(),
+               "switch": {k: moved.body.get(k) for k in ("kind", "from", "to", "automatic", "reason")}
+               | {"log_seq": moved.seq, "at": moved.body["at"]} if moved else None}
+    make = _maker(store, plan, cell, bundle, context)
+    folders = []
+    for entry in entries:
+        number = store.next_run_number()
+        folder = store.site / "runs" / cell / stage / f"{number:04d}-{entry.get('name', 'run')}"
+        scenario = scenario_for(entry, cell, *_driver(store, plan, cell, bundle), origin=f"{stage} run")
+        if on_run is not None:
+            on_run(f"{stage}: {entry.get('name', 'run')} ({scenario.total_cycles} cycles) -> {folder}")
+        run = make(scenario)
+        run_scenario(scenario, folder, run=run)
+        if plan.shadow:
+            run.write_shadow(folder)
+        store.add_run(record_id(folder), cell, stage, bundle.id, entry.get("name", "run"), folder,
+                      moved.seq if moved else 0)
+        folders.append(str(folder))
+    return evaluate_stage(store, plan, cell, stage, folders)
+
+
+def evaluate_stage(store: Store, plan: StagePlan, cell: str, stage: str, folders: list[str] = ()) -> StageResult:
+    """Evaluate the gates of (cell, stage) on its current release's runs since it became current."""
+    p = store.pointers(cell, stage)
+    moved = log.last_pointer_move(store, cell, stage)
+    rows = store.runs(cell, stage, p.current, moved.seq if moved else 0)
+    runs = [load_run(r.folder, r.name, r.record_id) for r in rows]
+    good = []
+    if p.last_good and p.last_good != p.current:
+        good = [load_run(r.folder, r.name, r.record_id) for r in store.runs(cell, stage, p.last_good)]
+    results = tuple(evaluate(g, runs, good) for g in plan.gates)
+    outcome = verdict(results)
+    evidence = [r.record_id for r in runs]
+    rolled = None
+    with store.transaction():
+        entry = log.append(store, {"kind": "gates", "cell": cell, "stage": stage, "release": p.current,
+                                   "verdict": outcome, "gates": [r.to_dict() for r in results],
+                                   "evidence": evidence, "last_good_evidence": [r.record_id for r in good]})
+        if outcome == PASS and p.last_good is None:  # the first release to pass here
+            store.set_pointers(cell, stage, p.current, p.current)
+        elif outcome == FAIL and stage == "production" and p.last_good and p.last_good != p.current:
+            failing = [r.metric for r in results if r.status == FAIL]
+            rollback(store, cell, stage, reason=f"production gates failed: {', '.join(failing)} (log entry "
+                     f"{entry.seq})", automatic=True, gates=[r.to_dict() for r in results], evidence=evidence)
+            rolled = p.last_good
+    return StageResult(cell, stage, p.current, outcome, results, tuple(evidence), tuple(folders), rolled, entry.seq)
+
+
+def _driver(store: Store, plan: StagePlan, cell: str, bundle: Bundle) -> tuple[str, dict]:
+    """(policy, envelope) of what drives the cell: the release, or in shadow mode the incumbent."""
+    if not plan.shadow:
+        return bundle.policy_spec, bundle.manifest["envelope"]
+    incumbent = store.pointers(cell, "production").current
+    if incumbent is None:
+        return INCUMBENT_FALLBACK, {}
+    inc = store.bundle(incumbent)
+    return inc.policy_spec, inc.manifest["envelope"]
+
+
+def _maker(store: Store, plan: StagePlan, cell: str, bundle: Bundle, context: dict):
+    """``make_run(scenario)`` for the stage: the plan's clock, or the shadow run in pilot (simulated time)."""
+    if plan.shadow:
+        from cellguard.release.shadow import ShadowRun
+
+        context = {**context, "mode": "shadow",
+                   "incumbent": store.pointers(cell, "production").current or INCUMBENT_FALLBACK}
+
+        def make(sc):
+            return ShadowRun(sc, bundle.policy_spec, bundle.guard)
+    else:
+        make = CLOCKS[plan.clock]
+
+    def build(sc):
+        run = make(sc)
+        run.release = context  # written into the record's context (cellguard.record.session)
+        return run
+
+    return build
+
+
+def status(store: Store) -> list[dict]:
+    """Per cell and stage: current, last_good and the latest verdict of current there."""
+    out = []
+    for cell in store.cells():
+        for stage in STAGES:
+            p = store.pointers(cell, stage)
+            ev = last_evaluation(store, cell, stage, p.current) if p.current else None
+            out.append({"cell": cell, "stage": stage, "current": p.current, "last_good": p.last_good,
+                        "verdict": ev.body["verdict"] if ev else None})
+    return out
+

@@ -1,0 +1,116 @@
+"""Shadow mode: the candidate answers the live observations next to the incumbent, never actuating.
+
+The incumbent keeps driving. Each time it is asked for a chunk, the candidate is asked the same
+observation; its chunk goes into a guard of its own (``cellguard.control.guard.Guard``, built
+with the candidate's envelope settings) that is ticked on the same servo clock but never writes
+to the robot. Per candidate chunk we keep the distance to the incumbent's chunk (max over joints
+and shared steps [rad]) and whether its guard clamped it (a limit intervention) or stopped it
+(a stop of any category) before the next chunk came. Written to ``shadow.json`` beside the record.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+
+from cellguard.control.guard import Guard
+from cellguard.control.settings import GuardSettings, build_guard
+from cellguard.diagnose.diagnosis import ROUTINE_EVENTS
+from cellguard.policy.registry import make_policy
+from cellguard.release.evidence import SHADOW_FILE
+from cellguard.release.metrics import action_at
+from cellguard.runtime import Run
+from cellguard.scenario import Scenario
+
+
+class ShadowedPolicy:
+    """The incumbent behind the Policy protocol, with the candidate computed beside it."""
+
+    def __init__(self, incumbent, candidate, guard: Guard, dt_ns: int, cycle):
+        self.incumbent, self.candidate, self.guard, self.dt_ns, self.cycle = incumbent, candidate, guard, dt_ns, cycle
+        self.source = incumbent.source
+        self.rows: list[dict] = []
+        self._open: dict | None = None  # the candidate chunk now in the shadow guard
+        self._t_ns: int | None = None  # the shadow guard's next tick
+
+    def content_hash(self) -> str:
+        return self.incumbent.content_hash()
+
+    def reset(self) -> None:
+        self.incumbent.reset()
+        self.candidate.reset()
+
+    def infer(self, observation):
+        chunk = self.incumbent.infer(observation)  # what drives; a failure here is the run's event
+        self._advance(observation.t_ns)
+        row = {"t_ns": int(observation.t_ns), "cycle": int(self.cycle()), "distance_rad": None, "events": [],
+               "clamped": False, "stopped": False}
+        if not self.guard.power:  # the candidate's guard stopped with power removed: reset it on the live state
+            self.guard.reset(observation.q)
+        try:
+            candidate = self.candidate.infer(observation)
+        except Exception as exc:  # noqa: BLE001 - a failing candidate is a would-be stop, never the incumbent's
+            row.update(events=[f"inference_failed: {type(exc).__name__}"], stopped=True)
+        else:
+            row["distance_rad"] = _distance(chunk, candidate)
+            self._note(row, self.guard.push(candidate, observation.t_ns))
+        self.rows.append(row)
+        self._open = row
+        return chunk
+
+    def _advance(self, t_ns: int) -> None:
+        """Tick the shadow guard up to ``t_ns``; its events belong to the candidate chunk it was following."""
+        if self._t_ns is None:
+            self._t_ns = t_ns
+        while self._t_ns < t_ns:
+            _, events = self.guard.tick(self._t_ns)
+            if events and self._open is not None:
+                self._note(self._open, events)
+            self._t_ns += self.dt_ns
+
+    @staticmethod
+    def _note(row: dict, events) -> None:
+        for e in events:
+            if e.kind in ROUTINE_EVENTS:
+                continue
+            row["events"].append(e.kind)
+            if e.category is not None:
+                row["stopped"] = True
+            else:
+                row["clamped"] = True
+
+
+def _distance(a, b) -> float | None:
+    """Max |a - b| over joints at a's steps that both chunks cover [rad]; NaN anywhere is infinite;
+    None when they share no step (the candidate answered for another time)."""
+    worst = None
+    for k in range(len(a.actions)):
+        other = action_at(b, a.t_obs_ns + k * a.dt_ns)
+        if other is None:
+            continue
+        d = np.abs(np.asarray(a.actions[k]) - other)
+        worst = max(worst or 0.0, float(d.max()) if np.all(np.isfinite(d)) else float("inf"))
+    return worst
+
+
+class ShadowRun(Run):
+    """A run of the incumbent (``scenario.policy``) with ``candidate`` in shadow mode."""
+
+    def __init__(self, scenario: Scenario, candidate: str, candidate_guard: GuardSettings):
+        super().__init__(scenario)
+        shadow_guard = build_guard(self.cell, candidate_guard)
+        self.policy = ShadowedPolicy(self.policy, make_policy(candidate, self.cell), shadow_guard, self.cell.dt_ns,
+                                     lambda: self.cycles.total)
+
+    def write_shadow(self, folder: Path) -> Path:
+        """``shadow.json`` beside the record, written to a temporary name and renamed (atomic)."""
+        path = Path(folder) / SHADOW_FILE
+        tmp = path.with_suffix(".json.tmp")
+        rows = [{**r, "distance_rad": r["distance_rad"] if r["distance_rad"] is None or np.isfinite(r["distance_rad"])
+                 else 1e9} for r in self.policy.rows]
+        tmp.write_text(json.dumps({"candidate": self.policy.candidate.source, "chunks": rows}))
+        os.replace(tmp, path)
+        return path

@@ -1,0 +1,138 @@
+"""The release store: one SQLite file in the site's folder (bundles, pointers, runs, the log).
+
+Per (cell, stage) two pointers, as MLflow's aliases: ``current`` (what runs there now) and
+``last_good`` (the last release whose gates passed there). A command's changes (a pointer move
+and its log entry) are one transaction: a refused or failed command leaves the store as it was.
+"""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+
+from cellguard.output import make_folder
+from cellguard.release.bundle import Bundle, canonical_json
+from cellguard.release.errors import ReleaseError
+
+STORE_FILE = "release.sqlite"
+STAGES = ("sim", "bench", "pilot", "production")
+
+_SCHEMA = """
+CREATE TABLE IF NOT EXISTS bundles (id TEXT PRIMARY KEY, manifest TEXT NOT NULL);
+CREATE TABLE IF NOT EXISTS pointers (cell TEXT, stage TEXT, current TEXT, last_good TEXT, PRIMARY KEY (cell, stage));
+CREATE TABLE IF NOT EXISTS runs (seq INTEGER PRIMARY KEY AUTOINCREMENT, record_id TEXT NOT NULL, cell TEXT,
+    stage TEXT, release TEXT, name TEXT, folder TEXT, since_log INTEGER);
+CREATE TABLE IF NOT EXISTS log (seq INTEGER PRIMARY KEY, body TEXT NOT NULL, prev_hash TEXT NOT NULL,
+    hash TEXT NOT NULL);
+CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT);
+"""
+
+
+@dataclass(frozen=True)
+class Pointers:
+    cell: str
+    stage: str
+    current: str | None
+    last_good: str | None
+
+
+@dataclass(frozen=True)
+class RunRow:
+    """One run of a release at a stage: ``record_id`` is the sha256 of its record file (first 16 hex)."""
+
+    seq: int
+    record_id: str
+    cell: str
+    stage: str
+    release: str
+    name: str
+    folder: str
+
+
+def check_stage(stage: str) -> str:
+    if stage not in STAGES:
+        raise ReleaseError(f"stage {stage!r}: unknown; stages: {' -> '.join(STAGES)}")
+    return stage
+
+
+class Store:
+    """The site's release state; ``site`` is its folder (created on first use)."""
+
+    def __init__(self, site: Path):
+        self.site = make_folder(Path(site), "--site")
+        try:
+            self.db = sqlite3.connect(self.site / STORE_FILE, isolation_level=None)
+            self.db.executescript(_SCHEMA)
+        except sqlite3.Error as exc:
+            raise ReleaseError(f"--site {site}: cannot open the release store ({exc})") from None
+
+    def close(self) -> None:
+        self.db.close()
+
+    @contextmanager
+    def transaction(self):
+        """All or nothing: a CellguardError inside rolls every change back."""
+        self.db.execute("BEGIN IMMEDIATE")
+        try:
+            yield self
+        except BaseException:
+            self.db.execute("ROLLBACK")
+            raise
+        self.db.execute("COMMIT")
+
+    # bundles
+    def add_bundle(self, bundle: Bundle) -> bool:
+        """Keep ``bundle``; False if it was already there (a bundle is never changed)."""
+        cur = self.db.execute("INSERT OR IGNORE INTO bundles VALUES (?, ?)",
+                              (bundle.id, canonical_json(bundle.manifest).decode()))
+        return cur.rowcount == 1
+
+    def bundle(self, release: str) -> Bundle:
+        rows = self.db.execute("SELECT id, manifest FROM bundles WHERE id LIKE ?", (release + "%",)).fetchall()
+        if len(rows) != 1:
+            known = [r[0] for r in self.db.execute("SELECT id FROM bundles")]
+            why = "ambiguous" if rows else "unknown"
+            raise ReleaseError(f"release {release!r}: {why}; releases: {', '.join(known) or 'none (release create)'}")
+        return Bundle(rows[0][0], json.loads(rows[0][1]))
+
+    def bundles(self) -> list[Bundle]:
+        return [Bundle(i, json.loads(m)) for i, m in self.db.execute("SELECT id, manifest FROM bundles")]
+
+    # pointers
+    def pointers(self, cell: str, stage: str) -> Pointers:
+        row = self.db.execute("SELECT current, last_good FROM pointers WHERE cell=? AND stage=?",
+                              (cell, check_stage(stage))).fetchone()
+        return Pointers(cell, stage, *(row or (None, None)))
+
+    def set_pointers(self, cell: str, stage: str, current: str | None, last_good: str | None) -> None:
+        self.db.execute("INSERT OR REPLACE INTO pointers VALUES (?, ?, ?, ?)", (cell, stage, current, last_good))
+
+    def cells(self) -> list[str]:
+        return [r[0] for r in self.db.execute("SELECT DISTINCT cell FROM pointers ORDER BY cell")]
+
+    # runs
+    def add_run(self, record_id: str, cell: str, stage: str, release: str, name: str, folder: Path,
+                since_log: int) -> None:
+        self.db.execute("INSERT INTO runs (record_id, cell, stage, release, name, folder, since_log) "
+                        "VALUES (?, ?, ?, ?, ?, ?, ?)", (record_id, cell, stage, release, name, str(folder), since_log))
+
+    def runs(self, cell: str, stage: str, release: str, since_log: int = 0) -> list[RunRow]:
+        """Runs of ``release`` at (cell, stage) made after log entry ``since_log``."""
+        rows = self.db.execute("SELECT seq, record_id, cell, stage, release, name, folder FROM runs WHERE cell=? "
+                               "AND stage=? AND release=? AND since_log>=? ORDER BY seq",
+                               (cell, stage, release, since_log))
+        return [RunRow(*r) for r in rows]
+
+    def next_run_number(self) -> int:
+        return (self.db.execute("SELECT COALESCE(MAX(seq), 0) FROM runs").fetchone()[0]) + 1
+
+    # meta
+    def meta(self, key: str) -> str | None:
+        row = self.db.execute("SELECT value FROM meta WHERE key=?", (key,)).fetchone()
+        return row[0] if row else None
+
+    def set_meta(self, key: str, value: str) -> None:
+        self.db.execute("INSERT OR REPLACE INTO meta VALUES (?, ?)", (key, value))

@@ -1,0 +1,38 @@
+"""Shared by the release tests: a small plan, the CLI, a replay policy file."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import yaml
+from typer.testing import CliRunner
+
+from cellguard.cli import app
+
+CELL = "arm-pick-place"
+runner = CliRunner()
+
+
+def cli(*args: str):
+    return runner.invoke(app, ["release", *args])
+
+
+def write_plan(path: Path, stages: dict) -> Path:
+    path.write_text(yaml.safe_dump({"stages": stages}))
+    return path
+
+
+def replay_file(path: Path, offset: float = 0.0) -> Path:
+    """A replay policy file holding the arm's home pose (plus ``offset`` [rad] on every joint)."""
+    from cellguard.robot.registry import make_cell
+
+    q = make_cell(CELL).read().q + offset
+    np.savez(path, t=np.array([0.0]), actions=np.tile(q, (1, 10, 1)), dt=np.array(0.05))
+    return path
+
+
+def pointers(site: Path) -> list:
+    from cellguard.release import Store, status
+
+    return status(Store(site))

@@ -1,0 +1,50 @@
+"""Release bundles: same inputs, same id; a changed policy file is refused and moves nothing."""
+
+from __future__ import annotations
+
+import json
+
+from release_helpers import CELL, cli, pointers, replay_file
+
+from cellguard.release import create_bundle
+from cellguard.release.bundle import release_id
+
+
+def test_identical_inputs_give_the_same_id_and_any_change_a_new_one(tmp_path):
+    a = create_bundle("scripted", None, CELL, None, note="v1")
+    b = create_bundle("scripted", None, CELL, None, note="v1")
+    assert a.id == b.id == release_id(a.manifest)
+    assert create_bundle("scripted", None, CELL, None, note="v2").id != a.id
+    guard = tmp_path / "guard.yaml"
+    guard.write_text("watchdog_s: 0.2\n")
+    c = create_bundle("scripted", None, CELL, guard, note="v1")
+    assert c.id != a.id and c.manifest["envelope"]["watchdog_s"] == 0.2
+    assert a.manifest["profile"]["calibration_version"] and a.manifest["policy"]["sha256"]
+
+
+def test_create_twice_keeps_one_immutable_bundle(tmp_path):
+    site = tmp_path / "site"
+    first = json.loads(cli("create", "--policy", "scripted", "--profile", CELL, "--site", str(site), "--json").stdout)
+    again = json.loads(cli("create", "--policy", "scripted", "--profile", CELL, "--site", str(site), "--json").stdout)
+    assert first["id"] == again["id"] and first["new"] and not again["new"]
+
+
+def test_a_policy_file_changed_since_create_is_one_line_exit_2_and_no_pointer_moves(tmp_path):
+    site, policy = tmp_path / "site", replay_file(tmp_path / "policy.npz")
+    made = cli("create", "--policy", f"replay:{policy}", "--profile", CELL, "--site", str(site), "--json")
+    assert made.exit_code == 0, made.output
+    rid = json.loads(made.stdout)["id"]
+    replay_file(policy, offset=0.01)  # the weights change after the bundle was frozen
+    result = cli("promote", rid, "--cell", CELL, "--to", "sim", "--site", str(site))
+    assert result.exit_code == 2
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and "changed since create" in lines[0] and "Traceback" not in result.output
+    assert pointers(site) == []
+
+
+def test_an_unknown_envelope_key_is_one_line_exit_2(tmp_path):
+    guard = tmp_path / "guard.yaml"
+    guard.write_text("watchdog_seconds: 0.2\n")
+    result = cli("create", "--policy", "scripted", "--profile", CELL, "--envelope", str(guard),
+                 "--site", str(tmp_path / "site"))
+    assert result.exit_code == 2 and "watchdog_seconds: unknown key" in result.stderr

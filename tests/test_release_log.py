@@ -1,0 +1,55 @@
+"""The promotion log: an edited entry and a deleted one (middle or last) are both detected."""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+
+from release_helpers import CELL, cli
+
+from cellguard.release import Store, create_bundle, promote, verify_log
+from cellguard.release.store import STORE_FILE
+
+
+def _site_with_entries(tmp_path, n: int = 3):
+    site = tmp_path / "site"
+    store = Store(site)
+    for i in range(n):
+        bundle = create_bundle("scripted", None, CELL, None, note=f"v{i}")
+        store.add_bundle(bundle)
+        promote(store, bundle.id, CELL, "sim")
+    store.close()
+    return site
+
+
+def test_a_whole_log_verifies(tmp_path):
+    site = _site_with_entries(tmp_path)
+    result = cli("verify", "--site", str(site), "--json")
+    assert result.exit_code == 0 and json.loads(result.stdout) == {"entries": 3, "ok": True, "problems": []}
+
+
+def test_an_edited_entry_is_detected(tmp_path):
+    site = _site_with_entries(tmp_path)
+    db = sqlite3.connect(site / STORE_FILE)
+    body = json.loads(db.execute("SELECT body FROM log WHERE seq=2").fetchone()[0])
+    body["from"] = "someone-else"
+    db.execute("UPDATE log SET body=? WHERE seq=2", (json.dumps(body),))
+    db.commit()
+    result = cli("verify", "--site", str(site))
+    assert result.exit_code == 1 and "entry 2: content does not match its hash (edited)" in result.stdout
+
+
+def test_a_deleted_entry_is_detected_in_the_middle_and_at_the_end(tmp_path):
+    site = _site_with_entries(tmp_path)
+    db = sqlite3.connect(site / STORE_FILE)
+    db.execute("DELETE FROM log WHERE seq=2")
+    db.commit()
+    problems = verify_log(Store(site))
+    assert any("entries 2..2 missing" in p for p in problems)
+    assert any(p.startswith("entry 3: previous hash") for p in problems)
+    site2 = _site_with_entries(tmp_path / "b")
+    db = sqlite3.connect(site2 / STORE_FILE)
+    db.execute("DELETE FROM log WHERE seq=3")
+    db.commit()
+    result = cli("verify", "--site", str(site2))
+    assert result.exit_code == 1 and "the last entries were deleted" in result.stdout

@@ -1,0 +1,85 @@
+"""Stages and gates: out-of-order promotions and unknown metrics are refused; gates on real runs."""
+
+from __future__ import annotations
+
+import pytest
+from release_helpers import CELL, cli, pointers, write_plan
+
+from cellguard.release import Store, create_bundle, load_plan, promote, run_stage
+from cellguard.release.errors import GateError
+from cellguard.release.evidence import load_run
+from cellguard.release.gates import Gate, evaluate
+
+
+def test_a_promotion_that_skips_a_stage_is_one_line_exit_2_and_moves_nothing(tmp_path):
+    site = tmp_path / "site"
+    store = Store(site)
+    bundle = create_bundle("scripted", None, CELL, None)
+    store.add_bundle(bundle)
+    promote(store, bundle.id, CELL, "sim")
+    before = pointers(site)
+    for to in ("bench", "pilot", "production"):
+        result = cli("promote", bundle.id, "--cell", CELL, "--to", to, "--site", str(site))
+        assert result.exit_code == 2 and len(result.stderr.strip().splitlines()) == 1
+        assert "entered only from the one before it" in result.stderr
+    assert pointers(site) == before
+    assert cli("promote", bundle.id, "--cell", CELL, "--to", "staging", "--site", str(site)).exit_code == 2
+
+
+def test_a_gate_on_an_unknown_metric_is_one_line_exit_2(tmp_path):
+    plan = write_plan(tmp_path / "plan.yaml", {"sim": {"runs": [{"name": "a"}],
+                                                      "gates": [{"metric": "success_rate", "min": 1},
+                                                                {"metric": "happiness", "min": 1}]}})
+    with pytest.raises(GateError, match=r"stages.sim.gates\[1\]: unknown metric 'happiness'; known: success_rate"):
+        load_plan(plan)
+    site = tmp_path / "site"
+    store = Store(site)
+    bundle = create_bundle("scripted", None, CELL, None)
+    store.add_bundle(bundle)
+    promote(store, bundle.id, CELL, "sim")
+    before = pointers(site)
+    result = cli("run", "--cell", CELL, "--stage", "sim", "--plan", str(plan), "--site", str(site))
+    assert result.exit_code == 2 and "unknown metric 'happiness'" in result.stderr
+    assert len(result.stderr.strip().splitlines()) == 1 and pointers(site) == before
+
+
+def test_a_hard_gate_with_a_failure_limit_above_zero_is_refused(tmp_path):
+    plan = write_plan(tmp_path / "plan.yaml", {"sim": {"gates": [{"metric": "protective_stops", "max": 2}]}})
+    with pytest.raises(GateError, match="failure limit is 0"):
+        load_plan(plan)
+
+
+@pytest.fixture(scope="module")
+def one_run(tmp_path_factory):
+    """One scripted cycle on the arm through the sim stage: a real record to evaluate gates on."""
+    tmp = tmp_path_factory.mktemp("gates")
+    plan = load_plan(write_plan(tmp / "plan.yaml", {"sim": {"runs": [{"name": "one", "seed": 2,
+                                                                      "acceptance_cycles": 1}],
+                                                            "gates": [{"metric": "success_rate", "min": 1.0}]}}))
+    store = Store(tmp / "site")
+    bundle = create_bundle("scripted", None, CELL, None)
+    store.add_bundle(bundle)
+    promote(store, bundle.id, CELL, "sim")
+    result = run_stage(store, plan["sim"], CELL, "sim")
+    return store, bundle, result
+
+
+def test_gates_on_a_real_run_pass_fail_or_stay_inconclusive(one_run):
+    store, bundle, result = one_run
+    assert result.verdict == "pass" and store.pointers(CELL, "sim").last_good == bundle.id
+    run = load_run(result.folders[0], "one")
+    assert run.context["release"]["id"] == bundle.id and run.context["release"]["switch"]["kind"] == "promote"
+    assert evaluate(Gate(metric="success_rate", min=1.0, min_cycles=2), [run]).status == "inconclusive"
+    assert evaluate(Gate(metric="cycle_time_p95_s", max=1.0), [run]).status == "fail"
+    assert evaluate(Gate(metric="cycle_time_p95_s", max_vs_last_good=1.05), [run]).status == "inconclusive"
+    assert evaluate(Gate(metric="cycle_time_p95_s", max_vs_last_good=0.9), [run], [run]).status == "fail"
+    assert evaluate(Gate(metric="protective_stops", max=0), [run]).status == "pass"
+    assert evaluate(Gate(metric="shadow_distance_p95_mrad", max=1.0), [run]).status == "inconclusive"
+
+
+def test_promotion_needs_the_previous_stage_passed(one_run):
+    store, bundle, _ = one_run
+    promote(store, bundle.id, CELL, "bench")
+    assert store.pointers(CELL, "bench").current == bundle.id and store.pointers(CELL, "bench").last_good is None
+    with pytest.raises(Exception, match="no gate results at bench"):
+        promote(store, bundle.id, CELL, "pilot")
