@@ -89,9 +89,9 @@ def run(
 
 
 def _exit_if_stopped(summary: dict, out: Path) -> None:
-    """A run stopped because its record could not be written: one line on stderr and exit 1."""
+    """A run the loop stopped (record failure, robot link fault, overrun budget): one line on stderr and exit 1."""
     if summary.get("stopped"):
-        err.print(f"error: the cell was stopped (category 2, record_failed): {summary['stopped']}; "
+        err.print(f"error: the cell was stopped: {summary['stopped']}; "
                   f"{out / 'summary.json'} says what ran", markup=False, highlight=False, soft_wrap=True)
         raise typer.Exit(1)
 

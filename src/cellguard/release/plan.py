@@ -33,7 +33,8 @@ from cellguard.scenario import Scenario, parse_scenario
 from cellguard.yaml_file import read_yaml, reject_unknown_keys
 
 DEFAULT_PLAN = Path(__file__).parents[1] / "scenarios" / "release-plan.yaml"
-RUN_KEYS = ("name", "seed", "acceptance_cycles", "production_cycles", "policy_hz", "site", "cell_id", "faults")
+RUN_KEYS = ("name", "seed", "acceptance_cycles", "production_cycles", "policy_hz", "site", "cell_id", "faults", "robot",
+            "realtime")
 
 
 class StagePlan(BaseModel):
