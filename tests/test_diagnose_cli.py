@@ -51,3 +51,20 @@ def test_a_folder_without_a_record_is_one_line_and_exit_2(tmp_path):
     result = runner.invoke(app, ["diagnose", str(tmp_path / "nothing")])
     assert result.exit_code == 2
     assert result.output.strip().count("\n") == 0 and result.output.startswith("error:")
+
+
+def test_a_baseline_from_another_robot_is_refused_and_kept(recorded, tmp_path):
+    assert runner.invoke(app, ["diagnose", str(recorded), "--json"]).exit_code == 0
+    stored = json.loads((recorded / "baseline.json").read_text())
+    assert stored["bound_to"]["robot"] and stored["bound_to"]["profile_sha256"]
+    other = tmp_path / "other"
+    other.mkdir()
+    for name in ("record.mcap", "baseline.json"):
+        (other / name).write_bytes((recorded / name).read_bytes())
+    stale = {**stored, "bound_to": {**stored["bound_to"], "robot": "another-robot"}}
+    (other / "baseline.json").write_text(json.dumps(stale))
+    before = (other / "baseline.json").read_bytes()
+    result = runner.invoke(app, ["diagnose", str(other)])
+    assert result.exit_code == 2 and "bound to robot 'another-robot'" in result.output
+    assert result.output.strip().count("\n") == 0
+    assert (other / "baseline.json").read_bytes() == before

@@ -120,7 +120,7 @@ def name_causes(baseline: Baseline, cycles: Sequence[Cycle], z: np.ndarray, alar
             f"the guard rejected {len(rejected)} policy chunk(s) in {n} cycle(s), first in cycle {first}: "
             f"{rejected[0][1]}", "a policy that emits non-finite or malformed actions"), ("chunks_rejected",)))
     latency_at = None
-    if "latency" in groups:
+    if any(kind_of(a.signal).unit == "ms" for a in groups.get("latency", ())):  # the policy answered later
         f = _latency(w, groups.pop("latency"))
         latency_at = f.cycle
         findings.append(f)

@@ -114,12 +114,14 @@ def detect_drift(baseline: Baseline, cycles: Sequence[Cycle], config: DriftConfi
     index = [c.index for c in cycles]
     h = config.cusum_threshold(p)
     zc = np.clip(z, -config.clip(h), config.clip(h))
-    upper, lower, alarms = _cusums(zc, config.k, h, baseline.names, index)
     names, pooled = pooled_channels(baseline, zc)
     hp = config.cusum_threshold(len(names), config.pooled_k)
-    if names:
-        clip = config.clip(hp, config.pooled_k)
-        alarms += _cusums(np.clip(pooled, -clip, clip), config.pooled_k, hp, names, index)[2]
+    clip = config.clip(hp, config.pooled_k)
+    q = len(names)  # both banks in one pass: columns [features | pooled channels]
+    upper, lower, alarms = _cusums(np.hstack([zc, np.clip(pooled, -clip, clip)]),
+                                   np.r_[np.full(p, config.k), np.full(q, config.pooled_k)],
+                                   np.r_[np.full(p, h), np.full(q, hp)], baseline.names + names, index)
+    upper, lower = upper[:, :p], lower[:, :p]
     mewma, limit, mv_alarm = _mewma(baseline, z, index, config)
     if mv_alarm is not None:
         alarms.append(mv_alarm)
@@ -149,8 +151,9 @@ def pooled_channels(baseline: Baseline, zc: np.ndarray) -> tuple[tuple[str, ...]
     return tuple(groups), out
 
 
-def _cusums(zc: np.ndarray, k: float, h: float, names: Sequence[str], index: list[int]):
-    """Two-sided CUSUMs of the columns of ``zc`` (NaN: no reading, the sum holds); first alarm per side."""
+def _cusums(zc: np.ndarray, k: np.ndarray, h: np.ndarray, names: Sequence[str], index: list[int]):
+    """Two-sided CUSUMs of the columns of ``zc`` with per-column reference value ``k`` and threshold ``h``
+    (NaN: no reading, the sum holds); first alarm per side."""
     n, p = zc.shape
     upper, lower = np.zeros((n, p)), np.zeros((n, p))
     s_up, s_lo = np.zeros(p), np.zeros(p)
