@@ -25,7 +25,7 @@ def diagnose_record(folder: Path, acceptance: Path | None = None) -> Diagnosis:
 
     folder = Path(folder)
     with open_record(folder) as rec:
-        cycles, events, context = list(rec.cycles()), list(rec.events()), rec.context
+        cycles, events, context = list(rec.cycles()), list(rec.events()), {**rec.context, "record_id": rec.record_id}
         declared = rec.contexts[-1].context.get("process", [])  # process changes declared up to the end
     baseline = None
     if acceptance is not None:
