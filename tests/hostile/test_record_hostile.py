@@ -225,3 +225,33 @@ def test_nothing_readable_is_exit_2(tmp_path):
     assert result.returncode == 2
     assert "nothing can be recovered" in one_error_line(result)
     assert junk.read_bytes() == b"[" * 500
+
+
+# -- class 5: a valid MCAP whose JSON messages are off their schema -------------------------------------
+def test_off_schema_json_messages_are_skipped_and_reported_as_damage(tmp_path):
+    from record_synth import DT_NS, JOINTS, context, tick
+
+    from cellguard.control.events import Event
+    from cellguard.record.schemas import BY_TOPIC
+    from cellguard.record.writer import Recorder
+
+    folder = tmp_path / "run"
+    rec = Recorder.create(folder, joints=JOINTS, dt_ns=DT_NS, context=context(), config=RecordConfig(),
+                          epoch_wall_ns=1_790_000_000_000_000_000)
+    rec.cycle_begin(0, "acceptance", 0)
+    for k in range(100):
+        tick(rec, k, 0)
+    rec.event(Event(50 * DT_NS, "protective_stop", "test", category=2), 0)
+    rec._json(BY_TOPIC["/cycles"].id, 60 * DT_NS, {"marker": "end", "phase": 3})  # no cycle, no times
+    rec._json(BY_TOPIC["/events"].id, 61 * DT_NS, {"kind": ["not", "text"]})
+    rec.cycle_end({"cycle": 0, "phase": "acceptance", "success": True, "features": {}}, 100 * DT_NS)
+    rec.close()
+    before = digests(folder)
+    with open_record(folder) as r:
+        assert [c.cycle for c in r.cycles()] == [0] and [e.kind for e in r.events()] == ["protective_stop"]
+        damage = r.health().damage
+    assert any("/cycles message(s) off their schema" in d for d in damage)
+    assert any("/events message(s) off their schema" in d for d in damage)
+    result = cellguard("record", "info", folder)
+    assert result.returncode == 1 and "damaged" in one_error_line(result)
+    assert digests(folder) == before

@@ -91,7 +91,8 @@ def run(
 def _exit_if_stopped(summary: dict, out: Path) -> None:
     """A run the loop stopped (record failure, robot link fault, overrun budget): one line on stderr and exit 1."""
     if summary.get("stopped"):
-        err.print(f"error: the cell was stopped: {summary['stopped']}; "
+        kind = next((e["kind"] for e in reversed(summary["events"]) if e.get("category") is not None), "stop")
+        err.print(f"error: the cell was stopped ({kind}): {summary['stopped']}; "
                   f"{out / 'summary.json'} says what ran", markup=False, highlight=False, soft_wrap=True)
         raise typer.Exit(1)
 

@@ -48,6 +48,25 @@ class EventKind(StrEnum):
     RESET = "reset"
     INFERENCE_FAILED = "inference_failed"
     RECORD_FAILED = "record_failed", False, 2
+    RECORD_QUEUE_FULL = "record_queue_full"
+    WATCHDOG_NO_FIRST_CHUNK = "watchdog_no_first_chunk"
+    # the real-time loop: ticks later than one period, and the budget that stops the cell
+    OVERRUN = "overrun"
+    OVERRUN_BUDGET = "overrun_budget"
+    # safe transitions: the approach to the policy's first target, the retreat to home
+    APPROACH_BEGIN = "approach_begin", True
+    APPROACH_DONE = "approach_done", True
+    APPROACH_ABORTED = "approach_aborted"
+    RETREAT_BEGIN = "retreat_begin", True
+    RETREAT_DONE = "retreat_done", True
+    RETREAT_ABORTED = "retreat_aborted"
+    # the robot link (category: the scenario's realtime.stop_category)
+    ROBOT_READ_FAILED = "robot_read_failed"
+    ROBOT_READ_TIMEOUT = "robot_read_timeout"
+    ROBOT_STATE_STALE = "robot_state_stale"
+    ROBOT_PACKETS_DROPPED = "robot_packets_dropped"
+    ROBOT_WRITE_FAILED = "robot_write_failed"
+    ROBOT_SERVER_GONE = "robot_server_gone"
 
 
 ROUTINE_EVENTS = frozenset(k.value for k in EventKind if k.routine)  # kinds that are normal bookkeeping

@@ -33,7 +33,8 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Iterator
+from collections import Counter
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -165,6 +166,7 @@ class Record:
         self.file, self.layout = file, layout
         self._buf = open_buffer(file)
         self._late_damage: dict[int, str] = {}
+        self._off_schema: Counter[str] = Counter()  # JSON messages that decode but do not fit their schema, by topic
         topics = {c.topic: c.id for c in layout.channels.values()}
         self._ids = {topic: topics.get(topic, spec.id) for topic, spec in BY_TOPIC.items()}
         self._contexts: list[ContextChange] | None = None
@@ -195,8 +197,7 @@ class Record:
         """One entry per context change; a periodic repeat stands in for a change whose chunk was lost."""
         if self._contexts is None:
             self._contexts = []
-            for m in self._raw(["/context"]):
-                d = json.loads(m.data)
+            for m, d in self._json(self._raw(["/context"]), "/context", _context_fits):
                 self.epoch_wall_ns = d.get("epoch_wall_ns", self.epoch_wall_ns)
                 self.record_id = d.get("record_id", self.record_id)
                 if self._offset is None:
@@ -225,21 +226,25 @@ class Record:
 
     # -- cycles, events, chunks -----------------------------------------------------------
     def cycles(self) -> Iterator[CycleRecord]:
-        for m in self.messages(["/cycles"]):
-            d = json.loads(m.data)
-            if d["marker"] != "end":
-                continue
-            features = {k: math.nan if v is None else float(v) for k, v in d.get("features", {}).items()}
-            versions = {k: d[k] for k in ("policy_version", "calibration_version", "datum_version",
-                                          "context_version") if k in d}
-            yield CycleRecord(d["cycle"], d["phase"], d["t_start_ns"], d["t_end_ns"], bool(d["success"]),
-                              features, d.get("outcome", {}), versions)
+        for _, cycle in self._json(self.messages(["/cycles"]), "/cycles", _cycle_record):
+            if cycle is not None:  # None: a cycle's begin marker
+                yield cycle
 
     def events(self) -> Iterator[EventRecord]:
-        for m in self.messages(["/events"]):
-            d = json.loads(m.data)
-            yield EventRecord(d["t_ns"], d["kind"], d["reason"], d.get("category"), d.get("joint"),
-                              d.get("asked"), d.get("sent"), d.get("cycle"))
+        for _, event in self._json(self.messages(["/events"]), "/events", _event_record):
+            yield event
+
+    def _json(self, messages: Iterator[Message], topic: str, build: Callable[[dict], object]) -> Iterator[tuple]:
+        """(message, ``build(decoded JSON)``) per message; one that does not fit its schema is skipped and
+        counted, and ``health()`` reports it as damage (a reader never stops on a malformed message)."""
+        for m in messages:
+            try:
+                d = json.loads(m.data)
+                value = build(d)
+            except (ValueError, KeyError, TypeError, AttributeError, IndexError):
+                self._off_schema[topic] += 1
+                continue
+            yield m, value
 
     def chunks(self) -> Iterator[RecordedChunk]:
         for m in self.messages(["/chunks"]):
@@ -278,8 +283,7 @@ class Record:
             if table is not None and table.num_rows:
                 return table["t_start_ns"][0].as_py(), table["t_end_ns"][0].as_py()
         start = end = None
-        for m in self.messages(["/cycles"]):
-            d = json.loads(m.data)
+        for _, d in self._json(self.messages(["/cycles"]), "/cycles", _cycle_marker):
             if d["cycle"] == cycle:
                 start, end = d["t_start_ns"], d.get("t_end_ns")
         if start is None:
@@ -315,6 +319,8 @@ class Record:
         counts = dict.fromkeys(self._ids, 0)
         first_t = last_t = None
         self.contexts  # noqa: B018 - read first, so that a lost context is known
+        for _ in (*self.cycles(), *self.events()):  # decoded, so that off-schema messages are counted
+            pass
         offset = self._offset or 0
         for m in self.messages(list(self._ids)):
             topic = names.get(m.channel_id)
@@ -327,7 +333,8 @@ class Record:
             last[m.channel_id] = max(previous, m.sequence)
             first_t = m.log_time if first_t is None else min(first_t, m.log_time)
             last_t = m.log_time if last_t is None else max(last_t, m.log_time)
-        damage = [d.why for d in self.layout.damage] + list(self._late_damage.values())
+        damage = ([d.why for d in self.layout.damage] + list(self._late_damage.values())
+                  + [f"{n} {topic} message(s) off their schema, skipped" for topic, n in self._off_schema.items()])
         damaged = len(self._late_damage) + sum("chunk at byte" in d.why for d in self.layout.damage)
         return Health(self.layout.finished, self.layout.truncated, len(self.layout.chunks) - len(self._late_damage),
                       damaged, tuple(damage), {t: tuple(g) for t, g in gaps.items()}, counts,
@@ -409,3 +416,34 @@ def _merge(parts: list[dict], cycle: int | None, start_ns: int | None, end_ns: i
     order = order[unique]
     picked = {f: v[keep][order] for f, v in values.items()}
     return Ticks(joints, t[order], cyc[order].astype(np.int64), **picked)
+
+
+def _context_fits(d: dict) -> dict:
+    """A context message as written (KeyError/TypeError if it is not one)."""
+    if not (isinstance(d["t_ns"], int) and isinstance(d["version"], str | int) and isinstance(d["context"], dict)):
+        raise TypeError("context message")
+    return d
+
+
+def _cycle_marker(d: dict) -> dict:
+    if not (isinstance(d["cycle"], int) and isinstance(d["t_start_ns"], int)):
+        raise TypeError("cycle marker")
+    return d
+
+
+def _cycle_record(d: dict) -> CycleRecord | None:
+    """A cycle's end marker as a CycleRecord; None for a begin marker."""
+    if _cycle_marker(d)["marker"] != "end":
+        return None
+    features = {k: math.nan if v is None else float(v) for k, v in d.get("features", {}).items()}
+    versions = {k: d[k] for k in ("policy_version", "calibration_version", "datum_version", "context_version")
+                if k in d}
+    return CycleRecord(d["cycle"], str(d["phase"]), d["t_start_ns"], int(d["t_end_ns"]), bool(d["success"]),
+                       features, dict(d.get("outcome", {})), versions)
+
+
+def _event_record(d: dict) -> EventRecord:
+    if not (isinstance(d["t_ns"], int) and isinstance(d["kind"], str)):
+        raise TypeError("event")
+    return EventRecord(d["t_ns"], d["kind"], str(d["reason"]), d.get("category"), d.get("joint"),
+                       d.get("asked"), d.get("sent"), d.get("cycle"))

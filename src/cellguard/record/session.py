@@ -20,7 +20,7 @@ import sys
 import threading
 from pathlib import Path
 
-from cellguard.control.events import Event
+from cellguard.control.events import Event, EventKind
 from cellguard.errors import RecordError
 from cellguard.record.context import build_context, software_versions
 from cellguard.record.index import default_opener
@@ -113,7 +113,7 @@ class RunRecording:
             self.dropped += 1
             if not self._full:
                 self._full = True
-                self.run.events.append(Event(state.t_ns, "record_queue_full",
+                self.run.events.append(Event(state.t_ns, EventKind.RECORD_QUEUE_FULL,
                                              f"the recorder queue holds {waiting} ticks; ticks are dropped "
                                              f"until the writer catches up"))
             return self.failed is None

@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 
-from cellguard.control.events import Event
+from cellguard.control.events import Event, EventKind
 from cellguard.robot.protocol import RobotLinkError
 
 
@@ -37,17 +37,17 @@ class RobotLink:
         try:
             state = self.robot.read()
         except RobotLinkError as exc:
-            self.fault(t_ns, exc.kind, str(exc))
+            self.fault(t_ns, EventKind(exc.kind), str(exc))  # the bridge names one of the link kinds
             self.lost = self.lost or exc.lost
             return self.state
         except Exception as exc:  # noqa: BLE001 - a bridge bug must stop the robot, not kill the loop
-            self.fault(t_ns, "robot_read_failed", f"{type(exc).__name__}: {exc}")
+            self.fault(t_ns, EventKind.ROBOT_READ_FAILED, f"{type(exc).__name__}: {exc}")
             return self.state
         if self.stale_ns is not None and t_ns - state.t_ns > self.stale_ns:
-            self.fault(t_ns, "robot_state_stale", f"state stamp {(t_ns - state.t_ns) * 1e-6:.1f} ms old "
+            self.fault(t_ns, EventKind.ROBOT_STATE_STALE, f"state stamp {(t_ns - state.t_ns) * 1e-6:.1f} ms old "
                         f"(limit {self.stale_ns * 1e-6:.0f} ms)")
         if self.drop_budget is not None and self.robot.dropped > self.drop_budget:
-            self.fault(t_ns, "robot_packets_dropped", f"{self.robot.dropped} packets lost "
+            self.fault(t_ns, EventKind.ROBOT_PACKETS_DROPPED, f"{self.robot.dropped} packets lost "
                         f"(budget {self.drop_budget})")
         self.state = state
         if self._last_sent is None:
@@ -63,11 +63,11 @@ class RobotLink:
         try:
             sent = self.robot.write(setpoint)
         except RobotLinkError as exc:
-            self.fault(t_ns, exc.kind, str(exc))
+            self.fault(t_ns, EventKind(exc.kind), str(exc))  # the bridge names one of the link kinds
             self.lost = self.lost or exc.lost
             return self._last_sent
         except Exception as exc:  # noqa: BLE001
-            self.fault(t_ns, "robot_write_failed", f"{type(exc).__name__}: {exc}")
+            self.fault(t_ns, EventKind.ROBOT_WRITE_FAILED, f"{type(exc).__name__}: {exc}")
             return self._last_sent
         self._last_sent = setpoint
         return sent

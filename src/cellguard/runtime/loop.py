@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cellguard.control.events import Event
+from cellguard.control.events import Event, EventKind
 from cellguard.control.settings import build_guard
 from cellguard.diagnose.cycle_buffer import CycleBuffer
 from cellguard.diagnose.features import cycle_features
@@ -111,7 +111,7 @@ class Run:
         if not self.guard.power:  # a category 0/1 stop in the last cycle: the operator resets the cell
             cell.set_power(True)
             self.guard.reset(link.read(start).q)
-            events.append(Event(start, "reset", "operator reset after a stop with power removed"))
+            events.append(Event(start, EventKind.RESET, "operator reset after a stop with power removed"))
         state = link.read(start)
         if not self._clock_started:
             self._clock_started = True
@@ -131,13 +131,13 @@ class Run:
                 latencies.append(arrival.latency_ns)
                 wall_ns.append(arrival.wall_ns)
             elif arrival is not None:
-                events.append(Event(t, "inference_failed", arrival.error))
+                events.append(Event(t, EventKind.INFERENCE_FAILED, arrival.error))
                 wall_ns.append(arrival.wall_ns)
             if inference.due(t):
                 observation = cell.observe()
                 failed = inference.submit(t, observation)
                 if failed is not None:
-                    events.append(Event(t, "inference_failed", failed.error))
+                    events.append(Event(t, EventKind.INFERENCE_FAILED, failed.error))
                     wall_ns.append(failed.wall_ns)
                 else:
                     self._first_observation = self._first_observation or observation
@@ -225,12 +225,12 @@ class Run:
     def _play(self, plan: Transition, name: str, t0: int) -> None:
         """Play a transition tick by tick; a stop input or a link fault aborts it (hold where it is)."""
         events, link, clock, rec = self.events, self.link, self.clock, self.recording
-        events.append(Event(t0, f"{name}_begin", f"{name}: {plan.duration_s:.2f} s to {np.round(plan.target, 3).tolist()}"))
+        events.append(Event(t0, EventKind(f"{name}_begin"), f"{name}: {plan.duration_s:.2f} s to {np.round(plan.target, 3).tolist()}"))
         t_end = t0
         for setpoint in plan.setpoints():
             t = clock.now()
             if self.cell.safety().stop is not None or link.stop is not None:
-                events.append(Event(t, f"{name}_aborted", "stop input or robot link fault during the transition",
+                events.append(Event(t, EventKind(f"{name}_aborted"), "stop input or robot link fault during the transition",
                                     category=2))
                 return
             sent = link.write(t, setpoint)
@@ -239,7 +239,7 @@ class Run:
             if rec is not None:
                 rec.tick(setpoint, sent, state)
             t_end = clock.now()
-        events.append(Event(t_end, f"{name}_done", f"{name} complete"))
+        events.append(Event(t_end, EventKind(f"{name}_done"), f"{name} complete"))
 
     def _stop_input(self, t_ns: int, guard) -> int | None:
         """The stop the loop itself asks for: a robot link fault, or no first chunk within the watchdog."""
@@ -248,7 +248,7 @@ class Run:
             watchdog = self.scenario.guard
             if t_ns - self._armed_at > watchdog.watchdog_s * 1e9:
                 if not self.events.has("watchdog_no_first_chunk"):
-                    self.events.append(Event(t_ns, "watchdog_no_first_chunk", f"no chunk within "
+                    self.events.append(Event(t_ns, EventKind.WATCHDOG_NO_FIRST_CHUNK, f"no chunk within "
                                              f"{watchdog.watchdog_s * 1e3:.0f} ms of the start",
                                              category=watchdog.watchdog_category))
                 stop = watchdog.watchdog_category if stop is None else min(stop, watchdog.watchdog_category)
@@ -258,10 +258,10 @@ class Run:
         timing = self.clock.timing
         budget = self.scenario.realtime.overrun_budget
         if timing.overruns <= 3 or timing.overruns == budget + 1:
-            self.events.append(Event(t_ns, "overrun", f"tick {timing.ticks} woke {timing.max_late_ns * 1e-3:.0f} us "
+            self.events.append(Event(t_ns, EventKind.OVERRUN, f"tick {timing.ticks} woke {timing.max_late_ns * 1e-3:.0f} us "
                                      f"late at most; {timing.overruns} overruns", ))
         if timing.overruns > budget and self.link.stop is None:
-            self.link.fault(t_ns, "overrun_budget", f"{timing.overruns} overruns, budget {budget}")
+            self.link.fault(t_ns, EventKind.OVERRUN_BUDGET, f"{timing.overruns} overruns, budget {budget}")
 
     def _stop_unrecorded(self, why: str) -> None:
         """Category 2 stop when the record cannot be written: hold the measured position, power kept."""
@@ -269,7 +269,7 @@ class Run:
         self.link.write(t, self.link.read(t).q)
         for _ in range(round(STOP_SETTLE_S * 1e9 / self.cell.dt_ns)):
             self.clock.advance()
-        self.events.append(Event(t, "record_failed", f"an unrecorded run is not allowed: {why}", category=2))
+        self.events.append(Event(t, EventKind.RECORD_FAILED, f"an unrecorded run is not allowed: {why}", category=2))
         self.stopped = why
 
     def _phase(self, index: int) -> str:
