@@ -82,18 +82,18 @@ class RunRecording:
         return cls(recorder, run, reserve=reserve)
 
     @staticmethod
-    def _context(run, config: RecordConfig, software: dict) -> dict:
+    def _context(run, config: RecordConfig, software: dict, cycle: int = 0) -> dict:
+        """The run's context; ``process``: the process changes declared by ``cycle`` (undeclared ones stay out)."""
         context = build_context(scenario=run.scenario, cell=run.cell, policy=run.policy, envelope=run.guard.envelope,
                                 software=software)
         release = getattr(run, "release", None)  # set by cellguard.release: the release and any pointer switch
-        return {**context, **({"release": release} if release else {}), "record": config.to_dict()}
+        return {**context, **({"release": release} if release else {}), "record": config.to_dict(),
+                "process": run.scenario.declared_process(cycle)}
 
     # -- servo thread ------------------------------------------------------------------------
     def begin_cycle(self, cycle: int, phase: str, t_ns: int) -> None:
         self._cycle = cycle
-        context = self._context(self.run, self.recorder.config, self._software)
-        context["process"] = self.run.scenario.declared_process(cycle)  # process changes declared so far
-        self._put(self.recorder.set_context, context, t_ns)
+        self._put(self.recorder.set_context, self._context(self.run, self.recorder.config, self._software, cycle), t_ns)
         self._put(self.recorder.cycle_begin, cycle, phase, t_ns)
 
     def request(self, t_ns: int, observation) -> None:
