@@ -97,6 +97,7 @@ def excite(scenario: Scenario, out: Path, physics=None, overwrite: bool = False)
     ``physics``: a ``robot.physics.Physics`` applied to a simulated cell after it is built (the
     ground truth a fit must find; the record does not carry it). Returns the run summary.
     """
+    from cellguard.record.writer import RecordConfig
     from cellguard.runtime.build import make_robot
     from cellguard.runtime.loop import Run, run_scenario
 
@@ -105,7 +106,8 @@ def excite(scenario: Scenario, out: Path, physics=None, overwrite: bool = False)
     run = Run(scenario, policy_factory=lambda: policy)
     if physics is not None:
         physics.apply(run.cell)
-    return run_scenario(scenario, out, run=run, overwrite=overwrite)
+    every_tick = RecordConfig(decimated_hz=1e9 / run.cell.dt_ns)  # identification needs the full rate
+    return run_scenario(scenario, out, run=run, overwrite=overwrite, record=every_tick)
 
 
 def _start_pose(cell) -> np.ndarray:
