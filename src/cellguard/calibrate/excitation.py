@@ -85,10 +85,12 @@ class ExcitationPolicy(Policy):
         return ActionChunk(actions=self.at(t), t_obs_ns=observation.t_ns, dt_ns=self.dt_ns)
 
 
-def excitation_scenario(cell: str, seconds: float, seed: int = 0) -> Scenario:
-    """One episode of ``seconds`` on the simulated cell ``cell``, its end by time."""
-    return Scenario(cell=cell, seed=seed, policy="excite", acceptance_cycles=1, production_cycles=0,
-                    cycle=CycleSettings(source="time", seconds=seconds))
+def excitation_scenario(cell_or_scenario: str | Scenario, seconds: float, seed: int = 0) -> Scenario:
+    """One episode of ``seconds``, its end by time, on a registered cell (by name) or on a scenario's
+    robot (its guard settings and seed kept; its policy, cycles and faults dropped)."""
+    base = Scenario(cell=cell_or_scenario, seed=seed) if isinstance(cell_or_scenario, str) else cell_or_scenario
+    return base.model_copy(update={"policy": "excite", "acceptance_cycles": 1, "production_cycles": 0, "faults": [],
+                                   "process_changes": [], "cycle": CycleSettings(source="time", seconds=seconds)})
 
 
 def excite(scenario: Scenario, out: Path, physics=None, overwrite: bool = False) -> dict:

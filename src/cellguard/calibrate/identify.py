@@ -90,6 +90,17 @@ def parse_params(text: str) -> tuple[str, ...]:
     return names
 
 
+def record_robot(path: Path) -> str:
+    """The robot a record is of (its context's ``cell``)."""
+    from cellguard.record.reader import open_record
+
+    with open_record(path) as rec:
+        robot = rec.context.get("cell")
+    if not robot:
+        raise CalibrationError(f"{path}: the record's context names no robot (cell); pass --cell")
+    return robot
+
+
 def load_segments(paths: list[Path], cell) -> list[Segment]:
     """Each record's full-rate ticks, checked to be of ``cell``'s robot and to carry motor current."""
     from cellguard.record.reader import open_record
@@ -138,7 +149,7 @@ def identify(segments: list[Segment], cell, params: tuple[str, ...] = PARAMS) ->
         for k, name in enumerate(names):
             value, half = drive[k]
             estimates.append(_estimate("kp", name, value, half, float(model.actuator_gainprm[act[k], 0])))
-    wanted = [p for p in ("armature", "damping", "friction", "payload") if p in params]
+    wanted = [p for p in ("armature", "damping", "friction", "payload") if p in params]  # report these
     if wanted:
         estimates += _joint_fit(segments, cell, joints, names, dadr, kv_nom, lag, wanted, dt)
     return {"robot": cell.name, "records": [s.record_id for s in segments],
@@ -182,9 +193,9 @@ def _joint_fit(segments, cell, joints, names, dadr, kv_nom, lag, wanted, dt) -> 
         if body < 0:
             raise CalibrationError(f"--params: 'payload' needs a body named 'tool'; {cell.name!r} has none")
         loaded.body_mass[body] += 1.0
-        mujoco.mj_setConst(loaded, mujoco.MjData(loaded))
     nj = len(joints)
-    blocks = {p: i for i, p in enumerate(p for p in ("armature", "damping", "friction") if p in wanted)}
+    # the three joint terms are always fitted together (each alone absorbs the others); the wanted ones are reported
+    blocks = {"armature": 0, "damping": 1, "friction": 2}
     ncol = len(blocks) * nj + (1 if loaded is not None else 0)
     xs, ys = [], []
     for s in segments:
@@ -202,10 +213,15 @@ def _joint_fit(segments, cell, joints, names, dadr, kv_nom, lag, wanted, dt) -> 
             xs.append(x)
             ys.append((s.tau[1:, i] - tau_rigid[:, k])[moving])
     x, y = np.concatenate(xs), np.concatenate(ys)
+    if len(y) < 10 * ncol:
+        raise CalibrationError(f"the records move too little to identify {', '.join(wanted)} ({len(y)} samples faster "
+                               f"than {MIN_SPEED} rad/s); record an excitation with `cellguard excite`")
     beta, half, _ = _ols(x, y)
     out = []
-    damping = beta[blocks["damping"] * nj:(blocks["damping"] + 1) * nj] if "damping" in blocks else model.dof_damping[dadr]
+    damping = beta[nj:2 * nj]
     for p, b in blocks.items():
+        if p not in wanted:
+            continue
         for k, name in enumerate(names):
             value, h = beta[b * nj + k], half[b * nj + k]
             if p == "armature":  # implicit integration adds dt (kv + damping) to the effective inertia

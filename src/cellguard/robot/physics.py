@@ -33,8 +33,8 @@ class Physics:
         m.dof_armature[drives.dadr] *= self.armature
         if self.payload_kg:
             body = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, self.payload_body)
-            m.body_mass[body] += self.payload_kg
-            mujoco.mj_setConst(m, cell.data)
+            m.body_mass[body] += self.payload_kg  # at the body's centre of mass; no mj_setConst: the
+            # constraint softness it rescales is commissioning data, not physics
         ticks = round(self.delay_s * 1e9 / cell.dt_ns)
         if ticks:
             _delay_drives(drives, ticks)
