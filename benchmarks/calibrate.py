@@ -20,7 +20,7 @@ from pathlib import Path
 import mujoco
 
 from cellguard.calibrate.excitation import excitation_scenario, excite
-from cellguard.calibrate.identify import PARAMS, identify, load_segments
+from cellguard.calibrate.identify import identify, load_segments, model_params
 from cellguard.record.writer import RecordConfig
 from cellguard.robot.physics import Physics
 from cellguard.robot.registry import make_cell
@@ -79,7 +79,7 @@ def main() -> None:
         cell = make_cell(ARM)
         step = mj_step_s(cell)
         t0 = time.perf_counter()
-        result = identify(load_segments([out], cell), cell, PARAMS)
+        result = identify(load_segments([out], cell), cell, model_params(cell))
         wall = time.perf_counter() - t0
         rows = table(result)
         production = None
@@ -89,7 +89,7 @@ def main() -> None:
             TRUTH.apply(run.cell)
             run_scenario(scenario, Path(tmp) / "production", run=run,
                          record=RecordConfig(decimated_hz=1e9 / run.cell.dt_ns))
-            prod = identify(load_segments([Path(tmp) / "production"], cell), cell, PARAMS)
+            prod = identify(load_segments([Path(tmp) / "production"], cell), cell, model_params(cell))
             production = {"cycles": args.production_cycles, "table": table(prod)}
     identified = [r for r in rows if r["interval"] is not None]
     print(json.dumps({

@@ -74,7 +74,7 @@ def test_series_respects_every_limit_from_any_start(where, seed):
 
 def test_identify_recovers_hidden_physics(hidden_record):
     cell = make_cell(ARM)
-    result = identify(load_segments([hidden_record], cell), cell, parse_params("friction,armature,delay,kp"))
+    result = identify(load_segments([hidden_record], cell), cell, parse_params("friction,armature,delay,kp", cell))
     by = {(e["parameter"], e["joint"]): e for e in result["estimates"]}
     assert by[("delay", None)]["value"] == pytest.approx(HIDDEN.delay_s, abs=1e-3)
     for joint in cell.profile.joint_names[:5]:
@@ -112,6 +112,8 @@ def test_bad_input_is_one_line_and_exit_2(nominal_record, tmp_path):
     assert unknown.exit_code == 2 and "'mass'" in unknown.output and "allowed" in unknown.output
     other = runner.invoke(app, ["identify", str(out), "--cell", "quadruped-turns"])
     assert other.exit_code == 2 and "quadruped-turns" in other.output
+    payload = runner.invoke(app, ["identify", str(out), "--cell", "quadruped-turns", "--params", "payload"])
+    assert payload.exit_code == 2 and "'payload' is not a parameter of the quadruped-turns model" in payload.output
     # a record without motor current: a robot whose drives do not report it
     scenario = excitation_scenario(ARM, 1.0)
     run = Run(scenario, policy_factory=lambda: ExcitationPolicy.for_profile(make_cell(ARM).profile,

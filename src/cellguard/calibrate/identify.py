@@ -79,15 +79,39 @@ class Segment:
     record_id: str
 
 
-def parse_params(text: str) -> tuple[str, ...]:
-    """``friction,armature`` -> the names, each one the model has; an unknown one is refused."""
+def model_params(cell) -> tuple[str, ...]:
+    """The parameters ``cell``'s model has: ``payload`` needs a body named ``tool``."""
+    has_tool = mujoco.mj_name2id(cell.model, mujoco.mjtObj.mjOBJ_BODY, "tool") >= 0
+    return tuple(p for p in PARAMS if p != "payload" or has_tool)
+
+
+def parse_params(text: str | None, cell) -> tuple[str, ...]:
+    """``friction,armature`` -> the names, each one ``cell``'s model has (None: all of them)."""
+    allowed = model_params(cell)
+    if text is None:
+        return allowed
     names = tuple(p.strip() for p in text.split(",") if p.strip())
     for name in names:
-        if name not in PARAMS:
-            raise CalibrationError(f"--params: {name!r} is not a parameter of the model; allowed: {', '.join(PARAMS)}")
+        if name not in allowed:
+            raise CalibrationError(f"--params: {name!r} is not a parameter of the {cell.name} model; "
+                                   f"allowed: {', '.join(allowed)}")
     if not names:
-        raise CalibrationError(f"--params: empty; allowed: {', '.join(PARAMS)}")
+        raise CalibrationError(f"--params: empty; allowed: {', '.join(allowed)}")
     return names
+
+
+def check_fixed_base(cell) -> None:
+    """Inverse dynamics needs every base acceleration: a floating base (a free joint above a profiled
+    joint) is not recorded, so such a cell is refused."""
+    m = cell.model
+    for name in cell.profile.joint_names:
+        body = m.jnt_bodyid[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, name)]
+        while body > 0:
+            for j in range(m.body_jntadr[body], m.body_jntadr[body] + m.body_jntnum[body]):
+                if m.jnt_type[j] == mujoco.mjtJoint.mjJNT_FREE:
+                    raise CalibrationError(f"{cell.name}: joint {name!r} sits on a floating base; identify "
+                                           "supports fixed-base cells only")
+            body = m.body_parentid[body]
 
 
 def record_robot(path: Path) -> str:
@@ -133,8 +157,9 @@ def load_segments(paths: list[Path], cell) -> list[Segment]:
     return segments
 
 
-def identify(segments: list[Segment], cell, params: tuple[str, ...] = PARAMS) -> dict:
+def identify(segments: list[Segment], cell, params: tuple[str, ...]) -> dict:
     """Fit ``params`` of ``cell``'s hinge joints to ``segments``; a dict ready for JSON."""
+    check_fixed_base(cell)
     model = cell.model
     dt = float(model.opt.timestep)
     joints = [i for i, j in enumerate(cell.profile.joints) if j.kind == "hinge"]
@@ -190,8 +215,6 @@ def _joint_fit(segments, cell, joints, names, dadr, kv_nom, lag, wanted, dt) -> 
     if "payload" in wanted:
         loaded = copy.deepcopy(rigid)
         body = mujoco.mj_name2id(loaded, mujoco.mjtObj.mjOBJ_BODY, "tool")
-        if body < 0:
-            raise CalibrationError(f"--params: 'payload' needs a body named 'tool'; {cell.name!r} has none")
         loaded.body_mass[body] += 1.0
     nj = len(joints)
     # the three joint terms are always fitted together (each alone absorbs the others); the wanted ones are reported

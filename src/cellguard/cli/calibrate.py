@@ -39,8 +39,8 @@ def excite(
 @app.command()
 def identify(
     records: list[Path] = typer.Argument(..., help="Record folders (full-rate ticks with motor current)."),
-    params: str = typer.Option("friction,armature,damping,kp,delay,payload", "--params",
-                               help="Comma-separated: friction, armature, damping, kp, delay, payload."),
+    params: str | None = typer.Option(None, "--params", help="Comma-separated, of friction, armature, damping, kp, "
+                                      "delay, payload (default: every one the model has)."),
     cell_name: str = typer.Option("", "--cell", help="The robot the model is of (default: the first record's)."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),
 ) -> None:
@@ -50,14 +50,17 @@ def identify(
     from cellguard.robot.registry import make_cell
 
     try:
-        wanted = parse_params(params)
         cell = make_cell(cell_name or record_robot(records[0]))
+        wanted = parse_params(params, cell)
         result = fit(load_segments(records, cell), cell, wanted)
     except CellguardError as exc:
         fail(exc)
     if as_json:
         typer.echo(json.dumps(result, indent=1))
         return
+    if any(e["interval"] is None for e in result["estimates"]):
+        typer.echo("warning: some parameters are not excited by these records; `cellguard excite` records a "
+                   "trajectory that excites them", err=True)
     typer.echo(f"{result['robot']}: {result['samples']} ticks from {len(result['records'])} record(s)")
     for e in result["estimates"]:
         name = f"{e['parameter']}" + (f" {e['joint']}" if e["joint"] else "")
