@@ -138,3 +138,26 @@ def test_excite_cli_records(tmp_path):
     assert "0 guard events" in result.output
     again = runner.invoke(app, ["excite", ARM, "--seconds", "2", "--out", str(tmp_path / "ex")])
     assert again.exit_code == 2  # a record already there is never overwritten
+
+
+def test_write_profile_versions_and_keeps_the_old(hidden_record, tmp_path):
+    from cellguard.embodiment import load_profile
+    from cellguard.robot.arm_cell import ASSETS
+
+    profile = tmp_path / "arm_profile.yaml"
+    profile.write_bytes((ASSETS / "arm_profile.yaml").read_bytes())
+    result = runner.invoke(app, ["identify", str(hidden_record), "--params", "friction,damping", "--write", str(profile)])
+    assert result.exit_code == 0, result.output
+    cell = make_cell(ARM)
+    new = load_profile(cell.model, profile)
+    assert "-cal-" in new.version
+    friction = {m.joint: m for m in new.measured if m.parameter == "friction"}
+    assert friction["elbow"].value == pytest.approx(0.3, rel=0.05) and friction["elbow"].method.startswith("sysid:")
+    assert len(friction) == 5 and any(m.parameter == "backlash" for m in new.measured)  # others kept
+    old = load_profile(cell.model, tmp_path / "arm_profile.2026-11-01.yaml")
+    assert old.version == "2026-11-01" and old.sha256 == cell.profile.sha256
+    quad = tmp_path / "quad.yaml"
+    quad.write_bytes((ASSETS / "quadruped_profile.yaml").read_bytes())
+    before = quad.read_bytes()
+    wrong = runner.invoke(app, ["identify", str(hidden_record), "--write", str(quad)])
+    assert wrong.exit_code == 2 and "robot" in wrong.output and quad.read_bytes() == before

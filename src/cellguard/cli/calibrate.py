@@ -43,6 +43,8 @@ def identify(
                                       "delay, payload (default: every one the model has)."),
     cell_name: str = typer.Option("", "--cell", help="The robot the model is of (default: the first record's)."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),
+    write: Path | None = typer.Option(None, "--write", help="Update this profile's measured friction, damping and "
+                                      "armature (new version; the old one kept beside it)."),
 ) -> None:
     """Fit the cell's MuJoCo model (from its nominal MJCF) to recorded ticks: value, unit, 95 % interval."""
     from cellguard.calibrate.identify import identify as fit
@@ -53,6 +55,12 @@ def identify(
         cell = make_cell(cell_name or record_robot(records[0]))
         wanted = parse_params(params, cell)
         result = fit(load_segments(records, cell), cell, wanted)
+        if write is not None:
+            import datetime as dt
+
+            from cellguard.calibrate.write import write_profile
+
+            result["profile_version"] = write_profile(write, cell, result, dt.date.today().isoformat())
     except CellguardError as exc:
         fail(exc)
     if as_json:
@@ -62,6 +70,8 @@ def identify(
         typer.echo("warning: some parameters are not excited by these records; `cellguard excite` records a "
                    "trajectory that excites them", err=True)
     typer.echo(f"{result['robot']}: {result['samples']} ticks from {len(result['records'])} record(s)")
+    if write is not None:
+        typer.echo(f"{write}: version {result['profile_version']}")
     for e in result["estimates"]:
         name = f"{e['parameter']}" + (f" {e['joint']}" if e["joint"] else "")
         if e["interval"] is None:
