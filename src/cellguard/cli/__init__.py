@@ -4,7 +4,8 @@ A new command group is a new module here that imports ``app`` from ``cellguard.c
 registers its commands; add its import below.
 """
 
-from cellguard.cli import bench, diagnose, embodiment, fleet, policy, record, release, run, sim_server  # noqa: F401  (register commands)
+from cellguard.cli import (  # noqa: F401  (register commands)
+    bench, calibrate, diagnose, embodiment, fleet, policy, record, release, run, sim_server)
 from cellguard.cli.app import app
 
 __all__ = ["app"]

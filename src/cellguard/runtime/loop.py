@@ -27,6 +27,7 @@ from cellguard.output import make_folder, write_output
 from cellguard.policy.chunk import ActionChunk
 from cellguard.policy.registry import make_policy
 from cellguard.record.session import RunRecording
+from cellguard.record.writer import RecordConfig
 from cellguard.robot.process import apply_process_changes
 from cellguard.robot.protocol import SafetyInputs
 from cellguard.runtime.build import make_clock, make_inference, make_robot
@@ -308,16 +309,17 @@ class Run:
 
 def run_scenario(scenario: Scenario, out: Path, on_cycle: Callable[[dict], None] | None = None,
                  realtime: bool = False, policy_factory: Callable[[], object] | None = None,
-                 overwrite: bool = False, run: Run | None = None) -> dict:
+                 overwrite: bool = False, run: Run | None = None, record: RecordConfig | None = None) -> dict:
     """Run every cycle of ``scenario`` and write ``out/summary.json``; return the summary.
 
     A folder that holds a record already is refused unless ``overwrite``. ``run``: the scenario's
     ``Run`` if the caller built it already (every check before ``out`` is created), or a subclass
-    that observes the loop (the release's shadow run)."""
+    that observes the loop (the release's shadow run). ``record``: the recorder's rates (excitation
+    records every tick)."""
     run = run if run is not None else Run(scenario, realtime=realtime, policy_factory=policy_factory)
     try:
         out = make_folder(Path(out), "--out")
-        run.recording = RunRecording.start(out, run, replace=overwrite)  # RecordError here: nothing runs
+        run.recording = RunRecording.start(out, run, replace=overwrite, **({"config": record} if record else {}))  # RecordError here: nothing runs
         try:
             for _ in range(scenario.total_cycles):
                 outcome = run.cycle()

@@ -1,0 +1,316 @@
+"""Identify a cell's drive and joint parameters from its own record, starting from the nominal MJCF.
+
+Method (linear in the unknowns, so one least-squares solve with intervals, no rollouts):
+
+1. Command delay and servo gain: a position drive's effort is ``kp (q_cmd(t - delay) - q) - kv qd``.
+   For every candidate delay (whole servo periods up to ``MAX_DELAY_S``) that regression is
+   solved per joint; the delay with the smallest residual wins (a cross-correlation of the
+   command with the effort it causes, free of the lag the arm's own dynamics adds).
+2. Joint parameters: the measured torque (current x torque constant) minus the rigid-body
+   torque of the nominal model (``mj_inverse`` with armature, damping, dry friction and
+   constraints removed) is regressed on ``qdd`` (armature), ``qd`` (damping), ``sign(qd)``
+   (dry friction) per joint, and on the torque one kilogram more at the payload body needs
+   (payload, shared by all joints). Samples slower than ``MIN_SPEED`` are left out (dry friction
+   is set-valued there). The implicit integrator's velocity derivative terms add
+   ``dt (kv + damping)`` to the effective armature; it is taken off.
+
+Intervals are 95 % OLS intervals (1.96 standard errors with the residual variance); a column
+that the data does not excite (near-zero norm or in the near-null space) is "not identifiable".
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+from cellguard.errors import ConfigError, RecordError
+
+PARAMS = ("friction", "armature", "damping", "kp", "delay", "payload")
+UNITS = {"friction": "N*m", "armature": "kg*m^2", "damping": "N*m*s/rad", "kp": "N*m/rad", "delay": "s",
+         "payload": "kg"}
+MAX_DELAY_S = 0.03  # longest command delay searched [s]
+MIN_TICKS = 200  # shortest stretch of servo-rate ticks used [ticks]
+MIN_SPEED = 0.05  # samples slower than this leave the friction regression [rad/s]
+SATURATED = 0.95  # samples with effort beyond this fraction of the force range leave the drive regression
+Z95 = 1.959964  # two-sided 95 % normal quantile
+NULL_EIG = 1e-10  # relative eigenvalue of the scaled normal matrix below which a direction is unexcited
+
+
+class CalibrationError(ConfigError):
+    """Bad input to identification: a record it cannot use, a parameter the model does not have."""
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """One identified parameter; ``low``/``high`` the 95 % interval (None when not identifiable)."""
+
+    parameter: str
+    joint: str | None
+    value: float | None
+    unit: str
+    nominal: float
+    low: float | None
+    high: float | None
+
+    @property
+    def identifiable(self) -> bool:
+        return self.value is not None and self.low is not None
+
+    def to_dict(self) -> dict:
+        out = {"parameter": self.parameter, "joint": self.joint, "value": self.value, "unit": self.unit,
+               "nominal": self.nominal, "interval": [self.low, self.high] if self.identifiable else None}
+        if not self.identifiable:
+            out["note"] = "not identifiable from this data"
+        return out
+
+
+@dataclass(frozen=True)
+class Segment:
+    """Ticks of one record: (n, dof) arrays in profile joint order; ``tau`` the measured torque [N*m]."""
+
+    q: np.ndarray
+    qd: np.ndarray
+    q_cmd: np.ndarray
+    tau: np.ndarray
+    record_id: str
+
+
+def model_params(cell) -> tuple[str, ...]:
+    """The parameters ``cell``'s model has: ``payload`` needs a body named ``tool``."""
+    has_tool = mujoco.mj_name2id(cell.model, mujoco.mjtObj.mjOBJ_BODY, "tool") >= 0
+    return tuple(p for p in PARAMS if p != "payload" or has_tool)
+
+
+def parse_params(text: str | None, cell) -> tuple[str, ...]:
+    """``friction,armature`` -> the names, each one ``cell``'s model has (None: all of them)."""
+    allowed = model_params(cell)
+    if text is None:
+        return allowed
+    names = tuple(p.strip() for p in text.split(",") if p.strip())
+    for name in names:
+        if name not in allowed:
+            raise CalibrationError(f"--params: {name!r} is not a parameter of the {cell.name} model; "
+                                   f"allowed: {', '.join(allowed)}")
+    if not names:
+        raise CalibrationError(f"--params: empty; allowed: {', '.join(allowed)}")
+    return names
+
+
+def check_fixed_base(cell) -> None:
+    """Inverse dynamics needs every base acceleration: a floating base (a free joint above a profiled
+    joint) is not recorded, so such a cell is refused."""
+    m = cell.model
+    for name in cell.profile.joint_names:
+        body = m.jnt_bodyid[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, name)]
+        while body > 0:
+            for j in range(m.body_jntadr[body], m.body_jntadr[body] + m.body_jntnum[body]):
+                if m.jnt_type[j] == mujoco.mjtJoint.mjJNT_FREE:
+                    raise CalibrationError(f"{cell.name}: joint {name!r} sits on a floating base; identify "
+                                           "supports fixed-base cells only")
+            body = m.body_parentid[body]
+
+
+def record_robot(path: Path) -> str:
+    """The robot a record is of (its context's ``cell``)."""
+    from cellguard.record.reader import open_record
+
+    with open_record(path) as rec:
+        robot = rec.context.get("cell")
+    if not robot:
+        raise CalibrationError(f"{path}: the record's context names no robot (cell); pass --cell")
+    return robot
+
+
+def load_segments(paths: list[Path], cell) -> list[Segment]:
+    """Each record's full-rate ticks, checked to be of ``cell``'s robot and to carry motor current."""
+    from cellguard.record.reader import open_record
+
+    segments = []
+    for path in paths:
+        with open_record(path) as rec:
+            robot = rec.context.get("cell")
+            if robot != cell.name:
+                raise CalibrationError(f"{path}: a record of robot {robot!r}; the model is {cell.name!r}")
+            ticks = rec.ticks(rate="all")
+            record_id = rec.record_id or str(path)
+        if tuple(ticks.joints) != tuple(cell.profile.joint_names):
+            raise CalibrationError(f"{path}: joints {list(ticks.joints)}; the model has {list(cell.profile.joint_names)}")
+        current = ticks.current
+        if not np.isfinite(current).any():
+            raise CalibrationError(f"{path}: the record has no motor current; identification needs current")
+        tau = current * cell.profile.array("torque_constant")
+        keep = np.isfinite(tau).all(1) & np.isfinite(ticks.q_meas).all(1) & np.isfinite(ticks.q_cmd).all(1)
+        t_ns = ticks.t_ns
+        # contiguous runs of servo-rate ticks (a decimated stream or a gap splits them)
+        step = np.concatenate([[False], (np.diff(t_ns) == cell.dt_ns) & keep[1:] & keep[:-1]])
+        starts = np.flatnonzero(~step)
+        for a, b in zip(starts, np.append(starts[1:], len(t_ns))):
+            if b - a >= MIN_TICKS:
+                segments.append(Segment(ticks.q_meas[a:b], ticks.qd_meas[a:b], ticks.q_cmd[a:b], tau[a:b], record_id))
+        if not any(s.record_id == record_id for s in segments):
+            raise CalibrationError(f"{path}: no stretch of {MIN_TICKS} ticks at the servo rate; record at full rate "
+                                   "(`cellguard excite` does)")
+    return segments
+
+
+def identify(segments: list[Segment], cell, params: tuple[str, ...]) -> dict:
+    """Fit ``params`` of ``cell``'s hinge joints to ``segments``; a dict ready for JSON."""
+    check_fixed_base(cell)
+    model = cell.model
+    dt = float(model.opt.timestep)
+    joints = [i for i, j in enumerate(cell.profile.joints) if j.kind == "hinge"]
+    names = [cell.profile.joint_names[i] for i in joints]
+    dadr, act = cell.drives.dadr[joints], cell.drives.act[joints]
+    kv_nom = -model.actuator_biasprm[act, 2]
+    estimates: list[Estimate] = []
+    lag, drive = _drive_fit(segments, model, act, joints)
+    if "delay" in params:
+        estimates.append(Estimate("delay", None, lag * dt, "s", 0.0, max(lag - 1, 0) * dt, (lag + 1) * dt))
+    if "kp" in params:
+        for k, name in enumerate(names):
+            value, half = drive[k]
+            estimates.append(_estimate("kp", name, value, half, float(model.actuator_gainprm[act[k], 0])))
+    wanted = [p for p in ("armature", "damping", "friction", "payload") if p in params]  # report these
+    if wanted:
+        estimates += _joint_fit(segments, cell, joints, names, dadr, kv_nom, lag, wanted, dt)
+    return {"robot": cell.name, "records": [s.record_id for s in segments],
+            "samples": int(sum(len(s.q) for s in segments)), "method": "linear regression on mj_inverse (nominal MJCF)",
+            "estimates": [e.to_dict() for e in estimates]}
+
+
+def _drive_fit(segments, model, act, joints) -> tuple[int, list[tuple[float, float]]]:
+    """(delay in ticks, [(kp, 95 % half width)] per joint) from effort = kp (cmd(k - lag) - q) - kv qd."""
+    dt = float(model.opt.timestep)
+    limit = model.actuator_forcerange[act, 1]
+    best = None
+    for lag in range(round(MAX_DELAY_S / dt) + 1):
+        fits, cost = [], 0.0
+        for k, i in enumerate(joints):
+            rows, ys = [], []
+            for s in segments:
+                # row r's effort acts in the step from row r-1's state, on the command taken lag ticks before row r
+                e = s.q_cmd[1:len(s.q) - lag, i] - s.q[lag:-1, i]
+                y = s.tau[lag + 1:, i]
+                ok = np.abs(y) < SATURATED * limit[k]
+                rows.append(np.column_stack([e, s.qd[lag:-1, i]])[ok])
+                ys.append(y[ok])
+            x, y = np.concatenate(rows), np.concatenate(ys)
+            beta, half, rss = _ols(x, y)
+            fits.append((float(beta[0]), float(half[0])))
+            cost += rss / max(float(y @ y), 1e-300)
+        if best is None or cost < best[0]:
+            best = (cost, lag, fits)
+    return best[1], best[2]
+
+
+def _joint_fit(segments, cell, joints, names, dadr, kv_nom, lag, wanted, dt) -> list[Estimate]:
+    """Armature, damping, friction per joint and the payload, from one stacked least-squares solve."""
+    model = cell.model
+    rigid = _rigid_model(model)
+    loaded = None
+    if "payload" in wanted:
+        loaded = copy.deepcopy(rigid)
+        body = mujoco.mj_name2id(loaded, mujoco.mjtObj.mjOBJ_BODY, "tool")
+        loaded.body_mass[body] += 1.0
+    nj = len(joints)
+    # the three joint terms are always fitted together (each alone absorbs the others); the wanted ones are reported
+    blocks = {"armature": 0, "damping": 1, "friction": 2}
+    ncol = len(blocks) * nj + (1 if loaded is not None else 0)
+    xs, ys = [], []
+    for s in segments:
+        tau_rigid, tau_loaded = _inverse(rigid, loaded, cell, s, dt)
+        acc = np.diff(s.qd, axis=0) / dt  # (n-1, dof): over each step
+        qd0 = s.qd[:-1]
+        for k, i in enumerate(joints):
+            moving = np.abs(qd0[:, i]) > MIN_SPEED
+            x = np.zeros((int(moving.sum()), ncol))
+            regressors = {"armature": acc[:, i], "damping": qd0[:, i], "friction": np.sign(qd0[:, i])}
+            for p, b in blocks.items():
+                x[:, b * nj + k] = regressors[p][moving]
+            if loaded is not None:
+                x[:, -1] = (tau_loaded[:, k] - tau_rigid[:, k])[moving]
+            xs.append(x)
+            ys.append((s.tau[1:, i] - tau_rigid[:, k])[moving])
+    x, y = np.concatenate(xs), np.concatenate(ys)
+    if len(y) < 10 * ncol:
+        raise CalibrationError(f"the records move too little to identify {', '.join(wanted)} ({len(y)} samples faster "
+                               f"than {MIN_SPEED} rad/s); record an excitation with `cellguard excite`")
+    beta, half, _ = _ols(x, y)
+    out = []
+    damping = beta[nj:2 * nj]
+    for p, b in blocks.items():
+        if p not in wanted:
+            continue
+        for k, name in enumerate(names):
+            value, h = beta[b * nj + k], half[b * nj + k]
+            if p == "armature":  # implicit integration adds dt (kv + damping) to the effective inertia
+                value = value - dt * (kv_nom[k] + damping[k])
+            nominal = {"armature": model.dof_armature, "damping": model.dof_damping,
+                       "friction": model.dof_frictionloss}[p][dadr[k]]
+            out.append(_estimate(p, name, float(value), float(h), float(nominal)))
+    if loaded is not None:
+        out.append(_estimate("payload", None, float(beta[-1]), float(half[-1]), 0.0))
+    return out
+
+
+def _rigid_model(model: mujoco.MjModel) -> mujoco.MjModel:
+    """The nominal model with only rigid-body dynamics left: no armature, damping, dry friction, constraints."""
+    rigid = copy.deepcopy(model)
+    rigid.dof_armature[:] = 0.0
+    rigid.dof_damping[:] = 0.0
+    rigid.dof_frictionloss[:] = 0.0
+    rigid.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONSTRAINT
+    return rigid
+
+
+def _inverse(rigid, loaded, cell, s: Segment, dt: float):
+    """Rigid-body joint torques (n-1, hinge joints) at each step's start state and its acceleration."""
+    joints = [i for i, j in enumerate(cell.profile.joints) if j.kind == "hinge"]
+    qadr, dadr = cell.drives.qadr, cell.drives.dadr
+    n = len(s.q) - 1
+    outs = []
+    for m in (rigid, loaded):
+        if m is None:
+            outs.append(None)
+            continue
+        d = mujoco.MjData(m)
+        d.qpos[:] = cell.data.qpos  # the rest of the model (tool, part) where the cell holds it
+        tau = np.empty((n, len(joints)))
+        acc = np.diff(s.qd, axis=0) / dt
+        for k in range(n):
+            d.qpos[qadr] = s.q[k]
+            d.qvel[:] = 0.0
+            d.qvel[dadr] = s.qd[k]
+            d.qacc[:] = 0.0
+            d.qacc[dadr] = acc[k]
+            mujoco.mj_inverse(m, d)
+            tau[k] = d.qfrc_inverse[dadr[joints]]
+        outs.append(tau)
+    return outs[0], outs[1]
+
+
+def _ols(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """Least squares ``x beta = y``: beta, 95 % half widths (inf where a column is not excited), residual sum."""
+    scale = np.linalg.norm(x, axis=0)
+    scale[scale == 0] = 1.0
+    xs = x / scale
+    beta_s, *_ = np.linalg.lstsq(xs, y, rcond=None)
+    r = y - xs @ beta_s
+    rss = float(r @ r)
+    s2 = rss / max(len(y) - x.shape[1], 1)
+    lam, v = np.linalg.eigh(xs.T @ xs)
+    good = lam > NULL_EIG * lam.max()
+    var = (v[:, good] ** 2 / lam[good]).sum(axis=1) * s2
+    unexcited = (np.abs(v[:, ~good]) > 1e-6).any(axis=1) | (np.linalg.norm(x, axis=0) == 0)
+    half = np.where(unexcited, np.inf, Z95 * np.sqrt(var))
+    return beta_s / scale, half / scale, rss
+
+
+def _estimate(parameter: str, joint: str | None, value: float, half: float, nominal: float) -> Estimate:
+    if not np.isfinite(half):
+        return Estimate(parameter, joint, None, UNITS[parameter], nominal, None, None)
+    return Estimate(parameter, joint, value, UNITS[parameter], nominal, value - half, value + half)
