@@ -9,7 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from cellguard.errors import ConfigError
-from cellguard.policy.action_map import identity_map, parse_action_map
+from cellguard.embodiment.action_map import identity_map, parse_action_map
 from cellguard.robot.arm_cell import ArmPickPlace
 
 # A policy trained on another arm: its own joint order, degrees and millimetres, one flipped axis,

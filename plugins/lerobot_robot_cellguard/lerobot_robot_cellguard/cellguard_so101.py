@@ -16,7 +16,7 @@ from lerobot.robots import Robot
 from lerobot.robots.utils import ensure_safe_goal_position
 from lerobot.utils.errors import DeviceAlreadyConnectedError, DeviceNotConnectedError
 
-from cellguard.policy.action_map import load_action_map
+from cellguard.embodiment.action_map import load_action_map
 from cellguard.robot.so101_cell import ASSETS, SO101PickPlace
 from lerobot_robot_cellguard.config_cellguard_so101 import CellguardSO101Config
 

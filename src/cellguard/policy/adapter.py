@@ -19,7 +19,7 @@ from urllib.parse import parse_qsl
 import numpy as np
 
 from cellguard.errors import CellguardError, ConfigError
-from cellguard.policy.action_map import ActionMap, load_action_map, parse_action_map
+from cellguard.embodiment.action_map import ActionMap, load_action_map, parse_action_map
 from cellguard.policy.chunk import ActionChunk
 from cellguard.robot.state import Observation
 from cellguard.yaml_file import parse_yaml

@@ -12,7 +12,7 @@ import numpy as np
 
 from cellguard.embodiment import Profile
 from cellguard.errors import ConfigError
-from cellguard.policy.action_map import IkSpec
+from cellguard.embodiment.action_map import IkSpec
 
 POSITION_TOLERANCE = 1e-4  # [m] a step's solve stops when the site is this close to its target
 MAX_ITERATIONS = 30  # per chunk step

@@ -42,7 +42,7 @@ OPTIONS = {"units": "units map YAML (default: the embodiment's LeRobot units map
 _AXES = ("x", "y", "z")
 
 if TYPE_CHECKING:
-    from cellguard.policy.action_map import ActionMap
+    from cellguard.embodiment.action_map import ActionMap
 
 
 class BridgeError(CellguardError):
@@ -176,7 +176,7 @@ def make_lerobot_robot(arg: str) -> LeRobotBridge:
     if name not in EMBODIMENTS:
         raise ConfigError(f"robot: lerobot:{robot_type}: no embodiment profile for this type; give "
                           f"?embodiment=NAME (known: {', '.join(EMBODIMENTS)})")
-    from cellguard.policy.action_map import load_action_map  # the units map is an action map (data, checked)
+    from cellguard.embodiment.action_map import load_action_map  # the units map is an action map (data, checked)
 
     embodiment = EMBODIMENTS[name]()
     profile = load_profile(embodiment.load_model(), embodiment.profile)
