@@ -89,10 +89,29 @@ def export_lerobot(rec: Record, output: Path, fps: int = 50, task: str | None = 
     data = {k: np.concatenate(v) for k, v in columns.items()}
     features = _features(data, joints, measurements)
     _prepare(output)
+    robot_type = robot_type or context.get("embodiment", {}).get("robot")
+    staging = output.with_name(f".{output.name}.partial")  # written beside the target, renamed when complete
+    shutil.rmtree(staging, ignore_errors=True)
+    try:
+        _write_dataset(staging, data, features, episodes, kept, task, robot_type, fps)
+        output.rmdir()  # the empty folder _prepare checked or made
+        staging.rename(output)
+    except OSError as exc:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise RecordError(f"-o {output}: cannot write ({exc.strerror})") from None
+    except RecordError:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+    return LeRobotExport(str(output), fps, tuple(kept), len(data["index"]), tuple(skipped))
+
+
+def _write_dataset(output: Path, data: dict, features: dict, episodes: list, kept: list, task: str,
+                   robot_type: str | None, fps: int) -> None:
+    for sub in ("data/chunk-000", "meta/episodes/chunk-000"):
+        (output / sub).mkdir(parents=True, exist_ok=True)
     _write_parquet(output / DATA_FILE, _data_table(data, features))
     _write_parquet(output / EPISODES_FILE, pa.Table.from_pylist(episodes))
     _write_parquet(output / "meta/tasks.parquet", _tasks_table([task]))
-    robot_type = robot_type or context.get("embodiment", {}).get("robot")
     info = {"codebase_version": CODEBASE_VERSION, "robot_type": robot_type,
             "total_episodes": len(kept), "total_frames": len(data["index"]), "total_tasks": 1, "chunks_size": 1000,
             "data_files_size_in_mb": 100, "video_files_size_in_mb": 200, "fps": fps,
@@ -101,7 +120,6 @@ def export_lerobot(rec: Record, output: Path, fps: int = 50, task: str | None = 
             "video_path": None, "features": features}
     _write_json(output / "meta/info.json", info)
     _write_json(output / "meta/stats.json", {k: _stats(v) for k, v in data.items()})
-    return LeRobotExport(str(output), fps, tuple(kept), len(data["index"]), tuple(skipped))
 
 
 def _stride(context: dict, fps: int) -> int:
@@ -192,10 +210,8 @@ def _prepare(output: Path) -> None:
     if output.exists() and any(output.iterdir()):
         raise RecordError(f"-o {output}: exists and is not empty; give a new folder")
     try:
-        for sub in ("data/chunk-000", "meta/episodes/chunk-000"):
-            (output / sub).mkdir(parents=True, exist_ok=True)
+        output.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        shutil.rmtree(output, ignore_errors=True)
         raise RecordError(f"-o {output}: cannot write ({exc.strerror})") from None
 
 
