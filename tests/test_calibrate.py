@@ -40,7 +40,7 @@ def test_excitation_stays_inside_limits_without_intervention(nominal_record):
     assert [e["kind"] for e in summary["events"]] == ["retreat_begin", "retreat_done"]
     profile = make_cell(ARM).profile
     with open_record(out) as rec:
-        ticks = rec.ticks(rate="full")
+        ticks = rec.ticks(rate="all")
         end_ns = next(rec.cycles()).t_end_ns
     assert np.all(np.diff(ticks.t_ns) == 1_000_000)  # every tick recorded
     moving = ticks.t_ns <= end_ns  # the excitation; the retreat after it is a transition
