@@ -74,3 +74,19 @@ def test_headless_chromium_renders_the_plots(page, tmp_path):
     for colour in ((0x2a, 0x9d, 0x8f), (0xe6, 0x39, 0x46)):  # success dots and the finding's line
         near = (np.abs(img - np.array(colour)).sum(axis=2) < 40).sum()
         assert near > 200, colour
+
+
+def test_drift_charts_skip_channels_without_a_baseline_band():
+    """Pooled per-joint channels alarm too but have no baseline band: the report still renders."""
+    rows = _rows()
+    rng = np.random.default_rng(1)
+    for r in rows:  # a second current feature per joint, so the joint gets a pooled channel
+        r["features"]["current_peak.elbow"] = 0.6 + 0.001 * rng.standard_normal()
+    for r in rows[30:]:
+        r["features"]["current_rms.elbow"] += 0.02
+        r["features"]["current_peak.elbow"] += 0.02
+    d = diagnose(rows, [], {"cell": "arm-pick-place"})
+    pooled = [a.signal for a in d.drift.alarms if a.signal not in d.baseline.names]
+    assert any("_pooled." in s for s in pooled)
+    svg = plots.drift_charts(d)
+    assert svg.startswith("<svg") and "current_rms.elbow" in svg

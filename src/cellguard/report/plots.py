@@ -56,7 +56,8 @@ def timeline(d: Diagnosis) -> str:
 
 def drift_charts(d: Diagnosis, limit: int = 6) -> str:
     """Per alarmed feature: its value per cycle against the baseline band, and its CUSUM."""
-    names = list(dict.fromkeys(a.signal for a in d.drift.alarms if a.signal != "multivariate"))[:limit]
+    # features with a baseline band; the pooled per-joint channels and the multivariate statistic have none
+    names = list(dict.fromkeys(a.signal for a in d.drift.alarms if a.signal in d.baseline.names))[:limit]
     rows = len(names) + 1
     fig, axes = plt.subplots(rows, 2, figsize=(11, 2.0 * rows), squeeze=False)
     watched = np.array(d.drift.cycles)
