@@ -5,11 +5,14 @@ units map file the cellguard bridge uses; ``send_action`` caps each goal with Le
 ``ensure_safe_goal_position`` when ``max_relative_target`` is set, clips to the servo's position
 range, refuses a non-finite goal (LeRobot's Feetech bus raises on one too), writes the goal and
 advances the simulation by ``action_period_s``, and returns the action really sent.
-Observations add motor current (``<motor>.current`` [A]) and the cell camera's readings
-(``part_in_camera.x`` ... [m]), which a real SO follower does not report.
+Observations add motor current (``<motor>.current`` [A]), the cell camera's readings
+(``part_in_camera.x`` ... [m]) and the cell's part-done input ``cycle_done`` (0/1), which a real
+SO follower does not report. The cell runs its own task: the next part arrives as one is placed.
 """
 
 from __future__ import annotations
+
+from pathlib import Path
 
 import numpy as np
 from lerobot.robots import Robot
@@ -17,7 +20,9 @@ from lerobot.robots.utils import ensure_safe_goal_position
 from lerobot.utils.errors import DeviceAlreadyConnectedError, DeviceNotConnectedError
 
 from cellguard.embodiment.action_map import load_action_map
+from cellguard.robot.own_task import OwnTask
 from cellguard.robot.so101_cell import ASSETS, SO101PickPlace
+from cellguard.scenario import load_scenario
 from lerobot_robot_cellguard.config_cellguard_so101 import CellguardSO101Config
 
 class SimulatedTorque:
@@ -53,7 +58,7 @@ class CellguardSO101(Robot):
     @property
     def observation_features(self) -> dict:
         return {**{k: float for k in self._keys}, **{f"{m}.current": float for m in MOTORS},
-                **{f"{n}.{a}": float for n in MEASUREMENTS for a in "xyz"}}
+                **{f"{n}.{a}": float for n in MEASUREMENTS for a in "xyz"}, "cycle_done": float}
 
     @property
     def action_features(self) -> dict:
@@ -71,6 +76,8 @@ class CellguardSO101(Robot):
         if self.cell is not None:
             raise DeviceAlreadyConnectedError(f"{self} already connected")
         self.cell = SO101PickPlace(seed=self.config.seed)
+        faults = load_scenario(Path(self.config.faults)).faults if self.config.faults else ()
+        self.task = OwnTask(self.cell, faults)
         self.bus = SimulatedTorque(self.cell)
         self.units = load_action_map(self.config.units or ASSETS / "so101_lerobot_units.yaml", self.cell.profile)
         if self.units.names != self._keys:
@@ -92,6 +99,7 @@ class CellguardSO101(Robot):
         obs.update({f"{m}.current": float(c) for m, c in zip(MOTORS, state.current)})
         seen = self.cell.observe().measurements
         obs.update({f"{n}.{a}": float(v) for n in MEASUREMENTS for a, v in zip("xyz", seen[n])})
+        obs["cycle_done"] = float(self.task.cycle_done(state.t_ns))
         return obs
 
     def send_action(self, action: dict) -> dict:
@@ -113,6 +121,7 @@ class CellguardSO101(Robot):
         self.cell.write(self.units.to_robot(row[None], q_now)[0])
         for _ in range(self._steps):
             self.cell.step()
+            self.task.poll(self.cell.t_ns)
         return sent
 
     def disconnect(self) -> None:

@@ -2,8 +2,8 @@
 
 One servo period per tick, paced by ``WallClock``: take the newest command (a non-finite one is
 counted and never applied), step the physics, and send the client one state packet stamped
-with the monotonic clock. The cell runs its own task: when a cycle is over the next part
-arrives at once and the digital input ``cycle_done`` is high for ``PULSE_S``.
+with the monotonic clock. The cell runs its own task (``OwnTask``): when a cycle is over the
+next part arrives at once and the digital input ``cycle_done`` pulses.
 
 For tests of the robot link, the server can misbehave on purpose: ``delay_ms`` holds every
 state packet back, ``drop_every`` loses every n-th one. These are transport faults of the
@@ -22,10 +22,9 @@ from dataclasses import replace
 import numpy as np
 
 from cellguard.robot.bridges.sim_server import Layout, unpack_command
+from cellguard.robot.own_task import OwnTask
 from cellguard.robot.registry import make_cell
 from cellguard.runtime.clock import WallClock
-
-PULSE_S = 0.05  # the cycle_done input stays high this long [s]
 
 
 class SimServer:
@@ -51,20 +50,14 @@ class SimServer:
         self.client = None
         self.counters = {"commands": 0, "nonfinite_commands": 0, "states_sent": 0, "states_dropped": 0, "cycles": 0}
         self._power, self._cmd_seq, self._seq = True, 0, 0
-        self._pulse_until = 0
         self._delayed: deque = deque()
-        self._cycle = 0
-        cell.begin_cycle(0)
+        self.task = OwnTask(cell)
 
     def tick(self) -> None:
         cell, now = self.cell, time.monotonic_ns()
         self._receive()
-        if cell.cycle_finished():
-            cell.end_cycle()
-            self._cycle += 1
+        if self.task.poll(now):
             self.counters["cycles"] += 1
-            cell.begin_cycle(self._cycle)
-            self._pulse_until = now + round(PULSE_S * 1e9)
         for _ in range(self.substeps):
             cell.step()
         if self.client is None:
@@ -73,7 +66,7 @@ class SimServer:
         obs = cell.observe()
         self._seq += 1
         packet = self.layout.pack_state(self._seq, state.t_ns, self._cmd_seq, state, cell.data.ctrl[cell.drives.act],
-                                        obs.measurements, now < self._pulse_until, cell.safety())
+                                        obs.measurements, self.task.cycle_done(now), cell.safety())
         if self.drop_every and self._seq % self.drop_every == 0:
             self.counters["states_dropped"] += 1
         else:

@@ -16,7 +16,8 @@ Readings: joint positions from the ``<motor>.pos`` keys; velocity by finite diff
 reads on the monotonic clock; motor current [A] from ``<motor>.current`` keys where the robot
 reports them (LeRobot's SO follower does not: current and effort then read 0, and the
 diagnosis cannot name friction or servo causes on that robot); any other float keys
-``<name>.x/.y/.z`` are measurements the policy sees (``Observation.measurements[name]``).
+``<name>.x/.y/.z`` are measurements the policy sees (``Observation.measurements[name]``); any
+other key can be a digital input (``cycle: {source: input, input: KEY}`` ends a cycle on it).
 """
 
 from __future__ import annotations
@@ -126,6 +127,14 @@ class LeRobotBridge:
     def safety(self) -> SafetyInputs:
         """LeRobot robots report no safety controller; a certified one is wired to the cell, not read here."""
         return SafetyInputs()
+
+    def digital_input(self, name: str) -> bool:
+        """A 0/1 reading the robot reports under ``name`` (a part-done signal wired into its
+        observation), from the last read."""
+        if name not in self.robot.observation_features:
+            raise BridgeError(f"lerobot {self.robot.name}: no input {name!r} in its observation; "
+                              f"it reports: {', '.join(self.robot.observation_features)}")
+        return bool(self._obs.get(name, 0.0))
 
     def set_power(self, on: bool) -> None:
         """Torque on or off through the robot's motor bus where it has one (LeRobot's motor arms do)."""
