@@ -71,11 +71,15 @@ class Envelope:
     # -- the tick ------------------------------------------------------------------------
     def apply(self, t_ns: int, reference: np.ndarray, state=None, safety: SafetyInputs = NO_INPUTS,
               last_chunk_ns: int | None = None, uncertainty: float = 0.0,
-              tool_speed_ahead: float | None = None) -> tuple[np.ndarray, list[Event]]:
-        """The setpoint (D,) for this tick and the events raised; never raises on bad values."""
+              tool_speed_ahead: Callable[[], float | None] | None = None) -> tuple[np.ndarray, list[Event]]:
+        """The setpoint (D,) for this tick and the events raised; never raises on bad values.
+
+        ``tool_speed_ahead``: the fastest tool speed of the chunk ahead [m/s] (None: unknown), asked
+        only while a speed cap is in force.
+        """
         events: list[Event] = []
         tracker, tick = self.tracker, self._tick
-        finite = bool(np.isfinite(reference).all())
+        finite = all(map(math.isfinite, reference.tolist()))  # cheaper than np.isfinite on (D,)
         tick.t_ns, tick.reference, tick.finite, tick.state, tick.safety = t_ns, reference, finite, state, safety
         tick.last_chunk_ns, tick.uncertainty, tick.stop_kind = last_chunk_ns, uncertainty, self.stop_kind
         request = None
@@ -102,12 +106,12 @@ class Envelope:
                                     category=1))
             return setpoint, events
         self._update_scale(tick, tool_speed_ahead, events)
-        before = tracker.mode.copy()
+        before = PASS if tracker.passing else tracker.mode.copy()  # the modes before this tick (PASS: all)
         setpoint = tracker.follow(reference)
         if tracker.failed is not None:  # ruckig refused its input: this tick braked every joint
             events.append(Event(t_ns, EventKind.TRACKER_FAILED, f"ruckig: {tracker.failed}; braking this tick"))
             tracker.failed = None
-        if tracker.mode.any():
+        if not tracker.passing:
             self._report_tracking(t_ns, reference, setpoint, before, events)
         if self._tool is not None:
             self._follow_tool(tick, setpoint)
@@ -144,7 +148,7 @@ class Envelope:
         inv_dt = 1e9 / self.dt_ns
         vx, vy, vz = (x - px) * inv_dt, (y - py) * inv_dt, (z - pz) * inv_dt
         self._tip = tick.tip = (x, y, z)
-        tick.tip_v, tick.setpoint, tick.v = (vx, vy, vz), setpoint, self.tracker.v
+        tick.tip_v, tick.setpoint, tick.v = (vx, vy, vz), setpoint, self.tracker.samples[1]
         self.tool_speed = math.sqrt(vx * vx + vy * vy + vz * vz)
 
     # -- stops -----------------------------------------------------------------------------
@@ -159,7 +163,8 @@ class Envelope:
             events.append(Event(t_ns, EventKind.POWER_REMOVED, f"category 0 stop: {stop.reason}", category=0))
 
     # -- speed -----------------------------------------------------------------------------
-    def _update_scale(self, tick: Tick, speed_ahead: float | None, events: list[Event]) -> None:
+    def _update_scale(self, tick: Tick, speed_ahead: Callable[[], float | None] | None,
+                      events: list[Event]) -> None:
         """The lowest tool-speed cap the speed checks ask for sets the playback speed; conditions reported."""
         cap: SpeedCap | None = None
         without_tool = 1.0
@@ -176,10 +181,11 @@ class Envelope:
             self._conditions(tick.t_ns, on or (), events)
         target = 1.0
         if cap is not None:
-            if speed_ahead is None:
+            speed = None if speed_ahead is None else speed_ahead()
+            if speed is None:
                 target = without_tool
-            elif speed_ahead > 0.0:
-                target = min(1.0, 0.9 * cap.cap / speed_ahead)
+            elif speed > 0.0:
+                target = min(1.0, 0.9 * cap.cap / speed)
         self._ramp(target)
 
     def _ramp(self, target: float) -> None:

@@ -36,6 +36,9 @@ GAIN = 8.0  # [1/s] position feedback of the absolute recovery; slow against the
 class Tracker:
     """Setpoint state: position and its finite-difference velocity and acceleration, per joint.
 
+    ``samples``: the same position, velocity and acceleration as plain floats (three lists of D),
+    what the per-tick checks read.
+
     ``v_max``, ``a_max``, ``j_max``: shape (D,) [unit/s], [unit/s²], [unit/s³]; ``lo``, ``hi``:
     soft position limits (D,); ``dt``: servo period [s]. ``mode`` (D,) says who drove each joint
     on the last tick (PASS, OFFSET, ABSOLUTE, STOP).
@@ -53,9 +56,11 @@ class Tracker:
         # a bound of the stopping distance at speed |v| for any |a| <= a_max: c0 + c1 |v| + v²/2a
         t1 = 2.0 * self.a_max / self.j_max
         self._far0, self._far1 = 0.5 * self.a_max * t1 * t1 + self._tail, t1
-        # the same constants as plain floats, for the per-joint stop check
+        # the same constants as plain floats: the per-tick checks run joint by joint on Python floats, several
+        # times cheaper than a dozen numpy calls on (D,) arrays for a handful of joints
         self._amax_f, self._jmax_f, self._v3_f, self._v3sq_f, self._inv_2a_f, self._tail_f, self._lo_f, self._hi_f = (
             x.tolist() for x in (self.a_max, self.j_max, self._v3, self._v3sq, self._inv_2a, self._tail, self.lo, self.hi))
+        self._joints = tuple(zip(*(x.tolist() for x in (*self._limits, self._half_inv_j, self._far0, self._far1))))
         dof = len(self.v_max)
         self._absolute_in, self._offset_in, self._stop_in = (
             self._input(dof, ruckig.ControlInterface.Velocity), self._input(dof, ruckig.ControlInterface.Position),
@@ -66,7 +71,6 @@ class Tracker:
                      for inp in (self._absolute_in, self._offset_in, self._stop_in)}
         self._stop_in.target_velocity = np.zeros(dof)
         self._stop_in.target_acceleration = self._absolute_in.target_acceleration = np.zeros(dof)
-        self._fd = np.empty((3, dof))
         self.failed: str | None = None
         self.reset(q0)
 
@@ -80,12 +84,12 @@ class Tracker:
     def reset(self, q: np.ndarray) -> None:
         """Standstill at ``q`` (D,)."""
         self.p = np.array(q, dtype=np.float64)
-        self.v = np.zeros_like(self.p)
-        self.a = np.zeros_like(self.p)
+        self._v, self._a = np.zeros_like(self.p), np.zeros_like(self.p)
+        self.samples = (self.p.tolist(), self._v.tolist(), self._a.tolist())
         self.mode = np.zeros(len(self.p), dtype=np.int8)
         self._tv = np.zeros_like(self.p)  # ruckig's own velocity and acceleration of joints it drove
         self._ta = np.zeros_like(self.p)
-        self._ref = (self.p.copy(), self.v.copy(), self.a.copy())  # last reference sample, its FD v, a
+        self._ref = None  # last reference sample and its FD v, a; None: the setpoint's (it passed through)
         self._passing = True  # every joint passed through on the last tick
 
     # -- the checks ------------------------------------------------------------------------
@@ -107,54 +111,55 @@ class Tracker:
             return max(v, 0.0) * t1 + 0.5 * max(a, 0.0) * t1 * t1 + self._tail_f[j]
         return 0.0
 
-    def stop_fits(self, q, v, a, joints=None) -> np.ndarray:
-        """Per joint (D,): would a jerk-limited stop from (q, v, a) end inside the soft limits?
+    def _stop_fits(self, j: int, q: float, v: float, a: float) -> bool:
+        """Would a jerk-limited stop of joint ``j`` from (q, v, a) end inside its soft limits?"""
+        return q + self._stop_distance(j, v, a) <= self._hi_f[j] and q - self._stop_distance(j, -v, -a) >= self._lo_f[j]
 
-        ``joints``: indices to check (the others count as fitting); default all.
-        """
-        ok = np.ones(len(self.p), dtype=bool)
-        lo, hi = self._lo_f, self._hi_f
-        for j in range(len(self.p)) if joints is None else joints:
-            qj, vj, aj = float(q[j]), float(v[j]), float(a[j])
-            ok[j] = qj + self._stop_distance(j, vj, aj) <= hi[j] and qj - self._stop_distance(j, -vj, -aj) >= lo[j]
-        return ok
+    def stop_fits(self, q: np.ndarray, v: np.ndarray, a: np.ndarray) -> np.ndarray:
+        """Per joint (D,): would a jerk-limited stop from (q, v, a) end inside the soft limits?"""
+        return np.array([self._stop_fits(j, *qva) for j, qva in enumerate(zip(q.tolist(), v.tolist(), a.tolist()))])
 
-    def fits(self, q: np.ndarray) -> np.ndarray:
-        """Per joint (D,): can ``q`` be the next setpoint?
+    def _fits(self, q: list[float]) -> tuple[list[bool], list[float], list[float]]:
+        """Per joint: can ``q[j]`` be the next setpoint? And the finite-difference v, a it implies.
 
         Yes when its finite-difference v, a, j are inside the limits, its acceleration can be
         brought to zero before the velocity limit, and a stop from it still fits before the soft
         position limits (checked exactly only for joints a loose bound puts near a limit).
         """
-        fd = self._fd
-        np.subtract(q, self.p, out=fd[0])
-        fd[0] *= self._inv_dt
-        np.subtract(fd[0], self.v, out=fd[1])
-        fd[1] *= self._inv_dt
-        np.subtract(fd[1], self.a, out=fd[2])
-        fd[2] *= self._inv_dt
-        ok = (np.abs(fd) <= self._limits).all(axis=0)
-        # the acceleration must still be brought to zero (jerk-limited) before the velocity limit
-        ok &= np.abs(fd[0] + fd[1] * np.abs(fd[1]) * self._half_inv_j) <= self._limits[0]
-        speed = np.abs(fd[0])
-        far = self._far0 + speed * (self._far1 + speed * self._inv_2a)
-        near = np.flatnonzero(((q - far) < self.lo) | ((q + far) > self.hi))
-        if near.size:
-            ok &= self.stop_fits(q, fd[0], fd[1], near)
-        return ok
+        inv_dt, lo, hi = self._inv_dt, self._lo_f, self._hi_f
+        ok, vs, accs = [], [], []
+        for j, (qj, pj, vj, aj, (v_max, a_max, j_max, half_inv_j, far0, far1)) in enumerate(
+                zip(q, *self.samples, self._joints)):
+            v = (qj - pj) * inv_dt
+            a = (v - vj) * inv_dt
+            speed = abs(v)
+            # inside v, a, j; and the acceleration can still be brought to zero (jerk-limited) before v_max
+            fit = (speed <= v_max and abs(a) <= a_max and abs((a - aj) * inv_dt) <= j_max
+                   and abs(v + a * abs(a) * half_inv_j) <= v_max)
+            far = far0 + speed * (far1 + speed * self._inv_2a_f[j])  # a loose bound of the stopping distance
+            if fit and (qj - far < lo[j] or qj + far > hi[j]):
+                fit = self._stop_fits(j, qj, v, a)
+            ok.append(fit)
+            vs.append(v)
+            accs.append(a)
+        return ok, vs, accs
+
+    def fits(self, q: np.ndarray) -> np.ndarray:
+        """Per joint (D,): can ``q`` be the next setpoint? (see ``_fits``)"""
+        return np.array(self._fits(q.tolist())[0])
 
     # -- one tick --------------------------------------------------------------------------
     def follow(self, r: np.ndarray) -> np.ndarray:
         """The next setpoint (D,) for the finite reference sample ``r`` (D,); sets ``mode``."""
-        ok = self.fits(r)
-        if ok.all() and self._passing:
-            # pass-through after pass-through: the setpoint state is the reference's, and fits()
+        samples = r.tolist()
+        ok, v, a = self._fits(samples)
+        if self._passing and all(ok):
+            # pass-through after pass-through: the setpoint state is the reference's, and _fits()
             # has just computed its finite differences
-            v, a = self._fd[0].copy(), self._fd[1].copy()
-            self._ref = (r, v, a)
-            self.p, self.v, self.a = r, v, a
+            self.samples, self.p, self._v, self._a, self._ref = (samples, v, a), r, None, None, None
             return r
-        previous = self._ref
+        ok = np.array(ok)
+        previous = (self.p, self.v, self.a) if self._ref is None else self._ref
         rv = (r - previous[0]) * self._inv_dt
         ra = (rv - previous[1]) * self._inv_dt
         self._ref = (r, rv, ra)
@@ -208,9 +213,28 @@ class Tracker:
         return self.p.copy()
 
     @property
+    def v(self) -> np.ndarray:
+        """Setpoint velocity (D,) [unit/s]: the finite difference of the last two setpoints."""
+        if self._v is None:  # built on demand: a pass-through tick keeps plain floats only
+            self._v = np.array(self.samples[1])
+        return self._v
+
+    @property
+    def a(self) -> np.ndarray:
+        """Setpoint acceleration (D,) [unit/s²], likewise."""
+        if self._a is None:
+            self._a = np.array(self.samples[2])
+        return self._a
+
+    @property
+    def passing(self) -> bool:
+        """Every joint passed through on the last tick (``mode`` all PASS)."""
+        return self._passing
+
+    @property
     def stopped(self) -> bool:
         """Standstill: the last two setpoints are equal and the acceleration is zero."""
-        return not (self.v.any() or self.a.any())
+        return not (any(self.samples[1]) or any(self.samples[2]))
 
     # -- ruckig ------------------------------------------------------------------------------
     def _handover(self, offset: bool = False) -> tuple[np.ndarray, np.ndarray]:
@@ -274,8 +298,9 @@ class Tracker:
 
     def _commit(self, q: np.ndarray, tv, ta, mode) -> np.ndarray:
         v = (q - self.p) * self._inv_dt
-        self.a = (v - self.v) * self._inv_dt
-        self.v, self.p = v, q
+        a = (v - self.v) * self._inv_dt
+        self.p, self._v, self._a = q, v, a
+        self.samples = (q.tolist(), v.tolist(), a.tolist())
         self.mode[:] = mode
         self._passing = mode is PASS
         if tv is not None:

@@ -35,7 +35,7 @@ class WorkspaceLookahead(Check):
     def request(self, tick: Tick) -> Stop | None:
         x, y, z = tick.tip
         vx, vy, vz = tick.tip_v
-        t_stop = max(abs(v) * ia for v, ia in zip(tick.v.tolist(), self._inv_a))
+        t_stop = max(abs(v) * ia for v, ia in zip(tick.v, self._inv_a))
         k = 0.5 * t_stop + self._t_jerk
         return STOP if _outside((x + vx * k, y + vy * k, z + vz * k), self._lo, self._hi) else None
 
