@@ -66,7 +66,8 @@ class Envelope:
         self.power = True
         self._active: dict[EventKind, str] = {}  # lasting conditions already reported, with their reason
         self.tool_speed = 0.0  # [m/s] of the last setpoint
-        self._last_intervention = np.full(profile.dof, -(2**62), dtype=np.int64)  # per joint [ns]
+        self._last_intervention = [-(2**62)] * profile.dof  # per joint [ns]
+        self._names = profile.joint_names
 
     # -- the tick ------------------------------------------------------------------------
     def apply(self, t_ns: int, reference: np.ndarray, state=None, safety: SafetyInputs = NO_INPUTS,
@@ -216,13 +217,20 @@ class Envelope:
 
     def _report_tracking(self, t_ns, reference, setpoint, before, events) -> None:
         """One event per joint when the tracker takes it over after a stretch of pass-through."""
-        names = self.profile.joint_names
-        quiet = t_ns - self._last_intervention >= INTERVENTION_QUIET_NS
-        self._last_intervention[self.tracker.mode != PASS] = t_ns
-        for j in np.flatnonzero(quiet & (before == PASS) & (self.tracker.mode != PASS) & (self.tracker.mode != STOP)):
-            events.append(Event(t_ns, EventKind.LIMIT_INTERVENTION, "reference outside the velocity, acceleration, "
-                                "jerk or position envelope; ruckig takes over", joint=names[j],
-                                asked=float(reference[j]), sent=float(setpoint[j])))
-        for j in np.flatnonzero((before != STOP) & (self.tracker.mode == STOP)):
+        mode, last = self.tracker.mode.tolist(), self._last_intervention
+        before = [PASS] * len(mode) if before is PASS else before.tolist()
+        brakes = []
+        for j, (now, was) in enumerate(zip(mode, before)):
+            if now == PASS:
+                continue
+            if now == STOP:
+                if was != STOP:
+                    brakes.append(j)
+            elif was == PASS and t_ns - last[j] >= INTERVENTION_QUIET_NS:
+                events.append(Event(t_ns, EventKind.LIMIT_INTERVENTION, "reference outside the velocity, acceleration, "
+                                    "jerk or position envelope; ruckig takes over", joint=self._names[j],
+                                    asked=float(reference[j]), sent=float(setpoint[j])))
+            last[j] = t_ns
+        for j in brakes:
             events.append(Event(t_ns, EventKind.LIMIT_BRAKE, "braking: a stop no longer fits before the soft limit",
-                                joint=names[j], asked=float(reference[j]), sent=float(setpoint[j])))
+                                joint=self._names[j], asked=float(reference[j]), sent=float(setpoint[j])))

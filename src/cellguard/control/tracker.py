@@ -58,8 +58,8 @@ class Tracker:
         self._far0, self._far1 = 0.5 * self.a_max * t1 * t1 + self._tail, t1
         # the same constants as plain floats: the per-tick checks run joint by joint on Python floats, several
         # times cheaper than a dozen numpy calls on (D,) arrays for a handful of joints
-        self._amax_f, self._jmax_f, self._v3_f, self._v3sq_f, self._inv_2a_f, self._tail_f, self._lo_f, self._hi_f = (
-            x.tolist() for x in (self.a_max, self.j_max, self._v3, self._v3sq, self._inv_2a, self._tail, self.lo, self.hi))
+        self._vmax_f, self._amax_f, self._jmax_f, self._v3_f, self._v3sq_f, self._inv_2a_f, self._tail_f, self._lo_f, self._hi_f = (
+            x.tolist() for x in (self.v_max, self.a_max, self.j_max, self._v3, self._v3sq, self._inv_2a, self._tail, self.lo, self.hi))
         self._joints = tuple(zip(*(x.tolist() for x in (*self._limits, self._half_inv_j, self._far0, self._far1))))
         dof = len(self.v_max)
         self._absolute_in, self._offset_in, self._stop_in = (
@@ -70,6 +70,8 @@ class Tracker:
         self._otg = {id(inp): (ruckig.Ruckig(dof, dt), ruckig.OutputParameter(dof))
                      for inp in (self._absolute_in, self._offset_in, self._stop_in)}
         self._stop_in.target_velocity = np.zeros(dof)
+        self._offset_in.target_position = np.zeros(dof)  # the error's target: none
+        self._floors = tuple((0.05 * x).tolist() for x in (self.v_max, self.a_max, self.j_max))  # the offset's least headroom
         self._stop_in.target_acceleration = self._absolute_in.target_acceleration = np.zeros(dof)
         self.failed: str | None = None
         self.reset(q0)
@@ -84,11 +86,10 @@ class Tracker:
     def reset(self, q: np.ndarray) -> None:
         """Standstill at ``q`` (D,)."""
         self.p = np.array(q, dtype=np.float64)
-        self._v, self._a = np.zeros_like(self.p), np.zeros_like(self.p)
-        self.samples = (self.p.tolist(), self._v.tolist(), self._a.tolist())
-        self.mode = np.zeros(len(self.p), dtype=np.int8)
-        self._tv = np.zeros_like(self.p)  # ruckig's own velocity and acceleration of joints it drove
-        self._ta = np.zeros_like(self.p)
+        dof = len(self.p)
+        self.samples = (self.p.tolist(), [0.0] * dof, [0.0] * dof)
+        self.mode = np.zeros(dof, dtype=np.int8)
+        self._tv, self._ta = [0.0] * dof, [0.0] * dof  # ruckig's own velocity and acceleration of joints it drove
         self._ref = None  # last reference sample and its FD v, a; None: the setpoint's (it passed through)
         self._passing = True  # every joint passed through on the last tick
 
@@ -114,10 +115,6 @@ class Tracker:
     def _stop_fits(self, j: int, q: float, v: float, a: float) -> bool:
         """Would a jerk-limited stop of joint ``j`` from (q, v, a) end inside its soft limits?"""
         return q + self._stop_distance(j, v, a) <= self._hi_f[j] and q - self._stop_distance(j, -v, -a) >= self._lo_f[j]
-
-    def stop_fits(self, q: np.ndarray, v: np.ndarray, a: np.ndarray) -> np.ndarray:
-        """Per joint (D,): would a jerk-limited stop from (q, v, a) end inside the soft limits?"""
-        return np.array([self._stop_fits(j, *qva) for j, qva in enumerate(zip(q.tolist(), v.tolist(), a.tolist()))])
 
     def _fits(self, q: list[float]) -> tuple[list[bool], list[float], list[float]]:
         """Per joint: can ``q[j]`` be the next setpoint? And the finite-difference v, a it implies.
@@ -150,43 +147,51 @@ class Tracker:
 
     # -- one tick --------------------------------------------------------------------------
     def follow(self, r: np.ndarray) -> np.ndarray:
-        """The next setpoint (D,) for the finite reference sample ``r`` (D,); sets ``mode``."""
+        """The next setpoint (D,) for the finite reference sample ``r`` (D,); sets ``mode``.
+
+        Joint by joint on plain floats (ruckig takes and returns lists), as in ``_fits``.
+        """
         samples = r.tolist()
         ok, v, a = self._fits(samples)
         if self._passing and all(ok):
             # pass-through after pass-through: the setpoint state is the reference's, and _fits()
             # has just computed its finite differences
-            self.samples, self.p, self._v, self._a, self._ref = (samples, v, a), r, None, None, None
+            self.samples, self.p, self._ref = (samples, v, a), r, None
             return r
-        ok = np.array(ok)
-        previous = (self.p, self.v, self.a) if self._ref is None else self._ref
-        rv = (r - previous[0]) * self._inv_dt
-        ra = (rv - previous[1]) * self._inv_dt
-        self._ref = (r, rv, ra)
-        if ok.all():
+        previous = self.samples if self._ref is None else self._ref
+        inv_dt = self._inv_dt
+        rv = [(x - x0) * inv_dt for x, x0 in zip(samples, previous[0])]
+        ra = [(x - x0) * inv_dt for x, x0 in zip(rv, previous[1])]
+        self._ref = (samples, rv, ra)
+        if all(ok):
             return self._commit(r, None, None, PASS)
-        q, mode = r.copy(), np.where(ok, PASS, ABSOLUTE).astype(np.int8)
-        tv, ta = self._tv.copy(), self._ta.copy()
-        recovering = ~ok & ((self.mode == OFFSET) | (self.mode == ABSOLUTE))
-        if recovering.any() and self._offset(r, rv, ra, previous):
+        q, tv, ta = samples.copy(), self._tv.copy(), self._ta.copy()
+        mode = [PASS if fit else ABSOLUTE for fit in ok]
+        recovering = [j for j, (fit, m) in enumerate(zip(ok, self.mode.tolist())) if not fit and m in (OFFSET, ABSOLUTE)]
+        if recovering and self._offset(rv, ra, previous):
             out = self._out
-            cand = r + out.new_position
-            good = recovering & self.fits(cand)
-            q[good], mode[good] = cand[good], OFFSET
-            tv[good], ta[good] = (np.asarray(out.new_velocity) + rv)[good], (np.asarray(out.new_acceleration) + ra)[good]
-        rest = mode == ABSOLUTE
-        if rest.any():
-            if not self._absolute(r, rv):
+            cand = [x + e for x, e in zip(samples, out.new_position)]
+            fits, ev, ea = self._fits(cand)[0], out.new_velocity, out.new_acceleration
+            for j in recovering:
+                if fits[j]:
+                    q[j], mode[j], tv[j], ta[j] = cand[j], OFFSET, ev[j] + rv[j], ea[j] + ra[j]
+        rest = [j for j, m in enumerate(mode) if m == ABSOLUTE]
+        if rest:
+            if not self._absolute(samples, rv):
                 return self.stop()
             out = self._out
-            nq, nv, na = np.asarray(out.new_position), np.asarray(out.new_velocity), np.asarray(out.new_acceleration)
-            q[rest], tv[rest], ta[rest] = nq[rest], nv[rest], na[rest]
-            brake = rest & ~self.stop_fits(nq, nv, na)  # heading past a soft limit: brake these joints
-            if brake.any() and self._brake():
+            nq, nv, na = out.new_position, out.new_velocity, out.new_acceleration
+            brake = []
+            for j in rest:
+                q[j], tv[j], ta[j] = nq[j], nv[j], na[j]
+                if not self._stop_fits(j, nq[j], nv[j], na[j]):  # heading past a soft limit: brake this joint
+                    brake.append(j)
+            if brake and self._brake():
                 out = self._out
-                q[brake], mode[brake] = np.asarray(out.new_position)[brake], STOP
-                tv[brake], ta[brake] = np.asarray(out.new_velocity)[brake], np.asarray(out.new_acceleration)[brake]
-        return self._commit(q, tv, ta, mode)
+                bq, bv, ba = out.new_position, out.new_velocity, out.new_acceleration
+                for j in brake:
+                    q[j], mode[j], tv[j], ta[j] = bq[j], STOP, bv[j], ba[j]
+        return self._commit(np.array(q), tv, ta, mode)
 
     def stop(self, r: np.ndarray | None = None) -> np.ndarray:
         """One tick of a time-optimal stop of every joint (velocity interface to zero).
@@ -194,16 +199,16 @@ class Tracker:
         ``r``, this tick's reference sample, keeps the reference's derivatives current for when
         tracking resumes.
         """
+        zero = [0.0] * len(self.p)
         if r is not None:
-            self._ref = (r, np.zeros_like(r), np.zeros_like(r))
-        zero = np.zeros_like(self.p)
+            self._ref = (r.tolist(), zero, zero)
         if not self._brake():  # cannot happen with finite inputs; hold rather than raise
             return self._commit(self.p.copy(), zero, zero, STOP)
         out = self._out
-        v, a = np.asarray(out.new_velocity), np.asarray(out.new_acceleration)
-        if (np.abs(v) < 1e-9).all() and (np.abs(a) < 1e-6).all():  # at rest: hold exactly, no residual drift
+        v, a = out.new_velocity, out.new_acceleration
+        if all(abs(x) < 1e-9 for x in v) and all(abs(x) < 1e-6 for x in a):  # at rest: hold exactly, no drift
             return self._commit(self.p.copy(), zero, zero, STOP)
-        return self._commit(np.asarray(out.new_position), v, a, STOP)
+        return self._commit(np.array(out.new_position), v, a, STOP)
 
     def hold(self) -> np.ndarray:
         """Standstill where the setpoint is, at once: power is removed, nothing is driven."""
@@ -211,20 +216,6 @@ class Tracker:
         self.mode[:] = STOP
         self._passing = False
         return self.p.copy()
-
-    @property
-    def v(self) -> np.ndarray:
-        """Setpoint velocity (D,) [unit/s]: the finite difference of the last two setpoints."""
-        if self._v is None:  # built on demand: a pass-through tick keeps plain floats only
-            self._v = np.array(self.samples[1])
-        return self._v
-
-    @property
-    def a(self) -> np.ndarray:
-        """Setpoint acceleration (D,) [unit/s²], likewise."""
-        if self._a is None:
-            self._a = np.array(self.samples[2])
-        return self._a
 
     @property
     def passing(self) -> bool:
@@ -237,27 +228,30 @@ class Tracker:
         return not (any(self.samples[1]) or any(self.samples[2]))
 
     # -- ruckig ------------------------------------------------------------------------------
-    def _handover(self, offset: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    def _handover(self, offset: bool = False) -> tuple[list[float], list[float]]:
         """ruckig's start state: its own where the same kind of plan drove the joint last tick,
         else what the samples imply (velocity at the end of the last tick). A replanning tracker
         must start from its own state: restarting from a lagging estimate each tick makes it
         overshoot. An offset state rides on the reference's estimated derivatives, so a plan on
         absolute positions starts from the samples instead.
         """
-        own = self.mode != PASS if offset else self.mode >= ABSOLUTE
-        v = np.where(own, self._tv, self.v + self.a * (0.5 * self.dt))
-        a = np.where(own, self._ta, self.a)
-        if not offset:
-            v, a = np.clip(v, -self.v_max, self.v_max), np.clip(a, -self.a_max, self.a_max)
+        half_dt, v, a = 0.5 * self.dt, [], []
+        for m, own_v, own_a, sv, sa, v_max, a_max in zip(self.mode.tolist(), self._tv, self._ta, *self.samples[1:],
+                                                         self._vmax_f, self._amax_f):
+            vj, aj = (own_v, own_a) if (m != PASS if offset else m >= ABSOLUTE) else (sv + sa * half_dt, sa)
+            if not offset:
+                vj, aj = min(max(vj, -v_max), v_max), min(max(aj, -a_max), a_max)
+            v.append(vj)
+            a.append(aj)
         return v, a
 
     def _brake(self) -> bool:
         inp = self._stop_in
         v, a = self._handover()
-        inp.current_position, inp.current_velocity, inp.current_acceleration = self.p, v, a
+        inp.current_position, inp.current_velocity, inp.current_acceleration = self.samples[0], v, a
         return self._step(inp)
 
-    def _absolute(self, r, rv) -> bool:
+    def _absolute(self, r: list[float], rv: list[float]) -> bool:
         """ruckig's velocity interface toward the velocity that closes on the reference sample.
 
         Target velocity: the sample's velocity plus ``GAIN`` times the position error (the
@@ -267,23 +261,26 @@ class Tracker:
         """
         inp = self._absolute_in
         v, a = self._handover()
-        inp.current_position, inp.current_velocity, inp.current_acceleration = self.p, v, a
-        target = np.clip(r, self.lo, self.hi)
-        closing = np.where(target == r, rv, 0.0) + GAIN * (target - self.p)
-        inp.target_velocity = np.clip(closing, -self.v_max, self.v_max) * 0.99
+        p = self.samples[0]
+        inp.current_position, inp.current_velocity, inp.current_acceleration = p, v, a
+        target = [min(max(x, lo), hi) for x, lo, hi in zip(r, self._lo_f, self._hi_f)]
+        closing = [(x_v if t == x else 0.0) + GAIN * (t - pj) for t, x, x_v, pj in zip(target, r, rv, p)]
+        inp.target_velocity = [min(max(c, -v_max), v_max) * 0.99 for c, v_max in zip(closing, self._vmax_f)]
         return self._step(inp)
 
-    def _offset(self, r, rv, ra, previous) -> bool:
+    def _offset(self, rv: list[float], ra: list[float], previous: tuple) -> bool:
         """ruckig on the error e = setpoint - reference, from its state now to zero."""
         v, a = self._handover(offset=True)
         inp = self._offset_in
-        inp.current_position = self.p - previous[0]
-        inp.current_velocity = v - previous[1]
-        inp.current_acceleration = a - previous[2]
-        inp.max_velocity = np.maximum(self.v_max - np.abs(rv), 0.05 * self.v_max)
-        inp.max_acceleration = np.maximum(self.a_max - np.abs(ra), 0.05 * self.a_max)
-        inp.max_jerk = np.maximum(self.j_max - np.abs(ra - previous[2]) * self._inv_dt, 0.05 * self.j_max)
-        inp.target_position = np.zeros_like(r)
+        r0, rv0, ra0 = previous
+        inp.current_position = [x - y for x, y in zip(self.samples[0], r0)]
+        inp.current_velocity = [x - y for x, y in zip(v, rv0)]
+        inp.current_acceleration = [x - y for x, y in zip(a, ra0)]
+        v_floor, a_floor, j_floor = self._floors
+        inp.max_velocity = [max(m - abs(x), f) for m, x, f in zip(self._vmax_f, rv, v_floor)]
+        inp.max_acceleration = [max(m - abs(x), f) for m, x, f in zip(self._amax_f, ra, a_floor)]
+        inv_dt = self._inv_dt
+        inp.max_jerk = [max(m - abs(x - x0) * inv_dt, f) for m, x, x0, f in zip(self._jmax_f, ra, ra0, j_floor)]
         return self._step(inp)
 
     def _step(self, inp) -> bool:
@@ -296,11 +293,11 @@ class Tracker:
             return False
         return result in (ruckig.Result.Working, ruckig.Result.Finished)
 
-    def _commit(self, q: np.ndarray, tv, ta, mode) -> np.ndarray:
-        v = (q - self.p) * self._inv_dt
-        a = (v - self.v) * self._inv_dt
-        self.p, self._v, self._a = q, v, a
-        self.samples = (q.tolist(), v.tolist(), a.tolist())
+    def _commit(self, q: np.ndarray, tv: list[float] | None, ta: list[float] | None, mode) -> np.ndarray:
+        inv_dt, (p, v0, _) = self._inv_dt, self.samples
+        samples = q.tolist()
+        v = [(x - x0) * inv_dt for x, x0 in zip(samples, p)]
+        self.p, self.samples = q, (samples, v, [(x - x0) * inv_dt for x, x0 in zip(v, v0)])
         self.mode[:] = mode
         self._passing = mode is PASS
         if tv is not None:
