@@ -107,7 +107,7 @@ class Envelope:
                                     category=1))
             return setpoint, events
         self._update_scale(tick, tool_speed_ahead, events)
-        before = PASS if tracker.passing else tracker.mode.copy()  # the modes before this tick (PASS: all)
+        before = tracker.mode  # the modes before this tick (the tracker replaces its list, never changes it)
         setpoint = tracker.follow(reference)
         if tracker.failed is not None:  # ruckig refused its input: this tick braked every joint
             events.append(Event(t_ns, EventKind.TRACKER_FAILED, f"ruckig: {tracker.failed}; braking this tick"))
@@ -217,8 +217,7 @@ class Envelope:
 
     def _report_tracking(self, t_ns, reference, setpoint, before, events) -> None:
         """One event per joint when the tracker takes it over after a stretch of pass-through."""
-        mode, last = self.tracker.mode.tolist(), self._last_intervention
-        before = [PASS] * len(mode) if before is PASS else before.tolist()
+        mode, last = self.tracker.mode, self._last_intervention
         brakes = []
         for j, (now, was) in enumerate(zip(mode, before)):
             if now == PASS:

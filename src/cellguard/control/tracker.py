@@ -31,6 +31,7 @@ import ruckig
 
 PASS, OFFSET, ABSOLUTE, STOP = 0, 1, 2, 3
 GAIN = 8.0  # [1/s] position feedback of the absolute recovery; slow against the jerk ramps (A/J ~ 60 ms)
+_PLANNED = (ruckig.Result.Working, ruckig.Result.Finished)  # what ruckig returns when it has a plan
 
 
 class Tracker:
@@ -40,7 +41,7 @@ class Tracker:
     what the per-tick checks read.
 
     ``v_max``, ``a_max``, ``j_max``: shape (D,) [unit/s], [unit/s²], [unit/s³]; ``lo``, ``hi``:
-    soft position limits (D,); ``dt``: servo period [s]. ``mode`` (D,) says who drove each joint
+    soft position limits (D,); ``dt``: servo period [s]. ``mode`` (D ints) says who drove each joint
     on the last tick (PASS, OFFSET, ABSOLUTE, STOP).
     """
 
@@ -60,7 +61,8 @@ class Tracker:
         # times cheaper than a dozen numpy calls on (D,) arrays for a handful of joints
         self._vmax_f, self._amax_f, self._jmax_f, self._v3_f, self._v3sq_f, self._inv_2a_f, self._tail_f, self._lo_f, self._hi_f = (
             x.tolist() for x in (self.v_max, self.a_max, self.j_max, self._v3, self._v3sq, self._inv_2a, self._tail, self.lo, self.hi))
-        self._joints = tuple(zip(*(x.tolist() for x in (*self._limits, self._half_inv_j, self._far0, self._far1))))
+        self._joints = tuple(zip(*(x.tolist() for x in (*self._limits, self._half_inv_j, self._far0, self._far1,
+                                                          self._inv_2a, self.lo, self.hi))))
         dof = len(self.v_max)
         self._absolute_in, self._offset_in, self._stop_in = (
             self._input(dof, ruckig.ControlInterface.Velocity), self._input(dof, ruckig.ControlInterface.Position),
@@ -88,7 +90,7 @@ class Tracker:
         self.p = np.array(q, dtype=np.float64)
         dof = len(self.p)
         self.samples = (self.p.tolist(), [0.0] * dof, [0.0] * dof)
-        self.mode = np.zeros(dof, dtype=np.int8)
+        self.mode = [PASS] * dof  # replaced, never changed in place: a reader may keep last tick's
         self._tv, self._ta = [0.0] * dof, [0.0] * dof  # ruckig's own velocity and acceleration of joints it drove
         self._ref = None  # last reference sample and its FD v, a; None: the setpoint's (it passed through)
         self._passing = True  # every joint passed through on the last tick
@@ -123,9 +125,9 @@ class Tracker:
         brought to zero before the velocity limit, and a stop from it still fits before the soft
         position limits (checked exactly only for joints a loose bound puts near a limit).
         """
-        inv_dt, lo, hi = self._inv_dt, self._lo_f, self._hi_f
+        inv_dt = self._inv_dt
         ok, vs, accs = [], [], []
-        for j, (qj, pj, vj, aj, (v_max, a_max, j_max, half_inv_j, far0, far1)) in enumerate(
+        for j, (qj, pj, vj, aj, (v_max, a_max, j_max, half_inv_j, far0, far1, inv_2a, lo, hi)) in enumerate(
                 zip(q, *self.samples, self._joints)):
             v = (qj - pj) * inv_dt
             a = (v - vj) * inv_dt
@@ -133,8 +135,8 @@ class Tracker:
             # inside v, a, j; and the acceleration can still be brought to zero (jerk-limited) before v_max
             fit = (speed <= v_max and abs(a) <= a_max and abs((a - aj) * inv_dt) <= j_max
                    and abs(v + a * abs(a) * half_inv_j) <= v_max)
-            far = far0 + speed * (far1 + speed * self._inv_2a_f[j])  # a loose bound of the stopping distance
-            if fit and (qj - far < lo[j] or qj + far > hi[j]):
+            far = far0 + speed * (far1 + speed * inv_2a)  # a loose bound of the stopping distance
+            if fit and (qj - far < lo or qj + far > hi):
                 fit = self._stop_fits(j, qj, v, a)
             ok.append(fit)
             vs.append(v)
@@ -164,10 +166,10 @@ class Tracker:
         ra = [(x - x0) * inv_dt for x, x0 in zip(rv, previous[1])]
         self._ref = (samples, rv, ra)
         if all(ok):
-            return self._commit(r, None, None, PASS)
+            return self._commit(r, samples, None, None, PASS)
         q, tv, ta = samples.copy(), self._tv.copy(), self._ta.copy()
         mode = [PASS if fit else ABSOLUTE for fit in ok]
-        recovering = [j for j, (fit, m) in enumerate(zip(ok, self.mode.tolist())) if not fit and m in (OFFSET, ABSOLUTE)]
+        recovering = [j for j, (fit, m) in enumerate(zip(ok, self.mode)) if not fit and m in (OFFSET, ABSOLUTE)]
         if recovering and self._offset(rv, ra, previous):
             out = self._out
             cand = [x + e for x, e in zip(samples, out.new_position)]
@@ -191,7 +193,7 @@ class Tracker:
                 bq, bv, ba = out.new_position, out.new_velocity, out.new_acceleration
                 for j in brake:
                     q[j], mode[j], tv[j], ta[j] = bq[j], STOP, bv[j], ba[j]
-        return self._commit(np.array(q), tv, ta, mode)
+        return self._commit(np.array(q), q, tv, ta, mode)
 
     def stop(self, r: np.ndarray | None = None) -> np.ndarray:
         """One tick of a time-optimal stop of every joint (velocity interface to zero).
@@ -203,17 +205,18 @@ class Tracker:
         if r is not None:
             self._ref = (r.tolist(), zero, zero)
         if not self._brake():  # cannot happen with finite inputs; hold rather than raise
-            return self._commit(self.p.copy(), zero, zero, STOP)
+            return self._commit(self.p.copy(), self.samples[0], zero, zero, STOP)
         out = self._out
         v, a = out.new_velocity, out.new_acceleration
         if all(abs(x) < 1e-9 for x in v) and all(abs(x) < 1e-6 for x in a):  # at rest: hold exactly, no drift
-            return self._commit(self.p.copy(), zero, zero, STOP)
-        return self._commit(np.array(out.new_position), v, a, STOP)
+            return self._commit(self.p.copy(), self.samples[0], zero, zero, STOP)
+        q = out.new_position
+        return self._commit(np.array(q), q, v, a, STOP)
 
     def hold(self) -> np.ndarray:
         """Standstill where the setpoint is, at once: power is removed, nothing is driven."""
         self.reset(self.p)
-        self.mode[:] = STOP
+        self.mode = [STOP] * len(self.mode)
         self._passing = False
         return self.p.copy()
 
@@ -236,7 +239,7 @@ class Tracker:
         absolute positions starts from the samples instead.
         """
         half_dt, v, a = 0.5 * self.dt, [], []
-        for m, own_v, own_a, sv, sa, v_max, a_max in zip(self.mode.tolist(), self._tv, self._ta, *self.samples[1:],
+        for m, own_v, own_a, sv, sa, v_max, a_max in zip(self.mode, self._tv, self._ta, *self.samples[1:],
                                                          self._vmax_f, self._amax_f):
             vj, aj = (own_v, own_a) if (m != PASS if offset else m >= ABSOLUTE) else (sv + sa * half_dt, sa)
             if not offset:
@@ -291,15 +294,17 @@ class Tracker:
             self.failed = str(exc).strip().splitlines()[0]
             otg.reset()
             return False
-        return result in (ruckig.Result.Working, ruckig.Result.Finished)
+        return result in _PLANNED
 
-    def _commit(self, q: np.ndarray, tv: list[float] | None, ta: list[float] | None, mode) -> np.ndarray:
+    def _commit(self, q: np.ndarray, samples: list[float], tv: list[float] | None, ta: list[float] | None,
+                mode: int | list[int]) -> np.ndarray:
+        """Make ``q`` (D,), the same as ``samples`` (D plain floats), the setpoint; ``mode``: one for all, or per joint."""
         inv_dt, (p, v0, _) = self._inv_dt, self.samples
-        samples = q.tolist()
         v = [(x - x0) * inv_dt for x, x0 in zip(samples, p)]
         self.p, self.samples = q, (samples, v, [(x - x0) * inv_dt for x, x0 in zip(v, v0)])
-        self.mode[:] = mode
-        self._passing = mode is PASS
+        one = isinstance(mode, int)
+        self.mode = [mode] * len(samples) if one else mode
+        self._passing = one and mode == PASS
         if tv is not None:
             self._tv, self._ta = tv, ta
         return q
