@@ -38,7 +38,8 @@ class Mutation:
 
 MUTATIONS = (
     Mutation("position_lookahead_off", "position soft limit: stopping-distance look-ahead", TRACKER,
-             "            if fit and (qj - far < lo or qj + far > hi):\n                fit = self._stop_fits(j, qj, v, a)",
+             "            if fit and (qj - far < lo or qj + far > hi):\n"
+             "                fit = self._stop_fits(j, qj, v, a)",
              "            if False:\n                fit = self._stop_fits(j, qj, v, a)", (POSITION, LIMITS)),
     Mutation("soft_margin_zero", "position: soft limits inside the hard limits", ENVELOPE,
              "margin = c.soft_margin * (hi - lo)", "margin = 0.0 * (hi - lo)", (POSITION,)),

@@ -57,12 +57,14 @@ class Tracker:
         # a bound of the stopping distance at speed |v| for any |a| <= a_max: c0 + c1 |v| + v²/2a
         t1 = 2.0 * self.a_max / self.j_max
         self._far0, self._far1 = 0.5 * self.a_max * t1 * t1 + self._tail, t1
-        # the same constants as plain floats: the per-tick checks run joint by joint on Python floats, several
-        # times cheaper than a dozen numpy calls on (D,) arrays for a handful of joints
-        self._vmax_f, self._amax_f, self._jmax_f, self._v3_f, self._v3sq_f, self._inv_2a_f, self._tail_f, self._lo_f, self._hi_f = (
-            x.tolist() for x in (self.v_max, self.a_max, self.j_max, self._v3, self._v3sq, self._inv_2a, self._tail, self.lo, self.hi))
+        # the same constants as plain floats: each tick runs joint by joint on Python floats, several times
+        # cheaper than the dozens of numpy calls on (D,) arrays it would take for a handful of joints
+        self._vmax_f, self._amax_f, self._jmax_f, self._lo_f, self._hi_f = (
+            x.tolist() for x in (self.v_max, self.a_max, self.j_max, self.lo, self.hi))
+        self._v3_f, self._v3sq_f, self._inv_2a_f, self._tail_f = (
+            x.tolist() for x in (self._v3, self._v3sq, self._inv_2a, self._tail))
         self._joints = tuple(zip(*(x.tolist() for x in (*self._limits, self._half_inv_j, self._far0, self._far1,
-                                                          self._inv_2a, self.lo, self.hi))))
+                                                          self._inv_2a, self.lo, self.hi))))  # what _fits reads
         dof = len(self.v_max)
         self._absolute_in, self._offset_in, self._stop_in = (
             self._input(dof, ruckig.ControlInterface.Velocity), self._input(dof, ruckig.ControlInterface.Position),
@@ -73,7 +75,8 @@ class Tracker:
                      for inp in (self._absolute_in, self._offset_in, self._stop_in)}
         self._stop_in.target_velocity = np.zeros(dof)
         self._offset_in.target_position = np.zeros(dof)  # the error's target: none
-        self._floors = tuple((0.05 * x).tolist() for x in (self.v_max, self.a_max, self.j_max))  # the offset's least headroom
+        # the least headroom the offset plan keeps for v, a, j
+        self._floors = tuple((0.05 * x).tolist() for x in (self.v_max, self.a_max, self.j_max))
         self._stop_in.target_acceleration = self._absolute_in.target_acceleration = np.zeros(dof)
         self.failed: str | None = None
         self.reset(q0)
@@ -116,7 +119,8 @@ class Tracker:
 
     def _stop_fits(self, j: int, q: float, v: float, a: float) -> bool:
         """Would a jerk-limited stop of joint ``j`` from (q, v, a) end inside its soft limits?"""
-        return q + self._stop_distance(j, v, a) <= self._hi_f[j] and q - self._stop_distance(j, -v, -a) >= self._lo_f[j]
+        return (q + self._stop_distance(j, v, a) <= self._hi_f[j]
+                and q - self._stop_distance(j, -v, -a) >= self._lo_f[j])
 
     def _fits(self, q: list[float]) -> tuple[list[bool], list[float], list[float]]:
         """Per joint: can ``q[j]`` be the next setpoint? And the finite-difference v, a it implies.
@@ -142,10 +146,6 @@ class Tracker:
             vs.append(v)
             accs.append(a)
         return ok, vs, accs
-
-    def fits(self, q: np.ndarray) -> np.ndarray:
-        """Per joint (D,): can ``q`` be the next setpoint? (see ``_fits``)"""
-        return np.array(self._fits(q.tolist())[0])
 
     # -- one tick --------------------------------------------------------------------------
     def follow(self, r: np.ndarray) -> np.ndarray:
@@ -298,7 +298,7 @@ class Tracker:
 
     def _commit(self, q: np.ndarray, samples: list[float], tv: list[float] | None, ta: list[float] | None,
                 mode: int | list[int]) -> np.ndarray:
-        """Make ``q`` (D,), the same as ``samples`` (D plain floats), the setpoint; ``mode``: one for all, or per joint."""
+        """Make ``q`` (D,), equal to ``samples`` (D plain floats), the setpoint; ``mode``: one for all or per joint."""
         inv_dt, (p, v0, _) = self._inv_dt, self.samples
         v = [(x - x0) * inv_dt for x, x0 in zip(samples, p)]
         self.p, self.samples = q, (samples, v, [(x - x0) * inv_dt for x, x0 in zip(v, v0)])

@@ -24,7 +24,8 @@ class EffortLimit(Check):
         state = tick.state
         if state is None:
             return None
-        ticks = self._ticks = [n + 1 if abs(e) > m else 0 for n, e, m in zip(self._ticks, state.effort.tolist(), self._max)]
+        ticks = self._ticks = [n + 1 if abs(e) > m else 0
+                               for n, e, m in zip(self._ticks, state.effort.tolist(), self._max)]
         longest = max(ticks)
         if tick.stop_kind == EventKind.EFFORT_STOP or longest < self._hold:
             return None
