@@ -166,6 +166,30 @@ def tick_cost(seconds: float = 120.0) -> dict:
             "record_failed": recording.failed}
 
 
+def full_collection_cost(repeats: int = 5) -> dict:
+    """CPU time of one full garbage collection with the arm cell loaded, outside and inside a recording [µs].
+
+    A collection holds the GIL from start to end, so the servo thread waits for all of it; inside a
+    recording the heap held at its start is frozen out of the collector. Thread CPU time (median of
+    ``repeats``), so the figures do not depend on the machine's load.
+    """
+    def median_us() -> float:
+        times = []
+        for _ in range(repeats):
+            began = time.thread_time_ns()
+            gc.collect()
+            times.append(time.thread_time_ns() - began)
+        return statistics.median(times) * 1e-3
+
+    run = Run(parse_scenario({"cell": "arm-pick-place", "seed": 3, "acceptance_cycles": 1, "production_cycles": 0}))
+    tracked, outside = len(gc.get_objects()), median_us()
+    with tempfile.TemporaryDirectory() as tmp:
+        recording = RunRecording.start(Path(tmp), run)
+        inside = median_us()
+        recording.close()
+    return {"gc_tracked_objects": tracked, "gc_full_collection_us": outside, "gc_full_collection_recording_us": inside}
+
+
 def bytes_per_hour(cycles: int = 6) -> dict:
     """MB per hour of the real arm cell: decimated only, at the default rates, at full servo rate throughout.
 
@@ -247,5 +271,5 @@ def query_30_days(days: int = 30, repeats: int = 3) -> dict:
 
 def figures(quick: bool = False) -> dict:
     """Every record figure; ``quick`` shortens the recordings (not the 30-day query)."""
-    return {**tick_cost(20.0 if quick else 120.0), **bytes_per_hour(3 if quick else 6),
+    return {**tick_cost(20.0 if quick else 120.0), **full_collection_cost(), **bytes_per_hour(3 if quick else 6),
             **read_one_cycle(0.25 if quick else 1.0), **query_30_days()}
