@@ -38,13 +38,15 @@ class Mutation:
 
 MUTATIONS = (
     Mutation("position_lookahead_off", "position soft limit: stopping-distance look-ahead", TRACKER,
-             "        if near.size:\n            ok &= self.stop_fits(q, fd[0], fd[1], near)",
-             "        if False:\n            ok &= self.stop_fits(q, fd[0], fd[1], near)", (POSITION, LIMITS)),
+             "            if fit and (qj - far < lo or qj + far > hi):\n"
+             "                fit = self._stop_fits(j, qj, v, a)",
+             "            if False:\n                fit = self._stop_fits(j, qj, v, a)", (POSITION, LIMITS)),
     Mutation("soft_margin_zero", "position: soft limits inside the hard limits", ENVELOPE,
              "margin = c.soft_margin * (hi - lo)", "margin = 0.0 * (hi - lo)", (POSITION,)),
     Mutation("recovery_ignores_position", "position: the recovery brakes and aims inside the soft limits", TRACKER,
-             "target = np.clip(r, self.lo, self.hi)", "target = r", (POSITION, LIMITS),
-             also=((TRACKER, "brake = rest & ~self.stop_fits(nq, nv, na)", "brake = rest & False"),)),
+             "target = [min(max(x, lo), hi) for x, lo, hi in zip(r, self._lo_f, self._hi_f)]", "target = r",
+             (POSITION, LIMITS),
+             also=((TRACKER, "if not self._stop_fits(j, nq[j], nv[j], na[j]):", "if False:"),)),
     Mutation("velocity_limit_x10", "velocity limit", TRACKER,
              "np.stack([self.v_max, self.a_max, self.j_max])", "np.stack([self.v_max * 10, self.a_max, self.j_max])",
              (f"{OVER}[velocity]", LIMITS)),
@@ -77,7 +79,7 @@ MUTATIONS = (
              "return self._cap if tick.safety.reduced_speed else None", "return None",
              (f"{ENV}::test_reduced_speed_input_caps_the_tool_speed_and_keeps_the_path",)),
     Mutation("reduced_speed_ignores_tool_speed", "reduced speed: cap on the tool speed ahead", ENVELOPE,
-             "target = min(1.0, 0.9 * cap.cap / speed_ahead)", "target = min(1.0, 0.9 * cap.cap / speed_ahead * 4)",
+             "target = min(1.0, 0.9 * cap.cap / speed)", "target = min(1.0, 0.9 * cap.cap / speed * 4)",
              (f"{ENV}::test_reduced_speed_input_caps_the_tool_speed_and_keeps_the_path",)),
     Mutation("watchdog_x10", "watchdog", f"{CHECKS}/watchdog.py",
              "tick.t_ns - last > self._silence_ns", "tick.t_ns - last > 10 * self._silence_ns",

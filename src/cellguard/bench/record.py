@@ -6,6 +6,7 @@ Timings only (never asserted in tests). ``benchmarks/record.py`` prints them as 
 
 from __future__ import annotations
 
+import gc
 import statistics
 import tempfile
 import time
@@ -87,11 +88,31 @@ def _ruckig_call_ns(dof: int = 6, n: int = 2000) -> list[int]:
     return times
 
 
-def _paced_run(folder: Path, seconds: float, event_every_s: float = 10.0) -> tuple[list[int], RunRecording]:
+class _Collections:
+    """Garbage collections while it is installed (``gc.callbacks``): how many, and the longest [ns].
+
+    A collection holds the GIL from start to end on whichever thread runs it, so the servo thread
+    may wait for all of it.
+    """
+
+    def __init__(self):
+        self.count, self.longest_ns, self._began = 0, 0, 0
+
+    def __call__(self, phase: str, info: dict) -> None:
+        if phase == "start":
+            self._began = time.perf_counter_ns()
+        else:
+            self.count += 1
+            self.longest_ns = max(self.longest_ns, time.perf_counter_ns() - self._began)
+
+
+def _paced_run(folder: Path, seconds: float, event_every_s: float = 10.0) -> tuple[list[int], RunRecording,
+                                                                                  _Collections]:
     """The arm cell's recording fed at a paced 1 kHz (sleep, then spin to each deadline), as a real loop does.
 
     The ticks are synthetic (a random walk) so that only the recorder is timed; its writer thread
-    does the disk work meanwhile. Returns the servo-thread cost of each ``RunRecording.tick``.
+    does the disk work meanwhile. Returns the servo-thread cost of each ``RunRecording.tick``, the
+    recording, and the garbage collections while the loop ran.
     """
     rng = np.random.default_rng(0)
     run = Run(parse_scenario({"cell": "arm-pick-place", "seed": 3, "acceptance_cycles": 1, "production_cycles": 0}))
@@ -99,6 +120,8 @@ def _paced_run(folder: Path, seconds: float, event_every_s: float = 10.0) -> tup
     n, per_cycle = round(seconds * 1e9 / DT_NS), round(CYCLE_S * 1e9 / DT_NS)
     per_event = round(event_every_s * 1e9 / DT_NS)
     q, costs, deadline = np.zeros(6), [], time.perf_counter_ns()
+    collections = _Collections()
+    gc.callbacks.append(collections)
     for k in range(n):
         t = k * DT_NS
         if k % per_cycle == 0:
@@ -116,8 +139,9 @@ def _paced_run(folder: Path, seconds: float, event_every_s: float = 10.0) -> tup
         while (left := deadline - time.perf_counter_ns()) > 0:
             if left > 300_000:
                 time.sleep((left - 200_000) * 1e-9)
+    gc.callbacks.remove(collections)
     recording.close()
-    return costs, recording
+    return costs, recording, collections
 
 
 def tick_cost(seconds: float = 120.0) -> dict:
@@ -129,15 +153,41 @@ def tick_cost(seconds: float = 120.0) -> dict:
     """
     ruckig_ns = _ruckig_call_ns()
     with tempfile.TemporaryDirectory() as tmp:
-        costs, recording = _paced_run(Path(tmp), seconds)
+        costs, recording, collections = _paced_run(Path(tmp), seconds)
     with tempfile.TemporaryDirectory() as tmp:
         sync = _synthetic_run(Path(tmp), seconds, timed=True, event_every_s=60.0)
     ruckig_us = float(np.median(ruckig_ns)) * 1e-3
     out = {**_stats("tick", costs), **_stats("sync_tick", sync), "ruckig_call_us_median": ruckig_us}
     for key in ("tick_us_median", "tick_us_p99", "tick_us_max", "sync_tick_us_p99", "sync_tick_us_max"):
         out[key.replace("_us", "") + "_per_ruckig_call"] = out[key] / ruckig_us
-    return {**out, "ticks": len(costs), "queue_high_water_ticks": recording.high_water,
-            "ticks_dropped": recording.dropped, "record_failed": recording.failed}
+    return {**out, "ticks": len(costs), "ticks_over_200us": int(np.count_nonzero(np.asarray(costs) > 200_000)),
+            "gc_collections": collections.count, "gc_longest_us": collections.longest_ns * 1e-3,
+            "queue_high_water_ticks": recording.high_water, "ticks_dropped": recording.dropped,
+            "record_failed": recording.failed}
+
+
+def full_collection_cost(repeats: int = 5) -> dict:
+    """CPU time of one full garbage collection with the arm cell loaded, outside and inside a recording [µs].
+
+    A collection holds the GIL from start to end, so the servo thread waits for all of it; inside a
+    recording the heap held at its start is frozen out of the collector. Thread CPU time (median of
+    ``repeats``), so the figures do not depend on the machine's load.
+    """
+    def median_us() -> float:
+        times = []
+        for _ in range(repeats):
+            began = time.thread_time_ns()
+            gc.collect()
+            times.append(time.thread_time_ns() - began)
+        return statistics.median(times) * 1e-3
+
+    run = Run(parse_scenario({"cell": "arm-pick-place", "seed": 3, "acceptance_cycles": 1, "production_cycles": 0}))
+    tracked, outside = len(gc.get_objects()), median_us()
+    with tempfile.TemporaryDirectory() as tmp:
+        recording = RunRecording.start(Path(tmp), run)
+        inside = median_us()
+        recording.close()
+    return {"gc_tracked_objects": tracked, "gc_full_collection_us": outside, "gc_full_collection_recording_us": inside}
 
 
 def bytes_per_hour(cycles: int = 6) -> dict:
@@ -221,5 +271,5 @@ def query_30_days(days: int = 30, repeats: int = 3) -> dict:
 
 def figures(quick: bool = False) -> dict:
     """Every record figure; ``quick`` shortens the recordings (not the 30-day query)."""
-    return {**tick_cost(20.0 if quick else 120.0), **bytes_per_hour(3 if quick else 6),
+    return {**tick_cost(20.0 if quick else 120.0), **full_collection_cost(), **bytes_per_hour(3 if quick else 6),
             **read_one_cycle(0.25 if quick else 1.0), **query_30_days()}

@@ -66,16 +66,21 @@ class Envelope:
         self.power = True
         self._active: dict[EventKind, str] = {}  # lasting conditions already reported, with their reason
         self.tool_speed = 0.0  # [m/s] of the last setpoint
-        self._last_intervention = np.full(profile.dof, -(2**62), dtype=np.int64)  # per joint [ns]
+        self._last_intervention = [-(2**62)] * profile.dof  # per joint [ns]
+        self._names = profile.joint_names
 
     # -- the tick ------------------------------------------------------------------------
     def apply(self, t_ns: int, reference: np.ndarray, state=None, safety: SafetyInputs = NO_INPUTS,
               last_chunk_ns: int | None = None, uncertainty: float = 0.0,
-              tool_speed_ahead: float | None = None) -> tuple[np.ndarray, list[Event]]:
-        """The setpoint (D,) for this tick and the events raised; never raises on bad values."""
+              tool_speed_ahead: Callable[[], float | None] | None = None) -> tuple[np.ndarray, list[Event]]:
+        """The setpoint (D,) for this tick and the events raised; never raises on bad values.
+
+        ``tool_speed_ahead``: the fastest tool speed of the chunk ahead [m/s] (None: unknown), asked
+        only while a speed cap is in force.
+        """
         events: list[Event] = []
         tracker, tick = self.tracker, self._tick
-        finite = bool(np.isfinite(reference).all())
+        finite = all(map(math.isfinite, reference.tolist()))  # cheaper than np.isfinite on (D,)
         tick.t_ns, tick.reference, tick.finite, tick.state, tick.safety = t_ns, reference, finite, state, safety
         tick.last_chunk_ns, tick.uncertainty, tick.stop_kind = last_chunk_ns, uncertainty, self.stop_kind
         request = None
@@ -102,12 +107,12 @@ class Envelope:
                                     category=1))
             return setpoint, events
         self._update_scale(tick, tool_speed_ahead, events)
-        before = tracker.mode.copy()
+        before = tracker.mode  # the modes before this tick (the tracker replaces its list, never changes it)
         setpoint = tracker.follow(reference)
         if tracker.failed is not None:  # ruckig refused its input: this tick braked every joint
             events.append(Event(t_ns, EventKind.TRACKER_FAILED, f"ruckig: {tracker.failed}; braking this tick"))
             tracker.failed = None
-        if tracker.mode.any():
+        if not tracker.passing:
             self._report_tracking(t_ns, reference, setpoint, before, events)
         if self._tool is not None:
             self._follow_tool(tick, setpoint)
@@ -144,7 +149,7 @@ class Envelope:
         inv_dt = 1e9 / self.dt_ns
         vx, vy, vz = (x - px) * inv_dt, (y - py) * inv_dt, (z - pz) * inv_dt
         self._tip = tick.tip = (x, y, z)
-        tick.tip_v, tick.setpoint, tick.v = (vx, vy, vz), setpoint, self.tracker.v
+        tick.tip_v, tick.setpoint, tick.v = (vx, vy, vz), setpoint, self.tracker.samples[1]
         self.tool_speed = math.sqrt(vx * vx + vy * vy + vz * vz)
 
     # -- stops -----------------------------------------------------------------------------
@@ -159,7 +164,8 @@ class Envelope:
             events.append(Event(t_ns, EventKind.POWER_REMOVED, f"category 0 stop: {stop.reason}", category=0))
 
     # -- speed -----------------------------------------------------------------------------
-    def _update_scale(self, tick: Tick, speed_ahead: float | None, events: list[Event]) -> None:
+    def _update_scale(self, tick: Tick, speed_ahead: Callable[[], float | None] | None,
+                      events: list[Event]) -> None:
         """The lowest tool-speed cap the speed checks ask for sets the playback speed; conditions reported."""
         cap: SpeedCap | None = None
         without_tool = 1.0
@@ -176,10 +182,11 @@ class Envelope:
             self._conditions(tick.t_ns, on or (), events)
         target = 1.0
         if cap is not None:
-            if speed_ahead is None:
+            speed = None if speed_ahead is None else speed_ahead()
+            if speed is None:
                 target = without_tool
-            elif speed_ahead > 0.0:
-                target = min(1.0, 0.9 * cap.cap / speed_ahead)
+            elif speed > 0.0:
+                target = min(1.0, 0.9 * cap.cap / speed)
         self._ramp(target)
 
     def _ramp(self, target: float) -> None:
@@ -210,13 +217,19 @@ class Envelope:
 
     def _report_tracking(self, t_ns, reference, setpoint, before, events) -> None:
         """One event per joint when the tracker takes it over after a stretch of pass-through."""
-        names = self.profile.joint_names
-        quiet = t_ns - self._last_intervention >= INTERVENTION_QUIET_NS
-        self._last_intervention[self.tracker.mode != PASS] = t_ns
-        for j in np.flatnonzero(quiet & (before == PASS) & (self.tracker.mode != PASS) & (self.tracker.mode != STOP)):
-            events.append(Event(t_ns, EventKind.LIMIT_INTERVENTION, "reference outside the velocity, acceleration, "
-                                "jerk or position envelope; ruckig takes over", joint=names[j],
-                                asked=float(reference[j]), sent=float(setpoint[j])))
-        for j in np.flatnonzero((before != STOP) & (self.tracker.mode == STOP)):
+        mode, last = self.tracker.mode, self._last_intervention
+        brakes = []
+        for j, (now, was) in enumerate(zip(mode, before)):
+            if now == PASS:
+                continue
+            if now == STOP:
+                if was != STOP:
+                    brakes.append(j)
+            elif was == PASS and t_ns - last[j] >= INTERVENTION_QUIET_NS:
+                events.append(Event(t_ns, EventKind.LIMIT_INTERVENTION, "reference outside the velocity, acceleration, "
+                                    "jerk or position envelope; ruckig takes over", joint=self._names[j],
+                                    asked=float(reference[j]), sent=float(setpoint[j])))
+            last[j] = t_ns
+        for j in brakes:
             events.append(Event(t_ns, EventKind.LIMIT_BRAKE, "braking: a stop no longer fits before the soft limit",
-                                joint=names[j], asked=float(reference[j]), sent=float(setpoint[j])))
+                                joint=self._names[j], asked=float(reference[j]), sent=float(setpoint[j])))

@@ -8,6 +8,7 @@ once per servo period. ``reference`` keeps the last reference for the record.
 from __future__ import annotations
 
 from collections.abc import Callable
+from functools import partial
 
 import numpy as np
 
@@ -35,6 +36,7 @@ class Guard:
         self.executor = Executor(profile, q0, dt_ns, blend_ns=round(config.blend_s * 1e9), tool=tool)
         self.envelope = Envelope(profile, q0, dt_ns, config, tool=tool)
         self.reference = np.array(q0, dtype=np.float64)
+        self._speed_ahead = partial(self.executor.tool_speed_ahead, LOOKAHEAD_NS)  # asked only under a speed cap
 
     def push(self, chunk: ActionChunk | PreparedChunk, t_ns: int) -> list[Event]:
         """Swap in a chunk that arrived at ``t_ns``; events for a refused chunk or dropped steps."""
@@ -45,7 +47,7 @@ class Guard:
         executor, envelope = self.executor, self.envelope
         self.reference = executor.reference(t_ns, envelope.scale)
         return envelope.apply(t_ns, self.reference, state, safety, executor.last_chunk_ns, executor.uncertainty,
-                              executor.tool_speed_ahead(LOOKAHEAD_NS))
+                              self._speed_ahead)
 
     @property
     def power(self) -> bool:

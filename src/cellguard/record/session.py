@@ -7,7 +7,10 @@ never blocks the servo thread: the tick is dropped, counted, and a ``record_queu
 raised (once per episode). A write error ends the recording for good and sets ``failed``; the
 loop reads it after each tick and stops the cell (category 2, ``record_failed``) because an
 unrecorded run is not allowed. While the writer thread runs, the interpreter's switch interval
-is lowered to ``SWITCH_INTERVAL_S`` so that the servo thread never waits long for the GIL.
+is lowered to ``SWITCH_INTERVAL_S`` so that the servo thread never waits long for the GIL, and
+what the process holds at the start (the cell's model, the modules, the run) is frozen out of the
+garbage collector (``gc.freeze``): a collection holds the GIL from start to end, whichever thread
+runs it, and with the whole heap to traverse one took up to tens of milliseconds under load.
 
 A crash loses what is still queued (at most ``queue_s`` of ticks) on top of the open chunk.
 """
@@ -15,6 +18,7 @@ A crash loses what is still queued (at most ``queue_s`` of ticks) on top of the 
 from __future__ import annotations
 
 import collections
+import gc
 import os
 import sys
 import threading
@@ -54,6 +58,7 @@ class RunRecording:
         self._tick = recorder.tick
         self._switch = sys.getswitchinterval()
         sys.setswitchinterval(min(self._switch, SWITCH_INTERVAL_S))
+        gc.freeze()  # until close, which hands it all back to the collector (garbage frozen now included)
         self._thread = threading.Thread(target=self._drain, name="cellguard-recorder", daemon=True)
         self._thread.start()
 
@@ -140,6 +145,7 @@ class RunRecording:
         self._wake.set()
         self._thread.join()
         sys.setswitchinterval(self._switch)
+        gc.unfreeze()
         try:
             self.recorder.close()
         except RecordError as exc:

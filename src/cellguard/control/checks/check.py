@@ -35,7 +35,7 @@ class Tick:
         self.setpoint: np.ndarray | None = None
         self.tip: tuple[float, float, float] | None = None
         self.tip_v: tuple[float, float, float] | None = None
-        self.v: np.ndarray | None = None  # setpoint velocity (D,) [unit/s]
+        self.v: list[float] | None = None  # setpoint velocity (D plain floats) [unit/s]
 
 
 @dataclass(frozen=True)

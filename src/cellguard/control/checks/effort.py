@@ -5,8 +5,6 @@ Collisions and jams show as effort; a short peak (a grasp, a bump) is not one, h
 
 from __future__ import annotations
 
-import numpy as np
-
 from cellguard.control.checks.check import Check, Stop, Tick
 from cellguard.control.events import Event, EventKind
 from cellguard.embodiment import Profile
@@ -16,9 +14,9 @@ class EffortLimit(Check):
     """Stop when a joint's |effort| stays above ``fraction`` of its limit for ``hold_s`` [s]."""
 
     def __init__(self, profile: Profile, fraction: float, hold_s: float, dt_ns: int):
-        self._names, self._limit = profile.joint_names, profile.array("effort")
-        self._max = self._limit * fraction
-        self._ticks = np.zeros(profile.dof, dtype=np.int64)
+        self._names, self._limit = profile.joint_names, profile.array("effort").tolist()
+        self._max = (profile.array("effort") * fraction).tolist()
+        self._ticks = [0] * profile.dof  # ticks each joint has been above (plain ints: cheaper per tick than numpy)
         self._hold = max(1, round(hold_s * 1e9 / dt_ns))
         self._reason = f"effort above {fraction:.0%} of the limit for {hold_s * 1e3:.0f} ms"
 
@@ -26,15 +24,16 @@ class EffortLimit(Check):
         state = tick.state
         if state is None:
             return None
-        over = np.abs(state.effort) > self._max
-        self._ticks = np.where(over, self._ticks + 1, 0)
-        if tick.stop_kind == EventKind.EFFORT_STOP or not (self._ticks >= self._hold).any():
+        ticks = self._ticks = [n + 1 if abs(e) > m else 0
+                               for n, e, m in zip(self._ticks, state.effort.tolist(), self._max)]
+        longest = max(ticks)
+        if tick.stop_kind == EventKind.EFFORT_STOP or longest < self._hold:
             return None
-        j = int(np.argmax(self._ticks))
-        self._ticks[:] = 0
+        j = ticks.index(longest)
+        self.reset()
         detail = Event(tick.t_ns, EventKind.EFFORT_LIMIT, self._reason, joint=self._names[j],
-                       asked=float(state.effort[j]), sent=float(self._limit[j]))
+                       asked=float(state.effort[j]), sent=self._limit[j])
         return Stop(2, EventKind.EFFORT_STOP, "effort limit", detail)
 
     def reset(self) -> None:
-        self._ticks[:] = 0
+        self._ticks = [0] * len(self._ticks)

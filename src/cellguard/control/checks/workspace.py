@@ -20,7 +20,8 @@ STOP = Stop(2, EventKind.WORKSPACE_STOP, "workspace box")
 
 
 def _outside(point, lo, hi) -> bool:
-    return any(p < low or p > high for p, low, high in zip(point, lo, hi))
+    (x, y, z), (x0, y0, z0), (x1, y1, z1) = point, lo, hi
+    return x < x0 or x > x1 or y < y0 or y > y1 or z < z0 or z > z1
 
 
 class WorkspaceLookahead(Check):
@@ -35,7 +36,7 @@ class WorkspaceLookahead(Check):
     def request(self, tick: Tick) -> Stop | None:
         x, y, z = tick.tip
         vx, vy, vz = tick.tip_v
-        t_stop = max(abs(v) * ia for v, ia in zip(tick.v.tolist(), self._inv_a))
+        t_stop = max([abs(v) * ia for v, ia in zip(tick.v, self._inv_a)])
         k = 0.5 * t_stop + self._t_jerk
         return STOP if _outside((x + vx * k, y + vy * k, z + vz * k), self._lo, self._hi) else None
 
