@@ -11,6 +11,9 @@ candidate finding, classified from the size and sign of its changes over the fau
   sat off the tool with the joints' grasp pose unchanged, the tool slipped on its flange.
 - one joint (current, tracking error): friction raises the current the joint needs more than
   its tracking error; a weaker servo gain raises the tracking error more than the current.
+  The joints of an arm are coupled: a joint that lags more moves the others' loads a little. A
+  joint whose change is under ``COUPLED`` of a joint's that changed no later is that joint's
+  consequence, told in its evidence, not a second cause.
 - policy timing (latency, stale chunks) and policy output (rejected chunks) speak for
   themselves; joint changes that start with a latency change are its consequence.
 """
@@ -33,6 +36,7 @@ SIGNIFICANT_MM = 0.3  # [mm] a geometric change smaller than this is noise at th
 CONCURRENT = 2  # [cycles] changes this close together are one episode
 UNCHANGED_Z = 3.0  # |median residual| below this, in baseline scales, reads as "unchanged"
 MATERIAL = 0.01  # a joint whose current and tracking error moved less than 1 % stays an alarm, not a cause
+COUPLED = 0.2  # a joint's change under this share of an earlier joint's change follows from it
 CARRY_ONLY = 0.5  # current while carrying rose, while not less than this share of it: the load changed
 
 
@@ -237,6 +241,7 @@ def _joints(w: _Window, groups: dict[str, list[DriftAlarm]]) -> list[Finding]:
             share = share if cause == "friction" else 1.0 - share
         rated.append((start, cause, joint, cur, trk, share, alarms))
     rated.sort()
+    rated, follows = _coupled(rated)
     findings: list[Finding] = []
     while rated:
         start, cause = rated[0][0], rated[0][1]
@@ -251,6 +256,10 @@ def _joints(w: _Window, groups: dict[str, list[DriftAlarm]]) -> list[Finding]:
                             "changed (a new product variant?), not the joints")
         else:
             evidence = [f"{r[2]}: current {_pct(r[3])}, tracking error {_pct(r[4])} vs baseline" for r in same[:6]]
+        coupled = [(r, lead) for lead in joints for r in follows.get(lead, ())]
+        evidence += [f"also {r[2]} from cycle {r[0]}: current {_pct(r[3])}, tracking error {_pct(r[4])}, under "
+                     f"{COUPLED:.0%} of {lead}'s change: the coupled joints follow it, not a second cause"
+                     for r, lead in coupled[:3]]
         if cause == "friction":
             evidence.append("the current rose more than the tracking error: the joint needs more torque to "
                             "follow the same motion, so friction grew")
@@ -260,8 +269,27 @@ def _joints(w: _Window, groups: dict[str, list[DriftAlarm]]) -> list[Finding]:
         elif cause != "load_change":
             conf = 0.3
         findings.append(Finding(cause, start, conf, tuple(evidence),
-                                tuple(sorted({a.signal for r in same for a in r[6]})), joints))
+                                tuple(sorted({a.signal for r in same + [r for r, _ in coupled] for a in r[6]})),
+                                joints))
     return findings
+
+
+def _coupled(rated: list[tuple]) -> tuple[list[tuple], dict[str, list[tuple]]]:
+    """Split the rated joints (``_joints``'s tuples, by onset) into those that carry a cause and, per
+    leading joint, those whose change is under ``COUPLED`` of its change and began no earlier."""
+    def size(r: tuple) -> float:
+        return max(abs(r[3]), abs(r[4]))
+
+    kept: list[tuple] = []
+    follows: dict[str, list[tuple]] = {}
+    for r in sorted(rated, key=size, reverse=True):
+        leads = [m for m in kept if m[1] != "load_change" and m[0] <= r[0] + CONCURRENT]
+        lead = max(leads, key=size, default=None)
+        if r[1] != "load_change" and lead is not None and size(r) < COUPLED * size(lead):
+            follows.setdefault(lead[2], []).append(r)
+        else:
+            kept.append(r)
+    return sorted(kept), follows
 
 
 def _feet(w: _Window, alarms: list[DriftAlarm]) -> list[Finding]:
