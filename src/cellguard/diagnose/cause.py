@@ -9,8 +9,8 @@ candidate finding, classified from the size and sign of its changes over the fau
   move (its readings alarmed) and the part really moved as far, the fixture moved; if the
   camera saw it move and it did not, the camera moved; if the camera saw nothing and the part
   sat off the tool with the joints' grasp pose unchanged, the tool slipped on its flange.
-- one joint (current, tracking error): friction raises the current the joint needs more than
-  its tracking error; a weaker servo gain raises the tracking error more than the current.
+- one joint (current and friction torque, tracking error): friction raises the torque the joint
+  needs more than its tracking error; a weaker servo gain raises the tracking error more than the current.
   The joints of an arm are coupled: a joint that lags more moves the others' loads a little. A
   joint whose change is under ``COUPLED`` of a joint's that changed no later is that joint's
   consequence, told in its evidence, not a second cause.
@@ -224,14 +224,15 @@ def _joints(w: _Window, groups: dict[str, list[DriftAlarm]]) -> list[Finding]:
     rated = []
     for joint, alarms in groups.items():
         start = _onset(alarms)
-        cur = _largest(w.relative(f"current_rms.{joint}", start), w.relative(f"current_peak.{joint}", start))
+        ft = _friction(w, joint, start)
+        cur = _largest(w.relative(f"current_rms.{joint}", start), w.relative(f"current_peak.{joint}", start), ft)
         trk = _largest(w.relative(f"tracking_rms.{joint}", start), w.relative(f"tracking_max.{joint}", start))
         c, t = max(cur, 0.0), max(trk, 0.0)
         if max(abs(cur), abs(trk)) < MATERIAL:
             continue  # statistically there, physically too small to name a cause for
         carry, free = w.relative(f"current_carry_rms.{joint}", start), w.relative(f"current_free_rms.{joint}", start)
         if np.isfinite(carry) and np.isfinite(free) and carry >= MATERIAL and free < CARRY_ONLY * carry:
-            rated.append((start, "load_change", joint, carry, free, min(0.95, 1.0 - max(free, 0.0) / carry), alarms))
+            rated.append((start, "load_change", joint, carry, free, min(0.95, 1.0 - max(free, 0.0) / carry), alarms, 0.0))
             continue
         if c + t <= 0.0:
             cause, share = "unknown", 0.5
@@ -239,7 +240,7 @@ def _joints(w: _Window, groups: dict[str, list[DriftAlarm]]) -> list[Finding]:
             share = c / (c + t)
             cause = "friction" if share >= 0.5 else "servo"
             share = share if cause == "friction" else 1.0 - share
-        rated.append((start, cause, joint, cur, trk, share, alarms))
+        rated.append((start, cause, joint, cur, trk, share, alarms, ft))
     rated.sort()
     rated, follows = _coupled(rated)
     findings: list[Finding] = []
@@ -255,7 +256,8 @@ def _joints(w: _Window, groups: dict[str, list[DriftAlarm]]) -> list[Finding]:
             evidence.append("the joints need more current only while they carry the part: the part's weight "
                             "changed (a new product variant?), not the joints")
         else:
-            evidence = [f"{r[2]}: current {_pct(r[3])}, tracking error {_pct(r[4])} vs baseline" for r in same[:6]]
+            evidence = [f"{r[2]}: {'friction torque' if r[7] and r[7] == r[3] else 'current'} {_pct(r[3])}, "
+                        f"tracking error {_pct(r[4])} vs baseline" for r in same[:6]]
         coupled = [(r, lead) for lead in joints for r in follows.get(lead, ())]
         evidence += [f"also {r[2]} from cycle {r[0]}: current {_pct(r[3])}, tracking error {_pct(r[4])}, under "
                      f"{COUPLED:.0%} of {lead}'s change: the coupled joints follow it, not a second cause"
@@ -272,6 +274,13 @@ def _joints(w: _Window, groups: dict[str, list[DriftAlarm]]) -> list[Finding]:
                                 tuple(sorted({a.signal for r in same + [r for r, _ in coupled] for a in r[6]})),
                                 joints))
     return findings
+
+
+def _friction(w: _Window, joint: str, start: int) -> float:
+    """Relative change of the joint's friction torque, where it stands out of its noise (else 0): on a
+    loaded joint the current's RMS does not show friction, the work over the travel does."""
+    name = f"friction_torque.{joint}"
+    return w.relative(name, start) if abs(w.zmed(name, start)) >= UNCHANGED_Z else 0.0
 
 
 def _coupled(rated: list[tuple]) -> tuple[list[tuple], dict[str, list[tuple]]]:
