@@ -7,7 +7,10 @@ script alone knows them, to score. Seeds and joints of the issue-16 cases are he
 tests (seeds 10 on; joints rotate over the arm's four main axes).
 
     .venv/bin/python benchmarks/diagnosis.py [--md FILE] [--free-cycles 300] [--hour] [--workers 2]
-        [--cases power payload warmup intermittent quadruped arl] [--seeds 9] [--kinds ...]
+        [--cases power payload warmup intermittent quadruped arl] [--seeds 9] [--kinds ...] [--runs DIR]
+
+``--runs DIR`` keeps every simulated run (its cycles and events) and reuses it: a changed diagnosis
+is re-scored without simulating again. Delete DIR when the cells or the cycle features change.
 """
 
 from __future__ import annotations
@@ -175,7 +178,8 @@ def quadruped_case(name: str, seed: int) -> dict:
     r = run(seed, 10, faults, cell="quadruped-turns", acceptance=12)
     d = _diagnose(r, symmetry=r.symmetry)
     right = [f for f in d.findings if f.cause == cause and leg in f.legs]
-    return {"case": name, "seed": seed, "expected": [cause, leg], "ok": bool(right),
+    wrong = [f for f in d.findings if f.cause != cause or leg not in f.legs]  # another cause, or on another leg
+    return {"case": name, "seed": seed, "expected": [cause, leg], "ok": bool(right) and not wrong,
             "findings": [(f.cause, list(f.joints), list(f.legs)) for f in d.findings],
             "asymmetry": d.asymmetry.side if d.asymmetry else None}
 

@@ -9,8 +9,12 @@ candidate finding, classified from the size and sign of its changes over the fau
   move (its readings alarmed) and the part really moved as far, the fixture moved; if the
   camera saw it move and it did not, the camera moved; if the camera saw nothing and the part
   sat off the tool with the joints' grasp pose unchanged, the tool slipped on its flange.
-- one joint (current and friction torque, tracking error): friction raises the torque the joint
-  needs more than its tracking error; a weaker servo gain raises the tracking error more than the current.
+- one joint (current, tracking error): friction raises the current the joint needs more than
+  its tracking error; a weaker servo gain raises the tracking error more than the current. On a
+  loaded joint friction hardly moves the current's RMS (it adds on one stroke, subtracts on the
+  other): where current and tracking error moved under ``QUIET``, a rise of the joint's friction
+  torque (the drive's work over its travel) names friction. Not where they moved more: on a leg,
+  the ground's share of that work shifts with the gait.
   The joints of an arm are coupled: a joint that lags more moves the others' loads a little. A
   joint whose change is under ``COUPLED`` of a joint's that changed no later is that joint's
   consequence, told in its evidence, not a second cause.
@@ -36,6 +40,7 @@ SIGNIFICANT_MM = 0.3  # [mm] a geometric change smaller than this is noise at th
 CONCURRENT = 2  # [cycles] changes this close together are one episode
 UNCHANGED_Z = 3.0  # |median residual| below this, in baseline scales, reads as "unchanged"
 MATERIAL = 0.01  # a joint whose current and tracking error moved less than 1 % stays an alarm, not a cause
+QUIET = 0.02  # current and tracking error both moved less: the friction torque speaks for the joint
 COUPLED = 0.2  # a joint's change under this share of an earlier joint's change follows from it
 CARRY_ONLY = 0.5  # current while carrying rose, while not less than this share of it: the load changed
 
@@ -224,9 +229,10 @@ def _joints(w: _Window, groups: dict[str, list[DriftAlarm]]) -> list[Finding]:
     rated = []
     for joint, alarms in groups.items():
         start = _onset(alarms)
-        ft = _friction(w, joint, start)
-        cur = _largest(w.relative(f"current_rms.{joint}", start), w.relative(f"current_peak.{joint}", start), ft)
+        cur = _largest(w.relative(f"current_rms.{joint}", start), w.relative(f"current_peak.{joint}", start))
         trk = _largest(w.relative(f"tracking_rms.{joint}", start), w.relative(f"tracking_max.{joint}", start))
+        ft = _friction(w, joint, start) if max(abs(cur), abs(trk)) < QUIET else 0.0
+        cur = ft if ft > max(cur, 0.0) else cur
         c, t = max(cur, 0.0), max(trk, 0.0)
         if max(abs(cur), abs(trk)) < MATERIAL:
             continue  # statistically there, physically too small to name a cause for
@@ -263,8 +269,8 @@ def _joints(w: _Window, groups: dict[str, list[DriftAlarm]]) -> list[Finding]:
                      f"{COUPLED:.0%} of {lead}'s change: the coupled joints follow it, not a second cause"
                      for r, lead in coupled[:3]]
         if cause == "friction":
-            evidence.append("the current rose more than the tracking error: the joint needs more torque to "
-                            "follow the same motion, so friction grew")
+            evidence.append("the torque rose more than the tracking error (the current, or on a loaded joint the "
+                            "friction torque): the joint needs more torque to follow the same motion, so friction grew")
         elif cause == "servo":
             evidence.append("the tracking error rose more than the current: the drive pushes less for the same "
                             "error, so the servo gain dropped")
