@@ -10,7 +10,14 @@ candidate finding, classified from the size and sign of its changes over the fau
   camera saw it move and it did not, the camera moved; if the camera saw nothing and the part
   sat off the tool with the joints' grasp pose unchanged, the tool slipped on its flange.
 - one joint (current, tracking error): friction raises the current the joint needs more than
-  its tracking error; a weaker servo gain raises the tracking error more than the current.
+  its tracking error; a weaker servo gain raises the tracking error more than the current. On a
+  loaded joint friction hardly moves the current's RMS (it adds on one stroke, subtracts on the
+  other): where current and tracking error moved under ``QUIET``, a rise of the joint's friction
+  torque (the drive's work over its travel) names friction. Not where they moved more: on a leg,
+  the ground's share of that work shifts with the gait.
+  The joints of an arm are coupled: a joint that lags more moves the others' loads a little. A
+  joint whose change is under ``COUPLED`` of a joint's that changed no later is that joint's
+  consequence, told in its evidence, not a second cause.
 - policy timing (latency, stale chunks) and policy output (rejected chunks) speak for
   themselves; joint changes that start with a latency change are its consequence.
 """
@@ -33,6 +40,8 @@ SIGNIFICANT_MM = 0.3  # [mm] a geometric change smaller than this is noise at th
 CONCURRENT = 2  # [cycles] changes this close together are one episode
 UNCHANGED_Z = 3.0  # |median residual| below this, in baseline scales, reads as "unchanged"
 MATERIAL = 0.01  # a joint whose current and tracking error moved less than 1 % stays an alarm, not a cause
+QUIET = 0.02  # current and tracking error both moved less: the friction torque speaks for the joint
+COUPLED = 0.2  # a joint's change under this share of an earlier joint's change follows from it
 CARRY_ONLY = 0.5  # current while carrying rose, while not less than this share of it: the load changed
 
 
@@ -222,12 +231,14 @@ def _joints(w: _Window, groups: dict[str, list[DriftAlarm]]) -> list[Finding]:
         start = _onset(alarms)
         cur = _largest(w.relative(f"current_rms.{joint}", start), w.relative(f"current_peak.{joint}", start))
         trk = _largest(w.relative(f"tracking_rms.{joint}", start), w.relative(f"tracking_max.{joint}", start))
+        ft = _friction(w, joint, start) if max(abs(cur), abs(trk)) < QUIET else 0.0
+        cur = ft if ft > max(cur, 0.0) else cur
         c, t = max(cur, 0.0), max(trk, 0.0)
         if max(abs(cur), abs(trk)) < MATERIAL:
             continue  # statistically there, physically too small to name a cause for
         carry, free = w.relative(f"current_carry_rms.{joint}", start), w.relative(f"current_free_rms.{joint}", start)
         if np.isfinite(carry) and np.isfinite(free) and carry >= MATERIAL and free < CARRY_ONLY * carry:
-            rated.append((start, "load_change", joint, carry, free, min(0.95, 1.0 - max(free, 0.0) / carry), alarms))
+            rated.append((start, "load_change", joint, carry, free, min(0.95, 1.0 - max(free, 0.0) / carry), alarms, 0.0))
             continue
         if c + t <= 0.0:
             cause, share = "unknown", 0.5
@@ -235,8 +246,9 @@ def _joints(w: _Window, groups: dict[str, list[DriftAlarm]]) -> list[Finding]:
             share = c / (c + t)
             cause = "friction" if share >= 0.5 else "servo"
             share = share if cause == "friction" else 1.0 - share
-        rated.append((start, cause, joint, cur, trk, share, alarms))
+        rated.append((start, cause, joint, cur, trk, share, alarms, ft))
     rated.sort()
+    rated, follows = _coupled(rated)
     findings: list[Finding] = []
     while rated:
         start, cause = rated[0][0], rated[0][1]
@@ -250,18 +262,49 @@ def _joints(w: _Window, groups: dict[str, list[DriftAlarm]]) -> list[Finding]:
             evidence.append("the joints need more current only while they carry the part: the part's weight "
                             "changed (a new product variant?), not the joints")
         else:
-            evidence = [f"{r[2]}: current {_pct(r[3])}, tracking error {_pct(r[4])} vs baseline" for r in same[:6]]
+            evidence = [f"{r[2]}: {'friction torque' if r[7] and r[7] == r[3] else 'current'} {_pct(r[3])}, "
+                        f"tracking error {_pct(r[4])} vs baseline" for r in same[:6]]
+        coupled = [(r, lead) for lead in joints for r in follows.get(lead, ())]
+        evidence += [f"also {r[2]} from cycle {r[0]}: current {_pct(r[3])}, tracking error {_pct(r[4])}, under "
+                     f"{COUPLED:.0%} of {lead}'s change: the coupled joints follow it, not a second cause"
+                     for r, lead in coupled[:3]]
         if cause == "friction":
-            evidence.append("the current rose more than the tracking error: the joint needs more torque to "
-                            "follow the same motion, so friction grew")
+            evidence.append("the torque rose more than the tracking error (the current, or on a loaded joint the "
+                            "friction torque): the joint needs more torque to follow the same motion, so friction grew")
         elif cause == "servo":
             evidence.append("the tracking error rose more than the current: the drive pushes less for the same "
                             "error, so the servo gain dropped")
         elif cause != "load_change":
             conf = 0.3
         findings.append(Finding(cause, start, conf, tuple(evidence),
-                                tuple(sorted({a.signal for r in same for a in r[6]})), joints))
+                                tuple(sorted({a.signal for r in same + [r for r, _ in coupled] for a in r[6]})),
+                                joints))
     return findings
+
+
+def _friction(w: _Window, joint: str, start: int) -> float:
+    """Relative change of the joint's friction torque, where it stands out of its noise (else 0): on a
+    loaded joint the current's RMS does not show friction, the work over the travel does."""
+    name = f"friction_torque.{joint}"
+    return w.relative(name, start) if abs(w.zmed(name, start)) >= UNCHANGED_Z else 0.0
+
+
+def _coupled(rated: list[tuple]) -> tuple[list[tuple], dict[str, list[tuple]]]:
+    """Split the rated joints (``_joints``'s tuples, by onset) into those that carry a cause and, per
+    leading joint, those whose change is under ``COUPLED`` of its change and began no earlier."""
+    def size(r: tuple) -> float:
+        return max(abs(r[3]), abs(r[4]))
+
+    kept: list[tuple] = []
+    follows: dict[str, list[tuple]] = {}
+    for r in sorted(rated, key=size, reverse=True):
+        leads = [m for m in kept if m[1] != "load_change" and m[0] <= r[0] + CONCURRENT]
+        lead = max(leads, key=size, default=None)
+        if r[1] != "load_change" and lead is not None and size(r) < COUPLED * size(lead):
+            follows.setdefault(lead[2], []).append(r)
+        else:
+            kept.append(r)
+    return sorted(kept), follows
 
 
 def _feet(w: _Window, alarms: list[DriftAlarm]) -> list[Finding]:

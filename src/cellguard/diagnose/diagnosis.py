@@ -12,7 +12,7 @@ from dataclasses import dataclass, field, replace
 from cellguard.control.events import ROUTINE_EVENTS, EventKind
 from cellguard.diagnose.asymmetry import Asymmetry, mirror_map, mirrored_asymmetry
 from cellguard.diagnose.baseline import Baseline
-from cellguard.diagnose.cause import Finding, intermittent_finding, name_causes
+from cellguard.diagnose.cause import CONCURRENT, Finding, intermittent_finding, name_causes
 from cellguard.diagnose.compare import FeatureChange, changes, last_good_and_faulted
 from cellguard.diagnose.cycles import Cycle, as_cycles
 from cellguard.diagnose.drift import DriftConfig, DriftResult, detect_drift
@@ -92,7 +92,7 @@ def diagnose(rows: Iterable[object], events: Iterable[object] = (), context: Map
         findings = _fold_compensation(findings, asym, symmetry)
         if not any(set(f.joints) & set(asym.joints) for f in findings):
             findings.append(_asymmetry_finding(asym, watched[0].index))
-    findings = sorted(_on_legs(findings, symmetry), key=lambda f: (f.cycle, f.cause))
+    findings = sorted(_carried_by_the_others(_on_legs(findings, symmetry)), key=lambda f: (f.cycle, f.cause))
     first = findings[0].cycle if findings else None
     good, faulted = last_good_and_faulted(cycles, first)
     return Diagnosis(
@@ -116,6 +116,26 @@ def _on_legs(findings: list[Finding], pairs: Sequence[SymmetryPair]) -> list[Fin
         out.append(replace(f, legs=on, evidence=(f"on leg {', '.join(on)}",) + f.evidence) if on else f)
     explained = {leg for f in out if f.joints for leg in f.legs}
     return [f for f in out if not (f.cause == "foot_contact" and set(f.legs) <= explained)]
+
+
+def _carried_by_the_others(findings: list[Finding]) -> list[Finding]:
+    """A leg whose servo weakened carries less of the body: the other legs take its share (their
+    current rises, which reads as friction) and every foot's timing shifts. Friction and foot
+    contact findings on other legs that start with a servo finding on a leg are folded into it."""
+    weak = [f for f in findings if f.cause == "servo" and f.legs]
+    extra: dict[int, list[str]] = {}
+    out = []
+    for f in findings:
+        head = next((w for w in weak if f.cause in ("friction", "foot_contact") and abs(f.cycle - w.cycle) <= CONCURRENT
+                     and f.legs and not set(f.legs) & set(w.legs)), None)
+        if head is None:
+            out.append(f)
+            continue
+        what = "take its share of the body" if f.cause == "friction" else "steps differently with it"
+        data = "; ".join(e for e in f.evidence if e.endswith("vs baseline") and not e.startswith("also "))
+        extra.setdefault(id(head), []).append(f"leg {', '.join(f.legs)} {what} ({data})")
+    return [replace(f, evidence=f.evidence[:-1] + tuple(extra[id(f)]) + f.evidence[-1:]) if id(f) in extra else f
+            for f in out]
 
 
 def _fold_compensation(findings: list[Finding], asym: Asymmetry, pairs: Sequence[SymmetryPair]) -> list[Finding]:

@@ -2,8 +2,8 @@
 
 - Per feature, a two-sided CUSUM with ``k = 1``: tuned to shifts of two baseline scales and blind
   to the error of a median taken from twenty acceptance cycles (about 0.3 scale).
-- Per joint, two pooled channels: the mean of its current features and the mean of its
-  tracking-error features, each standardised by its spread under the baseline correlation, with
+- Per joint, two pooled channels: the mean of its current features (with its friction torque)
+  and the mean of its tracking-error features, each standardised by its spread under the baseline correlation, with
   a smaller ``k = 0.5``. One physical cause moves these together (a weaker servo raises the
   tracking error over the whole motion of that joint, friction its current), so a change too
   small for any one feature adds up in the pooled channel.
@@ -137,7 +137,7 @@ def pooled_channels(baseline: Baseline, zc: np.ndarray) -> tuple[tuple[str, ...]
     for j, name in enumerate(baseline.names):
         kind = kind_of(name)
         if kind.family == "joint" and kind.per == "joint":
-            quantity = "current" if kind.stem.startswith("current") else "tracking"
+            quantity = "tracking" if kind.stem.startswith("tracking") else "current"
             groups.setdefault(f"{quantity}_pooled.{member_of(name)}", []).append(j)
     groups = {k: v for k, v in groups.items() if len(v) > 1}
     if not groups:

@@ -53,6 +53,7 @@ COMMON = (
     _joint("current_rms", "A", 0.01, friction=True),
     _joint("current_carry_rms", "A", 0.01, friction=True),  # while a part is carried (cells that carry one)
     _joint("current_free_rms", "A", 0.01, friction=True),  # while not
+    _joint("friction_torque", "N·m", 0.005, friction=True),  # work of the drive over the joint's travel
     _joint("tracking_rms", "rad", 1e-4, friction=True),  # a position servo lags more against friction
     _joint("tracking_max", "rad", 1e-4, friction=True),
     # drift's pooled channels per joint (mean residual of its current / tracking features), not cycle features

@@ -32,6 +32,7 @@ def cycle_features(
         f[f"current_rms.{name}"] = float(np.sqrt(np.mean(current[:, j] ** 2))) if n else 0.0
         f[f"tracking_rms.{name}"] = float(np.sqrt(np.mean(error[:, j] ** 2))) if n else 0.0
         f[f"tracking_max.{name}"] = float(np.abs(error[:, j]).max()) if n else 0.0
+    _friction_torques(f, profile, ticks)
     f["latency_mean_ms"] = float(np.mean(latencies_ns)) * 1e-6 if latencies_ns else 0.0
     f["latency_max_ms"] = float(np.max(latencies_ns)) * 1e-6 if latencies_ns else 0.0
     f["interventions"] = float(sum(e.kind not in ROUTINE_EVENTS for e in events))
@@ -41,6 +42,26 @@ def cycle_features(
         _flatten(f, key, value, profile)
     _carry_currents(f, profile, ticks, outcome)
     return f
+
+
+MIN_TRAVEL = 0.05  # [rad] a joint that moved less than this in a cycle has no friction estimate
+
+
+def _friction_torques(f: dict[str, float], profile: Profile, ticks: CycleBuffer) -> None:
+    """Per joint, the torque that opposed its motion over the cycle [N·m]: the work its drive did
+    (sum of effort x velocity) over the distance it travelled (sum of |velocity|). Over a cycle that
+    returns to its start, gravity and inertia give back what they took, so this is dry friction
+    plus the viscous share. The motor current does not show it on a loaded joint: friction adds to
+    the load on one stroke and subtracts on the other, and its RMS barely moves."""
+    n = ticks.n
+    if not n:
+        return
+    travel = np.abs(ticks.qd[:n]).sum(axis=0)
+    work = (ticks.effort[:n] * ticks.qd[:n]).sum(axis=0)
+    dt = (ticks.t_ns[n - 1] - ticks.t_ns[0]) * 1e-9 / max(n - 1, 1)
+    for j, name in enumerate(profile.joint_names):
+        if travel[j] * dt >= MIN_TRAVEL:
+            f[f"friction_torque.{name}"] = float(work[j] / travel[j])
 
 
 def _carry_currents(f: dict[str, float], profile: Profile, ticks: CycleBuffer, outcome: dict) -> None:

@@ -6,7 +6,9 @@ fault is averaged away or, at a high rate, read as a step. Here a cycle is an ou
 feature when its residual exceeds ``OUTLIER`` scales (beyond the CUSUM's clip, so far in the
 tail that fault-free cycles do not reach it); a family of features with outliers on at least
 ``MIN_HITS`` cycles, but not on nearly every cycle since the first (that is a step, drift's
-business), is intermittent. Its rate is the share of cycles hit from the first occurrence on.
+business), is intermittent. A feature counts only if it is back at its baseline between the hits
+(median residual within ``BETWEEN`` scales): a feature that stepped and whose noisy tail crosses
+the outlier line now and then (the place error after a fixture shift) is a step, not intermittent. Its rate is the share of cycles hit from the first occurrence on.
 The outlier cycles are taken out of the drift monitors so that the same fault is not also
 reported as a step.
 """
@@ -24,6 +26,7 @@ from cellguard.diagnose.feature_kinds import kind_of
 OUTLIER = 6.0  # [scales]
 MIN_HITS = 3  # outlier cycles before a pattern counts
 MAX_RATE = 0.7  # hit on more cycles than this since the first: a step, not intermittent
+BETWEEN = 2.0  # [scales] |median residual| on the cycles between hits above this: the feature stepped
 FAMILIES = ("geometry", "outcome")  # what one bad cycle shows in; joint and latency changes are drift's
 
 
@@ -51,15 +54,26 @@ def find_intermittent(names: Sequence[str], cycles: Sequence[Cycle], z: np.ndarr
             continue
         with np.errstate(invalid="ignore"):
             hit = np.abs(np.nan_to_num(z[:, cols])) > OUTLIER
+        keep = [i for i, c in enumerate(cols) if hit[:, i].any() and _back_between(z[:, c], hit[:, i])]
+        hit, cols = hit[:, keep], [cols[i] for i in keep]
         rows = np.flatnonzero(hit.any(axis=1))
         if len(rows) < MIN_HITS:
             continue
         rate = len(rows) / (len(index) - rows[0])
         if rate > MAX_RATE:
             continue
-        signals = tuple(sorted(names[cols[j]] for j in np.flatnonzero(hit.any(axis=0))))
+        signals = tuple(sorted(names[c] for c in cols))
         out.append(Intermittent(fam, tuple(int(i) for i in index[rows]), float(rate), signals))
     return out
+
+
+def _back_between(col: np.ndarray, hit: np.ndarray) -> bool:
+    """Whether a feature with outliers ``hit`` (Shape (cycles,)) sits at its baseline on the cycles
+    between them, from the first hit on (no such cycle read: yes)."""
+    first = int(np.argmax(hit))
+    between = col[first:][~hit[first:]]
+    between = between[~np.isnan(between)]
+    return not len(between) or abs(float(np.median(between))) <= BETWEEN
 
 
 def without_outliers(names: Sequence[str], cycles: Sequence[Cycle], z: np.ndarray,
