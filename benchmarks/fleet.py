@@ -1,8 +1,8 @@
 """A simulated fleet on the real store and lake; prints one JSON document.
 
-24 sites across 4 tenants with different data policies, built from real cellguard runs with
-varied faults (``fleet_runs.py``, cached in out/fleet-runs), pushed to the PostgreSQL store that
-``.ci/fleet.sh`` starts and landed in a Parquet lake. Reports: what each policy let through,
+24 sites across 4 tenants with different data policies, built from 54 real cellguard runs with
+varied faults (``fleet_runs.py``, cached in out/fleet-runs; ``--runs`` elsewhere makes them
+afresh), pushed to the PostgreSQL store that ``.ci/fleet.sh`` starts and landed in a Parquet lake. Reports: what each policy let through,
 the k refusal, ``fleet similar`` on 5 held-out faults, DuckDB against Spark on every shared
 query, and both on 10^6 synthetic signatures resampled from the real ones. Timings are ratios
 to one ``mj_step`` of the arm cell measured in the same run; never asserted.
@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
+import resource
 import shutil
 import sys
 import tempfile
@@ -25,9 +27,8 @@ import pyarrow.parquet as pq
 
 sys.path.insert(0, str(Path(__file__).parent))
 
-from fleet_runs import DEFAULT_DIR, make_runs  # noqa: E402
+from fleet_runs import DEFAULT_DIR, TENANTS, make_fleet  # noqa: E402
 
-from cellguard.fleet.from_record import site_signatures  # noqa: E402
 from cellguard.fleet.policy import DataPolicy  # noqa: E402
 from cellguard.fleet.push import push  # noqa: E402
 from cellguard.fleet.queries import QUERIES  # noqa: E402
@@ -35,13 +36,12 @@ from cellguard.fleet.similar import similar  # noqa: E402
 from cellguard.fleet.store import FleetStore, RefusedAggregate, TenantStore, ci_admin_dsn  # noqa: E402
 from cellguard.fleet.synthetic import rows_of, synthetic_fleet, write_fleet  # noqa: E402
 
-TENANTS = {  # tenant -> its data policy (sites s-<tenant>-<j>)
+POLICIES = {  # tenant -> its data policy (sites s-<tenant>-<j>)
     "t-alpha": dict(export="signatures"),
     "t-beta": dict(export="signatures", withheld=("policy_version", "calibration_version")),
     "t-gamma": dict(export="aggregates_only", min_group_size=2),
     "t-delta": dict(export="nothing"),
 }
-SITES_PER_TENANT = 6
 PROBE_QUERY = {"site": "s-new", "robot_model": "", "limit": 10}
 
 
@@ -61,37 +61,37 @@ def mj_step_s() -> float:
 
 
 def build_fleet(runs: dict, store: FleetStore, site_root: Path, lake: Path) -> dict:
-    """Push every site's runs under its tenant's policy; what each policy let through."""
-    pool = sorted(n for n in runs if n.startswith("pool"))
-    per_run = {n: site_signatures(runs[n][0], DataPolicy("t-x", "s-x")) for n in pool}
+    """Push every site's signatures under its tenant's policy; what each policy let through."""
+    by_site: dict[tuple[str, str], list] = {}
+    for run, sigs in runs["site"].values():
+        by_site.setdefault((run.tenant, run.site), []).extend(sigs)
     out = {}
-    for tenant, pol in TENANTS.items():
+    for tenant in TENANTS:
         dsn = store.add_tenant(tenant)
-        sent = withheld = 0
-        for j in range(SITES_PER_TENANT):
-            policy = DataPolicy(tenant, f"s-{tenant[2:]}-{j}", **pol)
-            mine = [replace(s, tenant_id=policy.tenant, site_id=policy.site)
-                    for n in pool[2 * j:2 * j + 2] for s in per_run[n]]
-            r = push(mine, policy, site_root / policy.site, TenantStore(dsn), lake)
+        sites = sorted(s for t, s in by_site if t == tenant)
+        found = sent = withheld = 0
+        for site in sites:
+            policy = DataPolicy(tenant, site, **POLICIES[tenant])
+            r = push(by_site[(tenant, site)], policy, site_root / site, TenantStore(dsn), lake)
+            found += len(by_site[(tenant, site)])
             sent, withheld = sent + r.new_rows, withheld + r.batch.withheld_rows
-        out[tenant] = {"policy": pol["export"], "sites": SITES_PER_TENANT, "rows_sent": sent,
-                       "signatures_kept_at_site": withheld, "dsn": dsn}
+        out[tenant] = {"policy": POLICIES[tenant]["export"], "sites": len(sites), "signatures_found": found,
+                       "rows_sent": sent, "signatures_kept_at_site": withheld, "dsn": dsn}
     return out
 
 
 def held_out(runs: dict, dsn: str) -> dict:
     """``fleet similar`` on each held-out fault as tenant t-alpha: is its true cause in the top 5?"""
     cases = []
-    for name in sorted(n for n in runs if n.startswith("held")):
-        folder, cause = runs[name]
-        probes = site_signatures(folder, DataPolicy("t-alpha", "s-new"))
+    for name, (run, probes) in sorted(runs["held"].items()):
         if not probes:
-            cases.append({"run": name, "cause": cause, "diagnosed": None, "top5": [], "hit": False})
+            cases.append({"run": name, "cause": run.cause, "diagnosed": None, "top5": [], "hit": False})
             continue
         probe = max(probes, key=lambda s: s.confidence or 0.0)
         top = similar(TenantStore(dsn), probe, limit=5)
-        cases.append({"run": name, "cause": cause, "diagnosed": probe.cause, "top5": [n.cause for n in top],
-                      "similarity": [round(n.similarity, 3) for n in top], "hit": cause in [n.cause for n in top]})
+        cases.append({"run": name, "cause": run.cause, "diagnosed": probe.cause, "top5": [n.cause for n in top],
+                      "similarity": [round(n.similarity, 3) for n in top],
+                      "hit": run.cause in [n.cause for n in top]})
     return {"hits": sum(c["hit"] for c in cases), "cases": len(cases), "detail": cases}
 
 
@@ -150,12 +150,19 @@ def main() -> None:
     ap.add_argument("--rows", type=int, default=1_000_000)
     ap.add_argument("--no-spark", action="store_true")
     args = ap.parse_args()
-    t0 = time.perf_counter()
+    t0, load0 = time.perf_counter(), os.getloadavg()
+    phases = {}
+
+    def lap(name: str, since: list = [t0]) -> None:  # noqa: B006 - the last lap's end, kept between calls
+        now = time.perf_counter()
+        phases[name] = round(now - since[0], 1)
+        since[0] = now
+
     admin = ci_admin_dsn()
     if admin is None:
         sys.exit("no fleet store server: run .ci/fleet.sh first")
-    runs = make_runs(args.runs)
-    t_runs = time.perf_counter() - t0
+    runs = make_fleet(args.runs)
+    lap("runs_made_and_diagnosed")
     ref = mj_step_s()
     work = Path(tempfile.mkdtemp(prefix="cellguard-fleet-"))
     try:
@@ -163,6 +170,7 @@ def main() -> None:
         store.install(reset=True)
         lake = work / "lake"
         tenants = build_fleet(runs, store, work / "sites", lake)
+        lap("store_installed_and_24_sites_pushed")
         alpha = tenants["t-alpha"].pop("dsn")
         for t in tenants.values():
             t.pop("dsn", None)
@@ -174,24 +182,30 @@ def main() -> None:
         store.set_min_customers(2)
         fleet_freq = TenantStore(alpha).run("frequency", {"k": 2})
         similar_eval = held_out(runs, alpha)
-        probe = sorted(site_signatures(runs["held-00-fixture_shift"][0], DataPolicy("t-x", "s-x"))[0].effects.items())
+        lap("queries_on_store_and_similar")
+        probe = sorted(min(runs["held"].items())[1][1][0].effects.items())  # the first held-out fault's
         small = compare_engines(lake, probe, not args.no_spark, ref, repeat=1)
+        lap("engines_on_fleet_lake")
 
         seeds = rows_of(pq.read_table(lake / "signatures"), pq.read_table(lake / "effects"))
-        t = time.perf_counter()
         sig, eff = synthetic_fleet(seeds, args.rows, tenants=8, days=30)
         big = work / "big"
         files = write_fleet(big, sig, eff)
-        t_write = time.perf_counter() - t
+        lap("synthesise_and_write_scale_lake")
         scale = compare_engines(big, probe, not args.no_spark, ref)
+        lap("engines_at_scale")
+        me, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
         print(json.dumps({
             "sites": sum(t["sites"] for t in tenants.values()), "tenants": tenants,
-            "real_runs": len(runs), "runs_made_or_cached_s": round(t_runs, 1),
+            "real_runs": runs["runs"], "runs_made_now": runs["made"],
+            "runs_make_s": round(runs["make_wall_s"], 1), "runs_make_cpu_s": round(runs["make_cpu_s"], 1),
+            "site_runs_read_as_injected": sum(r.cause in [s.cause for s in sigs] for r, sigs in runs["site"].values()),
             "k_default_refusal": refusal, "fleet_frequency_k2": fleet_freq,
             "similar_held_out": similar_eval, "engines_on_fleet_lake": small,
-            "scale": {"signatures": args.rows, "effect_rows": eff.num_rows, "files": files,
-                      "synthesise_and_write_s": round(t_write, 1), **scale},
-            "reference_mj_step_s": ref, "total_s": round(time.perf_counter() - t0, 1),
+            "scale": {"signatures": args.rows, "effect_rows": eff.num_rows, "files": files, **scale},
+            "reference_mj_step_s": ref, "phases_s": phases, "total_s": round(time.perf_counter() - t0, 1),
+            "cpu_s": round(me.ru_utime + me.ru_stime + kids.ru_utime + kids.ru_stime, 1),  # Spark's JVM not included
+            "load_average_1min_start_end": [round(load0[0], 2), round(os.getloadavg()[0], 2)],
         }, indent=1, default=str))
     finally:
         shutil.rmtree(work, ignore_errors=True)
