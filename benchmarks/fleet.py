@@ -95,23 +95,16 @@ def held_out(runs: dict, dsn: str) -> dict:
     return {"hits": sum(c["hit"] for c in cases), "cases": len(cases), "detail": cases}
 
 
-def compare_engines(lake: Path, probe: list, spark: bool, ref_s: float, repeat: int = 3) -> dict:
-    """Every shared query on DuckDB and Spark: equal results?, time of each (best of ``repeat``)."""
-    from cellguard.fleet.duckdb_engine import DuckDBEngine
-    engines = [DuckDBEngine(lake)]
-    start = {}
-    if spark:
-        from cellguard.fleet.spark_engine import SparkEngine
-        t = time.perf_counter()
-        engines.append(SparkEngine(lake))
-        start["spark_session_s"] = time.perf_counter() - t
-    out = {"queries": {}, **start}
+def compare_engines(engines: list, probe: list, ref_s: float, repeat: dict) -> dict:
+    """Every shared query on each engine (as the operator): equal results?, time of each (best
+    of ``repeat[engine]`` runs)."""
+    out = {}
     for name in QUERIES:
         params = {"k": 2} if name != "similar" else PROBE_QUERY
         res = {}
         for eng in engines:
             best = float("inf")
-            for _ in range(repeat):
+            for _ in range(repeat.get(eng.name, 1)):
                 t = time.perf_counter()
                 rows = eng.run(name, params, probe)
                 best = min(best, time.perf_counter() - t)
@@ -122,10 +115,54 @@ def compare_engines(lake: Path, probe: list, spark: bool, ref_s: float, repeat: 
             row[f"{eng}_in_mj_steps"] = round(s / ref_s)
         if "spark" in res:
             row["equal"] = equal(res["duckdb"][0], res["spark"][0])
-        out["queries"][name] = row
-    for eng in engines:
-        eng.close()
+        out[name] = row
     return out
+
+
+def engines_on(lake: Path, spark: bool) -> tuple[list, float | None]:
+    """DuckDB, and Spark when asked, on ``lake`` as the operator; the seconds Spark took to start
+    (a session already running is reused: None)."""
+    from cellguard.fleet.duckdb_engine import DuckDBEngine
+    engines = [DuckDBEngine(lake)]
+    started = None
+    if spark:
+        from pyspark.sql import SparkSession
+
+        from cellguard.fleet.spark_engine import SparkEngine
+        fresh = SparkSession.getActiveSession() is None
+        t = time.perf_counter()
+        engines.append(SparkEngine(lake))
+        started = time.perf_counter() - t if fresh else None
+    return engines, started
+
+
+def fenced_lake(lake: Path, tenant: str) -> dict:
+    """The lake as one tenant sees it: own rows only, the fleet's only over k customers."""
+    from cellguard.fleet.duckdb_engine import DuckDBEngine
+    eng = DuckDBEngine(lake, tenant)
+    own = eng.run("frequency", scope="own")
+    try:
+        eng.run("frequency", {"k": 2})
+        refusal = None
+    except RefusedAggregate as exc:
+        refusal = str(exc)
+    mine = {r["site_id"] for r in eng.run("similar", {"site": "s-new", "limit": 1000},
+                                          [("fixture_seen_x_mm", 1.0)])}
+    eng.close()
+    return {"tenant": tenant, "own_signatures": sum(r["signatures"] for r in own),
+            "similar_sites_all_own": all(s.startswith(f"s-{tenant[2:]}-") for s in mine),
+            "cross_customer_k2_refused": refusal}
+
+
+def jvm_cpu_s() -> float | None:
+    """CPU seconds of Spark's JVM (and the children it waited for) so far; None without Spark."""
+    try:
+        from pyspark import SparkContext
+        pid = SparkContext._gateway.proc.pid
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except (ImportError, AttributeError, OSError):
+        return None
+    return round(sum(int(x) for x in fields[11:15]) / os.sysconf("SC_CLK_TCK"), 1)  # utime stime cutime cstime
 
 
 def equal(a: list[dict], b: list[dict]) -> bool:
@@ -184,15 +221,23 @@ def main() -> None:
         similar_eval = held_out(runs, alpha)
         lap("queries_on_store_and_similar")
         probe = sorted(min(runs["held"].items())[1][1][0].effects.items())  # the first held-out fault's
-        small = compare_engines(lake, probe, not args.no_spark, ref, repeat=1)
+        fence = fenced_lake(lake, "t-alpha")
+        engines, spark_start = engines_on(lake, not args.no_spark)
+        small = {"queries": compare_engines(engines, probe, ref, {"duckdb": 1, "spark": 1}),
+                 "spark_session_s": spark_start}
+        engines[0].close()
         lap("engines_on_fleet_lake")
 
-        seeds = rows_of(pq.read_table(lake / "signatures"), pq.read_table(lake / "effects"))
+        seeds = [r for t in ("t-alpha", "t-beta")  # the tenants whose policies send signatures
+                 for r in rows_of(*(pq.read_table(lake / f"tenant={t}" / rel) for rel in ("signatures", "effects")))]
         sig, eff = synthetic_fleet(seeds, args.rows, tenants=8, days=30)
         big = work / "big"
         files = write_fleet(big, sig, eff)
         lap("synthesise_and_write_scale_lake")
-        scale = compare_engines(big, probe, not args.no_spark, ref)
+        engines, _ = engines_on(big, not args.no_spark)  # Spark: the session already running
+        scale = {"queries": compare_engines(engines, probe, ref, {"duckdb": 3, "spark": 1})}
+        for eng in engines:
+            eng.close()
         lap("engines_at_scale")
         me, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
         print(json.dumps({
@@ -201,10 +246,11 @@ def main() -> None:
             "runs_make_s": round(runs["make_wall_s"], 1), "runs_make_cpu_s": round(runs["make_cpu_s"], 1),
             "site_runs_read_as_injected": sum(r.cause in [s.cause for s in sigs] for r, sigs in runs["site"].values()),
             "k_default_refusal": refusal, "fleet_frequency_k2": fleet_freq,
-            "similar_held_out": similar_eval, "engines_on_fleet_lake": small,
+            "similar_held_out": similar_eval, "lake_as_t_alpha": fence, "engines_on_fleet_lake": small,
             "scale": {"signatures": args.rows, "effect_rows": eff.num_rows, "files": files, **scale},
             "reference_mj_step_s": ref, "phases_s": phases, "total_s": round(time.perf_counter() - t0, 1),
-            "cpu_s": round(me.ru_utime + me.ru_stime + kids.ru_utime + kids.ru_stime, 1),  # Spark's JVM not included
+            "cpu_s": round(me.ru_utime + me.ru_stime + kids.ru_utime + kids.ru_stime, 1),  # Python and its workers
+            "spark_jvm_cpu_s": jvm_cpu_s(),
             "load_average_1min_start_end": [round(load0[0], 2), round(os.getloadavg()[0], 2)],
         }, indent=1, default=str))
     finally:
