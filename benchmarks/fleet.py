@@ -80,6 +80,17 @@ def build_fleet(runs: dict, store: FleetStore, site_root: Path, lake: Path) -> d
     return out
 
 
+def store_contents(store: FleetStore) -> dict:
+    """What the store holds per tenant, read as its superuser: rows per table, and beta's rows
+    that still carry a field its policy withholds (should be none)."""
+    with store.admin() as con:
+        per = {t: {tab: con.execute(f"SELECT count(*) FROM fleet.{tab} WHERE tenant_id = %s", (t,)).fetchone()[0]
+                   for tab in ("signatures", "effects", "aggregates")} for t in TENANTS}
+        leaked = con.execute("SELECT count(*) FROM fleet.signatures WHERE tenant_id = 't-beta' AND "
+                             "(policy_version IS NOT NULL OR calibration_version IS NOT NULL)").fetchone()[0]
+    return {"rows_per_tenant": per, "t_beta_rows_with_a_withheld_field": leaked}
+
+
 def held_out(runs: dict, dsn: str) -> dict:
     """``fleet similar`` on each held-out fault as tenant t-alpha: is its true cause in the top 5?"""
     cases = []
@@ -154,6 +165,12 @@ def fenced_lake(lake: Path, tenant: str) -> dict:
             "cross_customer_k2_refused": refusal}
 
 
+def cpu_s() -> float:
+    """CPU seconds so far of this process, its finished workers and Spark's JVM."""
+    me, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return me.ru_utime + me.ru_stime + kids.ru_utime + kids.ru_stime + (jvm_cpu_s() or 0.0)
+
+
 def jvm_cpu_s() -> float | None:
     """CPU seconds of Spark's JVM (and the children it waited for) so far; None without Spark."""
     try:
@@ -188,12 +205,17 @@ def main() -> None:
     ap.add_argument("--no-spark", action="store_true")
     args = ap.parse_args()
     t0, load0 = time.perf_counter(), os.getloadavg()
-    phases = {}
+    phases: dict[str, dict] = {}
+    last = [t0, cpu_s()]
 
-    def lap(name: str, since: list = [t0]) -> None:  # noqa: B006 - the last lap's end, kept between calls
-        now = time.perf_counter()
-        phases[name] = round(now - since[0], 1)
-        since[0] = now
+    def lap(name: str) -> None:
+        """Wall and CPU seconds (this process, its finished workers and Spark's JVM) since the last lap,
+        also on stderr as it goes (a run cut short still says where its time went)."""
+        now, cpu = time.perf_counter(), cpu_s()
+        phases[name] = {"wall_s": round(now - last[0], 1), "cpu_s": round(cpu - last[1], 1),
+                        "load_1min": round(os.getloadavg()[0], 1)}
+        last[:] = [now, cpu]
+        print(f"{name}: {json.dumps(phases[name])}", file=sys.stderr, flush=True)
 
     admin = ci_admin_dsn()
     if admin is None:
@@ -208,6 +230,7 @@ def main() -> None:
         lake = work / "lake"
         tenants = build_fleet(runs, store, work / "sites", lake)
         lap("store_installed_and_24_sites_pushed")
+        contents = store_contents(store)
         alpha = tenants["t-alpha"].pop("dsn")
         for t in tenants.values():
             t.pop("dsn", None)
@@ -239,18 +262,16 @@ def main() -> None:
         for eng in engines:
             eng.close()
         lap("engines_at_scale")
-        me, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
         print(json.dumps({
             "sites": sum(t["sites"] for t in tenants.values()), "tenants": tenants,
             "real_runs": runs["runs"], "runs_made_now": runs["made"],
             "runs_make_s": round(runs["make_wall_s"], 1), "runs_make_cpu_s": round(runs["make_cpu_s"], 1),
             "site_runs_read_as_injected": sum(r.cause in [s.cause for s in sigs] for r, sigs in runs["site"].values()),
-            "k_default_refusal": refusal, "fleet_frequency_k2": fleet_freq,
+            "store": contents, "k_default_refusal": refusal, "fleet_frequency_k2": fleet_freq,
             "similar_held_out": similar_eval, "lake_as_t_alpha": fence, "engines_on_fleet_lake": small,
             "scale": {"signatures": args.rows, "effect_rows": eff.num_rows, "files": files, **scale},
-            "reference_mj_step_s": ref, "phases_s": phases, "total_s": round(time.perf_counter() - t0, 1),
-            "cpu_s": round(me.ru_utime + me.ru_stime + kids.ru_utime + kids.ru_stime, 1),  # Python and its workers
-            "spark_jvm_cpu_s": jvm_cpu_s(),
+            "reference_mj_step_s": ref, "phases": phases, "total_s": round(time.perf_counter() - t0, 1),
+            "cpu_s": round(cpu_s(), 1), "spark_jvm_cpu_s": jvm_cpu_s(),
             "load_average_1min_start_end": [round(load0[0], 2), round(os.getloadavg()[0], 2)],
         }, indent=1, default=str))
     finally:

@@ -86,9 +86,9 @@ def plan() -> tuple[PlannedRun, list[PlannedRun], list[PlannedRun]]:
         for j in range(SITES_PER_TENANT):
             for r in range(RUNS_PER_SITE):
                 n, m = len(sites), RUNS_PER_SITE * j + r + i  # m: the tenant's run, shifted by tenant
-                kind = kinds[m % len(kinds)]
-                cause, sizes, joints = KINDS[kind]  # a kind's second run at a tenant hits the other joint
-                f = fault(kind, sizes[(i + j + 2 * (m // len(kinds))) % len(sizes)], joints[m // len(kinds) % len(joints)] if joints else "")
+                kind, turn = kinds[m % len(kinds)], m // len(kinds)  # turn 1: the kind's second run here
+                cause, sizes, joints = KINDS[kind]  # ... at another magnitude, on the other joint
+                f = fault(kind, sizes[(i + j + 2 * turn) % len(sizes)], joints[turn % len(joints)] if joints else "")
                 scenario = {"cell": CELL, "seed": 100 + n, "acceptance_cycles": 0, "production_cycles": PRODUCTION,
                             "site": f"s-{tenant[2:]}-{j}", "faults": [f]}
                 sites.append(_run("site", n, tenant, f"s-{tenant[2:]}-{j}", cause, scenario))
