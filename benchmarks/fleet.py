@@ -2,12 +2,14 @@
 
 24 sites across 4 tenants with different data policies, built from 54 real cellguard runs with
 varied faults (``fleet_runs.py``, cached in out/fleet-runs; ``--runs`` elsewhere makes them
-afresh), pushed to the PostgreSQL store that ``.ci/fleet.sh`` starts and landed in a Parquet lake. Reports: what each policy let through,
-the k refusal, ``fleet similar`` on 5 held-out faults, DuckDB against Spark on every shared
-query, and both on 10^6 synthetic signatures resampled from the real ones. Timings are ratios
-to one ``mj_step`` of the arm cell measured in the same run; never asserted.
+afresh), pushed to the PostgreSQL store that ``.ci/fleet.sh`` starts and landed in a Parquet
+lake. Reports: what each policy let through and what the store holds, the k refusal, ``fleet
+similar`` on 5 held-out faults, the lake as one tenant sees it, and DuckDB against Spark on
+every shared query on 10^6 signatures resampled from the real ones. Each phase's wall and CPU
+seconds (Spark's JVM included) go to stderr as it ends; query timings are also given as
+multiples of one ``mj_step`` of the arm cell measured in the same run; never asserted.
 
-    .ci/fleet.sh && python benchmarks/fleet.py [--rows 1000000] [--no-spark]
+    .ci/fleet.sh && python benchmarks/fleet.py [--runs DIR] [--rows 1000000] [--no-spark]
 """
 
 from __future__ import annotations
