@@ -1,70 +1,152 @@
 """The real cellguard runs a simulated fleet is built from (cached; used by benchmarks/fleet.py).
 
-Short arm-cell scenarios, 6 acceptance and 6 production cycles, one fault each, several kinds
-and magnitudes. ``python benchmarks/fleet_runs.py [DIR]`` makes the missing ones, two at a time.
+24 sites of 4 tenants, each site two short production runs of the arm cell with one fault each
+(kinds, magnitudes, joints and seeds vary by site), and 5 held-out runs that ``fleet similar``
+is asked about. Every site's cell is the same model, commissioned once: one acceptance run is
+the baseline every run is diagnosed against (``diagnose_record(run, acceptance=...)``), as a
+fleet operator would ship one commissioning baseline with a standard cell. A production run is
+one clean cycle, then two with the fault. Runs are made and diagnosed two at a time (2 cores);
+a run folder is named by its scenario's hash, so a changed plan never reads a stale run.
+
+    python benchmarks/fleet_runs.py [DIR]     # makes the missing runs, prints what it did as JSON
 """
 
 from __future__ import annotations
 
+import hashlib
+import json
+import os
+import shutil
 import sys
+import time
 from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
 from pathlib import Path
 
-ACCEPTANCE, PRODUCTION, AT = 6, 6, 7
+CELL = "arm-pick-place"
+ACCEPTANCE = 6  # cycles of the shared commissioning run (the baseline needs at least 5)
+PRODUCTION, AT = 3, 1  # cycles of a site's run; the fault from this cycle on
+TENANTS = ("t-alpha", "t-beta", "t-gamma", "t-delta")
+SITES_PER_TENANT, RUNS_PER_SITE = 6, 2
 DEFAULT_DIR = Path("out/fleet-runs")
 
+# fault kind -> (cause it should read as, magnitudes a site draws from, joints it may hit)
+KINDS = {
+    "fixture_shift": ("fixture_shift", (3.0, 4.0, 5.0, 6.0), ()),
+    "camera_shift": ("camera_shift", (2.5, 3.0, 4.0, 5.0), ()),
+    "friction_step": ("friction", (1.8, 2.0, 2.5, 3.0), ("elbow", "shoulder_lift")),
+    "servo_gain": ("servo", (0.5, 0.55, 0.6, 0.65), ("shoulder_lift", "elbow")),  # 0.75: unseen in 2 cycles
+    "tool_slip": ("tool_slip", (2.5, 3.0, 4.0, 5.0), ()),
+    "policy_latency": ("policy_latency", (200.0, 250.0, 300.0, 350.0), ()),
+    "policy_nan": ("policy_output", (0.0,), ()),
+    "part_misplaced": ("part_misplaced", (3.0, 4.0, 5.0, 6.0), ()),
+}
+HELD_OUT = [("fixture_shift", 4.5, ""), ("camera_shift", 3.5, ""), ("friction_step", 2.2, "elbow"),
+            ("servo_gain", 0.65, "shoulder_lift"), ("policy_latency", 280.0, "")]
 
-def _fault(kind: str, size: float) -> dict:
+
+def fault(kind: str, size: float, joint: str = "") -> dict:
+    """The scenario's fault entry: ``kind`` of magnitude ``size`` from cycle AT."""
     return {
-        "fixture_shift": {"kind": "fixture_shift", "at_cycle": AT, "dx_mm": size, "dy_mm": size / 3},
-        "camera_shift": {"kind": "camera_shift", "at_cycle": AT, "dx_mm": size},
-        "friction": {"kind": "friction_growth", "joint": "elbow", "from_cycle": AT, "per_cycle": size},
-        "servo": {"kind": "servo_gain", "joint": "shoulder_lift", "factor": size, "at_cycle": AT},
-        "tool_slip": {"kind": "tool_slip", "at_cycle": AT},
-        "policy_latency": {"kind": "policy_latency", "at_cycle": AT, "ms": size},
-        "policy_output": {"kind": "policy_nan", "at_cycle": AT},
-    }[kind]
+        "fixture_shift": {"dx_mm": size, "dy_mm": size / 3},
+        "camera_shift": {"dx_mm": size},
+        "friction_step": {"joint": joint, "factor": size},
+        "servo_gain": {"joint": joint, "factor": size},
+        "tool_slip": {"dx_mm": size},
+        "policy_latency": {"ms": size},
+        "policy_nan": {},
+        "part_misplaced": {"rate": 1.0, "dx_mm": size},
+    }[kind] | {"kind": kind, "at_cycle": AT}
 
 
-# (cause the injected fault should read as, magnitude); the pool builds the fleet, the held-out
-# runs (other seeds and magnitudes) are the faults `fleet similar` is asked about
-POOL = [("fixture_shift", 4.0), ("fixture_shift", 6.0), ("camera_shift", 3.0), ("camera_shift", 5.0),
-        ("friction", 0.15), ("friction", 0.3), ("servo", 0.6), ("servo", 0.75), ("tool_slip", 0.0),
-        ("policy_latency", 200.0), ("policy_latency", 350.0), ("policy_output", 0.0)]
-HELD_OUT = [("fixture_shift", 5.0), ("camera_shift", 4.0), ("friction", 0.22), ("servo", 0.68),
-            ("policy_latency", 280.0)]
+@dataclass(frozen=True)
+class PlannedRun:
+    name: str  # folder name: role, index, fault kind, scenario hash
+    tenant: str  # "" for the acceptance and held-out runs
+    site: str
+    cause: str  # what the injected fault should read as ("" for acceptance)
+    scenario: dict
 
 
-def runs() -> list[tuple[str, str, dict]]:
-    """(folder name, cause, scenario) of every run, pool first."""
-    out = []
-    for group, items, seed0 in (("pool", POOL, 100), ("held", HELD_OUT, 500)):
-        for i, (cause, size) in enumerate(items):
-            scenario = {"cell": "arm-pick-place", "seed": seed0 + i, "acceptance_cycles": ACCEPTANCE,
-                        "production_cycles": PRODUCTION, "faults": [_fault(cause, size)]}
-            out.append((f"{group}-{i:02d}-{cause}", cause, scenario))
-    return out
+def _run(role: str, i: int, tenant: str, site: str, cause: str, scenario: dict) -> PlannedRun:
+    digest = hashlib.sha256(json.dumps(scenario, sort_keys=True).encode()).hexdigest()[:8]
+    kind = scenario["faults"][0]["kind"] if scenario.get("faults") else "none"
+    return PlannedRun(f"{role}-{i:02d}-{kind}-{digest}", tenant, site, cause, scenario)
 
 
-def _make(folder: Path, scenario: dict) -> str:
+def plan() -> tuple[PlannedRun, list[PlannedRun], list[PlannedRun]]:
+    """(acceptance run, the 48 site runs, the 5 held-out runs). Tenant i's site j runs kinds
+    2j+i and 2j+i+1 (mod 8): every tenant sees every kind, four of them twice (on both joints
+    where the kind hits a joint), at magnitudes of its own."""
+    acceptance = _run("acceptance", 0, "", "", "", {"cell": CELL, "seed": 7, "acceptance_cycles": ACCEPTANCE,
+                                                    "production_cycles": 0})
+    kinds = list(KINDS)
+    sites = []
+    for i, tenant in enumerate(TENANTS):
+        for j in range(SITES_PER_TENANT):
+            for r in range(RUNS_PER_SITE):
+                n, m = len(sites), RUNS_PER_SITE * j + r + i  # m: the tenant's run, shifted by tenant
+                kind, turn = kinds[m % len(kinds)], m // len(kinds)  # turn 1: the kind's second run here
+                cause, sizes, joints = KINDS[kind]  # ... at another magnitude, on the other joint
+                f = fault(kind, sizes[(i + j + 2 * turn) % len(sizes)], joints[turn % len(joints)] if joints else "")
+                scenario = {"cell": CELL, "seed": 100 + n, "acceptance_cycles": 0, "production_cycles": PRODUCTION,
+                            "site": f"s-{tenant[2:]}-{j}", "faults": [f]}
+                sites.append(_run("site", n, tenant, f"s-{tenant[2:]}-{j}", cause, scenario))
+    held = [_run("held", k, "", "s-new", KINDS[kind][0],
+                 {"cell": CELL, "seed": 500 + k, "acceptance_cycles": 0, "production_cycles": PRODUCTION,
+                  "faults": [fault(kind, size, joint)]})
+            for k, (kind, size, joint) in enumerate(HELD_OUT)]
+    return acceptance, sites, held
+
+
+def _make(folder: Path, scenario: dict) -> tuple[float, float]:
+    """Run the scenario into ``folder`` (beside it, then renamed): (wall, CPU) seconds."""
     from cellguard.runtime import run_scenario
     from cellguard.scenario import parse_scenario
 
+    t, c = time.perf_counter(), time.process_time()
     tmp = folder.with_name(folder.name + ".partial")
+    shutil.rmtree(tmp, ignore_errors=True)
     run_scenario(parse_scenario(scenario), tmp)
-    tmp.rename(folder)
-    return folder.name
+    os.replace(tmp, folder)
+    return time.perf_counter() - t, time.process_time() - c
 
 
-def make_runs(root: Path = DEFAULT_DIR, workers: int = 2) -> dict[str, tuple[Path, str]]:
-    """Every run folder by name (made if missing) with the cause it should read as."""
+def _signatures(folder: Path, acceptance: Path, tenant: str, site: str):
+    """The run's signatures as ``tenant``/``site``, diagnosed against the shared acceptance run."""
+    from cellguard.fleet.from_record import site_signatures
+    from cellguard.fleet.policy import DataPolicy
+
+    c = time.process_time()
+    return site_signatures(folder, DataPolicy(tenant or "t-probe", site or "s-new"), acceptance=acceptance), \
+        time.process_time() - c
+
+
+def make_fleet(root: Path = DEFAULT_DIR, workers: int = 2) -> dict:
+    """Make every missing run, then diagnose every run: {"site": {name: (run, signatures)},
+    "held": {...}, "made": runs made now, "cpu_s": CPU seconds of the workers' jobs, ...}."""
     root.mkdir(parents=True, exist_ok=True)
-    todo = [(root / name, sc) for name, _, sc in runs() if not (root / name / "summary.json").is_file()]
-    if todo:
-        with ProcessPoolExecutor(workers) as pool:
-            list(pool.map(_make, *zip(*todo)))
-    return {name: (root / name, cause) for name, cause, _ in runs()}
+    acceptance, sites, held = plan()
+    acc = root / acceptance.name
+    todo = [r for r in (acceptance, *sites, *held) if not (root / r.name / "summary.json").is_file()]
+    t0 = time.perf_counter()
+    out: dict = {"site": {}, "held": {}}
+    with ProcessPoolExecutor(workers) as pool:
+        made = list(pool.map(_make, [root / r.name for r in todo], [r.scenario for r in todo]))
+        t_made = time.perf_counter() - t0
+        groups = [("site", r) for r in sites] + [("held", r) for r in held]
+        found = pool.map(_signatures, [root / r.name for _, r in groups], [acc] * len(groups),
+                         [r.tenant for _, r in groups], [r.site for _, r in groups])
+        for (group, r), (sigs, _) in zip(groups, found):
+            out[group][r.name] = (r, sigs)
+    out.update(made=len(todo), runs=1 + len(sites) + len(held), acceptance=str(acc),
+               make_cpu_s=sum(c for _, c in made), make_wall_s=t_made, wall_s=time.perf_counter() - t0)
+    return out
 
 
 if __name__ == "__main__":
-    print(len(make_runs(Path(sys.argv[1]) if len(sys.argv) > 1 else DEFAULT_DIR)))
+    fleet = make_fleet(Path(sys.argv[1]) if len(sys.argv) > 1 else DEFAULT_DIR)
+    read = {g: sum(r.cause in [s.cause for s in sigs] for r, sigs in fleet[g].values()) for g in ("site", "held")}
+    print(json.dumps({k: v for k, v in fleet.items() if k not in ("site", "held")}
+                     | {"read_as_injected": read, "site_runs": len(fleet["site"]), "held_runs": len(fleet["held"])},
+                     default=str))

@@ -58,6 +58,10 @@ def test_push_is_idempotent_and_lands_in_the_lake(env):
     rows = json.loads(out.stdout)["rows"]
     assert sum(r["signatures"] for r in rows) == first["rows"]  # the retry replaced its file, no duplicate
     assert "fixture_shift" in {r["cause"] for r in rows}
+    own = cli("query", "frequency", "--lake", root / "lake", "--tenant", "ta", "--scope", "own", "--json")
+    assert own.exit_code == 0 and json.loads(own.stdout)["rows"] == rows  # the lake holds ta's rows only
+    refused = cli("query", "frequency", "--lake", root / "lake", "--tenant", "ta", "--k", "1")
+    assert refused.exit_code == 2 and "at least 5 needed" in refused.output and "Traceback" not in refused.output
     audit = json.loads(cli("audit", "--site-dir", root / "site1", "--json").stdout)["entries"]
     assert [e["status"] for e in audit] == ["queued", "sent", "queued", "duplicate"]
 

@@ -4,12 +4,13 @@ on a Parquet lake, and DuckDB against PostgreSQL under row-level security."""
 from __future__ import annotations
 
 import math
+import shutil
 
 import pytest
 
 from cellguard.errors import ConfigError, UnknownNameError
 from cellguard.fleet.duckdb_engine import DuckDBEngine
-from cellguard.fleet.queries import QUERIES, named, render
+from cellguard.fleet.queries import QUERIES, RefusedAggregate, named, render
 from cellguard.fleet.synthetic import rows_of, synthetic_fleet, write_fleet
 
 SEEDS = [
@@ -77,8 +78,53 @@ def test_duckdb_and_spark_agree_on_every_query(lake):
             a = duck.run(name, PARAMS[name], PROBE)
             b = spark.run(name, PARAMS[name], PROBE)
             assert a and equal(a, b), name
+        # with a tenant's rights: the same fence on both (the second engine reuses the session)
+        duck_t0, spark_t0 = DuckDBEngine(root, "t0", min_customers=2), SparkEngine(root, "local[2]", "t0", 2)
+        for name in QUERIES:
+            for scope in ("fleet", "own"):
+                a = duck_t0.run(name, PARAMS[name], PROBE, scope=scope)
+                assert a and equal(a, spark_t0.run(name, PARAMS[name], PROBE, scope=scope)), (name, scope)
+        with pytest.raises(RefusedAggregate, match="at least 5 needed"):
+            SparkEngine(root, "local[2]", "t0").run("fixes", {"k": 2})
     finally:
         spark.close()
+
+
+def test_a_tenant_reads_its_own_lake_folder_only(lake, tmp_path):
+    root, sig, _ = lake
+    fenced = tmp_path / "lake"
+    shutil.copytree(root, fenced)
+    assert {p.name: p.stat().st_mode & 0o777 for p in root.glob("tenant=*")} == \
+        {f"tenant=t{i}": 0o700 for i in range(3)}  # one owner-only folder per tenant
+    for other in ("t1", "t2"):  # another tenant's files, unreadable: a query that opened one would fail
+        for f in (fenced / f"tenant={other}").rglob("*.parquet"):
+            f.write_bytes(b"not parquet")
+    t0 = DuckDBEngine(fenced, "t0")
+    near = t0.run("similar", {"site": "t0-s0", "robot_model": "arm5", "limit": 50}, PROBE)
+    assert near and {r["site_id"].split("-")[0] for r in near} == {"t0"}
+    own = t0.run("frequency", scope="own")
+    assert sum(r["signatures"] for r in own) == sum(t == "t0" for t in sig["tenant_id"].to_pylist())
+    with pytest.raises(Exception, match="(?i)parquet|magic"):  # the operator reads every folder
+        DuckDBEngine(fenced).run("frequency", {"k": 1})
+    for bad in ("*", "t0/../t1", "T0"):  # a tenant id is an id, never a glob or a path
+        with pytest.raises(ConfigError, match="tenant: expected an opaque id"):
+            DuckDBEngine(fenced, bad).run("similar", scope="own")
+
+
+def test_a_tenant_gets_cross_customer_rows_only_over_k_customers(lake):
+    root, _, _ = lake  # 3 customers
+    operator = DuckDBEngine(root)
+    with pytest.raises(RefusedAggregate, match="frequency refused: signatures from 3 customer.s., at least 5 needed"):
+        DuckDBEngine(root, "t0").run("frequency", {"k": 2})  # the lake's least (5) wins over the k asked
+    with pytest.raises(RefusedAggregate, match="at least 4 needed"):
+        DuckDBEngine(root, "t0", min_customers=2).run("introduced", {"k": 4})
+    t0 = DuckDBEngine(root, "t0", min_customers=3)
+    for name in ("frequency", "introduced", "fixes"):
+        rows = t0.run(name, {"k": 1})  # asked for 1, given 3
+        assert rows == operator.run(name, {"k": 3}), name
+        assert all(r["customers"] >= 3 for r in rows)
+    with pytest.raises(ConfigError, match="--scope: 'all'"):
+        t0.run("frequency", scope="all")
 
 
 def test_duckdb_and_postgresql_agree_within_one_tenants_rights(lake, tmp_path):

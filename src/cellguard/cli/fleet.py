@@ -22,6 +22,8 @@ STORE = typer.Option(None, "--store", envvar="CELLGUARD_FLEET_DSN", show_envvar=
                      help="The fleet store's DSN with this tenant's credentials.")
 SITE_DIR = typer.Option(Path("cellguard-fleet"), "--site-dir", help="This site's audit log and outbox.")
 JSON = typer.Option(False, "--json", help="Print one JSON document on stdout.")
+ACCEPTANCE = typer.Option(None, "--acceptance", help="A record folder whose acceptance cycles are the baseline of "
+                          "every run (a cell commissioned once); default: each run's own acceptance cycles.")
 
 
 def _store(dsn: str | None):
@@ -36,6 +38,7 @@ def push(
     store: str | None = STORE,
     site_dir: Path = SITE_DIR,
     lake: Path | None = typer.Option(None, "--lake", help="Also land the sent signatures as Parquet here."),
+    acceptance: Path | None = ACCEPTANCE,
     as_json: bool = JSON,
 ) -> None:
     """Diagnose the runs in FOLDER and send their fault signatures as the policy allows; queue if the store is down."""
@@ -45,7 +48,7 @@ def push(
 
     try:
         pol = load_policy(policy)
-        sigs = site_signatures(folder, pol) if pol.export != "nothing" else []
+        sigs = site_signatures(folder, pol, acceptance) if pol.export != "nothing" else []
         result = do_push(sigs, pol, site_dir, _store(store), lake)
     except CellguardError as exc:
         fail(exc)
@@ -71,7 +74,9 @@ def query(
     engine: str = typer.Option("duckdb", "--engine", help="On a lake: duckdb or spark."),
     spark_master: str = typer.Option("local[2]", "--spark-master", help="Spark master URL (spark://HOST:7077)."),
     k: int = typer.Option(5, "--k", help="Least number of distinct customers behind a cross-customer row."),
-    scope: str = typer.Option("fleet", "--scope", help="On the store: fleet (cross-customer) or own."),
+    scope: str = typer.Option("fleet", "--scope", help="fleet (cross-customer, k applies) or own (your rows)."),
+    tenant: str | None = typer.Option(None, "--tenant", help="On a lake: query with this tenant's rights (its own "
+                                      "folder; cross-customer only over k customers). Without it: the operator."),
     store: str | None = STORE,
     as_json: bool = JSON,
 ) -> None:
@@ -85,14 +90,16 @@ def query(
         if lake is not None:
             if engine == "duckdb":
                 from cellguard.fleet.duckdb_engine import DuckDBEngine
-                eng = DuckDBEngine(lake)
+                eng = DuckDBEngine(lake, tenant)
             elif engine == "spark":
                 from cellguard.fleet.spark_engine import SparkEngine
-                eng = SparkEngine(lake, spark_master)
+                eng = SparkEngine(lake, spark_master, tenant)
             else:
                 raise ConfigError(f"--engine: {engine!r}; allowed: duckdb, spark")
-            rows = eng.run(name, params)
-            eng.close()
+            try:
+                rows = eng.run(name, params, scope=scope)
+            finally:
+                eng.close()
         else:
             if not store:
                 raise ConfigError("--store: no fleet store DSN (or CELLGUARD_FLEET_DSN); or give --lake")
@@ -113,6 +120,7 @@ def similar(
     target: str = typer.Argument(..., help="A run folder (its findings) or one of your signature ids."),
     policy: Path | None = typer.Option(None, "--policy", help="For a run folder: this site's data policy."),
     limit: int = typer.Option(5, "--limit", help="Neighbours per finding."),
+    acceptance: Path | None = ACCEPTANCE,
     store: str | None = STORE,
     as_json: bool = JSON,
 ) -> None:
@@ -129,7 +137,7 @@ def similar(
             from cellguard.fleet.policy import load_policy
             if policy is None:
                 raise ConfigError("--policy: needed with a run folder (it names this site)")
-            probes = site_signatures(Path(target), load_policy(policy))
+            probes = site_signatures(Path(target), load_policy(policy), acceptance)
         else:
             probes = [sim.probe_of(st, target)]
         out = [{"cause": p.cause, "neighbours": [n.to_dict() for n in sim.similar(st, p, limit)]} for p in probes]

@@ -16,7 +16,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from cellguard.fleet.policy import DataPolicy, PolicyError
-from cellguard.fleet.signature import Signature, withhold
+from cellguard.fleet.signature import Signature, from_dict, withhold
 
 
 @dataclass(frozen=True)
@@ -48,8 +48,11 @@ class Batch:
 
     @classmethod
     def from_dict(cls, raw: dict) -> Batch:
+        """A batch from its JSON; each signature is read as one (a newer schema version, an unknown
+        field or a forged id raises SignatureError)."""
         return cls(raw["tenant_id"], raw["site_id"], raw["policy_version"], raw["export"],
-                   tuple(raw["signatures"]), tuple(raw["aggregates"]), raw.get("withheld_rows", 0))
+                   tuple(from_dict(s).to_dict() for s in raw["signatures"]), tuple(raw["aggregates"]),
+                   raw.get("withheld_rows", 0))
 
 
 def export_batch(signatures: Sequence[Signature], policy: DataPolicy, today: dt.date | None = None) -> Batch:

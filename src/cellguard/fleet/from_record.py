@@ -1,7 +1,9 @@
 """A site's signatures from its run folders: each folder's record diagnosed, each finding one row.
 
 Reads the record (``record.mcap``) through the diagnosis, never the run's summary (its ground
-truth holds the injected faults). DIR is a run folder or a folder of run folders.
+truth holds the injected faults). DIR is a run folder or a folder of run folders. The baseline
+is each run's own acceptance cycles, or one acceptance run's (a cell commissioned once, its
+production runs diagnosed against it).
 """
 
 from __future__ import annotations
@@ -26,8 +28,9 @@ def run_folders(folder: Path) -> list[Path]:
     return found
 
 
-def site_signatures(folder: Path, policy: DataPolicy) -> list[Signature]:
-    """Every finding of every run under ``folder``, as signatures of the policy's tenant and site."""
+def site_signatures(folder: Path, policy: DataPolicy, acceptance: Path | None = None) -> list[Signature]:
+    """Every finding of every run under ``folder``, as signatures of the policy's tenant and site;
+    ``acceptance``: the record folder whose acceptance cycles are the baseline of every run."""
     from cellguard.diagnose.from_record import diagnose_record
     from cellguard.record.reader import open_record
 
@@ -36,7 +39,7 @@ def site_signatures(folder: Path, policy: DataPolicy) -> list[Signature]:
         with open_record(run) as rec:
             _ = rec.context  # the wall-clock epoch is stated in the context messages
             epoch_ns = rec.epoch_wall_ns
-        diagnosis = diagnose_record(run)
+        diagnosis = diagnose_record(run, acceptance=acceptance)
         day = (dt.datetime.fromtimestamp(epoch_ns * 1e-9, dt.timezone.utc) if epoch_ns > 0
                else dt.datetime.now(dt.timezone.utc)).date()  # no epoch stated: the day of export
         out.extend(signatures_of(diagnosis.to_dict(), diagnosis.context, policy.tenant, policy.site, day))

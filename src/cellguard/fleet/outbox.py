@@ -13,6 +13,7 @@ from pathlib import Path
 
 from cellguard.errors import OutputError
 from cellguard.fleet.export import Batch
+from cellguard.fleet.signature import SignatureError
 
 OUTBOX = "outbox"
 
@@ -36,11 +37,18 @@ class Outbox:
         return path
 
     def pending(self) -> list[tuple[Path, Batch]]:
-        """Queued batches, oldest first."""
+        """Queued batches, oldest first. One this cellguard cannot read (queued by a newer one)
+        raises SignatureError naming the file, which stays queued."""
         if not self.folder.is_dir():
             return []
         files = sorted(self.folder.glob("*.json"), key=lambda p: (p.stat().st_mtime_ns, p.name))
-        return [(p, Batch.from_dict(json.loads(p.read_text()))) for p in files]
+        out = []
+        for p in files:
+            try:
+                out.append((p, Batch.from_dict(json.loads(p.read_text()))))
+            except SignatureError as exc:
+                raise SignatureError(f"{p}: {exc}; it stays queued") from None
+        return out
 
     def done(self, path: Path) -> None:
         path.unlink(missing_ok=True)

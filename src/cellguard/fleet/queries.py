@@ -18,9 +18,13 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from decimal import Decimal
 
-from cellguard.errors import ConfigError, UnknownNameError
+from cellguard.errors import CellguardError, ConfigError, UnknownNameError
 
 MIN_CUSTOMERS = 5  # default k: a cross-customer result covers at least this many customers
+
+
+class RefusedAggregate(CellguardError):
+    """A cross-customer result over fewer than k customers (from the store or the lake)."""
 
 
 @dataclass(frozen=True)

@@ -10,7 +10,8 @@ from pathlib import Path
 
 from cellguard.errors import ConfigError
 from cellguard.fleet.lake import EFFECTS, SIGNATURES, has_data
-from cellguard.fleet.queries import named, plain, render
+from cellguard.fleet.queries import MIN_CUSTOMERS, named, plain, render
+from cellguard.fleet.rights import access
 
 
 def _pyspark():
@@ -23,11 +24,16 @@ def _pyspark():
 
 
 class SparkEngine:
+    """Queries as ``tenant`` or the operator (``tenant`` None), as ``DuckDBEngine`` does (``rights.py``).
+    One Spark session per process: a second engine reuses it until ``close``."""
+
     name = "spark"
 
-    def __init__(self, lake: Path, master: str = "local[2]"):
+    def __init__(self, lake: Path, master: str = "local[2]", tenant: str | None = None,
+                 min_customers: int = MIN_CUSTOMERS):
         if not has_data(lake):
-            raise ConfigError(f"--lake {lake}: no signatures in it (expected signatures/date=*/tenant=*/*.parquet)")
+            raise ConfigError(f"--lake {lake}: no signatures in it (expected tenant=*/signatures/date=*/*.parquet)")
+        self.lake, self.tenant, self.min_customers = Path(lake).resolve(), tenant, min_customers
         session = _pyspark()
         self.spark = (session.builder.master(master).appName("cellguard-fleet")
                       .config("spark.ui.enabled", "false").config("spark.sql.session.timeZone", "UTC")
@@ -35,16 +41,17 @@ class SparkEngine:
                       .config("spark.sql.shuffle.partitions", "8").config("spark.driver.bindAddress", "127.0.0.1")
                       .config("spark.driver.host", "127.0.0.1").getOrCreate())
         self.spark.sparkContext.setLogLevel("ERROR")
-        for rel, schema in (("signatures", SIGNATURES), ("effects", EFFECTS)):
-            root = str(Path(lake).resolve() / rel)  # the schema given: no footer is read to infer it
-            (self.spark.read.schema(_ddl(schema)).option("basePath", root).parquet(root + "/*/*/*.parquet")
-             .createOrReplaceTempView(rel))
 
-    def run(self, query: str, params: Mapping | None = None, probe: Sequence[tuple[str, float]] = ()) -> list[dict]:
+    def run(self, query: str, params: Mapping | None = None, probe: Sequence[tuple[str, float]] = (),
+            scope: str = "fleet") -> list[dict]:
         q = named(query)
-        schema = "feature string, effect double"
-        self.spark.createDataFrame([(f, float(e)) for f, e in probe], schema).createOrReplaceTempView("probe")
-        return [plain(r.asDict()) for r in self.spark.sql(render(q, params)).collect()]
+        allowed = access(self.lake, q, params, self.tenant, scope, self.min_customers)
+        for rel, schema in (("signatures", SIGNATURES), ("effects", EFFECTS)):  # only what the caller may read
+            # the schema given: no footer is read to infer it, no partition column is added from the path
+            self.spark.read.schema(_ddl(schema)).parquet(allowed.globs[rel]).createOrReplaceTempView(rel)
+        self.spark.createDataFrame([(f, float(e)) for f, e in probe], "feature string, effect double") \
+            .createOrReplaceTempView("probe")
+        return [plain(r.asDict()) for r in self.spark.sql(render(q, allowed.params)).collect()]
 
     def close(self) -> None:
         self.spark.stop()

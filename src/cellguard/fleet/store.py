@@ -27,7 +27,7 @@ from pathlib import Path
 
 from cellguard.errors import CellguardError, ConfigError
 from cellguard.fleet.export import Batch
-from cellguard.fleet.queries import MIN_CUSTOMERS, QUERIES, named, plain, render
+from cellguard.fleet.queries import MIN_CUSTOMERS, QUERIES, RefusedAggregate, named, plain, render
 
 SIGNATURE_COLUMNS = ("signature_id", "tenant_id", "site_id", "created_date", "cause", "confidence", "robot_model",
                      "cell_type", "onset_cycle", "detection_delay_cycles", "policy_version", "calibration_version",
@@ -40,10 +40,6 @@ class StoreError(CellguardError):
 
 class StoreUnavailable(StoreError):
     """The fleet store cannot be reached; what was to be sent stays in the outbox."""
-
-
-class RefusedAggregate(StoreError):
-    """A cross-customer result over fewer than k customers."""
 
 
 def ci_admin_dsn() -> str | None:
