@@ -21,6 +21,7 @@ from cellguard.control.events import Event, EventKind
 from cellguard.policy.chunk import ActionChunk
 from cellguard.robot.recovery import Plan, RecoveryPolicy
 from cellguard.robot.recovery.base import go_home
+from cellguard.robot.recovery.outcome import RecoveryOutcome
 
 ARRIVE_TOL = 0.01  # [rad or m] every arm joint this close to the contact pose: the tool has arrived
 STEPS, STEP_NS = 25, 20_000_000  # chunks of 25 steps of 20 ms, as the taught program's
@@ -132,7 +133,7 @@ class RecoveryRunner:
             plan = behaviour.plan(self.cell, np.asarray(reference, dtype=np.float64), attempt, self._origin)
         except ValueError as exc:  # a search offset the arm cannot reach
             self.events.append(Event(t, EventKind.RECOVERY_END, f"{behaviour.do}: attempt {attempt} cannot be "
-                                     f"planned ({exc}); outcome gave_up"))
+                                     f"planned ({exc})"))
             self._give_up(t, reference, "a plan the arm cannot reach")
             return
         self._active = _Attempt(behaviour, trigger, attempt, plan, t)
@@ -159,15 +160,9 @@ class RecoveryRunner:
         self.events.append(Event(t, EventKind.RECOVERY_END, f"no recovery left ({why}): home, the cycle fails"))
 
     def _end(self, a: _Attempt, t: int, outcome: str) -> None:
-        duration = (t - a.t0) * 1e-9
-        row = {"behaviour": a.behaviour.do, "trigger": a.trigger, "attempt": a.attempt, "outcome": outcome,
-               "start_ns": a.t0, "duration_s": round(duration, 4)}
-        words = f"{a.behaviour.do}: attempt {a.attempt} after {a.trigger}, {duration:.2f} s"
-        if a.plan.close_t is not None:
-            row["close_s"] = round(a.plan.close_t, 4)
-            row["arrival_s"] = round((a.arrival_ns - a.t0) * 1e-9, 4) if a.arrival_ns is not None else None
-            arrived = f"{row['arrival_s']:.2f} s" if a.arrival_ns is not None else "never"
-            words += f"; arrived at contact at {arrived}, gripper shut at {a.plan.close_t:.2f} s"
-        self._log.append(row)
-        self.events.append(Event(t, EventKind.RECOVERY_END, f"{words}; outcome {outcome}"))
+        arrival = (a.arrival_ns - a.t0) * 1e-9 if a.arrival_ns is not None and a.plan.close_t is not None else None
+        done = RecoveryOutcome(a.behaviour.do, a.trigger, a.attempt, outcome, round((t - a.t0) * 1e-9, 3),
+                               None if arrival is None else round(arrival, 3), a.plan.close_t)
+        self._log.append(done.to_dict())
+        self.events.append(Event(t, EventKind.RECOVERY_END, done.reason()))
         self._active = None

@@ -12,7 +12,7 @@ from cellguard.robot.faults.base import Fault
 class LateRecovery(Fault):
     kind: Literal["late_recovery"]
     at_cycle: int = Field(default=0, ge=0)
-    speed_scale: float = Field(default=0.4, gt=0.05, lt=1.0, description="share of the planned arm speed")
+    speed_scale: float = Field(default=0.5, gt=0.05, lt=1.0, description="share of the planned arm speed")
 
     def recovery_speed(self, cycle: int) -> float:
         return self.speed_scale if cycle >= self.at_cycle else 1.0
