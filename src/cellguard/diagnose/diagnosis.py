@@ -18,7 +18,8 @@ from cellguard.diagnose.cycles import Cycle, as_cycles
 from cellguard.diagnose.drift import DriftConfig, DriftResult, detect_drift
 from cellguard.diagnose.intermittent import find_intermittent, without_outliers
 from cellguard.diagnose.process import ProcessNote, condition, declared
-from cellguard.diagnose.recovery import advice, advice_lines, attempts_of, fixes, recovery_finding, with_running_again
+from cellguard.diagnose.recovery import (advice, advice_lines, attempts_of, fixes, policy_cycles, recovery_finding,
+                                        with_running_again, without_recovery_motion)
 from cellguard.embodiment.profile import SymmetryPair
 from cellguard.errors import RecordError
 
@@ -77,13 +78,14 @@ def diagnose(rows: Iterable[object], events: Iterable[object] = (), context: Map
     cycles = as_cycles(rows)
     if baseline is None:
         acceptance = [c for c in cycles if c.phase == "acceptance"]
-        baseline = Baseline.from_cycles(acceptance)
+        baseline = Baseline.from_cycles(policy_cycles(acceptance))
         watched = [c for c in cycles if c.phase != "acceptance"]
     else:
         watched = [c for c in cycles if c.phase != "acceptance"] or list(cycles)
     if not watched:
         raise RecordError("diagnose: the record has no production cycles to compare with the baseline")
     z, notes = condition(baseline, watched, baseline.residuals(watched), declared(context))
+    z = without_recovery_motion(baseline.names, watched, z)
     found = find_intermittent(baseline.names, watched, z)
     drift = detect_drift(baseline, watched, config, residuals=without_outliers(baseline.names, watched, z, found))
     evs = [_event_dict(e) for e in events]

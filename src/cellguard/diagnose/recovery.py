@@ -22,12 +22,39 @@ import numpy as np
 from cellguard.control.events import EventKind
 from cellguard.diagnose.cause import Finding
 from cellguard.diagnose.cycles import Cycle
+from cellguard.diagnose.feature_kinds import kind_of
 from cellguard.robot.recovery.outcome import RecoveryOutcome
 
 LATE = 1.25  # an arrival later than this multiple of the acceptance recoveries' median is late
 LATE_MIN_S = 0.1  # [s] and at least this much later
 MIN_LATE = 2  # late attempts before the cause is named
 NEXT_WORSE = 0.5  # the cycle after a recovery fails this much more often than the others
+MIN_BASELINE = 5  # acceptance cycles without a recovery needed to leave the others out of the baseline
+KEPT = frozenset({"success", "grasped", "timed_out"})  # outcome features a recovery cycle still speaks for
+
+
+def _recovered(c: Cycle) -> bool:
+    return c.features.get("recoveries", 0.0) > 0
+
+
+def policy_cycles(acceptance: Sequence[Cycle]) -> list[Cycle]:
+    """The acceptance cycles the policy drove alone, when there are enough of them for a baseline:
+    a recovery's motion is not the motion the baseline describes."""
+    alone = [c for c in acceptance if not _recovered(c)]
+    return alone if len(alone) >= MIN_BASELINE else list(acceptance)
+
+
+def without_recovery_motion(names: Sequence[str], cycles: Sequence[Cycle], z: np.ndarray) -> np.ndarray:
+    """``z`` (Shape (cycles, features)) with what a recovery moved set to NaN on cycles that ran one:
+    joints, timing and placement were the recovery's; the grasp geometry (the policy's own first
+    grasp) and whether the cycle succeeded still count."""
+    rows = [i for i, c in enumerate(cycles) if _recovered(c)]
+    if not rows:
+        return z
+    cols = [j for j, n in enumerate(names) if kind_of(n).family != "geometry" and n not in KEPT]
+    z = z.copy()
+    z[np.ix_(rows, cols)] = np.nan
+    return z
 
 
 def attempts_of(events: Sequence[Mapping]) -> list[tuple[int | None, RecoveryOutcome]]:
@@ -63,9 +90,12 @@ def recovery_finding(cycles: Sequence[Cycle], attempts: Sequence[tuple[int | Non
         if not arrived or np.median(arrived) > close:
             lead = f", {np.median(arrived) - close:.2f} s before the arm arrived" if arrived else ""
             evidence.append(f"their gripper was told to shut at {close:.2f} s{lead}: the fingers closed above the part")
-        failed = sum(o.outcome != "resumed" for _, o in late)
-        acc_failed = sum(o.outcome != "resumed" for o in acc)
-        evidence.append(f"{failed} of {len(late)} late attempts failed vs {acc_failed} of {len(acc)} at acceptance")
+        late_cycles = {c for c, _ in late}
+        resumed = {c for c, o in prod if c in late_cycles and o.outcome == "resumed" and o.close_s is not None}
+        acc_cycles = {c for c, o in attempts if phase.get(c) == "acceptance"}
+        acc_resumed = {c for c, o in attempts if c in acc_cycles and o.outcome == "resumed"}
+        evidence.append(f"they picked the part again in {len(resumed)} of {len(late_cycles)} cycles vs "
+                        f"{len(acc_resumed)} of {len(acc_cycles)} at acceptance")
         evidence.append("the arm ran slower than the recovery's plan while the gripper kept its timing: a speed "
                         "scaling of the recovery, not the part, the tool or the fixture")
         starts.append(start)

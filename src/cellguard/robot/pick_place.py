@@ -54,6 +54,7 @@ class Layout:
     current_noise: float = 0.01  # [A] 1-sigma noise of each motor current reading
     brake_damping: float = 200.0  # [N·m·s/rad] joint damping while the brakes hold (power removed)
     approach: float = 0.06  # [m] height above a pick or place a recovery comes down from
+    ik_joints: tuple[str, ...] = ()  # joints a recovery's IK moves (the rest stay as at home); () = all but the gripper
 
 
 class PickPlaceCell(DrivenCell):
@@ -255,8 +256,12 @@ class PickPlaceCell(DrivenCell):
 
     def reach(self, target: np.ndarray, q0: np.ndarray) -> np.ndarray:
         """Arm joints (dof-1,) that put the tool point at ``target`` [m], tool down, on the commissioned model."""
-        joints = list(self.profile.joint_names[:-1])
-        return solve_tool_down(self._taught, "tcp", joints, np.asarray(target, dtype=np.float64), q0)
+        names = list(self.profile.joint_names[:-1])
+        moved = [names.index(j) for j in (self.layout.ik_joints or names)]
+        arm = self.q_home[:-1].copy()
+        arm[moved] = solve_tool_down(self._taught, "tcp", [names[i] for i in moved],
+                                     np.asarray(target, dtype=np.float64), np.asarray(q0)[moved])
+        return arm
 
     def tool_taught(self, arm: np.ndarray) -> np.ndarray:
         """Where the commissioned model puts the tool point (3,) [m] at arm joints ``arm`` (dof-1,)."""
