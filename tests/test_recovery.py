@@ -115,7 +115,20 @@ def test_without_a_recovery_a_slipped_grasp_fails_the_cycle():
 
 def test_a_search_offset_recovers_a_slipped_grasp_and_the_record_says_so():
     run = Run(_scenario(faults=[SLIP], recovery=RETRY))
+    sent, original = [], run.guard.envelope.apply
+
+    def apply(*args, **kwargs):
+        setpoint, events = original(*args, **kwargs)
+        sent.append(setpoint.copy())
+        return setpoint, events
+
+    run.guard.envelope.apply = apply
     outcome = run.cycle()
+    profile, q = run.cell.profile, np.array(sent)
+    v = np.diff(q, axis=0) / 1e-3  # the recovery's chunks went through the envelope like the policy's
+    assert (q >= profile.q_min).all() and (q <= profile.q_max).all()
+    assert (np.abs(v) <= profile.array("velocity") * 1.002).all()
+    assert (np.abs(np.diff(v, axis=0) / 1e-3) <= profile.array("acceleration") * 1.02).all()
     assert outcome["success"] and outcome["grasped"]
     log = outcome["recovery_log"]
     assert [r["behaviour"] for r in log] == ["retry_grasp"] * len(log) and log[-1]["outcome"] == "resumed"

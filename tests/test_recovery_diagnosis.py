@@ -4,14 +4,14 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
+
 from cellguard.diagnose.cause import CAUSES, Finding
 from cellguard.diagnose.cycles import Cycle
 from cellguard.diagnose.recovery import (advice, attempts_of, fixes, policy_cycles, recovery_finding,
                                          with_running_again, without_recovery_motion)
 from cellguard.diagnose.site_history import save_fixes, site_history
 from cellguard.robot.recovery.outcome import RecoveryOutcome
-
-import numpy as np
 
 
 def _cycle(i, phase="production", success=True, recoveries=0, after=0):
