@@ -24,6 +24,7 @@ from cellguard.robot.recovery.base import go_home
 from cellguard.robot.recovery.outcome import RecoveryOutcome
 
 ARRIVE_TOL = 0.01  # [rad or m] every arm joint this close to the contact pose: the tool has arrived
+WAIT_S = 0.3  # [s] of plan time past the close that a failed attempt waits for the arm to arrive
 STEPS, STEP_NS = 25, 20_000_000  # chunks of 25 steps of 20 ms, as the taught program's
 
 
@@ -45,6 +46,7 @@ class RecoveryRunner:
     def __init__(self, policy: RecoveryPolicy, cell, events):
         policy.check_against(cell)
         self.policy, self.cell, self.events = policy, cell, events
+        self._failed_check = getattr(cell, "failed_check", lambda: None)  # a robot without checks never triggers
         self.arm_speed = 1.0
         self._log: list[dict] = []
         self.begin_cycle()
@@ -55,6 +57,8 @@ class RecoveryRunner:
         self._tail: tuple[Plan, int] | None = None  # after a recovery: its plan's end, or home, held
         self._next_chunk = 0
         self._log: list[dict] = []
+        self._origin: np.ndarray | None = None  # the reference when the cycle's first check failed
+        self._now = 0
 
     @property
     def stop(self) -> int | None:
@@ -65,7 +69,7 @@ class RecoveryRunner:
     def drives(self, t: int, state, reference: np.ndarray) -> bool:
         """Once per tick: True while a recovery drives the cell (from a failed check to the cycle's end)."""
         self._now = t
-        failed = self.cell.failed_check()
+        failed = self._failed_check()
         a = self._active
         if a is None:
             if self._tail is not None:
@@ -85,7 +89,7 @@ class RecoveryRunner:
         if failed and a.failed_ns is None:
             a.failed_ns = t
         if a.failed_ns is not None:
-            passed = a.plan.close_t is None or (t - a.t0) * 1e-9 * self.arm_speed > a.plan.close_t + 0.3
+            passed = a.plan.close_t is None or (t - a.t0) * 1e-9 * self.arm_speed > a.plan.close_t + WAIT_S
             if a.arrival_ns is not None or passed:
                 self._after_failure(a, t, reference)
         elif t - a.t0 >= a.plan.duration(self.arm_speed) * 1e9:

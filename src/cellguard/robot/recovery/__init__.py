@@ -9,7 +9,7 @@ from typing import Annotated, Union
 from pydantic import Field
 
 from cellguard.robot.recovery.back_off import BackOff
-from cellguard.robot.recovery.base import TRIGGERS, Plan, Recovery
+from cellguard.robot.recovery.base import Plan, Recovery
 from cellguard.robot.recovery.operator import Operator
 from cellguard.robot.recovery.policy import RecoveryPolicy
 from cellguard.robot.recovery.rehome import Rehome
@@ -21,4 +21,4 @@ RECOVERIES: dict[str, type[Recovery]] = {k.model_fields["do"].annotation.__args_
 AnyRecovery = Annotated[Union[_KINDS], Field(discriminator="do")]  # noqa: UP007
 RecoveryPolicy.model_rebuild(_types_namespace={"AnyRecovery": AnyRecovery})
 
-__all__ = ["RECOVERIES", "TRIGGERS", "AnyRecovery", "Plan", "Recovery", "RecoveryPolicy"]
+__all__ = ["RECOVERIES", "AnyRecovery", "Plan", "Recovery", "RecoveryPolicy"]

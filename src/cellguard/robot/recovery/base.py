@@ -18,9 +18,6 @@ from typing import ClassVar
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-TRIGGERS = ("grasp_missed", "place_missed")  # the failed checks a pick-place cell reports
-
-
 @dataclass(frozen=True)
 class Plan:
     """Timed waypoints of one recovery; the arm and the gripper on separate tracks.
@@ -67,14 +64,11 @@ class Recovery(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     needs: ClassVar[tuple[str, ...]] = ()  # cell methods the behaviour calls
-    trigger: str | None = Field(default=None, description=f"the failed check that starts it: {', '.join(TRIGGERS)}")
+    trigger: str | None = Field(default=None, description="the failed check that starts it (one of the cell's "
+                                                            "failure_checks)")
     attempts: int = Field(default=1, ge=1, le=20, description="tries in one cycle before it escalates")
     then: str | None = Field(default=None, description="the behaviour it escalates to")
     speed_scale: float = Field(default=1.0, gt=0.05, le=1.0, description="share of the taught speed")
-
-    @property
-    def name(self) -> str:
-        return self.do  # type: ignore[attr-defined]
 
     def plan(self, cell, q: np.ndarray, attempt: int, origin: np.ndarray) -> Plan:
         """The recovery's waypoints from the reference ``q`` (dof,) at its start; ``attempt`` counts from 1;
