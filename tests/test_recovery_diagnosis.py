@@ -89,3 +89,19 @@ def test_fixes_belong_to_the_latest_finding_and_advice_ranks_by_success_rate(tmp
     assert [(r["recovery"], r["fixed"], r["tried"]) for r in shift["recoveries"]] == [
         ("reregister_datum", 4, 4), ("retry_grasp", 1, 2), ("back_off", 0, 1)]
     json.dumps(advised)  # the advice is JSON as it stands
+
+
+def test_a_fleet_signature_carries_the_recovery_that_fixed_its_finding():
+    import datetime as dt
+
+    from cellguard.fleet.signature import signatures_of
+
+    diagnosis = {"findings": [{"cause": "tool_slip", "cycle": 4, "confidence": 0.9, "signals": []},
+                              {"cause": "recovery", "cycle": 9, "confidence": 0.9, "signals": []},
+                              {"cause": "friction", "cycle": 2, "confidence": 0.9, "signals": []}],
+                 "fixes": [{"cause": "tool_slip", "cycle": 4, "recovery": "back_off", "tried": 3, "fixed": 1},
+                           {"cause": "tool_slip", "cycle": 4, "recovery": "retry_grasp", "tried": 2, "fixed": 2},
+                           {"cause": "recovery", "cycle": 9, "recovery": "operator", "tried": 2, "fixed": 0}]}
+    sigs = signatures_of(diagnosis, {}, "t1", "s1", dt.date(2026, 11, 23))
+    assert [(s.cause, s.recovery, s.recovery_outcome) for s in sigs] == [
+        ("tool_slip", "retry_grasp", "success"), ("recovery", "operator", "failed"), ("friction", None, None)]

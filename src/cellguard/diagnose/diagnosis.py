@@ -58,6 +58,7 @@ class Diagnosis:
             "asymmetry": self.asymmetry.to_dict() if self.asymmetry is not None else None,
             "process": [n.to_dict() for n in self.process],
             "recoveries": list(self.recoveries),
+            "fixes": list(self.fixes),
             "advice": list(self.advice),
             "monitor": {"cusum_k": self.drift.k, "cusum_h": round(self.drift.threshold, 3),
                         "pooled_k": self.drift.pooled_k, "pooled_h": round(self.drift.pooled_threshold, 3),
