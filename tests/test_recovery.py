@@ -158,3 +158,29 @@ def test_the_late_recovery_fault_slows_recoveries_from_its_cycle_only():
     assert [fault.recovery_speed(c) for c in (2, 3, 9)] == [1.0, 0.4, 0.4]
     with pytest.raises(ScenarioError, match="speed_scale"):
         _scenario(faults=[{"kind": "late_recovery", "speed_scale": 1.5}])
+
+
+def test_a_part_presented_out_of_place_is_picked_where_the_camera_sees_it():
+    misplaced = {"kind": "part_misplaced", "rate": 1.0, "dx_mm": 8.0}  # beyond what the program corrects
+    assert not Run(_scenario(faults=[misplaced])).cycle()["success"]
+    run = Run(_scenario(faults=[misplaced], recovery={"behaviours": [
+        {"do": "reregister_datum", "trigger": "grasp_missed"}]}))
+    outcome = run.cycle()
+    assert outcome["success"] and [r["outcome"] for r in outcome["recovery_log"]] == ["resumed"]
+
+
+def test_every_behaviour_plans_from_where_the_cell_is_and_ends_at_home():
+    from cellguard.robot.arm_cell import ArmPickPlace
+
+    cell = ArmPickPlace()
+    cell.begin_cycle(0)
+    q = np.array(cell.q_home)
+    for name, cls in RECOVERIES.items():
+        plan = cls(do=name).plan(cell, q, 1, q)
+        start, end = plan.sample(np.array([0.0, plan.duration() + 1.0]))
+        np.testing.assert_allclose(start, q, atol=1e-9, err_msg=name)
+        np.testing.assert_allclose(end[:-1], cell.q_home[:-1], atol=1e-9, err_msg=name)
+        assert end[-1] == pytest.approx(cell.gripper_open), name
+        assert (plan.contact_q is None) == (plan.close_t is None), name
+    held = RECOVERIES["operator"](do="operator", hold_s=2.0).plan(cell, q, 1, q)
+    np.testing.assert_allclose(held.sample(np.array([1.9])), [q])  # still during the hand-over
