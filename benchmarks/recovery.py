@@ -4,10 +4,11 @@ late recovery is named ``recovery`` from its record.
 1. ``slip``: per seed one run with an intermittent slip and no recovery, one with ``retry_grasp``
    (escalating to an operator); success rate of the production cycles of each; and, read back from
    the record, that every recovery attempt of the run is there with its outcome.
-2. ``late``: per seed a run with the slip in acceptance and production (so acceptance has
-   recoveries to compare with) and a ``late_recovery`` fault from ``--late-at`` on; the record is
-   diagnosed (which sees only cycles and events) and scored: a ``recovery`` finding, and no
-   ``tool_slip`` or ``fixture_shift`` finding from the late fault's cycle on.
+2. ``late``: per seed a run with parts presented out of place now and then, in acceptance and
+   production (so acceptance has recoveries to compare with), re-registered from the camera, and a
+   ``late_recovery`` fault from ``--late-at`` on; the record is diagnosed (which sees only cycles
+   and events) and scored: a ``recovery`` finding from the late fault's cycle on, and no
+   ``tool_slip`` or ``fixture_shift`` finding (neither was injected: naming one is a confusion).
 
 Prints one JSON document. Seeds 100 on are held out of the tests.
 
@@ -31,15 +32,20 @@ from cellguard.scenario import parse_scenario
 
 RETRY = {"behaviours": [{"do": "retry_grasp", "trigger": "grasp_missed", "attempts": 2, "then": "operator"},
                         {"do": "operator", "hold_s": 0.5}]}
+REREGISTER = {"behaviours": [{"do": "reregister_datum", "trigger": "grasp_missed", "attempts": 2, "then": "operator"},
+                             {"do": "operator", "hold_s": 0.5}]}
 CONFUSED = ("tool_slip", "fixture_shift")
 
 
 def _scenario(seed: int, args, recovery: bool, late: bool) -> dict:
-    faults = [{"kind": "intermittent_slip", "rate": args.rate, "dx_mm": -5.0, "seed": seed}]
     if late:
-        faults.append({"kind": "late_recovery", "at_cycle": args.late_at, "speed_scale": 0.5})
+        faults = [{"kind": "part_misplaced", "rate": args.rate, "dx_mm": 8.0, "seed": seed},
+                  {"kind": "late_recovery", "at_cycle": args.late_at, "speed_scale": 0.5}]
+    else:
+        faults = [{"kind": "intermittent_slip", "rate": args.rate, "dx_mm": -5.0, "seed": seed}]
+    policy = REREGISTER if late else RETRY
     return {"cell": "arm-pick-place", "seed": seed, "acceptance_cycles": args.acceptance,
-            "production_cycles": args.production, "faults": faults, **({"recovery": RETRY} if recovery else {})}
+            "production_cycles": args.production, "faults": faults, **({"recovery": policy} if recovery else {})}
 
 
 def _slip(job) -> dict:
@@ -68,8 +74,8 @@ def _late(job) -> dict:
         run_scenario(parse_scenario(_scenario(seed, args, recovery=True, late=True)), folder)
         d = diagnose_record(folder).to_dict()
     findings = d["findings"]
-    named = [f for f in findings if f["cause"] == "recovery"]
-    confused = [f["cause"] for f in findings if f["cause"] in CONFUSED and f["cycle"] >= args.late_at]
+    named = [f for f in findings if f["cause"] == "recovery" and f["cycle"] >= args.late_at]
+    confused = [f["cause"] for f in findings if f["cause"] in CONFUSED]
     return {"seed": seed, "named_recovery": bool(named), "confused_with": confused,
             "correct": bool(named) and not confused, "findings": [(f["cause"], f["cycle"]) for f in findings],
             "evidence": named[0]["evidence"][:3] if named else []}
@@ -81,7 +87,7 @@ def main(argv: list[str] | None = None) -> dict:
     p.add_argument("--acceptance", type=int, default=6)
     p.add_argument("--production", type=int, default=8)
     p.add_argument("--late-at", type=int, default=7)
-    p.add_argument("--rate", type=float, default=0.4, help="share of cycles the gripper slips in")
+    p.add_argument("--rate", type=float, default=0.4, help="share of cycles the gripper slips (or a part is misplaced) in")
     p.add_argument("--cases", nargs="+", default=["slip", "late"], choices=["slip", "late"])
     p.add_argument("--workers", type=int, default=1)
     args = p.parse_args(argv)
