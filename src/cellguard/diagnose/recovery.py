@@ -16,6 +16,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import replace
+from types import MappingProxyType
 
 import numpy as np
 
@@ -29,7 +30,7 @@ LATE = 1.25  # an arrival later than this multiple of the acceptance recoveries'
 LATE_MIN_S = 0.1  # [s] and at least this much later
 MIN_LATE = 2  # late attempts before the cause is named
 NEXT_WORSE = 0.5  # the cycle after a recovery fails this much more often than the others
-MIN_BASELINE = 5  # acceptance cycles without a recovery needed to leave the others out of the baseline
+MIN_BASELINE = 3  # acceptance cycles without a recovery needed to leave the others' motion out of the baseline
 KEPT = frozenset({"success", "grasped", "timed_out"})  # outcome features a recovery cycle still speaks for
 
 
@@ -38,10 +39,17 @@ def _recovered(c: Cycle) -> bool:
 
 
 def policy_cycles(acceptance: Sequence[Cycle]) -> list[Cycle]:
-    """The acceptance cycles the policy drove alone, when there are enough of them for a baseline:
-    a recovery's motion is not the motion the baseline describes."""
-    alone = [c for c in acceptance if not _recovered(c)]
-    return alone if len(alone) >= MIN_BASELINE else list(acceptance)
+    """The acceptance cycles as the baseline should see them: on a cycle a recovery drove, only its
+    grasp geometry and whether it succeeded (its motion is not the policy's), as long as at least
+    ``MIN_BASELINE`` cycles the policy drove alone describe the motion; else every cycle as it is."""
+    if sum(not _recovered(c) for c in acceptance) < MIN_BASELINE:
+        return list(acceptance)
+    return [replace(c, features=MappingProxyType({k: v for k, v in c.features.items() if _kept(k)}))
+            if _recovered(c) else c for c in acceptance]
+
+
+def _kept(name: str) -> bool:
+    return kind_of(name).family == "geometry" or name in KEPT
 
 
 def without_recovery_motion(names: Sequence[str], cycles: Sequence[Cycle], z: np.ndarray) -> np.ndarray:
@@ -51,7 +59,7 @@ def without_recovery_motion(names: Sequence[str], cycles: Sequence[Cycle], z: np
     rows = [i for i, c in enumerate(cycles) if _recovered(c)]
     if not rows:
         return z
-    cols = [j for j, n in enumerate(names) if kind_of(n).family != "geometry" and n not in KEPT]
+    cols = [j for j, n in enumerate(names) if not _kept(n)]
     z = z.copy()
     z[np.ix_(rows, cols)] = np.nan
     return z

@@ -38,6 +38,7 @@ class _Attempt:
     arrival_ns: int | None = None
     failed_ns: int | None = None
     reset_ns: int | None = None  # an operator hand-over: when the operator reset the cell
+    left: bool = False  # the arm has been away from the contact pose (an arrival counts only after)
 
 
 class RecoveryRunner:
@@ -84,7 +85,9 @@ class RecoveryRunner:
             a.reset_ns = t
             self.events.append(Event(t, EventKind.RESET, f"operator reset after the hand-over ({a.trigger})"))
         if a.plan.contact_q is not None and a.arrival_ns is None:
-            if float(np.abs(state.q[:-1] - a.plan.contact_q).max()) < ARRIVE_TOL:
+            near = float(np.abs(state.q[:-1] - a.plan.contact_q).max()) < ARRIVE_TOL
+            a.left = a.left or not near
+            if near and a.left:
                 a.arrival_ns = t
         if failed and a.failed_ns is None:
             a.failed_ns = t
