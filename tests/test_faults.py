@@ -17,7 +17,8 @@ def _fault(spec: dict):
 
 def test_registry_covers_the_design_kinds():
     assert set(FAULTS) == {"fixture_shift", "friction_growth", "servo_gain", "camera_shift", "tool_slip",
-                           "policy_latency", "policy_nan", "friction_step", "intermittent_slip", "part_misplaced"}
+                           "policy_latency", "policy_nan", "friction_step", "intermittent_slip", "part_misplaced",
+                           "late_recovery"}
 
 
 @pytest.mark.parametrize(("spec", "read"), [

@@ -18,6 +18,7 @@ from cellguard.control.settings import GuardSettings
 from cellguard.errors import ScenarioError
 from cellguard.robot.faults import FAULTS, AnyFault
 from cellguard.robot.process import PROCESS_CHANGES, AnyProcessChange, declared_changes
+from cellguard.robot.recovery import RECOVERIES, RecoveryPolicy
 from cellguard.yaml_file import read_yaml
 
 
@@ -68,6 +69,7 @@ class Scenario(BaseModel):
     robot: str = Field(default="sim", min_length=1, description="sim, or a bridge: SCHEME:ARGUMENT")
     cycle: CycleSettings = Field(default_factory=CycleSettings)
     realtime: RealtimeSettings = Field(default_factory=RealtimeSettings)
+    recovery: RecoveryPolicy | None = None
 
     @property
     def total_cycles(self) -> int:
@@ -95,6 +97,8 @@ class Scenario(BaseModel):
             if not hasattr(cell, change.hook):
                 raise ScenarioError(f"process_changes[{i}].kind: {change.kind!r} cannot be simulated in cell "
                                     f"{cell.name!r}")
+        if self.recovery is not None:
+            self.recovery.check_against(cell)
 
 
 def parse_scenario(raw: object, origin: str = "scenario") -> Scenario:
@@ -121,8 +125,9 @@ def parse_scenario(raw: object, origin: str = "scenario") -> Scenario:
         if err["type"] == "extra_forbidden":
             msg = "unknown key"
         elif err["type"] == "union_tag_invalid":
-            known = "fault" if loc.startswith("faults") else "process change"
-            msg = f"unknown {known} kind; known: {err['ctx']['expected_tags']}"
+            known = ("fault kind" if loc.startswith("faults") else "recovery" if loc.startswith("recovery")
+                     else "process change kind")
+            msg = f"unknown {known}; known: {err['ctx']['expected_tags']}"
         elif err["type"].endswith("_type") or err["type"].endswith("_parsing"):
             msg = f"{msg}, got {err['input']!r}"
         raise ScenarioError(f"{origin}: {loc}: {msg}") from None
@@ -153,7 +158,7 @@ def _format_loc(loc: tuple) -> str:
     for part in loc:
         if isinstance(part, int):
             out += f"[{part}]"
-        elif part in FAULTS or part in PROCESS_CHANGES or part in ("str", "list[str]"):
+        elif part in FAULTS or part in PROCESS_CHANGES or part in RECOVERIES or part in ("str", "list[str]"):
             continue  # pydantic's union branch names, not keys the user wrote
         else:
             out += f".{part}" if out else str(part)

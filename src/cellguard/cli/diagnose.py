@@ -78,3 +78,10 @@ def print_diagnosis(d) -> None:
         console.print(f"  {f['cause']}{joints} from cycle {f['cycle']}, confidence {f['confidence']:.2f}", markup=False)
         for line in f["evidence"]:
             console.print(f"    - {line}", markup=False)
+    if data.get("recoveries"):
+        tally: dict[tuple[str, str], int] = {}
+        for r in data["recoveries"]:
+            tally[r["behaviour"], r["outcome"]] = tally.get((r["behaviour"], r["outcome"]), 0) + 1
+        cycles = len({r["cycle"] for r in data["recoveries"]})
+        console.print(f"  recoveries: {len(data['recoveries'])} attempt(s) in {cycles} cycle(s): " + ", ".join(
+            f"{b} {o} {n}" for (b, o), n in sorted(tally.items())), markup=False)

@@ -60,6 +60,10 @@ class EventKind(StrEnum):
     RETREAT_BEGIN = "retreat_begin", True
     RETREAT_DONE = "retreat_done", True
     RETREAT_ABORTED = "retreat_aborted"
+    # recoveries: a behaviour run in place of the policy after a failed check (reason: behaviour, trigger,
+    # attempt; at the end also duration, arrival at contact and outcome: resumed, failed, escalated, gave_up)
+    RECOVERY_START = "recovery_start", True
+    RECOVERY_END = "recovery_end", True
     # the robot link (category: the scenario's realtime.stop_category)
     ROBOT_READ_FAILED = "robot_read_failed"
     ROBOT_READ_TIMEOUT = "robot_read_timeout"

@@ -35,7 +35,7 @@ from cellguard.diagnose.drift import DriftAlarm
 from cellguard.diagnose.feature_kinds import kind_of, member_of
 
 CAUSES = ("fixture_shift", "friction", "servo", "camera_shift", "tool_slip", "policy_latency", "policy_output",
-          "unknown", "load_change", "part_misplaced", "foot_contact")
+          "unknown", "load_change", "part_misplaced", "foot_contact", "recovery")
 SIGNIFICANT_MM = 0.3  # [mm] a geometric change smaller than this is noise at this camera
 CONCURRENT = 2  # [cycles] changes this close together are one episode
 UNCHANGED_Z = 3.0  # |median residual| below this, in baseline scales, reads as "unchanged"

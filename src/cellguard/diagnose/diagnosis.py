@@ -18,6 +18,8 @@ from cellguard.diagnose.cycles import Cycle, as_cycles
 from cellguard.diagnose.drift import DriftConfig, DriftResult, detect_drift
 from cellguard.diagnose.intermittent import find_intermittent, without_outliers
 from cellguard.diagnose.process import ProcessNote, condition, declared
+from cellguard.diagnose.recovery import (advice, advice_lines, attempts_of, fixes, policy_cycles, recovery_finding,
+                                        with_running_again, without_recovery_motion)
 from cellguard.embodiment.profile import SymmetryPair
 from cellguard.errors import RecordError
 
@@ -38,6 +40,9 @@ class Diagnosis:
     asymmetry: Asymmetry | None
     context: Mapping = field(default_factory=dict)
     process: tuple[ProcessNote, ...] = ()  # what was done with each declared process change
+    recoveries: tuple[dict, ...] = ()  # every recovery attempt, with its cycle and outcome
+    fixes: tuple[dict, ...] = ()  # per finding and behaviour: cycles it ran in and fixed (for the site's history)
+    advice: tuple[dict, ...] = ()  # per finding: what fixed the same cause before at this site
 
     def to_dict(self) -> dict:
         """The JSON of DESIGN.md (``cycles`` ... ``safety_events``) plus detail fields."""
@@ -52,6 +57,9 @@ class Diagnosis:
             "changes": [c.to_dict() for c in self.changes],
             "asymmetry": self.asymmetry.to_dict() if self.asymmetry is not None else None,
             "process": [n.to_dict() for n in self.process],
+            "recoveries": list(self.recoveries),
+            "fixes": list(self.fixes),
+            "advice": list(self.advice),
             "monitor": {"cusum_k": self.drift.k, "cusum_h": round(self.drift.threshold, 3),
                         "pooled_k": self.drift.pooled_k, "pooled_h": round(self.drift.pooled_threshold, 3),
                         "mewma_limit": round(self.drift.mewma_threshold, 2), "features": len(self.drift.names),
@@ -61,22 +69,24 @@ class Diagnosis:
 
 def diagnose(rows: Iterable[object], events: Iterable[object] = (), context: Mapping | None = None,
              baseline: Baseline | None = None, symmetry: Sequence[SymmetryPair] = (),
-             config: DriftConfig = DriftConfig()) -> Diagnosis:
+             config: DriftConfig = DriftConfig(), history: Sequence[Mapping] = ()) -> Diagnosis:
     """Diagnose a run from its cycles (any source, see ``as_cycle``), events and context.
 
     ``baseline`` defaults to the acceptance cycles of the same run; pass one to compare with a
-    separate acceptance record. ``symmetry`` enables the mirrored-motion comparison.
+    separate acceptance record. ``symmetry`` enables the mirrored-motion comparison. ``history``:
+    what fixed each cause in this site's other records (rows of ``recovery.fixes``), for advice.
     """
     cycles = as_cycles(rows)
     if baseline is None:
         acceptance = [c for c in cycles if c.phase == "acceptance"]
-        baseline = Baseline.from_cycles(acceptance)
+        baseline = Baseline.from_cycles(policy_cycles(acceptance))
         watched = [c for c in cycles if c.phase != "acceptance"]
     else:
         watched = [c for c in cycles if c.phase != "acceptance"] or list(cycles)
     if not watched:
         raise RecordError("diagnose: the record has no production cycles to compare with the baseline")
     z, notes = condition(baseline, watched, baseline.residuals(watched), declared(context))
+    z = without_recovery_motion(baseline.names, watched, z)
     found = find_intermittent(baseline.names, watched, z)
     drift = detect_drift(baseline, watched, config, residuals=without_outliers(baseline.names, watched, z, found))
     evs = [_event_dict(e) for e in events]
@@ -92,7 +102,15 @@ def diagnose(rows: Iterable[object], events: Iterable[object] = (), context: Map
         findings = _fold_compensation(findings, asym, symmetry)
         if not any(set(f.joints) & set(asym.joints) for f in findings):
             findings.append(_asymmetry_finding(asym, watched[0].index))
+    attempts = attempts_of(evs)
+    late = recovery_finding(cycles, attempts)
+    findings += [late] if late is not None else []
     findings = sorted(_carried_by_the_others(_on_legs(findings, symmetry)), key=lambda f: (f.cycle, f.cause))
+    own = fixes(findings, cycles, attempts)
+    advised = advice(findings, history)
+    lines = advice_lines(advised)
+    findings = [replace(f, evidence=f.evidence + (lines[f.cause, f.cycle],)) if (f.cause, f.cycle) in lines else f
+                for f in with_running_again(findings, own)]
     first = findings[0].cycle if findings else None
     good, faulted = last_good_and_faulted(cycles, first)
     return Diagnosis(
@@ -100,7 +118,8 @@ def diagnose(rows: Iterable[object], events: Iterable[object] = (), context: Map
         changes=tuple(changes(baseline, drift.alarms, good, faulted, watched)),
         last_good_cycle=good.index if good else None, first_faulted_cycle=faulted.index if faulted else None,
         safety_events=tuple(_safety(e) for e in evs if e.get("kind") not in ROUTINE_EVENTS),
-        asymmetry=asym, context=dict(context or {}), process=notes)
+        asymmetry=asym, context=dict(context or {}), process=notes,
+        recoveries=tuple({"cycle": c, **o.to_dict()} for c, o in attempts), fixes=tuple(own), advice=tuple(advised))
 
 
 def _on_legs(findings: list[Finding], pairs: Sequence[SymmetryPair]) -> list[Finding]:

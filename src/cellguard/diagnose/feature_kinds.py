@@ -97,7 +97,9 @@ CELL_FEATURES: dict[str, tuple[FeatureKind, ...]] = {
     "quadruped-turns": COMMON + QUADRUPED,
 }
 _ALL = {k.stem: k for kinds in CELL_FEATURES.values() for k in kinds}
-NOT_MONITORED = frozenset({"cycle"})  # identifiers, not measurements
+# identifiers, not measurements; and what recoveries did (read by the recovery cause, not by drift)
+NOT_MONITORED = frozenset({"cycle", "recoveries", "recoveries_failed", "recovery_resumed", "recovery_s",
+                           "recovery_arrival_s", "recovery_close_s", "after_recovery"})
 
 
 def kind_of(name: str) -> FeatureKind:

@@ -89,7 +89,7 @@ def _flatten(f: dict[str, float], key: str, value, profile: Profile) -> None:
     elif key.endswith("_q") and isinstance(value, list) and len(value) == profile.dof:
         for name, v in zip(profile.joint_names, value):
             f[f"{key}.{name}"] = float(v)
-    elif isinstance(value, list) and len(value) == 3:
+    elif isinstance(value, list) and len(value) == 3 and all(isinstance(v, (int, float)) for v in value):
         stem, unit = key.rsplit("_", 1) if "_" in key else (key, "")
         scale = 1e3 if unit == "m" else 1.0
         unit = "mm" if unit in ("m", "mm") else unit

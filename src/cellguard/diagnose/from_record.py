@@ -11,6 +11,7 @@ from pathlib import Path
 from cellguard.diagnose.baseline import Baseline
 from cellguard.diagnose.cycles import as_cycles
 from cellguard.diagnose.diagnosis import Diagnosis, diagnose
+from cellguard.diagnose.site_history import save_fixes, site_history
 from cellguard.embodiment.profile import SymmetryPair
 from cellguard.errors import CellguardError
 
@@ -20,7 +21,8 @@ BASELINE_FILE = "baseline.json"
 def diagnose_record(folder: Path, acceptance: Path | None = None) -> Diagnosis:
     """Diagnose the record in ``folder``; the baseline comes from ``acceptance`` (another record
     folder) if given, else from ``folder/baseline.json``, else from the record's acceptance
-    cycles, and is then written to ``folder/baseline.json``."""
+    cycles, and is then written to ``folder/baseline.json``. Advice comes from the site's other
+    diagnosed records beside it; what fixed each cause here is written to ``folder/fixes.json``."""
     from cellguard.record.reader import open_record
 
     folder = Path(folder)
@@ -35,8 +37,11 @@ def diagnose_record(folder: Path, acceptance: Path | None = None) -> Diagnosis:
     elif (folder / BASELINE_FILE).is_file():
         baseline = Baseline.load(folder / BASELINE_FILE)
         baseline.check_binding(context, folder / BASELINE_FILE)
+    past = site_history(folder, context.get("site"))
     result = diagnose(cycles, events, {**context, "process": declared}, baseline=baseline,
-                      symmetry=symmetry_of(context))
+                      symmetry=symmetry_of(context), history=past)
+    if folder.is_dir():
+        save_fixes(folder, context, result.fixes)
     if baseline is None and folder.is_dir():
         result.baseline.bind(context).save(folder / BASELINE_FILE)
     return result

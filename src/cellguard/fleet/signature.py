@@ -47,8 +47,8 @@ class Signature:
     policy_version: str | None = None
     calibration_version: str | None = None
     cellguard_version: str | None = None
-    recovery: str | None = None  # none is recorded today: kept for when recovery behaviours exist
-    recovery_outcome: str | None = None
+    recovery: str | None = None  # the behaviour that got the cell running again most often in this finding
+    recovery_outcome: str | None = None  # "success" if it fixed at least one cycle, else "failed"
     schema_version: int = SCHEMA_VERSION
 
     @property
@@ -107,6 +107,8 @@ def signatures_of(diagnosis: Mapping, context: Mapping, tenant_id: str, site_id:
     changes = {c["signal"]: c for c in diagnosis.get("changes", [])}
     out = []
     for f in diagnosis.get("findings", []):
+        tried = sorted((r for r in diagnosis.get("fixes", []) if (r["cause"], r["cycle"]) == (f["cause"], f["cycle"])),
+                       key=lambda r: (-r["fixed"], -r["tried"], r["recovery"]))
         mine = [changes[s] for s in f.get("signals", []) if s in changes]
         effects = {c["signal"]: _effect(c["scales"]) for c in mine if _finite(c["scales"])}
         onset = min((c["onset"] for c in mine), default=f["cycle"])
@@ -117,7 +119,9 @@ def signatures_of(diagnosis: Mapping, context: Mapping, tenant_id: str, site_id:
             cell_type=context.get("cell"), effects=effects, onset_cycle=int(onset),
             detection_delay_cycles=max(0, int(alarm) - int(onset)),
             policy_version=stamps["policy_version"], calibration_version=stamps["calibration_version"],
-            cellguard_version=software.get("cellguard")))
+            cellguard_version=software.get("cellguard"),
+            recovery=tried[0]["recovery"] if tried else None,
+            recovery_outcome=("success" if tried[0]["fixed"] else "failed") if tried else None))
     return out
 
 

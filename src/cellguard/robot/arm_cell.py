@@ -27,6 +27,7 @@ LAYOUT = Layout(
     q_home=(0.0, -0.3, 1.9, 1.55, 0.0, 0.025),
     # Tool-point box the guard keeps the tool in by default [m]: above the table, inside the reach.
     workspace_box=((-0.45, -0.45, 0.005), (0.45, 0.45, 0.55)),
+    ik_joints=("shoulder_pan", "shoulder_lift", "elbow", "wrist_flex"),  # the wrist roll stays as at home
 )
 
 

@@ -14,6 +14,7 @@ position actuator per profiled joint, named as the joint; the gripper is the las
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 
 import mujoco
@@ -21,6 +22,7 @@ import numpy as np
 
 from cellguard.embodiment import Profile
 from cellguard.robot.drives import DrivenCell, PositionDrives
+from cellguard.robot.kinematics import solve_tool_down
 from cellguard.robot.protocol import SafetyInputs
 from cellguard.robot.state import Observation
 
@@ -28,7 +30,7 @@ from cellguard.robot.state import Observation
 CAMERA_ROTATION = np.diag([1.0, -1.0, -1.0])
 FAULT_KINDS = frozenset(
     {"fixture_shift", "friction_growth", "servo_gain", "camera_shift", "tool_slip", "policy_latency", "policy_nan",
-     "friction_step", "intermittent_slip", "part_misplaced"}
+     "friction_step", "intermittent_slip", "part_misplaced", "late_recovery"}
 )
 
 
@@ -51,6 +53,8 @@ class Layout:
     camera_noise: float = 1e-4  # [m] 1-sigma noise of each camera coordinate
     current_noise: float = 0.01  # [A] 1-sigma noise of each motor current reading
     brake_damping: float = 200.0  # [N·m·s/rad] joint damping while the brakes hold (power removed)
+    approach: float = 0.06  # [m] height above a pick or place a recovery comes down from
+    ik_joints: tuple[str, ...] = ()  # joints a recovery's IK moves (the rest stay as at home); () = all but the gripper
 
 
 class PickPlaceCell(DrivenCell):
@@ -58,10 +62,12 @@ class PickPlaceCell(DrivenCell):
 
     name: str
     supported_faults = FAULT_KINDS
+    failure_checks = ("grasp_missed", "place_missed")  # what ``failed_check`` may report
 
     def __init__(self, model: mujoco.MjModel, profile: Profile, layout: Layout, seed: int = 0):
         self.model, self.profile, self.layout = model, profile, layout
         self.data = mujoco.MjData(model)
+        self._taught = copy.deepcopy(model)  # as commissioned: recoveries plan on it, faults never touch it
         self.dt_ns = round(model.opt.timestep * 1e9)
         self.rng = np.random.default_rng(seed)
         m = model
@@ -95,7 +101,7 @@ class PickPlaceCell(DrivenCell):
         mujoco.mj_forward(m, self.data)
         self._cycle_start_ns = 0
         self._left_home = False
-        self._attempt: dict | None = None  # tool pose when the fingers last closed
+        self._attempt: dict | None = None  # tool pose when the fingers first closed this cycle
         self._grasped = False
         self._release_ns: int | None = None
         self._closed = False
@@ -103,6 +109,10 @@ class PickPlaceCell(DrivenCell):
         self.safety_inputs = SafetyInputs()  # the simulated safety controller's outputs; set by scenario or test
         self.tool_site, self.workspace_box = "tcp", layout.workspace_box
         self._fk = mujoco.MjData(m)
+        self._taught_fk = mujoco.MjData(self._taught)
+        self._failed: str | None = None
+        self.approach_height = layout.approach
+        self.gripper_open, self.gripper_shut = float(self.q_home[-1]), 0.5 * layout.gripper_closed
 
     # -- Robot -------------------------------------------------------------------------
     def tool_point(self, q: np.ndarray) -> np.ndarray:
@@ -152,6 +162,7 @@ class PickPlaceCell(DrivenCell):
         self._attempt = None
         self._grasped = False
         self._release_ns = None
+        self._failed = None
 
     def cycle_finished(self) -> bool:
         away = np.abs(self.data.qpos[self._qadr[:-1]] - self.q_home[:-1])
@@ -197,20 +208,27 @@ class PickPlaceCell(DrivenCell):
         if held and opening > self.layout.gripper_released:
             self.data.eq_active[self._grasp_eq] = 0
             self._release_ns = self.t_ns
+            part, drop = self.data.xpos[self._part_body], self.data.site_xpos[self._drop]
+            if float(np.linalg.norm(part[:2] - drop[:2])) >= self.layout.drop_tolerance:
+                self._failed = "place_missed"
         closed = opening < self.layout.gripper_closed
         closing, self._closed = closed and not self._closed, closed
         if closing and not held:
             tcp = self.data.site_xpos[self._tcp]
             offset = self.data.xpos[self._part_body] - tcp
+            if np.linalg.norm(offset[:2]) < self.layout.capture_radius and abs(offset[2]) < self.layout.capture_height:
+                self._grasped = True
+                self._weld_part()
+            else:
+                self._failed = "grasp_missed"
+            if self._attempt is not None:
+                return  # the cycle's first grasp is its geometry; a recovery's retries are the recovery's
             self._attempt = {
                 "grasp_time_s": (self.t_ns - self._cycle_start_ns) * 1e-9,
                 "grasp_tcp_m": tcp.tolist(),
                 "grasp_q": self.data.qpos[self._qadr].tolist(),
                 "grasp_offset_mm": (offset * 1e3).tolist(),  # part centre minus tool point, world frame
             }
-            if np.linalg.norm(offset[:2]) < self.layout.capture_radius and abs(offset[2]) < self.layout.capture_height:
-                self._grasped = True
-                self._weld_part()
 
     def _weld_part(self) -> None:
         """Hold the part where it sits in the hand: weld at the current relative pose."""
@@ -229,6 +247,38 @@ class PickPlaceCell(DrivenCell):
         m.eq_data[self._grasp_eq, 6:10] = rel_quat
         m.eq_data[self._grasp_eq, 10] = 1.0
         d.eq_active[self._grasp_eq] = 1
+
+    # -- Failed checks and what recoveries plan with (the commissioned model, never the faulted one) --------
+    def failed_check(self) -> str | None:
+        """The check that failed since the last call (``grasp_missed``, ``place_missed``), once; else None."""
+        failed, self._failed = self._failed, None
+        return failed
+
+    def reach(self, target: np.ndarray, q0: np.ndarray) -> np.ndarray:
+        """Arm joints (dof-1,) that put the tool point at ``target`` [m], tool down, on the commissioned model."""
+        names = list(self.profile.joint_names[:-1])
+        moved = [names.index(j) for j in (self.layout.ik_joints or names)]
+        arm = self.q_home[:-1].copy()
+        arm[moved] = solve_tool_down(self._taught, "tcp", [names[i] for i in moved],
+                                     np.asarray(target, dtype=np.float64), np.asarray(q0)[moved])
+        return arm
+
+    def tool_taught(self, arm: np.ndarray) -> np.ndarray:
+        """Where the commissioned model puts the tool point (3,) [m] at arm joints ``arm`` (dof-1,)."""
+        self._taught_fk.qpos[self._qadr[:-1]] = arm
+        mujoco.mj_kinematics(self._taught, self._taught_fk)
+        return self._taught_fk.site_xpos[self._tcp].copy()
+
+    def drop_point(self) -> np.ndarray:
+        """Tool point (3,) [m] that sets a held part down on the commissioned drop zone."""
+        mujoco.mj_kinematics(self._taught, self._taught_fk)
+        point = self._taught_fk.site_xpos[self._drop].copy()
+        point[2] = self.layout.part_half + 0.002
+        return point
+
+    def part_seen(self) -> np.ndarray:
+        """The part centre (3,) [m] as the camera sees it now, through the commissioning calibration."""
+        return np.asarray(self._seen(self.data.xpos[self._part_body]))
 
     # -- Faults (absolute settings from the nominal values) --------------------------------
     def set_fixture_offset(self, offset: np.ndarray) -> None:

@@ -35,6 +35,7 @@ from cellguard.runtime.cycles import make_cycle_source
 from cellguard.runtime.history import CycleWindow, EventLog
 from cellguard.runtime.inference import NOMINAL_INFERENCE_S
 from cellguard.runtime.link import RobotLink
+from cellguard.runtime.recovery import RecoveryRunner
 from cellguard.runtime.startup import check_startup
 from cellguard.runtime.transitions import Transition
 from cellguard.scenario import Scenario
@@ -67,6 +68,7 @@ class Run:
                               stale_ns=round(rt.stale_s * 1e9) if self.clock.realtime else None,
                               drop_budget=rt.drop_budget)
         self._period_ns = round(1e9 / scenario.policy_hz)
+        self.recovery = RecoveryRunner(scenario.recovery, self.cell, self.events) if scenario.recovery else None
         self.ticks = CycleBuffer(self.cell.profile.dof, round(CYCLE_TIMEOUT_S * 1e9 / self.cell.dt_ns) + 1)
         self.recording: RunRecording | None = None  # set by run_scenario, fed every tick
         self.stopped: str | None = None  # why the run stopped early, if it did
@@ -96,6 +98,11 @@ class Run:
                 inference.latency_ns = round((NOMINAL_INFERENCE_S + sum(f.extra_latency_s(index)
                                                                         for f in self.scenario.faults)) * 1e9)
             corrupt = any(f.corrupts_output(index) for f in self.scenario.faults)
+            if self.recovery is not None:
+                self.recovery.arm_speed = min((f.recovery_speed(index) for f in self.scenario.faults), default=1.0)
+        recovery = self.recovery
+        if recovery is not None:
+            recovery.begin_cycle()
         self.source.begin(index, clock.now())
         self.policy.reset()
         start = link.read(clock.now()).t_ns if self.simulated else clock.now()
@@ -121,7 +128,12 @@ class Run:
         while True:
             t = clock.now()
             guard = self.guard
-            arrival = inference.take(t)
+            driving = recovery is not None and recovery.drives(t, state, guard.reference)  # in place of the policy
+            arrival = None if driving else inference.take(t)
+            if driving and (chunk := recovery.chunk(t)) is not None:
+                if rec is not None:
+                    rec.chunk(chunk, t, 0)
+                events.extend(guard.push(chunk, t))
             if arrival is not None and arrival.chunk is not None and not self._started:
                 arrival = self._start(arrival)
                 guard = self.guard
@@ -134,7 +146,7 @@ class Run:
             elif arrival is not None:
                 events.append(Event(t, EventKind.INFERENCE_FAILED, arrival.error))
                 wall_ns.append(arrival.wall_ns)
-            if inference.due(t):
+            if not driving and inference.due(t):
                 observation = cell.observe()
                 failed = inference.submit(t, observation)
                 if failed is not None:
@@ -149,6 +161,8 @@ class Run:
                         corrupt = False
             safety = cell.safety()
             stop = self._stop_input(t, guard)
+            if driving and recovery.stop is not None:
+                stop = recovery.stop if stop is None else min(stop, recovery.stop)
             if stop is not None:
                 safety = SafetyInputs(stop if safety.stop is None else min(stop, safety.stop), safety.reduced_speed)
             setpoint, new = guard.tick(t, state, safety)
@@ -172,6 +186,8 @@ class Run:
         t_end = clock.now()
         outcome = {"cycle": index, "phase": self._phase(index), **self.source.end(t_end)}
         outcome["timed_out"] = t_end >= timeout
+        if recovery is not None:
+            outcome.update(recovery.end_cycle(outcome["timed_out"]))
         outcome["inference"] = _wall_latency(wall_ns)
         outcome["features"] = cycle_features(cell.profile, ticks, outcome, latencies, events.since(first_event))
         if rec is not None:

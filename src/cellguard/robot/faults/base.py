@@ -26,6 +26,10 @@ class Fault(BaseModel):
         """Whether the policy's output is corrupted (NaN) once during ``cycle``."""
         return False
 
+    def recovery_speed(self, cycle: int) -> float:
+        """Share of its planned speed a recovery's arm motion runs at during ``cycle``."""
+        return 1.0
+
     def joints(self) -> list[str]:
         """Joints this fault names, checked against the cell's profile before anything runs."""
         return []

@@ -1,0 +1,230 @@
+"""Recoveries in a diagnosis: the ``recovery`` cause, what got the cell running again, and advice.
+
+Read from the record's ``recovery_end`` events (one per attempt, see ``RecoveryOutcome``):
+
+- a recovery that made things worse is a finding of its own, cause ``recovery``: attempts that
+  arrived at their contact pose later than the acceptance recoveries did (or after the gripper
+  was told to shut), attempts repeated without effect, or a cycle after a recovery that failed
+  where others did not;
+- every finding gains what got the cell running again in its cycles (the behaviours that resumed
+  it, with counts);
+- advice: for each finding, the behaviours that fixed the same cause in this site's other records,
+  ranked by success rate, with their counts.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import replace
+from types import MappingProxyType
+
+import numpy as np
+
+from cellguard.control.events import EventKind
+from cellguard.diagnose.cause import Finding
+from cellguard.diagnose.cycles import Cycle
+from cellguard.diagnose.feature_kinds import kind_of
+from cellguard.robot.recovery.outcome import RecoveryOutcome
+
+LATE = 1.25  # an arrival later than this multiple of the acceptance recoveries' median is late
+LATE_MIN_S = 0.1  # [s] and at least this much later
+MIN_LATE = 2  # late attempts before the cause is named
+NEXT_WORSE = 0.5  # the cycle after a recovery fails this much more often than the others
+MIN_BASELINE = 3  # acceptance cycles without a recovery needed to leave the others' motion out of the baseline
+KEPT = frozenset({"success", "grasped", "timed_out"})  # outcome features a recovery cycle still speaks for
+
+
+def _recovered(c: Cycle) -> bool:
+    return c.features.get("recoveries", 0.0) > 0
+
+
+def policy_cycles(acceptance: Sequence[Cycle]) -> list[Cycle]:
+    """The acceptance cycles as the baseline should see them: on a cycle a recovery drove, only its
+    grasp geometry and whether it succeeded (its motion is not the policy's), as long as at least
+    ``MIN_BASELINE`` cycles the policy drove alone describe the motion; else every cycle as it is."""
+    if sum(not _recovered(c) for c in acceptance) < MIN_BASELINE:
+        return list(acceptance)
+    return [replace(c, features=MappingProxyType({k: v for k, v in c.features.items() if _kept(k)}))
+            if _recovered(c) else c for c in acceptance]
+
+
+def _kept(name: str) -> bool:
+    return kind_of(name).family == "geometry" or name in KEPT
+
+
+def without_recovery_motion(names: Sequence[str], cycles: Sequence[Cycle], z: np.ndarray) -> np.ndarray:
+    """``z`` (Shape (cycles, features)) with what a recovery moved set to NaN on cycles that ran one:
+    joints, timing and placement were the recovery's; the grasp geometry (the policy's own first
+    grasp) and whether the cycle succeeded still count."""
+    rows = [i for i, c in enumerate(cycles) if _recovered(c)]
+    if not rows:
+        return z
+    cols = [j for j, n in enumerate(names) if not _kept(n)]
+    z = z.copy()
+    z[np.ix_(rows, cols)] = np.nan
+    return z
+
+
+def attempts_of(events: Sequence[Mapping]) -> list[tuple[int | None, RecoveryOutcome]]:
+    """(cycle, attempt) for every recovery attempt the events record, in order."""
+    out = []
+    for e in events:
+        if e.get("kind") == EventKind.RECOVERY_END:
+            done = RecoveryOutcome.parse(str(e.get("reason", "")))
+            if done is not None:
+                out.append((e.get("cycle"), done))
+    return out
+
+
+def recovery_finding(cycles: Sequence[Cycle], attempts: Sequence[tuple[int | None, RecoveryOutcome]]) -> Finding | None:
+    """The ``recovery`` cause, if recoveries in production arrived late, repeated without effect, or
+    left a failing next cycle; None otherwise."""
+    phase = {c.index: c.phase for c in cycles}
+    acc = [o for c, o in attempts if phase.get(c) == "acceptance"]
+    prod = [(c, o) for c, o in attempts if c is not None and phase.get(c, "production") != "acceptance"]
+    evidence, starts, shares = [], [], []
+    ref = [o.arrival_s for o in acc if o.arrival_s is not None]
+    ref_s = float(np.median(ref)) if ref else None
+    late = [(c, o) for c, o in prod if o.close_s is not None and _late(o, ref_s)]
+    if len(late) >= MIN_LATE:
+        start = late[0][0]
+        since = [o for c, o in prod if c >= start and o.close_s is not None]
+        arrived = [o.arrival_s for _, o in late if o.arrival_s is not None]
+        when = f"{np.median(arrived):.2f} s after they started (median)" if arrived else "never"
+        base = (f"vs {ref_s:.2f} s for the {len(ref)} acceptance recoveries" if ref_s is not None
+                else "(no acceptance recoveries to compare)")
+        evidence.append(f"{len(late)} recovery attempts from cycle {start} on arrived at contact {when} {base}")
+        close = float(np.median([o.close_s for _, o in late]))
+        if not arrived or np.median(arrived) > close:
+            lead = f", {np.median(arrived) - close:.2f} s before the arm arrived" if arrived else ""
+            evidence.append(f"their gripper was told to shut at {close:.2f} s{lead}: the fingers closed above the part")
+        late_cycles = {c for c, _ in late}
+        resumed = {c for c, o in prod if c in late_cycles and o.outcome == "resumed" and o.close_s is not None}
+        acc_cycles = {c for c, o in attempts if phase.get(c) == "acceptance"}
+        acc_resumed = {c for c, o in attempts if c in acc_cycles and o.outcome == "resumed"}
+        evidence.append(f"they picked the part again in {len(resumed)} of {len(late_cycles)} cycles vs "
+                        f"{len(acc_resumed)} of {len(acc_cycles)} at acceptance")
+        evidence.append("the arm ran slower than the recovery's plan while the gripper kept its timing: a speed "
+                        "scaling of the recovery, not the part, the tool or the fixture")
+        starts.append(start)
+        shares.append(len(late) / max(len(since), 1))
+    useless = _without_effect(acc, prod)
+    if useless is not None:
+        evidence.append(useless[1])
+        starts.append(useless[0])
+        shares.append(0.6)
+    worse = _next_cycle(cycles)
+    if worse is not None:
+        evidence.append(worse[1])
+        starts.append(worse[0])
+        shares.append(0.6)
+    if not evidence:
+        return None
+    conf = float(np.clip(0.5 + 0.45 * max(shares), 0.5, 0.95))
+    return Finding("recovery", min(starts), conf, tuple(evidence), ("recovery_arrival_s", "recoveries_failed"))
+
+
+def _late(o: RecoveryOutcome, ref_s: float | None) -> bool:
+    if o.arrival_s is None:
+        return True
+    if o.arrival_s > o.close_s:
+        return True
+    return ref_s is not None and o.arrival_s > max(ref_s * LATE, ref_s + LATE_MIN_S)
+
+
+def _without_effect(acc, prod) -> tuple[int, str] | None:
+    """Production cycles whose recoveries never resumed the cell, where acceptance ones did."""
+    cycles: dict[int, list[RecoveryOutcome]] = {}
+    for c, o in prod:
+        cycles.setdefault(c, []).append(o)
+    stuck = sorted(c for c, os in cycles.items() if len(os) > 1 and not any(o.outcome == "resumed" for o in os))
+    acc_ok = not acc or np.mean([o.outcome in ("resumed", "failed") for o in acc]) >= 0.8
+    if len(stuck) < MIN_LATE or not acc_ok or len(stuck) < 0.5 * len(cycles):
+        return None
+    tries = sum(len(cycles[c]) for c in stuck)
+    return stuck[0], (f"recoveries repeated without effect in {len(stuck)} of {len(cycles)} production cycles "
+                      f"with a recovery ({tries} attempts, none resumed the cell)")
+
+
+def _next_cycle(cycles: Sequence[Cycle]) -> tuple[int, str] | None:
+    """Production cycles right after a recovery fail more often than the others."""
+    prod = [c for c in cycles if c.phase != "acceptance"]
+    after = [c for c in prod if c.features.get("after_recovery", 0.0) > 0]
+    other = [c for c in prod if c.features.get("after_recovery", 0.0) == 0 and not c.features.get("recoveries")]
+    if len(after) < MIN_LATE or not other:
+        return None
+    bad_after = sum(not c.success for c in after) / len(after)
+    bad_other = sum(not c.success for c in other) / len(other)
+    if bad_after - bad_other < NEXT_WORSE:
+        return None
+    first = next(c.index for c in after if not c.success)
+    return first, (f"the cycle after a recovery failed in {sum(not c.success for c in after)} of {len(after)} "
+                   f"vs {bad_other:.0%} of the others: the recovery left the cell worse for the next cycle")
+
+
+def fixes(findings: Sequence[Finding], cycles: Sequence[Cycle],
+          attempts: Sequence[tuple[int | None, RecoveryOutcome]]) -> list[dict]:
+    """Per finding and behaviour: cycles it ran in (``tried``) and those it resumed and that then
+    succeeded (``fixed``). A cycle belongs to the latest finding that started by then."""
+    success = {c.index: c.success for c in cycles}
+    onsets = sorted({f.cycle for f in findings})
+    out = []
+    for f in findings:
+        later = [o for o in onsets if o > f.cycle]
+        end = later[0] if later else None
+        ran: dict[str, dict[int, bool]] = {}
+        for c, o in attempts:
+            if c is None or c < f.cycle or (end is not None and c >= end):
+                continue
+            ok = o.outcome == "resumed" and success.get(c, False)
+            ran.setdefault(o.behaviour, {})[c] = ran.get(o.behaviour, {}).get(c, False) or ok
+        for behaviour, by_cycle in sorted(ran.items()):
+            out.append({"cause": f.cause, "cycle": f.cycle, "recovery": behaviour, "tried": len(by_cycle),
+                        "fixed": sum(by_cycle.values())})
+    return out
+
+
+def with_running_again(findings: Sequence[Finding], own: Sequence[dict]) -> list[Finding]:
+    """Each finding with a line saying what got the cell running again in its cycles."""
+    out = []
+    for f in findings:
+        mine = [r for r in own if r["cause"] == f.cause and r["cycle"] == f.cycle]
+        if not mine:
+            out.append(f)
+            continue
+        fixed = [r for r in mine if r["fixed"]]
+        line = ("what got the cell running again: " + ", ".join(
+            f"{r['recovery']} ({r['fixed']} of {r['tried']} cycles)" for r in fixed) if fixed else
+            "no recovery got the cell running again (" + ", ".join(
+                f"{r['recovery']} tried in {r['tried']} cycles" for r in mine) + ")")
+        out.append(replace(f, evidence=f.evidence + (line,)))
+    return out
+
+
+def advice(findings: Sequence[Finding], history: Sequence[Mapping]) -> list[dict]:
+    """For each finding, the behaviours that fixed the same cause in ``history`` (rows of ``fixes``
+    from this site's other records, each with its ``record``), best success rate first."""
+    out = []
+    for f in findings:
+        pooled: dict[str, dict] = {}
+        for row in history:
+            if row.get("cause") != f.cause:
+                continue
+            p = pooled.setdefault(row["recovery"], {"recovery": row["recovery"], "fixed": 0, "tried": 0,
+                                                      "records": set(), "scope": "site"})
+            p["fixed"] += int(row["fixed"])
+            p["tried"] += int(row["tried"])
+            p["records"].add(row.get("record", ""))
+        ranked = sorted(pooled.values(), key=lambda p: (-p["fixed"] / max(p["tried"], 1), -p["fixed"], p["recovery"]))
+        if ranked:
+            out.append({"cause": f.cause, "cycle": f.cycle, "recoveries": [
+                {**p, "records": len(p["records"]), "success_rate": round(p["fixed"] / max(p["tried"], 1), 3)}
+                for p in ranked]})
+    return out
+
+
+def advice_lines(advised: Sequence[Mapping]) -> dict[tuple[str, int], str]:
+    """(cause, cycle) -> one line of advice, for the text and the report."""
+    return {(a["cause"], a["cycle"]): "seen before at this site: " + ", ".join(
+        f"{r['recovery']} fixed it in {r['fixed']} of {r['tried']} cycles ({r['records']} record(s))"
+        for r in a["recoveries"]) for a in advised}

@@ -1,0 +1,25 @@
+"""Retry the grasp with a search offset: each attempt shifts the pick by ``search_mm`` along the next
+direction of a fixed pattern (+x, -x, +y, -y) around where the gripper closed, then finishes the cycle.
+
+For a gripper or tool that sits off where the kinematics say (a slip): the cell cannot measure the
+slip, so it searches.
+"""
+
+from typing import Literal
+
+import numpy as np
+from pydantic import Field
+
+from cellguard.robot.recovery.base import Plan, Recovery, pick_and_finish
+
+PATTERN = np.array([[1.0, 0.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, -1.0, 0.0]])
+
+
+class RetryGrasp(Recovery):
+    do: Literal["retry_grasp"]
+    needs = ("reach", "tool_taught", "drop_point")
+    search_mm: float = Field(default=4.0, gt=0.0, le=20.0, description="search step of each attempt [mm]")
+
+    def plan(self, cell, q: np.ndarray, attempt: int, origin: np.ndarray) -> Plan:
+        offset = PATTERN[(attempt - 1) % len(PATTERN)] * self.search_mm * 1e-3
+        return pick_and_finish(cell, q, cell.tool_taught(origin[:-1]) + offset, self.speed_scale)

@@ -1,0 +1,175 @@
+"""Recoveries in the loop: when the cell reports a failed check, the scenario's recovery behaviour
+drives the cell in place of the policy, through the same guard (chunks in, envelope on every tick).
+
+Each attempt is a ``recovery_start`` / ``recovery_end`` event pair; the end says how long it took,
+when the arm arrived at its contact pose (measured) against when the gripper was told to shut, and
+the outcome: ``resumed`` (its plan ran out with no failed check: the cell carries on), ``failed``
+(another attempt follows), ``escalated`` (its ``then`` follows), ``gave_up`` (nothing left, or the
+per-cycle limit: the cell goes home), ``cut_off`` (the cycle ended first). Once a recovery has
+started it drives the cell to the end of the cycle. A failed check during an attempt ends it once
+the arm has reached its contact pose (or the plan has passed it): a controller finishes the move in
+progress before it reacts.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from cellguard.control.events import Event, EventKind
+from cellguard.policy.chunk import ActionChunk
+from cellguard.robot.recovery import Plan, RecoveryPolicy
+from cellguard.robot.recovery.base import go_home
+from cellguard.robot.recovery.outcome import RecoveryOutcome
+
+ARRIVE_TOL = 0.01  # [rad or m] every arm joint this close to the contact pose: the tool has arrived
+WAIT_S = 0.3  # [s] of plan time past the close that a failed attempt waits for the arm to arrive
+STEPS, STEP_NS = 25, 20_000_000  # chunks of 25 steps of 20 ms, as the taught program's
+
+
+@dataclass
+class _Attempt:
+    behaviour: object
+    trigger: str
+    attempt: int
+    plan: Plan
+    t0: int
+    arrival_ns: int | None = None
+    failed_ns: int | None = None
+    reset_ns: int | None = None  # an operator hand-over: when the operator reset the cell
+    left: bool = False  # the arm has been away from the contact pose (an arrival counts only after)
+
+
+class RecoveryRunner:
+    """Starts, watches and ends recoveries for one run; ``arm_speed`` is set per cycle (a fault's override)."""
+
+    def __init__(self, policy: RecoveryPolicy, cell, events):
+        policy.check_against(cell)
+        self.policy, self.cell, self.events = policy, cell, events
+        self._failed_check = getattr(cell, "failed_check", lambda: None)  # a robot without checks never triggers
+        self.arm_speed = 1.0
+        self._log: list[dict] = []
+        self.begin_cycle()
+
+    def begin_cycle(self) -> None:
+        self._previous = len(self._log)  # recoveries of the cycle before: the next cycle's context
+        self._active: _Attempt | None = None
+        self._tail: tuple[Plan, int] | None = None  # after a recovery: its plan's end, or home, held
+        self._next_chunk = 0
+        self._log: list[dict] = []
+        self._origin: np.ndarray | None = None  # the reference when the cycle's first check failed
+        self._now = 0
+
+    @property
+    def stop(self) -> int | None:
+        """Category 2 while an operator hand-over holds the cell (power kept)."""
+        a = self._active
+        return 2 if a is not None and a.plan.hold_s and self._now - a.t0 < a.plan.hold_s * 1e9 else None
+
+    def drives(self, t: int, state, reference: np.ndarray) -> bool:
+        """Once per tick: True while a recovery drives the cell (from a failed check to the cycle's end)."""
+        self._now = t
+        failed = self._failed_check()
+        a = self._active
+        if a is None:
+            if self._tail is not None:
+                return True
+            behaviour = self.policy.for_trigger(failed) if failed else None
+            if behaviour is None:
+                return False
+            self._origin = np.array(reference, dtype=np.float64)
+            self._begin(behaviour, failed, 1, t, reference)
+            return True
+        if a.plan.hold_s and a.reset_ns is None and t - a.t0 >= a.plan.hold_s * 1e9:
+            a.reset_ns = t
+            self.events.append(Event(t, EventKind.RESET, f"operator reset after the hand-over ({a.trigger})"))
+        if a.plan.contact_q is not None and a.arrival_ns is None:
+            near = float(np.abs(state.q[:-1] - a.plan.contact_q).max()) < ARRIVE_TOL
+            a.left = a.left or not near
+            if near and a.left:
+                a.arrival_ns = t
+        if failed and a.failed_ns is None:
+            a.failed_ns = t
+        if a.failed_ns is not None:
+            passed = a.plan.close_t is None or (t - a.t0) * 1e-9 * self.arm_speed > a.plan.close_t + WAIT_S
+            if a.arrival_ns is not None or passed:
+                self._after_failure(a, t, reference)
+        elif t - a.t0 >= a.plan.duration(self.arm_speed) * 1e9:
+            self._end(a, t, "resumed")
+            self._active, self._tail = None, (a.plan, a.t0)
+        return True
+
+    def chunk(self, t: int) -> ActionChunk | None:
+        """The next chunk of the recovery driving the cell, once per policy period; else None."""
+        if t < self._next_chunk:
+            return None
+        self._next_chunk = t + STEP_NS
+        plan, t0 = (self._active.plan, self._active.t0) if self._active is not None else self._tail
+        times = (t - t0 + (np.arange(STEPS) + 1) * STEP_NS) * 1e-9
+        return ActionChunk(plan.sample(times, self.arm_speed), t, STEP_NS)
+
+    def end_cycle(self, timed_out: bool) -> dict:
+        """The cycle's recovery outcome fields (flat, SI) and its log. An attempt still running when the
+        cycle ended at home with no failed check resumed the cell; one cut off by the time-out did not."""
+        a = self._active
+        if a is not None:
+            self._end(a, self._now, "cut_off" if timed_out or a.failed_ns is not None else "resumed")
+            self._active = None
+        log = self._log
+        arrivals = [r["arrival_s"] for r in log if r.get("arrival_s") is not None]
+        closes = [r["close_s"] for r in log if r.get("close_s") is not None]
+        out = {"recoveries": len(log), "recoveries_failed": sum(r["outcome"] != "resumed" for r in log),
+               "recovery_resumed": float(any(r["outcome"] == "resumed" for r in log)),
+               "recovery_s": float(sum(r["duration_s"] for r in log)), "after_recovery": float(self._previous > 0)}
+        if arrivals:
+            out["recovery_arrival_s"] = float(np.max(arrivals))
+        if closes:
+            out["recovery_close_s"] = float(np.min(closes))
+        if log:
+            out["recovery_log"] = log
+        return out
+
+    # -- attempts -----------------------------------------------------------------------------------
+    def _begin(self, behaviour, trigger: str, attempt: int, t: int, reference: np.ndarray) -> None:
+        limit = self.policy.max_per_cycle
+        if limit is not None and len(self._log) >= limit:
+            self._give_up(t, reference, f"the limit of {limit} recoveries per cycle")
+            return
+        try:
+            plan = behaviour.plan(self.cell, np.asarray(reference, dtype=np.float64), attempt, self._origin)
+        except ValueError as exc:  # a search offset the arm cannot reach
+            self.events.append(Event(t, EventKind.RECOVERY_END, f"{behaviour.do}: attempt {attempt} cannot be "
+                                     f"planned ({exc})"))
+            self._give_up(t, reference, "a plan the arm cannot reach")
+            return
+        self._active = _Attempt(behaviour, trigger, attempt, plan, t)
+        self._next_chunk = t
+        self.events.append(Event(t, EventKind.RECOVERY_START, f"{behaviour.do}: attempt {attempt} of "
+                                 f"{behaviour.attempts} after {trigger}"))
+
+    def _after_failure(self, a: _Attempt, t: int, reference: np.ndarray) -> None:
+        b = a.behaviour
+        if a.attempt < b.attempts:
+            self._end(a, t, "failed")
+            self._begin(b, a.trigger, a.attempt + 1, t, reference)
+        elif b.then is not None:
+            self._end(a, t, "escalated")
+            self._begin(self.policy.behaviour(b.then), f"escalation from {b.do}", 1, t, reference)
+        else:
+            self._end(a, t, "gave_up")
+            self._give_up(t, reference, f"{b.do} failed {b.attempts} time(s)")
+
+    def _give_up(self, t: int, reference: np.ndarray, why: str) -> None:
+        """Nothing left to try: the cell goes home and the cycle ends failed."""
+        self._active = None
+        self._tail = (go_home(self.cell, np.asarray(reference, dtype=np.float64), 1.0), t)
+        self.events.append(Event(t, EventKind.RECOVERY_END, f"no recovery left ({why}): home, the cycle fails"))
+
+    def _end(self, a: _Attempt, t: int, outcome: str) -> None:
+        arrival = (a.arrival_ns - a.t0) * 1e-9 if a.arrival_ns is not None and a.plan.close_t is not None else None
+        done = RecoveryOutcome(a.behaviour.do, a.trigger, a.attempt, outcome, round((t - a.t0) * 1e-9, 3),
+                               None if arrival is None else round(arrival, 3), a.plan.close_t)
+        self._log.append(done.to_dict())
+        self.events.append(Event(t, EventKind.RECOVERY_END, done.reason()))
+        self._active = None
