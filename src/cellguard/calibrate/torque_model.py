@@ -1,0 +1,132 @@
+"""The joint torque a cell's model needs for a measured motion: nominal, or with identified parameters.
+
+``tau = ID_rigid(q, qd, qdd) + (armature + dt (kv + damping)) qdd + damping qd + friction sign(qd)``
+per hinge joint, the rigid part from ``mj_inverse`` on the model with armature, damping, dry friction
+and constraints removed (a payload, when identified, added to the tool body's mass). ``qdd`` is the
+finite difference of measured velocity over one servo step, as the implicit integrator sees it (it
+adds ``dt (kv + damping)`` to the effective inertia). The same formula is what ``identify`` fits, so
+a prediction uses the fit's own terms. Measured torque is current x torque constant.
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+MIN_SPEED = 0.05  # below this speed dry friction is set-valued: such samples are not compared [rad/s]
+
+
+def hinge_joints(cell) -> list[int]:
+    """Profile indices of the joints a dynamic model covers (hinges; grippers and slides are left out)."""
+    return [i for i, j in enumerate(cell.profile.joints) if j.kind == "hinge"]
+
+
+def rigid_model(model: mujoco.MjModel, payload_kg: float = 0.0) -> mujoco.MjModel:
+    """``model`` with only rigid-body dynamics left (no armature, damping, dry friction, constraints);
+    ``payload_kg`` added at the ``tool`` body's centre of mass."""
+    rigid = copy.deepcopy(model)
+    rigid.dof_armature[:] = 0.0
+    rigid.dof_damping[:] = 0.0
+    rigid.dof_frictionloss[:] = 0.0
+    rigid.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONSTRAINT
+    if payload_kg:
+        rigid.body_mass[mujoco.mj_name2id(rigid, mujoco.mjtObj.mjOBJ_BODY, "tool")] += payload_kg
+    return rigid
+
+
+def inverse_torques(rigid: mujoco.MjModel, cell, q: np.ndarray, qd: np.ndarray, dt: float) -> np.ndarray:
+    """Rigid-body torques (n-1, hinge joints) [N*m] at each step's start state (q, qd (n, dof)) and the
+    acceleration over the step. The rest of the model (tool, part, a base on its stand) stays where the
+    cell holds it, at rest."""
+    joints = hinge_joints(cell)
+    qadr, dadr = cell.drives.qadr, cell.drives.dadr
+    d = mujoco.MjData(rigid)
+    d.qpos[:] = cell.data.qpos
+    acc = np.diff(qd, axis=0) / dt
+    tau = np.empty((len(q) - 1, len(joints)))
+    out = dadr[joints]
+    for k in range(len(q) - 1):
+        d.qpos[qadr] = q[k]
+        d.qvel[:] = 0.0
+        d.qvel[dadr] = qd[k]
+        d.qacc[:] = 0.0
+        d.qacc[dadr] = acc[k]
+        mujoco.mj_inverse(rigid, d)
+        tau[k] = d.qfrc_inverse[out]
+    return tau
+
+
+@dataclass(frozen=True)
+class JointTerms:
+    """Per hinge joint (nj,): armature [kg*m^2], damping [N*m*s/rad], dry friction [N*m]; payload [kg]."""
+
+    armature: np.ndarray
+    damping: np.ndarray
+    friction: np.ndarray
+    payload_kg: float = 0.0
+
+    @classmethod
+    def nominal(cls, cell) -> JointTerms:
+        dadr = cell.drives.dadr[hinge_joints(cell)]
+        m = cell.model
+        return cls(m.dof_armature[dadr].copy(), m.dof_damping[dadr].copy(), m.dof_frictionloss[dadr].copy())
+
+    @classmethod
+    def from_estimates(cls, cell, estimates: list[dict]) -> JointTerms:
+        """The nominal terms with every identified value of ``estimates`` (identify's rows) put in."""
+        base = cls.nominal(cell)
+        names = [cell.profile.joint_names[i] for i in hinge_joints(cell)]
+        arrays = {"armature": base.armature.copy(), "damping": base.damping.copy(), "friction": base.friction.copy()}
+        payload = 0.0
+        for e in estimates:
+            if e.get("interval") is None:
+                continue
+            if e["parameter"] in arrays and e["joint"] in names:
+                arrays[e["parameter"]][names.index(e["joint"])] = e["value"]
+            elif e["parameter"] == "payload":
+                payload = float(e["value"])
+        return cls(payload_kg=payload, **arrays)
+
+
+class TorqueModel:
+    """Predicts the measured joint torque of ``cell``'s hinge joints for a measured motion."""
+
+    def __init__(self, cell, terms: JointTerms | None = None):
+        self.cell = cell
+        self.terms = terms if terms is not None else JointTerms.nominal(cell)
+        self.joints = hinge_joints(cell)
+        self.names = tuple(cell.profile.joint_names[i] for i in self.joints)
+        self.dt = float(cell.model.opt.timestep)
+        self.rigid = rigid_model(cell.model, self.terms.payload_kg)
+        act = cell.drives.act[self.joints]
+        kv = -cell.model.actuator_biasprm[act, 2]
+        self.inertia = self.terms.armature + self.dt * (kv + self.terms.damping)  # effective, per step
+        self.torque_constant = cell.profile.array("torque_constant")[self.joints]
+
+    def torque(self, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
+        """Torque (n-1, nj) [N*m] the model needs over each step of the measured q, qd (n, dof)."""
+        j = self.joints
+        acc = np.diff(qd[:, j], axis=0) / self.dt
+        v = qd[:-1, j]
+        t = self.terms
+        return (inverse_torques(self.rigid, self.cell, q, qd, self.dt) + self.inertia * acc + t.damping * v
+                + t.friction * np.sign(v))
+
+    def current(self, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
+        """Motor current (n-1, nj) [A] the model predicts: torque / torque constant."""
+        return self.torque(q, qd) / self.torque_constant
+
+
+def nrmse(predicted: np.ndarray, measured: np.ndarray, qd: np.ndarray) -> np.ndarray:
+    """Per joint (nj,): RMS of the prediction error over the standard deviation of the measurement,
+    over samples where the joint moves faster than ``MIN_SPEED`` (arrays (n, nj))."""
+    out = np.full(measured.shape[1], np.nan)
+    for k in range(measured.shape[1]):
+        moving = np.abs(qd[:, k]) > MIN_SPEED
+        if moving.sum() > 10:
+            m = measured[moving, k]
+            out[k] = np.sqrt(np.mean((predicted[moving, k] - m) ** 2)) / max(float(np.std(m)), 1e-12)
+    return out
