@@ -125,8 +125,9 @@ def record_robot(path: Path) -> str:
     return robot
 
 
-def load_segments(paths: list[Path], cell) -> list[Segment]:
-    """Each record's full-rate ticks, checked to be of ``cell``'s robot and to carry motor current."""
+def load_segments(paths: list[Path], cell, cycle: int | None = None) -> list[Segment]:
+    """Each record's full-rate ticks (of ``cycle`` only, if given), checked to be of ``cell``'s robot and
+    to carry motor current; split where a tick is missing."""
     from cellguard.record.reader import open_record
 
     segments = []
@@ -135,7 +136,7 @@ def load_segments(paths: list[Path], cell) -> list[Segment]:
             robot = rec.context.get("cell")
             if robot != cell.name:
                 raise CalibrationError(f"{path}: a record of robot {robot!r}; the model is {cell.name!r}")
-            ticks = rec.ticks(rate="all")
+            ticks = rec.ticks(cycle=cycle, rate="all")
             record_id = rec.record_id or str(path)
             on_stand = rec.context.get("mount") == "stand"
         if tuple(ticks.joints) != tuple(cell.profile.joint_names):
