@@ -38,25 +38,27 @@ def rigid_model(model: mujoco.MjModel, payload_kg: float = 0.0) -> mujoco.MjMode
     return rigid
 
 
-def inverse_torques(rigid: mujoco.MjModel, cell, q: np.ndarray, qd: np.ndarray, dt: float) -> np.ndarray:
+def inverse_torques(rigid: mujoco.MjModel, cell, q: np.ndarray, qd: np.ndarray, dt: float,
+                    steps: np.ndarray | None = None) -> np.ndarray:
     """Rigid-body torques (n-1, hinge joints) [N*m] at each step's start state (q, qd (n, dof)) and the
-    acceleration over the step. The rest of the model (tool, part, a base on its stand) stays where the
-    cell holds it, at rest."""
+    acceleration over the step; only at ``steps`` (indices into the n-1 steps) if given. The rest of the
+    model (tool, part, a base on its stand) stays where the cell holds it, at rest."""
     joints = hinge_joints(cell)
     qadr, dadr = cell.drives.qadr, cell.drives.dadr
     d = mujoco.MjData(rigid)
     d.qpos[:] = cell.data.qpos
     acc = np.diff(qd, axis=0) / dt
-    tau = np.empty((len(q) - 1, len(joints)))
+    steps = np.arange(len(q) - 1) if steps is None else steps
+    tau = np.empty((len(steps), len(joints)))
     out = dadr[joints]
-    for k in range(len(q) - 1):
+    for i, k in enumerate(steps):
         d.qpos[qadr] = q[k]
         d.qvel[:] = 0.0
         d.qvel[dadr] = qd[k]
         d.qacc[:] = 0.0
         d.qacc[dadr] = acc[k]
         mujoco.mj_inverse(rigid, d)
-        tau[k] = d.qfrc_inverse[out]
+        tau[i] = d.qfrc_inverse[out]
     return tau
 
 
@@ -107,14 +109,16 @@ class TorqueModel:
         self.inertia = self.terms.armature + self.dt * (kv + self.terms.damping)  # effective, per step
         self.torque_constant = cell.profile.array("torque_constant")[self.joints]
 
-    def torque(self, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
-        """Torque (n-1, nj) [N*m] the model needs over each step of the measured q, qd (n, dof)."""
+    def torque(self, q: np.ndarray, qd: np.ndarray, steps: np.ndarray | None = None) -> np.ndarray:
+        """Torque (n-1, nj) [N*m] the model needs over each step of the measured q, qd (n, dof); only at
+        ``steps`` (indices into the n-1 steps) if given."""
         j = self.joints
-        acc = np.diff(qd[:, j], axis=0) / self.dt
-        v = qd[:-1, j]
+        steps = np.arange(len(q) - 1) if steps is None else steps
+        acc = (qd[steps + 1][:, j] - qd[steps][:, j]) / self.dt
+        v = qd[steps][:, j]
         t = self.terms
-        return (inverse_torques(self.rigid, self.cell, q, qd, self.dt) + self.inertia * acc + t.damping * v
-                + t.friction * np.sign(v))
+        return (inverse_torques(self.rigid, self.cell, q, qd, self.dt, steps) + self.inertia * acc
+                + t.damping * v + t.friction * np.sign(v))
 
     def current(self, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
         """Motor current (n-1, nj) [A] the model predicts: torque / torque constant."""
