@@ -100,6 +100,63 @@ def parse_params(text: str | None, cell) -> tuple[str, ...]:
     return names
 
 
+ONLY = ("friction", "damping", "armature")  # what ``--only JOINT,PARAM`` re-fits
+
+
+def parse_only(items: list[str], cell) -> list[tuple[str, str]]:
+    """``["elbow,friction"]`` -> [(joint, parameter)], each a hinge joint of ``cell`` and one of ``ONLY``."""
+    joints = [cell.profile.joint_names[i] for i in hinge_joints(cell)]
+    pairs = []
+    for item in items:
+        parts = [p.strip() for p in item.split(",")]
+        if len(parts) != 2:
+            raise CalibrationError(f"--only: {item!r} is not JOINT,PARAM (e.g. elbow,friction)")
+        joint, param = parts
+        if joint not in joints:
+            raise CalibrationError(f"--only: {joint!r} is not a joint of the {cell.name} model; allowed: "
+                                   f"{', '.join(joints)}")
+        if param not in ONLY:
+            raise CalibrationError(f"--only: {param!r} cannot be re-fitted alone; allowed: {', '.join(ONLY)}")
+        pairs.append((joint, param))
+    return pairs
+
+
+def refit(segments: list[Segment], cell, pairs: list[tuple[str, str]], terms) -> dict:
+    """Re-fit just ``pairs`` (joint, parameter), every other term held at ``terms`` (a ``JointTerms``): the
+    residual of that model regressed on the parameter's own column. One column is excited by far less
+    motion than all of them together, so production cycles usually do."""
+    from cellguard.calibrate.torque_model import TorqueModel
+
+    if floating_base(cell) and not all(s.on_stand for s in segments):
+        raise CalibrationError(f"--only: {cell.name}'s base moved freely in these records; re-fit from a record "
+                               f"taken on a stand (`cellguard excite {cell.name} --stand`)")
+    model = TorqueModel(cell, terms)
+    current = {"friction": terms.friction, "damping": terms.damping, "armature": terms.armature}
+    estimates = []
+    for joint, param in pairs:
+        k = model.names.index(joint)
+        i = model.joints[k]
+        xs, ys = [], []
+        for s in segments:
+            v = s.qd[:-1, i]
+            moving = np.abs(v) > MIN_SPEED
+            column = {"friction": np.sign(v), "damping": v, "armature": np.diff(s.qd[:, i]) / model.dt}[param]
+            xs.append(column[moving])
+            ys.append((s.tau[1:, i] - model.torque(s.q, s.qd)[:, k])[moving])
+        x, y = np.concatenate(xs)[:, None], np.concatenate(ys)
+        if len(y) < 100:
+            raise CalibrationError(f"--only {joint},{param}: {joint} moves faster than {MIN_SPEED} rad/s in only "
+                                   f"{len(y)} ticks of these records; record more cycles at full rate")
+        beta, half, _ = _ols(x, y)
+        value = float(current[param][k] + beta[0])
+        nominal = float(_nominal(cell.model, param, cell.drives.dadr[i]))
+        estimates.append(_estimate(param, joint, value, float(half[0]), nominal).to_dict())
+    return {"robot": cell.name, "records": sorted({s.record_id for s in segments}),
+            "samples": int(sum(len(s.q) for s in segments)),
+            "method": "re-fit of one term on the residual of the profile's model (mj_inverse)",
+            "estimates": estimates, "warnings": []}
+
+
 def floating_base(cell) -> bool:
     """Whether a free joint sits above a profiled joint: inverse dynamics then needs the base's motion
     and the foot forces, which a record does not carry, unless the base was held on a stand."""

@@ -24,8 +24,8 @@ from cellguard.calibrate.identify import CalibrationError
 from cellguard.calibrate.torque_model import JointTerms, hinge_joints
 
 VARIED = ("friction", "damping", "armature")
-GRID = 7  # factors tried across the range before the bounded search
-XTOL = 0.005  # the search stops when the factor is known to this [1]
+GRID = 5  # factors tried across the range before the bounded search
+XTOL = 0.01  # the search stops when the factor is known to this [1]
 _VARY = re.compile(r"^(?P<param>\w+):(?P<joint>\w+)=(?P<low>[0-9.]+)\.\.(?P<high>[0-9.]+)$")
 
 
@@ -108,19 +108,6 @@ def load_cycle(path: Path, cycle: int) -> RecordedCycle:
                          chunks, scenario.get("guard") or {})
 
 
-def terms_from_profile(cell, profile_path: Path | None) -> JointTerms:
-    """The calibrated joint terms: the profile's measured friction, damping and armature over the nominal."""
-    from cellguard.embodiment import load_profile
-
-    profile = load_profile(cell.model, profile_path) if profile_path is not None else cell.profile
-    if profile.robot != cell.profile.robot:
-        raise CalibrationError(f"--profile: {profile_path} is a profile of robot {profile.robot!r}; the record is of "
-                               f"{cell.profile.robot!r}")
-    rows = [{"parameter": m.parameter, "joint": m.joint, "value": m.value, "interval": [m.value, m.value]}
-            for m in profile.measured if m.parameter in VARIED]
-    return JointTerms.from_estimates(cell, rows)
-
-
 def simulate(rc: RecordedCycle, terms: JointTerms, vary: Vary | None = None, factor: float = 1.0) -> Trajectory:
     """Run ``rc``'s chunks through a fresh guard into the cell with ``terms`` (``vary``'s term x ``factor``)."""
     from cellguard.control.settings import build_guard
@@ -185,7 +172,7 @@ def mismatch(rc: RecordedCycle, sim: Trajectory, joints: list[int]) -> dict:
     spread = np.maximum(np.std(rc.ticks.current[:, joints], axis=0), 1e-9)
     pos = np.sqrt(np.mean((sim.q[:, joints] - rc.ticks.q[:, joints]) ** 2, axis=0))
     cmd = np.abs(sim.q_cmd[:, joints] - rc.ticks.q_cmd[:, joints]).max(axis=0)
-    return {"current_nrmse": (cur / spread).tolist(), "position_rms": pos.tolist(), "setpoint_max_gap": cmd.tolist(),
+    return {"joints": [rc.joints[j] for j in joints], "current_nrmse": (cur / spread).tolist(), "position_rms": pos.tolist(), "setpoint_max_gap": cmd.tolist(),
             "cost": float(np.mean(cur / spread))}
 
 
@@ -220,7 +207,7 @@ def replay(path: Path, cycle: int, model: str = "calibrated", profile: Path | No
     cell = make_cell(rc.cell, seed=rc.seed)
     if tuple(cell.profile.joint_names) != rc.joints:
         raise CalibrationError(f"{path}: joints {list(rc.joints)}; the {rc.cell} model has {list(cell.profile.joint_names)}")
-    terms = terms_from_profile(cell, profile) if model == "calibrated" else JointTerms.nominal(cell)
+    terms = JointTerms.from_profile(cell, profile) if model == "calibrated" else JointTerms.nominal(cell)
     joints = hinge_joints(cell)
     v = parse_vary(vary, cell) if vary is not None else None
     if v is None:

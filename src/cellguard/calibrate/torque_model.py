@@ -94,6 +94,22 @@ class JointTerms:
         return cls(payload_kg=payload, **arrays)
 
 
+    @classmethod
+    def from_profile(cls, cell, path=None) -> JointTerms:
+        """The calibrated terms: the measured friction, damping and armature of the profile at ``path``
+        (``identify --write``'s; default the cell's own) over the nominal model."""
+        from cellguard.calibrate.identify import CalibrationError
+        from cellguard.embodiment import load_profile
+
+        profile = load_profile(cell.model, path) if path is not None else cell.profile
+        if profile.robot != cell.profile.robot:
+            raise CalibrationError(f"--profile: {path} is a profile of robot {profile.robot!r}; the model is of "
+                                   f"{cell.profile.robot!r}")
+        rows = [{"parameter": m.parameter, "joint": m.joint, "value": m.value, "interval": [m.value, m.value]}
+                for m in profile.measured if m.parameter in ("friction", "damping", "armature")]
+        return cls.from_estimates(cell, rows)
+
+
 class TorqueModel:
     """Predicts the measured joint torque of ``cell``'s hinge joints for a measured motion."""
 

@@ -18,6 +18,7 @@ from cellguard.diagnose.cycles import Cycle, as_cycles
 from cellguard.diagnose.drift import DriftConfig, DriftResult, detect_drift
 from cellguard.diagnose.intermittent import find_intermittent, without_outliers
 from cellguard.diagnose.process import ProcessNote, condition, declared
+from cellguard.diagnose.residual import residual_alarms, with_residual
 from cellguard.embodiment.profile import SymmetryPair
 from cellguard.errors import RecordError
 
@@ -67,6 +68,7 @@ def diagnose(rows: Iterable[object], events: Iterable[object] = (), context: Map
     ``baseline`` defaults to the acceptance cycles of the same run; pass one to compare with a
     separate acceptance record. ``symmetry`` enables the mirrored-motion comparison.
     """
+    rows = list(rows)
     cycles = as_cycles(rows)
     if baseline is None:
         acceptance = [c for c in cycles if c.phase == "acceptance"]
@@ -87,6 +89,7 @@ def diagnose(rows: Iterable[object], events: Iterable[object] = (), context: Map
     rejected = _rejections(watched, evs)
     findings = list(name_causes(baseline, watched, drift.z, drift.alarms, rejected))
     findings += [intermittent_finding(baseline, watched, z, f) for f in found]
+    findings = with_residual(findings, residual_alarms(rows))  # the calibration's residual monitor, if it ran
     asym = mirrored_asymmetry(watched, symmetry)
     if asym is not None and asym.side:
         findings = _fold_compensation(findings, asym, symmetry)
