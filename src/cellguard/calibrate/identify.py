@@ -259,28 +259,39 @@ def _nominal(model: mujoco.MjModel, parameter: str, dof: int) -> float:
 
 
 def _drive_fit(segments, model, act, joints) -> tuple[int, list[tuple[float, float]]]:
-    """(delay in ticks, [(kp, 95 % half width)] per joint) from effort = kp (cmd(k - lag) - q) - kv qd."""
+    """(delay in ticks, [(kp, 95 % half width)] per joint) from effort = kp (cmd(k - lag) - q) - kv qd.
+
+    The delay search compares each lag's relative residual from the 2 x 2 normal equations; the
+    intervals come from one full least-squares solve at the chosen lag."""
     dt = float(model.opt.timestep)
     limit = model.actuator_forcerange[act, 1]
-    best = None
+
+    def rows(lag: int, k: int, i: int) -> tuple[np.ndarray, np.ndarray]:
+        xs, ys = [], []
+        for s in segments:
+            # row r's effort acts in the step from row r-1's state, on the command taken lag ticks before row r
+            e = s.q_cmd[1:len(s.q) - lag, i] - s.q[lag:-1, i]
+            y = s.tau[lag + 1:, i]
+            ok = np.abs(y) < SATURATED * limit[k]
+            xs.append(np.column_stack([e, s.qd[lag:-1, i]])[ok])
+            ys.append(y[ok])
+        return np.concatenate(xs), np.concatenate(ys)
+
+    costs = []
     for lag in range(round(MAX_DELAY_S / dt) + 1):
-        fits, cost = [], 0.0
+        cost = 0.0
         for k, i in enumerate(joints):
-            rows, ys = [], []
-            for s in segments:
-                # row r's effort acts in the step from row r-1's state, on the command taken lag ticks before row r
-                e = s.q_cmd[1:len(s.q) - lag, i] - s.q[lag:-1, i]
-                y = s.tau[lag + 1:, i]
-                ok = np.abs(y) < SATURATED * limit[k]
-                rows.append(np.column_stack([e, s.qd[lag:-1, i]])[ok])
-                ys.append(y[ok])
-            x, y = np.concatenate(rows), np.concatenate(ys)
-            beta, half, rss = _ols(x, y)
-            fits.append((float(beta[0]), float(half[0])))
-            cost += rss / max(float(y @ y), 1e-300)
-        if best is None or cost < best[0]:
-            best = (cost, lag, fits)
-    return best[1], best[2]
+            x, y = rows(lag, k, i)
+            gram, xty, yy = x.T @ x, x.T @ y, float(y @ y)
+            beta = np.linalg.lstsq(gram, xty, rcond=None)[0]
+            cost += max(yy - float(xty @ beta), 0.0) / max(yy, 1e-300)
+        costs.append(cost)
+    lag = int(np.argmin(costs))
+    fits = []
+    for k, i in enumerate(joints):
+        beta, half, _ = _ols(*rows(lag, k, i))
+        fits.append((float(beta[0]), float(half[0])))
+    return lag, fits
 
 
 def _joint_fit(segments, cell, joints, names, dadr, kv_nom, lag, wanted, dt) -> list[Estimate]:
