@@ -7,7 +7,8 @@ excited on a stand (body held, feet in the air). Per cell it prints: the table (
 identified, 95 % interval, inside); the current NRMSE of the nominal and the calibrated model on a
 held-out cycle (an excitation with another seed; on the arm also a pick-and-place cycle, where the
 carried part's weight is in neither model); what production cycles alone identify, with identify's warnings; and
-identify's wall and CPU time (and the wall as a multiple of one ``mj_step`` of the same cell measured in the same run).
+identify's wall and CPU time (and the wall as a multiple of one ``mj_step`` of the same cell measured
+in the same run).
 
     .venv/bin/python benchmarks/calibrate.py [--seconds 60] [--production-cycles 3] [--cells arm-pick-place]
 """
@@ -89,7 +90,8 @@ def held_out_nrmse(path: Path, cycle: int, cell, result: dict) -> dict:
     segments = load_segments([path], cell, cycle=cycle)
     nominal, calibrated = TorqueModel(cell), TorqueModel(cell, JointTerms.from_estimates(cell, result["estimates"]))
     e_nom, e_cal = current_nrmse(nominal, segments), current_nrmse(calibrated, segments)
-    return {"cycle": cycle, "ticks": int(sum(len(s.q) for s in segments)), "smoothed_over_ticks": SMOOTH_TICKS, "nominal": float(np.nanmean(e_nom)),
+    return {"cycle": cycle, "ticks": int(sum(len(s.q) for s in segments)), "smoothed_over_ticks": SMOOTH_TICKS,
+            "nominal": float(np.nanmean(e_nom)),
             "calibrated": float(np.nanmean(e_cal)), "ratio": float(np.nanmean(e_cal) / np.nanmean(e_nom)),
             "per_joint": {n: {"nominal": round(float(a), 4), "calibrated": round(float(b), 4)}
                           for n, a, b in zip(nominal.names, e_nom, e_cal)}}
@@ -136,7 +138,7 @@ def bench_cell(name: str, seconds: float, production_cycles: int, tmp: Path) -> 
         "identify_cpu_s": cpu,  # on a shared machine the process's own CPU time says more than the wall
         "identify_wall_over_mj_step": wall / step,
         "production_only": {"cycles": production_cycles, "warnings": prod_result["warnings"],
-                            "not_identifiable": sorted({f"{r['parameter']}" for r in prod_rows if r["interval"] is None}),
+                            "not_identifiable": sorted({r["parameter"] for r in prod_rows if r["interval"] is None}),
                             "table": prod_rows},
     }
 

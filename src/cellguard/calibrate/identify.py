@@ -197,7 +197,8 @@ def load_segments(paths: list[Path], cell, cycle: int | None = None) -> list[Seg
             record_id = rec.record_id or str(path)
             on_stand = rec.context.get("mount") == "stand"
         if tuple(ticks.joints) != tuple(cell.profile.joint_names):
-            raise CalibrationError(f"{path}: joints {list(ticks.joints)}; the model has {list(cell.profile.joint_names)}")
+            raise CalibrationError(f"{path}: joints {list(ticks.joints)}; the model has "
+                                   f"{list(cell.profile.joint_names)}")
         current = ticks.current
         if not np.isfinite(current).any():
             raise CalibrationError(f"{path}: the record has no motor current; identification needs current")

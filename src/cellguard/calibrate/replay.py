@@ -49,7 +49,8 @@ def parse_vary(text: str, cell) -> Vary:
     if param not in VARIED:
         raise CalibrationError(f"--vary: {param!r} is not a parameter replay can vary; allowed: {', '.join(VARIED)}")
     if joint not in joints:
-        raise CalibrationError(f"--vary: {joint!r} is not a joint of the {cell.name} model; allowed: {', '.join(joints)}")
+        raise CalibrationError(f"--vary: {joint!r} is not a joint of the {cell.name} model; "
+                               f"allowed: {', '.join(joints)}")
     try:
         low, high = float(m["low"]), float(m["high"])
     except ValueError:
@@ -172,7 +173,8 @@ def mismatch(rc: RecordedCycle, sim: Trajectory, joints: list[int]) -> dict:
     spread = np.maximum(np.std(rc.ticks.current[:, joints], axis=0), 1e-9)
     pos = np.sqrt(np.mean((sim.q[:, joints] - rc.ticks.q[:, joints]) ** 2, axis=0))
     cmd = np.abs(sim.q_cmd[:, joints] - rc.ticks.q_cmd[:, joints]).max(axis=0)
-    return {"joints": [rc.joints[j] for j in joints], "current_nrmse": (cur / spread).tolist(), "position_rms": pos.tolist(), "setpoint_max_gap": cmd.tolist(),
+    return {"joints": [rc.joints[j] for j in joints], "current_nrmse": (cur / spread).tolist(),
+            "position_rms": pos.tolist(), "setpoint_max_gap": cmd.tolist(),
             "cost": float(np.mean(cur / spread))}
 
 
@@ -206,7 +208,8 @@ def replay(path: Path, cycle: int, model: str = "calibrated", profile: Path | No
     rc = load_cycle(path, cycle)
     cell = make_cell(rc.cell, seed=rc.seed)
     if tuple(cell.profile.joint_names) != rc.joints:
-        raise CalibrationError(f"{path}: joints {list(rc.joints)}; the {rc.cell} model has {list(cell.profile.joint_names)}")
+        raise CalibrationError(f"{path}: joints {list(rc.joints)}; the {rc.cell} model has "
+                               f"{list(cell.profile.joint_names)}")
     terms = JointTerms.from_profile(cell, profile) if model == "calibrated" else JointTerms.nominal(cell)
     joints = hinge_joints(cell)
     v = parse_vary(vary, cell) if vary is not None else None

@@ -52,7 +52,8 @@ class ResidualAlarm:
 
     def describe(self) -> str:
         return (f"the robot has drifted beyond its model at {self.joint}: {self.parameter}-like residual "
-                f"({self.signature} {self.change:+.3g} {self.unit} vs baseline, CUSUM {self.statistic:.1f} x threshold)")
+                f"({self.signature} {self.change:+.3g} {self.unit} vs baseline, "
+                f"CUSUM {self.statistic:.1f} x threshold)")
 
     def to_dict(self) -> dict:
         return {"window": self.window, "joint": self.joint, "parameter": self.parameter, "signature": self.signature,
@@ -130,7 +131,8 @@ class ResidualMonitor:
         model_tau = m.torque(q, qd, around)
         at = {int(s): i for i, s in enumerate(around)}
         mid = model_tau[[at[int(s)] for s in steps]]
-        rate = (model_tau[[at[int(s) + h] for s in steps]] - model_tau[[at[int(s) - h] for s in steps]]) / (2 * h * m.dt)
+        after, before = model_tau[[at[int(s) + h] for s in steps]], model_tau[[at[int(s) - h] for s in steps]]
+        rate = (after - before) / (2 * h * m.dt)
         residual = current[steps + 1][:, j] * m.torque_constant - mid
         v = qd[steps][:, j]
         columns = {"friction": np.sign(v), "inertia": (qd[steps + 1][:, j] - v) / m.dt, "delay": rate}

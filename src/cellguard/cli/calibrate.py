@@ -125,5 +125,6 @@ def replay(
                f"mean current NRMSE {d['mismatch']['cost']:.4f}")
     if result.vary is not None:
         v = result.vary
-        typer.echo(f"  {v.parameter} of {v.joint} x {result.best:.3f} reproduces it best (searched {v.low:g}..{v.high:g})")
+        typer.echo(f"  {v.parameter} of {v.joint} x {result.best:.3f} reproduces it best "
+                   f"(searched {v.low:g}..{v.high:g})")
     typer.echo(f"  {page}")

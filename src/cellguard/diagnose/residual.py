@@ -14,6 +14,8 @@ from cellguard.diagnose.cause import Finding
 
 MATCHES = {"friction": ("friction",), "inertia/payload": ("tool_slip", "part_misplaced"), "delay": ("servo",)}
 CONFIDENCE = 0.7
+REFIT = {"friction": "--only {},friction", "inertia/payload": "--only {},armature (or --params payload)",
+         "delay": "--params delay"}  # what to re-fit, per likely parameter ({} the joint)
 
 
 def residual_alarms(rows: Iterable[object]) -> list[dict]:
@@ -37,11 +39,12 @@ def with_residual(findings: list[Finding], alarms: list[dict]) -> list[Finding]:
                       and f.cause in MATCHES.get(a["parameter"], ())), None)
         if match is not None:
             f = findings[match]
-            findings[match] = Finding(f.cause, f.cycle, f.confidence, f.evidence + (words,),
-                                      f.signals + (f"residual.{a['joint']}.{a['signature']}",), f.joints, f.rate, f.legs)
+            signal = f"residual.{a['joint']}.{a['signature']}"
+            findings[match] = Finding(f.cause, f.cycle, f.confidence, f.evidence + (words,), f.signals + (signal,),
+                                      f.joints, f.rate, f.legs)
             continue
+        refit = REFIT.get(a["parameter"], "--params {}").format(a["joint"])
         findings.append(Finding("model_drift", int(a["cycle"] or 0), CONFIDENCE, (
-            words, f"likely parameter: {a['parameter']}; `cellguard identify --only {a['joint']},"
-                   f"{a['parameter'].split('/')[0].replace('inertia', 'armature')}` re-fits it"),
+            words, f"likely parameter: {a['parameter']}; `cellguard identify {refit}` re-fits it"),
             (f"residual.{a['joint']}.{a['signature']}",), (a["joint"],)))
     return findings

@@ -28,7 +28,8 @@ def render_replay(r: ReplayResult) -> str:
     if r.vary is not None:
         v = r.vary
         parts += ["<h2>Hypothesis</h2>",
-                  f"<div class=finding>{_e(v.parameter)} of {_e(v.joint)} x <b>{r.best:.3f}</b> reproduces the recorded "
+                  f"<div class=finding>{_e(v.parameter)} of {_e(v.joint)} x <b>{r.best:.3f}</b> reproduces the "
+                  "recorded "
                   f"cycle best (searched {v.low:g}..{v.high:g}; mean current NRMSE {m['cost']:.4f})</div>",
                   _figure("search", _search_chart(r))]
     parts += ["<h2>Recorded versus simulated</h2>", _figure("overlay", _overlay(r, hinge)),
