@@ -66,10 +66,11 @@ def identify(
             from cellguard.calibrate.identify import parse_only, refit
             from cellguard.calibrate.torque_model import JointTerms
 
-            pairs = parse_only(only, cell)
-            result = refit(load_segments(records, cell), cell, pairs, JointTerms.from_profile(cell, write))
+            pairs, terms = parse_only(only, cell), JointTerms.from_profile(cell, write)
+            result = refit(load_segments(records, cell), cell, pairs, terms)
         else:
-            result = fit(load_segments(records, cell), cell, parse_params(params, cell))
+            wanted = parse_params(params, cell)  # before any record is read
+            result = fit(load_segments(records, cell), cell, wanted)
         if write is not None:
             import datetime as dt
 
