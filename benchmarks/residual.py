@@ -26,8 +26,9 @@ FRICTION = {"arm-pick-place": "elbow", "quadruped-turns": "fl_knee"}
 PAYLOAD_KG = 0.1
 
 
-def monitored(cell: str, cycles: int, change=None) -> list[dict]:
-    """Each cycle's residual window of a run of ``cycles``; ``change(run)`` is applied at cycle ``AT``."""
+def monitored(cell: str, cycles: int, change=None, progress=None) -> list[dict]:
+    """Each cycle's residual window of a run of ``cycles``; ``change(run)`` is applied at cycle ``AT``;
+    ``progress``: a file that gets one JSON line per window as it ends (a long run can be read while it runs)."""
     run = Run(Scenario(cell=cell, acceptance_cycles=cycles, production_cycles=0))
     watch(run, ResidualMonitor(run.cell))
     windows = []
@@ -36,6 +37,11 @@ def monitored(cell: str, cycles: int, change=None) -> list[dict]:
             if change is not None and c == AT:
                 change(run)
             windows.append(run.cycle()["residual"])
+            if progress is not None:
+                w = windows[-1]
+                progress.write(json.dumps({"cell": cell, "window": w["window"], "alarms": w["alarms"],
+                                           "max_cusum": max(map(max, w["cusum"])) if "cusum" in w else None}) + "\n")
+                progress.flush()
     finally:
         run.close()
     return windows
@@ -57,10 +63,12 @@ def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--cycles", type=int, default=300)
     parser.add_argument("--cells", default=",".join(FRICTION))
+    parser.add_argument("--progress", type=argparse.FileType("w"), default=None,
+                        help="write one JSON line per fault-free window here as it ends")
     args = parser.parse_args()
     out = []
     for cell in args.cells.split(","):
-        quiet = monitored(cell, args.cycles)
+        quiet = monitored(cell, args.cycles, progress=args.progress)
         stats = [max(map(max, w["cusum"])) for w in quiet if "cusum" in w]
         joint = FRICTION[cell]
         friction = monitored(cell, AT + 6, lambda run, j=joint: run.cell.set_friction_scale(j, 1.3))
