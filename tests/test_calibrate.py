@@ -146,7 +146,8 @@ def test_write_profile_versions_and_keeps_the_old(hidden_record, tmp_path):
 
     profile = tmp_path / "arm_profile.yaml"
     profile.write_bytes((ASSETS / "arm_profile.yaml").read_bytes())
-    result = runner.invoke(app, ["identify", str(hidden_record), "--params", "friction,damping", "--write", str(profile)])
+    result = runner.invoke(app, ["identify", str(hidden_record), "--params", "friction,damping",
+                                 "--write", str(profile)])
     assert result.exit_code == 0, result.output
     cell = make_cell(ARM)
     new = load_profile(cell.model, profile)

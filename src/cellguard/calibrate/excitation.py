@@ -93,11 +93,12 @@ def excitation_scenario(cell_or_scenario: str | Scenario, seconds: float, seed: 
                                    "process_changes": [], "cycle": CycleSettings(source="time", seconds=seconds)})
 
 
-def excite(scenario: Scenario, out: Path, physics=None, overwrite: bool = False) -> dict:
+def excite(scenario: Scenario, out: Path, physics=None, overwrite: bool = False, stand=None) -> dict:
     """Run the excitation on ``scenario``'s robot through the guarded loop and record it in ``out``.
 
     ``physics``: a ``robot.physics.Physics`` applied to a simulated cell after it is built (the
-    ground truth a fit must find; the record does not carry it). Returns the run summary.
+    ground truth a fit must find; the record does not carry it). ``stand``: a ``calibrate.stand.Stand``
+    that holds a simulated legged cell's body (the record says so). Returns the run summary.
     """
     from cellguard.record.writer import RecordConfig
     from cellguard.runtime.build import make_robot
@@ -108,6 +109,8 @@ def excite(scenario: Scenario, out: Path, physics=None, overwrite: bool = False)
     run = Run(scenario, policy_factory=lambda: policy)
     if physics is not None:
         physics.apply(run.cell)
+    if stand is not None:
+        stand.apply(run.cell)
     every_tick = RecordConfig(decimated_hz=1e9 / run.cell.dt_ns)  # identification needs the full rate
     return run_scenario(scenario, out, run=run, overwrite=overwrite, record=every_tick)
 

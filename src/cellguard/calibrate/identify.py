@@ -20,21 +20,20 @@ that the data does not excite (near-zero norm or in the near-null space) is "not
 
 from __future__ import annotations
 
-import copy
 from dataclasses import dataclass
 from pathlib import Path
 
 import mujoco
 import numpy as np
 
-from cellguard.errors import ConfigError, RecordError
+from cellguard.calibrate.torque_model import MIN_SPEED, hinge_joints, inverse_torques, rigid_model
+from cellguard.errors import ConfigError
 
 PARAMS = ("friction", "armature", "damping", "kp", "delay", "payload")
 UNITS = {"friction": "N*m", "armature": "kg*m^2", "damping": "N*m*s/rad", "kp": "N*m/rad", "delay": "s",
          "payload": "kg"}
 MAX_DELAY_S = 0.03  # longest command delay searched [s]
 MIN_TICKS = 200  # shortest stretch of servo-rate ticks used [ticks]
-MIN_SPEED = 0.05  # samples slower than this leave the friction regression [rad/s]
 SATURATED = 0.95  # samples with effort beyond this fraction of the force range leave the drive regression
 Z95 = 1.959964  # two-sided 95 % normal quantile
 NULL_EIG = 1e-10  # relative eigenvalue of the scaled normal matrix below which a direction is unexcited
@@ -77,6 +76,7 @@ class Segment:
     q_cmd: np.ndarray
     tau: np.ndarray
     record_id: str
+    on_stand: bool = False  # the record's context says the base was held on a stand (``excite --stand``)
 
 
 def model_params(cell) -> tuple[str, ...]:
@@ -100,18 +100,75 @@ def parse_params(text: str | None, cell) -> tuple[str, ...]:
     return names
 
 
-def check_fixed_base(cell) -> None:
-    """Inverse dynamics needs every base acceleration: a floating base (a free joint above a profiled
-    joint) is not recorded, so such a cell is refused."""
+ONLY = ("friction", "damping", "armature")  # what ``--only JOINT,PARAM`` re-fits
+
+
+def parse_only(items: list[str], cell) -> list[tuple[str, str]]:
+    """``["elbow,friction"]`` -> [(joint, parameter)], each a hinge joint of ``cell`` and one of ``ONLY``."""
+    joints = [cell.profile.joint_names[i] for i in hinge_joints(cell)]
+    pairs = []
+    for item in items:
+        parts = [p.strip() for p in item.split(",")]
+        if len(parts) != 2:
+            raise CalibrationError(f"--only: {item!r} is not JOINT,PARAM (e.g. elbow,friction)")
+        joint, param = parts
+        if joint not in joints:
+            raise CalibrationError(f"--only: {joint!r} is not a joint of the {cell.name} model; allowed: "
+                                   f"{', '.join(joints)}")
+        if param not in ONLY:
+            raise CalibrationError(f"--only: {param!r} cannot be re-fitted alone; allowed: {', '.join(ONLY)}")
+        pairs.append((joint, param))
+    return pairs
+
+
+def refit(segments: list[Segment], cell, pairs: list[tuple[str, str]], terms) -> dict:
+    """Re-fit just ``pairs`` (joint, parameter), every other term held at ``terms`` (a ``JointTerms``): the
+    residual of that model regressed on the parameter's own column. One column is excited by far less
+    motion than all of them together, so production cycles usually do."""
+    from cellguard.calibrate.torque_model import TorqueModel
+
+    if floating_base(cell) and not all(s.on_stand for s in segments):
+        raise CalibrationError(f"--only: {cell.name}'s base moved freely in these records; re-fit from a record "
+                               f"taken on a stand (`cellguard excite {cell.name} --stand`)")
+    model = TorqueModel(cell, terms)
+    current = {"friction": terms.friction, "damping": terms.damping, "armature": terms.armature}
+    estimates = []
+    for joint, param in pairs:
+        k = model.names.index(joint)
+        i = model.joints[k]
+        xs, ys = [], []
+        for s in segments:
+            v = s.qd[:-1, i]
+            moving = np.abs(v) > MIN_SPEED
+            column = {"friction": np.sign(v), "damping": v, "armature": np.diff(s.qd[:, i]) / model.dt}[param]
+            xs.append(column[moving])
+            ys.append((s.tau[1:, i] - model.torque(s.q, s.qd)[:, k])[moving])
+        x, y = np.concatenate(xs)[:, None], np.concatenate(ys)
+        if len(y) < 100:
+            raise CalibrationError(f"--only {joint},{param}: {joint} moves faster than {MIN_SPEED} rad/s in only "
+                                   f"{len(y)} ticks of these records; record more cycles at full rate")
+        beta, half, _ = _ols(x, y)
+        value = float(current[param][k] + beta[0])
+        nominal = float(_nominal(cell.model, param, cell.drives.dadr[i]))
+        estimates.append(_estimate(param, joint, value, float(half[0]), nominal).to_dict())
+    return {"robot": cell.name, "records": sorted({s.record_id for s in segments}),
+            "samples": int(sum(len(s.q) for s in segments)),
+            "method": "re-fit of one term on the residual of the profile's model (mj_inverse)",
+            "estimates": estimates, "warnings": []}
+
+
+def floating_base(cell) -> bool:
+    """Whether a free joint sits above a profiled joint: inverse dynamics then needs the base's motion
+    and the foot forces, which a record does not carry, unless the base was held on a stand."""
     m = cell.model
     for name in cell.profile.joint_names:
         body = m.jnt_bodyid[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, name)]
         while body > 0:
             for j in range(m.body_jntadr[body], m.body_jntadr[body] + m.body_jntnum[body]):
                 if m.jnt_type[j] == mujoco.mjtJoint.mjJNT_FREE:
-                    raise CalibrationError(f"{cell.name}: joint {name!r} sits on a floating base; identify "
-                                           "supports fixed-base cells only")
+                    return True
             body = m.body_parentid[body]
+    return False
 
 
 def record_robot(path: Path) -> str:
@@ -125,8 +182,9 @@ def record_robot(path: Path) -> str:
     return robot
 
 
-def load_segments(paths: list[Path], cell) -> list[Segment]:
-    """Each record's full-rate ticks, checked to be of ``cell``'s robot and to carry motor current."""
+def load_segments(paths: list[Path], cell, cycle: int | None = None) -> list[Segment]:
+    """Each record's full-rate ticks (of ``cycle`` only, if given), checked to be of ``cell``'s robot and
+    to carry motor current; split where a tick is missing."""
     from cellguard.record.reader import open_record
 
     segments = []
@@ -135,10 +193,12 @@ def load_segments(paths: list[Path], cell) -> list[Segment]:
             robot = rec.context.get("cell")
             if robot != cell.name:
                 raise CalibrationError(f"{path}: a record of robot {robot!r}; the model is {cell.name!r}")
-            ticks = rec.ticks(rate="all")
+            ticks = rec.ticks(cycle=cycle, rate="all")
             record_id = rec.record_id or str(path)
+            on_stand = rec.context.get("mount") == "stand"
         if tuple(ticks.joints) != tuple(cell.profile.joint_names):
-            raise CalibrationError(f"{path}: joints {list(ticks.joints)}; the model has {list(cell.profile.joint_names)}")
+            raise CalibrationError(f"{path}: joints {list(ticks.joints)}; the model has "
+                                   f"{list(cell.profile.joint_names)}")
         current = ticks.current
         if not np.isfinite(current).any():
             raise CalibrationError(f"{path}: the record has no motor current; identification needs current")
@@ -150,7 +210,8 @@ def load_segments(paths: list[Path], cell) -> list[Segment]:
         starts = np.flatnonzero(~step)
         for a, b in zip(starts, np.append(starts[1:], len(t_ns))):
             if b - a >= MIN_TICKS:
-                segments.append(Segment(ticks.q_meas[a:b], ticks.qd_meas[a:b], ticks.q_cmd[a:b], tau[a:b], record_id))
+                segments.append(Segment(ticks.q_meas[a:b], ticks.qd_meas[a:b], ticks.q_cmd[a:b], tau[a:b], record_id,
+                                        on_stand))
         if not any(s.record_id == record_id for s in segments):
             raise CalibrationError(f"{path}: no stretch of {MIN_TICKS} ticks at the servo rate; record at full rate "
                                    "(`cellguard excite` does)")
@@ -159,10 +220,9 @@ def load_segments(paths: list[Path], cell) -> list[Segment]:
 
 def identify(segments: list[Segment], cell, params: tuple[str, ...]) -> dict:
     """Fit ``params`` of ``cell``'s hinge joints to ``segments``; a dict ready for JSON."""
-    check_fixed_base(cell)
     model = cell.model
     dt = float(model.opt.timestep)
-    joints = [i for i, j in enumerate(cell.profile.joints) if j.kind == "hinge"]
+    joints = hinge_joints(cell)
     names = [cell.profile.joint_names[i] for i in joints]
     dadr, act = cell.drives.dadr[joints], cell.drives.act[joints]
     kv_nom = -model.actuator_biasprm[act, 2]
@@ -175,54 +235,79 @@ def identify(segments: list[Segment], cell, params: tuple[str, ...]) -> dict:
             value, half = drive[k]
             estimates.append(_estimate("kp", name, value, half, float(model.actuator_gainprm[act[k], 0])))
     wanted = [p for p in ("armature", "damping", "friction", "payload") if p in params]  # report these
-    if wanted:
+    warnings = []
+    if wanted and floating_base(cell) and not all(s.on_stand for s in segments):
+        estimates += [Estimate(p, name, None, UNITS[p], float(_nominal(model, p, dadr[k])), None, None)
+                      for p in wanted if p != "payload" for k, name in enumerate(names)]
+        estimates += [Estimate("payload", None, None, "kg", 0.0, None, None)] if "payload" in wanted else []
+        warnings.append(f"{', '.join(wanted)}: {cell.name}'s base moved freely in these records, which carry neither "
+                        f"its motion nor the foot forces; `cellguard excite {cell.name} --stand` records the joints "
+                        "with the body held on a stand")
+    elif wanted:
         estimates += _joint_fit(segments, cell, joints, names, dadr, kv_nom, lag, wanted, dt)
-    return {"robot": cell.name, "records": [s.record_id for s in segments],
+    unexcited = sorted({e.parameter for e in estimates if not e.identifiable})
+    if unexcited and not warnings:
+        warnings.append(f"{', '.join(unexcited)}: not excited by these records (production cycles rarely are); "
+                        f"`cellguard excite {cell.name}` records a trajectory that excites them")
+    return {"robot": cell.name, "records": sorted({s.record_id for s in segments}),
             "samples": int(sum(len(s.q) for s in segments)), "method": "linear regression on mj_inverse (nominal MJCF)",
-            "estimates": [e.to_dict() for e in estimates]}
+            "estimates": [e.to_dict() for e in estimates], "warnings": warnings}
+
+
+def _nominal(model: mujoco.MjModel, parameter: str, dof: int) -> float:
+    return {"armature": model.dof_armature, "damping": model.dof_damping, "friction": model.dof_frictionloss,
+            "payload": np.zeros(model.nv)}[parameter][dof]
 
 
 def _drive_fit(segments, model, act, joints) -> tuple[int, list[tuple[float, float]]]:
-    """(delay in ticks, [(kp, 95 % half width)] per joint) from effort = kp (cmd(k - lag) - q) - kv qd."""
+    """(delay in ticks, [(kp, 95 % half width)] per joint) from effort = kp (cmd(k - lag) - q) - kv qd.
+
+    The delay search compares each lag's relative residual from the 2 x 2 normal equations; the
+    intervals come from one full least-squares solve at the chosen lag."""
     dt = float(model.opt.timestep)
     limit = model.actuator_forcerange[act, 1]
-    best = None
+
+    def rows(lag: int, k: int, i: int) -> tuple[np.ndarray, np.ndarray]:
+        xs, ys = [], []
+        for s in segments:
+            # row r's effort acts in the step from row r-1's state, on the command taken lag ticks before row r
+            e = s.q_cmd[1:len(s.q) - lag, i] - s.q[lag:-1, i]
+            y = s.tau[lag + 1:, i]
+            ok = np.abs(y) < SATURATED * limit[k]
+            xs.append(np.column_stack([e, s.qd[lag:-1, i]])[ok])
+            ys.append(y[ok])
+        return np.concatenate(xs), np.concatenate(ys)
+
+    costs = []
     for lag in range(round(MAX_DELAY_S / dt) + 1):
-        fits, cost = [], 0.0
+        cost = 0.0
         for k, i in enumerate(joints):
-            rows, ys = [], []
-            for s in segments:
-                # row r's effort acts in the step from row r-1's state, on the command taken lag ticks before row r
-                e = s.q_cmd[1:len(s.q) - lag, i] - s.q[lag:-1, i]
-                y = s.tau[lag + 1:, i]
-                ok = np.abs(y) < SATURATED * limit[k]
-                rows.append(np.column_stack([e, s.qd[lag:-1, i]])[ok])
-                ys.append(y[ok])
-            x, y = np.concatenate(rows), np.concatenate(ys)
-            beta, half, rss = _ols(x, y)
-            fits.append((float(beta[0]), float(half[0])))
-            cost += rss / max(float(y @ y), 1e-300)
-        if best is None or cost < best[0]:
-            best = (cost, lag, fits)
-    return best[1], best[2]
+            x, y = rows(lag, k, i)
+            gram, xty, yy = x.T @ x, x.T @ y, float(y @ y)
+            beta = np.linalg.lstsq(gram, xty, rcond=None)[0]
+            cost += max(yy - float(xty @ beta), 0.0) / max(yy, 1e-300)
+        costs.append(cost)
+    lag = int(np.argmin(costs))
+    fits = []
+    for k, i in enumerate(joints):
+        beta, half, _ = _ols(*rows(lag, k, i))
+        fits.append((float(beta[0]), float(half[0])))
+    return lag, fits
 
 
 def _joint_fit(segments, cell, joints, names, dadr, kv_nom, lag, wanted, dt) -> list[Estimate]:
     """Armature, damping, friction per joint and the payload, from one stacked least-squares solve."""
     model = cell.model
-    rigid = _rigid_model(model)
-    loaded = None
-    if "payload" in wanted:
-        loaded = copy.deepcopy(rigid)
-        body = mujoco.mj_name2id(loaded, mujoco.mjtObj.mjOBJ_BODY, "tool")
-        loaded.body_mass[body] += 1.0
+    rigid = rigid_model(model)
+    loaded = rigid_model(model, payload_kg=1.0) if "payload" in wanted else None
     nj = len(joints)
     # the three joint terms are always fitted together (each alone absorbs the others); the wanted ones are reported
     blocks = {"armature": 0, "damping": 1, "friction": 2}
     ncol = len(blocks) * nj + (1 if loaded is not None else 0)
     xs, ys = [], []
     for s in segments:
-        tau_rigid, tau_loaded = _inverse(rigid, loaded, cell, s, dt)
+        tau_rigid = inverse_torques(rigid, cell, s.q, s.qd, dt)
+        tau_loaded = inverse_torques(loaded, cell, s.q, s.qd, dt) if loaded is not None else None
         acc = np.diff(s.qd, axis=0) / dt  # (n-1, dof): over each step
         qd0 = s.qd[:-1]
         for k, i in enumerate(joints):
@@ -249,48 +334,10 @@ def _joint_fit(segments, cell, joints, names, dadr, kv_nom, lag, wanted, dt) -> 
             value, h = beta[b * nj + k], half[b * nj + k]
             if p == "armature":  # implicit integration adds dt (kv + damping) to the effective inertia
                 value = value - dt * (kv_nom[k] + damping[k])
-            nominal = {"armature": model.dof_armature, "damping": model.dof_damping,
-                       "friction": model.dof_frictionloss}[p][dadr[k]]
-            out.append(_estimate(p, name, float(value), float(h), float(nominal)))
+            out.append(_estimate(p, name, float(value), float(h), float(_nominal(model, p, dadr[k]))))
     if loaded is not None:
         out.append(_estimate("payload", None, float(beta[-1]), float(half[-1]), 0.0))
     return out
-
-
-def _rigid_model(model: mujoco.MjModel) -> mujoco.MjModel:
-    """The nominal model with only rigid-body dynamics left: no armature, damping, dry friction, constraints."""
-    rigid = copy.deepcopy(model)
-    rigid.dof_armature[:] = 0.0
-    rigid.dof_damping[:] = 0.0
-    rigid.dof_frictionloss[:] = 0.0
-    rigid.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONSTRAINT
-    return rigid
-
-
-def _inverse(rigid, loaded, cell, s: Segment, dt: float):
-    """Rigid-body joint torques (n-1, hinge joints) at each step's start state and its acceleration."""
-    joints = [i for i, j in enumerate(cell.profile.joints) if j.kind == "hinge"]
-    qadr, dadr = cell.drives.qadr, cell.drives.dadr
-    n = len(s.q) - 1
-    outs = []
-    for m in (rigid, loaded):
-        if m is None:
-            outs.append(None)
-            continue
-        d = mujoco.MjData(m)
-        d.qpos[:] = cell.data.qpos  # the rest of the model (tool, part) where the cell holds it
-        tau = np.empty((n, len(joints)))
-        acc = np.diff(s.qd, axis=0) / dt
-        for k in range(n):
-            d.qpos[qadr] = s.q[k]
-            d.qvel[:] = 0.0
-            d.qvel[dadr] = s.qd[k]
-            d.qacc[:] = 0.0
-            d.qacc[dadr] = acc[k]
-            mujoco.mj_inverse(m, d)
-            tau[k] = d.qfrc_inverse[dadr[joints]]
-        outs.append(tau)
-    return outs[0], outs[1]
 
 
 def _ols(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:

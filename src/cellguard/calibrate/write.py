@@ -17,7 +17,7 @@ import yaml
 
 from cellguard.calibrate.identify import CalibrationError
 from cellguard.embodiment.profile import parse_profile
-from cellguard.errors import ProfileError
+from cellguard.errors import OutputError, ProfileError
 from cellguard.output import write_output
 from cellguard.yaml_file import parse_yaml, read_bounded
 
@@ -49,7 +49,13 @@ def write_profile(path: Path, cell, result: dict, date: str) -> str:
     text = yaml.safe_dump(raw, sort_keys=False, allow_unicode=True)
     parse_profile(cell.model, text.encode(), str(path))  # the new profile loads before it replaces the old
     kept = path.with_name(f"{path.stem}.{old_version}{path.suffix}")
-    if not kept.exists():
+    keep = not kept.is_file()  # a folder there is no kept profile: writing it fails, before anything is changed
+    if keep:
         write_output(kept, old_bytes, "previous profile")
-    write_output(path, text, "profile")
+    try:
+        write_output(path, text, "profile")
+    except OutputError:
+        if keep:  # the command failed: leave the folder as it was
+            kept.unlink(missing_ok=True)
+        raise
     return raw["version"]

@@ -1,4 +1,5 @@
-"""``cellguard excite`` and ``cellguard identify``: measure the robot's model from its own record."""
+"""``cellguard excite``, ``identify`` and ``replay``: measure the robot's model from its own record, and
+check a hypothesis about an incident in the calibrated simulator."""
 
 from __future__ import annotations
 
@@ -18,6 +19,8 @@ def excite(
     seconds: float = typer.Option(30.0, "--seconds", help="Length of the excitation [s]."),
     out: Path = typer.Option(..., "--out", help="Folder for the record (every tick) and summary.json."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace a record already in --out."),
+    stand: bool = typer.Option(False, "--stand", help="A legged robot held on a stand, feet in the air (a simulated "
+                               "cell is mounted; the record says so, and identify then fits its joints)."),
 ) -> None:
     """Run a persistently exciting trajectory inside the profile's limits through the guard, and record it."""
     from cellguard.calibrate.excitation import excitation_scenario
@@ -29,7 +32,10 @@ def excite(
         if not 1.0 <= seconds <= 3600.0:
             raise ScenarioError(f"--seconds: {seconds} is outside 1..3600 s")
         base = load_scenario(Path(target)) if target.endswith((".yaml", ".yml")) else target
-        summary = run_excitation(excitation_scenario(base, seconds), out, overwrite=overwrite)
+        from cellguard.calibrate.stand import Stand
+
+        summary = run_excitation(excitation_scenario(base, seconds), out, overwrite=overwrite,
+                                 stand=Stand() if stand else None)
     except CellguardError as exc:
         fail(exc)
     interventions = [e for e in summary["events"] if not e["kind"].startswith(("approach", "retreat"))]
@@ -45,6 +51,9 @@ def identify(
     as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),
     write: Path | None = typer.Option(None, "--write", help="Update this profile's measured friction, damping and "
                                       "armature (new version; the old one kept beside it)."),
+    only: list[str] = typer.Option([], "--only", help="JOINT,PARAM: re-fit just this (friction, damping or armature "
+                                   "of one joint; repeatable) with every other term held at the profile's values "
+                                   "(--write's profile, else the cell's): what the residual monitor said drifted."),
 ) -> None:
     """Fit the cell's MuJoCo model (from its nominal MJCF) to recorded ticks: value, unit, 95 % interval."""
     from cellguard.calibrate.identify import identify as fit
@@ -53,8 +62,15 @@ def identify(
 
     try:
         cell = make_cell(cell_name or record_robot(records[0]))
-        wanted = parse_params(params, cell)
-        result = fit(load_segments(records, cell), cell, wanted)
+        if only:
+            from cellguard.calibrate.identify import parse_only, refit
+            from cellguard.calibrate.torque_model import JointTerms
+
+            pairs, terms = parse_only(only, cell), JointTerms.from_profile(cell, write)
+            result = refit(load_segments(records, cell), cell, pairs, terms)
+        else:
+            wanted = parse_params(params, cell)  # before any record is read
+            result = fit(load_segments(records, cell), cell, wanted)
         if write is not None:
             import datetime as dt
 
@@ -66,9 +82,8 @@ def identify(
     if as_json:
         typer.echo(json.dumps(result, indent=1))
         return
-    if any(e["interval"] is None for e in result["estimates"]):
-        typer.echo("warning: some parameters are not excited by these records; `cellguard excite` records a "
-                   "trajectory that excites them", err=True)
+    for warning in result["warnings"]:
+        typer.echo(f"warning: {warning}", err=True)
     typer.echo(f"{result['robot']}: {result['samples']} ticks from {len(result['records'])} record(s)")
     if write is not None:
         typer.echo(f"{write}: version {result['profile_version']}")
@@ -79,3 +94,38 @@ def identify(
         else:
             lo, hi = e["interval"]
             typer.echo(f"  {name:24s} {e['value']:.4g} {e['unit']}  [{lo:.4g}, {hi:.4g}]  (nominal {e['nominal']:.4g})")
+
+
+@app.command()
+def replay(
+    record: Path = typer.Argument(..., help="A record folder."),
+    cycle: int = typer.Option(..., "--cycle", help="The cycle to replay."),
+    model: str = typer.Option("calibrated", "--model", help="calibrated (the profile's measured values) or nominal."),
+    profile: Path | None = typer.Option(None, "--profile", help="The calibrated profile (identify --write's); "
+                                        "default: the cell's own."),
+    vary: str | None = typer.Option(None, "--vary", help="PARAM:JOINT=LOW..HIGH, e.g. friction:elbow=0.8..1.6: "
+                                    "search the factor that best reproduces the recorded cycle."),
+    out: Path | None = typer.Option(None, "-o", "--out", help="HTML page (default: RECORD/replay-cycle-N.html)."),
+    as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),
+) -> None:
+    """Re-run a recorded cycle's chunks in the simulator from its recorded start; overlay simulated and recorded."""
+    from cellguard.calibrate.replay import replay as run_replay
+    from cellguard.report.replay import write_replay
+
+    try:
+        result = run_replay(record, cycle, model=model, profile=profile, vary=vary)
+        page = write_replay(result, out or record / f"replay-cycle-{cycle}.html")
+    except CellguardError as exc:
+        fail(exc)
+    d = result.to_dict()
+    d["page"] = str(page)
+    if as_json:
+        typer.echo(json.dumps(d, indent=1))
+        return
+    typer.echo(f"{record}: cycle {cycle} replayed in the {model} model ({d['ticks']} ticks); "
+               f"mean current NRMSE {d['mismatch']['cost']:.4f}")
+    if result.vary is not None:
+        v = result.vary
+        typer.echo(f"  {v.parameter} of {v.joint} x {result.best:.3f} reproduces it best "
+                   f"(searched {v.low:g}..{v.high:g})")
+    typer.echo(f"  {page}")

@@ -20,6 +20,7 @@ from cellguard.diagnose.intermittent import find_intermittent, without_outliers
 from cellguard.diagnose.process import ProcessNote, condition, declared
 from cellguard.diagnose.recovery import (advice, advice_lines, attempts_of, fixes, policy_cycles, recovery_finding,
                                         with_running_again, without_recovery_motion)
+from cellguard.diagnose.residual import residual_alarms, with_residual
 from cellguard.embodiment.profile import SymmetryPair
 from cellguard.errors import RecordError
 
@@ -76,6 +77,7 @@ def diagnose(rows: Iterable[object], events: Iterable[object] = (), context: Map
     separate acceptance record. ``symmetry`` enables the mirrored-motion comparison. ``history``:
     what fixed each cause in this site's other records (rows of ``recovery.fixes``), for advice.
     """
+    rows = list(rows)
     cycles = as_cycles(rows)
     if baseline is None:
         acceptance = [c for c in cycles if c.phase == "acceptance"]
@@ -97,6 +99,7 @@ def diagnose(rows: Iterable[object], events: Iterable[object] = (), context: Map
     rejected = _rejections(watched, evs)
     findings = list(name_causes(baseline, watched, drift.z, drift.alarms, rejected))
     findings += [intermittent_finding(baseline, watched, z, f) for f in found]
+    findings = with_residual(findings, residual_alarms(rows))  # the calibration's residual monitor, if it ran
     asym = mirrored_asymmetry(watched, symmetry)
     if asym is not None and asym.side:
         findings = _fold_compensation(findings, asym, symmetry)

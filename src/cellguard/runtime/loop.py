@@ -71,6 +71,9 @@ class Run:
         self.recovery = RecoveryRunner(scenario.recovery, self.cell, self.events) if scenario.recovery else None
         self.ticks = CycleBuffer(self.cell.profile.dof, round(CYCLE_TIMEOUT_S * 1e9 / self.cell.dt_ns) + 1)
         self.recording: RunRecording | None = None  # set by run_scenario, fed every tick
+        # called at each cycle end with the cycle's ticks and its outcome, before it is recorded; may add keys
+        # to the outcome (the calibration's residual monitor adds ``residual``)
+        self.cycle_monitors: list[Callable[[CycleBuffer, dict], None]] = []
         self.stopped: str | None = None  # why the run stopped early, if it did
         self.inference = None  # built at the first cycle (the policy may be swapped before)
         self.source = None
@@ -190,6 +193,8 @@ class Run:
             outcome.update(recovery.end_cycle(outcome["timed_out"]))
         outcome["inference"] = _wall_latency(wall_ns)
         outcome["features"] = cycle_features(cell.profile, ticks, outcome, latencies, events.since(first_event))
+        for monitor in self.cycle_monitors:
+            monitor(ticks, outcome)
         if rec is not None:
             rec.end_cycle(outcome, t_end)
             if rec.failed:

@@ -1,0 +1,232 @@
+"""Incident replay: re-run a recorded cycle's chunks through the simulator and compare with the record.
+
+The chunks recorded in cycle N go through a fresh guard (the run's own settings) into the simulated
+cell, started from the recorded state at the cycle's start, with the cell's task set up for cycle N
+(the part at the fixture). The model is the nominal MJCF or the calibrated one (a profile's measured
+friction, damping and armature, as ``identify --write`` leaves them). The simulated joint positions
+and currents are sampled at the recorded ticks' times (any rate: a production record's 50 Hz stream
+will do). With a ``Vary`` (``friction:elbow=0.8..1.6``) the factor on that parameter that best
+reproduces the recorded currents is searched: a grid over the range, then a bounded scalar search
+around the best grid point. This is how a technician checks a hypothesis before touching the robot.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import mujoco
+import numpy as np
+from scipy.optimize import minimize_scalar
+
+from cellguard.calibrate.identify import CalibrationError
+from cellguard.calibrate.torque_model import JointTerms, hinge_joints
+
+VARIED = ("friction", "damping", "armature")
+GRID = 5  # factors tried across the range before the bounded search
+XTOL = 0.01  # the search stops when the factor is known to this [1]
+_VARY = re.compile(r"^(?P<param>\w+):(?P<joint>\w+)=(?P<low>[0-9.]+)\.\.(?P<high>[0-9.]+)$")
+
+
+@dataclass(frozen=True)
+class Vary:
+    """Search ``parameter`` of ``joint`` as a factor on the model's value, in [low, high]."""
+
+    parameter: str
+    joint: str
+    low: float
+    high: float
+
+
+def parse_vary(text: str, cell) -> Vary:
+    """``friction:elbow=0.8..1.6`` -> a ``Vary`` for ``cell``; CalibrationError naming what is allowed."""
+    m = _VARY.match(text.strip())
+    joints = [cell.profile.joint_names[i] for i in hinge_joints(cell)]
+    if m is None:
+        raise CalibrationError(f"--vary: {text!r} is not PARAM:JOINT=LOW..HIGH (e.g. friction:elbow=0.8..1.6)")
+    param, joint = m["param"], m["joint"]
+    if param not in VARIED:
+        raise CalibrationError(f"--vary: {param!r} is not a parameter replay can vary; allowed: {', '.join(VARIED)}")
+    if joint not in joints:
+        raise CalibrationError(f"--vary: {joint!r} is not a joint of the {cell.name} model; "
+                               f"allowed: {', '.join(joints)}")
+    try:
+        low, high = float(m["low"]), float(m["high"])
+    except ValueError:
+        raise CalibrationError(f"--vary: range {m['low']}..{m['high']} is not two numbers") from None
+    if not 0.0 < low < high <= 20.0:
+        raise CalibrationError(f"--vary: range {low}..{high} must satisfy 0 < LOW < HIGH <= 20")
+    return Vary(param, joint, low, high)
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    """``t`` (n,) [s] into the cycle; ``q`` (n, dof) [rad or m]; ``current`` (n, dof) [A]; ``q_cmd`` (n, dof)."""
+
+    t: np.ndarray
+    q: np.ndarray
+    current: np.ndarray
+    q_cmd: np.ndarray
+
+
+@dataclass(frozen=True)
+class RecordedCycle:
+    """What replay needs of one recorded cycle."""
+
+    cell: str
+    seed: int
+    cycle: int
+    joints: tuple[str, ...]
+    t_start_ns: int
+    t_ns: np.ndarray  # (n,) recorded tick times in the cycle
+    ticks: Trajectory
+    qd0: np.ndarray  # (dof,) velocity at the first tick
+    chunks: list  # RecordedChunk, in arrival order
+    guard: dict  # the run's guard settings (scenario ``guard``)
+
+
+def load_cycle(path: Path, cycle: int) -> RecordedCycle:
+    """Cycle ``cycle`` of the record in ``path``: its ticks (every rate), its chunks and the run's settings."""
+    from cellguard.record.reader import open_record
+
+    with open_record(path) as rec:
+        ctx = rec.context
+        cycles = {c.cycle: c for c in rec.cycles()}
+        if cycle not in cycles:
+            known = f"0..{max(cycles)}" if cycles else "none"
+            raise CalibrationError(f"--cycle: {cycle} is not a finished cycle of {path} (cycles {known})")
+        c = cycles[cycle]
+        ticks = rec.ticks(rate="all", start_ns=c.t_start_ns, end_ns=c.t_end_ns)
+        chunks = [ch for ch in rec.chunks() if c.t_start_ns <= ch.t_received_ns <= c.t_end_ns]
+    if len(ticks) < 2 or not chunks:
+        raise CalibrationError(f"--cycle: cycle {cycle} of {path} has {len(ticks)} ticks and {len(chunks)} chunks "
+                               "recorded; replay needs both")
+    scenario = ctx.get("scenario") or {}
+    t = (ticks.t_ns - c.t_start_ns) * 1e-9
+    return RecordedCycle(ctx.get("cell"), int(scenario.get("seed", 0)), cycle, tuple(ticks.joints), c.t_start_ns,
+                         ticks.t_ns, Trajectory(t, ticks.q_meas, ticks.current, ticks.q_cmd), ticks.qd_meas[0],
+                         chunks, scenario.get("guard") or {})
+
+
+def simulate(rc: RecordedCycle, terms: JointTerms, vary: Vary | None = None, factor: float = 1.0) -> Trajectory:
+    """Run ``rc``'s chunks through a fresh guard into the cell with ``terms`` (``vary``'s term x ``factor``)."""
+    from cellguard.control.settings import build_guard
+    from cellguard.robot.protocol import SafetyInputs
+    from cellguard.robot.registry import make_cell
+    from cellguard.control.config import GuardConfig
+
+    cell = make_cell(rc.cell, seed=rc.seed)
+    _apply(cell, terms, vary, factor)
+    cell.begin_cycle(rc.cycle)
+    d, drives = cell.data, cell.drives
+    d.qpos[drives.qadr] = rc.ticks.q[0]
+    d.qvel[drives.dadr] = rc.qd0
+    drives.write(rc.ticks.q_cmd[0])
+    mujoco.mj_forward(cell.model, d)
+    guard = build_guard(cell, GuardConfig.model_validate(rc.guard))
+    guard.reset(rc.ticks.q[0])
+    dt_ns = cell.dt_ns
+    n = int((rc.t_ns[-1] - rc.t_start_ns) // dt_ns) + 1
+    q, cur, cmd = (np.empty((n, len(rc.joints))) for _ in range(3))
+    state = cell.read()
+    q[0], cur[0], cmd[0] = state.q, state.current, rc.ticks.q_cmd[0]
+    pending, safe = list(rc.chunks), SafetyInputs()
+    for k in range(1, n):
+        t = rc.t_start_ns + (k - 1) * dt_ns
+        while pending and pending[0].t_received_ns <= t:
+            ch = pending.pop(0)
+            guard.push(_chunk(ch), t)
+        setpoint, _ = guard.tick(t, state, safe)
+        cmd[k] = cell.write(setpoint)
+        cell.step()
+        state = cell.read()
+        q[k], cur[k] = state.q, state.current
+    at = np.clip((rc.t_ns - rc.t_start_ns) // dt_ns, 0, n - 1).astype(int)
+    return Trajectory(rc.ticks.t, q[at], cur[at], cmd[at])
+
+
+def _chunk(recorded):
+    from cellguard.policy.chunk import ActionChunk
+
+    return ActionChunk(actions=recorded.actions, t_obs_ns=recorded.t_obs_ns, dt_ns=recorded.dt_ns,
+                       uncertainty=recorded.uncertainty)
+
+
+def _apply(cell, terms: JointTerms, vary: Vary | None, factor: float) -> None:
+    m, joints = cell.model, hinge_joints(cell)
+    dadr = cell.drives.dadr[joints]
+    values = {"friction": terms.friction.copy(), "damping": terms.damping.copy(), "armature": terms.armature.copy()}
+    if vary is not None:
+        values[vary.parameter][[cell.profile.joint_names[i] for i in joints].index(vary.joint)] *= factor
+    m.dof_frictionloss[dadr], m.dof_damping[dadr], m.dof_armature[dadr] = (values["friction"], values["damping"],
+                                                                            values["armature"])
+    cell.drives.nominal_frictionloss[joints] = values["friction"]
+    cell.drives.nominal_damping[joints] = values["damping"]
+    if terms.payload_kg:
+        m.body_mass[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "tool")] += terms.payload_kg
+
+
+def mismatch(rc: RecordedCycle, sim: Trajectory, joints: list[int]) -> dict:
+    """Per hinge joint: RMS current error [A] over the recorded current's spread, RMS position error [rad]."""
+    cur = np.sqrt(np.mean((sim.current[:, joints] - rc.ticks.current[:, joints]) ** 2, axis=0))
+    spread = np.maximum(np.std(rc.ticks.current[:, joints], axis=0), 1e-9)
+    pos = np.sqrt(np.mean((sim.q[:, joints] - rc.ticks.q[:, joints]) ** 2, axis=0))
+    cmd = np.abs(sim.q_cmd[:, joints] - rc.ticks.q_cmd[:, joints]).max(axis=0)
+    return {"joints": [rc.joints[j] for j in joints], "current_nrmse": (cur / spread).tolist(),
+            "position_rms": pos.tolist(), "setpoint_max_gap": cmd.tolist(),
+            "cost": float(np.mean(cur / spread))}
+
+
+@dataclass(frozen=True)
+class ReplayResult:
+    rc: RecordedCycle
+    model: str  # calibrated | nominal
+    simulated: Trajectory
+    mismatch: dict
+    vary: Vary | None = None
+    best: float | None = None  # the factor that best reproduces the cycle
+    search: tuple[tuple[float, float], ...] = ()  # (factor, cost) in the order tried
+
+    def to_dict(self) -> dict:
+        out = {"cell": self.rc.cell, "cycle": self.rc.cycle, "model": self.model, "ticks": int(len(self.rc.t_ns)),
+               "joints": list(self.rc.joints), "mismatch": self.mismatch}
+        if self.vary is not None:
+            out["vary"] = {"parameter": self.vary.parameter, "joint": self.vary.joint,
+                           "range": [self.vary.low, self.vary.high], "best_factor": self.best,
+                           "tried": [list(p) for p in self.search]}
+        return out
+
+
+def replay(path: Path, cycle: int, model: str = "calibrated", profile: Path | None = None,
+           vary: str | None = None) -> ReplayResult:
+    """Replay cycle ``cycle`` of the record in ``path``; with ``vary`` search the factor that best reproduces it."""
+    from cellguard.robot.registry import make_cell
+
+    if model not in ("calibrated", "nominal"):
+        raise CalibrationError(f"--model: {model!r} is not one of calibrated, nominal")
+    rc = load_cycle(path, cycle)
+    cell = make_cell(rc.cell, seed=rc.seed)
+    if tuple(cell.profile.joint_names) != rc.joints:
+        raise CalibrationError(f"{path}: joints {list(rc.joints)}; the {rc.cell} model has "
+                               f"{list(cell.profile.joint_names)}")
+    terms = JointTerms.from_profile(cell, profile) if model == "calibrated" else JointTerms.nominal(cell)
+    joints = hinge_joints(cell)
+    v = parse_vary(vary, cell) if vary is not None else None
+    if v is None:
+        sim = simulate(rc, terms)
+        return ReplayResult(rc, model, sim, mismatch(rc, sim, joints))
+    tried: dict[float, float] = {}
+
+    def cost(factor: float) -> float:
+        tried[factor] = mismatch(rc, simulate(rc, terms, v, factor), joints)["cost"]
+        return tried[factor]
+
+    grid = np.linspace(v.low, v.high, GRID)
+    best = grid[int(np.argmin([cost(f) for f in grid]))]
+    step = grid[1] - grid[0]
+    lo, hi = max(v.low, best - step), min(v.high, best + step)
+    found = minimize_scalar(cost, bounds=(lo, hi), method="bounded", options={"xatol": XTOL})
+    factor = float(found.x) if found.fun <= tried[best] else float(best)
+    sim = simulate(rc, terms, v, factor)
+    return ReplayResult(rc, model, sim, mismatch(rc, sim, joints), v, factor, tuple(tried.items()))

@@ -1,0 +1,78 @@
+"""The incident replay page: recorded versus simulated joint positions and currents of one cycle.
+
+Self-contained HTML in the incident report's style (same CSS, inline SVG charts).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from cellguard.calibrate.replay import ReplayResult
+from cellguard.output import write_output
+from cellguard.report.html import _CSS, _e, _figure
+from cellguard.report.plots import BAD, BASE, GOOD, _svg, plt
+
+
+def render_replay(r: ReplayResult) -> str:
+    d = r.to_dict()
+    m = d["mismatch"]
+    title = f"cellguard incident replay: {_e(r.rc.cell)}, cycle {r.rc.cycle}"
+    hinge = [r.rc.joints.index(name) for name in m["joints"]]
+    rows = "".join(f"<tr><td>{_e(r.rc.joints[j])}</td><td>{a:.3f}</td><td>{b * 1e3:.3f}</td><td>{c * 1e3:.3f}</td></tr>"
+                   for j, a, b, c in zip(hinge, m["current_nrmse"], m["position_rms"], m["setpoint_max_gap"]))
+    parts = [f"<h1>{title}</h1>",
+             f"<p class=muted>{d['ticks']} recorded ticks replayed through the {_e(r.model)} model from the recorded "
+             "start state; the chunks recorded in the cycle went through a fresh guard.</p>"]
+    if r.vary is not None:
+        v = r.vary
+        parts += ["<h2>Hypothesis</h2>",
+                  f"<div class=finding>{_e(v.parameter)} of {_e(v.joint)} x <b>{r.best:.3f}</b> reproduces the "
+                  "recorded "
+                  f"cycle best (searched {v.low:g}..{v.high:g}; mean current NRMSE {m['cost']:.4f})</div>",
+                  _figure("search", _search_chart(r))]
+    parts += ["<h2>Recorded versus simulated</h2>", _figure("overlay", _overlay(r, hinge)),
+              "<h2>Mismatch per joint</h2>",
+              "<table><tr><th>joint</th><th>current NRMSE</th><th>position RMS [mrad]</th>"
+              f"<th>largest setpoint gap [mrad]</th></tr>{rows}</table>"]
+    return ("<!doctype html><html lang=en><head><meta charset=utf-8><title>cellguard replay</title>"
+            f"<style>{_CSS}</style></head><body>{''.join(parts)}</body></html>")
+
+
+def write_replay(r: ReplayResult, out: Path) -> Path:
+    """Write the page to ``out`` (beside it, then renamed)."""
+    write_output(Path(out), render_replay(r), "replay report")
+    return Path(out)
+
+
+def _overlay(r: ReplayResult, joints: list[int]) -> str:
+    n = len(joints)
+    fig, axes = plt.subplots(2, n, figsize=(max(11, 2.2 * n), 4.4), squeeze=False, sharex=True)
+    rec, sim = r.rc.ticks, r.simulated
+    for k, j in enumerate(joints):
+        axes[0][k].plot(rec.t, rec.q[:, j], color=BAD, lw=0.8, label="recorded")
+        axes[0][k].plot(sim.t, sim.q[:, j], color=GOOD, lw=0.8, ls="--", label="simulated")
+        axes[1][k].plot(rec.t, rec.current[:, j], color=BAD, lw=0.6, label="recorded")
+        axes[1][k].plot(sim.t, sim.current[:, j], color=GOOD, lw=0.6, label="simulated")
+        axes[0][k].set_title(r.rc.joints[j], fontsize=9)
+        axes[1][k].set_xlabel("s into cycle", fontsize=8)
+    axes[0][0].set_ylabel("position [rad]", fontsize=8)
+    axes[1][0].set_ylabel("current [A]", fontsize=8)
+    axes[0][0].legend(fontsize=7)
+    for ax in axes.flat:
+        ax.tick_params(labelsize=7)
+    fig.tight_layout()
+    return _svg(fig)
+
+
+def _search_chart(r: ReplayResult) -> str:
+    tried = np.array(sorted(r.search))
+    fig, ax = plt.subplots(figsize=(5, 2.6))
+    ax.plot(tried[:, 0], tried[:, 1], "o-", color=BASE, ms=3)
+    ax.axvline(r.best, color=BAD, lw=0.8)
+    ax.set_xlabel(f"{r.vary.parameter} factor on {r.vary.joint}", fontsize=8)
+    ax.set_ylabel("mean current NRMSE", fontsize=8)
+    ax.tick_params(labelsize=7)
+    fig.tight_layout()
+    return _svg(fig)
