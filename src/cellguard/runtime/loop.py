@@ -118,8 +118,9 @@ class Run:
             self._clock_started = True
             clock.start()
             self._armed_at = start  # the watchdog runs from the start, not from the first chunk
+        now, advance, timing, finished = clock.now, clock.advance, clock.timing, self.source.finished
+        t = now()
         while True:
-            t = clock.now()
             guard = self.guard
             arrival = inference.take(t)
             if arrival is not None and arrival.chunk is not None and not self._started:
@@ -148,26 +149,28 @@ class Run:
                         inference.corrupt_pending(_with_nan)
                         corrupt = False
             safety = cell.safety()
-            stop = self._stop_input(t, guard)
-            if stop is not None:
-                safety = SafetyInputs(stop if safety.stop is None else min(stop, safety.stop), safety.reduced_speed)
+            if link.stop is not None or guard.executor.last_chunk_ns is None:  # else the loop asks for no stop
+                stop = self._stop_input(t, guard)
+                if stop is not None:
+                    safety = SafetyInputs(stop if safety.stop is None else min(stop, safety.stop), safety.reduced_speed)
             setpoint, new = guard.tick(t, state, safety)
             if new:
                 events.extend(new)
                 if not guard.power:
                     cell.set_power(False)
             sent = link.write(t, setpoint)
-            clock.advance()
-            if clock.timing.new_overrun:
+            advance()
+            if timing.new_overrun:
                 self._overrun(t)
-            state = link.read(clock.now())
+            t = now()
+            state = link.read(t)
             ticks.add(guard.reference, sent, state)
             if rec is not None and not rec.tick(guard.reference, sent, state):
                 break
             if link.stop is not None and (link.lost or guard.envelope.tracker.stopped):
                 self.stopped = self.stopped or f"robot link: {link.reason}"
                 break
-            if self.source.finished(state) or clock.now() >= timeout:
+            if finished(state) or t >= timeout:
                 break
         t_end = clock.now()
         outcome = {"cycle": index, "phase": self._phase(index), **self.source.end(t_end)}
