@@ -76,6 +76,8 @@ class Run:
         self._clock_started = False
         self._armed_at = 0
         self._first_observation = None
+        # the cycle in progress: its start [ns], chunk latencies [ns], wall time per call [ns], a pending NaN fault
+        self._cycle_start, self._latencies, self._wall_ns, self._corrupt = 0, [], [], False
 
     # -- one cycle ---------------------------------------------------------------------------
     def cycle(self) -> dict:
@@ -87,7 +89,7 @@ class Run:
         cell, clock, link, inference, events = self.cell, self.clock, self.link, self.inference, self.events
         if clock.realtime and not self._clock_started:
             self._warm_up()
-        corrupt = False
+        self._corrupt = False
         if self.simulated:
             for fault in self.scenario.faults:
                 fault.apply(cell, index)
@@ -95,10 +97,11 @@ class Run:
             if not clock.realtime:
                 inference.latency_ns = round((NOMINAL_INFERENCE_S + sum(f.extra_latency_s(index)
                                                                         for f in self.scenario.faults)) * 1e9)
-            corrupt = any(f.corrupts_output(index) for f in self.scenario.faults)
+            self._corrupt = any(f.corrupts_output(index) for f in self.scenario.faults)
         self.source.begin(index, clock.now())
         self.policy.reset()
         start = link.read(clock.now()).t_ns if self.simulated else clock.now()
+        self._cycle_start = start
         rec = self.recording
         if rec is not None:
             rec.begin_cycle(index, self._phase(index), start)
@@ -106,7 +109,7 @@ class Run:
         limit_s = cycle.seconds + CYCLE_TIMEOUT_S if cycle.source == "time" else CYCLE_TIMEOUT_S
         timeout = start + round(limit_s * 1e9)
         inference.begin_cycle(start)
-        first_event, latencies, wall_ns = events.total, [], []
+        first_event, self._latencies, self._wall_ns = events.total, [], []
         ticks = self.ticks
         ticks.clear()
         if not self.guard.power:  # a category 0/1 stop in the last cycle: the operator resets the cell
@@ -118,71 +121,85 @@ class Run:
             self._clock_started = True
             clock.start()
             self._armed_at = start  # the watchdog runs from the start, not from the first chunk
+        # The ticks: what runs every servo period is inline; what runs at the policy's cadence is a call.
         now, advance, timing, finished = clock.now, clock.advance, clock.timing, self.source.finished
         t = now()
-        while True:
-            guard = self.guard
-            arrival = inference.take(t)
-            if arrival is not None and arrival.chunk is not None and not self._started:
-                arrival = self._start(arrival)
+        with clock.ticking():  # wall time: the servo thread is a real-time thread while the ticks run
+            while True:
+                arrival = inference.take(t)
+                if arrival is not None:
+                    self._arrived(arrival, t)
+                if inference.due(t):
+                    self._request(t)
                 guard = self.guard
-            if arrival is not None and arrival.chunk is not None:
-                if rec is not None:
-                    rec.chunk(arrival.chunk, t, arrival.latency_ns)
-                events.extend(guard.push(arrival.chunk, t))
-                latencies.append(arrival.latency_ns)
-                wall_ns.append(arrival.wall_ns)
-            elif arrival is not None:
-                events.append(Event(t, EventKind.INFERENCE_FAILED, arrival.error))
-                wall_ns.append(arrival.wall_ns)
-            if inference.due(t):
-                observation = cell.observe()
-                failed = inference.submit(t, observation)
-                if failed is not None:
-                    events.append(Event(t, EventKind.INFERENCE_FAILED, failed.error))
-                    wall_ns.append(failed.wall_ns)
-                else:
-                    self._first_observation = self._first_observation or observation
-                    if rec is not None:
-                        rec.request(t, observation)
-                    if corrupt and t - start >= NAN_AFTER_S * 1e9:
-                        inference.corrupt_pending(_with_nan)
-                        corrupt = False
-            safety = cell.safety()
-            if link.stop is not None or guard.executor.last_chunk_ns is None:  # else the loop asks for no stop
-                stop = self._stop_input(t, guard)
-                if stop is not None:
-                    safety = SafetyInputs(stop if safety.stop is None else min(stop, safety.stop), safety.reduced_speed)
-            setpoint, new = guard.tick(t, state, safety)
-            if new:
-                events.extend(new)
-                if not guard.power:
-                    cell.set_power(False)
-            sent = link.write(t, setpoint)
-            advance()
-            if timing.new_overrun:
-                self._overrun(t)
-            t = now()
-            state = link.read(t)
-            ticks.add(guard.reference, sent, state)
-            if rec is not None and not rec.tick(guard.reference, sent, state):
-                break
-            if link.stop is not None and (link.lost or guard.envelope.tracker.stopped):
-                self.stopped = self.stopped or f"robot link: {link.reason}"
-                break
-            if finished(state) or t >= timeout:
-                break
+                safety = cell.safety()
+                if link.stop is not None or guard.executor.last_chunk_ns is None:  # else the loop asks no stop
+                    stop = self._stop_input(t, guard)
+                    if stop is not None:
+                        safety = SafetyInputs(stop if safety.stop is None else min(stop, safety.stop),
+                                              safety.reduced_speed)
+                setpoint, new = guard.tick(t, state, safety)
+                if new:
+                    events.extend(new)
+                    if not guard.power:
+                        cell.set_power(False)
+                sent = link.write(t, setpoint)
+                advance()
+                if timing.new_overrun:
+                    self._overrun(t)
+                t = now()
+                state = link.read(t)
+                ticks.add(guard.reference, sent, state)
+                if rec is not None and not rec.tick(guard.reference, sent, state):
+                    break
+                if link.stop is not None and (link.lost or guard.envelope.tracker.stopped):
+                    self.stopped = self.stopped or f"robot link: {link.reason}"
+                    break
+                if finished(state) or t >= timeout:
+                    break
         t_end = clock.now()
         outcome = {"cycle": index, "phase": self._phase(index), **self.source.end(t_end)}
         outcome["timed_out"] = t_end >= timeout
-        outcome["inference"] = _wall_latency(wall_ns)
-        outcome["features"] = cycle_features(cell.profile, ticks, outcome, latencies, events.since(first_event))
+        outcome["inference"] = _wall_latency(self._wall_ns)
+        outcome["features"] = cycle_features(cell.profile, ticks, outcome, self._latencies, events.since(first_event))
         if rec is not None:
             rec.end_cycle(outcome, t_end)
             if rec.failed:
                 self._stop_unrecorded(rec.failed)
         self.cycles.append(outcome)
         return outcome
+
+    def _arrived(self, arrival, t_ns: int) -> None:
+        """A finished request: its chunk to the guard (the run's first one after the start-up checks), or
+        its failure as an event."""
+        if arrival.chunk is None:
+            self.events.append(Event(t_ns, EventKind.INFERENCE_FAILED, arrival.error))
+            self._wall_ns.append(arrival.wall_ns)
+            return
+        if not self._started:
+            arrival = self._start(arrival)
+            if arrival is None:  # an approach was played; a fresh request follows
+                return
+        if self.recording is not None:
+            self.recording.chunk(arrival.chunk, t_ns, arrival.latency_ns)
+        self.events.extend(self.guard.push(arrival.chunk, t_ns))
+        self._latencies.append(arrival.latency_ns)
+        self._wall_ns.append(arrival.wall_ns)
+
+    def _request(self, t_ns: int) -> None:
+        """Hand the policy an observation (a policy_nan fault corrupts the answer once, ``NAN_AFTER_S`` in)."""
+        observation = self.cell.observe()
+        failed = self.inference.submit(t_ns, observation)
+        if failed is not None:
+            self.events.append(Event(t_ns, EventKind.INFERENCE_FAILED, failed.error))
+            self._wall_ns.append(failed.wall_ns)
+            return
+        self._first_observation = self._first_observation or observation
+        if self.recording is not None:
+            self.recording.request(t_ns, observation)
+        if self._corrupt and t_ns - self._cycle_start >= NAN_AFTER_S * 1e9:
+            self.inference.corrupt_pending(_with_nan)
+            self._corrupt = False
 
     # -- start, stops ---------------------------------------------------------------------------
     def _warm_up(self) -> None:
@@ -303,10 +320,11 @@ class Run:
                              "process_changes": [c.model_dump(mode="json") for c in self.scenario.process_changes]},
         }
         if self.clock.realtime:
-            summary["timing"] = {**self.clock.timing.summary(), "setpoints_refused": self.link.refused,
+            summary["timing"] = {**self.clock.timing.summary(), "scheduler": self.clock.scheduler,
+                                 "setpoints_refused": self.link.refused,
                                  "packets_dropped": getattr(self.cell, "dropped", 0),
-                                 # the recorder's bounded queue off the servo thread, when it has one
-                                 "recorder_queue_high_water": getattr(self.recording, "queue_high_water", None)}
+                                 # the recorder's bounded queue off the servo thread [ticks waiting at most]
+                                 "recorder_queue_high_water": getattr(self.recording, "high_water", None)}
         return summary
 
 
