@@ -29,7 +29,7 @@ from cellguard.policy.registry import make_policy
 from cellguard.record.session import RunRecording
 from cellguard.record.writer import RecordConfig
 from cellguard.robot.process import apply_process_changes
-from cellguard.robot.protocol import SafetyInputs
+from cellguard.robot.protocol import RobotLinkError, SafetyInputs
 from cellguard.runtime.build import make_clock, make_inference, make_robot
 from cellguard.runtime.cycles import make_cycle_source
 from cellguard.runtime.history import CycleWindow, EventLog
@@ -149,6 +149,9 @@ class Run:
                     self._overrun(t)
                 t = now()
                 state = link.read(t)
+                if state is None:  # the link failed before its first state: nothing to record or to hold
+                    self.stopped = self.stopped or f"robot link: {link.reason}"
+                    break
                 ticks.add(guard.reference, sent, state)
                 if rec is not None and not rec.tick(guard.reference, sent, state):
                     break
@@ -209,7 +212,11 @@ class Run:
         self.policy.reset()
         resync = getattr(self.cell, "resync", None)
         if callable(resync):
-            resync()
+            try:
+                resync()
+            except RobotLinkError as exc:  # the robot went away meanwhile: the first tick stops the run
+                self.link.fault(self.clock.now(), EventKind(exc.kind), str(exc))
+                self.link.lost = self.link.lost or exc.lost
 
     def _start(self, arrival):
         """The run's first chunk: start-up checks (may refuse to move), then the approach if needed.
