@@ -36,6 +36,7 @@ import numpy as np
 from cellguard.errors import CellguardError
 from cellguard.policy.chunk import ActionChunk
 from cellguard.runtime import run_scenario
+from cellguard.runtime.servo_thread import PRIORITY, ServoThread
 from cellguard.scenario import parse_scenario
 
 HOME = np.array([0.0, -0.3, 1.9, 1.55, 0.0, 0.025])
@@ -133,7 +134,9 @@ def onnx_model(path: Path, target_ms: float) -> Path:
             session.run(None, feed)
         return (time.perf_counter() - t) / 3 * 1e3
 
-    trial = per_call_ms(build(8)) / 8
+    # sized as the loop runs it: the inference thread sits one real-time priority below the servo thread
+    with ServoThread(priority=PRIORITY - 1):
+        trial = per_call_ms(build(8)) / 8
     path.write_bytes(build(max(1, round(target_ms / trial))))
     return path
 
