@@ -45,7 +45,9 @@ def test_server_killed_mid_cycle_stops_within_the_watchdog_and_the_record_names_
     proc, port = server
     killed = {}
 
-    def kill():
+    def kill():  # one second into the run (its set-up takes a while on a loaded host)
+        while not (tmp_path / "out" / "record.mcap").exists():
+            time.sleep(0.01)
         time.sleep(1.0)
         killed["t_ns"] = time.monotonic_ns()
         proc.kill()

@@ -135,7 +135,7 @@ class AsyncInference:
         self._done: InferenceResult | None = None
         self._in_flight = False
         self._closed = False
-        self._step_times = np.zeros(0, dtype=np.int64)  # of the newest chunk taken
+        self._set_queue(np.zeros(0, dtype=np.int64))  # step times of the newest chunk taken [ns]
         self._thread = threading.Thread(target=self._work, name="cellguard-inference", daemon=True)
         self._thread.start()
 
@@ -144,11 +144,8 @@ class AsyncInference:
         return int(np.count_nonzero(self._step_times > t_ns))
 
     def wants_observation(self, t_ns: int) -> bool:
-        """Whether the servo loop should hand over an observation at ``t_ns``."""
-        if self._in_flight:
-            return False
-        horizon = len(self._step_times)
-        return horizon == 0 or self.remaining_steps(t_ns) <= self.threshold * horizon
+        """Whether the servo loop should hand over an observation at ``t_ns`` (asked every tick: one compare)."""
+        return not self._in_flight and t_ns >= self._due_ns
 
     def submit(self, observation: Observation) -> None:
         """Hand ``observation`` to the worker; returns at once."""
@@ -169,8 +166,16 @@ class AsyncInference:
             return None
         self.results.append(result)
         if result.chunk is not None:
-            self._step_times = result.chunk.step_times_ns()
+            self._set_queue(result.chunk.step_times_ns())
         return result
+
+    def _set_queue(self, step_times: np.ndarray) -> None:
+        """The newest chunk's step times [ns], ascending; an observation is due from the time at which
+        at most ``threshold`` of the horizon is left (``remaining_steps(t) <= threshold * horizon``)."""
+        self._step_times = step_times
+        horizon = len(step_times)
+        keep = int(np.floor(self.threshold * horizon))  # steps that may still lie ahead when asking
+        self._due_ns = -(1 << 62) if keep >= horizon else int(step_times[horizon - 1 - keep])
 
     def warm_up(self, observation: Observation) -> None:
         """One call before the loop starts (loads, compiles, fills caches); its chunk is dropped."""
@@ -185,7 +190,7 @@ class AsyncInference:
             if self._done is not None:
                 self._done, self._in_flight = None, False
             self._reset_remote = self._remote is not None
-        self._step_times = np.zeros(0, dtype=np.int64)
+        self._set_queue(np.zeros(0, dtype=np.int64))
 
     def close(self, timeout_s: float = 5.0) -> None:
         """Stop the worker after its current call (bounded wait)."""

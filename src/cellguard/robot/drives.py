@@ -28,6 +28,8 @@ class PositionDrives:
         self.qadr = np.array([model.jnt_qposadr[j] for j in jids])
         self.dadr = np.array([model.jnt_dofadr[j] for j in jids])
         self.act = np.array([mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, n) for n in profile.joint_names])
+        # read every tick: a slice where the addresses run in order (a view; a fancy index copies and costs more)
+        self._q, self._v, self._a = span(self.qadr), span(self.dadr), span(self.act)
         self._kt = profile.array("torque_constant")
         self.nominal_frictionloss = model.dof_frictionloss[self.dadr].copy()
         self.nominal_gain = model.actuator_gainprm[self.act, 0].copy()
@@ -37,14 +39,15 @@ class PositionDrives:
     def read(self, t_ns: int) -> State:
         """What the drives report now: position, velocity, effort and motor current."""
         d = self.data
-        effort = d.actuator_force[self.act].copy()
-        current = effort / self._kt + self.rng.normal(0.0, self.current_noise, effort.shape)
-        return State(t_ns, d.qpos[self.qadr].copy(), d.qvel[self.dadr].copy(), effort, current)
+        effort = d.actuator_force[self._a].copy()
+        current = effort / self._kt + self.rng.normal(0.0, self.current_noise, len(effort))
+        return State(t_ns, d.qpos[self._q].copy(), d.qvel[self._v].copy(), effort, current)
 
     def write(self, setpoint: np.ndarray) -> np.ndarray:
         """Command joint positions; return what the drives took."""
-        self.data.ctrl[self.act] = setpoint
-        return self.data.ctrl[self.act].copy()
+        ctrl = self.data.ctrl
+        ctrl[self._a] = setpoint
+        return ctrl[self._a].copy()
 
     def set_power(self, on: bool) -> None:
         """Power off: every actuator disabled and the joints braked (high damping); on: as commissioned."""
@@ -61,6 +64,14 @@ class PositionDrives:
         i = self.profile.index(joint)
         self.model.actuator_gainprm[self.act[i], 0] = self.nominal_gain[i] * factor
         self.model.actuator_biasprm[self.act[i], 1:3] = self.nominal_bias[i] * factor
+
+
+def span(index: np.ndarray) -> slice | np.ndarray:
+    """``index`` as a slice when it is a run of consecutive addresses, else unchanged."""
+    index = np.asarray(index)
+    if len(index) and np.array_equal(index, np.arange(index[0], index[0] + len(index))):
+        return slice(int(index[0]), int(index[0]) + len(index))
+    return index
 
 
 class DrivenCell:

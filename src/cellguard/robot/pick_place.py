@@ -21,7 +21,7 @@ import mujoco
 import numpy as np
 
 from cellguard.embodiment import Profile
-from cellguard.robot.drives import DrivenCell, PositionDrives
+from cellguard.robot.drives import DrivenCell, PositionDrives, span
 from cellguard.robot.kinematics import solve_tool_down
 from cellguard.robot.protocol import SafetyInputs
 from cellguard.robot.state import Observation
@@ -73,6 +73,9 @@ class PickPlaceCell(DrivenCell):
         m = model
         self.drives = PositionDrives(m, self.data, profile, self.rng, layout.current_noise, layout.brake_damping)
         self._qadr, self._dadr = self.drives.qadr, self.drives.dadr
+        # per tick: the arm joints (all but the gripper) and the gripper opening, as plain indices
+        self._arm_q, self._arm_v, self._q = span(self._qadr[:-1]), span(self._dadr[:-1]), span(self._qadr)
+        self._gripper_q = int(self._qadr[-1])
         self._part_body = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "part")
         part_joint = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, "part")
         self._part_qadr, self._part_dadr = m.jnt_qposadr[part_joint], m.jnt_dofadr[part_joint]
@@ -96,6 +99,7 @@ class PickPlaceCell(DrivenCell):
         self.camera_calibration = {"position": self.nominal["camera"].tolist(), "rotation": CAMERA_ROTATION.tolist(),
                                    "calibrated": "2026-10-14"}
         self.q_home = np.array(layout.q_home, dtype=np.float64)
+        self._arm_home = self.q_home[:-1].copy()
         self.data.qpos[self._qadr] = self.q_home
         self.drives.write(self.q_home)
         mujoco.mj_forward(m, self.data)
@@ -117,7 +121,7 @@ class PickPlaceCell(DrivenCell):
     # -- Robot -------------------------------------------------------------------------
     def tool_point(self, q: np.ndarray) -> np.ndarray:
         """Forward kinematics: the tool point (3,) [m] at joint positions ``q`` (dof,), off the live model state."""
-        self._fk.qpos[self._qadr] = q
+        self._fk.qpos[self._q] = q
         mujoco.mj_kinematics(self.model, self._fk)
         return self._fk.site_xpos[self._tcp].copy()
 
@@ -165,12 +169,11 @@ class PickPlaceCell(DrivenCell):
         self._failed = None
 
     def cycle_finished(self) -> bool:
-        away = np.abs(self.data.qpos[self._qadr[:-1]] - self.q_home[:-1])
+        away = np.abs(self.data.qpos[self._arm_q] - self._arm_home).max()
         if not self._left_home:
-            self._left_home = bool(away.max() > 0.05)
+            self._left_home = bool(away > 0.05)
             return False
-        slow = np.abs(self.data.qvel[self._dadr[:-1]]).max() < 0.05
-        return bool(away.max() < 0.01 and slow)
+        return bool(away < 0.01 and np.abs(self.data.qvel[self._arm_v]).max() < 0.05)
 
     def end_cycle(self) -> dict:
         part = self.data.xpos[self._part_body]
@@ -203,15 +206,16 @@ class PickPlaceCell(DrivenCell):
         }
 
     def _update_grasp(self) -> None:
-        opening = self.data.qpos[self._qadr[-1]]
-        held = bool(self.data.eq_active[self._grasp_eq])
-        if held and opening > self.layout.gripper_released:
-            self.data.eq_active[self._grasp_eq] = 0
+        d, layout = self.data, self.layout
+        opening = float(d.qpos[self._gripper_q])
+        held = bool(d.eq_active[self._grasp_eq])
+        if held and opening > layout.gripper_released:
+            d.eq_active[self._grasp_eq] = 0
             self._release_ns = self.t_ns
-            part, drop = self.data.xpos[self._part_body], self.data.site_xpos[self._drop]
-            if float(np.linalg.norm(part[:2] - drop[:2])) >= self.layout.drop_tolerance:
+            part, drop = d.xpos[self._part_body], d.site_xpos[self._drop]
+            if float(np.linalg.norm(part[:2] - drop[:2])) >= layout.drop_tolerance:
                 self._failed = "place_missed"
-        closed = opening < self.layout.gripper_closed
+        closed = opening < layout.gripper_closed
         closing, self._closed = closed and not self._closed, closed
         if closing and not held:
             tcp = self.data.site_xpos[self._tcp]

@@ -4,6 +4,8 @@
 never waits. ``WallClock`` sleeps until shortly before the next deadline, then spins to it
 (``time.sleep`` alone wakes up to a scheduler quantum late); a simulated cell on wall time is
 stepped once per period too. Each period's lateness and compute time go to ``TickTiming``.
+``ticking()`` wraps the loop's ticks: on wall time the servo thread is a real-time thread then,
+with the garbage collector run in idle time (``servo_thread``).
 """
 
 from __future__ import annotations
@@ -11,10 +13,13 @@ from __future__ import annotations
 import sys
 import time
 from collections.abc import Callable
+from contextlib import nullcontext
 
+from cellguard.runtime.servo_thread import PRIORITY, ServoThread
 from cellguard.runtime.timing import TickTiming
 
 SPIN_NS = 300_000  # the last stretch before a deadline is spun, not slept [ns]
+SPIN_FIFO_NS = 100_000  # the same for a real-time servo thread, which wakes within tens of us [ns]
 
 
 class SimClock:
@@ -30,6 +35,10 @@ class SimClock:
 
     def start(self) -> None:
         """Nothing to align in simulated time."""
+
+    def ticking(self):
+        """Simulated time asks nothing of the OS."""
+        return nullcontext()
 
 
 class LockStepClock:
@@ -61,10 +70,13 @@ class WallClock:
     realtime = True
 
     def __init__(self, period_ns: int, step: Callable[[], None] | None = None,
-                 now: Callable[[], int] | None = None, spin_ns: int = SPIN_NS):
+                 now: Callable[[], int] | None = None, spin_ns: int = SPIN_NS, priority: int | None = PRIORITY):
         self.period_ns, self._step, self._spin_ns = int(period_ns), step, int(spin_ns)
         self.timing = TickTiming(self.period_ns)
         self.now = now or time.monotonic_ns
+        self.priority = priority  # SCHED_FIFO priority while ticking (None: an ordinary thread)
+        self.scheduler = "other"  # what the servo thread got the last time it ticked
+        self._servo: ServoThread | None = None
         self._deadline = 0
         self._began = 0
 
@@ -79,6 +91,11 @@ class WallClock:
         self._began = time.monotonic_ns()
         self._deadline = self._began + self.period_ns
 
+    def ticking(self) -> ServoThread:
+        """The ticks run inside this: the servo thread real-time and the collector in idle time."""
+        self._servo = ServoThread(self.priority)
+        return self._servo
+
     def advance(self) -> None:
         """Step (a simulated cell), then wait for the deadline; account lateness and compute time."""
         if self._step is not None:
@@ -86,7 +103,13 @@ class WallClock:
         clock = time.monotonic_ns
         compute = clock() - self._began
         deadline = self._deadline
-        left = deadline - clock() - self._spin_ns
+        servo, spin = self._servo, self._spin_ns
+        if servo is not None and servo.active:
+            servo.collect_if_idle(deadline - clock())
+            self.scheduler = servo.scheduler
+            if servo.scheduler != "other":
+                spin = min(spin, SPIN_FIFO_NS)
+        left = deadline - clock() - spin
         if left > 0:
             time.sleep(left * 1e-9)
         while clock() < deadline:

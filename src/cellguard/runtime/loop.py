@@ -29,7 +29,7 @@ from cellguard.policy.registry import make_policy
 from cellguard.record.session import RunRecording
 from cellguard.record.writer import RecordConfig
 from cellguard.robot.process import apply_process_changes
-from cellguard.robot.protocol import SafetyInputs
+from cellguard.robot.protocol import RobotLinkError, SafetyInputs
 from cellguard.runtime.build import make_clock, make_inference, make_robot
 from cellguard.runtime.cycles import make_cycle_source
 from cellguard.runtime.history import CycleWindow, EventLog
@@ -81,6 +81,8 @@ class Run:
         self._clock_started = False
         self._armed_at = 0
         self._first_observation = None
+        # the cycle in progress: its start [ns], chunk latencies [ns], wall time per call [ns], a pending NaN fault
+        self._cycle_start, self._latencies, self._wall_ns, self._corrupt = 0, [], [], False
 
     # -- one cycle ---------------------------------------------------------------------------
     def cycle(self) -> dict:
@@ -92,7 +94,7 @@ class Run:
         cell, clock, link, inference, events = self.cell, self.clock, self.link, self.inference, self.events
         if clock.realtime and not self._clock_started:
             self._warm_up()
-        corrupt = False
+        self._corrupt = False
         if self.simulated:
             for fault in self.scenario.faults:
                 fault.apply(cell, index)
@@ -100,7 +102,7 @@ class Run:
             if not clock.realtime:
                 inference.latency_ns = round((NOMINAL_INFERENCE_S + sum(f.extra_latency_s(index)
                                                                         for f in self.scenario.faults)) * 1e9)
-            corrupt = any(f.corrupts_output(index) for f in self.scenario.faults)
+            self._corrupt = any(f.corrupts_output(index) for f in self.scenario.faults)
             if self.recovery is not None:
                 self.recovery.arm_speed = min((f.recovery_speed(index) for f in self.scenario.faults), default=1.0)
         recovery = self.recovery
@@ -109,6 +111,7 @@ class Run:
         self.source.begin(index, clock.now())
         self.policy.reset()
         start = link.read(clock.now()).t_ns if self.simulated else clock.now()
+        self._cycle_start = start
         rec = self.recording
         if rec is not None:
             rec.begin_cycle(index, self._phase(index), start)
@@ -116,7 +119,7 @@ class Run:
         limit_s = cycle.seconds + CYCLE_TIMEOUT_S if cycle.source == "time" else CYCLE_TIMEOUT_S
         timeout = start + round(limit_s * 1e9)
         inference.begin_cycle(start)
-        first_event, latencies, wall_ns = events.total, [], []
+        first_event, self._latencies, self._wall_ns = events.total, [], []
         ticks = self.ticks
         ticks.clear()
         if not self.guard.power:  # a category 0/1 stop in the last cycle: the operator resets the cell
@@ -128,71 +131,62 @@ class Run:
             self._clock_started = True
             clock.start()
             self._armed_at = start  # the watchdog runs from the start, not from the first chunk
-        while True:
-            t = clock.now()
-            guard = self.guard
-            driving = recovery is not None and recovery.drives(t, state, guard.reference)  # in place of the policy
-            arrival = None if driving else inference.take(t)
-            if driving and (chunk := recovery.chunk(t)) is not None:
-                if rec is not None:
-                    rec.chunk(chunk, t, 0)
-                events.extend(guard.push(chunk, t))
-            if arrival is not None and arrival.chunk is not None and not self._started:
-                arrival = self._start(arrival)
-                guard = self.guard
-            if arrival is not None and arrival.chunk is not None:
-                if rec is not None:
-                    rec.chunk(arrival.chunk, t, arrival.latency_ns)
-                events.extend(guard.push(arrival.chunk, t))
-                latencies.append(arrival.latency_ns)
-                wall_ns.append(arrival.wall_ns)
-            elif arrival is not None:
-                events.append(Event(t, EventKind.INFERENCE_FAILED, arrival.error))
-                wall_ns.append(arrival.wall_ns)
-            if not driving and inference.due(t):
-                observation = cell.observe()
-                failed = inference.submit(t, observation)
-                if failed is not None:
-                    events.append(Event(t, EventKind.INFERENCE_FAILED, failed.error))
-                    wall_ns.append(failed.wall_ns)
+        # The ticks: what runs every servo period is inline; what runs at the policy's cadence is a call.
+        now, advance, timing, finished = clock.now, clock.advance, clock.timing, self.source.finished
+        t = now()
+        with clock.ticking():  # wall time: the servo thread is a real-time thread while the ticks run
+            while True:
+                driving = recovery is not None and recovery.drives(t, state, self.guard.reference)
+                if driving:  # a recovery behaviour feeds the guard in place of the policy
+                    chunk = recovery.chunk(t)
+                    if chunk is not None:
+                        if rec is not None:
+                            rec.chunk(chunk, t, 0)
+                        events.extend(self.guard.push(chunk, t))
                 else:
-                    self._first_observation = self._first_observation or observation
-                    if rec is not None:
-                        rec.request(t, observation)
-                    if corrupt and t - start >= NAN_AFTER_S * 1e9:
-                        inference.corrupt_pending(_with_nan)
-                        corrupt = False
-            safety = cell.safety()
-            stop = self._stop_input(t, guard)
-            if driving and recovery.stop is not None:
-                stop = recovery.stop if stop is None else min(stop, recovery.stop)
-            if stop is not None:
-                safety = SafetyInputs(stop if safety.stop is None else min(stop, safety.stop), safety.reduced_speed)
-            setpoint, new = guard.tick(t, state, safety)
-            if new:
-                events.extend(new)
-                if not guard.power:
-                    cell.set_power(False)
-            sent = link.write(t, setpoint)
-            clock.advance()
-            if clock.timing.new_overrun:
-                self._overrun(t)
-            state = link.read(clock.now())
-            ticks.add(guard.reference, sent, state)
-            if rec is not None and not rec.tick(guard.reference, sent, state):
-                break
-            if link.stop is not None and (link.lost or guard.envelope.tracker.stopped):
-                self.stopped = self.stopped or f"robot link: {link.reason}"
-                break
-            if self.source.finished(state) or clock.now() >= timeout:
-                break
+                    arrival = inference.take(t)
+                    if arrival is not None:
+                        self._arrived(arrival, t)
+                    if inference.due(t):
+                        self._request(t)
+                guard = self.guard
+                safety = cell.safety()
+                stop = None
+                if link.stop is not None or guard.executor.last_chunk_ns is None:  # else the loop asks no stop
+                    stop = self._stop_input(t, guard)
+                if driving and recovery.stop is not None:
+                    stop = recovery.stop if stop is None else min(stop, recovery.stop)
+                if stop is not None:
+                    safety = SafetyInputs(stop if safety.stop is None else min(stop, safety.stop), safety.reduced_speed)
+                setpoint, new = guard.tick(t, state, safety)
+                if new:
+                    events.extend(new)
+                    if not guard.power:
+                        cell.set_power(False)
+                sent = link.write(t, setpoint)
+                advance()
+                if timing.new_overrun:
+                    self._overrun(t)
+                t = now()
+                state = link.read(t)
+                if state is None:  # the link failed before its first state: nothing to record or to hold
+                    self.stopped = self.stopped or f"robot link: {link.reason}"
+                    break
+                ticks.add(guard.reference, sent, state)
+                if rec is not None and not rec.tick(guard.reference, sent, state):
+                    break
+                if link.stop is not None and (link.lost or guard.envelope.tracker.stopped):
+                    self.stopped = self.stopped or f"robot link: {link.reason}"
+                    break
+                if finished(state) or t >= timeout:
+                    break
         t_end = clock.now()
         outcome = {"cycle": index, "phase": self._phase(index), **self.source.end(t_end)}
         outcome["timed_out"] = t_end >= timeout
         if recovery is not None:
             outcome.update(recovery.end_cycle(outcome["timed_out"]))
-        outcome["inference"] = _wall_latency(wall_ns)
-        outcome["features"] = cycle_features(cell.profile, ticks, outcome, latencies, events.since(first_event))
+        outcome["inference"] = _wall_latency(self._wall_ns)
+        outcome["features"] = cycle_features(cell.profile, ticks, outcome, self._latencies, events.since(first_event))
         for monitor in self.cycle_monitors:
             monitor(ticks, outcome)
         if rec is not None:
@@ -202,6 +196,38 @@ class Run:
         self.cycles.append(outcome)
         return outcome
 
+    def _arrived(self, arrival, t_ns: int) -> None:
+        """A finished request: its chunk to the guard (the run's first one after the start-up checks), or
+        its failure as an event."""
+        if arrival.chunk is None:
+            self.events.append(Event(t_ns, EventKind.INFERENCE_FAILED, arrival.error))
+            self._wall_ns.append(arrival.wall_ns)
+            return
+        if not self._started:
+            arrival = self._start(arrival)
+            if arrival is None:  # an approach was played; a fresh request follows
+                return
+        if self.recording is not None:
+            self.recording.chunk(arrival.chunk, t_ns, arrival.latency_ns)
+        self.events.extend(self.guard.push(arrival.chunk, t_ns))
+        self._latencies.append(arrival.latency_ns)
+        self._wall_ns.append(arrival.wall_ns)
+
+    def _request(self, t_ns: int) -> None:
+        """Hand the policy an observation (a policy_nan fault corrupts the answer once, ``NAN_AFTER_S`` in)."""
+        observation = self.cell.observe()
+        failed = self.inference.submit(t_ns, observation)
+        if failed is not None:
+            self.events.append(Event(t_ns, EventKind.INFERENCE_FAILED, failed.error))
+            self._wall_ns.append(failed.wall_ns)
+            return
+        self._first_observation = self._first_observation or observation
+        if self.recording is not None:
+            self.recording.request(t_ns, observation)
+        if self._corrupt and t_ns - self._cycle_start >= NAN_AFTER_S * 1e9:
+            self.inference.corrupt_pending(_with_nan)
+            self._corrupt = False
+
     # -- start, stops ---------------------------------------------------------------------------
     def _warm_up(self) -> None:
         """Wall time, before the first cycle: one policy call off the clock (a cold policy's first answer
@@ -210,7 +236,11 @@ class Run:
         self.policy.reset()
         resync = getattr(self.cell, "resync", None)
         if callable(resync):
-            resync()
+            try:
+                resync()
+            except RobotLinkError as exc:  # the robot went away meanwhile: the first tick stops the run
+                self.link.fault(self.clock.now(), EventKind(exc.kind), str(exc))
+                self.link.lost = self.link.lost or exc.lost
 
     def _start(self, arrival):
         """The run's first chunk: start-up checks (may refuse to move), then the approach if needed.
@@ -321,10 +351,11 @@ class Run:
                              "process_changes": [c.model_dump(mode="json") for c in self.scenario.process_changes]},
         }
         if self.clock.realtime:
-            summary["timing"] = {**self.clock.timing.summary(), "setpoints_refused": self.link.refused,
+            summary["timing"] = {**self.clock.timing.summary(), "scheduler": self.clock.scheduler,
+                                 "setpoints_refused": self.link.refused,
                                  "packets_dropped": getattr(self.cell, "dropped", 0),
-                                 # the recorder's bounded queue off the servo thread, when it has one
-                                 "recorder_queue_high_water": getattr(self.recording, "queue_high_water", None)}
+                                 # the recorder's bounded queue off the servo thread [ticks waiting at most]
+                                 "recorder_queue_high_water": getattr(self.recording, "high_water", None)}
         return summary
 
 

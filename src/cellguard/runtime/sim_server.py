@@ -124,5 +124,6 @@ def serve(cell_name: str, port: int, seed: int = 0, delay_ms: float = 0.0, drop_
     sys.stdout.flush()
     end = None if duration_s is None else time.monotonic_ns() + round(duration_s * 1e9)
     clock.start()
-    while end is None or time.monotonic_ns() < end:
-        clock.advance()
+    with clock.ticking():  # the served robot's controller: a real-time thread where permitted
+        while end is None or time.monotonic_ns() < end:
+            clock.advance()

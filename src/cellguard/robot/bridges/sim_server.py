@@ -17,6 +17,7 @@ robot's kinematic model is known to its controller); the state comes only over t
 
 from __future__ import annotations
 
+import functools
 import json
 import socket
 import struct
@@ -68,14 +69,21 @@ class Layout:
         body = np.frombuffer(packet, dtype="<f8", offset=STATE_HEAD.size)
         if body.size != self.size:
             raise RobotLinkError("robot_read_failed", f"state packet of {body.size} values, expected {self.size}")
+        body = body.astype(np.float64)  # one private copy per packet; the fields below are views of it
         d = self.dof
-        state = State(t_ns, body[0:d].copy(), body[d:2 * d].copy(), body[2 * d:3 * d].copy(), body[3 * d:4 * d].copy())
+        state = State(t_ns, body[0:d], body[d:2 * d], body[2 * d:3 * d], body[3 * d:4 * d])
         i, measurements = 5 * d, {}
         for name, n in self.measurements.items():
-            measurements[name] = body[i:i + n].copy()
+            measurements[name] = body[i:i + n]
             i += n
         stop = int(body[i + 1])
-        return seq, state, measurements, bool(body[i]), SafetyInputs(None if stop < 0 else stop, bool(body[i + 2]))
+        return seq, state, measurements, bool(body[i]), _safety(None if stop < 0 else stop, bool(body[i + 2]))
+
+
+@functools.lru_cache(maxsize=16)
+def _safety(stop: int | None, reduced_speed: bool) -> SafetyInputs:
+    """The (frozen) safety inputs of a state packet; the few distinct values are shared, not rebuilt per tick."""
+    return SafetyInputs(stop, reduced_speed)
 
 
 def pack_command(seq: int, t_ns: int, power: bool, setpoint: np.ndarray) -> bytes:
