@@ -43,6 +43,8 @@ REPLAYS = {
                                                          bytes(48))}), "declares shape (100000000000,)"),
     "bad-header.npz": (_zip({"t.npy": _npy_member("__import__('os').system('true')")}), "not a readable .npy"),
     "not-zip.npz": (b"[" * 500, "not a readable .npz"),
+    # a member name flagged UTF-8 whose bytes are not (found by the hypothesis property)
+    "bad-name.npz": (_zip({"t\u00e9.npy": b"x"}).replace(b"t\xc3\xa9", b"t\xc3\x28"), "not a readable .npz"),
 }
 
 

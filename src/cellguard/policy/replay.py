@@ -110,7 +110,8 @@ def read_npz(path: Path, where: str, allowed: tuple[str, ...], required: tuple[s
                 with archive.open(info) as member:
                     arrays[name] = _read_member(member, info.file_size, f"{where}: array {name!r}")
                 budget -= info.file_size
-    except (zipfile.BadZipFile, zipfile.LargeZipFile, EOFError, OSError, NotImplementedError) as exc:
+    except (zipfile.BadZipFile, zipfile.LargeZipFile, EOFError, OSError, NotImplementedError,
+            UnicodeDecodeError) as exc:  # a member name flagged UTF-8 that is not
         raise ConfigError(f"{where}: not a readable .npz archive ({exc.__class__.__name__})") from None
     for key in required:
         if key not in arrays:
