@@ -60,6 +60,34 @@ def record(folder: Path, cycles: int, ticks_per_cycle: int, events: dict[int, st
     return rec
 
 
+class SlowDisk:
+    """Files whose every write takes ``seconds`` (a worn SD card, a network share)."""
+
+    def __init__(self, seconds: float):
+        self.seconds = seconds
+
+    def __call__(self, path: Path):
+        return _SlowFile(open(path, "wb"), self.seconds)
+
+
+class _SlowFile:
+    def __init__(self, f, seconds: float):
+        self.f, self.seconds = f, seconds
+
+    def write(self, data) -> int:
+        time.sleep(self.seconds)
+        return self.f.write(data)
+
+    def __getattr__(self, name):
+        return getattr(self.f, name)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.f.close()
+
+
 class FullDisk:
     """A file that accepts ``capacity`` bytes, shared by every file of a folder, then raises ENOSPC."""
 

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 from mcap.reader import make_reader
-from record_synth import FullDisk
+from record_synth import FullDisk, SlowDisk
 
 from cellguard.record.reader import open_record
 from cellguard.record.schemas import CHANNELS
@@ -85,3 +85,17 @@ def test_a_full_disk_stops_the_cell_with_a_category_2_event(tmp_path):
         ticks = rec.ticks(rate="decimated")
     assert not health.ok and health.chunks_damaged == 0
     assert len(ticks) > 10 and ticks.t_ns[-1] <= stop.t_ns
+
+
+def test_in_simulated_time_a_slow_writer_holds_the_loop_and_loses_no_tick(tmp_path):
+    """Nothing waits on a clock in simulation: a full queue waits for the writer instead of dropping."""
+    run = Run(_short_demo(1))
+    run.recording = RunRecording.start(tmp_path, run, opener=SlowDisk(0.02), queue_s=0.05)
+    run.cycle()
+    run.recording.close()
+    assert run.recording.dropped == 0
+    assert run.recording.high_water > 25  # the queue did fill past half: the writer was behind
+    assert "record_queue_full" not in [e.kind for e in run.events]
+    with open_record(tmp_path) as rec:
+        assert rec.health().ok
+        assert len(rec.ticks(rate="decimated")) > 0

@@ -2,9 +2,10 @@
 
 The servo thread only appends to a bounded queue (a copy of the reference and the setpoint, the
 measured state as read, about a microsecond); the writer thread does everything else: the
-pre-trigger ring, CDR and JSON encoding, zstd, the MCAP chunks, fsync, the index. A full queue
-never blocks the servo thread: the tick is dropped, counted, and a ``record_queue_full`` event is
-raised (once per episode). A write error ends the recording for good and sets ``failed``; the
+pre-trigger ring, CDR and JSON encoding, zstd, the MCAP chunks, fsync, the index. On wall time a
+full queue never blocks the servo thread: the tick is dropped, counted, and a ``record_queue_full``
+event is raised (once per episode). In simulated time nothing waits on the clock, so a full queue
+waits for the writer instead and no tick is lost. A write error ends the recording for good and sets ``failed``; the
 loop reads it after each tick and stops the cell (category 2, ``record_failed``) because an
 unrecorded run is not allowed. While the writer thread runs, the interpreter's switch interval
 is lowered to ``SWITCH_INTERVAL_S`` so that the servo thread never waits long for the GIL, and
@@ -22,6 +23,7 @@ import gc
 import os
 import sys
 import threading
+import time
 from pathlib import Path
 
 from cellguard.control.events import Event, EventKind
@@ -52,6 +54,8 @@ class RunRecording:
         self._queued = 0  # ticks put on the queue (servo thread)
         self._written = 0  # ticks taken off it (writer thread)
         self._full = False
+        clock = getattr(run, "clock", None)
+        self._waits = clock is not None and not clock.realtime  # simulated time: wait for the writer, drop nothing
         self._ops: collections.deque = collections.deque()
         self._wake = threading.Event()
         self._reserve = reserve
@@ -64,7 +68,7 @@ class RunRecording:
 
     @classmethod
     def start(cls, folder: Path, run, config: RecordConfig = RecordConfig(), opener=default_opener,
-              replace: bool = False) -> RunRecording:
+              replace: bool = False, queue_s: float = 2.0) -> RunRecording:
         """Open the record of ``run`` in ``folder``; RecordError (nothing runs) if it cannot be written.
 
         Refused if ``folder`` holds a record already, unless ``replace``. A small reserve file keeps
@@ -84,7 +88,7 @@ class RunRecording:
         except RecordError:
             _release(reserve)
             raise
-        return cls(recorder, run, reserve=reserve)
+        return cls(recorder, run, queue_s=queue_s, reserve=reserve)
 
     @staticmethod
     def _context(run, config: RecordConfig, software: dict, cycle: int = 0) -> dict:
@@ -114,6 +118,11 @@ class RunRecording:
         waiting = self._queued - self._written
         if waiting > self.high_water:
             self.high_water = waiting
+        if waiting >= self._capacity and self._waits:
+            self._wake.set()
+            while self._queued - self._written > self._capacity // 2 and self.failed is None and self._thread.is_alive():
+                time.sleep(POLL_S)
+            waiting = self._queued - self._written
         if waiting >= self._capacity:
             self.dropped += 1
             if not self._full:
