@@ -106,3 +106,13 @@ def test_server_down_keeps_the_batch_and_says_so(env):
     back = cli(*args[:-2], "--site-dir", root / "down", "--json", dsn=tenants["ta"])
     assert json.loads(back.stdout)["queued"] == 0
     assert not list((root / "down" / "outbox").glob("*.json"))
+
+
+def test_diagnose_with_the_fleet_store_down_warns_and_still_diagnoses(env):
+    root, _ = env
+    result = CliRunner().invoke(app, ["diagnose", str(root / "run"), "--json"], env={"CELLGUARD_FLEET_DSN": DOWN})
+    assert result.exit_code == 0, result.output
+    assert "no advice from the fleet" in result.stderr and "unreachable" in result.stderr
+    assert "fixture_shift" in {f["cause"] for f in json.loads(result.stdout)["findings"]}
+    refused = CliRunner().invoke(app, ["diagnose", str(root / "run"), "--fleet"], env={"CELLGUARD_FLEET_DSN": ""})
+    assert refused.exit_code == 2 and "CELLGUARD_FLEET_DSN" in refused.output

@@ -5,6 +5,7 @@ uploads, data policies enforced, and a server that is down losing nothing."""
 from __future__ import annotations
 
 import datetime as dt
+from dataclasses import replace
 
 import pytest
 
@@ -257,3 +258,21 @@ def test_similar_finds_own_other_sites_only(fleet):
     assert found and {n.site_id for n in found} == {"sa2"}
     assert found[0].cause == "friction" and found[0].similarity > 0.95
     assert all(f["scope"] == "own" for n in found for f in n.fixes)  # 3 customers < k: no fleet figures
+
+
+def test_fleet_advice_counts_what_fixed_a_cause_over_k_customers_only():
+    from cellguard.fleet.advice import fleet_fixes
+
+    store = FleetStore(_server(), "cgtest_advice")
+    store.install(reset=True)
+    dsns = {t: store.add_tenant(t) for t in ("ta", "tb", "tc", "td")}
+    for tenant, fixed in (("ta", True), ("tb", True), ("tc", False)):
+        slip = replace(sig(tenant, "s1", "tool_slip", {"grasp_offset_x_mm": 4.0}), recovery="retry_grasp",
+                       recovery_outcome="success" if fixed else "failed")
+        TenantStore(dsns[tenant]).push(export_batch([slip], DataPolicy(tenant, "s1")))
+    assert fleet_fixes(TenantStore(dsns["td"])) == []  # 3 customers: under the store's k of 5, no advice
+    assert fleet_fixes(TenantStore(dsns["td"]), k=3) == []  # nor can the caller ask for less than the store's k
+    store.set_min_customers(3)
+    rows = fleet_fixes(TenantStore(dsns["td"]), k=3)
+    assert rows == [{"cause": "tool_slip", "recovery": "retry_grasp", "fixed": 2, "tried": 3, "customers": 3,
+                     "scope": "fleet"}]

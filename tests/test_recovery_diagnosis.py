@@ -8,7 +8,7 @@ import numpy as np
 
 from cellguard.diagnose.cause import CAUSES, Finding
 from cellguard.diagnose.cycles import Cycle
-from cellguard.diagnose.recovery import (advice, attempts_of, fixes, policy_cycles, recovery_finding,
+from cellguard.diagnose.recovery import (advice, advice_lines, attempts_of, fixes, policy_cycles, recovery_finding,
                                          with_running_again, without_recovery_motion)
 from cellguard.diagnose.site_history import save_fixes, site_history
 from cellguard.robot.recovery.outcome import RecoveryOutcome
@@ -91,6 +91,20 @@ def test_fixes_belong_to_the_latest_finding_and_advice_ranks_by_success_rate(tmp
     assert [(r["recovery"], r["fixed"], r["tried"]) for r in shift["recoveries"]] == [
         ("reregister_datum", 4, 4), ("retry_grasp", 1, 2), ("back_off", 0, 1)]
     json.dumps(advised)  # the advice is JSON as it stands
+
+
+def test_advice_puts_this_site_first_then_the_fleet_with_its_customer_count():
+    findings = [Finding("tool_slip", 4, 0.9, ("slip",))]
+    history = [{"cause": "tool_slip", "recovery": "back_off", "tried": 3, "fixed": 1, "record": "a"},
+               {"cause": "tool_slip", "recovery": "retry_grasp", "tried": 40, "fixed": 38, "customers": 6,
+                "scope": "fleet"},
+               {"cause": "friction", "recovery": "rehome", "tried": 9, "fixed": 9, "customers": 5, "scope": "fleet"}]
+    advised = advice(findings, history)
+    assert [(r["scope"], r["recovery"], r["fixed"], r["tried"]) for r in advised[0]["recoveries"]] == [
+        ("site", "back_off", 1, 3), ("fleet", "retry_grasp", 38, 40)]
+    line = advice_lines(advised)["tool_slip", 4]
+    assert line == ("seen before at this site: back_off fixed it in 1 of 3 cycles (1 record(s)); "
+                    "at other sites in the fleet: retry_grasp fixed it in 38 of 40 signatures (6 customers)")
 
 
 def test_a_fleet_signature_carries_the_recovery_that_fixed_its_finding():

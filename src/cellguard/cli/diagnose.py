@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -13,7 +14,10 @@ from cellguard.cli.app import app
 from cellguard.cli.errors import fail
 from cellguard.cli.record import warn_if_damaged
 from cellguard.cli.text import printable_tree
-from cellguard.errors import CellguardError
+from cellguard.errors import CellguardError, ConfigError
+
+FLEET_HELP = ("Add what fixed each cause at other sites (the fleet store, as CELLGUARD_FLEET_DSN's tenant); "
+              "default: when that is set.")
 
 
 @app.command()
@@ -21,12 +25,13 @@ def diagnose(
     folder: Path = typer.Argument(..., help="A run folder holding the record (record.mcap)."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),
     acceptance: Path | None = typer.Option(None, "--acceptance", help="Take the baseline from this record instead."),
+    fleet: bool | None = typer.Option(None, "--fleet/--no-fleet", help=FLEET_HELP),
 ) -> None:
     """Read a record, find drift and faults against the acceptance baseline, name probable causes."""
     from cellguard.diagnose.from_record import diagnose_record
 
     try:
-        diagnosis = diagnose_record(folder, acceptance=acceptance)
+        diagnosis = diagnose_record(folder, acceptance=acceptance, fleet=fleet_advice(fleet))
         health = record_health(folder)
     except CellguardError as exc:
         fail(exc)
@@ -43,18 +48,37 @@ def report(
     folder: Path = typer.Argument(..., help="A run folder holding the record (record.mcap)."),
     out: Path | None = typer.Option(None, "-o", "--out", help="HTML file to write (default FOLDER/report.html)."),
     acceptance: Path | None = typer.Option(None, "--acceptance", help="Take the baseline from this record instead."),
+    fleet: bool | None = typer.Option(None, "--fleet/--no-fleet", help=FLEET_HELP),
 ) -> None:
     """Write a self-contained HTML report: timeline, last good versus faulted, drift, asymmetry, context."""
     from cellguard.diagnose.from_record import diagnose_record
     from cellguard.report.from_record import write_report
 
     try:
-        path = write_report(folder, out, diagnosis=diagnose_record(folder, acceptance=acceptance))
+        path = write_report(folder, out, diagnosis=diagnose_record(folder, acceptance=acceptance,
+                                                                   fleet=fleet_advice(fleet)))
         health = record_health(folder)
     except CellguardError as exc:
         fail(exc)
     Console().print(f"report: {path}")
     raise typer.Exit(warn_if_damaged(health, folder))
+
+
+def fleet_advice(use: bool | None) -> list[dict]:
+    """The fleet's fixes per cause, within the caller's rights; a store that is down is a warning only."""
+    dsn = os.environ.get("CELLGUARD_FLEET_DSN")
+    if use is False or (use is None and not dsn):
+        return []
+    if not dsn:
+        raise ConfigError("--fleet: set CELLGUARD_FLEET_DSN to your tenant's credentials")
+    from cellguard.fleet.advice import fleet_fixes
+    from cellguard.fleet.store import StoreUnavailable, TenantStore
+
+    try:
+        return fleet_fixes(TenantStore(dsn))
+    except StoreUnavailable as exc:
+        Console(stderr=True).print(f"warning: no advice from the fleet: {exc}", markup=False)
+        return []
 
 
 def record_health(folder: Path):

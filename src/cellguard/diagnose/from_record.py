@@ -18,11 +18,12 @@ from cellguard.errors import CellguardError
 BASELINE_FILE = "baseline.json"
 
 
-def diagnose_record(folder: Path, acceptance: Path | None = None) -> Diagnosis:
+def diagnose_record(folder: Path, acceptance: Path | None = None, fleet: list[dict] | tuple = ()) -> Diagnosis:
     """Diagnose the record in ``folder``; the baseline comes from ``acceptance`` (another record
     folder) if given, else from ``folder/baseline.json``, else from the record's acceptance
     cycles, and is then written to ``folder/baseline.json``. Advice comes from the site's other
-    diagnosed records beside it; what fixed each cause here is written to ``folder/fixes.json``."""
+    diagnosed records beside it and from ``fleet`` (rows of ``cellguard.fleet.advice.fleet_fixes``);
+    what fixed each cause here is written to ``folder/fixes.json``."""
     from cellguard.record.reader import open_record
 
     folder = Path(folder)
@@ -39,7 +40,7 @@ def diagnose_record(folder: Path, acceptance: Path | None = None) -> Diagnosis:
         baseline.check_binding(context, folder / BASELINE_FILE)
     past = site_history(folder, context.get("site"))
     result = diagnose(cycles, events, {**context, "process": declared}, baseline=baseline,
-                      symmetry=symmetry_of(context), history=past)
+                      symmetry=symmetry_of(context), history=[*past, *fleet])
     if folder.is_dir():
         save_fixes(folder, context, result.fixes)
     if baseline is None and folder.is_dir():

@@ -202,20 +202,25 @@ def with_running_again(findings: Sequence[Finding], own: Sequence[dict]) -> list
 
 
 def advice(findings: Sequence[Finding], history: Sequence[Mapping]) -> list[dict]:
-    """For each finding, the behaviours that fixed the same cause in ``history`` (rows of ``fixes``
-    from this site's other records, each with its ``record``), best success rate first."""
+    """For each finding, the behaviours that fixed the same cause in ``history``, this site's first,
+    best success rate first. A row is one of this site's other records (``fixes``, with its
+    ``record``) or, with ``scope: fleet``, the fleet store's k-anonymous count over other sites
+    (``customers``)."""
     out = []
     for f in findings:
-        pooled: dict[str, dict] = {}
+        pooled: dict[tuple[str, str], dict] = {}
         for row in history:
             if row.get("cause") != f.cause:
                 continue
-            p = pooled.setdefault(row["recovery"], {"recovery": row["recovery"], "fixed": 0, "tried": 0,
-                                                      "records": set(), "scope": "site"})
+            scope = row.get("scope", "site")
+            p = pooled.setdefault((scope, row["recovery"]), {"recovery": row["recovery"], "fixed": 0, "tried": 0,
+                                                               "records": set(), "customers": 0, "scope": scope})
             p["fixed"] += int(row["fixed"])
             p["tried"] += int(row["tried"])
             p["records"].add(row.get("record", ""))
-        ranked = sorted(pooled.values(), key=lambda p: (-p["fixed"] / max(p["tried"], 1), -p["fixed"], p["recovery"]))
+            p["customers"] = max(p["customers"], int(row.get("customers", 0)))
+        ranked = sorted(pooled.values(), key=lambda p: (p["scope"] != "site", -p["fixed"] / max(p["tried"], 1),
+                                                        -p["fixed"], p["recovery"]))
         if ranked:
             out.append({"cause": f.cause, "cycle": f.cycle, "recoveries": [
                 {**p, "records": len(p["records"]), "success_rate": round(p["fixed"] / max(p["tried"], 1), 3)}
@@ -225,6 +230,13 @@ def advice(findings: Sequence[Finding], history: Sequence[Mapping]) -> list[dict
 
 def advice_lines(advised: Sequence[Mapping]) -> dict[tuple[str, int], str]:
     """(cause, cycle) -> one line of advice, for the text and the report."""
-    return {(a["cause"], a["cycle"]): "seen before at this site: " + ", ".join(
-        f"{r['recovery']} fixed it in {r['fixed']} of {r['tried']} cycles ({r['records']} record(s))"
-        for r in a["recoveries"]) for a in advised}
+    lines = {}
+    for a in advised:
+        site = [f"{r['recovery']} fixed it in {r['fixed']} of {r['tried']} cycles ({r['records']} record(s))"
+                for r in a["recoveries"] if r["scope"] == "site"]
+        fleet = [f"{r['recovery']} fixed it in {r['fixed']} of {r['tried']} signatures ({r['customers']} customers)"
+                 for r in a["recoveries"] if r["scope"] == "fleet"]
+        parts = ([f"seen before at this site: {', '.join(site)}"] if site else []) + \
+                ([f"at other sites in the fleet: {', '.join(fleet)}"] if fleet else [])
+        lines[a["cause"], a["cycle"]] = "; ".join(parts)
+    return lines
