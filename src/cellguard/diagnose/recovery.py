@@ -214,11 +214,12 @@ def advice(findings: Sequence[Finding], history: Sequence[Mapping]) -> list[dict
                 continue
             scope = row.get("scope", "site")
             p = pooled.setdefault((scope, row["recovery"]), {"recovery": row["recovery"], "fixed": 0, "tried": 0,
-                                                               "records": set(), "customers": 0, "scope": scope})
+                                                               "records": set(), "scope": scope})
             p["fixed"] += int(row["fixed"])
             p["tried"] += int(row["tried"])
             p["records"].add(row.get("record", ""))
-            p["customers"] = max(p["customers"], int(row.get("customers", 0)))
+            if scope == "fleet":  # the store's count of distinct customers behind the row
+                p["customers"] = max(p.get("customers", 0), int(row["customers"]))
         ranked = sorted(pooled.values(), key=lambda p: (p["scope"] != "site", -p["fixed"] / max(p["tried"], 1),
                                                         -p["fixed"], p["recovery"]))
         if ranked:
