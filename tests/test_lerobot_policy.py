@@ -11,10 +11,8 @@ torch = pytest.importorskip("torch")
 pytest.importorskip("lerobot")
 
 from foreign_arm import MAP, to_foreign  # noqa: E402
-from lerobot.configs.types import FeatureType, PolicyFeature  # noqa: E402
-from lerobot.policies.act.configuration_act import ACTConfig  # noqa: E402
-from lerobot.policies.act.modeling_act import ACTPolicy  # noqa: E402
-from lerobot.policies.factory import make_pre_post_processors  # noqa: E402
+
+from small_act import save_small_act  # noqa: E402
 
 from cellguard.errors import ConfigError  # noqa: E402
 from cellguard.policy.registry import make_policy  # noqa: E402
@@ -26,22 +24,8 @@ from cellguard.scenario import parse_scenario  # noqa: E402
 @pytest.fixture(scope="module")
 def act_dir(tmp_path_factory):
     """A small ACT (state + environment state in, 50-step chunks out) trained on a foreign arm's units."""
-    torch.manual_seed(0)
-    config = ACTConfig(
-        input_features={"observation.state": PolicyFeature(FeatureType.STATE, (6,)),
-                        "observation.environment_state": PolicyFeature(FeatureType.ENV, (6,))},
-        output_features={"action": PolicyFeature(FeatureType.ACTION, (6,))},
-        chunk_size=50, n_action_steps=50, dim_model=128, dim_feedforward=512, n_encoder_layers=2,
-        n_decoder_layers=1, use_vae=False, pretrained_backbone_weights=None, device="cpu")
-    home = torch.tensor(to_foreign(ArmPickPlace().q_home), dtype=torch.float32)
-    stats = {"observation.state": {"mean": home, "std": torch.full((6,), 30.0)},
-             "observation.environment_state": {"mean": torch.zeros(6), "std": torch.ones(6)},
-             "action": {"mean": home, "std": torch.full((6,), 0.5)}}  # degrees and mm: near home
-    folder = tmp_path_factory.mktemp("act")
-    pre, post = make_pre_post_processors(config, dataset_stats=stats)
-    ACTPolicy(config).save_pretrained(folder)
-    pre.save_pretrained(folder)
-    post.save_pretrained(folder)
+    folder = save_small_act(tmp_path_factory.mktemp("act"), to_foreign(ArmPickPlace().q_home), 30.0,
+                            dim_model=128, n_encoder_layers=2)
     (folder / "foreign.yaml").write_text(yaml.safe_dump(MAP))
     return folder
 

