@@ -88,23 +88,28 @@ def drift_charts(d: Diagnosis, limit: int = 6) -> str:
     return _svg(fig)
 
 
-def overlay(joints: Sequence[str], traces: Sequence[tuple[Mapping, str]]) -> str:
-    """Last good versus faulted cycles per joint: current and tracking error against time in cycle.
+OVERLAY_ROWS = (("current", "current [A]"), ("error", "tracking error [rad or m]"))
 
-    ``traces`` are (trace, label) in order: last good, first faulted, then any later cycle.
+
+def overlay(joints: Sequence[str], traces: Sequence[tuple[Mapping, str]],
+            rows: Sequence[tuple[str, str]] = OVERLAY_ROWS) -> str:
+    """Traces per joint against time in cycle, one row per (key, axis label) of ``rows``: by default
+    current and tracking error of the last good versus faulted cycles.
+
+    ``traces`` are (trace, label) in order: last good, first faulted, then any later cycle; a
+    trace maps ``t`` (n,) and each row's key to (n, joints).
     """
     n = len(joints)
     colours = (GOOD, BAD, "#6a4c93")
-    fig, axes = plt.subplots(2, n, figsize=(max(11, 2.2 * n), 4.4), squeeze=False, sharex=True)
+    fig, axes = plt.subplots(len(rows), n, figsize=(max(11, 2.2 * n), 2.2 * len(rows)), squeeze=False, sharex=True)
     for j, name in enumerate(joints):
         for (trace, label), color in zip(traces, colours):
-            t = trace["t"]
-            axes[0][j].plot(t, trace["current"][:, j], color=color, lw=0.7, label=label)
-            axes[1][j].plot(t, trace["error"][:, j], color=color, lw=0.7, label=label)
+            for row, (key, _) in enumerate(rows):
+                axes[row][j].plot(trace["t"], trace[key][:, j], color=color, lw=0.7, label=label)
         axes[0][j].set_title(name, fontsize=9)
-        axes[1][j].set_xlabel("s into cycle", fontsize=8)
-    axes[0][0].set_ylabel("current [A]", fontsize=8)
-    axes[1][0].set_ylabel("tracking error [rad or m]", fontsize=8)
+        axes[-1][j].set_xlabel("s into cycle", fontsize=8)
+    for row, (_, unit) in enumerate(rows):
+        axes[row][0].set_ylabel(unit, fontsize=8)
     axes[0][0].legend(fontsize=7)
     for ax in axes.flat:
         ax.tick_params(labelsize=7)

@@ -12,7 +12,7 @@ import numpy as np
 from cellguard.calibrate.replay import ReplayResult
 from cellguard.output import write_output
 from cellguard.report.html import _CSS, _e, _figure
-from cellguard.report.plots import BAD, BASE, GOOD, _svg, plt
+from cellguard.report.plots import BAD, BASE, _svg, overlay, plt
 
 
 def render_replay(r: ReplayResult) -> str:
@@ -47,23 +47,12 @@ def write_replay(r: ReplayResult, out: Path) -> Path:
 
 
 def _overlay(r: ReplayResult, joints: list[int]) -> str:
-    n = len(joints)
-    fig, axes = plt.subplots(2, n, figsize=(max(11, 2.2 * n), 4.4), squeeze=False, sharex=True)
-    rec, sim = r.rc.ticks, r.simulated
-    for k, j in enumerate(joints):
-        axes[0][k].plot(rec.t, rec.q[:, j], color=BAD, lw=0.8, label="recorded")
-        axes[0][k].plot(sim.t, sim.q[:, j], color=GOOD, lw=0.8, ls="--", label="simulated")
-        axes[1][k].plot(rec.t, rec.current[:, j], color=BAD, lw=0.6, label="recorded")
-        axes[1][k].plot(sim.t, sim.current[:, j], color=GOOD, lw=0.6, label="simulated")
-        axes[0][k].set_title(r.rc.joints[j], fontsize=9)
-        axes[1][k].set_xlabel("s into cycle", fontsize=8)
-    axes[0][0].set_ylabel("position [rad]", fontsize=8)
-    axes[1][0].set_ylabel("current [A]", fontsize=8)
-    axes[0][0].legend(fontsize=7)
-    for ax in axes.flat:
-        ax.tick_params(labelsize=7)
-    fig.tight_layout()
-    return _svg(fig)
+    """Simulated over recorded positions and currents of the replayed cycle, per joint."""
+    def trace(x) -> dict:
+        return {"t": x.t, "q": x.q[:, joints], "current": x.current[:, joints]}
+
+    traces = [(trace(r.simulated), "simulated"), (trace(r.rc.ticks), "recorded")]
+    return overlay([r.rc.joints[j] for j in joints], traces, rows=(("q", "position [rad]"), ("current", "current [A]")))
 
 
 def _search_chart(r: ReplayResult) -> str:
