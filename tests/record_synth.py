@@ -60,6 +60,22 @@ def record(folder: Path, cycles: int, ticks_per_cycle: int, events: dict[int, st
     return rec
 
 
+class _File:
+    """A real file behind a test's own ``write``."""
+
+    def __init__(self, f):
+        self.f = f
+
+    def __getattr__(self, name):
+        return getattr(self.f, name)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.f.close()
+
+
 class SlowDisk:
     """Files whose every write takes ``seconds`` (a worn SD card, a network share)."""
 
@@ -70,22 +86,14 @@ class SlowDisk:
         return _SlowFile(open(path, "wb"), self.seconds)
 
 
-class _SlowFile:
+class _SlowFile(_File):
     def __init__(self, f, seconds: float):
-        self.f, self.seconds = f, seconds
+        super().__init__(f)
+        self.seconds = seconds
 
     def write(self, data) -> int:
         time.sleep(self.seconds)
         return self.f.write(data)
-
-    def __getattr__(self, name):
-        return getattr(self.f, name)
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        self.f.close()
 
 
 class FullDisk:
@@ -98,9 +106,10 @@ class FullDisk:
         return _FullDiskFile(open(path, "wb"), self)
 
 
-class _FullDiskFile:
+class _FullDiskFile(_File):
     def __init__(self, f, disk: FullDisk):
-        self.f, self.disk = f, disk
+        super().__init__(f)
+        self.disk = disk
 
     def write(self, data) -> int:
         data = bytes(data)
@@ -110,15 +119,6 @@ class _FullDiskFile:
             raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
         self.disk.left -= len(data)
         return self.f.write(data)
-
-    def __getattr__(self, name):
-        return getattr(self.f, name)
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        self.f.close()
 
 
 def _run_until_killed(folder: Path, progress: Path) -> None:
