@@ -25,10 +25,10 @@ MIRROR_LABEL = {"left": "right", "right": "left"}
 MOTION_FEATURES = ("yaw_rate_ratio", "speed_reached", "cycle_time_s")
 MIN_RELATIVE = 0.05  # a mirrored difference below 5 % is not an asymmetry
 MIN_T = 4.0  # and it must stand this many standard errors above the cycle-to-cycle noise
-EXTREMES = ("current_peak", "tracking_max")  # one sample per cycle: too phase-dependent to mirror
-# the drive's work over its travel: on a leg the ground's share of it shifts with the gait, so
-# mirrored legs differ by several percent in a healthy robot
-UNMIRRORED = (*EXTREMES, "friction_torque")
+# Not compared across mirrored members: the extremes (one sample per cycle, too phase-dependent) and the
+# friction torque (on a leg the ground's share of the drive's work shifts with the gait, so mirrored
+# legs differ by several percent in a healthy robot).
+UNMIRRORED = ("current_peak", "tracking_max", "friction_torque")
 
 
 @dataclass(frozen=True)
