@@ -101,3 +101,31 @@ def test_a_failing_policy_is_recorded_not_raised_and_the_worker_keeps_serving():
     finally:
         policy.gate.set()
         inference.close()
+
+
+def test_the_chunk_is_prepared_on_the_worker_thread_so_the_servo_tick_only_swaps_it_in():
+    from cellguard.control.executor import Executor, PreparedChunk
+    from cellguard.robot.registry import make_cell
+
+    cell = make_cell("arm-pick-place")
+    executor = Executor(cell.profile, cell.read().q, cell.dt_ns, tool=cell.tool_point)
+    threads = []
+
+    def prepare(chunk):
+        threads.append(threading.current_thread().name)
+        return executor.prepare(chunk)
+
+    policy = GatedPolicy()
+    inference = AsyncInference(policy, prepare=prepare)
+    try:
+        inference.submit(_obs(1_000_000))
+        policy.gate.set()
+        result = _wait_for(inference)
+        assert threads == ["cellguard-inference"]
+        assert isinstance(result.prepared, PreparedChunk) and result.prepared.problem is None
+        reference = executor.prepare(result.chunk)  # the same fit as on the servo thread, tool speeds included
+        assert np.array_equal(result.prepared.tool_speed, reference.tool_speed)
+        assert np.array_equal(result.prepared.curve.points, reference.curve.points)
+    finally:
+        policy.gate.set()
+        inference.close()

@@ -70,3 +70,18 @@ def test_inference_in_its_own_process_answers_and_reports_failures():
         assert result.chunk is None and "policy could not be built" in result.error
     finally:
         broken.close()
+
+
+def test_a_pause_between_stretches_of_ticks_is_counted_as_a_pause_not_as_a_late_tick():
+    clock = WallClock(2_000_000, priority=None)
+    clock.start()
+    with clock.ticking():
+        for _ in range(5):
+            clock.advance()
+    time.sleep(0.05)  # a cycle's end: features, the record's cycle row; the robot holds
+    with clock.ticking():
+        for _ in range(5):
+            clock.advance()
+    timing = clock.timing.summary()
+    assert clock.timing.pauses == 1 and clock.timing.max_pause_ns >= 45_000_000
+    assert timing["pauses_between_stretches"]["count"] == 1

@@ -3,11 +3,13 @@
 The guard (workspace box, tool-speed cap) and the policies need forward kinematics of the
 *nominal* robot, the one described by its MJCF file; a simulated cell's live model may carry
 injected faults (a slipped tool) and is the cell's own. This object owns a private copy of the
-model and data, so it never disturbs a running simulation.
+model and data, so it never disturbs a running simulation, and one data per thread: the servo
+thread (envelope) and the inference worker (preparing a chunk's tool speeds) call it at once.
 """
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -29,7 +31,7 @@ class Kinematics:
         if missing:
             raise UnknownNameError("joint", missing[0], names)
         self.site, self.joints = site, tuple(joints)
-        self._model, self._data = model, mujoco.MjData(model)
+        self._model, self._local = model, threading.local()
         self._site = model.site(site).id
         self._qadr = np.array([model.jnt_qposadr[model.joint(j).id] for j in joints])
 
@@ -40,6 +42,9 @@ class Kinematics:
 
     def tool_point(self, q: np.ndarray) -> np.ndarray:
         """The tool point (3,) [m] in the world frame at joint positions ``q`` (len(joints),) [rad or m]."""
-        self._data.qpos[self._qadr] = q
-        mujoco.mj_kinematics(self._model, self._data)
-        return self._data.site_xpos[self._site].copy()
+        data = getattr(self._local, "data", None)
+        if data is None:
+            data = self._local.data = mujoco.MjData(self._model)
+        data.qpos[self._qadr] = q
+        mujoco.mj_kinematics(self._model, data)
+        return data.site_xpos[self._site].copy()

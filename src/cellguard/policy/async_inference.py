@@ -4,7 +4,9 @@ The servo loop asks ``wants_observation(t_ns)`` each tick: true when no request 
 and the steps left in the newest chunk fall to ``threshold`` of its horizon (LeRobot's async
 client uses 0.5). It then ``submit``s the observation and goes on; a later tick ``take``s the
 chunk, stamped with the observation's time, and pushes it to the executor, which drops the
-steps already past. Every chunk carries its latency and the queue depth (steps left) at the
+steps already past. A ``prepare`` callable (the executor's: checks, the chunk's curve, its tool
+speeds by forward kinematics, about a millisecond for 50 steps) runs on the worker thread too, so
+the servo tick that takes the chunk only swaps it in. Every chunk carries its latency and the queue depth (steps left) at the
 moment it was asked for; a failed call is kept as an error, never raised on the servo path.
 """
 
@@ -37,6 +39,7 @@ class InferenceResult:
     t_submit_ns: int
     t_done_ns: int
     queue_depth: int  # steps left in the newest chunk when the observation was sent
+    prepared: object | None = None  # ``prepare(chunk)``, done on the worker thread (None: not prepared)
 
     @property
     def latency_ns(self) -> int:
@@ -120,12 +123,13 @@ class AsyncInference:
     """
 
     def __init__(self, policy: Policy, threshold: float = 0.5, clock: Callable[[], int] = time.monotonic_ns,
-                 worker: str = "thread", factory: Callable[[], Policy] | None = None):
+                 worker: str = "thread", factory: Callable[[], Policy] | None = None,
+                 prepare: Callable[[ActionChunk], object] | None = None):
         if not 0.0 <= threshold <= 1.0:
             raise ConfigError(f"async inference: threshold must be in [0, 1], got {threshold}")
         if worker not in ("thread", "process") or (worker == "process" and factory is None):
             raise ConfigError(f"async inference: worker must be 'thread' or 'process' (with a factory), got {worker!r}")
-        self.policy, self.threshold, self.clock = policy, threshold, clock
+        self.policy, self.threshold, self.clock, self._prepare = policy, threshold, clock, prepare
         self._remote = PolicyProcess(factory) if worker == "process" else None
         self._reset_remote = False
         self.results: deque[InferenceResult] = deque(maxlen=RESULTS_KEPT)
@@ -210,7 +214,7 @@ class AsyncInference:
                     return
                 (observation, t_submit, depth), self._request = self._request, None
                 reset, self._reset_remote = self._reset_remote, False
-            chunk, error = None, None
+            chunk, error, prepared = None, None, None
             try:
                 if self._remote is None:
                     chunk = self.policy.infer(observation)
@@ -220,5 +224,11 @@ class AsyncInference:
                     chunk = self._remote.infer(observation)
             except Exception as exc:  # a policy failure becomes a recorded result, never a dead servo loop
                 error = f"{type(exc).__name__}: {exc}"
+            t_done = self.clock()  # the policy's latency ends here; preparing is the loop's own work
+            if chunk is not None and self._prepare is not None:
+                try:
+                    prepared = self._prepare(chunk)
+                except Exception:  # noqa: BLE001 - left to the servo tick, which refuses the chunk with an event
+                    prepared = None
             with self._lock:
-                self._done = InferenceResult(chunk, error, observation.t_ns, t_submit, self.clock(), depth)
+                self._done = InferenceResult(chunk, error, observation.t_ns, t_submit, t_done, depth, prepared)

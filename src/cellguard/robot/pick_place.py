@@ -15,6 +15,7 @@ position actuator per profiled joint, named as the joint; the gripper is the las
 from __future__ import annotations
 
 import copy
+import threading
 from dataclasses import dataclass
 
 import mujoco
@@ -112,7 +113,7 @@ class PickPlaceCell(DrivenCell):
         self._seen_at_start: dict = {}
         self.safety_inputs = SafetyInputs()  # the simulated safety controller's outputs; set by scenario or test
         self.tool_site, self.workspace_box = "tcp", layout.workspace_box
-        self._fk = mujoco.MjData(m)
+        self._fk = threading.local()  # one MjData per thread: the servo thread and the inference worker
         self._taught_fk = mujoco.MjData(self._taught)
         self._failed: str | None = None
         self.approach_height = layout.approach
@@ -121,9 +122,12 @@ class PickPlaceCell(DrivenCell):
     # -- Robot -------------------------------------------------------------------------
     def tool_point(self, q: np.ndarray) -> np.ndarray:
         """Forward kinematics: the tool point (3,) [m] at joint positions ``q`` (dof,), off the live model state."""
-        self._fk.qpos[self._q] = q
-        mujoco.mj_kinematics(self.model, self._fk)
-        return self._fk.site_xpos[self._tcp].copy()
+        fk = getattr(self._fk, "data", None)
+        if fk is None:
+            fk = self._fk.data = mujoco.MjData(self.model)
+        fk.qpos[self._q] = q
+        mujoco.mj_kinematics(self.model, fk)
+        return fk.site_xpos[self._tcp].copy()
 
     def step(self) -> None:
         mujoco.mj_step(self.model, self.data)

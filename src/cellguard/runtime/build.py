@@ -38,7 +38,8 @@ def make_inference(run, realtime: bool):
 
     kind = run.scenario.realtime.inference
     factory = run.policy_factory or partial(policy_in_process, run.scenario.policy, run.cell.name, run.scenario.seed)
-    worker = AsyncInference(run.policy, worker=kind, factory=factory if kind == "process" else None)
+    worker = AsyncInference(run.policy, worker=kind, factory=factory if kind == "process" else None,
+                            prepare=lambda chunk: run.guard.executor.prepare(chunk))  # the guard of the moment
     return WorkerInference(worker)
 
 

@@ -4,8 +4,11 @@
 never waits. ``WallClock`` sleeps until shortly before the next deadline, then spins to it
 (``time.sleep`` alone wakes up to a scheduler quantum late); a simulated cell on wall time is
 stepped once per period too. Each period's lateness and compute time go to ``TickTiming``.
-``ticking()`` wraps the loop's ticks: on wall time the servo thread is a real-time thread then,
-with the garbage collector run in idle time (``servo_thread``).
+``ticking()`` wraps a stretch of ticks (a cycle, a transition): on wall time the servo thread is a
+real-time thread then, with the garbage collector run in idle time (``servo_thread``). Between
+stretches (a cycle's end: its features, the record's cycle row) the loop sends nothing and the
+robot holds its last setpoint; a stretch that starts after its deadline starts a new period grid,
+and the pause is counted as such (``TickTiming.pause``), not as a late tick.
 """
 
 from __future__ import annotations
@@ -84,8 +87,15 @@ class WallClock:
         self._began = time.monotonic_ns()
         self._deadline = self._began + self.period_ns
 
-    def ticking(self) -> ServoThread:
-        """The ticks run inside this: the servo thread real-time and the collector in idle time."""
+    def ticking(self):
+        """A stretch of ticks runs inside this: the servo thread real-time and the collector in idle time.
+        Inside a stretch already (a transition played by the cycle's first chunk), nothing changes."""
+        if self._servo is not None and self._servo.active:
+            return nullcontext(self._servo)
+        now = time.monotonic_ns()
+        if now > self._deadline:  # after a pause: a new period grid, the pause counted apart
+            self.timing.pause(now - self._deadline)
+            self._began, self._deadline = now, now + self.period_ns
         self._servo = ServoThread(self.priority)
         return self._servo
 

@@ -26,6 +26,7 @@ class Arrival:
     latency_ns: int
     wall_ns: int
     error: str | None = None
+    prepared: object | None = None  # the chunk checked and fitted off the servo thread, if it was
 
 
 class SimulatedInference:
@@ -96,7 +97,7 @@ class WorkerInference:
         result = self.worker.take()
         if result is None:
             return None
-        return Arrival(result.chunk, result.latency_ns, result.latency_ns, result.error)
+        return Arrival(result.chunk, result.latency_ns, result.latency_ns, result.error, result.prepared)
 
     def close(self) -> None:
         self.worker.close()

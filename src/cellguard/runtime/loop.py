@@ -209,7 +209,7 @@ class Run:
                 return
         if self.recording is not None:
             self.recording.chunk(arrival.chunk, t_ns, arrival.latency_ns)
-        self.events.extend(self.guard.push(arrival.chunk, t_ns))
+        self.events.extend(self.guard.push(arrival.prepared or arrival.chunk, t_ns))
         self._latencies.append(arrival.latency_ns)
         self._wall_ns.append(arrival.wall_ns)
 
@@ -279,18 +279,19 @@ class Run:
         events, link, clock, rec = self.events, self.link, self.clock, self.recording
         events.append(Event(t0, EventKind(f"{name}_begin"), f"{name}: {plan.duration_s:.2f} s to {np.round(plan.target, 3).tolist()}"))
         t_end = t0
-        for setpoint in plan.setpoints():
-            t = clock.now()
-            if self.cell.safety().stop is not None or link.stop is not None:
-                events.append(Event(t, EventKind(f"{name}_aborted"), "stop input or robot link fault during the transition",
-                                    category=2))
-                return
-            sent = link.write(t, setpoint)
-            clock.advance()
-            state = link.read(clock.now())
-            if rec is not None:
-                rec.tick(setpoint, sent, state)
-            t_end = clock.now()
+        with clock.ticking():
+            for setpoint in plan.setpoints():
+                t = clock.now()
+                if self.cell.safety().stop is not None or link.stop is not None:
+                    events.append(Event(t, EventKind(f"{name}_aborted"),
+                                        "stop input or robot link fault during the transition", category=2))
+                    return
+                sent = link.write(t, setpoint)
+                clock.advance()
+                state = link.read(clock.now())
+                if rec is not None:
+                    rec.tick(setpoint, sent, state)
+                t_end = clock.now()
         events.append(Event(t_end, EventKind(f"{name}_done"), f"{name} complete"))
 
     def _stop_input(self, t_ns: int, guard) -> int | None:

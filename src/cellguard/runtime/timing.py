@@ -2,7 +2,9 @@
 
 Per tick: lateness (woke minus deadline) and compute time (tick start to the wait) [ns]. The
 last ``window`` ticks are kept for percentiles; counts and maxima cover the whole run. An
-overrun is a tick that woke at least one period late.
+overrun is a tick that woke at least one period late. A pause between two stretches of ticks
+(a cycle's end, before a transition: the robot holds its last setpoint) is no tick; it is
+counted with its longest length.
 """
 
 from __future__ import annotations
@@ -25,6 +27,8 @@ class TickTiming:
         self.max_late_ns = 0
         self.max_compute_ns = 0
         self.new_overrun = False  # the last tick was an overrun (the loop raises the event)
+        self.pauses = 0  # stretches of ticks that began after their deadline
+        self.max_pause_ns = 0
 
     def add(self, late_ns: int, compute_ns: int) -> None:
         i = self.ticks % len(self._late)
@@ -37,6 +41,11 @@ class TickTiming:
         self.max_late_ns = max(self.max_late_ns, late_ns)
         self.max_compute_ns = max(self.max_compute_ns, compute_ns)
 
+    def pause(self, pause_ns: int) -> None:
+        """A stretch of ticks begins ``pause_ns`` after the deadline the last one left."""
+        self.pauses += 1
+        self.max_pause_ns = max(self.max_pause_ns, int(pause_ns))
+
     def summary(self) -> dict:
         """Period error and compute time [us] (p50/p99 over the window, max over the run), overruns."""
         n = min(self.ticks, len(self._late))
@@ -48,4 +57,5 @@ class TickTiming:
                                     "max": self.max_late_ns * 1e-3},
                 "compute_us": {"p50": float(np.percentile(compute, 50)), "p99": float(np.percentile(compute, 99)),
                                "max": self.max_compute_ns * 1e-3},
-                "overruns": self.overruns, "later_than_two_periods": self.late_twice}
+                "overruns": self.overruns, "later_than_two_periods": self.late_twice,
+                "pauses_between_stretches": {"count": self.pauses, "max_ms": self.max_pause_ns * 1e-6}}
