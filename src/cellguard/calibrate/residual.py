@@ -11,31 +11,43 @@ on the signature of each kind of model error:
     payload    the torque 1 kg more at the tool needs (cells with a tool) [kg]
     delay      model torque's rate        (a timing offset between current and motion) [s]
 
-Each coefficient is normalised by the mean and spread of the first ``baseline`` windows (the
-acceptance cycles: what the cell does when it is known good, systematic model error included)
-and fed to a two-sided CUSUM. An alarm names the joint and the likely parameter (inertia and
-payload are reported together as ``inertia/payload``). The window's summary is a plain dict:
+Each coefficient is standardised against every earlier window of the same coefficient (a
+self-starting CUSUM, Hawkins 1987): with ``n`` earlier windows of mean ``m`` and spread ``s``, a
+new value ``x`` gives ``(x - m) / (s sqrt(1 + 1/n))``, Student-t with ``n - 1`` degrees of freedom
+when the windows are independent and Gaussian, mapped through its CDF onto a standard normal
+score. So a short baseline (the acceptance cycles: ten windows by default) does not make the
+spread look smaller than it is (with ten windows ``s`` is below 0.7 of the true spread one time in
+ten); the estimates keep improving as fault-free windows come in.
+
+Each score feeds a two-sided CUSUM (reference value ``K``) whose threshold ``h`` is derived, not
+tuned: the whole monitor (every joint, signature and direction together) has a design false-alarm
+rate of one alarm per ``SET_ARL`` fault-free windows (``diagnose.drift``'s Siegmund design, each of
+the ``2 nj S`` one-sided CUSUMs given ``2 nj S x SET_ARL``). A score is capped at ``h / 2 + K +
+0.25``: one odd window (a grasp that slips, an impact) cannot alarm by itself, a change that
+persists alarms on its second window. A capped window is held out of the running mean and spread,
+so a change is never learnt as normal. An alarm names the joint and the likely parameter (inertia
+and payload are reported together as ``inertia/payload``). The window's summary is a plain dict:
 the run stores it in the cycle's outcome (``outcome["residual"]``), where diagnosis reads it.
 """
 
 from __future__ import annotations
 
-import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy import stats
 
 from cellguard.calibrate.torque_model import MIN_SPEED, JointTerms, TorqueModel, inverse_torques, rigid_model
+from cellguard.diagnose.drift import DriftConfig
 
 SIGNATURES = ("friction", "inertia", "payload", "delay")
 LIKELY = {"friction": "friction", "inertia": "inertia/payload", "payload": "inertia/payload", "delay": "delay"}
 UNITS = {"friction": "N*m", "inertia": "kg*m^2", "payload": "kg", "delay": "s"}
-BASELINE_WINDOWS = 10  # windows that set each coefficient's normal mean and spread
-K = 1.0  # CUSUM allowance [baseline spreads]
-H = 12.0  # CUSUM threshold [baseline spreads]: over the whole set of joints and signatures, see benchmark
+BASELINE_WINDOWS = 10  # windows that only learn each coefficient's mean and spread (no CUSUM yet)
+K = 1.0  # CUSUM reference value [standard normal scores]
+SET_ARL = 100_000.0  # design: fault-free windows between false alarms of the whole monitor (all joints together)
 EVERY = 4  # the model is evaluated on every this-many-th tick (differences taken at the full rate)
 RATE_TICKS = 5  # half-width of the central difference that gives the model torque's rate [ticks]
-SPREAD_FLOOR = 0.02  # a coefficient's spread is at least this fraction of its joint's scale (see _floor)
 
 
 @dataclass(frozen=True)
@@ -62,16 +74,20 @@ class ResidualAlarm:
 
 @dataclass
 class ResidualMonitor:
-    """Windows of one cell's ticks in, alarms out; ``terms`` the model's joint terms (nominal if None)."""
+    """Windows of one cell's ticks in, alarms out; ``terms`` the model's joint terms (nominal if None).
+
+    ``baseline``: windows that only learn (the acceptance cycles); ``set_arl``: the design's fault-free
+    windows between false alarms of the whole monitor. ``threshold`` and ``cap`` follow from them."""
 
     cell: object
     terms: JointTerms | None = None
     baseline: int = BASELINE_WINDOWS
+    set_arl: float = SET_ARL
     windows: int = 0
     drifted: set = field(default_factory=set)  # joints alarmed so far
-    _coef: list = field(default_factory=list)  # baseline windows' coefficients (nj, S)
+    _n: np.ndarray | None = None  # per coefficient (nj, S): windows learnt, their mean and sum of squares
     _mean: np.ndarray | None = None
-    _spread: np.ndarray | None = None
+    _m2: np.ndarray | None = None
     _up: np.ndarray | None = None
     _down: np.ndarray | None = None
 
@@ -80,6 +96,12 @@ class ResidualMonitor:
         self.signatures = tuple(s for s in SIGNATURES if s != "payload" or self._has_tool())
         self.loaded = rigid_model(self.cell.model, self.model.terms.payload_kg + 1.0) if "payload" in self.signatures \
             else None
+        shape = (len(self.model.joints), len(self.signatures))
+        self._n, self._mean, self._m2 = np.zeros(shape), np.zeros(shape), np.zeros(shape)
+        self._up, self._down = np.zeros(shape), np.zeros(shape)
+        design = DriftConfig(k=K, set_arl=self.set_arl, banks=1)
+        self.threshold = design.cusum_threshold(shape[0] * shape[1])  # h [scores]
+        self.cap = design.clip(self.threshold)  # the largest score one window adds
 
     def _has_tool(self) -> bool:
         import mujoco
@@ -94,17 +116,15 @@ class ResidualMonitor:
         out = {"window": window, "joints": list(self.model.names), "signatures": list(self.signatures),
                "coefficients": np.round(coef, 9).tolist(), "alarms": []}
         if window < self.baseline:
-            self._coef.append(coef)
-            if window == self.baseline - 1:
-                self._set_baseline()
+            self._learn(coef, np.isfinite(coef))
             out["baseline"] = True
             return out
-        if self._mean is None:
-            return out
-        z = np.nan_to_num((coef - self._mean) / self._spread)
-        self._up = np.maximum(0.0, self._up + z - K)
-        self._down = np.maximum(0.0, self._down - z - K)
-        stat = np.maximum(self._up, self._down) / H
+        z = self.scores(coef)
+        zc = np.clip(z, -self.cap, self.cap)
+        self._up = np.maximum(0.0, self._up + zc - K)
+        self._down = np.maximum(0.0, self._down - zc - K)
+        self._learn(coef, np.isfinite(coef) & (np.abs(z) < self.cap))  # a capped window is not learnt as normal
+        stat = np.maximum(self._up, self._down) / self.threshold
         out["cusum"] = np.round(stat, 3).tolist()
         out["drifted"] = sorted(self.drifted)
         for k in np.flatnonzero((stat >= 1.0).any(axis=1)):
@@ -118,6 +138,30 @@ class ResidualMonitor:
                                   UNITS[sig], float(stat[k, s]))
             out["alarms"].append(alarm.to_dict())
         return out
+
+    def scores(self, coef: np.ndarray) -> np.ndarray:
+        """Standard normal scores (nj, S) of ``coef`` against the windows learnt so far: the predictive
+        Student-t of a new value given ``n`` earlier ones, through its CDF onto N(0, 1); 0 where a
+        coefficient is NaN or has fewer than three windows behind it."""
+        n = self._n
+        ok = np.isfinite(coef) & (n >= 3)
+        z = np.zeros_like(coef)
+        if not ok.any():
+            return z
+        spread = np.sqrt(self._m2[ok] / (n[ok] - 1.0)) * np.sqrt(1.0 + 1.0 / n[ok])
+        t = (coef[ok] - self._mean[ok]) / np.maximum(spread, np.finfo(float).tiny)
+        dof = n[ok] - 1.0
+        # the upper tail of each side, so a far value keeps its precision: z = -Phi^-1(P(T > |t|)) sign(t)
+        z[ok] = np.sign(t) * stats.norm.isf(stats.t.sf(np.abs(t), dof))
+        return z
+
+    def _learn(self, coef: np.ndarray, use: np.ndarray) -> None:
+        """Add ``coef`` where ``use`` to each coefficient's running mean and sum of squares (Welford)."""
+        n = self._n + use
+        delta = np.where(use, coef - self._mean, 0.0)
+        self._mean = self._mean + np.where(use, delta / np.maximum(n, 1.0), 0.0)
+        self._m2 = self._m2 + np.where(use, delta * (coef - self._mean), 0.0)
+        self._n = n
 
     def coefficients(self, q: np.ndarray, qd: np.ndarray, current: np.ndarray) -> np.ndarray:
         """Per hinge joint, the residual's coefficient on each signature (nj, S); NaN where it barely moves."""
@@ -147,25 +191,6 @@ class ResidualMonitor:
             x = np.column_stack([columns[s][use, k] for s in self.signatures])
             out[k], *_ = np.linalg.lstsq(x, residual[use, k], rcond=None)
         return out
-
-    def _set_baseline(self) -> None:
-        coef = np.array(self._coef)
-        if len(coef) < 3:
-            return
-        with np.errstate(invalid="ignore"), warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)  # a joint that never moved: NaN, not monitored
-            self._mean = np.nanmean(coef, axis=0)
-            self._spread = np.maximum(np.nanstd(coef, axis=0, ddof=1), self._floor())
-        self._up = np.zeros_like(self._mean)
-        self._down = np.zeros_like(self._mean)
-
-    def _floor(self) -> np.ndarray:
-        """The smallest spread each coefficient is given (nj, S): ``SPREAD_FLOOR`` of the joint's dry friction,
-        effective inertia, 1 kg, and one servo period; a few windows understate the spread otherwise."""
-        m = self.model
-        scale = {"friction": m.terms.friction, "inertia": m.inertia, "payload": np.ones(len(m.joints)),
-                 "delay": np.full(len(m.joints), m.dt)}
-        return SPREAD_FLOOR * np.column_stack([scale[s] for s in self.signatures])
 
 
 def watch(run, monitor: ResidualMonitor) -> None:
