@@ -11,13 +11,17 @@ on the signature of each kind of model error:
     payload    the torque 1 kg more at the tool needs (cells with a tool) [kg]
     delay      model torque's rate        (a timing offset between current and motion) [s]
 
-Each coefficient is standardised against every earlier window of the same coefficient (a
-self-starting CUSUM, Hawkins 1987): with ``n`` earlier windows of mean ``m`` and spread ``s``, a
-new value ``x`` gives ``(x - m) / (s sqrt(1 + 1/n))``, Student-t with ``n - 1`` degrees of freedom
-when the windows are independent and Gaussian, mapped through its CDF onto a standard normal
-score. So a short baseline (the acceptance cycles: ten windows by default) does not make the
-spread look smaller than it is (with ten windows ``s`` is below 0.7 of the true spread one time in
-ten); the estimates keep improving as fault-free windows come in.
+Each coefficient is scored against the windows before it of the same motion (a mirrored cell's
+``left`` and ``right`` cycles, ``diagnose.cycles.LABELS``, differ in their residual as in their motion):
+its error against a forecast (an EWMA of the earlier windows, weight ``FORECAST``) over the spread of
+the earlier forecast errors, Student-t with as many degrees of freedom as errors, mapped through its
+CDF onto a standard normal score. Why a forecast and not a fixed baseline mean: a fault-free residual
+wanders slowly (the quadruped's posture drifts over tens of turns and its joint model has no foot
+forces; the arm's grasp varies), and a CUSUM sums serially correlated deviations into false alarms;
+the one-step forecast errors of such a series are close to independent (the special-cause chart for
+autocorrelated data), which is what the threshold's design assumes. Why Student-t: ten baseline
+windows (the acceptance cycles) give a spread that is below 0.7 of the true one one time in ten; the
+t score says how far a value is given what is known, and it sharpens as fault-free windows come in.
 
 Each score feeds a two-sided CUSUM (reference value ``K``) whose threshold ``h`` is derived, not
 tuned: the whole monitor (every joint, signature and direction together) has a design false-alarm
@@ -38,6 +42,7 @@ import numpy as np
 from scipy import stats
 
 from cellguard.calibrate.torque_model import MIN_SPEED, JointTerms, TorqueModel, inverse_torques, rigid_model
+from cellguard.diagnose.cycles import LABELS
 from cellguard.diagnose.drift import DriftConfig
 
 SIGNATURES = ("friction", "inertia", "payload", "delay")
@@ -45,6 +50,7 @@ LIKELY = {"friction": "friction", "inertia": "inertia/payload", "payload": "iner
 UNITS = {"friction": "N*m", "inertia": "kg*m^2", "payload": "kg", "delay": "s"}
 BASELINE_WINDOWS = 10  # windows that only learn each coefficient's mean and spread (no CUSUM yet)
 K = 1.0  # CUSUM reference value [standard normal scores]
+FORECAST = 0.2  # EWMA weight of the newest window in the forecast of the next one
 SET_ARL = 100_000.0  # design: fault-free windows between false alarms of the whole monitor (all joints together)
 EVERY = 4  # the model is evaluated on every this-many-th tick (differences taken at the full rate)
 RATE_TICKS = 5  # half-width of the central difference that gives the model torque's rate [ticks]
@@ -85,9 +91,7 @@ class ResidualMonitor:
     set_arl: float = SET_ARL
     windows: int = 0
     drifted: set = field(default_factory=set)  # joints alarmed so far
-    _n: np.ndarray | None = None  # per coefficient (nj, S): windows learnt, their mean and sum of squares
-    _mean: np.ndarray | None = None
-    _m2: np.ndarray | None = None
+    _learnt: dict = field(default_factory=dict)  # per motion label: see _stats
     _up: np.ndarray | None = None
     _down: np.ndarray | None = None
 
@@ -97,7 +101,7 @@ class ResidualMonitor:
         self.loaded = rigid_model(self.cell.model, self.model.terms.payload_kg + 1.0) if "payload" in self.signatures \
             else None
         shape = (len(self.model.joints), len(self.signatures))
-        self._n, self._mean, self._m2 = np.zeros(shape), np.zeros(shape), np.zeros(shape)
+        self._shape = shape
         self._up, self._down = np.zeros(shape), np.zeros(shape)
         design = DriftConfig(k=K, set_arl=self.set_arl, banks=1)
         self.threshold = design.cusum_threshold(shape[0] * shape[1])  # h [scores]
@@ -108,22 +112,26 @@ class ResidualMonitor:
 
         return mujoco.mj_name2id(self.cell.model, mujoco.mjtObj.mjOBJ_BODY, "tool") >= 0
 
-    def update(self, q: np.ndarray, qd: np.ndarray, current: np.ndarray) -> dict:
-        """One window of contiguous servo-rate ticks (n, dof): its coefficients, CUSUMs and alarms (a dict)."""
+    def update(self, q: np.ndarray, qd: np.ndarray, current: np.ndarray, label: str | None = None) -> dict:
+        """One window of contiguous servo-rate ticks (n, dof): its coefficients, CUSUMs and alarms (a dict).
+        ``label``: the motion the window performed (``left``/``right`` on a mirrored cell); a window is
+        compared with earlier windows of the same motion only."""
         window = self.windows
         self.windows += 1
         coef = self.coefficients(q, qd, current)
         out = {"window": window, "joints": list(self.model.names), "signatures": list(self.signatures),
                "coefficients": np.round(coef, 9).tolist(), "alarms": []}
+        if label is not None:
+            out["label"] = label
         if window < self.baseline:
-            self._learn(coef, np.isfinite(coef))
+            self._learn(label, coef, np.isfinite(coef))
             out["baseline"] = True
             return out
-        z = self.scores(coef)
+        z = self.scores(coef, label)
         zc = np.clip(z, -self.cap, self.cap)
         self._up = np.maximum(0.0, self._up + zc - K)
         self._down = np.maximum(0.0, self._down - zc - K)
-        self._learn(coef, np.isfinite(coef) & (np.abs(z) < self.cap))  # a capped window is not learnt as normal
+        self._learn(label, coef, np.isfinite(coef) & (np.abs(z) < self.cap))  # a capped window is not learnt
         stat = np.maximum(self._up, self._down) / self.threshold
         out["cusum"] = np.round(stat, 3).tolist()
         out["drifted"] = sorted(self.drifted)
@@ -134,34 +142,11 @@ class ResidualMonitor:
                 continue
             self.drifted.add(self.model.names[k])
             sig = self.signatures[s]
-            alarm = ResidualAlarm(window, self.model.names[k], LIKELY[sig], sig, float(coef[k, s] - self._mean[k, s]),
+            forecast = self._stats(label)[1]
+            alarm = ResidualAlarm(window, self.model.names[k], LIKELY[sig], sig, float(coef[k, s] - forecast[k, s]),
                                   UNITS[sig], float(stat[k, s]))
             out["alarms"].append(alarm.to_dict())
         return out
-
-    def scores(self, coef: np.ndarray) -> np.ndarray:
-        """Standard normal scores (nj, S) of ``coef`` against the windows learnt so far: the predictive
-        Student-t of a new value given ``n`` earlier ones, through its CDF onto N(0, 1); 0 where a
-        coefficient is NaN or has fewer than three windows behind it."""
-        n = self._n
-        ok = np.isfinite(coef) & (n >= 3)
-        z = np.zeros_like(coef)
-        if not ok.any():
-            return z
-        spread = np.sqrt(self._m2[ok] / (n[ok] - 1.0)) * np.sqrt(1.0 + 1.0 / n[ok])
-        t = (coef[ok] - self._mean[ok]) / np.maximum(spread, np.finfo(float).tiny)
-        dof = n[ok] - 1.0
-        # the upper tail of each side, so a far value keeps its precision: z = -Phi^-1(P(T > |t|)) sign(t)
-        z[ok] = np.sign(t) * stats.norm.isf(stats.t.sf(np.abs(t), dof))
-        return z
-
-    def _learn(self, coef: np.ndarray, use: np.ndarray) -> None:
-        """Add ``coef`` where ``use`` to each coefficient's running mean and sum of squares (Welford)."""
-        n = self._n + use
-        delta = np.where(use, coef - self._mean, 0.0)
-        self._mean = self._mean + np.where(use, delta / np.maximum(n, 1.0), 0.0)
-        self._m2 = self._m2 + np.where(use, delta * (coef - self._mean), 0.0)
-        self._n = n
 
     def coefficients(self, q: np.ndarray, qd: np.ndarray, current: np.ndarray) -> np.ndarray:
         """Per hinge joint, the residual's coefficient on each signature (nj, S); NaN where it barely moves."""
@@ -192,6 +177,36 @@ class ResidualMonitor:
             out[k], *_ = np.linalg.lstsq(x, residual[use, k], rcond=None)
         return out
 
+    def scores(self, coef: np.ndarray, label: str | None = None) -> np.ndarray:
+        """Standard normal scores (nj, S) of ``coef``: its error against the forecast from the earlier windows
+        of motion ``label``, over the spread of the ``n`` forecast errors before it (Student-t with ``n``
+        degrees of freedom), through the t CDF onto N(0, 1); 0 where a coefficient is NaN or fewer than three
+        errors lie behind it."""
+        _, forecast, n, sse = self._stats(label)
+        ok = np.isfinite(coef) & (n >= 3)
+        z = np.zeros_like(coef)
+        if not ok.any():
+            return z
+        t = (coef[ok] - forecast[ok]) / np.maximum(np.sqrt(sse[ok] / n[ok]), np.finfo(float).tiny)
+        # the upper tail of each side, so a far value keeps its precision: z = -Phi^-1(P(T > |t|)) sign(t)
+        z[ok] = np.sign(t) * stats.norm.isf(stats.t.sf(np.abs(t), n[ok]))
+        return z
+
+    def _stats(self, label: str | None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(windows learnt, forecast, forecast errors counted, their sum of squares) per coefficient (nj, S) of
+        motion ``label``."""
+        if label not in self._learnt:
+            self._learnt[label] = tuple(np.zeros(self._shape) for _ in range(4))
+        return self._learnt[label]
+
+    def _learn(self, label: str | None, coef: np.ndarray, use: np.ndarray) -> None:
+        """Where ``use``: count ``coef``'s forecast error and move the forecast towards it (EWMA, ``FORECAST``)."""
+        seen, forecast, n, sse = self._stats(label)
+        scored = use & (seen > 0)
+        error = np.where(scored, coef - forecast, 0.0)
+        forecast = np.where(use & (seen == 0), coef, forecast + FORECAST * error)
+        self._learnt[label] = (seen + use, forecast, n + scored, sse + error * error)
+
 
 def watch(run, monitor: ResidualMonitor) -> None:
     """Feed ``monitor`` each cycle of ``run`` (a ``runtime.loop.Run``); the window lands in the cycle's
@@ -200,6 +215,8 @@ def watch(run, monitor: ResidualMonitor) -> None:
     def window(ticks, outcome: dict) -> None:
         n = ticks.n
         keep = slice(0, n)
-        outcome["residual"] = monitor.update(ticks.q[keep], ticks.qd[keep], ticks.current[keep])
+        labels = [str(outcome[k]) for k in LABELS if isinstance(outcome.get(k), str)]
+        outcome["residual"] = monitor.update(ticks.q[keep], ticks.qd[keep], ticks.current[keep],
+                                             "/".join(labels) if labels else None)
 
     run.cycle_monitors.append(window)
