@@ -378,11 +378,11 @@ def _ols(x: np.ndarray, y: np.ndarray, starts: np.ndarray) -> tuple[np.ndarray, 
     scale = np.linalg.norm(x, axis=0)
     scale[scale == 0] = 1.0
     xs = x / scale
-    beta_s, *_ = np.linalg.lstsq(xs, y, rcond=None)
-    r = y - xs @ beta_s
-    lam, v = np.linalg.eigh(xs.T @ xs)
+    lam, v = np.linalg.eigh(xs.T @ xs)  # columns scaled to unit norm: the normal equations are well conditioned
     good = lam > NULL_EIG * lam.max()
     pinv = (v[:, good] / lam[good]) @ v[:, good].T
+    beta_s = pinv @ (xs.T @ y)  # the minimum-norm solution, unexcited directions left at zero
+    r = y - xs @ beta_s
     scores = np.add.reduceat(xs * r[:, None], starts, axis=0)  # (blocks, p)
     g, n, p = len(starts), len(y), x.shape[1]
     small = g / max(g - 1, 1) * (n - 1) / max(n - p, 1)  # the usual finite-sample factor of a clustered sandwich
