@@ -87,5 +87,5 @@ def test_write_then_runs_carry_the_version_and_old_versions_stay(excited, tmp_pa
 def test_a_calibration_of_another_robot_is_refused(tmp_path):
     quad = tmp_path / "quad.yaml"
     quad.write_bytes((ASSETS / "quadruped_profile.yaml").read_bytes())
-    with pytest.raises(ProfileError):
+    with pytest.raises(ProfileError, match="^calibration: "):
         Run(Scenario(cell=ARM, calibration=quad))

@@ -142,7 +142,10 @@ def load_profile(model: mujoco.MjModel, path: Path) -> Profile:
 def calibrated_profile(model: mujoco.MjModel, current: Profile, path: Path) -> Profile:
     """The profile at ``path`` (one ``identify --write`` wrote) in place of ``current``: it must be of the same
     robot with the same joints and limits; only what was measured (and the calibration) may differ."""
-    new = load_profile(model, Path(path))
+    try:
+        new = load_profile(model, Path(path))
+    except ProfileError as exc:
+        raise ProfileError(f"calibration: {exc}") from None
     if new.robot != current.robot:
         raise ProfileError(f"calibration: {path} is a profile of robot {new.robot!r}; the robot is {current.robot!r}")
     if new.joints != current.joints:
