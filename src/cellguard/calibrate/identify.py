@@ -17,11 +17,11 @@ Method (linear in the unknowns, so one least-squares solve with intervals, no ro
 Intervals are simultaneous 95 % intervals: all the reported parameters of one fit lie inside
 their intervals together with probability 0.95 (Sidak: each at level ``0.95 ** (1/m)`` for ``m``
 parameters), which is the claim "each truth inside its interval" makes; a marginal 95 % interval
-misses one parameter in twenty by design. The standard errors are heteroskedasticity- and
-autocorrelation-consistent (a sandwich over blocks of ``BLOCK_S`` of consecutive samples, the
-batch-means estimator): the residual is not white (model mismatch follows the motion, the drive's
-response spans many ticks), and the textbook OLS error, which assumes it is, would understate the
-spread. A column that the data does not excite (near-zero norm or in the near-null space) is
+misses one parameter in twenty by design. The standard errors are heteroskedasticity-consistent
+(White: the joints' current noise differs with their torque constants) and corrected for residuals
+correlated in time by an effective sample size (``_ess_factor``: a model mismatch that follows the
+motion makes neighbouring residuals alike, and the textbook error, which assumes they are not,
+would understate the spread). A column that the data does not excite (near-zero norm or in the near-null space) is
 "not identifiable". The delay's interval is the search's resolution (one servo period either side).
 """
 
@@ -45,7 +45,7 @@ MAX_DELAY_S = 0.03  # longest command delay searched [s]
 MIN_TICKS = 200  # shortest stretch of servo-rate ticks used [ticks]
 SATURATED = 0.95  # samples with effort beyond this fraction of the force range leave the drive regression
 LEVEL = 0.95  # joint coverage of all reported intervals of one fit
-BLOCK_S = 0.5  # length of the blocks whose score sums give the HAC covariance [s]
+ESS_LAGS = 100  # lags over which residual correlation is counted in the effective sample size [ticks]
 NULL_EIG = 1e-10  # relative eigenvalue of the scaled normal matrix below which a direction is unexcited
 
 
@@ -155,12 +155,12 @@ def _refit(segments, cell, pairs, model, terms) -> dict:
             v = s.qd[:-1, i]
             moving = np.abs(v) > MIN_SPEED
             column = {"friction": np.sign(v), "damping": v, "armature": np.diff(s.qd[:, i]) / model.dt}[param]
-            rows.add(column[moving][:, None], (s.tau[1:, i] - model.torque(s.q, s.qd)[:, k])[moving], model.dt)
-        x, y, starts = rows.stacked()
+            rows.add(column[moving][:, None], (s.tau[1:, i] - model.torque(s.q, s.qd)[:, k])[moving])
+        x, y = rows.stacked()
         if len(y) < 100:
             raise CalibrationError(f"--only {joint},{param}: {joint} moves faster than {MIN_SPEED} rad/s in only "
                                    f"{len(y)} ticks of these records; record more cycles at full rate")
-        beta, cov = _ols(x, y, starts)
+        beta, cov = _ols(x, y)
         value = float(current[param][k] + beta[0])
         nominal = float(_nominal(cell.model, param, cell.drives.dadr[i]))
         estimates.append(Fitted(param, joint, value, float(np.sqrt(cov[0, 0])), nominal))
@@ -293,21 +293,21 @@ def _drive_fit(segments, model, act, joints) -> tuple[int, list[tuple[float, flo
     dt = float(model.opt.timestep)
     limit = model.actuator_forcerange[act, 1]
 
-    def rows(lag: int, k: int, i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def rows(lag: int, k: int, i: int) -> tuple[np.ndarray, np.ndarray]:
         out = _Rows()
         for s in segments:
             # row r's effort acts in the step from row r-1's state, on the command taken lag ticks before row r
             e = s.q_cmd[1:len(s.q) - lag, i] - s.q[lag:-1, i]
             y = s.tau[lag + 1:, i]
             ok = np.abs(y) < SATURATED * limit[k]
-            out.add(np.column_stack([e, s.qd[lag:-1, i]])[ok], y[ok], dt)
+            out.add(np.column_stack([e, s.qd[lag:-1, i]])[ok], y[ok])
         return out.stacked()
 
     costs = []
     for lag in range(round(MAX_DELAY_S / dt) + 1):
         cost = 0.0
         for k, i in enumerate(joints):
-            x, y, _ = rows(lag, k, i)
+            x, y = rows(lag, k, i)
             gram, xty, yy = x.T @ x, x.T @ y, float(y @ y)
             beta = np.linalg.lstsq(gram, xty, rcond=None)[0]
             cost += max(yy - float(xty @ beta), 0.0) / max(yy, 1e-300)
@@ -343,12 +343,12 @@ def _joint_fit(segments, cell, joints, names, dadr, kv_nom, lag, wanted, dt) -> 
                 x[:, b * nj + k] = regressors[p][moving]
             if loaded is not None:
                 x[:, -1] = (tau_loaded[:, k] - tau_rigid[:, k])[moving]
-            rows.add(x, (s.tau[1:, i] - tau_rigid[:, k])[moving], dt)
-    x, y, starts = rows.stacked()
+            rows.add(x, (s.tau[1:, i] - tau_rigid[:, k])[moving])
+    x, y = rows.stacked()
     if len(y) < 10 * ncol:
         raise CalibrationError(f"the records move too little to identify {', '.join(wanted)} ({len(y)} samples faster "
                                f"than {MIN_SPEED} rad/s); record an excitation with `cellguard excite`")
-    beta, cov = _ols(x, y, starts)
+    beta, cov = _ols(x, y)
     out = []
     damping = beta[nj:2 * nj]
     for p, b in blocks.items():
@@ -368,27 +368,26 @@ def _joint_fit(segments, cell, joints, names, dadr, kv_nom, lag, wanted, dt) -> 
 
 
 class _Rows:
-    """Regression rows gathered stretch by stretch, with where each ``BLOCK_S`` block of them starts."""
+    """Regression rows gathered stretch by stretch (each contiguous in time), stacked in that order."""
 
     def __init__(self):
-        self.xs, self.ys, self.starts, self.n = [], [], [], 0
+        self.xs, self.ys = [], []
 
-    def add(self, x: np.ndarray, y: np.ndarray, dt: float) -> None:
-        """Rows of one contiguous stretch (x (n, p), y (n,)); ``dt`` the time between them [s]."""
+    def add(self, x: np.ndarray, y: np.ndarray) -> None:
+        """Rows of one contiguous stretch: x (n, p), y (n,)."""
         self.xs.append(x)
         self.ys.append(y)
-        self.starts.append(self.n + np.arange(0, len(y), max(round(BLOCK_S / dt), 1)))
-        self.n += len(y)
 
-    def stacked(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        return np.concatenate(self.xs), np.concatenate(self.ys), np.concatenate(self.starts)
+    def stacked(self) -> tuple[np.ndarray, np.ndarray]:
+        return np.concatenate(self.xs), np.concatenate(self.ys)
 
 
-def _ols(x: np.ndarray, y: np.ndarray, starts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _ols(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Least squares ``x beta = y``: beta and its covariance (p, p), infinite variance where a column is not
-    excited. The covariance is the sandwich ``A+ S A+`` with ``A = x'x`` and ``S`` the sum over blocks (rows
-    ``starts[b]`` to ``starts[b + 1]``) of the outer product of each block's score ``x' r``: consistent
-    under heteroskedastic, autocorrelated residuals whose correlation is shorter than a block."""
+    excited. The covariance is White's heteroskedasticity-consistent sandwich (the joints' residuals differ
+    in size), each column's variance then scaled by its effective-sample-size factor (``_ess_factor``) for
+    residuals correlated in time. (A sandwich over blocks of time was tried: with a few dozen blocks
+    carrying most of a column's weight it came out up to three times too small on white residuals.)"""
     scale = np.linalg.norm(x, axis=0)
     scale[scale == 0] = 1.0
     xs = x / scale
@@ -397,13 +396,30 @@ def _ols(x: np.ndarray, y: np.ndarray, starts: np.ndarray) -> tuple[np.ndarray, 
     pinv = (v[:, good] / lam[good]) @ v[:, good].T
     beta_s = pinv @ (xs.T @ y)  # the minimum-norm solution, unexcited directions left at zero
     r = y - xs @ beta_s
-    scores = np.add.reduceat(xs * r[:, None], starts, axis=0)  # (blocks, p)
-    g, n, p = len(starts), len(y), x.shape[1]
-    small = g / max(g - 1, 1) * (n - 1) / max(n - p, 1)  # the usual finite-sample factor of a clustered sandwich
-    cov = small * pinv @ (scores.T @ scores) @ pinv
+    n, p = len(y), x.shape[1]
+    white = pinv @ ((xs * (r * r)[:, None]).T @ xs) @ pinv * (n / max(n - p, 1))
+    root = np.sqrt(np.array([_ess_factor(xs[:, c], r) for c in range(p)]))
+    cov = white * np.outer(root, root)
     unexcited = (np.abs(v[:, ~good]) > 1e-6).any(axis=1) | (np.linalg.norm(x, axis=0) == 0)
     cov[unexcited, unexcited] = np.inf
     return beta_s / scale, cov / np.outer(scale, scale)
+
+
+def _ess_factor(column: np.ndarray, r: np.ndarray) -> float:
+    """``n / n_eff`` of one regressor's coefficient: ``1 + 2 sum_l w_l rho_r(l) rho_x(l)`` over lags up to
+    ``ESS_LAGS`` (Bartlett weights ``w_l``), with ``rho_r`` the residual's and ``rho_x`` the regressor's
+    (uncentred) autocorrelation over the rows the regressor acts on. 1 for white residuals; above 1 when
+    residual and regressor are both correlated in time (a slow model mismatch), below when they oppose."""
+    rows = column != 0
+    xc, rc = column[rows], r[rows]
+    xx, rr = float(xc @ xc), float(rc @ rc)
+    if len(xc) <= ESS_LAGS or xx == 0 or rr == 0:
+        return 1.0
+    total = 1.0
+    for lag in range(1, ESS_LAGS + 1):
+        weight = 1.0 - lag / (ESS_LAGS + 1)
+        total += 2.0 * weight * float(rc[lag:] @ rc[:-lag]) / rr * float(xc[lag:] @ xc[:-lag]) / xx
+    return max(total, 0.0)
 
 
 @dataclass(frozen=True)
@@ -431,7 +447,8 @@ def interval_note(estimates: list) -> str:
     """What the intervals of ``estimates`` (Estimate or Fitted) claim, in words."""
     m = _identified(estimates)
     return (f"{LEVEL:.0%} simultaneous over the {m} identified parameters (each at {LEVEL ** (1 / max(m, 1)):.2%}, "
-            f"z {simultaneous_z(m):.2f}); HAC standard errors over {BLOCK_S:g} s blocks")
+            f"z {simultaneous_z(m):.2f}); heteroskedasticity-consistent standard errors with an effective sample "
+            f"size over {ESS_LAGS} lags")
 
 
 def with_intervals(estimates: list) -> list[Estimate]:
