@@ -70,6 +70,8 @@ class Scenario(BaseModel):
     cycle: CycleSettings = Field(default_factory=CycleSettings)
     realtime: RealtimeSettings = Field(default_factory=RealtimeSettings)
     recovery: RecoveryPolicy | None = None
+    calibration: Path | None = Field(default=None, description="a profile written by `identify --write`: the robot "
+                                     "runs with its measured values, and every record names its calibration version")
 
     @property
     def total_cycles(self) -> int:

@@ -93,7 +93,6 @@ class JointTerms:
                 payload = float(e["value"])
         return cls(payload_kg=payload, **arrays)
 
-
     @classmethod
     def from_profile(cls, cell, path=None) -> JointTerms:
         """The calibrated terms: the measured friction, damping and armature of the profile at ``path``
@@ -105,8 +104,14 @@ class JointTerms:
         if profile.robot != cell.profile.robot:
             raise CalibrationError(f"--profile: {path} is a profile of robot {profile.robot!r}; the model is of "
                                    f"{cell.profile.robot!r}")
+        return cls.of_profile(cell, profile)
+
+    @classmethod
+    def of_profile(cls, cell, profile, payload_kg: float = 0.0) -> JointTerms:
+        """``profile``'s measured friction, damping and armature over the nominal terms; ``payload_kg`` [kg]."""
         rows = [{"parameter": m.parameter, "joint": m.joint, "value": m.value, "interval": [m.value, m.value]}
                 for m in profile.measured if m.parameter in ("friction", "damping", "armature")]
+        rows.append({"parameter": "payload", "joint": None, "value": payload_kg, "interval": [payload_kg, payload_kg]})
         return cls.from_estimates(cell, rows)
 
 

@@ -1,21 +1,33 @@
-"""Write identified parameters back into an embodiment profile: versioned, the old version kept, atomic.
+"""Write identified parameters back into an embodiment profile: versioned, old versions kept, atomic.
 
 Per joint, ``friction``, ``damping`` and ``armature`` replace the profile's ``measured`` entries of
-the same joint and parameter (value, unit, date, method naming the records and the 95 % interval).
-The profile's ``version`` becomes ``DATE-cal-HASH`` (the calibration version). The previous file is
-kept beside it as ``NAME.OLD_VERSION.yaml``; the new one is checked against the model before it
-replaces the old (written beside and renamed), so a failure leaves the profile as it was.
+the same joint and parameter (value, unit, date, method naming the records and the interval). The
+calibration gets a version id ``DATE-cal-HASH`` (a hash of the measured values, the calibrated MJCF
+and the version it replaces, so a second calibration is always a new version). Beside the profile:
+
+    NAME.VERSION.xml      the calibrated MJCF (the commissioned model with the profile's measured joint
+                          terms and the identified payload); the profile's ``model`` names it
+    NAME.OLD_VERSION.yaml the profile as it was before (kept, never overwritten)
+
+The profile's ``calibration`` block (version, MJCF, date, records, previous version) is what a run
+with ``calibration: PROFILE`` carries into every record's context. Every file is written beside its
+target and renamed; the new profile is checked against the calibrated model first, and a failure
+removes what this write had added, so the folder is left as it was.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
+from dataclasses import dataclass
 from pathlib import Path
 
+import mujoco
 import yaml
 
 from cellguard.calibrate.identify import CalibrationError
+from cellguard.calibrate.mjcf import calibrated_mjcf
+from cellguard.calibrate.torque_model import JointTerms
 from cellguard.embodiment.profile import parse_profile
 from cellguard.errors import OutputError, ProfileError
 from cellguard.output import write_output
@@ -24,8 +36,17 @@ from cellguard.yaml_file import parse_yaml, read_bounded
 WRITTEN = ("friction", "damping", "armature")  # per-joint parameters the profile's units express
 
 
-def write_profile(path: Path, cell, result: dict, date: str) -> str:
-    """Update ``path`` (``cell``'s profile) with ``result`` (from ``identify``); return the new version."""
+@dataclass(frozen=True)
+class Written:
+    """What ``write_profile`` wrote: the calibration version, the calibrated MJCF and the kept old profile."""
+
+    version: str
+    mjcf: Path
+    kept: Path
+
+
+def write_profile(path: Path, cell, result: dict, date: str) -> Written:
+    """Update ``path`` (``cell``'s profile) with ``result`` (from ``identify``); a new calibration version."""
     path = Path(path)
     old_bytes = read_bounded(path, "profile", ProfileError)
     raw = parse_yaml(old_bytes, str(path), ProfileError)
@@ -35,27 +56,40 @@ def write_profile(path: Path, cell, result: dict, date: str) -> str:
     new = [e for e in result["estimates"] if e["parameter"] in WRITTEN and e["interval"] is not None]
     if not new:
         raise CalibrationError(f"--write: nothing identified to write (of {', '.join(WRITTEN)})")
-    method = f"sysid: {', '.join(result['records'])} (regression on mj_inverse)"
+    records = list(result["records"])
+    method = f"sysid: {', '.join(records)} (regression on mj_inverse)"
     replaced = {(e["joint"], e["parameter"]) for e in new}
     measured = [m for m in raw.get("measured") or [] if (m.get("joint"), m.get("parameter")) not in replaced]
     for e in new:
         lo, hi = e["interval"]
         measured.append({"joint": e["joint"], "parameter": e["parameter"], "value": f"{e['value']:.6g} {e['unit']}",
-                         "measured": date, "method": f"{method}; 95 % interval [{lo:.6g}, {hi:.6g}] {e['unit']}"})
+                         "measured": date, "method": f"{method}; 95 % simultaneous interval [{lo:.6g}, {hi:.6g}] "
+                                                     f"{e['unit']}"})
     old_version = str(raw.get("version", "unversioned"))
     raw["measured"] = measured
-    digest = hashlib.sha256(json.dumps(measured, sort_keys=True).encode()).hexdigest()[:8]
-    raw["version"] = f"{date}-cal-{digest}"
+    draft = parse_profile(cell.model, yaml.safe_dump(raw, sort_keys=False).encode(), str(path))
+    payload = [e for e in result["estimates"] if e["parameter"] == "payload" and e["interval"] is not None]
+    mjcf = calibrated_mjcf(cell, JointTerms.of_profile(cell, draft, payload[0]["value"] if payload else 0.0))
+    digest = hashlib.sha256(json.dumps([measured, old_version, mjcf], sort_keys=True).encode()).hexdigest()[:8]
+    version = f"{date}-cal-{digest}"
+    mjcf_path = path.with_name(f"{path.stem}.{version}.xml")
+    raw["version"] = version
+    raw["model"] = mjcf_path.name
+    raw["calibration"] = {"version": version, "mjcf": mjcf_path.name, "date": date, "records": records,
+                          "previous": old_version}
     text = yaml.safe_dump(raw, sort_keys=False, allow_unicode=True)
-    parse_profile(cell.model, text.encode(), str(path))  # the new profile loads before it replaces the old
+    parse_profile(mujoco.MjModel.from_xml_string(mjcf), text.encode(), str(path))  # loads on its own model
     kept = path.with_name(f"{path.stem}.{old_version}{path.suffix}")
-    keep = not kept.is_file()  # a folder there is no kept profile: writing it fails, before anything is changed
-    if keep:
-        write_output(kept, old_bytes, "previous profile")
+    added = []
     try:
+        # an older version already kept there is never overwritten; a folder there fails here, before the profile
+        for target, data, what in ((kept, old_bytes, "previous profile"), (mjcf_path, mjcf, "calibrated MJCF")):
+            if not target.is_file():
+                write_output(target, data, what)
+                added.append(target)
         write_output(path, text, "profile")
     except OutputError:
-        if keep:  # the command failed: leave the folder as it was
-            kept.unlink(missing_ok=True)
+        for target in added:  # the command failed: leave the folder as it was
+            target.unlink(missing_ok=True)
         raise
-    return raw["version"]
+    return Written(version, mjcf_path, kept)

@@ -50,12 +50,14 @@ def identify(
     cell_name: str = typer.Option("", "--cell", help="The robot the model is of (default: the first record's)."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),
     write: Path | None = typer.Option(None, "--write", help="Update this profile's measured friction, damping and "
-                                      "armature (new version; the old one kept beside it)."),
+                                      "armature and write a calibrated MJCF beside it (a new calibration version; the "
+                                      "old profile kept beside it). A scenario's calibration: PROFILE runs with it."),
     only: list[str] = typer.Option([], "--only", help="JOINT,PARAM: re-fit just this (friction, damping or armature "
                                    "of one joint; repeatable) with every other term held at the profile's values "
                                    "(--write's profile, else the cell's): what the residual monitor said drifted."),
 ) -> None:
-    """Fit the cell's MuJoCo model (from its nominal MJCF) to recorded ticks: value, unit, 95 % interval."""
+    """Fit the cell's MuJoCo model (from its nominal MJCF) to recorded ticks: value, unit, 95 % interval
+    (simultaneous over all the parameters reported)."""
     from cellguard.calibrate.identify import identify as fit
     from cellguard.calibrate.identify import load_segments, parse_params, record_robot
     from cellguard.robot.registry import make_cell
@@ -76,7 +78,8 @@ def identify(
 
             from cellguard.calibrate.write import write_profile
 
-            result["profile_version"] = write_profile(write, cell, result, dt.date.today().isoformat())
+            written = write_profile(write, cell, result, dt.date.today().isoformat())
+            result["profile_version"], result["mjcf"] = written.version, str(written.mjcf)
     except CellguardError as exc:
         fail(exc)
     if as_json:
@@ -84,9 +87,10 @@ def identify(
         return
     for warning in result["warnings"]:
         typer.echo(f"warning: {warning}", err=True)
-    typer.echo(f"{result['robot']}: {result['samples']} ticks from {len(result['records'])} record(s)")
+    typer.echo(f"{result['robot']}: {result['samples']} ticks from {len(result['records'])} record(s); intervals "
+               f"{result['interval']}")
     if write is not None:
-        typer.echo(f"{write}: version {result['profile_version']}")
+        typer.echo(f"{write}: calibration version {result['profile_version']}; calibrated MJCF {result['mjcf']}")
     for e in result["estimates"]:
         name = f"{e['parameter']}" + (f" {e['joint']}" if e["joint"] else "")
         if e["interval"] is None:

@@ -2,6 +2,7 @@
 
 from cellguard.embodiment.kinematics import Kinematics
 from cellguard.embodiment.profile import (
+    Calibration,
     JointLimits,
     MeasuredParameter,
     Profile,
@@ -9,4 +10,4 @@ from cellguard.embodiment.profile import (
     load_profile,
 )
 
-__all__ = ["JointLimits", "Kinematics", "MeasuredParameter", "Profile", "SymmetryPair", "load_profile"]
+__all__ = ["Calibration", "JointLimits", "Kinematics", "MeasuredParameter", "Profile", "SymmetryPair", "load_profile"]

@@ -61,6 +61,22 @@ class SymmetryPair:
 
 
 @dataclass(frozen=True)
+class Calibration:
+    """Which identification the measured values come from (``identify --write``): its version id, the
+    calibrated MJCF written beside the profile, when, from which records, and the version it replaced."""
+
+    version: str
+    mjcf: str  # file name beside the profile
+    date: str  # ISO date
+    records: tuple[str, ...]
+    previous: str  # the profile version before this calibration
+
+    def to_dict(self) -> dict:
+        return {"version": self.version, "mjcf": self.mjcf, "date": self.date, "records": list(self.records),
+                "previous": self.previous}
+
+
+@dataclass(frozen=True)
 class Profile:
     """A robot's embodiment. The arrays are per joint in ``joint_names`` order, read-only."""
 
@@ -70,6 +86,7 @@ class Profile:
     measured: tuple[MeasuredParameter, ...]
     symmetry: tuple[SymmetryPair, ...]
     sha256: str
+    calibration: Calibration | None = None  # None: the measured values were typed in, not identified
 
     @property
     def joint_names(self) -> tuple[str, ...]:
@@ -113,6 +130,7 @@ class Profile:
             "joints": [j.__dict__ | {"position": list(j.position)} for j in self.joints],
             "measured": [m.__dict__ for m in self.measured],
             "symmetry": [s.__dict__ for s in self.symmetry],
+            "calibration": self.calibration.to_dict() if self.calibration else None,
         }
 
 
@@ -121,12 +139,27 @@ def load_profile(model: mujoco.MjModel, path: Path) -> Profile:
     return parse_profile(model, read_bounded(path, "profile", ProfileError), str(path))
 
 
+def calibrated_profile(model: mujoco.MjModel, current: Profile, path: Path) -> Profile:
+    """The profile at ``path`` (one ``identify --write`` wrote) in place of ``current``: it must be of the same
+    robot with the same joints and limits; only what was measured (and the calibration) may differ."""
+    try:
+        new = load_profile(model, Path(path))
+    except ProfileError as exc:
+        raise ProfileError(f"calibration: {exc}") from None
+    if new.robot != current.robot:
+        raise ProfileError(f"calibration: {path} is a profile of robot {new.robot!r}; the robot is {current.robot!r}")
+    if new.joints != current.joints:
+        raise ProfileError(f"calibration: {path} has other joints or limits than {current.robot}'s profile "
+                           f"(version {current.version}); a calibration changes only measured values")
+    return new
+
+
 def parse_profile(model: mujoco.MjModel, raw_bytes: bytes, path: str = "profile") -> Profile:
     """Check the YAML text ``raw_bytes`` (from ``path``) against ``model``; its sha256 is the profile's."""
     raw = parse_yaml(raw_bytes, path, ProfileError)
     if not isinstance(raw, dict):
         raise ProfileError(f"{path}: expected a mapping at the top level")
-    allowed = {"robot", "model", "version", "joints", "measured", "symmetry"}
+    allowed = {"robot", "model", "version", "joints", "measured", "symmetry", "calibration"}
     reject_unknown_keys(raw, sorted(allowed), "", ProfileError)
     for key in ("robot", "version", "joints"):
         if key not in raw:
@@ -144,6 +177,7 @@ def parse_profile(model: mujoco.MjModel, raw_bytes: bytes, path: str = "profile"
         measured=measured,
         symmetry=symmetry,
         sha256=hashlib.sha256(raw_bytes).hexdigest(),
+        calibration=_calibration(raw["calibration"]) if raw.get("calibration") is not None else None,
     )
 
 
@@ -236,3 +270,20 @@ def _symmetry(i: int, spec: object, names: set[str]) -> SymmetryPair:
     if isinstance(spec["sign"], bool) or spec["sign"] not in (1, -1):
         raise ProfileError(f"{field}.sign: must be 1 or -1, got {spec['sign']!r}")
     return SymmetryPair(left=spec["left"], right=spec["right"], sign=float(spec["sign"]))
+
+
+def _calibration(spec: object) -> Calibration:
+    keys = ("version", "mjcf", "date", "records", "previous")
+    if not isinstance(spec, dict):
+        raise ProfileError(f"calibration: expected a mapping with {', '.join(keys)}")
+    reject_unknown_keys(spec, keys, "calibration.", ProfileError)
+    for key in keys:
+        if key not in spec:
+            raise ProfileError(f"calibration.{key}: missing")
+    records = spec["records"]
+    if not isinstance(records, list) or not all(isinstance(r, str) for r in records):
+        raise ProfileError("calibration.records: expected a list of record ids")
+    mjcf = str(spec["mjcf"])
+    if Path(mjcf).name != mjcf:
+        raise ProfileError(f"calibration.mjcf: {mjcf!r} must be a file name beside the profile, not a path")
+    return Calibration(str(spec["version"]), mjcf, str(spec["date"]), tuple(records), str(spec["previous"]))

@@ -1,6 +1,7 @@
 """The context manifest: what a technician needs months later to read a record correctly.
 
-Policy source and content hash, embodiment profile hash and calibration dates, envelope
+Policy source and content hash, embodiment profile hash and calibration dates (and, for a profile
+written by ``identify --write``, its calibration: version id and calibrated MJCF), envelope
 configuration, fixture datum, site, cell id, scenario and software versions. Short version
 stamps (``policy``, ``calibration``, ``datum``, ``context``) are hashes of the relevant parts;
 every index row carries them so that a query can separate cycles run under different versions.
@@ -20,6 +21,8 @@ _SOFTWARE = ("cellguard", "mujoco", "numpy", "mcap", "pyarrow", "duckdb", "rucki
 def build_context(*, scenario, cell, policy, envelope, software: dict | None = None) -> dict:
     """The context of a run, from the objects that make it (all plain JSON values)."""
     profile = cell.profile
+    # only a calibrated profile adds the key, so an uncalibrated run's context (and its stamps) reads as before
+    calibration = {"calibration": profile.calibration.to_dict()} if profile.calibration is not None else {}
     return {
         "site": scenario.site,
         "cell_id": scenario.cell_id,
@@ -27,7 +30,7 @@ def build_context(*, scenario, cell, policy, envelope, software: dict | None = N
         "policy": {"source": policy.source, "sha256": policy.content_hash()},
         "embodiment": {"robot": profile.robot, "version": profile.version, "sha256": profile.sha256,
                        "joints": list(profile.joint_names),
-                       "calibration_dates": sorted({m.measured for m in profile.measured})},
+                       "calibration_dates": sorted({m.measured for m in profile.measured}), **calibration},
         **cell.context(),
         "envelope": envelope_config(envelope),
         "servo_period_ns": cell.dt_ns,

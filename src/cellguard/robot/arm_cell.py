@@ -44,3 +44,8 @@ class ArmPickPlace(PickPlaceCell):
     def __init__(self, seed: int = 0):
         model = load_model()
         super().__init__(model, load_profile(model, ASSETS / "arm_profile.yaml"), LAYOUT, seed)
+
+    @staticmethod
+    def mjcf_spec() -> mujoco.MjSpec:
+        """The commissioned MJCF as an editable spec (``identify --write`` writes a calibrated copy)."""
+        return mujoco.MjSpec.from_file(str(ASSETS / "arm.xml"))

@@ -50,6 +50,11 @@ class QuadrupedTurns(DrivenCell):
     name = "quadruped-turns"
     supported_faults = frozenset({"friction_growth", "friction_step", "servo_gain", "policy_latency", "policy_nan"})
 
+    @staticmethod
+    def mjcf_spec() -> mujoco.MjSpec:
+        """The commissioned MJCF as an editable spec (``identify --write`` writes a calibrated copy)."""
+        return mujoco.MjSpec.from_file(str(ASSETS / "quadruped.xml"))
+
     def __init__(self, seed: int = 0):
         self.model = mujoco.MjModel.from_xml_path(str(ASSETS / "quadruped.xml"))
         self.data = mujoco.MjData(self.model)

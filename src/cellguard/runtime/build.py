@@ -4,18 +4,28 @@ from __future__ import annotations
 
 from functools import partial
 
+from cellguard.embodiment.profile import calibrated_profile
+from cellguard.errors import ScenarioError
 from cellguard.robot.registry import make_cell
 from cellguard.runtime.clock import LockStepClock, SimClock, WallClock
 from cellguard.runtime.inference import SimulatedInference, WorkerInference
 
 
 def make_robot(scenario):
-    """``robot: sim`` is the scenario's simulated cell; anything else a bridge (``SCHEME:ARGUMENT``)."""
+    """``robot: sim`` is the scenario's simulated cell; anything else a bridge (``SCHEME:ARGUMENT``). With a
+    ``calibration`` (a profile ``identify --write`` wrote) the robot takes that profile in place of its own."""
     if scenario.robot == "sim":
-        return make_cell(scenario.cell, seed=scenario.seed)
-    from cellguard.robot.bridges import make_bridge
+        robot = make_cell(scenario.cell, seed=scenario.seed)
+    else:
+        from cellguard.robot.bridges import make_bridge
 
-    return make_bridge(scenario.robot, scenario)
+        robot = make_bridge(scenario.robot, scenario)
+    if scenario.calibration is not None:
+        if not hasattr(robot, "model"):
+            raise ScenarioError(f"calibration: robot {scenario.robot!r} has no MuJoCo model to check the profile "
+                                "against; give a bridge its calibrated profile with its embodiment= option")
+        robot.profile = calibrated_profile(robot.model, robot.profile, scenario.calibration)
+    return robot
 
 
 def make_clock(robot, realtime: bool):
