@@ -172,6 +172,11 @@ def intermittent_case(kind: str, seed: int) -> dict:
             "causes": [f.cause for f in d.findings]}
 
 
+def fault_hits(kind: str, cycle: int, seed: int) -> bool:
+    from cellguard.robot.faults.intermittent import hits
+    return hits(cycle, AT, 0.2, seed)
+
+
 QUADRUPED_CASES = {
     "servo_leg": ([{"kind": "servo_gain", "joint": ["rl_abduction", "rl_hip", "rl_knee"], "factor": 0.85,
                     "at_cycle": 12}], "servo", "rl"),
