@@ -18,7 +18,9 @@ from __future__ import annotations
 import argparse
 import hashlib
 import json
+import os
 import pickle
+import shutil
 import sys
 import tempfile
 import time
@@ -26,6 +28,7 @@ from dataclasses import dataclass, replace
 from multiprocessing import Pool
 from pathlib import Path
 
+import mujoco
 import numpy as np
 
 from cellguard.diagnose import diagnose
@@ -144,19 +147,28 @@ def warmup_case(seed: int) -> dict:
             "ok": not d.drift.alarms and not d.findings, "process": [n.text for n in d.process]}
 
 
+INTERMITTENT_CYCLES = 100  # [cycles] watched after the fault: 1 in 5 over 40 cycles is 8 +- 2.5 hits, a
+# realised rate of 0.2 +- 0.063; over 100 it is 0.2 +- 0.04
+
+
 def intermittent_case(kind: str, seed: int) -> dict:
-    """A gripper that slips (or a part presented off its place) one cycle in five, from cycle AT."""
+    """A gripper that slips (or a part presented off its place) one cycle in five, from cycle AT.
+    Its rate is scored against the rate it really had over the cycles watched (``realised``, what the
+    record shows) and against the nominal 1 in 5."""
     fault = {"kind": kind, "at_cycle": AT, "rate": 0.2, "seed": seed, "dx_mm": 2.0}
-    r = run(seed, AT - ACCEPTANCE + 40, [fault])
+    r = run(seed, AT - ACCEPTANCE + INTERMITTENT_CYCLES, [fault])
     d = _diagnose(r)
     expected = {"intermittent_slip": "tool_slip", "part_misplaced": "part_misplaced"}[kind]
     hit = [f for f in d.findings if f.rate is not None]
-    true_rate = float(np.mean([fault_hits(kind, i, seed) for i in range(AT, len(r.cycles))]))
+    true_hits = [i for i in range(AT, len(r.cycles)) if fault_hits(kind, i, seed)]
+    realised = len(true_hits) / (len(r.cycles) - AT)
     named = hit[0] if hit else None
+    right = bool(named and named.cause == expected)
     return {"kind": kind, "seed": seed, "expected": expected, "named": named.cause if named else None,
-            "rate": named.rate if named else None, "true_rate": true_rate,
-            "first": named.cycle if named else None,
-            "ok": bool(named and named.cause == expected and abs(named.rate - 0.2) <= 0.10),
+            "rate": named.rate if named else None, "realised_rate": realised,
+            "first": named.cycle if named else None, "true_first": true_hits[0] if true_hits else None,
+            "ok": right and abs(named.rate - realised) <= 0.10,
+            "ok_nominal": right and abs(named.rate - 0.2) <= 0.10,
             "causes": [f.cause for f in d.findings]}
 
 
@@ -272,21 +284,48 @@ def _task(task: tuple) -> tuple:
 
 
 def one_hour() -> dict:
-    """A recorded hour of the arm cell (about 810 cycles), then ``diagnose DIR`` on the record."""
-    from cellguard.diagnose.from_record import diagnose_record
+    """A recorded hour of the arm cell (about 810 cycles), then ``diagnose DIR`` on the record: wall and
+    CPU time (median of five, the first of which writes the baseline beside the record), the load
+    average while it ran (the machine may be shared) and the wall as a multiple of one ``mj_step``."""
+    from cellguard.diagnose.from_record import BASELINE_FILE, diagnose_record
+    from cellguard.robot.registry import make_cell
     from cellguard.runtime import run_scenario
 
     cycles = round(3600 / 4.444)
-    scenario = parse_scenario({"cell": "arm-pick-place", "seed": 5, "acceptance_cycles": ACCEPTANCE,
-                               "production_cycles": cycles - ACCEPTANCE,
-                               "faults": [{"kind": "fixture_shift", "at_cycle": 600, "dx_mm": 3.0}]})
+    raw = {"cell": "arm-pick-place", "seed": 5, "acceptance_cycles": ACCEPTANCE, "production_cycles": cycles - ACCEPTANCE,
+           "faults": [{"kind": "fixture_shift", "at_cycle": 600, "dx_mm": 3.0}]}
     with tempfile.TemporaryDirectory() as tmp:
-        run_scenario(scenario, Path(tmp))
+        folder = Path(tmp) / "hour"
+        kept = RUNS / f"hour-{hashlib.sha256(json.dumps(raw, sort_keys=True).encode()).hexdigest()[:16]}" if RUNS else None
+        if kept is not None and kept.is_dir():
+            shutil.copytree(kept, folder)
+        else:
+            run_scenario(parse_scenario(raw), folder)
+            if kept is not None:
+                shutil.copytree(folder, kept.with_suffix(".tmp"), dirs_exist_ok=True)
+                kept.with_suffix(".tmp").replace(kept)
+        (folder / BASELINE_FILE).unlink(missing_ok=True)
+        walls, cpus, load = [], [], os.getloadavg()
+        for _ in range(5):
+            t0, c0 = time.perf_counter(), time.process_time()
+            d = diagnose_record(folder)
+            walls.append(time.perf_counter() - t0)
+            cpus.append(time.process_time() - c0)
+        size = sum(f.stat().st_size for f in folder.rglob("*") if f.is_file())
+    cell = make_cell("arm-pick-place")
+    data, steps = mujoco.MjData(cell.model), []
+    for _ in range(5):
         t0 = time.perf_counter()
-        d = diagnose_record(Path(tmp))
-        elapsed = time.perf_counter() - t0
-    return {"cycles": len(d.cycles), "diagnose_record_s": round(elapsed, 3),
-            "findings": [f.to_dict()["cause"] for f in d.findings], "first_faulted_cycle": d.first_faulted_cycle}
+        for _ in range(1000):
+            mujoco.mj_step(cell.model, data)
+        steps.append((time.perf_counter() - t0) / 1000)
+    wall, step = float(np.median(walls)), float(np.median(steps))
+    return {"cycles": len(d.cycles), "record_bytes": size, "diagnose_record_s": round(wall, 3),
+            "diagnose_record_cpu_s": round(float(np.median(cpus)), 3),
+            "first_with_baseline_write_s": round(walls[0], 3), "walls_s": [round(w, 3) for w in walls],
+            "load_average_1_5_15": [round(x, 2) for x in load], "mj_step_s": step,
+            "diagnose_over_mj_step": round(wall / step), "findings": [f.to_dict()["cause"] for f in d.findings],
+            "first_faulted_cycle": d.first_faulted_cycle}
 
 
 def table(rows: list[dict], free: list[dict]) -> str:
@@ -323,6 +362,8 @@ def _issue16_summary(res: dict) -> dict:
         rows = [r for r in res.get("intermittent", []) if r["kind"] == kind]
         if rows:
             out[f"{kind}_ok"] = f"{sum(r['ok'] for r in rows)}/{len(rows)}"
+            out[f"{kind}_ok_nominal"] = f"{sum(r['ok_nominal'] for r in rows)}/{len(rows)}"
+            out[f"{kind}_realised_rates"] = [round(r["realised_rate"], 3) for r in rows]
             out[f"{kind}_rates"] = [r["rate"] for r in rows]
     for r in res.get("quadruped", []):
         out[f"quadruped_{r['case']}_ok"] = r["ok"]
@@ -353,7 +394,7 @@ def main() -> None:
     cases = {"power": [("power", k, s) for k in ("servo", "friction") for s in list(held_out)[:9]],
              "payload": [("payload", d, s) for d in (True, False) for s in held_out],
              "warmup": [("warmup", s) for s in held_out],
-             "intermittent": [("intermittent", "intermittent_slip", s) for s in list(held_out)[:3]]
+             "intermittent": [("intermittent", "intermittent_slip", s) for s in held_out]
                              + [("intermittent", "part_misplaced", s) for s in list(held_out)[:1]],
              "quadruped": [("quadruped", name, 10) for name in QUADRUPED_CASES], "arl": [("arl",)]}
     tasks += [t for c in args.cases for t in cases[c]]

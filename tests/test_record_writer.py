@@ -131,3 +131,21 @@ def test_every_channel_declares_its_schema(folder):
 def test_bad_config_names_the_field(field, value):
     with pytest.raises(RecordError, match=field):
         RecordConfig(**{field: value})
+
+
+def test_a_chunk_read_for_some_channels_holds_exactly_their_messages_of_a_full_read(tmp_path):
+    """The reader's lean path (messages of the wanted channels only, the rest skipped undecoded) gives
+    the same messages, in the same order, as decoding every record of the chunk with the mcap package."""
+    from mcap.records import Message
+
+    from cellguard.record.scan import read_chunk
+
+    record(tmp_path, cycles=6, ticks_per_cycle=150, events={40: "clamp", 700: "clamp"})
+    with open_record(tmp_path) as rec:
+        ids = {c.topic: c.id for c in rec.layout.channels.values()}
+        for topics in (["/cycles"], ["/events", "/cycles"], list(ids)):
+            wanted = {ids[t] for t in topics if t in ids}
+            for ref in rec.layout.chunks:
+                full = [m for m in read_chunk(rec._buf, ref) if isinstance(m, Message) and m.channel_id in wanted]
+                assert read_chunk(rec._buf, ref, wanted) == full
+        assert len(list(rec.cycles())) == 6 and len(list(rec.events())) == 2

@@ -365,13 +365,10 @@ class Record:
             if not _overlaps(ref, wanted, start_ns, end_ns) or ref.offset in self._late_damage:
                 continue
             try:
-                records = read_chunk(self._buf, ref)
+                out += read_chunk(self._buf, ref, wanted)
             except RecordError as exc:
                 self._late_damage[ref.offset] = str(exc)
                 continue
-            for r in records:
-                if isinstance(r, Message) and r.channel_id in wanted:
-                    out.append(r)
         out.sort(key=lambda m: m.log_time)  # stable: file order within equal times
         return iter(out)
 

@@ -21,7 +21,7 @@ from pathlib import Path
 from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
 from mcap.records import AttachmentIndex, Channel, Chunk, Message, Metadata, MetadataIndex, Schema
-from mcap.stream_reader import breakup_chunk
+from mcap.stream_reader import breakup_chunk, get_chunk_data_stream
 
 from cellguard.errors import RecordError
 
@@ -32,6 +32,8 @@ _SIGNATURE_OFFSET = 1 + 8 + 8 + 8 + 8 + 4  # opcode, length, start, end, size, c
 _HEAD = struct.Struct("<BQQQ")  # opcode, length, message_start_time, message_end_time
 _FOOTER = struct.Struct("<BQQQI")  # opcode, length, summary_start, summary_offset_start, summary_crc
 _CHUNK_INDEX = struct.Struct("<QQQQI")  # start, end, chunk offset, chunk length, bytes of channel offsets
+_RECORD = struct.Struct("<BQ")  # opcode, length of the record that follows
+_MESSAGE = struct.Struct("<HIQQ")  # channel id, sequence, log time, publish time; then the data
 
 
 @dataclass(frozen=True)
@@ -88,8 +90,10 @@ def scan(path: Path) -> Layout:
         raise RecordError(f"{path}: cannot be read ({type(exc).__name__}: {exc})") from None
 
 
-def read_chunk(buf, ref: ChunkRef) -> list:
-    """The records inside one chunk (schemas, channels, messages); RecordError if it is damaged."""
+def read_chunk(buf, ref: ChunkRef, channels: set[int] | None = None) -> list:
+    """The records inside one chunk (schemas, channels, messages); RecordError if it is damaged.
+    ``channels``: only the messages of these channel ids, read without decoding the others (a
+    chunk of an arm record holds some 30 tick and state messages besides one cycle's)."""
     raw = buf[ref.offset:ref.offset + ref.length]
     if len(raw) < ref.length or raw[0] != Opcode.CHUNK:
         raise RecordError(f"chunk at byte {ref.offset}: not a chunk record")
@@ -97,11 +101,32 @@ def read_chunk(buf, ref: ChunkRef) -> list:
         chunk = Chunk.read(ReadDataStream(BytesIO(raw[9:])))
         if chunk.compression not in ("zstd", "lz4", ""):
             raise RecordError(f"chunk at byte {ref.offset}: unknown compression {chunk.compression!r}")
-        return breakup_chunk(chunk, validate_crc=True)
+        if channels is None:
+            return breakup_chunk(chunk, validate_crc=True)
+        stream, size = get_chunk_data_stream(chunk, validate_crc=True)
+        return _messages(stream.read(size), channels)
     except RecordError:
         raise
     except Exception as exc:  # the mcap package raises many kinds on a corrupt chunk (zstd, CRC, struct)
         raise RecordError(f"chunk at byte {ref.offset}: damaged ({type(exc).__name__}: {exc})") from None
+
+
+def _messages(data: bytes, channels: set[int]) -> list[Message]:
+    """The messages of ``channels`` in a chunk's uncompressed records, in file order; ValueError if a
+    record runs past the end."""
+    out, at, end = [], 0, len(data)
+    while at < end:
+        op, length = _RECORD.unpack_from(data, at)
+        body = at + _RECORD.size
+        if body + length > end:
+            raise ValueError(f"a record of {length} bytes runs past the chunk's end")
+        if op == Opcode.MESSAGE:
+            channel, sequence, log_time, publish_time = _MESSAGE.unpack_from(data, body)
+            if channel in channels:
+                out.append(Message(channel_id=channel, log_time=log_time, data=data[body + _MESSAGE.size:body + length],
+                                   publish_time=publish_time, sequence=sequence))
+        at = body + length
+    return out
 
 
 def read_attachment(buf, offset: int, length: int):
