@@ -97,7 +97,9 @@ def identify(
             typer.echo(f"  {name:24s} not identifiable from this data (nominal {e['nominal']:.4g} {e['unit']})")
         else:
             lo, hi = e["interval"]
-            typer.echo(f"  {name:24s} {e['value']:.4g} {e['unit']}  [{lo:.4g}, {hi:.4g}]  (nominal {e['nominal']:.4g})")
+            bias = f", method bias {e['method_bias']:+.2g}" if e.get("method_bias") is not None else ""
+            typer.echo(f"  {name:24s} {e['value']:.4g} {e['unit']}  [{lo:.4g}, {hi:.4g}]  (nominal {e['nominal']:.4g}"
+                       f"{bias})")
 
 
 @app.command()
