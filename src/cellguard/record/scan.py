@@ -164,15 +164,21 @@ def _from_summary(path: Path, size: int) -> Layout | None:
         if zlib.crc32(buf[start:footer_at + 25]) != crc:  # the summary and the footer's offsets
             return None
         layout = Layout(path, size, [], finished=True)
-        pos = start
+        pos, id_sets = start, {}  # the chunks of a record share a few channel sets: each parsed once
         while pos + 9 <= footer_at:
-            op, length = buf[pos], int.from_bytes(buf[pos + 1:pos + 9], "little")
-            body = buf[pos + 9:pos + 9 + length]
-            if op == Opcode.CHUNK_INDEX:
-                t0, t1, offset, chunk_length, ids_length = _CHUNK_INDEX.unpack_from(body)
-                ids = frozenset(int.from_bytes(body[36 + i:38 + i], "little") for i in range(0, ids_length, 10))
+            op, length = _RECORD.unpack_from(buf, pos)
+            if op == Opcode.CHUNK_INDEX:  # read in place: an hour holds some 36,000 of them
+                t0, t1, offset, chunk_length, ids_length = _CHUNK_INDEX.unpack_from(buf, pos + 9)
+                entries = buf[pos + 45:pos + 45 + ids_length]  # (channel id u16, offset u64) each
+                key = (entries[0::10], entries[1::10])  # the ids' low and high bytes, without the offsets
+                ids = id_sets.get(key)
+                if ids is None:
+                    ids = id_sets[key] = frozenset(low | high << 8 for low, high in zip(*key))
                 layout.chunks.append(ChunkRef(offset, chunk_length, t0, t1, ids))
-            elif op == Opcode.SCHEMA:
+                pos += 9 + length
+                continue
+            body = buf[pos + 9:pos + 9 + length]
+            if op == Opcode.SCHEMA:
                 schema = Schema.read(ReadDataStream(BytesIO(body)))
                 layout.schemas[schema.id] = schema
             elif op == Opcode.CHANNEL:
