@@ -228,7 +228,7 @@ class AsyncInference:
             if chunk is not None and self._prepare is not None:
                 try:
                     prepared = self._prepare(chunk)
-                except Exception:  # noqa: BLE001 - left to the servo tick, which refuses the chunk with an event
-                    prepared = None
+                except Exception as exc:  # noqa: BLE001 - a failed call, as if the policy had failed
+                    chunk, error = None, f"preparing the chunk: {type(exc).__name__}: {exc}"
             with self._lock:
                 self._done = InferenceResult(chunk, error, observation.t_ns, t_submit, t_done, depth, prepared)

@@ -15,13 +15,12 @@ position actuator per profiled joint, named as the joint; the gripper is the las
 from __future__ import annotations
 
 import copy
-import threading
 from dataclasses import dataclass
 
 import mujoco
 import numpy as np
 
-from cellguard.embodiment import Profile
+from cellguard.embodiment import Kinematics, Profile
 from cellguard.robot.drives import DrivenCell, PositionDrives, span
 from cellguard.robot.kinematics import solve_tool_down
 from cellguard.robot.protocol import SafetyInputs
@@ -113,7 +112,7 @@ class PickPlaceCell(DrivenCell):
         self._seen_at_start: dict = {}
         self.safety_inputs = SafetyInputs()  # the simulated safety controller's outputs; set by scenario or test
         self.tool_site, self.workspace_box = "tcp", layout.workspace_box
-        self._fk = threading.local()  # one MjData per thread: the servo thread and the inference worker
+        self._fk = Kinematics(m, "tcp", profile.joint_names)  # the live model's (one MjData per thread)
         self._taught_fk = mujoco.MjData(self._taught)
         self._failed: str | None = None
         self.approach_height = layout.approach
@@ -122,12 +121,7 @@ class PickPlaceCell(DrivenCell):
     # -- Robot -------------------------------------------------------------------------
     def tool_point(self, q: np.ndarray) -> np.ndarray:
         """Forward kinematics: the tool point (3,) [m] at joint positions ``q`` (dof,), off the live model state."""
-        fk = getattr(self._fk, "data", None)
-        if fk is None:
-            fk = self._fk.data = mujoco.MjData(self.model)
-        fk.qpos[self._q] = q
-        mujoco.mj_kinematics(self.model, fk)
-        return fk.site_xpos[self._tcp].copy()
+        return self._fk.tool_point(q)
 
     def step(self) -> None:
         mujoco.mj_step(self.model, self.data)
