@@ -58,9 +58,13 @@ class LockStepClock(SimClock):
 class WallClock:
     """Monotonic wall time paced to ``period_ns``; ``step`` (if given) advances a simulated cell.
 
-    ``now`` is the loop's time: the simulated cell's time when it steps one, else monotonic ns.
-    A tick that ends later than one period past its deadline is an overrun: the next deadline
-    is then taken from now (the loop never tries to catch up with a burst of short ticks).
+    ``now`` is the loop's time: the simulated cell's time when it steps one; else, inside a
+    stretch of ticks, the time the tick in progress is scheduled for (a grid ``period_ns`` apart),
+    and monotonic ns outside one. Not the wake-up: a reference sampled at wake-ups that jitter by
+    tens of us moves by velocity x jitter, which the tracker's 1 ms finite differences read as
+    tens of rad/s² (the guard then took over a smooth chunk on most ticks). A tick that ends later
+    than one period past its deadline is an overrun: the next deadline is then taken from now
+    (the loop never tries to catch up with a burst of short ticks).
     """
 
     realtime = True
@@ -69,7 +73,7 @@ class WallClock:
                  now: Callable[[], int] | None = None, spin_ns: int = SPIN_NS, priority: int | None = PRIORITY):
         self.period_ns, self._step, self._spin_ns = int(period_ns), step, int(spin_ns)
         self.timing = TickTiming(self.period_ns)
-        self.now = now or time.monotonic_ns
+        self.now = now or self._scheduled
         self.priority = priority  # SCHED_FIFO priority while ticking (None: an ordinary thread)
         self.scheduler = "other"  # what the servo thread got the last time it ticked
         self._servo: ServoThread | None = None
@@ -93,11 +97,17 @@ class WallClock:
         if self._servo is not None and self._servo.active:
             return nullcontext(self._servo)
         now = time.monotonic_ns()
-        if now > self._deadline:  # after a pause: a new period grid, the pause counted apart
+        if now > self._deadline:  # after a pause: counted apart, not as a late tick
             self.timing.pause(now - self._deadline)
-            self._began, self._deadline = now, now + self.period_ns
+        self._began, self._deadline = now, now + self.period_ns  # a new period grid from now
         self._servo = ServoThread(self.priority)
         return self._servo
+
+    def _scheduled(self) -> int:
+        """Inside a stretch: the time the tick in progress is scheduled for; outside: monotonic ns."""
+        if self._servo is not None and self._servo.active:
+            return self._deadline - self.period_ns
+        return time.monotonic_ns()
 
     def advance(self) -> None:
         """Step (a simulated cell), then wait for the deadline; account lateness and compute time."""
