@@ -9,10 +9,12 @@ is started in its own process at that rate and one scenario runs for ``--seconds
   the GIL) with the same chunk.
 
 Prints one JSON document: the host's load and reference costs measured in the same run (one
-``mj_step``, one ruckig update) and per run: period error p50/p99/max [us], compute time,
-overruns, ticks two or more periods late, the scheduler the servo thread got (``fifo:N`` where
-SCHED_FIFO is permitted, else ``other``), inference latency [ms], packets lost, link events,
-and the recorder queue high-water mark [ticks].
+``mj_step``, one ruckig update); per rate, the machine's own floor (the loop's wall clock and
+real-time thread pacing ticks that do nothing: a late tick there is the host's, not cellguard's);
+and per run: period error p50/p99/max [us], compute time, overruns, ticks two or more periods
+late, the recorder's cost on the servo thread per tick [us], the scheduler the servo thread got
+(``fifo:N`` where SCHED_FIFO is permitted, else ``other``), inference latency [ms], packets
+lost, link events, and the recorder queue high-water mark [ticks].
 
 Usage: ``python benchmarks/realtime.py --seconds 300`` (the figure), ``--seconds 20`` (CI).
 """
@@ -36,6 +38,7 @@ import numpy as np
 from cellguard.errors import CellguardError
 from cellguard.policy.chunk import ActionChunk
 from cellguard.runtime import run_scenario
+from cellguard.runtime.clock import WallClock
 from cellguard.runtime.servo_thread import PRIORITY, ServoThread
 from cellguard.scenario import parse_scenario
 
@@ -177,6 +180,16 @@ def one_run(rate_hz: float, policy: str, worker: str, seconds: float, onnx_path:
             "stopped": summary.get("stopped")}
 
 
+def machine_floor(rate_hz: float, seconds: float) -> dict:
+    """The loop's pacing alone: the same wall clock and real-time servo thread, nothing done per tick."""
+    clock = WallClock(round(1e9 / rate_hz))
+    clock.start()
+    with clock.ticking():
+        for _ in range(round(seconds * rate_hz)):
+            clock.advance()
+    return {"rate_hz": rate_hz, "seconds": seconds, "scheduler": clock.scheduler, **clock.timing.summary()}
+
+
 def reference_costs() -> dict:
     """One mj_step of the arm cell and one ruckig update (7 DoF, full recompute) [us], measured now."""
     import mujoco
@@ -204,14 +217,17 @@ def main() -> None:
     parser.add_argument("--rates", default="1000,200", help="servo rates [Hz], comma-separated")
     parser.add_argument("--policies", default="onnx100,python")
     parser.add_argument("--workers", default="thread,process")
+    parser.add_argument("--floor-seconds", type=float, default=60.0,
+                        help="wall time of the machine-floor run per rate (at most --seconds)")
     args = parser.parse_args()
     load_before = os.getloadavg()
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         onnx_path = onnx_model(tmp / "onnx100.onnx", 100.0)
         work = python_work_for(50.0)
-        runs = []
+        runs, floor = [], []
         for rate in (float(r) for r in args.rates.split(",")):
+            floor.append(machine_floor(rate, min(args.floor_seconds, args.seconds)))
             for policy in args.policies.split(","):
                 for worker in args.workers.split(","):
                     runs.append(one_run(rate, policy, worker, args.seconds, onnx_path, work,
@@ -219,7 +235,7 @@ def main() -> None:
     load = os.getloadavg()
     print(json.dumps({"host": {"cpus": os.cpu_count(), "load_avg_1_5_15": [round(x, 2) for x in load],
                                "load_avg_at_start": [round(x, 2) for x in load_before]},
-                      "reference": reference_costs(), "runs": runs}, indent=1))
+                      "reference": reference_costs(), "machine_floor": floor, "runs": runs}, indent=1))
 
 
 if __name__ == "__main__":

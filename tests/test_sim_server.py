@@ -34,6 +34,8 @@ def test_a_bridge_run_follows_the_policy_and_records_wall_time(server, tmp_path)
     assert "stopped" not in summary, summary["events"]
     timing = summary["timing"]
     assert timing["ticks"] > 100  # two seconds paced by the wall clock (1 kHz asked; late ticks on a loaded host)
+    cost = timing["recorder_tick_us"]  # what handing each tick to the recorder cost the servo thread
+    assert 0.0 < cost["p50"] <= cost["p99"] <= cost["max"] and cost["over_200us"] >= 0
     with open_record(tmp_path / "out") as record:
         ticks = record.ticks()
         assert len(ticks) > 50  # the record keeps a reduced rate between events

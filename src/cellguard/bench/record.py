@@ -23,6 +23,7 @@ from cellguard.record.session import RunRecording
 from cellguard.record.writer import RECORD_FILE, RecordConfig, Recorder
 from cellguard.robot.state import State
 from cellguard.runtime import Run
+from cellguard.runtime.clock import WallClock
 from cellguard.scenario import parse_scenario
 
 DT_NS = 1_000_000
@@ -108,7 +109,8 @@ class _Collections:
 
 def _paced_run(folder: Path, seconds: float, event_every_s: float = 10.0) -> tuple[list[int], RunRecording,
                                                                                   _Collections]:
-    """The arm cell's recording fed at a paced 1 kHz (sleep, then spin to each deadline), as a real loop does.
+    """The arm cell's recording fed at 1 kHz by the loop's own wall clock (the servo thread real-time
+    where permitted, the collector run in idle time), as a real loop does.
 
     The ticks are synthetic (a random walk) so that only the recorder is timed; its writer thread
     does the disk work meanwhile. Returns the servo-thread cost of each ``RunRecording.tick``, the
@@ -116,29 +118,30 @@ def _paced_run(folder: Path, seconds: float, event_every_s: float = 10.0) -> tup
     """
     rng = np.random.default_rng(0)
     run = Run(parse_scenario({"cell": "arm-pick-place", "seed": 3, "acceptance_cycles": 1, "production_cycles": 0}))
+    run.clock = WallClock(DT_NS)  # the recording then drops a tick rather than wait, as on a robot
     recording = RunRecording.start(folder, run)
     n, per_cycle = round(seconds * 1e9 / DT_NS), round(CYCLE_S * 1e9 / DT_NS)
     per_event = round(event_every_s * 1e9 / DT_NS)
-    q, costs, deadline = np.zeros(6), [], time.perf_counter_ns()
+    q, costs = np.zeros(6), []
     collections = _Collections()
     gc.callbacks.append(collections)
-    for k in range(n):
-        t = k * DT_NS
-        if k % per_cycle == 0:
-            recording.begin_cycle(k // per_cycle, "acceptance", t)
-        if k % per_event == per_event // 2:
-            run.events.append(Event(t, "position_clamp", "benchmark", joint="elbow", asked=1.0, sent=0.9))
-        q = q + rng.normal(0.0, 1e-3, 6)
-        state = State(t, q, q * 0.1, q * 2.0, q * 0.5)
-        began = time.perf_counter_ns()
-        recording.tick(q, q, state)
-        costs.append(time.perf_counter_ns() - began)
-        if k % per_cycle == per_cycle - 1:
-            recording.end_cycle({"cycle": k // per_cycle, "phase": "acceptance", "success": True, "features": {}}, t)
-        deadline += DT_NS
-        while (left := deadline - time.perf_counter_ns()) > 0:
-            if left > 300_000:
-                time.sleep((left - 200_000) * 1e-9)
+    run.clock.start()
+    with run.clock.ticking():
+        for k in range(n):
+            t = k * DT_NS
+            if k % per_cycle == 0:
+                recording.begin_cycle(k // per_cycle, "acceptance", t)
+            if k % per_event == per_event // 2:
+                run.events.append(Event(t, "position_clamp", "benchmark", joint="elbow", asked=1.0, sent=0.9))
+            q = q + rng.normal(0.0, 1e-3, 6)
+            state = State(t, q, q * 0.1, q * 2.0, q * 0.5)
+            began = time.perf_counter_ns()
+            recording.tick(q, q, state)
+            costs.append(time.perf_counter_ns() - began)
+            if k % per_cycle == per_cycle - 1:
+                recording.end_cycle({"cycle": k // per_cycle, "phase": "acceptance", "success": True,
+                                     "features": {}}, t)
+            run.clock.advance()
     gc.callbacks.remove(collections)
     recording.close()
     return costs, recording, collections
@@ -163,6 +166,7 @@ def tick_cost(seconds: float = 120.0) -> dict:
     return {**out, "ticks": len(costs), "ticks_over_200us": int(np.count_nonzero(np.asarray(costs) > 200_000)),
             "gc_collections": collections.count, "gc_longest_us": collections.longest_ns * 1e-3,
             "queue_high_water_ticks": recording.high_water, "ticks_dropped": recording.dropped,
+            "servo_scheduler": recording.run.clock.scheduler,
             "record_failed": recording.failed}
 
 

@@ -15,6 +15,7 @@ from __future__ import annotations
 import json
 from collections.abc import Callable
 from pathlib import Path
+from time import perf_counter_ns as perf_ns
 
 import numpy as np
 
@@ -173,8 +174,12 @@ class Run:
                     self.stopped = self.stopped or f"robot link: {link.reason}"
                     break
                 ticks.add(guard.reference, sent, state)
-                if rec is not None and not rec.tick(guard.reference, sent, state):
-                    break
+                if rec is not None:
+                    began = perf_ns()
+                    recorded = rec.tick(guard.reference, sent, state)
+                    timing.recorder(perf_ns() - began)
+                    if not recorded:
+                        break
                 if link.stop is not None and (link.lost or guard.envelope.tracker.stopped):
                     self.stopped = self.stopped or f"robot link: {link.reason}"
                     break
