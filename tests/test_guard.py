@@ -81,3 +81,27 @@ def test_build_guard_prefers_the_cells_kinematics_to_its_live_model():
     cell.kinematics = Kinematics.from_mjcf(ASSETS / "arm.xml", "tcp", cell.profile.joint_names)
     guard = build_guard(cell)
     assert guard.envelope._tool.__self__ is cell.kinematics and guard.executor._tool.__self__ is cell.kinematics
+
+
+def test_a_late_tick_lags_the_reference_instead_of_jumping_it():
+    # on wall time a tick may wake 1.4 ms late; sampling the chunk 2.4 ms on would step the setpoint by
+    # 2.4 periods of motion, which the tracker's 1 ms finite differences read as an acceleration spike
+    def sway(t_obs_ns):
+        steps = (t_obs_ns + np.arange(1, 51) * 20 * MS) * 1e-9
+        actions = np.repeat(Q0[None], 50, axis=0)
+        actions[:, 0] = Q0[0] + 0.1 * np.sin(np.pi * steps)
+        return ActionChunk(actions, t_obs_ns, 20 * MS)
+
+    guard = Guard(PROFILE, Q0, MS)
+    t, setpoints, kinds = 0, [], []
+    for k in range(1500):
+        if k % 100 == 0:
+            kinds += [e.kind for e in guard.push(sway(t), t)]
+        t += 2_400_000 if k == 1000 else MS  # one tick 1.4 ms late
+        setpoint, events = guard.tick(t)
+        setpoints.append(setpoint[0])
+        kinds += [e.kind for e in events]
+    assert EventKind.LIMIT_INTERVENTION not in kinds and guard.envelope.tracker.passing
+    steps = np.abs(np.diff(setpoints[900:1100]))
+    assert steps[100] <= 1.05 * np.median(steps[95:105])  # the late tick moved as far as any other
+    assert guard.executor.tau_ns == t - 1_400_000  # the time lost is lag of the playback clock

@@ -22,7 +22,11 @@ Time: chunks are stamped in the policy's (real) time; the reference is read on a
 clock that runs at ``scale`` (1 = real time). Speed scaling slows the clock, so the path keeps
 its geometry and only time stretches. A chunk's steps are placed on the playback clock from the
 time of the observation they answer; steps already behind the clock when the chunk arrives are
-dropped (the curve is never read before now), never replayed.
+dropped (the curve is never read before now), never replayed. With ``max_tick_ns`` (the guard
+sets one servo period) the playback clock advances at most that much per tick: a tick that
+wakes late on wall time does not jump the reference (a 1 ms finite difference reads a 2 ms
+step as a velocity spike); the time lost becomes lag, as a slow-down would, and later chunks
+are placed on the lagging clock.
 """
 
 from __future__ import annotations
@@ -71,8 +75,9 @@ class Executor:
     """
 
     def __init__(self, profile: Profile, q0: np.ndarray, dt_ns: int, blend_ns: int = 200_000_000,
-                 tool: Callable[[np.ndarray], np.ndarray] | None = None):
+                 tool: Callable[[np.ndarray], np.ndarray] | None = None, max_tick_ns: int | None = None):
         self.profile, self.dt_ns, self.blend_ns, self._tool = profile, int(dt_ns), int(blend_ns), tool
+        self._max_tick_ns = max_tick_ns  # most the playback clock advances per tick [ns] (None: no bound)
         self._span = profile.q_max - profile.q_min
         self._curve = ChunkCurve(0, 1, np.array(q0, dtype=np.float64)[None])  # a hold
         self._blend: np.ndarray | None = None  # (6, D) quintic offset, from _blend_start for blend_ns
@@ -113,7 +118,7 @@ class Executor:
         if self._chunk is not None and chunk.t_obs_ns < self._chunk.t_obs_ns:
             return [Event(t_ns, EventKind.CHUNK_REJECTED, f"out of order: answers t={chunk.t_obs_ns * 1e-9:.3f} s, "
                                                   f"not newer than the chunk in use ({self._chunk.t_obs_ns * 1e-9:.3f} s)")]
-        now = t_ns if self._t_ns is None else self.tau_ns + (t_ns - self._t_ns)  # playback time at t_ns
+        now = t_ns if self._t_ns is None else self.tau_ns + self._elapsed(t_ns)  # playback time at t_ns
         shift = self._offset_at(chunk.t_obs_ns)
         curve = chunk.curve
         first, h = curve.t0_ns - shift, curve.h_ns
@@ -135,9 +140,9 @@ class Executor:
         if self._t_ns is None:
             self.tau_ns = t_ns
         elif scale == 1.0:
-            self.tau_ns += t_ns - self._t_ns
+            self.tau_ns += self._elapsed(t_ns)
         else:
-            self.tau_ns += round(scale * (t_ns - self._t_ns))
+            self.tau_ns += round(scale * self._elapsed(t_ns))
         self._t_ns = t_ns
         self._history[(t_ns // self.dt_ns) % HISTORY_TICKS] = t_ns - self.tau_ns
         tau, chunk = self.tau_ns, self._chunk
@@ -153,6 +158,12 @@ class Executor:
                 u2 = u * u
                 q = q + np.dot((1.0, u, u2, u2 * u, u2 * u2, u2 * u2 * u), self._blend)
         return q
+
+    def _elapsed(self, t_ns: int) -> int:
+        """Time since the last tick, at most ``max_tick_ns`` [ns]."""
+        elapsed = t_ns - self._t_ns
+        limit = self._max_tick_ns
+        return elapsed if limit is None or elapsed <= limit else limit
 
     def _state(self, tau: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Position, velocity, acceleration of the reference at playback time ``tau``."""

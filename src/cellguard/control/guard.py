@@ -33,7 +33,9 @@ class Guard:
                  tool: Callable[[np.ndarray], np.ndarray] | None = None):
         config = config or GuardConfig()
         self.config = config
-        self.executor = Executor(profile, q0, dt_ns, blend_ns=round(config.blend_s * 1e9), tool=tool)
+        # the playback clock advances one period per tick at most: a late tick lags, never jumps
+        self.executor = Executor(profile, q0, dt_ns, blend_ns=round(config.blend_s * 1e9), tool=tool,
+                                 max_tick_ns=dt_ns)
         self.envelope = Envelope(profile, q0, dt_ns, config, tool=tool)
         self.reference = np.array(q0, dtype=np.float64)
         self._speed_ahead = partial(self.executor.tool_speed_ahead, LOOKAHEAD_NS)  # asked only under a speed cap
