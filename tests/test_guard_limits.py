@@ -20,6 +20,7 @@ import pytest
 
 from cellguard.control.config import GuardConfig
 from cellguard.control.envelope import Envelope
+from cellguard.control.tracker import failure_text
 from cellguard.robot.protocol import SafetyInputs
 from cellguard.robot.registry import make_cell
 
@@ -117,3 +118,11 @@ def test_a_stop_from_speed_reaches_zero_velocity_within_its_bound(category):
     took = (moving[-1] + 1 if len(moving) else 0) * DT
     assert 0.05 < took <= bound, (took, bound)
     assert ("power_removed" in kinds) == (category == 1) and powered[-1] == (category == 2)
+
+
+def test_a_ruckig_result_the_binding_does_not_name_is_named_in_the_event():
+    # the binding raises "ValueError: -101 is not a valid Result." for codes its enum lacks (seen on the servo path)
+    assert failure_text(ValueError("-101 is not a valid Result.")) == (
+        "ErrorTrajectoryDuration: the trajectory duration exceeds its numerical limits (result -101)")
+    assert failure_text(ValueError("[ruckig] error in step 1, dof: 0 input:\n  details")) == (
+        "[ruckig] error in step 1, dof: 0 input:")

@@ -32,6 +32,9 @@ import ruckig
 PASS, OFFSET, ABSOLUTE, STOP = 0, 1, 2, 3
 GAIN = 8.0  # [1/s] position feedback of the absolute recovery; slow against the jerk ramps (A/J ~ 60 ms)
 _PLANNED = (ruckig.Result.Working, ruckig.Result.Finished)  # what ruckig returns when it has a plan
+# result codes of ruckig's result.hpp that this binding's enum does not name (it raises ValueError on them)
+_UNNAMED = {"-101": "ErrorTrajectoryDuration: the trajectory duration exceeds its numerical limits",
+            "-104": "ErrorZeroLimits: the trajectory conflicts with a limit of zero"}
 
 
 class Tracker:
@@ -291,7 +294,7 @@ class Tracker:
         try:
             result = otg.update(inp, self._out)
         except (ruckig.RuckigError, ValueError) as exc:  # ValueError: a result code the binding does not name
-            self.failed = str(exc).strip().splitlines()[0]
+            self.failed = failure_text(exc)
             otg.reset()
             return False
         return result in _PLANNED
@@ -308,3 +311,10 @@ class Tracker:
         if tv is not None:
             self._tv, self._ta = tv, ta
         return q
+
+
+def failure_text(exc: Exception) -> str:
+    """ruckig's error as one line; a result code the binding does not name gets its name from result.hpp."""
+    text = str(exc).strip().splitlines()[0]
+    name = _UNNAMED.get(text.split(" ", 1)[0])
+    return f"{name} (result {text.split(' ', 1)[0]})" if name else text
