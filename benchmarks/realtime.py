@@ -191,10 +191,10 @@ def machine_floor(rate_hz: float, seconds: float) -> dict:
 
 
 def reference_costs() -> dict:
-    """One mj_step of the arm cell and one ruckig update (7 DoF, full recompute) [us], measured now."""
+    """One mj_step of the arm cell and one ruckig update (the guard benchmark's, 6 DoF) [us], measured now."""
     import mujoco
-    import ruckig
 
+    from cellguard.bench.guard import RuckigProbe
     from cellguard.robot.registry import make_cell
 
     cell = make_cell("arm-pick-place")
@@ -202,13 +202,9 @@ def reference_costs() -> dict:
     for _ in range(2000):
         mujoco.mj_step(cell.model, cell.data)
     step_us = (time.perf_counter() - t) / 2000 * 1e6
-    otg, inp, out = ruckig.Ruckig(7, 0.001), ruckig.InputParameter(7), ruckig.OutputParameter(7)
-    inp.max_velocity, inp.max_acceleration, inp.max_jerk = [1.0] * 7, [5.0] * 7, [100.0] * 7
-    t = time.perf_counter()
-    for k in range(2000):
-        inp.target_position = [0.1 * ((k % 7) + 1)] * 7
-        otg.update(inp, out)
-    return {"mj_step_us": round(step_us, 2), "ruckig_update_us": round((time.perf_counter() - t) / 2000 * 1e6, 2)}
+    probe = RuckigProbe(cell.profile.dof)
+    probe.sample(2000)
+    return {"mj_step_us": round(step_us, 2), "ruckig_update_us": round(probe.median_us(), 2)}
 
 
 def main() -> None:

@@ -13,8 +13,8 @@ import time
 from pathlib import Path
 
 import numpy as np
-import ruckig
 
+from cellguard.bench.guard import RuckigProbe
 from cellguard.control.events import Event
 from cellguard.policy.chunk import ActionChunk
 from cellguard.record.index import IndexWriter, cycle_row, cycles_above_baseline
@@ -72,21 +72,6 @@ def _stats(prefix: str, ns: list[int]) -> dict:
     us = np.asarray(ns, dtype=np.float64) * 1e-3
     return {f"{prefix}_us_median": float(np.median(us)), f"{prefix}_us_p99": float(np.percentile(us, 99)),
             f"{prefix}_us_max": float(us.max())}
-
-
-def _ruckig_call_ns(dof: int = 6, n: int = 2000) -> list[int]:
-    """One ruckig update from a random state to a random target: the servo path's reference cost."""
-    otg, inp, out = ruckig.Ruckig(dof, 1e-3), ruckig.InputParameter(dof), ruckig.OutputParameter(dof)
-    inp.max_velocity, inp.max_acceleration, inp.max_jerk = [2.5] * dof, [12.0] * dof, [200.0] * dof
-    rng = np.random.default_rng(0)
-    times = []
-    for _ in range(n):
-        inp.current_position, inp.current_velocity = rng.uniform(-1, 1, dof), rng.uniform(-2, 2, dof)
-        inp.current_acceleration, inp.target_position = rng.uniform(-5, 5, dof), rng.uniform(-1, 1, dof)
-        began = time.perf_counter_ns()
-        otg.update(inp, out)
-        times.append(time.perf_counter_ns() - began)
-    return times
 
 
 class _Collections:
@@ -154,12 +139,13 @@ def tick_cost(seconds: float = 120.0) -> dict:
     ``sync_tick_*``: the recorder called directly on the servo thread (flushes, chunk closing and
     zstd included), i.e. what the servo thread paid before the writer thread.
     """
-    ruckig_ns = _ruckig_call_ns()
+    probe = RuckigProbe(len(JOINTS))  # one ruckig update from a random state: the servo path's reference
+    probe.sample(2000)
     with tempfile.TemporaryDirectory() as tmp:
         costs, recording, collections = _paced_run(Path(tmp), seconds)
     with tempfile.TemporaryDirectory() as tmp:
         sync = _synthetic_run(Path(tmp), seconds, timed=True, event_every_s=60.0)
-    ruckig_us = float(np.median(ruckig_ns)) * 1e-3
+    ruckig_us = probe.median_us()
     out = {**_stats("tick", costs), **_stats("sync_tick", sync), "ruckig_call_us_median": ruckig_us}
     for key in ("tick_us_median", "tick_us_p99", "tick_us_max", "sync_tick_us_p99", "sync_tick_us_max"):
         out[key.replace("_us", "") + "_per_ruckig_call"] = out[key] / ruckig_us

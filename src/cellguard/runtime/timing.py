@@ -15,43 +15,59 @@ import numpy as np
 WINDOW = 65_536  # ticks kept for percentiles (about a minute at 1 kHz)
 
 
+class _Durations:
+    """One duration per tick [ns]: the last ``window`` kept for percentiles, the count and maximum over the run."""
+
+    def __init__(self, window: int):
+        self._values = np.zeros(window, dtype=np.int64)
+        self.count = 0
+        self.max_ns = 0
+
+    def add(self, ns: int) -> None:
+        self._values[self.count % len(self._values)] = ns
+        self.count += 1
+        if ns > self.max_ns:
+            self.max_ns = ns
+
+    def summary_us(self) -> dict:
+        """p50 and p99 over the window, max over the run [us]."""
+        us = self._values[:min(self.count, len(self._values))] * 1e-3
+        return {"p50": float(np.percentile(us, 50)), "p99": float(np.percentile(us, 99)), "max": self.max_ns * 1e-3}
+
+
 class TickTiming:
-    """Lateness and compute time per tick; overrun count; the last ``window`` ticks for percentiles."""
+    """Lateness, compute time and the recorder's cost per tick; overrun count; the last ``window`` ticks
+    for percentiles."""
 
     def __init__(self, period_ns: int, window: int = WINDOW):
         self.period_ns = int(period_ns)
-        self._late = np.zeros(window, dtype=np.int64)
-        self._compute = np.zeros(window, dtype=np.int64)
-        self._recorder = np.zeros(window, dtype=np.int64)
-        self.recorded = 0  # ticks handed to the recorder
-        self.max_recorder_ns = 0
-        self.recorder_over_200us = 0
-        self.ticks = 0
+        self._late, self._compute, self._recorder = _Durations(window), _Durations(window), _Durations(window)
         self.overruns = 0
         self.late_twice = 0  # ticks two or more periods late
-        self.max_late_ns = 0
-        self.max_compute_ns = 0
+        self.recorder_over_200us = 0
         self.new_overrun = False  # the last tick was an overrun (the loop raises the event)
         self.pauses = 0  # stretches of ticks that began after their deadline
         self.max_pause_ns = 0
 
+    @property
+    def ticks(self) -> int:
+        return self._late.count
+
+    @property
+    def max_late_ns(self) -> int:
+        return self._late.max_ns
+
     def add(self, late_ns: int, compute_ns: int) -> None:
-        i = self.ticks % len(self._late)
-        self._late[i], self._compute[i] = late_ns, compute_ns
-        self.ticks += 1
+        self._late.add(late_ns)
+        self._compute.add(compute_ns)
         self.new_overrun = late_ns >= self.period_ns
         if self.new_overrun:
             self.overruns += 1
             self.late_twice += late_ns >= 2 * self.period_ns
-        self.max_late_ns = max(self.max_late_ns, late_ns)
-        self.max_compute_ns = max(self.max_compute_ns, compute_ns)
 
     def recorder(self, cost_ns: int) -> None:
         """What handing one tick to the recorder took on the servo thread [ns]."""
-        self._recorder[self.recorded % len(self._recorder)] = cost_ns
-        self.recorded += 1
-        if cost_ns > self.max_recorder_ns:
-            self.max_recorder_ns = cost_ns
+        self._recorder.add(cost_ns)
         if cost_ns > 200_000:
             self.recorder_over_200us += 1
 
@@ -63,22 +79,11 @@ class TickTiming:
     def summary(self) -> dict:
         """Period error, compute time and the recorder's servo-thread cost [us] (p50/p99 over the window,
         max over the run), overruns."""
-        n = min(self.ticks, len(self._late))
-        if n == 0:
+        if self.ticks == 0:
             return {"ticks": 0, "overruns": 0}
-        late, compute = self._late[:n] * 1e-3, self._compute[:n] * 1e-3
-        recorder = self._recorder[:min(self.recorded, len(self._recorder))] * 1e-3
-        if len(recorder):
-            recorder = {"recorder_tick_us": {"p50": float(np.percentile(recorder, 50)),
-                                             "p99": float(np.percentile(recorder, 99)),
-                                             "max": self.max_recorder_ns * 1e-3,
-                                             "over_200us": self.recorder_over_200us}}
-        else:
-            recorder = {}
+        recorder = ({"recorder_tick_us": {**self._recorder.summary_us(), "over_200us": self.recorder_over_200us}}
+                    if self._recorder.count else {})
         return {**recorder, "ticks": self.ticks, "period_us": self.period_ns * 1e-3,
-                "period_error_us": {"p50": float(np.percentile(late, 50)), "p99": float(np.percentile(late, 99)),
-                                    "max": self.max_late_ns * 1e-3},
-                "compute_us": {"p50": float(np.percentile(compute, 50)), "p99": float(np.percentile(compute, 99)),
-                               "max": self.max_compute_ns * 1e-3},
+                "period_error_us": self._late.summary_us(), "compute_us": self._compute.summary_us(),
                 "overruns": self.overruns, "later_than_two_periods": self.late_twice,
                 "pauses_between_stretches": {"count": self.pauses, "max_ms": self.max_pause_ns * 1e-6}}
