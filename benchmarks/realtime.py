@@ -216,16 +216,28 @@ def main() -> None:
     parser.add_argument("--floor-seconds", type=float, default=60.0,
                         help="wall time of the machine-floor run per rate (at most --seconds)")
     args = parser.parse_args()
+    if not (args.seconds > 0 and args.floor_seconds > 0):  # NaN included
+        parser.error(f"--seconds and --floor-seconds must be positive, got {args.seconds} and {args.floor_seconds}")
+    try:
+        rates = [float(r) for r in args.rates.split(",")]
+    except ValueError:
+        parser.error(f"--rates: comma-separated rates in Hz, got {args.rates!r}")
+    policies, workers = args.policies.split(","), args.workers.split(",")
+    if not all(50 <= r <= 1000 for r in rates):
+        parser.error(f"--rates: each from 50 to 1000 Hz (a profile's range), got {args.rates!r}")
+    if not set(policies) <= {"onnx100", "python"} or not set(workers) <= {"thread", "process"}:
+        parser.error(f"--policies from onnx100,python and --workers from thread,process; "
+                     f"got {args.policies!r} and {args.workers!r}")
     load_before = os.getloadavg()
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         onnx_path = onnx_model(tmp / "onnx100.onnx", 100.0)
         work = python_work_for(50.0)
         runs, floor = [], []
-        for rate in (float(r) for r in args.rates.split(",")):
+        for rate in rates:
             floor.append(machine_floor(rate, min(args.floor_seconds, args.seconds)))
-            for policy in args.policies.split(","):
-                for worker in args.workers.split(","):
+            for policy in policies:
+                for worker in workers:
                     runs.append(one_run(rate, policy, worker, args.seconds, onnx_path, work,
                                         tmp / f"{rate:.0f}-{policy}-{worker}"))
     load = os.getloadavg()
