@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 import pytest
@@ -11,7 +12,7 @@ from record_synth import FullDisk, SlowDisk
 
 from cellguard.record.reader import open_record
 from cellguard.record.schemas import CHANNELS
-from cellguard.record.session import RunRecording
+from cellguard.record.session import SWITCH_INTERVAL_S, RunRecording
 from cellguard.runtime import Run, run_scenario
 from cellguard.scenario import load_scenario
 
@@ -99,3 +100,17 @@ def test_in_simulated_time_a_slow_writer_holds_the_loop_and_loses_no_tick(tmp_pa
     with open_record(tmp_path) as rec:
         assert rec.health().ok
         assert len(rec.ticks(rate="decimated")) > 0
+
+
+@pytest.mark.parametrize("realtime", [False, True])
+def test_the_writer_thread_shortens_the_gil_switch_interval_only_on_wall_time(tmp_path, realtime):
+    """Wall time: the servo thread waits at most SWITCH_INTERVAL_S behind the writer. Simulated time: no
+    deadline, so the default interval stays (fewer hand-overs); close restores what was there."""
+    before = sys.getswitchinterval()
+    run = Run(_short_demo(1), realtime=realtime)
+    recording = RunRecording.start(tmp_path, run)
+    during = sys.getswitchinterval()
+    recording.close()
+    run.close()
+    assert during == pytest.approx(min(before, SWITCH_INTERVAL_S) if realtime else before)
+    assert sys.getswitchinterval() == before
