@@ -7,6 +7,7 @@ Timings only (never asserted in tests). ``benchmarks/record.py`` prints them as 
 from __future__ import annotations
 
 import gc
+import resource
 import statistics
 import tempfile
 import time
@@ -92,14 +93,47 @@ class _Collections:
             self.longest_ns = max(self.longest_ns, time.perf_counter_ns() - self._began)
 
 
+class _SlowCalls:
+    """Why a recorder call took over ``limit_ns`` of wall time: the thread's CPU time and context switches.
+
+    Each call is bracketed by the thread's CPU clock and ``getrusage(RUSAGE_THREAD)`` (outside its wall
+    timing, about 2 µs a tick). A slow call is ``on_cpu`` when the thread's CPU time alone is over the limit
+    (the recorder's work, or the interpreter's on its behalf; with paravirtual steal accounting, as here,
+    not the hypervisor's); else it was off the CPU: ``preempted`` (an involuntary switch: the OS ran something else),
+    ``waited`` (a voluntary one: the GIL or a lock, held by the writer thread here), or ``unexplained``
+    (no switch the guest saw: on a VM, the hypervisor taking the CPU away, steal time).
+    """
+
+    def __init__(self, limit_ns: int = 200_000):
+        self.limit_ns = limit_ns
+        self.counts = {"on_cpu": 0, "waited": 0, "preempted": 0, "unexplained": 0}
+
+    def before(self) -> tuple:
+        return resource.getrusage(resource.RUSAGE_THREAD), time.thread_time_ns()
+
+    def after(self, began: tuple, wall_ns: int) -> None:
+        if wall_ns <= self.limit_ns:
+            return
+        cpu_ns, usage = time.thread_time_ns() - began[1], resource.getrusage(resource.RUSAGE_THREAD)
+        if cpu_ns > self.limit_ns:
+            why = "on_cpu"
+        elif usage.ru_nivcsw > began[0].ru_nivcsw:
+            why = "preempted"
+        elif usage.ru_nvcsw > began[0].ru_nvcsw:
+            why = "waited"
+        else:
+            why = "unexplained"
+        self.counts[why] += 1
+
+
 def _paced_run(folder: Path, seconds: float, event_every_s: float = 10.0) -> tuple[list[int], RunRecording,
-                                                                                  _Collections]:
+                                                                                  _Collections, _SlowCalls]:
     """The arm cell's recording fed at 1 kHz by the loop's own wall clock (the servo thread real-time
     where permitted, the collector run in idle time), as a real loop does.
 
     The ticks are synthetic (a random walk) so that only the recorder is timed; its writer thread
     does the disk work meanwhile. Returns the servo-thread cost of each ``RunRecording.tick``, the
-    recording, and the garbage collections while the loop ran.
+    recording, the garbage collections while the loop ran, and why the slow calls were slow.
     """
     rng = np.random.default_rng(0)
     run = Run(parse_scenario({"cell": "arm-pick-place", "seed": 3, "acceptance_cycles": 1, "production_cycles": 0}))
@@ -107,7 +141,7 @@ def _paced_run(folder: Path, seconds: float, event_every_s: float = 10.0) -> tup
     recording = RunRecording.start(folder, run)
     n, per_cycle = round(seconds * 1e9 / DT_NS), round(CYCLE_S * 1e9 / DT_NS)
     per_event = round(event_every_s * 1e9 / DT_NS)
-    q, costs = np.zeros(6), []
+    q, costs, slow = np.zeros(6), [], _SlowCalls()
     collections = _Collections()
     gc.callbacks.append(collections)
     run.clock.start()
@@ -120,16 +154,18 @@ def _paced_run(folder: Path, seconds: float, event_every_s: float = 10.0) -> tup
                 run.events.append(Event(t, "position_clamp", "benchmark", joint="elbow", asked=1.0, sent=0.9))
             q = q + rng.normal(0.0, 1e-3, 6)
             state = State(t, q, q * 0.1, q * 2.0, q * 0.5)
+            usage = slow.before()
             began = time.perf_counter_ns()
             recording.tick(q, q, state)
             costs.append(time.perf_counter_ns() - began)
+            slow.after(usage, costs[-1])
             if k % per_cycle == per_cycle - 1:
                 recording.end_cycle({"cycle": k // per_cycle, "phase": "acceptance", "success": True,
                                      "features": {}}, t)
             run.clock.advance()
     gc.callbacks.remove(collections)
     recording.close()
-    return costs, recording, collections
+    return costs, recording, collections, slow
 
 
 def tick_cost(seconds: float = 120.0) -> dict:
@@ -137,12 +173,13 @@ def tick_cost(seconds: float = 120.0) -> dict:
 
     ``tick_*``: ``RunRecording.tick`` in a paced 1 kHz loop, the writer thread doing the rest;
     ``sync_tick_*``: the recorder called directly on the servo thread (flushes, chunk closing and
-    zstd included), i.e. what the servo thread paid before the writer thread.
+    zstd included), i.e. what the servo thread paid before the writer thread. ``over_200us``: why the
+    paced calls over 200 µs were slow (``_SlowCalls``); only ``on_cpu`` and ``waited`` are the recorder's.
     """
     probe = RuckigProbe(len(JOINTS))  # one ruckig update from a random state: the servo path's reference
     probe.sample(2000)
     with tempfile.TemporaryDirectory() as tmp:
-        costs, recording, collections = _paced_run(Path(tmp), seconds)
+        costs, recording, collections, slow = _paced_run(Path(tmp), seconds)
     with tempfile.TemporaryDirectory() as tmp:
         sync = _synthetic_run(Path(tmp), seconds, timed=True, event_every_s=60.0)
     ruckig_us = probe.median_us()
@@ -150,6 +187,7 @@ def tick_cost(seconds: float = 120.0) -> dict:
     for key in ("tick_us_median", "tick_us_p99", "tick_us_max", "sync_tick_us_p99", "sync_tick_us_max"):
         out[key.replace("_us", "") + "_per_ruckig_call"] = out[key] / ruckig_us
     return {**out, "ticks": len(costs), "ticks_over_200us": int(np.count_nonzero(np.asarray(costs) > 200_000)),
+            "over_200us": slow.counts,
             "gc_collections": collections.count, "gc_longest_us": collections.longest_ns * 1e-3,
             "queue_high_water_ticks": recording.high_water, "ticks_dropped": recording.dropped,
             "servo_scheduler": recording.run.clock.scheduler,
