@@ -4,6 +4,7 @@ on a Parquet lake, and DuckDB against PostgreSQL under row-level security."""
 from __future__ import annotations
 
 import math
+import os
 import shutil
 
 import pytest
@@ -67,10 +68,19 @@ def test_queries_refuse_unknown_names_and_unsafe_parameters():
         render(QUERIES["frequency"], {"k": 0})
 
 
-def test_duckdb_and_spark_agree_on_every_query(lake):
+def test_duckdb_and_spark_agree_on_every_query(lake, tmp_path, monkeypatch):
     pytest.importorskip("pyspark", reason="the Spark engine needs pyspark: pip install 'cellguard[spark]'")
     from cellguard.fleet.spark_engine import SparkEngine
 
+    # the first python3 on PATH is not this interpreter (another version, no pyarrow): Spark's Python
+    # workers must still run this one
+    for name in ("python3", "python"):
+        shim = tmp_path / "bin" / name
+        shim.parent.mkdir(exist_ok=True)
+        shim.write_text("#!/bin/sh\necho 'a python3 from PATH ran' >&2\nexit 3\n")
+        shim.chmod(0o755)
+    monkeypatch.setenv("PATH", f"{tmp_path / 'bin'}{os.pathsep}{os.environ['PATH']}")
+    monkeypatch.delenv("PYSPARK_PYTHON", raising=False)
     root, _, _ = lake
     duck, spark = DuckDBEngine(root), SparkEngine(root, "local[2]")
     try:

@@ -5,6 +5,8 @@
 
 from __future__ import annotations
 
+import os
+import sys
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
@@ -35,6 +37,9 @@ class SparkEngine:
             raise ConfigError(f"--lake {lake}: no signatures in it (expected tenant=*/signatures/date=*/*.parquet)")
         self.lake, self.tenant, self.min_customers = Path(lake).resolve(), tenant, min_customers
         session = _pyspark()
+        # Python workers run this interpreter (its packages, its version), not the first ``python3`` on PATH,
+        # unless the user chose one; PySpark reads the variable when the session's context starts
+        os.environ.setdefault("PYSPARK_PYTHON", sys.executable)
         self.spark = (session.builder.master(master).appName("cellguard-fleet")
                       .config("spark.ui.enabled", "false").config("spark.sql.session.timeZone", "UTC")
                       .config("spark.ui.showConsoleProgress", "false")
