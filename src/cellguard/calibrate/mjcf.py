@@ -39,5 +39,8 @@ def calibrated_mjcf(cell, terms: JointTerms) -> str:
         # a small sphere that touches nothing carries the mass (an explicit inertial is lost by to_xml)
         body.add_geom(type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[POINT_RADIUS, 0, 0], mass=float(terms.payload_kg),
                       contype=0, conaffinity=0, group=3)
-    spec.compile()  # refuses what would not load
+    try:
+        spec.compile()  # refuses what would not load
+    except ValueError as exc:
+        raise CalibrationError(f"--write: the calibrated MJCF of {cell.name} would not load: {exc}") from None
     return spec.to_xml()

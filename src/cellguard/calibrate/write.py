@@ -50,9 +50,10 @@ def write_profile(path: Path, cell, result: dict, date: str) -> Written:
     path = Path(path)
     old_bytes = read_bounded(path, "profile", ProfileError)
     raw = parse_yaml(old_bytes, str(path), ProfileError)
-    if not isinstance(raw, dict) or raw.get("robot") != cell.name:
+    if not isinstance(raw, dict) or raw.get("robot") != cell.profile.robot:
         robot = raw.get("robot") if isinstance(raw, dict) else None
-        raise CalibrationError(f"--write: {path} is a profile of robot {robot!r}; the records are of {cell.name!r}")
+        raise CalibrationError(f"--write: {path} is a profile of robot {robot!r}; the records are of "
+                               f"{cell.profile.robot!r} ({cell.name})")
     new = [e for e in result["estimates"] if e["parameter"] in WRITTEN and e["interval"] is not None]
     if not new:
         raise CalibrationError(f"--write: nothing identified to write (of {', '.join(WRITTEN)})")
@@ -68,7 +69,9 @@ def write_profile(path: Path, cell, result: dict, date: str) -> Written:
     old_version = str(raw.get("version", "unversioned"))
     raw["measured"] = measured
     draft = parse_profile(cell.model, yaml.safe_dump(raw, sort_keys=False).encode(), str(path))
-    payload = [e for e in result["estimates"] if e["parameter"] == "payload" and e["interval"] is not None]
+    # a payload only where its interval lies above zero: an estimate within noise of none is no mass at all
+    payload = [e for e in result["estimates"] if e["parameter"] == "payload" and e["interval"] is not None
+               and e["interval"][0] > 0.0]
     mjcf = calibrated_mjcf(cell, JointTerms.of_profile(cell, draft, payload[0]["value"] if payload else 0.0))
     digest = hashlib.sha256(json.dumps([measured, old_version, mjcf], sort_keys=True).encode()).hexdigest()[:8]
     version = f"{date}-cal-{digest}"

@@ -56,9 +56,13 @@ def mjcf_path() -> Path:
     return path
 
 
-def load_model() -> mujoco.MjModel:
-    """The SO-101 from its package plus the cell around it, as commissioned (no fault applied)."""
-    spec = mujoco.MjSpec.from_file(str(mjcf_path()))
+def mjcf_spec() -> mujoco.MjSpec:
+    """The SO-101 from its package plus the cell around it, as commissioned (no fault applied), as an
+    editable spec. Its meshes are named by absolute path, so a calibrated copy (``identify --write``) loads
+    from beside the profile, away from the package."""
+    path = mjcf_path()
+    spec = mujoco.MjSpec.from_file(str(path))
+    spec.meshdir = str((path.parent / spec.meshdir).resolve())
     spec.option.timestep = 0.001
     spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
     for geom in spec.geoms:
@@ -84,13 +88,19 @@ def load_model() -> mujoco.MjModel:
                   rgba=[0.8, 0.3, 0.2, 1.0])
     spec.add_equality(name="grasp", type=mujoco.mjtEq.mjEQ_WELD, objtype=mujoco.mjtObj.mjOBJ_BODY, name1="tool",
                       name2="part", active=False)
-    return spec.compile()
+    return spec
+
+
+def load_model() -> mujoco.MjModel:
+    """The commissioned cell's compiled model."""
+    return mjcf_spec().compile()
 
 
 class SO101PickPlace(PickPlaceCell):
     """The SO-101 pick-place cell at a 1 ms servo period; joints in LeRobot's order and names, SI units."""
 
     name = "so101-pick-place"
+    mjcf_spec = staticmethod(mjcf_spec)  # ``identify --write`` writes a calibrated copy
 
     def __init__(self, seed: int = 0):
         model = load_model()
