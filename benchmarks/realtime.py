@@ -7,6 +7,11 @@ is started in its own process at that rate and one scenario runs for ``--seconds
   matrix) is sized at start to take about 100 ms per call; its chunk sways the shoulder.
 - ``python``: a pure-Python CPU-bound policy (about 50 ms of interpreter work per call, holding
   the GIL) with the same chunk.
+- ``sway``: the same chunk with no work at all: the loop, the bridge and the server alone.
+
+``--recording on,off``: ``off`` runs the same loop with no record, so that what the recorder adds
+shows beside it. Comparing ``sway`` without a record, ``sway`` with one, and the heavy policies
+with one, each against the machine's floor, tells which ticks inference or recording made late.
 
 Prints one JSON document: the host's load and reference costs measured in the same run (one
 ``mj_step``, one ruckig update); per rate, the machine's own floor (the loop's wall clock and
@@ -37,7 +42,7 @@ import numpy as np
 
 from cellguard.errors import CellguardError
 from cellguard.policy.chunk import ActionChunk
-from cellguard.runtime import run_scenario
+from cellguard.runtime import Run, run_scenario
 from cellguard.runtime.clock import WallClock
 from cellguard.runtime.servo_thread import PRIORITY, ServoThread
 from cellguard.scenario import parse_scenario
@@ -150,7 +155,8 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def one_run(rate_hz: float, policy: str, worker: str, seconds: float, onnx_path: Path, work: int, out: Path) -> dict:
+def one_run(rate_hz: float, policy: str, worker: str, seconds: float, onnx_path: Path, work: int, out: Path,
+            recording: bool = True) -> dict:
     port = free_port()
     server = subprocess.Popen([sys.executable, "-c", "from cellguard.cli import app; app()", "sim-server",
                                "arm-pick-place", "--port", str(port), "--rate-hz", str(rate_hz)],
@@ -165,9 +171,10 @@ def one_run(rate_hz: float, policy: str, worker: str, seconds: float, onnx_path:
                 "guard": {"watchdog_s": 1.0},
                 "realtime": {"inference": worker, "overrun_budget": 1_000_000, "stale_s": 1.0, "read_timeout_s": 0.5,
                              "drop_budget": 1_000_000}}
-        factory = partial(PythonPolicy, work) if policy == "python" else None
+        factory = {"python": partial(PythonPolicy, work), "sway": partial(PythonPolicy, 0)}.get(policy)
         try:
-            summary = run_scenario(parse_scenario(spec), out, policy_factory=factory)
+            summary = (run_scenario(parse_scenario(spec), out, policy_factory=factory) if recording
+                       else _unrecorded(parse_scenario(spec), factory))
         except CellguardError as exc:  # e.g. a start-up check refused: reported, the other runs go on
             return {"rate_hz": rate_hz, "policy": policy, "worker": worker, "refused": str(exc)}
     finally:
@@ -175,9 +182,20 @@ def one_run(rate_hz: float, policy: str, worker: str, seconds: float, onnx_path:
         server.wait()
     cycle = summary["cycles"][0] if summary["cycles"] else {}
     events = Counter(e["kind"] for e in summary["events"])
-    return {"rate_hz": rate_hz, "policy": policy, "worker": worker, "seconds": seconds,
+    return {"rate_hz": rate_hz, "policy": policy, "worker": worker, "recording": recording, "seconds": seconds,
             **summary["timing"], "inference_ms": cycle.get("inference"), "events": dict(events),
             "stopped": summary.get("stopped")}
+
+
+def _unrecorded(scenario, factory) -> dict:
+    """The scenario's cycles on the same loop with no record; its summary."""
+    run = Run(scenario, policy_factory=factory)
+    try:
+        for _ in range(scenario.total_cycles):
+            run.cycle()
+    finally:
+        run.close()
+    return run.summary()
 
 
 def machine_floor(rate_hz: float, seconds: float) -> dict:
@@ -213,6 +231,7 @@ def main() -> None:
     parser.add_argument("--rates", default="1000,200", help="servo rates [Hz], comma-separated")
     parser.add_argument("--policies", default="onnx100,python")
     parser.add_argument("--workers", default="thread,process")
+    parser.add_argument("--recording", default="on", help="on, off or on,off: the loop with and without a record")
     parser.add_argument("--floor-seconds", type=float, default=60.0,
                         help="wall time of the machine-floor run per rate (at most --seconds)")
     args = parser.parse_args()
@@ -222,12 +241,14 @@ def main() -> None:
         rates = [float(r) for r in args.rates.split(",")]
     except ValueError:
         parser.error(f"--rates: comma-separated rates in Hz, got {args.rates!r}")
-    policies, workers = args.policies.split(","), args.workers.split(",")
+    policies, workers, recording = args.policies.split(","), args.workers.split(","), args.recording.split(",")
     if not all(50 <= r <= 1000 for r in rates):
         parser.error(f"--rates: each from 50 to 1000 Hz (a profile's range), got {args.rates!r}")
-    if not set(policies) <= {"onnx100", "python"} or not set(workers) <= {"thread", "process"}:
-        parser.error(f"--policies from onnx100,python and --workers from thread,process; "
+    if not set(policies) <= {"onnx100", "python", "sway"} or not set(workers) <= {"thread", "process"}:
+        parser.error(f"--policies from onnx100,python,sway and --workers from thread,process; "
                      f"got {args.policies!r} and {args.workers!r}")
+    if not set(recording) <= {"on", "off"}:
+        parser.error(f"--recording: on, off or on,off; got {args.recording!r}")
     load_before = os.getloadavg()
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
@@ -238,8 +259,9 @@ def main() -> None:
             floor.append(machine_floor(rate, min(args.floor_seconds, args.seconds)))
             for policy in policies:
                 for worker in workers:
-                    runs.append(one_run(rate, policy, worker, args.seconds, onnx_path, work,
-                                        tmp / f"{rate:.0f}-{policy}-{worker}"))
+                    for record in recording:
+                        runs.append(one_run(rate, policy, worker, args.seconds, onnx_path, work,
+                                            tmp / f"{rate:.0f}-{policy}-{worker}-{record}", record == "on"))
     load = os.getloadavg()
     print(json.dumps({"host": {"cpus": os.cpu_count(), "load_avg_1_5_15": [round(x, 2) for x in load],
                                "load_avg_at_start": [round(x, 2) for x in load_before]},
