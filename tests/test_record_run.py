@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -114,3 +115,36 @@ def test_the_writer_thread_shortens_the_gil_switch_interval_only_on_wall_time(tm
     run.close()
     assert during == pytest.approx(min(before, SWITCH_INTERVAL_S) if realtime else before)
     assert sys.getswitchinterval() == before
+
+
+def _settle(predicate, seconds: float = 2.0) -> bool:
+    end = time.monotonic() + seconds
+    while not predicate() and time.monotonic() < end:
+        time.sleep(0.005)
+    return predicate()
+
+
+def test_on_wall_time_the_writer_works_only_in_the_servo_threads_idle_window(tmp_path):
+    """While a tick computes (the window closed) queued ticks wait; the next window writes them; a queue
+    half full is written at once (a late tick is better than lost ones)."""
+    run = Run(_short_demo(1), realtime=True)
+    recording = RunRecording.start(tmp_path, run, queue_s=0.02)  # 20 ticks at 1 kHz
+    idle = run.clock.idle
+    state = run.cell.read()
+    waiting = lambda: recording._queued - recording._written  # noqa: E731
+    try:
+        idle.close()
+        for _ in range(5):
+            recording.tick(state.q, state.q, state)
+        time.sleep(0.1)
+        assert waiting() == 5  # the writer did not touch them while the servo thread "computed"
+        idle.open(time.monotonic_ns() + 50_000_000)
+        assert _settle(lambda: waiting() == 0)
+        idle.close()
+        for _ in range(12):  # past half of the 20-tick queue
+            recording.tick(state.q, state.q, state)
+        assert _settle(lambda: waiting() < 10) and recording.dropped == 0
+    finally:
+        idle.open(2**62)
+        recording.close()
+        run.close()

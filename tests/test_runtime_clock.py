@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import threading
 import time
 from functools import partial
 
@@ -103,3 +104,29 @@ def test_inside_a_stretch_the_loop_time_is_the_tick_grid_not_the_jittered_wake_u
     assert len(on_time) > 100 and (on_time == 1_000_000).all()  # exactly one period apart
     assert (steps >= 1_000_000).all()  # after an overrun the grid restarts later, never earlier
     assert abs(clock.now() - time.monotonic_ns()) < 50_000_000  # outside a stretch: monotonic time
+
+
+def test_the_idle_window_is_open_while_the_servo_thread_sleeps_and_closed_while_a_tick_computes():
+    clock = WallClock(2_000_000, priority=None)
+    opened, stop = [], threading.Event()
+
+    def watch():  # another thread: each window it sees open, and how long it has left then
+        while not stop.is_set():
+            clock.idle.wait_next(0.05)
+            opened.append(clock.idle.time_left_ns())
+
+    watcher = threading.Thread(target=watch)
+    watcher.start()
+    clock.start()
+    inside = []
+    with clock.ticking():
+        for _ in range(50):
+            inside.append(clock.idle.time_left_ns())  # the tick's own work: the window is closed
+            clock.advance()
+    stop.set()
+    watcher.join()
+    assert all(left < 0 for left in inside)
+    windows = [left for left in opened if left < 10**15]  # the last one seen may be the end of the stretch
+    assert len(windows) >= 40  # one window per tick's sleep (a thread may miss one while it is descheduled)
+    assert max(windows) < 2_000_000  # each ends before the next deadline
+    assert clock.idle.time_left_ns() > 10**15  # outside a stretch the window stays open

@@ -10,10 +10,13 @@ loop reads it after each tick and stops the cell (category 2, ``record_failed``)
 unrecorded run is not allowed. On wall time, while the writer thread runs, the interpreter's switch
 interval is lowered to ``SWITCH_INTERVAL_S`` so that the servo thread never waits long for the GIL
 (in simulated time no tick has a deadline, and the default interval's fewer hand-overs make a
-simulated run about 6 % faster), and
-what the process holds at the start (the cell's model, the modules, the run) is frozen out of the
-garbage collector (``gc.freeze``): a collection holds the GIL from start to end, whichever thread
-runs it, and with the whole heap to traverse one took up to tens of milliseconds under load.
+simulated run about 6 % faster). On wall time the writer also works only while the servo thread
+sleeps: the clock's ``idle`` window (``runtime.idle_window``) says until when, and a piece of work
+(a tick, a chunk flush) starts only with ``WINDOW_MARGIN_NS`` of it left, unless the queue is half
+full (then losing ticks is worse than a late tick). What the process holds at the start (the
+cell's model, the modules, the run) is frozen out of the garbage collector (``gc.freeze``): a
+collection holds the GIL from start to end, whichever thread runs it, and with the whole heap to
+traverse one took up to tens of milliseconds under load.
 
 A crash loses what is still queued (at most ``queue_s`` of ticks) on top of the open chunk.
 """
@@ -37,6 +40,7 @@ from cellguard.record.writer import RecordConfig, Recorder, refuse_existing
 
 SWITCH_INTERVAL_S = 5e-5  # longest GIL hold the servo thread may wait for behind the writer [s]
 POLL_S = 0.002  # the writer thread looks at the queue at least this often [s]
+WINDOW_MARGIN_NS = 150_000  # the writer starts a piece of work only with this much of the servo's sleep left
 RESERVE_BYTES = (256 << 10, 8 << 10)  # disk kept free for summary.json: base + per cycle, released at close [bytes]
 RESERVE_FILE = ".cellguard-reserve"
 
@@ -171,8 +175,13 @@ class RunRecording:
     # -- writer thread -----------------------------------------------------------------------
     def _drain(self) -> None:
         ops, tick = self._ops, self._tick
+        idle = getattr(getattr(self.run, "clock", None), "idle", None) if not self._waits else None
         while True:
             while ops:
+                if (idle is not None and idle.time_left_ns() < WINDOW_MARGIN_NS
+                        and self._queued - self._written < self._capacity // 2):
+                    idle.wait_next(POLL_S)  # the servo thread computes, or wakes soon: not now
+                    continue
                 fn, args = ops.popleft()
                 if fn is None:
                     return

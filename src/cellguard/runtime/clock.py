@@ -18,6 +18,7 @@ import time
 from collections.abc import Callable
 from contextlib import nullcontext
 
+from cellguard.runtime.idle_window import IdleWindow
 from cellguard.runtime.servo_thread import PRIORITY, ServoThread
 from cellguard.runtime.timing import TickTiming
 
@@ -76,6 +77,7 @@ class WallClock:
         self.now = now or self._scheduled
         self.priority = priority  # SCHED_FIFO priority while ticking (None: an ordinary thread)
         self.scheduler = "other"  # what the servo thread got the last time it ticked
+        self.idle = IdleWindow()  # open while the servo thread sleeps: the recorder's writer works then
         self._servo: ServoThread | None = None
         self._deadline = 0
         self._began = 0
@@ -100,7 +102,7 @@ class WallClock:
         if now > self._deadline:  # after a pause: counted apart, not as a late tick
             self.timing.pause(now - self._deadline)
         self._began, self._deadline = now, now + self.period_ns  # a new period grid from now
-        self._servo = ServoThread(self.priority)
+        self._servo = ServoThread(self.priority, self.idle)
         return self._servo
 
     def _scheduled(self) -> int:
@@ -124,7 +126,9 @@ class WallClock:
                 spin = min(spin, SPIN_FIFO_NS)
         left = deadline - clock() - spin
         if left > 0:
+            self.idle.open(deadline - spin)
             time.sleep(left * 1e-9)
+            self.idle.close()
         while clock() < deadline:
             pass
         woke = clock()

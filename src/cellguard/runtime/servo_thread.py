@@ -10,6 +10,7 @@
 - The cyclic garbage collector off, objects made before the ticks frozen out of it, and a young
   collection run only where a period has time to spare (``collect_if_idle``); a collection
   otherwise runs in whichever thread allocates, mid-tick.
+- The clock's ``IdleWindow`` closed: other Python work waits for the servo thread's sleep.
 
 Both are undone when the ticks stop (``ServoThread.__exit__``), so a test process, a CLI or a
 cycle boundary runs as an ordinary thread again.
@@ -21,6 +22,8 @@ import gc
 import os
 import threading
 
+from cellguard.runtime.idle_window import FOREVER, IdleWindow
+
 PRIORITY = 10  # SCHED_FIFO priority: above every ordinary thread, below the kernel's interrupt threads (50)
 COLLECT_EVERY = 1000  # ticks between young collections [ticks]
 COLLECT_SLACK_NS = 400_000  # a collection runs only when this much of the period is left [ns]
@@ -29,8 +32,8 @@ COLLECT_SLACK_NS = 400_000  # a collection runs only when this much of the perio
 class ServoThread:
     """Context manager around the tick loop on the calling thread; ``scheduler`` says what it got."""
 
-    def __init__(self, priority: int | None = PRIORITY):
-        self.priority = priority
+    def __init__(self, priority: int | None = PRIORITY, idle: IdleWindow | None = None):
+        self.priority, self.idle = priority, idle
         self.scheduler = "other"
         self._previous: dict[int, tuple[int, os.sched_param]] = {}  # thread id (0: this one) -> policy, param
         self._gc_was_enabled = False
@@ -44,6 +47,8 @@ class ServoThread:
         gc.freeze()  # what exists now is not garbage: no collection walks it again
         gc.disable()
         self._ticks = 0
+        if self.idle is not None:
+            self.idle.close()
         return self
 
     def __exit__(self, *exc) -> None:
@@ -52,6 +57,8 @@ class ServoThread:
         gc.unfreeze()
         self._demote()
         self.active = False
+        if self.idle is not None:
+            self.idle.open(FOREVER)
 
     def collect_if_idle(self, slack_ns: int) -> None:
         """Called once per tick with the time left before the next deadline: collect the young
