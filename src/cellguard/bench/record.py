@@ -96,12 +96,13 @@ class _Collections:
 class _SlowCalls:
     """Why a recorder call took over ``limit_ns`` of wall time: the thread's CPU time and context switches.
 
-    Each call is bracketed by the thread's CPU clock and ``getrusage(RUSAGE_THREAD)`` (outside its wall
-    timing, about 2 µs a tick). A slow call is ``on_cpu`` when the thread's CPU time alone is over the limit
-    (the recorder's work, or the interpreter's on its behalf; with paravirtual steal accounting, as here,
-    not the hypervisor's); else it was off the CPU: ``preempted`` (an involuntary switch: the OS ran something else),
-    ``waited`` (a voluntary one: the GIL or a lock, held by the writer thread here), or ``unexplained``
-    (no switch the guest saw: on a VM, the hypervisor taking the CPU away, steal time).
+    Each call is bracketed by the thread's CPU clock and ``getrusage(RUSAGE_THREAD)`` (outside its
+    wall timing, about 2 µs a tick). A slow call is ``on_cpu`` when the thread's CPU time alone is
+    over the limit (the recorder's work, or the interpreter's on its behalf; with paravirtual steal
+    accounting, as here, not the hypervisor's); else it was off the CPU: ``preempted`` (an
+    involuntary switch: the OS ran something else), ``waited`` (a voluntary one: the GIL or a lock,
+    held by the writer thread here), or ``unexplained`` (no switch the guest saw: on a VM, the
+    hypervisor taking the CPU away, steal time).
     """
 
     def __init__(self, limit_ns: int = 200_000):
