@@ -191,8 +191,7 @@ def _unrecorded(scenario, factory) -> dict:
     """The scenario's cycles on the same loop with no record; its summary."""
     run = Run(scenario, policy_factory=factory)
     try:
-        for _ in range(scenario.total_cycles):
-            run.cycle()
+        run.run_cycles()
     finally:
         run.close()
     return run.summary()

@@ -175,7 +175,7 @@ class RunRecording:
     # -- writer thread -----------------------------------------------------------------------
     def _drain(self) -> None:
         ops, tick = self._ops, self._tick
-        idle = getattr(getattr(self.run, "clock", None), "idle", None) if not self._waits else None
+        idle = getattr(getattr(self.run, "clock", None), "idle", None)  # wall time only: SimClock has none
         while True:
             while ops:
                 if (idle is not None and idle.time_left_ns() < WINDOW_MARGIN_NS

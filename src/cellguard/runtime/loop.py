@@ -344,6 +344,16 @@ class Run:
         if callable(close):
             close()
 
+    def run_cycles(self, on_cycle: Callable[[dict], None] | None = None) -> None:
+        """Every cycle of the scenario, until a stop; then the retreat to the home pose."""
+        for _ in range(self.scenario.total_cycles):
+            outcome = self.cycle()
+            if on_cycle is not None:
+                on_cycle(outcome)
+            if self.stopped:
+                break
+        self.retreat()
+
     def summary(self) -> dict:
         """Per-cycle outcomes, events, and the injected faults as ground truth, kept apart."""
         summary = {
@@ -379,13 +389,7 @@ def run_scenario(scenario: Scenario, out: Path, on_cycle: Callable[[dict], None]
         out = make_folder(Path(out), "--out")
         run.recording = RunRecording.start(out, run, replace=overwrite, **({"config": record} if record else {}))  # RecordError here: nothing runs
         try:
-            for _ in range(scenario.total_cycles):
-                outcome = run.cycle()
-                if on_cycle is not None:
-                    on_cycle(outcome)
-                if run.stopped:
-                    break
-            run.retreat()
+            run.run_cycles(on_cycle)
         finally:
             run.recording.events()
             run.recording.close()
