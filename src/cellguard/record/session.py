@@ -1,24 +1,29 @@
-"""The recorder as the tick loop uses it: fed from the servo thread, written on a thread of its own.
+"""The recorder as the tick loop uses it: on wall time fed from the servo thread and written on a
+thread of its own; in simulated time written on the loop's thread.
 
-The servo thread only appends to a bounded queue (a copy of the reference and the setpoint, the
-measured state as read, about a microsecond); the writer thread does everything else: the
-pre-trigger ring, CDR and JSON encoding, zstd, the MCAP chunks, fsync, the index. On wall time a
-full queue never blocks the servo thread: the tick is dropped, counted, and a ``record_queue_full``
-event is raised (once per episode). In simulated time nothing waits on the clock, so a full queue
-waits for the writer instead and no tick is lost. A write error ends the recording for good and sets ``failed``; the
-loop reads it after each tick and stops the cell (category 2, ``record_failed``) because an
-unrecorded run is not allowed. On wall time, while the writer thread runs, the interpreter's switch
-interval is lowered to ``SWITCH_INTERVAL_S`` so that the servo thread never waits long for the GIL
-(in simulated time no tick has a deadline, and the default interval's fewer hand-overs make a
-simulated run about 6 % faster). On wall time the writer also works only while the servo thread
-sleeps: the clock's ``idle`` window (``runtime.idle_window``) says until when, and a piece of work
-(a tick, a chunk flush) starts only with ``WINDOW_MARGIN_NS`` of it left, unless the queue is half
-full (then losing ticks is worse than a late tick). What the process holds at the start (the
-cell's model, the modules, the run) is frozen out of the garbage collector (``gc.freeze``): a
-collection holds the GIL from start to end, whichever thread runs it, and with the whole heap to
-traverse one took up to tens of milliseconds under load.
+On wall time the servo thread only appends to a bounded queue (a copy of the reference and the
+setpoint, the measured state as read, about a microsecond); the writer thread does everything
+else: the pre-trigger ring, CDR and JSON encoding, zstd, the MCAP chunks, fsync, the index. A full
+queue never blocks the servo thread: the tick is dropped, counted, and a ``record_queue_full``
+event is raised (once per episode). While the writer thread runs, the interpreter's switch interval
+is lowered to ``SWITCH_INTERVAL_S`` so that the servo thread never waits long for the GIL, and the
+writer works only while the servo thread sleeps: the clock's ``idle`` window
+(``runtime.idle_window``) says until when, and a piece of work (a tick, a chunk flush) starts only
+with ``WINDOW_MARGIN_NS`` of it left, unless the queue is half full (then losing ticks is worse
+than a late tick).
 
-A crash loses what is still queued (at most ``queue_s`` of ticks) on top of the open chunk.
+In simulated time no tick has a deadline, so the loop's own thread calls the recorder directly: no
+tick is ever dropped, and the run does not pay for two threads taking turns with the GIL (a writer
+thread made a simulated run 10 to 25 % slower: it took the GIL whenever MuJoCo's step released it).
+The durability policy is the recorder's either way (chunks and fsync by tick time).
+
+A write error ends the recording for good and sets ``failed``; the loop reads it after each tick
+and stops the cell (category 2, ``record_failed``) because an unrecorded run is not allowed. What
+the process holds at the start (the cell's model, the modules, the run) is frozen out of the
+garbage collector (``gc.freeze``): a collection holds the GIL from start to end, whichever thread
+runs it, and with the whole heap to traverse one took up to tens of milliseconds under load.
+
+On wall time a crash loses what is still queued (at most ``queue_s`` of ticks) on top of the open chunk.
 """
 
 from __future__ import annotations
@@ -28,7 +33,6 @@ import gc
 import os
 import sys
 import threading
-import time
 from pathlib import Path
 
 from cellguard.control.events import Event, EventKind
@@ -60,18 +64,18 @@ class RunRecording:
         self._queued = 0  # ticks put on the queue (servo thread)
         self._written = 0  # ticks taken off it (writer thread)
         self._full = False
-        clock = getattr(run, "clock", None)
-        self._waits = clock is not None and not clock.realtime  # simulated time: wait for the writer, drop nothing
+        self._inline = not run.clock.realtime  # simulated time: the loop's thread writes, nothing is dropped
         self._ops: collections.deque = collections.deque()
         self._wake = threading.Event()
         self._reserve = reserve
         self._tick = recorder.tick
         self._switch = sys.getswitchinterval()
-        if not self._waits:
-            sys.setswitchinterval(min(self._switch, SWITCH_INTERVAL_S))
         gc.freeze()  # until close, which hands it all back to the collector (garbage frozen now included)
-        self._thread = threading.Thread(target=self._drain, name="cellguard-recorder", daemon=True)
-        self._thread.start()
+        self._thread = None
+        if not self._inline:
+            sys.setswitchinterval(min(self._switch, SWITCH_INTERVAL_S))
+            self._thread = threading.Thread(target=self._drain, name="cellguard-recorder", daemon=True)
+            self._thread.start()
 
     @classmethod
     def start(cls, folder: Path, run, config: RecordConfig = RecordConfig(), opener=default_opener,
@@ -119,17 +123,16 @@ class RunRecording:
         self._put(self.recorder.chunk, chunk, t_ns, latency_ns)
 
     def tick(self, reference, sent, state) -> bool:
-        """Queue the tick and any new events (never blocks); False once recording has failed."""
+        """Record (simulated time) or queue (wall time, never blocks) the tick and any new events; False
+        once recording has failed."""
         if len(self.run.events) > self._events_seen:
             self.events()
+        if self._inline:
+            self._apply(self._tick, (self._cycle, reference, sent, state))
+            return self.failed is None
         waiting = self._queued - self._written
         if waiting > self.high_water:
             self.high_water = waiting
-        if waiting >= self._capacity and self._waits:
-            self._wake.set()
-            while self._queued - self._written > self._capacity // 2 and self.failed is None and self._thread.is_alive():
-                time.sleep(POLL_S)
-            waiting = self._queued - self._written
         if waiting >= self._capacity:
             self.dropped += 1
             if not self._full:
@@ -157,10 +160,11 @@ class RunRecording:
     def close(self) -> None:
         """Write what is queued, finish the file (after a failure only the handle is closed), free the reserve."""
         self.events()
-        self._ops.append((None, ()))
-        self._wake.set()
-        self._thread.join()
-        sys.setswitchinterval(self._switch)
+        if self._thread is not None:
+            self._ops.append((None, ()))
+            self._wake.set()
+            self._thread.join()
+            sys.setswitchinterval(self._switch)
         gc.unfreeze()
         try:
             self.recorder.close()
@@ -170,28 +174,36 @@ class RunRecording:
             _release(self._reserve)
 
     def _put(self, fn, *args) -> None:
-        self._ops.append((fn, args))
+        if self._inline:
+            self._apply(fn, args)
+        else:
+            self._ops.append((fn, args))
+
+    def _apply(self, fn, args) -> None:
+        """One piece of recorder work; a fault of any kind stops the recording (and so the cell), never the loop."""
+        if self.failed is not None:
+            return
+        try:
+            fn(*args)
+        except RecordError as exc:
+            self.failed = str(exc)
+        except Exception as exc:  # noqa: BLE001
+            self.failed = f"{self.recorder.name}: recorder fault ({type(exc).__name__}: {exc})"
 
     # -- writer thread -----------------------------------------------------------------------
     def _drain(self) -> None:
         ops, tick = self._ops, self._tick
-        idle = getattr(getattr(self.run, "clock", None), "idle", None)  # wall time only: SimClock has none
+        idle = self.run.clock.idle
         while True:
             while ops:
-                if (idle is not None and idle.time_left_ns() < WINDOW_MARGIN_NS
+                if (idle.time_left_ns() < WINDOW_MARGIN_NS
                         and self._queued - self._written < self._capacity // 2):
                     idle.wait_next(POLL_S)  # the servo thread computes, or wakes soon: not now
                     continue
                 fn, args = ops.popleft()
                 if fn is None:
                     return
-                if self.failed is None:
-                    try:
-                        fn(*args)
-                    except RecordError as exc:
-                        self.failed = str(exc)
-                    except Exception as exc:  # noqa: BLE001 - any recorder fault stops the cell, never the thread
-                        self.failed = f"{self.recorder.name}: recorder fault ({type(exc).__name__}: {exc})"
+                self._apply(fn, args)
                 if fn is tick:
                     self._written += 1
             self._wake.wait(POLL_S)
