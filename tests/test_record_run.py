@@ -151,3 +151,42 @@ def test_on_wall_time_the_writer_works_only_in_the_servo_threads_idle_window(tmp
         idle.open(2**62)
         recording.close()
         run.close()
+
+
+def test_tf_poses_are_mujocos_at_the_recorded_joint_positions(run_folder):
+    """Each ``/tf`` message, decoded by the ROS 2 reader, puts every moving link where MuJoCo's kinematics
+    puts it relative to its parent at the ``/joint_states`` positions of the same stamp."""
+    import mujoco
+    from mcap_ros2.decoder import DecoderFactory
+
+    out, _ = run_folder
+    model = Run(_short_demo()).cell.model
+    data = mujoco.MjData(model)
+    states, frames = {}, []
+    with open(out / "record.mcap", "rb") as f:
+        for _, channel, message, decoded in make_reader(f, decoder_factories=[DecoderFactory()]).iter_decoded_messages(
+                topics=["/joint_states", "/tf"]):
+            if channel.topic == "/joint_states":
+                states[message.log_time] = dict(zip(decoded.name, decoded.position))
+            else:
+                frames.append((message.log_time, decoded.transforms))
+    assert len(frames) == len(states) > 100
+    prismatic = 0
+    for log_time, transforms in frames[::25]:
+        for name, value in states[log_time].items():
+            joint = model.joint(name)
+            data.qpos[joint.qposadr[0]] = value
+            prismatic += int(joint.type[0]) == int(mujoco.mjtJoint.mjJNT_SLIDE)
+        mujoco.mj_kinematics(model, data)
+        for t in transforms:
+            parent, child = model.body(t.header.frame_id).id, model.body(t.child_frame_id).id
+            rotation = data.xmat[parent].reshape(3, 3)
+            want_xyz = rotation.T @ (data.xpos[child] - data.xpos[parent])
+            inverse, want_quat = np.zeros(4), np.zeros(4)
+            mujoco.mju_negQuat(inverse, data.xquat[parent])
+            mujoco.mju_mulQuat(want_quat, inverse, data.xquat[child])
+            got = t.transform
+            assert [got.translation.x, got.translation.y, got.translation.z] == pytest.approx(want_xyz, abs=1e-9)
+            quat = np.array([got.rotation.w, got.rotation.x, got.rotation.y, got.rotation.z])
+            assert abs(float(quat @ want_quat)) == pytest.approx(1.0, abs=1e-9)  # the same rotation (q or -q)
+    assert prismatic  # the gripper's slide joint is checked too

@@ -42,9 +42,11 @@ class Kinematics:
 
     def tool_point(self, q: np.ndarray) -> np.ndarray:
         """The tool point (3,) [m] in the world frame at joint positions ``q`` (len(joints),) [rad or m]."""
-        data = getattr(self._local, "data", None)
-        if data is None:
-            data = self._local.data = mujoco.MjData(self._model)
-        data.qpos[self._qadr] = q
+        views = getattr(self._local, "views", None)
+        if views is None:  # this thread's data, and its arrays fetched once (they stay put for its lifetime)
+            data = mujoco.MjData(self._model)
+            views = self._local.views = (data, data.qpos, data.site_xpos[self._site])
+        data, qpos, point = views
+        qpos[self._qadr] = q
         mujoco.mj_kinematics(self._model, data)
-        return data.site_xpos[self._site].copy()
+        return point.copy()

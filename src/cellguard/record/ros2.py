@@ -86,17 +86,34 @@ def string_message(text: str) -> bytes:
     return buf.bytes()
 
 
-def tf_message(wall_ns: int, transforms: list[tuple[str, str, np.ndarray, np.ndarray]]) -> bytes:
-    """``transforms``: (parent frame, child frame, translation (3,) [m], rotation (x, y, z, w))."""
-    buf = CdrBuffer()
-    buf.pack("I", len(transforms))
-    for parent, child, xyz, quat in transforms:
-        buf.stamp(wall_ns)
-        buf.string(parent)
-        buf.string(child)
-        buf.pack("ddd", *map(float, xyz))
-        buf.pack("dddd", *map(float, quat))
-    return buf.bytes()
+class TfEncoder:
+    """``tf2_msgs/TFMessage`` for a fixed list of (parent, child) frames, many ticks per call."""
+
+    def __init__(self, frames: list[tuple[str, str]]):
+        buf = CdrBuffer()
+        buf.pack("I", len(frames))
+        self._stamps, self._poses = [], []
+        for parent, child in frames:
+            buf.align(4)
+            self._stamps.append(len(buf.out))
+            buf.stamp(0)
+            buf.string(parent)
+            buf.string(child)
+            buf.align(8)
+            self._poses.append(len(buf.out))  # translation x y z, rotation x y z w: seven float64
+            buf.out += bytes(56)
+        self._template = np.frombuffer(buf.bytes(), dtype=np.uint8)
+
+    def encode(self, wall_ns: np.ndarray, poses: np.ndarray) -> list[bytes]:
+        """One message per row: ``wall_ns`` (n,) epoch time, ``poses`` (n, frames, 7) as ``JointFrames.poses``."""
+        n = len(wall_ns)
+        rows = np.repeat(self._template[None, :], n, axis=0)
+        sec, nsec = _stamp_bytes(wall_ns)
+        poses = np.ascontiguousarray(poses, dtype="<f8").reshape(n, len(self._poses), 7)
+        for k, (stamp, pose) in enumerate(zip(self._stamps, self._poses)):
+            rows[:, stamp:stamp + 4], rows[:, stamp + 4:stamp + 8] = sec, nsec
+            rows[:, pose:pose + 56] = poses[:, k].view(np.uint8).reshape(n, 56)
+        return [row.tobytes() for row in rows]
 
 
 class JointStateEncoder:
@@ -123,10 +140,15 @@ class JointStateEncoder:
         """One message per row: ``wall_ns`` (n,) epoch time, arrays (n, dof) SI."""
         n = len(wall_ns)
         rows = np.repeat(self._template[None, :], n, axis=0)
-        sec, nsec = np.divmod(np.asarray(wall_ns, dtype=np.int64), 1_000_000_000)
-        rows[:, 4:8] = sec.astype("<i4").view(np.uint8).reshape(n, 4)
-        rows[:, 8:12] = nsec.astype("<u4").view(np.uint8).reshape(n, 4)
+        rows[:, 4:8], rows[:, 8:12] = _stamp_bytes(wall_ns)
         for at, values in zip(self._arrays, (position, velocity, effort)):
             block = np.ascontiguousarray(values, dtype="<f8").reshape(n, self.dof)
             rows[:, at:at + 8 * self.dof] = block.view(np.uint8).reshape(n, 8 * self.dof)
         return [row.tobytes() for row in rows]
+
+
+def _stamp_bytes(wall_ns) -> tuple[np.ndarray, np.ndarray]:
+    """``builtin_interfaces/Time`` of each epoch time (n,) [ns] as CDR bytes: sec (n, 4), nanosec (n, 4)."""
+    n = len(wall_ns)
+    sec, nsec = np.divmod(np.asarray(wall_ns, dtype=np.int64), 1_000_000_000)
+    return sec.astype("<i4").view(np.uint8).reshape(n, 4), nsec.astype("<u4").view(np.uint8).reshape(n, 4)

@@ -114,6 +114,8 @@ class Recorder:
         self._floor = 0  # log time of the last message written [ns since 1970]
         self._joint_states = ros2.JointStateEncoder(self.joints)
         self._urdf, self._frames = description if description is not None else (None, None)
+        moving = self._frames.moving if self._frames is not None else []
+        self._tf = ros2.TfEncoder([(j.parent, j.child) for _, j in moving]) if moving else None
         self._dec_next = 0  # next tick index the decimated stream has not considered
         self._full_done = 0  # ticks before this are on the full-rate channel or were skipped
         self._full_start = 0  # first tick of the current full-rate window
@@ -268,7 +270,9 @@ class Recorder:
         self._write_context(context, 0)
         if self._urdf is not None:
             self._add(12, 0, ros2.string_message(self._urdf))
-            self._add(11, 0, ros2.tf_message(self.epoch_wall_ns, self._frames.fixed))
+            fixed = self._frames.fixed
+            poses = np.array([[[*xyz, *quat] for _, _, xyz, quat in fixed]])
+            self._add(11, 0, ros2.TfEncoder([(p, c) for p, c, _, _ in fixed]).encode([self.epoch_wall_ns], poses)[0])
         self._write_pending()
         self._stream.flush()
         _fsync(self._stream)
@@ -323,12 +327,13 @@ class Recorder:
             batch = self._ring.batch(first, min(stop, first + span), step)
             batch["joints"] = self.joints
             self._add(channel, int(batch["t_ns"][0]), TICKS.encode(batch))
-            wall = self.epoch_wall_ns + batch["t_ns"]
-            states = self._joint_states.encode(wall, batch["q_meas"], batch["qd_meas"], batch["effort"])
-            for t, q, data in zip(batch["t_ns"].tolist(), batch["q_meas"], states):
+            wall, times = self.epoch_wall_ns + batch["t_ns"], batch["t_ns"].tolist()
+            for t, data in zip(times, self._joint_states.encode(wall, batch["q_meas"], batch["qd_meas"],
+                                                                batch["effort"])):
                 self._add(8 if decimated else 9, t, data)
-                if decimated and self._frames is not None and self._frames.moving:
-                    self._add(10, t, ros2.tf_message(self.epoch_wall_ns + t, self._frames.transforms(q)))
+            if decimated and self._tf is not None:  # same time as its joint state, queued after it
+                for t, data in zip(times, self._tf.encode(wall, self._frames.poses(batch["q_meas"]))):
+                    self._add(10, t, data)
 
     def _trigger(self, t_ns: int) -> None:
         if self._back == 0 and self.config.post_trigger_s == 0:

@@ -30,6 +30,8 @@ class PositionDrives:
         self.act = np.array([mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, n) for n in profile.joint_names])
         # read every tick: a slice where the addresses run in order (a view; a fancy index copies and costs more)
         self._q, self._v, self._a = span(self.qadr), span(self.dadr), span(self.act)
+        # MjData's arrays stay where they are for its lifetime: fetched once, not per tick
+        self._qpos, self._qvel, self._force = data.qpos, data.qvel, data.actuator_force
         self._kt = profile.array("torque_constant")
         self.nominal_frictionloss = model.dof_frictionloss[self.dadr].copy()
         self.nominal_gain = model.actuator_gainprm[self.act, 0].copy()
@@ -38,10 +40,9 @@ class PositionDrives:
 
     def read(self, t_ns: int) -> State:
         """What the drives report now: position, velocity, effort and motor current."""
-        d = self.data
-        effort = d.actuator_force[self._a].copy()
+        effort = self._force[self._a].copy()
         current = effort / self._kt + self.rng.normal(0.0, self.current_noise, len(effort))
-        return State(t_ns, d.qpos[self._q].copy(), d.qvel[self._v].copy(), effort, current)
+        return State(t_ns, self._qpos[self._q].copy(), self._qvel[self._v].copy(), effort, current)
 
     def write(self, setpoint: np.ndarray) -> np.ndarray:
         """Command joint positions; return what the drives took."""

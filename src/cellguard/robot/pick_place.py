@@ -76,6 +76,7 @@ class PickPlaceCell(DrivenCell):
         # per tick: the arm joints (all but the gripper) and the gripper opening, as plain indices
         self._arm_q, self._arm_v, self._q = span(self._qadr[:-1]), span(self._dadr[:-1]), span(self._qadr)
         self._gripper_q = int(self._qadr[-1])
+        self._qpos, self._qvel = self.data.qpos, self.data.qvel  # MjData's arrays stay put: fetched once
         self._part_body = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "part")
         part_joint = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, "part")
         self._part_qadr, self._part_dadr = m.jnt_qposadr[part_joint], m.jnt_dofadr[part_joint]
@@ -167,11 +168,13 @@ class PickPlaceCell(DrivenCell):
         self._failed = None
 
     def cycle_finished(self) -> bool:
-        away = np.abs(self.data.qpos[self._arm_q] - self._arm_home).max()
+        """Back home after leaving it, and slow; asked every tick, so on plain floats (numpy's max of six
+        values costs more than the list)."""
+        away = max(map(abs, (self._qpos[self._arm_q] - self._arm_home).tolist()))
         if not self._left_home:
-            self._left_home = bool(away > 0.05)
+            self._left_home = away > 0.05
             return False
-        return bool(away < 0.01 and np.abs(self.data.qvel[self._arm_v]).max() < 0.05)
+        return away < 0.01 and max(map(abs, self._qvel[self._arm_v].tolist())) < 0.05
 
     def end_cycle(self) -> dict:
         part = self.data.xpos[self._part_body]

@@ -3,13 +3,16 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
 
-@dataclass(frozen=True)
-class State:
-    """Measured joint state at ``t_ns``; arrays shape (dof,), profile joint order, SI units."""
+class State(NamedTuple):
+    """Measured joint state at ``t_ns``; arrays shape (dof,), profile joint order, SI units.
+
+    A named tuple, not a frozen dataclass: one is built every servo tick, and a frozen dataclass's
+    ``__init__`` costs four times as much."""
 
     t_ns: int
     q: np.ndarray  # [rad] or [m]

@@ -17,7 +17,6 @@ import socket
 import sys
 import time
 from collections import deque
-from dataclasses import replace
 
 import numpy as np
 
@@ -62,7 +61,7 @@ class SimServer:
             cell.step()
         if self.client is None:
             return
-        state = replace(cell.read(), t_ns=time.monotonic_ns())
+        state = cell.read()._replace(t_ns=time.monotonic_ns())
         obs = cell.observe()
         self._seq += 1
         packet = self.layout.pack_state(self._seq, state.t_ns, self._cmd_seq, state, cell.data.ctrl[cell.drives.act],
