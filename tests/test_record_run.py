@@ -190,3 +190,31 @@ def test_tf_poses_are_mujocos_at_the_recorded_joint_positions(run_folder):
             quat = np.array([got.rotation.w, got.rotation.x, got.rotation.y, got.rotation.z])
             assert abs(float(quat @ want_quat)) == pytest.approx(1.0, abs=1e-9)  # the same rotation (q or -q)
     assert prismatic  # the gripper's slide joint is checked too
+
+
+@pytest.mark.parametrize("realtime", [False, True])
+def test_a_recorder_bug_stops_the_cell_and_never_the_loop(tmp_path, monkeypatch, realtime):
+    """Any exception inside the recorder (not only a write error) ends the recording and stops the cell with
+    category 2 ``record_failed``; on the loop's thread (simulated time) as on the writer thread (wall time)."""
+    from cellguard.record.writer import Recorder
+
+    calls = {"n": 0}
+    tick = Recorder.tick
+
+    def buggy(self, *args):
+        calls["n"] += 1
+        if calls["n"] == 500:
+            raise ValueError("a bug")
+        tick(self, *args)
+
+    monkeypatch.setattr(Recorder, "tick", buggy)
+    run = Run(_short_demo(1), realtime=realtime)
+    run.recording = RunRecording.start(tmp_path, run)
+    run.cycle()
+    run.recording.close()
+    run.close()
+    assert run.stopped and "recorder fault (ValueError: a bug)" in run.stopped
+    stop = run.events[-1]
+    assert stop.kind == "record_failed" and stop.category == 2
+    with open_record(tmp_path) as rec:  # what was written before the bug reads back
+        assert len(rec.ticks(rate="decimated")) > 0

@@ -14,7 +14,8 @@ than a late tick).
 
 In simulated time no tick has a deadline, so the loop's own thread calls the recorder directly: no
 tick is ever dropped, and the run does not pay for two threads taking turns with the GIL (a writer
-thread made a simulated run 10 to 25 % slower: it took the GIL whenever MuJoCo's step released it).
+thread made 10 demo cycles take 9 to 28 % longer, alternating runs: it took the GIL whenever MuJoCo's
+step released it).
 The durability policy is the recorder's either way (chunks and fsync by tick time).
 
 A write error ends the recording for good and sets ``failed``; the loop reads it after each tick

@@ -119,16 +119,19 @@ class WallClock:
         compute = clock() - self._began
         deadline = self._deadline
         servo, spin = self._servo, self._spin_ns
-        if servo is not None and servo.active:
+        ticking = servo is not None and servo.active
+        if ticking:
             servo.collect_if_idle(deadline - clock())
             self.scheduler = servo.scheduler
             if servo.scheduler != "other":
                 spin = min(spin, SPIN_FIFO_NS)
         left = deadline - clock() - spin
         if left > 0:
-            self.idle.open(deadline - spin)
+            if ticking:  # outside a stretch (a stop's settling time) the window stays open for good
+                self.idle.open(deadline - spin)
             time.sleep(left * 1e-9)
-            self.idle.close()
+            if ticking:
+                self.idle.close()
         while clock() < deadline:
             pass
         woke = clock()
