@@ -65,15 +65,14 @@ class RunRecording:
         self._queued = 0  # ticks put on the queue (servo thread)
         self._written = 0  # ticks taken off it (writer thread)
         self._full = False
-        self._inline = not run.clock.realtime  # simulated time: the loop's thread writes, nothing is dropped
         self._ops: collections.deque = collections.deque()
         self._wake = threading.Event()
         self._reserve = reserve
         self._tick = recorder.tick
         self._switch = sys.getswitchinterval()
         gc.freeze()  # until close, which hands it all back to the collector (garbage frozen now included)
-        self._thread = None
-        if not self._inline:
+        self._thread = None  # simulated time: none, the loop's thread writes and nothing is dropped
+        if run.clock.realtime:
             sys.setswitchinterval(min(self._switch, SWITCH_INTERVAL_S))
             self._thread = threading.Thread(target=self._drain, name="cellguard-recorder", daemon=True)
             self._thread.start()
@@ -128,7 +127,7 @@ class RunRecording:
         once recording has failed."""
         if len(self.run.events) > self._events_seen:
             self.events()
-        if self._inline:
+        if self._thread is None:
             self._apply(self._tick, (self._cycle, reference, sent, state))
             return self.failed is None
         waiting = self._queued - self._written
@@ -175,7 +174,7 @@ class RunRecording:
             _release(self._reserve)
 
     def _put(self, fn, *args) -> None:
-        if self._inline:
+        if self._thread is None:
             self._apply(fn, args)
         else:
             self._ops.append((fn, args))

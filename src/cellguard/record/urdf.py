@@ -57,7 +57,8 @@ class JointFrames:
 
         Vectorised over rows and joints: the recorder turns a whole batch of ticks into ``/tf`` at once.
         """
-        value = np.asarray(q, dtype=np.float64).reshape(-1, q.shape[-1])[:, self._columns]  # (n, moving)
+        q = np.asarray(q, dtype=np.float64)
+        value = q.reshape(-1, q.shape[-1])[:, self._columns]  # (n, moving)
         out = np.empty((*value.shape, 7))
         w, x, y, z = self._quat.T
         half = 0.5 * value
