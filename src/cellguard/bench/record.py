@@ -101,7 +101,7 @@ class _SlowCalls:
     over the limit (the recorder's work, or the interpreter's on its behalf; with paravirtual steal
     accounting, as here, not the hypervisor's); else it was off the CPU: ``preempted`` (an
     involuntary switch: the OS ran something else), ``waited`` (a voluntary one: the GIL or a lock,
-    held by the writer thread here), or ``unexplained`` (no switch the guest saw: on a VM, the
+    held by the feeder thread here), or ``unexplained`` (no switch the guest saw: on a VM, the
     hypervisor taking the CPU away, steal time).
     """
 
@@ -132,7 +132,7 @@ def _paced_run(folder: Path, seconds: float, event_every_s: float = 10.0) -> tup
     """The arm cell's recording fed at 1 kHz by the loop's own wall clock (the servo thread real-time
     where permitted, the collector run in idle time), as a real loop does.
 
-    The ticks are synthetic (a random walk) so that only the recorder is timed; its writer thread
+    The ticks are synthetic (a random walk) so that only the recorder is timed; its writer process
     does the disk work meanwhile. Returns the servo-thread cost of each ``RunRecording.tick``, the
     recording, the garbage collections while the loop ran, and why the slow calls were slow.
     """
@@ -172,9 +172,9 @@ def _paced_run(folder: Path, seconds: float, event_every_s: float = 10.0) -> tup
 def tick_cost(seconds: float = 120.0) -> dict:
     """Recorder cost on the servo thread per tick (6 joints), against one ruckig call measured in the same run.
 
-    ``tick_*``: ``RunRecording.tick`` in a paced 1 kHz loop, the writer thread doing the rest;
+    ``tick_*``: ``RunRecording.tick`` in a paced 1 kHz loop, the writer process doing the rest;
     ``sync_tick_*``: the recorder called directly on the servo thread (flushes, chunk closing and
-    zstd included), i.e. what the servo thread paid before the writer thread. ``over_200us``: why the
+    zstd included), i.e. what the servo thread paid without a writer of its own. ``over_200us``: why the
     paced calls over 200 µs were slow (``_SlowCalls``); only ``on_cpu`` and ``waited`` are the recorder's.
     """
     probe = RuckigProbe(len(JOINTS))  # one ruckig update from a random state: the servo path's reference

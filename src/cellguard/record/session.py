@@ -1,39 +1,49 @@
-"""The recorder as the tick loop uses it: on wall time fed from the servo thread and written on a
-thread of its own; in simulated time written on the loop's thread.
+"""The recorder as the tick loop uses it: fed by the loop, written by a process of its own.
 
-On wall time the servo thread only appends to a bounded queue (a copy of the reference and the
-setpoint, the measured state as read, about a microsecond); the writer thread does everything
-else: the pre-trigger ring, CDR and JSON encoding, zstd, the MCAP chunks, fsync, the index. A full
-queue never blocks the servo thread: the tick is dropped, counted, and a ``record_queue_full``
-event is raised (once per episode). While the writer thread runs, the interpreter's switch interval
-is lowered to ``SWITCH_INTERVAL_S`` so that the servo thread never waits long for the GIL, and the
-writer works only while the servo thread sleeps: the clock's ``idle`` window
-(``runtime.idle_window``) says until when, and a piece of work (a tick, a chunk flush) starts only
-with ``WINDOW_MARGIN_NS`` of it left, unless the queue is half full (then losing ticks is worse
-than a late tick).
+The loop's thread copies each tick into the pre-trigger ring (``record.ring``), which lives in
+memory shared with a writer process forked at the start: a few microseconds, no allocation, no
+lock. Everything else happens in the writer process, on another core: CDR and JSON encoding,
+zstd, the MCAP chunks, fsync, the index. The other calls (chunks, measurements, events, context,
+cycle ends) reach it as messages, each stamped with the number of ticks added before it, so the
+writer takes them between the same ticks as the loop made them. A writer *thread* shared the
+interpreter lock with the loop: in simulated time the two took turns (10 demo cycles 9 to 28 %
+slower than writing on the loop's thread), and on wall time its fsync and encoding returned mid-tick
+and took the lock back (recorder calls of 200 to 250 µs on the servo thread).
 
-In simulated time no tick has a deadline, so the loop's own thread calls the recorder directly: no
-tick is ever dropped, and the run does not pay for two threads taking turns with the GIL (a writer
-thread made 10 demo cycles take 9 to 28 % longer, alternating runs: it took the GIL whenever MuJoCo's
-step released it).
-The durability policy is the recorder's either way (chunks and fsync by tick time).
+The loop may run ``queue_s`` of ticks ahead of the writer. On wall time a tick past that is not
+recorded: it is counted and a ``record_queue_full`` event is raised (once per episode); the
+servo thread never blocks. In simulated time no tick has a deadline, so the loop waits for the
+writer instead and nothing is dropped. The durability policy is the recorder's either way
+(chunks and fsync by tick time); the writer looks at the ring at least every ``POLL_S``.
 
-A write error ends the recording for good and sets ``failed``; the loop reads it after each tick
-and stops the cell (category 2, ``record_failed``) because an unrecorded run is not allowed. What
-the process holds at the start (the cell's model, the modules, the run) is frozen out of the
-garbage collector (``gc.freeze``): a collection holds the GIL from start to end, whichever thread
-runs it, and with the whole heap to traverse one took up to tens of milliseconds under load.
+A write error, or any fault inside the recorder, ends the recording for good: the writer raises a
+flag in the shared memory, the loop reads it after each tick and stops the cell (category 2,
+``record_failed``), because an unrecorded run is not allowed. A writer process that dies counts
+the same. When the loop's process dies (SIGKILL) or is asked to end (SIGTERM), the writer takes
+the ticks already in the ring and finishes the file, so a crash loses at most the messages not
+yet sent (a few ticks' worth) instead of the open chunk. Ctrl-C reaches the writer too; it
+ignores it and finishes when the loop closes the recording.
 
-On wall time a crash loses what is still queued (at most ``queue_s`` of ticks) on top of the open chunk.
+What the process holds at the start (the cell's model, the modules, the run) is frozen out of the
+garbage collector (``gc.freeze``): a collection holds the interpreter lock from start to end, and
+with the whole heap to traverse one took up to tens of milliseconds under load.
+
+The writer is a forked process (POSIX): it inherits the open record and the ring, nothing is
+pickled but the messages.
 """
 
 from __future__ import annotations
 
 import collections
 import gc
+import mmap
+import multiprocessing
 import os
-import sys
+import pickle
+import signal
 import threading
+import time
+from multiprocessing.connection import wait
 from pathlib import Path
 
 from cellguard.control.events import Event, EventKind
@@ -43,39 +53,51 @@ from cellguard.record.index import default_opener
 from cellguard.record.urdf import describe
 from cellguard.record.writer import RecordConfig, Recorder, refuse_existing
 
-SWITCH_INTERVAL_S = 5e-5  # longest GIL hold the servo thread may wait for behind the writer [s]
-POLL_S = 0.002  # the writer thread looks at the queue at least this often [s]
-WINDOW_MARGIN_NS = 150_000  # the writer starts a piece of work only with this much of the servo's sleep left
+POLL_S = 0.002  # the writer takes the ticks in the ring at least this often [s]
+WRITER_NICE = 10  # the writer process yields the CPU to the loop and the policy
+WINDOW_MARGIN_NS = 150_000  # the feeder sends a batch only with this much of the servo thread's sleep left
+CLOSE_TIMEOUT_S = 60.0  # longest wait for the writer to finish the file at close [s]
 RESERVE_BYTES = (256 << 10, 8 << 10)  # disk kept free for summary.json: base + per cycle, released at close [bytes]
 RESERVE_FILE = ".cellguard-reserve"
+PICKLE = pickle.HIGHEST_PROTOCOL  # plain pickle: multiprocessing's own pickler is several times slower here
+HEAD, TAIL, FAILED = 0, 1, 2  # shared counters: ticks added by the loop, ticks taken by the writer, writer failed
 
 
 class RunRecording:
     """One run's record: context per cycle, measurements, chunks, ticks, events, cycle ends."""
 
     def __init__(self, recorder: Recorder, run, queue_s: float = 2.0, reserve: Path | None = None):
-        self.recorder, self.run = recorder, run
+        self.run, self.name = run, recorder.name
         self.failed: str | None = None
-        self.dropped = 0  # ticks not recorded because the queue was full
-        self.high_water = 0  # most ticks waiting at once
+        self.dropped = 0  # ticks not recorded because the writer was queue_s behind (wall time)
+        self.high_water = 0  # most ticks the writer was behind
         self._events_seen = len(run.events)
         self._software = software_versions()
+        self._config = recorder.config
         self._cycle = 0
-        self._capacity = max(1, round(queue_s * 1e9 / recorder.dt_ns))
-        self._queued = 0  # ticks put on the queue (servo thread)
-        self._written = 0  # ticks taken off it (writer thread)
+        self._slack = max(1, round(queue_s * 1e9 / recorder.dt_ns))
+        # ticks between "take the ticks" messages: a chunk's worth, and often enough that the writer hears of a
+        # tick well before the loop could run a queue ahead of it
+        self._every = max(1, min(recorder.config.chunk_ns // recorder.dt_ns, self._slack // 2))
+        self._ring = recorder.share_ring(self._slack)
+        self._ctl = memoryview(mmap.mmap(-1, 3 * 8)).cast("q")
         self._full = False
-        self._ops: collections.deque = collections.deque()
-        self._wake = threading.Event()
         self._reserve = reserve
-        self._tick = recorder.tick
-        self._switch = sys.getswitchinterval()
+        self._realtime = run.clock.realtime
+        self._outbox: collections.deque = collections.deque()  # appended by the loop, emptied by the sender
         gc.freeze()  # until close, which hands it all back to the collector (garbage frozen now included)
-        self._thread = None  # simulated time: none, the loop's thread writes and nothing is dropped
-        if run.clock.realtime:
-            sys.setswitchinterval(min(self._switch, SWITCH_INTERVAL_S))
-            self._thread = threading.Thread(target=self._drain, name="cellguard-recorder", daemon=True)
-            self._thread.start()
+        context = multiprocessing.get_context("fork")
+        op_reader, self._op_writer = context.Pipe(duplex=False)
+        self._replies, reply_writer = context.Pipe(duplex=False)
+        self._process = context.Process(target=_serve, name="cellguard-recorder", daemon=True,
+                                        args=(recorder, self._ctl, op_reader, self._op_writer, reply_writer))
+        self._process.start()
+        op_reader.close()
+        reply_writer.close()
+        self._feeder = None
+        if self._realtime:
+            self._feeder = threading.Thread(target=self._feed, name="cellguard-record-feeder", daemon=True)
+            self._feeder.start()
 
     @classmethod
     def start(cls, folder: Path, run, config: RecordConfig = RecordConfig(), opener=default_opener,
@@ -110,104 +132,207 @@ class RunRecording:
         return {**context, **({"release": release} if release else {}), "record": config.to_dict(),
                 "process": run.scenario.declared_process(cycle)}
 
-    # -- servo thread ------------------------------------------------------------------------
+    # -- the loop's thread ---------------------------------------------------------------------
     def begin_cycle(self, cycle: int, phase: str, t_ns: int) -> None:
         self._cycle = cycle
-        self._put(self.recorder.set_context, self._context(self.run, self.recorder.config, self._software, cycle), t_ns)
-        self._put(self.recorder.cycle_begin, cycle, phase, t_ns)
+        self._put("set_context", self._context(self.run, self._config, self._software, cycle), t_ns)
+        self._put("cycle_begin", cycle, phase, t_ns)
 
     def request(self, t_ns: int, observation) -> None:
-        self._put(self.recorder.measurements, t_ns, self._cycle, observation.measurements)
+        self._put("measurements", t_ns, self._cycle, observation.measurements)
 
     def chunk(self, chunk, t_ns: int, latency_ns: int) -> None:
-        self._put(self.recorder.chunk, chunk, t_ns, latency_ns)
+        self._put("chunk", chunk, t_ns, latency_ns)
 
     def tick(self, reference, sent, state) -> bool:
-        """Record (simulated time) or queue (wall time, never blocks) the tick and any new events; False
-        once recording has failed."""
+        """Put the tick in the shared ring (wall time: never blocks) and queue any new events; False once
+        recording has failed."""
         if len(self.run.events) > self._events_seen:
             self.events()
-        if self._thread is None:
-            self._apply(self._tick, (self._cycle, reference, sent, state))
-            return self.failed is None
-        waiting = self._queued - self._written
-        if waiting > self.high_water:
+        ring, ctl = self._ring, self._ctl
+        waiting = ring.n - ctl[TAIL]
+        if waiting >= self._slack:
+            if self._realtime:
+                return self._drop(state.t_ns, waiting)
+            if not self._wait_for_writer():
+                return False
+        elif waiting > self.high_water:
             self.high_water = waiting
-        if waiting >= self._capacity:
-            self.dropped += 1
-            if not self._full:
-                self._full = True
-                self.run.events.append(Event(state.t_ns, EventKind.RECORD_QUEUE_FULL,
-                                             f"the recorder queue holds {waiting} ticks; ticks are dropped "
-                                             f"until the writer catches up"))
-            return self.failed is None
         self._full = False
-        self._ops.append((self._tick, (self._cycle, reference.copy(), sent.copy(), state)))
-        self._queued += 1
+        ring.add(state.t_ns, self._cycle, reference, sent, state.q, state.qd, state.effort, state.current)
+        ctl[HEAD] = ring.n
+        if ring.n % self._every == 0:
+            self._send("")  # the writer takes ticks when told, so every message stays between its ticks
+        if ctl[FAILED]:  # raised by the writer, or by the sender when the writer's pipe broke
+            return self._writer_failed()
         return self.failed is None
 
     def end_cycle(self, outcome: dict, t_ns: int) -> None:
         self.events()
-        self._put(self.recorder.cycle_end, outcome, t_ns)
+        self._send("cycle_end", outcome, t_ns)
 
     def events(self) -> None:
         """Queue the run's events not recorded yet."""
         events = self.run.events
         for event in events[self._events_seen:]:
-            self._put(self.recorder.event, event, self._cycle)
+            self._put("event", event, self._cycle)
         self._events_seen = len(events)
 
     def close(self) -> None:
-        """Write what is queued, finish the file (after a failure only the handle is closed), free the reserve."""
+        """Let the writer take what is queued and finish the file (after a failure only the handle is
+        closed); free the reserve."""
         self.events()
-        if self._thread is not None:
-            self._ops.append((None, ()))
-            self._wake.set()
-            self._thread.join()
-            sys.setswitchinterval(self._switch)
-        gc.unfreeze()
+        self._send(None)
+        if self._feeder is not None:
+            self._feeder.join()
         try:
-            self.recorder.close()
-        except RecordError as exc:
-            self.failed = self.failed or str(exc)
+            reply = self._reply(CLOSE_TIMEOUT_S)
+            if reply is not None:
+                self.failed = self.failed or reply
         finally:
+            self._process.join(CLOSE_TIMEOUT_S)
+            self._replies.close()
+            gc.unfreeze()
             _release(self._reserve)
 
-    def _put(self, fn, *args) -> None:
-        if self._thread is None:
-            self._apply(fn, args)
-        else:
-            self._ops.append((fn, args))
+    def _put(self, name: str | None, *args) -> None:
+        """A message for the writer, sent with the next batch: take the ticks added so far, then call recorder
+        method ``name`` (``""``: none; ``None``: finish the file and end)."""
+        self._outbox.append((self._ring.n, name, args))
 
-    def _apply(self, fn, args) -> None:
-        """One piece of recorder work; a fault of any kind stops the recording (and so the cell), never the loop."""
-        if self.failed is not None:
+    def _send(self, name: str | None, *args) -> None:
+        """Send the batch with this message last: on wall time through the feeder thread (the servo thread never
+        waits on the pipe), in simulated time from the loop's thread (no second thread taking turns with it)."""
+        self._put(name, *args)
+        if self._feeder is not None:
+            return
+        batch = list(self._outbox)
+        self._outbox.clear()
+        self._deliver(batch)
+        if name is None:
+            self._op_writer.close()
+
+    def _deliver(self, batch: list) -> bool:
+        """Pickle and send ``batch``; a broken pipe (the writer died) raises the failed flag; False then."""
+        try:
+            self._op_writer.send_bytes(pickle.dumps(batch, PICKLE))
+        except OSError:
+            self._ctl[FAILED] = 1
+            return False
+        return True
+
+    def _drop(self, t_ns: int, waiting: int) -> bool:
+        self.dropped += 1
+        if not self._full:
+            self._full = True
+            self.run.events.append(Event(t_ns, EventKind.RECORD_QUEUE_FULL,
+                                         f"the recorder is {waiting} ticks behind; ticks are dropped "
+                                         f"until the writer catches up"))
+        return self.failed is None
+
+    def _wait_for_writer(self) -> bool:
+        """Simulated time: wait until the writer has room again; False if it failed or died meanwhile."""
+        while self._ring.n - self._ctl[TAIL] >= self._slack:
+            if self._ctl[FAILED] or not self._process.is_alive():
+                return self._writer_failed()
+            time.sleep(POLL_S / 4)
+        return True
+
+    def _writer_failed(self) -> bool:
+        """The writer raised its flag or ended: why, once; False."""
+        if self.failed is None:
+            if self._ctl[FAILED]:
+                self.failed = self._reply(CLOSE_TIMEOUT_S) or f"{self.name}: recording failed"
+            else:
+                self.failed = f"{self.name}: the recorder process ended (exit code {self._process.exitcode})"
+        return False
+
+    def _reply(self, timeout_s: float) -> str | None:
+        """The writer's next reply (why it failed, or at close its final word); a dead writer says why it
+        cannot answer."""
+        end = time.monotonic() + timeout_s
+        while not self._replies.poll(POLL_S):
+            if not self._process.is_alive() and not self._replies.poll():
+                return f"{self.name}: the recorder process ended (exit code {self._process.exitcode})"
+            if time.monotonic() > end:
+                return f"{self.name}: the recorder process did not answer in {timeout_s:.0f} s"
+        try:
+            return self._replies.recv()
+        except EOFError:
+            return f"{self.name}: the recorder process ended (exit code {self._process.exitcode})"
+
+    # -- the feeder thread (wall time): pickles and sends the messages in the servo thread's idle window
+    # (``runtime.idle_window``), so that the servo thread never waits on the pipe, nor long for the GIL
+    def _feed(self) -> None:
+        """Each time the servo thread goes to sleep (and every ``POLL_S`` outside a stretch of ticks), send what
+        it queued if the window has room for it; never woken by the servo thread itself."""
+        outbox, idle = self._outbox, self.run.clock.idle
+        try:
+            while True:
+                idle.wait_next(POLL_S)
+                if not outbox or idle.time_left_ns() < WINDOW_MARGIN_NS:
+                    continue
+                batch = []
+                while outbox:  # popleft, not a swap: the servo thread may append meanwhile
+                    batch.append(outbox.popleft())
+                if not self._deliver(batch) or batch[-1][1] is None:
+                    return
+        finally:
+            self._op_writer.close()
+
+
+# -- the writer process ------------------------------------------------------------------------
+def _serve(recorder: Recorder, ctl, ops, op_writer, replies) -> None:
+    """The writer process: messages in order, the ring's ticks between them, until told to finish or
+    the loop's process is gone."""
+    op_writer.close()  # the loop's end only: a loop that dies mid-message then reads as the end of the pipe
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    ended = []
+    signal.signal(signal.SIGTERM, lambda *_: ended.append(True))
+    try:
+        os.nice(WRITER_NICE)
+    except OSError:
+        pass
+    parent = multiprocessing.parent_process().sentinel
+    failed: list[str] = []
+
+    def apply(fn, *args) -> None:
+        if failed:
             return
         try:
             fn(*args)
         except RecordError as exc:
-            self.failed = str(exc)
+            failed.append(str(exc))
         except Exception as exc:  # noqa: BLE001
-            self.failed = f"{self.recorder.name}: recorder fault ({type(exc).__name__}: {exc})"
+            failed.append(f"{recorder.name}: recorder fault ({type(exc).__name__}: {exc})")
+        if failed:
+            replies.send(failed[0])
+            ctl[FAILED] = 1
 
-    # -- writer thread -----------------------------------------------------------------------
-    def _drain(self) -> None:
-        ops, tick = self._ops, self._tick
-        idle = self.run.clock.idle
-        while True:
-            while ops:
-                if (idle.time_left_ns() < WINDOW_MARGIN_NS
-                        and self._queued - self._written < self._capacity // 2):
-                    idle.wait_next(POLL_S)  # the servo thread computes, or wakes soon: not now
-                    continue
-                fn, args = ops.popleft()
-                if fn is None:
-                    return
-                self._apply(fn, args)
-                if fn is tick:
-                    self._written += 1
-            self._wake.wait(POLL_S)
-            self._wake.clear()
+    while True:
+        ready = wait([ops, parent], POLL_S)
+        if ops in ready:
+            try:
+                batch = pickle.loads(ops.recv_bytes())
+            except EOFError:  # the loop's process died while sending
+                batch = [(ctl[HEAD], None, ())]
+        elif parent in ready or ended:  # the loop's process is gone: what it put in the ring is all there is
+            batch = [(ctl[HEAD], None, ())]
+        else:
+            continue
+        for n, name, args in batch:
+            apply(recorder.advance, n)
+            ctl[TAIL] = n
+            if name is None:
+                try:
+                    recorder.close()
+                except Exception as exc:  # noqa: BLE001 (a RecordError, or a fault: the handle is closed either way)
+                    failed.append(str(exc) if isinstance(exc, RecordError) else
+                                  f"{recorder.name}: recorder fault ({type(exc).__name__}: {exc})")
+                replies.send(failed[0] if failed else None)
+                return
+            if name:
+                apply(getattr(recorder, name), *args)
 
 
 def _reserve(path: Path, size: int) -> Path | None:

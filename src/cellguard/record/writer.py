@@ -168,6 +168,20 @@ class Recorder:
         if state.t_ns >= self._next_flush_ns:
             self._guard(self._flush, state.t_ns)
 
+    def share_ring(self, slack: int) -> TickRing:
+        """Move the pre-trigger ring into memory shared with a process forked next, ``slack`` rows ahead of
+        what the recorder took; before the first tick. That process feeds it, the recorder takes it (``advance``)."""
+        self._ring = TickRing(len(self.joints), self._ring.keep, slack)
+        return self._ring
+
+    def advance(self, n: int) -> None:
+        """Take the ticks up to number ``n`` that another process put in the shared ring, as ``tick`` would."""
+        ring, t_ns, capacity = self._ring, self._ring.t_ns, self._ring.capacity
+        for i in range(ring.n, n):
+            ring.n = i + 1
+            if t_ns[i % capacity] >= self._next_flush_ns:
+                self._guard(self._flush, int(t_ns[i % capacity]))
+
     # -- lower-rate streams ----------------------------------------------------------------
     def chunk(self, chunk, t_received_ns: int, latency_ns: int) -> None:
         """An action chunk as the policy returned it, when it reached the executor."""

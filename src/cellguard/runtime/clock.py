@@ -77,7 +77,7 @@ class WallClock:
         self.now = now or self._scheduled
         self.priority = priority  # SCHED_FIFO priority while ticking (None: an ordinary thread)
         self.scheduler = "other"  # what the servo thread got the last time it ticked
-        self.idle = IdleWindow()  # open while the servo thread sleeps: the recorder's writer works then
+        self.idle = IdleWindow()  # open while the servo thread sleeps: the recorder's feeder works then
         self._servo: ServoThread | None = None
         self._deadline = 0
         self._began = 0

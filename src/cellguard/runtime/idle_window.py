@@ -1,12 +1,13 @@
-"""The servo thread's idle time, offered to the process's other Python work (the recorder's writer).
+"""The servo thread's idle time, offered to the process's other Python work (the recorder's feeder).
 
-Python threads share one interpreter lock. A writer thread that encodes and writes while a tick
+Python threads share one interpreter lock. A thread that encodes and writes while a tick
 computes, or when the servo thread wakes from its sleep, holds the lock the servo thread then
 waits for (up to the switch interval, 50 µs, at every hand-over). Measured against sim-server at
 1 kHz with a policy that does no work, 60 s each, alternating: period error p99 40 and 36 µs with
 the writer running whenever it liked, 13 and 10 µs with this window. So the wall clock opens a
 window while the servo thread sleeps (from the end of a tick's work to shortly before the next
-deadline) and closes it when the servo thread wakes; the writer starts a piece of work only inside
+deadline) and closes it when the servo thread wakes; the recorder's feeder thread (which pickles its
+messages for the writer process, ``record.session``) starts a piece of work only inside
 a window with time left for it. Outside a stretch of ticks (between cycles, in simulated time) the
 window stays open.
 """

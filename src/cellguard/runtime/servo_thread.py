@@ -3,7 +3,7 @@
 - ``SCHED_FIFO`` for the servo thread when the process may have it (root or CAP_SYS_NICE): a
   runnable real-time thread preempts every ordinary one, so a busy machine no longer delays a
   wake-up by a scheduler quantum. Refused: the loop runs as before, and says so (``scheduler``).
-  The process's other Python threads (recorder writer, inference worker) get the priority below:
+  The process's other Python threads (the recorder's feeder, inference worker) get the priority below:
   the servo thread waits for the GIL whoever holds it, and a holder preempted by an ordinary
   process would stall it for a whole quantum (priority inversion through the GIL).
   ``SCHED_RESET_ON_FORK`` keeps threads and processes started meanwhile (a policy process) ordinary.
