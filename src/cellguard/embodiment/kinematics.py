@@ -33,7 +33,7 @@ class Kinematics:
         self.site, self.joints = site, tuple(joints)
         self._model, self._local = model, threading.local()
         self._site = model.site(site).id
-        self._qadr = np.array([model.jnt_qposadr[model.joint(j).id] for j in joints])
+        self._qadr = span([model.jnt_qposadr[model.joint(j).id] for j in joints])
 
     @classmethod
     def from_mjcf(cls, path: Path | str, site: str, joints: Sequence[str]) -> Kinematics:
@@ -50,3 +50,12 @@ class Kinematics:
         qpos[self._qadr] = q
         mujoco.mj_kinematics(self._model, data)
         return point.copy()
+
+
+def span(index) -> slice | np.ndarray:
+    """``index`` as a slice when it is a run of consecutive addresses, else an array: a slice reads and
+    writes MjData's arrays in place, several times faster than a fancy index, which copies."""
+    index = np.asarray(index)
+    if len(index) and np.array_equal(index, np.arange(index[0], index[0] + len(index))):
+        return slice(int(index[0]), int(index[0]) + len(index))
+    return index

@@ -12,6 +12,7 @@ import mujoco
 import numpy as np
 
 from cellguard.embodiment import Profile
+from cellguard.embodiment.kinematics import span
 from cellguard.robot.protocol import SafetyInputs
 from cellguard.robot.state import State
 
@@ -65,14 +66,6 @@ class PositionDrives:
         i = self.profile.index(joint)
         self.model.actuator_gainprm[self.act[i], 0] = self.nominal_gain[i] * factor
         self.model.actuator_biasprm[self.act[i], 1:3] = self.nominal_bias[i] * factor
-
-
-def span(index: np.ndarray) -> slice | np.ndarray:
-    """``index`` as a slice when it is a run of consecutive addresses, else unchanged."""
-    index = np.asarray(index)
-    if len(index) and np.array_equal(index, np.arange(index[0], index[0] + len(index))):
-        return slice(int(index[0]), int(index[0]) + len(index))
-    return index
 
 
 class DrivenCell:

@@ -9,6 +9,8 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
+from cellguard.embodiment.kinematics import span
+
 
 def solve_tool_down(
     model: mujoco.MjModel,
@@ -27,7 +29,7 @@ def solve_tool_down(
     data = mujoco.MjData(model)
     sid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, site)
     jids = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, j) for j in joints]
-    qadr = [model.jnt_qposadr[j] for j in jids]
+    qadr = span([model.jnt_qposadr[j] for j in jids])
     dadr = [model.jnt_dofadr[j] for j in jids]
     lo, hi = model.jnt_range[jids].T.copy()
     q = np.array(q0, dtype=np.float64)

@@ -21,7 +21,8 @@ import mujoco
 import numpy as np
 
 from cellguard.embodiment import Kinematics, Profile
-from cellguard.robot.drives import DrivenCell, PositionDrives, span
+from cellguard.embodiment.kinematics import span
+from cellguard.robot.drives import DrivenCell, PositionDrives
 from cellguard.robot.kinematics import solve_tool_down
 from cellguard.robot.protocol import SafetyInputs
 from cellguard.robot.state import Observation
