@@ -2,18 +2,20 @@
 
 from __future__ import annotations
 
+import sys
 import threading
 import time
 from functools import partial
 
 import numpy as np
+import pytest
 from sim_server_util import sway_file
 
 from cellguard.policy.async_inference import AsyncInference
 from cellguard.robot.registry import make_cell
 from cellguard.runtime import Run
 from cellguard.runtime.build import policy_in_process
-from cellguard.runtime.clock import WallClock
+from cellguard.runtime.clock import SWITCH_INTERVAL_S, WallClock
 from cellguard.scenario import parse_scenario
 
 
@@ -133,3 +135,16 @@ def test_the_idle_window_is_open_while_the_servo_thread_sleeps_and_closed_while_
     for _ in range(3):  # ticks outside a stretch (a stop's settling time) leave it open too
         clock.advance()
     assert clock.idle.time_left_ns() > 10**15
+
+
+def test_on_wall_time_the_servo_thread_waits_at_most_50_us_for_the_gil_whatever_the_rate():
+    """A pure-Python policy on a thread holds the GIL until the switch interval ends; a quarter period
+    (1.25 ms at 200 Hz) let the servo thread wait that long."""
+    before = sys.getswitchinterval()
+    try:
+        for period_ns in (5_000_000, 1_000_000):
+            sys.setswitchinterval(0.005)
+            WallClock(period_ns).start()
+            assert sys.getswitchinterval() == pytest.approx(SWITCH_INTERVAL_S) and SWITCH_INTERVAL_S <= 5e-5
+    finally:
+        sys.setswitchinterval(before)
