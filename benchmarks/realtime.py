@@ -19,7 +19,9 @@ real-time thread pacing ticks that do nothing: a late tick there is the host's, 
 and per run: period error p50/p99/max [us], compute time, overruns, ticks two or more periods
 late, the recorder's cost on the servo thread per tick [us], the scheduler the servo thread got
 (``fifo:N`` where SCHED_FIFO is permitted, else ``other``), inference latency [ms], packets
-lost, link events, and the recorder queue high-water mark [ticks].
+lost, link events, the recorder queue high-water mark [ticks], and the CPU time a hypervisor
+took for other guests meanwhile (``host_steal_ms``, Linux guests; a real-time thread cannot
+win that back).
 
 Usage: ``python benchmarks/realtime.py --seconds 300`` (the figure), ``--seconds 20`` (CI).
 """
@@ -149,6 +151,22 @@ def onnx_model(path: Path, target_ms: float) -> Path:
     return path
 
 
+def steal_ms() -> float | None:
+    """CPU time the hypervisor gave to other guests so far, all CPUs [ms] (/proc/stat's ``steal``);
+    None where the host does not say. A late tick in a run with steal may be the host's."""
+    try:
+        with open("/proc/stat") as stat:
+            fields = stat.readline().split()
+        return int(fields[8]) * 1e3 / os.sysconf("SC_CLK_TCK")
+    except (OSError, IndexError, ValueError):
+        return None
+
+
+def stolen(before: float | None) -> float | None:
+    after = steal_ms()
+    return None if before is None or after is None else round(after - before, 1)
+
+
 def free_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind(("127.0.0.1", 0))
@@ -172,6 +190,7 @@ def one_run(rate_hz: float, policy: str, worker: str, seconds: float, onnx_path:
                 "realtime": {"inference": worker, "overrun_budget": 1_000_000, "stale_s": 1.0, "read_timeout_s": 0.5,
                              "drop_budget": 1_000_000}}
         factory = {"python": partial(PythonPolicy, work), "sway": partial(PythonPolicy, 0)}.get(policy)
+        steal_before = steal_ms()
         try:
             summary = (run_scenario(parse_scenario(spec), out, policy_factory=factory) if recording
                        else _unrecorded(parse_scenario(spec), factory))
@@ -184,7 +203,7 @@ def one_run(rate_hz: float, policy: str, worker: str, seconds: float, onnx_path:
     events = Counter(e["kind"] for e in summary["events"])
     return {"rate_hz": rate_hz, "policy": policy, "worker": worker, "recording": recording, "seconds": seconds,
             **summary["timing"], "inference_ms": cycle.get("inference"), "events": dict(events),
-            "stopped": summary.get("stopped")}
+            "stopped": summary.get("stopped"), "host_steal_ms": stolen(steal_before)}
 
 
 def _unrecorded(scenario, factory) -> dict:
@@ -200,11 +219,13 @@ def _unrecorded(scenario, factory) -> dict:
 def machine_floor(rate_hz: float, seconds: float) -> dict:
     """The loop's pacing alone: the same wall clock and real-time servo thread, nothing done per tick."""
     clock = WallClock(round(1e9 / rate_hz))
+    steal_before = steal_ms()
     clock.start()
     with clock.ticking():
         for _ in range(round(seconds * rate_hz)):
             clock.advance()
-    return {"rate_hz": rate_hz, "seconds": seconds, "scheduler": clock.scheduler, **clock.timing.summary()}
+    return {"rate_hz": rate_hz, "seconds": seconds, "scheduler": clock.scheduler, **clock.timing.summary(),
+            "host_steal_ms": stolen(steal_before)}
 
 
 def reference_costs() -> dict:

@@ -88,8 +88,16 @@ def run(
     _exit_if_stopped(summary, out)
 
 
+INTERRUPTED = 130  # the shell's code for a command ended by Ctrl-C (128 + SIGINT)
+
+
 def _exit_if_stopped(summary: dict, out: Path) -> None:
-    """A run the loop stopped (record failure, robot link fault, overrun budget): one line on stderr and exit 1."""
+    """A run the loop stopped (record failure, robot link fault, overrun budget): one line on stderr and exit 1;
+    stopped by the operator (Ctrl-C, SIGTERM): one line and exit 130."""
+    if summary.get("stopped", "").startswith("operator stop"):
+        err.print(f"stopped by the operator: {summary['stopped']}; the record in {out} is complete",
+                  markup=False, highlight=False, soft_wrap=True)
+        raise typer.Exit(INTERRUPTED)
     if summary.get("stopped"):
         kind = next((e["kind"] for e in reversed(summary["events"]) if e.get("category") is not None), "stop")
         err.print(f"error: the cell was stopped ({kind}): {summary['stopped']}; "
@@ -110,6 +118,8 @@ def demo(
     try:
         sc = load_scenario(DEMO_SCENARIO)
         summary = _run(sc, out, quiet=as_json, overwrite=overwrite)
+        if summary.get("stopped"):
+            _exit_if_stopped(summary, out)
         diagnosis = diagnose_record(out)
         report_path = write_report(out, diagnosis=diagnosis)
     except CellguardError as exc:

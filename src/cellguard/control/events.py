@@ -50,6 +50,7 @@ class EventKind(StrEnum):
     RECORD_FAILED = "record_failed", False, 2
     RECORD_QUEUE_FULL = "record_queue_full"
     WATCHDOG_NO_FIRST_CHUNK = "watchdog_no_first_chunk"
+    OPERATOR_STOP = "operator_stop", False, 2  # Ctrl-C or SIGTERM while the cycles run
     # the real-time loop: ticks later than one period, and the budget that stops the cell
     OVERRUN = "overrun"
     OVERRUN_BUDGET = "overrun_budget"

@@ -13,6 +13,7 @@ moment it was asked for; a failed call is kept as an error, never raised on the 
 from __future__ import annotations
 
 import multiprocessing
+import signal
 import threading
 from collections import deque
 import time
@@ -95,6 +96,7 @@ class PolicyProcess:
 
 
 def _serve_policy(conn, factory) -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # a terminal's Ctrl-C reaches the whole group: the loop decides
     try:
         policy, broken = factory(), None
     except Exception as exc:  # noqa: BLE001 - every request is answered with why the policy is missing

@@ -36,6 +36,7 @@ from cellguard.runtime.cycles import make_cycle_source
 from cellguard.runtime.history import CycleWindow, EventLog
 from cellguard.runtime.inference import NOMINAL_INFERENCE_S
 from cellguard.runtime.link import RobotLink
+from cellguard.runtime.operator_stop import OperatorStop
 from cellguard.runtime.recovery import RecoveryRunner
 from cellguard.runtime.startup import check_startup
 from cellguard.runtime.transitions import Transition
@@ -44,6 +45,7 @@ from cellguard.scenario import Scenario
 CYCLE_TIMEOUT_S = 12.0  # a cycle that has not finished by then is ended as failed [s]
 NAN_AFTER_S = 1.0  # a policy_nan fault corrupts the first chunk this long into its cycle [s]
 STOP_SETTLE_S = 0.3  # a category 2 stop holds the measured position this long before the run ends [s]
+STANDSTILL = 0.05  # an operator stop ends the run once every measured joint speed is below this [rad/s, m/s]
 
 
 class Run:
@@ -76,6 +78,7 @@ class Run:
         # to the outcome (the calibration's residual monitor adds ``residual``)
         self.cycle_monitors: list[Callable[[CycleBuffer, dict], None]] = []
         self.stopped: str | None = None  # why the run stopped early, if it did
+        self.operator = OperatorStop()  # Ctrl-C / SIGTERM while the cycles run: a stop, not an exception
         self.inference = None  # built at the first cycle (the policy may be swapped before)
         self.source = None
         self._started = False  # the first chunk has come and the start-up checks passed
@@ -133,7 +136,7 @@ class Run:
             clock.start()
             self._armed_at = start  # the watchdog runs from the start, not from the first chunk
         # The ticks: what runs every servo period is inline; what runs at the policy's cadence is a call.
-        now, advance, timing, finished = clock.now, clock.advance, clock.timing, self.source.finished
+        now, advance, timing, finished, operator = clock.now, clock.advance, clock.timing, self.source.finished, self.operator
         t = now()
         with clock.ticking():  # wall time: the servo thread is a real-time thread while the ticks run
             while True:
@@ -153,7 +156,7 @@ class Run:
                 guard = self.guard
                 safety = cell.safety()
                 stop = None
-                if link.stop is not None or guard.executor.last_chunk_ns is None:  # else the loop asks no stop
+                if link.stop is not None or guard.executor.last_chunk_ns is None or operator.count:  # else no stop
                     stop = self._stop_input(t, guard)
                 if driving and recovery.stop is not None:
                     stop = recovery.stop if stop is None else min(stop, recovery.stop)
@@ -182,6 +185,9 @@ class Run:
                         break
                 if link.stop is not None and (link.lost or guard.envelope.tracker.stopped):
                     self.stopped = self.stopped or f"robot link: {link.reason}"
+                    break
+                if operator.count and guard.envelope.tracker.stopped and np.abs(state.qd).max() < STANDSTILL:
+                    self.stopped = self.stopped or f"operator stop ({operator.signal})"
                     break
                 if finished(state) or t >= timeout:
                     break
@@ -280,16 +286,17 @@ class Run:
             self._play(plan, "retreat", self.clock.now())
 
     def _play(self, plan: Transition, name: str, t0: int) -> None:
-        """Play a transition tick by tick; a stop input or a link fault aborts it (hold where it is)."""
-        events, link, clock, rec = self.events, self.link, self.clock, self.recording
+        """Play a transition tick by tick; a stop input, a link fault or a new operator stop aborts it
+        (hold where it is)."""
+        events, link, clock, rec, signals = self.events, self.link, self.clock, self.recording, self.operator.count
         events.append(Event(t0, EventKind(f"{name}_begin"), f"{name}: {plan.duration_s:.2f} s to {np.round(plan.target, 3).tolist()}"))
         t_end = t0
         with clock.ticking():
             for setpoint in plan.setpoints():
                 t = clock.now()
-                if self.cell.safety().stop is not None or link.stop is not None:
+                if self.cell.safety().stop is not None or link.stop is not None or self.operator.count > signals:
                     events.append(Event(t, EventKind(f"{name}_aborted"),
-                                        "stop input or robot link fault during the transition", category=2))
+                                        "stop input, robot link fault or operator stop during the transition", category=2))
                     return
                 sent = link.write(t, setpoint)
                 clock.advance()
@@ -300,8 +307,15 @@ class Run:
         events.append(Event(t_end, EventKind(f"{name}_done"), f"{name} complete"))
 
     def _stop_input(self, t_ns: int, guard) -> int | None:
-        """The stop the loop itself asks for: a robot link fault, or no first chunk within the watchdog."""
+        """The stop the loop itself asks for: a robot link fault, an operator stop, or no first chunk within
+        the watchdog."""
         stop = self.link.stop
+        if self.operator.count:
+            if not self.events.has(EventKind.OPERATOR_STOP):
+                self.events.append(Event(t_ns, EventKind.OPERATOR_STOP, f"{self.operator.signal}: the operator asked "
+                                         f"a stop; the run ends at standstill, then the retreat (a second one aborts it)",
+                                         category=EventKind.OPERATOR_STOP.category))
+            stop = EventKind.OPERATOR_STOP.category if stop is None else min(stop, EventKind.OPERATOR_STOP.category)
         if guard.executor.last_chunk_ns is None:
             watchdog = self.scenario.guard
             if t_ns - self._armed_at > watchdog.watchdog_s * 1e9:
@@ -346,13 +360,14 @@ class Run:
 
     def run_cycles(self, on_cycle: Callable[[dict], None] | None = None) -> None:
         """Every cycle of the scenario, until a stop; then the retreat to the home pose."""
-        for _ in range(self.scenario.total_cycles):
-            outcome = self.cycle()
-            if on_cycle is not None:
-                on_cycle(outcome)
-            if self.stopped:
-                break
-        self.retreat()
+        with self.operator:
+            for _ in range(self.scenario.total_cycles):
+                outcome = self.cycle()
+                if on_cycle is not None:
+                    on_cycle(outcome)
+                if self.stopped:
+                    break
+            self.retreat()
 
     def summary(self) -> dict:
         """Per-cycle outcomes, events, and the injected faults as ground truth, kept apart."""
