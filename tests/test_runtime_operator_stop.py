@@ -12,19 +12,22 @@ import numpy as np
 import pytest
 import yaml
 
+from release_helpers import CELL, cli, write_plan
+
 from cellguard.record.reader import open_record
+from cellguard.release import Store, create_bundle, promote
+from cellguard.release.log import entries
+from cellguard.robot.registry import make_cell
 from cellguard.runtime import Run
 from cellguard.runtime.operator_stop import OperatorStop
+from cellguard.runtime.transitions import TOLERANCE
 from cellguard.scenario import parse_scenario
 
 
-@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
-def test_a_stop_signal_mid_run_stops_the_arm_retreats_it_and_the_record_says_so(tmp_path, signum):
-    scenario = tmp_path / "scenario.yaml"
-    scenario.write_text(yaml.safe_dump({"cell": "arm-pick-place", "acceptance_cycles": 1, "production_cycles": 30}))
-    out = tmp_path / "run"
-    proc = subprocess.Popen([sys.executable, "-c", "from cellguard.cli import app; app()", "run", str(scenario),
-                             "--out", str(out), "--json"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+def _signal_mid_run(args: list[str], out, signum: int) -> str:
+    """Run a cellguard command in its own process, send ``signum`` once its record is being written; its stderr."""
+    proc = subprocess.Popen([sys.executable, "-c", "from cellguard.cli import app; app()", *args],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline and not ((out / "record.mcap").exists()
                                                and (out / "record.mcap").stat().st_size > 100_000):
@@ -32,6 +35,15 @@ def test_a_stop_signal_mid_run_stops_the_arm_retreats_it_and_the_record_says_so(
     proc.send_signal(signum)
     _, stderr = proc.communicate(timeout=120)
     assert proc.returncode == 130, stderr
+    return stderr
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_a_stop_signal_mid_run_stops_the_arm_retreats_it_and_the_record_says_so(tmp_path, signum):
+    scenario = tmp_path / "scenario.yaml"
+    scenario.write_text(yaml.safe_dump({"cell": "arm-pick-place", "acceptance_cycles": 1, "production_cycles": 30}))
+    out = tmp_path / "run"
+    stderr = _signal_mid_run(["run", str(scenario), "--out", str(out), "--json"], out, signum)
     name = signal.Signals(signum).name
     assert stderr.strip().splitlines()[-1].startswith(f"stopped by the operator: operator stop ({name})")
     summary = json.loads((out / "summary.json").read_text())
@@ -39,13 +51,24 @@ def test_a_stop_signal_mid_run_stops_the_arm_retreats_it_and_the_record_says_so(
     assert len(summary["cycles"]) < 31  # the run ended early
     kinds = [e["kind"] for e in summary["events"]]
     assert kinds[:1] == ["operator_stop"] and summary["events"][0]["category"] == 2
-    assert kinds[-2:] == ["retreat_begin", "retreat_done"]
     with open_record(out, strict=True) as rec:
         assert rec.health().finished
         events = {e.kind: e for e in rec.events()}
         assert set(kinds) <= set(events)
-        held = rec.ticks(start_ns=events["operator_stop"].t_ns, end_ns=events["retreat_begin"].t_ns)
+        retreat = events.get("retreat_begin")
+        held = rec.ticks(start_ns=events["operator_stop"].t_ns, end_ns=retreat.t_ns if retreat else None)
     assert len(held) > 0 and np.abs(held.qd_meas[-1]).max() < 0.05  # at standstill before the retreat
+    # the retreat to home follows unless the stop came between cycles, where the arm is home already
+    away = np.abs(held.q_meas[-1] - make_cell("arm-pick-place").q_home).max() > TOLERANCE
+    assert kinds[-2:] == (["retreat_begin", "retreat_done"] if away else ["operator_stop", "protective_stop"])
+
+
+def test_ctrl_c_during_an_excitation_says_so_and_exits_130(tmp_path):
+    out = tmp_path / "excite"
+    stderr = _signal_mid_run(["excite", "arm-pick-place", "--seconds", "120", "--out", str(out)], out, signal.SIGINT)
+    assert "excitation recorded" not in stderr and stderr.strip().splitlines()[-1].startswith(
+        f"stopped by the operator: operator stop (SIGINT); the record in {out} is complete")
+    assert json.loads((out / "summary.json").read_text())["stopped"] == "operator stop (SIGINT)"
 
 
 def test_a_second_signal_aborts_the_retreat_and_the_arm_holds():
@@ -81,3 +104,53 @@ def test_the_third_signal_raises_keyboard_interrupt_and_the_handlers_are_restore
             assert (operator.count, operator.signal) == (2, "SIGTERM")
             signal.raise_signal(signal.SIGINT)
     assert {signum: signal.getsignal(signum) for signum in before} == before
+
+
+def test_a_signal_during_the_last_retreat_aborts_it_and_the_run_is_stopped():
+    run = Run(parse_scenario({"cell": "arm-pick-place", "acceptance_cycles": 1, "production_cycles": 0}))
+    run.cell.q_home = run.cell.q_home + np.eye(len(run.cell.q_home))[0] * 0.2  # the cycle ends away from home
+    write, retreating = run.cell.write, []
+
+    def write_and_press(setpoint):
+        if run.events.has("retreat_begin"):
+            retreating.append(setpoint)
+            if len(retreating) == 5:
+                signal.raise_signal(signal.SIGINT)
+        return write(setpoint)
+
+    run.cell.write = write_and_press
+    try:
+        run.run_cycles()
+    finally:
+        run.close()
+    assert run.stopped == "operator stop (SIGINT)" and run.cycles.total == 1
+    assert [e.kind for e in run.events][-3:] == ["retreat_begin", "operator_stop", "retreat_aborted"]
+    assert len(retreating) == 5
+
+
+def test_ctrl_c_in_a_release_stage_counts_no_run_and_evaluates_no_gate(tmp_path, monkeypatch):
+    runs = [{"name": name, "seed": 2, "acceptance_cycles": 3} for name in ("first", "second")]
+    plan = write_plan(tmp_path / "plan.yaml", {"sim": {"runs": runs, "gates": [{"metric": "success_rate", "min": 0}]}})
+    site = tmp_path / "site"
+    store = Store(site)
+    bundle = create_bundle("scripted", None, CELL, None)
+    store.add_bundle(bundle)
+    promote(store, bundle.id, CELL, "sim")
+    cycle = Run.cycle
+
+    def press_at_the_second_cycle(run):
+        if run.cycles.total == 1:
+            signal.raise_signal(signal.SIGINT)
+        return cycle(run)
+
+    monkeypatch.setattr(Run, "cycle", press_at_the_second_cycle)
+    result = cli("run", "--cell", CELL, "--stage", "sim", "--plan", str(plan), "--site", str(site))
+    assert result.exit_code == 130, result.output
+    line = result.stderr.strip().splitlines()[-1]
+    assert line.startswith("stopped by the operator: operator stop (SIGINT) during sim run 'first'")
+    assert "gates were not evaluated" in line
+    folders = list((site / "runs" / CELL / "sim").iterdir())
+    assert len(folders) == 1  # the second run never started
+    assert json.loads((folders[0] / "summary.json").read_text())["stopped"] == "operator stop (SIGINT)"
+    assert Store(site).runs(CELL, "sim", bundle.id) == []  # not evidence
+    assert [e.body["kind"] for e in entries(Store(site))] == ["promote"]  # no gates entry

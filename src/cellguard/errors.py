@@ -6,7 +6,8 @@
     │   └── ScenarioError    a scenario file with an unknown key, wrong type or impossible value
     ├── UnknownNameError     a registry lookup that failed; lists the names that exist
     ├── RecordError          a record that cannot be written or read
-    └── OutputError          another output file or folder that cannot be written
+    ├── OutputError          another output file or folder that cannot be written
+    └── OperatorStopped      Ctrl-C or SIGTERM ended work that runs cycles (exit 130, not 2)
 
 Every message names the field (or file) and what was allowed, in one line, so that the CLI
 can print it and exit 2 without a traceback.
@@ -48,3 +49,8 @@ class RecordError(CellguardError):
 
 class OutputError(CellguardError):
     """An output file or folder (report, summary, model) that cannot be written."""
+
+
+class OperatorStopped(CellguardError):
+    """The operator stopped a command that runs cycles (a release stage): its record is complete, the rest was
+    not done."""

@@ -9,7 +9,7 @@ from pathlib import Path
 import typer
 
 from cellguard.cli.app import app
-from cellguard.cli.errors import fail
+from cellguard.cli.errors import exit_if_stopped, fail
 from cellguard.errors import CellguardError
 
 
@@ -38,6 +38,7 @@ def excite(
                                  stand=Stand() if stand else None)
     except CellguardError as exc:
         fail(exc)
+    exit_if_stopped(summary, out)  # a stopped excitation is a record to read, not one to identify from unread
     interventions = [e for e in summary["events"] if not e["kind"].startswith(("approach", "retreat"))]
     typer.echo(f"{out}: {seconds:g} s of excitation recorded; {len(interventions)} guard events")
 

@@ -1,16 +1,39 @@
-"""How every command ends on bad input: one line naming what is wrong, exit code 2."""
+"""How every command ends on bad input (one line naming what is wrong, exit code 2), on a run the loop stopped
+(exit 1) and on the operator's Ctrl-C (exit 130)."""
 
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 
 import typer
 
 from cellguard.cli.text import printable
-from cellguard.errors import CellguardError
+from cellguard.errors import CellguardError, OperatorStopped
+
+INTERRUPTED = 130  # the shell's code for a command ended by Ctrl-C (128 + SIGINT)
 
 
 def fail(exc: CellguardError) -> None:
-    """Print ``error: <message>`` on stderr, on one line with no control characters, and exit 2."""
+    """Print ``error: <message>`` on stderr, on one line with no control characters, and exit 2
+    (``stopped by the operator: <message>`` and 130 for an operator stop)."""
+    if isinstance(exc, OperatorStopped):
+        sys.stderr.write(f"stopped by the operator: {printable(exc)}\n")
+        raise typer.Exit(INTERRUPTED)
     sys.stderr.write(f"error: {printable(exc)}\n")
     raise typer.Exit(2)
+
+
+def exit_if_stopped(summary: dict, out: Path) -> None:
+    """A run the loop stopped (record failure, robot link fault, overrun budget): one line on stderr and exit 1;
+    stopped by the operator (Ctrl-C, SIGTERM): one line and exit 130."""
+    from cellguard.runtime.operator_stop import by_operator
+
+    stopped = summary.get("stopped")
+    if by_operator(stopped):
+        fail(OperatorStopped(f"{stopped}; the record in {out} is complete"))
+    if stopped:
+        kind = next((e["kind"] for e in reversed(summary["events"]) if e.get("category") is not None), "stop")
+        sys.stderr.write(f"error: {printable(f'the cell was stopped ({kind}): {stopped}')}; "
+                         f"{printable(out / 'summary.json')} says what ran\n")
+        raise typer.Exit(1)

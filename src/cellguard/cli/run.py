@@ -12,7 +12,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 from cellguard.cli.app import app
 from cellguard.cli.diagnose import print_diagnosis
-from cellguard.cli.errors import fail
+from cellguard.cli.errors import exit_if_stopped, fail
 from cellguard.errors import CellguardError
 from cellguard.output import make_folder
 from cellguard.scenario import Scenario, load_scenario
@@ -85,24 +85,7 @@ def run(
         fail(exc)
     _print_summary(summary, out, as_json)
     _warn_short_acceptance(sc)
-    _exit_if_stopped(summary, out)
-
-
-INTERRUPTED = 130  # the shell's code for a command ended by Ctrl-C (128 + SIGINT)
-
-
-def _exit_if_stopped(summary: dict, out: Path) -> None:
-    """A run the loop stopped (record failure, robot link fault, overrun budget): one line on stderr and exit 1;
-    stopped by the operator (Ctrl-C, SIGTERM): one line and exit 130."""
-    if summary.get("stopped", "").startswith("operator stop"):
-        err.print(f"stopped by the operator: {summary['stopped']}; the record in {out} is complete",
-                  markup=False, highlight=False, soft_wrap=True)
-        raise typer.Exit(INTERRUPTED)
-    if summary.get("stopped"):
-        kind = next((e["kind"] for e in reversed(summary["events"]) if e.get("category") is not None), "stop")
-        err.print(f"error: the cell was stopped ({kind}): {summary['stopped']}; "
-                  f"{out / 'summary.json'} says what ran", markup=False, highlight=False, soft_wrap=True)
-        raise typer.Exit(1)
+    exit_if_stopped(summary, out)
 
 
 @app.command()
@@ -118,8 +101,7 @@ def demo(
     try:
         sc = load_scenario(DEMO_SCENARIO)
         summary = _run(sc, out, quiet=as_json, overwrite=overwrite)
-        if summary.get("stopped"):
-            _exit_if_stopped(summary, out)
+        exit_if_stopped(summary, out)  # a stopped shift is not diagnosed
         diagnosis = diagnose_record(out)
         report_path = write_report(out, diagnosis=diagnosis)
     except CellguardError as exc:

@@ -15,6 +15,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from cellguard.errors import OperatorStopped
 from cellguard.release import log
 from cellguard.release.bundle import Bundle, verify_bundle
 from cellguard.release.errors import ReleaseError, StageError
@@ -103,6 +104,7 @@ def run_stage(store: Store, plan: StagePlan, cell: str, stage: str, runs: list[d
               on_run: Callable[[str], None] | None = None) -> StageResult:
     """Run the stage's plan (or ``runs``) with its current release, evaluate its gates, act on the verdict."""
     from cellguard.runtime import run_scenario
+    from cellguard.runtime.operator_stop import by_operator
 
     p = store.pointers(cell, check_stage(stage))
     if p.current is None:
@@ -126,6 +128,9 @@ def run_stage(store: Store, plan: StagePlan, cell: str, stage: str, runs: list[d
             on_run(f"{stage}: {entry.get('name', 'run')} ({scenario.total_cycles} cycles) -> {folder}")
         run = make(scenario)
         run_scenario(scenario, folder, run=run)
+        if by_operator(run.stopped):  # not evidence about the release: not counted, nothing else run or evaluated
+            raise OperatorStopped(f"{run.stopped} during {stage} run {entry.get('name', 'run')!r} on {cell}; its "
+                                  f"record in {folder} is complete, not counted; the stage's gates were not evaluated")
         if plan.shadow:
             run.write_shadow(folder)
         store.add_run(record_id(folder), cell, stage, bundle.id, entry.get("name", "run"), folder,

@@ -187,7 +187,7 @@ class Run:
                     self.stopped = self.stopped or f"robot link: {link.reason}"
                     break
                 if operator.count and guard.envelope.tracker.stopped and np.abs(state.qd).max() < STANDSTILL:
-                    self.stopped = self.stopped or f"operator stop ({operator.signal})"
+                    self.stopped = self.stopped or operator.reason
                     break
                 if finished(state) or t >= timeout:
                     break
@@ -294,7 +294,10 @@ class Run:
         with clock.ticking():
             for setpoint in plan.setpoints():
                 t = clock.now()
-                if self.cell.safety().stop is not None or link.stop is not None or self.operator.count > signals:
+                operator = self.operator.count > signals
+                if self.cell.safety().stop is not None or link.stop is not None or operator:
+                    if operator:
+                        self._operator_stop(t)
                     events.append(Event(t, EventKind(f"{name}_aborted"),
                                         "stop input, robot link fault or operator stop during the transition", category=2))
                     return
@@ -311,10 +314,7 @@ class Run:
         the watchdog."""
         stop = self.link.stop
         if self.operator.count:
-            if not self.events.has(EventKind.OPERATOR_STOP):
-                self.events.append(Event(t_ns, EventKind.OPERATOR_STOP, f"{self.operator.signal}: the operator asked "
-                                         f"a stop; the run ends at standstill, then the retreat (a second one aborts it)",
-                                         category=EventKind.OPERATOR_STOP.category))
+            self._operator_stop(t_ns)
             stop = EventKind.OPERATOR_STOP.category if stop is None else min(stop, EventKind.OPERATOR_STOP.category)
         if guard.executor.last_chunk_ns is None:
             watchdog = self.scenario.guard
@@ -325,6 +325,13 @@ class Run:
                                              category=watchdog.watchdog_category))
                 stop = watchdog.watchdog_category if stop is None else min(stop, watchdog.watchdog_category)
         return stop
+
+    def _operator_stop(self, t_ns: int) -> None:
+        """The operator's first signal, once in the record: mid-cycle the run ends at standstill and the retreat
+        follows; during a transition it aborts it."""
+        if not self.events.has(EventKind.OPERATOR_STOP):
+            self.events.append(Event(t_ns, EventKind.OPERATOR_STOP, f"{self.operator.signal}: the operator asked a stop",
+                                     category=EventKind.OPERATOR_STOP.category))
 
     def _overrun(self, t_ns: int) -> None:
         timing = self.clock.timing
@@ -368,6 +375,8 @@ class Run:
                 if self.stopped:
                     break
             self.retreat()
+        if self.operator.count:  # a signal during the last retreat stops the run too
+            self.stopped = self.stopped or self.operator.reason
 
     def summary(self) -> dict:
         """Per-cycle outcomes, events, and the injected faults as ground truth, kept apart."""

@@ -17,6 +17,12 @@ import threading
 
 SIGNALS = (signal.SIGINT, signal.SIGTERM)
 INSIST = 3  # the signal that raises KeyboardInterrupt after all
+REASON = "operator stop"
+
+
+def by_operator(stopped: str | None) -> bool:
+    """Whether a run's ``stopped`` says the operator stopped it."""
+    return bool(stopped) and stopped.startswith(REASON)
 
 
 class OperatorStop:
@@ -37,6 +43,11 @@ class OperatorStop:
         for signum, handler in self._previous.items():
             signal.signal(signum, handler)
         self._previous.clear()
+
+    @property
+    def reason(self) -> str:
+        """Why the run stopped, as the summary says it (``stopped``)."""
+        return f"{REASON} ({self.signal})"
 
     def _received(self, signum: int, frame) -> None:
         self.count += 1
