@@ -7,6 +7,7 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 
 import numpy as np
 import pytest
@@ -71,14 +72,14 @@ def test_ctrl_c_during_an_excitation_says_so_and_exits_130(tmp_path):
     assert json.loads((out / "summary.json").read_text())["stopped"] == "operator stop (SIGINT)"
 
 
-def test_a_second_signal_aborts_the_retreat_and_the_arm_holds():
-    before = signal.getsignal(signal.SIGINT)  # not always Python's default: another library (Spark) may own it
-    run = Run(parse_scenario({"cell": "arm-pick-place", "acceptance_cycles": 1, "production_cycles": 3}))
+def _run_pressing(run: Run, press: Callable[[list[int]], bool]) -> list[int]:
+    """Run the cycles, raising SIGINT at a setpoint write when ``press(writes)`` says so; ``writes``: per write so
+    far, 1 once the retreat has begun, else 0."""
     write, writes = run.cell.write, []
 
-    def write_and_press(setpoint):  # the operator presses mid-motion, then again a few ticks into the retreat
-        writes.append(sum(e.kind == "retreat_begin" for e in run.events))
-        if len(writes) == 1500 or (writes[-1] and writes.count(1) == 5):
+    def write_and_press(setpoint):
+        writes.append(int(run.events.has("retreat_begin")))
+        if press(writes):
             signal.raise_signal(signal.SIGINT)
         return write(setpoint)
 
@@ -87,6 +88,14 @@ def test_a_second_signal_aborts_the_retreat_and_the_arm_holds():
         run.run_cycles()
     finally:
         run.close()
+    return writes
+
+
+def test_a_second_signal_aborts_the_retreat_and_the_arm_holds():
+    before = signal.getsignal(signal.SIGINT)  # not always Python's default: another library (Spark) may own it
+    run = Run(parse_scenario({"cell": "arm-pick-place", "acceptance_cycles": 1, "production_cycles": 3}))
+    # the operator presses mid-motion, then again a few ticks into the retreat
+    writes = _run_pressing(run, lambda writes: len(writes) == 1500 or (writes[-1] and writes.count(1) == 5))
     assert run.stopped == "operator stop (SIGINT)" and len(run.cycles) == 1
     kinds = [e.kind for e in run.events]
     assert kinds.index("operator_stop") < kinds.index("retreat_begin") < kinds.index("retreat_aborted")
@@ -109,23 +118,10 @@ def test_the_third_signal_raises_keyboard_interrupt_and_the_handlers_are_restore
 def test_a_signal_during_the_last_retreat_aborts_it_and_the_run_is_stopped():
     run = Run(parse_scenario({"cell": "arm-pick-place", "acceptance_cycles": 1, "production_cycles": 0}))
     run.cell.q_home = run.cell.q_home + np.eye(len(run.cell.q_home))[0] * 0.2  # the cycle ends away from home
-    write, retreating = run.cell.write, []
-
-    def write_and_press(setpoint):
-        if run.events.has("retreat_begin"):
-            retreating.append(setpoint)
-            if len(retreating) == 5:
-                signal.raise_signal(signal.SIGINT)
-        return write(setpoint)
-
-    run.cell.write = write_and_press
-    try:
-        run.run_cycles()
-    finally:
-        run.close()
+    writes = _run_pressing(run, lambda writes: writes[-1] and writes.count(1) == 5)
     assert run.stopped == "operator stop (SIGINT)" and run.cycles.total == 1
     assert [e.kind for e in run.events][-3:] == ["retreat_begin", "operator_stop", "retreat_aborted"]
-    assert len(retreating) == 5
+    assert writes.count(1) == 5
 
 
 def test_ctrl_c_in_a_release_stage_counts_no_run_and_evaluates_no_gate(tmp_path, monkeypatch):
