@@ -29,7 +29,8 @@ garbage collector (``gc.freeze``): a collection holds the interpreter lock from 
 with the whole heap to traverse one took up to tens of milliseconds under load.
 
 The writer is a forked process (POSIX): it inherits the open record and the ring, nothing is
-pickled but the messages.
+pickled but the messages. On wall time the loop's process then copies the pages it still shares
+with the writer before the first tick (``shared_pages``), so no tick takes a copy-on-write fault.
 """
 
 from __future__ import annotations
@@ -50,6 +51,7 @@ from cellguard.control.events import Event, EventKind
 from cellguard.errors import RecordError
 from cellguard.record.context import build_context, software_versions
 from cellguard.record.index import default_opener
+from cellguard.record.shared_pages import copy_shared_pages
 from cellguard.record.urdf import describe
 from cellguard.record.writer import RecordConfig, Recorder, refuse_existing
 
@@ -95,6 +97,8 @@ class RunRecording:
         op_reader.close()
         reply_writer.close()
         self._feeder = None
+        # wall time: the writes that would copy the pages now shared with the writer, done now, not mid-tick
+        self.pages_copied = copy_shared_pages() if self._realtime else None
         if self._realtime:
             self._feeder = threading.Thread(target=self._feed, name="cellguard-record-feeder", daemon=True)
             self._feeder.start()

@@ -395,7 +395,9 @@ class Run:
                                  "setpoints_refused": self.link.refused,
                                  "packets_dropped": getattr(self.cell, "dropped", 0),
                                  # the recorder's bounded queue off the servo thread [ticks waiting at most]
-                                 "recorder_queue_high_water": getattr(self.recording, "high_water", None)}
+                                 "recorder_queue_high_water": getattr(self.recording, "high_water", None),
+                                 # shared copy-on-write with the recorder's writer, copied before the ticks
+                                 "pages_copied_after_fork": getattr(self.recording, "pages_copied", None)}
         return summary
 
 
