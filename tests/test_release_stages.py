@@ -9,6 +9,7 @@ from cellguard.release import Store, create_bundle, load_plan, promote, run_stag
 from cellguard.release.errors import GateError
 from cellguard.release.evidence import load_run
 from cellguard.release.gates import Gate, evaluate
+from cellguard.release.log import entries
 
 
 def test_a_promotion_that_skips_a_stage_is_one_line_exit_2_and_moves_nothing(tmp_path):
@@ -83,3 +84,34 @@ def test_promotion_needs_the_previous_stage_passed(one_run):
     assert store.pointers(CELL, "bench").current == bundle.id and store.pointers(CELL, "bench").last_good is None
     with pytest.raises(Exception, match="no gate results at bench"):
         promote(store, bundle.id, CELL, "pilot")
+
+
+def test_a_stage_run_whose_record_failed_is_not_counted_and_evaluates_no_gate(tmp_path, monkeypatch):
+    """A full disk or a recorder fault is no evidence about the release (counted, its partial run could fail
+    production's gates and roll a good release back)."""
+    from cellguard.record.writer import Recorder
+
+    runs = [{"name": name, "seed": 2, "acceptance_cycles": 2} for name in ("first", "second")]
+    plan = write_plan(tmp_path / "plan.yaml", {"sim": {"runs": runs, "gates": [{"metric": "success_rate", "min": 0}]}})
+    site = tmp_path / "site"
+    store = Store(site)
+    bundle = create_bundle("scripted", None, CELL, None)
+    store.add_bundle(bundle)
+    promote(store, bundle.id, CELL, "sim")
+    flush, calls = Recorder._flush, {"n": 0}
+
+    def failing_disk(self, *args):  # the writer process inherits it
+        calls["n"] += 1
+        if calls["n"] == 5:
+            raise OSError(28, "No space left on device")
+        flush(self, *args)
+
+    monkeypatch.setattr(Recorder, "_flush", failing_disk)
+    result = cli("run", "--cell", CELL, "--stage", "sim", "--plan", str(plan), "--site", str(site))
+    assert result.exit_code == 2, result.output
+    line = result.stderr.strip().splitlines()[-1]
+    assert line.startswith("error: the record of sim run 'first'") and "No space left on device" in line
+    assert "not counted" in line and "gates were not evaluated" in line
+    assert len(list((site / "runs" / CELL / "sim").iterdir())) == 1  # the second run never started
+    assert Store(site).runs(CELL, "sim", bundle.id) == []
+    assert [e.body["kind"] for e in entries(Store(site))] == ["promote"]  # no gates entry

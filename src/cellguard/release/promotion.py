@@ -15,7 +15,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from cellguard.errors import OperatorStopped
+from cellguard.control.events import EventKind
+from cellguard.errors import OperatorStopped, RecordError
 from cellguard.release import log
 from cellguard.release.bundle import Bundle, verify_bundle
 from cellguard.release.errors import ReleaseError, StageError
@@ -102,7 +103,12 @@ def rollback(store: Store, cell: str, stage: str, reason: str = "operator", auto
 
 def run_stage(store: Store, plan: StagePlan, cell: str, stage: str, runs: list[dict] | None = None,
               on_run: Callable[[str], None] | None = None) -> StageResult:
-    """Run the stage's plan (or ``runs``) with its current release, evaluate its gates, act on the verdict."""
+    """Run the stage's plan (or ``runs``) with its current release, evaluate its gates, act on the verdict.
+
+    A run the operator stopped, or one whose record could not be written, is no evidence about the
+    release: it is not counted, no later run starts and no gate is evaluated (OperatorStopped,
+    RecordError). Counted, a full disk's partial run could fail production's gates and roll back a
+    release that had done nothing wrong."""
     from cellguard.runtime import run_scenario
     from cellguard.runtime.operator_stop import by_operator
 
@@ -131,6 +137,10 @@ def run_stage(store: Store, plan: StagePlan, cell: str, stage: str, runs: list[d
         if by_operator(run.stopped):  # not evidence about the release: not counted, nothing else run or evaluated
             raise OperatorStopped(f"{run.stopped} during {stage} run {entry.get('name', 'run')!r} on {cell}; its "
                                   f"record in {folder} is complete, not counted; the stage's gates were not evaluated")
+        if any(e.kind == EventKind.RECORD_FAILED for e in run.events):  # a disk's fault, not the release's
+            raise RecordError(f"the record of {stage} run {entry.get('name', 'run')!r} on {cell} could not be "
+                              f"written ({run.stopped}); the run is not counted and the stage's gates were not "
+                              f"evaluated; {folder / 'summary.json'} says what ran")
         if plan.shadow:
             run.write_shadow(folder)
         store.add_run(record_id(folder), cell, stage, bundle.id, entry.get("name", "run"), folder,
