@@ -17,9 +17,8 @@ Prints one JSON document: the host's load and reference costs measured in the sa
 ``mj_step``, one ruckig update); per rate, the machine's own floor (the loop's wall clock and
 real-time thread pacing ticks that do nothing: a late tick there is the host's, not cellguard's);
 and per run: period error p50/p99/max [us], compute time, overruns, ticks two or more periods
-late, the recorder's cost on the servo thread per tick [us] (calls over 200 us, and of those the ones
-the thread spent mostly off the CPU: waiting, not running; the floor times a 1 us row copy the same
-way), the scheduler the servo thread got
+late, the recorder's cost on the servo thread per tick [us] (calls over 200 us, and why: on the CPU,
+waited, preempted, unexplained; the floor times a 1 us row copy the same way), the scheduler the servo thread got
 (``fifo:N`` where SCHED_FIFO is permitted, else ``other``), inference latency [ms], packets
 lost, link events, the recorder queue high-water mark [ticks], and the CPU time a hypervisor
 took for other guests meanwhile (``host_steal_ms``, Linux guests; a real-time thread cannot
@@ -225,14 +224,14 @@ def machine_floor(rate_hz: float, seconds: float) -> dict:
     the loop times the recorder: what the host alone does to a call of about 1 µs (``ring_row_copy_us``)."""
     clock = WallClock(round(1e9 / rate_hz))
     ring, row = TickRing(6, 1000), np.zeros(6)
-    timing, thread_ns, perf_ns = clock.timing, time.thread_time_ns, time.perf_counter_ns
+    timing, slow_before, perf_ns = clock.timing, clock.timing.recorder_slow.before, time.perf_counter_ns
     steal_before = steal_ms()
     clock.start()
     with clock.ticking():
         for k in range(round(seconds * rate_hz)):
-            cpu, began = thread_ns(), perf_ns()
+            usage, began = slow_before(), perf_ns()
             ring.add(k, 0, row, row, row, row, row, row)
-            timing.recorder(perf_ns() - began, cpu)
+            timing.recorder(perf_ns() - began, usage)
             clock.advance()
     summary = clock.timing.summary()
     summary["ring_row_copy_us"] = summary.pop("recorder_tick_us")

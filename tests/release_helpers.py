@@ -36,3 +36,18 @@ def pointers(site: Path) -> list:
     from cellguard.release import Store, status
 
     return status(Store(site))
+
+
+def two_runs_at_sim(tmp_path: Path, cycles: int) -> tuple[Path, Path, str]:
+    """A plan of two sim runs (``cycles`` acceptance cycles each, a gate that any run passes) and a site
+    where the taught program's release is current at sim: (plan, site, release id)."""
+    from cellguard.release import Store, create_bundle, promote
+
+    runs = [{"name": name, "seed": 2, "acceptance_cycles": cycles} for name in ("first", "second")]
+    plan = write_plan(tmp_path / "plan.yaml", {"sim": {"runs": runs, "gates": [{"metric": "success_rate", "min": 0}]}})
+    site = tmp_path / "site"
+    store = Store(site)
+    bundle = create_bundle("scripted", None, CELL, None)
+    store.add_bundle(bundle)
+    promote(store, bundle.id, CELL, "sim")
+    return plan, site, bundle.id

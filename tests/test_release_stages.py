@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import pytest
-from release_helpers import CELL, cli, pointers, write_plan
+from release_helpers import CELL, cli, pointers, two_runs_at_sim, write_plan
 
 from cellguard.release import Store, create_bundle, load_plan, promote, run_stage
 from cellguard.release.errors import GateError
@@ -91,13 +91,7 @@ def test_a_stage_run_whose_record_failed_is_not_counted_and_evaluates_no_gate(tm
     production's gates and roll a good release back)."""
     from cellguard.record.writer import Recorder
 
-    runs = [{"name": name, "seed": 2, "acceptance_cycles": 2} for name in ("first", "second")]
-    plan = write_plan(tmp_path / "plan.yaml", {"sim": {"runs": runs, "gates": [{"metric": "success_rate", "min": 0}]}})
-    site = tmp_path / "site"
-    store = Store(site)
-    bundle = create_bundle("scripted", None, CELL, None)
-    store.add_bundle(bundle)
-    promote(store, bundle.id, CELL, "sim")
+    plan, site, release = two_runs_at_sim(tmp_path, 2)
     flush, calls = Recorder._flush, {"n": 0}
 
     def failing_disk(self, *args):  # the writer process inherits it
@@ -113,5 +107,5 @@ def test_a_stage_run_whose_record_failed_is_not_counted_and_evaluates_no_gate(tm
     assert line.startswith("error: the record of sim run 'first'") and "No space left on device" in line
     assert "not counted" in line and "gates were not evaluated" in line
     assert len(list((site / "runs" / CELL / "sim").iterdir())) == 1  # the second run never started
-    assert Store(site).runs(CELL, "sim", bundle.id) == []
+    assert Store(site).runs(CELL, "sim", release) == []
     assert [e.body["kind"] for e in entries(Store(site))] == ["promote"]  # no gates entry

@@ -13,10 +13,10 @@ import numpy as np
 import pytest
 import yaml
 
-from release_helpers import CELL, cli, write_plan
+from release_helpers import CELL, cli, two_runs_at_sim
 
 from cellguard.record.reader import open_record
-from cellguard.release import Store, create_bundle, promote
+from cellguard.release import Store
 from cellguard.release.log import entries
 from cellguard.robot.registry import make_cell
 from cellguard.runtime import Run
@@ -125,13 +125,7 @@ def test_a_signal_during_the_last_retreat_aborts_it_and_the_run_is_stopped():
 
 
 def test_ctrl_c_in_a_release_stage_counts_no_run_and_evaluates_no_gate(tmp_path, monkeypatch):
-    runs = [{"name": name, "seed": 2, "acceptance_cycles": 3} for name in ("first", "second")]
-    plan = write_plan(tmp_path / "plan.yaml", {"sim": {"runs": runs, "gates": [{"metric": "success_rate", "min": 0}]}})
-    site = tmp_path / "site"
-    store = Store(site)
-    bundle = create_bundle("scripted", None, CELL, None)
-    store.add_bundle(bundle)
-    promote(store, bundle.id, CELL, "sim")
+    plan, site, release = two_runs_at_sim(tmp_path, 3)
     cycle = Run.cycle
 
     def press_at_the_second_cycle(run):
@@ -148,5 +142,5 @@ def test_ctrl_c_in_a_release_stage_counts_no_run_and_evaluates_no_gate(tmp_path,
     folders = list((site / "runs" / CELL / "sim").iterdir())
     assert len(folders) == 1  # the second run never started
     assert json.loads((folders[0] / "summary.json").read_text())["stopped"] == "operator stop (SIGINT)"
-    assert Store(site).runs(CELL, "sim", bundle.id) == []  # not evidence
+    assert Store(site).runs(CELL, "sim", release) == []  # not evidence
     assert [e.body["kind"] for e in entries(Store(site))] == ["promote"]  # no gates entry

@@ -7,7 +7,6 @@ Timings only (never asserted in tests). ``benchmarks/record.py`` prints them as 
 from __future__ import annotations
 
 import gc
-import resource
 import statistics
 import tempfile
 import time
@@ -25,6 +24,7 @@ from cellguard.record.writer import RECORD_FILE, RecordConfig, Recorder
 from cellguard.robot.state import State
 from cellguard.runtime import Run
 from cellguard.runtime.clock import WallClock
+from cellguard.runtime.timing import SlowCalls
 from cellguard.scenario import parse_scenario
 
 DT_NS = 1_000_000
@@ -93,42 +93,8 @@ class _Collections:
             self.longest_ns = max(self.longest_ns, time.perf_counter_ns() - self._began)
 
 
-class _SlowCalls:
-    """Why a recorder call took over ``limit_ns`` of wall time: the thread's CPU time and context switches.
-
-    Each call is bracketed by the thread's CPU clock and ``getrusage(RUSAGE_THREAD)`` (outside its
-    wall timing, about 2 µs a tick). A slow call is ``on_cpu`` when the thread's CPU time alone is
-    over the limit (the recorder's work, or the interpreter's on its behalf; with paravirtual steal
-    accounting, as here, not the hypervisor's); else it was off the CPU: ``preempted`` (an
-    involuntary switch: the OS ran something else), ``waited`` (a voluntary one: the GIL or a lock,
-    held by the feeder thread here), or ``unexplained`` (no switch the guest saw: on a VM, the
-    hypervisor taking the CPU away, steal time).
-    """
-
-    def __init__(self, limit_ns: int = 200_000):
-        self.limit_ns = limit_ns
-        self.counts = {"on_cpu": 0, "waited": 0, "preempted": 0, "unexplained": 0}
-
-    def before(self) -> tuple:
-        return resource.getrusage(resource.RUSAGE_THREAD), time.thread_time_ns()
-
-    def after(self, began: tuple, wall_ns: int) -> None:
-        if wall_ns <= self.limit_ns:
-            return
-        cpu_ns, usage = time.thread_time_ns() - began[1], resource.getrusage(resource.RUSAGE_THREAD)
-        if cpu_ns > self.limit_ns:
-            why = "on_cpu"
-        elif usage.ru_nivcsw > began[0].ru_nivcsw:
-            why = "preempted"
-        elif usage.ru_nvcsw > began[0].ru_nvcsw:
-            why = "waited"
-        else:
-            why = "unexplained"
-        self.counts[why] += 1
-
-
 def _paced_run(folder: Path, seconds: float, event_every_s: float = 10.0) -> tuple[list[int], RunRecording,
-                                                                                  _Collections, _SlowCalls]:
+                                                                                  _Collections, SlowCalls]:
     """The arm cell's recording fed at 1 kHz by the loop's own wall clock (the servo thread real-time
     where permitted, the collector run in idle time), as a real loop does.
 
@@ -142,7 +108,7 @@ def _paced_run(folder: Path, seconds: float, event_every_s: float = 10.0) -> tup
     recording = RunRecording.start(folder, run)
     n, per_cycle = round(seconds * 1e9 / DT_NS), round(CYCLE_S * 1e9 / DT_NS)
     per_event = round(event_every_s * 1e9 / DT_NS)
-    q, costs, slow = np.zeros(6), [], _SlowCalls()
+    q, costs, slow = np.zeros(6), [], SlowCalls()
     collections = _Collections()
     gc.callbacks.append(collections)
     run.clock.start()
@@ -175,7 +141,8 @@ def tick_cost(seconds: float = 120.0) -> dict:
     ``tick_*``: ``RunRecording.tick`` in a paced 1 kHz loop, the writer process doing the rest;
     ``sync_tick_*``: the recorder called directly on the servo thread (flushes, chunk closing and
     zstd included), i.e. what the servo thread paid without a writer of its own. ``over_200us``: why the
-    paced calls over 200 µs were slow (``_SlowCalls``); only ``on_cpu`` and ``waited`` are the recorder's.
+    paced calls over 200 µs were slow (``SlowCalls``); ``waited`` would be the recorder's doing;
+    ``on_cpu`` its work or the host's interrupts (the real-time benchmark's floor times a 1 µs row copy alike).
     """
     probe = RuckigProbe(len(JOINTS))  # one ruckig update from a random state: the servo path's reference
     probe.sample(2000)

@@ -16,7 +16,6 @@ import json
 from collections.abc import Callable
 from pathlib import Path
 from time import perf_counter_ns as perf_ns
-from time import thread_time_ns as thread_ns
 
 import numpy as np
 
@@ -138,7 +137,7 @@ class Run:
             self._armed_at = start  # the watchdog runs from the start, not from the first chunk
         # The ticks: what runs every servo period is inline; what runs at the policy's cadence is a call.
         now, advance, timing, finished, operator = clock.now, clock.advance, clock.timing, self.source.finished, self.operator
-        wall = clock.realtime
+        wall, slow_before = clock.realtime, timing.recorder_slow.before
         t = now()
         with clock.ticking():  # wall time: the servo thread is a real-time thread while the ticks run
             while True:
@@ -180,10 +179,10 @@ class Run:
                     break
                 ticks.add(guard.reference, sent, state)
                 if rec is not None:
-                    cpu = thread_ns() if wall else 0  # a slow call then says whether the thread ran or waited
+                    usage = slow_before() if wall else None  # a slow call then says why it was slow
                     began = perf_ns()
                     recorded = rec.tick(guard.reference, sent, state)
-                    timing.recorder(perf_ns() - began, cpu)
+                    timing.recorder(perf_ns() - began, usage)
                     if not recorded:
                         break
                 if link.stop is not None and (link.lost or guard.envelope.tracker.stopped):
