@@ -148,4 +148,3 @@ def test_on_wall_time_the_servo_thread_waits_at_most_50_us_for_the_gil_whatever_
             assert sys.getswitchinterval() == pytest.approx(SWITCH_INTERVAL_S) and SWITCH_INTERVAL_S <= 5e-5
     finally:
         sys.setswitchinterval(before)
-

@@ -40,7 +40,7 @@ def test_a_fast_call_is_not_counted():
 
 
 def test_the_tick_timing_says_why_on_wall_time_and_not_in_simulated_time():
-    wall, simulated = TickTiming(1_000_000), TickTiming(1_000_000)
+    wall, simulated = TickTiming(1_000_000, explain_slow=True), TickTiming(1_000_000)
     for timing, began in ((wall, wall.recorder_slow.before), (simulated, lambda: None)):
         timing.add(0, 0)
         for work in (lambda: time.sleep(0.002), lambda: _spin(400_000), lambda: None):

@@ -15,7 +15,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from cellguard.control.events import EventKind
 from cellguard.errors import OperatorStopped, RecordError
 from cellguard.release import log
 from cellguard.release.bundle import Bundle, verify_bundle
@@ -127,23 +126,23 @@ def run_stage(store: Store, plan: StagePlan, cell: str, stage: str, runs: list[d
     make = _maker(store, plan, cell, bundle, context)
     folders = []
     for entry in entries:
-        number = store.next_run_number()
-        folder = store.site / "runs" / cell / stage / f"{number:04d}-{entry.get('name', 'run')}"
+        name = entry.get("name", "run")
+        folder = store.site / "runs" / cell / stage / f"{store.next_run_number():04d}-{name}"
         scenario = scenario_for(entry, cell, *_driver(store, plan, cell, bundle), origin=f"{stage} run")
         if on_run is not None:
-            on_run(f"{stage}: {entry.get('name', 'run')} ({scenario.total_cycles} cycles) -> {folder}")
+            on_run(f"{stage}: {name} ({scenario.total_cycles} cycles) -> {folder}")
         run = make(scenario)
         run_scenario(scenario, folder, run=run)
         if by_operator(run.stopped):  # not evidence about the release: not counted, nothing else run or evaluated
-            raise OperatorStopped(f"{run.stopped} during {stage} run {entry.get('name', 'run')!r} on {cell}; its "
+            raise OperatorStopped(f"{run.stopped} during {stage} run {name!r} on {cell}; its "
                                   f"record in {folder} is complete, not counted; the stage's gates were not evaluated")
-        if any(e.kind == EventKind.RECORD_FAILED for e in run.events):  # a disk's fault, not the release's
-            raise RecordError(f"the record of {stage} run {entry.get('name', 'run')!r} on {cell} could not be "
-                              f"written ({run.stopped}); the run is not counted and the stage's gates were not "
+        if run.recording.failed:  # a disk's fault, not the release's (mid-run or at close)
+            raise RecordError(f"the record of {stage} run {name!r} on {cell} could not be written "
+                              f"({run.recording.failed}); the run is not counted and the stage's gates were not "
                               f"evaluated; {folder / 'summary.json'} says what ran")
         if plan.shadow:
             run.write_shadow(folder)
-        store.add_run(record_id(folder), cell, stage, bundle.id, entry.get("name", "run"), folder,
+        store.add_run(record_id(folder), cell, stage, bundle.id, name, folder,
                       moved.seq if moved else 0)
         folders.append(str(folder))
     return evaluate_stage(store, plan, cell, stage, folders)

@@ -74,7 +74,7 @@ class WallClock:
     def __init__(self, period_ns: int, step: Callable[[], None] | None = None,
                  now: Callable[[], int] | None = None, spin_ns: int = SPIN_NS, priority: int | None = PRIORITY):
         self.period_ns, self._step, self._spin_ns = int(period_ns), step, int(spin_ns)
-        self.timing = TickTiming(self.period_ns)
+        self.timing = TickTiming(self.period_ns, explain_slow=True)
         self.now = now or self._scheduled
         self.priority = priority  # SCHED_FIFO priority while ticking (None: an ordinary thread)
         self.scheduler = "other"  # what the servo thread got the last time it ticked

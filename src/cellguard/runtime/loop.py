@@ -137,7 +137,7 @@ class Run:
             self._armed_at = start  # the watchdog runs from the start, not from the first chunk
         # The ticks: what runs every servo period is inline; what runs at the policy's cadence is a call.
         now, advance, timing, finished, operator = clock.now, clock.advance, clock.timing, self.source.finished, self.operator
-        wall, slow_before = clock.realtime, timing.recorder_slow.before
+        slow = timing.recorder_slow  # wall time: why a slow recorder call was slow
         t = now()
         with clock.ticking():  # wall time: the servo thread is a real-time thread while the ticks run
             while True:
@@ -179,7 +179,7 @@ class Run:
                     break
                 ticks.add(guard.reference, sent, state)
                 if rec is not None:
-                    usage = slow_before() if wall else None  # a slow call then says why it was slow
+                    usage = slow.before() if slow is not None else None
                     began = perf_ns()
                     recorded = rec.tick(guard.reference, sent, state)
                     timing.recorder(perf_ns() - began, usage)

@@ -1,9 +1,9 @@
 """Period error and compute time of the wall-clock loop, in bounded memory.
 
 Per tick: lateness (woke minus deadline), compute time (tick start to the wait) and what handing
-the tick to the recorder cost the servo thread [ns], with why a call over 200 µs was slow (``SlowCalls``). The last ``window`` ticks are kept for
-percentiles; counts and maxima cover the whole run. An
-overrun is a tick that woke at least one period late. A pause between two stretches of ticks
+the tick to the recorder cost the servo thread [ns]; on wall time also why a call over 200 µs was
+slow (``SlowCalls``). The last ``window`` ticks are kept for percentiles; counts and maxima cover
+the whole run. An overrun is a tick that woke at least one period late. A pause between two stretches of ticks
 (a cycle's end, before a transition: the robot holds its last setpoint) is no tick; it is
 counted with its longest length.
 """
@@ -16,6 +16,7 @@ import time
 import numpy as np
 
 WINDOW = 65_536  # ticks kept for percentiles (about a minute at 1 kHz)
+SLOW_NS = 200_000  # a recorder call longer than this is counted, and on wall time explained [ns]
 
 
 class _Durations:
@@ -50,7 +51,7 @@ class SlowCalls:
     ``unexplained`` (no switch the guest saw: on a VM, the hypervisor taking the CPU away, steal time).
     """
 
-    def __init__(self, limit_ns: int = 200_000):
+    def __init__(self, limit_ns: int = SLOW_NS):
         self.limit_ns = limit_ns
         self.counts = {"on_cpu": 0, "waited": 0, "preempted": 0, "unexplained": 0}
 
@@ -76,14 +77,13 @@ class TickTiming:
     """Lateness, compute time and the recorder's cost per tick; overrun count; the last ``window`` ticks
     for percentiles."""
 
-    def __init__(self, period_ns: int, window: int = WINDOW):
+    def __init__(self, period_ns: int, window: int = WINDOW, explain_slow: bool = False):
         self.period_ns = int(period_ns)
         self._late, self._compute, self._recorder = _Durations(window), _Durations(window), _Durations(window)
         self.overruns = 0
         self.late_twice = 0  # ticks two or more periods late
         self.recorder_over_200us = 0
-        self.recorder_slow = SlowCalls(200_000)  # why those were slow (wall time)
-        self._recorder_why = False
+        self.recorder_slow = SlowCalls() if explain_slow else None  # why those were slow (wall time)
         self.new_overrun = False  # the last tick was an overrun (the loop raises the event)
         self.pauses = 0  # stretches of ticks that began after their deadline
         self.max_pause_ns = 0
@@ -108,11 +108,10 @@ class TickTiming:
         """What handing one tick to the recorder took on the servo thread [ns]; ``began``: what
         ``recorder_slow.before()`` read when the call began (wall time), so a call over 200 µs says why."""
         self._recorder.add(cost_ns)
-        if cost_ns > 200_000:
+        if cost_ns > SLOW_NS:
             self.recorder_over_200us += 1
-        if began is not None:
-            self._recorder_why = True
-            self.recorder_slow.after(began, cost_ns)
+            if began is not None:
+                self.recorder_slow.after(began, cost_ns)
 
     def pause(self, pause_ns: int) -> None:
         """A stretch of ticks begins ``pause_ns`` after the deadline the last one left."""
@@ -126,8 +125,9 @@ class TickTiming:
             return {"ticks": 0, "overruns": 0}
         recorder = {}
         if self._recorder.count:
-            cost = recorder["recorder_tick_us"] = {**self._recorder.summary_us(), "over_200us": self.recorder_over_200us}
-            if self._recorder_why:
+            cost = recorder["recorder_tick_us"] = {**self._recorder.summary_us(),
+                                                   "over_200us": self.recorder_over_200us}
+            if self.recorder_slow is not None:
                 cost["over_200us_why"] = dict(self.recorder_slow.counts)
         return {**recorder, "ticks": self.ticks, "period_us": self.period_ns * 1e-3,
                 "period_error_us": self._late.summary_us(), "compute_us": self._compute.summary_us(),
