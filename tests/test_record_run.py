@@ -14,10 +14,12 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 from record_synth import FullDisk, SlowDisk
+from typer.testing import CliRunner
 
+from cellguard.cli import app
 from cellguard.record.reader import open_record
 from cellguard.record.schemas import CHANNELS
-from cellguard.record.session import RunRecording
+from cellguard.record.session import RESERVE_FILE, RunRecording
 from cellguard.runtime import Run, run_scenario
 from cellguard.scenario import load_scenario
 
@@ -134,9 +136,10 @@ def test_on_wall_time_a_stalled_writer_never_blocks_the_servo_thread(tmp_path):
     assert t_ns[0] == 0 and len(t_ns) >= 10 and t_ns[-1] < 300_000_000
 
 
-def test_when_the_loops_process_dies_the_writer_finishes_the_file(tmp_path):
+def test_when_the_loops_process_dies_the_writer_finishes_the_file_and_says_so(tmp_path):
     """SIGKILL of the loop's process: the writer process takes every tick already in the ring and closes the
-    record properly (summary and all), instead of leaving the open chunk unwritten."""
+    record properly (summary and all), instead of leaving the open chunk unwritten; a ``run_process_lost``
+    event at the last tick says the run did not end, and the disk reserve the loop would free is freed."""
     script = (f"import os, signal, sys; sys.path.insert(0, {str(Path(__file__).parent)!r})\n"
               "from test_record_run import _short_demo, _ticks_fed\n"
               "from cellguard.record.session import RunRecording\n"
@@ -148,15 +151,20 @@ def test_when_the_loops_process_dies_the_writer_finishes_the_file(tmp_path):
     result = subprocess.run([sys.executable, "-c", script], timeout=120)
     assert result.returncode == -signal.SIGKILL
     deadline = time.monotonic() + 30
-    while time.monotonic() < deadline:  # the orphaned writer notices within POLL_S, then writes the end
+    while time.monotonic() < deadline:  # the orphaned writer notices within POLL_S, writes the end, frees the reserve
         with open_record(tmp_path) as rec:
-            if rec.health().finished:
+            if rec.health().finished and not (tmp_path / RESERVE_FILE).exists():
                 break
         time.sleep(0.05)
     with open_record(tmp_path) as rec:
         assert rec.health().ok and rec.health().finished
         t_ns = rec.ticks(rate="decimated").t_ns
+        events = list(rec.events())
     assert t_ns[-1] == 1220 * 1_000_000  # the last decimated tick before the kill (every 20th of 1234)
+    assert [(e.kind, e.t_ns) for e in events] == [("run_process_lost", 1233 * 1_000_000)]
+    assert not (tmp_path / RESERVE_FILE).exists()
+    info = CliRunner().invoke(app, ["record", "info", str(tmp_path)])
+    assert info.exit_code == 0 and "not by the run: the run's process ended without finishing" in info.output
 
 
 def test_a_writer_process_that_dies_stops_the_cell(tmp_path):

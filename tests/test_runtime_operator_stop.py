@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import signal
 import subprocess
 import sys
@@ -25,15 +26,19 @@ from cellguard.runtime.transitions import TOLERANCE
 from cellguard.scenario import parse_scenario
 
 
-def _signal_mid_run(args: list[str], out, signum: int) -> str:
-    """Run a cellguard command in its own process, send ``signum`` once its record is being written; its stderr."""
+def _signal_mid_run(args: list[str], out, signum: int, group: bool = False) -> str:
+    """Run a cellguard command in its own process, send ``signum`` once its record is being written (to its
+    whole process group, as a terminal or a service manager does, if ``group``); its stderr."""
     proc = subprocess.Popen([sys.executable, "-c", "from cellguard.cli import app; app()", *args],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=group)
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline and not ((out / "record.mcap").exists()
                                                and (out / "record.mcap").stat().st_size > 100_000):
         time.sleep(0.02)  # the ticks are being written: the loop runs
-    proc.send_signal(signum)
+    if group:
+        os.killpg(proc.pid, signum)
+    else:
+        proc.send_signal(signum)
     _, stderr = proc.communicate(timeout=120)
     assert proc.returncode == 130, stderr
     return stderr
@@ -62,6 +67,19 @@ def test_a_stop_signal_mid_run_stops_the_arm_retreats_it_and_the_record_says_so(
     # the retreat to home follows unless the stop came between cycles, where the arm is home already
     away = np.abs(held.q_meas[-1] - make_cell("arm-pick-place").q_home).max() > TOLERANCE
     assert kinds[-2:] == (["retreat_begin", "retreat_done"] if away else ["operator_stop", "protective_stop"])
+
+
+def test_sigterm_to_the_whole_group_on_wall_time_keeps_the_record_to_the_end_of_the_retreat(tmp_path):
+    """A service manager's stop signals the recorder's process too: it must not finish the file on it (it did, in
+    the feeder's first pause, and the loop then failed with ``record_failed`` before its stop was recorded)."""
+    scenario = tmp_path / "scenario.yaml"
+    scenario.write_text(yaml.safe_dump({"cell": "arm-pick-place", "acceptance_cycles": 1, "production_cycles": 30}))
+    out = tmp_path / "run"
+    stderr = _signal_mid_run(["run", str(scenario), "--out", str(out), "--realtime"], out, signal.SIGTERM, group=True)
+    assert stderr.strip().splitlines()[-1].startswith("stopped by the operator: operator stop (SIGTERM)")
+    with open_record(out, strict=True) as rec:
+        kinds = [e.kind for e in rec.events()]
+    assert "operator_stop" in kinds and "record_failed" not in kinds and "run_process_lost" not in kinds
 
 
 def test_ctrl_c_during_an_excitation_says_so_and_exits_130(tmp_path):

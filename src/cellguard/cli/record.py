@@ -17,6 +17,7 @@ from rich.console import Console
 from cellguard.cli.app import app
 from cellguard.cli.errors import fail
 from cellguard.cli.text import printable_tree
+from cellguard.control.events import EventKind
 from cellguard.errors import CellguardError, RecordError
 
 record_app = typer.Typer(no_args_is_help=True, help="Read, export, recover and query fault records.")
@@ -75,6 +76,8 @@ def info(
         "events": dict(Counter(e.kind for e in events)),
         "stops": [{"t_s": e.t_ns * 1e-9, "kind": e.kind, "category": e.category, "reason": e.reason}
                   for e in events if e.category is not None],
+        "run_lost": [{"t_s": e.t_ns * 1e-9, "reason": e.reason}
+                     for e in events if e.kind == EventKind.RUN_PROCESS_LOST],
     }
     if as_json:
         sys.stdout.write(json.dumps(doc, indent=1, default=str) + "\n")
@@ -105,6 +108,8 @@ def _print_info(doc: dict) -> None:
     for stop in doc["stops"]:
         out.print(f"stop     t={stop['t_s']:.3f} s {stop['kind']} (category {stop['category']}): {stop['reason']}",
                   markup=False)
+    for lost in doc["run_lost"]:
+        out.print(f"ended    t={lost['t_s']:.3f} s, not by the run: {lost['reason']}", markup=False)
     for change in doc["context_changes"]:
         out.print(f"context  changed at t={change['t_s']:.3f} s: {', '.join(change['changed'])}", markup=False)
 

@@ -51,6 +51,7 @@ class EventKind(StrEnum):
     RECORD_QUEUE_FULL = "record_queue_full"
     WATCHDOG_NO_FIRST_CHUNK = "watchdog_no_first_chunk"
     OPERATOR_STOP = "operator_stop", False, 2  # Ctrl-C or SIGTERM while the cycles run
+    RUN_PROCESS_LOST = "run_process_lost"  # written by the recorder alone: the run's process died (SIGKILL, OOM)
     # the real-time loop: ticks later than one period, and the budget that stops the cell
     OVERRUN = "overrun"
     OVERRUN_BUDGET = "overrun_budget"

@@ -19,10 +19,13 @@ writer instead and nothing is dropped. The durability policy is the recorder's e
 A write error, or any fault inside the recorder, ends the recording for good: the writer raises a
 flag in the shared memory, the loop reads it after each tick and stops the cell (category 2,
 ``record_failed``), because an unrecorded run is not allowed. A writer process that dies counts
-the same. When the loop's process dies (SIGKILL) or is asked to end (SIGTERM), the writer takes
-the ticks already in the ring and finishes the file, so a crash loses at most the messages not
-yet sent (a few ticks' worth) instead of the open chunk. Ctrl-C reaches the writer too; it
-ignores it and finishes when the loop closes the recording.
+the same. When the loop's process dies (SIGKILL, out of memory), the writer takes the ticks already
+in the ring, records a ``run_process_lost`` event and finishes the file, so a crash loses at most
+the messages not yet sent (a few ticks' worth) instead of the open chunk, and the record says the
+run did not end. Ctrl-C and SIGTERM reach the writer too (a terminal or a service manager signals
+the whole process group): it ignores them and finishes when the loop, which stops the cell on
+them and retreats, closes the recording. Finishing on SIGTERM itself closed the file in the
+feeder's first pause on wall time, before the stop and the retreat were recorded.
 
 What the process holds at the start (the cell's model, the modules, the run) is frozen out of the
 garbage collector (``gc.freeze``): a collection holds the interpreter lock from start to end, and
@@ -92,7 +95,7 @@ class RunRecording:
         op_reader, self._op_writer = context.Pipe(duplex=False)
         self._replies, reply_writer = context.Pipe(duplex=False)
         self._process = context.Process(target=_serve, name="cellguard-recorder", daemon=True,
-                                        args=(recorder, self._ctl, op_reader, self._op_writer, reply_writer))
+                                        args=(recorder, self._ctl, op_reader, self._op_writer, reply_writer, reserve))
         self._process.start()
         op_reader.close()
         reply_writer.close()
@@ -286,13 +289,12 @@ class RunRecording:
 
 
 # -- the writer process ------------------------------------------------------------------------
-def _serve(recorder: Recorder, ctl, ops, op_writer, replies) -> None:
+def _serve(recorder: Recorder, ctl, ops, op_writer, replies, reserve: Path | None) -> None:
     """The writer process: messages in order, the ring's ticks between them, until told to finish or
-    the loop's process is gone."""
+    the loop's process is gone (then the record says so, and the reserve the loop would free goes too)."""
     op_writer.close()  # the loop's end only: a loop that dies mid-message then reads as the end of the pipe
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    ended = []
-    signal.signal(signal.SIGTERM, lambda *_: ended.append(True))
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the loop stops the cell on these and then closes the recording
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
     try:
         os.nice(WRITER_NICE)
     except OSError:
@@ -315,15 +317,20 @@ def _serve(recorder: Recorder, ctl, ops, op_writer, replies) -> None:
 
     while True:
         ready = wait([ops, parent], POLL_S)
+        lost = False
         if ops in ready:
             try:
                 batch = pickle.loads(ops.recv_bytes())
-            except EOFError:  # the loop's process died while sending
-                batch = [(ctl[HEAD], None, ())]
-        elif parent in ready or ended:  # the loop's process is gone: what it put in the ring is all there is
-            batch = [(ctl[HEAD], None, ())]
+            except EOFError:  # the pipe closed before the end was sent: the loop's process died
+                lost = True
+        elif parent in ready:  # the loop's process is gone: what it put in the ring is all there is
+            lost = True
         else:
             continue
+        if lost:
+            batch = [(ctl[HEAD], "run_lost", ("the run's process ended without finishing the run (killed, or out "
+                                              "of memory); the ticks it had handed over are recorded",)),
+                     (ctl[HEAD], None, ())]
         for n, name, args in batch:
             apply(recorder.advance, n)
             ctl[TAIL] = n
@@ -333,6 +340,8 @@ def _serve(recorder: Recorder, ctl, ops, op_writer, replies) -> None:
                 except Exception as exc:  # noqa: BLE001 (a RecordError, or a fault: the handle is closed either way)
                     failed.append(str(exc) if isinstance(exc, RecordError) else
                                   f"{recorder.name}: recorder fault ({type(exc).__name__}: {exc})")
+                if lost:
+                    _release(reserve)
                 replies.send(failed[0] if failed else None)
                 return
             if name:

@@ -46,7 +46,7 @@ from typing import BinaryIO
 import numpy as np
 from mcap.writer import CompressionType, Writer
 
-from cellguard.control.events import ROUTINE_EVENTS, Event
+from cellguard.control.events import ROUTINE_EVENTS, Event, EventKind
 from cellguard.errors import RecordError
 from cellguard.record import ros2
 from cellguard.record.context import changed_keys, versions
@@ -181,6 +181,13 @@ class Recorder:
             ring.n = i + 1
             if t_ns[i % capacity] >= self._next_flush_ns:
                 self._guard(self._flush, int(t_ns[i % capacity]))
+
+    def run_lost(self, why: str) -> None:
+        """The run's process is gone before it finished the run: say so at the last tick taken, since a file
+        the writer finishes alone would otherwise read as a run that ended."""
+        ring = self._ring
+        cycle = int(ring.cycle[(ring.n - 1) % ring.capacity]) if ring.n else None
+        self.event(Event(max(0, ring.last_t_ns()), EventKind.RUN_PROCESS_LOST, why), cycle)
 
     # -- lower-rate streams ----------------------------------------------------------------
     def chunk(self, chunk, t_received_ns: int, latency_ns: int) -> None:
