@@ -57,6 +57,9 @@ def test_a_stop_signal_mid_run_stops_the_arm_retreats_it_and_the_record_says_so(
     assert len(summary["cycles"]) < 31  # the run ended early
     kinds = [e["kind"] for e in summary["events"]]
     assert kinds[:1] == ["operator_stop"] and summary["events"][0]["category"] == 2
+    # the guard's stop names the loop's request, not the safety controller's input (which never fired)
+    assert [e["reason"] for e in summary["events"] if e["kind"] == "protective_stop"] == [
+        f"stop asked by the loop: operator stop ({name})"]
     with open_record(out, strict=True) as rec:
         assert rec.health().finished
         events = {e.kind: e for e in rec.events()}

@@ -74,6 +74,8 @@ def test_replies_delayed_50_ms_are_a_staleness_stop(server, tmp_path):
     stale = [e for e in summary["events"] if e["kind"] == "robot_state_stale"]
     assert stale and stale[0]["category"] == 1
     assert summary["stopped"]
+    guard_stops = [e["reason"] for e in summary["events"] if e["kind"] == "protective_stop"]
+    assert guard_stops == ["stop asked by the loop: robot link, robot_state_stale: " + stale[0]["reason"]]
 
 
 @pytest.mark.parametrize("server", [("--drop-every", "4")], indirect=True)

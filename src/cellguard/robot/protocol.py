@@ -18,10 +18,13 @@ class SafetyInputs:
 
     ``stop``: a protective or emergency stop in force, with its IEC 60204-1 category (0, 1, 2),
     or None. ``reduced_speed``: the controller asks for reduced speed (250 mm/s at the tool).
+    ``asked_by``: who asked ``stop`` when the tick loop adds a stop of its own (operator stop, robot
+    link fault, watchdog, recovery hold) that is stricter than the controller's; None: the controller.
     """
 
     stop: int | None = None
     reduced_speed: bool = False
+    asked_by: str | None = None
 
 
 class Robot(Protocol):

@@ -156,13 +156,13 @@ class Run:
                         self._request(t)
                 guard = self.guard
                 safety = cell.safety()
-                stop = None
+                stop = asked_by = None
                 if link.stop is not None or guard.executor.last_chunk_ns is None or operator.count:  # else no stop
-                    stop = self._stop_input(t, guard)
-                if driving and recovery.stop is not None:
-                    stop = recovery.stop if stop is None else min(stop, recovery.stop)
-                if stop is not None:
-                    safety = SafetyInputs(stop if safety.stop is None else min(stop, safety.stop), safety.reduced_speed)
+                    stop, asked_by = self._stop_input(t, guard)
+                if driving and recovery.stop is not None and (stop is None or recovery.stop < stop):
+                    stop, asked_by = recovery.stop, "a recovery's hand-over hold"
+                if stop is not None and (safety.stop is None or stop < safety.stop):
+                    safety = SafetyInputs(stop, safety.reduced_speed, asked_by)
                 setpoint, new = guard.tick(t, state, safety)
                 if new:
                     events.extend(new)
@@ -311,13 +311,13 @@ class Run:
                 t_end = clock.now()
         events.append(Event(t_end, EventKind(f"{name}_done"), f"{name} complete"))
 
-    def _stop_input(self, t_ns: int, guard) -> int | None:
-        """The stop the loop itself asks for: a robot link fault, an operator stop, or no first chunk within
-        the watchdog."""
-        stop = self.link.stop
+    def _stop_input(self, t_ns: int, guard) -> tuple[int | None, str | None]:
+        """The stop the loop itself asks for (a robot link fault, an operator stop, or no first chunk within
+        the watchdog): the strictest one's category and who asked it."""
+        asked = [] if self.link.stop is None else [(self.link.stop, f"robot link, {self.link.reason}")]
         if self.operator.count:
             self._operator_stop(t_ns)
-            stop = EventKind.OPERATOR_STOP.category if stop is None else min(stop, EventKind.OPERATOR_STOP.category)
+            asked.append((EventKind.OPERATOR_STOP.category, self.operator.reason))
         if guard.executor.last_chunk_ns is None:
             watchdog = self.scenario.guard
             if t_ns - self._armed_at > watchdog.watchdog_s * 1e9:
@@ -325,8 +325,8 @@ class Run:
                     self.events.append(Event(t_ns, EventKind.WATCHDOG_NO_FIRST_CHUNK, f"no chunk within "
                                              f"{watchdog.watchdog_s * 1e3:.0f} ms of the start",
                                              category=watchdog.watchdog_category))
-                stop = watchdog.watchdog_category if stop is None else min(stop, watchdog.watchdog_category)
-        return stop
+                asked.append((watchdog.watchdog_category, EventKind.WATCHDOG_NO_FIRST_CHUNK.value))
+        return min(asked, key=lambda a: a[0]) if asked else (None, None)
 
     def _operator_stop(self, t_ns: int) -> None:
         """The operator's first signal, once in the record: mid-cycle the run ends at standstill and the retreat

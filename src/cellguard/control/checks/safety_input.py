@@ -16,8 +16,12 @@ class ProtectiveStopInput(Check):
                        for c in (0, 1, 2)}
 
     def request(self, tick: Tick) -> Stop | None:
-        stop = tick.safety.stop
-        return None if stop is None else self._stops[stop]
+        safety = tick.safety
+        if safety.stop is None:
+            return None
+        if safety.asked_by is not None:  # the loop's own stop: the record must not blame the controller
+            return Stop(safety.stop, EventKind.PROTECTIVE_STOP, f"stop asked by the loop: {safety.asked_by}")
+        return self._stops[safety.stop]
 
 
 class ReducedSpeedInput(Check):
