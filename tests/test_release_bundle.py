@@ -48,3 +48,11 @@ def test_an_unknown_envelope_key_is_one_line_exit_2(tmp_path):
     result = cli("create", "--policy", "scripted", "--profile", CELL, "--envelope", str(guard),
                  "--site", str(tmp_path / "site"))
     assert result.exit_code == 2 and "watchdog_seconds: unknown key" in result.stderr
+
+
+def test_a_profile_whose_robot_is_not_a_name_is_one_line_exit_2(tmp_path):
+    profile = tmp_path / "profile.yaml"
+    profile.write_text("robot: [1]\n")  # was a TypeError traceback (a list is not hashable)
+    result = cli("create", "--policy", "scripted", "--profile", str(profile), "--site", str(tmp_path / "site"))
+    assert result.exit_code == 2 and "robot [1] is not a registered cell" in result.stderr
+    assert len(result.stderr.strip().splitlines()) == 1

@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import pytest
-from release_helpers import CELL, cli, pointers, two_runs_at_sim, write_plan
+from release_helpers import CELL, cli, pointers, replay_file, two_runs_at_sim, write_plan
 
 from cellguard.release import Store, create_bundle, load_plan, promote, run_stage
-from cellguard.release.errors import GateError
+from cellguard.release.errors import BundleMismatch, GateError
 from cellguard.release.evidence import load_run
 from cellguard.release.gates import Gate, evaluate
 from cellguard.release.log import entries
@@ -109,3 +109,51 @@ def test_a_stage_run_whose_record_failed_is_not_counted_and_evaluates_no_gate(tm
     assert len(list((site / "runs" / CELL / "sim").iterdir())) == 1  # the second run never started
     assert Store(site).runs(CELL, "sim", release) == []
     assert [e.body["kind"] for e in entries(Store(site))] == ["promote"]  # no gates entry
+
+
+@pytest.mark.parametrize("gate", [{"metric": "success_rate", "min": float("nan")},
+                                  {"metric": "success_rate", "max": float("inf")},
+                                  {"metric": "success_rate", "min": "0.5"},
+                                  {"metric": "success_rate", "min": True},
+                                  {"metric": "success_rate", "min": 0.5, "min_cycles": "1"},
+                                  {"metric": "success_rate", "min": 0.5, "hard": "yes"}])
+def test_a_gate_threshold_that_is_not_a_finite_number_is_refused(tmp_path, gate):
+    """``min: .nan`` passed every value (``x >= nan`` is never false in the gate's test); strings were coerced."""
+    with pytest.raises(GateError, match=r"stages.sim.gates\[0\]\."):
+        load_plan(write_plan(tmp_path / "plan.yaml", {"sim": {"gates": [gate]}}))
+
+
+def test_a_stage_flag_that_is_not_a_boolean_is_refused(tmp_path):
+    with pytest.raises(GateError, match=r"stages.pilot.shadow"):
+        load_plan(write_plan(tmp_path / "plan.yaml", {"pilot": {"shadow": "yes"}}))
+
+
+@pytest.mark.parametrize("name", ["x/../../../escaped", "..", ".hidden", "a\x00b", "\x1b[31mred", "", "a" * 65,
+                                  ["a"], 7])
+def test_a_run_name_that_is_not_a_plain_folder_name_is_refused(tmp_path, name):
+    """A run's folder is named after it: a path in the name wrote the record outside the site."""
+    plan = write_plan(tmp_path / "plan.yaml", {"sim": {"runs": [{"name": name, "acceptance_cycles": 1}]}})
+    with pytest.raises(GateError, match=r"stages.sim.runs\[0\].name: .* is not a run name"):
+        load_plan(plan)
+
+
+def test_a_policy_file_swapped_between_two_runs_of_a_stage_stops_the_stage(tmp_path):
+    """The release is checked when the stage starts; the second run loaded another file: it must not run and
+    count under the release's name (its gates passed, and the release went on to bench)."""
+    policy = replay_file(tmp_path / "policy.npz")
+    store = Store(tmp_path / "site")
+    bundle = create_bundle(f"replay:{policy}", None, CELL, None)
+    store.add_bundle(bundle)
+    promote(store, bundle.id, CELL, "sim")
+    runs = [{"name": name, "seed": 2, "acceptance_cycles": 1} for name in ("first", "second")]
+    plan = load_plan(write_plan(tmp_path / "plan.yaml", {"sim": {"runs": runs,
+                                                                "gates": [{"metric": "success_rate", "min": 0}]}}))
+
+    def swap_before_the_second(line: str) -> None:
+        if line.startswith("sim: second "):
+            replay_file(policy, offset=0.05)
+
+    with pytest.raises(BundleMismatch, match=r"policy .*policy.npz changed since create"):
+        run_stage(store, plan["sim"], CELL, "sim", on_run=swap_before_the_second)
+    assert [r.name for r in store.runs(CELL, "sim", bundle.id)] == ["first"]
+    assert [e.body["kind"] for e in entries(store)] == ["promote"]  # no gates entry: nothing to promote on

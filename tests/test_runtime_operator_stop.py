@@ -165,3 +165,10 @@ def test_ctrl_c_in_a_release_stage_counts_no_run_and_evaluates_no_gate(tmp_path,
     assert json.loads((folders[0] / "summary.json").read_text())["stopped"] == "operator stop (SIGINT)"
     assert Store(site).runs(CELL, "sim", release) == []  # not evidence
     assert [e.body["kind"] for e in entries(Store(site))] == ["promote"]  # no gates entry
+    # the stage runs again: the stopped run's folder is kept and the new runs are numbered past it
+    monkeypatch.undo()
+    result = cli("run", "--cell", CELL, "--stage", "sim", "--plan", str(plan), "--site", str(site))
+    assert result.exit_code == 0, result.output
+    assert sorted(f.name for f in (site / "runs" / CELL / "sim").iterdir()) == ["0001-first", "0002-first",
+                                                                                "0003-second"]
+    assert [r.name for r in Store(site).runs(CELL, "sim", release)] == ["first", "second"]

@@ -99,8 +99,11 @@ def create_bundle(policy: str, action_map: Path | None, profile: str, envelope: 
     return Bundle(release_id(manifest), manifest)
 
 
-def verify_bundle(bundle: Bundle) -> None:
-    """Raise BundleMismatch, one line naming the input, if anything frozen has changed since create."""
+def verify_bundle(bundle: Bundle, policy=None) -> None:
+    """Raise BundleMismatch, one line naming the input, if anything frozen has changed since create.
+
+    ``policy``: the release's policy as a run has loaded it (its adapter hashed what it loaded), compared
+    instead of loading the policy again: a file swapped between two runs of a stage is caught there."""
     if release_id(bundle.manifest) != bundle.id:
         raise BundleMismatch(f"release {bundle.id}: manifest edited (hashes to {release_id(bundle.manifest)})")
     m = bundle.manifest
@@ -113,7 +116,7 @@ def verify_bundle(bundle: Bundle) -> None:
     if cell.profile.sha256 != m["profile"]["sha256"]:
         raise BundleMismatch(f"release {bundle.id}: profile of {bundle.cell!r} changed since create "
                              f"(sha256 {cell.profile.sha256[:12]}, frozen {m['profile']['sha256'][:12]})")
-    now = policy_hash(bundle, cell)
+    now = policy_hash(bundle, cell) if policy is None else policy.content_hash()
     if now != m["policy"]["sha256"]:
         raise BundleMismatch(f"release {bundle.id}: policy {m['policy']['spec']} changed since create "
                              f"(sha256 {now[:12]}, frozen {m['policy']['sha256'][:12]})")
@@ -148,7 +151,7 @@ def _resolve_profile(profile: str) -> tuple[str, Path | None]:
     if path.is_file():
         raw = read_yaml(path, "profile", ReleaseError)
         robot = raw.get("robot") if isinstance(raw, dict) else None
-        if robot not in CELLS:
+        if not isinstance(robot, str) or robot not in CELLS:
             raise ReleaseError(f"--profile {path}: robot {robot!r} is not a registered cell; cells: {', '.join(CELLS)}")
         return str(robot), path.resolve()
     if profile in CELLS:

@@ -22,9 +22,10 @@ PASS, FAIL, INCONCLUSIVE = "pass", "fail", "inconclusive"
 
 
 class Gate(BaseModel):
-    """One gate of a stage, as declared in the plan's YAML."""
+    """One gate of a stage, as declared in the plan's YAML; strict, finite numbers only (``min: .nan`` passed
+    every value, ``min: "0.5"`` and ``hard: "yes"`` were taken as meant)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False)
 
     metric: str
     min: float | None = None

@@ -21,6 +21,7 @@ release; ``production_cycles`` defaults to 0. Read with the project's YAML loade
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 from typing import Literal
 
@@ -34,11 +35,12 @@ from cellguard.yaml_file import read_yaml, reject_unknown_keys
 
 DEFAULT_PLAN = Path(__file__).parents[1] / "scenarios" / "release-plan.yaml"
 RUN_KEYS = ("name", "seed", "acceptance_cycles", "production_cycles", "policy_hz", "site", "cell_id", "faults", "robot",
-            "realtime")
+            "realtime", "cycle")
+RUN_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,63}")  # a run's folder is named after it: no path, no escapes
 
 
 class StagePlan(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True)
 
     clock: Literal["simulated", "wall"] = "simulated"
     shadow: bool = False
@@ -78,6 +80,10 @@ def check_run(run: dict, where: str) -> None:
     if not isinstance(run, dict):
         raise GateError(f"{where}: expected a mapping of scenario keys")
     reject_unknown_keys(run, RUN_KEYS, f"{where}.", GateError)
+    name = run.get("name", "run")
+    if not (isinstance(name, str) and RUN_NAME.fullmatch(name)):
+        raise GateError(f"{where}.name: {repr(name)[:80]} is not a run name (1 to 64 of A-Z a-z 0-9 . _ -, "
+                        f"not starting with . _ -): it names the run's folder")
     scenario_for(run, "arm-pick-place", "scripted", {}, origin=where)
 
 

@@ -18,7 +18,7 @@ from pathlib import Path
 from cellguard.errors import OperatorStopped, RecordError
 from cellguard.release import log
 from cellguard.release.bundle import Bundle, verify_bundle
-from cellguard.release.errors import ReleaseError, StageError
+from cellguard.release.errors import BundleMismatch, ReleaseError, StageError
 from cellguard.release.evidence import load_run, record_id
 from cellguard.release.gates import FAIL, PASS, GateResult, evaluate, verdict
 from cellguard.release.loops import CLOCKS
@@ -127,11 +127,16 @@ def run_stage(store: Store, plan: StagePlan, cell: str, stage: str, runs: list[d
     folders = []
     for entry in entries:
         name = entry.get("name", "run")
-        folder = store.site / "runs" / cell / stage / f"{store.next_run_number():04d}-{name}"
+        folder = store.site / "runs" / cell / stage / f"{_next_number(store):04d}-{name}"
         scenario = scenario_for(entry, cell, *_driver(store, plan, cell, bundle), origin=f"{stage} run")
         if on_run is not None:
             on_run(f"{stage}: {name} ({scenario.total_cycles} cycles) -> {folder}")
         run = make(scenario)
+        try:  # what this run loaded is still the release (nothing recorded yet)
+            verify_bundle(bundle, run.policy.candidate if plan.shadow else run.policy)
+        except BundleMismatch:
+            run.close()
+            raise
         run_scenario(scenario, folder, run=run)
         if by_operator(run.stopped):  # not evidence about the release: not counted, nothing else run or evaluated
             raise OperatorStopped(f"{run.stopped} during {stage} run {name!r} on {cell}; its "
@@ -146,6 +151,14 @@ def run_stage(store: Store, plan: StagePlan, cell: str, stage: str, runs: list[d
                       moved.seq if moved else 0)
         folders.append(str(folder))
     return evaluate_stage(store, plan, cell, stage, folders)
+
+
+def _next_number(store: Store) -> int:
+    """The next run folder's number: past every counted run and every folder on disk (a stopped run's folder
+    is kept but not counted; numbered from the counted runs alone, the stage's next run met it and was refused)."""
+    on_disk = (int(f.name.partition("-")[0]) for f in (store.site / "runs").glob("*/*/*-*")
+               if f.name.partition("-")[0].isdigit())
+    return max(store.next_run_number(), 1 + max(on_disk, default=0))
 
 
 def evaluate_stage(store: Store, plan: StagePlan, cell: str, stage: str, folders: list[str] = ()) -> StageResult:
