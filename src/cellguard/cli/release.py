@@ -39,10 +39,11 @@ out = Console()
 err = Console(stderr=True)
 
 
-def _store(site: Path):
+def _store(site: Path, create: bool = True):
+    """The site's store; ``create=False`` for a command that only reads (a mistyped --site is refused)."""
     from cellguard.release import Store
 
-    return Store(site)
+    return Store(site, create)
 
 
 def _plan(site: Path, plan: Path | None):
@@ -166,7 +167,7 @@ def status(site: Path = SITE, as_json: bool = typer.Option(False, "--json")) -> 
     from cellguard.release import status as do
 
     try:
-        rows = do(_store(site))
+        rows = do(_store(site, create=False))
     except CellguardError as exc:
         fail(exc)
     if as_json:
@@ -183,11 +184,11 @@ def status(site: Path = SITE, as_json: bool = typer.Option(False, "--json")) -> 
 def verify(site: Path = SITE, as_json: bool = typer.Option(False, "--json")) -> None:
     """Check the promotion log's hash chain; exit 1 naming each edited or deleted entry."""
     from cellguard.release import verify_log
-    from cellguard.release.log import entries
+    from cellguard.release.log import size
 
     try:
-        store = _store(site)
-        problems, n = verify_log(store), len(entries(store))
+        store = _store(site, create=False)
+        problems, n = verify_log(store), size(store)
     except CellguardError as exc:
         fail(exc)
     if as_json:
@@ -208,10 +209,13 @@ def report(
     site: Path = SITE,
 ) -> None:
     """The release page: gates per stage with their evidence, against last_good's figures."""
+    from cellguard.errors import ConfigError
     from cellguard.report.release import write_release_page
 
     try:
-        path = write_release_page(_store(site), release, output)
+        if output.is_dir():
+            raise ConfigError(f"-o {output}: is a folder; name the HTML file to write (e.g. {output / 'release.html'})")
+        path = write_release_page(_store(site, create=False), release, output)
     except CellguardError as exc:
         fail(exc)
     out.print(f"release page: {path}")

@@ -68,12 +68,12 @@ def promote(store: Store, release: str, cell: str, to: str) -> log.LogEntry:
             failing = [g["metric"] for g in evaluation.body["gates"] if g["status"] != PASS]
             raise StageError(f"--to {to}: the gates of {prev} ended {evaluation.body['verdict']} for release "
                              f"{bundle.id} ({', '.join(failing)}; log entry {evaluation.seq})")
-    p = store.pointers(cell, to)
-    if p.current == bundle.id:
-        raise StageError(f"--to {to}: release {bundle.id} is already current at {to} on {cell}")
-    outgoing = last_evaluation(store, cell, to, p.current) if p.current else None
-    last_good = p.current if outgoing is not None and outgoing.body["verdict"] == PASS else p.last_good
-    with store.transaction():
+    with store.transaction():  # the pointers read under the write lock: a racing promotion sees this one's
+        p = store.pointers(cell, to)
+        if p.current == bundle.id:
+            raise StageError(f"--to {to}: release {bundle.id} is already current at {to} on {cell}")
+        outgoing = last_evaluation(store, cell, to, p.current) if p.current else None
+        last_good = p.current if outgoing is not None and outgoing.body["verdict"] == PASS else p.last_good
         store.set_pointers(cell, to, bundle.id, last_good)
         return log.append(store, {"kind": "promote", "cell": cell, "stage": to, "release": bundle.id,
                                   "from": p.current, "to": bundle.id,
@@ -84,7 +84,11 @@ def promote(store: Store, release: str, cell: str, to: str) -> log.LogEntry:
 
 def rollback(store: Store, cell: str, stage: str, reason: str = "operator", automatic: bool = False,
              gates: list | None = None, evidence: list | None = None) -> log.LogEntry:
-    """Move (cell, stage)'s ``current`` back to ``last_good``; call inside a transaction or alone."""
+    """Move (cell, stage)'s ``current`` back to ``last_good``; call inside a transaction or alone (then it
+    opens one, so the pointers are read under the write lock)."""
+    if not store.db.in_transaction:
+        with store.transaction():
+            return rollback(store, cell, stage, reason, automatic, gates, evidence)
     p = store.pointers(cell, check_stage(stage))
     if p.last_good is None or p.last_good == p.current:
         raise StageError(f"--stage {stage}: nothing to roll back to on {cell} (current {p.current}, "
@@ -92,12 +96,8 @@ def rollback(store: Store, cell: str, stage: str, reason: str = "operator", auto
     body = {"kind": "rollback", "cell": cell, "stage": stage, "release": p.last_good, "from": p.current,
             "to": p.last_good, "automatic": automatic, "reason": reason, "gates": gates or [],
             "evidence": evidence or []}
-    if store.db.in_transaction:
-        store.set_pointers(cell, stage, p.last_good, p.last_good)
-        return log.append(store, body)
-    with store.transaction():
-        store.set_pointers(cell, stage, p.last_good, p.last_good)
-        return log.append(store, body)
+    store.set_pointers(cell, stage, p.last_good, p.last_good)
+    return log.append(store, body)
 
 
 def run_stage(store: Store, plan: StagePlan, cell: str, stage: str, runs: list[dict] | None = None,

@@ -8,6 +8,7 @@ and its log entry) are one transaction: a refused or failed command leaves the s
 from __future__ import annotations
 
 import json
+import re
 import sqlite3
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -59,9 +60,14 @@ def check_stage(stage: str) -> str:
 
 
 class Store:
-    """The site's release state; ``site`` is its folder (created on first use)."""
+    """The site's release state; ``site`` is its folder (created on first use).
 
-    def __init__(self, site: Path):
+    ``create=False`` for a command that only reads: a mistyped ``--site`` is refused instead of
+    becoming an empty store that looks like a whole one."""
+
+    def __init__(self, site: Path, create: bool = True):
+        if not create and not (Path(site) / STORE_FILE).is_file():
+            raise ReleaseError(f"--site {site}: no release store there ({STORE_FILE}); release create makes one")
         self.site = make_folder(Path(site), "--site")
         try:
             self.db = sqlite3.connect(self.site / STORE_FILE, isolation_level=None)
@@ -91,7 +97,11 @@ class Store:
         return cur.rowcount == 1
 
     def bundle(self, release: str) -> Bundle:
-        rows = self.db.execute("SELECT id, manifest FROM bundles WHERE id LIKE ?", (release + "%",)).fetchall()
+        """The one release whose id starts with ``release``, compared literally (no wildcards)."""
+        if not re.fullmatch(r"[0-9a-f]+", release):
+            raise ReleaseError(f"release {release!r}: not a release id (lowercase hex; a unique prefix is enough)")
+        rows = self.db.execute("SELECT id, manifest FROM bundles WHERE substr(id, 1, ?) = ?",
+                               (len(release), release)).fetchall()
         if len(rows) != 1:
             known = [r[0] for r in self.db.execute("SELECT id FROM bundles")]
             why = "ambiguous" if rows else "unknown"
@@ -106,6 +116,10 @@ class Store:
         row = self.db.execute("SELECT current, last_good FROM pointers WHERE cell=? AND stage=?",
                               (cell, check_stage(stage))).fetchone()
         return Pointers(cell, stage, *(row or (None, None)))
+
+    def all_pointers(self) -> list[Pointers]:
+        """Every (cell, stage) row as stored, whatever its stage: what ``release verify`` checks."""
+        return [Pointers(*r) for r in self.db.execute("SELECT cell, stage, current, last_good FROM pointers")]
 
     def set_pointers(self, cell: str, stage: str, current: str | None, last_good: str | None) -> None:
         self.db.execute("INSERT OR REPLACE INTO pointers VALUES (?, ?, ?, ?)", (cell, stage, current, last_good))

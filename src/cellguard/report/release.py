@@ -35,11 +35,8 @@ def render_release_page(store, release: str) -> str:
 
 
 def write_release_page(store, release: str, out: Path) -> Path:
-    """Write the page beside ``out`` and rename it into place (atomic)."""
-    out = Path(out)
-    tmp = write_output(out.with_name(out.name + ".tmp"), render_release_page(store, release), "release page")
-    tmp.replace(out)
-    return out
+    """Write the page to ``out`` (beside it under a temporary name of this process, then renamed)."""
+    return write_output(Path(out), render_release_page(store, release), "release page")
 
 
 def _pointers(store, bundle) -> str:

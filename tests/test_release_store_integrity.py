@@ -1,0 +1,136 @@
+"""The release store against races and hand edits: racing promotions, a broken log body, edited pointers,
+a site with no store, a report's output path, release id prefixes taken literally."""
+
+from __future__ import annotations
+
+import sqlite3
+import threading
+
+import pytest
+from release_helpers import CELL, cli
+
+from cellguard.release import Store, create_bundle, promote, verify_log
+from cellguard.release.errors import StageError
+from cellguard.release.log import entries
+from cellguard.release.store import STORE_FILE
+
+
+def _site(tmp_path, notes=("v1",)):
+    """A site where each release (one per note) was promoted to sim in turn: (site, release ids)."""
+    site = tmp_path / "site"
+    store = Store(site)
+    ids = []
+    for note in notes:
+        bundle = create_bundle("scripted", None, CELL, None, note=note)
+        store.add_bundle(bundle)
+        promote(store, bundle.id, CELL, "sim")
+        ids.append(bundle.id)
+    store.close()
+    return site, ids
+
+
+def _edit(site, sql: str) -> None:
+    db = sqlite3.connect(site / STORE_FILE)
+    db.execute(sql)
+    db.commit()
+    db.close()
+
+
+def test_two_promotions_racing_for_the_store_move_the_stage_once(tmp_path):
+    site = tmp_path / "site"
+    store = Store(site)
+    bundle = create_bundle("scripted", None, CELL, None)
+    store.add_bundle(bundle)
+    store.close()
+    both_read = threading.Barrier(2, timeout=60)  # both have read the pointers before either takes the write lock
+    outcomes = []
+
+    def racer():
+        mine = Store(site)
+        mine.db.set_trace_callback(lambda sql: sql == "BEGIN IMMEDIATE" and both_read.wait())
+        try:
+            outcomes.append(promote(mine, bundle.id, CELL, "sim").body["from"])
+        except StageError as exc:
+            outcomes.append(str(exc))
+        finally:
+            mine.close()
+
+    threads = [threading.Thread(target=racer) for _ in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    moves = [e.body for e in entries(Store(site)) if e.body["kind"] == "promote"]
+    assert len(moves) == 1 and moves[0]["from"] is None
+    assert None in outcomes and any(isinstance(o, str) and "already current" in o for o in outcomes)
+    assert verify_log(Store(site)) == []
+
+
+@pytest.mark.parametrize("body", ["not json", "[1]"])
+def test_a_log_entry_that_is_not_a_json_object_is_named_not_a_traceback(tmp_path, body):
+    site, _ = _site(tmp_path, ("v1", "v2"))
+    _edit(site, f"UPDATE log SET body='{body}' WHERE seq=1")
+    verify = cli("verify", "--site", str(site))
+    assert verify.exit_code == 1 and "broken: entry 1: not a JSON object (edited)" in verify.stdout
+    status = cli("status", "--site", str(site))
+    assert status.exit_code == 2 and status.stdout == ""
+    assert status.stderr.startswith("error: ") and status.stderr.count("\n") == 1 and "log entry 1" in status.stderr
+
+
+@pytest.mark.parametrize("command", [("verify",), ("status",), ("report", "abcd", "-o", "page.html")])
+def test_a_read_only_command_on_a_site_with_no_store_refuses_and_creates_nothing(tmp_path, command):
+    typo = tmp_path / "typo"
+    result = cli(*command, "--site", str(typo))
+    assert result.exit_code == 2 and result.stderr.count("\n") == 1 and "no release store" in result.stderr
+    assert not typo.exists()
+
+
+@pytest.mark.parametrize("edit", ["current='0000000000000000', last_good='0000000000000000'",
+                                  "last_good=current"])
+def test_edited_pointers_are_found_by_verify(tmp_path, edit):
+    site, (_, second) = _site(tmp_path, ("v1", "v2"))
+    assert cli("verify", "--site", str(site)).exit_code == 0
+    _edit(site, f"UPDATE pointers SET {edit} WHERE stage='sim'")
+    result = cli("verify", "--site", str(site))
+    assert result.exit_code == 1 and "broken: pointers of sim on arm-pick-place" in result.stdout
+    assert f"the log says current {second}, last_good None" in result.stdout
+
+
+def test_a_deleted_pointer_row_is_found_by_verify(tmp_path):
+    site, _ = _site(tmp_path)
+    _edit(site, "DELETE FROM pointers")
+    result = cli("verify", "--site", str(site))
+    assert result.exit_code == 1 and "broken: pointers of sim on arm-pick-place: current None" in result.stdout
+
+
+def test_a_report_into_a_folder_is_refused_and_a_file_named_like_a_temporary_is_kept(tmp_path):
+    site, (rid,) = _site(tmp_path)
+    folder = tmp_path / "pages"
+    folder.mkdir()
+    result = cli("report", rid, "-o", str(folder), "--site", str(site))
+    assert result.exit_code == 2 and result.stderr.count("\n") == 1 and "is a folder" in result.stderr
+    assert set(tmp_path.iterdir()) == {site, folder}  # no temporary left beside it
+    assert list(folder.iterdir()) == []
+    page, mine = tmp_path / "release.html", tmp_path / "release.html.tmp"
+    mine.write_text("the operator's own file")
+    assert cli("report", rid, "-o", str(page), "--site", str(site)).exit_code == 0
+    assert mine.read_text() == "the operator's own file" and "<h1>cellguard release" in page.read_text()
+    assert set(tmp_path.iterdir()) == {site, folder, page, mine}
+
+
+@pytest.mark.parametrize("prefix", [lambda rid: "_" + rid[1:4], lambda rid: rid[:3] + "%", lambda rid: "%",
+                                    lambda rid: "", lambda rid: rid[:4] + " "])
+def test_a_release_prefix_is_hex_and_taken_literally(tmp_path, prefix):
+    site, (rid,) = _site(tmp_path)
+    result = cli("promote", prefix(rid), "--cell", CELL, "--to", "sim", "--site", str(site))
+    assert result.exit_code == 2 and result.stderr.count("\n") == 1 and "not a release id" in result.stderr
+
+
+def test_a_promotion_from_hand_edited_pointers_is_refused_and_moves_nothing(tmp_path):
+    """The log, not an edited pointers row, says where a stage is: a move from elsewhere is not logged."""
+    site, (first, second) = _site(tmp_path, ("v1", "v2"))
+    _edit(site, f"UPDATE pointers SET current='{first}', last_good='{second}' WHERE stage='sim'")  # log: second
+    before = len(entries(Store(site)))
+    result = cli("rollback", "--cell", CELL, "--stage", "sim", "--site", str(site))
+    assert result.exit_code == 2 and "the log has" in result.stderr and "nothing moved" in result.stderr
+    assert len(entries(Store(site))) == before
