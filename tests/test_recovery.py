@@ -154,7 +154,7 @@ def test_a_late_recovery_closes_before_it_arrives_and_escalates():
 
 
 def test_the_late_recovery_fault_slows_recoveries_from_its_cycle_only():
-    fault = _scenario(faults=[{"kind": "late_recovery", "at_cycle": 3, "speed_scale": 0.4}]).faults[0]
+    fault = _scenario(production_cycles=10, faults=[{"kind": "late_recovery", "at_cycle": 3, "speed_scale": 0.4}]).faults[0]
     assert [fault.recovery_speed(c) for c in (2, 3, 9)] == [1.0, 0.4, 0.4]
     with pytest.raises(ScenarioError, match="speed_scale"):
         _scenario(faults=[{"kind": "late_recovery", "speed_scale": 1.5}])

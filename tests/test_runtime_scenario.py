@@ -2,13 +2,17 @@
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
+from typer.testing import CliRunner
 
+from cellguard.cli import app
 from cellguard.errors import CellguardError, ScenarioError
 from cellguard.robot.bridges import make_bridge, parse_bridge
 from cellguard.robot.bridges.sim_server import parse_address
+from cellguard.runtime import Run
 from cellguard.scenario import parse_scenario
 
 BASE = {"cell": "arm-pick-place"}
@@ -49,3 +53,50 @@ def test_any_sim_server_address_parses_to_loopback_or_is_refused_naming_the_key(
         assert str(exc).startswith("robot: sim-server address")
     else:
         assert host == "127.0.0.1" and 1 <= port <= 65535
+
+
+def _cli_run(tmp_path, text: str, out):
+    path = tmp_path / "s.yaml"
+    path.write_text(text)
+    return CliRunner().invoke(app, ["run", str(path), "--out", str(out)])
+
+
+@pytest.mark.parametrize("text, message", [
+    ("cell: arm-pick-place\ncycle: {source: policy}\n", "cycle.source: 'policy' needs a policy with episode_done()"),
+    ("cell: quadruped-turns\ncycle: {source: home}\n", "cycle.source: 'home' needs a home pose"),
+])
+def test_a_cycle_source_the_robot_or_policy_cannot_serve_leaves_out_as_it_was(tmp_path, text, message):
+    """Refused before the record starts: a partial record.mcap blocked the corrected scenario's --out."""
+    result = _cli_run(tmp_path, text, tmp_path / "out")
+    assert result.exit_code == 2 and result.stderr.startswith(f"error: {message}")
+    assert result.stderr.count("\n") == 1 and not (tmp_path / "out").exists()
+    (tmp_path / "kept").mkdir()
+    (tmp_path / "kept" / "notes.txt").write_text("mine")
+    assert _cli_run(tmp_path, text, tmp_path / "kept").exit_code == 2
+    assert [p.name for p in (tmp_path / "kept").iterdir()] == ["notes.txt"]
+
+
+def test_an_error_after_the_record_started_says_where_the_partial_record_is(tmp_path):
+    """A start-up check refuses on the first chunk, after the record has started (a one-step chunk of 1 ms
+    cannot cover the simulated 10 ms latency); the error line names the folder that keeps it."""
+    home = np.array([0.0, -0.3, 1.9, 1.55, 0.0, 0.025])
+    np.savez(tmp_path / "short.npz", t=np.arange(0.0, 2.0, 0.05), actions=np.broadcast_to(home, (40, 1, 6)), dt=0.001)
+    out = tmp_path / "out"
+    result = _cli_run(tmp_path, f"cell: arm-pick-place\npolicy: replay:{tmp_path / 'short.npz'}\nacceptance_cycles: 1\n"
+                                "production_cycles: 0\ncycle: {source: time, seconds: 1}\n", out)
+    assert result.exit_code == 2, result.output
+    assert result.stderr.startswith("error: start-up: inference latency")
+    assert result.stderr.endswith(f"; the record in {out} is partial (no summary.json)\n")
+    assert (out / "record.mcap").exists() and not (out / "summary.json").exists()
+
+
+def test_a_crash_after_the_record_started_says_where_the_partial_record_is(tmp_path, monkeypatch):
+    def crash(self, on_cycle=None):
+        raise RuntimeError("a bug")
+
+    monkeypatch.setattr(Run, "run_cycles", crash)
+    out = tmp_path / "out"
+    result = _cli_run(tmp_path, "cell: arm-pick-place\nacceptance_cycles: 1\nproduction_cycles: 0\n", out)
+    assert isinstance(result.exception, RuntimeError)  # a bug keeps its traceback, after the line
+    assert result.stderr == f"error: the record in {out} is partial (no summary.json)\n"
+    assert (out / "record.mcap").exists()

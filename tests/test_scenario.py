@@ -68,3 +68,42 @@ def test_arbitrary_documents_never_escape_as_other_errors(doc):
         parse_scenario({**BASE, **doc})
     except ScenarioError as exc:
         assert str(exc)
+
+
+@pytest.mark.parametrize(("patch", "message"), [
+    ({"acceptance_cycles": 0, "production_cycles": 0}, "acceptance_cycles, production_cycles: both 0"),
+    ({"faults": [{"kind": "fixture_shift", "at_cycle": 2, "dx_mm": 4}]},
+     "faults[0].at_cycle: fixture_shift at cycle 2 would never happen; the run's cycles (acceptance_cycles + "
+     "production_cycles = 2) are numbered 0 to 1"),
+    ({"faults": [{"kind": "tool_slip", "at_cycle": 0},
+                 {"kind": "friction_growth", "joint": "elbow", "from_cycle": 99999, "per_cycle": 0.1}]},
+     "faults[1].from_cycle: friction_growth at cycle 99999"),
+    ({"process_changes": [{"kind": "payload", "at_cycle": 5, "grams": 40}]}, "process_changes[0].at_cycle: payload"),
+])
+def test_a_run_of_no_cycles_or_a_fault_after_its_last_cycle_is_refused(patch, message):
+    """Both ran before: no cycles crashed at the retreat, a late fault never fired and said nothing."""
+    with pytest.raises(ScenarioError) as info:
+        parse_scenario({**BASE, **patch}, origin="s.yaml")
+    assert str(info.value).startswith(f"s.yaml: {message}")
+    assert "\n" not in str(info.value)
+
+
+def test_a_release_plan_run_is_checked_with_its_own_cycle_counts():
+    """A plan's run leaves production_cycles at 0: a fault at its acceptance_cycles is past its end."""
+    from cellguard.release.plan import check_run
+
+    check_run({"name": "ok", "acceptance_cycles": 3, "faults": [{"kind": "tool_slip", "at_cycle": 2}]}, "plan")
+    with pytest.raises(ScenarioError, match=r"^plan: faults\[0\]\.at_cycle: .* = 3\) are numbered 0 to 2$"):
+        check_run({"name": "late", "acceptance_cycles": 3, "faults": [{"kind": "tool_slip", "at_cycle": 3}]}, "plan")
+
+
+@given(st.integers(0, 5), st.integers(0, 5), st.integers(0, 12))
+def test_a_scenario_parses_exactly_when_it_has_cycles_and_its_fault_falls_in_them(acceptance, production, at):
+    doc = {**BASE, "acceptance_cycles": acceptance, "production_cycles": production,
+           "faults": [{"kind": "policy_nan", "at_cycle": at}]}
+    try:
+        sc = parse_scenario(doc)
+    except ScenarioError as exc:
+        assert not at < acceptance + production, str(exc)
+    else:
+        assert at < sc.total_cycles

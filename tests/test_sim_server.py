@@ -125,3 +125,34 @@ def test_a_bridge_that_does_not_answer_is_one_line_and_exit_2(tmp_path):
     bad.write_text("cell: arm-pick-place\nrobot: sim-server:udp://10.0.0.5:9000\n")
     result = CliRunner().invoke(app, ["run", str(bad), "--out", str(tmp_path / "out2")])
     assert result.exit_code == 2 and "loopback" in result.output
+
+
+def test_a_task_cycle_on_a_served_robot_is_refused_before_the_record(server, tmp_path):
+    """The served robot has no task of its own: refused before --out is created (a partial record blocked it)."""
+    from typer.testing import CliRunner
+
+    from cellguard.cli import app
+
+    _, port = server
+    path = tmp_path / "s.yaml"
+    path.write_text(f"cell: arm-pick-place\nrobot: sim-server:udp://127.0.0.1:{port}\ncycle: {{source: task}}\n")
+    result = CliRunner().invoke(app, ["run", str(path), "--out", str(tmp_path / "out")])
+    assert result.exit_code == 2 and result.stderr.startswith("error: cycle.source: 'task' needs a simulated cell")
+    assert result.stderr.count("\n") == 1 and not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("option, value", [
+    ("--duration-s", "inf"), ("--duration-s", "nan"), ("--duration-s", "-1"), ("--duration-s", "0"),
+    ("--delay-ms", "nan"), ("--delay-ms", "1e308"), ("--delay-ms", "-1"), ("--drop-every", "-1"), ("--seed", "-1"),
+    ("--seed", str(2**64)),
+])
+def test_a_sim_server_option_out_of_range_is_one_line_and_exit_2(option, value):
+    """NaN and infinities raised inside the server (OverflowError, ValueError); -1 s ran and exited 0."""
+    from typer.testing import CliRunner
+
+    from cellguard.cli import app
+
+    args = ["sim-server", "arm-pick-place", "--port", "9", option, value]
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 2, result.output
+    assert result.stderr.startswith(f"error: {option}: must be in ") and result.stderr.count("\n") == 1

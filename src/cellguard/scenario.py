@@ -119,7 +119,7 @@ def parse_scenario(raw: object, origin: str = "scenario") -> Scenario:
     except (TypeError, ValueError) as exc:
         raise ScenarioError(f"{origin}: cannot be read as a scenario ({exc})") from None
     try:
-        return Scenario.model_validate_json(document, strict=True)
+        scenario = Scenario.model_validate_json(document, strict=True)
     except ValidationError as exc:
         err = exc.errors()[0]
         loc = _format_loc(err["loc"])
@@ -133,6 +133,24 @@ def parse_scenario(raw: object, origin: str = "scenario") -> Scenario:
         elif err["type"].endswith("_type") or err["type"].endswith("_parsing"):
             msg = f"{msg}, got {err['input']!r}"
         raise ScenarioError(f"{origin}: {loc}: {msg}") from None
+    _check_cycles(scenario, origin)
+    return scenario
+
+
+def _check_cycles(scenario: Scenario, origin: str) -> None:
+    """Refuse a run of no cycles (nothing to run, nothing to retreat from) and a fault or process change
+    set for a cycle the run never reaches (it would never happen, and say nothing)."""
+    total = scenario.total_cycles
+    if total == 0:
+        raise ScenarioError(f"{origin}: acceptance_cycles, production_cycles: both 0; a run needs at least one cycle")
+    for key in ("faults", "process_changes"):
+        for i, item in enumerate(getattr(scenario, key)):
+            field = "at_cycle" if hasattr(item, "at_cycle") else "from_cycle"
+            cycle = getattr(item, field)
+            if cycle >= total:
+                raise ScenarioError(f"{origin}: {key}[{i}].{field}: {item.kind} at cycle {cycle} would never happen; "
+                                    f"the run's cycles (acceptance_cycles + production_cycles = {total}) are "
+                                    f"numbered 0 to {total - 1}")
 
 
 def _check_values(value: object, loc: tuple, origin: str) -> None:

@@ -13,6 +13,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from cellguard.cli.app import app
 from cellguard.cli.diagnose import print_diagnosis
 from cellguard.cli.errors import exit_if_stopped, fail
+from cellguard.cli.text import printable
 from cellguard.errors import CellguardError
 from cellguard.output import make_folder
 from cellguard.scenario import Scenario, load_scenario
@@ -38,9 +39,15 @@ def _run(scenario: Scenario, out: Path, quiet: bool, realtime: bool = False, ove
 
     try:
         return run_scenario(scenario, out, on_cycle=advance, overwrite=overwrite, run=run)
-    except CellguardError:
-        if created and out.is_dir() and not any(out.iterdir()):
-            out.rmdir()  # refused before anything was written: leave no empty folder behind
+    except BaseException as exc:
+        if run.recording is None:  # refused before the record started: leave no empty folder behind
+            if created and out.is_dir() and not any(out.iterdir()):
+                out.rmdir()
+            raise
+        partial = f"the record in {out} is partial (no summary.json)"
+        if isinstance(exc, CellguardError):
+            raise CellguardError(f"{exc}; {partial}") from exc
+        sys.stderr.write(f"error: {printable(partial)}\n")  # then the traceback, or Ctrl-C's line
         raise
     finally:
         if progress.live.is_started:  # stopping one never shown prints a blank line on a pipe

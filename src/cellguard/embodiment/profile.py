@@ -7,6 +7,7 @@ unit is refused with an error that names the field.
 
 from __future__ import annotations
 
+import datetime
 import hashlib
 from dataclasses import dataclass
 from pathlib import Path
@@ -155,10 +156,18 @@ def calibrated_profile(model: mujoco.MjModel, current: Profile, path: Path) -> P
 
 
 def parse_profile(model: mujoco.MjModel, raw_bytes: bytes, path: str = "profile") -> Profile:
-    """Check the YAML text ``raw_bytes`` (from ``path``) against ``model``; its sha256 is the profile's."""
+    """Check the YAML text ``raw_bytes`` (from ``path``) against ``model``; its sha256 is the profile's.
+    A ProfileError names ``path`` and the field: a profile may come from a file the user named."""
     raw = parse_yaml(raw_bytes, path, ProfileError)
+    try:
+        return _profile(model, raw, hashlib.sha256(raw_bytes).hexdigest())
+    except ProfileError as exc:
+        raise ProfileError(f"{path}: {exc}") from None
+
+
+def _profile(model: mujoco.MjModel, raw: object, sha256: str) -> Profile:
     if not isinstance(raw, dict):
-        raise ProfileError(f"{path}: expected a mapping at the top level")
+        raise ProfileError("expected a mapping at the top level")
     allowed = {"robot", "model", "version", "joints", "measured", "symmetry", "calibration"}
     reject_unknown_keys(raw, sorted(allowed), "", ProfileError)
     for key in ("robot", "version", "joints"):
@@ -171,12 +180,12 @@ def parse_profile(model: mujoco.MjModel, raw_bytes: bytes, path: str = "profile"
     measured = tuple(_measured(i, m, names) for i, m in enumerate(_list(raw, "measured")))
     symmetry = tuple(_symmetry(i, s, names) for i, s in enumerate(_list(raw, "symmetry")))
     return Profile(
-        robot=str(raw["robot"]),
-        version=str(raw["version"]),
+        robot=_text(raw["robot"], "robot"),
+        version=_text(raw["version"], "version"),
         joints=joints,
         measured=measured,
         symmetry=symmetry,
-        sha256=hashlib.sha256(raw_bytes).hexdigest(),
+        sha256=sha256,
         calibration=_calibration(raw["calibration"]) if raw.get("calibration") is not None else None,
     )
 
@@ -186,6 +195,14 @@ def _list(raw: dict, key: str) -> list:
     if not isinstance(value, list):
         raise ProfileError(f"{key}: expected a list, got {type(value).__name__}")
     return value
+
+
+def _text(value: object, field: str) -> str:
+    """A text field: a string, or a date YAML read as one (``measured: 2026-10-14``); anything else is a
+    mistake that ``str()`` would hide (``robot: [1]`` named the robot "[1]")."""
+    if isinstance(value, (str, datetime.date)):
+        return str(value)
+    raise ProfileError(f"{field}: expected text, got {type(value).__name__}")
 
 
 def _is_joint(value: object, names: set[str]) -> bool:
@@ -252,11 +269,11 @@ def _measured(i: int, spec: object, names: set[str]) -> MeasuredParameter:
     value = _quantity(spec["value"], f"{field}.value", _PARAMETER_DIMENSIONS)
     return MeasuredParameter(
         joint=spec["joint"],
-        parameter=str(spec["parameter"]),
+        parameter=_text(spec["parameter"], f"{field}.parameter"),
         value=value,
         unit=str(spec["value"]).split()[1],
-        measured=str(spec["measured"]),
-        method=str(spec["method"]),
+        measured=_text(spec["measured"], f"{field}.measured"),
+        method=_text(spec["method"], f"{field}.method"),
     )
 
 
@@ -283,7 +300,8 @@ def _calibration(spec: object) -> Calibration:
     records = spec["records"]
     if not isinstance(records, list) or not all(isinstance(r, str) for r in records):
         raise ProfileError("calibration.records: expected a list of record ids")
-    mjcf = str(spec["mjcf"])
+    version, mjcf, date, previous = (_text(spec[k], f"calibration.{k}") for k in ("version", "mjcf", "date",
+                                                                                  "previous"))
     if Path(mjcf).name != mjcf:
         raise ProfileError(f"calibration.mjcf: {mjcf!r} must be a file name beside the profile, not a path")
-    return Calibration(str(spec["version"]), mjcf, str(spec["date"]), tuple(records), str(spec["previous"]))
+    return Calibration(version, mjcf, date, tuple(records), previous)

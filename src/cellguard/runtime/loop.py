@@ -62,6 +62,8 @@ class Run:
         # a policy_factory (picklable, for the process worker) replaces the scenario's policy source
         self.policy_factory = policy_factory
         self.policy = policy_factory() if policy_factory is not None else make_policy(scenario.policy, self.cell)
+        make_cycle_source(scenario.cycle, self.cell, self.policy)  # refused here, before the record starts; the
+        # source itself is built at the first cycle, for the policy then in place
         self.guard = build_guard(self.cell, scenario.guard)
         self.events = EventLog()
         self.cycles = CycleWindow()
