@@ -78,3 +78,15 @@ def test_query_the_index(folder):
     assert [json.loads(line) for line in result.stdout.splitlines()] == [{"cycle": 3, "peak": 3.0}]
     result = runner.invoke(app, ["record", "query", str(folder), "SELECT nope FROM cycles"])
     assert result.exit_code == 2 and result.output.startswith("error: sql:")
+
+
+def test_a_query_too_big_for_memory_fails_and_writes_nothing(folder, tmp_path, monkeypatch):
+    from cellguard.record import query
+
+    monkeypatch.setattr(query, "MEMORY_LIMIT", "50MB")  # by default DuckDB spills this sort into ./.tmp
+    monkeypatch.chdir(tmp_path)
+    result = runner.invoke(app, ["record", "query", str(folder),
+                                 "SELECT range AS n, md5(range::VARCHAR) AS h FROM range(1000000) ORDER BY h"])
+    assert list(tmp_path.iterdir()) == []
+    assert result.exit_code == 2 and result.output.startswith("error: sql: the query needs more than 50MB")
+    assert result.output.count("\n") == 1

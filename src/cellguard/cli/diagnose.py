@@ -12,7 +12,7 @@ from rich.console import Console
 
 from cellguard.cli.app import app
 from cellguard.cli.errors import fail
-from cellguard.cli.record import warn_if_damaged
+from cellguard.cli.record import say, warn_if_damaged
 from cellguard.cli.text import printable_tree
 from cellguard.errors import CellguardError, ConfigError
 
@@ -52,15 +52,18 @@ def report(
 ) -> None:
     """Write a self-contained HTML report: timeline, last good versus faulted, drift, asymmetry, context."""
     from cellguard.diagnose.from_record import diagnose_record
+    from cellguard.record.export import refuse_output
     from cellguard.report.from_record import write_report
 
     try:
+        if out is not None:  # the default, FOLDER/report.html, is the one file a report writes in a run folder
+            refuse_output(out, folder)
         path = write_report(folder, out, diagnosis=diagnose_record(folder, acceptance=acceptance,
                                                                    fleet=fleet_advice(fleet)))
         health = record_health(folder)
     except CellguardError as exc:
         fail(exc)
-    Console().print(f"report: {path}")
+    say(f"report: {path}", err=False)
     raise typer.Exit(warn_if_damaged(health, folder))
 
 
@@ -77,7 +80,7 @@ def fleet_advice(use: bool | None) -> list[dict]:
     try:
         return fleet_fixes(TenantStore(dsn))
     except StoreUnavailable as exc:
-        Console(stderr=True).print(f"warning: no advice from the fleet: {exc}", markup=False)
+        say(f"warning: no advice from the fleet: {exc}")
         return []
 
 

@@ -16,13 +16,12 @@ from rich.console import Console
 
 from cellguard.cli.app import app
 from cellguard.cli.errors import fail
-from cellguard.cli.text import printable_tree
+from cellguard.cli.text import printable, printable_tree
 from cellguard.control.events import EventKind
 from cellguard.errors import CellguardError, RecordError
 
 record_app = typer.Typer(no_args_is_help=True, help="Read, export, recover and query fault records.")
 app.add_typer(record_app, name="record")
-_err = Console(stderr=True, soft_wrap=True)
 FORMATS = ("csv", "parquet")
 
 
@@ -32,13 +31,19 @@ def _utc(wall_ns: int) -> str:
     return dt.datetime.fromtimestamp(wall_ns * 1e-9, dt.timezone.utc).isoformat(timespec="milliseconds")
 
 
+def say(text: str, err: bool = True) -> None:
+    """One line on stderr (or stdout) as written: paths and record text are the user's, so no markup, and
+    control characters escaped (a file named ``rep[/].html`` or holding an escape code prints as it is)."""
+    (sys.stderr if err else sys.stdout).write(printable(text) + "\n")
+
+
 def warn_if_damaged(health, folder: Path) -> int:
     """Print one warning line saying what was lost (stderr); the exit code: 0 complete, 1 truncated or damaged."""
     if health.ok:
         return 0
     hint = (f"; `cellguard record recover {folder} -o NEW_DIR` writes a finished copy"
             if health.damage or not health.finished else "")
-    _err.print(f"warning: {folder}: {health.describe()}{hint}", markup=False, highlight=False)
+    say(f"warning: {folder}: {health.describe()}{hint}")
     return 1
 
 
@@ -123,7 +128,7 @@ def export(
     cycle: int | None = typer.Option(None, "--cycle", help="Only this cycle."),
 ) -> None:
     """Ticks as rows: t_ns, cycle, joint, q_ref, q_cmd, q_meas, qd_meas, effort, current."""
-    from cellguard.record.export import refuse_record, write_ticks
+    from cellguard.record.export import refuse_output, write_ticks
     from cellguard.record.reader import open_record
 
     try:
@@ -131,13 +136,13 @@ def export(
             raise RecordError(f"--format: {fmt!r} is not one of {', '.join(FORMATS)}")
         if cycle is not None and not 0 <= cycle < 2**63:
             raise RecordError(f"--cycle: {cycle} is outside [0, 2^63); cycles are numbered from 0")
+        refuse_output(output, folder)
         with open_record(folder) as rec:
-            refuse_record(output)  # before the ticks are read
             rows = write_ticks(rec.ticks(cycle=cycle, rate=rate), output, fmt)
             health = rec.health()
     except CellguardError as exc:
         fail(exc)
-    _err.print(f"{rows} rows written to {output}", markup=False, highlight=False)
+    say(f"{rows} rows written to {output}")
     raise typer.Exit(warn_if_damaged(health, folder))
 
 
@@ -150,19 +155,20 @@ def to_lerobot(
     success_only: bool = typer.Option(False, "--success-only", help="Only cycles that succeeded."),
 ) -> None:
     """Cycles as a LeRobotDataset v3 (one episode per cycle): state, action sent, camera readings, task."""
+    from cellguard.record.export import refuse_output
     from cellguard.record.lerobot_export import export_lerobot
     from cellguard.record.reader import open_record
 
     try:
+        refuse_output(output, folder, to_folder=True)
         with open_record(folder) as rec:
             result = export_lerobot(rec, output, fps=fps, task=task, success_only=success_only)
             health = rec.health()
     except CellguardError as exc:
         fail(exc)
     for why in result.skipped:
-        _err.print(f"skipped {why}", markup=False, highlight=False)
-    _err.print(f"{len(result.episodes)} episodes, {result.frames} frames at {result.fps} fps written to {output}",
-               markup=False, highlight=False)
+        say(f"skipped {why}")
+    say(f"{len(result.episodes)} episodes, {result.frames} frames at {result.fps} fps written to {output}")
     raise typer.Exit(warn_if_damaged(health, folder))
 
 
@@ -172,13 +178,15 @@ def recover(
     output: Path = typer.Option(..., "-o", "--output", help="New folder for the recovered record and index."),
 ) -> None:
     """Copy every readable chunk into a finished file with a fresh summary, and rebuild the index."""
+    from cellguard.record.export import refuse_output
     from cellguard.record.recovery import recover as run_recover
 
     try:
+        refuse_output(output, folder, to_folder=True)
         health = run_recover(folder, output)
     except CellguardError as exc:
         fail(exc)
-    _err.print(f"source {health.describe()}; recovered record written to {output}", markup=False, highlight=False)
+    say(f"source {health.describe()}; recovered record written to {output}")
 
 
 @record_app.command()

@@ -131,6 +131,8 @@ class Baseline:
     def from_dict(cls, raw: dict) -> Baseline:
         try:
             names = tuple(raw["names"])
+            if not raw["motions"]:  # drift is judged against the motions' statistics: none, nothing to judge by
+                raise ValueError("motions is empty")
             motions = {}
             for label, m in raw["motions"].items():
                 feats, corr = m["features"], m["correlation"]

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import json
 import shutil
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -52,7 +53,7 @@ class LeRobotExport:
 def export_lerobot(rec: Record, output: Path, fps: int = 50, task: str | None = None, success_only: bool = False,
                    robot_type: str | None = None) -> LeRobotExport:
     """Write the completed cycles of ``rec`` into the new folder ``output`` as a LeRobotDataset v3."""
-    output = Path(output)
+    output = Path(output).resolve()  # "." and ".." have no name to put the staging folder beside
     context = rec.context
     stride = _stride(context, fps)
     task = task or context.get("cell", "cycle").replace("-", " ")
@@ -88,20 +89,16 @@ def export_lerobot(rec: Record, output: Path, fps: int = 50, task: str | None = 
         raise RecordError(f"{rec.file}: no cycle to export" + (f" ({'; '.join(skipped)})" if skipped else ""))
     data = {k: np.concatenate(v) for k, v in columns.items()}
     features = _features(data, joints, measurements)
-    _prepare(output)
+    staging = _prepare(output)
     robot_type = robot_type or context.get("embodiment", {}).get("robot")
-    staging = output.with_name(f".{output.name}.partial")  # written beside the target, renamed when complete
-    shutil.rmtree(staging, ignore_errors=True)
     try:
         _write_dataset(staging, data, features, episodes, kept, task, robot_type, fps)
         output.rmdir()  # the empty folder _prepare checked or made
         staging.rename(output)
     except OSError as exc:
-        shutil.rmtree(staging, ignore_errors=True)
         raise RecordError(f"-o {output}: cannot write ({exc.strerror})") from None
-    except RecordError:
-        shutil.rmtree(staging, ignore_errors=True)
-        raise
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)  # this run's own folder; gone already once renamed
     return LeRobotExport(str(output), fps, tuple(kept), len(data["index"]), tuple(skipped))
 
 
@@ -139,18 +136,13 @@ def _stride(context: dict, fps: int) -> int:
 
 
 def _measurements(rec: Record) -> dict[int, tuple[np.ndarray, np.ndarray, tuple[str, ...]]]:
-    """Per cycle: request times (n,), readings (n, m) and their names, in the order first seen."""
-    rows: dict[int, list[tuple[int, dict]]] = {}
-    for m in rec.messages(["/measurements"]):
-        d = json.loads(m.data)
-        rows.setdefault(d.get("cycle"), []).append((d["t_ns"], d["measurements"]))
-    out = {}
-    for cycle, items in rows.items():
-        keys = tuple(items[0][1])
-        names = tuple(f"{k}.{i}" for k in keys for i in range(len(items[0][1][k])))
-        values = np.array([np.concatenate([np.ravel(v[k]) for k in keys]) for _, v in items], dtype=np.float64)
-        out[cycle] = (np.array([t for t, _ in items], dtype=np.int64), values, names)
-    return out
+    """Per cycle: request times (n,), readings (n, m) and their names (one layout: the reader skips others)."""
+    rows: dict[int, list] = {}
+    for m in rec.measurements():
+        rows.setdefault(m.cycle, []).append(m)
+    return {cycle: (np.array([m.t_ns for m in items], dtype=np.int64),
+                    np.array([m.values for m in items], dtype=np.float64), items[0].names)
+            for cycle, items in rows.items()}
 
 
 def _held(measurements: dict, cycle: int, t: np.ndarray) -> np.ndarray:
@@ -206,11 +198,15 @@ def _stats(values: np.ndarray) -> dict[str, list]:
             "count": [len(v)], **{f"q{round(p * 100):02d}": q[i].tolist() for i, p in enumerate(QUANTILES)}}
 
 
-def _prepare(output: Path) -> None:
-    if output.exists() and any(output.iterdir()):
+def _prepare(output: Path) -> Path:
+    """Check or make the empty folder ``output``; a new folder beside it, unique to this run, to write into."""
+    if output.is_dir() and any(output.iterdir()):
         raise RecordError(f"-o {output}: exists and is not empty; give a new folder")
     try:
         output.mkdir(parents=True, exist_ok=True)
+        staging = Path(tempfile.mkdtemp(prefix=f".{output.name}.", suffix=".partial", dir=output.parent))
+        staging.chmod(output.stat().st_mode & 0o7777)  # mkdtemp's 0700 would hide the dataset from other users
+        return staging
     except OSError as exc:
         raise RecordError(f"-o {output}: cannot write ({exc.strerror})") from None
 

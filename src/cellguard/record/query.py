@@ -4,10 +4,11 @@ A query tool on a technician's machine must not read other files, write any file
 included), attach databases or fetch extensions. DuckDB enforces that itself: the index is copied
 into an in-memory database first, then external access is switched off (no file or network
 access at all, so no ``read_text``, ``COPY ... TO``, ``ATTACH``, ``INSTALL``), extension
-auto-install and auto-load are off, memory is capped and the configuration is locked (no ``SET``
-gives any of it back). On top, only one ``SELECT`` (or ``EXPLAIN``) statement is accepted, so
-even the in-memory copy cannot be changed, and a query that runs past its time limit is
-interrupted.
+auto-install and auto-load are off, memory is capped with no temporary directory (a query that
+does not fit fails; DuckDB's default would spill into ``./.tmp`` in the current folder) and the
+configuration is locked (no ``SET`` gives any of it back). On top, only one ``SELECT`` (or
+``EXPLAIN``) statement is accepted, so even the in-memory copy cannot be changed, and a query
+that runs past its time limit is interrupted.
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ import duckdb
 
 from cellguard.errors import RecordError
 from cellguard.record.index import TABLES, connect
+from cellguard.record.scan import require_regular
 
 ALLOWED_STATEMENTS = (duckdb.StatementType.SELECT, duckdb.StatementType.EXPLAIN)
 MEMORY_LIMIT = "1GB"  # DuckDB's own memory for one query
@@ -46,9 +48,14 @@ def _one_select(sql: str) -> str:
 
 def _confined(index: Path) -> duckdb.DuckDBPyConnection:
     """An in-memory copy of the index with every way out of it switched off and locked."""
+    for table in TABLES:  # the parts connect() reads: a FIFO would block the copy, which --timeout does not cover
+        for part in (index / table).glob("day=*/*.parquet"):
+            require_regular(part, "an index part")
     con = None
     try:
         con = connect(index)
+        for setting in (f"memory_limit = '{MEMORY_LIMIT}'", "temp_directory = ''"):  # nothing spills to disk
+            con.execute(f"SET {setting}")
         for table in TABLES:  # copy the views' rows in while files can still be read
             con.execute(f"CREATE TABLE {table}_copy AS SELECT * FROM {table}")
             con.execute(f"DROP VIEW {table}")
@@ -59,8 +66,8 @@ def _confined(index: Path) -> duckdb.DuckDBPyConnection:
         raise RecordError(f"{index}: the index cannot be read ({_first_line(exc)}); "
                           f"`cellguard record recover` rebuilds it from the record") from None
     for setting in ("autoinstall_known_extensions = false", "autoload_known_extensions = false",
-                    "allow_community_extensions = false", f"memory_limit = '{MEMORY_LIMIT}'",
-                    "enable_external_access = false", "lock_configuration = true"):
+                    "allow_community_extensions = false", "enable_external_access = false",
+                    "lock_configuration = true"):
         con.execute(f"SET {setting}")
     return con
 
@@ -104,6 +111,9 @@ def _rows(con, result, timer: threading.Timer, timeout_s: float) -> Iterator[tup
 def _query_error(exc: BaseException, timeout_s: float) -> BaseException:
     if isinstance(exc, duckdb.InterruptException):
         return RecordError(f"sql: stopped after the time limit of {timeout_s:g} s (--timeout)")
+    if isinstance(exc, duckdb.OutOfMemoryException):
+        return RecordError(f"sql: the query needs more than {MEMORY_LIMIT} of memory (a query never writes to "
+                           f"disk); select fewer rows or columns")
     if isinstance(exc, duckdb.Error):
         return RecordError(f"sql: {_first_line(exc)}")
     return exc

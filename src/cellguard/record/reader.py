@@ -22,20 +22,22 @@ Contract (fields may be added, not renamed)::
     rec.ticks(cycle=12)              # Ticks: t_ns (n,), cycle (n,), joints, q_ref, q_cmd, q_meas, qd_meas,
                                      #   effort, current (n, dof) float64; rate="decimated" | "full" | "all"
     rec.chunks()                     # RecordedChunk: the policy's chunks as received
+    rec.measurements()               # Measurement: t_ns, cycle, names, values (n,) of the readings the policy saw
     rec.health()                     # Health: finished, truncated, chunks ok/damaged, sequence gaps
 
 A truncated or damaged file opens: every chunk that passes its CRC is read, a damaged one is
-skipped, and ``health()`` says what was lost. ``open_record`` raises RecordError only when nothing
-can be read; ``strict=True`` also raises when anything was lost.
+skipped, so is a message that does not decode or fit its schema, and ``health()`` says what was
+lost. ``open_record`` raises RecordError only when nothing can be read; ``strict=True`` also
+raises when anything was lost.
 """
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
-from collections import Counter
-from collections.abc import Callable, Iterator
-from dataclasses import dataclass
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -49,6 +51,7 @@ from cellguard.record.schemas import BY_TOPIC, CHUNK, TICK_FIELDS, TICKS
 from cellguard.record.writer import INDEX_DIR, RECORD_FILE, RECORD_VERSION
 
 RATES = ("decimated", "full", "all")
+_TICK_TOPICS = {"decimated": "/ticks/decimated", "full": "/ticks/full"}
 
 
 @dataclass(frozen=True)
@@ -95,6 +98,16 @@ class RecordedChunk:
 
 
 @dataclass(frozen=True)
+class Measurement:
+    """The camera and fixture readings shown to the policy at ``t_ns``, flattened: ``names`` as ``key.i``."""
+
+    t_ns: int
+    cycle: int | None
+    names: tuple[str, ...]
+    values: np.ndarray  # (len(names),) SI
+
+
+@dataclass(frozen=True)
 class Ticks:
     """Ticks in time order; arrays (n,) and (n, dof), SI, float64."""
 
@@ -125,6 +138,7 @@ class Health:
     messages: dict[str, int]
     span_ns: tuple[int, int] | None  # first and last message time read, on the record's clock
     context_loss: str | None = None  # the first context could not be read (and where it came from instead)
+    off_schema: dict[str, int] = field(default_factory=dict)  # topic -> messages skipped as malformed
 
     @property
     def ok(self) -> bool:
@@ -136,18 +150,18 @@ class Health:
             return f"complete: {self.chunks_ok} chunks, {sum(self.messages.values())} messages"
         state = ("truncated" if self.truncated else "not finished" if not self.finished
                  else "damaged" if self.damage or self.context_loss else "finished, with gaps")
-        context = f"; {self.context_loss}" if self.context_loss else ""
+        notes = f"; {self.context_loss}" if self.context_loss else ""
+        notes += "".join(f"; {n} {topic} message(s) malformed, skipped" for topic, n in self.off_schema.items())
         lost = sum(b - a + 1 for g in self.gaps.values() for a, b in g)
         span = ("" if self.span_ns is None
                 else f", readable {self.span_ns[0] * 1e-9:.3f} s to {self.span_ns[1] * 1e-9:.3f} s")
         return (f"{state}: recovered {self.chunks_ok} chunks ({sum(self.messages.values())} messages{span}); "
-                f"{self.chunks_damaged} damaged chunks skipped, {lost} messages missing by sequence number{context}")
+                f"{self.chunks_damaged} damaged chunks skipped, {lost} messages missing by sequence number{notes}")
 
 
 def open_record(path: Path | str, strict: bool = False) -> Record:
     """Open a record folder (or .mcap file). RecordError if nothing is readable (or, strict, if anything is lost)."""
-    path = Path(path)
-    file = path / RECORD_FILE if path.is_dir() else path
+    file = record_file(path)
     if not file.exists():
         raise RecordError(f"{file}: no record here")
     record = Record(file, scan(file))
@@ -159,6 +173,12 @@ def open_record(path: Path | str, strict: bool = False) -> Record:
     return record
 
 
+def record_file(path: Path | str) -> Path:
+    """The record file of ``path``: a run folder's record.mcap, or ``path`` itself."""
+    path = Path(path)
+    return path / RECORD_FILE if path.is_dir() else path
+
+
 class Record:
     """One record file, read lazily chunk by chunk; see the module docstring for the contract."""
 
@@ -166,7 +186,7 @@ class Record:
         self.file, self.layout = file, layout
         self._buf = open_buffer(file)
         self._late_damage: dict[int, str] = {}
-        self._off_schema: Counter[str] = Counter()  # JSON messages that decode but do not fit their schema, by topic
+        self._off_schema: dict[str, set[tuple[int, int]]] = {}  # topic -> (log time, sequence) of each bad message
         topics = {c.topic: c.id for c in layout.channels.values()}
         self._ids = {topic: topics.get(topic, spec.id) for topic, spec in BY_TOPIC.items()}
         self._contexts: list[ContextChange] | None = None
@@ -234,17 +254,38 @@ class Record:
         for _, event in self._json(self.messages(["/events"]), "/events", _event_record):
             yield event
 
-    def _json(self, messages: Iterator[Message], topic: str, build: Callable[[dict], object]) -> Iterator[tuple]:
-        """(message, ``build(decoded JSON)``) per message; one that does not fit its schema is skipped and
-        counted, and ``health()`` reports it as damage (a reader never stops on a malformed message)."""
+    def measurements(self) -> Iterator[Measurement]:
+        """The readings in time order; one whose names or sizes differ from the first one's is skipped as
+        malformed (the readings of one cell have one layout, and a dataset needs it)."""
+        return self._measurements(self.messages(["/measurements"]))
+
+    def _measurements(self, messages: Iterable[Message]) -> Iterator[Measurement]:
+        names = None
+        for m, reading in self._json(messages, "/measurements", _measurement):
+            names = reading.names if names is None else names
+            if reading.names != names:
+                self._note("/measurements", m)
+                continue
+            yield reading
+
+    def _json(self, messages: Iterable[Message], topic: str, build: Callable[[dict], object]) -> Iterator[tuple]:
+        """(message, ``build(decoded JSON)``) per message, as ``_decoded``."""
+        return self._decoded(messages, topic, lambda data: build(json.loads(data)))
+
+    def _decoded(self, messages: Iterable[Message], topic: str, decode: Callable[[bytes], object]) -> Iterator[tuple]:
+        """(message, ``decode(data)``) per message; one that does not decode or fit its schema is skipped and
+        noted, and ``health()`` reports it as damage (a reader never stops on a malformed message)."""
         for m in messages:
             try:
-                d = json.loads(m.data)
-                value = build(d)
-            except (ValueError, KeyError, TypeError, AttributeError, IndexError):
-                self._off_schema[topic] += 1
+                value = decode(m.data)
+            except (RecordError, ValueError, KeyError, TypeError, AttributeError, IndexError):
+                self._note(topic, m)
                 continue
             yield m, value
+
+    def _note(self, topic: str, m: Message) -> None:
+        """Note a malformed message once, however often it is read."""
+        self._off_schema.setdefault(topic, set()).add((m.log_time, m.sequence))
 
     def chunks(self) -> Iterator[RecordedChunk]:
         for m in self.messages(["/chunks"]):
@@ -263,13 +304,22 @@ class Record:
         if cycle is not None:
             start_ns, end_ns = self._cycle_span(cycle)
         lo = None if start_ns is None else start_ns - self._batch_span_ns()
-        parts = []
-        if rate in ("decimated", "all"):
-            parts += [TICKS.decode(m.data) for m in self.messages(["/ticks/decimated"], lo, end_ns)]
-        if rate in ("full", "all"):  # a pre-trigger backlog is logged up to one window after its ticks
-            hi = None if end_ns is None else end_ns + self._backlog_ns()
-            parts += [TICKS.decode(m.data) for m in self.messages(["/ticks/full"], lo, hi)]
-        return _merge(parts, cycle, start_ns, end_ns)
+        hi = {"decimated": end_ns,  # a pre-trigger backlog is logged up to one window after its ticks
+              "full": None if end_ns is None else end_ns + self._backlog_ns()}
+        streams = {topic: self.messages([topic], lo, hi[name]) for name, topic in _TICK_TOPICS.items()
+                   if rate in (name, "all")}
+        return _merge(list(self._tick_batches(streams)), cycle, start_ns, end_ns)
+
+    def _tick_batches(self, streams: dict[str, Iterable[Message]]) -> Iterator[dict]:
+        """Decoded tick batches; one that is malformed, or names other joints than the first, is skipped."""
+        joints = None
+        for topic, messages in streams.items():
+            for m, batch in self._decoded(messages, topic, _tick_batch):
+                joints = batch["joints"] if joints is None else joints
+                if batch["joints"] != joints:
+                    self._note(topic, m)
+                    continue
+                yield batch
 
     def _cycle_span(self, cycle: int) -> tuple[int, int | None]:
         """Where a cycle lies in time: from the index if there is one, else from the cycle markers."""
@@ -319,13 +369,13 @@ class Record:
         counts = dict.fromkeys(self._ids, 0)
         first_t = last_t = None
         self.contexts  # noqa: B018 - read first, so that a lost context is known
-        for _ in (*self.cycles(), *self.events()):  # decoded, so that off-schema messages are counted
-            pass
         offset = self._offset or 0
+        by_topic: dict[str, list[Message]] = {t: [] for t in self._ids}
         for m in self.messages(list(self._ids)):
             topic = names.get(m.channel_id)
             if topic is None:
                 continue
+            by_topic[topic].append(m)
             counts[topic] += 1
             previous = last.get(m.channel_id, 0)
             if m.sequence > previous + 1:
@@ -333,12 +383,20 @@ class Record:
             last[m.channel_id] = max(previous, m.sequence)
             first_t = m.log_time if first_t is None else min(first_t, m.log_time)
             last_t = m.log_time if last_t is None else max(last_t, m.log_time)
+        decoded = [self._json(by_topic["/cycles"], "/cycles", _cycle_record),  # so that malformed ones are noted
+                   self._json(by_topic["/events"], "/events", _event_record),
+                   self._measurements(by_topic["/measurements"]),
+                   self._tick_batches({t: by_topic[t] for t in _TICK_TOPICS.values()})]
+        for _ in itertools.chain(*decoded):
+            pass
         damage = ([d.why for d in self.layout.damage] + list(self._late_damage.values())
-                  + [f"{n} {topic} message(s) off their schema, skipped" for topic, n in self._off_schema.items()])
+                  + [f"{len(bad)} {topic} message(s) off their schema, skipped"
+                     for topic, bad in self._off_schema.items()])
         damaged = len(self._late_damage) + sum("chunk at byte" in d.why for d in self.layout.damage)
         return Health(self.layout.finished, self.layout.truncated, len(self.layout.chunks) - len(self._late_damage),
                       damaged, tuple(damage), {t: tuple(g) for t, g in gaps.items()}, counts,
-                      None if first_t is None else (first_t - offset, last_t - offset), self.context_loss)
+                      None if first_t is None else (first_t - offset, last_t - offset), self.context_loss,
+                      {topic: len(bad) for topic, bad in self._off_schema.items()})
 
     # -- raw messages ---------------------------------------------------------------------
     def messages(self, topics: list[str], start_ns: int | None = None, end_ns: int | None = None
@@ -413,6 +471,29 @@ def _merge(parts: list[dict], cycle: int | None, start_ns: int | None, end_ns: i
     order = order[unique]
     picked = {f: v[keep][order] for f, v in values.items()}
     return Ticks(joints, t[order], cyc[order].astype(np.int64), **picked)
+
+
+def _tick_batch(data: bytes) -> dict:
+    """One /ticks message; ValueError unless it holds one time and cycle per tick and one value per tick and joint."""
+    d = TICKS.decode(data)
+    n, dof = len(d["t_ns"]), len(d["joints"])
+    if len(d["cycle"]) != n or any(d[f].size != n * dof for f in TICK_FIELDS):
+        raise ValueError("tick batch: arrays of different lengths")
+    return d
+
+
+def _measurement(d: dict) -> Measurement:
+    """A /measurements message; TypeError unless its readings are flat arrays of numbers."""
+    cycle, readings = d.get("cycle"), d["measurements"]
+    if not (isinstance(d["t_ns"], int) and (cycle is None or isinstance(cycle, int)) and isinstance(readings, dict)):
+        raise TypeError("measurement")
+    names, values = [], []
+    for key, array in readings.items():
+        if not (isinstance(array, list) and all(isinstance(x, int | float) and not isinstance(x, bool) for x in array)):
+            raise TypeError("measurement")
+        names += [f"{key}.{i}" for i in range(len(array))]
+        values += array
+    return Measurement(d["t_ns"], cycle, tuple(names), np.array(values, dtype=np.float64))
 
 
 def _context_fits(d: dict) -> dict:

@@ -12,6 +12,8 @@ passed its CRC. Messages carry per-channel sequence numbers, so a lost chunk sho
 from __future__ import annotations
 
 import mmap
+import os
+import stat
 import struct
 import zlib
 from dataclasses import dataclass, field
@@ -72,6 +74,7 @@ class Layout:
 def scan(path: Path) -> Layout:
     """The layout of ``path``: from its summary if that is sound, else by a linear scan."""
     path = Path(path)
+    require_regular(path, "the record")
     try:
         with open(path, "rb") as f:
             data = f.read(len(MAGIC))
@@ -88,6 +91,18 @@ def scan(path: Path) -> Layout:
         return layout if layout is not None else _linear(path, size, magic_ok=data == MAGIC)
     except (OSError, ValueError, struct.error) as exc:
         raise RecordError(f"{path}: cannot be read ({type(exc).__name__}: {exc})") from None
+
+
+def require_regular(path: Path, what: str) -> None:
+    """RecordError if ``path`` exists but is not a regular file: opening a FIFO waits for a writer that
+    may never come and a device may never end, so neither is opened (a missing file is left to the open)."""
+    try:
+        mode = os.stat(path).st_mode
+    except OSError:
+        return
+    if not stat.S_ISREG(mode):
+        raise RecordError(f"{path}: {what} is not a regular file (a folder, FIFO, socket or device); "
+                          f"nothing was read from it")
 
 
 def read_chunk(buf, ref: ChunkRef, channels: set[int] | None = None) -> list:
