@@ -91,7 +91,7 @@ MUTATIONS = (
              "return self._cap if tick.uncertainty > self._threshold else None", "return None",
              (f"{ENV}::test_uncertainty_gate_reduces_the_tool_speed_when_the_policy_is_unsure",)),
     Mutation("protective_stop_input_off", "safety controller protective-stop input", f"{CHECKS}/safety_input.py",
-             "return None if stop is None else self._stops[stop]", "return None",
+             "safety = tick.safety", "return None",
              (f"{ENV}::test_protective_stop_input_is_obeyed_through_the_cell",)),
     Mutation("category0_keeps_power", "stop category 0: power removed at once", ENVELOPE,
              "if category == 0 and self.power:", "if False:",
