@@ -35,6 +35,8 @@ def atomic_file(path: Path, what: str) -> Iterator[BinaryIO]:
     ``path`` is untouched and OutputError names it.
     """
     path = Path(path)
+    if path.is_dir():  # the rename would fail only after all the data was written
+        raise OutputError(f"{what} {path}: is a folder; name a file to write")
     make_folder(path.parent, what)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     try:

@@ -12,8 +12,8 @@ from rich.console import Console
 
 from cellguard.cli.app import app
 from cellguard.cli.errors import fail
-from cellguard.cli.record import say, warn_if_damaged
-from cellguard.cli.text import printable_tree
+from cellguard.cli.record import warn_if_damaged
+from cellguard.cli.text import printable_tree, say
 from cellguard.errors import CellguardError, ConfigError
 
 FLEET_HELP = ("Add what fixed each cause at other sites (the fleet store, as CELLGUARD_FLEET_DSN's tenant); "
@@ -52,7 +52,7 @@ def report(
 ) -> None:
     """Write a self-contained HTML report: timeline, last good versus faulted, drift, asymmetry, context."""
     from cellguard.diagnose.from_record import diagnose_record
-    from cellguard.record.export import refuse_output
+    from cellguard.record.outputs import refuse_output
     from cellguard.report.from_record import write_report
 
     try:

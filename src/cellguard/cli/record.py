@@ -16,7 +16,7 @@ from rich.console import Console
 
 from cellguard.cli.app import app
 from cellguard.cli.errors import fail
-from cellguard.cli.text import printable, printable_tree
+from cellguard.cli.text import printable_tree, say
 from cellguard.control.events import EventKind
 from cellguard.errors import CellguardError, RecordError
 
@@ -29,12 +29,6 @@ def _utc(wall_ns: int) -> str:
     import datetime as dt
 
     return dt.datetime.fromtimestamp(wall_ns * 1e-9, dt.timezone.utc).isoformat(timespec="milliseconds")
-
-
-def say(text: str, err: bool = True) -> None:
-    """One line on stderr (or stdout) as written: paths and record text are the user's, so no markup, and
-    control characters escaped (a file named ``rep[/].html`` or holding an escape code prints as it is)."""
-    (sys.stderr if err else sys.stdout).write(printable(text) + "\n")
 
 
 def warn_if_damaged(health, folder: Path) -> int:
@@ -128,7 +122,8 @@ def export(
     cycle: int | None = typer.Option(None, "--cycle", help="Only this cycle."),
 ) -> None:
     """Ticks as rows: t_ns, cycle, joint, q_ref, q_cmd, q_meas, qd_meas, effort, current."""
-    from cellguard.record.export import refuse_output, write_ticks
+    from cellguard.record.export import write_ticks
+    from cellguard.record.outputs import refuse_output
     from cellguard.record.reader import open_record
 
     try:
@@ -155,7 +150,7 @@ def to_lerobot(
     success_only: bool = typer.Option(False, "--success-only", help="Only cycles that succeeded."),
 ) -> None:
     """Cycles as a LeRobotDataset v3 (one episode per cycle): state, action sent, camera readings, task."""
-    from cellguard.record.export import refuse_output
+    from cellguard.record.outputs import refuse_output
     from cellguard.record.lerobot_export import export_lerobot
     from cellguard.record.reader import open_record
 
@@ -178,7 +173,7 @@ def recover(
     output: Path = typer.Option(..., "-o", "--output", help="New folder for the recovered record and index."),
 ) -> None:
     """Copy every readable chunk into a finished file with a fresh summary, and rebuild the index."""
-    from cellguard.record.export import refuse_output
+    from cellguard.record.outputs import refuse_output
     from cellguard.record.recovery import recover as run_recover
 
     try:

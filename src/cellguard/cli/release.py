@@ -209,12 +209,9 @@ def report(
     site: Path = SITE,
 ) -> None:
     """The release page: gates per stage with their evidence, against last_good's figures."""
-    from cellguard.errors import ConfigError
     from cellguard.report.release import write_release_page
 
     try:
-        if output.is_dir():
-            raise ConfigError(f"-o {output}: is a folder; name the HTML file to write (e.g. {output / 'release.html'})")
         path = write_release_page(_store(site, create=False), release, output)
     except CellguardError as exc:
         fail(exc)

@@ -13,7 +13,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from cellguard.cli.app import app
 from cellguard.cli.diagnose import print_diagnosis
 from cellguard.cli.errors import exit_if_stopped, fail
-from cellguard.cli.text import printable
+from cellguard.cli.text import say
 from cellguard.errors import CellguardError
 from cellguard.output import make_folder
 from cellguard.scenario import Scenario, load_scenario
@@ -47,7 +47,7 @@ def _run(scenario: Scenario, out: Path, quiet: bool, realtime: bool = False, ove
         partial = f"the record in {out} is partial (no summary.json)"
         if isinstance(exc, CellguardError):
             raise CellguardError(f"{exc}; {partial}") from exc
-        sys.stderr.write(f"error: {printable(partial)}\n")  # then the traceback, or Ctrl-C's line
+        say(f"error: {partial}")  # then the traceback, or Ctrl-C's line
         raise
     finally:
         if progress.live.is_started:  # stopping one never shown prints a blank line on a pipe

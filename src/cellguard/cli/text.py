@@ -8,6 +8,7 @@ characters are shown as escapes (``\\x1b``, ``\\n``), the rest is unchanged.
 
 from __future__ import annotations
 
+import sys
 import unicodedata
 
 
@@ -34,3 +35,9 @@ def printable_tree(value):
     if isinstance(value, (list, tuple)):
         return type(value)(printable_tree(v) for v in value)
     return value
+
+
+def say(text: str, err: bool = True) -> None:
+    """One line on stderr (or stdout) as written: paths and record text are the user's, so no markup, and
+    control characters escaped (a file named ``rep[/].html`` or holding an escape code prints as it is)."""
+    (sys.stderr if err else sys.stdout).write(printable(text) + "\n")

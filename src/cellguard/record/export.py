@@ -1,5 +1,4 @@
-"""Ticks as a long table (one row per tick and joint) for spreadsheets and other tools, and the check that
-keeps every command's output off a record."""
+"""Ticks as a long table (one row per tick and joint) for spreadsheets and other tools."""
 
 from __future__ import annotations
 
@@ -12,9 +11,7 @@ import pyarrow.parquet as pq
 
 from cellguard.errors import RecordError
 from cellguard.output import atomic_file
-from cellguard.record.reader import Ticks, record_file
-from cellguard.record.scan import MAGIC
-from cellguard.record.writer import RECORD_FILE
+from cellguard.record.reader import Ticks
 from cellguard.record.schemas import TICK_FIELDS
 
 
@@ -47,35 +44,3 @@ def write_ticks(ticks: Ticks, output: Path, fmt: str) -> int:
     except pa.ArrowException as exc:
         raise RecordError(f"-o {output}: cannot write ({exc})") from None
     return table.num_rows
-
-
-def refuse_output(output: Path, source: Path, to_folder: bool = False) -> None:
-    """RecordError unless ``output`` may be written: nothing recorded is ever overwritten.
-
-    Every command that writes (export, to-lerobot, recover, report) calls this before it reads
-    anything. Refused, after following links: the record being read (``source``, a run folder or
-    an .mcap file, whatever its bytes hold), a file that starts with the MCAP magic, and a run
-    folder (one holding record.mcap) or anything in it, since its summary, index and baseline
-    belong to the record. ``to_folder``: the output is a folder to fill, else a file.
-    """
-    try:
-        target = Path(output).resolve()
-        if target == record_file(source).resolve():
-            raise RecordError(f"-o {output}: is the record being read; cellguard never overwrites a record; "
-                              f"choose another path")
-        run = next((d for d in (target, *target.parents) if (d / RECORD_FILE).exists()), None)
-        if run is not None:
-            where = "is a run folder" if run == target else f"is in the run folder {run}"
-            raise RecordError(f"-o {output}: {where}, which holds a record; cellguard never overwrites a record "
-                              f"or its run folder; choose a path outside it")
-        if target.is_file():
-            with open(target, "rb") as f:
-                if f.read(len(MAGIC)) == MAGIC:
-                    raise RecordError(f"-o {output}: is a record; cellguard never overwrites a record; "
-                                      f"choose another path")
-    except (OSError, RuntimeError) as exc:  # RuntimeError: a symlink loop
-        raise RecordError(f"-o {output}: cannot be checked ({getattr(exc, 'strerror', None) or exc})") from None
-    if to_folder and target.exists() and not target.is_dir():
-        raise RecordError(f"-o {output}: is a file; give a new folder")
-    if not to_folder and target.is_dir():
-        raise RecordError(f"-o {output}: is a folder; name a file to write")

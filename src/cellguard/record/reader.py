@@ -370,12 +370,10 @@ class Record:
         first_t = last_t = None
         self.contexts  # noqa: B018 - read first, so that a lost context is known
         offset = self._offset or 0
-        by_topic: dict[str, list[Message]] = {t: [] for t in self._ids}
         for m in self.messages(list(self._ids)):
             topic = names.get(m.channel_id)
             if topic is None:
                 continue
-            by_topic[topic].append(m)
             counts[topic] += 1
             previous = last.get(m.channel_id, 0)
             if m.sequence > previous + 1:
@@ -383,11 +381,10 @@ class Record:
             last[m.channel_id] = max(previous, m.sequence)
             first_t = m.log_time if first_t is None else min(first_t, m.log_time)
             last_t = m.log_time if last_t is None else max(last_t, m.log_time)
-        decoded = [self._json(by_topic["/cycles"], "/cycles", _cycle_record),  # so that malformed ones are noted
-                   self._json(by_topic["/events"], "/events", _event_record),
-                   self._measurements(by_topic["/measurements"]),
-                   self._tick_batches({t: by_topic[t] for t in _TICK_TOPICS.values()})]
-        for _ in itertools.chain(*decoded):
+        # decoded in a second read, so that malformed messages are noted (held from the first, a long record's
+        # every message would be in memory at once)
+        for _ in itertools.chain(self.cycles(), self.events(), self.measurements(),
+                                 self._tick_batches({t: self.messages([t]) for t in _TICK_TOPICS.values()})):
             pass
         damage = ([d.why for d in self.layout.damage] + list(self._late_damage.values())
                   + [f"{len(bad)} {topic} message(s) off their schema, skipped"
