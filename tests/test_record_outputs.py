@@ -196,6 +196,7 @@ def _ragged(d):
     (_measurement(_ragged), "/measurements"),
     (lambda topic, data, i: data[:len(data) // 2] if topic == "/ticks/decimated" and i == 10 else data,
      "/ticks/decimated"),
+    (lambda topic, data, i: data[:len(data) // 2] if topic == "/chunks" and i == 2 else data, "/chunks"),
 ])
 def test_a_malformed_message_is_skipped_with_one_warning(run, tmp_path, change, topic):
     folder = _rewrite(run, tmp_path / "bad", change)
@@ -206,4 +207,13 @@ def test_a_malformed_message_is_skipped_with_one_warning(run, tmp_path, change, 
         warnings = [line for line in result.output.splitlines() if line.startswith("warning:")]
         assert result.exit_code == 1 and len(warnings) == 1, result.output
         assert f"1 {topic} message(s) malformed, skipped" in warnings[0]
+        assert "record recover" not in warnings[0]  # a recovered copy keeps the message as it is
     assert (tmp_path / "t.csv").is_file() and (tmp_path / "ds" / "meta" / "info.json").is_file()
+
+
+def test_chunks_are_read_past_a_malformed_one(run, tmp_path):
+    """Replay and the release evidence read every chunk; one malformed message is skipped, not the rest."""
+    folder = _rewrite(run, tmp_path / "bad", lambda topic, data, i: data[:9] if topic == "/chunks" and i == 2 else data)
+    whole = [c.t_received_ns for c in open_record(run).chunks()]
+    read = [c.t_received_ns for c in open_record(folder).chunks()]
+    assert len(whole) > 3 and read == whole[:2] + whole[3:]

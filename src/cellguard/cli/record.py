@@ -36,7 +36,7 @@ def warn_if_damaged(health, folder: Path) -> int:
     if health.ok:
         return 0
     hint = (f"; `cellguard record recover {folder} -o NEW_DIR` writes a finished copy"
-            if health.damage or not health.finished else "")
+            if health.recoverable else "")
     say(f"warning: {folder}: {health.describe()}{hint}")
     return 1
 

@@ -145,6 +145,12 @@ class Health:
         return (self.finished and not self.truncated and not self.damage and not any(self.gaps.values())
                 and self.context_loss is None)
 
+    @property
+    def recoverable(self) -> bool:
+        """A finished copy (``record recover``) would read more: the file is unfinished or has damaged bytes.
+        A malformed message is copied as it is, so it alone is not."""
+        return not self.finished or self.truncated or len(self.damage) > len(self.off_schema)
+
     def describe(self) -> str:
         if self.ok:
             return f"complete: {self.chunks_ok} chunks, {sum(self.messages.values())} messages"
@@ -288,12 +294,8 @@ class Record:
         self._off_schema.setdefault(topic, set()).add((m.log_time, m.sequence))
 
     def chunks(self) -> Iterator[RecordedChunk]:
-        for m in self.messages(["/chunks"]):
-            d = CHUNK.decode(m.data)
-            dof = max(int(d["dof"]), 1)
-            u = d["uncertainty"].astype(np.float64)
-            yield RecordedChunk(d["t_obs_ns"], d["t_received_ns"], d["latency_ns"], d["dt_ns"],
-                                d["actions"].astype(np.float64).reshape(-1, dof), u if u.size else None)
+        for _, chunk in self._decoded(self.messages(["/chunks"]), "/chunks", _recorded_chunk):
+            yield chunk
 
     # -- ticks ----------------------------------------------------------------------------
     def ticks(self, cycle: int | None = None, rate: str = "all", start_ns: int | None = None,
@@ -383,7 +385,7 @@ class Record:
             last_t = m.log_time if last_t is None else max(last_t, m.log_time)
         # decoded in a second read, so that malformed messages are noted (held from the first, a long record's
         # every message would be in memory at once)
-        for _ in itertools.chain(self.cycles(), self.events(), self.measurements(),
+        for _ in itertools.chain(self.cycles(), self.events(), self.measurements(), self.chunks(),
                                  self._tick_batches({t: self.messages([t]) for t in _TICK_TOPICS.values()})):
             pass
         damage = ([d.why for d in self.layout.damage] + list(self._late_damage.values())
@@ -477,6 +479,19 @@ def _tick_batch(data: bytes) -> dict:
     if len(d["cycle"]) != n or any(d[f].size != n * dof for f in TICK_FIELDS):
         raise ValueError("tick batch: arrays of different lengths")
     return d
+
+
+def _recorded_chunk(data: bytes) -> RecordedChunk:
+    """One /chunks message; ValueError unless its actions fill whole rows of ``dof`` joints (dof 0: the policy
+    returned no 2-D array, recorded flat as it came, read as one column)."""
+    d = CHUNK.decode(data)
+    dof = max(int(d["dof"]), 1)
+    actions = d["actions"].astype(np.float64)
+    if actions.size % dof:
+        raise ValueError("chunk: actions are not whole rows of dof")
+    u = d["uncertainty"].astype(np.float64)
+    return RecordedChunk(d["t_obs_ns"], d["t_received_ns"], d["latency_ns"], d["dt_ns"],
+                         actions.reshape(-1, dof), u if u.size else None)
 
 
 def _measurement(d: dict) -> Measurement:
