@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import pytest
 from release_helpers import CELL, cli, pointers, replay_file, two_runs_at_sim, write_plan
 
+from cellguard.control.checks.safety_input import ASKED_BY_LOOP
+from cellguard.record.reader import EventRecord
 from cellguard.release import Store, create_bundle, load_plan, promote, run_stage
 from cellguard.release.errors import BundleMismatch, GateError
 from cellguard.release.evidence import load_run
@@ -76,6 +80,24 @@ def test_gates_on_a_real_run_pass_fail_or_stay_inconclusive(one_run):
     assert evaluate(Gate(metric="cycle_time_p95_s", max_vs_last_good=0.9), [run], [run]).status == "fail"
     assert evaluate(Gate(metric="protective_stops", max=0), [run]).status == "pass"
     assert evaluate(Gate(metric="shadow_distance_p95_mrad", max=1.0), [run]).status == "inconclusive"
+
+
+def test_a_stop_the_loop_asked_for_counts_once(one_run):
+    """The loop's own event and the guard's protective stop that carries it out are one stop; a stop asked
+    with no event of the loop's (a recovery's hand-over hold) and the safety input's still count."""
+    store, _, result = one_run
+    run = load_run(result.folders[0], "one")
+
+    def stops(*events):
+        return evaluate(Gate(metric="protective_stops", max=0),
+                        [dataclasses.replace(run, events=tuple(EventRecord(*e) for e in events))]).value
+
+    operator = (10, "operator_stop", "SIGINT: the operator asked a stop", 2, None, None, None, 0)
+    carried = (11, "protective_stop", ASKED_BY_LOOP + "operator stop (SIGINT)", 2, None, None, None, 0)
+    hold = (50, "protective_stop", ASKED_BY_LOOP + "a recovery's hand-over hold", 2, None, None, None, 1)
+    controller = (60, "protective_stop", "safety controller protective stop input", 1, None, None, None, 1)
+    assert stops(operator, carried) == 1
+    assert stops(operator, carried, hold) == 2 and stops(hold, controller) == 2
 
 
 def test_promotion_needs_the_previous_stage_passed(one_run):

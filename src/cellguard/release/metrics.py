@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from cellguard.control.checks.safety_input import ASKED_BY_LOOP
 from cellguard.diagnose.diagnosis import ROUTINE_EVENTS, diagnose
 from cellguard.errors import CellguardError
 from cellguard.release.evidence import RunEvidence
@@ -74,9 +75,22 @@ def interventions_per_hour(runs) -> Measure:
 
 
 def protective_stops(runs) -> Measure:
-    stops = [f"{r.label(e.cycle)}: {e.kind} (category {e.category}): {e.reason}"
-             for r in runs for e in r.events if e.category is not None]
+    stops = [f"{r.label(e.cycle)}: {e.kind} (category {e.category}): {e.reason}" for r in runs for e in _stops(r)]
     return Measure(float(len(stops)), _n(runs), tuple(stops[:10]))
+
+
+def _stops(run: RunEvidence):
+    """Stop events of any category, each stop once: the guard's protective stop that carries out a stop the loop
+    asked for (operator stop, robot link fault, no first chunk) goes with the loop's own event before it in its
+    cycle; one with no such event (a recovery's hand-over hold) counts."""
+    causes = [e for e in run.events if e.category is not None and e.kind != "protective_stop"]
+    for e in run.events:
+        if e.category is None:
+            continue
+        if (e.kind == "protective_stop" and e.reason.startswith(ASKED_BY_LOOP)
+                and any(c.cycle == e.cycle and c.t_ns <= e.t_ns for c in causes)):
+            continue
+        yield e
 
 
 def limit_violations(runs) -> Measure:

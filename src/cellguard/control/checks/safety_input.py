@@ -6,6 +6,7 @@ from cellguard.control.checks.check import Check, SpeedCap, Stop, Tick
 from cellguard.control.events import EventKind
 
 REDUCED_SCALE_WITHOUT_TOOL = 0.25  # playback speed in reduced mode when no tool model gives the tool speed
+ASKED_BY_LOOP = "stop asked by the loop: "  # a protective stop's reason when the loop asked (its cause is its own event)
 
 
 class ProtectiveStopInput(Check):
@@ -20,7 +21,7 @@ class ProtectiveStopInput(Check):
         if safety.stop is None:
             return None
         if safety.asked_by is not None:  # the loop's own stop: the record must not blame the controller
-            return Stop(safety.stop, EventKind.PROTECTIVE_STOP, f"stop asked by the loop: {safety.asked_by}")
+            return Stop(safety.stop, EventKind.PROTECTIVE_STOP, ASKED_BY_LOOP + safety.asked_by)
         return self._stops[safety.stop]
 
 
