@@ -118,6 +118,19 @@ def test_to_lerobot_into_a_file_or_the_current_folder_is_one_line(run, tmp_path,
     assert sorted(os.listdir(tmp_path)) == ["afile", "run"] and (tmp_path / "afile").read_text() == "mine\n"
 
 
+def test_to_lerobot_into_the_empty_current_folder_keeps_that_folder(run, tmp_path, monkeypatch):
+    """The empty folder named by -o is written into, not replaced: a shell standing in it sees the dataset."""
+    here = tmp_path / "here"
+    here.mkdir()
+    inode = here.stat().st_ino
+    monkeypatch.chdir(here)
+    result = runner.invoke(app, ["record", "to-lerobot", str(run), "-o", "."])
+    assert result.exit_code == 0, result.output
+    assert here.stat().st_ino == inode and sorted(os.listdir(".")) == ["data", "meta"]
+    assert json.loads(Path("meta/info.json").read_text())["total_episodes"] == 6
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["here", "run"]  # no staging left beside it
+
+
 @pytest.mark.parametrize("name", ["rep[/].html", "rep[red]x.html", "rep\x1b[31m.html"])
 def test_report_prints_the_path_it_was_given(run, tmp_path, name):
     out = tmp_path / name

@@ -93,12 +93,14 @@ def export_lerobot(rec: Record, output: Path, fps: int = 50, task: str | None = 
     robot_type = robot_type or context.get("embodiment", {}).get("robot")
     try:
         _write_dataset(staging, data, features, episodes, kept, task, robot_type, fps)
-        output.rmdir()  # the empty folder _prepare checked or made
-        staging.rename(output)
+        # into the empty folder _prepare checked or made, which stays the same folder (it may be a shell's
+        # current folder); meta/ last: a dataset without meta/info.json is not one to LeRobot
+        for part in sorted(staging.iterdir(), key=lambda p: p.name == "meta"):
+            part.rename(output / part.name)
     except OSError as exc:
         raise RecordError(f"-o {output}: cannot write ({exc.strerror})") from None
     finally:
-        shutil.rmtree(staging, ignore_errors=True)  # this run's own folder; gone already once renamed
+        shutil.rmtree(staging, ignore_errors=True)  # this run's own folder; empty once its parts moved
     return LeRobotExport(str(output), fps, tuple(kept), len(data["index"]), tuple(skipped))
 
 
@@ -204,7 +206,8 @@ def _prepare(output: Path) -> Path:
         raise RecordError(f"-o {output}: exists and is not empty; give a new folder")
     try:
         output.mkdir(parents=True, exist_ok=True)
-        staging = Path(tempfile.mkdtemp(prefix=f".{output.name}.", suffix=".partial", dir=output.parent))
+        where = output.absolute()  # "." has no name and no parent of its own
+        staging = Path(tempfile.mkdtemp(prefix=f".{where.name}.", suffix=".partial", dir=where.parent))
         staging.chmod(output.stat().st_mode & 0o7777)  # mkdtemp's 0700 would hide the dataset from other users
         return staging
     except OSError as exc:
