@@ -5,9 +5,11 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 from release_helpers import CELL, replay_file
 
 from cellguard.control.settings import GuardSettings
+from cellguard.errors import ConfigError
 from cellguard.record.reader import open_record
 from cellguard.release.evidence import load_run
 from cellguard.release.metrics import METRICS
@@ -47,3 +49,11 @@ def test_the_same_program_in_shadow_is_at_zero_distance(tmp_path):
     assert np.isclose(METRICS["shadow_distance_p95_mrad"].compute([run]).value, 0.0, atol=1e-6)
     assert METRICS["shadow_would_clamp"].compute([run]).value == 0.0
     assert METRICS["shadow_would_stop"].compute([run]).value == 0.0
+
+
+def test_shadow_with_the_policy_in_its_own_process_is_refused():
+    """The inference process would run the incumbent alone: no candidate, an empty shadow, gates inconclusive."""
+    scenario = parse_scenario({"cell": CELL, "seed": 3, "policy": "scripted", "acceptance_cycles": 1,
+                               "production_cycles": 0, "realtime": {"inference": "process"}})
+    with pytest.raises(ConfigError, match="realtime.inference must be 'thread'"):
+        ShadowRun(scenario, "scripted", GuardSettings())

@@ -12,6 +12,7 @@ import pytest
 from sim_server_util import sway_file
 
 from cellguard.policy.async_inference import AsyncInference
+from cellguard.policy.registry import make_policy
 from cellguard.robot.registry import make_cell
 from cellguard.runtime import Run
 from cellguard.runtime.build import policy_in_process
@@ -49,7 +50,8 @@ def test_a_simulated_cell_runs_the_same_loop_on_wall_time(tmp_path):
 def test_inference_in_its_own_process_answers_and_reports_failures():
     cell = make_cell("arm-pick-place")
     cell.begin_cycle(0)
-    worker = AsyncInference(None, worker="process", factory=partial(policy_in_process, "scripted", "arm-pick-place", 0))
+    here = make_policy("scripted", cell)
+    worker = AsyncInference(here, worker="process", factory=partial(policy_in_process, "scripted", "arm-pick-place", 0))
     try:
         worker.submit(cell.observe())
         result = None
@@ -61,7 +63,7 @@ def test_inference_in_its_own_process_answers_and_reports_failures():
         assert result.chunk.actions.shape[1] == 6 and np.isfinite(result.chunk.actions).all()
     finally:
         worker.close()
-    broken = AsyncInference(None, worker="process", factory=partial(policy_in_process, "replay:/nonexistent.npz",
+    broken = AsyncInference(here, worker="process", factory=partial(policy_in_process, "replay:/nonexistent.npz",
                                                                     "arm-pick-place", 0))
     try:
         broken.submit(cell.observe())
@@ -73,6 +75,25 @@ def test_inference_in_its_own_process_answers_and_reports_failures():
         assert result.chunk is None and "policy could not be built" in result.error
     finally:
         broken.close()
+
+
+def test_the_inference_process_runs_only_the_policy_the_run_loaded():
+    """The process loads the policy again; one whose content differs from the run's copy (the run's checks,
+    record and release hash) is never run: each request answers why."""
+    cell = make_cell("arm-pick-place")
+    cell.begin_cycle(0)
+    other = partial(policy_in_process, "scripted", "quadruped-turns", 0)  # another program than the run's
+    worker = AsyncInference(make_policy("scripted", cell), worker="process", factory=other)
+    try:
+        worker.submit(cell.observe())
+        result = None
+        deadline = time.monotonic() + 60
+        while result is None and time.monotonic() < deadline:
+            time.sleep(0.01)
+            result = worker.take()
+        assert result.chunk is None and "policy in the inference process is not the run's" in result.error
+    finally:
+        worker.close()
 
 
 def test_a_pause_between_stretches_of_ticks_is_counted_as_a_pause_not_as_a_late_tick():

@@ -55,10 +55,11 @@ class PolicyProcess:
     waiting thread releases the GIL); an exception in the child comes back as a RuntimeError.
     """
 
-    def __init__(self, factory: Callable[[], Policy]):
+    def __init__(self, factory: Callable[[], Policy], sha256: str | None = None):
         ctx = multiprocessing.get_context("spawn")
         self._conn, child = ctx.Pipe()
-        self._process = ctx.Process(target=_serve_policy, args=(child, factory), name="cellguard-policy", daemon=True)
+        self._process = ctx.Process(target=_serve_policy, args=(child, factory, sha256), name="cellguard-policy",
+                                    daemon=True)
         self._process.start()
         child.close()
 
@@ -95,10 +96,16 @@ class PolicyProcess:
             self._process.kill()
 
 
-def _serve_policy(conn, factory) -> None:
+def _serve_policy(conn, factory, sha256: str | None) -> None:
+    """Answer the parent's requests. The policy is loaded again here; unless its content hash is ``sha256``
+    (the copy the run checked, recorded and released) it is not run: its file changed in between."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # a terminal's Ctrl-C reaches the whole group: the loop decides
     try:
         policy, broken = factory(), None
+        loaded = policy.content_hash() if sha256 is not None else None
+        if loaded != sha256:
+            broken = (f"policy in the inference process is not the run's: sha256 {loaded[:12]}, the run loaded "
+                      f"{sha256[:12]} (its source changed meanwhile)")
     except Exception as exc:  # noqa: BLE001 - every request is answered with why the policy is missing
         policy, broken = None, f"policy could not be built: {type(exc).__name__}: {exc}"
     while True:
@@ -132,7 +139,7 @@ class AsyncInference:
         if worker not in ("thread", "process") or (worker == "process" and factory is None):
             raise ConfigError(f"async inference: worker must be 'thread' or 'process' (with a factory), got {worker!r}")
         self.policy, self.threshold, self.clock, self._prepare = policy, threshold, clock, prepare
-        self._remote = PolicyProcess(factory) if worker == "process" else None
+        self._remote = PolicyProcess(factory, policy.content_hash()) if worker == "process" else None
         self._reset_remote = False
         self.results: deque[InferenceResult] = deque(maxlen=RESULTS_KEPT)
         self._lock = threading.Lock()

@@ -19,6 +19,7 @@ import numpy as np
 from cellguard.control.guard import Guard
 from cellguard.control.settings import GuardSettings, build_guard
 from cellguard.diagnose.diagnosis import ROUTINE_EVENTS
+from cellguard.errors import ConfigError
 from cellguard.policy.registry import make_policy
 from cellguard.release.evidence import SHADOW_FILE
 from cellguard.release.metrics import action_at
@@ -100,6 +101,9 @@ class ShadowRun(Run):
     """A run of the incumbent (``scenario.policy``) with ``candidate`` in shadow mode."""
 
     def __init__(self, scenario: Scenario, candidate: str, candidate_guard: GuardSettings):
+        if scenario.realtime.inference == "process":  # the process would run the incumbent alone
+            raise ConfigError("shadow mode runs the candidate beside the incumbent in the loop's process: "
+                              "realtime.inference must be 'thread'")
         super().__init__(scenario)
         shadow_guard = build_guard(self.cell, candidate_guard)
         self.policy = ShadowedPolicy(self.policy, make_policy(candidate, self.cell), shadow_guard, self.cell.dt_ns,
