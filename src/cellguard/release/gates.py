@@ -123,4 +123,17 @@ def gate_error(where: str, exc) -> GateError:
     err = exc.errors()[0]
     loc = ".".join(str(p) for p in err["loc"])
     msg = "unknown key" if err["type"] == "extra_forbidden" else err["msg"].removeprefix("Value error, ")
+    got = err.get("input")
+    if isinstance(got, str | bool | int | float) and err["type"] != "extra_forbidden":
+        msg += f" (got {got!r}" + (": text to YAML; write a number unquoted, and 1e3 as 1.0e+3)"
+                                    if isinstance(got, str) and _number_as_text(got) else ")")
     return GateError(f"{where}{'.' + loc if loc else ''}: {msg}")
+
+
+def _number_as_text(text: str) -> bool:
+    """YAML 1.1 reads 1e3 and 1e999 as strings (its floats need a dot)."""
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
