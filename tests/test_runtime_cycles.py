@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from cellguard.errors import ScenarioError
+from cellguard.robot.registry import make_cell
 from cellguard.robot.state import State
 from cellguard.runtime import Run
 from cellguard.runtime.cycles import DigitalInput, FixedTime, HomeReturn, make_cycle_source
@@ -27,7 +28,8 @@ def test_home_return_needs_leaving_home_first_then_arriving_slow():
     assert not source.finished(_state(0.5, [0.3, 0.0]))  # left
     assert not source.finished(_state(0.9, [0.005, 0.0], qd=0.2))  # back but still moving
     assert source.finished(_state(1.0, [0.005, 0.0]))
-    assert source.end(round(1.0e9)) == {"success": True, "cycle_time_s": 1.0}
+    assert source.end(round(1.0e9), False) == {"success": True, "cycle_time_s": 1.0}
+    assert source.end(round(1.0e9), True)["success"] is False  # the cell was stopped in the cycle
 
 
 def test_fixed_time_and_digital_input_edges():
@@ -71,6 +73,21 @@ def test_the_arm_cell_ends_cycles_on_its_home_pose_like_its_task_does():
     a, b = task.cycle(), home.cycle()
     assert a["success"] and b["success"]
     assert abs(a["cycle_time_s"] - b["cycle_time_s"]) < 0.2
+
+
+def test_a_policy_whose_first_chunk_is_refused_never_moves_the_arm_and_its_timed_cycle_fails(tmp_path):
+    """A first chunk 100 rad off every joint: no approach towards it (it was clipped into the limits and
+    played), the guard refuses it, and a fixed-time cycle in which the cell was stopped is no success."""
+    far = tmp_path / "far.npz"
+    q0 = make_cell("arm-pick-place").read().q
+    np.savez(far, t=np.array([0.0]), actions=np.tile(q0 + 100.0, (1, 10, 1)), dt=np.array(0.05))
+    run = Run(parse_scenario({"cell": "arm-pick-place", "seed": 4, "acceptance_cycles": 1, "production_cycles": 0,
+                              "policy": f"replay:{far}", "cycle": {"source": "time", "seconds": 1.0}}))
+    outcome = run.cycle()
+    kinds = [e.kind for e in run.events]
+    assert "chunk_rejected" in kinds and "watchdog_no_first_chunk" in kinds
+    assert "approach_begin" not in kinds and outcome["success"] is False
+    assert float(np.abs(run.link.state.q - q0).max()) < 0.01
 
 
 def test_event_and_cycle_windows_stay_bounded_and_keep_absolute_indices():

@@ -1,9 +1,11 @@
 """Cycle sources: where one cycle of the loop ends, chosen by the scenario's ``cycle.source``.
 
 A source has ``begin(index, t_ns)``, ``finished(state) -> bool`` (once per tick) and
-``end(t_ns) -> dict`` (the cycle's outcome: ``success`` plus measured values, SI). The
-simulated cell's task is one source; on hardware a digital input (a PLC's part-done signal), a
-return to the home pose, the policy's own episode end or a fixed episode time end a cycle.
+``end(t_ns, stopped) -> dict`` (the cycle's outcome: ``success`` plus measured values, SI;
+``stopped``: the cell was stopped during the cycle). The simulated cell's task is one source and
+judges the part itself; on hardware a digital input (a PLC's part-done signal), a return to the
+home pose, the policy's own episode end or a fixed episode time end a cycle, and a cycle in which
+the cell was stopped is no success (a fixed time ran out on a robot that never moved).
 """
 
 from __future__ import annotations
@@ -27,7 +29,7 @@ class CellTask:
     def begin(self, index: int, t_ns: int) -> None:
         self._cell.begin_cycle(index)
 
-    def end(self, t_ns: int) -> dict:
+    def end(self, t_ns: int, stopped: bool) -> dict:
         return self._cell.end_cycle()
 
 
@@ -37,8 +39,8 @@ class _Timed:
     def begin(self, index: int, t_ns: int) -> None:
         self._t0, self._done = t_ns, False
 
-    def end(self, t_ns: int) -> dict:
-        return {"success": self._done, "cycle_time_s": (t_ns - self._t0) * 1e-9}
+    def end(self, t_ns: int, stopped: bool) -> dict:
+        return {"success": self._done and not stopped, "cycle_time_s": (t_ns - self._t0) * 1e-9}
 
 
 class DigitalInput(_Timed):

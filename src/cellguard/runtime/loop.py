@@ -12,6 +12,7 @@ target far from the measured pose is approached with a limit-respecting trajecto
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from collections.abc import Callable
 from pathlib import Path
@@ -196,7 +197,8 @@ class Run:
                 if finished(state) or t >= timeout:
                     break
         t_end = clock.now()
-        outcome = {"cycle": index, "phase": self._phase(index), **self.source.end(t_end)}
+        stopped = any(e.category is not None for e in events.since(first_event))
+        outcome = {"cycle": index, "phase": self._phase(index), **self.source.end(t_end, stopped)}
         outcome["timed_out"] = t_end >= timeout
         if recovery is not None:
             outcome.update(recovery.end_cycle(outcome["timed_out"]))
@@ -219,9 +221,12 @@ class Run:
             self._wall_ns.append(arrival.wall_ns)
             return
         if not self._started:
-            arrival = self._start(arrival)
-            if arrival is None:  # an approach was played; a fresh request follows
-                return
+            if arrival.prepared is None:  # simulated time: checked here, as the worker would have
+                arrival = dataclasses.replace(arrival, prepared=self.guard.executor.prepare(arrival.chunk))
+            if arrival.prepared.problem is None:  # a refused chunk is an event below; the next one starts the run
+                arrival = self._start(arrival)
+                if arrival is None:  # an approach was played; a fresh request follows
+                    return
         if self.recording is not None:
             self.recording.chunk(arrival.chunk, t_ns, arrival.latency_ns)
         self.events.extend(self.guard.push(arrival.prepared or arrival.chunk, t_ns))
