@@ -1,9 +1,11 @@
 """The robot link as the loop uses it: reads and writes that never raise, watched every tick.
 
-A read that raises, times out or returns a stale stamp (a dead bus reads as a frozen but healthy
-robot), a write that fails, and more lost packets than the budget each raise one named event
-and ask the guard for the scenario's stop category. A setpoint that is not finite never
-reaches the robot: the last finite one is sent again and the refusal is an event.
+A read that raises, times out, returns a stale stamp (a dead bus reads as a frozen but healthy
+robot) or one from the future (a clock that jumped), or a state that is not finite, a write that
+fails, and more lost packets than the budget each raise one named event and ask the guard for the
+scenario's stop category; a state that is not finite is never used (the last good one stands in).
+A setpoint that is not finite never reaches the robot: the last finite one is sent again and the
+refusal is an event.
 """
 
 from __future__ import annotations
@@ -43,9 +45,16 @@ class RobotLink:
         except Exception as exc:  # noqa: BLE001 - a bridge bug must stop the robot, not kill the loop
             self.fault(t_ns, EventKind.ROBOT_READ_FAILED, f"{type(exc).__name__}: {exc}")
             return self.state
-        if self.stale_ns is not None and t_ns - state.t_ns > self.stale_ns:
-            self.fault(t_ns, EventKind.ROBOT_STATE_STALE, f"state stamp {(t_ns - state.t_ns) * 1e-6:.1f} ms old "
-                        f"(limit {self.stale_ns * 1e-6:.0f} ms)")
+        q, qd, effort = state.q, state.qd, state.effort
+        if not math.isfinite(q.dot(q) + qd.dot(qd) + effort.dot(effort)):  # NaN, inf or absurd anywhere
+            self.fault(t_ns, EventKind.ROBOT_READ_FAILED, "the robot reported a position, velocity or effort that "
+                       "is not finite; the last good state stands in")
+            return self.state
+        if self.stale_ns is not None and abs(t_ns - state.t_ns) > self.stale_ns:
+            age = (t_ns - state.t_ns) * 1e-6
+            self.fault(t_ns, EventKind.ROBOT_STATE_STALE, (f"state stamp {age:.1f} ms old" if age > 0 else
+                        f"state stamp {-age:.1f} ms ahead of the loop's clock") +
+                       f" (limit {self.stale_ns * 1e-6:.0f} ms)")
         if self.drop_budget is not None and self.robot.dropped > self.drop_budget:
             self.fault(t_ns, EventKind.ROBOT_PACKETS_DROPPED, f"{self.robot.dropped} packets lost "
                         f"(budget {self.drop_budget})")

@@ -32,10 +32,11 @@ class Transition:
     @classmethod
     def plan(cls, profile: Profile, start: np.ndarray, target: np.ndarray, period_ns: int,
              tolerance: float = TOLERANCE) -> Transition | None:
-        """The transition from ``start`` to ``target`` (clipped into the limits), or None if already there."""
+        """The transition from ``start`` to ``target`` (clipped into the limits), or None if already there
+        or either pose is not finite (ruckig raises on NaN)."""
         target = np.clip(np.asarray(target, dtype=np.float64), profile.q_min, profile.q_max)
         start = np.asarray(start, dtype=np.float64)
-        if not np.isfinite(target).all() or float(np.abs(target - start).max()) < tolerance:
+        if not (np.isfinite(target).all() and np.isfinite(start).all()) or float(np.abs(target - start).max()) < tolerance:
             return None
         dof = profile.dof
         otg, inp, traj = ruckig.Ruckig(dof), ruckig.InputParameter(dof), ruckig.Trajectory(dof)
