@@ -89,3 +89,14 @@ def test_bad_models_and_options_are_named(tmp_path, foreign_model):
         make_policy(f"onnx:{path}", cell)
     with pytest.raises(ConfigError, match="unknown option 'mapp'"):
         make_policy(f"onnx:{foreign_model[0]}?mapp=x", cell)
+
+
+def test_a_model_whose_state_input_has_another_width_is_refused_at_load(tmp_path):
+    """It loaded, and every call failed at run time (inference_failed, then the watchdog's stop)."""
+    rng = np.random.default_rng(1)
+    mlp = Mlp(inputs=(("state", 3), ("time_s", 1)), weights=(rng.normal(size=(4, 8)), rng.normal(size=(8, 12))),
+              biases=(np.zeros(8), np.zeros(12)), x_mean=np.zeros(4), x_std=np.ones(4), y_mean=np.zeros(12),
+              y_std=np.ones(12), horizon=2)
+    path = save_mlp_onnx(mlp, tmp_path / "narrow.onnx", {})
+    with pytest.raises(ConfigError, match=r"model input 'state' has shape \[1, 3\]; the cell feeds it \(1, 6\)"):
+        make_policy(f"onnx:{path}", ArmPickPlace())

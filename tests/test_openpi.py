@@ -177,3 +177,11 @@ def test_api_key_header_is_sent_and_server_errors_surface(map_file, monkeypatch)
 def test_unset_api_key_variable_is_a_config_error(foreign_server, map_file):
     with pytest.raises(ConfigError, match="api_key_env: environment variable 'NO_SUCH_VAR_X' is not set"):
         make_openpi_policy(f"{foreign_server}?map={map_file}&api_key_env=NO_SUCH_VAR_X", ArmPickPlace())
+
+
+@pytest.mark.parametrize("metadata, why", [({"dt_s": 0.02}, "gives no action_dim or action_names"),
+                                           ({"action_dim": 10**12}, "action_dim 1000000000000 is not an integer"),
+                                           ({"action_dim": "6"}, "action_dim '6' is not an integer")])
+def test_metadata_without_a_usable_action_dim_says_which(metadata, why, map_file):
+    with serve(ForeignScriptedPolicy(), metadata) as uri, pytest.raises(ConfigError, match=why):
+        make_openpi_policy(f"{uri}?map={map_file}", ArmPickPlace())

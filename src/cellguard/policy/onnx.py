@@ -58,6 +58,15 @@ class OnnxBackend:
         self.action_dim = last
         self._output = self.session.get_outputs()[0].name
 
+    def check_widths(self, widths: dict[str, int], source: str) -> None:
+        """Refuse a model whose inputs cannot take what the cell feeds (every call would fail at run time);
+        each is fed as (1, width)."""
+        for name, shape in self.inputs:
+            last = shape[-1] if shape else None
+            if len(shape) > 2 or (isinstance(last, int) and last != widths[name]):
+                raise ConfigError(f"policy: {source}: model input {name!r} has shape {shape}; the cell feeds it "
+                                  f"(1, {widths[name]})")
+
     def infer(self, inputs: PolicyInputs) -> np.ndarray:
         feed = {}
         for name, _ in self.inputs:
@@ -81,9 +90,12 @@ class OnnxBackend:
 def make_onnx_policy(arg: str, cell) -> MappedPolicy:
     """``onnx:FILE[?map=MAP.yaml&dt=0.02]`` for ``cell``."""
     target, options = split_options(arg, OPTIONS, "onnx")
-    measurements = tuple(cell.observe().measurements)
-    backend = OnnxBackend(Path(target), measurements)
+    backend = OnnxBackend(Path(target), tuple(cell.observe().measurements))
     source = f"onnx:{target}"
     amap = resolve_map(backend, cell, options.get("map"), source)
     dt = option_float(options, "dt", backend.dt_s or 0.02, "onnx", DT_RANGE_S)
-    return MappedPolicy(backend, amap, cell, source, dt)
+    policy = MappedPolicy(backend, amap, cell, source, dt)
+    observation = cell.observe()
+    backend.check_widths({"state": amap.to_policy_state(observation.q, policy.solver).size, "time_s": 1,
+                          **{k: np.size(v) for k, v in observation.measurements.items()}}, source)
+    return policy

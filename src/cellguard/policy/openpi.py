@@ -53,9 +53,12 @@ class OpenpiBackend:
         names = self.metadata.get("action_names")
         self.action_names = tuple(str(n) for n in names) if isinstance(names, (list, tuple)) else None
         dim = self.metadata.get("action_dim", len(self.action_names) if self.action_names else None)
-        if isinstance(dim, bool) or not isinstance(dim, int) or not 0 < dim <= MAX_ACTION_DIM:
+        if dim is None:
             raise ConfigError(f"policy: openpi:{uri}: the server's metadata gives no action_dim or action_names; "
                               f"metadata keys: {', '.join(map(str, self.metadata)) or 'none'}")
+        if isinstance(dim, bool) or not isinstance(dim, int) or not 0 < dim <= MAX_ACTION_DIM:
+            raise ConfigError(f"policy: openpi:{uri}: the server's metadata action_dim {dim!r:.40} is not an "
+                              f"integer in 1..{MAX_ACTION_DIM}")
         self.action_dim = dim
         self.embedded_map = None
 
