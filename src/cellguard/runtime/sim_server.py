@@ -5,6 +5,11 @@ counted and never applied), step the physics, and send the client one state pack
 with the monotonic clock. The cell runs its own task (``OwnTask``): when a cycle is over the
 next part arrives at once and the digital input ``cycle_done`` pulses.
 
+A hello starts a session: its sender is the client, and the command sequence starts again. A
+packet the server does not act on (a command from another peer, an older or non-finite one, a
+malformed packet) is counted by reason and said on stderr, the first of each reason and then at
+most once a second; a new client is said too.
+
 For tests of the robot link, the server can misbehave on purpose: ``delay_ms`` holds every
 state packet back, ``drop_every`` loses every n-th one. These are transport faults of the
 simulated robot, not cell faults.
@@ -20,10 +25,12 @@ from collections import deque
 
 import numpy as np
 
-from cellguard.robot.bridges.sim_server import Layout, unpack_command
+from cellguard.robot.bridges.sim_server import Layout, command_size, unpack_command
 from cellguard.robot.own_task import OwnTask
 from cellguard.robot.registry import make_cell
 from cellguard.runtime.clock import WallClock
+
+NOTE_EVERY_NS = 1_000_000_000  # a refusal of one reason is said on stderr at most this often
 
 
 class SimServer:
@@ -47,8 +54,10 @@ class SimServer:
                      "q_home": np.asarray(getattr(cell, "q_home", cell.read().q)).tolist(), "inputs": ["cycle_done"]}
         self.layout = Layout(cell.profile.dof, self.meta["measurements"])
         self.client = None
-        self.counters = {"commands": 0, "nonfinite_commands": 0, "states_sent": 0, "states_dropped": 0, "cycles": 0}
+        self.counters = {"commands": 0, "nonfinite_commands": 0, "stale_commands": 0, "foreign_commands": 0,
+                         "malformed_packets": 0, "states_sent": 0, "states_dropped": 0, "cycles": 0}
         self._power, self._cmd_seq, self._seq = True, 0, 0
+        self._noted: dict[str, int] = {}  # when each refusal reason was last said [ns]
         self._delayed: deque = deque()
         self.task = OwnTask(cell)
 
@@ -81,30 +90,59 @@ class SimServer:
                 return
             kind = packet[:1]
             if kind == b"H":
-                self.client = addr
-                self._delayed.clear()
-                self.sock.sendto(b"M" + json.dumps(self.meta).encode(), addr)
+                self._hello(addr)
             elif kind == b"?":
                 self.sock.sendto(b"R" + json.dumps(self.counters).encode(), addr)
             elif kind == b"C":
-                self._command(packet)
+                self._command(packet, addr)
+            else:
+                self._refuse("malformed_packets", f"dropped a packet of {len(packet)} bytes from {_peer(addr)}: "
+                                                  f"unknown kind {kind!r} (H, C or ?)")
 
-    def _command(self, packet: bytes) -> None:
-        parsed = unpack_command(packet, self.cell.profile.dof)
+    def _hello(self, addr) -> None:
+        """A new session: the sender is the client, and its commands count from 1 again (a second run's were all
+        older than the first run's last one, and ignored)."""
+        if addr != self.client:
+            before = "" if self.client is None else f"; commands from {_peer(self.client)} are refused from now on"
+            sys.stderr.write(f"sim-server: client {_peer(addr)} said hello{before}\n")
+        self.client, self._cmd_seq = addr, 0
+        self._delayed.clear()
+        self.sock.sendto(b"M" + json.dumps(self.meta).encode(), addr)
+
+    def _command(self, packet: bytes, addr) -> None:
+        """Apply a command of the client's that is newer than the one in force; refuse any other (a peer that never
+        said hello moved the robot, and its seq 2^64-1 locked every client out)."""
+        if addr != self.client:
+            self._refuse("foreign_commands", f"refused a command from {_peer(addr)}: not the client (say hello first)")
+            return
+        dof = self.cell.profile.dof
+        parsed = unpack_command(packet, dof)
         if parsed is None:
+            self._refuse("malformed_packets", f"dropped a command of {len(packet)} bytes, expected "
+                                              f"{command_size(dof)} ({dof} joints)")
             return
         seq, _, power, setpoint = parsed
         self.counters["commands"] += 1
         if not np.isfinite(setpoint).all():
-            self.counters["nonfinite_commands"] += 1
+            self._refuse("nonfinite_commands", f"refused command {seq}: a setpoint value is not finite")
             return
         if seq <= self._cmd_seq:
-            return  # older than the command in force
+            self._refuse("stale_commands", f"ignored command {seq}: not newer than command {self._cmd_seq} in force")
+            return
         self._cmd_seq = seq
         if power != self._power:
             self._power = power
             self.cell.set_power(power)
         self.cell.write(setpoint)
+
+    def _refuse(self, reason: str, why: str) -> None:
+        """Count a packet not acted on under ``reason``; say ``why`` on stderr the first time and then at most once
+        a second per reason (a flood neither fills the log nor stalls the tick)."""
+        self.counters[reason] += 1
+        now, last = time.monotonic_ns(), self._noted.get(reason)
+        if last is None or now - last >= NOTE_EVERY_NS:
+            self._noted[reason] = now
+            sys.stderr.write(f"sim-server: {why} ({reason}: {self.counters[reason]})\n")
 
     def _send(self, packet: bytes) -> None:
         try:
@@ -112,6 +150,10 @@ class SimServer:
             self.counters["states_sent"] += 1
         except OSError:
             pass  # the client went away; it says hello again when it comes back
+
+
+def _peer(addr) -> str:
+    return f"{addr[0]}:{addr[1]}"
 
 
 def serve(cell_name: str, port: int, seed: int = 0, delay_ms: float = 0.0, drop_every: int = 0,

@@ -5,10 +5,13 @@ metadata as JSON (``M``: cell, seed, joints, dt_ns, measurement sizes, home pose
 on sends one state packet per servo period to that client; the client sends one command
 packet per tick. Every packet has a sequence number and a monotonic timestamp [ns] (both
 processes read the same CLOCK_MONOTONIC), so the client counts lost packets and sees stale
-state. A ``?`` asks the server for its counters (commands received, non-finite commands).
+state. A hello starts a session: the server takes commands from that client only, and their
+sequence starts again. A ``?`` asks the server for its counters (commands received; packets
+refused: non-finite, stale, from a peer that is not the client, malformed).
 
     state   b"S" seq:u64 t_ns:i64 cmd_seq:u64  then float64: q, qd, effort, current, sent (dof each),
-            measurements (concatenated), cycle_done, safety_stop (-1: none), reduced_speed
+            measurements (concatenated), cycle_done (0/1), safety_stop (-1: none, else the stop category
+            0-2), reduced_speed (0/1)
     command b"C" seq:u64 t_ns:i64 power:u8     then float64: setpoint (dof)
 
 The profile, forward kinematics and home pose come from the registered cell's own model (a
@@ -33,6 +36,7 @@ from cellguard.robot.state import Observation, State
 STATE_HEAD = struct.Struct("<cQqQ")
 COMMAND_HEAD = struct.Struct("<cQqB")
 HELLO_TIMEOUT_S = 2.0
+FLAG_VALUES, STOP_VALUES = (0.0, 1.0), (-1.0, 0.0, 1.0, 2.0)  # what a state packet's last three fields may be
 LOOPBACK = ("127.0.0.1", "localhost")
 
 
@@ -65,10 +69,14 @@ class Layout:
         return STATE_HEAD.pack(b"S", seq, t_ns, cmd_seq) + body.astype("<f8").tobytes()
 
     def unpack_state(self, packet: bytes):
+        """A state packet of another length, or with flags that are not 0/1 or a stop that is not a category,
+        raises ``robot_read_failed``: its fields cannot be told apart or read as what they are."""
+        expected = STATE_HEAD.size + 8 * self.size
+        if len(packet) != expected:
+            raise RobotLinkError("robot_read_failed", f"sim-server state packet of {len(packet)} bytes, expected "
+                                 f"{expected} ({self.size} values)")
         _, seq, t_ns, cmd_seq = STATE_HEAD.unpack_from(packet)
         body = np.frombuffer(packet, dtype="<f8", offset=STATE_HEAD.size)
-        if body.size != self.size:
-            raise RobotLinkError("robot_read_failed", f"state packet of {body.size} values, expected {self.size}")
         body = body.astype(np.float64)  # one private copy per packet; the fields below are views of it
         d = self.dof
         state = State(t_ns, body[0:d], body[d:2 * d], body[2 * d:3 * d], body[3 * d:4 * d])
@@ -76,8 +84,13 @@ class Layout:
         for name, n in self.measurements.items():
             measurements[name] = body[i:i + n]
             i += n
-        stop = int(body[i + 1])
-        return seq, state, measurements, bool(body[i]), _safety(None if stop < 0 else stop, bool(body[i + 2]))
+        cycle_done, stop, reduced_speed = body[i], body[i + 1], body[i + 2]
+        if cycle_done not in FLAG_VALUES or stop not in STOP_VALUES or reduced_speed not in FLAG_VALUES:
+            raise RobotLinkError("robot_read_failed", f"sim-server state packet with cycle_done {cycle_done}, "
+                                 f"safety_stop {stop}, reduced_speed {reduced_speed}; expected 0 or 1, -1 (none) or "
+                                 "0-2, 0 or 1")
+        stop = int(stop)
+        return seq, state, measurements, bool(cycle_done), _safety(None if stop < 0 else stop, bool(reduced_speed))
 
 
 @functools.lru_cache(maxsize=16)
@@ -90,12 +103,17 @@ def pack_command(seq: int, t_ns: int, power: bool, setpoint: np.ndarray) -> byte
     return COMMAND_HEAD.pack(b"C", seq, t_ns, int(power)) + np.asarray(setpoint, dtype="<f8").tobytes()
 
 
+def command_size(dof: int) -> int:
+    """The length of a command packet for ``dof`` joints [bytes]."""
+    return COMMAND_HEAD.size + 8 * dof
+
+
 def unpack_command(packet: bytes, dof: int):
-    _, seq, t_ns, power = COMMAND_HEAD.unpack_from(packet)
-    setpoint = np.frombuffer(packet, dtype="<f8", offset=COMMAND_HEAD.size)
-    if setpoint.size != dof:
+    """(seq, t_ns, power, setpoint) of a command packet; None for a packet of another length."""
+    if len(packet) != command_size(dof):
         return None
-    return seq, t_ns, bool(power), setpoint
+    _, seq, t_ns, power = COMMAND_HEAD.unpack_from(packet)
+    return seq, t_ns, bool(power), np.frombuffer(packet, dtype="<f8", offset=COMMAND_HEAD.size)
 
 
 class SimServerRobot:
@@ -114,8 +132,8 @@ class SimServerRobot:
         from cellguard.robot.registry import make_cell
 
         self._model = make_cell(self.meta["cell"], seed=self.meta["seed"])  # kinematics and profile only
-        self.name, self.profile, self.dt_ns = self._model.name, self._model.profile, int(self.meta["dt_ns"])
-        self.q_home = np.asarray(self.meta["q_home"], dtype=np.float64)
+        self.name, self.profile, self.dt_ns = self._model.name, self._model.profile, self.meta["dt_ns"]
+        self.q_home = self._home(self.meta.get("q_home"))
         self.tool_point = self._model.tool_point if hasattr(self._model, "tool_point") else None
         self.workspace_box = getattr(self._model, "workspace_box", None)
         self.layout = Layout(self.profile.dof, self.meta["measurements"])
@@ -135,11 +153,45 @@ class SimServerRobot:
             while True:
                 packet = self.sock.recv(65536)
                 if packet[:1] == b"M":
-                    return json.loads(packet[1:])
+                    return self._metadata(packet[1:])
         except (TimeoutError, ConnectionRefusedError) as exc:
             raise RobotLinkError("robot_server_gone", f"sim-server at {self.address[0]}:{self.address[1]} does not "
                                  f"answer ({type(exc).__name__}); start it with: cellguard sim-server CELL "
                                  f"--port {self.address[1]}", lost=True) from None
+
+    def _metadata(self, text: bytes) -> dict:
+        """The hello's answer, each field the bridge reads checked before it is used (a period of 0 divided by
+        zero later, a missing cell raised KeyError): metadata of another shape is one line naming the field."""
+        try:
+            meta = json.loads(text)
+        except ValueError:  # not JSON, or not UTF-8
+            meta = None
+        if not isinstance(meta, dict):
+            raise self._bad_metadata("metadata", "a JSON object", repr(text[:60]))
+        checks = {"cell": ("a cell name", lambda v: isinstance(v, str)),
+                  "seed": ("an integer 0 to 2^32-1", lambda v: _is_int(v, 0, 2**32 - 1)),
+                  "dt_ns": ("the servo period, an integer 1 to 10^9 [ns]", lambda v: _is_int(v, 1, 10**9)),
+                  "measurements": ("{name: size}, each size an integer 0 to 65536", lambda v: isinstance(v, dict)
+                                   and all(isinstance(k, str) and _is_int(n, 0, 2**16) for k, n in v.items()))}
+        for field, (expected, valid) in checks.items():
+            if not valid(meta.get(field)):
+                raise self._bad_metadata(field, expected, repr(meta[field])[:60] if field in meta else "nothing")
+        return meta
+
+    def _home(self, value) -> np.ndarray:
+        """The metadata's home pose: one finite position per joint (a short one crashed the retreat at the end
+        of the run, a NaN one skipped it)."""
+        try:
+            home = np.asarray(value, dtype=np.float64)
+        except (TypeError, ValueError):
+            home = np.full(0, np.nan)
+        if home.shape != (self.profile.dof,) or not np.isfinite(home).all():
+            raise self._bad_metadata("q_home", f"{self.profile.dof} finite joint positions", repr(value)[:60])
+        return home
+
+    def _bad_metadata(self, field: str, expected: str, got: str) -> RobotLinkError:
+        return RobotLinkError("robot_read_failed", f"sim-server at {self.address[0]}:{self.address[1]} sent bad "
+                              f"metadata: {field} must be {expected}, got {got}")
 
     def _wait_first(self) -> None:
         deadline = time.monotonic_ns() + round(HELLO_TIMEOUT_S * 1e9)
@@ -222,7 +274,7 @@ class SimServerRobot:
         return {**self._model.context(), "robot": f"sim-server:udp://{self.address[0]}:{self.address[1]}"}
 
     def counters(self) -> dict:
-        """The server's counters (commands received, non-finite commands) [blocking, for tests]."""
+        """The server's counters (commands received, packets refused by reason) [blocking, for tests]."""
         self.sock.setblocking(True)
         self.sock.settimeout(1.0)
         try:
@@ -236,6 +288,11 @@ class SimServerRobot:
 
     def close(self) -> None:
         self.sock.close()
+
+
+def _is_int(value, low: int, high: int) -> bool:
+    """An integer in ``low..high`` (JSON's true and false are not numbers)."""
+    return isinstance(value, int) and not isinstance(value, bool) and low <= value <= high
 
 
 def connect_sim_server(spec, scenario) -> SimServerRobot:

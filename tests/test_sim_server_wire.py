@@ -1,0 +1,270 @@
+"""The sim-server wire against packets no healthy peer sends, over real UDP sockets on 127.0.0.1.
+
+Server side (a real ``cellguard sim-server`` process): a hello starts a session, only its client
+moves the robot, and every packet it does not act on is counted by reason and said on stderr
+(once a second at most) while it keeps serving. Client side (the bridge against a stand-in
+server in a thread): metadata or state packets of another shape are one line naming the field.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import socket
+import threading
+import time
+
+import numpy as np
+import pytest
+from sim_server_util import HOME, start_server
+
+from cellguard.robot.bridges.sim_server import COMMAND_HEAD, STATE_HEAD, Layout, SimServerRobot, pack_command
+from cellguard.robot.protocol import RobotLinkError
+
+DOF = len(HOME)
+NUDGED = HOME + np.array([0.05, 0, 0, 0, 0, 0])  # a setpoint the drives take as it is
+
+
+@pytest.fixture
+def server():
+    proc, port = start_server()
+    yield proc, port
+    proc.kill()
+    proc.wait()
+
+
+def said(proc) -> str:
+    """Everything the server wrote after its first line; it is stopped for this."""
+    proc.kill()
+    return proc.stdout.read()
+
+
+class Peer:
+    """A raw UDP socket on 127.0.0.1 speaking the sim-server's wire format: a client once it says hello."""
+
+    def __init__(self, port: int):
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.connect(("127.0.0.1", port))
+        self.sock.settimeout(2.0)
+        self.name = "%s:%d" % self.sock.getsockname()
+
+    def hello(self) -> None:
+        self.sock.send(b"H")
+        while self.sock.recv(65536)[:1] != b"M":
+            pass
+
+    def command(self, seq: int, setpoint: np.ndarray) -> None:
+        self.sock.send(pack_command(seq, time.monotonic_ns(), True, setpoint))
+
+    def applied(self) -> tuple[int, np.ndarray]:
+        """The command in force (its seq) and what the drives took, from a state sent after the commands so far."""
+        self._newest_state()
+        time.sleep(0.1)
+        packet = self._newest_state()
+        assert packet is not None, "no state from the server"
+        body = np.frombuffer(packet, dtype="<f8", offset=STATE_HEAD.size)
+        return STATE_HEAD.unpack_from(packet)[3], body[4 * DOF:5 * DOF]
+
+    def counters(self) -> dict:
+        self.sock.send(b"?")
+        while (packet := self.sock.recv(65536))[:1] != b"R":
+            pass
+        return json.loads(packet[1:])
+
+    def _newest_state(self) -> bytes | None:
+        newest = None
+        self.sock.setblocking(False)
+        with contextlib.suppress(BlockingIOError):
+            while True:
+                packet = self.sock.recv(65536)
+                newest = packet if packet[:1] == b"S" else newest
+        self.sock.settimeout(2.0)
+        return newest
+
+
+def test_a_hello_starts_a_session_whose_commands_count_from_one(server):
+    """A second run against the same server: its seq 1, 2, ... were below the first run's last and all ignored."""
+    proc, port = server
+    first = Peer(port)
+    first.hello()
+    for seq in range(1, 51):
+        first.command(seq, HOME)
+    assert first.applied()[0] == 50
+    second = Peer(port)
+    second.hello()
+    second.command(1, NUDGED)
+    cmd_seq, applied = second.applied()
+    assert cmd_seq == 1 and np.allclose(applied, NUDGED)
+    assert second.counters()["stale_commands"] == 0
+    lines = said(proc).splitlines()
+    assert f"sim-server: client {first.name} said hello" in lines
+    assert f"sim-server: client {second.name} said hello; commands from {first.name} are refused from now on" in lines
+
+
+def test_commands_from_a_peer_that_never_said_hello_are_refused_and_counted(server):
+    """It moved the robot, and its seq 2^64-1 locked every client out."""
+    proc, port = server
+    client, stranger = Peer(port), Peer(port)
+    client.hello()
+    stranger.command(2**64 - 1, HOME + np.array([0.3, 0, 0, 0, 0, 0]))
+    time.sleep(0.05)
+    client.command(1, NUDGED)
+    cmd_seq, applied = client.applied()
+    assert cmd_seq == 1 and np.allclose(applied, NUDGED)
+    counters = stranger.counters()  # anyone may ask for the counters
+    assert counters["foreign_commands"] == 1 and counters["commands"] == 1
+    assert (f"sim-server: refused a command from {stranger.name}: not the client (say hello first) "
+            "(foreign_commands: 1)") in said(proc)
+
+
+def test_every_packet_not_acted_on_is_counted_and_said_at_most_once_a_second_and_the_server_keeps_serving(server):
+    """A short command crashed the server with a traceback; a wrong-length or unknown packet went without a word."""
+    proc, port = server
+    client = Peer(port)
+    client.hello()
+    malformed = [b"C", b"C" + bytes(10), COMMAND_HEAD.pack(b"C", 1, 0, 1) + bytes(7),
+                 pack_command(1, 0, True, HOME[:-1]), b"", b"\xff" * 100]
+    client.sock.send(b"C" + bytes(65000))
+    for _ in range(10):  # in bursts the server's socket buffer holds
+        for packet in malformed:
+            client.sock.send(packet)
+        time.sleep(0.005)
+    client.command(5, NUDGED)
+    client.command(4, HOME)  # older than the one in force
+    client.command(6, np.full(DOF, np.nan))
+    cmd_seq, applied = client.applied()
+    assert proc.poll() is None and cmd_seq == 5 and np.allclose(applied, NUDGED)
+    counters = client.counters()
+    assert (counters["malformed_packets"], counters["stale_commands"], counters["nonfinite_commands"]) == (61, 1, 1)
+    out = said(proc)
+    assert "Traceback" not in out
+    notes = [line for line in out.splitlines() if "said hello" not in line]
+    assert notes == ["sim-server: dropped a command of 65001 bytes, expected 66 (6 joints) (malformed_packets: 1)",
+                     "sim-server: ignored command 4: not newer than command 5 in force (stale_commands: 1)",
+                     "sim-server: refused command 6: a setpoint value is not finite (nonfinite_commands: 1)"]
+
+
+# -- the bridge against a stand-in server --------------------------------------------------------------------------
+
+
+class FakeServer:
+    """A stand-in for the sim-server on a real loopback socket, in a thread: it answers a hello with ``metadata``
+    and then sends the client ``state(seq)`` every millisecond."""
+
+    def __init__(self, metadata: bytes, state):
+        self.metadata, self.state = metadata, state
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.settimeout(0.001)
+        self.address = self.sock.getsockname()
+        self._done = threading.Event()
+        self._thread = threading.Thread(target=self._serve, daemon=True)
+        self._thread.start()
+
+    def _serve(self) -> None:
+        client, seq = None, 0
+        while not self._done.is_set():
+            with contextlib.suppress(TimeoutError):
+                packet, addr = self.sock.recvfrom(65536)
+                if packet[:1] == b"H":
+                    client = addr
+                    self.sock.sendto(b"M" + self.metadata, addr)
+            if client is not None:
+                seq += 1
+                with contextlib.suppress(OSError):
+                    self.sock.sendto(self.state(seq), client)
+
+    def close(self) -> None:
+        self._done.set()
+        self._thread.join()
+        self.sock.close()
+
+
+@pytest.fixture(scope="module")
+def metadata() -> dict:
+    """The metadata a real server of the arm cell sends."""
+    from cellguard.runtime.sim_server import SimServer
+
+    served = SimServer("arm-pick-place", 0)
+    served.sock.close()
+    return served.meta
+
+
+def state_packet(metadata: dict, seq: int, tail=(0.0, -1.0, 0.0)) -> bytes:
+    """A state packet at the home pose; ``tail``: cycle_done, safety_stop, reduced_speed."""
+    body = np.zeros(Layout(DOF, metadata["measurements"]).size)
+    body[:DOF], body[-3:] = HOME, tail
+    return STATE_HEAD.pack(b"S", seq, time.monotonic_ns(), 0) + body.astype("<f8").tobytes()
+
+
+@contextlib.contextmanager
+def fake_server(metadata, state):
+    served = FakeServer(metadata if isinstance(metadata, bytes) else json.dumps(metadata).encode(), state)
+    try:
+        yield served
+    finally:
+        served.close()
+
+
+@pytest.mark.parametrize("edit, says", [
+    (lambda m: b"{not json", "metadata must be a JSON object, got b'{not json'"),
+    (lambda m: [1, 2, 3], "metadata must be a JSON object"),
+    (lambda m: {k: v for k, v in m.items() if k != "cell"}, "cell must be a cell name, got nothing"),
+    (lambda m: {**m, "dt_ns": 0}, "dt_ns must be the servo period, an integer 1 to 10^9 [ns], got 0"),
+    (lambda m: {**m, "dt_ns": "fast"}, "dt_ns must be"),
+    (lambda m: {**m, "measurements": "abc"}, "measurements must be {name: size}"),
+    (lambda m: {**m, "measurements": {"part_in_camera": -9}}, "measurements must be {name: size}"),
+    (lambda m: {**m, "q_home": [0.0, 0.1]}, "q_home must be 6 finite joint positions, got [0.0, 0.1]"),
+    (lambda m: {**m, "q_home": [*HOME[:2], float("nan"), *HOME[3:]]}, "q_home must be 6 finite joint positions"),
+], ids=["not-json", "a-list", "no-cell", "dt-zero", "dt-text", "measurements-text", "measurement-negative",
+        "home-short", "home-nan"])
+def test_metadata_of_another_shape_is_one_error_naming_the_field(metadata, edit, says):
+    """Tracebacks before (KeyError, ZeroDivisionError later in the tracker); a short home pose crashed the retreat
+    at the end of the run and lost summary.json, a NaN one skipped it."""
+    with fake_server(edit(metadata), lambda seq: state_packet(metadata, seq)) as served:
+        with pytest.raises(RobotLinkError) as refused:
+            SimServerRobot(served.address).close()
+    assert refused.value.kind == "robot_read_failed"
+    assert f"sim-server at 127.0.0.1:{served.address[1]} sent bad metadata: {says}" in str(refused.value)
+
+
+@pytest.mark.parametrize("bad, says", [
+    (lambda packet: packet[:3], "state packet of 3 bytes, expected 337 (39 values)"),
+    (lambda packet: packet + b"\x00\x01\x02", "state packet of 340 bytes, expected 337"),
+    (lambda packet: packet[:-16] + np.array([np.nan, 0.0]).tobytes(), "safety_stop nan"),
+    (lambda packet: packet[:-16] + np.array([np.inf, 0.0]).tobytes(), "safety_stop inf"),
+    (lambda packet: packet[:-16] + np.array([7.0, 0.0]).tobytes(), "safety_stop 7.0"),
+    (lambda packet: packet[:-24] + np.array([np.nan, -1.0, 0.0]).tobytes(), "cycle_done nan"),
+], ids=["truncated-head", "odd-length", "stop-nan", "stop-inf", "stop-7", "cycle-done-nan"])
+def test_a_state_packet_of_another_shape_is_a_read_fault(metadata, bad, says):
+    """At connect and mid-run: struct.error, 'buffer size must be a multiple', int(nan) were tracebacks."""
+    broken = threading.Event()
+    with fake_server(metadata, lambda seq: (bad if broken.is_set() else bytes)(state_packet(metadata, seq))) as served:
+        robot = SimServerRobot(served.address, read_timeout_s=1.0)
+        broken.set()
+        try:
+            with pytest.raises(RobotLinkError) as mid_run:
+                for _ in range(1000):
+                    robot.read()
+                    time.sleep(0.001)
+        finally:
+            robot.close()
+        with pytest.raises(RobotLinkError) as at_connect:
+            SimServerRobot(served.address).close()
+    for refused in (mid_run, at_connect):
+        assert refused.value.kind == "robot_read_failed" and says in str(refused.value)
+
+
+def test_bad_metadata_is_one_line_and_exit_2(metadata, tmp_path):
+    from typer.testing import CliRunner
+
+    from cellguard.cli import app
+
+    with fake_server({**metadata, "dt_ns": 0}, lambda seq: state_packet(metadata, seq)) as served:
+        path = tmp_path / "s.yaml"
+        path.write_text(f"cell: arm-pick-place\nrobot: sim-server:udp://127.0.0.1:{served.address[1]}\n"
+                        "cycle: {source: time, seconds: 1}\n")
+        result = CliRunner().invoke(app, ["run", str(path), "--out", str(tmp_path / "out")])
+    assert result.exit_code == 2, result.output
+    assert result.stderr.startswith("error: sim-server at 127.0.0.1:") and "dt_ns must be" in result.stderr
+    assert result.stderr.count("\n") == 1
