@@ -22,7 +22,7 @@ FLEET_HELP = ("Add what fixed each cause at other sites (the fleet store, as CEL
 
 @app.command()
 def diagnose(
-    folder: Path = typer.Argument(..., help="A run folder holding the record (record.mcap)."),
+    folder: Path = typer.Argument(..., help="A run folder holding the record (record.mcap), or that record.mcap."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),
     acceptance: Path | None = typer.Option(None, "--acceptance", help="Take the baseline from this record instead."),
     fleet: bool | None = typer.Option(None, "--fleet/--no-fleet", help=FLEET_HELP),
@@ -45,7 +45,7 @@ def diagnose(
 
 @app.command()
 def report(
-    folder: Path = typer.Argument(..., help="A run folder holding the record (record.mcap)."),
+    folder: Path = typer.Argument(..., help="A run folder holding the record (record.mcap), or that record.mcap."),
     out: Path | None = typer.Option(None, "-o", "--out", help="HTML file to write (default FOLDER/report.html)."),
     acceptance: Path | None = typer.Option(None, "--acceptance", help="Take the baseline from this record instead."),
     fleet: bool | None = typer.Option(None, "--fleet/--no-fleet", help=FLEET_HELP),
@@ -53,11 +53,13 @@ def report(
     """Write a self-contained HTML report: timeline, last good versus faulted, drift, asymmetry, context."""
     from cellguard.diagnose.from_record import diagnose_record
     from cellguard.record.outputs import refuse_output
-    from cellguard.report.from_record import write_report
+    from cellguard.report.from_record import report_path, write_report
 
     try:
         if out is not None:  # the default, FOLDER/report.html, is the one file a report writes in a run folder
             refuse_output(out, folder)
+        else:
+            out = report_path(folder)
         path = write_report(folder, out, diagnosis=diagnose_record(folder, acceptance=acceptance,
                                                                    fleet=fleet_advice(fleet)))
         health = record_health(folder)

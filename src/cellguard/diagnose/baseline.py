@@ -17,6 +17,7 @@ says nothing about friction, and its load change shows in ``grasped`` itself.
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -31,6 +32,7 @@ from cellguard.output import write_output
 MAD_TO_SIGMA = 1.4826
 LOAD_FEATURE = "grasped"
 MIN_CYCLES = 5
+BINDING_KEYS = ("robot", "profile_sha256", "record_id")
 
 
 @dataclass(frozen=True)
@@ -66,12 +68,44 @@ class Baseline:
 
     def check_binding(self, context: Mapping, path: object) -> None:
         """Refuse to apply this baseline to a record other than the one it came from (robot, profile,
-        record id; a key either side lacks, as in records written before it existed, is not compared)."""
+        record id). A key the record lacks, as in records written before it existed, is not compared;
+        one the record has must be the baseline's too: a baseline that does not say where it came from
+        (edited, or written before baselines were bound) is refused."""
         mine = binding_of(context)
-        for key, value in self.bound_to.items():
-            if value is not None and mine.get(key) is not None and mine[key] != value:
+        advice = "delete it to rebuild it from this record's acceptance cycles, or pass --acceptance DIR"
+        for key in BINDING_KEYS:
+            value = self.bound_to.get(key)
+            if mine[key] is not None and value is not None and mine[key] != value:
                 raise RecordError(f"{path}: baseline is bound to {key} {value!r}, this record has {mine[key]!r}; "
-                                  "delete it or pass --acceptance DIR")
+                                  f"{advice}")
+        unbound = [k for k in BINDING_KEYS if mine[k] is not None and self.bound_to.get(k) is None]
+        if unbound:
+            raise RecordError(f"{path}: baseline does not name the {' and '.join(unbound)} it came from (edited, or "
+                              f"written before baselines were bound to their record); {advice}")
+
+    def check_fits(self, cycles: Sequence[Cycle], path: object) -> None:
+        """Refuse a baseline that cannot watch these cycles: most of its features absent from them (or most
+        of theirs absent from it), or a motion of theirs it has no statistics for (those cycles would go
+        unwatched)."""
+        names = set(self.names)
+        seen = {k for c in cycles for k in c.features} - NOT_MONITORED
+        for missing, total, what in ((sorted(names - seen), len(names), "of the baseline's features are not "
+                                      "in this record"),
+                                     (sorted(seen - names), len(seen), "of this record's features are not in "
+                                      "the baseline")):
+            if total and len(missing) > total / 2:
+                raise RecordError(f"{path}: baseline is of another cell: {len(missing)} of {total} {what} "
+                                  f"({', '.join(missing[:3])}, ...)")
+        if "" in self.motions:
+            return
+        unwatched: dict[str, int] = {}
+        for c in cycles:
+            if (c.label or "") not in self.motions:
+                unwatched[c.label or ""] = unwatched.get(c.label or "", 0) + 1
+        if unwatched:
+            label, count = next(iter(unwatched.items()))
+            raise RecordError(f"{path}: baseline has no statistics for motion {label!r} ({count} of this record's "
+                              f"{len(cycles)} cycles), only for {', '.join(repr(k) for k in self.motions)}")
 
     @classmethod
     def from_cycles(cls, cycles: Sequence[Cycle], source: str = "acceptance cycles of this record") -> Baseline:
@@ -128,26 +162,26 @@ class Baseline:
                 "bound_to": dict(self.bound_to), "names": list(self.names), "motions": {k: m.to_dict(self.names) for k, m in self.motions.items()}}
 
     @classmethod
-    def from_dict(cls, raw: dict) -> Baseline:
+    def from_dict(cls, raw: object) -> Baseline:
+        """A baseline as ``to_dict`` wrote it; RecordError ("baseline: malformed: FIELD ...") on anything
+        that could not have come from acceptance cycles (it would blind the diagnosis, not fail it)."""
         try:
-            names = tuple(raw["names"])
+            if not isinstance(raw, Mapping):
+                raise RecordError(f"baseline: malformed: the file holds {type(raw).__name__}, not an object")
+            _require(raw, ("names", "motions", "cycles", "n"), "the file")
+            names = _names(raw["names"])
+            if not isinstance(raw["motions"], Mapping):
+                raise RecordError("baseline: malformed: motions must be an object of each motion's statistics")
             if not raw["motions"]:  # drift is judged against the motions' statistics: none, nothing to judge by
-                raise ValueError("motions is empty")
-            motions = {}
-            for label, m in raw["motions"].items():
-                feats, corr = m["features"], m["correlation"]
-                if len(corr) != len(names) or any(len(r) != len(names) for r in corr):
-                    raise ValueError(f"motion {label!r}: correlation is not {len(names)} x {len(names)}")
-                scales = tuple(float(feats[k]["scale"]) for k in names)
-                for k, v in zip(names, scales):
-                    if not (np.isfinite(v) and v > 0.0):
-                        raise RecordError(f"baseline: motions.{label or '(all)'}.features.{k}.scale must be a "
-                                          f"positive finite number, got {v}")
-                motions[label] = MotionStats(int(m["n"]), tuple(float(feats[k]["median"]) for k in names), scales,
-                                             tuple(tuple(float(v) for v in r) for r in corr))
+                raise RecordError("baseline: malformed: motions is empty")
+            motions = {_text(label, "a motion's label", empty=True): _motion(label, m, names)
+                       for label, m in raw["motions"].items()}
+            cycles, n = _cycles_and_n(raw["cycles"], raw["n"], motions)
+            if not isinstance(raw.get("bound_to") or {}, Mapping):
+                raise RecordError("baseline: malformed: bound_to must be an object (robot, profile_sha256, record_id)")
             bound = {str(k): (None if v is None else str(v)) for k, v in dict(raw.get("bound_to") or {}).items()}
-            return cls(names, motions, tuple(raw["cycles"]), int(raw["n"]), raw.get("load"),
-                       raw.get("source", "stored baseline"), bound)
+            return cls(names, motions, cycles, n, _load(raw.get("load"), names),
+                       str(raw.get("source", "stored baseline")), bound)
         except (KeyError, TypeError, ValueError, AttributeError) as exc:
             raise RecordError(f"baseline: malformed ({exc.__class__.__name__}: {exc})") from None
 
@@ -160,7 +194,113 @@ class Baseline:
             raw = json.loads(Path(path).read_text())
         except (OSError, json.JSONDecodeError) as exc:
             raise RecordError(f"{path}: cannot read the baseline ({exc.__class__.__name__})") from None
-        return cls.from_dict(raw)
+        try:
+            return cls.from_dict(raw)
+        except RecordError as exc:
+            raise RecordError(f"{path}: {exc}") from None
+
+
+def _text(value: object, where: str, empty: bool = False) -> str:
+    if not isinstance(value, str) or not (empty or value.strip()):
+        raise RecordError(f"baseline: malformed: {where} must be {'' if empty else 'non-empty '}text, "
+                          f"got {value!r:.40}")
+    return value
+
+
+def _require(raw: Mapping, keys: Sequence[str], where: str) -> None:
+    missing = [k for k in keys if k not in raw]
+    if missing:
+        raise RecordError(f"baseline: malformed: {where} has no {', '.join(missing)}")
+
+
+def _names(raw: object) -> tuple[str, ...]:
+    if not isinstance(raw, list) or not raw:
+        raise RecordError(f"baseline: malformed: names must be a non-empty list of feature names, got {raw!r:.60}")
+    names = tuple(_text(v, f"names[{i}]") for i, v in enumerate(raw))
+    twice = sorted({v for v in names if names.count(v) > 1})
+    if twice:
+        raise RecordError(f"baseline: malformed: names lists {', '.join(map(repr, twice))} more than once")
+    return names
+
+
+def _number(value: object, where: str, positive: bool = False) -> float:
+    try:
+        ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+    except OverflowError:  # an integer past any float
+        ok = False
+    if not ok or (positive and value <= 0.0):
+        raise RecordError(f"baseline: malformed: {where} must be a {'positive ' if positive else ''}finite number, "
+                          f"got {value!r:.40}")
+    return float(value)
+
+
+def _count(value: object, where: str, least: int) -> int:
+    if not isinstance(value, int) or isinstance(value, bool) or value < least:
+        raise RecordError(f"baseline: malformed: {where} must be a whole number of at least {least}, "
+                          f"got {value!r:.40}")
+    return value
+
+
+def _motion(label: str, m: object, names: tuple[str, ...]) -> MotionStats:
+    where = f"motions.{label or '(all)'}"
+    if not isinstance(m, Mapping):
+        raise RecordError(f"baseline: malformed: {where} must be an object, got {type(m).__name__}")
+    _require(m, ("n", "features", "correlation"), where)
+    feats, corr = m["features"], m["correlation"]
+    if not isinstance(feats, Mapping):
+        raise RecordError(f"baseline: malformed: {where}.features must be an object")
+    for k in names:
+        if not isinstance(feats.get(k), Mapping):
+            raise RecordError(f"baseline: malformed: {where}.features.{k} is missing (names lists it)")
+    median = tuple(_number(feats[k].get("median"), f"{where}.features.{k}.median") for k in names)
+    scale = tuple(_number(feats[k].get("scale"), f"{where}.features.{k}.scale", positive=True) for k in names)
+    p = len(names)
+    if not isinstance(corr, list) or len(corr) != p or any(not isinstance(r, list) or len(r) != p for r in corr):
+        raise RecordError(f"baseline: malformed: {where}.correlation is not {p} x {p}")
+    c = np.array([[_number(v, f"{where}.correlation") for v in r] for r in corr])
+    if not (np.allclose(c, c.T, atol=1e-9) and np.allclose(np.diag(c), 1.0, atol=1e-9) and _positive_definite(c)):
+        raise RecordError(f"baseline: malformed: {where}.correlation is not a correlation matrix (symmetric, "
+                          "unit diagonal, positive definite)")
+    return MotionStats(_count(m["n"], f"{where}.n", MIN_CYCLES), median, scale,
+                       tuple(tuple(float(v) for v in r) for r in c))
+
+
+def _positive_definite(c: np.ndarray) -> bool:
+    try:
+        np.linalg.cholesky(c)
+    except np.linalg.LinAlgError:
+        return False
+    return True
+
+
+def _cycles_and_n(cycles: object, n: object, motions: Mapping[str, MotionStats]) -> tuple[tuple[int, int], int]:
+    if not isinstance(cycles, list) or len(cycles) != 2:
+        raise RecordError(f"baseline: malformed: cycles must be [first, last], got {cycles!r:.40}")
+    first, last = (_count(v, "cycles", 0) for v in cycles)
+    if first > last:
+        raise RecordError(f"baseline: malformed: cycles must be [first, last], got {cycles!r:.40}")
+    n = _count(n, "n", MIN_CYCLES)
+    if n != sum(m.n for m in motions.values()) or n > last - first + 1:
+        raise RecordError(f"baseline: malformed: n ({n}) is not the motions' cycles "
+                          f"({sum(m.n for m in motions.values())}) within cycles {first} to {last}")
+    return (first, last), n
+
+
+def _load(value: object, names: tuple[str, ...]) -> float | None:
+    if value is None and LOAD_FEATURE not in names:
+        return None
+    return _number(value, "load")
+
+
+def check_same_robot(acceptance: Mapping, context: Mapping, path: object, record: object) -> None:
+    """Refuse an acceptance record (its context ``acceptance``, at ``path``) of another robot or embodiment
+    profile than the ``record`` diagnosed (its ``context``); a key either lacks (older records) is not
+    compared."""
+    theirs, mine = binding_of(acceptance), binding_of(context)
+    for key in ("robot", "profile_sha256"):
+        if theirs[key] is not None and mine[key] is not None and theirs[key] != mine[key]:
+            raise RecordError(f"{path}: is a record of {key} {theirs[key]!r}, {record} has {mine[key]!r}; "
+                              "take the baseline from a record of the same robot and profile")
 
 
 def binding_of(context: Mapping) -> dict[str, str | None]:

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from cellguard.diagnose.baseline import Baseline
+from cellguard.diagnose.baseline import Baseline, check_same_robot
 from cellguard.diagnose.cycles import as_cycles
 from cellguard.diagnose.diagnosis import Diagnosis, diagnose
 from cellguard.diagnose.site_history import save_fixes, site_history
@@ -18,34 +18,54 @@ from cellguard.errors import CellguardError
 BASELINE_FILE = "baseline.json"
 
 
-def diagnose_record(folder: Path, acceptance: Path | None = None, fleet: list[dict] | tuple = ()) -> Diagnosis:
-    """Diagnose the record in ``folder``; the baseline comes from ``acceptance`` (another record
-    folder) if given, else from ``folder/baseline.json``, else from the record's acceptance
-    cycles, and is then written to ``folder/baseline.json``. Advice comes from the site's other
+def diagnose_record(path: Path, acceptance: Path | None = None, fleet: list[dict] | tuple = ()) -> Diagnosis:
+    """Diagnose the record at ``path`` (a run folder, or its record.mcap); the baseline comes from
+    ``acceptance`` (another record of the same robot and profile) if given, else from
+    ``folder/baseline.json``, else from the record's acceptance cycles, and is then written to
+    ``folder/baseline.json``. A baseline from another robot, profile or record, or one that cannot
+    watch this record's features and motions, is refused. Advice comes from the site's other
     diagnosed records beside it and from ``fleet`` (rows of ``cellguard.fleet.advice.fleet_fixes``);
-    what fixed each cause here is written to ``folder/fixes.json``."""
+    what fixed each cause here is written to ``folder/fixes.json``. A loose .mcap file outside a run
+    folder is diagnosed against its own acceptance cycles and nothing is written beside it."""
     from cellguard.record.reader import open_record
 
-    folder = Path(folder)
-    with open_record(folder) as rec:
+    folder = run_folder(path)
+    with open_record(path) as rec:
         cycles, events, context = list(rec.cycles()), list(rec.events()), {**rec.context, "record_id": rec.record_id}
         declared = rec.contexts[-1].context.get("process", [])  # process changes declared up to the end
     baseline = None
     if acceptance is not None:
         with open_record(acceptance) as acc:
             rows = [c for c in as_cycles(acc.cycles()) if c.phase == "acceptance"]
-        baseline = Baseline.from_cycles(rows, source=f"acceptance cycles of {acceptance}")
-    elif (folder / BASELINE_FILE).is_file():
+            acc_context = {**acc.context, "record_id": acc.record_id}
+        check_same_robot(acc_context, context, f"--acceptance {acceptance}", path)
+        baseline = Baseline.from_cycles(rows, source=f"acceptance cycles of {acceptance}").bind(acc_context)
+        baseline.check_fits(as_cycles(cycles), f"--acceptance {acceptance}")
+    elif folder is not None and (folder / BASELINE_FILE).is_file():
         baseline = Baseline.load(folder / BASELINE_FILE)
         baseline.check_binding(context, folder / BASELINE_FILE)
-    past = site_history(folder, context.get("site"))
+        baseline.check_fits(as_cycles(cycles), folder / BASELINE_FILE)
+    past = site_history(folder, context.get("site")) if folder is not None else []
     result = diagnose(cycles, events, {**context, "process": declared}, baseline=baseline,
                       symmetry=symmetry_of(context), history=[*past, *fleet])
-    if folder.is_dir():
+    if baseline is None:  # as a stored baseline is judged when read again, so the first diagnosis agrees
+        result.baseline.check_fits(as_cycles(cycles), f"{path} (its own acceptance cycles)")
+    if folder is not None:
         save_fixes(folder, context, result.fixes)
-    if baseline is None and folder.is_dir():
+    if baseline is None and folder is not None:
         result.baseline.bind(context).save(folder / BASELINE_FILE)
     return result
+
+
+def run_folder(path: Path) -> Path | None:
+    """The run folder of a record: ``path`` itself if a folder, the folder of a ``record.mcap``; None
+    for a loose .mcap file (nothing of the record's is kept beside it)."""
+    from cellguard.record.writer import RECORD_FILE
+
+    path = Path(path)
+    if path.is_dir():
+        return path
+    return path.parent if path.name == RECORD_FILE and path.is_file() else None
 
 
 def symmetry_of(context: dict) -> tuple[SymmetryPair, ...]:

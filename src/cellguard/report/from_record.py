@@ -5,18 +5,21 @@ from __future__ import annotations
 from pathlib import Path
 
 from cellguard.diagnose.diagnosis import Diagnosis
-from cellguard.diagnose.from_record import diagnose_record
+from cellguard.diagnose.from_record import diagnose_record, run_folder
+from cellguard.errors import RecordError
 from cellguard.output import write_output
 from cellguard.report.html import render_report
 
 REPORT_FILE = "report.html"
 
+
 def write_report(folder: Path, out: Path | None = None, diagnosis: Diagnosis | None = None) -> Path:
-    """Diagnose ``folder`` (unless ``diagnosis`` is given) and write the HTML; return its path."""
+    """Diagnose ``folder`` (a run folder or its record.mcap; unless ``diagnosis`` is given) and write the
+    HTML, by default to the run folder's report.html; return its path."""
     from cellguard.record.reader import open_record
 
     folder = Path(folder)
-    out = Path(out) if out is not None else folder / REPORT_FILE
+    out = Path(out) if out is not None else report_path(folder)
     d = diagnosis if diagnosis is not None else diagnose_record(folder)
     with open_record(folder) as rec:
 
@@ -30,4 +33,15 @@ def write_report(folder: Path, out: Path | None = None, diagnosis: Diagnosis | N
         page = render_report(d, trace)
     return write_output(out, page, "report")
 
-__all__ = ["REPORT_FILE", "write_report"]
+
+def report_path(record: Path) -> Path:
+    """Where the report of ``record`` (a run folder or its record.mcap) goes by default: the run folder's
+    report.html. RecordError for a loose .mcap file, which has no run folder to write into."""
+    record = Path(record)
+    home = run_folder(record)
+    if home is None and record.exists():
+        raise RecordError(f"{record}: is a record file outside a run folder; name the page to write with -o FILE")
+    return (home or record) / REPORT_FILE
+
+
+__all__ = ["REPORT_FILE", "report_path", "write_report"]
