@@ -13,7 +13,7 @@ import io
 import msgpack
 import numpy as np
 import yaml
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from cellguard.embodiment.profile import parse_profile
@@ -118,6 +118,17 @@ def _npz(arrays: dict) -> bytes:
 VALID_NPZ = _npz({"t": np.zeros(2), "actions": np.zeros((2, 3, 6)), "dt": np.array(0.02)})
 
 
+def _encrypted(data: bytes) -> bytes:
+    """The archive with every member flagged encrypted (zipfile then raises a bare RuntimeError)."""
+    out = bytearray(data)
+    for head, flags in ((b"PK\x03\x04", 6), (b"PK\x01\x02", 8)):
+        at = out.find(head)
+        while at >= 0:
+            out[at + flags] |= 1
+            at = out.find(head, at + 1)
+    return bytes(out)
+
+
 @st.composite
 def damaged_npz(draw):
     data = bytearray(VALID_NPZ)
@@ -136,6 +147,7 @@ arrays = st.dictionaries(st.sampled_from(["t", "actions", "uncertainty", "dt", "
 
 @settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(st.one_of(damaged_npz(), arrays.map(_npz), st.binary(max_size=100)))
+@example(_encrypted(VALID_NPZ))
 def test_replay_file(data):
     import tempfile
     from pathlib import Path

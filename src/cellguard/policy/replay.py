@@ -104,6 +104,8 @@ def read_npz(path: Path, where: str, allowed: tuple[str, ...], required: tuple[s
                     raise ConfigError(f"{where}: unknown array {name!r}; allowed: {', '.join(allowed)}")
                 if name in arrays:
                     raise ConfigError(f"{where}: array {name!r} appears twice")
+                if info.flag_bits & 0x1:  # zipfile raises a bare RuntimeError for an encrypted member
+                    raise ConfigError(f"{where}: array {name!r} is encrypted; save the file with numpy.savez")
                 if info.file_size > budget:
                     raise ConfigError(f"{where}: array {name!r} expands to {info.file_size} bytes, over the limit "
                                       f"of {max_bytes} bytes for the whole file")
