@@ -172,11 +172,35 @@ def _refit(segments, cell, pairs, model, terms) -> dict:
         value = float(current[param][k] + beta[0])
         nominal = float(_nominal(cell.model, param, cell.drives.dadr[i]))
         estimates.append(Fitted(param, joint, value, float(np.sqrt(cov[0, 0])), nominal))
+    rows = [e.to_dict() for e in with_intervals(estimates)]
     return {"robot": cell.name, "records": sorted({s.record_id for s in segments}),
             "samples": int(sum(len(s.q) for s in segments)),
             "method": "re-fit of one term on the residual of the profile's model (mj_inverse)",
-            "interval": interval_note(estimates),
-            "estimates": [e.to_dict() for e in with_intervals(estimates)], "warnings": []}
+            "interval": interval_note(estimates), "estimates": rows, "warnings": negative_warnings(rows)}
+
+
+NON_NEGATIVE = ("friction", "damping", "armature")  # a value below zero is no physical joint term
+
+
+def negative_values(rows: list[dict]) -> list[dict]:
+    """The identified rows (``Estimate.to_dict``) of ``NON_NEGATIVE`` parameters whose value is below zero."""
+    return [e for e in rows if e["parameter"] in NON_NEGATIVE and e["interval"] is not None and e["value"] < 0.0]
+
+
+def describe_value(e: dict) -> str:
+    """``elbow friction -2.303 N*m [-2.4, -2.2]``: one identified row in words."""
+    lo, hi = e["interval"]
+    return f"{e['joint']} {e['parameter']} {e['value']:.4g} {e['unit']} [{lo:.4g}, {hi:.4g}]"
+
+
+def negative_warnings(rows: list[dict]) -> list[str]:
+    """One warning for the rows whose friction, damping or armature came out negative (a model that does not fit
+    the robot, or too little motion), which ``identify --write`` does not store."""
+    bad = negative_values(rows)
+    if not bad:
+        return []
+    return [f"{'; '.join(describe_value(e) for e in bad)}: below zero, which no joint has; the model does not fit "
+            "these records (or they move too little): check the records and the profile before using these values"]
 
 
 def floating_base(cell) -> bool:
@@ -205,19 +229,34 @@ def record_robot(path: Path) -> str:
 
 
 def load_segments(paths: list[Path], cell, cycle: int | None = None) -> list[Segment]:
-    """Each record's full-rate ticks (of ``cycle`` only, if given), checked to be of ``cell``'s robot and
-    to carry motor current; split where a tick is missing."""
-    from cellguard.record.reader import open_record
+    """Each record's full-rate ticks (of ``cycle`` only, if given): ``load_records`` without the healths."""
+    return load_records(paths, cell, cycle)[0]
 
-    segments = []
-    for path in paths:
+
+def load_records(paths: list[Path], cell, cycle: int | None = None) -> tuple[list[Segment], list[tuple[Path, object]]]:
+    """Each record's full-rate ticks (of ``cycle`` only, if given), checked to be of ``cell``'s robot and
+    to carry motor current, split where a tick is missing; and each record's ``Health`` (what a full read
+    found), for the caller to warn about a record that is not whole. A record given twice (its id, or for
+    a record without one its file, under any spelling) is refused: it would count its ticks twice and
+    shrink every interval."""
+    from cellguard.record.reader import open_record, record_file
+
+    segments, healths, seen = [], [], {}
+    for n, path in enumerate(paths, start=1):
         with open_record(path) as rec:
+            record_id = rec.record_id or str(path)
+            key = rec.record_id or str(record_file(path).resolve())
+            if key in seen:
+                k, first = seen[key]
+                raise CalibrationError(f"{path} (record argument {n}) is the same record as {first} (argument {k}), "
+                                       f"run {record_id}; give each record once")
+            seen[key] = (n, path)
             robot = rec.context.get("cell")
             if robot != cell.name:
                 raise CalibrationError(f"{path}: a record of robot {robot!r}; the model is {cell.name!r}")
             ticks = rec.ticks(cycle=cycle, rate="all")
-            record_id = rec.record_id or str(path)
             on_stand = rec.context.get("mount") == "stand"
+            healths.append((path, rec.health()))
         if tuple(ticks.joints) != tuple(cell.profile.joint_names):
             raise CalibrationError(f"{path}: joints {list(ticks.joints)}; the model has "
                                    f"{list(cell.profile.joint_names)}")
@@ -237,7 +276,7 @@ def load_segments(paths: list[Path], cell, cycle: int | None = None) -> list[Seg
         if not any(s.record_id == record_id for s in segments):
             raise CalibrationError(f"{path}: no stretch of {MIN_TICKS} ticks at the servo rate; record at full rate "
                                    "(`cellguard excite` does)")
-    return segments
+    return segments, healths
 
 
 def identify(segments: list[Segment], cell, params: tuple[str, ...]) -> dict:
@@ -287,6 +326,7 @@ def _identify(segments: list[Segment], cell, params: tuple[str, ...]) -> dict:
         if e.identifiable and held:
             row["method_bias"] = bias_lag * dt if e.parameter == "delay" else biases.get((e.parameter, e.joint))
         rows.append(row)
+    warnings += negative_warnings(rows)
     return {"robot": cell.name, "records": sorted({s.record_id for s in segments}),
             "samples": int(sum(len(s.q) for s in segments)), "method": "linear regression on mj_inverse (nominal MJCF)",
             "interval": note, "estimates": rows, "warnings": warnings}

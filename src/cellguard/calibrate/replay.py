@@ -84,13 +84,17 @@ class RecordedCycle:
     qd0: np.ndarray  # (dof,) velocity at the first tick
     chunks: list  # RecordedChunk, in arrival order
     guard: dict  # the run's guard settings (scenario ``guard``)
+    mount: str | None = None  # the record's context ``mount``: "stand" when the base was held (``excite --stand``)
+    health: object = None  # the record's ``Health`` (a full read): a damaged record replays what was readable
 
 
 def load_cycle(path: Path, cycle: int) -> RecordedCycle:
-    """Cycle ``cycle`` of the record in ``path``: its ticks (every rate), its chunks and the run's settings."""
+    """Cycle ``cycle`` of the record in ``path``: its ticks (every rate), its chunks, the run's settings, its
+    mount and its health (what a full read found: the caller warns when the record is not whole)."""
     from cellguard.record.reader import open_record
 
     with open_record(path) as rec:
+        health = rec.health()
         ctx = rec.context
         cycles = {c.cycle: c for c in rec.cycles()}
         if cycle not in cycles:
@@ -102,15 +106,20 @@ def load_cycle(path: Path, cycle: int) -> RecordedCycle:
     if len(ticks) < 2 or not chunks:
         raise CalibrationError(f"--cycle: cycle {cycle} of {path} has {len(ticks)} ticks and {len(chunks)} chunks "
                                "recorded; replay needs both")
+    if ctx.get("mount") not in (None, "stand"):
+        raise CalibrationError(f"{path}: the record's context says mount {ctx.get('mount')!r}; replay simulates a "
+                               f"free cell or one on a stand")
     scenario = ctx.get("scenario") or {}
     t = (ticks.t_ns - c.t_start_ns) * 1e-9
     return RecordedCycle(ctx.get("cell"), int(scenario.get("seed", 0)), cycle, tuple(ticks.joints), c.t_start_ns,
                          ticks.t_ns, Trajectory(t, ticks.q_meas, ticks.current, ticks.q_cmd), ticks.qd_meas[0],
-                         chunks, scenario.get("guard") or {})
+                         chunks, scenario.get("guard") or {}, ctx.get("mount"), health)
 
 
 def simulate(rc: RecordedCycle, terms: JointTerms, vary: Vary | None = None, factor: float = 1.0) -> Trajectory:
-    """Run ``rc``'s chunks through a fresh guard into the cell with ``terms`` (``vary``'s term x ``factor``)."""
+    """Run ``rc``'s chunks through a fresh guard into the cell with ``terms`` (``vary``'s term x ``factor``),
+    mounted on a stand when the record's was (``rc.mount``)."""
+    from cellguard.calibrate.stand import Stand
     from cellguard.control.settings import build_guard
     from cellguard.robot.protocol import SafetyInputs
     from cellguard.robot.registry import make_cell
@@ -118,6 +127,8 @@ def simulate(rc: RecordedCycle, terms: JointTerms, vary: Vary | None = None, fac
 
     cell = make_cell(rc.cell, seed=rc.seed)
     _apply(cell, terms, vary, factor)
+    if rc.mount == "stand":
+        Stand().apply(cell)
     cell.begin_cycle(rc.cycle)
     d, drives = cell.data, cell.drives
     d.qpos[drives.qadr] = rc.ticks.q[0]

@@ -12,7 +12,8 @@ and the version it replaces, so a second calibration is always a new version). B
 The profile's ``calibration`` block (version, MJCF, date, records, previous version) is what a run
 with ``calibration: PROFILE`` carries into every record's context. Every file is written beside its
 target and renamed; the new profile is checked against the calibrated model first, and a failure
-removes what this write had added, so the folder is left as it was.
+removes what this write had added, so the folder is left as it was. A profile named through a symbolic
+link is written where the link points (the link is kept), with its MJCF and kept copy beside it.
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ from pathlib import Path
 import mujoco
 import yaml
 
-from cellguard.calibrate.identify import CalibrationError
+from cellguard.calibrate.identify import CalibrationError, describe_value, negative_values
 from cellguard.calibrate.mjcf import calibrated_mjcf
 from cellguard.calibrate.torque_model import JointTerms
 from cellguard.embodiment.profile import parse_profile
@@ -38,25 +39,40 @@ WRITTEN = ("friction", "damping", "armature")  # per-joint parameters the profil
 
 @dataclass(frozen=True)
 class Written:
-    """What ``write_profile`` wrote: the calibration version, the calibrated MJCF and the kept old profile."""
+    """What ``write_profile`` wrote: the calibration version, the calibrated MJCF, the kept old profile and the
+    profile file rewritten (a link's target)."""
 
     version: str
     mjcf: Path
     kept: Path
+    profile: Path
 
 
 def write_profile(path: Path, cell, result: dict, date: str) -> Written:
-    """Update ``path`` (``cell``'s profile) with ``result`` (from ``identify``); a new calibration version."""
+    """Update ``path`` (``cell``'s profile) with ``result`` (from ``identify``); a new calibration version.
+
+    The profile is checked whole (``parse_profile``) before anything is taken from it. A friction, damping or
+    armature that came out below zero is not stored (CalibrationError naming it): no joint has one, and a
+    run would simulate it. ``path`` a symbolic link: the file it points to is rewritten (the link stays a
+    link to it), and the calibrated MJCF and the kept old profile go beside that file, where its ``model``
+    and ``calibration`` name them."""
     path = Path(path)
+    if path.is_symlink():
+        path = path.resolve()
     old_bytes = read_bounded(path, "profile", ProfileError)
     raw = parse_yaml(old_bytes, str(path), ProfileError)
     if not isinstance(raw, dict) or raw.get("robot") != cell.profile.robot:
         robot = raw.get("robot") if isinstance(raw, dict) else None
         raise CalibrationError(f"--write: {path} is a profile of robot {robot!r}; the records are of "
                                f"{cell.profile.robot!r} ({cell.name})")
+    parse_profile(cell.model, old_bytes, str(path))  # every field checked before any is used
     new = [e for e in result["estimates"] if e["parameter"] in WRITTEN and e["interval"] is not None]
     if not new:
         raise CalibrationError(f"--write: nothing identified to write (of {', '.join(WRITTEN)})")
+    negative = negative_values(new)
+    if negative:
+        raise CalibrationError(f"--write: {'; '.join(describe_value(e) for e in negative)}: below zero, which no "
+                               f"joint has; not written to {path}")
     records = list(result["records"])
     method = f"sysid: {', '.join(records)} (regression on mj_inverse)"
     replaced = {(e["joint"], e["parameter"]) for e in new}
@@ -95,4 +111,4 @@ def write_profile(path: Path, cell, result: dict, date: str) -> Written:
         for target in added:  # the command failed: leave the folder as it was
             target.unlink(missing_ok=True)
         raise
-    return Written(version, mjcf_path, kept)
+    return Written(version, mjcf_path, kept, path)

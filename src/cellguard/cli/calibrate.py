@@ -10,13 +10,14 @@ import typer
 
 from cellguard.cli.app import app
 from cellguard.cli.errors import exit_if_stopped, fail
+from cellguard.cli.text import say
 from cellguard.errors import CellguardError
 
 
 @app.command()
 def excite(
     target: str = typer.Argument(..., help="A registered cell name or a scenario YAML file (its robot and guard)."),
-    seconds: float = typer.Option(30.0, "--seconds", help="Length of the excitation [s]."),
+    seconds: float = typer.Option(30.0, "--seconds", help="Length of the excitation \\[s]."),
     out: Path = typer.Option(..., "--out", help="Folder for the record (every tick) and summary.json."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace a record already in --out."),
     stand: bool = typer.Option(False, "--stand", help="A legged robot held on a stand, feet in the air (a simulated "
@@ -40,7 +41,7 @@ def excite(
         fail(exc)
     exit_if_stopped(summary, out)  # a stopped excitation is a record to read, not one to identify from unread
     interventions = [e for e in summary["events"] if not e["kind"].startswith(("approach", "retreat"))]
-    typer.echo(f"{out}: {seconds:g} s of excitation recorded; {len(interventions)} guard events")
+    say(f"{out}: {seconds:g} s of excitation recorded; {len(interventions)} guard events", err=False)
 
 
 @app.command()
@@ -52,87 +53,134 @@ def identify(
     as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),
     write: Path | None = typer.Option(None, "--write", help="Update this profile's measured friction, damping and "
                                       "armature and write a calibrated MJCF beside it (a new calibration version; the "
-                                      "old profile kept beside it). A scenario's calibration: PROFILE runs with it."),
+                                      "old profile kept beside it; a link: the file it points to). A scenario's "
+                                      "calibration: PROFILE runs with it."),
     only: list[str] = typer.Option([], "--only", help="JOINT,PARAM: re-fit just this (friction, damping or armature "
                                    "of one joint; repeatable) with every other term held at the profile's values "
                                    "(--write's profile, else the cell's): what the residual monitor said drifted."),
 ) -> None:
     """Fit the cell's MuJoCo model (from its nominal MJCF) to recorded ticks: value, unit, 95 % interval
-    (simultaneous over all the parameters reported)."""
+    (simultaneous over all the parameters reported). Exit 1 (one warning line each) when a record is not whole
+    (--write then refuses: a calibration is stored only from whole records), and when --write's fit has a
+    friction, damping or armature below zero (reported, not written)."""
+    from cellguard.calibrate.identify import CalibrationError, load_records, negative_values, parse_params, record_robot
     from cellguard.calibrate.identify import identify as fit
-    from cellguard.calibrate.identify import load_segments, parse_params, record_robot
+    from cellguard.cli.record import warn_if_damaged
+    from cellguard.record.outputs import refuse_output
     from cellguard.robot.registry import make_cell
 
     try:
+        if only and params is not None:
+            raise CalibrationError("--params: not with --only, which re-fits just the JOINT,PARAM it names; "
+                                   "give one of the two")
+        if write is not None:  # the profile is read and rewritten: never a record, nor a file in a run folder
+            for record in records:
+                refuse_output(write, record, option="--write")
         cell = make_cell(cell_name or record_robot(records[0]))
         if only:
             from cellguard.calibrate.identify import parse_only, refit
             from cellguard.calibrate.torque_model import JointTerms
 
             pairs, terms = parse_only(only, cell), JointTerms.from_profile(cell, write)
-            result = refit(load_segments(records, cell), cell, pairs, terms)
+            segments, healths = load_records(records, cell)
+            _whole_for_write(write, healths)
+            result = refit(segments, cell, pairs, terms)
         else:
             wanted = parse_params(params, cell)  # before any record is read
-            result = fit(load_segments(records, cell), cell, wanted)
-        if write is not None:
+            segments, healths = load_records(records, cell)
+            _whole_for_write(write, healths)
+            result = fit(segments, cell, wanted)
+        refused = write is not None and bool(negative_values(result["estimates"]))
+        if refused:  # reported (the warning names the values), never stored
+            result["warnings"].append(f"--write: {write} not written: a friction, damping or armature below zero "
+                                      "is no calibration")
+        elif write is not None:
             import datetime as dt
 
             from cellguard.calibrate.write import write_profile
 
             written = write_profile(write, cell, result, dt.date.today().isoformat())
             result["profile_version"], result["mjcf"] = written.version, str(written.mjcf)
+            result["profile"] = str(written.profile)
     except CellguardError as exc:
         fail(exc)
+    damaged = max([warn_if_damaged(health, path) for path, health in healths] + [int(refused)])
     if as_json:
         typer.echo(json.dumps(result, indent=1))
-        return
+        raise typer.Exit(damaged)
     for warning in result["warnings"]:
-        typer.echo(f"warning: {warning}", err=True)
-    typer.echo(f"{result['robot']}: {result['samples']} ticks from {len(result['records'])} record(s); intervals "
-               f"{result['interval']}")
-    if write is not None:
-        typer.echo(f"{write}: calibration version {result['profile_version']}; calibrated MJCF {result['mjcf']}")
+        say(f"warning: {warning}")
+    say(f"{result['robot']}: {result['samples']} ticks from {len(result['records'])} record(s); intervals "
+        f"{result['interval']}", err=False)
+    if write is not None and not refused:
+        target = "" if result["profile"] == str(write) else f" (the link's target {result['profile']})"
+        say(f"{write}{target}: calibration version {result['profile_version']}; calibrated MJCF {result['mjcf']}",
+            err=False)
     for e in result["estimates"]:
         name = f"{e['parameter']}" + (f" {e['joint']}" if e["joint"] else "")
         if e["interval"] is None:
-            typer.echo(f"  {name:24s} not identifiable from this data (nominal {e['nominal']:.4g} {e['unit']})")
+            say(f"  {name:24s} not identifiable from this data (nominal {e['nominal']:.4g} {e['unit']})", err=False)
         else:
             lo, hi = e["interval"]
             bias = f", method bias {e['method_bias']:+.2g}" if e.get("method_bias") is not None else ""
-            typer.echo(f"  {name:24s} {e['value']:.4g} {e['unit']}  [{lo:.4g}, {hi:.4g}]  (nominal {e['nominal']:.4g}"
-                       f"{bias})")
+            say(f"  {name:24s} {e['value']:.4g} {e['unit']}  [{lo:.4g}, {hi:.4g}]  (nominal {e['nominal']:.4g}"
+                f"{bias})", err=False)
+    raise typer.Exit(damaged)
+
+
+def _whole_for_write(write: Path | None, healths: list) -> None:
+    """--write stores a calibration only from records read whole: a truncated or damaged one is refused."""
+    from cellguard.calibrate.identify import CalibrationError
+
+    for path, health in healths:
+        if write is not None and not health.ok:
+            raise CalibrationError(f"--write: {path} is not whole ({health.describe()}); a calibration is stored "
+                                   "only from whole records (identify without --write reports the fit)")
 
 
 @app.command()
 def replay(
-    record: Path = typer.Argument(..., help="A record folder."),
+    record: Path = typer.Argument(..., help="A record folder or its .mcap file."),
     cycle: int = typer.Option(..., "--cycle", help="The cycle to replay."),
     model: str = typer.Option("calibrated", "--model", help="calibrated (the profile's measured values) or nominal."),
     profile: Path | None = typer.Option(None, "--profile", help="The calibrated profile (identify --write's); "
                                         "default: the cell's own."),
     vary: str | None = typer.Option(None, "--vary", help="PARAM:JOINT=LOW..HIGH, e.g. friction:elbow=0.8..1.6: "
                                     "search the factor that best reproduces the recorded cycle."),
-    out: Path | None = typer.Option(None, "-o", "--out", help="HTML page (default: RECORD/replay-cycle-N.html)."),
+    out: Path | None = typer.Option(None, "-o", "--out", help="HTML page (default: replay-cycle-N.html in the "
+                                   "record's folder); never the record, a file of its run folder or --profile."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),
 ) -> None:
-    """Re-run a recorded cycle's chunks in the simulator from its recorded start; overlay simulated and recorded."""
+    """Re-run a recorded cycle's chunks in the simulator from its recorded start; overlay simulated and recorded.
+    Exit 1 (one warning line) when the record is not whole: what was readable is replayed."""
+    from cellguard.calibrate.identify import CalibrationError
     from cellguard.calibrate.replay import replay as run_replay
+    from cellguard.cli.record import warn_if_damaged
+    from cellguard.record.outputs import refuse_output
+    from cellguard.record.reader import record_file
     from cellguard.report.replay import write_replay
 
     try:
+        if profile is not None and model != "calibrated":
+            raise CalibrationError(f"--profile: only with --model calibrated; the {model} model reads no profile")
+        page = out or record_file(record).parent / f"replay-cycle-{cycle}.html"
+        # before the simulation: never over the record, its run folder's files or the --profile read
+        refuse_output(page, record, inputs=[("--profile file", profile)], own=("replay-cycle-*.html",))
         result = run_replay(record, cycle, model=model, profile=profile, vary=vary)
-        page = write_replay(result, out or record / f"replay-cycle-{cycle}.html")
+        write_replay(result, page)
     except CellguardError as exc:
         fail(exc)
     d = result.to_dict()
     d["page"] = str(page)
+    damaged = warn_if_damaged(result.rc.health, record) if result.rc.health is not None else 0
     if as_json:
         typer.echo(json.dumps(d, indent=1))
-        return
-    typer.echo(f"{record}: cycle {cycle} replayed in the {model} model ({d['ticks']} ticks); "
-               f"mean current NRMSE {d['mismatch']['cost']:.4f}")
+        raise typer.Exit(damaged)
+    say(f"{record}: cycle {cycle} replayed in the {model} model ({d['ticks']} ticks); "
+        f"mean current NRMSE {d['mismatch']['cost']:.4f}", err=False)
     if result.vary is not None:
         v = result.vary
-        typer.echo(f"  {v.parameter} of {v.joint} x {result.best:.3f} reproduces it best "
-                   f"(searched {v.low:g}..{v.high:g})")
-    typer.echo(f"  {page}")
+        say(f"  {v.parameter} of {v.joint} x {result.best:.3f} reproduces it best (searched {v.low:g}..{v.high:g})",
+            err=False)
+    say(f"  {page}", err=False)
+    raise typer.Exit(damaged)

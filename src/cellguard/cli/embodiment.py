@@ -21,7 +21,8 @@ def embodiment_show(
     cell: str = typer.Argument(..., help="A registered cell, e.g. arm-pick-place."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),
 ) -> None:
-    """Print a cell's embodiment profile: joints, limits, measured parameters, symmetry."""
+    """Print a cell's embodiment profile: joints and limits with their units, measured parameters (as written, when
+    and how), symmetry pairs and the calibration."""
     from cellguard.robot.registry import make_cell
 
     try:
@@ -31,12 +32,66 @@ def embodiment_show(
     if as_json:
         sys.stdout.write(json.dumps(profile.to_dict(), indent=1) + "\n")
         return
+    print_profile(profile)
+
+
+_UNITS = {"hinge": {"position": "rad", "velocity": "rad/s", "acceleration": "rad/s^2", "jerk": "rad/s^3",
+                    "effort": "N*m", "torque_constant": "N*m/A"},
+          "slide": {"position": "m", "velocity": "m/s", "acceleration": "m/s^2", "jerk": "m/s^3", "effort": "N",
+                    "torque_constant": "N/A"}}
+
+
+def print_profile(profile) -> None:
+    """The profile as tables, SI with units: joints and limits, measured parameters (as written, with when and
+    how), symmetry pairs, and the calibration. Text from the profile file is printed as it is (no markup)."""
+    from rich.text import Text
+
+    from cellguard.cli.text import printable
+
+    def cell(value: object) -> Text:
+        return Text(printable(value))
+
+    console = Console(highlight=False)
+    console.print(cell(f"{profile.robot} (profile {profile.version})"))
+    for kind in ("hinge", "slide"):
+        joints = [j for j in profile.joints if j.kind == kind]
+        if not joints:
+            continue
+        u = _UNITS[kind]
+        table = _table(f"{kind} joints")
+        table.add_column("joint", no_wrap=True)
+        for key, label in (("position", "position"), ("velocity", "velocity"), ("acceleration", "accel."),
+                           ("jerk", "jerk"), ("effort", "effort"), ("torque_constant", "Kt")):
+            table.add_column(Text(f"{label}\n[{u[key]}]"), justify="right", no_wrap=True)  # Text: no markup
+        for j in joints:
+            table.add_row(*map(cell, (j.name, f"{j.position[0]:.3g}..{j.position[1]:.3g}", f"{j.velocity:g}",
+                                      f"{j.acceleration:g}", f"{j.jerk:g}", f"{j.effort:g}",
+                                      f"{j.torque_constant:g}")))
+        console.print(table)
+    measured = _table("measured")
+    for col in ("joint", "parameter", "value", "measured", "method"):
+        measured.add_column(col, no_wrap=col in ("joint", "value", "measured"), overflow="fold")
+    for m in profile.measured:
+        measured.add_row(*map(cell, (m.joint, m.parameter, m.as_written, m.measured, m.method)))
+    console.print(measured if profile.measured else cell("measured: none"))
+    if profile.symmetry:
+        pairs = _table("symmetry (q_right = sign * q_left)")
+        for col in ("left", "right", "sign"):
+            pairs.add_column(col)
+        for pair in profile.symmetry:
+            pairs.add_row(*map(cell, (pair.left, pair.right, f"{pair.sign:+g}")))
+        console.print(pairs)
+    else:
+        console.print(cell("symmetry: none"))
+    c = profile.calibration
+    console.print(cell("calibration: none (the measured values were typed in)" if c is None else
+                       f"calibration: {c.version} of {c.date} from {', '.join(c.records)} (MJCF {c.mjcf}, "
+                       f"replaced {c.previous})"))
+
+
+def _table(title: str):
+    """A table narrow enough for an 80-column terminal: rules under the header only, single spaces between."""
+    from rich import box
     from rich.table import Table
 
-    table = Table(title=f"{profile.robot} (profile {profile.version})")
-    for col in ("joint", "kind", "position", "velocity", "acceleration", "jerk", "effort", "Kt"):
-        table.add_column(col)
-    for j in profile.joints:
-        table.add_row(j.name, j.kind, f"[{j.position[0]:.3g}, {j.position[1]:.3g}]", f"{j.velocity:g}",
-                      f"{j.acceleration:g}", f"{j.jerk:g}", f"{j.effort:g}", f"{j.torque_constant:g}")
-    Console().print(table)
+    return Table(title=title, box=box.SIMPLE_HEAD, pad_edge=False, collapse_padding=True)

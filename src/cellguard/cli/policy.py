@@ -7,36 +7,42 @@ import sys
 from pathlib import Path
 
 import typer
-from rich.console import Console
 
 from cellguard.cli.app import app
 from cellguard.cli.errors import fail
+from cellguard.cli.text import say
 from cellguard.errors import CellguardError
 
 
 @app.command("train-demo-policy")
 def train_demo_policy(
-    out: Path = typer.Option(Path("demo-policy.onnx"), "--out", "-o", help="ONNX file to write."),
+    out: Path = typer.Option(Path("demo-policy.onnx"), "--out", "-o", help="ONNX file to write (a new file, "
+                             "unless --overwrite)."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing ONNX file at --out."),
     cycles: int = typer.Option(10, min=2, max=500, help="Scripted demonstration cycles to record."),
     random_features: int = typer.Option(64, min=0, max=4096, help="Random tanh units beside the time basis."),
     seed: int = typer.Option(0, help="Seed of the demonstrations and the initial weights."),
     fixture_dx_mm: float = typer.Option(0.0, "--fixture-dx-mm", min=-5.0, max=5.0,
-                                        help="Record the demonstrations with the fixture moved this far in x [mm]."),
+                                        help="Record the demonstrations with the fixture moved this far in x \\[mm]."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),
 ) -> None:
     """Clone the scripted arm program into a small MLP on the CPU; run it with `policy: onnx:FILE`."""
     from dataclasses import asdict
 
+    from cellguard.record.outputs import refuse_output
     from cellguard.train.demo_policy import train_demo_policy as train
 
     try:
+        # before the demonstrations are recorded: never over a record, into a run folder, or over a model
+        # (one a release may have hashed) unless --overwrite
+        refuse_output(out, None, replace=overwrite)
         report = train(out, cycles=cycles, random_features=random_features, seed=seed, fixture_dx_mm=fixture_dx_mm)
     except CellguardError as exc:
         fail(exc)
     if as_json:
         sys.stdout.write(json.dumps(asdict(report)) + "\n")
         return
-    Console().print(f"trained on {report.samples} samples from {report.cycles} cycles in {report.seconds:.0f} s "
-                    f"({report.hidden} hidden units, joint error rms {report.rms_error_mrad:.2f} mrad, "
-                    f"worst {report.max_error_mrad:.2f} mrad); "
-                    f"written to {report.path}; run it with policy: onnx:{report.path}")
+    say(f"trained on {report.samples} samples from {report.cycles} cycles in {report.seconds:.0f} s "
+        f"({report.hidden} hidden units, joint error rms {report.rms_error_mrad:.2f} mrad, "
+        f"worst {report.max_error_mrad:.2f} mrad); "
+        f"written to {report.path}; run it with policy: onnx:{report.path}", err=False)

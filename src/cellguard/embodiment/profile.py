@@ -2,7 +2,12 @@
 
 A profile is a YAML file next to the robot's MJCF. Loading checks it against the model: a
 joint the model does not have, a limit outside the model's range, or a number without its
-unit is refused with an error that names the field.
+unit is refused with an error that names the field. So is a measured value that cannot be one of
+its parameter (friction, damping, armature, actuator_time_constant, backlash): in another dimension
+(friction is a torque on a hinge, a force on a slide; armature an inertia or a mass), below zero,
+or beyond its range (friction above the joint's effort); a second entry for the same joint and
+parameter (one of them would silently win); text with control characters; and a version that
+cannot name a file (``identify --write`` keeps ``NAME.VERSION.yaml`` beside the profile).
 """
 
 from __future__ import annotations
@@ -24,6 +29,20 @@ _LINEAR = {"position": ("length",), "velocity": ("length/s",), "acceleration": (
 _ANGULAR = {"position": ("angle",), "velocity": ("angle/s",), "acceleration": ("angle/s^2",),
             "jerk": ("angle/s^3",), "effort": ("torque",), "torque_constant": ("torque/A",)}
 _PARAMETER_DIMENSIONS = ("torque", "force", "time", "angle", "length", "mass", "inertia", "damping")
+# the dimension of a known measured parameter on a hinge or a slide joint (None: no unit cellguard reads yet);
+# each is at least zero. A parameter not listed may carry any of _PARAMETER_DIMENSIONS.
+_MEASURED = {
+    "friction": {"hinge": ("torque",), "slide": ("force",)},  # dry friction, at most the joint's effort
+    "damping": {"hinge": ("damping",), "slide": None},
+    "armature": {"hinge": ("inertia",), "slide": ("mass",)},
+    "actuator_time_constant": {"hinge": ("time",), "slide": ("time",)},
+    "backlash": {"hinge": ("angle",), "slide": ("length",)},
+}
+# the largest value a known parameter may have, SI, beyond which it is a typing error, not a robot
+# (friction is bounded by the joint's effort instead: friction above it would hold the joint still)
+_MEASURED_MAX = {"damping": 1e4, "armature": 1e3, "actuator_time_constant": 10.0, "backlash": 1.0}
+_SI = {"torque": "N*m", "force": "N", "damping": "N*m*s/rad", "inertia": "kg*m^2", "mass": "kg", "time": "s",
+       "angle": "rad", "length": "m"}
 
 
 @dataclass(frozen=True)
@@ -50,6 +69,11 @@ class MeasuredParameter:
     unit: str  # as written in the profile
     measured: str  # ISO date
     method: str
+
+    @property
+    def as_written(self) -> str:
+        """The value in the unit the profile wrote it in, e.g. ``0.05 deg``."""
+        return f"{self.value / parse_quantity(f'1 {self.unit}', 'unit', _PARAMETER_DIMENSIONS):.6g} {self.unit}"
 
 
 @dataclass(frozen=True)
@@ -177,11 +201,20 @@ def _profile(model: mujoco.MjModel, raw: object, sha256: str) -> Profile:
         raise ProfileError("joints: expected a mapping of joint name to limits")
     joints = tuple(_joint(model, name, spec) for name, spec in raw["joints"].items())
     names = {j.name for j in joints}
-    measured = tuple(_measured(i, m, names) for i, m in enumerate(_list(raw, "measured")))
+    by_name = {j.name: j for j in joints}
+    measured = tuple(_measured(i, m, by_name) for i, m in enumerate(_list(raw, "measured")))
+    first: dict[tuple[str, str], int] = {}
+    for i, m in enumerate(measured):
+        j = first.setdefault((m.joint, m.parameter), i)
+        if j != i:
+            raise ProfileError(f"measured[{i}]: {m.parameter} of {m.joint} is already measured[{j}]; keep one entry "
+                               "per joint and parameter (the one to use)")
     symmetry = tuple(_symmetry(i, s, names) for i, s in enumerate(_list(raw, "symmetry")))
+    if "model" in raw:
+        _text(raw["model"], "model")
     return Profile(
         robot=_text(raw["robot"], "robot"),
-        version=_text(raw["version"], "version"),
+        version=_version(raw["version"], "version"),
         joints=joints,
         measured=measured,
         symmetry=symmetry,
@@ -201,8 +234,21 @@ def _text(value: object, field: str) -> str:
     """A text field: a string, or a date YAML read as one (``measured: 2026-10-14``); anything else is a
     mistake that ``str()`` would hide (``robot: [1]`` named the robot "[1]")."""
     if isinstance(value, (str, datetime.date)):
-        return str(value)
+        text = str(value)
+        if not text.isprintable():  # an escape code recolours the terminal that prints it; a NUL ends a file name
+            raise ProfileError(f"{field}: {text!r} holds control characters")
+        return text
     raise ProfileError(f"{field}: expected text, got {type(value).__name__}")
+
+
+def _version(value: object, field: str) -> str:
+    """A version id: text that can stand in a file name (``identify --write`` keeps NAME.VERSION.yaml beside the
+    profile), so no path separator and not blank."""
+    text = _text(value, field)
+    if not text.strip() or "/" in text or "\\" in text or text in (".", ".."):
+        raise ProfileError(f"{field}: {text!r} cannot name a file (it names the copies kept beside the profile); "
+                           "write it without / or \\")
+    return text
 
 
 def _is_joint(value: object, names: set[str]) -> bool:
@@ -255,7 +301,7 @@ def _joint(model: mujoco.MjModel, name: object, spec: object) -> JointLimits:
     return JointLimits(name=name, kind=kind, position=(lo, hi), **values)
 
 
-def _measured(i: int, spec: object, names: set[str]) -> MeasuredParameter:
+def _measured(i: int, spec: object, joints: dict[str, JointLimits]) -> MeasuredParameter:
     field = f"measured[{i}]"
     keys = ("joint", "parameter", "value", "measured", "method")
     if not isinstance(spec, dict):
@@ -264,17 +310,39 @@ def _measured(i: int, spec: object, names: set[str]) -> MeasuredParameter:
     for key in keys:
         if key not in spec:
             raise ProfileError(f"{field}.{key}: missing")
-    if not _is_joint(spec["joint"], names):
+    if not _is_joint(spec["joint"], set(joints)):
         raise ProfileError(f"{field}.joint: {spec['joint']!r} is not a profiled joint")
-    value = _quantity(spec["value"], f"{field}.value", _PARAMETER_DIMENSIONS)
+    joint = joints[spec["joint"]]
+    parameter = _text(spec["parameter"], f"{field}.parameter")
     return MeasuredParameter(
-        joint=spec["joint"],
-        parameter=_text(spec["parameter"], f"{field}.parameter"),
-        value=value,
+        joint=joint.name,
+        parameter=parameter,
+        value=_measured_value(spec["value"], f"{field}.value", parameter, joint),
         unit=str(spec["value"]).split()[1],
         measured=_text(spec["measured"], f"{field}.measured"),
         method=_text(spec["method"], f"{field}.method"),
     )
+
+
+def _measured_value(text: object, field: str, parameter: str, joint: JointLimits) -> float:
+    """The SI value of a measured ``parameter`` of ``joint``: in the parameter's dimension, at least zero and
+    within its range (friction at most the joint's effort) for the parameters cellguard knows."""
+    known = _MEASURED.get(parameter)
+    if known is None:
+        return _quantity(text, field, _PARAMETER_DIMENSIONS)
+    dims = known[joint.kind]
+    if dims is None:
+        raise ProfileError(f"{field}: {parameter} of a {joint.kind} joint ({joint.name}) has no unit cellguard "
+                           "reads yet; leave it out")
+    value = _quantity(text, field, dims)
+    if value < 0.0:
+        raise ProfileError(f"{field}: {parameter} of {joint.name} must be at least zero, got {text}")
+    limit = joint.effort if parameter == "friction" else _MEASURED_MAX[parameter]
+    if value > limit:
+        what = "the joint's effort " if parameter == "friction" else "the most it can be, "
+        raise ProfileError(f"{field}: {parameter} of {joint.name} {text} is above {what}{limit:g} {_SI[dims[0]]}; "
+                           "check the value and its unit")
+    return value
 
 
 def _symmetry(i: int, spec: object, names: set[str]) -> SymmetryPair:
@@ -300,8 +368,10 @@ def _calibration(spec: object) -> Calibration:
     records = spec["records"]
     if not isinstance(records, list) or not all(isinstance(r, str) for r in records):
         raise ProfileError("calibration.records: expected a list of record ids")
-    version, mjcf, date, previous = (_text(spec[k], f"calibration.{k}") for k in ("version", "mjcf", "date",
-                                                                                  "previous"))
+    for k, record in enumerate(records):
+        _text(record, f"calibration.records[{k}]")
+    version, previous = (_version(spec[k], f"calibration.{k}") for k in ("version", "previous"))
+    mjcf, date = (_text(spec[k], f"calibration.{k}") for k in ("mjcf", "date"))
     if Path(mjcf).name != mjcf:
         raise ProfileError(f"calibration.mjcf: {mjcf!r} must be a file name beside the profile, not a path")
     return Calibration(version, mjcf, date, tuple(records), previous)

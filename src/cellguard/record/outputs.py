@@ -1,11 +1,14 @@
-"""Where a command may write its output: never over a record, nor into a run folder.
+"""Where a command may write its output: never over a record, nor into a run folder, nor over its own inputs.
 
-Every command that writes an output (export, to-lerobot, recover, report) asks here first, before
-it reads anything, so a mistyped ``-o`` cannot cost a record.
+Every command that writes an output (export, to-lerobot, recover, report, replay, identify --write,
+train-demo-policy) asks here first, before it reads or computes anything, so a mistyped ``-o`` cannot
+cost a record, an input file or minutes of work.
 """
 
 from __future__ import annotations
 
+from collections.abc import Iterable
+from fnmatch import fnmatch
 from pathlib import Path
 
 from cellguard.errors import RecordError
@@ -14,33 +17,57 @@ from cellguard.record.scan import MAGIC
 from cellguard.record.writer import RECORD_FILE
 
 
-def refuse_output(output: Path, source: Path, to_folder: bool = False) -> None:
-    """RecordError unless ``output`` may be written: nothing recorded is ever overwritten.
+def refuse_output(output: Path, source: Path | None, to_folder: bool = False, *,
+                  inputs: Iterable[tuple[str, Path | None]] = (), option: str = "-o", replace: bool = True,
+                  own: tuple[str, ...] = ()) -> None:
+    """RecordError unless ``output`` may be written: nothing recorded, and nothing the command reads, is ever
+    overwritten.
 
-    Every command that writes (export, to-lerobot, recover, report) calls this before it reads
-    anything. Refused, after following links: the record being read (``source``, a run folder or
-    an .mcap file, whatever its bytes hold), a file that starts with the MCAP magic, and a run
-    folder (one holding record.mcap) or anything in it, since its summary, index and baseline
-    belong to the record. ``to_folder``: the output is a folder to fill, else a file.
+    Refused, after following links: the record being read (``source``, a run folder or an .mcap file,
+    whatever its bytes hold; None: the command reads no record), any other file the command reads
+    (``inputs``: (what, path) pairs such as ("--profile file", path); None paths are skipped), a file that
+    starts with the MCAP magic, and a run folder (one holding record.mcap) or anything in it, since its
+    summary, index and baseline belong to the record; ``own`` names (glob patterns, e.g.
+    ``replay-cycle-*.html``) of the pages a command writes directly in ``source``'s own run folder are the
+    exception. Also refused: a file where a folder must be (the output itself with ``to_folder``, or a
+    parent), a folder where a file must be, and an existing file unless ``replace``. ``option`` is how the
+    message names the output (``-o``, ``--write``).
     """
+    name = f"{option} {output}"
     try:
         target = Path(output).resolve()
-        if target == record_file(source).resolve():
-            raise RecordError(f"-o {output}: is the record being read; cellguard never overwrites a record; "
+        if source is not None and target == record_file(source).resolve():
+            raise RecordError(f"{name}: is the record being read; cellguard never overwrites a record; "
                               f"choose another path")
+        for what, path in inputs:
+            if path is not None and target == Path(path).resolve():
+                raise RecordError(f"{name}: is the {what} being read; choose another path")
         run = next((d for d in (target, *target.parents) if (d / RECORD_FILE).exists()), None)
-        if run is not None:
+        if run is not None and not _own_page(target, run, source, own):
             where = "is a run folder" if run == target else f"is in the run folder {run}"
-            raise RecordError(f"-o {output}: {where}, which holds a record; cellguard never overwrites a record "
+            raise RecordError(f"{name}: {where}, which holds a record; cellguard never overwrites a record "
                               f"or its run folder; choose a path outside it")
         if target.is_file():
             with open(target, "rb") as f:
                 if f.read(len(MAGIC)) == MAGIC:
-                    raise RecordError(f"-o {output}: is a record; cellguard never overwrites a record; "
+                    raise RecordError(f"{name}: is a record; cellguard never overwrites a record; "
                                       f"choose another path")
+        parent = next((d for d in target.parents if d.exists()), None)
+        blocked = parent is not None and not parent.is_dir()
     except (OSError, RuntimeError) as exc:  # RuntimeError: a symlink loop
-        raise RecordError(f"-o {output}: cannot be checked ({getattr(exc, 'strerror', None) or exc})") from None
+        raise RecordError(f"{name}: cannot be checked ({getattr(exc, 'strerror', None) or exc})") from None
+    if blocked:
+        raise RecordError(f"{name}: {parent} is a file, not a folder; choose another path")
     if to_folder and target.exists() and not target.is_dir():
-        raise RecordError(f"-o {output}: is a file; give a new folder")
+        raise RecordError(f"{name}: is a file; give a new folder")
     if not to_folder and target.is_dir():
-        raise RecordError(f"-o {output}: is a folder; name a file to write")
+        raise RecordError(f"{name}: is a folder; name a file to write")
+    if not replace and target.exists():
+        raise RecordError(f"{name}: already exists; choose another path or give --overwrite to replace it")
+
+
+def _own_page(target: Path, run: Path, source: Path | None, own: tuple[str, ...]) -> bool:
+    """Whether ``target`` is one of the command's own pages, directly in the run folder of the record it reads."""
+    if source is None or not own or target.parent != run:
+        return False
+    return run == record_file(source).resolve().parent and any(fnmatch(target.name, p) for p in own)
