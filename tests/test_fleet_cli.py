@@ -116,3 +116,18 @@ def test_diagnose_with_the_fleet_store_down_warns_and_still_diagnoses(env):
     assert "fixture_shift" in {f["cause"] for f in json.loads(result.stdout)["findings"]}
     refused = CliRunner().invoke(app, ["diagnose", str(root / "run"), "--fleet"], env={"CELLGUARD_FLEET_DSN": ""})
     assert refused.exit_code == 2 and "CELLGUARD_FLEET_DSN" in refused.output
+
+
+@pytest.mark.parametrize("dsn", ["garbage=== password=s3cret-pw", "postgresql://u:s3cret-pw@[bad"],
+                         ids=["key-value", "uri"])
+def test_a_malformed_dsn_is_one_line_exit_2_that_never_shows_it(env, dsn):
+    root, _ = env
+    results = [CliRunner().invoke(app, ["diagnose", str(root / "run"), "--fleet"], env={"CELLGUARD_FLEET_DSN": dsn}),
+               cli("query", "frequency", "--store", dsn),
+               cli("push", root / "run", "--policy", root / "ta-s1.yaml", "--site-dir", root / "malformed", dsn=dsn)]
+    for result in results:
+        assert result.exit_code == 2, result.output
+        assert result.exception is None or isinstance(result.exception, SystemExit)
+        assert result.stderr.count("\n") == 1 and "DSN" in result.stderr and "malformed" in result.stderr
+        assert "s3cret" not in result.output and "Traceback" not in result.output
+    assert not (root / "malformed").exists()  # refused before anything was queued

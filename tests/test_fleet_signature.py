@@ -125,6 +125,30 @@ def test_policy_parser_accepts_or_names_the_problem(raw):
         assert policy.export in ("signatures", "aggregates_only", "nothing") and len(policy.version) == 12
 
 
+@pytest.mark.parametrize("raw", [{"tenant": "t-acme\n", "site": "s-1"}, {"tenant": "t-acme", "site": "s-1\n"}],
+                         ids=["tenant", "site"])
+def test_an_id_ending_in_a_newline_is_refused(tmp_path, raw):
+    with pytest.raises(PolicyError, match="expected an opaque id"):
+        parse_policy(raw)
+    path = tmp_path / "p.yaml"
+    path.write_text(f"tenant: {json.dumps(raw['tenant'])}\nsite: {json.dumps(raw['site'])}\n")
+    result = CliRunner().invoke(app, ["fleet", "push", str(tmp_path), "--policy", str(path),
+                                      "--site-dir", str(tmp_path / "site")])
+    assert result.exit_code == 2 and result.stderr.count("\n") == 1 and "expected an opaque id" in result.stderr
+    assert not (tmp_path / "site").exists()
+
+
+def test_a_tenant_or_query_text_ending_in_a_newline_is_refused_on_the_lake_and_in_queries(tmp_path):
+    from cellguard.errors import ConfigError
+    from cellguard.fleet.lake import tenant_dir
+    from cellguard.fleet.queries import QUERIES, render
+
+    with pytest.raises(ConfigError, match="tenant: expected an opaque id"):
+        tenant_dir(tmp_path, "t0\n")
+    with pytest.raises(ConfigError, match="parameter site must match"):
+        render(QUERIES["similar"], {"site": "s-1\n"})
+
+
 def test_nothing_exports_nothing_and_aggregates_respect_the_group_size():
     many = [s for d in range(6) for s in sigs(day=TODAY - dt.timedelta(days=d))]
     nothing = export_batch(many, DataPolicy("t-acme", "s-01", export="nothing"), TODAY)
@@ -196,6 +220,7 @@ def test_cli_push_with_a_batch_of_a_newer_schema_queued_names_it_and_keeps_it(tm
     queued.write_text(json.dumps(newer))
     result = CliRunner().invoke(app, ["fleet", "push", str(tmp_path), "--policy", str(policy),
                                       "--site-dir", str(tmp_path / "site")])
-    assert result.exit_code == 2 and result.output.strip().count("\n") == 0
-    assert "newer.json: signature.schema_version: 2 is newer than this cellguard reads" in result.output
-    assert "it stays queued" in result.output and json.loads(queued.read_text()) == newer  # nothing lost
+    assert result.exit_code == 1, result.output  # the push itself was done; the queued file needs a person
+    (line,) = [ln for ln in result.stderr.splitlines() if "newer.json" in ln]
+    assert "newer.json: signature.schema_version: 2 is newer than this cellguard reads" in line
+    assert "it stays queued" in line and json.loads(queued.read_text()) == newer  # nothing lost

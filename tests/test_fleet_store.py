@@ -276,3 +276,22 @@ def test_fleet_advice_counts_what_fixed_a_cause_over_k_customers_only():
     rows = fleet_fixes(TenantStore(dsns["td"]), k=3)
     assert rows == [{"cause": "tool_slip", "recovery": "retry_grasp", "fixed": 2, "tried": 3, "customers": 3,
                      "scope": "fleet"}]
+
+
+@pytest.mark.parametrize("dsn", ["garbage=== password=s3cret-pw", "host=x password s3cret-pw",
+                                 "postgresql://u:s3cret-pw@[bad"])
+def test_a_malformed_dsn_is_refused_without_echoing_it(dsn):
+    from cellguard.errors import ConfigError
+    from cellguard.fleet.store import connect
+
+    for call in (lambda: TenantStore(dsn), lambda: connect(dsn), lambda: FleetStore(dsn)):
+        with pytest.raises(ConfigError, match="DSN .*malformed") as caught:
+            call()
+        assert "s3cret" not in str(caught.value) and "\n" not in str(caught.value)
+
+
+def test_an_unreachable_store_gives_the_first_line_of_the_reason():
+    with pytest.raises(StoreUnavailable) as caught:
+        TenantStore(DOWN).push(Batch("tc", "sc3", "v", "signatures"))
+    message = str(caught.value)
+    assert "Connection refused" in message and "\t" not in message and "Is the server running" not in message

@@ -4,13 +4,16 @@ Every YAML document cellguard reads goes through ``parse_yaml``: PyYAML's safe l
 objects), plus what a careless or hostile file needs refused rather than guessed at. A key that
 appears twice in one mapping (YAML's "the last wins" silently ran the other robot), nesting deeper
 than ``MAX_DEPTH`` (a recursive alias included), a document whose aliases expand to more than
-``MAX_VALUES`` values (a few hundred bytes of aliases expand to gigabytes once validated), and a
-file over ``MAX_BYTES`` (``/dev/zero`` is never read past the limit) are each one error that names
+``MAX_VALUES`` values (a few hundred bytes of aliases expand to gigabytes once validated), a file
+over ``MAX_BYTES`` (``/dev/zero`` is never read past the limit), and a path that is a FIFO or a
+socket (refused before it is read: opening one waits for a writer) are each one error that names
 the file and what is wrong.
 """
 
 from __future__ import annotations
 
+import os
+import stat
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 
@@ -91,17 +94,38 @@ def _check_expanded(document: object) -> None:
 
 
 def read_bounded(path: Path, what: str, error: type[ConfigError] = ConfigError, limit: int = MAX_BYTES) -> bytes:
-    """The bytes of ``path`` (a ``what`` file), reading at most ``limit`` bytes: larger is refused."""
+    """The bytes of ``path`` (a ``what`` file), reading at most ``limit`` bytes: larger is refused.
+
+    Opened without blocking and checked before it is read: a FIFO or a socket is refused (opening
+    a FIFO for reading waits for a writer that may never come), a folder is refused, a link to
+    nothing is named as such. A device is read up to the limit (``/dev/zero`` is refused as too large).
+    """
     path = Path(path)
     try:
-        with path.open("rb") as f:
-            data = f.read(limit + 1)
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0))
     except FileNotFoundError:
+        if path.is_symlink():
+            raise error(f"{path}: is a link to nothing, not a {what} file") from None
         raise error(f"{path}: no such {what} file") from None
     except IsADirectoryError:
         raise error(f"{path}: is a folder, not a {what} file") from None
     except OSError as exc:
         raise error(f"{path}: cannot read the {what} file ({exc.strerror or exc.__class__.__name__})") from None
+    try:
+        mode = os.fstat(fd).st_mode
+        if stat.S_ISDIR(mode):
+            raise error(f"{path}: is a folder, not a {what} file")
+        if stat.S_ISFIFO(mode) or stat.S_ISSOCK(mode):
+            raise error(f"{path}: is a {'FIFO' if stat.S_ISFIFO(mode) else 'socket'}, not a regular {what} file")
+        os.set_blocking(fd, True)  # a regular file or a device: read as usual, bounded below
+        with os.fdopen(fd, "rb") as f:
+            fd = -1
+            data = f.read(limit + 1)
+    except OSError as exc:
+        raise error(f"{path}: cannot read the {what} file ({exc.strerror or exc.__class__.__name__})") from None
+    finally:
+        if fd >= 0:
+            os.close(fd)
     if len(data) > limit:
         raise error(f"{path}: the {what} file is larger than the limit of {limit} bytes")
     return data

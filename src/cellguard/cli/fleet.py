@@ -13,6 +13,7 @@ from rich.console import Console
 
 from cellguard.cli.app import app
 from cellguard.cli.errors import fail
+from cellguard.cli.text import printable
 from cellguard.errors import CellguardError
 
 fleet_app = typer.Typer(no_args_is_help=True, help="Fault signatures pooled across sites under each customer's data policy.")
@@ -41,15 +42,21 @@ def push(
     acceptance: Path | None = ACCEPTANCE,
     as_json: bool = JSON,
 ) -> None:
-    """Diagnose the runs in FOLDER and send their fault signatures as the policy allows; queue if the store is down."""
+    """Diagnose the runs in FOLDER and send their fault signatures as the policy allows; queue if the store is down.
+    Queued batches go only as the policy in force allows; one it does not, or one that cannot be read or
+    that the store refuses, stays queued and is named on stderr (exit 1 for the last two)."""
     from cellguard.fleet.from_record import site_signatures
+    from cellguard.fleet.lake import check_lake
     from cellguard.fleet.policy import load_policy
     from cellguard.fleet.push import push as do_push
 
     try:
         pol = load_policy(policy)
+        tenant_store = _store(store)  # a malformed DSN or a --lake that is a file: refused before the diagnosis
+        if lake is not None:
+            check_lake(lake)
         sigs = site_signatures(folder, pol, acceptance) if pol.export != "nothing" else []
-        result = do_push(sigs, pol, site_dir, _store(store), lake)
+        result = do_push(sigs, pol, site_dir, tenant_store, lake)
     except CellguardError as exc:
         fail(exc)
     if as_json:
@@ -65,6 +72,12 @@ def push(
                          f"sent on the next push\n")
     elif store is None and result.queued:
         sys.stderr.write(f"no --store given: {result.queued} batch(es) kept in {Path(site_dir) / 'outbox'}\n")
+    for line in result.held:
+        sys.stderr.write(f"note: {printable(line)}\n")
+    for line in result.failed:
+        sys.stderr.write(f"warning: {printable(line)}\n")
+    if result.failed:
+        raise typer.Exit(1)
 
 
 @fleet_app.command()
@@ -158,15 +171,28 @@ def similar(
 
 @fleet_app.command()
 def audit(site_dir: Path = SITE_DIR, as_json: bool = JSON) -> None:
-    """This site's audit log: every export, when, how many rows, under which policy version."""
-    from cellguard.fleet.audit import read_audit
+    """This site's audit log: every export, when, how many rows, under which policy version. A damaged line
+    is named on stderr and the others shown (exit 1)."""
+    from cellguard.fleet.audit import scan_audit
 
-    entries = read_audit(site_dir)
+    try:
+        entries, damaged = scan_audit(site_dir)
+    except CellguardError as exc:
+        fail(exc)
     if as_json:
-        sys.stdout.write(json.dumps({"entries": entries}) + "\n")
-        return
-    console = Console(highlight=False)
-    console.print(f"audit log of {site_dir}: {len(entries)} entr{'y' if len(entries) == 1 else 'ies'}", markup=False)
-    for e in entries:
-        console.print(f"  {e['when_utc']} {e['status']:<9} {e['what']:<15} rows={e['rows']} "
-                      f"kept={e['withheld_rows']} policy={e['policy_version']} batch={e['batch_id'][:12]}", markup=False)
+        sys.stdout.write(json.dumps({"entries": entries, "damaged": damaged}) + "\n")
+    else:
+        console = Console(highlight=False)
+        console.print(f"audit log of {printable(site_dir)}: {len(entries)} entr{'y' if len(entries) == 1 else 'ies'}",
+                      markup=False)
+        for e in entries:
+            why = f" ({e['reason']})" if e.get("reason") else ""
+            if e.get("policy_in_force") not in (None, e["policy_version"]):
+                why = f" in_force={e['policy_in_force']}{why}"
+            console.print(printable(f"  {e['when_utc']} {e['status']:<9} {e['what']:<15} rows={e['rows']} "
+                                    f"kept={e['withheld_rows']} policy={e['policy_version']} "
+                                    f"batch={e['batch_id'][:12]}{why}"), markup=False)
+    for line in damaged:
+        sys.stderr.write(f"warning: {printable(Path(site_dir) / 'audit.jsonl')}: {printable(line)}; not shown\n")
+    if damaged:
+        raise typer.Exit(1)

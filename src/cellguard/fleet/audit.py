@@ -1,7 +1,14 @@
 """The site's audit log: one JSON line per export (what, when, how many rows, which policy version).
 
 Append-only at the site, never sent. A line is written whole (one ``write`` of an ``O_APPEND``
-file, then fsync), so a crash leaves every earlier line intact.
+file, then fsync), so a crash leaves every earlier line intact. Statuses: ``queued`` (in the
+outbox), ``sent``, ``duplicate`` (the store had every row), ``nothing`` (an empty export),
+``held`` (the policy in force no longer lets a queued batch leave; ``reason`` says why) and
+``refused`` (the store refused it; ``reason``); a held or refused batch stays in the outbox. A
+batch that leaves is logged with ``policy_in_force``, the version of the policy it left under.
+
+A damaged log is read as far as it goes: ``scan_audit`` returns the entries and names each line
+it cannot read; ``read_audit`` refuses a damaged log in one line.
 """
 
 from __future__ import annotations
@@ -11,18 +18,29 @@ import json
 import os
 from pathlib import Path
 
-from cellguard.errors import OutputError
+from cellguard.errors import ConfigError, OutputError
 from cellguard.fleet.export import Batch
+from cellguard.yaml_file import read_bounded
 
 AUDIT_FILE = "audit.jsonl"
+STATUSES = ("queued", "sent", "duplicate", "nothing", "held", "refused")
+FIELDS = {"when_utc": str, "what": str, "rows": int, "withheld_rows": int, "policy_version": str, "batch_id": str,
+          "status": str}  # in every entry, of these types
+MAX_AUDIT_BYTES = 1 << 30  # [bytes] about 3 million entries
 
 
-def append_audit(site_dir: Path, batch: Batch, status: str, destination: str) -> dict:
-    """Append the export of ``batch`` (``status``: sent, queued, duplicate, nothing) to the log."""
+class AuditError(ConfigError):
+    """A site folder or audit log that cannot be read."""
+
+
+def append_audit(site_dir: Path, batch: Batch, status: str, destination: str, **more: str) -> dict:
+    """Append the export of ``batch`` (``status``: one of ``STATUSES``) to the log; ``more``: fields such as
+    ``reason`` and ``policy_in_force``."""
     entry = {"when_utc": dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"),
              "what": batch.export, "rows": batch.rows, "withheld_rows": batch.withheld_rows,
              "policy_version": batch.policy_version, "batch_id": batch.batch_id,
-             "tenant_id": batch.tenant_id, "site_id": batch.site_id, "status": status, "destination": destination}
+             "tenant_id": batch.tenant_id, "site_id": batch.site_id, "status": status, "destination": destination,
+             **more}
     path = Path(site_dir) / AUDIT_FILE
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -38,7 +56,40 @@ def append_audit(site_dir: Path, batch: Batch, status: str, destination: str) ->
 
 
 def read_audit(site_dir: Path) -> list[dict]:
-    path = Path(site_dir) / AUDIT_FILE
-    if not path.is_file():
-        return []
-    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+    """Every entry of the site's log; AuditError on a damaged log or a ``site_dir`` that is not a folder."""
+    entries, damaged = scan_audit(site_dir)
+    if damaged:
+        raise AuditError(f"audit log {Path(site_dir) / AUDIT_FILE}: {damaged[0]}"
+                         + (f" (and {len(damaged) - 1} more damaged line(s))" if len(damaged) > 1 else ""))
+    return entries
+
+
+def scan_audit(site_dir: Path) -> tuple[list[dict], list[str]]:
+    """(the entries that can be read, one line per line that cannot). No log yet: no entries.
+    AuditError when ``site_dir`` is not a folder or the log is not a file that can be read."""
+    site_dir = Path(site_dir)
+    if not site_dir.is_dir():
+        raise AuditError(f"--site-dir {site_dir}: " + ("not a folder" if site_dir.exists() else "no such folder"))
+    path = site_dir / AUDIT_FILE
+    if not path.exists() and not path.is_symlink():
+        return [], []
+    data = read_bounded(path, "audit log", AuditError, MAX_AUDIT_BYTES)
+    entries, damaged = [], []
+    for number, raw in enumerate(data.split(b"\n"), 1):
+        if not raw.strip():
+            continue
+        try:
+            entry = json.loads(raw)
+        except (ValueError, RecursionError):  # not JSON, or not UTF-8: a torn or overwritten line
+            damaged.append(f"line {number}: not a JSON entry")
+            continue
+        if not isinstance(entry, dict):
+            damaged.append(f"line {number}: not an audit entry (a JSON {type(entry).__name__})")
+            continue
+        wrong = [k for k, kind in FIELDS.items()
+                 if not isinstance(entry.get(k), kind) or isinstance(entry.get(k), bool)]
+        if wrong:
+            damaged.append(f"line {number}: not an audit entry ({', '.join(wrong)} missing or mistyped)")
+            continue
+        entries.append(entry)
+    return entries, damaged

@@ -1,4 +1,10 @@
-"""The named queries on the Parquet lake with DuckDB: the default, one machine, in process."""
+"""The named queries on the Parquet lake with DuckDB: the default, one machine, in process.
+
+The views are built with DuckDB's relation API from the listed files, never by writing a path
+into SQL text: a lake path holding a quote or SQL is a path like any other. Each view reads a
+row once (``DISTINCT`` over the partitions that hold more than one file, see ``lake.py``). A
+DuckDB error is a ConfigError in one line.
+"""
 
 from __future__ import annotations
 
@@ -9,7 +15,7 @@ import duckdb
 import pyarrow as pa
 
 from cellguard.errors import ConfigError
-from cellguard.fleet.lake import has_data
+from cellguard.fleet.lake import EFFECTS, SIGNATURES, has_data, lone_and_shared
 from cellguard.fleet.queries import MIN_CUSTOMERS, named, plain, render
 from cellguard.fleet.rights import access
 
@@ -27,24 +33,35 @@ class DuckDBEngine:
         self.lake, self.tenant, self.min_customers = Path(lake), tenant, min_customers
         self.con = duckdb.connect()
         if threads:
-            self.con.execute(f"SET threads = {int(threads)}")
+            self.con.execute("SET threads = ?", [int(threads)])
 
     def run(self, query: str, params: Mapping | None = None, probe: Sequence[tuple[str, float]] = (),
             scope: str = "fleet") -> list[dict]:
         q = named(query)
         allowed = access(self.lake, q, params, self.tenant, scope, self.min_customers)
-        for rel, glob in allowed.globs.items():  # the views read only what the caller may read
-            self.con.execute(f"CREATE OR REPLACE TEMP VIEW {rel} AS "
-                             f"SELECT * FROM read_parquet('{glob}', hive_partitioning = false)")
-        table = pa.table({"feature": pa.array([f for f, _ in probe], pa.string()),
-                          "effect": pa.array([float(e) for _, e in probe], pa.float64())})
-        self.con.register("probe", table)
         try:
-            cur = self.con.execute(render(q, allowed.params))
-            cols = [d[0] for d in cur.description]
-            return [plain(dict(zip(cols, r))) for r in cur.fetchall()]
-        finally:
-            self.con.unregister("probe")
+            for rel, schema in (("signatures", SIGNATURES), ("effects", EFFECTS)):  # only what the caller may read
+                lone, shared = lone_and_shared(allowed.paths(self.lake, rel))
+                source = self._read(lone, schema).union(self._read(shared, schema).distinct())
+                source.create_view(rel, replace=True)
+            table = pa.table({"feature": pa.array([f for f, _ in probe], pa.string()),
+                              "effect": pa.array([float(e) for _, e in probe], pa.float64())})
+            self.con.register("probe", table)
+            try:
+                cur = self.con.execute(render(q, allowed.params))
+                cols = [d[0] for d in cur.description]
+                return [plain(dict(zip(cols, r))) for r in cur.fetchall()]
+            finally:
+                self.con.unregister("probe")
+        except duckdb.Error as exc:
+            first = next((ln.strip() for ln in str(exc).splitlines() if ln.strip()), exc.__class__.__name__)
+            raise ConfigError(f"--lake {self.lake}: query {q.name} failed in DuckDB ({first})") from None
+
+    def _read(self, found: list[str], schema: pa.Schema):
+        """A relation over the listed files (paths bound as values, never SQL text), or an empty one."""
+        if not found:
+            return self.con.from_arrow(schema.empty_table())
+        return self.con.read_parquet(found, hive_partitioning=False)
 
     def close(self) -> None:
         self.con.close()

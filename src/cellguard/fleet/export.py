@@ -3,7 +3,9 @@
 ``signatures``: each signature with the withheld fields emptied; ``aggregates_only``: counts per
 (cause, robot model, cell type), a count over fewer than ``min_group_size`` signatures not sent;
 ``nothing``: an empty batch. Signatures past the retention period are never sent. The batch is
-all that leaves the site: it holds no record, no tick and no raw feature value.
+all that leaves the site: it holds no record, no tick and no raw feature value. A batch that
+waited in the outbox is checked again against the policy in force when it is to leave
+(``refusal``; ``push.py`` says what happens to one it no longer allows).
 """
 
 from __future__ import annotations
@@ -11,12 +13,13 @@ from __future__ import annotations
 import datetime as dt
 import hashlib
 import json
+import re
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
-from cellguard.fleet.policy import DataPolicy, PolicyError
-from cellguard.fleet.signature import Signature, from_dict, withhold
+from cellguard.fleet.policy import EXPORTS, DataPolicy, PolicyError
+from cellguard.fleet.signature import Signature, SignatureError, from_dict, withhold
 
 
 @dataclass(frozen=True)
@@ -47,12 +50,82 @@ class Batch:
         return {"batch_id": self.batch_id, **out} if with_id else out
 
     @classmethod
-    def from_dict(cls, raw: dict) -> Batch:
-        """A batch from its JSON; each signature is read as one (a newer schema version, an unknown
-        field or a forged id raises SignatureError)."""
-        return cls(raw["tenant_id"], raw["site_id"], raw["policy_version"], raw["export"],
-                   tuple(from_dict(s).to_dict() for s in raw["signatures"]), tuple(raw["aggregates"]),
-                   raw.get("withheld_rows", 0))
+    def from_dict(cls, raw: object) -> Batch:
+        """A batch from its JSON; a missing or mistyped field raises SignatureError naming it, and each
+        signature is read as one (a newer schema version, an unknown field or a forged id is refused)."""
+        if not isinstance(raw, Mapping):
+            raise SignatureError(f"batch: expected a JSON object, got {type(raw).__name__}")
+        for key in ("tenant_id", "site_id", "policy_version", "export"):
+            if not isinstance(raw.get(key), str):
+                raise SignatureError(f"batch.{key}: required text, got {raw.get(key)!r}")
+        if raw["export"] not in EXPORTS:
+            raise SignatureError(f"batch.export: {raw['export']!r}; allowed: {', '.join(EXPORTS)}")
+        for key in ("signatures", "aggregates"):
+            if not isinstance(raw.get(key), list):
+                raise SignatureError(f"batch.{key}: expected a list, got {type(raw.get(key)).__name__}")
+        withheld = raw.get("withheld_rows", 0)
+        if isinstance(withheld, bool) or not isinstance(withheld, int) or withheld < 0:
+            raise SignatureError(f"batch.withheld_rows: expected a count, got {withheld!r}")
+        batch = cls(raw["tenant_id"], raw["site_id"], raw["policy_version"], raw["export"],
+                    tuple(from_dict(s).to_dict() for s in raw["signatures"]),
+                    tuple(_aggregate(r) for r in raw["aggregates"]), withheld)
+        if "batch_id" in raw and raw["batch_id"] != batch.batch_id:
+            raise SignatureError(f"batch.batch_id: {raw['batch_id']!r} does not match its content")
+        return batch
+
+
+AGGREGATE_KEYS = ("cause", "robot_model", "cell_type", "month", "signatures")
+
+
+def _aggregate(raw: object) -> dict:
+    """One aggregate row as ``export_batch`` writes it, or SignatureError naming what is wrong."""
+    if not isinstance(raw, Mapping) or sorted(raw) != sorted(AGGREGATE_KEYS):
+        got = sorted(raw) if isinstance(raw, Mapping) else type(raw).__name__
+        raise SignatureError(f"batch.aggregates: expected rows with keys {', '.join(AGGREGATE_KEYS)}, got {got}")
+    if not isinstance(raw["cause"], str):
+        raise SignatureError(f"batch.aggregates.cause: required text, got {raw['cause']!r}")
+    if not isinstance(raw["month"], str) or not re.fullmatch(r"[0-9]{4}-[0-9]{2}", raw["month"]):
+        raise SignatureError(f"batch.aggregates.month: expected YYYY-MM, got {raw['month']!r}")
+    for key in ("robot_model", "cell_type"):
+        if raw[key] is not None and not isinstance(raw[key], str):
+            raise SignatureError(f"batch.aggregates.{key}: expected text or null, got {raw[key]!r}")
+    n = raw["signatures"]
+    if isinstance(n, bool) or not isinstance(n, int) or n < 1:
+        raise SignatureError(f"batch.aggregates.signatures: expected a count, got {n!r}")
+    return dict(raw)
+
+
+def refusal(batch: Batch, policy: DataPolicy, today: dt.date | None = None) -> str | None:
+    """Why ``policy`` (the one in force now) does not let ``batch`` leave the site, or None if it does.
+
+    A batch waits in the outbox under the policy it was built with; the customer may have changed
+    the policy since. What leaves is decided when it leaves: the batch goes only if it shows
+    nothing the policy in force keeps at the site (another tenant or site, a form of export it
+    no longer allows, a field it withholds, a row past its retention, a count under its group
+    size). Aggregates may go under a policy that allows signatures (they say less).
+    """
+    today = today or dt.datetime.now(dt.timezone.utc).date()
+    if (batch.tenant_id, batch.site_id) != (policy.tenant, policy.site):
+        return f"it is {batch.tenant_id}/{batch.site_id}'s, the policy is {policy.tenant}/{policy.site}'s"
+    if batch.rows == 0:
+        return None
+    if policy.export == "nothing":
+        return "the policy exports nothing"
+    if batch.signatures and policy.export != "signatures":
+        return f"it holds signatures, the policy exports {policy.export}"
+    shown = sorted({n for s in batch.signatures for n in policy.withheld if s.get(n) not in (None, {})})
+    if shown:
+        return f"it holds {', '.join(shown)}, which the policy withholds"
+    oldest = today - dt.timedelta(days=policy.retention_days)
+    old = sum(dt.date.fromisoformat(s["created_date"]) < oldest for s in batch.signatures) + \
+        sum(r["month"] < oldest.isoformat()[:7] for r in batch.aggregates)
+    if old:
+        return f"{old} row(s) older than the policy's retention_days ({policy.retention_days})"
+    if policy.export == "aggregates_only":
+        small = sum(r["signatures"] < policy.min_group_size for r in batch.aggregates)
+        if small:
+            return f"{small} count(s) under the policy's min_group_size ({policy.min_group_size})"
+    return None
 
 
 def export_batch(signatures: Sequence[Signature], policy: DataPolicy, today: dt.date | None = None) -> Batch:

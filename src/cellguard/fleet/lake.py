@@ -5,8 +5,12 @@ One folder per tenant (created owner-only, 0700), so the lake is fenced the way 
 the operator grants each tenant its own folder (file system or object-store prefix rights) and
 the engines read a tenant's own rows from that folder only (``rights.py``). Each batch is one
 file per partition, named by the batch's content hash and written beside its target then
-renamed: re-sending a batch replaces its file with the same rows, never duplicates. DuckDB
-(``duckdb_engine``) and Spark (``spark_engine``) read the same files.
+renamed, holding only the signatures the partition's other files do not: re-sending a batch
+replaces its file with the same rows, and a batch that repeats earlier signatures (a growing
+folder pushed again) adds only its new ones. A signature id is the hash of every field, so two
+rows with one id are the same row: the engines read each once even where a lake written before
+this rule holds it twice (``lone_and_shared``). DuckDB (``duckdb_engine``) and Spark
+(``spark_engine``) read the same files.
 """
 
 from __future__ import annotations
@@ -37,19 +41,38 @@ EFFECTS = pa.schema([("tenant_id", pa.string()), ("signature_id", pa.string()), 
 
 
 def write_signatures(lake: Path, rows: Iterable[Mapping], name: str) -> int:
-    """Write signature dicts (``Signature.to_dict()``) into their partitions as ``name``.parquet."""
+    """Write signature dicts (``Signature.to_dict()``) into their partitions as ``name``.parquet, each
+    signature once: one already in another file of its partition is not written again. Returns the
+    signatures written."""
     parts: dict[tuple[str, str], list[Mapping]] = defaultdict(list)
     for r in rows:
         parts[(r["created_date"], r["tenant_id"])].append(r)
     n = 0
     for (date, tenant), group in sorted(parts.items()):
+        target = _file(lake, tenant, "signatures", date, name)
+        there = _ids_beside(target)
+        group = list({r["signature_id"]: r for r in group if r["signature_id"] not in there}.values())
+        if not group:
+            continue
         sig = {f.name: [_value(r, f.name) for r in group] for f in SIGNATURES}
         eff = [(r["tenant_id"], r["signature_id"], k, float(v)) for r in group for k, v in (r.get("effects") or {}).items()]
-        _atomic(pa.Table.from_pydict(sig, schema=SIGNATURES), _file(lake, tenant, "signatures", date, name))
+        _atomic(pa.Table.from_pydict(sig, schema=SIGNATURES), target)
         _atomic(pa.Table.from_pydict({c: [e[i] for e in eff] for i, c in enumerate(EFFECTS.names)}, schema=EFFECTS),
                 _file(lake, tenant, "effects", date, name))
         n += len(group)
     return n
+
+
+def check_lake(lake: Path) -> Path:
+    """``lake`` if signatures can land there (a folder, or a path whose nearest existing parent is one),
+    else OutputError: checked before anything is sent."""
+    lake = Path(lake)
+    probe = lake
+    while not probe.exists() and probe.parent != probe:
+        probe = probe.parent
+    if not probe.is_dir():
+        raise OutputError(f"--lake {lake}: {'not a folder' if probe == lake else f'{probe} is not a folder'}")
+    return lake
 
 
 def write_tables(lake: Path, signatures: pa.Table, effects: pa.Table, name: str) -> None:
@@ -62,7 +85,7 @@ def write_tables(lake: Path, signatures: pa.Table, effects: pa.Table, name: str)
 
 def tenant_dir(lake: Path, tenant: str) -> Path:
     """The tenant's own folder; the id is checked, so no glob or path can stand in for it."""
-    if not isinstance(tenant, str) or not re.match(ID_PATTERN, tenant):
+    if not isinstance(tenant, str) or not re.fullmatch(ID_PATTERN, tenant):
         raise ConfigError(f"tenant: expected an opaque id matching {ID_PATTERN}, got {tenant!r}")
     return Path(lake) / f"tenant={tenant}"
 
@@ -79,6 +102,23 @@ def files(lake: Path, relation: str, tenant: str | None = None) -> str:
     return str(root / relation / "date=*" / "*.parquet")
 
 
+def paths(lake: Path, relation: str, tenant: str | None = None) -> list[str]:
+    """``relation``'s files, listed (the lake's own path is taken literally, never as a pattern)."""
+    root = tenant_dir(lake, tenant).name if tenant is not None else "tenant=*"
+    return sorted(str(p) for p in Path(lake).glob(f"{root}/{relation}/date=*/*.parquet") if p.is_file())
+
+
+def lone_and_shared(found: Iterable[str]) -> tuple[list[str], list[str]]:
+    """(files alone in their partition folder, files that share one). A row can be repeated only
+    within its partition (its signature's date and tenant are part of the id), in a folder holding
+    more than one file: the engines read only those with ``DISTINCT``, the rest as they are."""
+    by_folder: dict[str, list[str]] = defaultdict(list)
+    for f in found:
+        by_folder[os.path.dirname(f)].append(f)
+    lone = [f for group in by_folder.values() if len(group) == 1 for f in group]
+    return lone, [f for group in by_folder.values() if len(group) > 1 for f in group]
+
+
 def has_data(lake: Path) -> bool:
     return bool(tenants(lake))
 
@@ -90,6 +130,19 @@ def _file(lake: Path, tenant: str, relation: str, date: str, name: str) -> Path:
     except OSError as exc:
         raise OutputError(f"lake folder {own}: cannot create ({exc.strerror or exc.__class__.__name__})") from None
     return own / relation / f"date={date}" / f"{name}.parquet"
+
+
+def _ids_beside(target: Path) -> set[str]:
+    """The signature ids in the other files of ``target``'s partition."""
+    ids: set[str] = set()
+    for other in sorted(target.parent.glob("*.parquet")) if target.parent.is_dir() else []:
+        if other.name == target.name or not other.is_file():
+            continue
+        try:
+            ids.update(pq.read_table(other, columns=["signature_id"]).column(0).to_pylist())
+        except (OSError, pa.ArrowException) as exc:
+            raise OutputError(f"lake file {other}: cannot read its signature ids ({exc.__class__.__name__})") from None
+    return ids
 
 
 def _value(row: Mapping, name: str):

@@ -45,7 +45,7 @@ class DataPolicy:
     def __post_init__(self):
         for key in ("tenant", "site"):
             value = getattr(self, key)
-            if not isinstance(value, str) or not re.match(ID_PATTERN, value):
+            if not isinstance(value, str) or not re.fullmatch(ID_PATTERN, value):
                 raise PolicyError(f"policy.{key}: expected an opaque id matching {ID_PATTERN}, got {value!r}")
         if self.export not in EXPORTS:
             raise PolicyError(f"policy.export: {self.export!r}; allowed: {', '.join(EXPORTS)}")

@@ -3,20 +3,38 @@
 Order of work, so that nothing is lost: the batch is built under the policy, written to the
 outbox, logged in the audit log, then sent; it leaves the outbox only once the store has taken
 it. A store that is down leaves every batch queued for the next push.
+
+Each queued batch is sent only if the policy in force now allows it (``export.refusal``): the
+policy it was built under may have been replaced since it was queued. One the policy no longer
+allows is **held**: not sent, logged ``held`` with the reason, kept in the outbox. Held, not
+rebuilt under the new policy and not deleted, because:
+
+- the customer's policy in force is their current word on what may leave the site, and a batch
+  still at the site has not left yet: sending it under the policy it was made with would send
+  what the customer has since forbidden (``export: nothing`` sending signatures);
+- rebuilding it would send rows no export of the site's records produced (withholding more
+  fields from rows already cut, counting aggregates over a batch, not over the records), and
+  the next push of the run folders exports them under the policy in force anyway;
+- deleting it could lose the only copy of what the site recorded (its runs may be gone); held,
+  it goes if the customer restores a policy that allows it, or a person deletes the file.
+
+A queued batch the store refuses (another tenant's, say) or a file that cannot be read stays
+queued too, named in one line; the other batches go on.
 """
 
 from __future__ import annotations
 
+import datetime as dt
 from dataclasses import dataclass
 from pathlib import Path
 
 from cellguard.fleet.audit import append_audit
-from cellguard.fleet.export import Batch, export_batch
-from cellguard.fleet.lake import write_signatures
+from cellguard.fleet.export import Batch, export_batch, refusal
+from cellguard.fleet.lake import check_lake, write_signatures
 from cellguard.fleet.outbox import Outbox
 from cellguard.fleet.policy import DataPolicy
 from cellguard.fleet.signature import Signature
-from cellguard.fleet.store import StoreUnavailable, TenantStore
+from cellguard.fleet.store import StoreError, StoreUnavailable, TenantStore
 
 
 @dataclass(frozen=True)
@@ -27,18 +45,23 @@ class PushResult:
     duplicate_rows: int
     queued: int  # batches still in the outbox
     unavailable: str | None = None  # why the store could not be reached
+    held: tuple[str, ...] = ()  # one line per queued batch the policy in force keeps at the site
+    failed: tuple[str, ...] = ()  # one line per queued file that cannot be read or that the store refused
 
     def to_dict(self) -> dict:
         return {"batch_id": self.batch.batch_id, "export": self.batch.export, "rows": self.batch.rows,
                 "withheld_rows": self.batch.withheld_rows, "policy_version": self.batch.policy_version,
                 "sent_batches": self.sent_batches, "new_rows": self.new_rows, "duplicate_rows": self.duplicate_rows,
-                "queued": self.queued, "unavailable": self.unavailable}
+                "queued": self.queued, "unavailable": self.unavailable, "held": list(self.held),
+                "failed": list(self.failed)}
 
 
 def push(signatures: list[Signature], policy: DataPolicy, site_dir: Path, store: TenantStore | None,
-         lake: Path | None = None) -> PushResult:
-    """Export ``signatures`` under ``policy`` and send them (and any queued batch) to ``store``."""
-    batch = export_batch(signatures, policy)
+         lake: Path | None = None, today: dt.date | None = None) -> PushResult:
+    """Export ``signatures`` under ``policy`` and send them (and any queued batch it allows) to ``store``."""
+    if lake is not None:
+        check_lake(lake)  # before anything is queued or sent
+    batch = export_batch(signatures, policy, today)
     outbox = Outbox(site_dir)
     destination = store.where if store is not None else "nowhere"
     if batch.export == "nothing" or batch.rows == 0:
@@ -46,17 +69,29 @@ def push(signatures: list[Signature], policy: DataPolicy, site_dir: Path, store:
     else:
         outbox.put(batch)
         append_audit(site_dir, batch, "queued", destination)
+    queued, unreadable = outbox.read()
+    failed = [f"{path}: {why}; it stays queued" for path, why in unreadable]
+    held: list[str] = []
     sent = new = dup = 0
     unavailable = None
-    if store is not None:
+    for path, waiting in queued if store is not None else ():
+        why = refusal(waiting, policy, today)
+        if why is not None:
+            append_audit(site_dir, waiting, "held", destination, reason=why, policy_in_force=policy.version)
+            held.append(f"{path}: held at the site, the policy in force ({policy.version}) does not allow it: {why}")
+            continue
         try:
-            for path, queued in outbox.pending():
-                n, d = store.push(queued, retention_days=policy.retention_days)
-                if lake is not None and queued.signatures:
-                    write_signatures(lake, queued.signatures, queued.batch_id)
-                outbox.done(path)
-                append_audit(site_dir, queued, "sent" if n else "duplicate", destination)
-                sent, new, dup = sent + 1, new + n, dup + d
+            n, d = store.push(waiting, retention_days=policy.retention_days)
         except StoreUnavailable as exc:
             unavailable = str(exc)
-    return PushResult(batch, sent, new, dup, len(outbox.pending()), unavailable)
+            break
+        except StoreError as exc:
+            append_audit(site_dir, waiting, "refused", destination, reason=str(exc), policy_in_force=policy.version)
+            failed.append(f"{path}: {exc}; it stays queued")
+            continue
+        if lake is not None and waiting.signatures:
+            write_signatures(lake, waiting.signatures, waiting.batch_id)
+        outbox.done(path)
+        append_audit(site_dir, waiting, "sent" if n else "duplicate", destination, policy_in_force=policy.version)
+        sent, new, dup = sent + 1, new + n, dup + d
+    return PushResult(batch, sent, new, dup, outbox.count(), unavailable, tuple(held), tuple(failed))

@@ -135,7 +135,7 @@ def render(query: NamedQuery, params: Mapping[str, object] | None = None, k_expr
             if not 1 <= v <= 1_000_000:
                 raise ConfigError(f"query {query.name}: parameter {key} must be 1..1000000, got {v}")
             return str(v)
-        if not _TEXT.match(v):
+        if not _TEXT.fullmatch(v):
             raise ConfigError(f"query {query.name}: parameter {key} must match {_TEXT.pattern}, got {v!r}")
         return f"'{v}'"
 

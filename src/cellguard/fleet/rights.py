@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from cellguard.errors import ConfigError
-from cellguard.fleet.lake import files, tenant_dir, tenants
+from cellguard.fleet.lake import files, paths, tenant_dir, tenants
 from cellguard.fleet.queries import MIN_CUSTOMERS, NamedQuery, RefusedAggregate
 
 RELATIONS = ("signatures", "effects")
@@ -29,6 +29,11 @@ class Access:
 
     globs: Mapping[str, str]  # relation -> glob of its files
     params: Mapping[str, object]
+    tenant: str | None = None  # whose folder only; None: every tenant's
+
+    def paths(self, lake: Path, relation: str) -> list[str]:
+        """The files of ``relation`` listed (the lake's path taken literally, not as a pattern)."""
+        return paths(lake, relation, self.tenant)
 
 
 def access(lake: Path, query: NamedQuery, params: Mapping | None, tenant: str | None, scope: str = "fleet",
@@ -53,4 +58,4 @@ def access(lake: Path, query: NamedQuery, params: Mapping | None, tenant: str | 
     if tenant not in tenants(lake):
         raise ConfigError(f"--tenant {tenant}: no signatures of this tenant in {lake}")
     own = {r: files(lake, r, tenant) for r in RELATIONS}
-    return Access(own, {**params, "k": 1} if "k" in query.defaults else params)
+    return Access(own, {**params, "k": 1} if "k" in query.defaults else params, tenant)

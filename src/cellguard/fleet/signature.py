@@ -22,7 +22,8 @@ from cellguard.errors import ConfigError
 from cellguard.record.context import versions
 
 SCHEMA_VERSION = 1
-ID_PATTERN = r"^[a-z0-9][a-z0-9_-]{0,39}$"  # tenant and site ids: opaque, lower-case, short
+ID_PATTERN = r"^[a-z0-9][a-z0-9_-]{0,39}$"  # tenant and site ids: opaque, lower-case, short; use re.fullmatch
+# (re.match lets "$" match before a final newline: "t-acme\n" would pass)
 EFFECT_LIMIT = 1e6  # [baseline scales] larger effect sizes are clipped (a feature with no spread)
 
 
@@ -93,6 +94,11 @@ def from_dict(raw: object) -> Signature:
     for key in ("tenant_id", "site_id", "created_date", "cause"):
         if not isinstance(body.get(key), str):
             raise SignatureError(f"signature.{key}: required text, got {body.get(key)!r}")
+    try:
+        dt.date.fromisoformat(body["created_date"])
+    except ValueError:
+        raise SignatureError(f"signature.created_date: expected an ISO date (YYYY-MM-DD), "
+                             f"got {body['created_date']!r}") from None
     sig = Signature(**body)
     if "signature_id" in raw and raw["signature_id"] != sig.signature_id:
         raise SignatureError(f"signature.signature_id: {raw['signature_id']!r} does not match its content")

@@ -11,7 +11,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 from cellguard.errors import ConfigError
-from cellguard.fleet.lake import EFFECTS, SIGNATURES, has_data
+from cellguard.fleet.lake import EFFECTS, SIGNATURES, has_data, lone_and_shared
 from cellguard.fleet.queries import MIN_CUSTOMERS, named, plain, render
 from cellguard.fleet.rights import access
 
@@ -52,11 +52,19 @@ class SparkEngine:
         q = named(query)
         allowed = access(self.lake, q, params, self.tenant, scope, self.min_customers)
         for rel, schema in (("signatures", SIGNATURES), ("effects", EFFECTS)):  # only what the caller may read
-            # the schema given: no footer is read to infer it, no partition column is added from the path
-            self.spark.read.schema(_ddl(schema)).parquet(allowed.globs[rel]).createOrReplaceTempView(rel)
+            # each row once, as DuckDB reads it: DISTINCT over the partitions that hold more than one file
+            lone, shared = lone_and_shared(allowed.paths(self.lake, rel))
+            self._read(lone, schema).unionByName(self._read(shared, schema).distinct()).createOrReplaceTempView(rel)
         self.spark.createDataFrame([(f, float(e)) for f, e in probe], "feature string, effect double") \
             .createOrReplaceTempView("probe")
         return [plain(r.asDict()) for r in self.spark.sql(render(q, allowed.params)).collect()]
+
+    def _read(self, found: list[str], schema):
+        """The listed files (the schema given: no footer is read to infer it, no partition column is added
+        from the path), or an empty frame."""
+        if not found:
+            return self.spark.createDataFrame([], _ddl(schema))
+        return self.spark.read.schema(_ddl(schema)).parquet(*found)
 
     def close(self) -> None:
         self.spark.stop()

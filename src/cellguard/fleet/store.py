@@ -60,15 +60,43 @@ def _psycopg():
     return psycopg
 
 
+MALFORMED_DSN = ("fleet store DSN (--store or CELLGUARD_FLEET_DSN): malformed; expected key=value pairs "
+                 "(host=... dbname=... user=...) or a postgresql:// URI")
+
+
 def connect(dsn: str, timeout_s: float = 3.0):
-    """A connection, or StoreUnavailable naming the server (never the password)."""
+    """A connection, or StoreUnavailable naming the server (never the password); a malformed DSN is
+    a ConfigError that does not echo it."""
     psycopg = _psycopg()
+    where = _where(dsn)
     try:
         return psycopg.connect(dsn, connect_timeout=max(1, round(timeout_s)))
     except psycopg.OperationalError as exc:
-        where = _where(dsn)
-        reason = str(exc).strip().splitlines()[-1] if str(exc).strip() else exc.__class__.__name__
-        raise StoreUnavailable(f"fleet store {where} unreachable ({reason})") from None
+        raise StoreUnavailable(f"fleet store {where} unreachable ({_reason(exc, dsn)})") from None
+    except psycopg.ProgrammingError:  # libpq could not parse it: its message may quote the DSN, password included
+        raise ConfigError(MALFORMED_DSN) from None
+
+
+def check_dsn(dsn: str) -> str:
+    """``dsn`` if libpq can parse it, else ConfigError (the DSN is not echoed: it may hold a password)."""
+    psycopg = _psycopg()
+    from psycopg.conninfo import conninfo_to_dict
+    try:
+        conninfo_to_dict(dsn)
+    except psycopg.Error:
+        raise ConfigError(MALFORMED_DSN) from None
+    return dsn
+
+
+def _reason(exc: Exception, dsn: str) -> str:
+    """The first meaningful line of a driver error, stripped, with the DSN's password blanked out."""
+    line = next((ln.strip() for ln in str(exc).splitlines() if ln.strip()), exc.__class__.__name__)
+    from psycopg.conninfo import conninfo_to_dict
+    try:
+        password = conninfo_to_dict(dsn).get("password")
+    except Exception:  # noqa: BLE001 - nothing to blank out in a DSN libpq cannot parse
+        password = None
+    return line.replace(password, "***") if password and len(password) >= 4 else line
 
 
 def _where(dsn: str) -> str:
@@ -86,7 +114,7 @@ class FleetStore:
     def __init__(self, admin_dsn: str, database: str = "cellguard_fleet"):
         if not database.replace("_", "").isalnum() or not database.islower() or len(database) > 20:
             raise ConfigError(f"database: {database!r}; expected lower-case letters, digits and _ (at most 20)")
-        self.admin_dsn, self.database = admin_dsn, database
+        self.admin_dsn, self.database = check_dsn(admin_dsn), database
         self.owner, self.agg, self.app = f"{database}_owner", f"{database}_agg", f"{database}_app"
 
     def tenant_role(self, tenant_id: str) -> str:
@@ -218,7 +246,7 @@ class TenantStore:
     """A tenant's side: push batches and query, every statement as the tenant's own role."""
 
     def __init__(self, dsn: str, timeout_s: float = 3.0):
-        self.dsn, self.timeout_s = dsn, timeout_s
+        self.dsn, self.timeout_s = check_dsn(dsn), timeout_s
         self.where = _where(dsn)
 
     def connection(self):
@@ -260,6 +288,9 @@ class TenantStore:
             except psycopg.OperationalError as exc:  # the server went away mid-batch: rolled back, still queued
                 raise StoreUnavailable(f"fleet store {self.where} lost during the upload ({exc.__class__.__name__})") \
                     from None
+            except psycopg.Error as exc:  # any other refusal (a constraint, a type): rolled back, still queued
+                raise StoreError(f"fleet store {self.where}: refused the batch of tenant {batch.tenant_id} "
+                                 f"({_reason(exc, self.dsn)})") from None
         return new, batch.rows - new
 
     def run(self, query: str, params: Mapping | None = None, probe: Sequence[tuple[str, float]] = (),
