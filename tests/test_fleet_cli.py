@@ -14,20 +14,15 @@ from cellguard.scenario import parse_scenario
 
 psycopg = pytest.importorskip("psycopg", reason="the fleet CLI tests need psycopg: pip install 'cellguard[fleet]'")
 
-from cellguard.fleet.store import FleetStore, ci_admin_dsn  # noqa: E402
+from cellguard.fleet.store import FleetStore  # noqa: E402
+from fleet_server import admin_dsn_or_skip  # noqa: E402
 
 DOWN = "host=127.0.0.1 port=1 dbname=x user=x password=x"
 
 
 @pytest.fixture(scope="module")
 def env(tmp_path_factory):
-    dsn = ci_admin_dsn()
-    if dsn is None:
-        pytest.skip("no fleet store server: run .ci/fleet.sh (or set CELLGUARD_FLEET_ADMIN_DSN)")
-    try:
-        psycopg.connect(dsn, connect_timeout=3).close()
-    except psycopg.OperationalError:
-        pytest.skip("fleet store server not reachable: run .ci/fleet.sh")
+    dsn = admin_dsn_or_skip()
     root = tmp_path_factory.mktemp("fleetcli")
     run_scenario(parse_scenario({"cell": "arm-pick-place", "seed": 11, "acceptance_cycles": 5, "production_cycles": 4,
                                  "faults": [{"kind": "fixture_shift", "at_cycle": 6, "dx_mm": 5.0, "dy_mm": 1.0}]}),

@@ -138,15 +138,12 @@ def test_a_tenant_gets_cross_customer_rows_only_over_k_customers(lake):
 
 
 def test_duckdb_and_postgresql_agree_within_one_tenants_rights(lake, tmp_path):
-    psycopg = pytest.importorskip("psycopg", reason="needs psycopg: pip install 'cellguard[fleet]'")
-    from cellguard.fleet.export import Batch
-    from cellguard.fleet.store import FleetStore, TenantStore, ci_admin_dsn
+    from fleet_server import admin_dsn_or_skip
 
-    dsn = ci_admin_dsn()
-    try:
-        psycopg.connect(dsn, connect_timeout=3).close() if dsn else pytest.skip("no server: run .ci/fleet.sh")
-    except psycopg.OperationalError:
-        pytest.skip("fleet store server not reachable: run .ci/fleet.sh")
+    from cellguard.fleet.export import Batch
+    from cellguard.fleet.store import FleetStore, TenantStore
+
+    dsn = admin_dsn_or_skip()
     _, sig, eff = lake
     rows = [r for r in rows_of(sig, eff) if r["tenant_id"] == "t0"]
     store = FleetStore(dsn, "cgtest_engines")

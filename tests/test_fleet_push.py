@@ -23,7 +23,8 @@ from cellguard.fleet.outbox import Outbox  # noqa: E402
 from cellguard.fleet.policy import DataPolicy  # noqa: E402
 from cellguard.fleet.push import push  # noqa: E402
 from cellguard.fleet.signature import SCHEMA_VERSION, Signature  # noqa: E402
-from cellguard.fleet.store import FleetStore, TenantStore, ci_admin_dsn  # noqa: E402
+from cellguard.fleet.store import FleetStore, TenantStore  # noqa: E402
+from fleet_server import admin_dsn_or_skip  # noqa: E402
 
 TODAY = dt.datetime.now(dt.timezone.utc).date()
 DOWN = "host=127.0.0.1 port=1 dbname=x user=x password=x"  # nothing listens on port 1
@@ -41,13 +42,7 @@ def sigs(tenant: str, site: str, n: int = 2) -> list[Signature]:
 
 @pytest.fixture(scope="module")
 def fleet():
-    dsn = ci_admin_dsn()
-    if dsn is None:
-        pytest.skip("no fleet store server: run .ci/fleet.sh (or set CELLGUARD_FLEET_ADMIN_DSN)")
-    try:
-        psycopg.connect(dsn, connect_timeout=3).close()
-    except psycopg.OperationalError:
-        pytest.skip("fleet store server not reachable: run .ci/fleet.sh")
+    dsn = admin_dsn_or_skip()
     store = FleetStore(dsn, "cgtest_push")
     store.install(reset=True)
     return store, {t: store.add_tenant(t) for t in ("ta", "tb")}

@@ -18,21 +18,15 @@ from cellguard.fleet.policy import DataPolicy  # noqa: E402
 from cellguard.fleet.push import push  # noqa: E402
 from cellguard.fleet.signature import Signature  # noqa: E402
 from cellguard.fleet.store import (FleetStore, RefusedAggregate, StoreError, StoreUnavailable,  # noqa: E402
-                                   TenantStore, ci_admin_dsn)
+                                   TenantStore)
+from fleet_server import admin_dsn_or_skip  # noqa: E402
 
 TODAY = dt.datetime.now(dt.timezone.utc).date()
 DOWN = "host=127.0.0.1 port=1 dbname=x user=x password=x"  # nothing listens on port 1
 
 
 def _server() -> str:
-    dsn = ci_admin_dsn()
-    if dsn is None:
-        pytest.skip("no fleet store server: run .ci/fleet.sh (or set CELLGUARD_FLEET_ADMIN_DSN)")
-    try:
-        psycopg.connect(dsn, connect_timeout=3).close()
-    except psycopg.OperationalError as exc:
-        pytest.skip(f"fleet store server not reachable ({str(exc).strip().splitlines()[-1]}): run .ci/fleet.sh")
-    return dsn
+    return admin_dsn_or_skip()
 
 
 def sig(tenant: str, site: str, cause: str, effects: dict, model: str = "arm5", day: dt.date = TODAY) -> Signature:

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pytest
 import yaml
+from cli_util import one_error
 from typer.testing import CliRunner
 
 from cellguard.calibrate.excitation import excitation_scenario, excite
@@ -47,14 +48,6 @@ def edited(profile: Path, edit) -> Path:
 
 def listing(folder: Path) -> dict[str, str]:
     return {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(folder.iterdir()) if p.is_file()}
-
-
-def one_error(result) -> str:
-    assert result.exception is None or isinstance(result.exception, SystemExit), result.output
-    assert result.exit_code == 2, result.output
-    lines = result.output.splitlines()
-    assert len(lines) == 1 and lines[0].startswith("error: "), result.output
-    return lines[0]
 
 
 def test_a_record_given_twice_is_refused_naming_both(excited):

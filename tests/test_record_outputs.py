@@ -12,6 +12,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from cli_util import one_error
 from mcap.writer import CompressionType, Writer
 from typer.testing import CliRunner
 
@@ -43,14 +44,6 @@ def run(recorded, tmp_path):
 def digests(folder: Path) -> dict[str, str]:
     return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
             for p in sorted(folder.rglob("*")) if p.is_file()}
-
-
-def one_error(result) -> str:
-    assert result.exception is None or isinstance(result.exception, SystemExit), result.output
-    assert result.exit_code == 2, result.output
-    lines = result.output.splitlines()
-    assert len(lines) == 1 and lines[0].startswith("error: "), result.output
-    return lines[0]
 
 
 def cli(*args) -> subprocess.CompletedProcess:

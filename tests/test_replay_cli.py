@@ -9,6 +9,7 @@ import shutil
 from pathlib import Path
 
 import pytest
+from cli_util import one_error
 from typer.testing import CliRunner
 
 from cellguard.calibrate.excitation import excitation_scenario, excite
@@ -48,14 +49,6 @@ def damage_one_chunk(file: Path) -> None:
     at = c.offset + c.length // 2
     data[at:at + 64] = bytes(b ^ 0xFF for b in data[at:at + 64])
     file.write_bytes(bytes(data))
-
-
-def one_error(result) -> str:
-    assert result.exception is None or isinstance(result.exception, SystemExit), result.output
-    assert result.exit_code == 2, result.output
-    lines = result.output.splitlines()
-    assert len(lines) == 1 and lines[0].startswith("error: "), result.output
-    return lines[0]
 
 
 @pytest.mark.parametrize("target, says", [

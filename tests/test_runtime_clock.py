@@ -47,34 +47,30 @@ def test_a_simulated_cell_runs_the_same_loop_on_wall_time(tmp_path):
     assert "timing" in run.summary()
 
 
+def _answer_in_process(policy, factory, cell):
+    """The first result of ``factory``'s policy in its own process (``policy``: the run's copy), within 60 s."""
+    worker = AsyncInference(policy, worker="process", factory=factory)
+    try:
+        worker.submit(cell.observe())
+        result, deadline = None, time.monotonic() + 60
+        while result is None and time.monotonic() < deadline:
+            time.sleep(0.01)
+            result = worker.take()
+        assert result is not None
+        return result
+    finally:
+        worker.close()
+
+
 def test_inference_in_its_own_process_answers_and_reports_failures():
     cell = make_cell("arm-pick-place")
     cell.begin_cycle(0)
     here = make_policy("scripted", cell)
-    worker = AsyncInference(here, worker="process", factory=partial(policy_in_process, "scripted", "arm-pick-place", 0))
-    try:
-        worker.submit(cell.observe())
-        result = None
-        deadline = time.monotonic() + 60
-        while result is None and time.monotonic() < deadline:
-            time.sleep(0.01)
-            result = worker.take()
-        assert result is not None and result.error is None
-        assert result.chunk.actions.shape[1] == 6 and np.isfinite(result.chunk.actions).all()
-    finally:
-        worker.close()
-    broken = AsyncInference(here, worker="process", factory=partial(policy_in_process, "replay:/nonexistent.npz",
-                                                                    "arm-pick-place", 0))
-    try:
-        broken.submit(cell.observe())
-        result = None
-        deadline = time.monotonic() + 60
-        while result is None and time.monotonic() < deadline:
-            time.sleep(0.01)
-            result = broken.take()
-        assert result.chunk is None and "policy could not be built" in result.error
-    finally:
-        broken.close()
+    result = _answer_in_process(here, partial(policy_in_process, "scripted", "arm-pick-place", 0), cell)
+    assert result.error is None
+    assert result.chunk.actions.shape[1] == 6 and np.isfinite(result.chunk.actions).all()
+    result = _answer_in_process(here, partial(policy_in_process, "replay:/nonexistent.npz", "arm-pick-place", 0), cell)
+    assert result.chunk is None and "policy could not be built" in result.error
 
 
 def test_the_inference_process_runs_only_the_policy_the_run_loaded():
@@ -83,17 +79,8 @@ def test_the_inference_process_runs_only_the_policy_the_run_loaded():
     cell = make_cell("arm-pick-place")
     cell.begin_cycle(0)
     other = partial(policy_in_process, "scripted", "quadruped-turns", 0)  # another program than the run's
-    worker = AsyncInference(make_policy("scripted", cell), worker="process", factory=other)
-    try:
-        worker.submit(cell.observe())
-        result = None
-        deadline = time.monotonic() + 60
-        while result is None and time.monotonic() < deadline:
-            time.sleep(0.01)
-            result = worker.take()
-        assert result.chunk is None and "policy in the inference process is not the run's" in result.error
-    finally:
-        worker.close()
+    result = _answer_in_process(make_policy("scripted", cell), other, cell)
+    assert result.chunk is None and "policy in the inference process is not the run's" in result.error
 
 
 def test_a_pause_between_stretches_of_ticks_is_counted_as_a_pause_not_as_a_late_tick():
