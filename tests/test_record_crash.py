@@ -44,7 +44,8 @@ def test_sigkill_loses_at_most_the_open_chunk(tmp_path):
     np.testing.assert_array_equal(k, np.arange(len(k)))  # every tick from the start, none missing
     np.testing.assert_array_equal(ticks.q_meas, np.stack([values(i)["q_meas"] for i in k]))
     lost_ns = (last - k[-1]) * DT_NS
-    assert 0 <= lost_ns <= RecordConfig().chunk_ns  # bounded by the flush interval
+    # bounded by the flush interval; -1 tick: the kill came between recording a tick and writing its progress
+    assert -DT_NS <= lost_ns <= RecordConfig().chunk_ns
     assert not health.finished and not health.ok
 
 
