@@ -174,3 +174,21 @@ def test_report_of_a_run_folders_record_file_writes_the_folders_report(arm, tmp_
     assert result.exit_code == 0, result.output
     assert (tmp_path / "page.html").is_file() and sorted(p.name for p in tmp_path.iterdir()) == [
         "loose.mcap", "page.html", "run"]
+
+
+def test_an_acceptance_record_gives_the_baseline_its_own_diagnosis_gives(tmp_path):
+    """Acceptance cycles a recovery drove keep only their grasp geometry in the record's own baseline; taken
+    through --acceptance they were used whole, so the same record gave another baseline."""
+    from cellguard.diagnose.from_record import diagnose_record
+
+    run = _run(tmp_path, {"cell": "arm-pick-place", "seed": 3, "acceptance_cycles": 8, "production_cycles": 2,
+                          "faults": [{"kind": "intermittent_slip", "rate": 0.3, "dx_mm": -5.0}],
+                          "recovery": {"behaviours": [{"do": "retry_grasp", "trigger": "grasp_missed",
+                                                       "attempts": 2}]}})
+    own = Baseline.load(run / "baseline.json")
+    assert own.n == 8  # the acceptance cycles, some of which a recovery drove (the slip is random, seeded)
+    summary = json.loads((run / "summary.json").read_text())
+    assert any(c.get("recoveries") for c in summary["cycles"][:8])
+    taken = diagnose_record(_folder(tmp_path, run), acceptance=run).baseline
+    for label, stats in own.motions.items():
+        assert taken.motions[label].median == stats.median and taken.motions[label].scale == stats.scale

@@ -11,6 +11,7 @@ from pathlib import Path
 from cellguard.diagnose.baseline import Baseline, check_same_robot
 from cellguard.diagnose.cycles import as_cycles
 from cellguard.diagnose.diagnosis import Diagnosis, diagnose
+from cellguard.diagnose.recovery import policy_cycles
 from cellguard.diagnose.site_history import save_fixes, site_history
 from cellguard.embodiment.profile import SymmetryPair
 from cellguard.errors import CellguardError
@@ -39,7 +40,8 @@ def diagnose_record(path: Path, acceptance: Path | None = None, fleet: list[dict
             rows = [c for c in as_cycles(acc.cycles()) if c.phase == "acceptance"]
             acc_context = {**acc.context, "record_id": acc.record_id}
         check_same_robot(acc_context, context, f"--acceptance {acceptance}", path)
-        baseline = Baseline.from_cycles(rows, source=f"acceptance cycles of {acceptance}").bind(acc_context)
+        baseline = Baseline.from_cycles(policy_cycles(rows), source=f"acceptance cycles of {acceptance}"
+                                        ).bind(acc_context)  # as the record's own baseline sees them
         baseline.check_fits(as_cycles(cycles), f"--acceptance {acceptance}")
     elif folder is not None and (folder / BASELINE_FILE).is_file():
         baseline = Baseline.load(folder / BASELINE_FILE)
