@@ -20,6 +20,7 @@ from sim_server_util import HOME, start_server
 
 from cellguard.robot.bridges.sim_server import COMMAND_HEAD, STATE_HEAD, Layout, SimServerRobot, pack_command
 from cellguard.robot.protocol import RobotLinkError
+from cellguard.runtime.sim_server import CLIENT_LIVE_NS
 
 DOF = len(HOME)
 NUDGED = HOME + np.array([0.05, 0, 0, 0, 0, 0])  # a setpoint the drives take as it is
@@ -83,13 +84,15 @@ class Peer:
 
 
 def test_a_hello_starts_a_session_whose_commands_count_from_one(server):
-    """A second run against the same server: its seq 1, 2, ... were below the first run's last and all ignored."""
+    """A second run against the same server: its seq 1, 2, ... were below the first run's last and all ignored.
+    The first client went silent (a crashed run) and is taken over once it has been silent for a second."""
     proc, port = server
     first = Peer(port)
     first.hello()
     for seq in range(1, 51):
         first.command(seq, HOME)
     assert first.applied()[0] == 50
+    time.sleep(CLIENT_LIVE_NS * 1e-9 + 0.1)
     second = Peer(port)
     second.hello()
     second.command(1, NUDGED)
@@ -99,6 +102,33 @@ def test_a_hello_starts_a_session_whose_commands_count_from_one(server):
     lines = said(proc).splitlines()
     assert f"sim-server: client {first.name} said hello" in lines
     assert f"sim-server: client {second.name} said hello; commands from {first.name} are refused from now on" in lines
+
+
+def test_a_hello_while_the_client_is_live_is_refused_and_a_goodbye_lets_the_next_client_in_at_once(server):
+    """Any local peer's hello took the robot from a run still driving it (which then read a silent server)."""
+    proc, port = server
+    client, intruder = Peer(port), Peer(port)
+    client.hello()
+    client.command(1, NUDGED)
+    intruder.sock.send(b"H")
+    busy = intruder.sock.recv(65536)
+    assert busy[:1] == b"B" and json.loads(busy[1:])["client"] == client.name
+    with pytest.raises(RobotLinkError, match=f"is serving {client.name} \\(heard \\d+ ms ago\\)") as refused:
+        SimServerRobot(("127.0.0.1", port))
+    assert refused.value.kind == "robot_read_failed"
+    client.command(2, HOME)
+    cmd_seq, applied = client.applied()
+    assert cmd_seq == 2 and np.allclose(applied, HOME)
+    assert client.counters()["refused_hellos"] == 2
+    client.sock.send(b"G")
+    time.sleep(0.05)
+    robot = SimServerRobot(("127.0.0.1", port))  # at once: no second of silence to wait out
+    robot.close()
+    intruder.hello()  # the bridge said goodbye when it closed
+    out = said(proc)
+    assert f"sim-server: refused a hello from {intruder.name}: client {client.name} is live" in out
+    assert f"sim-server: client {client.name} said goodbye" in out
+    assert "Traceback" not in out
 
 
 def test_commands_from_a_peer_that_never_said_hello_are_refused_and_counted(server):

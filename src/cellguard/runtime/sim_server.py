@@ -5,10 +5,14 @@ counted and never applied), step the physics, and send the client one state pack
 with the monotonic clock. The cell runs its own task (``OwnTask``): when a cycle is over the
 next part arrives at once and the digital input ``cycle_done`` pulses.
 
-A hello starts a session: its sender is the client, and the command sequence starts again. A
-packet the server does not act on (a command from another peer, an older or non-finite one, a
-malformed packet) is counted by reason and said on stderr, the first of each reason and then at
-most once a second; a new client is said too.
+A hello starts a session: its sender is the client, and the command sequence starts again.
+While the client is live (heard within ``CLIENT_LIVE_NS``), another peer's hello is refused
+with a ``B`` packet naming the client: a second run took over the robot from a run still
+driving it, which then read a silent server. A client's goodbye (``G``) ends its session at
+once; a client silent that long has gone (a crashed run restarts on a new port) and the next
+hello takes over. A packet the server does not act on (a command from another peer, an older
+or non-finite one, a malformed packet) is counted by reason and said on stderr, the first of
+each reason and then at most once a second; a new client is said too.
 
 For tests of the robot link, the server can misbehave on purpose: ``delay_ms`` holds every
 state packet back, ``drop_every`` loses every n-th one. These are transport faults of the
@@ -31,6 +35,7 @@ from cellguard.robot.registry import make_cell
 from cellguard.runtime.clock import WallClock
 
 NOTE_EVERY_NS = 1_000_000_000  # a refusal of one reason is said on stderr at most this often
+CLIENT_LIVE_NS = 1_000_000_000  # a client heard within this is live; a hello from another peer is refused
 
 
 class SimServer:
@@ -53,9 +58,10 @@ class SimServer:
                      "measurements": {k: int(np.asarray(v).size) for k, v in obs.measurements.items()},
                      "q_home": np.asarray(getattr(cell, "q_home", cell.read().q)).tolist(), "inputs": ["cycle_done"]}
         self.layout = Layout(cell.profile.dof, self.meta["measurements"])
-        self.client = None
+        self.client, self._heard_ns = None, 0  # the client, and when it last sent a packet [ns]
         self.counters = {"commands": 0, "nonfinite_commands": 0, "stale_commands": 0, "foreign_commands": 0,
-                         "malformed_packets": 0, "states_sent": 0, "states_dropped": 0, "cycles": 0}
+                         "refused_hellos": 0, "malformed_packets": 0, "states_sent": 0, "states_dropped": 0,
+                         "cycles": 0}
         self._power, self._cmd_seq, self._seq = True, 0, 0
         self._noted: dict[str, int] = {}  # when each refusal reason was last said [ns]
         self._delayed: deque = deque()
@@ -89,25 +95,44 @@ class SimServer:
             except (BlockingIOError, ConnectionRefusedError):
                 return
             kind = packet[:1]
+            if addr == self.client:
+                self._heard_ns = time.monotonic_ns()
             if kind == b"H":
                 self._hello(addr)
             elif kind == b"?":
                 self.sock.sendto(b"R" + json.dumps(self.counters).encode(), addr)
             elif kind == b"C":
                 self._command(packet, addr)
+            elif kind == b"G":
+                self._goodbye(addr)
             else:
                 self._refuse("malformed_packets", f"dropped a packet of {len(packet)} bytes from {_peer(addr)}: "
-                                                  f"unknown kind {kind!r} (H, C or ?)")
+                                                  f"unknown kind {kind!r} (H, C, G or ?)")
 
     def _hello(self, addr) -> None:
         """A new session: the sender is the client, and its commands count from 1 again (a second run's were all
-        older than the first run's last one, and ignored)."""
+        older than the first run's last one, and ignored). Refused while another client is live."""
+        silent_ns = time.monotonic_ns() - self._heard_ns
+        if self.client is not None and addr != self.client and silent_ns < CLIENT_LIVE_NS:
+            busy = {"client": _peer(self.client), "silent_ms": round(silent_ns * 1e-6),
+                    "live_ms": CLIENT_LIVE_NS // 10**6}
+            self._refuse("refused_hellos", f"refused a hello from {_peer(addr)}: client {busy['client']} is live "
+                                           f"(heard {busy['silent_ms']} ms ago)")
+            self.sock.sendto(b"B" + json.dumps(busy).encode(), addr)
+            return
         if addr != self.client:
             before = "" if self.client is None else f"; commands from {_peer(self.client)} are refused from now on"
             sys.stderr.write(f"sim-server: client {_peer(addr)} said hello{before}\n")
-        self.client, self._cmd_seq = addr, 0
+        self.client, self._cmd_seq, self._heard_ns = addr, 0, time.monotonic_ns()
         self._delayed.clear()
         self.sock.sendto(b"M" + json.dumps(self.meta).encode(), addr)
+
+    def _goodbye(self, addr) -> None:
+        """The client closed: the next hello is taken at once, and no state is sent to a closed socket."""
+        if addr == self.client:
+            self.client = None
+            self._delayed.clear()
+            sys.stderr.write(f"sim-server: client {_peer(addr)} said goodbye\n")
 
     def _command(self, packet: bytes, addr) -> None:
         """Apply a command of the client's that is newer than the one in force; refuse any other (a peer that never

@@ -6,8 +6,10 @@ on sends one state packet per servo period to that client; the client sends one 
 packet per tick. Every packet has a sequence number and a monotonic timestamp [ns] (both
 processes read the same CLOCK_MONOTONIC), so the client counts lost packets and sees stale
 state. A hello starts a session: the server takes commands from that client only, and their
-sequence starts again. A ``?`` asks the server for its counters (commands received; packets
-refused: non-finite, stale, from a peer that is not the client, malformed).
+sequence starts again; while that client is live, another peer's hello is answered ``B`` (busy,
+the client's address as JSON), and the client's goodbye (``G``) ends the session. A ``?`` asks
+the server for its counters (commands received; packets refused: non-finite, stale, from a peer
+that is not the client, malformed; hellos refused).
 
     state   b"S" seq:u64 t_ns:i64 cmd_seq:u64  then float64: q, qd, effort, current, sent (dof each),
             measurements (concatenated), cycle_done (0/1), safety_stop (-1: none, else the stop category
@@ -20,6 +22,7 @@ robot's kinematic model is known to its controller); the state comes only over t
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import json
 import socket
@@ -154,10 +157,24 @@ class SimServerRobot:
                 packet = self.sock.recv(65536)
                 if packet[:1] == b"M":
                     return self._metadata(packet[1:])
+                if packet[:1] == b"B":
+                    raise self._busy(packet[1:])
         except (TimeoutError, ConnectionRefusedError) as exc:
             raise RobotLinkError("robot_server_gone", f"sim-server at {self.address[0]}:{self.address[1]} does not "
                                  f"answer ({type(exc).__name__}); start it with: cellguard sim-server CELL "
                                  f"--port {self.address[1]}", lost=True) from None
+
+    def _busy(self, text: bytes) -> RobotLinkError:
+        """The server serves a live client: taking over would leave that run driving a robot that no longer
+        listens to it."""
+        try:
+            busy = json.loads(text)
+            client, silent = str(busy["client"])[:60], float(busy["silent_ms"])
+        except (ValueError, TypeError, KeyError):
+            client, silent = "another client", float("nan")
+        return RobotLinkError("robot_read_failed", f"sim-server at {self.address[0]}:{self.address[1]} is serving "
+                              f"{client} (heard {silent:.0f} ms ago); it takes a new client once its client has "
+                              "been silent for a second", lost=True)
 
     def _metadata(self, text: bytes) -> dict:
         """The hello's answer, each field the bridge reads checked before it is used (a period of 0 divided by
@@ -287,6 +304,9 @@ class SimServerRobot:
             self.sock.setblocking(False)
 
     def close(self) -> None:
+        """Say goodbye (``G``): the server takes the next client at once, not after a second of silence."""
+        with contextlib.suppress(OSError):
+            self.sock.send(b"G")
         self.sock.close()
 
 
