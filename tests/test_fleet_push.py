@@ -85,6 +85,9 @@ def test_a_batch_queued_before_a_stricter_policy_is_held_at_the_site(fleet, tmp_
     assert (held["status"], held["policy_in_force"], held["policy_version"]) == ("held", stricter.version,
                                                                                  before.version)
     assert held["reason"]
+    # pushed again under the same policy: held again, logged once (every push added a line)
+    assert len(push([], stricter, tmp_path, TenantStore(dsns["ta"])).held) == 1
+    assert [e["status"] for e in read_audit(tmp_path)].count("held") == 1
     # held, not lost: under a policy that allows it again, it goes
     again = push([], before, tmp_path, TenantStore(dsns["ta"]))
     assert (again.sent_batches, again.new_rows, again.queued) == (1, 2, 0)

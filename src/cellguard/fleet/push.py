@@ -6,8 +6,8 @@ it. A store that is down leaves every batch queued for the next push.
 
 Each queued batch is sent only if the policy in force now allows it (``export.refusal``): the
 policy it was built under may have been replaced since it was queued. One the policy no longer
-allows is **held**: not sent, logged ``held`` with the reason, kept in the outbox. Held, not
-rebuilt under the new policy and not deleted, because:
+allows is **held**: not sent, logged ``held`` with the reason, kept in the outbox (logged once for
+the same policy and reason, not again at every push). Held, not rebuilt under the new policy and not deleted, because:
 
 - the customer's policy in force is their current word on what may leave the site, and a batch
   still at the site has not left yet: sending it under the policy it was made with would send
@@ -28,7 +28,7 @@ import datetime as dt
 from dataclasses import dataclass
 from pathlib import Path
 
-from cellguard.fleet.audit import append_audit
+from cellguard.fleet.audit import append_audit, scan_audit
 from cellguard.fleet.export import Batch, export_batch, refusal
 from cellguard.fleet.lake import check_lake, write_signatures
 from cellguard.fleet.outbox import Outbox
@@ -74,10 +74,13 @@ def push(signatures: list[Signature], policy: DataPolicy, site_dir: Path, store:
     held: list[str] = []
     sent = new = dup = 0
     unavailable = None
+    last = _last_entries(site_dir) if queued and store is not None else {}
     for path, waiting in queued if store is not None else ():
         why = refusal(waiting, policy, today)
         if why is not None:
-            append_audit(site_dir, waiting, "held", destination, reason=why, policy_in_force=policy.version)
+            said = last.get(waiting.batch_id, {})
+            if (said.get("status"), said.get("reason"), said.get("policy_in_force")) != ("held", why, policy.version):
+                append_audit(site_dir, waiting, "held", destination, reason=why, policy_in_force=policy.version)
             held.append(f"{path}: held at the site, the policy in force ({policy.version}) does not allow it: {why}")
             continue
         try:
@@ -95,3 +98,8 @@ def push(signatures: list[Signature], policy: DataPolicy, site_dir: Path, store:
         append_audit(site_dir, waiting, "sent" if n else "duplicate", destination, policy_in_force=policy.version)
         sent, new, dup = sent + 1, new + n, dup + d
     return PushResult(batch, sent, new, dup, outbox.count(), unavailable, tuple(held), tuple(failed))
+
+
+def _last_entries(site_dir: Path) -> dict[str, dict]:
+    """Each batch's last audit entry (a damaged line is skipped: it is named by ``fleet audit``)."""
+    return {entry["batch_id"]: entry for entry in scan_audit(site_dir)[0]}
