@@ -7,7 +7,7 @@ import dataclasses
 import pytest
 from release_helpers import CELL, cli, pointers, replay_file, two_runs_at_sim, write_plan
 
-from cellguard.control.checks.safety_input import ASKED_BY_LOOP
+from cellguard.control.checks.safety_input import ASKED_BY_LOOP, RECOVERY_HOLD
 from cellguard.record.reader import EventRecord
 from cellguard.release import Store, create_bundle, load_plan, promote, run_stage
 from cellguard.release.errors import BundleMismatch, GateError
@@ -94,10 +94,12 @@ def test_a_stop_the_loop_asked_for_counts_once(one_run):
 
     operator = (10, "operator_stop", "SIGINT: the operator asked a stop", 2, None, None, None, 0)
     carried = (11, "protective_stop", ASKED_BY_LOOP + "operator stop (SIGINT)", 2, None, None, None, 0)
-    hold = (50, "protective_stop", ASKED_BY_LOOP + "a recovery's hand-over hold", 2, None, None, None, 1)
+    hold = (50, "protective_stop", ASKED_BY_LOOP + RECOVERY_HOLD, 2, None, None, None, 1)
     controller = (60, "protective_stop", "safety controller protective stop input", 1, None, None, None, 1)
     assert stops(operator, carried) == 1
     assert stops(operator, carried, hold) == 2 and stops(hold, controller) == 2
+    fault = (40, "robot_state_stale", "state stamp 30.0 ms old (limit 20 ms)", 2, None, None, None, 1)
+    assert stops(fault, hold) == 2  # a later hold in the fault's cycle is a stop of its own (it was absorbed)
 
 
 def test_promotion_needs_the_previous_stage_passed(one_run):

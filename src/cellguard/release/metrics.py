@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cellguard.control.checks.safety_input import ASKED_BY_LOOP
+from cellguard.control.checks.safety_input import ASKED_BY_LOOP, RECOVERY_HOLD
 from cellguard.diagnose.diagnosis import ROUTINE_EVENTS, diagnose
 from cellguard.errors import CellguardError
 from cellguard.release.evidence import RunEvidence
@@ -88,6 +88,7 @@ def _stops(run: RunEvidence):
         if e.category is None:
             continue
         if (e.kind == "protective_stop" and e.reason.startswith(ASKED_BY_LOOP)
+                and e.reason != ASKED_BY_LOOP + RECOVERY_HOLD  # after a link fault in its cycle, still a stop
                 and any(c.cycle == e.cycle and c.t_ns <= e.t_ns for c in causes)):
             continue
         yield e

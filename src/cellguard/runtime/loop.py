@@ -20,6 +20,7 @@ from time import perf_counter_ns as perf_ns
 
 import numpy as np
 
+from cellguard.control.checks.safety_input import RECOVERY_HOLD
 from cellguard.control.events import Event, EventKind
 from cellguard.control.settings import build_guard
 from cellguard.diagnose.cycle_buffer import CycleBuffer
@@ -163,7 +164,7 @@ class Run:
                 if link.stop is not None or guard.executor.last_chunk_ns is None or operator.count:  # else no stop
                     stop, asked_by = self._stop_input(t, guard)
                 if driving and recovery.stop is not None and (stop is None or recovery.stop < stop):
-                    stop, asked_by = recovery.stop, "a recovery's hand-over hold"
+                    stop, asked_by = recovery.stop, RECOVERY_HOLD
                 if stop is not None and (safety.stop is None or stop < safety.stop):
                     safety = SafetyInputs(stop, safety.reduced_speed, asked_by)
                 setpoint, new = guard.tick(t, state, safety)

@@ -7,6 +7,7 @@ from cellguard.control.events import EventKind
 
 REDUCED_SCALE_WITHOUT_TOOL = 0.25  # playback speed in reduced mode when no tool model gives the tool speed
 ASKED_BY_LOOP = "stop asked by the loop: "  # a protective stop's reason when the loop asked (its cause is its own event)
+RECOVERY_HOLD = "a recovery's hand-over hold"  # what the loop asks while a recovery takes over: no event of its own
 
 
 class ProtectiveStopInput(Check):
