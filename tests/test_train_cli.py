@@ -49,6 +49,24 @@ def test_overwrite_replaces_a_model_and_the_path_prints_as_given(tmp_path):
     assert f"written to {shown}; run it with policy: onnx:{shown}\n" in result.stdout
 
 
+def test_a_file_that_appears_at_the_output_during_training_is_kept(tmp_path, monkeypatch):
+    """The check before the training does not hold at its end: a file written meanwhile was replaced."""
+    from cellguard.train import demo_policy
+
+    out, fit = tmp_path / "model.onnx", demo_policy.fit_network
+
+    def fit_while_someone_writes(*args, **kwargs):
+        out.write_bytes(b"written during the training")
+        return fit(*args, **kwargs)
+
+    monkeypatch.setattr(demo_policy, "fit_network", fit_while_someone_writes)
+    result = runner.invoke(app, ["train-demo-policy", *QUICK, "-o", str(out)])
+    assert result.exit_code == 2 and result.stdout == ""
+    assert result.stderr == f"error: ONNX model {out}: something was put there while it was being made; it is kept " \
+                            "(nothing written)\n"
+    assert out.read_bytes() == b"written during the training" and [p.name for p in tmp_path.iterdir()] == [out.name]
+
+
 def test_help_keeps_the_unit():
     result = runner.invoke(app, ["train-demo-policy", "--help"], env={"COLUMNS": "200"})
     assert "moved this far in x [mm]" in result.output

@@ -8,6 +8,7 @@ crash leaves either the old file or the new one, never a 0-byte or half-written 
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
 from collections.abc import Iterator
 from pathlib import Path
@@ -27,12 +28,14 @@ def make_folder(path: Path, what: str) -> Path:
 
 
 @contextlib.contextmanager
-def atomic_file(path: Path, what: str) -> Iterator[BinaryIO]:
+def atomic_file(path: Path, what: str, replace: bool = True) -> Iterator[BinaryIO]:
     """A binary file that becomes ``path`` only when the block ends without an error.
 
     The data goes to a temporary file in the same folder (same filesystem, so the rename is
     atomic), is fsynced, and then replaces ``path``; on any error the temporary file is removed,
-    ``path`` is untouched and OutputError names it.
+    ``path`` is untouched and OutputError names it. With ``replace=False`` a file that appeared at
+    ``path`` while the data was made is kept and OutputError says so (a check at the start of a
+    long job does not hold at its end).
     """
     path = Path(path)
     if path.is_dir():  # the rename would fail only after all the data was written
@@ -44,7 +47,14 @@ def atomic_file(path: Path, what: str) -> Iterator[BinaryIO]:
             yield f
             f.flush()
             os.fsync(f.fileno())
-        os.replace(tmp, path)
+        if replace:
+            os.replace(tmp, path)
+        else:
+            _rename_new(tmp, path)
+    except FileExistsError:
+        _remove(tmp)
+        raise OutputError(f"{what} {path}: something was put there while it was being made; it is kept "
+                          "(nothing written)") from None
     except OSError as exc:
         _remove(tmp)
         raise OutputError(f"{what} {path}: cannot write ({_why(exc)}); any earlier file there is unchanged") from None
@@ -53,12 +63,29 @@ def atomic_file(path: Path, what: str) -> Iterator[BinaryIO]:
         raise
 
 
-def write_output(path: Path, data: str | bytes, what: str) -> Path:
+def write_output(path: Path, data: str | bytes, what: str, replace: bool = True) -> Path:
     """Write ``data`` to ``path`` (a ``what``, e.g. "report") atomically, creating its folder."""
     path = Path(path)
-    with atomic_file(path, what) as f:
+    with atomic_file(path, what, replace) as f:
         f.write(data if isinstance(data, bytes) else data.encode("utf-8"))
     return path
+
+
+def _rename_new(tmp: Path, path: Path) -> None:
+    """Rename ``tmp`` to ``path`` unless something is there (FileExistsError): a hard link is atomic; where the
+    filesystem has none, a check just before the rename."""
+    try:
+        os.link(tmp, path)
+    except FileExistsError:
+        raise
+    except OSError as exc:
+        if exc.errno not in (errno.EPERM, errno.EOPNOTSUPP, errno.ENOTSUP, errno.EMLINK):
+            raise
+        if path.exists() or path.is_symlink():
+            raise FileExistsError(path) from None
+        os.replace(tmp, path)
+        return
+    _remove(tmp)
 
 
 def _remove(path: Path) -> None:

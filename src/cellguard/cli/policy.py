@@ -36,7 +36,8 @@ def train_demo_policy(
         # before the demonstrations are recorded: never over a record, into a run folder, or over a model
         # (one a release may have hashed) unless --overwrite
         refuse_output(out, None, replace=overwrite)
-        report = train(out, cycles=cycles, random_features=random_features, seed=seed, fixture_dx_mm=fixture_dx_mm)
+        report = train(out, cycles=cycles, random_features=random_features, seed=seed, fixture_dx_mm=fixture_dx_mm,
+                       overwrite=overwrite)
     except CellguardError as exc:
         fail(exc)
     if as_json:

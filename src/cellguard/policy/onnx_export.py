@@ -43,8 +43,9 @@ class Mlp:
         return h * self.y_std + self.y_mean
 
 
-def save_mlp_onnx(mlp: Mlp, path: Path, metadata: dict[str, str]) -> Path:
-    """Write ``mlp`` to ``path`` with ``metadata`` as model properties (``cellguard.*``)."""
+def save_mlp_onnx(mlp: Mlp, path: Path, metadata: dict[str, str], replace: bool = True) -> Path:
+    """Write ``mlp`` to ``path`` with ``metadata`` as model properties (``cellguard.*``); a file at ``path``
+    is replaced only if ``replace``."""
     try:
         import onnx
         from onnx import TensorProto, helper, numpy_helper
@@ -82,7 +83,7 @@ def save_mlp_onnx(mlp: Mlp, path: Path, metadata: dict[str, str]) -> Path:
     model.ir_version = 8
     helper.set_model_props(model, metadata)
     onnx.checker.check_model(model)
-    return write_output(Path(path), model.SerializeToString(), "ONNX model")
+    return write_output(Path(path), model.SerializeToString(), "ONNX model", replace)
 
 
 def trajectory_mlp(times: np.ndarray, points: np.ndarray, horizon: int, dt_s: float) -> Mlp:

@@ -126,8 +126,9 @@ def fit_network(x: np.ndarray, y: np.ndarray, horizon: int, random_features: int
 
 
 def train_demo_policy(out: Path, cycles: int = 10, random_features: int = 64, horizon: int = 10,
-                      seed: int = 0, fixture_dx_mm: float = 0.0) -> TrainingReport:
-    """Record ``cycles`` scripted demonstrations, clone them, and save ``out`` (ONNX)."""
+                      seed: int = 0, fixture_dx_mm: float = 0.0, overwrite: bool = False) -> TrainingReport:
+    """Record ``cycles`` scripted demonstrations, clone them, and save ``out`` (ONNX; a file there is replaced only
+    with ``overwrite``, even one that appeared during the training)."""
     began = time.perf_counter()
     x, y, dt, joints = collect_demonstrations(cycles, seed, horizon, fixture_dx_mm)
     mlp = fit_network(x, y, horizon, random_features, seed)
@@ -137,6 +138,6 @@ def train_demo_policy(out: Path, cycles: int = 10, random_features: int = 64, ho
         "cellguard.dt_s": repr(dt),
         "cellguard.trained_on": f"{cycles} scripted arm-pick-place cycles, seed {seed}"
                                    + (f", fixture moved {fixture_dx_mm} mm in x" if fixture_dx_mm else ""),
-    })
+    }, replace=overwrite)
     return TrainingReport(str(path), cycles, len(x), mlp.weights[0].shape[1], float(np.sqrt(np.mean(error**2))) * 1e3,
                           float(np.abs(error).max()) * 1e3, time.perf_counter() - began)
