@@ -10,12 +10,14 @@ import sys
 import time
 from collections.abc import Callable
 
+import mujoco
 import numpy as np
 import pytest
 import yaml
 
 from release_helpers import CELL, cli, two_runs_at_sim
 
+from cellguard.control.settings import build_guard
 from cellguard.record.reader import open_record
 from cellguard.release import Store
 from cellguard.release.log import entries
@@ -93,13 +95,15 @@ def test_ctrl_c_during_an_excitation_says_so_and_exits_130(tmp_path):
     assert json.loads((out / "summary.json").read_text())["stopped"] == "operator stop (SIGINT)"
 
 
-def _run_pressing(run: Run, press: Callable[[list[int]], bool]) -> list[int]:
+def _run_pressing(run: Run, press: Callable[[list[int]], bool], setpoints: list | None = None) -> list[int]:
     """Run the cycles, raising SIGINT at a setpoint write when ``press(writes)`` says so; ``writes``: per write so
-    far, 1 once the retreat has begun, else 0."""
+    far, 1 once the retreat has begun, else 0; each setpoint written is appended to ``setpoints``."""
     write, writes = run.cell.write, []
 
     def write_and_press(setpoint):
         writes.append(int(run.events.has("retreat_begin")))
+        if setpoints is not None:
+            setpoints.append(np.array(setpoint))
         if press(writes):
             signal.raise_signal(signal.SIGINT)
         return write(setpoint)
@@ -112,16 +116,27 @@ def _run_pressing(run: Run, press: Callable[[list[int]], bool]) -> list[int]:
     return writes
 
 
+def _brakes_and_holds(run: Run, setpoints: list) -> None:
+    """The setpoints after an abort slow down under the velocity limit to a standstill (never a step)."""
+    steps = np.abs(np.diff(np.array(setpoints), axis=0)) / (run.cell.dt_ns * 1e-9)  # [rad/s] per write
+    assert (steps <= run.cell.profile.array("velocity") * 1.001).all()
+    assert steps[-1].max() < 1e-3  # [rad/s]: at rest at the end
+
+
 def test_a_second_signal_aborts_the_retreat_and_the_arm_holds():
     before = signal.getsignal(signal.SIGINT)  # not always Python's default: another library (Spark) may own it
     run = Run(parse_scenario({"cell": "arm-pick-place", "acceptance_cycles": 1, "production_cycles": 3}))
-    # the operator presses mid-motion, then again a few ticks into the retreat
-    writes = _run_pressing(run, lambda writes: len(writes) == 1500 or (writes[-1] and writes.count(1) == 5))
+    # the operator presses mid-motion, then again well into the retreat
+    setpoints: list = []
+    writes = _run_pressing(run, lambda writes: len(writes) == 1500 or (writes[-1] and writes.count(1) == 150),
+                           setpoints)
     assert run.stopped == "operator stop (SIGINT)" and len(run.cycles) == 1
     kinds = [e.kind for e in run.events]
     assert kinds.index("operator_stop") < kinds.index("retreat_begin") < kinds.index("retreat_aborted")
     assert "retreat_done" not in kinds
-    assert writes.count(1) == 5  # no setpoint after the abort: the arm holds where it is
+    braking = setpoints[-(writes.count(1) - 150) - 1:]
+    assert len(braking) > 10 and np.abs(braking[1] - braking[0]).max() > 1e-4  # it was moving when pressed
+    _brakes_and_holds(run, braking)  # then it brakes and holds where it stopped
     assert signal.getsignal(signal.SIGINT) is before  # restored after the run
 
 
@@ -139,10 +154,42 @@ def test_the_third_signal_raises_keyboard_interrupt_and_the_handlers_are_restore
 def test_a_signal_during_the_last_retreat_aborts_it_and_the_run_is_stopped():
     run = Run(parse_scenario({"cell": "arm-pick-place", "acceptance_cycles": 1, "production_cycles": 0}))
     run.cell.q_home = run.cell.q_home + np.eye(len(run.cell.q_home))[0] * 0.2  # the cycle ends away from home
-    writes = _run_pressing(run, lambda writes: writes[-1] and writes.count(1) == 5)
+    setpoints: list = []
+    writes = _run_pressing(run, lambda writes: writes[-1] and writes.count(1) == 5, setpoints)
     assert run.stopped == "operator stop (SIGINT)" and run.cycles.total == 1
     assert [e.kind for e in run.events][-3:] == ["retreat_begin", "operator_stop", "retreat_aborted"]
-    assert writes.count(1) == 5
+    _brakes_and_holds(run, setpoints[-(writes.count(1) - 5) - 1:])
+
+
+def test_a_second_signal_before_the_retreat_begins_still_aborts_it():
+    """Two presses in quick succession (the second inside the stop ramp, before the retreat): the retreat went
+    all the way home."""
+    run = Run(parse_scenario({"cell": "arm-pick-place", "acceptance_cycles": 1, "production_cycles": 3}))
+    writes = _run_pressing(run, lambda writes: len(writes) in (1500, 1520))
+    kinds = [e.kind for e in run.events]
+    assert kinds[-2:] == ["retreat_begin", "retreat_aborted"] and writes.count(1) == 0
+
+
+def test_a_signal_during_the_approach_brakes_it_under_the_limits_and_the_stop_follows_it():
+    """The approach's setpoints stopped dead at full speed (63 mrad in one tick on the real-time loop), and the
+    guard's protective stop was stamped when the approach began, before the signal that caused it."""
+    run = Run(parse_scenario({"cell": "arm-pick-place", "acceptance_cycles": 1, "production_cycles": 1}))
+    cell = run.cell
+    q = cell.q_home + np.array([0.6, 0.3, -0.4, 0.0, 0.0, 0.0])
+    cell.data.qpos[cell.drives.qadr] = q
+    cell.write(q)
+    mujoco.mj_forward(cell.model, cell.data)
+    run.guard = build_guard(cell, run.scenario.guard)  # the guard holds where the robot is until the approach
+    setpoints: list = []
+    _run_pressing(run, lambda writes: len(writes) == 200, setpoints)
+    events = {e.kind: e for e in run.events}
+    assert run.stopped == "operator stop (SIGINT)" and "approach_done" not in events
+    aborted = events["approach_aborted"]
+    assert events["operator_stop"].t_ns == aborted.t_ns <= events["protective_stop"].t_ns
+    moving = np.abs(np.diff(np.array(setpoints[:200]), axis=0)).max() / (cell.dt_ns * 1e-9)
+    assert moving > 0.3 * cell.profile.array("velocity").min()  # pressed at speed
+    steps = np.abs(np.diff(np.array(setpoints), axis=0)) / (cell.dt_ns * 1e-9)
+    assert (steps <= cell.profile.array("velocity") * 1.001).all()  # no step anywhere, the stop included
 
 
 def test_ctrl_c_in_a_release_stage_counts_no_run_and_evaluates_no_gate(tmp_path, monkeypatch):

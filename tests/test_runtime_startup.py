@@ -6,6 +6,7 @@ import mujoco
 import numpy as np
 import pytest
 
+from cellguard.control.settings import build_guard
 from cellguard.policy.chunk import ActionChunk
 from cellguard.robot.state import Observation
 from cellguard.runtime import Run
@@ -93,6 +94,7 @@ def test_a_robot_away_from_the_first_target_is_approached_first_and_the_cycle_st
     cell.data.qpos[cell.drives.qadr] = q
     cell.write(q)
     mujoco.mj_forward(cell.model, cell.data)
+    run.guard = build_guard(cell, run.scenario.guard)  # as at a start there: the guard holds the measured pose
     outcome = run.cycle()
     kinds = [e.kind for e in run.events]
     assert kinds[:2] == ["approach_begin", "approach_done"], kinds

@@ -5,14 +5,17 @@
 
 from __future__ import annotations
 
+import numpy as np
+
 from cellguard.control.config import GuardConfig
 from cellguard.control.guard import Guard
 
 GuardSettings = GuardConfig
 
 
-def build_guard(cell, settings: GuardConfig | None = None) -> Guard:
-    """The guard layer for ``cell``, with its kinematics and workspace box if it has them.
+def build_guard(cell, settings: GuardConfig | None = None, q0: np.ndarray | None = None) -> Guard:
+    """The guard layer for ``cell``, with its kinematics and workspace box if it has them, at rest at ``q0``
+    (default: the measured pose).
 
     The tool model is the cell's ``kinematics`` (an ``embodiment.Kinematics`` of its nominal MJCF)
     where it offers one, else its ``tool_point``. The box is the scenario's if it sets one, else the
@@ -23,4 +26,4 @@ def build_guard(cell, settings: GuardConfig | None = None) -> Guard:
     tool = kinematics.tool_point if kinematics is not None else getattr(cell, "tool_point", None)
     box = config.box if config.box is not None else getattr(cell, "workspace_box", None)
     config = config.model_copy(update={"box": box if tool is not None else None})
-    return Guard(cell.profile, cell.read().q, cell.dt_ns, config, tool=tool)
+    return Guard(cell.profile, cell.read().q if q0 is None else q0, cell.dt_ns, config, tool=tool)

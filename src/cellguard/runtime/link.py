@@ -31,7 +31,7 @@ class RobotLink:
         self.lost = False  # no state at all any more: the loop cannot command the robot
         self.refused = 0  # non-finite setpoints never sent
         self.state = None  # the last good state, once read
-        self._last_sent: np.ndarray | None = None
+        self.last_sent: np.ndarray | None = None  # the last setpoint sent (before any: the first measured pose)
         self._raised: set[str] = set()
 
     def read(self, t_ns: int):
@@ -59,8 +59,8 @@ class RobotLink:
             self.fault(t_ns, EventKind.ROBOT_PACKETS_DROPPED, f"{self.robot.dropped} packets lost "
                         f"(budget {self.drop_budget})")
         self.state = state
-        if self._last_sent is None:
-            self._last_sent = np.array(state.q, dtype=np.float64)
+        if self.last_sent is None:
+            self.last_sent = np.array(state.q, dtype=np.float64)
         return state
 
     def write(self, t_ns: int, setpoint: np.ndarray) -> np.ndarray:
@@ -68,17 +68,17 @@ class RobotLink:
         if not math.isfinite(setpoint.dot(setpoint)):  # NaN or inf anywhere (or an absurd 1e154) -> not finite
             self.refused += 1
             self._event(t_ns, "setpoint_not_finite", "a non-finite setpoint was not sent; the last one is held")
-            setpoint = self._last_sent
+            setpoint = self.last_sent
         try:
             sent = self.robot.write(setpoint)
         except RobotLinkError as exc:
             self.fault(t_ns, EventKind(exc.kind), str(exc))  # the bridge names one of the link kinds
             self.lost = self.lost or exc.lost
-            return self._last_sent
+            return self.last_sent
         except Exception as exc:  # noqa: BLE001
             self.fault(t_ns, EventKind.ROBOT_WRITE_FAILED, f"{type(exc).__name__}: {exc}")
-            return self._last_sent
-        self._last_sent = setpoint
+            return self.last_sent
+        self.last_sent = setpoint
         return sent
 
     def fault(self, t_ns: int, kind: str, reason: str) -> None:

@@ -154,8 +154,8 @@ class Run:
                         events.extend(self.guard.push(chunk, t))
                 else:
                     arrival = inference.take(t)
-                    if arrival is not None:
-                        self._arrived(arrival, t)
+                    if arrival is not None and self._arrived(arrival, t):  # an approach was played: time moved
+                        t, state = now(), link.state
                     if inference.due(t):
                         self._request(t)
                 guard = self.guard
@@ -214,25 +214,26 @@ class Run:
         self.cycles.append(outcome)
         return outcome
 
-    def _arrived(self, arrival, t_ns: int) -> None:
+    def _arrived(self, arrival, t_ns: int) -> bool:
         """A finished request: its chunk to the guard (the run's first one after the start-up checks), or
-        its failure as an event."""
+        its failure as an event. True when an approach was played (the clock moved on meanwhile)."""
         if arrival.chunk is None:
             self.events.append(Event(t_ns, EventKind.INFERENCE_FAILED, arrival.error))
             self._wall_ns.append(arrival.wall_ns)
-            return
+            return False
         if not self._started:
             if arrival.prepared is None:  # simulated time: checked here, as the worker would have
                 arrival = dataclasses.replace(arrival, prepared=self.guard.executor.prepare(arrival.chunk))
             if arrival.prepared.problem is None:  # a refused chunk is an event below; the next one starts the run
                 arrival = self._start(arrival)
                 if arrival is None:  # an approach was played; a fresh request follows
-                    return
+                    return True
         if self.recording is not None:
             self.recording.chunk(arrival.chunk, t_ns, arrival.latency_ns)
         self.events.extend(self.guard.push(arrival.prepared or arrival.chunk, t_ns))
         self._latencies.append(arrival.latency_ns)
         self._wall_ns.append(arrival.wall_ns)
+        return False
 
     def _request(self, t_ns: int) -> None:
         """Hand the policy an observation (a policy_nan fault corrupts the answer once, ``NAN_AFTER_S`` in)."""
@@ -275,11 +276,12 @@ class Run:
         latency = arrival.latency_ns if self.clock.realtime else round(NOMINAL_INFERENCE_S * 1e9)
         check_startup(self.policy, self._first_observation, chunk, latency, self.scenario.guard.blend_s)
         target = np.asarray(chunk.actions[0], dtype=np.float64)
-        approach = Transition.plan(self.cell.profile, self.link.state.q, target, self.clock.period_ns)
+        # from where the robot was commanded to be (the measured pose lags it: planning from there stepped the command)
+        approach = Transition.plan(self.cell.profile, self.link.last_sent, target, self.clock.period_ns)
         if approach is None:
             return arrival
-        self._play(approach, "approach", self.clock.now())
-        self.guard = build_guard(self.cell, self.scenario.guard)
+        held = self._play(approach, "approach", self.clock.now())
+        self.guard = build_guard(self.cell, self.scenario.guard, q0=held)  # where the commands left the robot
         self._armed_at = self.clock.now()
         self.source.begin(self.cycles.total, self._armed_at)  # the cycle (and episode) starts at the approached pose
         self.policy.reset()
@@ -291,33 +293,44 @@ class Run:
         home = getattr(self.cell, "q_home", None)
         if home is None or not self.guard.power or self.link.stop is not None:  # a link fault: no more motion
             return
-        plan = Transition.plan(self.cell.profile, self.link.state.q, np.asarray(home), self.clock.period_ns)
-        if plan is not None:
-            self._play(plan, "retreat", self.clock.now())
+        plan = Transition.plan(self.cell.profile, self.link.last_sent, np.asarray(home), self.clock.period_ns)
+        if plan is not None:  # the operator's first signal stopped the run (or ends it now); a second aborts this
+            self._play(plan, "retreat", self.clock.now(), signals=min(self.operator.count, 1))
 
-    def _play(self, plan: Transition, name: str, t0: int) -> None:
-        """Play a transition tick by tick; a stop input, a link fault or a new operator stop aborts it
-        (hold where it is)."""
-        events, link, clock, rec, signals = self.events, self.link, self.clock, self.recording, self.operator.count
+    def _play(self, plan: Transition, name: str, t0: int, signals: int | None = None) -> np.ndarray:
+        """Play a transition tick by tick; return the pose it left the robot at. A stop input, a link fault or
+        an operator's signal past ``signals`` (default: those so far) aborts it: it brakes to a standstill
+        under the profile's limits and holds there."""
+        events, link, rec = self.events, self.link, self.recording
+        signals = self.operator.count if signals is None else signals
         events.append(Event(t0, EventKind(f"{name}_begin"), f"{name}: {plan.duration_s:.2f} s to {np.round(plan.target, 3).tolist()}"))
-        t_end = t0
-        with clock.ticking():
-            for setpoint in plan.setpoints():
-                t = clock.now()
+        t, held = t0, plan.start
+        with self.clock.ticking():
+            for steps, setpoint in enumerate(plan.setpoints()):
+                t = self.clock.now()
                 operator = self.operator.count > signals
                 if self.cell.safety().stop is not None or link.stop is not None or operator:
                     if operator:
                         self._operator_stop(t)
                     events.append(Event(t, EventKind(f"{name}_aborted"),
                                         "stop input, robot link fault or operator stop during the transition", category=2))
-                    return
-                sent = link.write(t, setpoint)
-                clock.advance()
-                state = link.read(clock.now())
-                if rec is not None:
-                    rec.tick(setpoint, sent, state)
-                t_end = clock.now()
-        events.append(Event(t_end, EventKind(f"{name}_done"), f"{name} complete"))
+                    brake = plan.brake(self.cell.profile, steps)
+                    return held if brake is None else self._send(brake.setpoints(), rec)
+                held = self._send([setpoint], rec)
+                t = self.clock.now()
+        events.append(Event(t, EventKind(f"{name}_done"), f"{name} complete"))
+        return held
+
+    def _send(self, setpoints, rec) -> np.ndarray:
+        """Write each setpoint in its own servo period (read and record after it); return the last."""
+        link, clock = self.link, self.clock
+        for setpoint in setpoints:
+            sent = link.write(clock.now(), setpoint)
+            clock.advance()
+            state = link.read(clock.now())
+            if rec is not None:
+                rec.tick(setpoint, sent, state)
+        return setpoint
 
     def _stop_input(self, t_ns: int, guard) -> tuple[int | None, str | None]:
         """The stop the loop itself asks for (a robot link fault, an operator stop, or no first chunk within

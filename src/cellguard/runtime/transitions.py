@@ -2,7 +2,8 @@
 the robot (approach to its first target) and at the end (retreat to the home pose).
 
 Planned once with ruckig under the profile's velocity, acceleration and jerk limits, from rest
-to rest; never a jump. A pose within ``tolerance`` of the target needs no transition.
+to rest; never a jump. A pose within ``tolerance`` of the target needs no transition. One that is
+aborted brakes to a standstill under the same limits (``brake``) from where it is.
 """
 
 from __future__ import annotations
@@ -43,13 +44,37 @@ class Transition:
         inp.current_position, inp.target_position = start.tolist(), target.tolist()
         inp.current_velocity = inp.current_acceleration = [0.0] * dof
         inp.target_velocity = inp.target_acceleration = [0.0] * dof
+        return cls._solve(profile, otg, inp, traj, period_ns)
+
+    def brake(self, profile: Profile, steps: int) -> Transition | None:
+        """A standstill from this transition's ``steps``-th setpoint (its position, velocity and acceleration)
+        under the profile's limits, or None if it is at rest there. Stopping the setpoints dead at full speed
+        stepped the command 63 mrad in one 1 ms tick."""
+        position, velocity, acceleration = self.trajectory.at_time(min(steps * self.period_ns * 1e-9,
+                                                                       self.duration_s))
+        if steps <= 0 or max(map(abs, [*velocity, *acceleration])) < 1e-9:
+            return None
+        dof = profile.dof
+        otg, inp, traj = ruckig.Ruckig(dof), ruckig.InputParameter(dof), ruckig.Trajectory(dof)
+        inp.control_interface = ruckig.ControlInterface.Velocity
+        inp.current_position, inp.current_velocity, inp.current_acceleration = position, velocity, acceleration
+        inp.target_velocity = inp.target_acceleration = [0.0] * dof
+        return self._solve(profile, otg, inp, traj, self.period_ns)
+
+    @classmethod
+    def _solve(cls, profile: Profile, otg, inp, traj, period_ns: int) -> Transition | None:
         inp.max_velocity = profile.array("velocity").tolist()
         inp.max_acceleration = profile.array("acceleration").tolist()
         inp.max_jerk = profile.array("jerk").tolist()
         result = otg.calculate(inp, traj)
         if result not in (ruckig.Result.Working, ruckig.Result.Finished):
             return None
-        return cls(traj, target, int(period_ns))
+        end = np.asarray(traj.at_time(traj.duration)[0], dtype=np.float64)
+        return cls(traj, end, int(period_ns))
+
+    @property
+    def start(self) -> np.ndarray:
+        return np.asarray(self.trajectory.at_time(0.0)[0], dtype=np.float64)
 
     def setpoints(self):
         dt = self.period_ns * 1e-9
