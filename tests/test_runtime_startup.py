@@ -8,6 +8,7 @@ import pytest
 
 from cellguard.control.settings import build_guard
 from cellguard.policy.chunk import ActionChunk
+from cellguard.robot.registry import make_cell
 from cellguard.robot.state import Observation
 from cellguard.runtime import Run
 from cellguard.runtime.startup import StartupRefused, check_startup
@@ -106,3 +107,53 @@ def test_a_short_chunk_counts_at_most_half_its_horizon_as_blend():
     check_startup(object(), None, _chunk(h=10, dt_ms=20), 90_000_000, 0.2)  # 200 ms chunk: 100 ms budget
     with pytest.raises(StartupRefused, match="horizon 200 ms minus blend 100 ms"):
         check_startup(object(), None, _chunk(h=10, dt_ms=20), 100_000_000, 0.2)
+
+
+class _Constant:
+    """A policy that answers every observation with the pose ``q``, held for 25 steps of 20 ms."""
+
+    source = "test:constant"
+
+    def __init__(self, q):
+        self.q = np.asarray(q, dtype=np.float64)
+
+    def reset(self):
+        pass
+
+    def content_hash(self):
+        return "0" * 64
+
+    def infer(self, observation):
+        return ActionChunk(np.tile(self.q, (25, 1)), observation.t_ns, 20_000_000)
+
+
+def test_a_first_target_outside_the_workspace_box_is_refused_and_nothing_is_approached():
+    """The approach is played outside the ticks' checks: it drove the tool 9 cm above the cell's box and
+    left it there."""
+    above = np.array([0.0, -0.3, 0.5, 0.5, 0.0, 0.025])  # tool point about 0.64 m up; the box ends at 0.55
+    run = Run(parse_scenario({"cell": "arm-pick-place", "acceptance_cycles": 1, "production_cycles": 0}),
+              policy_factory=lambda: _Constant(above))
+    box = run.guard.envelope.config.box
+    assert run.cell.tool_point(above)[2] > box[1][2]
+    home = run.cell.read().q
+    run.cycle()
+    kinds = [e.kind for e in run.events]
+    assert "approach_begin" not in kinds and kinds.count("chunk_rejected") >= 2
+    rejected = next(e for e in run.events if e.kind == "chunk_rejected")
+    assert rejected.reason.startswith("first target: its tool point [") and "outside the workspace box" in rejected.reason
+    assert "watchdog_no_first_chunk" in kinds
+    assert np.abs(run.cell.read().q - home).max() < 0.01  # never moved towards it
+
+
+def test_an_approach_ends_inside_the_soft_limits():
+    """Clipped only into the hard limits, an approach ended past the soft ones, where the guard never goes."""
+    cell = make_cell("arm-pick-place")
+    beyond = cell.q_home.copy()
+    beyond[0] = cell.profile.q_max[0]  # shoulder_pan at its hard limit
+    run = Run(parse_scenario({"cell": "arm-pick-place", "acceptance_cycles": 1, "production_cycles": 0}),
+              policy_factory=lambda: _Constant(beyond))
+    soft_max, write, written = run.guard.envelope.tracker.hi[0], run.cell.write, []
+    run.cell.write = lambda q: written.append(q[0]) or write(q)
+    run.cycle()
+    assert "approach_done" in [e.kind for e in run.events]
+    assert soft_max < cell.profile.q_max[0] and max(written) <= soft_max + 1e-9

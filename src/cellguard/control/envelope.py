@@ -122,6 +122,18 @@ class Envelope:
                     self._begin_stop(t_ns, r, events)
         return setpoint, events
 
+    def target_problem(self, q: np.ndarray) -> str | None:
+        """Why the pose ``q`` may not be a transition's target: its tool point lies outside the box (a transition
+        to the policy's first target is played outside the ticks' checks; it drove the tool above the box)."""
+        box = self.config.box
+        if box is None or self._tool is None:
+            return None
+        tip = self._tool(np.asarray(q, dtype=np.float64))
+        if not ((np.asarray(box[0]) <= tip) & (tip <= np.asarray(box[1]))).all():
+            return (f"its tool point {np.round(tip, 3).tolist()} m lies outside the workspace box "
+                    f"{[list(map(float, corner)) for corner in box]}")
+        return None
+
     def to_dict(self) -> dict:
         """The settings in force, for the record's context (JSON types)."""
         return self.config.model_dump(mode="json")

@@ -22,6 +22,7 @@ import numpy as np
 
 from cellguard.control.checks.safety_input import RECOVERY_HOLD
 from cellguard.control.events import Event, EventKind
+from cellguard.control.executor import PreparedChunk
 from cellguard.control.settings import build_guard
 from cellguard.diagnose.cycle_buffer import CycleBuffer
 from cellguard.diagnose.features import cycle_features
@@ -224,6 +225,11 @@ class Run:
         if not self._started:
             if arrival.prepared is None:  # simulated time: checked here, as the worker would have
                 arrival = dataclasses.replace(arrival, prepared=self.guard.executor.prepare(arrival.chunk))
+            if arrival.prepared.problem is None:
+                outside = self.guard.envelope.target_problem(self._first_target(arrival.chunk))
+                if outside is not None:  # refused as a malformed chunk is: the next one is the first
+                    why = f"first target: {outside}; nothing approached"
+                    arrival = dataclasses.replace(arrival, prepared=PreparedChunk(0, 0, problem=why))
             if arrival.prepared.problem is None:  # a refused chunk is an event below; the next one starts the run
                 arrival = self._start(arrival)
                 if arrival is None:  # an approach was played; a fresh request follows
@@ -275,9 +281,9 @@ class Run:
         # Simulated time: the healthy latency; an injected latency fault is an incident to diagnose, not a refusal.
         latency = arrival.latency_ns if self.clock.realtime else round(NOMINAL_INFERENCE_S * 1e9)
         check_startup(self.policy, self._first_observation, chunk, latency, self.scenario.guard.blend_s)
-        target = np.asarray(chunk.actions[0], dtype=np.float64)
         # from where the robot was commanded to be (the measured pose lags it: planning from there stepped the command)
-        approach = Transition.plan(self.cell.profile, self.link.last_sent, target, self.clock.period_ns)
+        approach = Transition.plan(self.cell.profile, self.link.last_sent, self._first_target(chunk),
+                                   self.clock.period_ns)
         if approach is None:
             return arrival
         held = self._play(approach, "approach", self.clock.now())
@@ -287,6 +293,12 @@ class Run:
         self.policy.reset()
         self.inference.begin_cycle(self._armed_at)
         return None
+
+    def _first_target(self, chunk: ActionChunk) -> np.ndarray:
+        """The pose an approach goes to: the chunk's first action inside the soft limits, where the guard keeps
+        the policy's motion (clipped only into the hard limits, an approach ended past the soft ones)."""
+        tracker = self.guard.envelope.tracker
+        return np.clip(np.asarray(chunk.actions[0], dtype=np.float64), tracker.lo, tracker.hi)
 
     def retreat(self) -> None:
         """At the end of the run (or after a stop with power kept): back to the home pose."""
