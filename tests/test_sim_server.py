@@ -47,10 +47,11 @@ def test_server_killed_mid_cycle_stops_within_the_watchdog_and_the_record_names_
     proc, port = server
     killed = {}
 
-    def kill():  # one second into the run (its set-up takes a while on a loaded host)
-        while not (tmp_path / "out" / "record.mcap").exists():
+    def kill():  # mid-cycle: once ticks reach the record (the set-up and warm-up take seconds on a loaded host)
+        record = tmp_path / "out" / "record.mcap"
+        while not (record.exists() and record.stat().st_size > 100_000):
             time.sleep(0.01)
-        time.sleep(1.0)
+        time.sleep(0.5)
         killed["t_ns"] = time.monotonic_ns()
         proc.kill()
 
