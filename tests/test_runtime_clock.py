@@ -156,3 +156,55 @@ def test_on_wall_time_the_servo_thread_waits_at_most_50_us_for_the_gil_whatever_
             assert sys.getswitchinterval() == pytest.approx(SWITCH_INTERVAL_S) and SWITCH_INTERVAL_S <= 5e-5
     finally:
         sys.setswitchinterval(before)
+
+
+class _FailsAfter:
+    """The scripted arm program whose calls raise from the ``good``-th on."""
+
+    def __init__(self, cell, good: int):
+        self._policy, self.good, self.calls, self.source = make_policy("scripted", cell), good, 0, "test:fails"
+
+    def reset(self):
+        self._policy.reset()
+
+    def content_hash(self):
+        return self._policy.content_hash()
+
+    def infer(self, observation):
+        self.calls += 1
+        if self.calls > self.good:
+            raise RuntimeError("the policy server answered 500")
+        return self._policy.infer(observation)
+
+
+@pytest.mark.parametrize("policy_hz", [10, 50])
+def test_on_wall_time_the_policy_is_asked_at_most_at_its_cadence_even_when_it_fails(policy_hz):
+    """policy_hz was ignored on wall time, and a failed call was repeated on every servo tick (2970 events in
+    3 s: a thousand requests a second to a remote policy)."""
+    scenario = parse_scenario({"cell": "arm-pick-place", "acceptance_cycles": 1, "production_cycles": 0,
+                               "policy_hz": policy_hz, "cycle": {"source": "time", "seconds": 1.0},
+                               "guard": {"watchdog_s": 5.0}, "realtime": {"overrun_budget": 1_000_000}})
+    run = Run(scenario, realtime=True)
+    run.policy = _FailsAfter(run.cell, good=3)  # the warm-up and the first two requests answer
+    run.cycle()
+    run.close()
+    seconds = run.clock.timing.ticks * run.cell.dt_ns * 1e-9
+    failed = sum(e.kind == "inference_failed" for e in run.events)
+    assert failed >= 3 and run.policy.calls <= seconds * policy_hz + 2
+
+
+def test_a_policy_process_that_dies_is_reported_with_its_exit_code():
+    """The message read the exit code before the process was reaped: 'exit code None'."""
+    from cellguard.policy.async_inference import PolicyProcess
+
+    cell = make_cell("arm-pick-place")
+    cell.begin_cycle(0)
+    sha256 = make_policy("scripted", cell).content_hash()
+    remote = PolicyProcess(partial(policy_in_process, "scripted", "arm-pick-place", 0), sha256)
+    try:
+        assert remote.infer(cell.observe()).actions.shape[1] == 6
+        remote._process.kill()
+        with pytest.raises(RuntimeError, match=r"^policy process ended \(exit code -9\)$"):
+            remote.infer(cell.observe())
+    finally:
+        remote.close()

@@ -67,24 +67,28 @@ class PolicyProcess:
         try:
             self._conn.send(("reset", None))
         except OSError:
-            raise RuntimeError(f"policy process ended (exit code {self._process.exitcode})") from None
+            raise self._ended() from None
         self._answer()
 
     def infer(self, observation: Observation) -> ActionChunk:
         try:
             self._conn.send(("infer", observation))
         except OSError:
-            raise RuntimeError(f"policy process ended (exit code {self._process.exitcode})") from None
+            raise self._ended() from None
         return self._answer()
 
     def _answer(self):
         try:
             kind, value = self._conn.recv()
         except (EOFError, OSError):
-            raise RuntimeError(f"policy process ended (exit code {self._process.exitcode})") from None
+            raise self._ended() from None
         if kind == "error":
             raise RuntimeError(value)
         return value
+
+    def _ended(self) -> RuntimeError:
+        self._process.join(1.0)  # reaped, its exit code is known (it read None)
+        return RuntimeError(f"policy process ended (exit code {self._process.exitcode})")
 
     def close(self) -> None:
         try:

@@ -41,7 +41,8 @@ def make_clock(robot, realtime: bool):
 
 
 def make_inference(run, realtime: bool):
-    """Simulated inference in simulated time; a thread or process worker on wall time."""
+    """Simulated inference in simulated time; a thread or process worker on wall time (both at most at the
+    scenario's ``policy_hz``)."""
     if not run.clock.realtime:
         return SimulatedInference(run.policy, round(1e9 / run.scenario.policy_hz))
     from cellguard.policy.async_inference import AsyncInference
@@ -50,7 +51,7 @@ def make_inference(run, realtime: bool):
     factory = run.policy_factory or partial(policy_in_process, run.scenario.policy, run.cell.name, run.scenario.seed)
     worker = AsyncInference(run.policy, worker=kind, factory=factory if kind == "process" else None,
                             prepare=lambda chunk: run.guard.executor.prepare(chunk))  # the guard of the moment
-    return WorkerInference(worker)
+    return WorkerInference(worker, round(1e9 / run.scenario.policy_hz))
 
 
 def policy_in_process(spec: str, cell_name: str, seed: int):

@@ -71,10 +71,13 @@ class SimulatedInference:
 
 
 class WorkerInference:
-    """The policy on a worker (thread or process); the chunk arrives when the worker is done."""
+    """The policy on a worker (thread or process); the chunk arrives when the worker is done. A request goes
+    when the worker wants one (the chunk runs low) and at most once per ``period_ns`` (the policy's cadence):
+    a failed request was retried on every servo tick, a thousand calls a second to a remote policy."""
 
-    def __init__(self, worker):
-        self.worker = worker
+    def __init__(self, worker, period_ns: int):
+        self.worker, self.period_ns = worker, int(period_ns)
+        self._next = 0
 
     def warm_up(self, observation) -> None:
         """A first call off the clock: a cold policy's first answer is not its latency."""
@@ -85,11 +88,13 @@ class WorkerInference:
 
     def begin_cycle(self, t_ns: int) -> None:
         self.worker.discard()
+        self._next = t_ns
 
     def due(self, t_ns: int) -> bool:
-        return self.worker.wants_observation(t_ns)
+        return t_ns >= self._next and self.worker.wants_observation(t_ns)
 
     def submit(self, t_ns: int, observation) -> Arrival | None:
+        self._next = t_ns + self.period_ns
         self.worker.submit(observation)
         return None
 
