@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import datetime as dt
 import json
+import time
 
 import numpy as np
 import pytest
@@ -149,3 +151,30 @@ def test_a_chunk_read_for_some_channels_holds_exactly_their_messages_of_a_full_r
                 full = [m for m in read_chunk(rec._buf, ref) if isinstance(m, Message) and m.channel_id in wanted]
                 assert read_chunk(rec._buf, ref, wanted) == full
         assert len(list(rec.cycles())) == 6 and len(list(rec.events())) == 2
+
+
+def test_a_record_on_a_clock_counted_from_boot_is_stamped_at_the_real_time(tmp_path):
+    """Wall time reads the monotonic clock, counted from boot: the record took the start as the clock's zero, so
+    every message showed late by the host's uptime (30 days here) and the index's dates were that far off."""
+    from cellguard.cli import app
+    from cellguard.robot.state import State
+    from typer.testing import CliRunner
+
+    boot = 30 * 24 * 3600 * 10**9  # the run clock when the run starts: the host has been up 30 days
+    began = time.time_ns()
+    rec = Recorder.create(tmp_path, joints=JOINTS, dt_ns=DT_NS, context=context(), start_ns=boot)
+    rec.cycle_begin(0, "acceptance", boot)
+    for k in range(200):
+        v = values(k)
+        rec.tick(0, v["q_ref"], v["q_cmd"], State(boot + k * DT_NS, v["q_meas"], v["qd_meas"], v["effort"], v["current"]))
+    rec.cycle_end({"cycle": 0, "phase": "acceptance", "success": True, "features": {}}, boot + 200 * DT_NS)
+    rec.close()
+    with open(tmp_path / "record.mcap", "rb") as f:
+        log_times = [m.log_time for _, _, m in make_reader(f).iter_messages()]
+    assert began - 10**9 < min(log_times) and max(log_times) < time.time_ns() + 10**9  # now, not 30 days on
+    with open_record(tmp_path) as r:
+        assert r.context_loss is None and r.contexts[0].t_ns == boot == r.start_ns
+        assert abs(r.start_wall_ns - began) < 10**9
+    info = json.loads(CliRunner().invoke(app, ["record", "info", str(tmp_path), "--json"]).stdout)
+    assert info["start_utc"][:10] == dt.datetime.fromtimestamp(began * 1e-9, dt.timezone.utc).date().isoformat()
+    assert str(connect(tmp_path / "index").execute("SELECT day FROM cycles").fetchone()[0]) == info["start_utc"][:10]

@@ -60,7 +60,7 @@ def info(
     context = contexts[0].context if contexts else {}
     doc = {
         "file": str(rec.file), "record_id": rec.record_id, "record_version": rec.version,
-        "start_utc": _utc(rec.epoch_wall_ns) if rec.epoch_wall_ns else None,
+        "start_utc": _utc(rec.start_wall_ns) if rec.epoch_wall_ns else None,
         "health": {"ok": health.ok, "status": health.describe(), "finished": health.finished,
                    "truncated": health.truncated, "damage": list(health.damage), "context_loss": health.context_loss},
         "span_s": None if health.span_ns is None else [health.span_ns[0] * 1e-9, health.span_ns[1] * 1e-9],

@@ -37,8 +37,7 @@ def site_signatures(folder: Path, policy: DataPolicy, acceptance: Path | None = 
     out = []
     for run in run_folders(folder):
         with open_record(run) as rec:
-            _ = rec.context  # the wall-clock epoch is stated in the context messages
-            epoch_ns = rec.epoch_wall_ns
+            epoch_ns = rec.start_wall_ns if rec.epoch_wall_ns else 0  # stated in the context messages too
         diagnosis = diagnose_record(run, acceptance=acceptance)
         day = (dt.datetime.fromtimestamp(epoch_ns * 1e-9, dt.timezone.utc) if epoch_ns > 0
                else dt.datetime.now(dt.timezone.utc)).date()  # no epoch stated: the day of export

@@ -10,6 +10,8 @@ Contract (fields may be added, not renamed)::
                                      #   camera_calibration, site, cell_id, scenario, software versions)
     rec.contexts                     # [ContextChange(t_ns, version, changed, versions, context)], one per change
     rec.epoch_wall_ns                # wall clock at t_ns == 0 [ns since 1970] (display only; order by t_ns)
+    rec.start_ns, rec.start_wall_ns  # the run clock when the record started (wall time: since boot), and
+                                     #   the wall clock then [ns since 1970]
     rec.record_id, rec.version       # 32 hex digits (None before version 2); record format version (1 or 2)
     rec.context_loss                 # None, or a sentence: the first context was lost and where it came from
     for c in rec.cycles():           # CycleRecord, in time order, one per completed cycle:
@@ -201,6 +203,7 @@ class Record:
         self.version = int(facts.get("record_version", "1")) if facts.get("record_version", "1").isdigit() else 1
         self.record_id: str | None = facts.get("record_id")
         self.epoch_wall_ns = int(facts["epoch_wall_ns"]) if facts.get("epoch_wall_ns", "").isdigit() else 0
+        self.start_ns = int(facts["start_ns"]) if facts.get("start_ns", "").isdigit() else 0
         if facts and self.version > RECORD_VERSION:
             raise RecordError(f"{file}: record format version {self.version} is newer than this cellguard reads "
                               f"(1 to {RECORD_VERSION}); update cellguard")
@@ -225,6 +228,7 @@ class Record:
             self._contexts = []
             for m, d in self._json(self._raw(["/context"]), "/context", _context_fits):
                 self.epoch_wall_ns = d.get("epoch_wall_ns", self.epoch_wall_ns)
+                self.start_ns = d["start_ns"] if isinstance(d.get("start_ns"), int) else self.start_ns
                 self.record_id = d.get("record_id", self.record_id)
                 if self._offset is None:
                     self._offset = m.log_time - d["t_ns"] if d.get("record_version", 1) >= 2 else 0
@@ -237,12 +241,18 @@ class Record:
                 self._contexts.append(_saved_context(saved))
                 self.context_loss = ("the context chunk is lost; the context was taken from the copy "
                                      "at the end of the file")
-            elif self._contexts and self._contexts[0].t_ns > 0:
+            elif self._contexts and self._contexts[0].t_ns > self.start_ns:
                 self.context_loss = (f"the first context chunk is lost; the context was taken from its repeat at "
                                      f"t={self._contexts[0].t_ns * 1e-9:.3f} s")
             elif not self._contexts:
                 self.context_loss = "the context is lost (no readable copy)"
         return self._contexts
+
+    @property
+    def start_wall_ns(self) -> int:
+        """The wall clock when the record started [ns since 1970]."""
+        _ = self.contexts  # a context message states the epoch and the start where the metadata was lost
+        return self.epoch_wall_ns + self.start_ns
 
     @property
     def context(self) -> dict:

@@ -54,7 +54,7 @@ def _copy_messages(record, stream) -> None:
     for name in record.layout.attachments:
         data = record.attachment(name)
         if data is not None:
-            writer.add_attachment(record.epoch_wall_ns, record.epoch_wall_ns, name, "application/xml", data)
+            writer.add_attachment(record.start_wall_ns, record.start_wall_ns, name, "application/xml", data)
     for c in CHANNELS:
         schema = writer.register_schema(c.schema_name, c.schema_encoding, c.schema_text.encode())
         writer.register_channel(c.topic, c.message_encoding, schema)

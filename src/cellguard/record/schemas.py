@@ -59,6 +59,7 @@ _OPT_NUM, _OPT_STR, _OPT_INT = {"type": ["number", "null"]}, {"type": ["string",
 CONTEXT_SCHEMA = _json_schema("cellguard.Context", {
     "t_ns": _INT, "epoch_wall_ns": {"type": "integer", "description": "wall clock at t_ns = 0 [ns since 1970]; "
                                                                       "log time = epoch_wall_ns + t_ns"},
+    "start_ns": {"type": "integer", "description": "the run clock when the record started [ns]"},
     "record_id": _STR, "record_version": _INT,
     "repeat": {"type": "boolean", "description": "a periodic copy of the unchanged context, for damaged records"},
     "version": _STR, "changed": {"type": "array", "items": _STR},

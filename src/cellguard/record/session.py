@@ -124,7 +124,8 @@ class RunRecording:
         description = None if model is None else describe(model, profile.joint_names, profile.robot)
         try:
             recorder = Recorder.create(folder, joints=profile.joint_names, dt_ns=run.cell.dt_ns, context=context,
-                                       config=config, opener=opener, description=description, replace=replace)
+                                       config=config, opener=opener, description=description, replace=replace,
+                                       start_ns=run.clock.now())  # wall time: the monotonic clock, from boot
         except RecordError:
             _release(reserve)
             raise

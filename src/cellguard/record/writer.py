@@ -1,8 +1,11 @@
 """The recorder: every tick, chunk, event and cycle of a run, written so that a crash loses little.
 
-Record format version 2 (version 1 is still read): log and publish times are the wall-clock
-epoch of the run's start plus the run's clock (``epoch_wall_ns + t_ns``, integer ns; the payloads
-keep ``t_ns``), so viewers show the real date; a ``foxglove`` metadata record names the device
+Record format version 2 (version 1 is still read): log and publish times are the wall clock at
+the run clock's zero plus the run's clock (``epoch_wall_ns + t_ns``, integer ns; the payloads
+keep ``t_ns``), so viewers show the real date and time. A run clock that does not start at zero
+(wall time reads the monotonic clock, counted from boot) gives ``start_ns``: the record starts
+there, and the epoch is the wall clock at the start less ``start_ns`` (it was the start itself,
+and every tick showed late by the host's uptime); a ``foxglove`` metadata record names the device
 (site / cell id) and a ``cellguard`` one the context's key facts; next to cellguard's own tick
 batches, every kept tick is also a ROS 2 ``sensor_msgs/msg/JointState``, the moving joints' poses
 go on ``/tf``, events also go on ``/events/log`` (``rcl_interfaces/msg/Log``), and the robot's URDF
@@ -99,9 +102,10 @@ class Recorder:
     def __init__(self, stream: BinaryIO, *, joints: tuple[str, ...], dt_ns: int, context: dict,
                  config: RecordConfig = RecordConfig(), index: IndexWriter | None = None, name: str = RECORD_FILE,
                  epoch_wall_ns: int | None = None, description: tuple[str, JointFrames] | None = None,
-                 record_id: str | None = None):
+                 record_id: str | None = None, start_ns: int = 0):
         self.config, self.joints, self.dt_ns, self.name = config, tuple(joints), int(dt_ns), name
-        self.epoch_wall_ns = time.time_ns() if epoch_wall_ns is None else int(epoch_wall_ns)
+        self.start_ns = int(start_ns)  # the run clock when the record starts [ns]
+        self.epoch_wall_ns = time.time_ns() - self.start_ns if epoch_wall_ns is None else int(epoch_wall_ns)
         self.record_id = record_id or uuid.uuid4().hex
         self._stream, self._index = stream, index
         self._failed: str | None = None
@@ -120,9 +124,8 @@ class Recorder:
         self._full_done = 0  # ticks before this are on the full-rate channel or were skipped
         self._full_start = 0  # first tick of the current full-rate window
         self._full_until_ns = -1  # the full-rate window ends here
-        self._last_flush_ns = 0
-        self._next_flush_ns = 0
-        self._next_fsync_ns = config.fsync_ns
+        self._last_flush_ns = self._next_flush_ns = self.start_ns
+        self._next_fsync_ns = self.start_ns + config.fsync_ns
         self._context: dict | None = None
         self._context_t_ns = 0
         self._versions: dict[str, str] = {}
@@ -133,7 +136,8 @@ class Recorder:
     @classmethod
     def create(cls, folder: Path, *, joints, dt_ns: int, context: dict, config: RecordConfig = RecordConfig(),
                opener: Callable[[Path], BinaryIO] = default_opener, epoch_wall_ns: int | None = None,
-               description: tuple[str, JointFrames] | None = None, replace: bool = False) -> Recorder:
+               description: tuple[str, JointFrames] | None = None, replace: bool = False,
+               start_ns: int = 0) -> Recorder:
         """Start a record in ``folder``; RecordError if it cannot be written or one is there already.
 
         A record already in ``folder`` is refused unless ``replace``; then its file is overwritten
@@ -148,11 +152,12 @@ class Recorder:
         except OSError as exc:
             raise RecordError(f"{folder / RECORD_FILE}: cannot start the record ({_why(exc)}); "
                               f"nothing was run") from None
-        epoch = time.time_ns() if epoch_wall_ns is None else epoch_wall_ns
+        epoch = time.time_ns() - start_ns if epoch_wall_ns is None else epoch_wall_ns
         index = IndexWriter(folder / INDEX_DIR, epoch, config.index_part_rows, opener)
         try:
             return cls(stream, joints=joints, dt_ns=dt_ns, context=context, config=config, index=index,
-                       name=str(folder / RECORD_FILE), epoch_wall_ns=epoch, description=description)
+                       name=str(folder / RECORD_FILE), epoch_wall_ns=epoch, description=description,
+                       start_ns=start_ns)
         except RecordError:  # not even the start fitted: leave no empty record behind
             with contextlib.suppress(OSError):
                 stream.close()
@@ -281,19 +286,19 @@ class Recorder:
         self._writer.start(profile=PROFILE, library="cellguard")
         self._writer.add_metadata("foxglove", _foxglove_metadata(context, self.record_id))
         self._writer.add_metadata("cellguard", self._facts(context))
+        start, began = self.start_ns, self.epoch_wall_ns + self.start_ns
         if self._urdf is not None:
-            self._writer.add_attachment(self.epoch_wall_ns, self.epoch_wall_ns, DESCRIPTION_FILE, "application/xml",
-                                        self._urdf.encode())
+            self._writer.add_attachment(began, began, DESCRIPTION_FILE, "application/xml", self._urdf.encode())
         for c in CHANNELS:
             schema = self._writer.register_schema(c.schema_name, c.schema_encoding, c.schema_text.encode())
             meta = {"joints": ",".join(self.joints)} if c.message_encoding == "cdr" and "ticks" in c.topic else {}
             self._writer.register_channel(c.topic, c.message_encoding, schema, meta)
-        self._write_context(context, 0)
+        self._write_context(context, start)
         if self._urdf is not None:
-            self._add(12, 0, ros2.string_message(self._urdf))
+            self._add(12, start, ros2.string_message(self._urdf))
             fixed = self._frames.fixed
             poses = np.array([[[*xyz, *quat] for _, _, xyz, quat in fixed]])
-            self._add(11, 0, ros2.TfEncoder([(p, c) for p, c, _, _ in fixed]).encode([self.epoch_wall_ns], poses)[0])
+            self._add(11, start, ros2.TfEncoder([(p, c) for p, c, _, _ in fixed]).encode([began], poses)[0])
         self._write_pending()
         self._stream.flush()
         _fsync(self._stream)
@@ -303,7 +308,8 @@ class Recorder:
         policy, emb = context.get("policy") or {}, context.get("embodiment") or {}
         stamps = versions(context)
         facts = {"record_version": RECORD_VERSION, "record_id": self.record_id, "epoch_wall_ns": self.epoch_wall_ns,
-                 "start_utc": _utc(self.epoch_wall_ns), "site": context.get("site"), "cell_id": context.get("cell_id"),
+                 "start_ns": self.start_ns,
+                 "start_utc": _utc(self.epoch_wall_ns + self.start_ns), "site": context.get("site"), "cell_id": context.get("cell_id"),
                  "cell": context.get("cell"), "robot": emb.get("robot"), "profile_version": emb.get("version"),
                  "profile_sha256": emb.get("sha256"), "calibration_dates": ",".join(emb.get("calibration_dates", [])),
                  "policy_source": policy.get("source"), "policy_sha256": policy.get("sha256"),
@@ -314,7 +320,8 @@ class Recorder:
         changed = [] if repeat else changed_keys(self._context, context)
         self._context, self._versions, self._context_t_ns = context, versions(context), t_ns
         self._where = {"site": context.get("site"), "cell_id": context.get("cell_id")}
-        self._json(1, t_ns, {"t_ns": t_ns, "epoch_wall_ns": self.epoch_wall_ns, "record_id": self.record_id,
+        self._json(1, t_ns, {"t_ns": t_ns, "epoch_wall_ns": self.epoch_wall_ns, "start_ns": self.start_ns,
+                             "record_id": self.record_id,
                              "record_version": RECORD_VERSION, "repeat": repeat,
                              "version": self._versions["context_version"], "changed": changed,
                              "versions": self._versions, "context": context})
