@@ -105,3 +105,13 @@ def test_a_late_tick_lags_the_reference_instead_of_jumping_it():
     steps = np.abs(np.diff(setpoints[900:1100]))
     assert steps[100] <= 1.05 * np.median(steps[95:105])  # the late tick moved as far as any other
     assert guard.executor.tau_ns == t - 1_400_000  # the time lost is lag of the playback clock
+
+
+@pytest.mark.parametrize("setting", [{"box": ((10.0, 10.0, 10.0), (11.0, 11.0, 11.0))}, {"tool_speed_max": 1e-4}])
+def test_a_tool_setting_on_a_cell_without_a_tool_model_is_refused(setting):
+    """On the quadruped both were accepted, recorded as in force and never checked."""
+    from cellguard.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=f"guard.{next(iter(setting))}: cell quadruped-turns has no tool model"):
+        build_guard(make_cell("quadruped-turns"), GuardSettings(**setting))
+    build_guard(make_cell("arm-pick-place"), GuardSettings(**setting))  # the arm has one: accepted
