@@ -114,3 +114,33 @@ def test_friction_step_is_a_constant_multiple():
     for cycle in (3, 30):
         fault.apply(cell, cycle)
         assert cell.model.dof_frictionloss[cell._dadr[i]] == pytest.approx(nominal * 1.5)
+
+
+def test_changes_of_one_setting_compose_and_none_wipes_out_another():
+    """Each fault set its setting outright, its 'off' value included: a second fixture shift, not yet started,
+    put the first one back to 0 mm, and a warm-up reset a growing friction to its own factor."""
+    from cellguard.robot.world_changes import apply_world_changes
+
+    scenario = parse_scenario({"cell": "arm-pick-place", "faults": [
+        {"kind": "fixture_shift", "at_cycle": 0, "dx_mm": 8.0},
+        {"kind": "fixture_shift", "at_cycle": 1, "dx_mm": 8.0},
+        {"kind": "friction_growth", "joint": "elbow", "from_cycle": 10, "per_cycle": 0.02},
+        {"kind": "servo_gain", "joint": "elbow", "factor": 0.5},
+        {"kind": "servo_gain", "joint": "elbow", "factor": 0.8}],
+        "process_changes": [{"kind": "warmup", "at_cycle": 50, "friction": 0.5, "cycles": 4.0}]})
+    cell = ArmPickPlace(seed=0)
+    changes = [*scenario.faults, *scenario.process_changes]
+    fixture = lambda: (cell.data.mocap_pos[0] - cell.nominal["fixture"])[0] * 1e3  # noqa: E731 [mm]
+    apply_world_changes(cell, changes, 0)
+    assert fixture() == pytest.approx(8.0)  # the second shift, not started, left the first in place
+    apply_world_changes(cell, changes, 1)
+    assert fixture() == pytest.approx(16.0)
+    elbow = cell.profile.index("elbow")
+    drives = cell.drives
+    friction = lambda: cell.model.dof_frictionloss[drives.dadr[elbow]] / drives.nominal_frictionloss[elbow]  # noqa: E731
+    apply_world_changes(cell, changes, 50)
+    assert friction() == pytest.approx((1.0 + 0.02 * 41) * 1.5)  # grown friction x the cold restart's
+    apply_world_changes(cell, changes, 79)
+    assert friction() == pytest.approx((1.0 + 0.02 * 70) * (1.0 + 0.5 * np.exp(-29 / 4.0)))
+    gain = cell.model.actuator_gainprm[cell.drives.act[elbow], 0] / cell.drives.nominal_gain[elbow]
+    assert gain == pytest.approx(0.4)

@@ -10,6 +10,8 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+from cellguard.robot.world_changes import apply_world_changes
+
 PULSE_NS = 50_000_000  # cycle_done stays high this long [ns]
 
 
@@ -36,6 +38,5 @@ class OwnTask:
         return self._pulse_until is not None and t_ns < self._pulse_until
 
     def _begin(self) -> None:
-        for fault in self.faults:
-            fault.apply(self.cell, self.cycle)
+        apply_world_changes(self.cell, self.faults, self.cycle)
         self.cell.begin_cycle(self.cycle)

@@ -32,8 +32,8 @@ from cellguard.policy.chunk import ActionChunk
 from cellguard.policy.registry import make_policy
 from cellguard.record.session import RunRecording
 from cellguard.record.writer import RecordConfig
-from cellguard.robot.process import apply_process_changes
 from cellguard.robot.protocol import RobotLinkError, SafetyInputs
+from cellguard.robot.world_changes import apply_world_changes
 from cellguard.runtime.build import make_clock, make_inference, make_robot
 from cellguard.runtime.cycles import make_cycle_source
 from cellguard.runtime.history import CycleWindow, EventLog
@@ -104,9 +104,7 @@ class Run:
             self._warm_up()
         self._corrupt = False
         if self.simulated:
-            for fault in self.scenario.faults:
-                fault.apply(cell, index)
-            apply_process_changes(self.scenario.process_changes, cell, index)
+            apply_world_changes(cell, [*self.scenario.faults, *self.scenario.process_changes], index)
             if not clock.realtime:
                 inference.latency_ns = round((NOMINAL_INFERENCE_S + sum(f.extra_latency_s(index)
                                                                         for f in self.scenario.faults)) * 1e9)

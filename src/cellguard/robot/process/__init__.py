@@ -14,15 +14,9 @@ PROCESS_CHANGES: dict[str, type[ProcessChange]] = {k.model_fields["kind"].annota
 AnyProcessChange = Annotated[Union[_KINDS], Field(discriminator="kind")]  # noqa: UP007
 
 
-def apply_process_changes(changes: Sequence[ProcessChange], cell, cycle: int) -> None:
-    """Apply every change to ``cell`` at the start of ``cycle`` (before the faults)."""
-    for change in changes:
-        change.apply(cell, cycle)
-
-
 def declared_changes(changes: Sequence[ProcessChange], cycle: int) -> list[dict]:
     """The declared changes that have happened by ``cycle``: what the record's context carries."""
     return [c.declaration() for c in changes if c.declared and c.at_cycle <= cycle]
 
 
-__all__ = ["PROCESS_CHANGES", "AnyProcessChange", "ProcessChange", "apply_process_changes", "declared_changes"]
+__all__ = ["PROCESS_CHANGES", "AnyProcessChange", "ProcessChange", "declared_changes"]
