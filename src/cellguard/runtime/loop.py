@@ -300,7 +300,8 @@ class Run:
     def retreat(self) -> None:
         """At the end of the run (or after a stop with power kept): back to the home pose."""
         home = getattr(self.cell, "q_home", None)
-        if home is None or not self.guard.power or self.link.stop is not None:  # a link fault: no more motion
+        unrecorded = self.recording is not None and self.recording.failed  # no motion the record would not hold
+        if home is None or not self.guard.power or self.link.stop is not None or unrecorded:  # a link fault too
             return
         plan = Transition.plan(self.cell.profile, self.link.last_sent, np.asarray(home), self.clock.period_ns)
         if plan is not None:  # the operator's first signal stopped the run (or ends it now); a second aborts this
@@ -375,12 +376,19 @@ class Run:
             self.link.fault(t_ns, EventKind.OVERRUN_BUDGET, f"{timing.overruns} overruns, budget {budget}")
 
     def _stop_unrecorded(self, why: str) -> None:
-        """Category 2 stop when the record cannot be written: hold the measured position, power kept."""
+        """Category 2 stop when the record cannot be written: the guard brakes the robot to a standstill and holds
+        it, power kept, reading the robot every tick meanwhile (a bridge's unread states overflowed its socket and
+        read as lost packets: a false link fault)."""
         t = self.clock.now()
-        self.link.write(t, self.link.read(t).q)
-        for _ in range(round(STOP_SETTLE_S * 1e9 / self.cell.dt_ns)):
-            self.clock.advance()
         self.events.append(Event(t, EventKind.RECORD_FAILED, f"an unrecorded run is not allowed: {why}", category=2))
+        safety = SafetyInputs(2, False, "the record cannot be written")
+        for _ in range(round(STOP_SETTLE_S * 1e9 / self.cell.dt_ns)):
+            state = self.link.read(t)
+            setpoint, new = self.guard.tick(t, state, safety)
+            self.events.extend(new)
+            self.link.write(t, setpoint)
+            self.clock.advance()
+            t = self.clock.now()
         self.stopped = why
 
     def _phase(self, index: int) -> str:
