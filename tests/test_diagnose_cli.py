@@ -47,6 +47,21 @@ def test_report_writes_one_html_file_with_the_overlay_from_ticks(recorded, tmp_p
     assert "No tick data" not in page  # the record's ticks were drawn
 
 
+def test_the_report_of_a_cut_record_says_at_the_top_that_it_is_not_whole(recorded, tmp_path):
+    """The page of a truncated record read as whole (only stderr said what was lost)."""
+    cut = tmp_path / "cut"
+    cut.mkdir()
+    data = (recorded / "record.mcap").read_bytes()
+    (cut / "record.mcap").write_bytes(data[: len(data) * 3 // 4])
+    result = runner.invoke(app, ["report", str(cut), "-o", str(tmp_path / "cut.html")])
+    assert result.exit_code == 1, result.output
+    page = (tmp_path / "cut.html").read_text()
+    assert '<div class=damaged id=record-damage>The record is not whole: truncated' in page
+    whole = tmp_path / "whole.html"
+    assert runner.invoke(app, ["report", str(recorded), "-o", str(whole)]).exit_code == 0
+    assert "record-damage" not in whole.read_text()
+
+
 def test_a_folder_without_a_record_is_one_line_and_exit_2(tmp_path):
     result = runner.invoke(app, ["diagnose", str(tmp_path / "nothing")])
     assert result.exit_code == 2

@@ -60,9 +60,9 @@ def report(
             refuse_output(out, folder)
         else:
             out = report_path(folder)
-        path = write_report(folder, out, diagnosis=diagnose_record(folder, acceptance=acceptance,
-                                                                   fleet=fleet_advice(fleet)))
         health = record_health(folder)
+        path = write_report(folder, out, diagnosis=diagnose_record(folder, acceptance=acceptance,
+                                                                   fleet=fleet_advice(fleet)), health=health)
     except CellguardError as exc:
         fail(exc)
     say(f"report: {path}", err=False)

@@ -13,9 +13,11 @@ from cellguard.report.html import render_report
 REPORT_FILE = "report.html"
 
 
-def write_report(folder: Path, out: Path | None = None, diagnosis: Diagnosis | None = None) -> Path:
+def write_report(folder: Path, out: Path | None = None, diagnosis: Diagnosis | None = None,
+                 health=None) -> Path:
     """Diagnose ``folder`` (a run folder or its record.mcap; unless ``diagnosis`` is given) and write the
-    HTML, by default to the run folder's report.html; return its path."""
+    HTML, by default to the run folder's report.html; return its path. ``health``: the record's (``rec.health()``,
+    read here if not given); a record that is not whole says so at the top of the page."""
     from cellguard.record.reader import open_record
 
     folder = Path(folder)
@@ -30,7 +32,8 @@ def write_report(folder: Path, out: Path | None = None, diagnosis: Diagnosis | N
             return {"t": (ticks.t_ns - ticks.t_ns[0]) * 1e-9, "current": ticks.current,
                     "error": ticks.q_cmd - ticks.q_meas, "joints": list(ticks.joints)}
 
-        page = render_report(d, trace)
+        health = health if health is not None else rec.health()
+        page = render_report(d, trace, None if health.ok else health.describe())
     return write_output(out, page, "report")
 
 

@@ -20,14 +20,19 @@ h1{font-size:22px;margin-bottom:4px}h2{font-size:17px;border-bottom:1px solid #c
 table{border-collapse:collapse;font-size:13px}td,th{border:1px solid #dde;padding:3px 8px;text-align:left;vertical-align:top}
 .finding{border-left:5px solid #e63946;padding:6px 12px;margin:10px 0;background:#fdf1f2}
 .ok{border-left:5px solid #2a9d8f;padding:6px 12px;background:#eef8f6}
+.damaged{border-left:5px solid #e9a23b;padding:6px 12px;margin:10px 0;background:#fdf6ea}
 figure.plot{margin:8px 0}figure.plot svg{max-width:100%;height:auto}.muted{color:#667}
 """
 
 
-def render_report(d: Diagnosis, trace: Callable[[int], Trace | None] | None = None) -> str:
-    """The report of ``d``; ``trace(cycle)`` gives a cycle's ticks for the overlay, if recorded."""
+def render_report(d: Diagnosis, trace: Callable[[int], Trace | None] | None = None,
+                  damage: str | None = None) -> str:
+    """The report of ``d``; ``trace(cycle)`` gives a cycle's ticks for the overlay, if recorded. ``damage``: what
+    a full read found wrong with the record, said at the top (the page of a cut record read as whole)."""
     ctx = d.context
     parts = [f"<h1>cellguard incident report: {_e(ctx.get('cell', 'cell'))}</h1>",
+             *([f"<div class=damaged id=record-damage>The record is not whole: {_e(damage)}. This page shows what "
+                "could be read.</div>"] if damage else []),
              f"<p class=muted>{len(d.cycles)} cycles, baseline of {d.baseline.n} "
              f"({_e(d.baseline.source)}); site {_e(ctx.get('site', '?'))}, cell id {_e(ctx.get('cell_id', '?'))}</p>",
              "<h2>Findings</h2>", _findings(d), "<h2>Timeline</h2>", _figure("timeline", plots.timeline(d)),
