@@ -31,6 +31,10 @@ def _scenario(**patch):
     ({"behaviours": [{"do": "rehome", "then": "rehome"}]}, "loop (rehome -> rehome) without a limit"),
     ({"behaviours": [{"do": "retry_grasp", "then": "operator"}]}, "'operator' is not a declared behaviour"),
     ({"behaviours": [{"do": "rehome"}, {"do": "rehome"}]}, "'rehome' is declared twice"),
+    ({"behaviours": [{"do": "retry_grasp", "trigger": "grasp_missed"}, {"do": "back_off", "trigger": "grasp_missed"}]},
+     "behaviours[1].trigger: 'grasp_missed' already starts 'retry_grasp'; escalate with then: instead"),
+    ({"behaviours": [{"do": "retry_grasp", "trigger": "grasp_missed"}, {"do": "rehome"}]},
+     "behaviours[1]: 'rehome' has no trigger and no behaviour escalates to it, so it never runs"),
     ({"behaviours": [{"do": "retry_grasp", "attempts": 0}]}, "behaviours[0].attempts: Input should be greater"),
     ({"behaviours": [{"do": "retry_grasp", "search_mm": 1e3}]}, "behaviours[0].search_mm"),
     ({"behaviours": []}, "recovery.behaviours: List should have at least 1 item"),
@@ -51,7 +55,7 @@ def test_a_cell_that_cannot_run_a_recovery_is_refused():
     with pytest.raises(ScenarioError, match=r"recovery.behaviours\[0\].do: 'retry_grasp' cannot run on "
                                             r"'quadruped-turns'"):
         Run(parse_scenario({"cell": "quadruped-turns", "production_cycles": 1,
-                            "recovery": {"behaviours": [{"do": "retry_grasp"}]}}))
+                            "recovery": {"behaviours": [{"do": "retry_grasp", "trigger": "grasp_missed"}]}}))
     with pytest.raises(ScenarioError, match=r"behaviours\[0\].trigger: 'arm-pick-place' does not report 'smoke'"):
         Run(_scenario(recovery={"behaviours": [{"do": "rehome", "trigger": "smoke"}]}))
 

@@ -1,8 +1,9 @@
 """The scenario's ``recovery:`` section: which failed check starts which behaviour, and the limits.
 
-Checked before anything runs: a behaviour named twice, an escalation to a behaviour not declared,
-a trigger the cell does not report, a behaviour the cell cannot run, and a loop of escalations
-with no per-cycle limit each raise ``ScenarioError`` naming the key.
+Checked before anything runs: a behaviour named twice, two behaviours on one trigger (only the
+first ever ran), a behaviour nothing starts (no trigger, no escalation to it), an escalation to a
+behaviour not declared, a trigger the cell does not report, a behaviour the cell cannot run, and
+a loop of escalations with no per-cycle limit each raise ``ScenarioError`` naming the key.
 """
 
 from __future__ import annotations
@@ -30,12 +31,19 @@ class RecoveryPolicy(BaseModel):
     @model_validator(mode="after")
     def _consistent(self):
         names = [b.do for b in self.behaviours]
+        triggers = [b.trigger for b in self.behaviours]
         for i, b in enumerate(self.behaviours):
             if names.count(b.do) > 1:
                 raise _bad(f"behaviours[{i}].do: {b.do!r} is declared twice")
             if b.then is not None and b.then not in names:
                 raise _bad(f"behaviours[{i}].then: {b.then!r} is not a declared behaviour; "
                                  f"declared: {', '.join(names)}")
+            if b.trigger is not None and triggers.index(b.trigger) < i:
+                raise _bad(f"behaviours[{i}].trigger: {b.trigger!r} already starts "
+                           f"{names[triggers.index(b.trigger)]!r}; escalate with then: instead")
+            if b.trigger is None and all(other.then != b.do for other in self.behaviours):
+                raise _bad(f"behaviours[{i}]: {b.do!r} has no trigger and no behaviour escalates to it, so it "
+                           "never runs")
         if self.max_per_cycle is None:
             for i, b in enumerate(self.behaviours):
                 chain, step = [b.do], b.then
