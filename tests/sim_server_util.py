@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import socket
 import subprocess
@@ -32,6 +33,17 @@ def start_server(*args: str, cell: str = "arm-pick-place", timeout_s: float = 60
         proc.kill()
         raise RuntimeError(f"sim-server did not start: {line}{proc.stdout.read()}")
     return proc, port
+
+
+def server_counters(port: int) -> dict:
+    """The server's counters, asked as any local peer may (``?``); empty if it does not answer in 0.5 s."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.settimeout(0.5)
+        s.sendto(b"?", ("127.0.0.1", port))
+        try:
+            return json.loads(s.recv(65536)[1:])
+        except TimeoutError:
+            return {}
 
 
 def sway_file(path: Path, seconds: float = 30.0, nan_at_s: float | None = None) -> Path:
