@@ -131,6 +131,20 @@ def test_a_hello_while_the_client_is_live_is_refused_and_a_goodbye_lets_the_next
     assert "Traceback" not in out
 
 
+def test_a_client_that_has_not_commanded_yet_stays_live_through_a_long_warm_up(server):
+    """A run sends nothing while its policy loads and warms up: after a second it was taken over."""
+    _, port = server
+    client, intruder = Peer(port), Peer(port)
+    client.hello()
+    time.sleep(CLIENT_LIVE_NS * 1e-9 + 0.2)
+    with pytest.raises(RobotLinkError, match=f"is serving {client.name} .* once its client has been silent for 30 s"):
+        SimServerRobot(("127.0.0.1", port))
+    client.command(1, NUDGED)
+    assert client.applied()[0] == 1
+    time.sleep(CLIENT_LIVE_NS * 1e-9 + 0.1)
+    intruder.hello()  # once it has commanded, a second of silence is a gone client
+
+
 def test_commands_from_a_peer_that_never_said_hello_are_refused_and_counted(server):
     """It moved the robot, and its seq 2^64-1 locked every client out."""
     proc, port = server

@@ -6,7 +6,8 @@ with the monotonic clock. The cell runs its own task (``OwnTask``): when a cycle
 next part arrives at once and the digital input ``cycle_done`` pulses.
 
 A hello starts a session: its sender is the client, and the command sequence starts again.
-While the client is live (heard within ``CLIENT_LIVE_NS``), another peer's hello is refused
+While the client is live (heard within ``CLIENT_LIVE_NS``; within ``STARTING_LIVE_NS`` before
+its first command, while its run loads and warms up its policy), another peer's hello is refused
 with a ``B`` packet naming the client: a second run took over the robot from a run still
 driving it, which then read a silent server. A client's goodbye (``G``) ends its session at
 once; a client silent that long has gone (a crashed run restarts on a new port) and the next
@@ -36,6 +37,7 @@ from cellguard.runtime.clock import WallClock
 
 NOTE_EVERY_NS = 1_000_000_000  # a refusal of one reason is said on stderr at most this often
 CLIENT_LIVE_NS = 1_000_000_000  # a client heard within this is live; a hello from another peer is refused
+STARTING_LIVE_NS = 30_000_000_000  # the same before its first command (a policy's warm-up sends nothing)
 
 
 class SimServer:
@@ -113,9 +115,9 @@ class SimServer:
         """A new session: the sender is the client, and its commands count from 1 again (a second run's were all
         older than the first run's last one, and ignored). Refused while another client is live."""
         silent_ns = time.monotonic_ns() - self._heard_ns
-        if self.client is not None and addr != self.client and silent_ns < CLIENT_LIVE_NS:
-            busy = {"client": _peer(self.client), "silent_ms": round(silent_ns * 1e-6),
-                    "live_ms": CLIENT_LIVE_NS // 10**6}
+        live_ns = CLIENT_LIVE_NS if self._cmd_seq else STARTING_LIVE_NS
+        if self.client is not None and addr != self.client and silent_ns < live_ns:
+            busy = {"client": _peer(self.client), "silent_ms": round(silent_ns * 1e-6), "live_ms": live_ns // 10**6}
             self._refuse("refused_hellos", f"refused a hello from {_peer(addr)}: client {busy['client']} is live "
                                            f"(heard {busy['silent_ms']} ms ago)")
             self.sock.sendto(b"B" + json.dumps(busy).encode(), addr)

@@ -169,12 +169,12 @@ class SimServerRobot:
         listens to it."""
         try:
             busy = json.loads(text)
-            client, silent = str(busy["client"])[:60], float(busy["silent_ms"])
+            client, silent, live = str(busy["client"])[:60], float(busy["silent_ms"]), float(busy["live_ms"])
         except (ValueError, TypeError, KeyError):
-            client, silent = "another client", float("nan")
+            client, silent, live = "another client", float("nan"), float("nan")
         return RobotLinkError("robot_read_failed", f"sim-server at {self.address[0]}:{self.address[1]} is serving "
                               f"{client} (heard {silent:.0f} ms ago); it takes a new client once its client has "
-                              "been silent for a second", lost=True)
+                              f"been silent for {live * 1e-3:.0f} s", lost=True)
 
     def _metadata(self, text: bytes) -> dict:
         """The hello's answer, each field the bridge reads checked before it is used (a period of 0 divided by
