@@ -64,6 +64,14 @@ def test_identity_map_passes_actions_through(cell):
     np.testing.assert_array_equal(amap.to_robot(actions, cell.q_home), actions)
 
 
+_EE_MAP = {"robot": "arm-pick-place",
+           "actions": [{"name": "ee.x", "ee": "x", "unit": "m"}, {"name": "ee.y", "ee": "y", "unit": "m"},
+                       {"name": "ee.z", "ee": "z", "unit": "m"}, {"name": "wrist_roll", "joint": "wrist_roll",
+                                                                  "unit": "rad"},
+                       {"name": "gripper", "joint": "gripper", "unit": "m"}],
+           "ik": {"site": "tcp", "joints": ["shoulder_pan", "shoulder_lift", "elbow", "wrist_flex"]}}
+
+
 def _without(entry_name: str) -> dict:
     return {**FOREIGN, "actions": [a for a in FOREIGN["actions"] if a["name"] != entry_name]}
 
@@ -89,6 +97,19 @@ def _without(entry_name: str) -> dict:
         ({**FOREIGN, "extra": 1}, "extra: unknown key"),
         ({**FOREIGN, "actions": [*FOREIGN["actions"], {"name": "ee.x", "ee": "x", "unit": "mm"}]},
          "ik: end-effector actions need an ik section"),
+        # a name is printed in errors and records: an escape code in it recoloured the terminal
+        ({**FOREIGN, "actions": [{**FOREIGN["actions"][0], "name": "grip\x1b[2J"}, *FOREIGN["actions"][1:]]},
+         r"actions[0].name: 'grip\\x1b[2J' holds control characters"),
+        ({**FOREIGN, "actions": [{**FOREIGN["actions"][0], "name": "grip\n"}, *FOREIGN["actions"][1:]]},
+         r"actions[0].name: 'grip\\n' holds control characters"),
+        # an offset in the wrong unit put the joint far outside its limits: every chunk was rejected at run time
+        ({**FOREIGN, "actions": [{**FOREIGN["actions"][0], "offset": "1000 m"}, *FOREIGN["actions"][1:]]},
+         "actions[0].offset: 1000 m puts gripper at 1000 m where the policy outputs 0, more than 0.023 m outside"),
+        ({**FOREIGN, "actions": [*FOREIGN["actions"][:5], {**FOREIGN["actions"][5], "offset": "1000 deg"}]},
+         "actions[5].offset: 1000 deg puts shoulder_pan at 17.45 rad .* more than 6.283 rad outside"),
+        ({**_EE_MAP, "ik": {**_EE_MAP["ik"], "joints": ["shoulder_pan", "shoulder_lift", "elbow", "wrist_flex",
+                                                        "elbow"]}},
+         "ik.joints[4]: 'elbow' is listed twice"),
     ],
 )
 def test_bad_maps_are_refused_naming_the_problem(cell, raw, message):
@@ -143,3 +164,64 @@ def test_delta_mode_moves_relative_to_the_current_pose(cell):
     start = solver.pose(cell.q_home)
     q = amap.to_robot(np.array([[-30.0, 0.02]]), cell.q_home, solver)[0]
     np.testing.assert_allclose(solver.pose(q)[:3], start[:3] + [0.0, 0.0, -0.030], atol=5e-4)
+
+
+
+@pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf])
+def test_a_non_finite_end_effector_target_makes_that_step_non_finite_never_a_hold(cell, bad):
+    """Unmapped axes were marked NaN and held as now, so the policy's own NaN on ee.x held the pose silently."""
+    from cellguard.policy.ik import IkSolver
+
+    amap = parse_action_map(_EE_MAP, cell.profile)
+    solver = IkSolver(copy.deepcopy(cell.model), cell.profile, amap.ik)
+    start = solver.pose(cell.q_home)
+    row = [*start[:3], 0.0, 0.02]
+    actions = np.array([row, row, row])
+    actions[1, 0] = bad
+    q = amap.to_robot(actions, cell.q_home, solver)
+    ik = list(solver.joint_index)
+    assert np.isfinite(q[[0, 2]]).all()
+    assert np.isnan(q[1, ik]).all()
+
+
+def test_a_policy_nan_on_an_end_effector_action_is_a_rejected_chunk_in_a_run(cell):
+    from cellguard.policy.adapter import MappedPolicy
+    from cellguard.runtime import Run
+    from cellguard.scenario import parse_scenario
+
+    class NanX:
+        action_dim, action_names, embedded_map = 5, None, None
+
+        def infer(self, inputs):
+            return np.tile([math.nan, 0.0, 0.19, 0.0, 0.025], (25, 1))
+
+        def reset(self):
+            pass
+
+        def content_hash(self):
+            return "0" * 64
+
+    def factory():
+        arm = ArmPickPlace()
+        return MappedPolicy(NanX(), parse_action_map(_EE_MAP, arm.profile), arm, "test:nan-x", 0.02)
+
+    run = Run(parse_scenario({"cell": "arm-pick-place", "seed": 3, "acceptance_cycles": 1, "production_cycles": 0}),
+              policy_factory=factory)
+    home = run.cell.read().q
+    run.cycle()
+    rejected = [e for e in run.events if e.kind == "chunk_rejected"]
+    assert rejected and "non-finite" in rejected[0].reason
+    assert np.abs(run.cell.read().q - home).max() < 0.01
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.text(min_size=1, max_size=12))
+def test_any_action_name_is_accepted_only_when_printable(name):
+    cell = _CELL
+    raw = {**FOREIGN, "actions": [{**FOREIGN["actions"][0], "name": name}, *FOREIGN["actions"][1:]]}
+    try:
+        amap = parse_action_map(raw, cell.profile)
+    except ConfigError as exc:
+        assert "\n" not in str(exc)
+    else:
+        assert amap.names[0].isprintable()

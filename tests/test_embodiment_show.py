@@ -27,3 +27,31 @@ def test_the_quadruped_shows_its_symmetry():
     assert result.exit_code == 0, result.output
     pairs = [line.split() for line in result.output.splitlines()]
     assert ["fl_abduction", "fr_abduction", "-1"] in pairs and ["rl_knee", "rr_knee", "+1"] in pairs
+
+
+def test_the_json_gives_each_measured_value_in_the_unit_it_names():
+    """It paired the SI value with the unit as written: 0.012 labelled ms (really 12 ms), rad labelled deg."""
+    import json
+
+    result = runner.invoke(app, ["embodiment", "show", "arm-pick-place", "--json"])
+    assert result.exit_code == 0, result.output
+    measured = {(m["joint"], m["parameter"]): m for m in json.loads(result.output)["measured"]}
+    tau = measured["elbow", "actuator_time_constant"]
+    assert (tau["value"], tau["unit"]) == (12.0, "ms")
+    backlash = measured["shoulder_lift", "backlash"]
+    assert (backlash["value"], backlash["unit"]) == (0.05, "deg")
+
+
+def test_position_limits_are_never_shown_wider_than_they_are():
+    """so101's shoulder_lift [-1.6581, 1.6581] rad was shown as -1.66..1.66."""
+    from cellguard.robot.registry import make_cell
+
+    result = runner.invoke(app, ["embodiment", "show", "so101-pick-place"], env={"COLUMNS": "120"})
+    assert result.exit_code == 0, result.output
+    shown = {line.split()[0]: line.split()[1] for line in result.output.splitlines() if ".." in line}
+    profile = make_cell("so101-pick-place").profile
+    for joint in profile.joints:
+        lo, hi = (float(x) for x in shown[joint.name].split(".."))
+        assert joint.position[0] <= lo < hi <= joint.position[1], (joint.name, shown[joint.name])
+        assert hi - lo > 0.999 * (joint.position[1] - joint.position[0])
+    assert shown["shoulder_lift"] == "-1.658..1.658"

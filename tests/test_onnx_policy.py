@@ -3,6 +3,8 @@
 import numpy as np
 import pytest
 import yaml
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 ort = pytest.importorskip("onnxruntime")
 pytest.importorskip("onnx")
@@ -10,6 +12,8 @@ pytest.importorskip("onnx")
 from foreign_arm import FOREIGN_NAMES, MAP, assert_ran_inside_the_limits, taught_program, to_foreign  # noqa: E402
 
 from cellguard.errors import ConfigError  # noqa: E402
+from cellguard.policy.adapter import split_options  # noqa: E402
+from cellguard.policy.onnx import OPTIONS  # noqa: E402
 from cellguard.policy.onnx_export import Mlp, save_mlp_onnx, trajectory_mlp  # noqa: E402
 from cellguard.policy.registry import make_policy  # noqa: E402
 from cellguard.robot.arm_cell import ArmPickPlace  # noqa: E402
@@ -100,3 +104,38 @@ def test_a_model_whose_state_input_has_another_width_is_refused_at_load(tmp_path
     path = save_mlp_onnx(mlp, tmp_path / "narrow.onnx", {})
     with pytest.raises(ConfigError, match=r"model input 'state' has shape \[1, 3\]; the cell feeds it \(1, 6\)"):
         make_policy(f"onnx:{path}", ArmPickPlace())
+
+
+def test_a_repeated_option_is_refused_naming_it(foreign_model):
+    """``?dt=0.02&dt=0.5`` ran with the last value, silently."""
+    with pytest.raises(ConfigError, match=r"policy: onnx: option 'dt' is given twice \('0.02' and '0.5'\)"):
+        make_policy(f"onnx:{foreign_model[0]}?dt=0.02&dt=0.5", ArmPickPlace())
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.tuples(st.sampled_from(["map", "dt"]), st.text(alphabet="ab0.1/ ", max_size=5)), max_size=4))
+def test_options_are_taken_once_each_or_refused(pairs):
+    query = "&".join(f"{k}={v}" for k, v in pairs)
+    keys = [k for k, _ in pairs]
+    if len(set(keys)) < len(keys):
+        with pytest.raises(ConfigError, match="is given twice"):
+            split_options(f"m.onnx?{query}", OPTIONS, "onnx")
+    else:
+        assert split_options(f"m.onnx?{query}", OPTIONS, "onnx") == ("m.onnx", dict(pairs))
+
+
+def test_a_model_whose_output_declares_horizon_zero_is_refused_at_load(tmp_path):
+    """It loaded, and the guard rejected every (empty) chunk at run time."""
+    from onnx import TensorProto, helper, numpy_helper, save
+
+    out = helper.make_tensor_value_info("actions", TensorProto.FLOAT, [1, 0, 6])
+    graph = helper.make_graph(
+        [helper.make_node("Mul", ["time_s", "zero"], ["t0"]), helper.make_node("Add", ["empty", "t0"], ["actions"])],
+        "h0", [helper.make_tensor_value_info("time_s", TensorProto.FLOAT, [1, 1])], [out],
+        [numpy_helper.from_array(np.zeros((1, 0, 6), np.float32), "empty"),
+         numpy_helper.from_array(np.zeros((1, 1), np.float32), "zero")])
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 13)])
+    model.ir_version = 8
+    save(model, tmp_path / "h0.onnx")
+    with pytest.raises(ConfigError, match=r"first output 'actions' declares shape \[1, 0, 6\]"):
+        make_policy(f"onnx:{tmp_path / 'h0.onnx'}", ArmPickPlace())

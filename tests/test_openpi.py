@@ -14,6 +14,8 @@ import time
 import numpy as np
 import pytest
 import yaml
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 pytest.importorskip("websockets")
 pytest.importorskip("msgpack")
@@ -185,3 +187,27 @@ def test_unset_api_key_variable_is_a_config_error(foreign_server, map_file):
 def test_metadata_without_a_usable_action_dim_says_which(metadata, why, map_file):
     with serve(ForeignScriptedPolicy(), metadata) as uri, pytest.raises(ConfigError, match=why):
         make_openpi_policy(f"{uri}?map={map_file}", ArmPickPlace())
+
+
+@pytest.mark.parametrize("address, why", [
+    ("ws://[::1", r"not a valid address \(Invalid IPv6 URL\)"),
+    ("ws://127.0.0.1:99999", r"not a valid address \(Port out of range"),
+    ("ws://127.0.0.1:port", r"not a valid address \(Port could not be cast"),
+    ("ws://:8000", r"not a valid address \(hostname isn't provided\)"),
+    ("ws://127.0.0.1:0", "port 0 cannot be connected to"),
+])
+def test_a_malformed_address_is_refused_in_one_line_before_connecting(address, why):
+    """urllib's ValueError escaped _connect as a traceback (exit 1); port 0 silently became 80."""
+    with pytest.raises(ConfigError, match=why) as caught:
+        make_openpi_policy(f"{address}?timeout=0.1", ArmPickPlace())
+    assert "\n" not in str(caught.value)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.text(max_size=40))
+def test_any_address_is_either_accepted_or_refused_with_a_config_error(tail):
+    from cellguard.policy.openpi import check_address
+
+    for address in (f"ws://{tail}", f"wss://127.0.0.1:{tail}", f"ws://[{tail}"):
+        with contextlib.suppress(ConfigError):
+            check_address(address)

@@ -28,6 +28,11 @@ def _write(path, **arrays):
     ({"t": np.zeros(2), "actions": np.zeros((2, 3, 6)), "uncertainty": np.zeros(2)}, "uncertainty must have shape"),
     ({"t": np.zeros(2), "actions": np.zeros((2, 3, 6)), "dt": np.array([0.02, 0.02])}, "dt must be"),
     ({"t": np.zeros(2), "actions": np.zeros((2, 3, 6)), "extra": np.zeros(1)}, "unknown array"),
+    # finite, but past int64 nanoseconds: RuntimeWarnings, then every chunk stale
+    ({"t": np.array([0.0, 1e300]), "actions": np.zeros((2, 3, 6))}, "t must be finite seconds within +-1e+09 s"),
+    ({"t": np.array([-2e9, 0.0]), "actions": np.zeros((2, 3, 6))}, "got t[0] = -2000000000.0"),
+    ({"t": np.zeros(2), "actions": np.zeros((2, 3, 6)), "dt": np.array(True)}, "dt is of dtype bool"),
+    ({"t": np.zeros(2, dtype=bool), "actions": np.zeros((2, 3, 6))}, "t is of dtype bool"),
 ])
 def test_bad_files_raise_one_error_naming_what_is_wrong(tmp_path, arrays, says):
     path = _write(tmp_path / "bad.npz", **arrays)

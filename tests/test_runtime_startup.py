@@ -54,6 +54,26 @@ def test_an_observation_outside_the_statistics_is_refused_naming_the_dimension()
         check_startup(_WithStats(None, camera), _obs([0, 0, 0]), _chunk(), 10_000_000, 0.2)
 
 
+_ONES = np.ones(3)
+
+
+@pytest.mark.parametrize(("stats", "message"), [
+    ({"q": (np.array([-1.0, np.nan, -1.0]), _ONES)}, r"statistics for q: q01\[1\] = nan is not finite"),
+    ({"q": (-_ONES, np.array([1.0, 1.0, np.inf]))}, r"statistics for q: q99\[2\] = inf is not finite"),
+    ({"q": (-_ONES[:2], _ONES[:2])}, r"statistics for q: q01 has 2 values, the observation q has 3"),
+    ({"q": (-_ONES, np.ones(4))}, r"statistics for q: q99 has 4 values, the observation q has 3"),
+    ({"q": (_ONES * 1.2, _ONES * -1.2)}, r"statistics for q: q01\[0\] = 1.2 is above q99\[0\] = -1.2"),
+    ({"q": ("low", "high")}, r"statistics for q: expected a pair \(q01, q99\) of number arrays"),
+    ({"q": (-_ONES, _ONES, _ONES)}, r"statistics for q: expected a pair"),
+    ({"lidar": (np.array([np.nan]), _ONES[:1])}, r"statistics for lidar: q01\[0\] = nan is not finite"),
+])
+def test_statistics_that_are_not_finite_ordered_or_the_observations_size_are_refused_naming_them(stats, message):
+    """NaN statistics passed (NaN compares false), the wrong length was a bare ValueError, q01 > q99 an
+    inverted range in the message."""
+    with pytest.raises(StartupRefused, match=message + ".*not moving"):
+        check_startup(_WithStats(None, stats), _obs([0.0, 0.0, 0.0]), _chunk(), 10_000_000, 0.2)
+
+
 def test_a_latency_the_chunk_cannot_cover_is_refused():
     check_startup(object(), None, _chunk(h=25, dt_ms=20), 290_000_000, 0.2)  # 290 ms < 500 - 200
     with pytest.raises(StartupRefused, match="latency 300 ms does not fit the chunk: horizon 500 ms minus blend 200"):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import sys
+from decimal import ROUND_CEILING, ROUND_FLOOR, Decimal
 
 import typer
 from rich.console import Console
@@ -22,7 +23,8 @@ def embodiment_show(
     as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),
 ) -> None:
     """Print a cell's embodiment profile: joints and limits with their units, measured parameters (as written, when
-    and how), symmetry pairs and the calibration."""
+    and how), symmetry pairs and the calibration. Limits are SI, shown rounded inward; with --json the limits are
+    SI and each measured value is in the unit it names (as written in the profile)."""
     from cellguard.robot.registry import make_cell
 
     try:
@@ -64,9 +66,9 @@ def print_profile(profile) -> None:
                            ("jerk", "jerk"), ("effort", "effort"), ("torque_constant", "Kt")):
             table.add_column(Text(f"{label}\n[{u[key]}]"), justify="right", no_wrap=True)  # Text: no markup
         for j in joints:
-            table.add_row(*map(cell, (j.name, f"{j.position[0]:.3g}..{j.position[1]:.3g}", f"{j.velocity:g}",
-                                      f"{j.acceleration:g}", f"{j.jerk:g}", f"{j.effort:g}",
-                                      f"{j.torque_constant:g}")))
+            position = f"{_inward(j.position[0], up=True)}..{_inward(j.position[1], up=False)}"
+            table.add_row(*map(cell, (j.name, position, f"{j.velocity:g}", f"{j.acceleration:g}", f"{j.jerk:g}",
+                                      f"{j.effort:g}", f"{j.torque_constant:g}")))
         console.print(table)
     measured = _table("measured")
     for col in ("joint", "parameter", "value", "measured", "method"):
@@ -87,6 +89,16 @@ def print_profile(profile) -> None:
     console.print(cell("calibration: none (the measured values were typed in)" if c is None else
                        f"calibration: {c.version} of {c.date} from {', '.join(c.records)} (MJCF {c.mjcf}, "
                        f"replaced {c.previous})"))
+
+
+def _inward(value: float, up: bool, digits: int = 4) -> str:
+    """``value`` to ``digits`` significant digits, rounded up (a lower limit) or down (an upper one): a limit
+    shown rounded outward (1.6581 as 1.66) claimed a range the guard does not allow."""
+    exact = Decimal(repr(value))
+    if not exact:
+        return "0"
+    step = Decimal(1).scaleb(exact.adjusted() - digits + 1)
+    return f"{float(exact.quantize(step, rounding=ROUND_CEILING if up else ROUND_FLOOR)):g}"
 
 
 def _table(title: str):

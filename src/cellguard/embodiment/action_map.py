@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from cellguard.embodiment import Profile
+from cellguard.embodiment.profile import JointLimits, text_field
 from cellguard.errors import ConfigError
 from cellguard.units import parse_quantity
 from cellguard.yaml_file import read_yaml, reject_unknown_keys
@@ -66,7 +67,12 @@ class IkSpec:
     joints: tuple[str, ...]
     mode: str  # "absolute" or "delta"
     orientation_cost: float
-    full_orientation: bool  # whether the policy sets yaw (else only the tool axis direction is held)
+    axes: tuple[str, ...]  # the EE_AXES the policy sets; the others hold the pose at the chunk's start
+
+    @property
+    def full_orientation(self) -> bool:
+        """Whether the policy sets yaw (else only the tool axis direction is held)."""
+        return "yaw" in self.axes
 
 
 @dataclass(frozen=True)
@@ -104,7 +110,8 @@ class ActionMap:
         for joint, value in self.held:
             out[:, joint] = value
         if self.ee_actions:
-            targets = np.full((actions.shape[0], len(EE_AXES)), np.nan)
+            # Unmapped axes are known from ik.axes, not marked NaN: a NaN here is the policy's, and stays one.
+            targets = np.zeros((actions.shape[0], len(EE_AXES)))
             for a in self.ee_actions:
                 targets[:, EE_AXES.index(a.axis)] = a.factor * actions[:, a.column]
             out[:, solver.joint_index] = solver.solve(targets, q_now, delta=self.ik.mode == "delta")
@@ -160,6 +167,7 @@ def parse_action_map(raw: object, profile: Profile, origin: str = "action map") 
         name = entry.get("name")
         if not isinstance(name, str) or not name:
             raise ConfigError(f"{field}.name: expected the policy's name for this action")
+        text_field(name, f"{field}.name", ConfigError)
         if name in names:
             raise ConfigError(f"{field}.name: {name!r} appears twice")
         names.append(name)
@@ -190,6 +198,7 @@ def parse_action_map(raw: object, profile: Profile, origin: str = "action map") 
         dims = _JOINT_DIM[kinds[joint]]
         factor = sign * _unit_factor(entry, dims, field, joint=joint)
         offset = parse_quantity(entry["offset"], f"{field}.offset", dims) if "offset" in entry else 0.0
+        _check_offset(offset, entry.get("offset"), profile.joints[profile.index(joint)], f"{field}.offset")
         joint_actions.append(JointAction(name, i, profile.index(joint), factor, offset))
     held = _held(raw.get("hold") or {}, profile, kinds, driven, origin)
     ik = _ik(raw.get("ik"), profile, driven, held, ee_actions, origin)
@@ -210,6 +219,18 @@ def _unit_factor(entry: dict, dims: tuple[str, ...], field: str, joint: str | No
         raise ConfigError(f"{field}.scale: unit {entry.get('unit')!r} with scale {entry.get('scale', 1)!r} gives "
                           f"{factor:g} SI per policy unit; its size must lie in [{lo:g}, {hi:g}]")
     return factor
+
+
+def _check_offset(offset: float, text: object, limits: JointLimits, field: str) -> None:
+    """Refuse an offset (the joint's position where the policy outputs 0) further outside the joint's limits
+    than its whole range, or a full turn for a hinge: a wrong unit (``1000 m``) that otherwise refused every
+    chunk at run time."""
+    lo, hi = limits.position
+    reach = max(hi - lo, 2.0 * np.pi) if limits.kind == "hinge" else hi - lo
+    if not lo - reach <= offset <= hi + reach:
+        unit = "rad" if limits.kind == "hinge" else "m"
+        raise ConfigError(f"{field}: {text} puts {limits.name} at {offset:.4g} {unit} where the policy outputs 0, "
+                          f"more than {reach:.4g} {unit} outside its limits [{lo:g}, {hi:g}] {unit}; check the unit")
 
 
 def _raw_factor(entry: dict, dims: tuple[str, ...], field: str, joint: str | None) -> float:
@@ -267,10 +288,12 @@ def _ik(raw: object, profile: Profile, driven: dict, held: tuple, ee: list, orig
     if not isinstance(joints, list) or not joints:
         raise ConfigError(f"{origin}: ik.joints: expected the list of joints the IK moves")
     held_names = {profile.joint_names[j] for j, _ in held}
-    for joint in joints:
+    for k, joint in enumerate(joints):
         if not isinstance(joint, str) or joint not in profile.joint_names:
             raise ConfigError(f"{origin}: ik.joints: {joint!r} is not a joint of {profile.robot!r}; "
                               f"joints: {', '.join(profile.joint_names)}")
+        if joint in joints[:k]:
+            raise ConfigError(f"{origin}: ik.joints[{k}]: {joint!r} is listed twice")
         if joint in driven or joint in held_names:
             raise ConfigError(f"{origin}: ik.joints: {joint!r} is also driven or held; a joint has one source")
     mode = raw.get("mode", "absolute")
@@ -279,4 +302,4 @@ def _ik(raw: object, profile: Profile, driven: dict, held: tuple, ee: list, orig
     cost = raw.get("orientation_cost", 1.0)
     if isinstance(cost, bool) or not isinstance(cost, (int, float)) or not 0.0 <= cost <= 10.0:
         raise ConfigError(f"{origin}: ik.orientation_cost: expected a number in [0, 10], got {cost!r}")
-    return IkSpec(site, tuple(joints), mode, float(cost), any(a.axis == "yaw" for a in ee))
+    return IkSpec(site, tuple(joints), mode, float(cost), tuple(a.axis for a in ee))

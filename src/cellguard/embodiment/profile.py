@@ -71,9 +71,14 @@ class MeasuredParameter:
     method: str
 
     @property
+    def value_as_written(self) -> float:
+        """The value in ``unit`` (12.0 for 12 ms), rounded to 12 digits so the division's last bit is not shown."""
+        return float(f"{self.value / parse_quantity(f'1 {self.unit}', 'unit', _PARAMETER_DIMENSIONS):.12g}")
+
+    @property
     def as_written(self) -> str:
         """The value in the unit the profile wrote it in, e.g. ``0.05 deg``."""
-        return f"{self.value / parse_quantity(f'1 {self.unit}', 'unit', _PARAMETER_DIMENSIONS):.6g} {self.unit}"
+        return f"{self.value_as_written:.6g} {self.unit}"
 
 
 @dataclass(frozen=True)
@@ -153,7 +158,8 @@ class Profile:
             "version": self.version,
             "sha256": self.sha256,
             "joints": [j.__dict__ | {"position": list(j.position)} for j in self.joints],
-            "measured": [m.__dict__ for m in self.measured],
+            # in the unit each names (the value is SI inside): 0.012 labelled ms was really 12 ms
+            "measured": [m.__dict__ | {"value": m.value_as_written} for m in self.measured],
             "symmetry": [s.__dict__ for s in self.symmetry],
             "calibration": self.calibration.to_dict() if self.calibration else None,
         }
@@ -211,9 +217,9 @@ def _profile(model: mujoco.MjModel, raw: object, sha256: str) -> Profile:
                                "per joint and parameter (the one to use)")
     symmetry = tuple(_symmetry(i, s, names) for i, s in enumerate(_list(raw, "symmetry")))
     if "model" in raw:
-        _text(raw["model"], "model")
+        text_field(raw["model"], "model")
     return Profile(
-        robot=_text(raw["robot"], "robot"),
+        robot=text_field(raw["robot"], "robot"),
         version=_version(raw["version"], "version"),
         joints=joints,
         measured=measured,
@@ -230,21 +236,21 @@ def _list(raw: dict, key: str) -> list:
     return value
 
 
-def _text(value: object, field: str) -> str:
+def text_field(value: object, field: str, error: type[ConfigError] = ProfileError) -> str:
     """A text field: a string, or a date YAML read as one (``measured: 2026-10-14``); anything else is a
-    mistake that ``str()`` would hide (``robot: [1]`` named the robot "[1]")."""
+    mistake that ``str()`` would hide (``robot: [1]`` named the robot "[1]"). Action maps use it too."""
     if isinstance(value, (str, datetime.date)):
         text = str(value)
         if not text.isprintable():  # an escape code recolours the terminal that prints it; a NUL ends a file name
-            raise ProfileError(f"{field}: {text!r} holds control characters")
+            raise error(f"{field}: {text!r} holds control characters")
         return text
-    raise ProfileError(f"{field}: expected text, got {type(value).__name__}")
+    raise error(f"{field}: expected text, got {type(value).__name__}")
 
 
 def _version(value: object, field: str) -> str:
     """A version id: text that can stand in a file name (``identify --write`` keeps NAME.VERSION.yaml beside the
     profile), so no path separator and not blank."""
-    text = _text(value, field)
+    text = text_field(value, field)
     if not text.strip() or "/" in text or "\\" in text or text in (".", ".."):
         raise ProfileError(f"{field}: {text!r} cannot name a file (it names the copies kept beside the profile); "
                            "write it without / or \\")
@@ -313,14 +319,14 @@ def _measured(i: int, spec: object, joints: dict[str, JointLimits]) -> MeasuredP
     if not _is_joint(spec["joint"], set(joints)):
         raise ProfileError(f"{field}.joint: {spec['joint']!r} is not a profiled joint")
     joint = joints[spec["joint"]]
-    parameter = _text(spec["parameter"], f"{field}.parameter")
+    parameter = text_field(spec["parameter"], f"{field}.parameter")
     return MeasuredParameter(
         joint=joint.name,
         parameter=parameter,
         value=_measured_value(spec["value"], f"{field}.value", parameter, joint),
         unit=str(spec["value"]).split()[1],
-        measured=_text(spec["measured"], f"{field}.measured"),
-        method=_text(spec["method"], f"{field}.method"),
+        measured=text_field(spec["measured"], f"{field}.measured"),
+        method=text_field(spec["method"], f"{field}.method"),
     )
 
 
@@ -369,9 +375,9 @@ def _calibration(spec: object) -> Calibration:
     if not isinstance(records, list) or not all(isinstance(r, str) for r in records):
         raise ProfileError("calibration.records: expected a list of record ids")
     for k, record in enumerate(records):
-        _text(record, f"calibration.records[{k}]")
+        text_field(record, f"calibration.records[{k}]")
     version, previous = (_version(spec[k], f"calibration.{k}") for k in ("version", "previous"))
-    mjcf, date = (_text(spec[k], f"calibration.{k}") for k in ("mjcf", "date"))
+    mjcf, date = (text_field(spec[k], f"calibration.{k}") for k in ("mjcf", "date"))
     if Path(mjcf).name != mjcf:
         raise ProfileError(f"calibration.mjcf: {mjcf!r} must be a file name beside the profile, not a path")
     return Calibration(version, mjcf, date, tuple(records), previous)

@@ -54,13 +54,18 @@ class Backend(Protocol):
 
 
 def split_options(arg: str, allowed: dict[str, str], scheme: str) -> tuple[str, dict[str, str]]:
-    """``"TARGET?k=v&k2=v2"`` -> (TARGET, options); an unknown option lists the allowed ones."""
+    """``"TARGET?k=v&k2=v2"`` -> (TARGET, options); an unknown option lists the allowed ones, a repeated one
+    is refused (the last silently won)."""
     target, _, query = arg.partition("?")
-    options = dict(parse_qsl(query, keep_blank_values=True))
-    for key in options:
+    options: dict[str, str] = {}
+    for key, value in parse_qsl(query, keep_blank_values=True):
         if key not in allowed:
             known = ", ".join(f"{k} ({v})" for k, v in allowed.items())
             raise ConfigError(f"policy: {scheme}: unknown option {key!r}; options: {known}")
+        if key in options:
+            raise ConfigError(f"policy: {scheme}: option {key!r} is given twice ({options[key]!r} and {value!r}); "
+                              "give it once")
+        options[key] = value
     if not target:
         raise ConfigError(f"policy: {scheme}: missing target, write {scheme}:TARGET")
     return target, options

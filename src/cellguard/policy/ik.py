@@ -12,7 +12,7 @@ import numpy as np
 
 from cellguard.embodiment import Profile
 from cellguard.errors import ConfigError
-from cellguard.embodiment.action_map import IkSpec
+from cellguard.embodiment.action_map import EE_AXES, IkSpec
 
 POSITION_TOLERANCE = 1e-4  # [m] a step's solve stops when the site is this close to its target
 MAX_ITERATIONS = 30  # per chunk step
@@ -36,6 +36,7 @@ class IkSolver:
             sites = [model.site(i).name for i in range(model.nsite)]
             raise ConfigError(f"action map: ik.site: {spec.site!r} is not a site of the model; sites: {', '.join(sites)}")
         self.model, self.spec = model, spec
+        self._mapped = np.array([axis in spec.axes for axis in EE_AXES])
         self.joint_index = np.array([profile.index(j) for j in spec.joints])
         jids = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, j) for j in profile.joint_names]
         self._qadr = np.array([model.jnt_qposadr[j] for j in jids])
@@ -58,20 +59,23 @@ class IkSolver:
         return self._pose_now()
 
     def solve(self, targets: np.ndarray, q_now: np.ndarray, delta: bool) -> np.ndarray:
-        """Joint targets (H, len(spec.joints)) for pose targets (H, 6); NaN keeps that axis as now.
-
-        With ``delta`` the targets are offsets from the pose at ``q_now``.
+        """Joint targets (H, len(spec.joints)) for pose targets (H, 6); axes outside ``spec.axes`` keep the pose
+        at ``q_now``. A step whose set axes are not finite gives NaN joints, so the guard refuses the chunk
+        (never a silent hold). With ``delta`` the targets are offsets from the pose at ``q_now``.
         """
         mink = self._mink
         self._set(q_now)
         start = self._pose_now()
         self._posture.set_target(self._configuration.q.copy())
-        goal = np.where(np.isnan(targets), 0.0 if delta else start, targets)
+        goal = np.where(self._mapped, targets, 0.0 if delta else start)
         if delta:
             goal = goal + start
         out = np.empty((goal.shape[0], len(self.joint_index)))
         tasks = [self._task, self._posture]
         for h, pose in enumerate(goal):
+            if not np.isfinite(pose).all():
+                out[h] = np.nan
+                continue
             rotation = mink.SO3.from_rpy_radians(pose[3], pose[4], pose[5])
             self._task.set_target(mink.SE3.from_rotation_and_translation(rotation, pose[:3]))
             for _ in range(MAX_ITERATIONS):

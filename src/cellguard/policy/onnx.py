@@ -51,12 +51,16 @@ class OnnxBackend:
         self.embedded_map = meta.get("cellguard.action_map")
         self.dt_s = (bounded_float(meta["cellguard.dt_s"], f"policy: onnx:{path}: metadata cellguard.dt_s", *DT_RANGE_S)
                      if "cellguard.dt_s" in meta else None)
-        shape = self.session.get_outputs()[0].shape
+        output = self.session.get_outputs()[0]
+        shape = output.shape
         last = shape[-1] if shape else None
         if not isinstance(last, int):
             raise ConfigError(f"policy: onnx:{path}: first output needs a fixed last dimension (actions), got {shape}")
+        if 0 in shape:  # an empty chunk (horizon 0) loaded, and the guard rejected every one at run time
+            raise ConfigError(f"policy: onnx:{path}: first output {output.name!r} declares shape {shape}; a chunk "
+                              f"needs at least one step of at least one action (no dimension 0)")
         self.action_dim = last
-        self._output = self.session.get_outputs()[0].name
+        self._output = output.name
 
     def check_widths(self, widths: dict[str, int], source: str) -> None:
         """Refuse a model whose inputs cannot take what the cell feeds (every call would fail at run time);

@@ -17,6 +17,7 @@ import contextlib
 import hashlib
 import json
 import os
+from urllib.parse import urlsplit
 
 import numpy as np
 
@@ -40,8 +41,7 @@ class OpenpiBackend:
             import websockets.sync.client  # noqa: F401
         except ImportError:  # pragma: no cover - depends on the environment
             raise ConfigError("policy: openpi: needs websockets and msgpack; pip install 'cellguard[openpi]'") from None
-        if not uri.startswith(("ws://", "wss://")):
-            raise ConfigError(f"policy: openpi:{uri}: expected ws://HOST:PORT or wss://HOST:PORT")
+        check_address(uri)
         self.uri, self.timeout_s, self.retries = uri, timeout_s, retries
         self._headers = {"Authorization": f"Api-Key {api_key}"} if api_key else None
         self._ws = None
@@ -121,6 +121,25 @@ class OpenpiBackend:
         if self._ws is not None:
             self._ws = None
             self._stack.close()
+
+
+def check_address(uri: str) -> None:
+    """Refuse an address ``connect`` cannot use, before anything runs: it raised a bare ValueError (a bracket
+    left open, a port past 65535) and took port 0 for the scheme's default."""
+    from websockets.exceptions import InvalidURI
+    from websockets.uri import parse_uri
+
+    where, expected = f"policy: openpi:{uri}", "expected ws://HOST:PORT or wss://HOST:PORT"
+    if not uri.startswith(("ws://", "wss://")):
+        raise ConfigError(f"{where}: {expected}")
+    try:
+        port = urlsplit(uri).port
+        parse_uri(uri)
+    except (ValueError, InvalidURI) as exc:
+        why = str(exc).removeprefix(f"{uri} isn't a valid URI: ")
+        raise ConfigError(f"{where}: not a valid address ({why}); {expected}") from None
+    if port == 0:
+        raise ConfigError(f"{where}: port 0 cannot be connected to; a port is 1 to 65535")
 
 
 def decode_reply(reply: bytes | str, uri: str) -> np.ndarray:

@@ -26,6 +26,7 @@ DEFAULT_DT_S = 0.02
 MAX_BYTES = 512 << 20  # [bytes] the largest replay file, and the most its arrays may expand to
 _MAX_HEADER = 10_000  # [bytes] numpy's own default limit for one .npy header
 _NUMERIC_KINDS = frozenset("biuf")  # bool, signed, unsigned, float
+MAX_T_S = 1e9  # [s] the largest |t|: 1e300 s passed as finite, then overflowed int64 nanoseconds
 
 
 class ReplayPolicy:
@@ -66,8 +67,16 @@ def _load(path: Path, dof: int):
     data = read_npz(path, where, ("t", "actions", "uncertainty", "dt"), ("t", "actions"))
     t, actions, unc = data["t"], data["actions"], data.get("uncertainty")
     dt = data.get("dt", np.asarray(DEFAULT_DT_S))
-    if t.ndim != 1 or len(t) == 0 or not np.isfinite(t).all():
+    for name, array in data.items():
+        if array.dtype.kind == "b":  # dt = True was taken for 1 s
+            raise ConfigError(f"{where}: {name} is of dtype bool; it holds numbers (int or float)")
+    if t.ndim != 1 or len(t) == 0:
         raise ConfigError(f"{where}: t must be a non-empty 1-D array of finite seconds, got shape {t.shape}")
+    beyond = np.flatnonzero(~(np.abs(t) <= MAX_T_S))  # NaN included
+    if beyond.size:
+        i = int(beyond[0])
+        raise ConfigError(f"{where}: t must be finite seconds within +-{MAX_T_S:g} s (stamps in int64 ns), "
+                          f"got t[{i}] = {t[i]}")
     if actions.ndim != 3 or actions.shape[0] != len(t) or actions.shape[1] == 0 or actions.shape[2] != dof:
         raise ConfigError(f"{where}: actions must have shape (N={len(t)}, H>0, D={dof}), got {actions.shape}")
     if unc is not None and unc.shape != actions.shape[:2]:

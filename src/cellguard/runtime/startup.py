@@ -2,7 +2,8 @@
 
 Run on the run's first chunk, before the robot moves: the observation lies inside the policy's
 normalisation statistics (per-dimension q01..q99, widened by a margin of the range), when the
-policy offers them as ``normalisation_stats() -> {name: (q01, q99)}``; and the inference
+policy offers them as ``normalisation_stats() -> {name: (q01, q99)}`` (finite, q01 <= q99, one
+per observed value, else refused too: NaN statistics compared false and passed); and the inference
 latency fits the chunk (latency < horizon minus the blend time, the blend counted at most half
 the horizon), else the robot would run out of steps before the next chunk arrives.
 """
@@ -24,11 +25,11 @@ def check_startup(policy, observation, chunk, latency_ns: int, blend_s: float, m
     """Raise StartupRefused naming the first dimension out of range or a latency the chunk cannot cover."""
     stats = getattr(policy, "normalisation_stats", None)
     if callable(stats) and observation is not None:
-        for name, (q01, q99) in stats().items():
+        for name, pair in stats().items():
             value = _observed(observation, name)
+            q01, q99 = _checked_stats(name, pair, value)
             if value is None:
                 continue
-            q01, q99 = np.asarray(q01, dtype=np.float64), np.asarray(q99, dtype=np.float64)
             pad = margin * (q99 - q01)
             out = np.flatnonzero((value < q01 - pad) | (value > q99 + pad))
             if out.size:
@@ -43,8 +44,31 @@ def check_startup(policy, observation, chunk, latency_ns: int, blend_s: float, m
                              f"horizon {horizon_s * 1e3:.0f} ms minus blend {blend_s * 1e3:.0f} ms; not moving")
 
 
+def _checked_stats(name: str, pair, value: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """The policy's (q01, q99) for ``name`` as 1-D arrays: numbers, finite, q01 <= q99 and, where ``name`` is
+    observed, one per value. Bad statistics passed silently (NaN compares false) or ended in a traceback."""
+    what = f"start-up: the policy's normalisation statistics for {name}"
+    try:
+        q01, q99 = (np.asarray(side, dtype=np.float64).ravel() for side in pair)
+    except (TypeError, ValueError):
+        raise StartupRefused(f"{what}: expected a pair (q01, q99) of number arrays; not moving") from None
+    expected, of = (q01.size, "q01") if value is None else (value.size, f"the observation {name}")
+    for label, side in (("q01", q01), ("q99", q99)):
+        if side.size != expected:
+            raise StartupRefused(f"{what}: {label} has {side.size} values, {of} has {expected}; not moving")
+        bad = np.flatnonzero(~np.isfinite(side))
+        if bad.size:
+            i = int(bad[0])
+            raise StartupRefused(f"{what}: {label}[{i}] = {side[i]} is not finite; not moving")
+    inverted = np.flatnonzero(q01 > q99)
+    if inverted.size:
+        i = int(inverted[0])
+        raise StartupRefused(f"{what}: q01[{i}] = {q01[i]:.4g} is above q99[{i}] = {q99[i]:.4g}; not moving")
+    return q01, q99
+
+
 def _observed(observation, name: str) -> np.ndarray | None:
     if name in ("q", "state", "observation.state"):
         return np.asarray(observation.q, dtype=np.float64)
     value = observation.measurements.get(name)
-    return None if value is None else np.asarray(value, dtype=np.float64)
+    return None if value is None else np.asarray(value, dtype=np.float64).ravel()
