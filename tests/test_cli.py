@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 
+import pytest
 from typer.testing import CliRunner
 
 from cellguard.cli import app
@@ -58,3 +59,19 @@ def test_an_out_folder_that_cannot_be_made_is_one_line(tmp_path):
     result = runner.invoke(app, ["run", str(scenario), "--out", str(blocker / "out")])
     assert result.exit_code == 2
     assert result.stderr.startswith("error: --out ") and "cannot create the folder" in result.stderr
+
+
+def test_a_stopped_run_names_its_cause_not_the_stop_that_carried_it_out(tmp_path, capsys):
+    """The line named the last event with a stop category: the guard's protective stop or power_removed that
+    carried out a lost-packets fault or a full disk, never the fault itself."""
+    import typer
+
+    from cellguard.cli.errors import exit_if_stopped
+
+    events = [{"kind": "watchdog_stop", "category": 2, "t_ns": 1}, {"kind": "robot_packets_dropped", "category": 1,
+              "t_ns": 5}, {"kind": "protective_stop", "category": 1, "t_ns": 5}, {"kind": "power_removed", "category": 1,
+              "t_ns": 6}, {"kind": "retreat_aborted", "category": 2, "t_ns": 7}]
+    with pytest.raises(typer.Exit) as ended:
+        exit_if_stopped({"stopped": "robot link: robot_packets_dropped: 101 packets lost", "events": events}, tmp_path)
+    assert ended.value.exit_code == 1
+    assert capsys.readouterr().err.startswith("error: the cell was stopped (robot_packets_dropped): robot link")

@@ -24,6 +24,9 @@ def fail(exc: CellguardError) -> None:
     raise typer.Exit(2)
 
 
+STOP_EFFECTS = frozenset({"protective_stop", "power_removed", "approach_aborted", "retreat_aborted"})
+
+
 def exit_if_stopped(summary: dict, out: Path) -> None:
     """A run the loop stopped (record failure, robot link fault, overrun budget): one line on stderr and exit 1;
     stopped by the operator (Ctrl-C, SIGTERM): one line and exit 130."""
@@ -33,7 +36,8 @@ def exit_if_stopped(summary: dict, out: Path) -> None:
     if by_operator(stopped):
         fail(OperatorStopped(f"{stopped}; the record in {out} is complete"))
     if stopped:
-        kind = next((e["kind"] for e in reversed(summary["events"]) if e.get("category") is not None), "stop")
+        kind = next((e["kind"] for e in reversed(summary["events"])  # the cause, not the stop carrying it out
+                     if e.get("category") is not None and e["kind"] not in STOP_EFFECTS), "stop")
         sys.stderr.write(f"error: {printable(f'the cell was stopped ({kind}): {stopped}')}; "
                          f"{printable(out / 'summary.json')} says what ran\n")
         raise typer.Exit(1)
