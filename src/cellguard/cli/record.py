@@ -186,16 +186,16 @@ def recover(
 
 @record_app.command()
 def query(
-    folder: Path = typer.Argument(..., help="Run folder holding index/ (or the index folder)."),
+    folder: Path = typer.Argument(..., help="Run folder holding index/ (or its record.mcap, or the index folder)."),
     sql: str = typer.Argument(..., help="One read-only DuckDB SELECT over the tables `cycles` and `events`."),
     timeout_s: float = typer.Option(60.0, "--timeout", help="Stop a query still running after this many seconds."),
 ) -> None:
     """Run one SELECT on the per-cycle index, read-only and confined to it; one JSON object per row on stdout."""
-    from cellguard.record.query import run_query
+    from cellguard.record.query import json_line, run_query
 
     try:
         names, rows = run_query(folder, sql, timeout_s)
         for row in rows:
-            sys.stdout.write(json.dumps(dict(zip(names, row)), default=str) + "\n")
+            sys.stdout.write(json_line(names, row) + "\n")
     except CellguardError as exc:
         fail(exc)

@@ -11,12 +11,15 @@ from __future__ import annotations
 
 import datetime as dt
 import math
+import re
 from collections.abc import Callable
 from pathlib import Path
 from typing import BinaryIO
 
 import duckdb
 import pyarrow as pa
+import pyarrow.dataset as ds
+import pyarrow.fs as pafs
 import pyarrow.parquet as pq
 
 from cellguard.errors import RecordError
@@ -30,6 +33,10 @@ _BASE_TYPES = {
     "site": pa.string(), "cell_id": pa.string(),
 }
 _TIME_KEY = {"cycles": "t_start_ns", "events": "t_ns"}
+_STAMPS = ("policy_version", "calibration_version", "datum_version", "context_version", "site", "cell_id")
+# the columns every row of a table has (cycle_row, event_row); cycles add one float64 column per feature
+COLUMNS = {"cycles": ("cycle", "phase", "t_start_ns", "t_end_ns", "success", *_STAMPS),
+           "events": ("cycle", "t_ns", "kind", "reason", "joint", "asked", "sent", "category", *_STAMPS)}
 
 
 def default_opener(path: Path) -> BinaryIO:
@@ -118,25 +125,71 @@ def rows_to_table(rows: list[dict]) -> pa.Table:
     return pa.Table.from_arrays(arrays, names=names)
 
 
-def connect(folder: Path) -> duckdb.DuckDBPyConnection:
-    """An in-memory DuckDB with views ``cycles`` and ``events`` over the index in ``folder``."""
+def connect(folder: Path, con: duckdb.DuckDBPyConnection | None = None) -> duckdb.DuckDBPyConnection:
+    """Views ``cycles`` and ``events`` over the index in ``folder`` on ``con`` (a new in-memory DuckDB if None).
+
+    pyarrow reads the parts, each by its literal path: DuckDB's ``read_parquet`` expands ``*``, ``?`` and
+    ``[...]`` in a file name, so a record under ``runs/run*`` would also read ``runs/runX``'s index, and its
+    hive partitioning takes a ``key=value`` folder anywhere in the path for a column. A table without parts
+    is empty but has its columns (and ``day``), so a query over it answers with no rows.
+    """
     folder = Path(folder)
-    con = duckdb.connect()
     found = False
+    views = {}
     for table in TABLES:
         parts = sorted((folder / table).glob("day=*/*.parquet"))
-        if parts:
-            found = True
-            # the files by name, not a glob: a folder named like a pattern ("[1]*?") is not expanded by DuckDB
-            files = ", ".join("'" + str(p).replace("'", "''") + "'" for p in parts)
-            con.execute(f"CREATE VIEW {table} AS SELECT * FROM read_parquet([{files}], hive_partitioning = true, "
-                        f"union_by_name = true)")
-        else:
-            con.execute(f"CREATE VIEW {table} AS SELECT NULL::BIGINT AS {_TIME_KEY[table]} WHERE false")
+        found = found or bool(parts)
+        views[table] = _parts(folder / table, table, parts) if parts else _empty(table)
     if not found:
-        raise RecordError(f"{folder}: no index (no Parquet parts under cycles/ or events/); "
-                          f"`cellguard record recover` rebuilds it from the record")
+        raise RecordError(f"{folder}: no index (no Parquet parts under cycles/ or events/); pass a run folder "
+                          f"holding index/, or `cellguard record recover` rebuilds it from the record")
+    con = duckdb.connect() if con is None else con
+    for table, view in views.items():
+        con.register(table, view)
     return con
+
+
+def _parts(folder: Path, table: str, parts: list[Path]) -> ds.Dataset:
+    """The parts of one table as one dataset: the table's columns, then the others by name over all parts (a
+    feature added later is null before; so is a version column a part has none of, as a record recovered
+    without its context), then ``day`` from the folder names (a DATE when each is a date, as the writer names them)."""
+    days = [p.parent.name.removeprefix("day=") for p in parts]
+    day = pa.date32() if all(_is_date(d) for d in days) else pa.string()
+    schemas = [_fixed(table)]
+    for part in parts:
+        try:
+            schemas.append(pq.read_schema(part))
+        except (OSError, pa.ArrowException) as exc:
+            raise RecordError(f"{part}: the index part cannot be read ({_first_line(exc)}); "
+                              f"`cellguard record recover` rebuilds the index from the record") from None
+    try:
+        schema = pa.unify_schemas(schemas, promote_options="permissive").append(pa.field("day", day))
+        return ds.dataset([str(p.absolute()) for p in parts], schema=schema, format="parquet",
+                          filesystem=pafs.LocalFileSystem(), partition_base_dir=str(folder.absolute()),
+                          partitioning=ds.HivePartitioning(pa.schema([("day", day)]), segment_encoding="none"))
+    except pa.ArrowException as exc:
+        raise RecordError(f"{folder}: the index parts do not make one table ({_first_line(exc)}); "
+                          f"`cellguard record recover` rebuilds the index from the record") from None
+
+
+def _fixed(table: str) -> pa.Schema:
+    return pa.schema([(name, _BASE_TYPES[name]) for name in COLUMNS[table]])
+
+
+def _empty(table: str) -> pa.Table:
+    return _fixed(table).append(pa.field("day", pa.date32())).empty_table()
+
+
+def _is_date(text: str) -> bool:
+    try:
+        return bool(re.fullmatch(r"\d{4}-\d{2}-\d{2}", text)) and bool(dt.date.fromisoformat(text))
+    except ValueError:
+        return False
+
+
+def _first_line(exc: Exception) -> str:
+    text = str(exc).strip()
+    return text.splitlines()[0] if text else type(exc).__name__
 
 
 def cycles_above_baseline(folder: Path, feature: str, quantile: float = 0.99) -> list[dict]:

@@ -1,20 +1,28 @@
 """Read-only SQL over one record's index: the tables ``cycles`` and ``events``, nothing else.
 
 A query tool on a technician's machine must not read other files, write any file (the record
-included), attach databases or fetch extensions. DuckDB enforces that itself: the index is copied
-into an in-memory database first, then external access is switched off (no file or network
-access at all, so no ``read_text``, ``COPY ... TO``, ``ATTACH``, ``INSTALL``), extension
-auto-install and auto-load are off, memory is capped with no temporary directory (a query that
-does not fit fails; DuckDB's default would spill into ``./.tmp`` in the current folder) and the
-configuration is locked (no ``SET`` gives any of it back). On top, only one ``SELECT`` (or
-``EXPLAIN``) statement is accepted, so even the in-memory copy cannot be changed, and a query
-that runs past its time limit is interrupted.
+included), attach databases, fetch extensions or take the machine's memory or time. The query runs
+in a child process of its own, killed at the time limit whatever DuckDB is doing (an interrupt waits
+for a scalar function such as ``repeat`` to return), and on Linux the OS caps what that process may
+allocate (RLIMIT_DATA): DuckDB's ``memory_limit`` counts its buffers, not what a scalar function
+allocates (one ``len(range(0, 200000000))`` took 14 GB). In the child, pyarrow reads the index parts,
+each by its literal path, into an in-memory DuckDB whose file and network access is off from the
+start (no ``read_text``, ``COPY ... TO``, ``ATTACH``, ``INSTALL``), with extension auto-install and
+auto-load off, no temporary directory (a query that does not fit fails; DuckDB's default would spill
+into ``./.tmp``) and the configuration locked (no ``SET`` gives any of it back). Only one ``SELECT``
+(or ``EXPLAIN`` of one) is accepted, so even the in-memory copy is never changed.
 """
 
 from __future__ import annotations
 
-import threading
-from collections.abc import Iterator
+import json
+import math
+import multiprocessing
+import pickle
+import re
+import sys
+import time
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import duckdb
@@ -24,15 +32,22 @@ from cellguard.record.index import TABLES, connect
 from cellguard.record.scan import require_regular
 
 ALLOWED_STATEMENTS = (duckdb.StatementType.SELECT, duckdb.StatementType.EXPLAIN)
-MEMORY_LIMIT = "1GB"  # DuckDB's own memory for one query
+MEMORY_LIMIT = "1GB"  # what a query's process may allocate once DuckDB is started (Linux); a query needing more fails
 DEFAULT_TIMEOUT_S = 60.0
+_DUCKDB_SHARE = 0.75  # DuckDB's buffers stay under the process cap, so a big sort or join fails with DuckDB's own error
+_THREADS = 2
+_UNITS = {"": 1, "K": 1000, "M": 1000**2, "G": 1000**3, "T": 1000**4, "KI": 1 << 10, "MI": 1 << 20, "GI": 1 << 30,
+          "TI": 1 << 40}
 _BATCH_ROWS = 1000
+_MESSAGE_BYTES = 64 << 20  # the most of a result the parent holds at once; a larger single row is refused
+# fork: the child starts in milliseconds with everything imported (a spawned one re-imports cellguard, about 1 s)
+_START = "fork" if sys.platform.startswith("linux") else "spawn"
 
 
-def _one_select(sql: str) -> str:
+def _one_select(sql: str, parse: Callable[[str], list] = duckdb.extract_statements) -> str:
     """The single read statement in ``sql``; anything else is a RecordError naming what was found."""
     try:
-        statements = duckdb.extract_statements(sql)
+        statements = parse(sql)
     except duckdb.Error as exc:
         raise RecordError(f"sql: {_first_line(exc)}") from None
     if not statements:
@@ -43,82 +58,276 @@ def _one_select(sql: str) -> str:
     if kind not in ALLOWED_STATEMENTS:
         raise RecordError(f"sql: {kind.name} statements are refused; the query is read-only: one SELECT over "
                           f"the tables cycles and events")
+    if kind == duckdb.StatementType.EXPLAIN:
+        _explains_a_select(statements[0].query, parse)
     return sql
 
 
-def _confined(index: Path) -> duckdb.DuckDBPyConnection:
-    """An in-memory copy of the index with every way out of it switched off and locked."""
-    for table in TABLES:  # the parts connect() reads: a FIFO would block the copy, which --timeout does not cover
-        for part in (index / table).glob("day=*/*.parquet"):
-            require_regular(part, "an index part")
-    con = None
-    try:
-        con = connect(index)
-        for setting in (f"memory_limit = '{MEMORY_LIMIT}'", "temp_directory = ''"):  # nothing spills to disk
-            con.execute(f"SET {setting}")
-        for table in TABLES:  # copy the views' rows in while files can still be read
-            con.execute(f"CREATE TABLE {table}_copy AS SELECT * FROM {table}")
-            con.execute(f"DROP VIEW {table}")
-            con.execute(f"ALTER TABLE {table}_copy RENAME TO {table}")
-    except duckdb.Error as exc:
-        if con is not None:
-            con.close()
-        raise RecordError(f"{index}: the index cannot be read ({_first_line(exc)}); "
-                          f"`cellguard record recover` rebuilds it from the record") from None
-    for setting in ("autoinstall_known_extensions = false", "autoload_known_extensions = false",
-                    "allow_community_extensions = false", "enable_external_access = false",
-                    "lock_configuration = true"):
-        con.execute(f"SET {setting}")
-    return con
+def _explains_a_select(sql: str, parse: Callable[[str], list]) -> None:
+    """RecordError unless the EXPLAIN statement ``sql`` explains one SELECT: EXPLAIN ANALYZE runs what it
+    explains, so ``EXPLAIN ANALYZE DROP TABLE cycles`` would drop it. The explained statement starts after
+    EXPLAIN and its ANALYZE keyword or its ``(option, ...)`` list (a parenthesised SELECT is tried first)."""
+    raw = sql.encode()
+    tokens = duckdb.tokenize(sql)  # positions are byte offsets
+    ends = [pos for pos, _ in tokens[1:]] + [len(raw)]
+    words = [(raw[pos:end].decode(errors="replace").strip(), pos) for (pos, kind), end in zip(tokens, ends)
+             if kind != duckdb.token_type.comment]
+    cuts = [len(raw)] if len(words) < 2 else [words[1][1]]
+    if len(words) > 2 and words[1][0].lower() in ("analyze", "analyse"):
+        cuts = [words[2][1]]
+    elif len(words) > 2 and words[1][0] == "(":
+        depth = 0
+        for i, (text, _) in enumerate(words[1:], 1):
+            depth += text.count("(") - text.count(")")
+            if depth <= 0:
+                cuts.append(words[i + 1][1] if i + 1 < len(words) else len(raw))
+                break
+    found = "nothing"
+    for cut in cuts:
+        try:
+            inner = parse(raw[cut:].decode(errors="replace"))
+        except duckdb.Error:
+            continue
+        if len(inner) == 1 and inner[0].type == duckdb.StatementType.SELECT:
+            return
+        found = f"a {inner[0].type.name} statement" if len(inner) == 1 else f"{len(inner)} statements"
+    raise RecordError(f"sql: EXPLAIN of {found} is refused (EXPLAIN ANALYZE runs it); only EXPLAIN of one SELECT "
+                      f"over the tables cycles and events")
+
+
+def index_folder(path: Path) -> Path:
+    """The index folder of ``path``: a run folder's index/ (the folder of a .mcap file, as ``record info`` takes
+    the file), else ``path`` itself (an index folder)."""
+    from cellguard.record.writer import INDEX_DIR
+
+    path = Path(path)
+    if not path.exists():
+        raise RecordError(f"{path}: no such folder; pass a run folder (holding record.mcap and index/) or its "
+                          f"index folder")
+    run = path.parent if path.is_file() else path
+    return run / INDEX_DIR if (run / INDEX_DIR).is_dir() else run
 
 
 def run_query(folder: Path, sql: str, timeout_s: float = DEFAULT_TIMEOUT_S) -> tuple[list[str], Iterator[tuple]]:
-    """Column names and rows of one read-only query over the index of ``folder`` (a run folder or its index).
+    """Column names and rows of one read-only query over the index of ``folder`` (a run folder, its record.mcap or
+    its index), run in a child process that is killed after ``timeout_s`` seconds.
 
-    Raises RecordError (one line) for a refused or failing statement, an unreadable index, or a
-    query still running after ``timeout_s`` seconds (rows streamed until then stay printed).
+    Raises RecordError (one line) for a refused or failing statement, an unreadable index, a result with two
+    columns of one name, a query needing more than MEMORY_LIMIT or still running after ``timeout_s`` seconds
+    (rows streamed until then stay printed).
     """
-    from cellguard.record.writer import INDEX_DIR
-
     if not 0 < timeout_s <= 86_400:
         raise RecordError(f"--timeout: {timeout_s} s is outside (0, 86400]")
-    sql = _one_select(sql)
-    folder = Path(folder)
-    con = _confined(folder / INDEX_DIR if (folder / INDEX_DIR).is_dir() else folder)
-    timer = threading.Timer(timeout_s, con.interrupt)
-    timer.daemon = True
-    timer.start()
+    index = index_folder(folder)
+    deadline = time.monotonic() + timeout_s
+    ctx = multiprocessing.get_context(_START)
+    receiver, sender = ctx.Pipe(duplex=False)
+    for stream in (sys.stdout, sys.stderr):  # a forked child must not hold (and flush) the parent's buffered output
+        try:
+            stream.flush()
+        except (AttributeError, OSError, ValueError):
+            pass
+    child = ctx.Process(target=_serve, args=(index, sql, timeout_s, sender), name="cellguard-query", daemon=True)
+    child.start()
+    sender.close()  # the child's end: when the child dies, the parent reads the end of the pipe
     try:
-        result = con.execute(sql)
-    except BaseException as exc:
-        timer.cancel()
-        con.close()
-        raise _query_error(exc, timeout_s) from None
-    return [d[0] for d in result.description], _rows(con, result, timer, timeout_s)
+        _, names = _receive(child, receiver, deadline, timeout_s)
+    except BaseException:
+        _stop(child, receiver)
+        raise
+    return names, _rows(child, receiver, deadline, timeout_s)
 
 
-def _rows(con, result, timer: threading.Timer, timeout_s: float) -> Iterator[tuple]:
+def _rows(child, receiver, deadline: float, timeout_s: float) -> Iterator[tuple]:
     try:
-        while batch := result.fetchmany(_BATCH_ROWS):
+        while True:
+            kind, batch = _receive(child, receiver, deadline, timeout_s)
+            if kind == "end":
+                return
             yield from batch
-    except duckdb.Error as exc:
-        raise _query_error(exc, timeout_s) from None
     finally:
-        timer.cancel()
-        con.close()
+        _stop(child, receiver)
 
 
-def _query_error(exc: BaseException, timeout_s: float) -> BaseException:
-    if isinstance(exc, duckdb.InterruptException):
-        return RecordError(f"sql: stopped after the time limit of {timeout_s:g} s (--timeout)")
-    if isinstance(exc, duckdb.OutOfMemoryException):
-        return RecordError(f"sql: the query needs more than {MEMORY_LIMIT} of memory (a query never writes to "
-                           f"disk); select fewer rows or columns")
+def _receive(child, receiver, deadline: float, timeout_s: float) -> tuple[str, object]:
+    """The child's next message; RecordError for its error line, the time limit or a child that died."""
+    if not receiver.poll(max(0.0, deadline - time.monotonic())):
+        raise RecordError(f"sql: stopped after the time limit of {timeout_s:g} s (--timeout)")
+    try:
+        kind, value = pickle.loads(receiver.recv_bytes(_MESSAGE_BYTES))
+    except EOFError:
+        child.join()
+        code = child.exitcode
+        how = f"killed by signal {-code}" if code is not None and code < 0 else f"exit code {code}"
+        raise RecordError(f"sql: the query ended without an answer ({how}); most likely it needed more than "
+                          f"{MEMORY_LIMIT} of memory (a query never writes to disk)") from None
+    if kind == "error":
+        raise RecordError(value)
+    return kind, value
+
+
+def _stop(child, receiver) -> None:
+    if child.is_alive():
+        child.kill()  # not an interrupt: DuckDB checks those only between vectors
+    child.join()
+    receiver.close()
+
+
+def _serve(index: Path, sql: str, timeout_s: float, sender) -> None:
+    """The child: cap itself, load the index, run ``sql`` and send the names, the rows in batches, then "end";
+    or one error line. Nothing is written to stdout."""
+    try:
+        con = duckdb.connect(config=_config())
+        _cap(timeout_s)  # after the connection: its idle threads' stacks are not the query's memory
+        _confine(con, index, sql)
+        result = con.execute(sql)
+        names = [d[0] for d in result.description]
+        twice = [n for n in dict.fromkeys(names) if names.count(n) > 1]
+        if twice:
+            raise RecordError(f"sql: more than one column is named {', '.join(json.dumps(n) for n in twice)}; "
+                              f"name each column once (... AS another_name): a JSON object holds one value a name")
+        _send(sender, ("names", names))
+        while batch := result.fetchmany(_BATCH_ROWS):
+            _send_rows(sender, batch)
+        _send(sender, ("end", None))
+    except (BrokenPipeError, ConnectionResetError):
+        pass  # the parent stopped reading (its time limit, a closed stdout)
+    except BaseException as exc:  # noqa: BLE001 - every failure becomes the parent's one error line
+        try:
+            _send(sender, ("error", _message(exc)))
+        except (BrokenPipeError, ConnectionResetError):
+            pass
+
+
+def _send(sender, message: tuple) -> None:
+    sender.send_bytes(pickle.dumps(message, protocol=pickle.HIGHEST_PROTOCOL))
+
+
+def _send_rows(sender, batch: list[tuple]) -> None:
+    """A batch in one message, or row by row when that would be larger than _MESSAGE_BYTES."""
+    data = pickle.dumps(("rows", batch), protocol=pickle.HIGHEST_PROTOCOL)
+    if len(data) <= _MESSAGE_BYTES:
+        sender.send_bytes(data)
+        return
+    for row in batch:
+        data = pickle.dumps(("rows", [row]), protocol=pickle.HIGHEST_PROTOCOL)
+        if len(data) > _MESSAGE_BYTES:
+            raise RecordError(f"sql: a row of the result is larger than {_MESSAGE_BYTES >> 20} MB; select less of it")
+        sender.send_bytes(data)
+
+
+def _cap(timeout_s: float) -> None:
+    """Limit the child's memory and CPU (Linux). RLIMIT_DATA counts the heap and every private writable
+    mapping, which is where DuckDB's and malloc's memory comes from; pyarrow's mimalloc reserved its arena at
+    import (counted already), so pyarrow is switched to malloc. The CPU limit is a backstop for a parent killed
+    before it could kill the child at the time limit."""
+    import pyarrow as pa
+
+    pa.set_memory_pool(pa.system_memory_pool())
+    pa.set_cpu_count(1)
+    pa.set_io_thread_count(1)
+    try:
+        import resource
+    except ImportError:  # not POSIX: the time limit still holds
+        return
+    data = _vm_data_bytes()
+    if data is not None:
+        _lower(resource, resource.RLIMIT_DATA, data + _bytes(MEMORY_LIMIT))
+    _lower(resource, resource.RLIMIT_CPU, math.ceil(timeout_s) * (_THREADS + 2) + 1)
+
+
+def _lower(resource, which: int, value: int) -> None:
+    soft, hard = resource.getrlimit(which)
+    value = value if hard == resource.RLIM_INFINITY else min(value, hard)
+    resource.setrlimit(which, (value, value))
+
+
+def _vm_data_bytes() -> int | None:
+    try:
+        with open("/proc/self/status") as f:
+            return next(int(line.split()[1]) * 1024 for line in f if line.startswith("VmData:"))
+    except (OSError, StopIteration, ValueError, IndexError):
+        return None
+
+
+def _config() -> dict:
+    """DuckDB's settings for a query: few threads, memory under MEMORY_LIMIT, nowhere to spill, no extension."""
+    return {"threads": _THREADS, "memory_limit": f"{int(_bytes(MEMORY_LIMIT) * _DUCKDB_SHARE)}B", "temp_directory": "",
+            "autoinstall_known_extensions": False, "autoload_known_extensions": False,
+            "allow_community_extensions": False}
+
+
+def _bytes(size: str) -> int:
+    """Bytes in a size as DuckDB writes it ("1GB" is 10^9 bytes, "1GiB" 2^30)."""
+    match = re.fullmatch(r"\s*(\d+(?:\.\d+)?)\s*([KMGT]I?)?B?\s*", size.upper())
+    if match is None:
+        raise ValueError(f"{size!r} is not a size such as 1GB")
+    return int(float(match[1]) * _UNITS[match[2] or ""])
+
+
+def _confine(con: duckdb.DuckDBPyConnection, index: Path, sql: str) -> None:
+    """Check ``sql``, then copy the index into ``con`` (in memory) with every way out of it switched off and locked."""
+    for setting in ("enable_progress_bar = false", "enable_external_access = false"):  # pyarrow reads the parts
+        con.execute(f"SET {setting}")
+    _one_select(sql, con.extract_statements)
+    for table in TABLES:  # the parts connect() reads: a FIFO would block until the time limit
+        for part in (index / table).glob("day=*/*.parquet"):
+            require_regular(part, "an index part")
+    connect(index, con)
+    try:
+        for table in TABLES:  # copy the views' rows in, so that the query reads memory only
+            con.execute(f"CREATE TABLE {table}_copy AS SELECT * FROM {table}")
+            con.unregister(table)
+            con.execute(f"ALTER TABLE {table}_copy RENAME TO {table}")
+    except duckdb.OutOfMemoryException:
+        raise RecordError(f"{index}: the index needs more than {MEMORY_LIMIT} of memory; query a shorter "
+                          f"record") from None
+    except duckdb.Error as exc:
+        raise RecordError(f"{index}: the index cannot be read ({_first_line(exc)}); "
+                          f"`cellguard record recover` rebuilds it from the record") from None
+    con.execute("SET lock_configuration = true")
+
+
+def _message(exc: BaseException) -> str:
+    """The parent's one error line for what stopped the child."""
+    if isinstance(exc, RecordError):
+        return str(exc)
+    if isinstance(exc, (MemoryError, duckdb.OutOfMemoryException)) or "bad_alloc" in str(exc) \
+            or "bad allocation" in str(exc):
+        return (f"sql: the query needs more than {MEMORY_LIMIT} of memory (a query never writes to disk); "
+                f"select fewer rows or columns")
     if isinstance(exc, duckdb.Error):
-        return RecordError(f"sql: {_first_line(exc)}")
-    return exc
+        return f"sql: {_first_line(exc)}"
+    return f"sql: {type(exc).__name__}: {_first_line(exc)}"
 
 
-def _first_line(exc: Exception) -> str:
+def json_line(names: list[str], row: tuple) -> str:
+    """One row as a JSON object, valid JSON always: NaN and infinities (JSON has no word for them) are null,
+    a map's keys are strings; anything else JSON has no type for is its text."""
+    try:
+        return json.dumps({name: _plain(value) for name, value in zip(names, row)}, default=str, allow_nan=False)
+    except RecursionError:
+        raise RecordError("sql: a value of the result is nested too deeply to write as JSON") from None
+
+
+def _plain(value):
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    if isinstance(value, dict):
+        return {_key(k): _plain(v) for k, v in value.items()}
+    return value
+
+
+def _key(key) -> str:
+    if isinstance(key, str):
+        return key
+    if key is None or isinstance(key, (bool, int)) or (isinstance(key, float) and math.isfinite(key)):
+        return json.dumps(key)
+    return str(key)
+
+
+def _first_line(exc: BaseException) -> str:
     text = str(exc).strip()
     return text.splitlines()[0] if text else type(exc).__name__
