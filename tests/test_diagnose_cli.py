@@ -83,3 +83,15 @@ def test_a_baseline_from_another_robot_is_refused_and_kept(recorded, tmp_path):
     assert result.exit_code == 2 and "bound to robot 'another-robot'" in result.output
     assert result.output.strip().count("\n") == 0
     assert (other / "baseline.json").read_bytes() == before
+
+
+def test_record_info_tells_a_calibration_from_the_dates_values_were_measured(recorded):
+    """It printed 'calibrated 2026-10-14' for a profile that has no calibration (the dates of measured values)."""
+    from cellguard.robot.registry import make_cell
+
+    profile = make_cell("arm-pick-place").profile
+    assert profile.calibration is None and profile.measured
+    dates = ", ".join(sorted({m.measured for m in profile.measured}))
+    result = runner.invoke(app, ["record", "info", str(recorded)])
+    assert result.exit_code == 0, result.output
+    assert f"calibration none; measured {dates}" in result.stdout and "calibrated" not in result.stdout

@@ -95,8 +95,11 @@ def _print_info(doc: dict) -> None:
               markup=False)
     out.print(f"site     {ctx.get('site')} / {ctx.get('cell_id')} ({ctx.get('cell')})", markup=False)
     out.print(f"policy   {policy.get('source')}  sha256 {str(policy.get('sha256'))[:12]}", markup=False)
+    calibration = emb.get("calibration") or {}  # the dates of measured values are not a calibration
+    calibrated = (f"calibration {calibration.get('version')} ({calibration.get('date')})" if calibration
+                  else "calibration none")
     out.print(f"profile  {emb.get('robot')} {emb.get('version')}  sha256 {str(emb.get('sha256'))[:12]}  "
-              f"calibrated {', '.join(emb.get('calibration_dates') or [])}", markup=False)
+              f"{calibrated}; measured {', '.join(emb.get('calibration_dates') or []) or 'never'}", markup=False)
     out.print(f"datum    {ctx.get('fixture_datum')}", markup=False)
     if doc["span_s"]:
         out.print(f"span     {doc['span_s'][0]:.3f} s to {doc['span_s'][1]:.3f} s", markup=False)
