@@ -10,6 +10,7 @@ from __future__ import annotations
 import contextlib
 import errno
 import os
+import stat
 from collections.abc import Iterator
 from pathlib import Path
 from typing import BinaryIO
@@ -35,11 +36,11 @@ def atomic_file(path: Path, what: str, replace: bool = True) -> Iterator[BinaryI
     atomic), is fsynced, and then replaces ``path``; on any error the temporary file is removed,
     ``path`` is untouched and OutputError names it. With ``replace=False`` a file that appeared at
     ``path`` while the data was made is kept and OutputError says so (a check at the start of a
-    long job does not hold at its end).
+    long job does not hold at its end). A folder, device, FIFO or socket at ``path`` is refused before anything is
+    written, and checked again just before the rename.
     """
     path = Path(path)
-    if path.is_dir():  # the rename would fail only after all the data was written
-        raise OutputError(f"{what} {path}: is a folder; name a file to write")
+    _check_target(path, what)
     make_folder(path.parent, what)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     try:
@@ -48,6 +49,7 @@ def atomic_file(path: Path, what: str, replace: bool = True) -> Iterator[BinaryI
             f.flush()
             os.fsync(f.fileno())
         if replace:
+            _check_target(path, what)  # one made while the data was written would be replaced too
             os.replace(tmp, path)
         else:
             _rename_new(tmp, path)
@@ -69,6 +71,35 @@ def write_output(path: Path, data: str | bytes, what: str, replace: bool = True)
     with atomic_file(path, what, replace) as f:
         f.write(data if isinstance(data, bytes) else data.encode("utf-8"))
     return path
+
+
+def not_regular(path: Path) -> str | None:
+    """What ``path`` is, after following links, if it exists and is neither a regular file nor a folder ("a FIFO",
+    ...); None otherwise. A rename replaces such a node itself: a device file (as root, /dev/null) becomes a
+    regular file. OSError if ``path`` cannot be looked at (other than not being there)."""
+    try:
+        mode = os.stat(path).st_mode
+    except (FileNotFoundError, NotADirectoryError):  # a dangling link is replaced, as a missing file is made
+        return None
+    if stat.S_ISREG(mode) or stat.S_ISDIR(mode):
+        return None
+    kinds = ((stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"), (stat.S_ISFIFO, "a FIFO"),
+             (stat.S_ISSOCK, "a socket"))
+    return next((name for test, name in kinds if test(mode)), "a special file")
+
+
+def _check_target(path: Path, what: str) -> None:
+    """OutputError unless ``path`` is missing or a regular file: the rename would replace a device, FIFO or socket,
+    and fail on a folder only after all the data was written."""
+    try:
+        if path.is_dir():
+            raise OutputError(f"{what} {path}: is a folder; name a file to write")
+        kind = not_regular(path)
+    except OSError as exc:  # a name too long, a link loop, no access: one line, not a traceback
+        raise OutputError(f"{what} {path}: cannot write ({_why(exc)}); nothing written") from None
+    if kind is not None:
+        raise OutputError(f"{what} {path}: is {kind}, not a regular file; cellguard replaces only regular files: "
+                          f"choose another path (nothing written)")
 
 
 def _rename_new(tmp: Path, path: Path) -> None:

@@ -7,9 +7,11 @@ import sys
 
 import typer
 from rich.console import Console
+from rich.text import Text
 
 from cellguard.cli.app import app
 from cellguard.cli.errors import fail
+from cellguard.cli.text import say
 from cellguard.errors import CellguardError
 
 
@@ -43,12 +45,21 @@ def bench(
                 raise UnknownNameError("benchmark", name, list(BENCHMARKS))
     except CellguardError as exc:
         fail(exc)
-    results = {name: fn(quick) for name, fn in BENCHMARKS.items() if not only or name in only}
+    results = {}
+    for name, fn in BENCHMARKS.items():  # a full or unwritable TMPDIR is one line, not a traceback; no figures
+        if not only or name in only:
+            try:
+                results[name] = fn(quick)
+            except CellguardError as exc:
+                fail(CellguardError(f"benchmark {name}: {exc}"))
+            except OSError as exc:  # a temporary file written outside the recorder (index parts, ...)
+                where = f"{exc.filename}: " if exc.filename else ""
+                fail(CellguardError(f"benchmark {name}: {where}{exc.strerror or exc}"))
     if as_json:
         sys.stdout.write(json.dumps(results, indent=1) + "\n")
         return
     console = Console()
     for name, figures in results.items():
-        console.print(f"[bold]{name}[/bold]")
-        for key, value in figures.items():
-            console.print(f"  {key:<32} {value:.4g}" if isinstance(value, float) else f"  {key:<32} {value}")
+        console.print(Text(name, style="bold"))
+        for key, value in figures.items():  # a value may hold a path (record_failed): as it is, no markup
+            say(f"  {key:<32} {value:.4g}" if isinstance(value, float) else f"  {key:<32} {value}", err=False)

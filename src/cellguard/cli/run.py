@@ -29,8 +29,9 @@ def _run(scenario: Scenario, out: Path, quiet: bool, realtime: bool = False, ove
     refuse_existing(out, overwrite)  # a run never overwrites a record unless asked
     run = Run(scenario, realtime=realtime)  # every check (cell, faults, policy) before anything is created or printed
     created = not out.exists()
-    progress = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                        console=err, disable=quiet, transient=False)
+    # no markup: "arm-pick-place [acceptance]" would lose its phase as an unknown tag
+    progress = Progress(TextColumn("{task.description}", markup=False), BarColumn(), MofNCompleteColumn(),
+                        TimeElapsedColumn(), console=err, disable=quiet, transient=False)
     task = progress.add_task(f"{scenario.cell} cycles", total=scenario.total_cycles)
 
     def advance(outcome: dict) -> None:
@@ -60,11 +61,10 @@ def _print_summary(summary: dict, out: Path, as_json: bool) -> None:
         sys.stdout.write(json.dumps({"out": str(out), "phases": summary["phases"],
                                      "events": len(summary["events"]), **extra}) + "\n")
         return
-    console = Console()
     for phase, stats in summary["phases"].items():
         if stats["cycles"]:
-            console.print(f"{phase}: {stats['cycles']} cycles, success {stats['success_rate']:.0%}")
-    console.print(f"events: {len(summary['events'])}; written to {out}")
+            say(f"{phase}: {stats['cycles']} cycles, success {stats['success_rate']:.0%}", err=False)
+    say(f"events: {len(summary['events'])}; written to {out}", err=False)  # as given: "[/]" is a folder name here
 
 
 def _warn_short_acceptance(scenario: Scenario) -> None:
@@ -119,4 +119,4 @@ def demo(
         return
     _print_summary(summary, out, as_json)
     print_diagnosis(diagnosis)
-    Console().print(f"report: {report_path}")
+    say(f"report: {report_path}", err=False)

@@ -14,7 +14,7 @@ from cellguard.diagnose.diagnosis import Diagnosis, diagnose
 from cellguard.diagnose.recovery import policy_cycles
 from cellguard.diagnose.site_history import save_fixes, site_history
 from cellguard.embodiment.profile import SymmetryPair
-from cellguard.errors import CellguardError
+from cellguard.errors import CellguardError, RecordError
 
 BASELINE_FILE = "baseline.json"
 
@@ -61,13 +61,17 @@ def diagnose_record(path: Path, acceptance: Path | None = None, fleet: list[dict
 
 def run_folder(path: Path) -> Path | None:
     """The run folder of a record: ``path`` itself if a folder, the folder of a ``record.mcap``; None
-    for a loose .mcap file (nothing of the record's is kept beside it)."""
+    for a loose .mcap file (nothing of the record's is kept beside it). RecordError naming ``path`` if it cannot be
+    looked at (a component over 255 bytes, no access), where is_dir raises OSError."""
     from cellguard.record.writer import RECORD_FILE
 
     path = Path(path)
-    if path.is_dir():
-        return path
-    return path.parent if path.name == RECORD_FILE and path.is_file() else None
+    try:
+        if path.is_dir():
+            return path
+        return path.parent if path.name == RECORD_FILE and path.is_file() else None
+    except OSError as exc:
+        raise RecordError(f"{path}: cannot be read ({exc.strerror or exc})") from None
 
 
 def symmetry_of(context: dict) -> tuple[SymmetryPair, ...]:

@@ -12,6 +12,7 @@ from fnmatch import fnmatch
 from pathlib import Path
 
 from cellguard.errors import RecordError
+from cellguard.output import not_regular
 from cellguard.record.reader import record_file
 from cellguard.record.scan import MAGIC
 from cellguard.record.writer import RECORD_FILE
@@ -29,9 +30,9 @@ def refuse_output(output: Path, source: Path | None, to_folder: bool = False, *,
     starts with the MCAP magic, and a run folder (one holding record.mcap) or anything in it, since its
     summary, index and baseline belong to the record; ``own`` names (glob patterns, e.g.
     ``replay-cycle-*.html``) of the pages a command writes directly in ``source``'s own run folder are the
-    exception. Also refused: a file where a folder must be (the output itself with ``to_folder``, or a
-    parent), a folder where a file must be, and an existing file unless ``replace``. ``option`` is how the
-    message names the output (``-o``, ``--write``).
+    exception. Also refused: a device, FIFO or socket (a rename would replace the node itself), a file where a
+    folder must be (the output itself with ``to_folder``, or a parent), a folder where a file must be, and an
+    existing file unless ``replace``. ``option`` is how the message names the output (``-o``, ``--write``).
     """
     name = f"{option} {output}"
     try:
@@ -52,12 +53,16 @@ def refuse_output(output: Path, source: Path | None, to_folder: bool = False, *,
                 if f.read(len(MAGIC)) == MAGIC:
                     raise RecordError(f"{name}: is a record; cellguard never overwrites a record; "
                                       f"choose another path")
+        kind = not_regular(target)
         parent = next((d for d in target.parents if d.exists()), None)
         blocked = parent is not None and not parent.is_dir()
     except (OSError, RuntimeError) as exc:  # RuntimeError: a symlink loop
         raise RecordError(f"{name}: cannot be checked ({getattr(exc, 'strerror', None) or exc})") from None
     if blocked:
         raise RecordError(f"{name}: {parent} is a file, not a folder; choose another path")
+    if kind is not None:
+        raise RecordError(f"{name}: is {kind}, not a regular file; cellguard writes only regular files: "
+                          f"choose another path")
     if to_folder and target.exists() and not target.is_dir():
         raise RecordError(f"{name}: is a file; give a new folder")
     if not to_folder and target.is_dir():

@@ -101,11 +101,14 @@ def index_folder(path: Path) -> Path:
     from cellguard.record.writer import INDEX_DIR
 
     path = Path(path)
-    if not path.exists():
-        raise RecordError(f"{path}: no such folder; pass a run folder (holding record.mcap and index/) or its "
-                          f"index folder")
-    run = path.parent if path.is_file() else path
-    return run / INDEX_DIR if (run / INDEX_DIR).is_dir() else run
+    try:
+        if not path.exists():
+            raise RecordError(f"{path}: no such folder; pass a run folder (holding record.mcap and index/) or its "
+                              f"index folder")
+        run = path.parent if path.is_file() else path
+        return run / INDEX_DIR if (run / INDEX_DIR).is_dir() else run
+    except OSError as exc:  # a name too long, a link loop: one line
+        raise RecordError(f"{path}: cannot be read ({exc.strerror or exc})") from None
 
 
 def run_query(folder: Path, sql: str, timeout_s: float = DEFAULT_TIMEOUT_S) -> tuple[list[str], Iterator[tuple]]:

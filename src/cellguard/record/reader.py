@@ -170,7 +170,11 @@ class Health:
 def open_record(path: Path | str, strict: bool = False) -> Record:
     """Open a record folder (or .mcap file). RecordError if nothing is readable (or, strict, if anything is lost)."""
     file = record_file(path)
-    if not file.exists():
+    try:
+        there = file.exists()
+    except OSError as exc:  # a name too long, no access: one line naming it, not a traceback
+        raise RecordError(f"{file}: cannot be read ({exc.strerror or exc})") from None
+    if not there:
         raise RecordError(f"{file}: no record here")
     record = Record(file, scan(file))
     if not record.layout.chunks:
@@ -182,9 +186,13 @@ def open_record(path: Path | str, strict: bool = False) -> Record:
 
 
 def record_file(path: Path | str) -> Path:
-    """The record file of ``path``: a run folder's record.mcap, or ``path`` itself."""
+    """The record file of ``path``: a run folder's record.mcap, or ``path`` itself. RecordError naming ``path`` if
+    it cannot be looked at (a component over 255 bytes, no access): is_dir raises OSError for those."""
     path = Path(path)
-    return path / RECORD_FILE if path.is_dir() else path
+    try:
+        return path / RECORD_FILE if path.is_dir() else path
+    except OSError as exc:
+        raise RecordError(f"{path}: cannot be read ({exc.strerror or exc})") from None
 
 
 class Record:

@@ -39,6 +39,7 @@ with the writer before the first tick (``shared_pages``), so no tick takes a cop
 from __future__ import annotations
 
 import collections
+import errno
 import gc
 import mmap
 import multiprocessing
@@ -56,7 +57,7 @@ from cellguard.record.context import build_context, software_versions
 from cellguard.record.index import default_opener
 from cellguard.record.shared_pages import copy_shared_pages
 from cellguard.record.urdf import describe
-from cellguard.record.writer import RecordConfig, Recorder, refuse_existing
+from cellguard.record.writer import RECORD_FILE, RecordConfig, Recorder, refuse_existing
 
 POLL_S = 0.002  # the writer takes the ticks in the ring at least this often [s]
 WRITER_NICE = 10  # the writer process yields the CPU to the loop and the policy
@@ -112,21 +113,22 @@ class RunRecording:
         """Open the record of ``run`` in ``folder``; RecordError (nothing runs) if it cannot be written.
 
         Refused if ``folder`` holds a record already, unless ``replace``. A small reserve file keeps
-        room for ``summary.json`` on a disk that fills up during the run.
+        room for ``summary.json`` on a disk that fills up during the run; a disk without room for it is
+        refused here, since a run without one could end with a record and no summary.
         """
         folder = Path(folder)
         refuse_existing(folder, replace)  # before anything is written there
         cycles = getattr(run.scenario, "total_cycles", 100)
-        reserve = _reserve(folder / RESERVE_FILE, RESERVE_BYTES[0] + RESERVE_BYTES[1] * cycles)
         context = cls._context(run, config, software_versions())
         profile = run.cell.profile
         model = getattr(run.cell, "model", None)
         description = None if model is None else describe(model, profile.joint_names, profile.robot)
+        reserve = _reserve(folder / RESERVE_FILE, RESERVE_BYTES[0] + RESERVE_BYTES[1] * cycles)  # else nothing runs
         try:
             recorder = Recorder.create(folder, joints=profile.joint_names, dt_ns=run.cell.dt_ns, context=context,
                                        config=config, opener=opener, description=description, replace=replace,
                                        start_ns=run.clock.now())  # wall time: the monotonic clock, from boot
-        except RecordError:
+        except BaseException:
             _release(reserve)
             raise
         return cls(recorder, run, queue_s=queue_s, reserve=reserve)
@@ -349,19 +351,37 @@ def _serve(recorder: Recorder, ctl, ops, op_writer, replies, reserve: Path | Non
                 apply(getattr(recorder, name), *args)
 
 
-def _reserve(path: Path, size: int) -> Path | None:
-    """Set ``size`` bytes aside in ``path``; None (no reserve) if the disk has not even that."""
+def _reserve(path: Path, size: int) -> Path:
+    """Set ``size`` bytes aside in ``path``; RecordError (nothing left behind) if the disk has not even that."""
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
         try:
-            os.posix_fallocate(fd, 0, size)
+            _allocate(fd, size)
         finally:
             os.close(fd)
-    except OSError:
+    except OSError as exc:
         _release(path)
-        return None
+        raise RecordError(f"{path.parent / RECORD_FILE}: cannot start the record (cannot set aside the "
+                          f"{size // 1024} KB kept free for summary.json: {exc.strerror or exc}); nothing was run"
+                          ) from None
     return path
+
+
+def _allocate(fd: int, size: int) -> None:
+    """Allocate ``size`` bytes of ``fd``: posix_fallocate, or zeros written where the filesystem lacks it."""
+    try:
+        os.posix_fallocate(fd, 0, size)
+        return
+    except AttributeError:  # not on this platform
+        pass
+    except OSError as exc:
+        if exc.errno not in (errno.EOPNOTSUPP, errno.ENOTSUP, errno.EINVAL, errno.ENOSYS):
+            raise
+    block = bytes(64 << 10)
+    for start in range(0, size, len(block)):
+        os.write(fd, block[:size - start])
+    os.fsync(fd)
 
 
 def _release(path: Path | None) -> None:

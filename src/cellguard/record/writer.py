@@ -53,7 +53,7 @@ from cellguard.control.events import ROUTINE_EVENTS, Event, EventKind
 from cellguard.errors import RecordError
 from cellguard.record import ros2
 from cellguard.record.context import changed_keys, versions
-from cellguard.record.index import IndexWriter, clear_index, cycle_row, default_opener, event_row
+from cellguard.record.index import TABLES, IndexWriter, clear_index, cycle_row, default_opener, event_row
 from cellguard.record.ring import TickRing
 from cellguard.record.schemas import CHANNELS, CHUNK, TICKS
 from cellguard.record.urdf import JointFrames
@@ -63,6 +63,9 @@ INDEX_DIR = "index"
 PROFILE = "cellguard"
 RECORD_VERSION = 2  # 1: log time = t_ns, cellguard channels only
 DESCRIPTION_FILE = "robot_description.urdf"
+# what a run writes in its --out folder besides the record and index: summary (runtime), baseline and fixes
+# (diagnose), report (report), shadow (release); named here, below those layers
+RUN_OUTPUTS = ("summary.json", "baseline.json", "fixes.json", "report.html", "shadow.json")
 _LOG_LEVEL = {0: ros2.FATAL, 1: ros2.ERROR, 2: ros2.WARN}  # stop category -> log level; else INFO (routine: DEBUG)
 _CHUNK_BYTES = 1 << 20  # a long backlog is split into chunks of about this many bytes
 
@@ -404,10 +407,29 @@ class Recorder:
 
 
 def refuse_existing(folder: Path, replace: bool = False) -> None:
-    """RecordError if ``folder`` holds a record already and replacing it was not asked for."""
-    if (Path(folder) / RECORD_FILE).exists() and not replace:
-        raise RecordError(f"--out {folder}: already holds a record ({RECORD_FILE}); a run never overwrites one: "
+    """RecordError if ``folder`` lies inside a run folder (its record's folder, whose files are the record's), or
+    holds a record or anything a run writes (a summary whose record was moved away is still someone's) and
+    replacing it was not asked for; before anything runs."""
+    folder = Path(folder)
+    try:
+        run = next((d for d in folder.resolve().parents if (d / RECORD_FILE).exists()), None)  # after links
+        there = [name for name in (RECORD_FILE, *RUN_OUTPUTS) if os.path.lexists(folder / name)]
+        if not there and _index_parts(folder / INDEX_DIR):
+            there = [f"{INDEX_DIR}/ (index parts)"]
+    except (OSError, RuntimeError) as exc:  # a name too long, no access, a link loop
+        raise RecordError(f"--out {folder}: cannot be checked ({getattr(exc, 'strerror', None) or exc})") from None
+    if run is not None:
+        raise RecordError(f"--out {folder}: is in the run folder {run}, which holds a record; a run never writes "
+                          f"into another's run folder: choose an --out outside it")
+    if there and not replace:
+        what = f"a record ({RECORD_FILE})" if there[0] == RECORD_FILE else f"{there[0]}, which a run writes"
+        raise RecordError(f"--out {folder}: already holds {what}; a run never overwrites one: "
                           f"choose another --out folder (or pass --overwrite to replace it)")
+
+
+def _index_parts(folder: Path) -> bool:
+    """Whether ``folder`` holds index parts (those a run with ``replace`` removes)."""
+    return folder.is_dir() and any(next((folder / t).glob("day=*/part-*.parquet"), None) for t in TABLES)
 
 
 def _foxglove_metadata(context: dict, record_id: str) -> dict[str, str]:
