@@ -62,6 +62,14 @@ def test_truncated_file_says_what_was_recovered_then_recover_finishes_it(folder,
     assert result.exit_code == 0, result.output
     result = runner.invoke(app, ["record", "info", str(tmp_path / "fixed"), "--json"])
     assert result.exit_code == 0 and json.loads(result.stdout)["health"]["finished"]
+    # the copy is a whole file, not a whole run: it says what its source was (it read as complete)
+    health = json.loads(result.stdout)["health"]
+    assert health["recovered_from"].startswith("truncated: recovered")
+    assert "; a recovered copy of a record that was truncated: recovered" in health["status"]
+    again = tmp_path / "again"
+    assert runner.invoke(app, ["record", "recover", str(tmp_path / "fixed"), "-o", str(again)]).exit_code == 0
+    copy = json.loads(runner.invoke(app, ["record", "info", str(again), "--json"]).stdout)["health"]
+    assert copy["recovered_from"].startswith("complete: ") and "a recovered copy of a record that was" in copy["status"]
 
 
 def test_garbage_is_one_line_and_exit_2(tmp_path):

@@ -141,6 +141,7 @@ class Health:
     span_ns: tuple[int, int] | None  # first and last message time read, on the record's clock
     context_loss: str | None = None  # the first context could not be read (and where it came from instead)
     off_schema: dict[str, int] = field(default_factory=dict)  # topic -> messages skipped as malformed
+    recovered: str | None = None  # a copy made by ``record recover``: what a full read of its source found
 
     @property
     def ok(self) -> bool:
@@ -154,8 +155,9 @@ class Health:
         return not self.finished or self.truncated or len(self.damage) > len(self.off_schema)
 
     def describe(self) -> str:
+        copy = f"; a recovered copy of a record that was {self.recovered}" if self.recovered else ""
         if self.ok:
-            return f"complete: {self.chunks_ok} chunks, {sum(self.messages.values())} messages"
+            return f"complete: {self.chunks_ok} chunks, {sum(self.messages.values())} messages{copy}"
         state = ("truncated" if self.truncated else "not finished" if not self.finished
                  else "damaged" if self.damage or self.context_loss else "finished, with gaps")
         notes = f"; {self.context_loss}" if self.context_loss else ""
@@ -164,7 +166,8 @@ class Health:
         span = ("" if self.span_ns is None
                 else f", readable {self.span_ns[0] * 1e-9:.3f} s to {self.span_ns[1] * 1e-9:.3f} s")
         return (f"{state}: recovered {self.chunks_ok} chunks ({sum(self.messages.values())} messages{span}); "
-                f"{self.chunks_damaged} damaged chunks skipped, {lost} messages missing by sequence number{notes}")
+                f"{self.chunks_damaged} damaged chunks skipped, {lost} messages missing by sequence number"
+                f"{notes}{copy}")
 
 
 def open_record(path: Path | str, strict: bool = False) -> Record:
@@ -413,7 +416,8 @@ class Record:
         return Health(self.layout.finished, self.layout.truncated, len(self.layout.chunks) - len(self._late_damage),
                       damaged, tuple(damage), {t: tuple(g) for t, g in gaps.items()}, counts,
                       None if first_t is None else (first_t - offset, last_t - offset), self.context_loss,
-                      {topic: len(bad) for topic, bad in self._off_schema.items()})
+                      {topic: len(bad) for topic, bad in self._off_schema.items()},
+                      self.layout.metadata.get("cellguard.recovered", {}).get("source_health"))
 
     # -- raw messages ---------------------------------------------------------------------
     def messages(self, topics: list[str], start_ns: int | None = None, end_ns: int | None = None

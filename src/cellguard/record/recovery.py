@@ -3,7 +3,8 @@
 The original is never modified: the recovered copy goes to another folder. Every message that
 passed its chunk CRC is copied with its original times and sequence numbers (so the gaps stay
 visible), into chunks of the usual span; the Parquet index is rebuilt from the cycle markers and
-events that survived.
+events that survived. A metadata record (``RECOVERED``) says what the source was, so the copy never
+reads as a whole run (a record cut at its end has no gap to show: its copy read as complete).
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from cellguard.record.schemas import CHANNELS
 from cellguard.record.writer import INDEX_DIR, PROFILE, RECORD_FILE
 
 CHUNK_SPAN_NS = 100_000_000  # recovered chunks hold this much log time
+RECOVERED = "cellguard.recovered"  # metadata of a recovered copy: its source and what a full read of it found
 
 
 def recover(source: Path, target: Path) -> Health:
@@ -39,18 +41,20 @@ def recover(source: Path, target: Path) -> Health:
             target.mkdir(parents=True, exist_ok=True)
             clear_index(target / INDEX_DIR)
             with open(target / RECORD_FILE, "wb") as f:
-                _copy_messages(record, f)
+                _copy_messages(record, f, {"source": str(record.file), "source_health": health.describe()})
             _rebuild_index(record, target / INDEX_DIR)
         except OSError as exc:
             raise RecordError(f"{target}: cannot write the recovered record ({exc.strerror or exc})") from None
     return health
 
 
-def _copy_messages(record, stream) -> None:
+def _copy_messages(record, stream, recovered: dict[str, str]) -> None:
     writer = Writer(stream, chunk_size=1 << 30, compression=CompressionType.ZSTD, enable_crcs=True)
     writer.start(profile=PROFILE, library="cellguard record recover")
     for name, values in record.layout.metadata.items():  # foxglove, cellguard, cellguard.context
-        writer.add_metadata(name, values)
+        if name != RECOVERED:  # a copy of a copy names the file it was made from
+            writer.add_metadata(name, values)
+    writer.add_metadata(RECOVERED, recovered)
     for name in record.layout.attachments:
         data = record.attachment(name)
         if data is not None:

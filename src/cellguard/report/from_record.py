@@ -33,7 +33,7 @@ def write_report(folder: Path, out: Path | None = None, diagnosis: Diagnosis | N
                     "error": ticks.q_cmd - ticks.q_meas, "joints": list(ticks.joints)}
 
         health = health if health is not None else rec.health()
-        page = render_report(d, trace, None if health.ok else health.describe())
+        page = render_report(d, trace, None if health.ok and not health.recovered else health.describe())
     return write_output(out, page, "report")
 
 
