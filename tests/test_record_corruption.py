@@ -133,3 +133,20 @@ def test_an_unreadable_file_is_an_error_not_an_empty_success(tmp_path, content):
     (tmp_path / "record.mcap").write_bytes(content)
     with pytest.raises(RecordError):
         open_record(tmp_path)
+
+
+def test_a_record_whose_start_is_lost_still_knows_its_format_id_epoch_and_clock(original, tmp_path):
+    """The metadata record and the first chunk zeroed: the record read as format 1 with no id, started 'None',
+    and spans in wall-clock seconds since 1970; the context copy at the end now states them."""
+    data = bytearray(original)
+    data[40:6040] = bytes(6000)
+    (tmp_path / "record.mcap").write_bytes(bytes(data))
+    with open_record(tmp_path) as damaged:
+        health = damaged.health()
+        stated = (damaged.version, damaged.record_id, damaged.epoch_wall_ns, damaged.start_ns)
+    assert damaged.context_loss is not None  # the first context was in the zeroed bytes
+    (tmp_path / "whole").mkdir()
+    (tmp_path / "whole" / "record.mcap").write_bytes(original)
+    with open_record(tmp_path / "whole") as whole:
+        assert stated == (whole.version, whole.record_id, whole.epoch_wall_ns, whole.start_ns) and stated[0] == 2
+    assert 0 <= health.span_ns[0] < health.span_ns[1] < 10**12  # the record's clock, not ns since 1970

@@ -220,7 +220,7 @@ class Record:
                               f"(1 to {RECORD_VERSION}); update cellguard")
         self._offset = self.epoch_wall_ns if self.version >= 2 else 0  # log time = record time + offset
         if not facts and layout.channels and any(c.topic == "/joint_states" for c in layout.channels.values()):
-            self._offset = None  # version 2 with its metadata record lost: learn the offset from a context
+            self._offset, self.version = None, 2  # version 2 (format 1 has no ROS 2 channels) with its metadata lost
 
     def close(self) -> None:
         self._buf.close()
@@ -238,9 +238,7 @@ class Record:
         if self._contexts is None:
             self._contexts = []
             for m, d in self._json(self._raw(["/context"]), "/context", _context_fits):
-                self.epoch_wall_ns = d.get("epoch_wall_ns", self.epoch_wall_ns)
-                self.start_ns = d["start_ns"] if isinstance(d.get("start_ns"), int) else self.start_ns
-                self.record_id = d.get("record_id", self.record_id)
+                self._learn(d)
                 if self._offset is None:
                     self._offset = m.log_time - d["t_ns"] if d.get("record_version", 1) >= 2 else 0
                 if self._contexts and self._contexts[-1].version == d["version"]:
@@ -250,6 +248,10 @@ class Record:
             saved = self.layout.metadata.get("cellguard.context")
             if not self._contexts and saved:
                 self._contexts.append(_saved_context(saved))
+                self._learn({k: int(v) for k, v in saved.items() if k in _NUMBERS and v.isdigit()}
+                            | {"record_id": saved.get("record_id")})
+                if self._offset is None and self.version >= 2:
+                    self._offset = self.epoch_wall_ns
                 self.context_loss = ("the context chunk is lost; the context was taken from the copy "
                                      "at the end of the file")
             elif self._contexts and self._contexts[0].t_ns > self.start_ns:
@@ -258,6 +260,14 @@ class Record:
             elif not self._contexts:
                 self.context_loss = "the context is lost (no readable copy)"
         return self._contexts
+
+    def _learn(self, stated: dict) -> None:
+        """What a context states about the record (its id, format, epoch and start), where the metadata record
+        at the file's start was lost (a damaged record read as format 1, with no id and spans in wall time)."""
+        self.record_id = stated.get("record_id") or self.record_id
+        for key in _NUMBERS:
+            if isinstance(stated.get(key), int) and not isinstance(stated[key], bool):
+                setattr(self, "version" if key == "record_version" else key, stated[key])
 
     @property
     def start_wall_ns(self) -> int:
@@ -450,6 +460,9 @@ class Record:
                 continue
         out.sort(key=lambda m: m.log_time)  # stable: file order within equal times
         return iter(out)
+
+
+_NUMBERS = ("record_version", "epoch_wall_ns", "start_ns")  # what a context states as numbers about its record
 
 
 def _saved_context(saved: dict[str, str]) -> ContextChange:

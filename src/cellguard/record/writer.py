@@ -397,8 +397,9 @@ class Recorder:
 
     def _finish(self) -> None:
         if self._context is not None:  # the context once more, outside any chunk, indexed in the summary
-            self._writer.add_metadata("cellguard.context", {
-                "record_id": self.record_id, "t_ns": str(self._context_t_ns),
+            self._writer.add_metadata("cellguard.context", {  # with what a reader must know when the start is lost
+                "record_id": self.record_id, "t_ns": str(self._context_t_ns), "record_version": str(RECORD_VERSION),
+                "epoch_wall_ns": str(self.epoch_wall_ns), "start_ns": str(self.start_ns),
                 "context": json.dumps(_plain(self._context), allow_nan=False)})
         self._writer.finish()
         if self._index is not None:
