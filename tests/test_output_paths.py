@@ -102,6 +102,7 @@ def test_a_fifo_as_a_run_folders_baseline_is_refused_not_replaced(run):
     line = one_error(runner.invoke(app, ["report", str(run)]))
     assert "baseline.json: is a FIFO, not a regular file" in line
     assert (run / "baseline.json").is_fifo() and not (run / "report.html").exists()
+    assert not (run / "fixes.json").exists()  # nothing written before the refusal (fixes.json was)
 
 
 # -- 4: a path that cannot be looked at ---------------------------------------------------------------

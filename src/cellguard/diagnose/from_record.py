@@ -52,10 +52,10 @@ def diagnose_record(path: Path, acceptance: Path | None = None, fleet: list[dict
                       symmetry=symmetry_of(context), history=[*past, *fleet])
     if baseline is None:  # as a stored baseline is judged when read again, so the first diagnosis agrees
         result.baseline.check_fits(as_cycles(cycles), f"{path} (its own acceptance cycles)")
+    if baseline is None and folder is not None:  # first: a baseline.json that cannot be written leaves nothing
+        result.baseline.bind(context).save(folder / BASELINE_FILE)
     if folder is not None:
         save_fixes(folder, context, result.fixes)
-    if baseline is None and folder is not None:
-        result.baseline.bind(context).save(folder / BASELINE_FILE)
     return result
 
 
