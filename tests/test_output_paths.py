@@ -5,37 +5,20 @@ is one error line naming it, exit 2, not a traceback."""
 from __future__ import annotations
 
 import os
-import shutil
 import socket
 from pathlib import Path
 
 import pytest
 from cli_util import one_error
+from run_copies import recorded, run  # noqa: F401 (fixtures)
 from typer.testing import CliRunner
 
 from cellguard.cli import app
 from cellguard.errors import OutputError, RecordError
 from cellguard.output import atomic_file, write_output
-from cellguard.runtime import run_scenario
-from cellguard.scenario import parse_scenario
 
 runner = CliRunner()
 LONG = "a" * 300  # one path component over NAME_MAX (255)
-
-
-@pytest.fixture(scope="module")
-def recorded(tmp_path_factory):
-    """A real run long enough to be its own baseline, so that ``report`` gets as far as writing."""
-    out = tmp_path_factory.mktemp("paths") / "run"
-    run_scenario(parse_scenario({"cell": "arm-pick-place", "seed": 5, "acceptance_cycles": 5,
-                                 "production_cycles": 1}), out)
-    return out
-
-
-@pytest.fixture
-def run(recorded, tmp_path):
-    """A copy for each test: a command that wrongly writes into it spoils no other test."""
-    return Path(shutil.copytree(recorded, tmp_path / "run"))
 
 
 @pytest.fixture

@@ -6,7 +6,6 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -14,31 +13,15 @@ from pathlib import Path
 import pytest
 from cli_util import one_error
 from mcap.writer import CompressionType, Writer
+from run_copies import recorded, run  # noqa: F401 (fixtures)
 from typer.testing import CliRunner
 
 from cellguard.cli import app
 from cellguard.record.reader import open_record
 from cellguard.record.schemas import CHANNELS
 from cellguard.record.writer import PROFILE
-from cellguard.runtime import run_scenario
-from cellguard.scenario import parse_scenario
 
 runner = CliRunner()
-
-
-@pytest.fixture(scope="module")
-def recorded(tmp_path_factory):
-    """A real run long enough to be its own baseline, so that ``report`` would write."""
-    out = tmp_path_factory.mktemp("outputs") / "run"
-    run_scenario(parse_scenario({"cell": "arm-pick-place", "seed": 5, "acceptance_cycles": 5,
-                                 "production_cycles": 1}), out)
-    return out
-
-
-@pytest.fixture
-def run(recorded, tmp_path):
-    """A copy of the run for each test: a command that wrongly writes into it spoils no other test."""
-    return Path(shutil.copytree(recorded, tmp_path / "run"))
 
 
 def digests(folder: Path) -> dict[str, str]:

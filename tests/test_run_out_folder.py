@@ -14,6 +14,7 @@ from pathlib import Path
 import pytest
 import yaml
 from cli_util import one_error
+from run_copies import small_tmpfs
 from typer.testing import CliRunner
 
 from cellguard.cli import app
@@ -181,19 +182,11 @@ def test_a_filesystem_without_fallocate_still_gets_its_reserve(tmp_path, monkeyp
 def test_a_disk_too_small_for_the_reserve_runs_nothing(recorded, tmp_path):
     """On a real 64 KiB tmpfs: the run went ahead without a reserve, filled the disk, and ended with a record and
     no summary (exit 2, partial)."""
-    if os.geteuid() != 0:
-        pytest.skip("mounting a small tmpfs needs root")
-    disk = tmp_path / "disk"
-    disk.mkdir()
-    if subprocess.run(["mount", "-t", "tmpfs", "-o", "size=64k", "tmpfs", str(disk)], capture_output=True).returncode:
-        pytest.skip("cannot mount a tmpfs here")
-    try:
+    with small_tmpfs(tmp_path / "disk", "64k") as disk:
         result = subprocess.run([sys.executable, "-c", "from cellguard.cli import app; app()", "run",
                                  str(recorded[1]), "--out", str(disk / "run")], capture_output=True, text=True,
                                 timeout=600)
         listing = os.listdir(disk)
-    finally:
-        subprocess.run(["umount", "-l", str(disk)], check=False)
     assert result.returncode == 2 and "Traceback" not in result.stderr
     lines = result.stderr.splitlines()
     assert len(lines) == 1 and "cannot start the record" in lines[0] and "summary.json" in lines[0], result.stderr

@@ -21,6 +21,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from run_copies import small_tmpfs
 
 from cellguard.record.reader import open_record
 from cellguard.record.scan import scan
@@ -60,14 +61,8 @@ def scenario_file(tmp_path: Path, acceptance: int, production: int) -> Path:
 @pytest.fixture
 def small_disk(tmp_path):
     """A 4 MiB tmpfs mounted for the test."""
-    if os.geteuid() != 0:
-        pytest.skip("mounting a small tmpfs needs root")
-    mount = tmp_path / "disk"
-    mount.mkdir()
-    if subprocess.run(["mount", "-t", "tmpfs", "-o", "size=4m", "tmpfs", str(mount)], capture_output=True).returncode:
-        pytest.skip("cannot mount a tmpfs here")
-    yield mount
-    subprocess.run(["umount", "-l", str(mount)], check=False)
+    with small_tmpfs(tmp_path / "disk", "4m") as mount:
+        yield mount
 
 
 def fill(disk: Path, leave: int) -> Path:
