@@ -177,3 +177,17 @@ def test_an_approach_ends_inside_the_soft_limits():
     run.cycle()
     assert "approach_done" in [e.kind for e in run.events]
     assert soft_max < cell.profile.q_max[0] and max(written) <= soft_max + 1e-9
+
+
+def test_a_transition_brakes_from_any_of_its_steps():
+    """In the last tens of ms of a transition, ruckig raised (time synchronisation) for a brake: the run crashed
+    and the setpoints stopped dead."""
+    cell = make_cell("arm-pick-place", seed=1)
+    start = np.array([2.095517200676611, -0.3881979234811377, -1.6090432700831832, 1.5197934259025714,
+                      2.197848270666083, 0.007525704337641849])  # an approach where it raised, to the last digit
+    plan = Transition.plan(cell.profile, start, np.array([2.4, -1.728, -2.4, -2.016, 2.784, 0.02854]), cell.dt_ns)
+    steps = int(np.ceil(plan.duration_s * 1e9 / cell.dt_ns))
+    for k in range(steps - 40, steps):
+        brake = plan.brake(cell.profile, k)
+        moving = np.abs(plan.trajectory.at_time(k * cell.dt_ns * 1e-9)[1]).max() > 1e-9
+        assert brake is not None or not moving, k

@@ -57,6 +57,7 @@ class Transition:
         dof = profile.dof
         otg, inp, traj = ruckig.Ruckig(dof), ruckig.InputParameter(dof), ruckig.Trajectory(dof)
         inp.control_interface = ruckig.ControlInterface.Velocity
+        inp.synchronization = ruckig.Synchronization.No  # each joint stops as soon as it can (time sync raised)
         inp.current_position, inp.current_velocity, inp.current_acceleration = position, velocity, acceleration
         inp.target_velocity = inp.target_acceleration = [0.0] * dof
         return self._solve(profile, otg, inp, traj, self.period_ns)
@@ -66,7 +67,10 @@ class Transition:
         inp.max_velocity = profile.array("velocity").tolist()
         inp.max_acceleration = profile.array("acceleration").tolist()
         inp.max_jerk = profile.array("jerk").tolist()
-        result = otg.calculate(inp, traj)
+        try:
+            result = otg.calculate(inp, traj)
+        except ruckig.RuckigError:  # some states raise instead of returning an error result
+            return None
         if result not in (ruckig.Result.Working, ruckig.Result.Finished):
             return None
         end = np.asarray(traj.at_time(traj.duration)[0], dtype=np.float64)
