@@ -16,11 +16,14 @@ import time
 
 import numpy as np
 import pytest
-from sim_server_util import HOME, start_server
+from sim_server_util import HOME, scenario, start_server
 
+from cellguard.errors import CellguardError
 from cellguard.robot.bridges.sim_server import COMMAND_HEAD, STATE_HEAD, Layout, SimServerRobot, pack_command
 from cellguard.robot.protocol import RobotLinkError
+from cellguard.runtime import Run
 from cellguard.runtime.sim_server import CLIENT_LIVE_NS
+from cellguard.scenario import parse_scenario
 
 DOF = len(HOME)
 NUDGED = HOME + np.array([0.05, 0, 0, 0, 0, 0])  # a setpoint the drives take as it is
@@ -312,3 +315,12 @@ def test_bad_metadata_is_one_line_and_exit_2(metadata, tmp_path):
     assert result.exit_code == 2, result.output
     assert result.stderr.startswith("error: sim-server at 127.0.0.1:") and "dt_ns must be" in result.stderr
     assert result.stderr.count("\n") == 1
+
+
+def test_a_run_refused_after_it_connected_lets_the_next_one_in_at_once(server, tmp_path):
+    """A policy that cannot be loaded (or a cycle source the robot cannot serve) ended the run after its hello,
+    without a goodbye: the corrected run was refused for the 30 s a starting client is held."""
+    _, port = server
+    with pytest.raises(CellguardError, match="no such file"):
+        Run(parse_scenario(scenario(port, tmp_path / "missing.npz")))
+    SimServerRobot(("127.0.0.1", port)).close()  # at once, not busy

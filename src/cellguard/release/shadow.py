@@ -105,9 +105,13 @@ class ShadowRun(Run):
             raise ConfigError("shadow mode runs the candidate beside the incumbent in the loop's process: "
                               "realtime.inference must be 'thread'")
         super().__init__(scenario)
-        shadow_guard = build_guard(self.cell, candidate_guard)
-        self.policy = ShadowedPolicy(self.policy, make_policy(candidate, self.cell), shadow_guard, self.cell.dt_ns,
-                                     lambda: self.cycles.total)
+        try:
+            shadow_guard = build_guard(self.cell, candidate_guard)
+            self.policy = ShadowedPolicy(self.policy, make_policy(candidate, self.cell), shadow_guard,
+                                         self.cell.dt_ns, lambda: self.cycles.total)
+        except BaseException:  # the incumbent's policy and a bridge are open: close them
+            self.close()
+            raise
 
     def write_shadow(self, folder: Path) -> Path:
         """``shadow.json`` beside the record, written to a temporary name and renamed (atomic)."""

@@ -57,6 +57,13 @@ class Run:
     def __init__(self, scenario: Scenario, realtime: bool = False, policy_factory: Callable[[], object] | None = None):
         self.scenario = scenario
         self.cell = make_robot(scenario)
+        try:
+            self._set_up(scenario, realtime, policy_factory)
+        except BaseException:  # a bridge says goodbye: the robot's server need not wait to give up on this client
+            _close(self.cell)
+            raise
+
+    def _set_up(self, scenario: Scenario, realtime: bool, policy_factory: Callable[[], object] | None) -> None:
         self.simulated = hasattr(self.cell, "step")  # fault injection and simulated inference
         if self.simulated:
             scenario.check_against(self.cell)
@@ -398,12 +405,8 @@ class Run:
         """Stop the inference worker and close the policy's connections."""
         if self.inference is not None:
             self.inference.close()
-        close = getattr(self.policy, "close", None)
-        if callable(close):
-            close()
-        close = getattr(self.cell, "close", None)
-        if callable(close):
-            close()
+        _close(self.policy)
+        _close(self.cell)
 
     def run_cycles(self, on_cycle: Callable[[dict], None] | None = None) -> None:
         """Every cycle of the scenario, until a stop; then the retreat to the home pose."""
@@ -466,6 +469,13 @@ def run_scenario(scenario: Scenario, out: Path, on_cycle: Callable[[dict], None]
         summary["stopped"] = run.stopped
     write_output(out / "summary.json", json.dumps(summary, indent=1), "summary")
     return summary
+
+
+def _close(thing) -> None:
+    """Close a policy's connections or a robot bridge, if it has any."""
+    close = getattr(thing, "close", None)
+    if callable(close):
+        close()
 
 
 def _with_nan(chunk: ActionChunk) -> ActionChunk:

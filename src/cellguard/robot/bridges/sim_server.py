@@ -131,6 +131,13 @@ class SimServerRobot:
         self.address, self.read_timeout_ns = address, round(read_timeout_s * 1e9)
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.connect(address)
+        try:
+            self._connect()
+        except BaseException:  # said hello: say goodbye, or the server holds the session for this dead client
+            self.close()
+            raise
+
+    def _connect(self) -> None:
         self.meta = self._hello()
         from cellguard.robot.registry import make_cell
 
