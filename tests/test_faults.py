@@ -144,3 +144,12 @@ def test_changes_of_one_setting_compose_and_none_wipes_out_another():
     assert friction() == pytest.approx((1.0 + 0.02 * 70) * (1.0 + 0.5 * np.exp(-29 / 4.0)))
     gain = cell.model.actuator_gainprm[cell.drives.act[elbow], 0] / cell.drives.nominal_gain[elbow]
     assert gain == pytest.approx(0.4)
+
+
+def test_a_joint_listed_twice_in_one_fault_is_refused():
+    """servo_gain on [elbow, elbow] scaled the gain twice (0.25 for 0.5) while the ground truth said 0.5."""
+    from cellguard.errors import ScenarioError
+
+    with pytest.raises(ScenarioError, match=r"faults\[0\].*a joint is listed twice"):
+        parse_scenario({"cell": "arm-pick-place", "faults": [{"kind": "servo_gain", "joint": ["elbow", "elbow"],
+                                                              "factor": 0.5}]})

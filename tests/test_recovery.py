@@ -34,7 +34,10 @@ def _scenario(**patch):
     ({"behaviours": [{"do": "retry_grasp", "trigger": "grasp_missed"}, {"do": "back_off", "trigger": "grasp_missed"}]},
      "behaviours[1].trigger: 'grasp_missed' already starts 'retry_grasp'; escalate with then: instead"),
     ({"behaviours": [{"do": "retry_grasp", "trigger": "grasp_missed"}, {"do": "rehome"}]},
-     "behaviours[1]: 'rehome' has no trigger and no behaviour escalates to it, so it never runs"),
+     "behaviours[1]: 'rehome' has no trigger and no triggered behaviour escalates to it, so it never runs"),
+    ({"behaviours": [{"do": "retry_grasp", "trigger": "grasp_missed"}, {"do": "operator", "then": "rehome"},
+                     {"do": "rehome", "then": "operator"}], "max_per_cycle": 3},
+     "behaviours[1]: 'operator' has no trigger and no triggered behaviour escalates to it"),
     ({"behaviours": [{"do": "retry_grasp", "attempts": 0}]}, "behaviours[0].attempts: Input should be greater"),
     ({"behaviours": [{"do": "retry_grasp", "search_mm": 1e3}]}, "behaviours[0].search_mm"),
     ({"behaviours": []}, "recovery.behaviours: List should have at least 1 item"),
@@ -46,8 +49,9 @@ def test_bad_recovery_names_the_key(recovery, message):
 
 
 def test_a_loop_with_a_limit_is_allowed():
-    s = _scenario(recovery={"max_per_cycle": 4, "behaviours": [{"do": "retry_grasp", "then": "back_off"},
-                                                                {"do": "back_off", "then": "retry_grasp"}]})
+    s = _scenario(recovery={"max_per_cycle": 4, "behaviours": [
+        {"do": "retry_grasp", "trigger": "grasp_missed", "then": "back_off"},
+        {"do": "back_off", "then": "retry_grasp"}]})
     assert s.recovery.max_per_cycle == 4
 
 

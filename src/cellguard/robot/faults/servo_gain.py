@@ -2,7 +2,7 @@
 
 from typing import Literal
 
-from pydantic import Field
+from pydantic import Field, field_validator
 
 from cellguard.robot.faults.base import Fault
 
@@ -12,6 +12,14 @@ class ServoGain(Fault):
     joint: str | list[str]
     factor: float = Field(gt=0.05, le=3.0)
     at_cycle: int = Field(default=0, ge=0)
+
+    @field_validator("joint")
+    @classmethod
+    def _each_once(cls, joint):
+        """A joint listed twice had its gain scaled twice (the factors compose), while the record says once."""
+        if isinstance(joint, list) and len(set(joint)) < len(joint):
+            raise ValueError(f"a joint is listed twice: {joint}")
+        return joint
 
     def apply(self, cell, cycle: int) -> None:
         factor = self.factor if cycle >= self.at_cycle else 1.0

@@ -41,9 +41,6 @@ class RecoveryPolicy(BaseModel):
             if b.trigger is not None and triggers.index(b.trigger) < i:
                 raise _bad(f"behaviours[{i}].trigger: {b.trigger!r} already starts "
                            f"{names[triggers.index(b.trigger)]!r}; escalate with then: instead")
-            if b.trigger is None and all(other.then != b.do for other in self.behaviours):
-                raise _bad(f"behaviours[{i}]: {b.do!r} has no trigger and no behaviour escalates to it, so it "
-                           "never runs")
         if self.max_per_cycle is None:
             for i, b in enumerate(self.behaviours):
                 chain, step = [b.do], b.then
@@ -53,6 +50,13 @@ class RecoveryPolicy(BaseModel):
                 if step is not None:
                     raise _bad(f"behaviours[{i}].then: the escalations loop ({' -> '.join(chain + [step])}) "
                                      "without a limit; set recovery.max_per_cycle (1..100)")
+        reached = {b.do for b in self.behaviours if b.trigger is not None}
+        while new := {b.then for b in self.behaviours if b.do in reached and b.then not in reached} - {None}:
+            reached |= new
+        for i, b in enumerate(self.behaviours):
+            if b.do not in reached:
+                raise _bad(f"behaviours[{i}]: {b.do!r} has no trigger and no triggered behaviour escalates to it, "
+                           "so it never runs")
         return self
 
     def behaviour(self, name: str):
