@@ -46,7 +46,9 @@ class RobotLink:
             self.fault(t_ns, EventKind.ROBOT_READ_FAILED, f"{type(exc).__name__}: {exc}")
             return self.state
         q, qd, effort = state.q, state.qd, state.effort
-        if not math.isfinite(q.dot(q) + qd.dot(qd) + effort.dot(effort)):  # NaN, inf or absurd anywhere
+        with np.errstate(over="ignore", invalid="ignore"):  # refused below by name: no numpy warning on top
+            squares = q.dot(q) + qd.dot(qd) + effort.dot(effort)
+        if not math.isfinite(squares):  # NaN, inf or absurd (a square beyond the float range) anywhere
             self.fault(t_ns, EventKind.ROBOT_READ_FAILED, "the robot reported a position, velocity or effort that "
                        "is not finite; the last good state stands in")
             return self.state
@@ -65,7 +67,9 @@ class RobotLink:
 
     def write(self, t_ns: int, setpoint: np.ndarray) -> np.ndarray:
         """Send ``setpoint`` if every value is finite, else the last finite one; return what was sent."""
-        if not math.isfinite(setpoint.dot(setpoint)):  # NaN or inf anywhere (or an absurd 1e154) -> not finite
+        with np.errstate(over="ignore", invalid="ignore"):
+            square = setpoint.dot(setpoint)
+        if not math.isfinite(square):  # NaN or inf anywhere (or an absurd 1e154) -> not finite
             self.refused += 1
             self._event(t_ns, "setpoint_not_finite", "a non-finite setpoint was not sent; the last one is held")
             setpoint = self.last_sent
