@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import errno
 import hashlib
+import json
 import os
 import subprocess
 import sys
@@ -71,6 +72,20 @@ def test_demo_prints_its_out_folder_and_report_as_given(tmp_path, monkeypatch):
     assert f"events: 0; written to {out}" in result.stdout.splitlines()
     assert result.stdout.splitlines()[-1] == f"report: {out / 'report.html'}"
     assert "<html" in (out / "report.html").read_text()
+
+
+def test_demo_runs_again_into_its_folder_with_overwrite(tmp_path, monkeypatch):
+    """The README's second run: the old baseline.json, bound to the replaced record, stayed and the new run's
+    diagnosis refused it (exit 2 after the whole shift had run)."""
+    from cellguard.cli import run as run_cli
+
+    monkeypatch.setattr(run_cli, "DEMO_SCENARIO", scenario(tmp_path, acceptance=5, production=1))  # a short demo
+    out = tmp_path / "demo"
+    assert runner.invoke(app, ["demo", "--out", str(out)]).exit_code == 0
+    first = json.loads((out / "baseline.json").read_text())["bound_to"]["record_id"]
+    result = runner.invoke(app, ["demo", "--out", str(out), "--overwrite"])
+    assert result.exit_code == 0, result.output
+    assert json.loads((out / "baseline.json").read_text())["bound_to"]["record_id"] != first
 
 
 # -- 6: nothing a run writes is overwritten without --overwrite --------------------------------------

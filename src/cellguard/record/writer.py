@@ -144,13 +144,17 @@ class Recorder:
         """Start a record in ``folder``; RecordError if it cannot be written or one is there already.
 
         A record already in ``folder`` is refused unless ``replace``; then its file is overwritten
-        and only the index parts cellguard wrote are removed (other files under ``index/`` stay).
+        and only the index parts cellguard wrote are removed (other files under ``index/`` stay), with
+        the files derived from the old record (``RUN_OUTPUTS``): its baseline, bound to the old record,
+        made the new run's diagnosis refuse it (``demo --overwrite`` ended in exit 2).
         """
         folder = Path(folder)
         refuse_existing(folder, replace)
         try:
             folder.mkdir(parents=True, exist_ok=True)
             clear_index(folder / INDEX_DIR)
+            for name in RUN_OUTPUTS if replace else ():
+                (folder / name).unlink(missing_ok=True)
             stream = opener(folder / RECORD_FILE)
         except OSError as exc:
             raise RecordError(f"{folder / RECORD_FILE}: cannot start the record ({_why(exc)}); "
