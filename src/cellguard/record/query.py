@@ -29,6 +29,7 @@ import duckdb
 
 from cellguard.errors import RecordError
 from cellguard.record.index import TABLES, connect
+from cellguard.record.json_values import plain
 from cellguard.record.scan import require_regular
 
 ALLOWED_STATEMENTS = (duckdb.StatementType.SELECT, duckdb.StatementType.EXPLAIN)
@@ -308,27 +309,9 @@ def json_line(names: list[str], row: tuple) -> str:
     """One row as a JSON object, valid JSON always: NaN and infinities (JSON has no word for them) are null,
     a map's keys are strings; anything else JSON has no type for is its text."""
     try:
-        return json.dumps({name: _plain(value) for name, value in zip(names, row)}, default=str, allow_nan=False)
+        return json.dumps({name: plain(value) for name, value in zip(names, row)}, default=str, allow_nan=False)
     except RecursionError:
         raise RecordError("sql: a value of the result is nested too deeply to write as JSON") from None
-
-
-def _plain(value):
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if isinstance(value, (list, tuple)):
-        return [_plain(v) for v in value]
-    if isinstance(value, dict):
-        return {_key(k): _plain(v) for k, v in value.items()}
-    return value
-
-
-def _key(key) -> str:
-    if isinstance(key, str):
-        return key
-    if key is None or isinstance(key, (bool, int)) or (isinstance(key, float) and math.isfinite(key)):
-        return json.dumps(key)
-    return str(key)
 
 
 def _first_line(exc: BaseException) -> str:

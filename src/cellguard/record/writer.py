@@ -54,6 +54,7 @@ from cellguard.errors import RecordError
 from cellguard.record import ros2
 from cellguard.record.context import changed_keys, versions
 from cellguard.record.index import TABLES, IndexWriter, clear_index, cycle_row, default_opener, event_row
+from cellguard.record.json_values import plain
 from cellguard.record.ring import TickRing
 from cellguard.record.schemas import CHANNELS, CHUNK, TICKS
 from cellguard.record.urdf import JointFrames
@@ -339,7 +340,7 @@ class Recorder:
         self._pending.append((self.epoch_wall_ns + int(t_ns), len(self._pending), channel, data, self._seq[channel]))
 
     def _json(self, channel: int, t_ns: int, payload: dict) -> None:
-        self._add(channel, t_ns, json.dumps(_plain(payload), allow_nan=False).encode())
+        self._add(channel, t_ns, json.dumps(plain(payload), allow_nan=False).encode())
 
     def _write_pending(self) -> None:
         """Write the queued messages sorted by time (none before one already written) and close the chunk."""
@@ -404,7 +405,7 @@ class Recorder:
             self._writer.add_metadata("cellguard.context", {  # with what a reader must know when the start is lost
                 "record_id": self.record_id, "t_ns": str(self._context_t_ns), "record_version": str(RECORD_VERSION),
                 "epoch_wall_ns": str(self.epoch_wall_ns), "start_ns": str(self.start_ns),
-                "context": json.dumps(_plain(self._context), allow_nan=False)})
+                "context": json.dumps(plain(self._context), allow_nan=False)})
         self._writer.finish()
         if self._index is not None:
             self._index.flush()
@@ -464,21 +465,6 @@ def _finite(value):
         return None
     value = float(value)
     return value if math.isfinite(value) else None
-
-
-def _plain(value):
-    """Plain JSON values: numpy to lists and numbers, non-finite floats to null."""
-    if isinstance(value, dict):
-        return {str(k): _plain(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_plain(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return _plain(value.tolist())
-    if isinstance(value, np.generic):
-        value = value.item()
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return value
 
 
 def _fsync(stream) -> None:
