@@ -254,6 +254,19 @@ def test_every_row_is_strict_json_and_finite_values_survive(columns):
     assert json.loads(line, parse_constant=_no_constant) == {n: _expected(v) for n, v in zip(names, row)}
 
 
+def test_a_reader_that_closes_the_pipe_stops_the_query_quietly(run_dir):
+    """``record query ... | head -n 1``: exit 1 without a word before; now 141 as ``cat`` gives, and no child left."""
+    import subprocess
+
+    command = [sys.executable, "-c", "from cellguard.cli import app; app()", "record", "query", str(run_dir),
+               "SELECT * FROM range(50000000)"]
+    proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    assert json.loads(proc.stdout.readline()) == {"range": 0}
+    proc.stdout.close()
+    assert proc.wait(timeout=60) == 141
+    assert proc.stderr.read() == b""
+
+
 # 6. the .mcap file and missing folders
 
 

@@ -1,12 +1,14 @@
 """``cellguard record``: look into a fault record, export its ticks, recover a damaged one, query the index.
 
 Exit codes: 0 the record is complete; 1 it was read but is truncated or damaged (the message says
-what was recovered); 2 bad input or nothing readable.
+what was recovered); 2 bad input or nothing readable; 141 (quietly) when `record query`'s reader closed
+the pipe before the last row.
 """
 
 from __future__ import annotations
 
 import json
+import os
 import sys
 from collections import Counter
 from pathlib import Path
@@ -23,6 +25,7 @@ from cellguard.errors import CellguardError, RecordError
 record_app = typer.Typer(no_args_is_help=True, help="Read, export, recover and query fault records.")
 app.add_typer(record_app, name="record")
 FORMATS = ("csv", "parquet")
+EXIT_BROKEN_PIPE = 141  # 128 + SIGPIPE: what `cat` or `git log` return when `| head` stops reading
 
 
 def _utc(wall_ns: int) -> str:
@@ -199,7 +202,13 @@ def query(
 
     try:
         names, rows = run_query(folder, sql, timeout_s)
-        for row in rows:
-            sys.stdout.write(json_line(names, row) + "\n")
+        try:
+            for row in rows:
+                sys.stdout.write(json_line(names, row) + "\n")
+            sys.stdout.flush()
+        except BrokenPipeError:  # the reader took what it wanted (`| head`): stop the query, quietly
+            rows.close()
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # nothing left to flush at exit
+            raise typer.Exit(EXIT_BROKEN_PIPE) from None
     except CellguardError as exc:
         fail(exc)
