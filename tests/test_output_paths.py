@@ -111,3 +111,14 @@ def test_a_name_over_255_bytes_is_one_line_naming_it(run, tmp_path, args):
     line = one_error(runner.invoke(app, args))
     assert LONG in line and "File name too long" in line
     assert _left(run) == before
+
+
+def test_a_dangling_link_on_the_way_to_a_folder_is_named(tmp_path):
+    """``--out`` through a link whose target is gone said "cannot create the folder (File exists)"."""
+    from cellguard.output import make_folder
+
+    (tmp_path / "out").symlink_to(tmp_path / "gone")
+    for target in (tmp_path / "out", tmp_path / "out" / "run"):
+        with pytest.raises(OutputError, match=r"out is a link to .*gone, which does not exist"):
+            make_folder(target, "--out")
+    assert _left(tmp_path) == ["out"]

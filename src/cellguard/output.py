@@ -24,6 +24,10 @@ def make_folder(path: Path, what: str) -> Path:
     try:
         path.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
+        for part in (path, *path.parents):
+            if part.is_symlink() and not part.exists():
+                raise OutputError(f"{what} {path}: {part} is a link to {os.readlink(part)}, which does not exist; "
+                                  f"create its target or name another folder") from None
         raise OutputError(f"{what} {path}: cannot create the folder ({_why(exc)})") from None
     return path
 
