@@ -11,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import json
 import socket
+import sys
 import threading
 import time
 
@@ -324,3 +325,22 @@ def test_a_run_refused_after_it_connected_lets_the_next_one_in_at_once(server, t
     with pytest.raises(CellguardError, match="no such file"):
         Run(parse_scenario(scenario(port, tmp_path / "missing.npz")))
     SimServerRobot(("127.0.0.1", port)).close()  # at once, not busy
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the closed port is read from Linux's error queue")
+def test_a_client_whose_process_died_before_its_first_command_is_gone_at_once(server):
+    """A run that crashed during its policy's warm-up held the robot for 30 s; a stranger who leaves does not
+    end the client's session."""
+    proc, port = server
+    client, stranger = Peer(port), Peer(port)
+    client.hello()
+    stranger.sock.send(b"H")
+    stranger.sock.close()  # the server's refusal comes back port-unreachable
+    time.sleep(0.1)
+    assert client.counters()["refused_hellos"] == 1  # still the client
+    client.sock.close()
+    time.sleep(0.1)
+    SimServerRobot(("127.0.0.1", port)).close()  # at once, not after 30 s
+    out = said(proc)
+    assert f"sim-server: client {client.name} is gone (its port is closed)" in out
+    assert f"{stranger.name} is gone" not in out and "Traceback" not in out

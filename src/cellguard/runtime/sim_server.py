@@ -11,7 +11,9 @@ its first command, while its run loads and warms up its policy), another peer's 
 with a ``B`` packet naming the client: a second run took over the robot from a run still
 driving it, which then read a silent server. A client's goodbye (``G``) ends its session at
 once; a client silent that long has gone (a crashed run restarts on a new port) and the next
-hello takes over. A packet the server does not act on (a command from another peer, an older
+hello takes over. On Linux a client whose process has died is gone at once: the kernel reports its
+closed port (ICMP port unreachable, read from the socket's error queue with the address it was
+for), so a run that crashed during its warm-up does not hold the robot for 30 s. A packet the server does not act on (a command from another peer, an older
 or non-finite one, a malformed packet) is counted by reason and said on stderr, the first of
 each reason and then at most once a second; a new client is said too.
 
@@ -38,6 +40,7 @@ from cellguard.runtime.clock import WallClock
 NOTE_EVERY_NS = 1_000_000_000  # a refusal of one reason is said on stderr at most this often
 CLIENT_LIVE_NS = 1_000_000_000  # a client heard within this is live; a hello from another peer is refused
 STARTING_LIVE_NS = 30_000_000_000  # the same before its first command (a policy's warm-up sends nothing)
+IP_RECVERR = 11  # Linux: queue ICMP errors with the address they were for (the socket module has no name for it)
 
 
 class SimServer:
@@ -53,6 +56,9 @@ class SimServer:
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.bind(("127.0.0.1", port))
         self.sock.setblocking(False)
+        self._errors_queued = sys.platform.startswith("linux") and hasattr(socket, "MSG_ERRQUEUE")
+        if self._errors_queued:
+            self.sock.setsockopt(socket.IPPROTO_IP, IP_RECVERR, 1)
         self.port = self.sock.getsockname()[1]
         self.delay_ns, self.drop_every = round(delay_ms * 1e6), int(drop_every)
         obs = cell.observe()
@@ -88,21 +94,26 @@ class SimServer:
         else:
             self._delayed.append((now + self.delay_ns, packet))
         while self._delayed and self._delayed[0][0] <= now:
-            self._send(self._delayed.popleft()[1])
+            self._send(self._delayed.popleft()[1], self.client, state=True)
 
     def _receive(self) -> None:
         while True:
             try:
                 packet, addr = self.sock.recvfrom(65536)
-            except (BlockingIOError, ConnectionRefusedError):
+            except BlockingIOError:
                 return
+            except ConnectionRefusedError:  # a port we sent to is closed: which one is in the error queue
+                if not self._errors_queued:
+                    return
+                self._closed_ports()
+                continue
             kind = packet[:1]
             if addr == self.client:
                 self._heard_ns = time.monotonic_ns()
             if kind == b"H":
                 self._hello(addr)
             elif kind == b"?":
-                self.sock.sendto(b"R" + json.dumps(self.counters).encode(), addr)
+                self._send(b"R" + json.dumps(self.counters).encode(), addr)
             elif kind == b"C":
                 self._command(packet, addr)
             elif kind == b"G":
@@ -120,21 +131,30 @@ class SimServer:
             busy = {"client": _peer(self.client), "silent_ms": round(silent_ns * 1e-6), "live_ms": live_ns // 10**6}
             self._refuse("refused_hellos", f"refused a hello from {_peer(addr)}: client {busy['client']} is live "
                                            f"(heard {busy['silent_ms']} ms ago)")
-            self.sock.sendto(b"B" + json.dumps(busy).encode(), addr)
+            self._send(b"B" + json.dumps(busy).encode(), addr)
             return
         if addr != self.client:
             before = "" if self.client is None else f"; commands from {_peer(self.client)} are refused from now on"
             sys.stderr.write(f"sim-server: client {_peer(addr)} said hello{before}\n")
         self.client, self._cmd_seq, self._heard_ns = addr, 0, time.monotonic_ns()
         self._delayed.clear()
-        self.sock.sendto(b"M" + json.dumps(self.meta).encode(), addr)
+        self._send(b"M" + json.dumps(self.meta).encode(), addr)
 
-    def _goodbye(self, addr) -> None:
+    def _goodbye(self, addr, why: str = "said goodbye") -> None:
         """The client closed: the next hello is taken at once, and no state is sent to a closed socket."""
         if addr == self.client:
             self.client = None
             self._delayed.clear()
-            sys.stderr.write(f"sim-server: client {_peer(addr)} said goodbye\n")
+            sys.stderr.write(f"sim-server: client {_peer(addr)} {why}\n")
+
+    def _closed_ports(self) -> None:
+        """Read the error queue: a packet to the client came back port-unreachable, so its process has gone."""
+        while True:
+            try:
+                _, _, _, addr = self.sock.recvmsg(1, 512, socket.MSG_ERRQUEUE)
+            except OSError:  # empty (BlockingIOError), or nothing more to read
+                return
+            self._goodbye(addr, why="is gone (its port is closed)")
 
     def _command(self, packet: bytes, addr) -> None:
         """Apply a command of the client's that is newer than the one in force; refuse any other (a peer that never
@@ -171,12 +191,23 @@ class SimServer:
             self._noted[reason] = now
             sys.stderr.write(f"sim-server: {why} ({reason}: {self.counters[reason]})\n")
 
-    def _send(self, packet: bytes) -> None:
-        try:
-            self.sock.sendto(packet, self.client)
-            self.counters["states_sent"] += 1
-        except OSError:
-            pass  # the client went away; it says hello again when it comes back
+    def _send(self, packet: bytes, addr, state: bool = False) -> None:
+        """Send one packet; a peer that went away is no error (it says hello again when it comes back)."""
+        for _ in range(2):
+            try:
+                self.sock.sendto(packet, addr)
+            except ConnectionRefusedError:  # said of an earlier packet, and this one not sent: to which port?
+                if not self._errors_queued:
+                    return
+                self._closed_ports()
+                if state and self.client is None:
+                    return  # the refused port was the client's
+                continue
+            except OSError:
+                return
+            if state:
+                self.counters["states_sent"] += 1
+            return
 
 
 def _peer(addr) -> str:
