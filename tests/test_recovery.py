@@ -161,6 +161,26 @@ def test_a_late_recovery_closes_before_it_arrives_and_escalates():
     assert _events(run, "reset")
 
 
+def test_an_operator_hold_longer_than_the_cycle_time_out_is_held_whole_and_ends_in_its_reset():
+    """A 30 s hold was cut off by the 12 s time-out after 6 s: the hold was released without a reset and
+    the next cycle's policy started from mid-cell."""
+    hold_s = 14.0
+    recovery = {"behaviours": [RETRY["behaviours"][0], {"do": "operator", "hold_s": hold_s}]}
+    shift = {"kind": "fixture_shift", "at_cycle": 0, "dx_mm": 15.0}  # beyond the retry's search: it escalates to the operator
+    run = Run(_scenario(faults=[shift], recovery=recovery, production_cycles=2))
+    first = run.cycle()
+    hold = next(e for e in _events(run, "protective_stop") if "hand-over" in e.reason)
+    reset, resume = _events(run, "reset")[0], next(e for e in _events(run, "resume") if "hand-over" in e.reason)
+    assert (reset.t_ns - hold.t_ns) * 1e-9 == pytest.approx(hold_s, abs=0.01)
+    assert resume.t_ns >= reset.t_ns  # released only by the operator's reset
+    assert first["recovery_log"][-1]["behaviour"] == "operator" and first["recovery_log"][-1]["duration_s"] > hold_s
+    home = np.asarray(run.cell.q_home)
+    assert np.abs(run.guard.reference[:-1] - home[:-1]).max() < 1e-3  # the next cycle starts at home
+    second = run.cycle()
+    assert not any(e.kind == "tracker_failed" for e in run.events), "the next cycle started off its pose"
+    assert second["recovery_log"][0]["behaviour"] == "retry_grasp"
+
+
 def test_the_late_recovery_fault_slows_recoveries_from_its_cycle_only():
     fault = _scenario(production_cycles=10, faults=[{"kind": "late_recovery", "at_cycle": 3, "speed_scale": 0.4}]).faults[0]
     assert [fault.recovery_speed(c) for c in (2, 3, 9)] == [1.0, 0.4, 0.4]

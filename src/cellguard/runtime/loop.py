@@ -45,7 +45,7 @@ from cellguard.runtime.startup import check_startup
 from cellguard.runtime.transitions import Transition
 from cellguard.scenario import Scenario
 
-CYCLE_TIMEOUT_S = 12.0  # a cycle that has not finished by then is ended as failed [s]
+CYCLE_TIMEOUT_S = 12.0  # a cycle that has not finished by then is ended as failed, once no recovery attempt runs [s]
 NAN_AFTER_S = 1.0  # a policy_nan fault corrupts the first chunk this long into its cycle [s]
 STOP_SETTLE_S = 0.3  # a category 2 stop holds the measured position this long before the run ends [s]
 STANDSTILL = 0.05  # an operator stop ends the run once every measured joint speed is below this [rad/s, m/s]
@@ -200,14 +200,14 @@ class Run:
                 if operator.count and guard.envelope.tracker.stopped and np.abs(state.qd).max() < STANDSTILL:
                     self.stopped = self.stopped or operator.reason
                     break
-                if finished(state) or t >= timeout:
+                if finished(state) or (t >= timeout and not (driving and recovery.attempting)):
                     break
         t_end = clock.now()
         stopped = any(e.category is not None for e in events.since(first_event))
         outcome = {"cycle": index, "phase": self._phase(index), **self.source.end(t_end, stopped)}
         outcome["timed_out"] = t_end >= timeout
         if recovery is not None:
-            outcome.update(recovery.end_cycle(outcome["timed_out"]))
+            outcome.update(recovery.end_cycle())
         outcome["inference"] = _wall_latency(self._wall_ns)
         outcome["features"] = cycle_features(cell.profile, ticks, outcome, self._latencies, events.since(first_event))
         for monitor in self.cycle_monitors:

@@ -5,8 +5,12 @@ Each attempt is a ``recovery_start`` / ``recovery_end`` event pair; the end says
 when the arm arrived at its contact pose (measured) against when the gripper was told to shut, and
 the outcome: ``resumed`` (its plan ran out with no failed check: the cell carries on), ``failed``
 (another attempt follows), ``escalated`` (its ``then`` follows), ``gave_up`` (nothing left, or the
-per-cycle limit: the cell goes home), ``cut_off`` (the cycle ended first). Once a recovery has
-started it drives the cell to the end of the cycle. A failed check during an attempt ends it once
+per-cycle limit: the cell goes home), ``cut_off`` (the cell's task ended the cycle first). Once a
+recovery has started it drives the cell to the end of the cycle, and the cycle's time-out waits for
+the attempt in progress (``attempting``): an operator hand-over holds for its whole ``hold_s`` and
+ends in its reset, and no attempt is left mid-move for the next cycle's policy to start from (an
+operator hold of 30 s was cut off after 6 s and the cell moved again with no reset). Attempts are
+bounded by ``attempts``, acyclic escalation or ``max_per_cycle``. A failed check during an attempt ends it once
 the arm has reached its contact pose (or the plan has passed it): a controller finishes the move in
 progress before it reacts.
 """
@@ -62,6 +66,11 @@ class RecoveryRunner:
         self._now = 0
 
     @property
+    def attempting(self) -> bool:
+        """An attempt is in progress: the cycle's time-out waits for it to end."""
+        return self._active is not None
+
+    @property
     def stop(self) -> int | None:
         """Category 2 while an operator hand-over holds the cell (power kept)."""
         a = self._active
@@ -109,12 +118,12 @@ class RecoveryRunner:
         times = (t - t0 + (np.arange(STEPS) + 1) * STEP_NS) * 1e-9
         return ActionChunk(plan.sample(times, self.arm_speed), t, STEP_NS)
 
-    def end_cycle(self, timed_out: bool) -> dict:
+    def end_cycle(self) -> dict:
         """The cycle's recovery outcome fields (flat, SI) and its log. An attempt still running when the
-        cycle ended at home with no failed check resumed the cell; one cut off by the time-out did not."""
+        cell's task ended the cycle with no failed check resumed the cell; one with a failed check was cut off."""
         a = self._active
         if a is not None:
-            self._end(a, self._now, "cut_off" if timed_out or a.failed_ns is not None else "resumed")
+            self._end(a, self._now, "cut_off" if a.failed_ns is not None else "resumed")
             self._active = None
         log = self._log
         arrivals = [r["arrival_s"] for r in log if r.get("arrival_s") is not None]
