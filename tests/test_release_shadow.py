@@ -57,3 +57,17 @@ def test_shadow_with_the_policy_in_its_own_process_is_refused():
                                "production_cycles": 0, "realtime": {"inference": "process"}})
     with pytest.raises(ConfigError, match="realtime.inference must be 'thread'"):
         ShadowRun(scenario, "scripted", GuardSettings())
+
+
+def test_a_candidate_whose_chunks_are_never_taken_would_stop_the_cell(tmp_path):
+    """Every chunk NaN: live, no first chunk within the watchdog is a stop; the shadow counted 0 would-stops."""
+    nan = tmp_path / "nan.npz"
+    with np.load(replay_file(tmp_path / "home.npz")) as z:
+        actions = z["actions"].copy()
+    actions[..., 0] = np.nan
+    np.savez(nan, t=np.array([0.0]), actions=actions, dt=np.array(0.05))
+    _, folder = _shadow_run(tmp_path, f"replay:{nan}", "nan")
+    rows = json.loads((folder / "shadow.json").read_text())["chunks"]
+    assert rows and all("chunk_rejected" in r["events"] for r in rows)
+    assert [r["events"].count("watchdog_no_first_chunk") for r in rows].count(1) == 1
+    assert METRICS["shadow_would_stop"].compute([load_run(folder, "nan")]).value == 1.0

@@ -5,7 +5,10 @@ observation; its chunk goes into a guard of its own (``cellguard.control.guard.G
 with the candidate's envelope settings) that is ticked on the same servo clock but never writes
 to the robot. Per candidate chunk we keep the distance to the incumbent's chunk (max over joints
 and shared steps [rad]) and whether its guard clamped it (a limit intervention) or stopped it
-(a stop of any category) before the next chunk came. Written to ``shadow.json`` beside the record.
+(a stop of any category) before the next chunk came. The loop's watchdog before the first chunk
+lives in the loop, not in a guard, so the shadow keeps its own: a candidate whose chunks the guard
+never takes (every one NaN) would be stopped live within ``watchdog_s`` (it counted 0 stops).
+Written to ``shadow.json`` beside the record.
 """
 
 from __future__ import annotations
@@ -17,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from cellguard.control.guard import Guard
+from cellguard.control.events import EventKind
 from cellguard.control.settings import GuardSettings, build_guard
 from cellguard.diagnose.diagnosis import ROUTINE_EVENTS
 from cellguard.errors import ConfigError
@@ -30,12 +34,14 @@ from cellguard.scenario import Scenario
 class ShadowedPolicy:
     """The incumbent behind the Policy protocol, with the candidate computed beside it."""
 
-    def __init__(self, incumbent, candidate, guard: Guard, dt_ns: int, cycle):
+    def __init__(self, incumbent, candidate, guard: Guard, dt_ns: int, cycle, watchdog_s: float):
         self.incumbent, self.candidate, self.guard, self.dt_ns, self.cycle = incumbent, candidate, guard, dt_ns, cycle
         self.source = incumbent.source
         self.rows: list[dict] = []
         self._open: dict | None = None  # the candidate chunk now in the shadow guard
         self._t_ns: int | None = None  # the shadow guard's next tick
+        self._first_chunk_by: int | None = None  # the shadow's start plus the watchdog [ns]; None once checked
+        self._watchdog_ns = round(watchdog_s * 1e9)
 
     def content_hash(self) -> str:
         return self.incumbent.content_hash()
@@ -65,12 +71,18 @@ class ShadowedPolicy:
     def _advance(self, t_ns: int) -> None:
         """Tick the shadow guard up to ``t_ns``; its events belong to the candidate chunk it was following."""
         if self._t_ns is None:
-            self._t_ns = t_ns
+            self._t_ns, self._first_chunk_by = t_ns, t_ns + self._watchdog_ns
         while self._t_ns < t_ns:
             _, events = self.guard.tick(self._t_ns)
             if events and self._open is not None:
                 self._note(self._open, events)
             self._t_ns += self.dt_ns
+        if self._first_chunk_by is not None and self.guard.executor.last_chunk_ns is not None:
+            self._first_chunk_by = None  # a first chunk was taken: the guard's own watchdog takes over
+        elif self._first_chunk_by is not None and t_ns > self._first_chunk_by and self._open is not None:
+            self._first_chunk_by = None  # once, as the loop's event is once
+            self._open["events"].append(EventKind.WATCHDOG_NO_FIRST_CHUNK.value)
+            self._open["stopped"] = True
 
     @staticmethod
     def _note(row: dict, events) -> None:
@@ -108,7 +120,7 @@ class ShadowRun(Run):
         try:
             shadow_guard = build_guard(self.cell, candidate_guard)
             self.policy = ShadowedPolicy(self.policy, make_policy(candidate, self.cell), shadow_guard,
-                                         self.cell.dt_ns, lambda: self.cycles.total)
+                                         self.cell.dt_ns, lambda: self.cycles.total, candidate_guard.watchdog_s)
         except BaseException:  # the incumbent's policy and a bridge are open: close them
             self.close()
             raise
