@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import json
+import os
 
+import pytest
 from release_helpers import CELL, cli, pointers, replay_file
 
 from cellguard.release import create_bundle
@@ -56,3 +58,20 @@ def test_a_profile_whose_robot_is_not_a_name_is_one_line_exit_2(tmp_path):
     result = cli("create", "--policy", "scripted", "--profile", str(profile), "--site", str(tmp_path / "site"))
     assert result.exit_code == 2 and "robot [1] is not a registered cell" in result.stderr
     assert len(result.stderr.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize("option, value, says", [("--map", "fifo", "is a FIFO, not a regular action map file"),
+                                                 ("--map", "/dev/zero", "larger than the limit of 1048576 bytes"),
+                                                 ("--policy", "onnx:fifo", "is a FIFO, not a regular file"),
+                                                 ("--policy", "replay:/dev/zero", "is a character device")])
+def test_a_fifo_or_device_as_the_map_or_policy_is_one_line_exit_2(tmp_path, option, value, says):
+    """`--map FIFO` waited forever and `--map /dev/zero` filled the memory (read whole before any check)."""
+    from test_fleet_outbox import run_with_fifo_guard
+
+    fifo = tmp_path / "fifo"
+    os.mkfifo(fifo)
+    value = value.replace("fifo", str(fifo))
+    args = ["create", "--policy", "scripted", "--profile", CELL, "--site", str(tmp_path / "site"), option, value]
+    result = run_with_fifo_guard(fifo, lambda: cli(*args))
+    assert result.exit_code == 2 and result.stderr.count("\n") == 1 and says in result.stderr, result.output
+    assert not (tmp_path / "site").exists()

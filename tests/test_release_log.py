@@ -1,4 +1,5 @@
-"""The promotion log: an edited entry and a deleted one (middle or last) are both detected."""
+"""The promotion log: an edited entry and a deleted one (middle or last) are both detected; a deleted last entry
+whose head was moved back with it only against a head kept elsewhere."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ import sqlite3
 from release_helpers import CELL, cli
 
 from cellguard.release import Store, create_bundle, promote, verify_log
+from cellguard.release.log import head
 from cellguard.release.store import STORE_FILE
 
 
@@ -25,7 +27,8 @@ def _site_with_entries(tmp_path, n: int = 3):
 def test_a_whole_log_verifies(tmp_path):
     site = _site_with_entries(tmp_path)
     result = cli("verify", "--site", str(site), "--json")
-    assert result.exit_code == 0 and json.loads(result.stdout) == {"entries": 3, "ok": True, "problems": []}
+    assert result.exit_code == 0
+    assert json.loads(result.stdout) == {"entries": 3, "head": head(Store(site)), "ok": True, "problems": []}
 
 
 def test_an_edited_entry_is_detected(tmp_path):
@@ -53,3 +56,22 @@ def test_a_deleted_entry_is_detected_in_the_middle_and_at_the_end(tmp_path):
     db.commit()
     result = cli("verify", "--site", str(site2))
     assert result.exit_code == 1 and "the last entries were deleted" in result.stdout
+
+
+def test_a_last_entry_deleted_with_the_head_moved_back_is_found_only_against_a_head_kept_elsewhere(tmp_path):
+    """Nothing in the same file tells such a log from one that was never longer: ``--expect-head`` does."""
+    site = _site_with_entries(tmp_path)
+    kept = json.loads(cli("verify", "--site", str(site), "--json").stdout)["head"]
+    db = sqlite3.connect(site / STORE_FILE)
+    prev = db.execute("SELECT prev_hash FROM log WHERE seq=3").fetchone()[0]
+    db.execute("DELETE FROM log WHERE seq=3")
+    db.execute("UPDATE meta SET value=? WHERE key='log_head'", (prev,))
+    db.execute("UPDATE meta SET value='2' WHERE key='log_count'")
+    db.execute("UPDATE pointers SET current=(SELECT json_extract(body, '$.to') FROM log WHERE seq=2)")  # as before
+    db.commit()
+    assert cli("verify", "--site", str(site)).exit_code == 0
+    result = cli("verify", "--site", str(site), "--expect-head", kept[:16])
+    assert result.exit_code == 1 and f"no entry has the expected head {kept[:16]}" in result.stdout
+    assert cli("verify", "--site", str(site), "--expect-head", prev).exit_code == 0  # an older head: still held
+    bad = cli("verify", "--site", str(site), "--expect-head", "xyz")
+    assert bad.exit_code == 2 and bad.stderr.count("\n") == 1 and "not a hash" in bad.stderr

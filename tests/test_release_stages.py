@@ -189,3 +189,29 @@ def test_a_policy_file_swapped_between_two_runs_of_a_stage_stops_the_stage(tmp_p
         run_stage(store, plan["sim"], CELL, "sim", on_run=swap_before_the_second)
     assert [r.name for r in store.runs(CELL, "sim", bundle.id)] == ["first"]
     assert [e.body["kind"] for e in entries(store)] == ["promote"]  # no gates entry: nothing to promote on
+
+
+@pytest.mark.parametrize("stage, says", [
+    ({"gates": [{"metric": "success_rate", "min": 2.0}]}, r"gates\[0\]: min 2: success_rate is at most 1"),
+    ({"gates": [{"metric": "success_rate", "min": 0.9, "max": 0.5}]}, r"gates\[0\]: the lower limit 0.9 is above"),
+    ({"gates": [{"metric": "cycle_time_p95_s", "max_vs_last_good": 0.9, "min_vs_last_good": 1.1}]},
+     r"gates\[0\]: the lower limit 1.1 is above the upper 0.9"),
+    ({"gates": [{"metric": "shadow_would_clamp", "max": -0.1}]}, r"gates\[0\]: max -0.1: .* at least 0"),
+    ({"gates": [{"metric": "success_rate", "min": 1.0, "min_cycles": 10**23}]},
+     r"gates\[0\]\.min_cycles: Input should be less than or equal to 1000000"),
+    ({"runs": [{"name": "a", "acceptance_cycles": 1}]}, r"stages.sim: runs but no gates"),
+])
+def test_a_gate_that_can_never_pass_is_refused_naming_the_stage_and_gate(tmp_path, stage, says):
+    with pytest.raises(GateError, match=says):
+        load_plan(write_plan(tmp_path / "plan.yaml", {"sim": stage}))
+
+
+def test_a_run_on_a_stage_with_no_gates_is_refused_before_it_runs(tmp_path):
+    """`--scenario` gives a stage the plan left without runs: its run could only end inconclusive."""
+    plan, site, _ = two_runs_at_sim(tmp_path, 1)
+    scenario = tmp_path / "one.yaml"
+    scenario.write_text("{name: one, seed: 2, acceptance_cycles: 1}\n")
+    result = cli("run", "--cell", CELL, "--stage", "sim", "--plan", str(write_plan(plan, {})), "--scenario",
+                 str(scenario), "--site", str(site))
+    assert result.exit_code == 2 and result.stderr.count("\n") == 1 and "the plan has no gates for sim" in result.stderr
+    assert not (site / "runs").exists()

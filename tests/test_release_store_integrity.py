@@ -134,3 +134,63 @@ def test_a_promotion_from_hand_edited_pointers_is_refused_and_moves_nothing(tmp_
     result = cli("rollback", "--cell", CELL, "--stage", "sim", "--site", str(site))
     assert result.exit_code == 2 and "the log has" in result.stderr and "nothing moved" in result.stderr
     assert len(entries(Store(site))) == before
+
+
+def test_a_report_over_the_store_or_any_store_is_refused_and_the_store_kept(tmp_path):
+    """`report -o SITE/release.sqlite` replaced the release store (every bundle and the log) with the page."""
+    site, (rid,) = _site(tmp_path)
+    store_file = site / STORE_FILE
+    before = store_file.read_bytes()
+    other = tmp_path / "fleet.sqlite"
+    sqlite3.connect(other).execute("CREATE TABLE t (x)").connection.close()
+    for target in (store_file, other):
+        result = cli("report", rid, "-o", str(target), "--site", str(site))
+        assert result.exit_code == 2 and result.stderr.count("\n") == 1 and str(target) in result.stderr
+    assert "is the release store being read" in cli("report", rid, "-o", str(store_file), "--site", str(site)).stderr
+    assert store_file.read_bytes() == before and other.read_bytes().startswith(b"SQLite format 3\x00")
+    assert cli("verify", "--site", str(site)).exit_code == 0
+
+
+def _gates_entry(site) -> None:
+    """A gates entry for the site's release at sim, as `release run` logs one."""
+    from cellguard.release import log
+
+    store = Store(site)
+    rid = store.pointers(CELL, "sim").current
+    with store.transaction():
+        log.append(store, {"kind": "gates", "cell": CELL, "stage": "sim", "release": rid, "verdict": "pass",
+                           "gates": [], "evidence": []})
+    store.close()
+
+
+EDITS = {  # a hand edit, and the commands that read what it broke
+    "UPDATE log SET body=json_remove(body, '$.verdict') WHERE seq=2": ("promote", "status", "report", "run"),
+    "UPDATE meta SET value='abc' WHERE key='log_count'": ("promote", "run"),  # append after it
+    "UPDATE bundles SET manifest='not json'": ("promote", "report", "run"),
+}
+
+
+@pytest.mark.parametrize("edit", EDITS)
+def test_a_hand_edited_store_is_one_line_exit_2_not_a_traceback(tmp_path, edit):
+    """A gates entry without its verdict was a KeyError, a log count that is no number a ValueError, a manifest
+    that is not JSON a JSONDecodeError; a run is refused before it runs (its gates could not be logged)."""
+    site, (rid,) = _site(tmp_path)
+    _gates_entry(site)
+    _edit(site, edit)
+    before = (site / STORE_FILE).read_bytes()
+    commands = {"promote": ("promote", rid, "--cell", CELL, "--to", "bench"), "status": ("status",),
+                "report": ("report", rid, "-o", str(tmp_path / "page.html")), "run": ("run", "--cell", CELL, "--stage",
+                                                                                      "sim")}
+    for name in EDITS[edit]:
+        result = cli(*commands[name], "--site", str(site))
+        assert result.exit_code == 2 and result.stderr.count("\n") == 1, (name, result.output)
+        assert result.stderr.startswith("error: ") and "edited outside cellguard" in result.stderr
+    assert (site / STORE_FILE).read_bytes() == before and not (site / "runs").exists()
+    assert cli("verify", "--site", str(site)).exit_code == 1
+
+
+def test_verify_finds_a_manifest_that_no_longer_hashes_to_its_id(tmp_path):
+    site, (rid,) = _site(tmp_path)
+    _edit(site, "UPDATE bundles SET manifest=json_set(manifest, '$.note', 'v2')")
+    result = cli("verify", "--site", str(site))
+    assert result.exit_code == 1 and f"broken: release {rid}: its manifest hashes to" in result.stdout

@@ -128,14 +128,16 @@ def run_stage(
     if as_json:
         sys.stdout.write(json.dumps({"cell": cell, "stage": stage, "release": result.release,
                                      "verdict": result.verdict, "gates": [g.to_dict() for g in result.gates],
-                                     "evidence": list(result.evidence), "rolled_back_to": result.rolled_back_to,
-                                     "log_seq": result.log_seq}) + "\n")
+                                     "evidence": list(result.evidence), "refused": list(result.refused),
+                                     "rolled_back_to": result.rolled_back_to, "log_seq": result.log_seq}) + "\n")
     else:
         for g in result.gates:
             value = "-" if g.value is None else f"{g.value:.4g}"
             out.print(f"  {g.status:<12} {g.metric:<26} {value:>10}  {g.condition}  {g.detail}")
             for e in g.evidence[:3] if g.status != "pass" else ():
                 out.print(f"               evidence: {e}")
+        for why in result.refused:
+            out.print(f"  not read as evidence: {why}")
         out.print(f"{stage} on {cell}, release {result.release}: {result.verdict} (log entry {result.log_seq}; "
                   f"records {', '.join(result.evidence)})")
         if result.rolled_back_to:
@@ -181,23 +183,28 @@ def status(site: Path = SITE, as_json: bool = typer.Option(False, "--json")) -> 
 
 
 @release_app.command()
-def verify(site: Path = SITE, as_json: bool = typer.Option(False, "--json")) -> None:
-    """Check the promotion log's hash chain; exit 1 naming each edited or deleted entry."""
+def verify(
+    site: Path = SITE,
+    expect_head: str = typer.Option(None, "--expect-head", help="A head hash kept outside the site (printed by an "
+                                                                 "earlier verify): the log must still hold it."),
+    as_json: bool = typer.Option(False, "--json"),
+) -> None:
+    """Check the promotion log's hash chain and the bundles; exit 1 naming each edited or deleted entry."""
     from cellguard.release import verify_log
-    from cellguard.release.log import size
+    from cellguard.release.log import head, size
 
     try:
         store = _store(site, create=False)
-        problems, n = verify_log(store), size(store)
+        problems, n, last = verify_log(store, expect_head), size(store), head(store)
     except CellguardError as exc:
         fail(exc)
     if as_json:
-        sys.stdout.write(json.dumps({"entries": n, "ok": not problems, "problems": problems}) + "\n")
+        sys.stdout.write(json.dumps({"entries": n, "head": last, "ok": not problems, "problems": problems}) + "\n")
     elif problems:
         for p in problems:
             out.print(f"broken: {p}")
     else:
-        out.print(f"log whole: {n} entries, chain verified")
+        out.print(f"log whole: {n} entries, chain verified; head {last} (keep it elsewhere: --expect-head)")
     if problems:
         raise typer.Exit(1)
 

@@ -17,6 +17,8 @@ from cellguard.record.reader import record_file
 from cellguard.record.scan import MAGIC
 from cellguard.record.writer import RECORD_FILE
 
+SQLITE_MAGIC = b"SQLite format 3\x00"  # the first bytes of every SQLite database (a release store, a fleet store)
+
 
 def refuse_output(output: Path, source: Path | None, to_folder: bool = False, *,
                   inputs: Iterable[tuple[str, Path | None]] = (), option: str = "-o", replace: bool = True,
@@ -27,9 +29,9 @@ def refuse_output(output: Path, source: Path | None, to_folder: bool = False, *,
     Refused, after following links: the record being read (``source``, a run folder or an .mcap file,
     whatever its bytes hold; None: the command reads no record), any other file the command reads
     (``inputs``: (what, path) pairs such as ("--profile file", path); None paths are skipped), a file that
-    starts with the MCAP magic, and a run folder (one holding record.mcap) or anything in it, since its
-    summary, index and baseline belong to the record; ``own`` names (glob patterns, e.g.
-    ``replay-cycle-*.html``) of the pages a command writes directly in ``source``'s own run folder are the
+    starts with the MCAP magic or the SQLite magic (a store), and a run folder (one holding record.mcap) or
+    anything in it, since its summary, index and baseline belong to the record; ``own`` names (glob patterns,
+    e.g. ``replay-cycle-*.html``) of the pages a command writes directly in ``source``'s own run folder are the
     exception. Also refused: a device, FIFO or socket (a rename would replace the node itself), a file where a
     folder must be (the output itself with ``to_folder``, or a parent), a folder where a file must be, and an
     existing file unless ``replace``. ``option`` is how the message names the output (``-o``, ``--write``).
@@ -50,9 +52,13 @@ def refuse_output(output: Path, source: Path | None, to_folder: bool = False, *,
                               f"or its run folder; choose a path outside it")
         if target.is_file():
             with open(target, "rb") as f:
-                if f.read(len(MAGIC)) == MAGIC:
-                    raise RecordError(f"{name}: is a record; cellguard never overwrites a record; "
-                                      f"choose another path")
+                head = f.read(max(len(MAGIC), len(SQLITE_MAGIC)))
+            if head.startswith(MAGIC):
+                raise RecordError(f"{name}: is a record; cellguard never overwrites a record; "
+                                  f"choose another path")
+            if head.startswith(SQLITE_MAGIC):
+                raise RecordError(f"{name}: is an SQLite database (a release or other store); cellguard never "
+                                  f"overwrites a store; choose another path")
         kind = not_regular(target)
         parent = next((d for d in target.parents if d.exists()), None)
         blocked = parent is not None and not parent.is_dir()

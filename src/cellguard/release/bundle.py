@@ -20,9 +20,10 @@ from cellguard import __version__
 from cellguard.control.settings import GuardSettings
 from cellguard.embodiment.profile import load_profile
 from cellguard.errors import CellguardError
+from cellguard.output import not_regular
 from cellguard.release.errors import BundleMismatch, ReleaseError
 from cellguard.robot.registry import CELLS, make_cell
-from cellguard.yaml_file import read_yaml
+from cellguard.yaml_file import read_bounded, read_yaml
 
 ID_CHARS = 16  # hex characters of the sha256 shown as the release id
 
@@ -37,6 +38,12 @@ def sha256_file(path: Path, what: str) -> str:
         return hashlib.sha256(Path(path).read_bytes()).hexdigest()
     except OSError as exc:
         raise ReleaseError(f"{what} {path}: cannot read ({exc.strerror or exc.__class__.__name__})") from None
+
+
+def map_sha256(path: Path) -> str:
+    """The action map's hash, read as every YAML input is: a FIFO, a device or a file over the limit is one line
+    (it was read whole before any check: ``/dev/zero`` filled the memory, a FIFO waited forever)."""
+    return hashlib.sha256(read_bounded(path, "action map", ReleaseError)).hexdigest()
 
 
 @dataclass(frozen=True)
@@ -84,7 +91,7 @@ def create_bundle(policy: str, action_map: Path | None, profile: str, envelope: 
     amap = None
     if action_map is not None:
         path = Path(action_map).resolve()
-        amap = {"path": str(path), "sha256": sha256_file(path, "--map")}
+        amap = {"path": str(path), "sha256": map_sha256(path)}
     manifest = {
         "format": 1,
         "policy": {"spec": _absolute_spec(policy), "sha256": ""},
@@ -108,7 +115,7 @@ def verify_bundle(bundle: Bundle, policy=None) -> None:
         raise BundleMismatch(f"release {bundle.id}: manifest edited (hashes to {release_id(bundle.manifest)})")
     m = bundle.manifest
     if m["action_map"] is not None:
-        now = sha256_file(Path(m["action_map"]["path"]), "action map")
+        now = map_sha256(Path(m["action_map"]["path"]))
         if now != m["action_map"]["sha256"]:
             raise BundleMismatch(f"release {bundle.id}: action map {m['action_map']['path']} changed since create "
                                  f"(sha256 {now[:12]}, frozen {m['action_map']['sha256'][:12]})")
@@ -173,11 +180,19 @@ def _envelope(path: Path | None) -> GuardSettings:
 
 
 def _absolute_spec(spec: str) -> str:
-    """A policy file named relative to here is frozen by its absolute path."""
+    """A policy file named relative to here is frozen by its absolute path; a FIFO, device or socket there is
+    refused before its adapter waits on it or calls it missing."""
     scheme, sep, arg = spec.partition(":")
     if scheme in ("onnx", "lerobot", "replay") and sep:
         target, q, query = arg.partition("?")
         if "map=" in query:
             raise ReleaseError("--policy: give the action map with --map, not ?map=")
-        return f"{scheme}:{Path(target).resolve()}{q}{query}"
+        path = Path(target).resolve()
+        try:
+            kind = not_regular(path)
+        except OSError as exc:  # a name too long, no access
+            raise ReleaseError(f"--policy {target}: cannot be read ({exc.strerror or exc})") from None
+        if kind is not None:
+            raise ReleaseError(f"--policy {target}: is {kind}, not a regular file")
+        return f"{scheme}:{path}{q}{query}"
     return spec

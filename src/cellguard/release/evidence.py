@@ -1,7 +1,9 @@
 """The evidence of a stage: its runs' records, read once through the record reader.
 
 A run folder holds ``record.mcap`` (read with ``cellguard.record.reader``) and, for a pilot run in
-shadow mode, ``shadow.json`` (per chunk: distance to the incumbent, would-clamp, would-stop).
+shadow mode, ``shadow.json`` (per chunk: distance to the incumbent, would-clamp, would-stop). A
+counted run is read only as the record that was counted: hashed again, its context naming the
+release, cell and stage that counted it.
 """
 
 from __future__ import annotations
@@ -10,9 +12,12 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
+from cellguard.errors import CellguardError
 from cellguard.record.reader import CycleRecord, EventRecord, RecordedChunk, Ticks, open_record
 from cellguard.record.writer import RECORD_FILE
 from cellguard.release.bundle import sha256_file
+from cellguard.release.errors import ReleaseError
+from cellguard.release.store import RunRow, Store
 
 SHADOW_FILE = "shadow.json"
 
@@ -40,7 +45,8 @@ def record_id(folder: Path) -> str:
     return sha256_file(Path(folder) / RECORD_FILE, "record")[:16]
 
 
-def load_run(folder: Path, name: str, rid: str | None = None) -> RunEvidence:
+def load_run(folder: Path, name: str) -> RunEvidence:
+    """The run in ``folder``, its id hashed from the record file read (never taken from elsewhere)."""
     folder = Path(folder)
     with open_record(folder) as rec:
         context = rec.context
@@ -48,4 +54,24 @@ def load_run(folder: Path, name: str, rid: str | None = None) -> RunEvidence:
         ticks = rec.ticks(rate="decimated")
     shadow_path = folder / SHADOW_FILE
     shadow = tuple(json.loads(shadow_path.read_text())["chunks"]) if shadow_path.is_file() else None
-    return RunEvidence(rid or record_id(folder), name, str(folder), context, cycles, events, chunks, ticks, shadow)
+    return RunEvidence(record_id(folder), name, str(folder), context, cycles, events, chunks, ticks, shadow)
+
+
+def counted_run(store: Store, row: RunRow) -> RunEvidence:
+    """``row``'s run as evidence; ReleaseError naming its folder unless it is the record that was counted (same
+    hash) and its context names the row's release, cell and stage: a record put in its place, even one that
+    passed for another release, is never read as this run."""
+    folder = store.run_folder(row)
+    try:
+        run = load_run(folder, row.name)
+    except CellguardError as exc:
+        raise ReleaseError(f"run {row.name!r} ({row.record_id}): {exc}") from None
+    if run.record_id != row.record_id:
+        raise ReleaseError(f"{folder}: holds record {run.record_id}, not {row.record_id} that was counted as run "
+                           f"{row.name!r} (replaced since)")
+    bound = run.context.get("release") if isinstance(run.context, dict) else None
+    got = tuple(bound.get(k) for k in ("id", "cell", "stage")) if isinstance(bound, dict) else (None,) * 3
+    if got != (row.release, row.cell, row.stage):
+        raise ReleaseError(f"{folder}: its record is a run of release {got[0]} at {got[2]} on {got[1]}, not of "
+                           f"{row.release} at {row.stage} on {row.cell}")
+    return run

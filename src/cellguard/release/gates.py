@@ -19,6 +19,7 @@ from cellguard.release.evidence import RunEvidence
 from cellguard.release.metrics import METRICS, Measure
 
 PASS, FAIL, INCONCLUSIVE = "pass", "fail", "inconclusive"
+MAX_MIN_CYCLES = 1_000_000  # more cycles than any stage runs: such a gate could only stay inconclusive
 
 
 class Gate(BaseModel):
@@ -32,7 +33,7 @@ class Gate(BaseModel):
     max: float | None = None
     min_vs_last_good: float | None = Field(default=None, gt=0.0, description="value >= factor x last_good's")
     max_vs_last_good: float | None = Field(default=None, gt=0.0, description="value <= factor x last_good's")
-    min_cycles: int = Field(default=1, ge=1)
+    min_cycles: int = Field(default=1, ge=1, le=MAX_MIN_CYCLES)
     hard: bool = False
 
     @model_validator(mode="after")
@@ -43,6 +44,14 @@ class Gate(BaseModel):
             raise ValueError(f"{self.metric} is a hard gate: its failure limit is 0, write max: 0")
         if all(v is None for v in (self.min, self.max, self.min_vs_last_good, self.max_vs_last_good)):
             raise ValueError("no condition: give min, max, min_vs_last_good or max_vs_last_good")
+        most = METRICS[self.metric].most
+        if self.min is not None and self.min > most:
+            raise ValueError(f"min {self.min:g}: {self.metric} is at most {most:g}, no value passes")
+        if self.max is not None and self.max < 0:
+            raise ValueError(f"max {self.max:g}: {self.metric} is at least 0, no value passes")
+        for low, high in ((self.min, self.max), (self.min_vs_last_good, self.max_vs_last_good)):
+            if low is not None and high is not None and low > high:
+                raise ValueError(f"the lower limit {low:g} is above the upper {high:g}: no value passes")
         return self
 
     @property

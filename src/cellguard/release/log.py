@@ -2,14 +2,19 @@
 
 Each entry's hash is sha256(prev_hash + canonical JSON of its body); the first entry's
 prev_hash is 64 zeros. The store keeps the head (last hash and count) beside the log, so a
-deleted last entry shows too. ``verify_log`` recomputes the chain and names the first break,
-and checks every stage's pointers against the ones the log's entries set.
+deleted last entry shows, unless the head was moved back in the same edit: in the same file
+nothing can tell that from a log that was never longer. A head kept elsewhere (``verify_log``'s
+``expect_head``) does. ``verify_log`` recomputes the chain and names every break, and checks
+every stage's pointers against the ones the log's entries set and every bundle's manifest
+against its id. Commands act only on entries that match their hashes, and append only after the
+store's head.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
+import re
 from dataclasses import dataclass
 from datetime import datetime, timezone
 
@@ -40,13 +45,25 @@ def append(store, body: dict) -> LogEntry:
     if body.get("kind") in MOVES:
         _check_from(store, body)
     body = {**body, "at": datetime.now(timezone.utc).isoformat(timespec="seconds")}
-    head = store.meta("log_head") or GENESIS
-    seq = int(store.meta("log_count") or 0) + 1
+    seq, head = tail(store)
+    seq += 1
     digest = entry_hash(head, body)
     store.db.execute("INSERT INTO log VALUES (?, ?, ?, ?)", (seq, canonical_json(body).decode(), head, digest))
     store.set_meta("log_head", digest)
     store.set_meta("log_count", str(seq))
     return LogEntry(seq, body, head, digest)
+
+
+def tail(store) -> tuple[int, str]:
+    """(seq, hash) of the log's last entry, refused unless the store's head says the same: appended after a hand
+    edit (a deleted last entry, a count that is no number) the new entry would hide the edit or collide."""
+    seq, digest = _last(store)
+    kept = (store.meta("log_count") or "0", store.meta("log_head") or GENESIS)
+    if kept != (str(seq), digest):
+        raise ReleaseError(f"the log ends at entry {seq} ({str(digest)[:12]}), the store's head says entry "
+                           f"{kept[0][:20]!r} ({kept[1][:12]}): edited outside cellguard (release verify); "
+                           f"nothing moved")
+    return seq, digest
 
 
 def _check_from(store, body: dict) -> None:
@@ -77,13 +94,14 @@ def _body(text: str) -> dict | None:
 
 
 def entries(store) -> list[LogEntry]:
-    """Every entry; ReleaseError naming the first whose body is not a JSON object."""
+    """Every entry; ReleaseError naming the first that is not a JSON object or does not match its hash (a command
+    never acts on an edited entry, nor reads a key an edit removed)."""
     out = []
     for seq, text, prev, digest in _rows(store):
         body = _body(text)
-        if body is None:
-            raise ReleaseError(f"log entry {seq}: not a JSON object (edited outside cellguard); release verify "
-                               f"lists every break")
+        if body is None or entry_hash(prev, body) != digest:
+            what = "not a JSON object" if body is None else "content does not match its hash"
+            raise ReleaseError(f"log entry {seq}: {what} (edited outside cellguard); release verify lists every break")
         out.append(LogEntry(seq, body, prev, digest))
     return out
 
@@ -122,10 +140,26 @@ def pointers_by_log(log_entries: list[LogEntry]) -> dict[tuple, tuple]:
     return state
 
 
-def verify_log(store) -> list[str]:
-    """Every break in the chain and every pointer the log does not account for, in words; empty when whole."""
-    problems, prev, expected_seq, readable = [], GENESIS, 1, []
+def _last(store) -> tuple[int, str]:
+    """(seq, hash) of the log's last entry; (0, GENESIS) when it is empty."""
+    return store.db.execute("SELECT seq, CAST(hash AS TEXT) FROM log ORDER BY seq DESC LIMIT 1").fetchone() or (
+        0, GENESIS)
+
+
+def head(store) -> str:
+    """The hash of the log's last entry: kept outside the store, it is ``verify_log``'s ``expect_head`` later."""
+    return _last(store)[1]
+
+
+def verify_log(store, expect_head: str | None = None) -> list[str]:
+    """Every break in the chain, every pointer the log does not account for and every edited bundle, in words;
+    empty when whole. ``expect_head``: a head kept elsewhere (a hash or a prefix of one); the log must still hold
+    that entry, which finds last entries deleted together with the store's head."""
+    if expect_head is not None and not re.fullmatch(r"[0-9a-f]{12,64}", expect_head):
+        raise ReleaseError(f"--expect-head {expect_head[:80]!r}: not a hash (12 to 64 lowercase hex characters)")
+    problems, prev, expected_seq, readable, hashes = [], GENESIS, 1, [], []
     for seq, text, prev_hash, digest in _rows(store):
+        hashes.append(digest)
         if seq != expected_seq:
             problems.append(f"entries {expected_seq}..{seq - 1} missing (deleted)")
         if prev_hash != prev:
@@ -143,6 +177,9 @@ def verify_log(store) -> list[str]:
     if str(expected_seq - 1) != count or prev != (store.meta("log_head") or GENESIS):
         problems.append(f"log ends at entry {expected_seq - 1} with hash {prev[:12]}, the store's head says entry "
                         f"{count} ({(store.meta('log_head') or GENESIS)[:12]}): the last entries were deleted")
+    if expect_head is not None and not any(str(h).startswith(expect_head) for h in hashes):
+        problems.append(f"no entry has the expected head {expect_head}: it was deleted or rewritten, and the "
+                        f"store's head with it")
     by_log = pointers_by_log(readable)
     stored = {(p.cell, p.stage): (p.current, p.last_good) for p in store.all_pointers()}
     for cell, stage in sorted(by_log.keys() | stored.keys(), key=str):
@@ -150,4 +187,4 @@ def verify_log(store) -> list[str]:
         if have != want:
             problems.append(f"pointers of {stage} on {cell}: current {have[0]}, last_good {have[1]}; the log says "
                             f"current {want[0]}, last_good {want[1]} (edited outside cellguard)")
-    return problems
+    return problems + store.edited_bundles()

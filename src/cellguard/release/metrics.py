@@ -36,6 +36,7 @@ class Metric:
     compute: Callable[[Sequence[RunEvidence]], Measure]
     hard: bool = False  # a safety count: failure limit 0, decided even on too few cycles
     doc: str = ""
+    most: float = float("inf")  # the largest value it can take (every metric is at least 0)
 
 
 def _n(runs) -> int:
@@ -188,7 +189,7 @@ def shadow_would_stop(runs) -> Measure:
 
 
 METRICS: dict[str, Metric] = {m.name: m for m in (
-    Metric("success_rate", "", success_rate, doc="completed cycles that succeeded"),
+    Metric("success_rate", "", success_rate, doc="completed cycles that succeeded", most=1.0),
     Metric("cycle_time_p95_s", "s", cycle_time_p95),
     Metric("place_error_p95_mm", "mm", place_error_p95, doc="successful cycles' place error, p95"),
     Metric("interventions_per_hour", "1/h", interventions_per_hour, doc="envelope and executor events, not routine"),
@@ -198,6 +199,6 @@ METRICS: dict[str, Metric] = {m.name: m for m in (
     Metric("chunk_seam_jump_max_mrad", "mrad", chunk_seam_jump_max),
     Metric("inference_latency_p99_ms", "ms", inference_latency_p99),
     Metric("shadow_distance_p95_mrad", "mrad", shadow_distance_p95),
-    Metric("shadow_would_clamp", "", shadow_would_clamp),
+    Metric("shadow_would_clamp", "", shadow_would_clamp, most=1.0),
     Metric("shadow_would_stop", "", shadow_would_stop, hard=True),
 )}

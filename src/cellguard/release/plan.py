@@ -73,6 +73,8 @@ def load_plan(path: Path | None = None) -> dict[str, StagePlan]:
             raise gate_error(where, exc) from None
         for i, run in enumerate(plans[stage].runs):
             check_run(run, f"{where}.runs[{i}]")
+        if plans[stage].runs and not plans[stage].gates:
+            raise GateError(f"{where}: runs but no gates; they could only end inconclusive")
     return plans
 
 

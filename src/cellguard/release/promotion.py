@@ -15,15 +15,16 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from cellguard.errors import OperatorStopped, RecordError
+from cellguard.errors import OperatorStopped, OutputError, RecordError
+from cellguard.output import make_folder
 from cellguard.release import log
 from cellguard.release.bundle import Bundle, verify_bundle
 from cellguard.release.errors import BundleMismatch, ReleaseError, StageError
-from cellguard.release.evidence import load_run, record_id
-from cellguard.release.gates import FAIL, PASS, GateResult, evaluate, verdict
+from cellguard.release.evidence import RunEvidence, counted_run, record_id
+from cellguard.release.gates import FAIL, INCONCLUSIVE, PASS, GateResult, evaluate, verdict
 from cellguard.release.loops import CLOCKS
 from cellguard.release.plan import StagePlan, scenario_for
-from cellguard.release.store import STAGES, Store, check_stage
+from cellguard.release.store import STAGES, RunRow, Store, check_stage
 
 INCUMBENT_FALLBACK = "scripted"  # the cell's taught program: what a cell runs before any release
 
@@ -36,6 +37,7 @@ class StageResult:
     verdict: str
     gates: tuple[GateResult, ...]
     evidence: tuple[str, ...]  # record ids
+    refused: tuple[str, ...]  # counted runs not read as evidence, each naming its folder and why
     folders: tuple[str, ...]
     rolled_back_to: str | None
     log_seq: int
@@ -66,6 +68,7 @@ def promote(store: Store, release: str, cell: str, to: str) -> log.LogEntry:
                              f"entered only from the one before it ({' -> '.join(STAGES)})")
         if evaluation.body["verdict"] != PASS:
             failing = [g["metric"] for g in evaluation.body["gates"] if g["status"] != PASS]
+            failing += ["runs not read as evidence"] if evaluation.body.get("refused") else []
             raise StageError(f"--to {to}: the gates of {prev} ended {evaluation.body['verdict']} for release "
                              f"{bundle.id} ({', '.join(failing)}; log entry {evaluation.seq})")
     with store.transaction():  # the pointers read under the write lock: a racing promotion sees this one's
@@ -119,6 +122,9 @@ def run_stage(store: Store, plan: StagePlan, cell: str, stage: str, runs: list[d
     entries = runs if runs is not None else plan.runs
     if not entries:
         raise StageError(f"--stage {stage}: the plan has no runs for {stage}")
+    if not plan.gates:
+        raise StageError(f"--stage {stage}: the plan has no gates for {stage}; its runs could only end inconclusive")
+    log.tail(store)  # a log edited by hand: refused before anything runs, as its gates could not be logged
     moved = log.last_pointer_move(store, cell, stage)
     context = {"id": bundle.id, "cell": cell, "stage": stage, **bundle.short(),
                "switch": {k: moved.body.get(k) for k in ("kind", "from", "to", "automatic", "reason")}
@@ -127,15 +133,14 @@ def run_stage(store: Store, plan: StagePlan, cell: str, stage: str, runs: list[d
     folders = []
     for entry in entries:
         name = entry.get("name", "run")
-        folder = store.site / "runs" / cell / stage / f"{_next_number(store):04d}-{name}"
         scenario = scenario_for(entry, cell, *_driver(store, plan, cell, bundle), origin=f"{stage} run")
+        folder = _claim_folder(store, cell, stage, name)
         if on_run is not None:
             on_run(f"{stage}: {name} ({scenario.total_cycles} cycles) -> {folder}")
-        run = make(scenario)
-        try:  # what this run loaded is still the release (nothing recorded yet)
-            verify_bundle(bundle, run.policy.candidate if plan.shadow else run.policy)
-        except BundleMismatch:
-            run.close()
+        try:
+            run = _start(make, scenario, bundle, plan.shadow)
+        except BaseException:
+            folder.rmdir()  # claimed, nothing recorded in it
             raise
         run_scenario(scenario, folder, run=run)
         if by_operator(run.stopped):  # not evidence about the release: not counted, nothing else run or evaluated
@@ -153,6 +158,34 @@ def run_stage(store: Store, plan: StagePlan, cell: str, stage: str, runs: list[d
     return evaluate_stage(store, plan, cell, stage, folders)
 
 
+def _start(make, scenario, bundle: Bundle, shadow: bool):
+    """The stage's run, built and checked: what it loaded is still the release (nothing recorded yet)."""
+    run = make(scenario)
+    try:
+        verify_bundle(bundle, run.policy.candidate if shadow else run.policy)
+    except BundleMismatch:
+        run.close()
+        raise
+    return run
+
+
+def _claim_folder(store: Store, cell: str, stage: str, name: str) -> Path:
+    """A new run folder, made here without exist_ok: of two runs started at once that picked the same number,
+    the later one takes the next (neither writes into the other's folder)."""
+    parent = make_folder(store.site / "runs" / cell / stage, "--site")
+    number = _next_number(store)
+    while True:
+        folder = parent / f"{number:04d}-{name}"
+        try:
+            folder.mkdir()
+            return folder
+        except FileExistsError:
+            number += 1
+        except OSError as exc:
+            raise OutputError(f"--site {store.site}: cannot create the run folder {folder} "
+                              f"({exc.strerror or exc.__class__.__name__})") from None
+
+
 def _next_number(store: Store) -> int:
     """The next run folder's number: past every counted run and every folder on disk (a stopped run's folder
     is kept but not counted; numbered from the counted runs alone, the stage's next run met it and was refused)."""
@@ -161,23 +194,39 @@ def _next_number(store: Store) -> int:
     return max(store.next_run_number(), 1 + max(on_disk, default=0))
 
 
+def _evidence(store: Store, rows: list[RunRow]) -> tuple[list[RunEvidence], list[str]]:
+    """The runs of ``rows`` that read as the records counted, and why each other one does not."""
+    runs, refused = [], []
+    for row in rows:
+        try:
+            runs.append(counted_run(store, row))
+        except ReleaseError as exc:
+            refused.append(str(exc))
+    return runs, refused
+
+
 def evaluate_stage(store: Store, plan: StagePlan, cell: str, stage: str, folders: list[str] = ()) -> StageResult:
-    """Evaluate the gates of (cell, stage) on its current release's runs since it became current."""
+    """Evaluate the gates of (cell, stage) on its current release's runs since it became current.
+
+    A counted run that cannot be read as the record counted (gone, damaged, replaced) is left out and named in
+    ``refused``: the verdict is then never pass, yet it is decided and logged (a failing production release
+    still rolls back), and the stage's next evaluation is not blocked by it."""
     p = store.pointers(cell, stage)
     moved = log.last_pointer_move(store, cell, stage)
-    rows = store.runs(cell, stage, p.current, moved.seq if moved else 0)
-    runs = [load_run(r.folder, r.name, r.record_id) for r in rows]
+    runs, refused = _evidence(store, store.runs(cell, stage, p.current, moved.seq if moved else 0))
     good = []
     if p.last_good and p.last_good != p.current:
-        good = [load_run(r.folder, r.name, r.record_id) for r in store.runs(cell, stage, p.last_good)]
+        good, refused_good = _evidence(store, store.runs(cell, stage, p.last_good))
+        refused += refused_good
     results = tuple(evaluate(g, runs, good) for g in plan.gates)
-    outcome = verdict(results)
+    outcome = INCONCLUSIVE if refused and verdict(results) == PASS else verdict(results)
     evidence = [r.record_id for r in runs]
     rolled = None
     with store.transaction():
         entry = log.append(store, {"kind": "gates", "cell": cell, "stage": stage, "release": p.current,
                                    "verdict": outcome, "gates": [r.to_dict() for r in results],
-                                   "evidence": evidence, "last_good_evidence": [r.record_id for r in good]})
+                                   "evidence": evidence, "last_good_evidence": [r.record_id for r in good],
+                                   "refused": refused})
         if outcome == PASS and p.last_good is None:  # the first release to pass here
             store.set_pointers(cell, stage, p.current, p.current)
         elif outcome == FAIL and stage == "production" and p.last_good and p.last_good != p.current:
@@ -185,7 +234,8 @@ def evaluate_stage(store: Store, plan: StagePlan, cell: str, stage: str, folders
             rollback(store, cell, stage, reason=f"production gates failed: {', '.join(failing)} (log entry "
                      f"{entry.seq})", automatic=True, gates=[r.to_dict() for r in results], evidence=evidence)
             rolled = p.last_good
-    return StageResult(cell, stage, p.current, outcome, results, tuple(evidence), tuple(folders), rolled, entry.seq)
+    return StageResult(cell, stage, p.current, outcome, results, tuple(evidence), tuple(refused), tuple(folders),
+                       rolled, entry.seq)
 
 
 def _driver(store: Store, plan: StagePlan, cell: str, bundle: Bundle) -> tuple[str, dict]:

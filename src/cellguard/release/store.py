@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from cellguard.output import make_folder
-from cellguard.release.bundle import Bundle, canonical_json
+from cellguard.release.bundle import Bundle, canonical_json, release_id
 from cellguard.release.errors import ReleaseError
 
 STORE_FILE = "release.sqlite"
@@ -42,7 +42,8 @@ class Pointers:
 
 @dataclass(frozen=True)
 class RunRow:
-    """One run of a release at a stage: ``record_id`` is the sha256 of its record file (first 16 hex)."""
+    """One run of a release at a stage: ``record_id`` is the sha256 of its record file (first 16 hex); ``folder``
+    is its run folder relative to the site (``runs/<cell>/<stage>/<number>-<name>``)."""
 
     seq: int
     record_id: str
@@ -106,10 +107,17 @@ class Store:
             known = [r[0] for r in self.db.execute("SELECT id FROM bundles")]
             why = "ambiguous" if rows else "unknown"
             raise ReleaseError(f"release {release!r}: {why}; releases: {', '.join(known) or 'none (release create)'}")
-        return Bundle(rows[0][0], json.loads(rows[0][1]))
+        return _stored_bundle(*rows[0])
 
-    def bundles(self) -> list[Bundle]:
-        return [Bundle(i, json.loads(m)) for i, m in self.db.execute("SELECT id, manifest FROM bundles")]
+    def edited_bundles(self) -> list[str]:
+        """Each bundle whose manifest was edited outside cellguard, in words (what ``release verify`` reports)."""
+        problems = []
+        for rid, text in self.db.execute("SELECT CAST(id AS TEXT), CAST(manifest AS TEXT) FROM bundles"):
+            try:
+                _stored_bundle(rid, text)
+            except ReleaseError as exc:
+                problems.append(str(exc))
+        return problems
 
     # pointers
     def pointers(self, cell: str, stage: str) -> Pointers:
@@ -130,8 +138,16 @@ class Store:
     # runs
     def add_run(self, record_id: str, cell: str, stage: str, release: str, name: str, folder: Path,
                 since_log: int) -> None:
+        """Count the run in ``folder`` (under the site): kept relative to the site, so the site is read the same
+        from any working directory, and a copied site reads its own records."""
         self.db.execute("INSERT INTO runs (record_id, cell, stage, release, name, folder, since_log) "
-                        "VALUES (?, ?, ?, ?, ?, ?, ?)", (record_id, cell, stage, release, name, str(folder), since_log))
+                        "VALUES (?, ?, ?, ?, ?, ?, ?)", (record_id, cell, stage, release, name,
+                                                         Path(folder).relative_to(self.site).as_posix(), since_log))
+
+    def run_folder(self, row: RunRow) -> Path:
+        """Where ``row``'s run is in this site: ``runs/<cell>/<stage>/`` and the folder's own name (older stores
+        hold the folder as the working directory of the day saw it, which names the same run folder)."""
+        return self.site / "runs" / row.cell / row.stage / Path(row.folder).name
 
     def runs(self, cell: str, stage: str, release: str, since_log: int = 0) -> list[RunRow]:
         """Runs of ``release`` at (cell, stage) made after log entry ``since_log``."""
@@ -150,3 +166,18 @@ class Store:
 
     def set_meta(self, key: str, value: str) -> None:
         self.db.execute("INSERT OR REPLACE INTO meta VALUES (?, ?)", (key, value))
+
+
+def _stored_bundle(rid: str, text: str) -> Bundle:
+    """The bundle as stored; ReleaseError when its manifest is not a JSON object or no longer hashes to its id
+    (edited outside cellguard: never acted on, nor read into a traceback)."""
+    try:
+        manifest = json.loads(text)
+    except ValueError:
+        manifest = None
+    if not isinstance(manifest, dict):
+        raise ReleaseError(f"release {rid}: its manifest is not a JSON object (edited outside cellguard)")
+    if release_id(manifest) != rid:
+        raise ReleaseError(f"release {rid}: its manifest hashes to {release_id(manifest)}, not its id "
+                           f"(edited outside cellguard)")
+    return Bundle(rid, manifest)

@@ -9,8 +9,9 @@ from __future__ import annotations
 from pathlib import Path
 
 from cellguard.output import write_output
+from cellguard.record.outputs import refuse_output
 from cellguard.release import log
-from cellguard.release.store import STAGES
+from cellguard.release.store import STAGES, STORE_FILE
 from cellguard.report import plots
 from cellguard.report.html import _CSS, _context, _e, _figure
 
@@ -35,7 +36,9 @@ def render_release_page(store, release: str) -> str:
 
 
 def write_release_page(store, release: str, out: Path) -> Path:
-    """Write the page to ``out`` (beside it under a temporary name of this process, then renamed)."""
+    """Write the page to ``out`` (beside it under a temporary name of this process, then renamed); refused first
+    if ``out`` is the store read, any store, a record or in a run folder (a page must never replace them)."""
+    refuse_output(Path(out), None, inputs=[("release store", store.site / STORE_FILE)])
     return write_output(Path(out), render_release_page(store, release), "release page")
 
 
@@ -55,7 +58,8 @@ def _stage(entry) -> str:
     head = (f"<div class={_MARK[verdict]}><b>{_e(verdict)}</b> (log entry {entry.seq}, {_e(b['at'])}); "
             f"evidence: records {_e(', '.join(b['evidence']) or 'none')}"
             + (f"; last_good's records {_e(', '.join(b.get('last_good_evidence', [])))}"
-               if b.get("last_good_evidence") else "") + "</div>")
+               if b.get("last_good_evidence") else "")
+            + "".join(f"<br>not read as evidence: {_e(why)}" for why in b.get("refused", ())) + "</div>")
     rows = ""
     for g in b["gates"]:
         diff = ("-" if g["value"] is None or g["last_good"] is None
