@@ -126,3 +126,21 @@ def test_a_malformed_dsn_is_one_line_exit_2_that_never_shows_it(env, dsn):
         assert result.stderr.count("\n") == 1 and "DSN" in result.stderr and "malformed" in result.stderr
         assert "s3cret" not in result.output and "Traceback" not in result.output
     assert not (root / "malformed").exists()  # refused before anything was queued
+
+
+def test_text_a_store_holds_is_printed_with_control_characters_escaped(env):
+    _, tenants = env
+    store = FleetStore(admin_dsn_or_skip(), "cgtest_cli")
+    with store.admin() as con:  # rows written before text was checked: a cause that clears the screen
+        con.execute("INSERT INTO fleet.signatures (signature_id, tenant_id, site_id, created_date, cause, robot_model, "
+                    "schema_version) VALUES ('esc-probe', 'ta', 's7', current_date, 'probe', 'arm5', 1), "
+                    "('esc-near', 'ta', 's8', current_date, %s, 'arm5', 1)", ("x\x1b[2J\x1b]0;owned\x07",))
+        con.execute("INSERT INTO fleet.effects VALUES ('ta', 'esc-probe', 'f', 2.0), ('ta', 'esc-near', 'f', 2.0)")
+    try:
+        for out in (cli("similar", "esc-probe", dsn=tenants["ta"]),
+                    cli("query", "frequency", "--scope", "own", dsn=tenants["ta"])):
+            assert out.exit_code == 0, out.output
+            assert "\x1b" not in out.stdout and "\x07" not in out.stdout and "x\\x1b[2J" in out.stdout
+    finally:
+        with store.admin() as con:
+            con.execute("DELETE FROM fleet.signatures WHERE signature_id LIKE 'esc-%'")

@@ -48,7 +48,7 @@ BAD_FILES = {
                                                         "aggregates": [{"cause": 1}]})),
     "bad-date": lambda p: p.write_text(json.dumps(
         {**good_batch().to_dict(with_id=False),
-         "signatures": [{**Signature("t-acme", "s-01", "2026-99-99", "friction").to_dict()}]})),
+         "signatures": [{**sigs()[0].to_dict(), "created_date": "2026-99-99"}]})),
     "forged-batch-id": lambda p: p.write_text(json.dumps({**good_batch().to_dict(), "batch_id": "0" * 32})),
 }
 

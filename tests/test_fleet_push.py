@@ -190,3 +190,118 @@ def test_a_lake_that_is_a_file_is_refused_before_anything_is_sent(fleet, tmp_pat
     assert result.exit_code == 2 and result.stderr.count("\n") == 1 and "is not a folder" in result.stderr
     assert not (tmp_path / "site").exists()
     assert Outbox(tmp_path / "site").pending() == []
+
+
+# -- a queued batch that is malformed stays queued; the store and the lake never diverge ---------------------------
+
+
+MALFORMED = [  # (case, field, a value that is not what a signature holds there)
+    ("effect-quoted", "effects", {"current_rms.elbow": "1e3"}),
+    ("effect-nan", "effects", {"current_rms.elbow": float("nan")}),
+    ("confidence-quoted", "confidence", "0.5"),
+    ("onset-quoted", "onset_cycle", "7"),
+    ("delay-negative", "detection_delay_cycles", -100),
+    ("cause-escape-code", "cause", "friction\x1b[2J"),
+    ("another-site", "site_id", "s9-not-mine"),
+]
+
+
+@pytest.mark.parametrize("case,field,value", MALFORMED, ids=[m[0] for m in MALFORMED])
+def test_a_malformed_queued_batch_stays_queued_and_the_others_go(fleet, tmp_path, case, field, value):
+    store, dsns = fleet
+    site, lake = "s8-" + case, tmp_path / "lake"
+    policy = DataPolicy("ta", site)
+    raw = export_batch(sigs("ta", site, 1), policy).to_dict(with_id=False)
+    raw["signatures"][0][field] = value
+    del raw["signatures"][0]["signature_id"]  # as a batch written by hand, or by an older cellguard, may be
+    (tmp_path / "site" / "outbox").mkdir(parents=True)
+    bad = tmp_path / "site" / "outbox" / "crafted.json"
+    bad.write_text(json.dumps(raw))
+    result = push(sigs("ta", site, 3), policy, tmp_path / "site", TenantStore(dsns["ta"]), lake)
+    assert (result.sent_batches, result.new_rows, result.queued) == (1, 3, 1)
+    (line,) = result.failed
+    assert "crafted.json: batch.signatures[0]" in line or f"crafted.json: signature.{field}" in line
+    assert "\n" not in line and "\x1b" not in line and bad.exists()
+    assert rows_of_site(store, site) == 3 == sum(r["signatures"] for r in DuckDBEngine(lake).run("frequency", {"k": 1}))
+
+
+def test_a_lake_that_cannot_take_a_batch_leaves_the_store_as_it_was(fleet, tmp_path):
+    store, dsns = fleet
+    policy, lake = DataPolicy("ta", "s8-lake"), tmp_path / "lake"
+    blocked = lake / "tenant=ta" / "signatures" / f"date={TODAY.isoformat()}"
+    blocked.parent.mkdir(parents=True)
+    blocked.write_text("a file where the lake needs a folder")
+    first = push(sigs("ta", "s8-lake"), policy, tmp_path / "site", TenantStore(dsns["ta"]), lake)
+    assert (first.sent_batches, first.queued, rows_of_site(store, "s8-lake")) == (0, 1, 0)
+    (line,) = first.failed
+    assert "cannot write" in line and "it stays queued" in line
+    blocked.unlink()
+    again = push([], policy, tmp_path / "site", TenantStore(dsns["ta"]), lake)
+    assert (again.sent_batches, again.queued, rows_of_site(store, "s8-lake")) == (1, 0, 2)
+    assert sum(r["signatures"] for r in DuckDBEngine(lake).run("frequency", {"k": 1})) == 2
+
+
+# -- what the store and the lake hold follows the policy in force ----------------------------------------------------
+
+
+def test_a_push_under_a_policy_that_withholds_more_replaces_what_it_sent(fleet, tmp_path):
+    store, dsns = fleet
+    lake = tmp_path / "lake"
+    push(sigs("ta", "s9-w"), DataPolicy("ta", "s9-w"), tmp_path / "site", TenantStore(dsns["ta"]), lake)
+    stricter = DataPolicy("ta", "s9-w", withheld=("confidence", "policy_version", "effects"))
+    result = push(sigs("ta", "s9-w"), stricter, tmp_path / "site", TenantStore(dsns["ta"]), lake)
+    assert (result.new_rows, result.duplicate_rows) == (2, 0)  # the same two findings, now with less in them
+    with store.admin() as con:
+        rows = con.execute("SELECT confidence, policy_version, cause FROM fleet.signatures WHERE site_id = 's9-w'")
+        assert sorted(rows.fetchall()) == [(None, None, "fixture_shift"), (None, None, "friction")]
+        assert con.execute("SELECT count(*) FROM fleet.effects e JOIN fleet.signatures s USING (tenant_id, "
+                           "signature_id) WHERE s.site_id = 's9-w'").fetchone()[0] == 0
+    on_disk = pq.ParquetDataset(str(lake / "tenant=ta" / "signatures")).read()
+    assert on_disk.num_rows == 2 and on_disk.column("confidence").null_count == 2
+    assert pq.ParquetDataset(str(lake / "tenant=ta" / "effects")).read().num_rows == 0
+    again = push(sigs("ta", "s9-w"), stricter, tmp_path / "site", TenantStore(dsns["ta"]), lake)
+    assert (again.new_rows, again.duplicate_rows) == (0, 2)
+
+
+def test_the_aggregates_of_a_growing_folder_pushed_again_are_counted_once(fleet, tmp_path):
+    store, dsns = fleet
+    policy = DataPolicy("ta", "s9-a", export="aggregates_only", min_group_size=2)
+    found = [sig("ta", "s9-a", "friction", n) for n in range(3)]
+    push(found[:2], policy, tmp_path, TenantStore(dsns["ta"]))
+    second = push(found, policy, tmp_path, TenantStore(dsns["ta"]))
+    third = push(found, policy, tmp_path, TenantStore(dsns["ta"]))
+    assert (second.new_rows, third.new_rows, third.duplicate_rows) == (1, 0, 1)
+    with store.admin() as con:
+        assert con.execute("SELECT count(*), sum(signatures) FROM fleet.aggregates WHERE site_id = 's9-a'") \
+            .fetchone() == (1, 3)
+
+
+def test_every_push_applies_the_retention_even_with_nothing_to_send(fleet, tmp_path):
+    store, dsns = fleet
+    lake, site, tenant = tmp_path / "lake", tmp_path / "site", TenantStore(dsns["ta"])
+    long_ago = (TODAY - dt.timedelta(days=2000)).isoformat()
+    past = lambda found: [Signature(**{**s.__dict__, "created_date": long_ago}) for s in found]  # noqa: E731
+    push(past(sigs("ta", "s9-r")), DataPolicy("ta", "s9-r", retention_days=36500), site, tenant, lake)
+    push(past([sig("ta", "s9-r", "servo", n) for n in range(2)]),
+         DataPolicy("ta", "s9-r", export="aggregates_only", min_group_size=2, retention_days=36500), site, tenant)
+    assert rows_of_site(store, "s9-r") == 3  # 2 signatures and 1 count, all kept under 100 years' retention
+    result = push([], DataPolicy("ta", "s9-r", export="nothing", retention_days=30), site, tenant, lake)
+    assert (result.failed, result.unavailable) == ((), None)
+    assert rows_of_site(store, "s9-r") == 0
+    assert not list((lake / "tenant=ta" / "signatures").rglob("*.parquet"))
+
+
+def test_cli_withdraw_deletes_what_the_site_pooled_from_the_store_and_the_lake(fleet, tmp_path):
+    store, dsns = fleet
+    lake = tmp_path / "lake"
+    push(sigs("ta", "s9-x"), DataPolicy("ta", "s9-x"), tmp_path / "site", TenantStore(dsns["ta"]), lake)
+    push(sigs("ta", "s9-y"), DataPolicy("ta", "s9-y"), tmp_path / "site", TenantStore(dsns["ta"]), lake)
+    policy = tmp_path / "p.yaml"
+    policy.write_text("tenant: ta\nsite: s9-x\nexport: nothing\n")
+    result = CliRunner().invoke(app, ["fleet", "withdraw", "--policy", str(policy), "--store", dsns["ta"],
+                                      "--lake", str(lake), "--json"])
+    assert result.exit_code == 0, result.output
+    assert json.loads(result.stdout) == {"tenant": "ta", "site": "s9-x", "store_rows": 2, "lake_signatures": 2}
+    assert (rows_of_site(store, "s9-x"), rows_of_site(store, "s9-y")) == (0, 2)
+    assert {r["site_id"] for r in DuckDBEngine(lake).run("similar", {"site": "none", "limit": 10},
+                                                        [("current_rms.elbow", 6.0)])} == {"s9-y"}

@@ -5,6 +5,7 @@ uploads, data policies enforced, and a server that is down losing nothing."""
 from __future__ import annotations
 
 import datetime as dt
+import math
 from dataclasses import replace
 
 import pytest
@@ -289,3 +290,67 @@ def test_an_unreachable_store_gives_the_first_line_of_the_reason():
         TenantStore(DOWN).push(Batch("tc", "sc3", "v", "signatures"))
     message = str(caught.value)
     assert "Connection refused" in message and "\t" not in message and "Is the server running" not in message
+
+
+HIJACK = """
+CREATE TEMP VIEW signatures WITH (security_invoker = true) AS
+  SELECT s.signature_id, 'fake' || g AS tenant_id, s.site_id, s.created_date,
+         s.tenant_id || '|' || s.cause AS cause, s.robot_model, s.cell_type, s.onset_cycle,
+         s.detection_delay_cycles, s.policy_version, s.calibration_version, s.cellguard_version, s.recovery,
+         s.recovery_outcome, s.schema_version
+  FROM fleet.signatures s CROSS JOIN generate_series(1, 5) g;
+GRANT SELECT ON signatures TO cgtest_fleet_agg;
+"""
+
+
+def test_a_temporary_view_cannot_stand_in_for_the_table_of_a_cross_customer_function(fleet):
+    store, dsns = fleet
+    store.set_min_customers(3)  # the 3 customers' rows pass k, so the function body runs
+    try:
+        honest = TenantStore(dsns["ta"]).run("frequency", {"k": 3})
+        made, _ = as_tenant(dsns["ta"], HIJACK)
+        assert isinstance(made, psycopg.errors.InsufficientPrivilege)  # tenants create no temporary object
+        with store.admin() as con:  # and were one made, the function still reads fleet.signatures
+            con.execute("GRANT TEMPORARY ON DATABASE cgtest_fleet TO cgtest_fleet_app")
+            con.commit()
+        with psycopg.connect(dsns["ta"], autocommit=True) as con:
+            con.execute(HIJACK)
+            rows = con.execute("SELECT cause, customers FROM fleet.q_frequency(3)").fetchall()
+        assert sorted(rows) == sorted((r["cause"], r["customers"]) for r in honest)
+        assert not any("|" in cause for cause, _ in rows)
+        store.install()  # an existing store brought up to date: the grant is gone again
+        with store.admin() as con:
+            assert not con.execute("SELECT has_database_privilege('cgtest_fleet_t_ta', 'cgtest_fleet', "
+                                   "'TEMPORARY')").fetchone()[0]
+    finally:
+        store.set_min_customers(5)
+
+
+def test_resetting_a_store_drops_its_own_roles_only():
+    other = FleetStore(_server(), "cgtest_reset_x")  # its name starts with the reset store's
+    other.install(reset=True)
+    other.add_tenant("ta")
+    FleetStore(_server(), "cgtest_reset").install(reset=True)
+    with other.admin() as con:
+        roles = {r[0] for r in con.execute("SELECT rolname FROM pg_roles WHERE rolname LIKE 'cgtest_reset_x%'")}
+    assert roles == {"cgtest_reset_x_owner", "cgtest_reset_x_agg", "cgtest_reset_x_app", "cgtest_reset_x_t_ta"}
+
+
+def test_similar_leaves_out_a_non_finite_effect_already_in_the_store(fleet):
+    from cellguard.fleet.similar import similar
+
+    store, dsns = fleet
+    with store.admin() as con:  # written before signatures were checked
+        con.execute("INSERT INTO fleet.signatures (signature_id, tenant_id, site_id, created_date, cause, robot_model, "
+                    "schema_version) VALUES ('nan1', 'ta', 'sa9', current_date, 'odd', 'arm5', 1)")
+        con.execute("INSERT INTO fleet.effects VALUES ('ta', 'nan1', 'current_rms.elbow', 'NaN'), "
+                    "('ta', 'nan1', 'tracking_rms.elbow', 'Infinity')")
+        con.commit()
+    try:
+        probe = sig("ta", "sa1", "friction", {"current_rms.elbow": 7.0, "tracking_rms.elbow": 1.0})
+        found = similar(TenantStore(dsns["ta"]), probe, limit=5)
+        assert found and "nan1" not in {n.signature_id for n in found}
+        assert found[0].cause == "friction" and all(math.isfinite(n.similarity) for n in found)
+    finally:
+        with store.admin() as con:
+            con.execute("DELETE FROM fleet.signatures WHERE signature_id = 'nan1'")

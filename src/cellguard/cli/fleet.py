@@ -1,6 +1,7 @@
-"""`cellguard fleet push/query/similar/audit`: fault signatures pooled across sites under each
+"""`cellguard fleet push/query/similar/audit/withdraw`: fault signatures pooled across sites under each
 customer's data policy. The store's DSN (the tenant's own credentials) comes from ``--store`` or
-``CELLGUARD_FLEET_DSN``; the site's audit log and outbox live in ``--site-dir``."""
+``CELLGUARD_FLEET_DSN``; the site's audit log and outbox live in ``--site-dir``. Every value a
+store, a lake or another tenant wrote is printed through ``printable``."""
 
 from __future__ import annotations
 
@@ -125,7 +126,7 @@ def query(
     console = Console(highlight=False)
     console.print(f"{name}: {q.doc} ({len(rows)} row(s))", markup=False)
     for r in rows:
-        console.print("  " + ", ".join(f"{c}={v}" for c, v in r.items()), markup=False)
+        console.print(printable("  " + ", ".join(f"{c}={v}" for c, v in r.items())), markup=False)
 
 
 @fleet_app.command()
@@ -161,12 +162,12 @@ def similar(
         return
     console = Console(highlight=False)
     for f in out:
-        console.print(f"finding {f['cause']}: {len(f['neighbours'])} similar signature(s)", markup=False)
+        console.print(printable(f"finding {f['cause']}: {len(f['neighbours'])} similar signature(s)"), markup=False)
         for n in f["neighbours"]:
             fixes = "; ".join(f"{x['recovery'] or 'no recovery recorded'} fixed {x['fixed']}/{x['signatures']} "
                               f"({x['scope']})" for x in n["fixes"]) or "no fix known"
-            console.print(f"  {n['similarity']:.3f} {n['cause']} at site {n['site_id']} "
-                          f"({n['robot_model']}): {fixes}", markup=False)
+            console.print(printable(f"  {n['similarity']:.3f} {n['cause']} at site {n['site_id']} "
+                                    f"({n['robot_model']}): {fixes}"), markup=False)
 
 
 @fleet_app.command()
@@ -196,3 +197,36 @@ def audit(site_dir: Path = SITE_DIR, as_json: bool = JSON) -> None:
         sys.stderr.write(f"warning: {printable(Path(site_dir) / 'audit.jsonl')}: {printable(line)}; not shown\n")
     if damaged:
         raise typer.Exit(1)
+
+
+@fleet_app.command()
+def withdraw(
+    policy: Path = typer.Option(..., "--policy", help="The site's data policy (it names the tenant and site)."),
+    store: str | None = STORE,
+    lake: Path | None = typer.Option(None, "--lake", help="Also take the site's signatures out of this lake."),
+    as_json: bool = JSON,
+) -> None:
+    """Delete every signature and aggregate this site pooled, from the store (as this tenant) and the lake:
+    a customer withdrawing its consent. What waits in the outbox stays at the site (set ``export: nothing``
+    to keep it there)."""
+    from cellguard.errors import ConfigError
+    from cellguard.fleet.lake import check_lake, forget
+    from cellguard.fleet.policy import load_policy
+
+    try:
+        pol = load_policy(policy)
+        tenant_store = _store(store)
+        if tenant_store is None and lake is None:
+            raise ConfigError("--store: no fleet store DSN (or CELLGUARD_FLEET_DSN); or give --lake")
+        if lake is not None:
+            check_lake(lake)
+        in_store = tenant_store.forget(pol.site) if tenant_store is not None else 0
+        in_lake = forget(lake, pol.tenant, pol.site) if lake is not None else 0
+    except CellguardError as exc:
+        fail(exc)
+    if as_json:
+        sys.stdout.write(json.dumps({"tenant": pol.tenant, "site": pol.site, "store_rows": in_store,
+                                     "lake_signatures": in_lake}) + "\n")
+    else:
+        Console(highlight=False).print(f"fleet withdraw: site {pol.site} of {pol.tenant}: {in_store} row(s) deleted "
+                                       f"from the store, {in_lake} signature(s) from the lake", markup=False)

@@ -2,8 +2,9 @@
 
 The views are built with DuckDB's relation API from the listed files, never by writing a path
 into SQL text: a lake path holding a quote or SQL is a path like any other. Each view reads a
-row once (``DISTINCT`` over the partitions that hold more than one file, see ``lake.py``). A
-DuckDB error is a ConfigError in one line.
+row once (``DISTINCT`` over the partitions that hold more than one file) and only the rows of
+each tenant folder that name its tenant (``lake.read_groups``). A DuckDB error is a ConfigError
+in one line.
 """
 
 from __future__ import annotations
@@ -15,8 +16,8 @@ import duckdb
 import pyarrow as pa
 
 from cellguard.errors import ConfigError
-from cellguard.fleet.lake import EFFECTS, SIGNATURES, has_data, lone_and_shared
-from cellguard.fleet.queries import MIN_CUSTOMERS, named, plain, render
+from cellguard.fleet.lake import EFFECTS, SIGNATURES, has_data, read_groups
+from cellguard.fleet.queries import MIN_CUSTOMERS, first_line, named, plain, render
 from cellguard.fleet.rights import access
 
 
@@ -41,8 +42,11 @@ class DuckDBEngine:
         allowed = access(self.lake, q, params, self.tenant, scope, self.min_customers)
         try:
             for rel, schema in (("signatures", SIGNATURES), ("effects", EFFECTS)):  # only what the caller may read
-                lone, shared = lone_and_shared(allowed.paths(self.lake, rel))
-                source = self._read(lone, schema).union(self._read(shared, schema).distinct())
+                source = self.con.from_arrow(schema.empty_table())
+                for tenant, found, shared in read_groups(allowed.paths(self.lake, rel)):
+                    rows = self.con.read_parquet(found, hive_partitioning=False).filter(
+                        duckdb.ColumnExpression("tenant_id") == duckdb.ConstantExpression(tenant))
+                    source = source.union(rows.distinct() if shared else rows)
                 source.create_view(rel, replace=True)
             table = pa.table({"feature": pa.array([f for f, _ in probe], pa.string()),
                               "effect": pa.array([float(e) for _, e in probe], pa.float64())})
@@ -54,14 +58,7 @@ class DuckDBEngine:
             finally:
                 self.con.unregister("probe")
         except duckdb.Error as exc:
-            first = next((ln.strip() for ln in str(exc).splitlines() if ln.strip()), exc.__class__.__name__)
-            raise ConfigError(f"--lake {self.lake}: query {q.name} failed in DuckDB ({first})") from None
-
-    def _read(self, found: list[str], schema: pa.Schema):
-        """A relation over the listed files (paths bound as values, never SQL text), or an empty one."""
-        if not found:
-            return self.con.from_arrow(schema.empty_table())
-        return self.con.read_parquet(found, hive_partitioning=False)
+            raise ConfigError(f"--lake {self.lake}: query {q.name} failed in DuckDB ({first_line(exc)})") from None
 
     def close(self) -> None:
         self.con.close()

@@ -19,7 +19,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 from cellguard.fleet.policy import EXPORTS, DataPolicy, PolicyError
-from cellguard.fleet.signature import Signature, SignatureError, from_dict, withhold
+from cellguard.fleet.signature import Signature, SignatureError, check_text, row_from_dict, withhold
 
 
 @dataclass(frozen=True)
@@ -33,6 +33,12 @@ class Batch:
     signatures: tuple[dict, ...] = ()
     aggregates: tuple[dict, ...] = ()
     withheld_rows: int = 0  # signatures kept at the site by the policy (too few, too old, or nothing)
+
+    def __post_init__(self):
+        for i, s in enumerate(self.signatures):  # the batch's tenant and site are what the policy checks
+            if (s["tenant_id"], s["site_id"]) != (self.tenant_id, self.site_id):
+                raise SignatureError(f"batch.signatures[{i}]: of {s['tenant_id']}/{s['site_id']}, in a batch of "
+                                     f"{self.tenant_id}/{self.site_id}")
 
     @property
     def rows(self) -> int:
@@ -52,7 +58,8 @@ class Batch:
     @classmethod
     def from_dict(cls, raw: object) -> Batch:
         """A batch from its JSON; a missing or mistyped field raises SignatureError naming it, and each
-        signature is read as one (a newer schema version, an unknown field or a forged id is refused)."""
+        signature is read as one (a newer schema version, an unknown field, a quoted or non-finite
+        number, text with control characters, another site's signature are refused)."""
         if not isinstance(raw, Mapping):
             raise SignatureError(f"batch: expected a JSON object, got {type(raw).__name__}")
         for key in ("tenant_id", "site_id", "policy_version", "export"):
@@ -67,7 +74,7 @@ class Batch:
         if isinstance(withheld, bool) or not isinstance(withheld, int) or withheld < 0:
             raise SignatureError(f"batch.withheld_rows: expected a count, got {withheld!r}")
         batch = cls(raw["tenant_id"], raw["site_id"], raw["policy_version"], raw["export"],
-                    tuple(from_dict(s).to_dict() for s in raw["signatures"]),
+                    tuple(row_from_dict(s) for s in raw["signatures"]),
                     tuple(_aggregate(r) for r in raw["aggregates"]), withheld)
         if "batch_id" in raw and raw["batch_id"] != batch.batch_id:
             raise SignatureError(f"batch.batch_id: {raw['batch_id']!r} does not match its content")
@@ -82,13 +89,10 @@ def _aggregate(raw: object) -> dict:
     if not isinstance(raw, Mapping) or sorted(raw) != sorted(AGGREGATE_KEYS):
         got = sorted(raw) if isinstance(raw, Mapping) else type(raw).__name__
         raise SignatureError(f"batch.aggregates: expected rows with keys {', '.join(AGGREGATE_KEYS)}, got {got}")
-    if not isinstance(raw["cause"], str):
-        raise SignatureError(f"batch.aggregates.cause: required text, got {raw['cause']!r}")
+    for key in ("cause", "robot_model", "cell_type"):
+        check_text(raw[key], f"batch.aggregates.{key}", required=key == "cause")
     if not isinstance(raw["month"], str) or not re.fullmatch(r"[0-9]{4}-[0-9]{2}", raw["month"]):
         raise SignatureError(f"batch.aggregates.month: expected YYYY-MM, got {raw['month']!r}")
-    for key in ("robot_model", "cell_type"):
-        if raw[key] is not None and not isinstance(raw[key], str):
-            raise SignatureError(f"batch.aggregates.{key}: expected text or null, got {raw[key]!r}")
     n = raw["signatures"]
     if isinstance(n, bool) or not isinstance(n, int) or n < 1:
         raise SignatureError(f"batch.aggregates.signatures: expected a count, got {n!r}")
@@ -146,5 +150,5 @@ def export_batch(signatures: Sequence[Signature], policy: DataPolicy, today: dt.
         if (s.tenant_id, s.site_id) != (policy.tenant, policy.site):
             raise PolicyError(f"signature.tenant_id/site_id: {s.tenant_id}/{s.site_id} is not the policy's "
                               f"{policy.tenant}/{policy.site}")
-    rows = tuple(withhold(s, policy.withheld).to_dict() for s in live)
+    rows = tuple(withhold(s, policy.withheld) for s in live)
     return Batch(**base, signatures=rows, withheld_rows=len(signatures) - len(rows))

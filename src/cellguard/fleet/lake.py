@@ -3,13 +3,18 @@
 ``LAKE/tenant=T/signatures/date=YYYY-MM-DD/<name>.parquet`` and the same under ``effects/``.
 One folder per tenant (created owner-only, 0700), so the lake is fenced the way the store is:
 the operator grants each tenant its own folder (file system or object-store prefix rights) and
-the engines read a tenant's own rows from that folder only (``rights.py``). Each batch is one
-file per partition, named by the batch's content hash and written beside its target then
-renamed, holding only the signatures the partition's other files do not: re-sending a batch
-replaces its file with the same rows, and a batch that repeats earlier signatures (a growing
-folder pushed again) adds only its new ones. A signature id is the hash of every field, so two
-rows with one id are the same row: the engines read each once even where a lake written before
-this rule holds it twice (``lone_and_shared``). DuckDB (``duckdb_engine``) and Spark
+the engines read a tenant's own rows from that folder only (``rights.py``). A row is the
+tenant's whose folder holds it: one that names another tenant is not read (a tenant could
+otherwise invent customers, and a group under k would pass), and a link is never followed (it
+could lead into another tenant's folder).
+
+Each batch is one file per partition, named by the batch's content hash and written beside its
+target then renamed; its signatures are then taken out of the partition's other files, so each
+signature is in the lake once, as last sent: re-sending a batch replaces its file with the same
+rows, a growing folder pushed again moves its signatures into its latest file, and a signature
+sent again with fields the policy now withholds loses them. The engines read a row once even
+where a lake written before this rule holds it twice (``read_groups``). ``forget`` takes a
+site's rows out (its retention, its consent withdrawn). DuckDB (``duckdb_engine``) and Spark
 (``spark_engine``) read the same files.
 """
 
@@ -23,6 +28,7 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path
 
 import pyarrow as pa
+import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from cellguard.errors import ConfigError, OutputError
@@ -41,26 +47,36 @@ EFFECTS = pa.schema([("tenant_id", pa.string()), ("signature_id", pa.string()), 
 
 
 def write_signatures(lake: Path, rows: Iterable[Mapping], name: str) -> int:
-    """Write signature dicts (``Signature.to_dict()``) into their partitions as ``name``.parquet, each
-    signature once: one already in another file of its partition is not written again. Returns the
-    signatures written."""
+    """Write sent signature rows (``withhold``'s) into their partitions as ``name``.parquet, then take them
+    out of the partition's other files (the row last sent is the one kept). Returns the signatures that
+    were not in the lake before."""
     parts: dict[tuple[str, str], list[Mapping]] = defaultdict(list)
     for r in rows:
         parts[(r["created_date"], r["tenant_id"])].append(r)
     n = 0
     for (date, tenant), group in sorted(parts.items()):
+        group = list({r["signature_id"]: r for r in group}.values())
         target = _file(lake, tenant, "signatures", date, name)
-        there = _ids_beside(target)
-        group = list({r["signature_id"]: r for r in group if r["signature_id"] not in there}.values())
-        if not group:
-            continue
+        there = set(_read(target).column("signature_id").to_pylist()) if _plain(target) else set()  # a retry's
+        others = [(o, _read(o)) for o in _partition(target) if o != target]  # one unreadable: nothing written
         sig = {f.name: [_value(r, f.name) for r in group] for f in SIGNATURES}
         eff = [(r["tenant_id"], r["signature_id"], k, float(v)) for r in group for k, v in (r.get("effects") or {}).items()]
         _atomic(pa.Table.from_pydict(sig, schema=SIGNATURES), target)
         _atomic(pa.Table.from_pydict({c: [e[i] for e in eff] for i, c in enumerate(EFFECTS.names)}, schema=EFFECTS),
                 _file(lake, tenant, "effects", date, name))
-        n += len(group)
+        ids = pa.array([r["signature_id"] for r in group], pa.string())
+        for other, table in others:
+            there |= _take_out(other, table, pc.is_in(table["signature_id"], value_set=ids))
+        n += len({r["signature_id"] for r in group} - there)
     return n
+
+
+def forget(lake: Path, tenant: str, site: str, before: dt.date | None = None) -> int:
+    """Take ``site``'s signatures made before ``before`` (its retention; all of them when None, its consent
+    withdrawn) out of ``tenant``'s folder. Returns the signatures taken out."""
+    oldest = f"date={before.isoformat()}" if before else "date=9999"
+    found = [(Path(f), _read(Path(f))) for f in paths(lake, "signatures", tenant) if Path(f).parent.name < oldest]
+    return sum(len(_take_out(f, table, pc.equal(table["site_id"], site))) for f, table in found)
 
 
 def check_lake(lake: Path) -> Path:
@@ -92,8 +108,12 @@ def tenant_dir(lake: Path, tenant: str) -> Path:
 
 def tenants(lake: Path) -> list[str]:
     """The tenants with signatures in the lake (from the folder names: no file is opened)."""
-    return sorted(p.name.removeprefix("tenant=") for p in Path(lake).glob("tenant=*")
-                  if any((p / "signatures").glob("date=*/*.parquet")))
+    return sorted({tenant_of(f) for f in paths(lake, "signatures")})
+
+
+def tenant_of(path: str) -> str:
+    """The tenant whose folder holds the lake file ``path`` (``tenant=T/<relation>/date=D/<file>``)."""
+    return Path(path).parents[2].name.removeprefix("tenant=")
 
 
 def files(lake: Path, relation: str, tenant: str | None = None) -> str:
@@ -103,24 +123,27 @@ def files(lake: Path, relation: str, tenant: str | None = None) -> str:
 
 
 def paths(lake: Path, relation: str, tenant: str | None = None) -> list[str]:
-    """``relation``'s files, listed (the lake's own path is taken literally, never as a pattern)."""
+    """``relation``'s files, listed (the lake's own path is taken literally, never as a pattern); a file
+    that is a link or lies behind one below the lake is not listed."""
     root = tenant_dir(lake, tenant).name if tenant is not None else "tenant=*"
-    return sorted(str(p) for p in Path(lake).glob(f"{root}/{relation}/date=*/*.parquet") if p.is_file())
+    return sorted(str(p) for p in Path(lake).glob(f"{root}/{relation}/date=*/*.parquet") if _plain(p))
 
 
-def lone_and_shared(found: Iterable[str]) -> tuple[list[str], list[str]]:
-    """(files alone in their partition folder, files that share one). A row can be repeated only
-    within its partition (its signature's date and tenant are part of the id), in a folder holding
-    more than one file: the engines read only those with ``DISTINCT``, the rest as they are."""
+def read_groups(found: Iterable[str]) -> list[tuple[str, list[str], bool]]:
+    """The files to read, as (tenant, files, with DISTINCT): an engine keeps only the rows of each group
+    that name its tenant, the folder's. A row can be repeated only within its partition (its date and
+    tenant are part of its id), in a folder holding more than one file: those are read with DISTINCT."""
     by_folder: dict[str, list[str]] = defaultdict(list)
     for f in found:
         by_folder[os.path.dirname(f)].append(f)
-    lone = [f for group in by_folder.values() if len(group) == 1 for f in group]
-    return lone, [f for group in by_folder.values() if len(group) > 1 for f in group]
+    groups: dict[tuple[str, bool], list[str]] = defaultdict(list)
+    for folder in by_folder.values():
+        groups[(tenant_of(folder[0]), len(folder) > 1)].extend(folder)
+    return [(tenant, listed, shared) for (tenant, shared), listed in sorted(groups.items())]
 
 
 def has_data(lake: Path) -> bool:
-    return bool(tenants(lake))
+    return bool(paths(lake, "signatures"))
 
 
 def _file(lake: Path, tenant: str, relation: str, date: str, name: str) -> Path:
@@ -132,17 +155,49 @@ def _file(lake: Path, tenant: str, relation: str, date: str, name: str) -> Path:
     return own / relation / f"date={date}" / f"{name}.parquet"
 
 
-def _ids_beside(target: Path) -> set[str]:
-    """The signature ids in the other files of ``target``'s partition."""
-    ids: set[str] = set()
-    for other in sorted(target.parent.glob("*.parquet")) if target.parent.is_dir() else []:
-        if other.name == target.name or not other.is_file():
-            continue
-        try:
-            ids.update(pq.read_table(other, columns=["signature_id"]).column(0).to_pylist())
-        except (OSError, pa.ArrowException) as exc:
-            raise OutputError(f"lake file {other}: cannot read its signature ids ({exc.__class__.__name__})") from None
-    return ids
+def _plain(p: Path) -> bool:
+    """A regular file reached from its tenant's folder through no link (the tenant folder, the relation
+    and date folders and the file itself are not links)."""
+    return p.is_file() and not any(q.is_symlink() for q in (p, *list(p.parents)[:3]))
+
+
+def _partition(target: Path) -> list[Path]:
+    """The files of ``target``'s partition folder, links left out."""
+    return sorted(p for p in target.parent.glob("*.parquet") if _plain(p)) if target.parent.is_dir() else []
+
+
+def _take_out(sig_file: Path, table: pa.Table, which: pa.ChunkedArray) -> set[str]:
+    """Remove the rows ``which`` picks (a boolean mask over ``table``, the file's) from a signatures file
+    and their effects from its effects file (same partition, same name); a file left empty is deleted.
+    Returns the signature ids taken out."""
+    mask = pc.fill_null(which, False)  # a null (no site) is not picked
+    gone = table.filter(mask).column("signature_id")
+    if not len(gone):
+        return set()
+    effects_file = sig_file.parents[2] / "effects" / sig_file.parent.name / sig_file.name
+    _keep(sig_file, table.filter(pc.invert(mask)))  # the signatures first: an effect left alone is never read
+    if _plain(effects_file):
+        effects = _read(effects_file)
+        _keep(effects_file, effects.filter(pc.invert(pc.is_in(effects["signature_id"], value_set=gone))))
+    return set(gone.to_pylist())
+
+
+def _read(path: Path) -> pa.Table:
+    try:
+        return pq.read_table(path, partitioning=None)
+    except (OSError, pa.ArrowException) as exc:
+        raise OutputError(f"lake file {path}: cannot read it ({exc.__class__.__name__})") from None
+
+
+def _keep(path: Path, table: pa.Table) -> None:
+    """``table`` in place of the file at ``path``, or no file when it is empty."""
+    if table.num_rows:
+        _atomic(table, path)
+        return
+    try:
+        path.unlink()
+    except OSError as exc:
+        raise OutputError(f"lake file {path}: cannot remove ({exc.strerror or exc.__class__.__name__})") from None
 
 
 def _value(row: Mapping, name: str):

@@ -1,8 +1,9 @@
 """The outbox: batches that could not reach the fleet store wait at the site, one file each.
 
-Written beside their target and renamed (a crash leaves a whole file or none); named by the
-batch's content hash, so queueing the same batch twice keeps one file. Removed only after the
-store has taken the batch; a file that cannot be read is never removed, only named.
+Written beside their target and renamed (a crash leaves a whole file or none), mode 0640 as the
+audit log; named by the batch's content hash, so queueing the same batch twice keeps one file.
+Removed only after the store has taken the batch; a file that cannot be read is never removed,
+only named.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from cellguard.yaml_file import read_bounded
 
 OUTBOX = "outbox"
 MAX_BATCH_BYTES = 1 << 28  # [bytes] a queued batch larger is not read (a signature is about 1 kB in one)
+FILE_MODE = 0o640  # as the audit log: the site's own data, not for every local user
 
 
 class Outbox:
@@ -29,7 +31,7 @@ class Outbox:
         tmp = path.with_suffix(".json.tmp")
         try:
             self.folder.mkdir(parents=True, exist_ok=True)
-            with open(tmp, "w") as f:
+            with os.fdopen(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, FILE_MODE), "w") as f:
                 json.dump(batch.to_dict(), f)
                 f.flush()
                 os.fsync(f.fileno())

@@ -19,18 +19,26 @@ the same policy and reason, not again at every push). Held, not rebuilt under th
   it goes if the customer restores a policy that allows it, or a person deletes the file.
 
 A queued batch the store refuses (another tenant's, say) or a file that cannot be read stays
-queued too, named in one line; the other batches go on.
+queued too, named in one line; the other batches go on. With ``lake``, a batch lands in the lake
+before the store commits it: a lake that cannot take it leaves the store as it was, and the batch
+queued.
+
+Every push applies the policy's retention to the store (when it can be reached) and to ``lake``:
+the site's signatures older than ``retention_days`` and its aggregates of the months before are
+deleted, whatever is sent, even nothing.
 """
 
 from __future__ import annotations
 
 import datetime as dt
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 
+from cellguard.errors import OutputError
 from cellguard.fleet.audit import append_audit, scan_audit
 from cellguard.fleet.export import Batch, export_batch, refusal
-from cellguard.fleet.lake import check_lake, write_signatures
+from cellguard.fleet.lake import check_lake, forget, write_signatures
 from cellguard.fleet.outbox import Outbox
 from cellguard.fleet.policy import DataPolicy
 from cellguard.fleet.signature import Signature
@@ -73,9 +81,9 @@ def push(signatures: list[Signature], policy: DataPolicy, site_dir: Path, store:
     failed = [f"{path}: {why}; it stays queued" for path, why in unreadable]
     held: list[str] = []
     sent = new = dup = 0
-    unavailable = None
+    unavailable = _apply_retention(policy, store, lake, today, failed)
     last = _last_entries(site_dir) if queued and store is not None else {}
-    for path, waiting in queued if store is not None else ():
+    for path, waiting in queued if store is not None and unavailable is None else ():
         why = refusal(waiting, policy, today)
         if why is not None:
             said = last.get(waiting.batch_id, {})
@@ -83,8 +91,9 @@ def push(signatures: list[Signature], policy: DataPolicy, site_dir: Path, store:
                 append_audit(site_dir, waiting, "held", destination, reason=why, policy_in_force=policy.version)
             held.append(f"{path}: held at the site, the policy in force ({policy.version}) does not allow it: {why}")
             continue
+        land = partial(write_signatures, lake, waiting.signatures, waiting.batch_id) if lake is not None else None
         try:
-            n, d = store.push(waiting, retention_days=policy.retention_days)
+            n, d = store.push(waiting, then=land)
         except StoreUnavailable as exc:
             unavailable = str(exc)
             break
@@ -92,12 +101,31 @@ def push(signatures: list[Signature], policy: DataPolicy, site_dir: Path, store:
             append_audit(site_dir, waiting, "refused", destination, reason=str(exc), policy_in_force=policy.version)
             failed.append(f"{path}: {exc}; it stays queued")
             continue
-        if lake is not None and waiting.signatures:
-            write_signatures(lake, waiting.signatures, waiting.batch_id)
+        except OutputError as exc:  # the lake could not take it: the store rolled back
+            failed.append(f"{path}: {exc}; it stays queued")
+            continue
         outbox.done(path)
         append_audit(site_dir, waiting, "sent" if n else "duplicate", destination, policy_in_force=policy.version)
         sent, new, dup = sent + 1, new + n, dup + d
     return PushResult(batch, sent, new, dup, outbox.count(), unavailable, tuple(held), tuple(failed))
+
+
+def _apply_retention(policy: DataPolicy, store: TenantStore | None, lake: Path | None, today: dt.date | None,
+                     failed: list[str]) -> str | None:
+    """Delete the site's rows past the policy's retention from ``store`` and ``lake``, adding a line to
+    ``failed`` for each that refused; why the store could not be reached, or None."""
+    oldest = (today or dt.datetime.now(dt.timezone.utc).date()) - dt.timedelta(days=policy.retention_days)
+    places = [partial(forget, lake, policy.tenant)] if lake is not None else []
+    if store is not None:
+        places.append(store.forget)
+    for forget_older in places:
+        try:
+            forget_older(policy.site, oldest)
+        except StoreUnavailable as exc:
+            return str(exc)
+        except (OutputError, StoreError) as exc:
+            failed.append(f"{exc}; the retention of {policy.retention_days} days is not applied there")
+    return None
 
 
 def _last_entries(site_dir: Path) -> dict[str, dict]:

@@ -19,12 +19,18 @@ from dataclasses import dataclass
 from decimal import Decimal
 
 from cellguard.errors import CellguardError, ConfigError, UnknownNameError
+from cellguard.fleet.signature import EFFECT_LIMIT
 
 MIN_CUSTOMERS = 5  # default k: a cross-customer result covers at least this many customers
 
 
 class RefusedAggregate(CellguardError):
     """A cross-customer result over fewer than k customers (from the store or the lake)."""
+
+
+def first_line(error: object) -> str:
+    """An engine's error in one line: its first line that says something, stripped (or its class name)."""
+    return next((ln.strip() for ln in str(error).splitlines() if ln.strip()), error.__class__.__name__)
 
 
 @dataclass(frozen=True)
@@ -74,10 +80,14 @@ HAVING count(DISTINCT tenant_id) >= :k
 ORDER BY cause, robot_model NULLS LAST, signatures DESC, recovery NULLS LAST
 """
 
-_SIMILAR = """
-WITH p AS (SELECT feature, sign(effect) * ln(1 + abs(effect)) AS w FROM probe),
+# an effect that is not a finite number within the clip (NaN, infinite: a store or lake written before
+# signatures were checked) is left out, the same on every engine (they order NaN differently, DuckDB fails on it)
+_FINITE = f"effect BETWEEN -{EFFECT_LIMIT:.0f} AND {EFFECT_LIMIT:.0f}"
+
+_SIMILAR = f"""
+WITH p AS (SELECT feature, sign(effect) * ln(1 + abs(effect)) AS w FROM probe WHERE {_FINITE}),
 pn AS (SELECT sqrt(sum(w * w)) AS norm FROM p),
-s AS (SELECT signature_id, feature, sign(effect) * ln(1 + abs(effect)) AS w FROM effects),
+s AS (SELECT signature_id, feature, sign(effect) * ln(1 + abs(effect)) AS w FROM effects WHERE {_FINITE}),
 sn AS (SELECT signature_id, sqrt(sum(w * w)) AS norm FROM s GROUP BY signature_id),
 d AS (SELECT s.signature_id, sum(s.w * p.w) AS dot FROM s JOIN p ON s.feature = p.feature GROUP BY s.signature_id)
 SELECT g.signature_id, g.site_id, g.cause, g.robot_model, g.recovery, g.recovery_outcome,
@@ -117,8 +127,10 @@ def named(name: str) -> NamedQuery:
     return QUERIES[name]
 
 
-def render(query: NamedQuery, params: Mapping[str, object] | None = None, k_expr: str | None = None) -> str:
-    """The query's SQL with its parameters written in; ``k_expr`` replaces ``:k`` with an expression."""
+def render(query: NamedQuery, params: Mapping[str, object] | None = None, k_expr: str | None = None,
+           relations: Mapping[str, str] | None = None) -> str:
+    """The query's SQL with its parameters written in; ``k_expr`` replaces ``:k`` with an expression and
+    ``relations`` what each relation read is (``fleet.signatures``: a name no temporary object can stand for)."""
     values = {**query.defaults, **(params or {})}
     for key in values:
         if key not in query.defaults:
@@ -139,7 +151,11 @@ def render(query: NamedQuery, params: Mapping[str, object] | None = None, k_expr
             raise ConfigError(f"query {query.name}: parameter {key} must match {_TEXT.pattern}, got {v!r}")
         return f"'{v}'"
 
-    return re.sub(r":([a-z_]+)\b", literal, query.sql)
+    sql = re.sub(r":([a-z_]+)\b", literal, query.sql)
+    if relations is None:
+        return sql
+    return re.sub(r"\b(FROM|JOIN)\s+(signatures|effects|probe)\b",
+                  lambda m: f"{m.group(1)} {relations[m.group(2)]}", sql)
 
 
 def plain(row: Mapping[str, object]) -> dict:

@@ -6,7 +6,13 @@ onset and detection delay in cycles, the policy and calibration version stamps, 
 version, and the recovery taken with its outcome when known. No ticks, no images, no names:
 a tenant id and a site id, both opaque, assigned by the fleet operator.
 
-The signature id is the content hash of every field, so a retried upload is the same row.
+The signature id is the content hash of every field as diagnosed, before the data policy
+withholds any: a retried upload is the same row, and a push under a policy that withholds more
+replaces the row it sent before (the store and the lake keep one row per id, the latest).
+
+Every field is checked when a signature is made or read (a queued batch): its type, a finite
+number in range, text without control characters, so nothing malformed reaches the store or the
+lake (PostgreSQL would coerce "1e3" and take a NaN; the lake cannot write either).
 """
 
 from __future__ import annotations
@@ -15,8 +21,9 @@ import datetime as dt
 import hashlib
 import json
 import math
+import re
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass, field, fields, replace
+from dataclasses import asdict, dataclass, field, fields
 
 from cellguard.errors import ConfigError
 from cellguard.record.context import versions
@@ -25,6 +32,10 @@ SCHEMA_VERSION = 1
 ID_PATTERN = r"^[a-z0-9][a-z0-9_-]{0,39}$"  # tenant and site ids: opaque, lower-case, short; use re.fullmatch
 # (re.match lets "$" match before a final newline: "t-acme\n" would pass)
 EFFECT_LIMIT = 1e6  # [baseline scales] larger effect sizes are clipped (a feature with no spread)
+OUTCOMES = ("success", "failed")
+_TEXT_FIELDS = ("cause", "robot_model", "cell_type", "policy_version", "calibration_version", "cellguard_version",
+                "recovery")
+_ID = re.compile(r"[0-9a-f]{32}")
 
 
 class SignatureError(ConfigError):
@@ -52,9 +63,34 @@ class Signature:
     recovery_outcome: str | None = None  # "success" if it fixed at least one cycle, else "failed"
     schema_version: int = SCHEMA_VERSION
 
+    def __post_init__(self):
+        for key in ("tenant_id", "site_id"):
+            if not isinstance(getattr(self, key), str) or not re.fullmatch(ID_PATTERN, getattr(self, key)):
+                raise SignatureError(f"signature.{key}: expected an opaque id matching {ID_PATTERN}, "
+                                     f"got {getattr(self, key)!r}")
+        _date(self.created_date)
+        for key in _TEXT_FIELDS:
+            check_text(getattr(self, key), f"signature.{key}", required=key == "cause")
+        if self.recovery_outcome not in (None, *OUTCOMES):
+            raise SignatureError(f"signature.recovery_outcome: {self.recovery_outcome!r}; allowed: "
+                                 f"{', '.join(OUTCOMES)} or null")
+        _number(self.confidence, "signature.confidence", 0.0, 1.0)
+        for key in ("onset_cycle", "detection_delay_cycles"):
+            value = getattr(self, key)
+            if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 0):
+                raise SignatureError(f"signature.{key}: expected a cycle count (an integer >= 0) or null, "
+                                     f"got {value!r}")
+        if self.effects is not None:
+            if not isinstance(self.effects, Mapping):
+                raise SignatureError(f"signature.effects: expected a mapping of feature to effect size, "
+                                     f"got {type(self.effects).__name__}")
+            for feature, value in self.effects.items():
+                check_text(feature, "signature.effects (a feature name)", required=True)
+                _number(value, f"signature.effects.{feature}", -EFFECT_LIMIT, EFFECT_LIMIT)
+
     @property
     def signature_id(self) -> str:
-        """sha256 of the canonical JSON of every field, 32 hex digits."""
+        """sha256 of the canonical JSON of every field as diagnosed, 32 hex digits."""
         body = json.dumps(self._fields(), sort_keys=True, separators=(",", ":"))
         return hashlib.sha256(body.encode()).hexdigest()[:32]
 
@@ -71,13 +107,25 @@ WITHHOLDABLE = tuple(f.name for f in fields(Signature)
                      if f.name not in ("tenant_id", "site_id", "created_date", "cause", "schema_version"))
 
 
-def withhold(sig: Signature, names: tuple[str, ...]) -> Signature:
-    """The signature with the named fields emptied (a new id: the withheld fields are not in it)."""
-    return replace(sig, **{n: None for n in names})
+def withhold(sig: Signature, names: tuple[str, ...]) -> dict:
+    """The row that leaves the site: the signature's fields with the named ones emptied, under the id of
+    the signature as diagnosed (the same finding keeps its id whatever a policy withholds)."""
+    return {**sig.to_dict(), **{n: None for n in names}}
+
+
+def row_from_dict(raw: object) -> dict:
+    """A sent row (``withhold``'s) from its JSON, every field checked; its id is kept (it is the hash
+    of fields the row may no longer hold, so it cannot be checked against them)."""
+    row = from_dict(raw).to_dict()
+    given = raw.get("signature_id", row["signature_id"])
+    if not isinstance(given, str) or not _ID.fullmatch(given):
+        raise SignatureError(f"signature.signature_id: expected 32 hex digits, got {given!r}")
+    return {**row, "signature_id": given}
 
 
 def from_dict(raw: object) -> Signature:
-    """A signature from its JSON; a newer schema version or an unknown field is refused in one line."""
+    """A signature from its JSON (its id, if any, is not read: see ``row_from_dict``); a newer schema
+    version, an unknown, missing or mistyped field is refused in one line naming it."""
     if not isinstance(raw, Mapping):
         raise SignatureError(f"signature: expected a mapping, got {type(raw).__name__}")
     version = raw.get("schema_version")
@@ -92,17 +140,9 @@ def from_dict(raw: object) -> Signature:
         if key not in names:
             raise SignatureError(f"signature.{key}: unknown field; allowed: {', '.join(sorted(names))}")
     for key in ("tenant_id", "site_id", "created_date", "cause"):
-        if not isinstance(body.get(key), str):
-            raise SignatureError(f"signature.{key}: required text, got {body.get(key)!r}")
-    try:
-        dt.date.fromisoformat(body["created_date"])
-    except ValueError:
-        raise SignatureError(f"signature.created_date: expected an ISO date (YYYY-MM-DD), "
-                             f"got {body['created_date']!r}") from None
-    sig = Signature(**body)
-    if "signature_id" in raw and raw["signature_id"] != sig.signature_id:
-        raise SignatureError(f"signature.signature_id: {raw['signature_id']!r} does not match its content")
-    return sig
+        if key not in body:
+            raise SignatureError(f"signature.{key}: required")
+    return Signature(**body)
 
 
 def signatures_of(diagnosis: Mapping, context: Mapping, tenant_id: str, site_id: str,
@@ -129,6 +169,31 @@ def signatures_of(diagnosis: Mapping, context: Mapping, tenant_id: str, site_id:
             recovery=tried[0]["recovery"] if tried else None,
             recovery_outcome=("success" if tried[0]["fixed"] else "failed") if tried else None))
     return out
+
+
+def _date(value: object) -> None:
+    """An ISO date, YYYY-MM-DD only (``date.fromisoformat`` also takes 20261120 and week dates)."""
+    try:
+        dt.date.fromisoformat(value if re.fullmatch(r"[0-9]{4}-[0-9]{2}-[0-9]{2}", value) else "")
+    except (TypeError, ValueError):
+        raise SignatureError(f"signature.created_date: expected an ISO date (YYYY-MM-DD), got {value!r}") from None
+
+
+def check_text(value: object, name: str, required: bool = False) -> None:
+    """Printable text (it reaches an operator's terminal and the store's queries), at most 200 characters;
+    null too unless ``required``."""
+    if value is None and not required:
+        return
+    if not isinstance(value, str) or not value.isprintable() or len(value) > 200 or (required and not value):
+        raise SignatureError(f"{name}: expected {'' if required else 'null or '}printable text of at most 200 "
+                             f"characters, got {value!r}")
+
+
+def _number(value: object, name: str, lo: float, hi: float) -> None:
+    """A finite number in [lo, hi] or null; a quoted number ("0.5") or true is not one."""
+    if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float))
+                              or not math.isfinite(value) or not lo <= value <= hi):
+        raise SignatureError(f"{name}: expected a finite number {lo:g}..{hi:g} or null, got {value!r}")
 
 
 def _finite(x) -> bool:

@@ -32,14 +32,14 @@ class Neighbour:
 def probe_of(store: TenantStore, signature_id: str) -> Signature:
     """The caller's own signature by id (another tenant's id reads as not found)."""
     with store.connection() as con:
-        row = con.execute("SELECT site_id, robot_model, cause FROM fleet.signatures WHERE signature_id = %s",
-                          (signature_id,)).fetchone()
+        row = con.execute("SELECT tenant_id, site_id, created_date, cause, robot_model FROM fleet.signatures "
+                          "WHERE signature_id = %s", (signature_id,)).fetchone()
         if row is None:
             raise ConfigError(f"SIGNATURE_ID {signature_id!r}: no such signature among yours")
         effects = dict(con.execute("SELECT feature, effect FROM fleet.effects WHERE signature_id = %s",
                                    (signature_id,)).fetchall())
-    return Signature(tenant_id="", site_id=row[0], created_date="1970-01-01", cause=row[2], robot_model=row[1],
-                     effects=effects)
+    tenant, site, day, cause, model = row
+    return Signature(tenant, site, day.isoformat(), cause, robot_model=model, effects=effects)
 
 
 def similar(store: TenantStore, probe: Signature, limit: int = 5) -> list[Neighbour]:

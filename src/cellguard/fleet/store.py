@@ -15,23 +15,36 @@ Roles (``D`` is the database name):
   fewer than k customers have signatures (k = max(the caller's, the store's setting, default 5))
   and drops every group seen at fewer than k.
 
-Uploads are idempotent: the key is (tenant, content hash), inserts are ``ON CONFLICT DO NOTHING``.
+Every SECURITY DEFINER function names its tables with their schema and searches ``pg_temp`` last,
+and tenants may not create temporary objects at all: a temporary view called ``signatures`` read
+with the definer's rights would hand a tenant every customer's rows.
+
+Uploads are idempotent: a signature's key is (tenant, signature id), an aggregate's (tenant, site,
+month, cause, robot model, cell type). A row sent again with other content (fewer fields, once
+the policy withholds more; a new count, once a growing folder is pushed again) replaces the one
+there: deleted and inserted in one transaction, as tenants update nothing.
 """
 
 from __future__ import annotations
 
+import datetime as dt
+import hashlib
+import json
 import os
 import secrets
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 
 from cellguard.errors import CellguardError, ConfigError
 from cellguard.fleet.export import Batch
-from cellguard.fleet.queries import MIN_CUSTOMERS, QUERIES, RefusedAggregate, named, plain, render
+from cellguard.fleet.queries import MIN_CUSTOMERS, QUERIES, RefusedAggregate, first_line, named, plain, render
 
 SIGNATURE_COLUMNS = ("signature_id", "tenant_id", "site_id", "created_date", "cause", "confidence", "robot_model",
                      "cell_type", "onset_cycle", "detection_delay_cycles", "policy_version", "calibration_version",
                      "cellguard_version", "recovery", "recovery_outcome", "schema_version")
+RELATIONS = {"signatures": "fleet.signatures", "effects": "fleet.effects",  # never a name pg_temp could shadow
+             "probe": "unnest(%(features)s::text[], %(effects)s::double precision[]) AS probe (feature, effect)"}
 
 
 class StoreError(CellguardError):
@@ -90,7 +103,7 @@ def check_dsn(dsn: str) -> str:
 
 def _reason(exc: Exception, dsn: str) -> str:
     """The first meaningful line of a driver error, stripped, with the DSN's password blanked out."""
-    line = next((ln.strip() for ln in str(exc).splitlines() if ln.strip()), exc.__class__.__name__)
+    line = first_line(exc)
     from psycopg.conninfo import conninfo_to_dict
     try:
         password = conninfo_to_dict(dsn).get("password")
@@ -121,31 +134,39 @@ class FleetStore:
         return f"{self.database}_t_{tenant_id}"
 
     def install(self, reset: bool = False) -> None:
-        """Create the database, roles, tables, policies and functions (``reset``: drop them first)."""
+        """Create the database, roles, tables, policies and functions (``reset``: drop them first). On a
+        database already there, bring its functions and grants up to date (an older store gets today's)."""
         _psycopg()
         from psycopg import sql
+        db = sql.Identifier(self.database)
         with connect(self.admin_dsn) as con:
             con.autocommit = True
             exists = con.execute("SELECT 1 FROM pg_database WHERE datname = %s", (self.database,)).fetchone()
-            if exists and not reset:
-                return
-            con.execute(sql.SQL("DROP DATABASE IF EXISTS {} WITH (FORCE)").format(sql.Identifier(self.database)))
-            roles = con.execute("SELECT rolname FROM pg_roles WHERE rolname LIKE %s",
-                                (self.database.replace("_", r"\_") + r"\_%",)).fetchall()
-            for (role,) in roles:
-                con.execute(sql.SQL("DROP ROLE {}").format(sql.Identifier(role)))
-            for role in (self.owner, self.agg, self.app):
-                con.execute(sql.SQL("CREATE ROLE {} NOLOGIN NOINHERIT").format(sql.Identifier(role)))
-            con.execute(sql.SQL("CREATE DATABASE {}").format(sql.Identifier(self.database)))
-            con.execute(sql.SQL("REVOKE ALL ON DATABASE {} FROM PUBLIC").format(sql.Identifier(self.database)))
-            con.execute(sql.SQL("GRANT CONNECT, TEMPORARY ON DATABASE {} TO {}").format(
-                sql.Identifier(self.database), sql.Identifier(self.app)))
+            if reset or not exists:
+                con.execute(sql.SQL("DROP DATABASE IF EXISTS {} WITH (FORCE)").format(db))
+                for role in self._roles(con):
+                    con.execute(sql.SQL("DROP ROLE {}").format(sql.Identifier(role)))
+                for role in (self.owner, self.agg, self.app):
+                    con.execute(sql.SQL("CREATE ROLE {} NOLOGIN NOINHERIT").format(sql.Identifier(role)))
+                con.execute(sql.SQL("CREATE DATABASE {}").format(db))
+            con.execute(sql.SQL("REVOKE ALL ON DATABASE {} FROM PUBLIC").format(db))
+            con.execute(sql.SQL("REVOKE TEMPORARY ON DATABASE {} FROM {}").format(db, sql.Identifier(self.app)))
+            con.execute(sql.SQL("GRANT CONNECT ON DATABASE {} TO {}").format(db, sql.Identifier(self.app)))
         with connect(self._admin_db()) as con:
             with con.transaction():
-                con.execute(self._schema_sql())
+                con.execute(self._schema_sql() if reset or not exists else self._session_tenant_sql())
                 for q in QUERIES.values():
                     if q.cross_customer:
                         con.execute(self._function_sql(q))
+
+    def _roles(self, con) -> list[str]:
+        """This store's roles, by exact name: its own three and its tenants' (members of its app role);
+        never another store's whose name merely starts the same (``cgz`` and ``cgz_fleet``)."""
+        own = (self.owner, self.agg, self.app)
+        tenants = con.execute("SELECT m.rolname FROM pg_auth_members a JOIN pg_roles m ON m.oid = a.member "
+                              "JOIN pg_roles g ON g.oid = a.roleid WHERE g.rolname = %s", (self.app,)).fetchall()
+        there = con.execute("SELECT rolname FROM pg_roles WHERE rolname = ANY(%s)", (list(own),)).fetchall()
+        return [r for (r,) in tenants + there]
 
     def add_tenant(self, tenant_id: str, host: str = "127.0.0.1") -> str:
         """Create the tenant's login role with a fresh password; return the tenant's DSN."""
@@ -184,8 +205,7 @@ CREATE TABLE fleet.tenants (tenant_id text PRIMARY KEY, role_name name UNIQUE NO
 CREATE TABLE fleet.settings (one boolean PRIMARY KEY DEFAULT true CHECK (one),
                              min_customers int NOT NULL CHECK (min_customers >= 2));
 INSERT INTO fleet.settings (min_customers) VALUES ({MIN_CUSTOMERS});
-CREATE FUNCTION fleet.session_tenant() RETURNS text LANGUAGE sql STABLE SECURITY DEFINER
-  SET search_path = pg_catalog AS $$ SELECT tenant_id FROM fleet.tenants WHERE role_name = session_user $$;
+{self._session_tenant_sql()}
 CREATE TABLE fleet.signatures (
   signature_id text NOT NULL, tenant_id text NOT NULL REFERENCES fleet.tenants, site_id text NOT NULL,
   created_date date NOT NULL, cause text NOT NULL, confidence double precision, robot_model text, cell_type text,
@@ -205,9 +225,6 @@ ALTER TABLE fleet.settings OWNER TO {o};
 ALTER TABLE fleet.signatures OWNER TO {o};
 ALTER TABLE fleet.effects OWNER TO {o};
 ALTER TABLE fleet.aggregates OWNER TO {o};
-ALTER FUNCTION fleet.session_tenant() OWNER TO {o};
-REVOKE ALL ON FUNCTION fleet.session_tenant() FROM PUBLIC;
-GRANT EXECUTE ON FUNCTION fleet.session_tenant() TO {a};
 GRANT SELECT ON fleet.settings TO {g};
 """ + "".join(f"""
 ALTER TABLE fleet.{t} ENABLE ROW LEVEL SECURITY;
@@ -219,12 +236,21 @@ GRANT SELECT, INSERT, DELETE ON fleet.{t} TO {a};
 GRANT SELECT ON fleet.{t} TO {g};
 """ for t in ("signatures", "effects", "aggregates"))
 
+    def _session_tenant_sql(self) -> str:
+        return f"""
+CREATE OR REPLACE FUNCTION fleet.session_tenant() RETURNS text LANGUAGE sql STABLE SECURITY DEFINER
+  SET search_path = pg_catalog, pg_temp AS $$ SELECT tenant_id FROM fleet.tenants WHERE role_name = session_user $$;
+ALTER FUNCTION fleet.session_tenant() OWNER TO "{self.owner}";
+REVOKE ALL ON FUNCTION fleet.session_tenant() FROM PUBLIC;
+GRANT EXECUTE ON FUNCTION fleet.session_tenant() TO "{self.app}";
+"""
+
     def _function_sql(self, q) -> str:
         cols = ", ".join(f"{c} {t}" for c, t in q.columns)
-        body = render(q, k_expr="k_eff")
+        body = render(q, k_expr="k_eff", relations=RELATIONS)
         return f"""
-CREATE FUNCTION fleet.q_{q.name}(min_customers int DEFAULT {MIN_CUSTOMERS}) RETURNS TABLE ({cols})
-LANGUAGE plpgsql STABLE SECURITY DEFINER SET search_path = fleet, pg_catalog AS $fn$
+CREATE OR REPLACE FUNCTION fleet.q_{q.name}(min_customers int DEFAULT {MIN_CUSTOMERS}) RETURNS TABLE ({cols})
+LANGUAGE plpgsql STABLE SECURITY DEFINER SET search_path = fleet, pg_catalog, pg_temp AS $fn$
 #variable_conflict use_column
 DECLARE
   k_eff int := greatest(min_customers, (SELECT s.min_customers FROM fleet.settings s));
@@ -255,43 +281,59 @@ class TenantStore:
         con.commit()
         return con
 
-    def push(self, batch: Batch, retention_days: int | None = None) -> tuple[int, int]:
-        """Insert the batch's rows in one transaction: (new rows, rows already there)."""
+    def push(self, batch: Batch, then: Callable[[], object] | None = None) -> tuple[int, int]:
+        """Insert the batch's rows in one transaction, each replacing its earlier copy: (rows new or
+        changed, rows already there as they are). ``then`` (the lake's write) runs before the commit: if
+        it fails, nothing is committed, and the store and the lake stay the same."""
+        with self._writing(f"refused the batch of tenant {batch.tenant_id}") as cur:
+            new = 0
+            for s in batch.signatures:
+                effects = sorted((s.get("effects") or {}).items())
+                inserted = _replace(cur, "signatures", {c: s.get(c) for c in SIGNATURE_COLUMNS},
+                                    ("tenant_id", "signature_id"), same=_SAME_EFFECTS, has_effects=bool(effects))
+                if inserted:
+                    cur.executemany("INSERT INTO fleet.effects (tenant_id, signature_id, feature, effect) "
+                                    "VALUES (%s, %s, %s, %s)",
+                                    [(s["tenant_id"], s["signature_id"], f, e) for f, e in effects])
+                new += inserted
+            for r in batch.aggregates:
+                row = {"tenant_id": batch.tenant_id, "site_id": batch.site_id, "month": r["month"], "cause": r["cause"],
+                       "robot_model": r["robot_model"], "cell_type": r["cell_type"]}
+                new += _replace(cur, "aggregates", {"row_id": _group_key(row), **row, "signatures": r["signatures"],
+                                                    "policy_version": batch.policy_version}, tuple(row))
+            if then is not None:
+                then()
+        return new, batch.rows - new
+
+    def forget(self, site_id: str, before: dt.date | None = None) -> int:
+        """Delete this tenant's signatures of ``site_id`` made before ``before`` (its retention) and its
+        aggregates of the months wholly before it; every row of the site when ``before`` is None (consent
+        withdrawn). Returns the rows deleted."""
+        month = before.isoformat()[:7] if before else "9999-12"
+        with self._writing(f"refused to delete the rows of site {site_id}") as cur:
+            cur.execute("DELETE FROM fleet.signatures WHERE site_id = %s AND created_date < %s",
+                        (site_id, before or dt.date.max))
+            deleted = cur.rowcount
+            cur.execute("DELETE FROM fleet.aggregates WHERE site_id = %s AND month < %s", (site_id, month))
+            deleted += cur.rowcount
+        return deleted
+
+    @contextmanager
+    def _writing(self, refused: str):
+        """A cursor in one transaction as this tenant; a refusal is a StoreError saying ``refused`` and why,
+        a lost server StoreUnavailable (rolled back: what was to be sent stays queued)."""
         psycopg = _psycopg()
         with self.connection() as con:
             try:
                 with con.transaction(), con.cursor() as cur:
-                    new = 0
-                    for s in batch.signatures:
-                        cur.execute(
-                            f"INSERT INTO fleet.signatures ({', '.join(SIGNATURE_COLUMNS)}) VALUES "
-                            f"({', '.join(['%s'] * len(SIGNATURE_COLUMNS))}) ON CONFLICT DO NOTHING",
-                            [s.get(c) for c in SIGNATURE_COLUMNS])
-                        new += cur.rowcount
-                        cur.executemany("INSERT INTO fleet.effects (tenant_id, signature_id, feature, effect) "
-                                        "VALUES (%s, %s, %s, %s) ON CONFLICT DO NOTHING",
-                                        [(s["tenant_id"], s["signature_id"], f, e)
-                                         for f, e in (s.get("effects") or {}).items()])
-                    for i, r in enumerate(batch.aggregates):
-                        cur.execute("INSERT INTO fleet.aggregates (row_id, tenant_id, site_id, month, cause, robot_model,"
-                                    " cell_type, signatures, policy_version) VALUES (%s, %s, %s, %s, %s, %s, %s, %s, %s)"
-                                    " ON CONFLICT DO NOTHING",
-                                    (f"{batch.batch_id}-{i}", batch.tenant_id, batch.site_id, r["month"], r["cause"],
-                                     r["robot_model"], r["cell_type"], r["signatures"], batch.policy_version))
-                        new += cur.rowcount
-                    if retention_days is not None:
-                        cur.execute("DELETE FROM fleet.signatures WHERE site_id = %s AND "
-                                    "created_date < current_date - %s::int", (batch.site_id, retention_days))
+                    yield cur
             except psycopg.errors.InsufficientPrivilege as exc:
-                raise StoreError(f"fleet store {self.where}: refused the batch of tenant {batch.tenant_id} "
-                                 f"({exc.diag.message_primary})") from None
-            except psycopg.OperationalError as exc:  # the server went away mid-batch: rolled back, still queued
-                raise StoreUnavailable(f"fleet store {self.where} lost during the upload ({exc.__class__.__name__})") \
+                raise StoreError(f"fleet store {self.where}: {refused} ({exc.diag.message_primary})") from None
+            except psycopg.OperationalError as exc:
+                raise StoreUnavailable(f"fleet store {self.where} lost mid-transaction ({exc.__class__.__name__})") \
                     from None
-            except psycopg.Error as exc:  # any other refusal (a constraint, a type): rolled back, still queued
-                raise StoreError(f"fleet store {self.where}: refused the batch of tenant {batch.tenant_id} "
-                                 f"({_reason(exc, self.dsn)})") from None
-        return new, batch.rows - new
+            except psycopg.Error as exc:  # any other refusal (a constraint, a type)
+                raise StoreError(f"fleet store {self.where}: {refused} ({_reason(exc, self.dsn)})") from None
 
     def run(self, query: str, params: Mapping | None = None, probe: Sequence[tuple[str, float]] = (),
             scope: str = "fleet") -> list[dict]:
@@ -307,9 +349,29 @@ class TenantStore:
                     cur.execute(f"SELECT * FROM fleet.q_{q.name}(%s)", (k,))
                 except psycopg.errors.InsufficientPrivilege as exc:
                     raise RefusedAggregate(exc.diag.message_primary) from None
-            else:
-                cur.execute("CREATE TEMP TABLE probe (feature text, effect double precision) ON COMMIT DROP")
-                cur.executemany("INSERT INTO probe VALUES (%s, %s)", [(f, float(e)) for f, e in probe])
-                cur.execute(render(q, params, k_expr="1"))
+            else:  # the probe is bound as arrays: tenants may create no temporary table
+                cur.execute(render(q, params, k_expr="1", relations=RELATIONS),
+                            {"features": [f for f, _ in probe], "effects": [float(e) for _, e in probe]})
             cols = [d.name for d in cur.description]
             return [plain(dict(zip(cols, r))) for r in cur.fetchall()]
+
+
+# a signature's effects are all there or none (withheld): its id is the hash of them all
+_SAME_EFFECTS = ("EXISTS (SELECT 1 FROM fleet.effects e WHERE e.tenant_id = %(tenant_id)s "
+                 "AND e.signature_id = %(signature_id)s) = %(has_effects)s")
+
+
+def _replace(cur, table: str, row: Mapping, key: Sequence[str], same: str = "true", **params) -> int:
+    """Insert ``row`` into ``fleet.<table>``, first deleting a row with the same ``key`` whose values
+    differ (or for which the SQL condition ``same`` fails). 1 if it was inserted, 0 if it was there as it is."""
+    cols, values = ", ".join(row), ", ".join(f"%({c})s" for c in row)
+    match = " AND ".join(f"{k} IS NOT DISTINCT FROM %({k})s" for k in key)
+    cur.execute(f"DELETE FROM fleet.{table} WHERE {match} AND NOT (({cols}) IS NOT DISTINCT FROM ({values}) "
+                f"AND {same})", {**row, **params})
+    cur.execute(f"INSERT INTO fleet.{table} ({cols}) VALUES ({values}) ON CONFLICT DO NOTHING", row)
+    return cur.rowcount
+
+
+def _group_key(group: Mapping) -> str:
+    """An aggregate's key: its tenant, site, month, cause, robot model and cell type, hashed."""
+    return hashlib.sha256(json.dumps(list(group.values())).encode()).hexdigest()[:32]
