@@ -7,12 +7,16 @@ progress file after every tick (the SIGKILL test reads it after the kill).
 from __future__ import annotations
 
 import errno
+import json
 import os
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
+from mcap.reader import make_reader
+from mcap.writer import CompressionType, Writer
 
 from cellguard.control.events import Event
 from cellguard.record.writer import RecordConfig, Recorder
@@ -58,6 +62,33 @@ def record(folder: Path, cycles: int, ticks_per_cycle: int, events: dict[int, st
                        "features": {"current_peak.elbow": float(c), "cycle": float(c)}}, k * DT_NS)
     rec.close()
     return rec
+
+
+def rewrite(source: Path, target: Path, metadata: dict[str, dict[str, str]] | None = None,
+            edit: Callable[[str, dict], dict] | None = None, sequence: int | None = None) -> None:
+    """Copy the record of folder ``source`` into folder ``target`` (without its index) through the mcap Writer, as
+    a tampered or foreign file: ``metadata`` updates the metadata records it names, ``edit(topic, payload)``
+    returns each JSON message's payload, ``sequence`` numbers every message alike."""
+    target.mkdir(parents=True, exist_ok=True)
+    with open(source / "record.mcap", "rb") as f, open(target / "record.mcap", "wb") as out:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        writer = Writer(out, compression=CompressionType.ZSTD)
+        writer.start(profile="cellguard", library="test")
+        for record in reader.iter_metadata():
+            writer.add_metadata(record.name, {**record.metadata, **(metadata or {}).get(record.name, {})})
+        for schema_id, schema in summary.schemas.items():
+            assert writer.register_schema(schema.name, schema.encoding, schema.data) == schema_id
+        for channel_id, channel in sorted(summary.channels.items()):
+            assert writer.register_channel(channel.topic, channel.message_encoding, channel.schema_id,
+                                           channel.metadata) == channel_id
+        for _, channel, m in reader.iter_messages(log_time_order=False):
+            data = m.data
+            if edit is not None and channel.message_encoding == "json":
+                data = json.dumps(edit(channel.topic, json.loads(data))).encode()
+            writer.add_message(m.channel_id, m.log_time, data, m.publish_time,
+                               m.sequence if sequence is None else sequence)
+        writer.finish()
 
 
 class _File:

@@ -4,7 +4,9 @@ The MCAP file is the record; the index is derived from it (``record recover`` re
 exists so that a question over a month of cycles reads one row per cycle instead of rescanning
 ticks. Rows arrive in time order and are written in parts (``index/cycles/day=YYYY-MM-DD/
 part-NNNNNNNN.parquet``), so files stay time-sorted and a query can skip whole days. Each row is
-stamped with the context versions (policy, calibration, datum) it was recorded under.
+stamped with the context versions (policy, calibration, datum) it was recorded under, and each part
+names the run it indexes (``RECORD_ID_KEY`` in its Parquet metadata), so an index copied beside
+another run's record is refused rather than read as that run's.
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ import pyarrow.parquet as pq
 from cellguard.errors import RecordError
 
 TABLES = ("cycles", "events")
+RECORD_ID_KEY = b"cellguard.record_id"  # a part's Parquet metadata: the record id of the run it indexes
 _BASE_TYPES = {
     "cycle": pa.int64(), "phase": pa.string(), "t_start_ns": pa.int64(), "t_end_ns": pa.int64(),
     "success": pa.bool_(), "t_ns": pa.int64(), "kind": pa.string(), "reason": pa.string(), "joint": pa.string(),
@@ -64,9 +67,10 @@ class IndexWriter:
     """Buffers rows and writes them as day-partitioned Parquet parts (every ``part_rows`` rows, each day, at close)."""
 
     def __init__(self, folder: Path, epoch_wall_ns: int, part_rows: int = 5000,
-                 opener: Callable[[Path], BinaryIO] = default_opener):
+                 opener: Callable[[Path], BinaryIO] = default_opener, record_id: str | None = None):
         self.folder = Path(folder)
         self.epoch_wall_ns = epoch_wall_ns
+        self.record_id = record_id
         self.part_rows = part_rows
         self._opener = opener
         self._rows: dict[str, list[dict]] = {t: [] for t in TABLES}
@@ -95,8 +99,11 @@ class IndexWriter:
         folder = self.folder / table / f"day={self._day[table]}"
         folder.mkdir(parents=True, exist_ok=True)
         path = folder / f"part-{self._parts[table]:08d}.parquet"
+        part = rows_to_table(rows)
+        if self.record_id:
+            part = part.replace_schema_metadata({RECORD_ID_KEY: self.record_id.encode()})
         with self._opener(path) as f:
-            pq.write_table(rows_to_table(rows), f, compression="zstd")
+            pq.write_table(part, f, compression="zstd")
         self._parts[table] += 1
         self._rows[table] = []
 
@@ -125,21 +132,35 @@ def rows_to_table(rows: list[dict]) -> pa.Table:
     return pa.Table.from_arrays(arrays, names=names)
 
 
-def connect(folder: Path, con: duckdb.DuckDBPyConnection | None = None) -> duckdb.DuckDBPyConnection:
+def indexed_run(schema: pa.Schema) -> str | None:
+    """The record id an index part names (None: written before parts named one, or by another tool)."""
+    value = (schema.metadata or {}).get(RECORD_ID_KEY)
+    return value.decode(errors="replace") if value else None
+
+
+def connect(folder: Path, con: duckdb.DuckDBPyConnection | None = None,
+            record_id: str | None = None) -> duckdb.DuckDBPyConnection:
     """Views ``cycles`` and ``events`` over the index in ``folder`` on ``con`` (a new in-memory DuckDB if None).
 
     pyarrow reads the parts, each by its literal path: DuckDB's ``read_parquet`` expands ``*``, ``?`` and
     ``[...]`` in a file name, so a record under ``runs/run*`` would also read ``runs/runX``'s index, and its
     hive partitioning takes a ``key=value`` folder anywhere in the path for a column. A table without parts
-    is empty but has its columns (and ``day``), so a query over it answers with no rows.
+    is empty but has its columns (and ``day``), so a query over it answers with no rows. pyarrow takes paths as
+    UTF-8 text only: a folder whose name is not is refused in one line. ``record_id``: the run the index must be
+    of; a part that names another run is refused.
     """
     folder = Path(folder)
+    try:
+        str(folder.absolute()).encode()
+    except UnicodeEncodeError:
+        raise RecordError(f"{folder}: the index cannot be read under a name that is not UTF-8 (pyarrow opens UTF-8 "
+                          f"paths only); rename the folder, or link to it under a UTF-8 name") from None
     found = False
     views = {}
     for table in TABLES:
         parts = sorted((folder / table).glob("day=*/*.parquet"))
         found = found or bool(parts)
-        views[table] = _parts(folder / table, table, parts) if parts else _empty(table)
+        views[table] = _parts(folder / table, table, parts, record_id) if parts else _empty(table)
     if not found:
         raise RecordError(f"{folder}: no index (no Parquet parts under cycles/ or events/); pass a run folder "
                           f"holding index/, or `cellguard record recover` rebuilds it from the record")
@@ -149,7 +170,7 @@ def connect(folder: Path, con: duckdb.DuckDBPyConnection | None = None) -> duckd
     return con
 
 
-def _parts(folder: Path, table: str, parts: list[Path]) -> ds.Dataset:
+def _parts(folder: Path, table: str, parts: list[Path], record_id: str | None) -> ds.Dataset:
     """The parts of one table as one dataset: the table's columns, then the others by name over all parts (a
     feature added later is null before; so is a version column a part has none of, as a record recovered
     without its context), then ``day`` from the folder names (a DATE when each is a date, as the writer names them)."""
@@ -162,6 +183,10 @@ def _parts(folder: Path, table: str, parts: list[Path]) -> ds.Dataset:
         except (OSError, pa.ArrowException) as exc:
             raise RecordError(f"{part}: the index part cannot be read ({_first_line(exc)}); "
                               f"`cellguard record recover` rebuilds the index from the record") from None
+        if record_id and indexed_run(schemas[-1]) not in (None, record_id):
+            raise RecordError(f"{part}: indexes run {indexed_run(schemas[-1])}, not this record's {record_id} (an "
+                              f"index copied from another run); `cellguard record recover` rebuilds the index "
+                              f"from the record")
     try:
         schema = pa.unify_schemas(schemas, promote_options="permissive").append(pa.field("day", day))
         return ds.dataset([str(p.absolute()) for p in parts], schema=schema, format="parquet",

@@ -56,7 +56,7 @@ def export_lerobot(rec: Record, output: Path, fps: int = 50, task: str | None = 
     output = Path(output).resolve()  # "." and ".." have no name to put the staging folder beside
     context = rec.context
     stride = _stride(context, fps)
-    task = task or context.get("cell", "cycle").replace("-", " ")
+    task = task or (context.get("cell") or "cycle").replace("-", " ")
     measurements = _measurements(rec)
     columns: dict[str, list[np.ndarray]] = {}
     episodes, kept, skipped = [], [], []
@@ -90,7 +90,7 @@ def export_lerobot(rec: Record, output: Path, fps: int = 50, task: str | None = 
     data = {k: np.concatenate(v) for k, v in columns.items()}
     features = _features(data, joints, measurements)
     staging = _prepare(output)
-    robot_type = robot_type or context.get("embodiment", {}).get("robot")
+    robot_type = robot_type or (context.get("embodiment") or {}).get("robot")
     try:
         _write_dataset(staging, data, features, episodes, kept, task, robot_type, fps)
         # into the empty folder _prepare checked or made, which stays the same folder (it may be a shell's
@@ -124,7 +124,7 @@ def _write_dataset(output: Path, data: dict, features: dict, episodes: list, kep
 def _stride(context: dict, fps: int) -> int:
     """Every how many decimated ticks one frame is taken; RecordError unless fps divides the stream's rate."""
     dt_ns = context.get("servo_period_ns")
-    hz = context.get("record", {}).get("decimated_hz")
+    hz = (context.get("record") or {}).get("decimated_hz")
     if not dt_ns or not hz:
         raise RecordError("record context: servo_period_ns or record.decimated_hz is missing; "
                           "cannot tell the tick rate")

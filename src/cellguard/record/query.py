@@ -30,7 +30,8 @@ import duckdb
 from cellguard.errors import RecordError
 from cellguard.record.index import TABLES, connect
 from cellguard.record.json_values import plain
-from cellguard.record.scan import require_regular
+from cellguard.record.scan import require_regular, stated_record_id
+from cellguard.record.writer import INDEX_DIR, RECORD_FILE
 
 ALLOWED_STATEMENTS = (duckdb.StatementType.SELECT, duckdb.StatementType.EXPLAIN)
 MEMORY_LIMIT = "1GB"  # what a query's process may allocate once DuckDB is started (Linux); a query needing more fails
@@ -99,8 +100,6 @@ def _explains_a_select(sql: str, parse: Callable[[str], list]) -> None:
 def index_folder(path: Path) -> Path:
     """The index folder of ``path``: a run folder's index/ (the folder of a .mcap file, as ``record info`` takes
     the file), else ``path`` itself (an index folder)."""
-    from cellguard.record.writer import INDEX_DIR
-
     path = Path(path)
     try:
         if not path.exists():
@@ -277,7 +276,8 @@ def _confine(con: duckdb.DuckDBPyConnection, index: Path, sql: str) -> None:
     for table in TABLES:  # the parts connect() reads: a FIFO would block until the time limit
         for part in (index / table).glob("day=*/*.parquet"):
             require_regular(part, "an index part")
-    connect(index, con)
+    record = index.parent / RECORD_FILE  # a run folder's index/ is checked against the run's record id
+    connect(index, con, stated_record_id(record) if index.name == INDEX_DIR and record.is_file() else None)
     try:
         for table in TABLES:  # copy the views' rows in, so that the query reads memory only
             con.execute(f"CREATE TABLE {table}_copy AS SELECT * FROM {table}")

@@ -28,26 +28,33 @@ Contract (fields may be added, not renamed)::
     rec.health()                     # Health: finished, truncated, chunks ok/damaged, sequence gaps
 
 A truncated or damaged file opens: every chunk that passes its CRC is read, a damaged one is
-skipped, so is a message that does not decode or fit its schema, and ``health()`` says what was
-lost. ``open_record`` raises RecordError only when nothing can be read; ``strict=True`` also
-raises when anything was lost.
+skipped, so is a message that does not decode or fit its schema (a context whose fields readers
+use have other types included), and ``health()`` says what was lost. The record's format, epoch
+and start are taken from its first readable context (written with the log times, in a chunk with a
+CRC): the metadata record at the file's start has no CRC, and one that says otherwise is reported
+as damage. Messages are read a chunk or two at a time, so a long record takes no more memory.
+``open_record`` raises RecordError only when nothing can be read; ``strict=True`` also raises when
+anything was lost.
 """
 
 from __future__ import annotations
 
+import bisect
 import itertools
 import json
 import math
+import os
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
-import pyarrow.dataset as ds
+import pyarrow.parquet as pq
 from mcap.records import Message
 
 from cellguard.errors import RecordError
+from cellguard.record.index import indexed_run
 from cellguard.record.scan import ChunkRef, Layout, open_buffer, read_chunk, scan
 from cellguard.record.schemas import BY_TOPIC, CHUNK, TICK_FIELDS, TICKS
 from cellguard.record.writer import INDEX_DIR, RECORD_FILE, RECORD_VERSION
@@ -142,26 +149,31 @@ class Health:
     context_loss: str | None = None  # the first context could not be read (and where it came from instead)
     off_schema: dict[str, int] = field(default_factory=dict)  # topic -> messages skipped as malformed
     recovered: str | None = None  # a copy made by ``record recover``: what a full read of its source found
+    facts: str | None = None  # the metadata record states another format, epoch or start than the context
+    repeats: dict[str, int] = field(default_factory=dict)  # topic -> messages whose sequence number is not new
 
     @property
     def ok(self) -> bool:
         return (self.finished and not self.truncated and not self.damage and not any(self.gaps.values())
-                and self.context_loss is None)
+                and self.context_loss is None and self.facts is None)
 
     @property
     def recoverable(self) -> bool:
         """A finished copy (``record recover``) would read more: the file is unfinished or has damaged bytes.
-        A malformed message is copied as it is, so it alone is not."""
-        return not self.finished or self.truncated or len(self.damage) > len(self.off_schema)
+        A malformed message or a repeated sequence number is copied as it is, so it alone is not; metadata that
+        disagrees with the context is written as the context states it."""
+        return (not self.finished or self.truncated or len(self.damage) > len(self.off_schema) + len(self.repeats)
+                or self.facts is not None)
 
     def describe(self) -> str:
         copy = f"; a recovered copy of a record that was {self.recovered}" if self.recovered else ""
         if self.ok:
             return f"complete: {self.chunks_ok} chunks, {sum(self.messages.values())} messages{copy}"
         state = ("truncated" if self.truncated else "not finished" if not self.finished
-                 else "damaged" if self.damage or self.context_loss else "finished, with gaps")
-        notes = f"; {self.context_loss}" if self.context_loss else ""
+                 else "damaged" if self.damage or self.context_loss or self.facts else "finished, with gaps")
+        notes = "".join(f"; {note}" for note in (self.context_loss, self.facts) if note)
         notes += "".join(f"; {n} {topic} message(s) malformed, skipped" for topic, n in self.off_schema.items())
+        notes += "".join(f"; {n} {topic} message(s) repeat a sequence number" for topic, n in self.repeats.items())
         lost = sum(b - a + 1 for g in self.gaps.values() for a, b in g)
         span = ("" if self.span_ns is None
                 else f", readable {self.span_ns[0] * 1e-9:.3f} s to {self.span_ns[1] * 1e-9:.3f} s")
@@ -190,12 +202,15 @@ def open_record(path: Path | str, strict: bool = False) -> Record:
 
 def record_file(path: Path | str) -> Path:
     """The record file of ``path``: a run folder's record.mcap, or ``path`` itself. RecordError naming ``path`` if
-    it cannot be looked at (a component over 255 bytes, no access): is_dir raises OSError for those."""
+    it cannot be looked at (a component over 255 bytes, no access: is_dir raises OSError for those; a link loop:
+    resolved here, so that the record is named before an output is checked against it)."""
     path = Path(path)
     try:
-        return path / RECORD_FILE if path.is_dir() else path
-    except OSError as exc:
-        raise RecordError(f"{path}: cannot be read ({exc.strerror or exc})") from None
+        file = path / RECORD_FILE if path.is_dir() else path
+        file.resolve()
+    except (OSError, RuntimeError) as exc:  # RuntimeError: a symlink loop (Python 3.11)
+        raise RecordError(f"{path}: cannot be read ({getattr(exc, 'strerror', None) or exc})") from None
+    return file
 
 
 class Record:
@@ -210,17 +225,20 @@ class Record:
         self._ids = {topic: topics.get(topic, spec.id) for topic, spec in BY_TOPIC.items()}
         self._contexts: list[ContextChange] | None = None
         self.context_loss: str | None = None
+        self._facts_note: str | None = None  # the metadata record disagrees with the context (which is used)
         facts = layout.metadata.get("cellguard", {})
-        self.version = int(facts.get("record_version", "1")) if facts.get("record_version", "1").isdigit() else 1
+        self._stated = {key: facts[key] for key in _NUMBERS if key in facts}  # as written, checked against the context
+        self.version = _natural(facts.get("record_version", "1")) or 1
         self.record_id: str | None = facts.get("record_id")
-        self.epoch_wall_ns = int(facts["epoch_wall_ns"]) if facts.get("epoch_wall_ns", "").isdigit() else 0
-        self.start_ns = int(facts["start_ns"]) if facts.get("start_ns", "").isdigit() else 0
+        self.epoch_wall_ns = _natural(facts.get("epoch_wall_ns")) or 0
+        self.start_ns = _natural(facts.get("start_ns")) or 0
         if facts and self.version > RECORD_VERSION:
             raise RecordError(f"{file}: record format version {self.version} is newer than this cellguard reads "
                               f"(1 to {RECORD_VERSION}); update cellguard")
         self._offset = self.epoch_wall_ns if self.version >= 2 else 0  # log time = record time + offset
-        if not facts and layout.channels and any(c.topic == "/joint_states" for c in layout.channels.values()):
-            self._offset, self.version = None, 2  # version 2 (format 1 has no ROS 2 channels) with its metadata lost
+        if (_natural(facts.get("record_version")) is None
+                and any(c.topic == "/joint_states" for c in layout.channels.values())):
+            self._offset, self.version = None, 2  # version 2 (format 1 has no ROS 2 channels), its metadata lost
 
     def close(self) -> None:
         self._buf.close()
@@ -238,22 +256,18 @@ class Record:
         if self._contexts is None:
             self._contexts = []
             for m, d in self._json(self._raw(["/context"]), "/context", _context_fits):
-                self._learn(d)
-                if self._offset is None:
-                    self._offset = m.log_time - d["t_ns"] if d.get("record_version", 1) >= 2 else 0
+                if not self._contexts:
+                    self._settle(d, m.log_time - d["t_ns"])
                 if self._contexts and self._contexts[-1].version == d["version"]:
                     continue  # a repeat of the context in force
                 self._contexts.append(ContextChange(d["t_ns"], d["version"], tuple(d.get("changed", ())),
                                                     d.get("versions", {}), d["context"]))
-            saved = self.layout.metadata.get("cellguard.context")
+            saved = _saved_context(self.layout.metadata.get("cellguard.context", {}))
             if not self._contexts and saved:
-                self._contexts.append(_saved_context(saved))
-                self._learn({k: int(v) for k, v in saved.items() if k in _NUMBERS and v.isdigit()}
-                            | {"record_id": saved.get("record_id")})
-                if self._offset is None and self.version >= 2:
-                    self._offset = self.epoch_wall_ns
-                self.context_loss = ("the context chunk is lost; the context was taken from the copy "
-                                     "at the end of the file")
+                self._contexts.append(saved[0])
+                self._settle(saved[1], self.epoch_wall_ns)
+                self.context_loss = ("the context message is lost or malformed; the context was taken from the "
+                                     "copy at the end of the file")
             elif self._contexts and self._contexts[0].t_ns > self.start_ns:
                 self.context_loss = (f"the first context chunk is lost; the context was taken from its repeat at "
                                      f"t={self._contexts[0].t_ns * 1e-9:.3f} s")
@@ -261,13 +275,32 @@ class Record:
                 self.context_loss = "the context is lost (no readable copy)"
         return self._contexts
 
-    def _learn(self, stated: dict) -> None:
-        """What a context states about the record (its id, format, epoch and start), where the metadata record
-        at the file's start was lost (a damaged record read as format 1, with no id and spans in wall time)."""
+    def _settle(self, stated: dict, log_offset: int) -> None:
+        """What the first readable context states about the record (its id, format, epoch and start) and so the
+        log-time offset: where the metadata record at the file's start was lost (a damaged record read as format 1,
+        with no id and spans in wall time), and where it says otherwise (an epoch a year off put every cycle
+        outside the ticks read for it). ``log_offset``: its log time less its ``t_ns``, for a context that does
+        not state the epoch."""
         self.record_id = stated.get("record_id") or self.record_id
         for key in _NUMBERS:
-            if isinstance(stated.get(key), int) and not isinstance(stated[key], bool):
+            if key in stated:
                 setattr(self, "version" if key == "record_version" else key, stated[key])
+        if self.version < 2:
+            self._offset = 0
+        elif "epoch_wall_ns" in stated:
+            self._offset = self.epoch_wall_ns
+        elif self._offset is None:
+            self._offset = log_offset
+        found = self.facts()
+        wrong = [f"{key} {written!r} (the context: {found[key]})" for key, written in self._stated.items()
+                 if key in stated and written != found[key]]
+        if wrong:
+            self._facts_note = f"the metadata record states {', '.join(wrong)}; the context's values are used"
+
+    def facts(self) -> dict[str, str]:
+        """The record's format, epoch and start as read, as metadata text (what a recovered copy states)."""
+        return {"record_version": str(self.version), "epoch_wall_ns": str(self.epoch_wall_ns),
+                "start_ns": str(self.start_ns)}
 
     @property
     def start_wall_ns(self) -> int:
@@ -315,7 +348,7 @@ class Record:
         for m in messages:
             try:
                 value = decode(m.data)
-            except (RecordError, ValueError, KeyError, TypeError, AttributeError, IndexError):
+            except (RecordError, ValueError, KeyError, TypeError, AttributeError, IndexError, OverflowError):
                 self._note(topic, m)
                 continue
             yield m, value
@@ -358,13 +391,9 @@ class Record:
         """Where a cycle lies in time: from the index if there is one, else from the cycle markers."""
         index = self.file.parent / INDEX_DIR / "cycles"
         if self.file.name == RECORD_FILE and index.is_dir():
-            try:
-                table = ds.dataset(index, format="parquet", partitioning="hive").to_table(
-                    columns=["t_start_ns", "t_end_ns"], filter=ds.field("cycle") == cycle)
-            except (pa.ArrowException, OSError):  # a damaged index part: the record's own markers still say
-                table = None
-            if table is not None and table.num_rows:
-                return table["t_start_ns"][0].as_py(), table["t_end_ns"][0].as_py()
+            for part in sorted(index.glob("day=*/*.parquet")):
+                if (span := _index_span(part, cycle, self.record_id)) is not None:
+                    return span
         start = end = None
         for _, d in self._json(self.messages(["/cycles"]), "/cycles", _cycle_marker):
             if d["cycle"] == cycle:
@@ -376,12 +405,12 @@ class Record:
     def _batch_span_ns(self) -> int:
         """How far before its log time a tick batch may reach: one chunk of ticks."""
         context = self.contexts[0].context if self.contexts else {}
-        return context.get("record", {}).get("chunk_ns", 100_000_000) + context.get("servo_period_ns", 1_000_000)
+        return _field(context, "record.chunk_ns", 100_000_000) + _field(context, "servo_period_ns", 1_000_000)
 
     def _backlog_ns(self) -> int:
         """How far after its ticks a full-rate backlog may be logged: the pre-trigger window and one chunk."""
         context = self.contexts[0].context if self.contexts else {}
-        return round(context.get("record", {}).get("pre_trigger_s", 10.0) * 1e9) + self._batch_span_ns()
+        return round(_field(context, "record.pre_trigger_s", 10.0) * 1e9) + self._batch_span_ns()
 
     def attachment(self, name: str) -> bytes | None:
         """The data of attachment ``name`` (e.g. ``robot_description.urdf``), or None if absent or unreadable."""
@@ -395,15 +424,19 @@ class Record:
 
     # -- health ---------------------------------------------------------------------------
     def health(self) -> Health:
-        """Read every chunk: CRCs, sequence gaps per channel, message counts."""
+        """Read every chunk: CRCs, sequence gaps per channel, message counts.
+
+        In file order, a chunk at a time: none of it needs time order, and a merge by time holds every chunk that
+        overlaps another (a record whose chunks were written twice held all of them)."""
         names = {i: t for t, i in self._ids.items()}
         last: dict[int, int] = {}
         gaps: dict[str, list[tuple[int, int]]] = {t: [] for t in self._ids}
         counts = dict.fromkeys(self._ids, 0)
+        repeats: dict[str, int] = {}
         first_t = last_t = None
         self.contexts  # noqa: B018 - read first, so that a lost context is known
         offset = self._offset or 0
-        for m in self.messages(list(self._ids)):
+        for m in self._file_order(list(self._ids)):
             topic = names.get(m.channel_id)
             if topic is None:
                 continue
@@ -411,23 +444,31 @@ class Record:
             previous = last.get(m.channel_id, 0)
             if m.sequence > previous + 1:
                 gaps[topic].append((previous + 1, m.sequence - 1))
+            elif m.sequence <= previous:  # the writer numbers each channel's messages 1, 2, 3, ... in file order
+                repeats[topic] = repeats.get(topic, 0) + 1
             last[m.channel_id] = max(previous, m.sequence)
             first_t = m.log_time if first_t is None else min(first_t, m.log_time)
             last_t = m.log_time if last_t is None else max(last_t, m.log_time)
         # decoded in a second read, so that malformed messages are noted (held from the first, a long record's
         # every message would be in memory at once)
-        for _ in itertools.chain(self.cycles(), self.events(), self.measurements(), self.chunks(),
-                                 self._tick_batches({t: self.messages([t]) for t in _TICK_TOPICS.values()})):
+        every = self._file_order
+        for _ in itertools.chain(self._json(every(["/cycles"]), "/cycles", _cycle_record),
+                                 self._json(every(["/events"]), "/events", _event_record),
+                                 self._measurements(every(["/measurements"])),
+                                 self._decoded(every(["/chunks"]), "/chunks", _recorded_chunk),
+                                 self._tick_batches({t: every([t]) for t in _TICK_TOPICS.values()})):
             pass
         damage = ([d.why for d in self.layout.damage] + list(self._late_damage.values())
                   + [f"{len(bad)} {topic} message(s) off their schema, skipped"
-                     for topic, bad in self._off_schema.items()])
+                     for topic, bad in self._off_schema.items()]
+                  + [f"{n} {topic} message(s) repeat an earlier sequence number" for topic, n in repeats.items()])
         damaged = len(self._late_damage) + sum("chunk at byte" in d.why for d in self.layout.damage)
         return Health(self.layout.finished, self.layout.truncated, len(self.layout.chunks) - len(self._late_damage),
                       damaged, tuple(damage), {t: tuple(g) for t, g in gaps.items()}, counts,
                       None if first_t is None else (first_t - offset, last_t - offset), self.context_loss,
                       {topic: len(bad) for topic, bad in self._off_schema.items()},
-                      self.layout.metadata.get("cellguard.recovered", {}).get("source_health"))
+                      self.layout.metadata.get("cellguard.recovered", {}).get("source_health"), self._facts_note,
+                      repeats)
 
     # -- raw messages ---------------------------------------------------------------------
     def messages(self, topics: list[str], start_ns: int | None = None, end_ns: int | None = None
@@ -441,38 +482,92 @@ class Record:
         if unknown:
             raise RecordError(f"topics: {', '.join(sorted(unknown))} not in a cellguard record; "
                               f"known: {', '.join(self._ids)}")
-        if self._offset is None:
-            self.contexts  # noqa: B018 - learns the log-time offset
+        self.contexts  # noqa: B018 - the first readable context settles the log-time offset
         offset = self._offset or 0
         return self._raw(topics, None if start_ns is None else start_ns + offset,
                          None if end_ns is None else end_ns + offset)
 
     def _raw(self, topics: list[str], start_ns: int | None = None, end_ns: int | None = None) -> Iterator[Message]:
+        """The messages by log time, holding only those not yet due: chunks are opened in order of their first
+        time, and a message is passed on once no chunk still to open can hold an earlier one (a record's chunks
+        follow each other, so that is one chunk or two, however long the record)."""
         wanted = {self._ids[t] for t in topics}
-        out = []
+        refs = sorted((ref for ref in self.layout.chunks if _overlaps(ref, wanted, start_ns, end_ns)),
+                      key=lambda ref: (ref.start_ns, ref.offset))
+        pending: list[Message] = []  # by log time; file order within equal times
+        for ref in refs:
+            due = bisect.bisect_left(pending, ref.start_ns, key=_log_time)
+            yield from pending[:due]
+            del pending[:due]
+            pending += self._chunk_messages(ref, wanted)
+            pending.sort(key=_log_time)
+        yield from pending
+
+    def _file_order(self, topics: list[str]) -> Iterator[Message]:
+        """The messages of ``topics`` as the file holds them, one chunk at a time."""
+        wanted = {self._ids[t] for t in topics}
         for ref in self.layout.chunks:
-            if not _overlaps(ref, wanted, start_ns, end_ns) or ref.offset in self._late_damage:
-                continue
-            try:
-                out += read_chunk(self._buf, ref, wanted)
-            except RecordError as exc:
-                self._late_damage[ref.offset] = str(exc)
-                continue
-        out.sort(key=lambda m: m.log_time)  # stable: file order within equal times
-        return iter(out)
+            if _overlaps(ref, wanted, None, None):
+                yield from self._chunk_messages(ref, wanted)
+
+    def _chunk_messages(self, ref: ChunkRef, wanted: set[int]) -> list[Message]:
+        """The messages of ``wanted`` channels in one chunk; none if it is damaged (noted for ``health()``)."""
+        if ref.offset in self._late_damage:
+            return []
+        try:
+            return read_chunk(self._buf, ref, wanted)
+        except RecordError as exc:
+            self._late_damage[ref.offset] = str(exc)
+            return []
+
+
+def _log_time(m: Message) -> int:
+    return m.log_time
 
 
 _NUMBERS = ("record_version", "epoch_wall_ns", "start_ns")  # what a context states as numbers about its record
+_VERSIONS = ("policy_version", "calibration_version", "datum_version", "context_version")  # a cycle's stamps
+_INT64 = 2**63  # the ns stamps are int64: a larger one overflows Parquet, dates and numpy
 
 
-def _saved_context(saved: dict[str, str]) -> ContextChange:
-    """The context from the ``cellguard.context`` metadata record written at close."""
+def _natural(text: str | None) -> int | None:
+    """A count as metadata text states it (ASCII digits, below 2^63), else None: ``"²".isdigit()`` holds, and
+    ``int("²")`` raises."""
+    return int(text) if text and text.isascii() and text.isdigit() and int(text) < _INT64 else None
+
+
+def _saved_context(saved: dict[str, str]) -> tuple[ContextChange, dict] | None:
+    """The context from the ``cellguard.context`` metadata record written at close, and the numbers it states
+    about the record; None if there is none or it is malformed as a context message would be."""
     from cellguard.record.context import versions
 
-    context = json.loads(saved["context"])
+    try:
+        context = _context_types(json.loads(saved["context"]))
+    except (KeyError, ValueError, TypeError):
+        return None
+    t_ns = _natural(saved.get("t_ns", "0"))
+    if t_ns is None:
+        return None
     stamps = versions(context)
-    return ContextChange(int(saved.get("t_ns", "0")), stamps["context_version"], tuple(sorted(context)), stamps,
-                         context)
+    stated = {key: _natural(saved.get(key)) for key in _NUMBERS}
+    return (ContextChange(t_ns, stamps["context_version"], tuple(sorted(context)), stamps, context),
+            {key: value for key, value in stated.items() if value is not None} | {"record_id": saved.get("record_id")})
+
+
+def _index_span(part: Path, cycle: int, record_id: str | None) -> tuple[int, int] | None:
+    """(t_start_ns, t_end_ns) of ``cycle`` in one part of the cycle index; None if it is not there, the part indexes
+    another run or cannot be read (the record's own markers still say). Opened by handle: pyarrow takes a path only
+    as UTF-8 text, and a FIFO is never opened."""
+    if not part.is_file():
+        return None
+    try:
+        with pa.OSFile(os.fsencode(part)) as f:
+            table = pq.read_table(f, columns=["t_start_ns", "t_end_ns"], filters=[("cycle", "=", cycle)])
+    except (pa.ArrowException, OSError):
+        return None
+    if not table.num_rows or record_id and indexed_run(table.schema) not in (None, record_id):
+        return None
+    return table["t_start_ns"][0].as_py(), table["t_end_ns"][0].as_py()
 
 
 def _overlaps(ref: ChunkRef, wanted: set[int], start_ns: int | None, end_ns: int | None) -> bool:
@@ -543,15 +638,76 @@ def _measurement(d: dict) -> Measurement:
     return Measurement(d["t_ns"], cycle, tuple(names), np.array(values, dtype=np.float64))
 
 
+def _field(context: dict, path: str, default=None):
+    """The context's field at a dotted ``path`` (``record.chunk_ns``), or ``default`` where it or a parent is absent
+    or null; a parent that is not a dict raises AttributeError (``_CONTEXT_TYPES`` checks parents first)."""
+    for key in path.split("."):
+        context = (context or {}).get(key)
+    return default if context is None else context
+
+
+def _is_count(value) -> bool:
+    """An int64 count of ns (or a format version): an int, not a bool, in [0, 2^63)."""
+    return isinstance(value, int) and not isinstance(value, bool) and 0 <= value < _INT64
+
+
+def _is_amount(value) -> bool:
+    """Seconds or hertz: a number, not a bool, in [0, 1e9) (so that it stays an int64 count of ns)."""
+    return isinstance(value, int | float) and not isinstance(value, bool) and 0 <= value < 1e9
+
+
+# the context's fields that readers use, by dotted path (a parent before its fields), and their types or tests:
+# absent or None is allowed, anything else is a malformed context (`cell: 5` made `record info` and
+# `to-lerobot` stop with a traceback)
+_CONTEXT_TYPES = {
+    "site": str, "cell_id": str, "cell": str, "mount": str, "servo_period_ns": _is_count, "policy": dict,
+    "embodiment": dict, "embodiment.robot": str, "embodiment.calibration": dict, "embodiment.calibration_dates": list,
+    "scenario": dict, "software": dict, "record": dict, "record.chunk_ns": _is_count,
+    "record.decimated_hz": _is_amount, "record.pre_trigger_s": _is_amount,
+}
+
+
 def _context_fits(d: dict) -> dict:
-    """A context message as written (KeyError/TypeError if it is not one)."""
-    if not (isinstance(d["t_ns"], int) and isinstance(d["version"], str | int) and isinstance(d["context"], dict)):
+    """A context message as written (KeyError/TypeError if it is not one): its context as ``_context_types``,
+    and the record's id as text and its format, epoch and start as int64 counts, where it states them."""
+    if not (isinstance(d["t_ns"], int) and isinstance(d["version"], str | int) and isinstance(d["context"], dict)
+            and all(_is_count(d[key]) for key in _NUMBERS if key in d) and isinstance(d.get("record_id") or "", str)):
         raise TypeError("context message")
+    _context_types(d["context"])
     return d
 
 
+def _context_types(context: dict) -> dict:
+    """``context`` if each field in ``_CONTEXT_TYPES`` it has is of its type or passes its test (and the
+    calibration dates are text); TypeError if not."""
+    if not isinstance(context, dict):
+        raise TypeError("context")
+    for path, kind in _CONTEXT_TYPES.items():
+        value = _field(context, path)
+        if value is not None and not (isinstance(value, kind) if isinstance(kind, type) else kind(value)):
+            raise TypeError(f"context: {path}")
+    if not all(isinstance(date, str) for date in (context.get("embodiment") or {}).get("calibration_dates") or ()):
+        raise TypeError("context: embodiment.calibration_dates")
+    return context
+
+
+def _is_stamp(value) -> bool:
+    """A time in int64 ns: an int, not a bool, in [-2^63, 2^63)."""
+    return isinstance(value, int) and not isinstance(value, bool) and -_INT64 <= value < _INT64
+
+
+def _is_reading(value) -> bool:
+    """A number or null, as an event's asked and sent values are (not a bool, not text such as "nan")."""
+    return value is None or isinstance(value, int | float) and not isinstance(value, bool)
+
+
 def _cycle_marker(d: dict) -> dict:
-    if not (isinstance(d["cycle"], int) and isinstance(d["t_start_ns"], int)):
+    """A cycle marker whose number, times and versions fit the index's columns (TypeError if not: a cycle
+    10^30 overflowed int64 and a version 5 was no text, and `record recover` stopped half-way)."""
+    fits = (_is_count(d["cycle"]) and _is_stamp(d["t_start_ns"])
+            and (d.get("t_end_ns") is None or _is_stamp(d["t_end_ns"]))
+            and all(isinstance(d.get(k, ""), str) for k in _VERSIONS))
+    if not fits:
         raise TypeError("cycle marker")
     return d
 
@@ -560,15 +716,22 @@ def _cycle_record(d: dict) -> CycleRecord | None:
     """A cycle's end marker as a CycleRecord; None for a begin marker."""
     if _cycle_marker(d)["marker"] != "end":
         return None
+    if not _is_stamp(d["t_end_ns"]):
+        raise TypeError("cycle end marker")
     features = {k: math.nan if v is None else float(v) for k, v in d.get("features", {}).items()}
-    versions = {k: d[k] for k in ("policy_version", "calibration_version", "datum_version", "context_version")
-                if k in d}
-    return CycleRecord(d["cycle"], str(d["phase"]), d["t_start_ns"], int(d["t_end_ns"]), bool(d["success"]),
+    versions = {k: d[k] for k in _VERSIONS if k in d}
+    return CycleRecord(d["cycle"], str(d["phase"]), d["t_start_ns"], d["t_end_ns"], bool(d["success"]),
                        features, dict(d.get("outcome", {})), versions)
 
 
 def _event_record(d: dict) -> EventRecord:
-    if not (isinstance(d["t_ns"], int) and isinstance(d["kind"], str)):
+    """An event whose fields are of the types ``EventRecord`` states (TypeError if not: the index stores them)."""
+    category, cycle = d.get("category"), d.get("cycle")
+    fits = (_is_stamp(d["t_ns"]) and isinstance(d["kind"], str)
+            and (category is None or _is_count(category) and category <= 2)
+            and isinstance(d.get("joint") or "", str) and _is_reading(d.get("asked")) and _is_reading(d.get("sent"))
+            and (cycle is None or _is_count(cycle)))
+    if not fits:
         raise TypeError("event")
     return EventRecord(d["t_ns"], d["kind"], str(d["reason"]), d.get("category"), d.get("joint"),
                        d.get("asked"), d.get("sent"), d.get("cycle"))

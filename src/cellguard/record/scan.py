@@ -7,6 +7,10 @@ missing (a crash, a full disk) or wrong, a linear scan walks the records from th
 whose CRC, compression or length is wrong is noted as damage, and the scan resynchronises on the
 next chunk header it can find (``0x06``, length, times, ``zstd``). Every chunk it keeps has
 passed its CRC. Messages carry per-channel sequence numbers, so a lost chunk shows as a gap.
+
+A chunk is decompressed only up to the size it declares, and one that declares more than
+``MAX_CHUNK_BYTES`` is damage: the recorder's chunks hold about 1 MiB, and a few kilobytes of zstd
+or lz4 can declare (or expand to) gigabytes.
 """
 
 from __future__ import annotations
@@ -16,16 +20,19 @@ import os
 import stat
 import struct
 import zlib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from io import BytesIO
 from pathlib import Path
 
+import lz4.frame
+import zstandard
 from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
 from mcap.records import AttachmentIndex, Channel, Chunk, Message, Metadata, MetadataIndex, Schema
 from mcap.stream_reader import breakup_chunk, get_chunk_data_stream
 
 from cellguard.errors import RecordError
+from cellguard.record.writer import CHUNK_BYTES
 
 MAGIC = b"\x89MCAP0\r\n"
 _VALID_OPCODES = {int(op) for op in Opcode}
@@ -36,6 +43,7 @@ _FOOTER = struct.Struct("<BQQQI")  # opcode, length, summary_start, summary_offs
 _CHUNK_INDEX = struct.Struct("<QQQQI")  # start, end, chunk offset, chunk length, bytes of channel offsets
 _RECORD = struct.Struct("<BQ")  # opcode, length of the record that follows
 _MESSAGE = struct.Struct("<HIQQ")  # channel id, sequence, log time, publish time; then the data
+MAX_CHUNK_BYTES = 16 * CHUNK_BYTES  # [bytes] the most a chunk may hold uncompressed, and so any one message
 
 
 @dataclass(frozen=True)
@@ -93,6 +101,22 @@ def scan(path: Path) -> Layout:
         raise RecordError(f"{path}: cannot be read ({type(exc).__name__}: {exc})") from None
 
 
+def stated_record_id(path: Path) -> str | None:
+    """The record id the ``cellguard`` metadata record at the start of ``path`` states, or None: read from the
+    records before the first chunk, so nothing is decompressed (a truncated file has no summary to look in)."""
+    layout = Layout(path, 0, [])
+    try:
+        with open_buffer(path) as buf:
+            pos = len(MAGIC)
+            while pos + 9 <= len(buf) and buf[pos] in (Opcode.HEADER, Opcode.METADATA):
+                if buf[pos] == Opcode.METADATA:
+                    _metadata(buf, pos, layout)
+                pos += 9 + int.from_bytes(buf[pos + 1:pos + 9], "little")
+    except (OSError, ValueError):  # ValueError: an empty file cannot be mapped
+        return None
+    return layout.metadata.get("cellguard", {}).get("record_id")
+
+
 def require_regular(path: Path, what: str) -> None:
     """RecordError if ``path`` exists but is not a regular file: opening a FIFO waits for a writer that
     may never come and a device may never end, so neither is opened (a missing file is left to the open)."""
@@ -112,10 +136,15 @@ def read_chunk(buf, ref: ChunkRef, channels: set[int] | None = None) -> list:
     raw = buf[ref.offset:ref.offset + ref.length]
     if len(raw) < ref.length or raw[0] != Opcode.CHUNK:
         raise RecordError(f"chunk at byte {ref.offset}: not a chunk record")
+    _release(buf, ref.offset, ref.length)
     try:
         chunk = Chunk.read(ReadDataStream(BytesIO(raw[9:])))
         if chunk.compression not in ("zstd", "lz4", ""):
             raise RecordError(f"chunk at byte {ref.offset}: unknown compression {chunk.compression!r}")
+        if chunk.uncompressed_size > MAX_CHUNK_BYTES:
+            raise RecordError(f"chunk at byte {ref.offset}: declares {chunk.uncompressed_size} bytes uncompressed, "
+                              f"over the limit of {MAX_CHUNK_BYTES}; not decompressed")
+        chunk = replace(chunk, compression="", data=_decompressed(chunk))
         if channels is None:
             return breakup_chunk(chunk, validate_crc=True)
         stream, size = get_chunk_data_stream(chunk, validate_crc=True)
@@ -124,6 +153,31 @@ def read_chunk(buf, ref: ChunkRef, channels: set[int] | None = None) -> list:
         raise
     except Exception as exc:  # the mcap package raises many kinds on a corrupt chunk (zstd, CRC, struct)
         raise RecordError(f"chunk at byte {ref.offset}: damaged ({type(exc).__name__}: {exc})") from None
+
+
+def _decompressed(chunk: Chunk) -> bytes:
+    """The chunk's records, never more than the size it declares: ValueError if they are not that size
+    (mcap's own reader allocates whatever a zstd frame header states and expands lz4 without a limit)."""
+    limit = chunk.uncompressed_size + 1  # one byte more tells a chunk that expands past its size
+    if chunk.compression == "zstd":
+        with zstandard.ZstdDecompressor().stream_reader(chunk.data) as stream:
+            data = stream.read(limit)
+    elif chunk.compression == "lz4":
+        data = lz4.frame.LZ4FrameDecompressor().decompress(chunk.data, max_length=limit)
+    else:
+        data = chunk.data
+    if len(data) != chunk.uncompressed_size:
+        raise ValueError(f"{'more' if len(data) == limit else len(data)} bytes where it declares "
+                         f"{chunk.uncompressed_size}")
+    return data
+
+
+def _release(buf, offset: int, length: int) -> None:
+    """Unmap the pages of bytes already copied out of the file's mapping: mapped, every page read stays in the
+    process (reading a record end to end held all of it); a later read maps them again from the page cache."""
+    if isinstance(buf, mmap.mmap) and hasattr(mmap, "MADV_DONTNEED"):
+        start = offset - offset % mmap.PAGESIZE
+        buf.madvise(mmap.MADV_DONTNEED, start, offset + length - start)
 
 
 def _messages(data: bytes, channels: set[int]) -> list[Message]:

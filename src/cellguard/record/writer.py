@@ -68,7 +68,7 @@ DESCRIPTION_FILE = "robot_description.urdf"
 # (diagnose), report (report), shadow (release); named here, below those layers
 RUN_OUTPUTS = ("summary.json", "baseline.json", "fixes.json", "report.html", "shadow.json")
 _LOG_LEVEL = {0: ros2.FATAL, 1: ros2.ERROR, 2: ros2.WARN}  # stop category -> log level; else INFO (routine: DEBUG)
-_CHUNK_BYTES = 1 << 20  # a long backlog is split into chunks of about this many bytes
+CHUNK_BYTES = 1 << 20  # [bytes] a long backlog is split into chunks of about this many bytes (messages)
 
 
 @dataclass(frozen=True)
@@ -161,11 +161,12 @@ class Recorder:
             raise RecordError(f"{folder / RECORD_FILE}: cannot start the record ({_why(exc)}); "
                               f"nothing was run") from None
         epoch = time.time_ns() - start_ns if epoch_wall_ns is None else epoch_wall_ns
-        index = IndexWriter(folder / INDEX_DIR, epoch, config.index_part_rows, opener)
+        record_id = uuid.uuid4().hex
+        index = IndexWriter(folder / INDEX_DIR, epoch, config.index_part_rows, opener, record_id)
         try:
             return cls(stream, joints=joints, dt_ns=dt_ns, context=context, config=config, index=index,
                        name=str(folder / RECORD_FILE), epoch_wall_ns=epoch, description=description,
-                       start_ns=start_ns)
+                       record_id=record_id, start_ns=start_ns)
         except RecordError:  # not even the start fitted: leave no empty record behind
             with contextlib.suppress(OSError):
                 stream.close()
@@ -350,7 +351,7 @@ class Recorder:
             self._floor = max(self._floor, wall)
             self._writer.add_message(channel, self._floor, data, wall, seq)
             size += len(data)
-            if size >= _CHUNK_BYTES:  # a long backlog goes out in chunks of about the usual size
+            if size >= CHUNK_BYTES:  # a long backlog goes out in chunks of about the usual size
                 self._writer.flush()
                 size = 0
         self._pending = []
