@@ -251,7 +251,8 @@ def score(kind: str, r: Simulated) -> dict:
     named = after[0].cause if after else None
     return {"detected": first is not None, "delay": (first - AT) if first is not None else None,
             "cause": named, "correct": named == EXPECTED[kind], "false_alarms": len(early),
-            "onset": after[0].cycle if after else None, "diagnose_s": elapsed}
+            "onset": after[0].cycle if after else None, "diagnose_s": elapsed,
+            "findings": [(f.cause, list(f.joints), f.cycle) for f in d.findings]}
 
 
 def fault_free(seed: int, production: int) -> dict:
@@ -410,6 +411,7 @@ def main() -> None:
                          "detected": sum(r["detected"] for r in results),
                          "correct": sum(r["correct"] for r in results),
                          "delays": [r["delay"] for r in results], "causes": [r["cause"] for r in results],
+                         "onsets": [r["onset"] for r in results], "findings": [r["findings"] for r in results],
                          "false_alarms": sum(r["false_alarms"] for r in results)})
     free = [done[("free", seed, args.free_cycles)] for seed in free_seeds]
     graded = [r for r in rows if r["level"] != "small"]

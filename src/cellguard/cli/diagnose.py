@@ -33,14 +33,17 @@ def diagnose(
     try:
         diagnosis = diagnose_record(folder, acceptance=acceptance, fleet=fleet_advice(fleet))
         health = record_health(folder)
+        baseline_health = record_health(acceptance) if acceptance is not None else None
     except CellguardError as exc:
         fail(exc)
     if as_json:
-        sys.stdout.write(json.dumps({**diagnosis.to_dict(), "record": {"ok": health.ok, "status": health.describe()}})
-                         + "\n")
+        out = {**diagnosis.to_dict(), "record": {"ok": health.ok, "status": health.describe()}}
+        if baseline_health is not None:
+            out["acceptance_record"] = {"ok": baseline_health.ok, "status": baseline_health.describe()}
+        sys.stdout.write(json.dumps(out) + "\n")
     else:
         print_diagnosis(diagnosis)
-    raise typer.Exit(warn_if_damaged(health, folder))
+    raise typer.Exit(_warn(health, folder, baseline_health, acceptance))
 
 
 @app.command()
@@ -61,12 +64,22 @@ def report(
         else:
             out = report_path(folder)
         health = record_health(folder)
+        baseline_health = record_health(acceptance) if acceptance is not None else None
         path = write_report(folder, out, diagnosis=diagnose_record(folder, acceptance=acceptance,
                                                                    fleet=fleet_advice(fleet)), health=health)
     except CellguardError as exc:
         fail(exc)
     say(f"report: {path}", err=False)
-    raise typer.Exit(warn_if_damaged(health, folder))
+    raise typer.Exit(_warn(health, folder, baseline_health, acceptance))
+
+
+def _warn(health, folder: Path, baseline_health, acceptance: Path | None) -> int:
+    """One warning line per record that is not whole, the diagnosed one and the ``--acceptance`` one
+    whose cycles made the baseline; exit code 1 if either is not whole."""
+    code = warn_if_damaged(health, folder)
+    if baseline_health is not None:
+        code = max(code, warn_if_damaged(baseline_health, acceptance))
+    return code
 
 
 def fleet_advice(use: bool | None) -> list[dict]:

@@ -42,6 +42,8 @@ class MirrorDifference:
     right_value: float
     relative: float
     t: float  # difference over its standard error
+    mirror: str = ""  # the mirror member's feature (``tracking_rms.fr_hip``)
+    turns: tuple[str, str] = ("", "")  # the motions each side was read in ("" where not split by motion)
 
     @property
     def significant(self) -> bool:
@@ -103,20 +105,22 @@ def mirrored_asymmetry(cycles: Sequence[Cycle], pairs: Sequence[SymmetryPair]) -
             mirror_group = groups[MIRROR_LABEL[lab]] if lab else group
             suffix = f" during {lab} turns" if lab else ""
             mirror_suffix = f" during {MIRROR_LABEL[lab]} turns" if lab else ""
-            d = _compare(name, other, group, mirror_group, f"{name}{suffix}", f"{other}{mirror_suffix}")
+            d = _compare(name, other, group, mirror_group, f"{name}{suffix}", f"{other}{mirror_suffix}",
+                         (lab, MIRROR_LABEL[lab] if lab else ""))
             if d is not None:
                 diffs.append(d)
     if len(labels) == 2:
         for name in MOTION_FEATURES:
             if name in names:
                 d = _compare(name, name, groups["left"], groups["right"], f"{name} in left turns",
-                             f"{name} in right turns")
+                             f"{name} in right turns", ("left", "right"))
                 if d is not None:
                     diffs.append(d)
     return _judge(tuple(diffs), mirror, joints)
 
 
-def _compare(a: str, b: str, ga: Sequence[Cycle], gb: Sequence[Cycle], la: str, lb: str) -> MirrorDifference | None:
+def _compare(a: str, b: str, ga: Sequence[Cycle], gb: Sequence[Cycle], la: str, lb: str,
+             turns: tuple[str, str] = ("", "")) -> MirrorDifference | None:
     x = np.array([c.features[a] for c in ga if a in c.features])
     y = np.array([c.features[b] for c in gb if b in c.features])
     if len(x) < 2 or len(y) < 2:
@@ -127,7 +131,43 @@ def _compare(a: str, b: str, ga: Sequence[Cycle], gb: Sequence[Cycle], la: str, 
         return None  # smaller than a change that matters for this kind of feature
     sx, sy = (max(MAD_TO_SIGMA * float(np.median(np.abs(v - np.median(v)))), 0.005 * mean) for v in (x, y))
     se = 1.2533 * np.sqrt(sx * sx / len(x) + sy * sy / len(y))  # standard error of a median
-    return MirrorDifference(a, la, lb, mx, my, (abs(mx) - abs(my)) / mean, (abs(mx) - abs(my)) / se)
+    return MirrorDifference(a, la, lb, mx, my, (abs(mx) - abs(my)) / mean, (abs(mx) - abs(my)) / se, b, turns)
+
+
+def asymmetry_onset(cycles: Sequence[Cycle], asym: Asymmetry, pairs: Sequence[SymmetryPair], first: int) -> int:
+    """The cycle the asymmetry ``asym`` (found over the watched cycles, the first of which is ``first``)
+    began, from ``cycles`` (acceptance and watched, in order): the change point of its significant
+    mirrored differences, cycle by cycle (each cycle reads one side of each difference, or both where
+    the motions are not split), where the cycles before it hold no asymmetry on that side. ``first``
+    where the asymmetry was there before (or no change point stands out)."""
+    sig = asym.significant
+    if not sig or not asym.side:
+        return first
+    rows = []
+    for d in sig:
+        x = _side_series(cycles, d.feature, d.turns[0])
+        y = _side_series(cycles, d.mirror or d.feature, d.turns[1])
+        mean = 0.5 * (abs(d.left_value) + abs(d.right_value))
+        rows.append(np.sign(d.relative) * (np.nan_to_num(x) - np.nan_to_num(y)) / mean)
+    s = np.mean(rows, axis=0)
+    if len(s) < 4:
+        return first
+    cusum = np.cumsum(s - s.mean())[:-1]  # the least-squares split of one step in the mean
+    k = int(np.argmax(np.abs(cusum))) + 1
+    onset = cycles[k].index
+    if onset <= first:
+        return first
+    before = mirrored_asymmetry([c for c in cycles if c.index < onset], pairs)
+    if before is not None and before.side == asym.side:
+        return first  # the cycles before hold it already: it was there from the start
+    return onset
+
+
+def _side_series(cycles: Sequence[Cycle], name: str, turn: str) -> np.ndarray:
+    """|``name``| per cycle in motion ``turn`` ("" any), minus its median; 0 on the other cycles."""
+    v = np.array([abs(c.features[name]) if name in c.features and (not turn or c.label == turn) else np.nan
+                  for c in cycles])
+    return v - np.nanmedian(v) if np.isfinite(v).any() else np.zeros(len(cycles))
 
 
 def _judge(diffs: tuple[MirrorDifference, ...], mirror: dict[str, str], joint_names: set[str]) -> Asymmetry:

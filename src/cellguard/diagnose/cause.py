@@ -8,24 +8,32 @@ candidate finding, classified from the size and sign of its changes over the fau
   real part position at grasp is the grasp pose plus the offset. If the camera saw the part
   move (its readings alarmed) and the part really moved as far, the fixture moved; if the
   camera saw it move and it did not, the camera moved; if the camera saw nothing and the part
-  sat off the tool with the joints' grasp pose unchanged, the tool slipped on its flange.
+  sat off the tool with the joints' grasp pose unchanged, the tool slipped on its flange. A grasp
+  that moved with the part where it really sat (pose plus offset unchanged) is where the tool
+  closed: a concurrent change in how the arm moves (latency, a joint) explains it.
 - one joint (current, tracking error): friction raises the current the joint needs more than
   its tracking error; a weaker servo gain raises the tracking error more than the current. On a
   loaded joint friction hardly moves the current's RMS (it adds on one stroke, subtracts on the
   other): where current and tracking error moved under ``QUIET``, a rise of the joint's friction
-  torque (the drive's work over its travel) names friction. Not where they moved more: on a leg,
-  the ground's share of that work shifts with the gait.
+  torque (the drive's work over its travel) names friction. On a robot that does not stand on
+  the ground (no gait features) the friction torque weighs in whenever it alarmed: a position
+  servo holds more torque through a larger error, so friction raises its tracking error about
+  as much as its current, while a weaker gain raises the tracking error and leaves the work over
+  the travel where it was. Not on a leg where current and tracking error moved more: there the
+  ground's share of that work shifts with the gait.
   The joints of an arm are coupled: a joint that lags more moves the others' loads a little. A
   joint whose change is under ``COUPLED`` of a joint's that changed no later is that joint's
-  consequence, told in its evidence, not a second cause.
+  consequence, told in its evidence, not a second cause; unless its tracking error grew with no
+  more current (a coupled joint's change reaches it as a load, which its servo answers with current).
 - policy timing (latency, stale chunks) and policy output (rejected chunks) speak for
-  themselves; joint changes that start with a latency change are its consequence.
+  themselves; joint changes, and the gait of legs, that start with a latency change are its
+  consequence.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -41,6 +49,7 @@ CONCURRENT = 2  # [cycles] changes this close together are one episode
 UNCHANGED_Z = 3.0  # |median residual| below this, in baseline scales, reads as "unchanged"
 MATERIAL = 0.01  # a joint whose current and tracking error moved less than 1 % stays an alarm, not a cause
 QUIET = 0.02  # current and tracking error both moved less: the friction torque speaks for the joint
+STEP_CLIP = 8.0  # [scales] residuals clipped this far when a step is fitted (one odd cycle does not move it)
 COUPLED = 0.2  # a joint's change under this share of an earlier joint's change follows from it
 CARRY_ONLY = 0.5  # current while carrying rose, while not less than this share of it: the load changed
 
@@ -105,6 +114,25 @@ class _Window:
         m = self.baseline.median(name) if name in self.baseline.names else 0.0
         return d / abs(m) if np.isfinite(d) and m else float("nan")
 
+    def step_onset(self, alarms: Sequence[DriftAlarm]) -> int:
+        """The cycle a step in ``alarms``' features began: the split, between their earliest change point
+        and their first alarm, that fits one step in the mean of their residuals (signed, clipped at
+        ``STEP_CLIP``) best by least squares over all cycles. The median change point (``_onset``)
+        where none can be fitted. One CUSUM's change point wanders with the noise before the step;
+        the fit reads every cycle on both sides."""
+        cols = [(self.baseline.names.index(a.signal), a.direction) for a in _distinct(alarms)
+                if a.signal in self.baseline.names and a.direction]
+        if not cols:
+            return _onset(alarms)
+        z = np.clip(self.z[:, [j for j, _ in cols]], -STEP_CLIP, STEP_CLIP) * np.array([d for _, d in cols])
+        seen = ~np.all(np.isnan(z), axis=1)
+        s = np.nanmean(z[seen], axis=1)
+        index = np.array([c.index for c in self.cycles])[seen]
+        lo, hi = min(a.onset for a in alarms), min(a.cycle for a in alarms)
+        fits = [(float(np.sum((s[:k] - s[:k].mean()) ** 2) + np.sum((s[k:] - s[k:].mean()) ** 2)), int(index[k]))
+                for k in range(1, len(s)) if lo <= index[k] <= hi]
+        return min(fits)[1] if fits else _onset(alarms)
+
     def xy(self, stem: str, start: int) -> np.ndarray | None:
         v = np.array([self.delta(f"{stem}_x_mm", start), self.delta(f"{stem}_y_mm", start)])
         return v if np.all(np.isfinite(v)) else None
@@ -132,18 +160,21 @@ def name_causes(baseline: Baseline, cycles: Sequence[Cycle], z: np.ndarray, alar
     if any(kind_of(a.signal).unit == "ms" for a in groups.get("latency", ())):  # the policy answered later
         f = _latency(w, groups.pop("latency"))
         latency_at = f.cycle
+        f, groups["gait"] = _with_late_gait(f, groups.get("gait", []))
         findings.append(f)
     groups.pop("output", None)
     outcome = groups.pop("outcome", [])
-    if "geometry" in groups:
-        findings.append(_geometry(w, groups.pop("geometry"), outcome))
-        outcome = []
+    geometry = groups.pop("geometry", [])
+    grasp = _geometry(w, geometry, outcome) if geometry else None
+    outcome = [] if geometry else outcome
     joint_groups = {k.split(":", 1)[1]: v for k, v in groups.items() if k.startswith("joint:")}
     if latency_at is not None:
         joint_groups = {j: v for j, v in joint_groups.items() if abs(_onset(v) - latency_at) > CONCURRENT}
-    findings.extend(_joints(w, joint_groups))
+    findings.extend(_joints(w, joint_groups, grounded=_grounded(baseline)))
     findings.extend(_feet(w, groups.pop("gait", [])))
-    other = [a for k, v in groups.items() if not k.startswith("joint:") for a in v] + outcome
+    if grasp is not None:
+        findings = _with_grasp(w, grasp, geometry, findings)
+    other = _distinct([a for k, v in groups.items() if not k.startswith("joint:") for a in v] + outcome)
     if other and not findings:
         findings.append(Finding("unknown", _onset(other), 0.3, tuple(
             f"{a.signal} went {'up' if a.direction > 0 else 'down'} from cycle {a.onset} "
@@ -176,8 +207,34 @@ def _latency(w: _Window, alarms: list[DriftAlarm]) -> Finding:
     return Finding("policy_latency", start, conf, tuple(evidence), tuple(sorted({a.signal for a in alarms})))
 
 
+def _with_late_gait(late: Finding, gait: list[DriftAlarm]) -> tuple[Finding, list[DriftAlarm]]:
+    """The legs whose gait timing began to change with the latency (their first alarm within
+    ``CONCURRENT`` of it) step to a stale plan: told in the latency finding, not as foot contact
+    findings. Returns the finding and the gait alarms of the other legs."""
+    legs: dict[str, list[DriftAlarm]] = {}
+    for a in gait:
+        legs.setdefault(member_of(a.signal), []).append(a)
+    with_it = sorted(leg for leg, group in legs.items() if abs(min(a.onset for a in group) - late.cycle) <= CONCURRENT)
+    if not with_it:
+        return late, gait
+    signals = sorted({a.signal for leg in with_it for a in legs[leg]})
+    note = (f"also the gait of leg {', '.join(with_it)} from cycle {late.cycle} ({', '.join(signals[:4])}"
+            f"{' ...' if len(signals) > 4 else ''}): the legs step to the stale plan",)
+    rest = [a for a in gait if member_of(a.signal) not in with_it]
+    return replace(late, evidence=late.evidence[:-1] + note + late.evidence[-1:],
+                   signals=tuple(sorted(set(late.signals) | set(signals)))), rest
+
+
+def _distinct(alarms: Sequence[DriftAlarm]) -> list[DriftAlarm]:
+    """One alarm per signal, the earliest (a monitor that alarms again after its reset adds nothing)."""
+    seen: dict[str, DriftAlarm] = {}
+    for a in sorted(alarms, key=lambda a: (a.onset, a.cycle)):
+        seen.setdefault(a.signal, a)
+    return [a for a in alarms if seen[a.signal] is a]
+
+
 def _geometry(w: _Window, alarms: list[DriftAlarm], outcome: list[DriftAlarm]) -> Finding:
-    start = _onset(alarms)
+    start = w.step_onset(alarms)
     signals = tuple(sorted({a.signal for a in alarms + outcome}))
     seen_parts = [v for v in (w.xy("part_seen", start), w.xy("fixture_seen", start)) if v is not None]
     seen = np.mean(seen_parts, axis=0) if seen_parts else np.zeros(2)
@@ -220,25 +277,77 @@ def _geometry(w: _Window, alarms: list[DriftAlarm], outcome: list[DriftAlarm]) -
                  "joint grasp pose unchanged" if q_still else "joint grasp pose also changed",
                  "the tool point moved on the flange: the tool slipped")
         return Finding("tool_slip", start, conf, words + tuple(tail), signals)
-    return Finding("unknown", start, 0.3, (f"grasp pose moved {_vec(tcp)} with the camera and the offset unchanged",
-                                            *tail), signals)
+    words = (f"geometry changed in no pattern of a known cause: {_moved(w, alarms, start)}",)
+    if _part_stayed(w, alarms, start):
+        words += ("the part really sat where it did (grasp pose plus offset within "
+                  f"{SIGNIFICANT_MM} mm on every axis): the tool closed on it at another point",)
+    return Finding("unknown", start, 0.3, words + tuple(tail), signals)
 
 
-def _joints(w: _Window, groups: dict[str, list[DriftAlarm]]) -> list[Finding]:
-    """One finding per cause and episode: joints of the same kind of change that start together."""
+def _moved(w: _Window, alarms: Sequence[DriftAlarm], start: int) -> str:
+    """The alarmed geometry features and their median change, in words."""
+    return ", ".join(f"{a.signal} {_fmt(w.delta(a.signal, start))} mm" for a in _distinct(alarms)[:4]
+                     if kind_of(a.signal).unit == "mm")
+
+
+CONSEQUENCE_OF = ("policy_latency", "servo", "friction", "load_change")  # what changes where the tool closes
+
+
+def _part_stayed(w: _Window, alarms: Sequence[DriftAlarm], start: int) -> bool:
+    """Whether only the grasp moved: the camera saw nothing, and on each axis the grasp pose plus the
+    part-to-tool offset (where the part really sat) stayed within ``SIGNIFICANT_MM``."""
+    if any(a.signal.startswith(("part_seen_", "fixture_seen_")) for a in alarms):
+        return False
+    real = [w.delta(f"grasp_tcp_{ax}_mm", start) + w.delta(f"grasp_offset_{ax}_mm", start) for ax in "xyz"]
+    real = [r for r in real if np.isfinite(r)]
+    return bool(real) and max(abs(r) for r in real) < SIGNIFICANT_MM
+
+
+def _with_grasp(w: _Window, grasp: Finding, alarms: list[DriftAlarm], findings: list[Finding]) -> list[Finding]:
+    """``findings`` with the geometry finding ``grasp``: an unknown one where only the grasp moved (the
+    part really sat where it did) is the consequence of a concurrent change in how the arm moves (a
+    stale plan, a joint that lags or needs more torque closes the tool at another point of its path):
+    told in that finding's evidence."""
+    host = None
+    if grasp.cause == "unknown" and _part_stayed(w, alarms, grasp.cycle):
+        near = [f for f in findings if f.cause in CONSEQUENCE_OF and abs(f.cycle - grasp.cycle) <= CONCURRENT]
+        host = min(near, key=lambda f: (abs(f.cycle - grasp.cycle), -f.confidence), default=None)
+    if host is None:
+        return findings + [grasp]
+    note = (f"also from cycle {grasp.cycle} the tool closed at another point of its path "
+            f"({_moved(w, alarms, grasp.cycle)}), the part where it was",)
+    return [replace(f, evidence=f.evidence + note, signals=tuple(sorted(set(f.signals) | set(grasp.signals))))
+            if f is host else f for f in findings]
+
+
+def _grounded(baseline: Baseline) -> bool:
+    """Whether the robot stands on the ground (it has gait features): then the ground takes a share of
+    its drives' work that shifts with the gait, and the friction torque speaks only where current and
+    tracking error stayed quiet."""
+    return any(kind_of(n).family == "gait" for n in baseline.names)
+
+
+def _joints(w: _Window, groups: dict[str, list[DriftAlarm]], grounded: bool = False) -> list[Finding]:
+    """One finding per cause and episode: joints of the same kind of change that start together.
+
+    The torque a joint needs is read from its current and, where it alarmed (on a robot off the
+    ground) or where current and tracking error stayed under ``QUIET``, from its friction torque."""
     rated = []
     for joint, alarms in groups.items():
         start = _onset(alarms)
         cur = _largest(w.relative(f"current_rms.{joint}", start), w.relative(f"current_peak.{joint}", start))
         trk = _largest(w.relative(f"tracking_rms.{joint}", start), w.relative(f"tracking_max.{joint}", start))
-        ft = _friction(w, joint, start) if max(abs(cur), abs(trk)) < QUIET else 0.0
-        cur = ft if ft > max(cur, 0.0) else cur
+        alarmed = any(a.signal == f"friction_torque.{joint}" for a in alarms)
+        speaks = max(abs(cur), abs(trk)) < QUIET or (alarmed and not grounded)
+        ft = _friction(w, joint, start) if speaks else 0.0
+        current, cur = cur, (ft if ft > max(cur, 0.0) else cur)
         c, t = max(cur, 0.0), max(trk, 0.0)
         if max(abs(cur), abs(trk)) < MATERIAL:
             continue  # statistically there, physically too small to name a cause for
         carry, free = w.relative(f"current_carry_rms.{joint}", start), w.relative(f"current_free_rms.{joint}", start)
         if np.isfinite(carry) and np.isfinite(free) and carry >= MATERIAL and free < CARRY_ONLY * carry:
-            rated.append((start, "load_change", joint, carry, free, min(0.95, 1.0 - max(free, 0.0) / carry), alarms, 0.0))
+            share = min(0.95, 1.0 - max(free, 0.0) / carry)
+            rated.append((start, "load_change", joint, carry, free, share, alarms, 0.0, current))
             continue
         if c + t <= 0.0:
             cause, share = "unknown", 0.5
@@ -246,7 +355,7 @@ def _joints(w: _Window, groups: dict[str, list[DriftAlarm]]) -> list[Finding]:
             share = c / (c + t)
             cause = "friction" if share >= 0.5 else "servo"
             share = share if cause == "friction" else 1.0 - share
-        rated.append((start, cause, joint, cur, trk, share, alarms, ft))
+        rated.append((start, cause, joint, cur, trk, share, alarms, ft, current))
     rated.sort()
     rated, follows = _coupled(rated)
     findings: list[Finding] = []
@@ -262,15 +371,17 @@ def _joints(w: _Window, groups: dict[str, list[DriftAlarm]]) -> list[Finding]:
             evidence.append("the joints need more current only while they carry the part: the part's weight "
                             "changed (a new product variant?), not the joints")
         else:
-            evidence = [f"{r[2]}: {'friction torque' if r[7] and r[7] == r[3] else 'current'} {_pct(r[3])}, "
-                        f"tracking error {_pct(r[4])} vs baseline" for r in same[:6]]
+            evidence = [f"{r[2]}: {_torque(r)}, tracking error {_pct(r[4])} vs baseline" for r in same[:6]]
         coupled = [(r, lead) for lead in joints for r in follows.get(lead, ())]
-        evidence += [f"also {r[2]} from cycle {r[0]}: current {_pct(r[3])}, tracking error {_pct(r[4])}, under "
+        evidence += [f"also {r[2]} from cycle {r[0]}: {_torque(r)}, tracking error {_pct(r[4])}, under "
                      f"{COUPLED:.0%} of {lead}'s change: the coupled joints follow it, not a second cause"
                      for r, lead in coupled[:3]]
         if cause == "friction":
             evidence.append("the torque rose more than the tracking error (the current, or on a loaded joint the "
                             "friction torque): the joint needs more torque to follow the same motion, so friction grew")
+            if any(r[7] and r[7] == r[3] and r[8] < r[4] and r[4] >= QUIET for r in same):  # torque decided it
+                evidence.append("a position servo holds the extra torque through a larger error, so its tracking error "
+                                "rose with it; a weaker gain would have left the friction torque where it was")
         elif cause == "servo":
             evidence.append("the tracking error rose more than the current: the drive pushes less for the same "
                             "error, so the servo gain dropped")
@@ -280,6 +391,13 @@ def _joints(w: _Window, groups: dict[str, list[DriftAlarm]]) -> list[Finding]:
                                 tuple(sorted({a.signal for r in same + [r for r, _ in coupled] for a in r[6]})),
                                 joints))
     return findings
+
+
+def _torque(r: tuple) -> str:
+    """The torque a rated joint needs, in words: its current, or its friction torque where that spoke."""
+    if r[7] and r[7] == r[3]:
+        return f"friction torque {_pct(r[3])}" + (f", current {_pct(r[8])}" if abs(r[8]) >= MATERIAL else "")
+    return f"current {_pct(r[3])}"
 
 
 def _friction(w: _Window, joint: str, start: int) -> float:
@@ -300,11 +418,18 @@ def _coupled(rated: list[tuple]) -> tuple[list[tuple], dict[str, list[tuple]]]:
     for r in sorted(rated, key=size, reverse=True):
         leads = [m for m in kept if m[1] != "load_change" and m[0] <= r[0] + CONCURRENT]
         lead = max(leads, key=size, default=None)
-        if r[1] != "load_change" and lead is not None and size(r) < COUPLED * size(lead):
+        if r[1] != "load_change" and lead is not None and size(r) < COUPLED * size(lead) and not _own_drive(r):
             follows.setdefault(lead[2], []).append(r)
         else:
             kept.append(r)
     return sorted(kept), follows
+
+
+def _own_drive(r: tuple) -> bool:
+    """A rated joint whose tracking error rose by ``QUIET`` or more with its current within ``MATERIAL``:
+    a coupled joint's change reaches it as a load, which a position servo answers with current (and the
+    error that holds it); an error that grew with no more current is its own drive's."""
+    return r[1] == "servo" and r[4] >= QUIET and abs(r[8]) < MATERIAL
 
 
 def _feet(w: _Window, alarms: list[DriftAlarm]) -> list[Finding]:
@@ -316,7 +441,7 @@ def _feet(w: _Window, alarms: list[DriftAlarm]) -> list[Finding]:
     out = []
     for leg, group in sorted(legs.items()):
         start = _onset(group)
-        evidence = tuple(f"{a.signal} {_fmt(w.delta(a.signal, start))} vs baseline" for a in group[:4])
+        evidence = tuple(f"{a.signal} {_fmt(w.delta(a.signal, start))} vs baseline" for a in _distinct(group)[:4])
         out.append(Finding("foot_contact", start, 0.6, evidence + (
             f"leg {leg}'s foot meets the ground differently with its joints' drive unchanged: a worn or "
             "slipping foot, or the ground under it",), tuple(sorted({a.signal for a in group})), legs=(leg,)))
@@ -335,6 +460,25 @@ def intermittent_finding(baseline: Baseline, cycles: Sequence[Cycle], z: np.ndar
     head = (f"intermittent: {len(hits)} of {watched} cycles from cycle {found.first} on ({found.rate:.0%}), "
             f"cycles {', '.join(str(i) for i in found.cycles[:8])}{' ...' if len(hits) > 8 else ''}",)
     return Finding(named.cause, found.first, named.confidence, head + named.evidence, named.signals, rate=found.rate)
+
+
+def intermittent_findings(baseline: Baseline, cycles: Sequence[Cycle], z: np.ndarray, found: Sequence) -> list[Finding]:
+    """Each intermittent pattern named (``intermittent_finding``); a pattern with no known cause whose
+    cycles are all cycles of a named one (the place error off on the cycles the tool slipped) is that
+    fault seen again, told in its evidence."""
+    named = [(f, intermittent_finding(baseline, cycles, z, f)) for f in found]
+    hosts = {id(f): next((g for g, other in named if other.cause != "unknown" and set(f.cycles) <= set(g.cycles)), None)
+             if finding.cause == "unknown" else None for f, finding in named}
+    out = []
+    for g, finding in named:
+        if hosts[id(g)] is not None:
+            continue
+        same = [f for f, _ in named if hosts[id(f)] is g]
+        words = tuple(f"also {', '.join(f.signals[:4])} off on {'the same' if f.cycles == g.cycles else 'some of its'} "
+                      "cycles" for f in same)
+        out.append(replace(finding, evidence=finding.evidence + words,
+                           signals=tuple(sorted(set(finding.signals).union(*(f.signals for f in same))))))
+    return out
 
 
 def _unchanged_currents(w: _Window, start: int) -> str:

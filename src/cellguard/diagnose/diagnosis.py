@@ -10,9 +10,9 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 
 from cellguard.control.events import ROUTINE_EVENTS, EventKind
-from cellguard.diagnose.asymmetry import Asymmetry, mirror_map, mirrored_asymmetry
+from cellguard.diagnose.asymmetry import Asymmetry, asymmetry_onset, mirror_map, mirrored_asymmetry
 from cellguard.diagnose.baseline import Baseline
-from cellguard.diagnose.cause import CONCURRENT, Finding, intermittent_finding, name_causes
+from cellguard.diagnose.cause import CONCURRENT, Finding, intermittent_findings, name_causes
 from cellguard.diagnose.compare import FeatureChange, changes, last_good_and_faulted
 from cellguard.diagnose.cycles import Cycle, as_cycles
 from cellguard.diagnose.drift import DriftConfig, DriftResult, detect_drift
@@ -98,13 +98,13 @@ def diagnose(rows: Iterable[object], events: Iterable[object] = (), context: Map
             e["cycle"] = _cycle_of(e["t_ns"], spans)
     rejected = _rejections(watched, evs)
     findings = list(name_causes(baseline, watched, drift.z, drift.alarms, rejected))
-    findings += [intermittent_finding(baseline, watched, z, f) for f in found]
+    findings += intermittent_findings(baseline, watched, z, found)
     findings = with_residual(findings, residual_alarms(rows))  # the calibration's residual monitor, if it ran
     asym = mirrored_asymmetry(watched, symmetry)
     if asym is not None and asym.side:
         findings = _fold_compensation(findings, asym, symmetry)
         if not any(set(f.joints) & set(asym.joints) for f in findings):
-            findings.append(_asymmetry_finding(asym, watched[0].index))
+            findings = _with_asymmetry(findings, asym, asymmetry_onset(cycles, asym, symmetry, watched[0].index))
     attempts = attempts_of(evs)
     late = recovery_finding(cycles, attempts)
     findings += [late] if late is not None else []
@@ -142,18 +142,21 @@ def _on_legs(findings: list[Finding], pairs: Sequence[SymmetryPair]) -> list[Fin
 
 def _carried_by_the_others(findings: list[Finding]) -> list[Finding]:
     """A leg whose servo weakened carries less of the body: the other legs take its share (their
-    current rises, which reads as friction) and every foot's timing shifts. Friction and foot
-    contact findings on other legs that start with a servo finding on a leg are folded into it."""
+    current rises, which reads as friction), the weak leg's other joints make up for the weak one,
+    and every foot's timing shifts. Friction and foot contact findings that start with a servo
+    finding on a leg, on any legs, are folded into it."""
     weak = [f for f in findings if f.cause == "servo" and f.legs]
     extra: dict[int, list[str]] = {}
     out = []
     for f in findings:
         head = next((w for w in weak if f.cause in ("friction", "foot_contact") and abs(f.cycle - w.cycle) <= CONCURRENT
-                     and f.legs and not set(f.legs) & set(w.legs)), None)
+                     and f.legs and not set(f.joints) & set(w.joints)), None)
         if head is None:
             out.append(f)
             continue
         what = "take its share of the body" if f.cause == "friction" else "steps differently with it"
+        own = [j for j in f.joints for leg in head.legs if j.startswith(f"{leg}_")]
+        what += f", {', '.join(own)} on the weak leg itself among them" if own else ""
         data = "; ".join(e for e in f.evidence if e.endswith("vs baseline") and not e.startswith("also "))
         extra.setdefault(id(head), []).append(f"leg {', '.join(f.legs)} {what} ({data})")
     return [replace(f, evidence=f.evidence[:-1] + tuple(extra[id(f)]) + f.evidence[-1:]) if id(f) in extra else f
@@ -176,6 +179,19 @@ def _fold_compensation(findings: list[Finding], asym: Asymmetry, pairs: Sequence
             f"({', '.join(j for f in folded for j in f.joints)}); mirrored motions differ on the {asym.side} side",)
     merged = Finding(head.cause, head.cycle, head.confidence, head.evidence + note, head.signals, head.joints)
     return [merged if f is head else f for f in findings if f not in folded]
+
+
+def _with_asymmetry(findings: list[Finding], asym: Asymmetry, began: int) -> list[Finding]:
+    """An asymmetry no joint finding explains, from cycle ``began``: a late policy that began at or
+    before it explains it (a stale plan on a turning robot tells its sides apart), so it is told in
+    that finding's evidence; else it is a finding of its own."""
+    late = next((f for f in findings if f.cause == "policy_latency" and f.cycle <= began + CONCURRENT), None)
+    if late is None:
+        return findings + [_asymmetry_finding(asym, began)]
+    note = (f"mirrored motions differ on the {asym.side} side from cycle {began} "
+            f"({', '.join(asym.joints[:5])}): the late chunks, not a joint",)
+    return [replace(f, evidence=f.evidence + note, signals=tuple(sorted(set(f.signals) | {
+        d.feature for d in asym.significant}))) if f is late else f for f in findings]
 
 
 def _asymmetry_finding(asym: Asymmetry, cycle: int) -> Finding:

@@ -2,8 +2,9 @@
 
 A run watched by ``calibrate.residual`` carries, in each cycle's outcome, ``residual.alarms``: the
 joint whose measured torque left its model and the likely parameter. A finding that already names
-that joint with a matching cause (``friction`` for a friction-like residual) gains the alarm as
-evidence; otherwise the alarm becomes a ``model_drift`` finding of its own.
+that joint with a matching cause (``friction`` for a friction-like residual; ``servo`` for an
+inertia-like one, a weaker servo's changed motion) gains the alarm as evidence; otherwise the alarm
+becomes a ``model_drift`` finding of its own.
 """
 
 from __future__ import annotations
@@ -12,7 +13,10 @@ from collections.abc import Iterable, Mapping
 
 from cellguard.diagnose.cause import Finding
 
-MATCHES = {"friction": ("friction",), "inertia/payload": ("tool_slip", "part_misplaced"), "delay": ("servo",)}
+# A weaker servo moves its joint otherwise (it lags, accelerates later): the residual of the model over that
+# motion then shifts along the acceleration, read as inertia-like, with no change of the arm's mass.
+MATCHES = {"friction": ("friction",), "inertia/payload": ("tool_slip", "part_misplaced", "servo"), "delay": ("servo",)}
+WHY = {("inertia/payload", "servo"): " (the weaker servo moves the joint otherwise; the model reads that as inertia)"}
 CONFIDENCE = 0.7
 REFIT = {"friction": "--only {},friction", "inertia/payload": "--only {},armature (or --params payload)",
          "delay": "--params delay"}  # what to re-fit, per likely parameter ({} the joint)
@@ -40,8 +44,9 @@ def with_residual(findings: list[Finding], alarms: list[dict]) -> list[Finding]:
         if match is not None:
             f = findings[match]
             signal = f"residual.{a['joint']}.{a['signature']}"
-            findings[match] = Finding(f.cause, f.cycle, f.confidence, f.evidence + (words,), f.signals + (signal,),
-                                      f.joints, f.rate, f.legs)
+            findings[match] = Finding(f.cause, f.cycle, f.confidence,
+                                      f.evidence + (words + WHY.get((a["parameter"], f.cause), ""),),
+                                      f.signals + (signal,), f.joints, f.rate, f.legs)
             continue
         refit = REFIT.get(a["parameter"], "--params {}").format(a["joint"])
         findings.append(Finding("model_drift", int(a["cycle"] or 0), CONFIDENCE, (
