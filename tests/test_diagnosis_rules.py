@@ -97,6 +97,21 @@ def test_an_asymmetry_that_began_with_the_latency_is_told_in_the_latency_finding
     assert "also the gait of leg fl, fr, rl, rr from cycle 30" in words
 
 
+def test_an_asymmetry_that_began_long_after_a_latency_is_a_finding_of_its_own():
+    """A latency from cycle 25 swallowed an asymmetry that began at 80: 'began with it' has a lower bound too."""
+    from cellguard.diagnose.asymmetry import Asymmetry, MirrorDifference
+    from cellguard.diagnose.cause import Finding
+    from cellguard.diagnose.diagnosis import _with_asymmetry
+
+    d = MirrorDifference("tracking_rms.lf_knee", "tracking_rms.lf_knee", "tracking_rms.rf_knee", 0.02, 0.01, 0.66, 9.0,
+                         "tracking_rms.rf_knee", ("", ""))
+    asym = Asymmetry("left", ("lf_knee",), (d,), ("mirrored motions differ", "lf_knee tracks 66% worse"))
+    late = Finding("policy_latency", 25, 0.9, ("latency +40 ms from cycle 25",), ("latency_mean_ms",))
+    assert [(f.cause, f.cycle) for f in _with_asymmetry([late], asym, began=80)] == [("policy_latency", 25),
+                                                                                     ("servo", 80)]
+    assert [f.cause for f in _with_asymmetry([late], asym, began=26)] == ["policy_latency"]
+
+
 def test_an_asymmetry_is_dated_when_it_began_not_at_the_first_production_cycle():
     from cellguard.diagnose.asymmetry import asymmetry_onset
 

@@ -182,10 +182,10 @@ def _fold_compensation(findings: list[Finding], asym: Asymmetry, pairs: Sequence
 
 
 def _with_asymmetry(findings: list[Finding], asym: Asymmetry, began: int) -> list[Finding]:
-    """An asymmetry no joint finding explains, from cycle ``began``: a late policy that began at or
-    before it explains it (a stale plan on a turning robot tells its sides apart), so it is told in
+    """An asymmetry no joint finding explains, from cycle ``began``: a late policy that began with it
+    (within ``CONCURRENT`` cycles; one long before does not) explains it (a stale plan on a turning robot tells its sides apart), so it is told in
     that finding's evidence; else it is a finding of its own."""
-    late = next((f for f in findings if f.cause == "policy_latency" and f.cycle <= began + CONCURRENT), None)
+    late = next((f for f in findings if f.cause == "policy_latency" and abs(f.cycle - began) <= CONCURRENT), None)
     if late is None:
         return findings + [_asymmetry_finding(asym, began)]
     note = (f"mirrored motions differ on the {asym.side} side from cycle {began} "
