@@ -28,10 +28,11 @@ class CycleBuffer:
         self.n = 0
 
     def add(self, reference: np.ndarray, setpoint: np.ndarray, state: State) -> None:
-        """Append one tick; past capacity the oldest rows are kept and the rest dropped."""
+        """Append one tick. Past capacity (a cycle a recovery kept going past the time-out: an operator's hold)
+        the arrays double, one copy of a few MB on that tick, so the cycle's features cover all of it."""
         i = self.n
         if i >= len(self.t_ns):
-            return
+            self._grow()
         self.t_ns[i] = state.t_ns
         self.reference[i] = reference
         self.setpoint[i] = setpoint
@@ -40,3 +41,10 @@ class CycleBuffer:
         self.effort[i] = state.effort
         self.current[i] = state.current
         self.n = i + 1
+
+    def _grow(self) -> None:
+        for name in ("t_ns", "reference", "setpoint", "q", "qd", "effort", "current"):
+            old = getattr(self, name)
+            new = np.zeros((2 * len(old), *old.shape[1:]), dtype=old.dtype)
+            new[:len(old)] = old
+            setattr(self, name, new)

@@ -135,6 +135,7 @@ class Run:
         first_event, self._latencies, self._wall_ns = events.total, [], []
         ticks = self.ticks
         ticks.clear()
+        timed_out = False
         if not self.guard.power:  # a category 0/1 stop in the last cycle: the operator resets the cell
             cell.set_power(True)
             self.guard.reset(link.read(start).q)
@@ -200,12 +201,15 @@ class Run:
                 if operator.count and guard.envelope.tracker.stopped and np.abs(state.qd).max() < STANDSTILL:
                     self.stopped = self.stopped or operator.reason
                     break
-                if finished(state) or (t >= timeout and not (driving and recovery.attempting)):
+                if finished(state):
+                    break
+                if t >= timeout and not (driving and recovery.attempting):
+                    timed_out = True
                     break
         t_end = clock.now()
         stopped = any(e.category is not None for e in events.since(first_event))
         outcome = {"cycle": index, "phase": self._phase(index), **self.source.end(t_end, stopped)}
-        outcome["timed_out"] = t_end >= timeout
+        outcome["timed_out"] = timed_out  # the time-out ended it (not the task, a stop or the link)
         if recovery is not None:
             outcome.update(recovery.end_cycle())
         outcome["inference"] = _wall_latency(self._wall_ns)
