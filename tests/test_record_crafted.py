@@ -129,6 +129,18 @@ def test_a_failed_recovery_leaves_nothing(original, tmp_path, monkeypatch):
     assert os.listdir(tmp_path) == []
 
 
+def test_a_recovery_into_a_mount_point_is_renamed_on_its_own_filesystem(original, tmp_path):
+    """Staged beside the target, a mount point as -o failed with EXDEV and left index folders behind."""
+    from run_copies import small_tmpfs
+
+    with small_tmpfs(tmp_path / "mnt", "64m") as mnt:
+        result = runner.invoke(app, ["record", "recover", str(original), "-o", str(mnt)])
+        assert result.exit_code == 0, result.output
+        assert sorted(os.listdir(mnt)) == ["index", "record.mcap"]
+        with open_record(mnt) as rec:
+            assert rec.health().ok
+
+
 @pytest.mark.parametrize("context", [{"cell": 5}, {"embodiment": "x"}, {"policy": ["a"]}, {"record": []},
                                      {"servo_period_ns": "1000000"}, {"record": {"chunk_ns": "x"}},
                                      {"embodiment": {"calibration_dates": [1]}}])

@@ -46,8 +46,9 @@ def recover(source: Path, target: Path) -> Health:
                                   f"choose another folder")
             made = not target.exists()
             target.mkdir(parents=True, exist_ok=True)
-            staging = Path(tempfile.mkdtemp(prefix=f".{target.absolute().name}.", suffix=".partial",
-                                            dir=target.absolute().parent))
+            # inside the target: its files are renamed into place on the target's own filesystem (beside it, a
+            # target that is a mount point failed with EXDEV, and a parent may not be writable)
+            staging = Path(tempfile.mkdtemp(prefix=".recover-", suffix=".partial", dir=target))
             with open(staging / RECORD_FILE, "wb") as f:
                 _copy_messages(record, f, {"source": _text(record.file), "source_health": health.describe()})
             _rebuild_index(record, staging / INDEX_DIR)
