@@ -196,3 +196,27 @@ def test_cli_query_prints_text_from_the_lake_with_control_characters_escaped(tmp
     result = CliRunner().invoke(app, ["fleet", "query", "frequency", "--lake", str(tmp_path), "--k", "1"])
     assert result.exit_code == 0, result.output
     assert "\x1b" not in result.stdout and "\x07" not in result.stdout and "cause=x\\x1b[2J" in result.stdout
+
+
+def test_nothing_is_written_through_a_link_nor_withdrawn_past_one(tmp_path):
+    """A tenant folder that is a link took pushes (written through it) but withdraw and retention skipped it:
+    '0 signatures from the lake', exit 0, the rows still there."""
+    from cellguard.errors import OutputError
+    from cellguard.fleet.lake import forget
+
+    elsewhere, lake = tmp_path / "volume", tmp_path / "lake"
+    elsewhere.mkdir()
+    lake.mkdir()
+    (lake / "tenant=t0").symlink_to(elsewhere)
+    rows = [r for r in rows_of(*synthetic_fleet(SEEDS, 20, tenants=1, sites_per_tenant=1, days=1, versions=1,
+                                                seed=3)) if r["tenant_id"] == "t0"]
+    with pytest.raises(OutputError, match=r"tenant=t0: is a link; cellguard never follows links in a lake"):
+        write_signatures(lake, rows, "batch")
+    assert list(elsewhere.iterdir()) == []
+    (lake / "tenant=t0").unlink()
+    write_signatures(lake, rows, "batch")
+    date = next((lake / "tenant=t0" / "signatures").iterdir())
+    date.rename(elsewhere / date.name)
+    date.symlink_to(elsewhere / date.name)
+    with pytest.raises(OutputError, match=r"date=.*: is a link"):
+        forget(lake, "t0", rows[0]["site_id"])

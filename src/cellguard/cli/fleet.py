@@ -210,7 +210,7 @@ def withdraw(
     a customer withdrawing its consent. What waits in the outbox stays at the site (set ``export: nothing``
     to keep it there)."""
     from cellguard.errors import ConfigError
-    from cellguard.fleet.lake import check_lake, forget
+    from cellguard.fleet.lake import check_lake, forget, refuse_links
     from cellguard.fleet.policy import load_policy
 
     try:
@@ -220,6 +220,7 @@ def withdraw(
             raise ConfigError("--store: no fleet store DSN (or CELLGUARD_FLEET_DSN); or give --lake")
         if lake is not None:
             check_lake(lake)
+            refuse_links(lake, pol.tenant)  # before the store's rows go: the lake's must be able to go too
         in_store = tenant_store.forget(pol.site) if tenant_store is not None else 0
         in_lake = forget(lake, pol.tenant, pol.site) if lake is not None else 0
     except CellguardError as exc:

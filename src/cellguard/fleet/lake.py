@@ -73,7 +73,9 @@ def write_signatures(lake: Path, rows: Iterable[Mapping], name: str) -> int:
 
 def forget(lake: Path, tenant: str, site: str, before: dt.date | None = None) -> int:
     """Take ``site``'s signatures made before ``before`` (its retention; all of them when None, its consent
-    withdrawn) out of ``tenant``'s folder. Returns the signatures taken out."""
+    withdrawn) out of ``tenant``'s folder. Returns the signatures taken out; OutputError, nothing taken out,
+    where a link in the folder would hide files from it."""
+    refuse_links(lake, tenant)
     oldest = f"date={before.isoformat()}" if before else "date=9999"
     found = [(Path(f), _read(Path(f))) for f in paths(lake, "signatures", tenant) if Path(f).parent.name < oldest]
     return sum(len(_take_out(f, table, pc.equal(table["site_id"], site))) for f, table in found)
@@ -146,13 +148,31 @@ def has_data(lake: Path) -> bool:
     return bool(paths(lake, "signatures"))
 
 
+def refuse_links(lake: Path, tenant: str) -> None:
+    """OutputError naming the first link in ``tenant``'s folder (the folder itself included): links are never
+    followed in a lake (one reached another tenant's files), so a file behind one could be neither read nor
+    withdrawn, and nothing is written through one."""
+    own = tenant_dir(lake, tenant)
+    found = [own] if own.is_symlink() else []
+    if own.is_dir() and not found:
+        for root, dirs, names in os.walk(own):
+            found += [Path(root) / n for n in sorted(dirs + names) if os.path.islink(os.path.join(root, n))]
+    if found:
+        raise OutputError(f"lake {found[0]}: is a link; cellguard never follows links in a lake (one could reach "
+                          f"another tenant's files): make it a folder or file of its own")
+
+
 def _file(lake: Path, tenant: str, relation: str, date: str, name: str) -> Path:
     own = tenant_dir(lake, tenant)
+    target = own / relation / f"date={date}" / f"{name}.parquet"
+    link = next((p for p in (own, own / relation, target.parent, target) if p.is_symlink()), None)
+    if link is not None:
+        refuse_links(lake, tenant)
     try:
         own.mkdir(mode=0o700, parents=True, exist_ok=True)
     except OSError as exc:
         raise OutputError(f"lake folder {own}: cannot create ({exc.strerror or exc.__class__.__name__})") from None
-    return own / relation / f"date={date}" / f"{name}.parquet"
+    return target
 
 
 def _plain(p: Path) -> bool:
