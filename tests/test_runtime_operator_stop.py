@@ -219,3 +219,23 @@ def test_ctrl_c_in_a_release_stage_counts_no_run_and_evaluates_no_gate(tmp_path,
     assert sorted(f.name for f in (site / "runs" / CELL / "sim").iterdir()) == ["0001-first", "0002-first",
                                                                                 "0003-second"]
     assert [r.name for r in Store(site).runs(CELL, "sim", release)] == ["first", "second"]
+
+
+def test_a_stop_during_an_operator_hand_over_hold_plays_no_retreat():
+    """Ctrl-C while the cell was held for an operator (someone in the cell): the attempt read 'resumed' and the
+    arm was driven home at once."""
+    recovery = {"behaviours": [{"do": "retry_grasp", "trigger": "grasp_missed", "then": "operator"},
+                               {"do": "operator", "hold_s": 20.0}]}
+    run = Run(parse_scenario({"cell": "arm-pick-place", "acceptance_cycles": 0, "production_cycles": 2, "seed": 7,
+                              "faults": [{"kind": "fixture_shift", "at_cycle": 0, "dx_mm": 15.0}],
+                              "recovery": recovery}))
+    setpoints: list = []
+    held = lambda: run.recovery.stop is not None  # noqa: E731
+    _run_pressing(run, lambda writes: held() and not run.events.has("operator_stop"), setpoints)
+    kinds = [e.kind for e in run.events]
+    assert run.stopped == "operator stop (SIGINT)" and "retreat_begin" not in kinds
+    assert kinds[-1] == "retreat_aborted" and "hand-over hold" in run.events[-1].reason
+    assert run.cycles[-1]["recovery_log"][-1]["outcome"] == "cut_off"
+    _brakes_and_holds(run, setpoints[-200:])  # the hold's stop, then still
+    assert np.abs(setpoints[-1][:-1] - run.cell.q_home[:-1]).max() > 0.05  # not driven home
+

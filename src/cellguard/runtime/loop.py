@@ -314,6 +314,10 @@ class Run:
         unrecorded = self.recording is not None and self.recording.failed  # no motion the record would not hold
         if home is None or not self.guard.power or self.link.stop is not None or unrecorded:  # a link fault too
             return
+        if self.recovery is not None and self.recovery.held_at_end:  # someone may be in the cell: no motion
+            self.events.append(Event(self.clock.now(), EventKind.RETREAT_ABORTED, "retreat not played: the run "
+                                     "stopped during an operator's hand-over hold; the robot stays where it is held"))
+            return
         plan = Transition.plan(self.cell.profile, self.link.last_sent, np.asarray(home), self.clock.period_ns)
         if plan is not None:  # the operator's first signal stopped the run (or ends it now); a second aborts this
             self._play(plan, "retreat", self.clock.now(), signals=min(self.operator.count, 1))

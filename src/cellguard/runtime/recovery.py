@@ -64,6 +64,7 @@ class RecoveryRunner:
         self._log: list[dict] = []
         self._origin: np.ndarray | None = None  # the reference when the cycle's first check failed
         self._now = 0
+        self.held_at_end = False  # the cycle ended (an operator stop) while a hand-over hold was in force
 
     @property
     def attempting(self) -> bool:
@@ -120,10 +121,12 @@ class RecoveryRunner:
 
     def end_cycle(self) -> dict:
         """The cycle's recovery outcome fields (flat, SI) and its log. An attempt still running when the
-        cell's task ended the cycle with no failed check resumed the cell; one with a failed check was cut off."""
+        cell's task ended the cycle with no failed check resumed the cell; one with a failed check, or ended (by
+        an operator stop) during its hand-over hold, was cut off."""
         a = self._active
+        self.held_at_end = self.stop is not None
         if a is not None:
-            self._end(a, self._now, "cut_off" if a.failed_ns is not None else "resumed")
+            self._end(a, self._now, "cut_off" if a.failed_ns is not None or self.held_at_end else "resumed")
             self._active = None
         log = self._log
         arrivals = [r["arrival_s"] for r in log if r.get("arrival_s") is not None]
