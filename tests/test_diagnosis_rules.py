@@ -7,6 +7,7 @@ from __future__ import annotations
 import re
 
 import numpy as np
+from test_diagnose_legs import _legged
 
 from cellguard.diagnose import Baseline, as_cycles, diagnose, mirrored_asymmetry
 from cellguard.diagnose.cause import name_causes
@@ -189,26 +190,12 @@ def test_a_grasp_moved_with_a_weaker_servo_is_that_servo_s_consequence():
     assert "the tool closed at another point of its path" in " ".join(d.findings[0].evidence)
 
 
-def _legs_straight(change, seed: int = 0) -> list[dict]:
-    """A four-legged robot walking straight (no turns); ``change`` from cycle 30."""
-    rng = np.random.default_rng(seed)
-    centre = {f"{k}.{leg}_{j}": v for leg in LEGS for j in ("hip", "knee")
-              for k, v in (("tracking_rms", 0.01), ("tracking_max", 0.03), ("current_rms", 2.0), ("current_peak", 5.0))}
-    rows = []
-    for i in range(50):
-        f = {k: v * (1 + 2e-4 * rng.standard_normal()) for k, v in centre.items()}
-        if i >= 30:
-            change(f)
-        rows.append({"cycle": i, "phase": "acceptance" if i < 20 else "production", "features": f})
-    return rows
-
-
 def test_the_weak_leg_s_own_joints_compensating_are_folded_into_its_servo_finding():
     def weak_rear_left_hip(f: dict) -> None:
         _scale(f, {"tracking_rms.rl_hip": 1.1, "tracking_max.rl_hip": 1.1})
         _scale(f, {f"{k}.{j}": 1.08 for k in ("current_rms", "current_peak") for j in ("rl_knee", "fl_hip", "rr_knee")})
 
-    d = diagnose(_legs_straight(weak_rear_left_hip), [], {}, symmetry=PAIRS)
+    d = diagnose(_legged(weak_rear_left_hip), [], {}, symmetry=PAIRS)
     assert [(f.cause, f.joints, f.legs) for f in d.findings] == [("servo", ("rl_hip",), ("rl",))], \
         [f.to_dict() for f in d.findings]
     assert "rl_knee on the weak leg itself among them" in " ".join(d.findings[0].evidence)
