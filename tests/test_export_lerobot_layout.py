@@ -96,3 +96,12 @@ def test_refuses_a_folder_that_is_not_empty(folder, tmp_path):
     result = runner.invoke(app, ["record", "to-lerobot", str(folder), "-o", str(tmp_path / "ds")])
     assert result.exit_code == 2 and "not empty" in result.output
     assert (tmp_path / "ds" / "keep.txt").read_text() == "mine"
+
+
+def test_frames_a_nanosecond_off_the_period_are_no_gap_and_a_missing_frame_is():
+    """The demo's clock stepped 20,000,001 ns once in a cycle: 3 of its 80 cycles were dropped as gaps."""
+    from cellguard.record.lerobot_export import evenly_spaced
+
+    t = np.arange(10) * 20_000_000
+    assert evenly_spaced(t, 50) and evenly_spaced(t + np.array([0, 1, 0, -1, 0, 0, 1, 1, 0, 0]), 50)
+    assert not evenly_spaced(np.delete(t, 4), 50) and not evenly_spaced(t, 25)

@@ -110,9 +110,10 @@ def record_health(folder: Path):
 def print_diagnosis(d) -> None:
     console = Console(highlight=False)
     data = printable_tree(d.to_dict())  # joint and signal names come from the record
+    faulted = ("" if data["first_faulted_cycle"] is None else
+               f", last good cycle {data['last_good_cycle']}, first faulted cycle {data['first_faulted_cycle']}")
     console.print(f"diagnosis: {data['cycles']} cycles, baseline {data['baseline_cycles']}, "
-                  f"{len(data['drift_alarms'])} drift alarm(s), last good cycle {data['last_good_cycle']}, "
-                  f"first faulted cycle {data['first_faulted_cycle']}", markup=False)
+                  f"{len(data['drift_alarms'])} drift alarm(s){faulted}", markup=False)
     if not data["findings"]:
         console.print("  no fault found", markup=False)
     for f in data["findings"]:

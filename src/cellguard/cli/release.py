@@ -94,7 +94,8 @@ def promote(
         entry = do(_store(site), release, cell, to)
     except CellguardError as exc:
         fail(exc)
-    out.print(f"{entry.body['release']} is current at {to} on {cell} (was {entry.body['from']}); log entry {entry.seq}")
+    before = f"was {entry.body['from']}" if entry.body["from"] else "the first here"
+    out.print(f"{entry.body['release']} is current at {to} on {cell} ({before}); log entry {entry.seq}")
 
 
 @release_app.command("run")
