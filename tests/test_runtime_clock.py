@@ -208,3 +208,20 @@ def test_a_policy_process_that_dies_is_reported_with_its_exit_code():
             remote.infer(cell.observe())
     finally:
         remote.close()
+
+
+def test_policy_faults_of_a_simulated_cell_act_on_wall_time_too():
+    """--realtime: a policy_nan fault crashed the run (the worker had no corrupt_pending: no summary.json) and a
+    policy_latency fault was silently ignored while the ground truth listed it."""
+    scenario = parse_scenario({"cell": "arm-pick-place", "acceptance_cycles": 1, "production_cycles": 1,
+                               "cycle": {"source": "time", "seconds": 1.5}, "guard": {"watchdog_s": 1.0},
+                               "realtime": {"overrun_budget": 1_000_000},
+                               "faults": [{"kind": "policy_latency", "at_cycle": 1, "ms": 150},
+                                          {"kind": "policy_nan", "at_cycle": 1}]})
+    run = Run(scenario, realtime=True)
+    try:
+        before, after = run.cycle(), run.cycle()
+    finally:
+        run.close()
+    assert before["inference"]["wall_ms_mean"] < 100 <= 150 <= after["inference"]["wall_ms_mean"]
+    assert [e.kind for e in run.events].count("chunk_rejected") == 1

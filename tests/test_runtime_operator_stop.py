@@ -234,8 +234,42 @@ def test_a_stop_during_an_operator_hand_over_hold_plays_no_retreat():
     _run_pressing(run, lambda writes: held() and not run.events.has("operator_stop"), setpoints)
     kinds = [e.kind for e in run.events]
     assert run.stopped == "operator stop (SIGINT)" and "retreat_begin" not in kinds
+    assert "operator_stop" in kinds  # the signal came while the arm was already held still: it was not logged
     assert kinds[-1] == "retreat_aborted" and "hand-over hold" in run.events[-1].reason
     assert run.cycles[-1]["recovery_log"][-1]["outcome"] == "cut_off"
     _brakes_and_holds(run, setpoints[-200:])  # the hold's stop, then still
     assert np.abs(setpoints[-1][:-1] - run.cell.q_home[:-1]).max() > 0.05  # not driven home
 
+
+def test_a_stop_during_a_recovery_attempt_cuts_it_off():
+    """Ctrl-C mid retry_grasp read 'resumed': fixes.json and the advice would count an aborted attempt as a fix."""
+    recovery = {"behaviours": [{"do": "retry_grasp", "trigger": "grasp_missed", "attempts": 2}]}
+    run = Run(parse_scenario({"cell": "arm-pick-place", "acceptance_cycles": 0, "production_cycles": 2, "seed": 7,
+                              "faults": [{"kind": "fixture_shift", "at_cycle": 0, "dx_mm": 15.0}],
+                              "recovery": recovery}))
+    _run_pressing(run, lambda writes: run.recovery.attempting and not run.events.has("operator_stop"))
+    assert run.stopped == "operator stop (SIGINT)"
+    assert run.cycles[-1]["recovery_log"][-1]["outcome"] == "cut_off"
+
+
+def test_signals_while_the_record_closes_are_counted_and_the_summary_is_written(tmp_path):
+    """Two quick signals after the cycles met Python's own handlers: exit 130 (SIGTERM: killed) and no summary.
+    In a child process: without the handlers the signal ends whoever receives it."""
+    script = (
+        "import signal, sys\n"
+        "from cellguard.runtime import Run, run_scenario\n"
+        "from cellguard.scenario import parse_scenario\n"
+        "scenario = parse_scenario({'cell': 'arm-pick-place', 'acceptance_cycles': 1, 'production_cycles': 0})\n"
+        "run = Run(scenario)\n"
+        "close = run.close\n"
+        "def close_under_signals():\n"
+        "    signal.raise_signal(signal.SIGTERM)\n"
+        "    signal.raise_signal(signal.SIGINT)\n"
+        "    close()\n"
+        "run.close = close_under_signals\n"
+        "run_scenario(scenario, sys.argv[1], run=run)\n"
+        "print(run.operator.count)\n")
+    done = subprocess.run([sys.executable, "-c", script, str(tmp_path / "out")], capture_output=True, text=True,
+                          timeout=120)
+    assert done.returncode == 0 and done.stdout.strip() == "2", (done.returncode, done.stderr[-500:])
+    assert (tmp_path / "out" / "summary.json").is_file()

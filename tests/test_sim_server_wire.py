@@ -17,7 +17,7 @@ import time
 
 import numpy as np
 import pytest
-from sim_server_util import HOME, scenario, start_server
+from sim_server_util import HOME, scenario, start_server, sway_file
 
 from cellguard.errors import CellguardError
 from cellguard.robot.bridges.sim_server import COMMAND_HEAD, STATE_HEAD, Layout, SimServerRobot, pack_command
@@ -343,3 +343,15 @@ def test_a_client_whose_process_died_before_its_first_command_is_gone_at_once(se
     SimServerRobot(("127.0.0.1", port)).close()  # at once, not after 30 s
     out = said(proc)
     assert f"sim-server: client {client.name} is gone (its port is closed)" in out and "Traceback" not in out
+
+
+@pytest.mark.parametrize("key, value", [("faults", [{"kind": "friction_step", "at_cycle": 0, "joint": "elbow",
+                                                      "factor": 2.0}]),
+                                         ("process_changes", [{"kind": "payload", "at_cycle": 0, "grams": 40.0}])])
+def test_simulation_only_changes_on_a_bridge_are_refused(server, tmp_path, key, value):
+    """A payload change on a sim-server robot was accepted: never applied, yet listed as ground truth."""
+    _, port = server
+    body = {**scenario(port, sway_file(tmp_path / "s.npz")), key: value}
+    with pytest.raises(CellguardError, match=f"{key}: applied to simulated cells only"):
+        Run(parse_scenario(body))
+

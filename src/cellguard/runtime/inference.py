@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from cellguard.policy.chunk import ActionChunk
 
@@ -78,6 +78,9 @@ class WorkerInference:
     def __init__(self, worker, period_ns: int):
         self.worker, self.period_ns = worker, int(period_ns)
         self._next = 0
+        self._corrupt: Callable[[ActionChunk], ActionChunk] | None = None
+        self.extra_ns = 0  # a simulated cell's policy_latency fault on wall time: each chunk held back this long
+        self._held: tuple[int, object] | None = None  # (due [ns], the worker's result) while held back
 
     def warm_up(self, observation) -> None:
         """A first call off the clock: a cold policy's first answer is not its latency."""
@@ -91,18 +94,39 @@ class WorkerInference:
         self._next = t_ns
 
     def due(self, t_ns: int) -> bool:
-        return t_ns >= self._next and self.worker.wants_observation(t_ns)
+        return self._held is None and t_ns >= self._next and self.worker.wants_observation(t_ns)
 
     def submit(self, t_ns: int, observation) -> Arrival | None:
         self._next = t_ns + self.period_ns
         self.worker.submit(observation)
         return None
 
+    def corrupt_pending(self, corrupt: Callable[[ActionChunk], ActionChunk]) -> None:
+        """The next chunk to arrive becomes ``corrupt(chunk)`` (a simulated fault in the policy's output, on
+        wall time: a --realtime run of a simulated cell)."""
+        self._corrupt = corrupt
+
     def take(self, t_ns: int) -> Arrival | None:
-        result = self.worker.take()
+        result = self._late(t_ns) if self.extra_ns else self.worker.take()
         if result is None:
             return None
+        if self._corrupt is not None and result.chunk is not None:  # checked again by the guard as it arrives
+            chunk, self._corrupt = self._corrupt(result.chunk), None
+            return Arrival(chunk, result.latency_ns, result.latency_ns, result.error, None)
         return Arrival(result.chunk, result.latency_ns, result.latency_ns, result.error, result.prepared)
+
+    def _late(self, t_ns: int):
+        """The worker's result once ``extra_ns`` has passed since it came (its latency counts the wait)."""
+        if self._held is None:
+            result = self.worker.take()
+            if result is None:
+                return None
+            self._held = (t_ns + self.extra_ns, result)
+        due, result = self._held
+        if t_ns < due:
+            return None
+        self._held = None
+        return replace(result, t_done_ns=result.t_done_ns + self.extra_ns)
 
     def close(self) -> None:
         self.worker.close()

@@ -67,8 +67,9 @@ class Run:
         self.simulated = hasattr(self.cell, "step")  # fault injection and simulated inference
         if self.simulated:
             scenario.check_against(self.cell)
-        elif scenario.faults:
-            raise ScenarioError(f"faults: injected into simulated cells only; robot {scenario.robot!r} is a bridge")
+        elif scenario.faults or scenario.process_changes:  # the robot would never see them; the record would say so
+            key = "faults" if scenario.faults else "process_changes"
+            raise ScenarioError(f"{key}: applied to simulated cells only; robot {scenario.robot!r} is a bridge")
         # a policy_factory (picklable, for the process worker) replaces the scenario's policy source
         self.policy_factory = policy_factory
         self.policy = policy_factory() if policy_factory is not None else make_policy(scenario.policy, self.cell)
@@ -112,9 +113,11 @@ class Run:
         self._corrupt = False
         if self.simulated:
             apply_world_changes(cell, [*self.scenario.faults, *self.scenario.process_changes], index)
-            if not clock.realtime:
-                inference.latency_ns = round((NOMINAL_INFERENCE_S + sum(f.extra_latency_s(index)
-                                                                        for f in self.scenario.faults)) * 1e9)
+            extra_s = sum(f.extra_latency_s(index) for f in self.scenario.faults)
+            if clock.realtime:  # the policy's own time is real: the fault holds each chunk back by its extra
+                inference.extra_ns = round(extra_s * 1e9)
+            else:
+                inference.latency_ns = round((NOMINAL_INFERENCE_S + extra_s) * 1e9)
             self._corrupt = any(f.corrupts_output(index) for f in self.scenario.faults)
             if self.recovery is not None:
                 self.recovery.arm_speed = min((f.recovery_speed(index) for f in self.scenario.faults), default=1.0)
@@ -199,6 +202,7 @@ class Run:
                     self.stopped = self.stopped or f"robot link: {link.reason}"
                     break
                 if operator.count and guard.envelope.tracker.stopped and np.abs(state.qd).max() < STANDSTILL:
+                    self._operator_stop(t)  # already held still (a hand-over hold): the signal came this tick
                     self.stopped = self.stopped or operator.reason
                     break
                 if finished(state):
@@ -211,7 +215,7 @@ class Run:
         outcome = {"cycle": index, "phase": self._phase(index), **self.source.end(t_end, stopped)}
         outcome["timed_out"] = timed_out  # the time-out ended it (not the task, a stop or the link)
         if recovery is not None:
-            outcome.update(recovery.end_cycle())
+            outcome.update(recovery.end_cycle(stopped=self.stopped is not None))
         outcome["inference"] = _wall_latency(self._wall_ns)
         outcome["features"] = cycle_features(cell.profile, ticks, outcome, self._latencies, events.since(first_event))
         for monitor in self.cycle_monitors:
@@ -462,20 +466,21 @@ def run_scenario(scenario: Scenario, out: Path, on_cycle: Callable[[dict], None]
     that observes the loop (the release's shadow run). ``record``: the recorder's rates (excitation
     records every tick)."""
     run = run if run is not None else Run(scenario, realtime=realtime, policy_factory=policy_factory)
-    try:
-        out = make_folder(Path(out), "--out")
-        run.recording = RunRecording.start(out, run, replace=overwrite, **({"config": record} if record else {}))  # RecordError here: nothing runs
+    with run.operator:  # a signal while the record closes and the summary is written is counted, never fatal
         try:
-            run.run_cycles(on_cycle)
+            out = make_folder(Path(out), "--out")
+            run.recording = RunRecording.start(out, run, replace=overwrite, **({"config": record} if record else {}))  # RecordError here: nothing runs
+            try:
+                run.run_cycles(on_cycle)
+            finally:
+                run.recording.events()
+                run.recording.close()
         finally:
-            run.recording.events()
-            run.recording.close()
-    finally:
-        run.close()
-    summary = run.summary()
-    if run.stopped:
-        summary["stopped"] = run.stopped
-    write_output(out / "summary.json", json.dumps(summary, indent=1), "summary")
+            run.close()
+        summary = run.summary()
+        if run.stopped:
+            summary["stopped"] = run.stopped
+        write_output(out / "summary.json", json.dumps(summary, indent=1), "summary")
     return summary
 
 

@@ -8,6 +8,9 @@ stop button: the guard brings the robot to a standstill, the run ends, the recor
 holds where it is); a third raises KeyboardInterrupt as Python would.
 
 Handlers are installed only on the main thread (Python delivers signals there) and restored on exit.
+``with`` nests: the handlers stay until the outermost block ends, which ``run_scenario`` keeps open while
+the record closes and the summary is written (a second quick Ctrl-C there met Python's own handler:
+exit 130 and no summary.json; a SIGTERM killed the process without a word).
 """
 
 from __future__ import annotations
@@ -32,14 +35,19 @@ class OperatorStop:
         self.count = 0
         self.signal: str | None = None
         self._previous: dict[int, object] = {}
+        self._depth = 0  # nested ``with`` blocks: the outermost installs and restores
 
     def __enter__(self) -> OperatorStop:
-        if threading.current_thread() is threading.main_thread():
+        self._depth += 1
+        if self._depth == 1 and threading.current_thread() is threading.main_thread():
             for signum in SIGNALS:
                 self._previous[signum] = signal.signal(signum, self._received)
         return self
 
     def __exit__(self, *exc) -> None:
+        self._depth -= 1
+        if self._depth:
+            return
         for signum, handler in self._previous.items():
             signal.signal(signum, handler)
         self._previous.clear()

@@ -119,14 +119,15 @@ class RecoveryRunner:
         times = (t - t0 + (np.arange(STEPS) + 1) * STEP_NS) * 1e-9
         return ActionChunk(plan.sample(times, self.arm_speed), t, STEP_NS)
 
-    def end_cycle(self) -> dict:
+    def end_cycle(self, stopped: bool = False) -> dict:
         """The cycle's recovery outcome fields (flat, SI) and its log. An attempt still running when the
-        cell's task ended the cycle with no failed check resumed the cell; one with a failed check, or ended (by
-        an operator stop) during its hand-over hold, was cut off."""
+        cell's task ended the cycle with no failed check resumed the cell; one with a failed check, or ended by
+        a stop of the run (``stopped``: the operator, the robot link), was cut off."""
         a = self._active
         self.held_at_end = self.stop is not None
         if a is not None:
-            self._end(a, self._now, "cut_off" if a.failed_ns is not None or self.held_at_end else "resumed")
+            cut = a.failed_ns is not None or self.held_at_end or stopped
+            self._end(a, self._now, "cut_off" if cut else "resumed")
             self._active = None
         log = self._log
         arrivals = [r["arrival_s"] for r in log if r.get("arrival_s") is not None]
