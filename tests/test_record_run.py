@@ -133,7 +133,7 @@ def _ticks_fed(recording, run, n: int) -> list[int]:
     for k in range(n):
         state = state._replace(t_ns=k * 1_000_000)
         began = time.perf_counter_ns()
-        recording.tick(state.q, state.q, state)
+        recording.tick(state.t_ns, state.q, state.q, state)
         costs.append(time.perf_counter_ns() - began)
     return costs
 

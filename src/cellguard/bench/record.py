@@ -123,7 +123,7 @@ def _paced_run(folder: Path, seconds: float, event_every_s: float = 10.0) -> tup
             state = State(t, q, q * 0.1, q * 2.0, q * 0.5)
             usage = slow.before()
             began = time.perf_counter_ns()
-            recording.tick(q, q, state)
+            recording.tick(state.t_ns, q, q, state)
             costs.append(time.perf_counter_ns() - began)
             slow.after(usage, costs[-1])
             if k % per_cycle == per_cycle - 1:

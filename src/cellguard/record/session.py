@@ -154,22 +154,24 @@ class RunRecording:
     def chunk(self, chunk, t_ns: int, latency_ns: int) -> None:
         self._put("chunk", chunk, t_ns, latency_ns)
 
-    def tick(self, reference, sent, state) -> bool:
-        """Put the tick in the shared ring (wall time: never blocks) and queue any new events; False once
-        recording has failed."""
+    def tick(self, t_ns: int, reference, sent, state) -> bool:
+        """Put the tick of loop time ``t_ns`` in the shared ring (wall time: never blocks) and queue any new
+        events; False once recording has failed. The tick's time is the loop's, as its events' are: a bridge's
+        state stamp repeats when no new packet came, and the reader took those ticks for copies (2 % of a
+        sim-server run's ticks lost, and the setpoint steps across them read as twice the speed limit)."""
         if len(self.run.events) > self._events_seen:
             self.events()
         ring, ctl = self._ring, self._ctl
         waiting = ring.n - ctl[TAIL]
         if waiting >= self._slack:
             if self._realtime:
-                return self._drop(state.t_ns, waiting)
+                return self._drop(t_ns, waiting)
             if not self._wait_for_writer():
                 return False
         elif waiting > self.high_water:
             self.high_water = waiting
         self._full = False
-        ring.add(state.t_ns, self._cycle, reference, sent, state.q, state.qd, state.effort, state.current)
+        ring.add(t_ns, self._cycle, reference, sent, state.q, state.qd, state.effort, state.current)
         ctl[HEAD] = ring.n
         if ring.n % self._every == 0:
             self._send("")  # the writer takes ticks when told, so every message stays between its ticks

@@ -194,7 +194,7 @@ class Run:
                 if rec is not None:
                     usage = slow.before() if slow is not None else None
                     began = perf_ns()
-                    recorded = rec.tick(guard.reference, sent, state)
+                    recorded = rec.tick(t, guard.reference, sent, state)
                     timing.recorder(perf_ns() - began, usage)
                     if not recorded:
                         break
@@ -356,9 +356,10 @@ class Run:
         for setpoint in setpoints:
             sent = link.write(clock.now(), setpoint)
             clock.advance()
-            state = link.read(clock.now())
+            t = clock.now()
+            state = link.read(t)
             if rec is not None:
-                rec.tick(setpoint, sent, state)
+                rec.tick(t, setpoint, sent, state)
         return setpoint
 
     def _stop_input(self, t_ns: int, guard) -> tuple[int | None, str | None]:
