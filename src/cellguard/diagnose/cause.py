@@ -211,9 +211,7 @@ def _with_late_gait(late: Finding, gait: list[DriftAlarm]) -> tuple[Finding, lis
     """The legs whose gait timing began to change with the latency (their first alarm within
     ``CONCURRENT`` of it) step to a stale plan: told in the latency finding, not as foot contact
     findings. Returns the finding and the gait alarms of the other legs."""
-    legs: dict[str, list[DriftAlarm]] = {}
-    for a in gait:
-        legs.setdefault(member_of(a.signal), []).append(a)
+    legs = _by_leg(gait)
     with_it = sorted(leg for leg, group in legs.items() if abs(min(a.onset for a in group) - late.cycle) <= CONCURRENT)
     if not with_it:
         return late, gait
@@ -221,8 +219,14 @@ def _with_late_gait(late: Finding, gait: list[DriftAlarm]) -> tuple[Finding, lis
     note = (f"also the gait of leg {', '.join(with_it)} from cycle {late.cycle} ({', '.join(signals[:4])}"
             f"{' ...' if len(signals) > 4 else ''}): the legs step to the stale plan",)
     rest = [a for a in gait if member_of(a.signal) not in with_it]
-    return replace(late, evidence=late.evidence[:-1] + note + late.evidence[-1:],
-                   signals=tuple(sorted(set(late.signals) | set(signals)))), rest
+    return told(late, note, signals, before_last=True), rest
+
+
+def told(f: Finding, words: tuple[str, ...], signals=(), before_last: bool = False) -> Finding:
+    """``f`` with ``words`` added to its evidence (before its closing line, with ``before_last``) and ``signals``
+    to its own: another change told as this finding's consequence, not a finding of its own."""
+    evidence = f.evidence[:-1] + words + f.evidence[-1:] if before_last else f.evidence + words
+    return replace(f, evidence=evidence, signals=tuple(sorted(set(f.signals).union(signals))))
 
 
 def _distinct(alarms: Sequence[DriftAlarm]) -> list[DriftAlarm]:
@@ -316,8 +320,7 @@ def _with_grasp(w: _Window, grasp: Finding, alarms: list[DriftAlarm], findings: 
         return findings + [grasp]
     note = (f"also from cycle {grasp.cycle} the tool closed at another point of its path "
             f"({_moved(w, alarms, grasp.cycle)}), the part where it was",)
-    return [replace(f, evidence=f.evidence + note, signals=tuple(sorted(set(f.signals) | set(grasp.signals))))
-            if f is host else f for f in findings]
+    return [told(f, note, grasp.signals) if f is host else f for f in findings]
 
 
 def _grounded(baseline: Baseline) -> bool:
@@ -432,12 +435,18 @@ def _own_drive(r: tuple) -> bool:
     return r[1] == "servo" and r[4] >= QUIET and abs(r[8]) < MATERIAL
 
 
-def _feet(w: _Window, alarms: list[DriftAlarm]) -> list[Finding]:
-    """Gait timing of one leg changed (contact duty, touchdown lag): a foot contact change, per leg.
-    The diagnosis drops it where a joint finding on the same leg explains it."""
+def _by_leg(alarms: Sequence[DriftAlarm]) -> dict[str, list[DriftAlarm]]:
+    """Gait alarms grouped by the leg they belong to."""
     legs: dict[str, list[DriftAlarm]] = {}
     for a in alarms:
         legs.setdefault(member_of(a.signal), []).append(a)
+    return legs
+
+
+def _feet(w: _Window, alarms: list[DriftAlarm]) -> list[Finding]:
+    """Gait timing of one leg changed (contact duty, touchdown lag): a foot contact change, per leg.
+    The diagnosis drops it where a joint finding on the same leg explains it."""
+    legs = _by_leg(alarms)
     out = []
     for leg, group in sorted(legs.items()):
         start = _onset(group)
@@ -476,8 +485,7 @@ def intermittent_findings(baseline: Baseline, cycles: Sequence[Cycle], z: np.nda
         same = [f for f, _ in named if hosts[id(f)] is g]
         words = tuple(f"also {', '.join(f.signals[:4])} off on {'the same' if f.cycles == g.cycles else 'some of its'} "
                       "cycles" for f in same)
-        out.append(replace(finding, evidence=finding.evidence + words,
-                           signals=tuple(sorted(set(finding.signals).union(*(f.signals for f in same))))))
+        out.append(told(finding, words, [s for f in same for s in f.signals]))
     return out
 
 

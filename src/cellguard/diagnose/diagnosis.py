@@ -12,7 +12,7 @@ from dataclasses import dataclass, field, replace
 from cellguard.control.events import ROUTINE_EVENTS, EventKind
 from cellguard.diagnose.asymmetry import Asymmetry, asymmetry_onset, mirror_map, mirrored_asymmetry
 from cellguard.diagnose.baseline import Baseline
-from cellguard.diagnose.cause import CONCURRENT, Finding, intermittent_findings, name_causes
+from cellguard.diagnose.cause import CONCURRENT, Finding, intermittent_findings, name_causes, told
 from cellguard.diagnose.compare import FeatureChange, changes, last_good_and_faulted
 from cellguard.diagnose.cycles import Cycle, as_cycles
 from cellguard.diagnose.drift import DriftConfig, DriftResult, detect_drift
@@ -190,8 +190,7 @@ def _with_asymmetry(findings: list[Finding], asym: Asymmetry, began: int) -> lis
         return findings + [_asymmetry_finding(asym, began)]
     note = (f"mirrored motions differ on the {asym.side} side from cycle {began} "
             f"({', '.join(asym.joints[:5])}): the late chunks, not a joint",)
-    return [replace(f, evidence=f.evidence + note, signals=tuple(sorted(set(f.signals) | {
-        d.feature for d in asym.significant}))) if f is late else f for f in findings]
+    return [told(f, note, [d.feature for d in asym.significant]) if f is late else f for f in findings]
 
 
 def _asymmetry_finding(asym: Asymmetry, cycle: int) -> Finding:

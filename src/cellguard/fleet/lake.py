@@ -165,9 +165,8 @@ def refuse_links(lake: Path, tenant: str) -> None:
 def _file(lake: Path, tenant: str, relation: str, date: str, name: str) -> Path:
     own = tenant_dir(lake, tenant)
     target = own / relation / f"date={date}" / f"{name}.parquet"
-    link = next((p for p in (own, own / relation, target.parent, target) if p.is_symlink()), None)
-    if link is not None:
-        refuse_links(lake, tenant)
+    if _linked(target):
+        refuse_links(lake, tenant)  # raises, naming the link
     try:
         own.mkdir(mode=0o700, parents=True, exist_ok=True)
     except OSError as exc:
@@ -178,7 +177,13 @@ def _file(lake: Path, tenant: str, relation: str, date: str, name: str) -> Path:
 def _plain(p: Path) -> bool:
     """A regular file reached from its tenant's folder through no link (the tenant folder, the relation
     and date folders and the file itself are not links)."""
-    return p.is_file() and not any(q.is_symlink() for q in (p, *list(p.parents)[:3]))
+    return p.is_file() and not _linked(p)
+
+
+def _linked(p: Path) -> bool:
+    """Whether the lake file ``p`` (``tenant=T/<relation>/date=D/<file>``), or a folder of it below the lake, is a
+    link."""
+    return any(q.is_symlink() for q in (p, *list(p.parents)[:3]))
 
 
 def _partition(target: Path) -> list[Path]:

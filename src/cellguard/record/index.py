@@ -28,6 +28,7 @@ from cellguard.errors import RecordError
 
 TABLES = ("cycles", "events")
 RECORD_ID_KEY = b"cellguard.record_id"  # a part's Parquet metadata: the record id of the run it indexes
+PART_GLOB = "day=*/part-*.parquet"  # the parts of one table of the index, under its folder
 _BASE_TYPES = {
     "cycle": pa.int64(), "phase": pa.string(), "t_start_ns": pa.int64(), "t_end_ns": pa.int64(),
     "success": pa.bool_(), "t_ns": pa.int64(), "kind": pa.string(), "reason": pa.string(), "joint": pa.string(),
@@ -54,7 +55,7 @@ def clear_index(folder: Path) -> None:
     """
     folder = Path(folder)
     for table in TABLES:
-        for part in (folder / table).glob("day=*/part-*.parquet"):
+        for part in (folder / table).glob(PART_GLOB):
             part.unlink()
         for day in (folder / table).glob("day=*"):
             if day.is_dir() and not any(day.iterdir()):
@@ -138,6 +139,12 @@ def indexed_run(schema: pa.Schema) -> str | None:
     return value.decode(errors="replace") if value else None
 
 
+def foreign_run(schema: pa.Schema, record_id: str | None) -> str | None:
+    """The other run an index part names, when it names one and it is not ``record_id`` (a copied index)."""
+    run = indexed_run(schema) if record_id else None
+    return run if run not in (None, record_id) else None
+
+
 def connect(folder: Path, con: duckdb.DuckDBPyConnection | None = None,
             record_id: str | None = None) -> duckdb.DuckDBPyConnection:
     """Views ``cycles`` and ``events`` over the index in ``folder`` on ``con`` (a new in-memory DuckDB if None).
@@ -181,10 +188,11 @@ def _parts(folder: Path, table: str, parts: list[Path], record_id: str | None) -
         try:
             schemas.append(pq.read_schema(part))
         except (OSError, pa.ArrowException) as exc:
-            raise RecordError(f"{part}: the index part cannot be read ({_first_line(exc)}); "
+            raise RecordError(f"{part}: the index part cannot be read ({first_line(exc)}); "
                               f"`cellguard record recover` rebuilds the index from the record") from None
-        if record_id and indexed_run(schemas[-1]) not in (None, record_id):
-            raise RecordError(f"{part}: indexes run {indexed_run(schemas[-1])}, not this record's {record_id} (an "
+        other = foreign_run(schemas[-1], record_id)
+        if other is not None:
+            raise RecordError(f"{part}: indexes run {other}, not this record's {record_id} (an "
                               f"index copied from another run); `cellguard record recover` rebuilds the index "
                               f"from the record")
     try:
@@ -193,7 +201,7 @@ def _parts(folder: Path, table: str, parts: list[Path], record_id: str | None) -
                           filesystem=pafs.LocalFileSystem(), partition_base_dir=str(folder.absolute()),
                           partitioning=ds.HivePartitioning(pa.schema([("day", day)]), segment_encoding="none"))
     except pa.ArrowException as exc:
-        raise RecordError(f"{folder}: the index parts do not make one table ({_first_line(exc)}); "
+        raise RecordError(f"{folder}: the index parts do not make one table ({first_line(exc)}); "
                           f"`cellguard record recover` rebuilds the index from the record") from None
 
 
@@ -212,7 +220,8 @@ def _is_date(text: str) -> bool:
         return False
 
 
-def _first_line(exc: Exception) -> str:
+def first_line(exc: BaseException) -> str:
+    """An exception's first line of text (or its type's name): one error line, never a wall of text."""
     text = str(exc).strip()
     return text.splitlines()[0] if text else type(exc).__name__
 

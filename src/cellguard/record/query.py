@@ -28,7 +28,7 @@ from pathlib import Path
 import duckdb
 
 from cellguard.errors import RecordError
-from cellguard.record.index import TABLES, connect
+from cellguard.record.index import TABLES, connect, first_line
 from cellguard.record.json_values import plain
 from cellguard.record.scan import require_regular, stated_record_id
 from cellguard.record.writer import INDEX_DIR, RECORD_FILE
@@ -51,7 +51,7 @@ def _one_select(sql: str, parse: Callable[[str], list] = duckdb.extract_statemen
     try:
         statements = parse(sql)
     except duckdb.Error as exc:
-        raise RecordError(f"sql: {_first_line(exc)}") from None
+        raise RecordError(f"sql: {first_line(exc)}") from None
     if not statements:
         raise RecordError("sql: the query is empty; write one SELECT over the tables cycles and events")
     if len(statements) > 1:
@@ -287,7 +287,7 @@ def _confine(con: duckdb.DuckDBPyConnection, index: Path, sql: str) -> None:
         raise RecordError(f"{index}: the index needs more than {MEMORY_LIMIT} of memory; query a shorter "
                           f"record") from None
     except duckdb.Error as exc:
-        raise RecordError(f"{index}: the index cannot be read ({_first_line(exc)}); "
+        raise RecordError(f"{index}: the index cannot be read ({first_line(exc)}); "
                           f"`cellguard record recover` rebuilds it from the record") from None
     con.execute("SET lock_configuration = true")
 
@@ -301,8 +301,8 @@ def _message(exc: BaseException) -> str:
         return (f"sql: the query needs more than {MEMORY_LIMIT} of memory (a query never writes to disk); "
                 f"select fewer rows or columns")
     if isinstance(exc, duckdb.Error):
-        return f"sql: {_first_line(exc)}"
-    return f"sql: {type(exc).__name__}: {_first_line(exc)}"
+        return f"sql: {first_line(exc)}"
+    return f"sql: {type(exc).__name__}: {first_line(exc)}"
 
 
 def json_line(names: list[str], row: tuple) -> str:
@@ -312,8 +312,3 @@ def json_line(names: list[str], row: tuple) -> str:
         return json.dumps({name: plain(value) for name, value in zip(names, row)}, default=str, allow_nan=False)
     except RecursionError:
         raise RecordError("sql: a value of the result is nested too deeply to write as JSON") from None
-
-
-def _first_line(exc: BaseException) -> str:
-    text = str(exc).strip()
-    return text.splitlines()[0] if text else type(exc).__name__

@@ -54,7 +54,7 @@ import pyarrow.parquet as pq
 from mcap.records import Message
 
 from cellguard.errors import RecordError
-from cellguard.record.index import indexed_run
+from cellguard.record.index import foreign_run
 from cellguard.record.scan import ChunkRef, Layout, open_buffer, read_chunk, scan
 from cellguard.record.schemas import BY_TOPIC, CHUNK, TICK_FIELDS, TICKS
 from cellguard.record.writer import INDEX_DIR, RECORD_FILE, RECORD_VERSION
@@ -228,7 +228,8 @@ class Record:
         self._facts_note: str | None = None  # the metadata record disagrees with the context (which is used)
         facts = layout.metadata.get("cellguard", {})
         self._stated = {key: facts[key] for key in _NUMBERS if key in facts}  # as written, checked against the context
-        self.version = _natural(facts.get("record_version", "1")) or 1
+        stated = _natural(facts.get("record_version"))  # None: lost or malformed
+        self.version = stated or 1
         self.record_id: str | None = facts.get("record_id")
         self.epoch_wall_ns = _natural(facts.get("epoch_wall_ns")) or 0
         self.start_ns = _natural(facts.get("start_ns")) or 0
@@ -236,8 +237,7 @@ class Record:
             raise RecordError(f"{file}: record format version {self.version} is newer than this cellguard reads "
                               f"(1 to {RECORD_VERSION}); update cellguard")
         self._offset = self.epoch_wall_ns if self.version >= 2 else 0  # log time = record time + offset
-        if (_natural(facts.get("record_version")) is None
-                and any(c.topic == "/joint_states" for c in layout.channels.values())):
+        if stated is None and any(c.topic == "/joint_states" for c in layout.channels.values()):
             self._offset, self.version = None, 2  # version 2 (format 1 has no ROS 2 channels), its metadata lost
 
     def close(self) -> None:
@@ -565,7 +565,7 @@ def _index_span(part: Path, cycle: int, record_id: str | None) -> tuple[int, int
             table = pq.read_table(f, columns=["t_start_ns", "t_end_ns"], filters=[("cycle", "=", cycle)])
     except (pa.ArrowException, OSError):
         return None
-    if not table.num_rows or record_id and indexed_run(table.schema) not in (None, record_id):
+    if not table.num_rows or foreign_run(table.schema, record_id) is not None:
         return None
     return table["t_start_ns"][0].as_py(), table["t_end_ns"][0].as_py()
 

@@ -53,7 +53,7 @@ from cellguard.control.events import ROUTINE_EVENTS, Event, EventKind
 from cellguard.errors import RecordError
 from cellguard.record import ros2
 from cellguard.record.context import changed_keys, versions
-from cellguard.record.index import TABLES, IndexWriter, clear_index, cycle_row, default_opener, event_row
+from cellguard.record.index import PART_GLOB, TABLES, IndexWriter, clear_index, cycle_row, default_opener, event_row
 from cellguard.record.json_values import plain
 from cellguard.record.ring import TickRing
 from cellguard.record.schemas import CHANNELS, CHUNK, TICKS
@@ -436,7 +436,7 @@ def refuse_existing(folder: Path, replace: bool = False) -> None:
 
 def _index_parts(folder: Path) -> bool:
     """Whether ``folder`` holds index parts (those a run with ``replace`` removes)."""
-    return folder.is_dir() and any(next((folder / t).glob("day=*/part-*.parquet"), None) for t in TABLES)
+    return folder.is_dir() and any(next((folder / t).glob(PART_GLOB), None) for t in TABLES)
 
 
 def _foxglove_metadata(context: dict, record_id: str) -> dict[str, str]:

@@ -219,7 +219,8 @@ def evaluate_stage(store: Store, plan: StagePlan, cell: str, stage: str, folders
         good, refused_good = _evidence(store, store.runs(cell, stage, p.last_good))
         refused += refused_good
     results = tuple(evaluate(g, runs, good) for g in plan.gates)
-    outcome = INCONCLUSIVE if refused and verdict(results) == PASS else verdict(results)
+    outcome = verdict(results)
+    outcome = INCONCLUSIVE if refused and outcome == PASS else outcome
     evidence = [r.record_id for r in runs]
     rolled = None
     with store.transaction():

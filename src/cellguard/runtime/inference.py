@@ -110,10 +110,10 @@ class WorkerInference:
         result = self._late(t_ns) if self.extra_ns else self.worker.take()
         if result is None:
             return None
-        if self._corrupt is not None and result.chunk is not None:  # checked again by the guard as it arrives
-            chunk, self._corrupt = self._corrupt(result.chunk), None
-            return Arrival(chunk, result.latency_ns, result.latency_ns, result.error, None)
-        return Arrival(result.chunk, result.latency_ns, result.latency_ns, result.error, result.prepared)
+        chunk, prepared = result.chunk, result.prepared
+        if self._corrupt is not None and chunk is not None:  # unprepared: the guard checks it as it arrives
+            chunk, prepared, self._corrupt = self._corrupt(chunk), None, None
+        return Arrival(chunk, result.latency_ns, result.latency_ns, result.error, prepared)
 
     def _late(self, t_ns: int):
         """The worker's result once ``extra_ns`` has passed since it came (its latency counts the wait)."""
