@@ -129,3 +129,38 @@ def test_the_chunk_is_prepared_on_the_worker_thread_so_the_servo_tick_only_swaps
     finally:
         policy.gate.set()
         inference.close()
+
+
+def test_a_new_episode_resets_the_policy_on_the_workers_thread_before_its_next_call_never_during_one():
+    """Reset from the servo thread, it cleared a scripted policy's state in the middle of the worker's call."""
+    class Recording(GatedPolicy):
+        def __init__(self):
+            super().__init__()
+            self.calls: list[tuple[str, str]] = []
+
+        def reset(self) -> None:
+            self.calls.append(("reset", threading.current_thread().name))
+
+        def infer(self, observation: Observation) -> ActionChunk:
+            self.calls.append(("infer", threading.current_thread().name))
+            chunk = super().infer(observation)
+            self.calls.append(("answered", threading.current_thread().name))
+            return chunk
+
+    policy = Recording()
+    inference = AsyncInference(policy, threshold=0.5)
+    try:
+        inference.submit(_obs(1_000_000))
+        while not policy.calls:
+            time.sleep(0.001)
+        inference.discard()  # a new cycle while the call is in flight
+        assert [c for c, _ in policy.calls] == ["infer"]  # nothing reset under it
+        policy.gate.set()
+        _wait_for(inference)
+        inference.submit(_obs(2_000_000))
+        policy.gate.set()
+        _wait_for(inference)
+        assert [c for c, _ in policy.calls] == ["infer", "answered", "reset", "infer", "answered"]
+        assert {thread for _, thread in policy.calls} == {"cellguard-inference"}
+    finally:
+        inference.close()

@@ -12,6 +12,8 @@ loop keeps the robot's time and the test does not depend on this machine's load.
 from __future__ import annotations
 
 import importlib.util
+import threading
+import time
 
 import numpy as np
 import pytest
@@ -157,6 +159,38 @@ def test_full_cycles_through_lerobots_factory_are_recorded_and_diagnosed(tmp_pat
     assert {f.cause for f in d.findings} == {"servo"}, [f.to_dict() for f in d.findings]
     assert d.findings[0].joints == ("elbow_flex",)
     assert 6 <= d.first_faulted_cycle <= 7
+
+
+def test_a_bus_that_hangs_is_a_read_timeout_and_a_stop_not_a_frozen_loop(tmp_path):
+    """A serial bus that stops answering hangs ``get_observation``: the loop names it and stops."""
+    robot = (f"lerobot:cellguard_so101?seed=4&calibration_dir={tmp_path / 'calibration'}&hz=100"
+             f"&action_period_s=0.01&lockstep=1")
+    scenario = parse_scenario({"cell": "so101-pick-place", "robot": robot, "seed": 4, "acceptance_cycles": 2,
+                               "production_cycles": 0, "cycle": {"source": "input", "input": "cycle_done"},
+                               "realtime": {"read_timeout_s": 0.05}})
+    teaching = SO101PickPlace(seed=4).context()
+    run = Run(scenario, policy_factory=lambda: ScriptedArmPolicy(calibration=teaching, teaching=SO101))
+    lerobot, bus = run.cell.robot, threading.Event()
+    answer, reads = lerobot.get_observation, []
+
+    def get_observation():
+        reads.append(1)
+        if len(reads) > 300:
+            bus.wait()
+        return answer()
+
+    lerobot.get_observation = get_observation
+    t0 = time.monotonic()
+    try:
+        summary = run_scenario(scenario, tmp_path / "run", run=run)
+    finally:
+        bus.set()
+    assert time.monotonic() - t0 < 60
+    assert summary["stopped"].startswith("robot link: robot_read_timeout"), summary["stopped"]
+    assert "get_observation has not returned" in summary["stopped"]
+    with open_record(tmp_path / "run") as rec:
+        kinds = [e.kind for e in rec.events()]
+    assert "robot_read_timeout" in kinds and "protective_stop" in kinds, kinds
 
 
 def test_power_off_goes_through_the_robots_motor_bus(tmp_path):

@@ -214,3 +214,28 @@ def test_every_behaviour_plans_from_where_the_cell_is_and_ends_at_home():
         assert (plan.contact_q is None) == (plan.close_t is None), name
     held = RECOVERIES["operator"](do="operator", hold_s=2.0).plan(cell, q, 1, q)
     np.testing.assert_allclose(held.sample(np.array([1.9])), [q])  # still during the hand-over
+
+
+def test_the_move_home_after_the_last_attempt_is_not_cut_off_by_the_cycle_time_out():
+    """Attempt 5 ended 0.5 s before the 12 s time-out: the move home was cut off 1.06 rad from home, still
+    moving, and the next cycle started there (limit interventions, then a workspace stop)."""
+    slip = {"kind": "intermittent_slip", "rate": 1.0, "dx_mm": 25.0, "seed": 3}
+    run = Run(_scenario(seed=7, production_cycles=2, faults=[slip], recovery={"behaviours": [
+        {"do": "retry_grasp", "trigger": "grasp_missed", "attempts": 5, "search_mm": 1.0}]}))
+    first = run.cycle()
+    assert [r["outcome"] for r in first["recovery_log"]][-1] == "gave_up" and not first["timed_out"]
+    home = np.asarray(run.cell.q_home)
+    assert np.abs(run.guard.reference[:-1] - home[:-1]).max() < 1e-3  # the next cycle starts at home
+    start = len(run.events)
+    run.cycle()
+    assert not [e.kind for e in run.events[start:] if e.kind in ("limit_intervention", "workspace_stop")]
+
+
+def test_the_attempt_the_per_cycle_limit_ends_is_the_one_that_gave_up():
+    slip = {"kind": "intermittent_slip", "rate": 1.0, "dx_mm": 25.0, "seed": 3}
+    run = Run(_scenario(seed=7, faults=[slip], recovery={"max_per_cycle": 2, "behaviours": [
+        {"do": "retry_grasp", "trigger": "grasp_missed", "attempts": 3, "search_mm": 1.0, "then": "back_off"},
+        {"do": "back_off", "attempts": 3}]}))
+    outcome = run.cycle()
+    assert [r["outcome"] for r in outcome["recovery_log"]] == ["failed", "gave_up"]
+    assert _events(run, "recovery_end")[-1].reason.startswith("no recovery left (the limit of 2 recoveries")

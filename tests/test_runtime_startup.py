@@ -65,13 +65,22 @@ _ONES = np.ones(3)
     ({"q": (_ONES * 1.2, _ONES * -1.2)}, r"statistics for q: q01\[0\] = 1.2 is above q99\[0\] = -1.2"),
     ({"q": ("low", "high")}, r"statistics for q: expected a pair \(q01, q99\) of number arrays"),
     ({"q": (-_ONES, _ONES, _ONES)}, r"statistics for q: expected a pair"),
-    ({"lidar": (np.array([np.nan]), _ONES[:1])}, r"statistics for lidar: q01\[0\] = nan is not finite"),
+    ({"lidar": (np.array([np.nan]), _ONES[:1])}, r"statistics name 'lidar', which the cell does not observe "
+                                                 r"\(it observes: q, part_in_camera\)"),
+    ({"observation.environment_state": (-_ONES, _ONES)}, r"name 'observation.environment_state', which the cell"),
+    ([("q", (-_ONES, _ONES))], r"statistics must map names to \(q01, q99\), got list"),
 ])
 def test_statistics_that_are_not_finite_ordered_or_the_observations_size_are_refused_naming_them(stats, message):
     """NaN statistics passed (NaN compares false), the wrong length was a bare ValueError, q01 > q99 an
     inverted range in the message."""
     with pytest.raises(StartupRefused, match=message + ".*not moving"):
         check_startup(_WithStats(None, stats), _obs([0.0, 0.0, 0.0]), _chunk(), 10_000_000, 0.2)
+
+
+@pytest.mark.filterwarnings("error::RuntimeWarning")
+def test_statistics_as_wide_as_the_float_range_pass_without_an_overflow_warning():
+    check_startup(_WithStats(None, {"q": (-_ONES * 1e308, _ONES * 1e308)}), _obs([0.0, 0.0, 0.0]), _chunk(),
+                  10_000_000, 0.2)
 
 
 def test_a_latency_the_chunk_cannot_cover_is_refused():
@@ -189,5 +198,46 @@ def test_a_transition_brakes_from_any_of_its_steps():
     steps = int(np.ceil(plan.duration_s * 1e9 / cell.dt_ns))
     for k in range(steps - 40, steps):
         brake = plan.brake(cell.profile, k)
-        moving = np.abs(plan.trajectory.at_time(k * cell.dt_ns * 1e-9)[1]).max() > 1e-9
+        moving = np.abs(plan.state_at(k * cell.dt_ns * 1e-9)[1]).max() > 1e-9
         assert brake is not None or not moving, k
+
+
+def test_a_retreat_from_a_cycle_that_ended_mid_motion_brakes_first_under_the_limits():
+    """A fixed-time cycle ends while the arm moves: the retreat planned from rest stopped the command dead
+    (156 times the acceleration limit in one tick)."""
+    run = Run(parse_scenario({"cell": "arm-pick-place", "seed": 7, "acceptance_cycles": 1, "production_cycles": 0,
+                              "cycle": {"source": "time", "seconds": 2.45}}))
+    write, written = run.cell.write, []
+    run.cell.write = lambda q: written.append(np.array(q)) or write(q)
+    run.run_cycles()
+    kinds = [e.kind for e in run.events]
+    assert "retreat_done" in kinds
+    begin = next(e.t_ns for e in run.events if e.kind == "retreat_begin")
+    assert begin == round(2.45e9)  # the cycle ended mid-motion ...
+    points = np.array(written)
+    assert np.abs(np.diff(points[-800:], axis=0)).max() > 1e-4  # ... and the retreat moved the arm
+    assert _limits_ok(run.cell.profile, points, run.cell.dt_ns * 1e-9)
+    assert np.allclose(points[-1], run.cell.q_home, atol=1e-9)
+
+
+def test_a_first_chunk_during_a_category_0_stop_is_not_approached_and_the_next_cycle_starts_after_the_reset():
+    """The no-first-chunk watchdog removed power; the late first chunk was approached anyway (unpowered drives
+    commanded 0.5 rad away) and the approach's new guard forgot the stop."""
+    away = make_cell("arm-pick-place").q_home + np.array([0.3, 0, 0, 0, 0, 0])
+    run = Run(parse_scenario({"cell": "arm-pick-place", "acceptance_cycles": 2, "production_cycles": 0,
+                              "cycle": {"source": "time", "seconds": 1.5},
+                              "guard": {"watchdog_s": 0.1, "watchdog_category": 0},
+                              "faults": [{"kind": "policy_latency", "at_cycle": 0, "until_cycle": 0, "ms": 400}]}),
+              policy_factory=lambda: _Constant(away))
+    first = run.cycle()
+    kinds = [e.kind for e in run.events]
+    assert kinds[:3] == ["watchdog_no_first_chunk", "protective_stop", "power_removed"], kinds
+    assert "approach_begin" not in kinds and not run.guard.power
+    held = next(e for e in run.events if e.kind == "chunk_rejected")
+    assert "category 0 stop is in force" in held.reason
+    assert not first["success"]
+    run.cycle()
+    kinds = [e.kind for e in run.events]
+    assert kinds.count("reset") == 1 and "approach_done" in kinds
+    assert kinds.index("reset") < kinds.index("approach_begin")
+    assert kinds.count("watchdog_no_first_chunk") == 1  # the watchdog runs again from the reset, and was fed

@@ -168,3 +168,34 @@ def test_every_tick_is_recorded_when_the_robot_sends_no_new_state(server, tmp_pa
     with open_record(tmp_path / "out") as record:
         t_ns = np.asarray(record.ticks(rate="full").t_ns)
     assert len(t_ns) >= summary["timing"]["ticks"] and (np.diff(t_ns) > 0).all()
+
+
+def test_power_removed_on_a_served_robot_ends_the_run_and_is_never_switched_back_on(server, tmp_path):
+    """Every chunk is NaN, so none is taken: the no-first-chunk watchdog's category 1 stop removes power. A
+    simulated shift's operator resets the cell at the next cycle; a robot behind a bridge waits for a person."""
+    _, port = server
+    raw = scenario(port, sway_file(tmp_path / "nan.npz", nan_at_s=0.0))
+    raw.update(production_cycles=1, guard={"watchdog_s": 0.2, "watchdog_category": 1})
+    summary = run_scenario(parse_scenario(raw), tmp_path / "out")
+    kinds = [e["kind"] for e in summary["events"]]
+    assert "power_removed" in kinds and "reset" not in kinds, kinds
+    assert summary["stopped"].startswith("power removed by a category 1 stop (stop asked by the loop: "
+                                         "watchdog_no_first_chunk)"), summary["stopped"]
+    assert len(summary["cycles"]) == 1
+
+
+def test_the_server_killed_during_the_last_retreat_stops_the_run(server, tmp_path):
+    """The retreat was aborted by the link fault and the run still exited 0 with no word of it."""
+    proc, port = server
+    run = Run(parse_scenario(scenario(port, sway_file(tmp_path / "sway.npz"))))
+
+    def kill():
+        while not any(e.kind == "retreat_begin" for e in list(run.events)):
+            time.sleep(0.002)
+        proc.kill()
+
+    threading.Thread(target=kill, daemon=True).start()
+    summary = run_scenario(run.scenario, tmp_path / "out", run=run)
+    kinds = [e["kind"] for e in summary["events"]]
+    assert "retreat_aborted" in kinds or "retreat_done" not in kinds, kinds
+    assert summary["stopped"].startswith("robot link: robot_"), summary.get("stopped")

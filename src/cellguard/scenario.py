@@ -32,7 +32,8 @@ class CycleSettings(BaseModel):
 
     source: Literal["task", "input", "home", "policy", "time"] = "task"
     input: str = Field(default="cycle_done", min_length=1, description="digital input name (source: input)")
-    tolerance: float = Field(default=0.01, gt=0.0, le=0.5, description="home pose tolerance per joint [rad] or [m]")
+    tolerance: float = Field(default=0.01, gt=0.0, le=0.1, description="home pose tolerance per joint [rad] or [m] "
+                             "(a cycle has left home 5 tolerances away)")
     seconds: float = Field(default=10.0, gt=0.0, le=3600.0, description="episode length (source: time) [s]")
 
 

@@ -144,7 +144,7 @@ class AsyncInference:
             raise ConfigError(f"async inference: worker must be 'thread' or 'process' (with a factory), got {worker!r}")
         self.policy, self.threshold, self.clock, self._prepare = policy, threshold, clock, prepare
         self._remote = PolicyProcess(factory, policy.content_hash()) if worker == "process" else None
-        self._reset_remote = False
+        self._reset = False  # a new episode: the worker resets the policy before its next call
         self.results: deque[InferenceResult] = deque(maxlen=RESULTS_KEPT)
         self._lock = threading.Lock()
         self._wake = threading.Condition(self._lock)
@@ -202,11 +202,13 @@ class AsyncInference:
             self._remote.infer(observation)
 
     def discard(self) -> None:
-        """A new episode: forget the queue and a finished result (one still in flight arrives late)."""
+        """A new episode: forget the queue and a finished result (one still in flight arrives late); the
+        worker resets the policy before its next call (reset from the servo thread, it cleared a scripted
+        policy's state in the middle of the worker's call: TypeError in the record)."""
         with self._lock:
             if self._done is not None:
                 self._done, self._in_flight = None, False
-            self._reset_remote = self._remote is not None
+            self._reset = True
         self._set_queue(np.zeros(0, dtype=np.int64))
 
     def close(self, timeout_s: float = 5.0) -> None:
@@ -226,15 +228,13 @@ class AsyncInference:
                 if self._closed:
                     return
                 (observation, t_submit, depth), self._request = self._request, None
-                reset, self._reset_remote = self._reset_remote, False
+                reset, self._reset = self._reset, False
             chunk, error, prepared = None, None, None
             try:
-                if self._remote is None:
-                    chunk = self.policy.infer(observation)
-                else:
-                    if reset:
-                        self._remote.reset()
-                    chunk = self._remote.infer(observation)
+                policy = self.policy if self._remote is None else self._remote
+                if reset:
+                    policy.reset()
+                chunk = policy.infer(observation)
             except Exception as exc:  # a policy failure becomes a recorded result, never a dead servo loop
                 error = f"{type(exc).__name__}: {exc}"
             t_done = self.clock()  # the policy's latency ends here; preparing is the loop's own work

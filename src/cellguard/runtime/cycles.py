@@ -5,7 +5,9 @@ A source has ``begin(index, t_ns)``, ``finished(state) -> bool`` (once per tick)
 ``stopped``: the cell was stopped during the cycle). The simulated cell's task is one source and
 judges the part itself; on hardware a digital input (a PLC's part-done signal), a return to the
 home pose, the policy's own episode end or a fixed episode time end a cycle, and a cycle in which
-the cell was stopped is no success (a fixed time ran out on a robot that never moved).
+the cell was stopped is no success (a fixed time ran out on a robot that never moved). On a
+simulated cell such a source only says when the cycle ends: the cell still presents each part and
+judges it (without, the part stayed where the first cycle left it and every cycle read success).
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ import numpy as np
 from cellguard.errors import ScenarioError
 
 LEFT_HOME = 5.0  # a cycle has left home once a joint is this many tolerances away
+STILL = 0.05  # [rad/s] or [m/s]: back home means slower than this too
 
 
 class CellTask:
@@ -49,6 +52,10 @@ class DigitalInput(_Timed):
     def __init__(self, robot, name: str):
         if not hasattr(robot, "digital_input"):
             raise ScenarioError(f"cycle.source: 'input' needs a robot with digital inputs; {robot.name!r} has none")
+        known = robot.digital_inputs
+        if name not in known:  # refused before the record starts, not at the first cycle
+            raise ScenarioError(f"cycle.input: {robot.name!r} has no digital input {name!r}; it has: "
+                                f"{', '.join(known) or 'none'}")
         self._read, self._name = robot.digital_input, name
 
     def begin(self, index: int, t_ns: int) -> None:
@@ -77,27 +84,38 @@ class HomeReturn(_Timed):
         if not self._left:
             self._left = away > LEFT_HOME * self._tol
             return False
-        self._done = away < self._tol and float(np.abs(state.qd).max()) < LEFT_HOME * self._tol
+        self._done = away < self._tol and float(np.abs(state.qd).max()) < STILL
         return self._done
 
 
 class PolicyEpisodeEnd(_Timed):
-    """The cycle ends when the policy says its episode is over (``episode_done()``)."""
+    """The cycle ends when the policy says its episode is over (``episode_done()``), once it has said it is not:
+    on wall time the policy is reset on its worker's thread before its next call, so the last episode's end
+    still reads true at the start of the next."""
 
     def __init__(self, policy):
         if not callable(getattr(policy, "episode_done", None)):
             raise ScenarioError(f"cycle.source: 'policy' needs a policy with episode_done(); {policy.source!r} has none")
         self._done_fn: Callable[[], bool] = policy.episode_done
 
+    def begin(self, index: int, t_ns: int) -> None:
+        super().begin(index, t_ns)
+        self._running = False
+
     def finished(self, state) -> bool:
-        self._done = bool(self._done_fn())
+        done = bool(self._done_fn())
+        self._running = self._running or not done
+        self._done = done and self._running
         return self._done
 
 
 class FixedTime(_Timed):
     """The cycle ends ``seconds`` after it began."""
 
-    def __init__(self, seconds: float):
+    def __init__(self, seconds: float, period_ns: int):
+        if seconds * 1e9 < 2 * period_ns:  # a cycle must hold at least a tick of motion
+            raise ScenarioError(f"cycle.seconds: {seconds:g} s is shorter than two servo periods "
+                                f"({2 * period_ns * 1e-9:g} s) of this robot")
         self._ns = round(seconds * 1e9)
 
     def finished(self, state) -> bool:
@@ -105,21 +123,41 @@ class FixedTime(_Timed):
         return self._done
 
 
+class OnSimulatedCell:
+    """A hardware source on a simulated cell: it ends the cycle; the cell presents the part and judges it."""
+
+    def __init__(self, source, cell):
+        self._source, self._cell = source, cell
+        self.finished = source.finished
+
+    def begin(self, index: int, t_ns: int) -> None:
+        self._cell.begin_cycle(index)
+        self._source.begin(index, t_ns)
+
+    def end(self, t_ns: int, stopped: bool) -> dict:
+        ended = self._source.end(t_ns, stopped)
+        judged = self._cell.end_cycle()
+        return {**judged, **ended, "success": bool(judged["success"] and ended["success"])}
+
+
 def make_cycle_source(settings, robot, policy):
     """The source the scenario's ``cycle:`` section names, for this robot and policy."""
     source = settings.source
+    simulated = hasattr(robot, "cycle_finished")
     if source == "task":
-        if not hasattr(robot, "cycle_finished"):
+        if not simulated:
             raise ScenarioError(f"cycle.source: 'task' needs a simulated cell; for {robot.name!r} choose "
                                 "input, home, policy or time")
         return CellTask(robot)
     if source == "input":
-        return DigitalInput(robot, settings.input)
-    if source == "home":
+        made = DigitalInput(robot, settings.input)
+    elif source == "home":
         home = getattr(robot, "q_home", None)
         if home is None:
             raise ScenarioError(f"cycle.source: 'home' needs a home pose; {robot.name!r} has none")
-        return HomeReturn(home, settings.tolerance)
-    if source == "policy":
-        return PolicyEpisodeEnd(policy)
-    return FixedTime(settings.seconds)
+        made = HomeReturn(home, settings.tolerance)
+    elif source == "policy":
+        made = PolicyEpisodeEnd(policy)
+    else:
+        made = FixedTime(settings.seconds, robot.dt_ns)
+    return OnSimulatedCell(made, robot) if simulated else made

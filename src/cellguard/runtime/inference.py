@@ -39,7 +39,9 @@ class SimulatedInference:
         self._next = 0
 
     def begin_cycle(self, t_ns: int) -> None:
+        """A new episode: nothing pending, the policy reset."""
         self._pending, self._next = None, t_ns
+        self.policy.reset()
 
     def due(self, t_ns: int) -> bool:
         return self._pending is None and t_ns >= self._next
@@ -90,6 +92,7 @@ class WorkerInference:
             pass
 
     def begin_cycle(self, t_ns: int) -> None:
+        """A new episode: the worker drops what it holds and resets the policy on its own thread."""
         self.worker.discard()
         self._next = t_ns
 

@@ -85,6 +85,15 @@ class RobotLink:
         self.last_sent = setpoint
         return sent
 
+    def power_off(self, t_ns: int) -> None:
+        """Drive power off after a category 0/1 stop; a robot that cannot be switched off (a hung bus) is a
+        write fault, never an exception on the servo path (the cell's safety controller must then do it)."""
+        try:
+            self.robot.set_power(False)
+        except Exception as exc:  # noqa: BLE001
+            self.fault(t_ns, EventKind.ROBOT_WRITE_FAILED, f"drive power could not be switched off: "
+                       f"{type(exc).__name__}: {exc}")
+
     def fault(self, t_ns: int, kind: str, reason: str) -> None:
         """A link fault: one event of its kind, and the stop category asked from the guard from now on."""
         if self._event(t_ns, kind, reason, self.category):

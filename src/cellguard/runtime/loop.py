@@ -125,7 +125,6 @@ class Run:
         if recovery is not None:
             recovery.begin_cycle()
         self.source.begin(index, clock.now())
-        self.policy.reset()
         start = link.read(clock.now()).t_ns if self.simulated else clock.now()
         self._cycle_start = start
         rec = self.recording
@@ -139,10 +138,11 @@ class Run:
         ticks = self.ticks
         ticks.clear()
         timed_out = False
-        if not self.guard.power:  # a category 0/1 stop in the last cycle: the operator resets the cell
-            cell.set_power(True)
+        if not self.guard.power:  # a category 0/1 stop in the last cycle: the simulated shift's operator resets
+            cell.set_power(True)  # the cell (a robot behind a bridge ends the run instead: see the ticks)
             self.guard.reset(link.read(start).q)
-            events.append(Event(start, EventKind.RESET, "operator reset after a stop with power removed"))
+            events.append(Event(start, EventKind.RESET, "simulated operator reset after a stop with power removed"))
+            self._armed_at = start  # the no-first-chunk watchdog runs again from the reset
         state = link.read(start)
         if not self._clock_started:
             self._clock_started = True
@@ -180,7 +180,9 @@ class Run:
                 if new:
                     events.extend(new)
                     if not guard.power:
-                        cell.set_power(False)
+                        link.power_off(t)
+                        if not self.simulated:  # power comes back only by a person's deliberate reset (IEC 60204-1)
+                            self.stopped = self.stopped or self._power_removed(guard.envelope)
                 sent = link.write(t, setpoint)
                 advance()
                 if timing.new_overrun:
@@ -200,6 +202,8 @@ class Run:
                         break
                 if link.stop is not None and (link.lost or guard.envelope.tracker.stopped):
                     self.stopped = self.stopped or f"robot link: {link.reason}"
+                    break
+                if self.stopped and not guard.power:  # a robot behind a bridge lost its power (above)
                     break
                 if operator.count and guard.envelope.tracker.stopped and np.abs(state.qd).max() < STANDSTILL:
                     self._operator_stop(t)  # already held still (a hand-over hold): the signal came this tick
@@ -238,9 +242,8 @@ class Run:
             if arrival.prepared is None:  # simulated time: checked here, as the worker would have
                 arrival = dataclasses.replace(arrival, prepared=self.guard.executor.prepare(arrival.chunk))
             if arrival.prepared.problem is None:
-                outside = self.guard.envelope.target_problem(self._first_target(arrival.chunk))
-                if outside is not None:  # refused as a malformed chunk is: the next one is the first
-                    why = f"first target: {outside}; nothing approached"
+                why = self._not_startable(arrival.chunk)
+                if why is not None:  # refused as a malformed chunk is: the next one is the first
                     arrival = dataclasses.replace(arrival, prepared=PreparedChunk(0, 0, problem=why))
             if arrival.prepared.problem is None:  # a refused chunk is an event below; the next one starts the run
                 arrival = self._start(arrival)
@@ -295,16 +298,26 @@ class Run:
         check_startup(self.policy, self._first_observation, chunk, latency, self.scenario.guard.blend_s)
         # from where the robot was commanded to be (the measured pose lags it: planning from there stepped the command)
         approach = Transition.plan(self.cell.profile, self.link.last_sent, self._first_target(chunk),
-                                   self.clock.period_ns)
+                                   self.clock.period_ns, **self._commanded_motion())
         if approach is None:
             return arrival
         held = self._play(approach, "approach", self.clock.now())
         self.guard = build_guard(self.cell, self.scenario.guard, q0=held)  # where the commands left the robot
         self._armed_at = self.clock.now()
         self.source.begin(self.cycles.total, self._armed_at)  # the cycle (and episode) starts at the approached pose
-        self.policy.reset()
-        self.inference.begin_cycle(self._armed_at)
+        self.inference.begin_cycle(self._armed_at)  # and resets the policy
         return None
+
+    def _not_startable(self, chunk: ActionChunk) -> str | None:
+        """Why the run's first chunk may not start it now: its target outside the box, or a stop in force (an
+        approach played through a category 0 stop drove unpowered drives, and its new guard forgot the stop).
+        A category 2 stop that has brought the command to rest lets it start: the approach checks the inputs."""
+        envelope = self.guard.envelope
+        if envelope.stop_category is not None and (envelope.stop_category < 2 or not envelope.tracker.stopped):
+            return f"first chunk while a category {envelope.stop_category} stop is in force ({envelope.stop_reason}); " \
+                   "nothing approached"
+        outside = envelope.target_problem(self._first_target(chunk))
+        return None if outside is None else f"first target: {outside}; nothing approached"
 
     def _first_target(self, chunk: ActionChunk) -> np.ndarray:
         """The pose an approach goes to: the chunk's first action inside the soft limits, where the guard keeps
@@ -322,9 +335,25 @@ class Run:
             self.events.append(Event(self.clock.now(), EventKind.RETREAT_ABORTED, "retreat not played: the run "
                                      "stopped during an operator's hand-over hold; the robot stays where it is held"))
             return
-        plan = Transition.plan(self.cell.profile, self.link.last_sent, np.asarray(home), self.clock.period_ns)
+        plan = Transition.plan(self.cell.profile, self.link.last_sent, np.asarray(home), self.clock.period_ns,
+                               **self._commanded_motion())
         if plan is not None:  # the operator's first signal stopped the run (or ends it now); a second aborts this
             self._play(plan, "retreat", self.clock.now(), signals=min(self.operator.count, 1))
+
+    def _power_removed(self, envelope) -> str:
+        """Why a robot behind a bridge stopped for good: the link fault that asked it, else the guard's stop."""
+        if self.link.stop is not None:
+            return f"robot link: {self.link.reason}"
+        return (f"power removed by a category {envelope.stop_category} stop ({envelope.stop_reason}); reset the cell "
+                "and start a new run")
+
+    def _commanded_motion(self) -> dict:
+        """The command's velocity and acceleration now (the guard's setpoints'), where a transition starts: a
+        cycle that ended mid-motion is braked first, never stopped dead."""
+        tracker = self.guard.envelope.tracker
+        _, v, a = tracker.samples
+        half_dt = 0.5 * tracker.dt
+        return {"velocity": [x + y * half_dt for x, y in zip(v, a)], "acceleration": a}
 
     def _play(self, plan: Transition, name: str, t0: int, signals: int | None = None) -> np.ndarray:
         """Play a transition tick by tick; return the pose it left the robot at. A stop input, a link fault or
@@ -433,6 +462,8 @@ class Run:
             self.retreat()
         if self.operator.count:  # a signal during the last retreat stops the run too
             self.stopped = self.stopped or self.operator.reason
+        if self.link.stop is not None:  # so does a link fault during it (the robot is left where it failed)
+            self.stopped = self.stopped or f"robot link: {self.link.reason}"
 
     def summary(self) -> dict:
         """Per-cycle outcomes, events, and the injected faults as ground truth, kept apart."""

@@ -60,6 +60,7 @@ class RecoveryRunner:
         self._previous = len(self._log)  # recoveries of the cycle before: the next cycle's context
         self._active: _Attempt | None = None
         self._tail: tuple[Plan, int] | None = None  # after a recovery: its plan's end, or home, held
+        self._home_by = 0  # after the last attempt gave up: when the move home ends [ns]
         self._next_chunk = 0
         self._log: list[dict] = []
         self._origin: np.ndarray | None = None  # the reference when the cycle's first check failed
@@ -68,8 +69,9 @@ class RecoveryRunner:
 
     @property
     def attempting(self) -> bool:
-        """An attempt is in progress: the cycle's time-out waits for it to end."""
-        return self._active is not None
+        """An attempt, or the move home after the last one gave up, is in progress: the cycle's time-out waits
+        for it to end (a move home cut off mid-way started the next cycle 1 rad from home)."""
+        return self._active is not None or self._now < self._home_by
 
     @property
     def stop(self) -> int | None:
@@ -163,7 +165,11 @@ class RecoveryRunner:
 
     def _after_failure(self, a: _Attempt, t: int, reference: np.ndarray) -> None:
         b = a.behaviour
-        if a.attempt < b.attempts:
+        limit = self.policy.max_per_cycle
+        if (a.attempt < b.attempts or b.then is not None) and limit is not None and len(self._log) + 1 >= limit:
+            self._end(a, t, "gave_up")  # the last one the limit allows: nothing follows it
+            self._give_up(t, reference, f"the limit of {limit} recoveries per cycle")
+        elif a.attempt < b.attempts:
             self._end(a, t, "failed")
             self._begin(b, a.trigger, a.attempt + 1, t, reference)
         elif b.then is not None:
@@ -176,7 +182,8 @@ class RecoveryRunner:
     def _give_up(self, t: int, reference: np.ndarray, why: str) -> None:
         """Nothing left to try: the cell goes home and the cycle ends failed."""
         self._active = None
-        self._tail = (go_home(self.cell, np.asarray(reference, dtype=np.float64), 1.0), t)
+        home = go_home(self.cell, np.asarray(reference, dtype=np.float64), 1.0)
+        self._tail, self._home_by = (home, t), t + round(home.duration(self.arm_speed) * 1e9)
         self.events.append(Event(t, EventKind.RECOVERY_END, f"no recovery left ({why}): home, the cycle fails"))
 
     def _end(self, a: _Attempt, t: int, outcome: str) -> None:

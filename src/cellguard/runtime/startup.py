@@ -3,12 +3,16 @@
 Run on the run's first chunk, before the robot moves: the observation lies inside the policy's
 normalisation statistics (per-dimension q01..q99, widened by a margin of the range), when the
 policy offers them as ``normalisation_stats() -> {name: (q01, q99)}`` (finite, q01 <= q99, one
-per observed value, else refused too: NaN statistics compared false and passed); and the inference
+per observed value, else refused too: NaN statistics compared false and passed; in the cell's units
+and joint order, as the policy's adapter sees the observation; a name the cell does not observe is
+refused, not skipped: the check never ran); and the inference
 latency fits the chunk (latency < horizon minus the blend time, the blend counted at most half
 the horizon), else the robot would run out of steps before the next chunk arrives.
 """
 
 from __future__ import annotations
+
+from collections.abc import Mapping
 
 import numpy as np
 
@@ -25,12 +29,19 @@ def check_startup(policy, observation, chunk, latency_ns: int, blend_s: float, m
     """Raise StartupRefused naming the first dimension out of range or a latency the chunk cannot cover."""
     stats = getattr(policy, "normalisation_stats", None)
     if callable(stats) and observation is not None:
-        for name, pair in stats().items():
+        given = stats()
+        if not isinstance(given, Mapping):
+            raise StartupRefused(f"start-up: the policy's normalisation statistics must map names to (q01, q99), "
+                                 f"got {type(given).__name__}; not moving")
+        for name, pair in given.items():
             value = _observed(observation, name)
-            q01, q99 = _checked_stats(name, pair, value)
             if value is None:
-                continue
-            pad = margin * (q99 - q01)
+                raise StartupRefused(f"start-up: the policy's normalisation statistics name {str(name)[:80]!r}, which "
+                                     f"the cell does not observe (it observes: q, "
+                                     f"{', '.join(observation.measurements) or 'nothing else'}); not moving")
+            q01, q99 = _checked_stats(name, pair, value)
+            with np.errstate(over="ignore"):  # statistics of 1e308 widen to inf: nothing is outside them
+                pad = margin * (q99 - q01)
             out = np.flatnonzero((value < q01 - pad) | (value > q99 + pad))
             if out.size:
                 i = int(out[0])
@@ -44,15 +55,15 @@ def check_startup(policy, observation, chunk, latency_ns: int, blend_s: float, m
                              f"horizon {horizon_s * 1e3:.0f} ms minus blend {blend_s * 1e3:.0f} ms; not moving")
 
 
-def _checked_stats(name: str, pair, value: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
-    """The policy's (q01, q99) for ``name`` as 1-D arrays: numbers, finite, q01 <= q99 and, where ``name`` is
-    observed, one per value. Bad statistics passed silently (NaN compares false) or ended in a traceback."""
+def _checked_stats(name: str, pair, value: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The policy's (q01, q99) for ``name`` as 1-D arrays: numbers, finite, q01 <= q99, one per observed value.
+    Bad statistics passed silently (NaN compares false) or ended in a traceback."""
     what = f"start-up: the policy's normalisation statistics for {name}"
     try:
         q01, q99 = (np.asarray(side, dtype=np.float64).ravel() for side in pair)
     except (TypeError, ValueError):
         raise StartupRefused(f"{what}: expected a pair (q01, q99) of number arrays; not moving") from None
-    expected, of = (q01.size, "q01") if value is None else (value.size, f"the observation {name}")
+    expected, of = value.size, f"the observation {name}"
     for label, side in (("q01", q01), ("q99", q99)):
         if side.size != expected:
             raise StartupRefused(f"{what}: {label} has {side.size} values, {of} has {expected}; not moving")

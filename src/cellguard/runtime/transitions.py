@@ -1,9 +1,12 @@
 """Safe transitions: a limit-respecting trajectory between two poses, played before the policy moves
 the robot (approach to its first target) and at the end (retreat to the home pose).
 
-Planned once with ruckig under the profile's velocity, acceleration and jerk limits, from rest
-to rest; never a jump. A pose within ``tolerance`` of the target needs no transition. One that is
-aborted brakes to a standstill under the same limits (``brake``) from where it is.
+Planned once with ruckig under the profile's velocity, acceleration and jerk limits, ending at
+rest; never a jump. From a command still moving (a cycle that ended mid-motion) the transition
+first brakes it to a standstill under the same limits, then goes from rest to rest: planning from
+rest there stopped the command dead (156 times the acceleration limit in one tick). A pose within
+``tolerance`` of the target needs no transition. One that is aborted brakes to a standstill under
+the same limits (``brake``) from where it is.
 """
 
 from __future__ import annotations
@@ -16,51 +19,68 @@ import ruckig
 from cellguard.embodiment import Profile
 
 TOLERANCE = 0.01  # [rad] or [m]: closer than this, no transition is played
+AT_REST = 1e-9  # [unit/s], [unit/s²]: slower than this, a command is at rest
 
 
 @dataclass(frozen=True)
 class Transition:
-    """A planned trajectory; ``setpoints()`` yields one position (dof,) per servo period."""
+    """Planned trajectories played one after the other; ``setpoints()`` yields one position (dof,) per servo period."""
 
-    trajectory: object
+    trajectories: tuple
     target: np.ndarray
     period_ns: int
 
     @property
     def duration_s(self) -> float:
-        return float(self.trajectory.duration)
+        return float(sum(t.duration for t in self.trajectories))
 
     @classmethod
     def plan(cls, profile: Profile, start: np.ndarray, target: np.ndarray, period_ns: int,
-             tolerance: float = TOLERANCE) -> Transition | None:
-        """The transition from ``start`` to ``target`` (clipped into the limits), or None if already there
-        or either pose is not finite (ruckig raises on NaN)."""
+             tolerance: float = TOLERANCE, velocity=None, acceleration=None) -> Transition | None:
+        """The transition from ``start`` (moving at ``velocity``, ``acceleration``: default at rest) to
+        ``target`` (clipped into the limits), or None if already there at rest or a state is not finite
+        (ruckig raises on NaN)."""
         target = np.clip(np.asarray(target, dtype=np.float64), profile.q_min, profile.q_max)
         start = np.asarray(start, dtype=np.float64)
-        if not (np.isfinite(target).all() and np.isfinite(start).all()) or float(np.abs(target - start).max()) < tolerance:
+        moving = [np.zeros_like(start) if x is None else np.asarray(x, dtype=np.float64) for x in (velocity, acceleration)]
+        if not all(np.isfinite(x).all() for x in (target, start, *moving)):
             return None
+        first: tuple = ()
+        if max(float(np.abs(x).max()) for x in moving) >= AT_REST:
+            stop = cls._stop(profile, start, *moving, period_ns)
+            if stop is None:
+                return None
+            first, start = stop.trajectories, stop.target
+        if float(np.abs(target - start).max()) < tolerance:
+            return cls(first, start, int(period_ns)) if first else None
         dof = profile.dof
         otg, inp, traj = ruckig.Ruckig(dof), ruckig.InputParameter(dof), ruckig.Trajectory(dof)
         inp.current_position, inp.target_position = start.tolist(), target.tolist()
         inp.current_velocity = inp.current_acceleration = [0.0] * dof
         inp.target_velocity = inp.target_acceleration = [0.0] * dof
-        return cls._solve(profile, otg, inp, traj, period_ns)
+        rest = cls._solve(profile, otg, inp, traj, period_ns)
+        return None if rest is None else cls(first + rest.trajectories, rest.target, int(period_ns))
 
     def brake(self, profile: Profile, steps: int) -> Transition | None:
         """A standstill from this transition's ``steps``-th setpoint (its position, velocity and acceleration)
         under the profile's limits, or None if it is at rest there. Stopping the setpoints dead at full speed
         stepped the command 63 mrad in one 1 ms tick."""
-        position, velocity, acceleration = self.trajectory.at_time(min(steps * self.period_ns * 1e-9,
-                                                                       self.duration_s))
-        if steps <= 0 or max(map(abs, [*velocity, *acceleration])) < 1e-9:
+        position, velocity, acceleration = self.state_at(steps * self.period_ns * 1e-9)
+        if steps <= 0 or max(map(abs, [*velocity, *acceleration])) < AT_REST:
             return None
+        return self._stop(profile, position, velocity, acceleration, self.period_ns)
+
+    @classmethod
+    def _stop(cls, profile: Profile, position, velocity, acceleration, period_ns: int) -> Transition | None:
+        """Each joint to a standstill as soon as it can (time synchronisation raised for some brakes)."""
         dof = profile.dof
         otg, inp, traj = ruckig.Ruckig(dof), ruckig.InputParameter(dof), ruckig.Trajectory(dof)
         inp.control_interface = ruckig.ControlInterface.Velocity
-        inp.synchronization = ruckig.Synchronization.No  # each joint stops as soon as it can (time sync raised)
-        inp.current_position, inp.current_velocity, inp.current_acceleration = position, velocity, acceleration
+        inp.synchronization = ruckig.Synchronization.No
+        inp.current_position, inp.current_velocity, inp.current_acceleration = (
+            np.asarray(x, dtype=np.float64).tolist() for x in (position, velocity, acceleration))
         inp.target_velocity = inp.target_acceleration = [0.0] * dof
-        return self._solve(profile, otg, inp, traj, self.period_ns)
+        return cls._solve(profile, otg, inp, traj, period_ns)
 
     @classmethod
     def _solve(cls, profile: Profile, otg, inp, traj, period_ns: int) -> Transition | None:
@@ -74,15 +94,24 @@ class Transition:
         if result not in (ruckig.Result.Working, ruckig.Result.Finished):
             return None
         end = np.asarray(traj.at_time(traj.duration)[0], dtype=np.float64)
-        return cls(traj, end, int(period_ns))
+        return cls((traj,), end, int(period_ns))
+
+    def state_at(self, t: float):
+        """Position, velocity and acceleration ``t`` seconds in (held at the end past it)."""
+        for traj in self.trajectories[:-1]:
+            if t <= traj.duration:
+                return traj.at_time(t)
+            t -= traj.duration
+        last = self.trajectories[-1]
+        return last.at_time(min(t, last.duration))
 
     @property
     def start(self) -> np.ndarray:
-        return np.asarray(self.trajectory.at_time(0.0)[0], dtype=np.float64)
+        return np.asarray(self.state_at(0.0)[0], dtype=np.float64)
 
     def setpoints(self):
         dt = self.period_ns * 1e-9
         steps = int(np.ceil(self.duration_s / dt))
         for k in range(1, steps + 1):
-            position, _, _ = self.trajectory.at_time(min(k * dt, self.duration_s))
+            position, _, _ = self.state_at(min(k * dt, self.duration_s))
             yield np.asarray(position, dtype=np.float64)

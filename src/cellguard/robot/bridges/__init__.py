@@ -31,7 +31,9 @@ def _sim_server(spec: BridgeSpec, scenario):
 def _lerobot(spec: BridgeSpec, scenario):
     from cellguard.robot.bridges.lerobot import make_lerobot_robot
 
-    return make_lerobot_robot(spec.argument)
+    if scenario is None:  # a bridge built on its own, as LeRobot's tools and the tests build one
+        return make_lerobot_robot(spec.argument)
+    return make_lerobot_robot(spec.argument, scenario.realtime.read_timeout_s)
 
 
 BRIDGES: dict[str, Callable[[BridgeSpec, object], object]] = {"sim-server": _sim_server, "lerobot": _lerobot}

@@ -18,13 +18,19 @@ reports them (LeRobot's SO follower does not: current and effort then read 0, an
 diagnosis cannot name friction or servo causes on that robot); any other float keys
 ``<name>.x/.y/.z`` are measurements the policy sees (``Observation.measurements[name]``); any
 other key can be a digital input (``cycle: {source: input, input: KEY}`` ends a cycle on it).
+
+A hung bus must not freeze the tick (and every watchdog with it): the robot's calls run one at a
+time on a thread of their own (``RobotCalls``), and one that has not returned within the scenario's
+``realtime.read_timeout_s`` is ``robot_read_timeout`` or ``robot_write_failed``; until it returns,
+later calls fail at once.
 """
 
 from __future__ import annotations
 
+import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from urllib.parse import parse_qsl
 
@@ -34,13 +40,14 @@ from typing import TYPE_CHECKING
 
 from cellguard.embodiment import Profile, load_profile
 from cellguard.errors import CellguardError, ConfigError
-from cellguard.robot.protocol import SafetyInputs
+from cellguard.robot.protocol import RobotLinkError, SafetyInputs
 from cellguard.robot.state import Observation, State
 
 OPTIONS = {"units": "units map YAML (default: the embodiment's LeRobot units map)",
            "embodiment": "profile to guard with (default from the robot type)",
            "hz": "servo rate [Hz] of the loop that drives it (default 50)",
            "lockstep": "1: a simulated robot that moves one period per send_action; the loop keeps its time"}
+READ_TIMEOUT_S = 0.05  # the scenario's realtime.read_timeout_s default
 _AXES = ("x", "y", "z")
 
 if TYPE_CHECKING:
@@ -72,11 +79,71 @@ EMBODIMENTS: dict[str, Callable[[], Embodiment]] = {"so101": _so101}
 TYPE_EMBODIMENT = {"so101_follower": "so101", "cellguard_so101": "so101"}
 
 
+@dataclass
+class _Call:
+    what: str
+    fn: Callable
+    args: tuple
+    started_ns: int
+    done: threading.Event = field(default_factory=threading.Event)
+    result: object = None
+    error: BaseException | None = None
+
+
+class RobotCalls:
+    """A robot's calls, one at a time on a daemon thread of their own, each awaited at most ``timeout_s``.
+
+    A call still running when the next is asked is not queued behind it (a bus that hung on a read
+    would take the write with it): the next fails at once, naming the call that hangs and for how long.
+    """
+
+    def __init__(self, name: str, timeout_s: float):
+        self.name, self.timeout_ns = name, round(timeout_s * 1e9)
+        self._asked = threading.Condition()
+        self._call: _Call | None = None
+        threading.Thread(target=self._serve, name=f"lerobot {name}", daemon=True).start()
+
+    def __call__(self, what: str, fn: Callable, *args):
+        """``fn(*args)``'s result; its exception as is; ``TimeoutError`` naming the call that hangs."""
+        with self._asked:
+            if self.hung_for_ns():
+                raise self._hung(self._call)
+            call = self._call = _Call(what, fn, args, time.monotonic_ns())
+            self._asked.notify()
+        if not call.done.wait(self.timeout_ns * 1e-9):
+            raise self._hung(call)
+        if call.error is not None:
+            raise call.error
+        return call.result
+
+    def hung_for_ns(self) -> int:
+        """How long the call in progress has run; 0 when none is."""
+        call = self._call
+        return 0 if call is None or call.done.is_set() else max(1, time.monotonic_ns() - call.started_ns)
+
+    def _hung(self, call: _Call) -> TimeoutError:
+        return TimeoutError(f"lerobot {self.name}: {call.what} has not returned for "
+                            f"{(time.monotonic_ns() - call.started_ns) * 1e-6:.0f} ms (limit "
+                            f"{self.timeout_ns * 1e-6:.0f} ms)")
+
+    def _serve(self) -> None:
+        while True:
+            with self._asked:
+                while self._call is None or self._call.done.is_set():
+                    self._asked.wait()
+                call = self._call
+            try:
+                call.result = call.fn(*call.args)
+            except BaseException as exc:  # noqa: BLE001 - handed to the caller, who names it
+                call.error = exc
+            call.done.set()
+
+
 class LeRobotBridge:
     """A connected LeRobot ``Robot`` behind cellguard's Robot calls; arrays in the profile's joint order, SI."""
 
     def __init__(self, robot, profile: Profile, units: ActionMap, dt_ns: int, clock=time.monotonic_ns,
-                 lockstep: bool = False):
+                 lockstep: bool = False, timeout_s: float = READ_TIMEOUT_S):
         if units.ee_actions:
             raise ConfigError("units map: end-effector entries cannot drive a LeRobot robot's joints; "
                               "map each action key to a joint")
@@ -95,14 +162,17 @@ class LeRobotBridge:
         self._current_keys = [f"{j}.current" for j in profile.joint_names]
         self._last: State | None = None
         self._obs: dict = {}
+        self._calls = RobotCalls(robot.name, timeout_s)
         if not robot.is_connected:
-            robot.connect()
+            robot.connect()  # on this thread: a first connection may ask the operator to calibrate
 
     # -- Robot -------------------------------------------------------------------------
     def read(self) -> State:
         """One ``get_observation``: positions in SI, velocity from the previous read, current if reported."""
         try:
-            obs = self.robot.get_observation()
+            obs = self._calls("get_observation", self.robot.get_observation)
+        except TimeoutError as exc:
+            raise RobotLinkError("robot_read_timeout", str(exc), lost=self._lost()) from None
         except Exception as exc:  # noqa: BLE001 - a dead bus is an error the loop must see, by name
             raise BridgeError(f"lerobot {self.robot.name}: get_observation failed: {type(exc).__name__}: {exc}") from exc
         t = self.clock()
@@ -125,7 +195,10 @@ class LeRobotBridge:
         values = self.units.to_policy_state(setpoint)
         action = {name: float(v) for name, v in zip(self.units.names, values)}
         try:
-            sent = self.robot.send_action(action)
+            sent = self._calls("send_action", self.robot.send_action, action)
+        except TimeoutError as exc:
+            raise RobotLinkError("robot_write_failed", f"{exc}; the setpoint may still be sent",
+                                 lost=self._lost()) from None
         except Exception as exc:  # noqa: BLE001
             raise BridgeError(f"lerobot {self.robot.name}: send_action failed: {type(exc).__name__}: {exc}") from exc
         self._t_ns += self.dt_ns
@@ -134,6 +207,11 @@ class LeRobotBridge:
     def safety(self) -> SafetyInputs:
         """LeRobot robots report no safety controller; a certified one is wired to the cell, not read here."""
         return SafetyInputs()
+
+    @property
+    def digital_inputs(self) -> tuple[str, ...]:
+        """The keys of the robot's observation, any of which can be read as a 0/1 input."""
+        return tuple(self.robot.observation_features)
 
     def digital_input(self, name: str) -> bool:
         """A 0/1 reading the robot reports under ``name`` (a part-done signal wired into its
@@ -149,7 +227,10 @@ class LeRobotBridge:
         if bus is None:
             raise BridgeError(f"lerobot {self.robot.name}: no motor bus to switch torque; "
                               "remove power with the cell's safety controller")
-        bus.enable_torque() if on else bus.disable_torque()
+        try:
+            self._calls("torque on" if on else "torque off", bus.enable_torque if on else bus.disable_torque)
+        except TimeoutError as exc:
+            raise BridgeError(f"{exc}; remove power with the cell's safety controller") from None
 
     # -- What a loop needs besides read/write ----------------------------------------------
     def observe(self) -> Observation:
@@ -167,8 +248,13 @@ class LeRobotBridge:
                 "units_map": list(self.units.names)}
 
     def close(self) -> None:
-        if self.robot.is_connected:
+        """Disconnect, unless a call still hangs on the bus (the disconnect would hang the process with it)."""
+        if self.robot.is_connected and not self._calls.hung_for_ns():
             self.robot.disconnect()
+
+    def _lost(self) -> bool:
+        """A call hung four times its limit: the robot is gone, as a server silent that long is."""
+        return self._calls.hung_for_ns() > 4 * self._calls.timeout_ns
 
     def _to_si(self, values: dict, fallback: np.ndarray) -> np.ndarray:
         """Joint vector (dof,) SI from a LeRobot dict; joints the dict leaves out keep ``fallback``."""
@@ -181,7 +267,7 @@ class LeRobotBridge:
         return out
 
 
-def make_lerobot_robot(arg: str) -> LeRobotBridge:
+def make_lerobot_robot(arg: str, read_timeout_s: float = READ_TIMEOUT_S) -> LeRobotBridge:
     """``TYPE?opt=value&...``: LeRobot's robot ``TYPE`` with its config options, plus ``units``/``embodiment``/``hz``."""
     robot_type, _, query = arg.partition("?")
     if not robot_type:
@@ -206,7 +292,8 @@ def make_lerobot_robot(arg: str) -> LeRobotBridge:
     lockstep = ours.get("lockstep", "0")
     if lockstep not in ("0", "1"):
         raise ConfigError(f"robot: lerobot: option lockstep must be 0 or 1, got {lockstep!r}")
-    return LeRobotBridge(lerobot_robot(robot_type, options), profile, units, round(1e9 / hz), lockstep=lockstep == "1")
+    return LeRobotBridge(lerobot_robot(robot_type, options), profile, units, round(1e9 / hz), lockstep=lockstep == "1",
+                         timeout_s=read_timeout_s)
 
 
 def lerobot_robot(robot_type: str, options: dict[str, str]):
