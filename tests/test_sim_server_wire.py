@@ -17,7 +17,7 @@ import time
 
 import numpy as np
 import pytest
-from sim_server_util import HOME, scenario, start_server, sway_file
+from sim_server_util import HOME, scenario, server_counters, start_server, sway_file
 
 from cellguard.errors import CellguardError
 from cellguard.robot.bridges.sim_server import COMMAND_HEAD, STATE_HEAD, Layout, SimServerRobot, pack_command
@@ -355,3 +355,22 @@ def test_simulation_only_changes_on_a_bridge_are_refused(server, tmp_path, key, 
     with pytest.raises(CellguardError, match=f"{key}: applied to simulated cells only"):
         Run(parse_scenario(body))
 
+
+
+def test_a_cycle_a_former_client_left_under_way_is_not_the_new_clients_first_cycle(server):
+    """A run stopped mid-cycle (its retreat aborted) left the arm away from home: the next run's approach brought
+    it home, the cell's task ended the old cycle there and the new run counted a success it never worked for."""
+    _, port = server
+    away = HOME + np.array([0.3, 0.0, 0.0, 0.0, 0.0, 0.0])
+    first = Peer(port)
+    first.hello()
+    for seq in range(1, 401):  # 0.4 s of commands: the arm leaves home
+        first.command(seq, away)
+        time.sleep(0.001)
+    first.sock.send(b"G")
+    second = Peer(port)
+    second.hello()
+    for seq in range(1, 1501):  # 1.5 s: back home and still, where the old cycle would end
+        second.command(seq, HOME)
+        time.sleep(0.001)
+    assert server_counters(port)["cycles"] == 0  # asked from another socket: the client's is full of states

@@ -4,6 +4,9 @@ Behind `cellguard sim-server` and behind the LeRobot plugin's simulated SO-101 n
 ``begin_cycle``: when a cycle is over the next part arrives at once, and the cell raises the
 digital input ``cycle_done`` for ``PULSE_S`` (a PLC's part-done signal, which a loop on hardware
 reads as its cycle source). Injected faults act on the world as the cycles pass (simulation only).
+A new client (``new_session``) finds a cycle under way that was the last client's (a run stopped
+mid-cycle, the arm away from home): it ends unannounced, and the next part comes (the new run's
+approach brought the arm home and its first cycle read a success it never worked for).
 """
 
 from __future__ import annotations
@@ -22,6 +25,7 @@ class OwnTask:
         self.cell, self.faults = cell, tuple(faults)
         self.cycle = 0
         self._pulse_until = None
+        self._void = False  # the cycle under way is a former client's: it ends without the pulse
         self._begin()
 
     def poll(self, t_ns: int) -> bool:
@@ -31,8 +35,16 @@ class OwnTask:
         self.cell.end_cycle()
         self.cycle += 1
         self._begin()
+        void, self._void = self._void, False
+        if void:
+            return False
         self._pulse_until = t_ns + PULSE_NS
         return True
+
+    def new_session(self) -> None:
+        """A new client takes the cell: a cycle already under way is not its own."""
+        self._void = self.cell.cycle_under_way()
+        self._pulse_until = None
 
     def cycle_done(self, t_ns: int) -> bool:
         return self._pulse_until is not None and t_ns < self._pulse_until

@@ -177,6 +177,10 @@ class PickPlaceCell(DrivenCell):
             return False
         return away < 0.01 and max(map(abs, self._qvel[self._arm_v].tolist())) < 0.05
 
+    def cycle_under_way(self) -> bool:
+        """The arm has left home this cycle."""
+        return self._left_home
+
     def end_cycle(self) -> dict:
         part = self.data.xpos[self._part_body]
         drop = self.data.site_xpos[self._drop]

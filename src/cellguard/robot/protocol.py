@@ -64,6 +64,9 @@ class SimCell(Robot, Protocol):
     def cycle_finished(self) -> bool:
         """Whether the current cycle's motion is over."""
 
+    def cycle_under_way(self) -> bool:
+        """Whether the current cycle's motion has begun (a run that stopped mid-cycle left it so)."""
+
     def end_cycle(self) -> dict:
         """Close the cycle and return its outcome: ``success`` plus measured values (SI)."""
 

@@ -164,6 +164,10 @@ class QuadrupedTurns(DrivenCell):
         d.qpos[self._root_q + 3:self._root_q + 7] = [np.cos(heading / 2), 0.0, 0.0, np.sin(heading / 2)]
         mujoco.mj_forward(self.model, d)
 
+    def cycle_under_way(self) -> bool:
+        """A turn is walked from the moment it is commanded."""
+        return True
+
     def cycle_finished(self) -> bool:
         if self._fallen:
             return True

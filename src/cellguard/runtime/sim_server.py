@@ -136,6 +136,7 @@ class SimServer:
         if addr != self.client:
             before = "" if self.client is None else f"; commands from {_peer(self.client)} are refused from now on"
             sys.stderr.write(f"sim-server: client {_peer(addr)} said hello{before}\n")
+            self.task.new_session()
         self.client, self._cmd_seq, self._heard_ns = addr, 0, time.monotonic_ns()
         self._delayed.clear()
         self._send(b"M" + json.dumps(self.meta).encode(), addr)
