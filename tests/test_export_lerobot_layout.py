@@ -90,6 +90,14 @@ def test_bad_fps_is_one_line_and_exit_2(folder, tmp_path, args, names):
     assert not (tmp_path / "ds").exists()
 
 
+@pytest.mark.parametrize("task", ["pick\nplace", "pick\x1b[2Jplace", "pick\x00"])
+def test_a_task_with_control_characters_is_one_line_and_exit_2(folder, tmp_path, task):
+    result = runner.invoke(app, ["record", "to-lerobot", str(folder), "-o", str(tmp_path / "ds"), "--task", task])
+    assert result.exit_code == 2 and result.output.startswith("error: --task: ")
+    assert "control characters" in result.output
+    assert len(result.output.splitlines()) == 1 and "\x1b" not in result.output and not (tmp_path / "ds").exists()
+
+
 def test_refuses_a_folder_that_is_not_empty(folder, tmp_path):
     (tmp_path / "ds").mkdir()
     (tmp_path / "ds" / "keep.txt").write_text("mine")

@@ -35,7 +35,7 @@ def _left(folder: Path) -> list[str]:
 
 
 # -- 1: only a regular file is replaced ------------------------------------------------------------
-def test_a_fifo_or_socket_is_refused_and_a_link_to_a_regular_file_still_replaced(tmp_path, unix_socket):
+def test_a_fifo_or_socket_is_refused_and_a_link_to_a_regular_file_rewrites_the_file(tmp_path, unix_socket):
     fifo = tmp_path / "fifo"
     os.mkfifo(fifo)
     for target, kind in ((fifo, "a FIFO"), (unix_socket, "a socket")):
@@ -45,9 +45,8 @@ def test_a_fifo_or_socket_is_refused_and_a_link_to_a_regular_file_still_replaced
     assert _left(tmp_path) == ["fifo", "sock"]  # no temporary file left beside them
     (tmp_path / "real.txt").write_text("old")
     (tmp_path / "link.txt").symlink_to(tmp_path / "real.txt")
-    write_output(tmp_path / "link.txt", "new", "report")  # as before: the link is replaced, its target kept
-    assert (tmp_path / "link.txt").read_text() == "new" and not (tmp_path / "link.txt").is_symlink()
-    assert (tmp_path / "real.txt").read_text() == "old"
+    write_output(tmp_path / "link.txt", "new", "report")  # the link stays, its target is replaced
+    assert (tmp_path / "link.txt").is_symlink() and (tmp_path / "real.txt").read_text() == "new"
 
 
 def test_a_link_to_a_device_is_refused_and_kept(tmp_path):

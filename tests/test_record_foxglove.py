@@ -15,6 +15,7 @@ import time
 from pathlib import Path
 
 import pytest
+from test_record_json_schemas import foxglove_problems
 
 from cellguard.record.reader import open_record
 from cellguard.runtime import run_scenario
@@ -96,3 +97,17 @@ def test_metadata_names_the_device_and_the_run(demo):
     assert facts["policy_sha256"] == summary["context"]["policy_sha256"]
     assert facts["profile_sha256"] == summary["context"]["profile_sha256"]
     assert json.loads(seen["metadata"]["cellguard.context"]["context"]) == context
+
+
+def test_json_channels_decode_and_their_schemas_load_in_foxglove(demo):
+    """The schemas as the TypeScript reader sees them pass Foxglove's JSON-schema parser rule, and every event
+    decoded holds only fields its schema declares, none of them null."""
+    out, _, seen, _ = demo
+    assert set(seen["jsonSchemas"]) == {"/context", "/events", "/cycles", "/measurements"}
+    for topic, schema in seen["jsonSchemas"].items():
+        assert foxglove_problems(schema, topic) == [] and seen["topics"][topic]["count"] > 0
+    declared = set(seen["jsonSchemas"]["/events"]["properties"])
+    with open_record(out) as rec:
+        assert len(seen["events"]) == min(50, len(list(rec.events()))) > 0
+    for event in seen["events"]:
+        assert set(event) <= declared and None not in event.values()

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import hashlib
 import os
 import stat
 from collections.abc import Iterator
@@ -16,6 +17,8 @@ from pathlib import Path
 from typing import BinaryIO
 
 from cellguard.errors import OutputError
+
+NAME_MAX = 255  # the longest file name, in bytes, on ext4, XFS, btrfs and APFS
 
 
 def make_folder(path: Path, what: str) -> Path:
@@ -32,6 +35,18 @@ def make_folder(path: Path, what: str) -> Path:
     return path
 
 
+def refuse_filled_folder(path: Path, what: str) -> None:
+    """OutputError if ``path`` is a folder that holds anything: a dataset or a recovered record goes only into a new
+    or empty folder, so that nothing of another run's (a record's index parts, a dataset's files) is mixed in,
+    replaced or removed."""
+    try:
+        filled = path.is_dir() and any(path.iterdir())
+    except OSError as exc:
+        raise OutputError(f"{what} {path}: cannot be read ({_why(exc)})") from None
+    if filled:
+        raise OutputError(f"{what} {path}: exists and is not empty; give a new folder")
+
+
 @contextlib.contextmanager
 def atomic_file(path: Path, what: str, replace: bool = True) -> Iterator[BinaryIO]:
     """A binary file that becomes ``path`` only when the block ends without an error.
@@ -40,23 +55,28 @@ def atomic_file(path: Path, what: str, replace: bool = True) -> Iterator[BinaryI
     atomic), is fsynced, and then replaces ``path``; on any error the temporary file is removed,
     ``path`` is untouched and OutputError names it. With ``replace=False`` a file that appeared at
     ``path`` while the data was made is kept and OutputError says so (a check at the start of a
-    long job does not hold at its end). A folder, device, FIFO or socket at ``path`` is refused before anything is
-    written, and checked again just before the rename.
+    long job does not hold at its end). A link is followed: its final target is what is checked,
+    written beside and replaced, so a link is never turned into a file (``-o`` naming a link to
+    /proc/self/fd/1 with stdout redirected to a file replaced the link and left the file empty).
+    A folder, device, FIFO or socket there is refused before anything is written, and the target is
+    looked up again just before the rename.
     """
     path = Path(path)
-    _check_target(path, what)
+    _final_target(path, what)  # refused before any folder is made
     make_folder(path.parent, what)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    target = _final_target(path, what)
+    tmp = target.with_name(_temporary_name(target.name))
     try:
         with open(tmp, "wb") as f:
             yield f
             f.flush()
             os.fsync(f.fileno())
         if replace:
-            _check_target(path, what)  # one made while the data was written would be replaced too
-            os.replace(tmp, path)
+            if _final_target(path, what) != target:  # a link put or moved there while the data was written
+                raise FileExistsError(path)
+            os.replace(tmp, target)  # a FIFO or folder made there meanwhile was refused just above
         else:
-            _rename_new(tmp, path)
+            _rename_new(tmp, target)
     except FileExistsError:
         _remove(tmp)
         raise OutputError(f"{what} {path}: something was put there while it was being made; it is kept "
@@ -67,6 +87,53 @@ def atomic_file(path: Path, what: str, replace: bool = True) -> Iterator[BinaryI
     except BaseException:
         _remove(tmp)
         raise
+
+
+def _final_target(path: Path, what: str) -> Path:
+    """The file that writing ``path`` would replace or make: ``path`` with every link followed, absolute.
+
+    OutputError unless that is a regular file or nothing: a rename replaces a device, FIFO or socket node
+    itself and fails on a folder only after all the data was written. A link to an open file that no name
+    reaches (/proc/self/fd/N of a pipe, a terminal or a deleted file) is refused, as is a dangling link whose
+    target's folder does not exist; a dangling link into an existing folder makes its target there.
+    """
+    try:
+        try:
+            mode = os.stat(path).st_mode  # follows links, /proc/self/fd/N included
+        except (FileNotFoundError, NotADirectoryError):
+            return _new_target(path, what)
+        if stat.S_ISDIR(mode):
+            raise OutputError(f"{what} {path}: is a folder; name a file to write")
+        kind = not_regular(path)
+        target = Path(os.path.realpath(path))
+        unnamed = kind is None and not (target.exists() and os.path.samefile(path, target))
+        points_to = os.readlink(path) if unnamed and path.is_symlink() else target
+    except OSError as exc:  # a name too long, a link loop, no access: one line, not a traceback
+        raise OutputError(f"{what} {path}: cannot write ({_why(exc)}); nothing written") from None
+    if kind is not None:
+        raise OutputError(f"{what} {path}: is {kind}, not a regular file; cellguard replaces only regular files: "
+                          f"choose another path (nothing written)")
+    if unnamed:
+        raise OutputError(f"{what} {path}: is a link to {points_to}, which no file name reaches; "
+                          f"choose another path (nothing written)")
+    return target
+
+
+def _new_target(path: Path, what: str) -> Path:
+    """Where a missing ``path`` is made: a dangling link's target, if its folder exists (the link stays)."""
+    target = Path(os.path.realpath(path))
+    if path.is_symlink() and not target.parent.is_dir():
+        raise OutputError(f"{what} {path}: is a link to {os.readlink(path)}, whose folder does not exist; "
+                          f"create it or name another file (nothing written)")
+    return target
+
+
+def _temporary_name(name: str) -> str:
+    """A hidden temporary name beside ``name`` that stays within the 255 bytes a file name may have."""
+    tail = f".{os.getpid()}.tmp"
+    if len(os.fsencode(f".{name}{tail}")) > NAME_MAX:
+        name = hashlib.sha256(os.fsencode(name)).hexdigest()[:32]
+    return f".{name}{tail}"
 
 
 def write_output(path: Path, data: str | bytes, what: str, replace: bool = True) -> Path:
@@ -90,20 +157,6 @@ def not_regular(path: Path) -> str | None:
     kinds = ((stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"), (stat.S_ISFIFO, "a FIFO"),
              (stat.S_ISSOCK, "a socket"))
     return next((name for test, name in kinds if test(mode)), "a special file")
-
-
-def _check_target(path: Path, what: str) -> None:
-    """OutputError unless ``path`` is missing or a regular file: the rename would replace a device, FIFO or socket,
-    and fail on a folder only after all the data was written."""
-    try:
-        if path.is_dir():
-            raise OutputError(f"{what} {path}: is a folder; name a file to write")
-        kind = not_regular(path)
-    except OSError as exc:  # a name too long, a link loop, no access: one line, not a traceback
-        raise OutputError(f"{what} {path}: cannot write ({_why(exc)}); nothing written") from None
-    if kind is not None:
-        raise OutputError(f"{what} {path}: is {kind}, not a regular file; cellguard replaces only regular files: "
-                          f"choose another path (nothing written)")
 
 
 def _rename_new(tmp: Path, path: Path) -> None:

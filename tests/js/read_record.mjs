@@ -31,6 +31,9 @@ function decoder(channelId) {
     const channel = reader.channelsById.get(channelId);
     const schema = reader.schemasById.get(channel.schemaId);
     let decode;
+    if (schema.encoding === "jsonschema") {
+      out.jsonSchemas[channel.topic] = JSON.parse(new TextDecoder().decode(schema.data));
+    }
     if (channel.messageEncoding === "cdr") {
       const messageReader = new MessageReader(parse(new TextDecoder().decode(schema.data), { ros2: true }));
       decode = (data) => messageReader.readMessage(data);
@@ -43,7 +46,7 @@ function decoder(channelId) {
 }
 
 const out = { messages: 0, topics: {}, firstLogTime: null, ordered: true, jointStates: [], logs: [], tf: null,
-              metadata: {}, attachments: [] };
+              metadata: {}, attachments: [], jsonSchemas: {}, events: [] };
 let last = -1n;
 for await (const message of reader.readMessages({ validateCrcs: true })) {
   const { topic, schema, decode } = decoder(message.channelId);
@@ -58,6 +61,8 @@ for await (const message of reader.readMessages({ validateCrcs: true })) {
                            logTime: message.logTime.toString() });
   } else if (topic === "/events/log" && out.logs.length < 50) {
     out.logs.push({ level: value.level, name: value.name, msg: value.msg, stamp: value.stamp });
+  } else if (topic === "/events" && out.events.length < 50) {
+    out.events.push(value);
   } else if (topic === "/tf" && out.tf === null) {
     out.tf = value.transforms.map((t) => ({ parent: t.header.frame_id, child: t.child_frame_id }));
   }

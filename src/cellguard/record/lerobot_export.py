@@ -28,6 +28,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from cellguard.errors import RecordError
+from cellguard.output import refuse_filled_folder
 from cellguard.record.reader import Record
 
 CODEBASE_VERSION = "v3.0"
@@ -54,6 +55,8 @@ class LeRobotExport:
 def export_lerobot(rec: Record, output: Path, fps: int = 50, task: str | None = None, success_only: bool = False,
                    robot_type: str | None = None) -> LeRobotExport:
     """Write the completed cycles of ``rec`` into the new folder ``output`` as a LeRobotDataset v3."""
+    if task is not None and not task.isprintable():  # one line in tasks.parquet, as every other text cellguard takes
+        raise RecordError(f"--task: {task!r} holds control characters; give the task as one line of text")
     output = Path(output).resolve()  # "." and ".." have no name to put the staging folder beside
     context = rec.context
     stride = _stride(context, fps)
@@ -210,8 +213,7 @@ def _stats(values: np.ndarray) -> dict[str, list]:
 
 def _prepare(output: Path) -> Path:
     """Check or make the empty folder ``output``; a new folder beside it, unique to this run, to write into."""
-    if output.is_dir() and any(output.iterdir()):
-        raise RecordError(f"-o {output}: exists and is not empty; give a new folder")
+    refuse_filled_folder(output, "-o")
     try:
         output.mkdir(parents=True, exist_ok=True)
         where = output.absolute()  # "." has no name and no parent of its own

@@ -5,8 +5,9 @@ passed its chunk CRC is copied with its original times and sequence numbers (so 
 visible), into chunks of the usual span and size; the Parquet index is rebuilt from the cycle
 markers and events that survived (a malformed one is left out of it, as the reader skips it). A
 metadata record (``RECOVERED``) says what the source was, so the copy never reads as a whole run (a
-record cut at its end has no gap to show: its copy read as complete). The copy is made in a folder
-of its own beside the target and moved into it once whole: a recovery that fails leaves nothing.
+record cut at its end has no gap to show: its copy read as complete). The target must be a new or
+empty folder; the copy is made in a hidden folder of its own inside it and moved into place once
+whole: a recovery that fails leaves nothing.
 """
 
 from __future__ import annotations
@@ -19,7 +20,8 @@ from pathlib import Path
 from mcap.writer import CompressionType, Writer
 
 from cellguard.errors import RecordError
-from cellguard.record.index import IndexWriter, clear_index, cycle_row, event_row
+from cellguard.output import refuse_filled_folder
+from cellguard.record.index import IndexWriter, cycle_row, event_row
 from cellguard.record.reader import Health, open_record
 from cellguard.record.schemas import CHANNELS
 from cellguard.record.writer import CHUNK_BYTES, INDEX_DIR, PROFILE, RECORD_FILE
@@ -32,18 +34,16 @@ def recover(source: Path, target: Path) -> Health:
     """Copy what is readable of ``source`` (folder or .mcap) into ``target/record.mcap`` and ``target/index``.
 
     Returns the health of the source as read; RecordError if nothing is readable or ``target``
-    would overwrite the source.
+    would overwrite the source, OutputError if ``target`` is a folder that holds anything.
     """
     source, target = Path(source), Path(target)
     with open_record(source) as record:
         if target.resolve() in (record.file.parent.resolve(), record.file.resolve()):
             raise RecordError(f"-o {target}: would overwrite the record being recovered; choose another folder")
+        refuse_filled_folder(target, "-o")  # another run's index parts there were cleared, its other files mixed in
         health = record.health()
         made, staging = False, None
         try:
-            if (target / RECORD_FILE).exists():
-                raise RecordError(f"-o {target}: already holds a record; recovery never overwrites one; "
-                                  f"choose another folder")
             made = not target.exists()
             target.mkdir(parents=True, exist_ok=True)
             # inside the target: its files are renamed into place on the target's own filesystem (beside it, a
@@ -52,7 +52,6 @@ def recover(source: Path, target: Path) -> Health:
             with open(staging / RECORD_FILE, "wb") as f:
                 _copy_messages(record, f, {"source": _text(record.file), "source_health": health.describe()})
             _rebuild_index(record, staging / INDEX_DIR)
-            clear_index(target / INDEX_DIR)
             _move_into(staging, target)
         except OSError as exc:
             raise RecordError(f"{target}: cannot write the recovered record ({exc.strerror or exc})") from None
@@ -70,8 +69,8 @@ def _text(path: Path) -> str:
 
 
 def _move_into(staging: Path, target: Path) -> None:
-    """Move the copy's files from ``staging`` into ``target`` (which may hold other files), the record last: a
-    folder with a record and no index would be refused by a second recovery."""
+    """Move the copy's files from ``staging`` into ``target`` (empty but for ``staging``), the record last: a
+    folder with a record reads as a finished copy, so the record appears only once its index is whole."""
     files = sorted((p for p in staging.rglob("*") if p.is_file()), key=lambda p: p.name == RECORD_FILE)
     for file in files:
         destination = target / file.relative_to(staging)

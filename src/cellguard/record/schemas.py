@@ -53,8 +53,17 @@ def _json_schema(title: str, properties: dict, required: list[str]) -> dict:
             "properties": properties, "required": required}
 
 
+def _open_object(description: str, values: dict | None = None) -> dict:
+    """An object whose keys vary (a context, features by name): Foxglove's JSON-schema parser needs
+    ``properties`` on every object, and reads nothing but ``properties``."""
+    return {"type": "object", "properties": {}, "description": description,
+            **({} if values is None else {"additionalProperties": values})}
+
+
+# Every field has one type: Foxglove's parser refuses a list of types and an enum without a type. An optional
+# field is left out when absent (records before this wrote null there; the reader takes both as absent).
 _INT, _NUM, _STR = {"type": "integer"}, {"type": "number"}, {"type": "string"}
-_OPT_NUM, _OPT_STR, _OPT_INT = {"type": ["number", "null"]}, {"type": ["string", "null"]}, {"type": ["integer", "null"]}
+_NUM_OR_NULL = {"anyOf": [_NUM, {"type": "null"}], "description": "null: not a finite number"}
 
 CONTEXT_SCHEMA = _json_schema("cellguard.Context", {
     "t_ns": _INT, "epoch_wall_ns": {"type": "integer", "description": "wall clock at t_ns = 0 [ns since 1970]; "
@@ -63,23 +72,27 @@ CONTEXT_SCHEMA = _json_schema("cellguard.Context", {
     "record_id": _STR, "record_version": _INT,
     "repeat": {"type": "boolean", "description": "a periodic copy of the unchanged context, for damaged records"},
     "version": _STR, "changed": {"type": "array", "items": _STR},
-    "versions": {"type": "object", "additionalProperties": _STR, "description": "policy, calibration, datum"},
-    "context": {"type": "object", "description": "policy, embodiment, calibration, envelope, datum, site, software"},
+    "versions": _open_object("policy, calibration, datum", _STR),
+    "context": _open_object("policy, embodiment, calibration, envelope, datum, site, software"),
 }, ["t_ns", "version", "context"])
 EVENT_SCHEMA = _json_schema("cellguard.Event", {
-    "t_ns": _INT, "cycle": _OPT_INT, "kind": _STR, "reason": _STR, "joint": _OPT_STR,
-    "asked": _OPT_NUM, "sent": _OPT_NUM, "category": {"type": ["integer", "null"], "enum": [0, 1, 2, None]},
+    "t_ns": _INT, "cycle": {"type": "integer", "description": "absent: between cycles"}, "kind": _STR,
+    "reason": _STR, "joint": {"type": "string", "description": "absent: no one joint"},
+    "asked": {"type": "number", "description": "absent: none, or not finite"},
+    "sent": {"type": "number", "description": "absent: none, or not finite"},
+    "category": {"type": "integer", "enum": [0, 1, 2], "description": "stop category; absent: no stop"},
 }, ["t_ns", "kind", "reason"])
 CYCLE_SCHEMA = _json_schema("cellguard.CycleMarker", {
-    "marker": {"enum": ["begin", "end"]}, "cycle": _INT, "phase": {"enum": ["acceptance", "production"]},
+    "marker": {"type": "string", "enum": ["begin", "end"]}, "cycle": _INT,
+    "phase": {"type": "string", "enum": ["acceptance", "production"]},
     "t_start_ns": _INT, "t_end_ns": _INT, "success": {"type": "boolean"}, "context_version": _STR,
-    "outcome": {"type": "object", "description": "the cell's measured outcome, SI"},
-    "features": {"type": "object", "additionalProperties": _NUM, "description": "per-cycle features"},
+    "outcome": _open_object("the cell's measured outcome, SI"),
+    "features": _open_object("per-cycle features", _NUM_OR_NULL),
 }, ["marker", "cycle", "phase", "t_start_ns"])
 MEASUREMENT_SCHEMA = _json_schema("cellguard.Measurements", {
     "t_ns": _INT, "cycle": _INT,
-    "measurements": {"type": "object", "additionalProperties": {"type": "array", "items": _NUM},
-                     "description": "camera and fixture readings shown to the policy, SI, sensor frame"},
+    "measurements": _open_object("camera and fixture readings shown to the policy, SI, sensor frame",
+                                 {"type": "array", "items": _NUM}),
 }, ["t_ns", "measurements"])
 
 

@@ -122,7 +122,7 @@ class RunRecording:
         context = cls._context(run, config, software_versions())
         profile = run.cell.profile
         model = getattr(run.cell, "model", None)
-        description = None if model is None else describe(model, profile.joint_names, profile.robot)
+        description = None if model is None else describe(model, profile)
         reserve = _reserve(folder / RESERVE_FILE, RESERVE_BYTES[0] + RESERVE_BYTES[1] * cycles)  # else nothing runs
         try:
             recorder = Recorder.create(folder, joints=profile.joint_names, dt_ns=run.cell.dt_ns, context=context,

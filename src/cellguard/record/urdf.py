@@ -22,6 +22,8 @@ from xml.sax.saxutils import quoteattr
 import mujoco
 import numpy as np
 
+from cellguard.embodiment.profile import Profile
+
 _J, _G = mujoco.mjtJoint, mujoco.mjtGeom
 _HINGE, _SLIDE, _FREE = int(_J.mjJNT_HINGE), int(_J.mjJNT_SLIDE), int(_J.mjJNT_FREE)
 _BOX, _SPHERE, _ELLIPSOID = int(_G.mjGEOM_BOX), int(_G.mjGEOM_SPHERE), int(_G.mjGEOM_ELLIPSOID)
@@ -76,9 +78,14 @@ class JointFrames:
         return out
 
 
-def describe(model: mujoco.MjModel, joints: tuple[str, ...], robot: str) -> tuple[str, JointFrames]:
-    """The URDF text of ``model`` and the frames of its recorded ``joints`` (names as in the record)."""
-    column = {name: i for i, name in enumerate(joints)}
+def describe(model: mujoco.MjModel, profile: Profile) -> tuple[str, JointFrames]:
+    """The URDF text of ``model`` and the frames of the ``profile``'s joints (the recorded ones, in its order).
+
+    A moving joint's URDF limit states the profile's effort [N·m or N] and velocity [rad/s or m/s]: a URDF
+    reader (MoveIt, a planner) takes 0 there as a joint that cannot move or push.
+    """
+    column = {name: i for i, name in enumerate(profile.joint_names)}
+    limits = {j.name: j for j in profile.joints}
     links, urdf_joints, moving, fixed = [], [], [], []
     for b in range(1, model.nbody):
         link = _name(model, mujoco.mjtObj.mjOBJ_BODY, b)
@@ -98,7 +105,8 @@ def describe(model: mujoco.MjModel, joints: tuple[str, ...], robot: str) -> tupl
             kind = "prismatic" if prismatic else "revolute"
             axis = model.jnt_axis[joint] / np.linalg.norm(model.jnt_axis[joint])
             lo, hi = model.jnt_range[joint] if model.jnt_limited[joint] else (-math.pi, math.pi)
-            extra = (f'<axis xyz="{_v(axis)}"/><limit lower="{lo:.6g}" upper="{hi:.6g}" effort="0" velocity="0"/>')
+            extra = (f'<axis xyz="{_v(axis)}"/><limit lower="{lo:.6g}" upper="{hi:.6g}" '
+                     f'effort="{limits[jname].effort:.6g}" velocity="{limits[jname].velocity:.6g}"/>')
             moving.append((column[jname], MovingJoint(jname, parent, link, xyz, quat, axis, bool(prismatic))))
         else:
             fixed.append((parent, link, xyz, np.array([quat[1], quat[2], quat[3], quat[0]])))
@@ -106,8 +114,8 @@ def describe(model: mujoco.MjModel, joints: tuple[str, ...], robot: str) -> tupl
                            f'<child link={quoteattr(link)}/><origin xyz="{_v(xyz)}" rpy="{_v(_rpy(quat))}"/>'
                            f'{extra}</joint>')
     world = _name(model, mujoco.mjtObj.mjOBJ_BODY, 0)
-    text = "\n".join([f'<?xml version="1.0"?>\n<robot name={quoteattr(robot)}>', f"  <link name={quoteattr(world)}/>",
-                      *links, *urdf_joints, "</robot>"]) + "\n"
+    text = "\n".join([f'<?xml version="1.0"?>\n<robot name={quoteattr(profile.robot)}>',
+                      f"  <link name={quoteattr(world)}/>", *links, *urdf_joints, "</robot>"]) + "\n"
     return text, JointFrames(moving, fixed)
 
 

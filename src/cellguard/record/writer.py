@@ -221,7 +221,7 @@ class Recorder:
         """An event (JSON and log line); anything not routine opens a full-rate window around it."""
         fields = _event_fields(event)
         routine = event.kind in self.config.routine_events
-        self._guard(self._json, 5, event.t_ns, {"cycle": cycle, **fields})
+        self._guard(self._json, 5, event.t_ns, {k: v for k, v in {"cycle": cycle, **fields}.items() if v is not None})
         level = _LOG_LEVEL.get(event.category, ros2.DEBUG if routine else ros2.INFO)
         self._guard(self._add, 13, event.t_ns, ros2.log_message(self.epoch_wall_ns + event.t_ns, level,
                                                                 "cellguard", _log_text(fields, cycle)))
