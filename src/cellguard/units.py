@@ -7,6 +7,7 @@ is refused because a number without its unit is how a degree becomes a radian on
 from __future__ import annotations
 
 import math
+import re
 
 from cellguard.errors import ConfigError
 
@@ -37,6 +38,8 @@ _UNITS: dict[str, tuple[str, float]] = {
     "kg*m^2": ("inertia", 1.0),
 }
 
+_GLUED = re.compile(r"([-+]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][-+]?[0-9]+)?)(\S+)")  # a number, then its unit
+
 
 def parse_quantity(text: object, field: str, dimensions: tuple[str, ...]) -> float:
     """Return the SI value of ``"<number> <unit>"``; the unit must have one of ``dimensions``."""
@@ -44,6 +47,10 @@ def parse_quantity(text: object, field: str, dimensions: tuple[str, ...]) -> flo
         raise ConfigError(f"{field}: expected '<number> <unit>', got {text!r}")
     parts = str(text).split()
     if len(parts) != 2:
+        glued = _GLUED.fullmatch(str(text).strip())
+        if glued and glued[2] in _UNITS:  # "0.2N*m": the unit is there, the space is not
+            raise ConfigError(f"{field}: no space between the number and the unit in {text!r}; write "
+                              f"'{glued[1]} {glued[2]}'")
         allowed = [u for u, (d, _) in _UNITS.items() if d in dimensions]
         raise ConfigError(f"{field}: missing unit in {text!r}; write e.g. '{text} {allowed[0]}' (units: {', '.join(allowed)})")
     number, unit = parts
@@ -57,3 +64,4 @@ def parse_quantity(text: object, field: str, dimensions: tuple[str, ...]) -> flo
         allowed = [u for u, (d, _) in _UNITS.items() if d in dimensions]
         raise ConfigError(f"{field}: unit {unit!r} does not fit; allowed: {', '.join(allowed)}")
     return value * _UNITS[unit][1]
+

@@ -7,7 +7,9 @@ than ``MAX_DEPTH`` (a recursive alias included), a document whose aliases expand
 ``MAX_VALUES`` values (a few hundred bytes of aliases expand to gigabytes once validated), a file
 over ``MAX_BYTES`` (``/dev/zero`` is never read past the limit), and a path that is a FIFO or a
 socket (refused before it is read: opening one waits for a writer) are each one error that names
-the file and what is wrong.
+the file and what is wrong. A date is text, as it was written (``measured: 2026-10-14`` is the string
+"2026-10-14"): PyYAML's timestamps made a ``datetime.date`` that JSON cannot write, and an impossible
+date (``2026-02-30``) a ValueError in every reader; a field that must hold a date checks the text.
 """
 
 from __future__ import annotations
@@ -30,8 +32,14 @@ class _Refused(yaml.YAMLError):
     """A document the loader refuses; the message says why and where."""
 
 
+_TIMESTAMP = "tag:yaml.org,2002:timestamp"
+
+
 class _StrictLoader(yaml.SafeLoader):
-    """SafeLoader that refuses duplicate keys and deep nesting while it composes."""
+    """SafeLoader that refuses duplicate keys and deep nesting while it composes, and reads dates as text."""
+
+    yaml_implicit_resolvers = {first: [(tag, regexp) for tag, regexp in resolvers if tag != _TIMESTAMP]
+                               for first, resolvers in yaml.SafeLoader.yaml_implicit_resolvers.items()}
 
     def compose_node(self, parent, index):
         self._depth = getattr(self, "_depth", 0) + 1
@@ -57,6 +65,10 @@ class _StrictLoader(yaml.SafeLoader):
         return super().construct_mapping(node, deep=deep)
 
 
+# an explicit ``!!timestamp`` is text too
+_StrictLoader.add_constructor(_TIMESTAMP, lambda loader, node: loader.construct_scalar(node))
+
+
 def parse_yaml(data: bytes | str, where: str, error: type[ConfigError] = ConfigError) -> object:
     """The decoded document in ``data`` (from ``where``, a file name or a description); raises ``error``."""
     if len(data) > MAX_BYTES:
@@ -73,6 +85,8 @@ def parse_yaml(data: bytes | str, where: str, error: type[ConfigError] = ConfigE
         raise error(f"{where}: not valid YAML{line} ({exc.problem or exc.__class__.__name__})") from None
     except (yaml.YAMLError, UnicodeDecodeError) as exc:
         raise error(f"{where}: not valid YAML ({exc.__class__.__name__})") from None
+    except ValueError as exc:  # an explicit tag on a value it cannot read: ``!!int abc``, ``!!float x``
+        raise error(f"{where}: not valid YAML ({exc})") from None
     except RecursionError:
         raise error(f"{where}: nested too deeply to read") from None
 

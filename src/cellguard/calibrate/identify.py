@@ -122,7 +122,8 @@ ONLY = ("friction", "damping", "armature")  # what ``--only JOINT,PARAM`` re-fit
 
 
 def parse_only(items: list[str], cell) -> list[tuple[str, str]]:
-    """``["elbow,friction"]`` -> [(joint, parameter)], each a hinge joint of ``cell`` and one of ``ONLY``."""
+    """``["elbow,friction"]`` -> [(joint, parameter)], each a hinge joint of ``cell`` and one of ``ONLY``, each
+    once (a pair given twice would be reported twice and counted twice in the simultaneous intervals)."""
     joints = [cell.profile.joint_names[i] for i in hinge_joints(cell)]
     pairs = []
     for item in items:
@@ -135,7 +136,8 @@ def parse_only(items: list[str], cell) -> list[tuple[str, str]]:
                                    f"{', '.join(joints)}")
         if param not in ONLY:
             raise CalibrationError(f"--only: {param!r} cannot be re-fitted alone; allowed: {', '.join(ONLY)}")
-        pairs.append((joint, param))
+        if (joint, param) not in pairs:
+            pairs.append((joint, param))
     return pairs
 
 
@@ -176,6 +178,7 @@ def _refit(segments, cell, pairs, model, terms) -> dict:
     return {"robot": cell.name, "records": sorted({s.record_id for s in segments}),
             "samples": int(sum(len(s.q) for s in segments)),
             "method": "re-fit of one term on the residual of the profile's model (mj_inverse)",
+            "payload_held_kg": float(terms.payload_kg),  # the calibration's, in the model and in --write's MJCF
             "interval": interval_note(estimates), "estimates": rows, "warnings": negative_warnings(rows)}
 
 
@@ -226,6 +229,22 @@ def record_robot(path: Path) -> str:
     if not robot:
         raise CalibrationError(f"{path}: the record's context names no robot (cell); pass --cell")
     return robot
+
+
+def measured_on(paths: list[Path]) -> str:
+    """The day the records were measured: the UTC date of the latest record's start (``YYYY-MM-DD``). Not the
+    day identify runs, nor a local date: west of UTC a local ``today`` stamped the day before the record."""
+    import datetime as dt
+
+    from cellguard.record.reader import open_record
+
+    starts = []
+    for path in paths:
+        with open_record(path) as rec:
+            starts.append(rec.start_wall_ns)
+    if min(starts) <= 0:  # a record without a wall-clock epoch: the day it is read on, in UTC
+        return dt.datetime.now(dt.timezone.utc).date().isoformat()
+    return dt.datetime.fromtimestamp(max(starts) / 1e9, dt.timezone.utc).date().isoformat()
 
 
 def load_segments(paths: list[Path], cell, cycle: int | None = None) -> list[Segment]:

@@ -94,17 +94,21 @@ class JointTerms:
         return cls(payload_kg=payload, **arrays)
 
     @classmethod
-    def from_profile(cls, cell, path=None) -> JointTerms:
+    def from_profile(cls, cell, path=None, option: str = "--profile") -> JointTerms:
         """The calibrated terms: the measured friction, damping and armature of the profile at ``path``
-        (``identify --write``'s; default the cell's own) over the nominal model."""
+        (``identify --write``'s, given as ``option``; default the cell's own) over the nominal model, and the
+        payload its calibration put into the calibrated MJCF."""
         from cellguard.calibrate.identify import CalibrationError
+        from cellguard.calibrate.mjcf import calibrated_payload
         from cellguard.embodiment import load_profile
 
-        profile = load_profile(cell.model, path) if path is not None else cell.profile
+        if path is None:
+            return cls.of_profile(cell, cell.profile)
+        profile = load_profile(cell.model, path)
         if profile.robot != cell.profile.robot:
-            raise CalibrationError(f"--profile: {path} is a profile of robot {profile.robot!r}; the model is of "
+            raise CalibrationError(f"{option}: {path} is a profile of robot {profile.robot!r}; the model is of "
                                    f"{cell.profile.robot!r}")
-        return cls.of_profile(cell, profile)
+        return cls.of_profile(cell, profile, calibrated_payload(path, profile, option))
 
     @classmethod
     def of_profile(cls, cell, profile, payload_kg: float = 0.0) -> JointTerms:

@@ -12,14 +12,20 @@ and the version it replaces, so a second calibration is always a new version). B
 The profile's ``calibration`` block (version, MJCF, date, records, previous version) is what a run
 with ``calibration: PROFILE`` carries into every record's context. Every file is written beside its
 target and renamed; the new profile is checked against the calibrated model first, and a failure
-removes what this write had added, so the folder is left as it was. A profile named through a symbolic
-link is written where the link points (the link is kept), with its MJCF and kept copy beside it.
+removes what this write had added, so the folder is left as it was. Concurrent writes take turns (a lock
+on the folder): the second reads the first's profile and names its version as ``previous``. A profile named
+through a symbolic link is written where the link points (the link is kept), with its MJCF and kept copy
+beside it.
 """
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import hashlib
 import json
+import os
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -48,18 +54,43 @@ class Written:
     profile: Path
 
 
-def write_profile(path: Path, cell, result: dict, date: str) -> Written:
+def write_profile(path: Path, cell, result: dict, date: str, basis: bytes | None = None) -> Written:
     """Update ``path`` (``cell``'s profile) with ``result`` (from ``identify``); a new calibration version.
 
     The profile is checked whole (``parse_profile``) before anything is taken from it. A friction, damping or
     armature that came out below zero is not stored (CalibrationError naming it): no joint has one, and a
     run would simulate it. ``path`` a symbolic link: the file it points to is rewritten (the link stays a
     link to it), and the calibrated MJCF and the kept old profile go beside that file, where its ``model``
-    and ``calibration`` name them."""
+    and ``calibration`` name them. Read, rewrite and rename happen under an exclusive lock on the profile's
+    folder: two writes at once lost one calibration while both reported a version. ``basis``: the profile's
+    bytes the fit held its other terms at (``--only``); a profile changed since is refused, not rewritten."""
     path = Path(path)
     if path.is_symlink():
         path = path.resolve()
+    with _folder_locked(path.parent):
+        return _write(path, cell, result, date, basis)
+
+
+@contextlib.contextmanager
+def _folder_locked(folder: Path) -> Iterator[None]:
+    """An exclusive ``flock`` on ``folder`` while the block runs (a second writer waits): a lock on the folder,
+    not a lock file, leaves nothing behind and does not move with the profile's rename."""
+    try:
+        fd = os.open(folder, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
+    except OSError as exc:
+        raise ProfileError(f"--write: cannot open the profile's folder {folder} ({exc.strerror})") from None
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)  # releases the lock
+
+
+def _write(path: Path, cell, result: dict, date: str, basis: bytes | None) -> Written:
     old_bytes = read_bounded(path, "profile", ProfileError)
+    if basis is not None and old_bytes != basis:
+        raise CalibrationError(f"--write: {path} changed while the re-fit ran (another calibration was written); "
+                               "the terms it held are no longer the profile's: run identify --only again")
     raw = parse_yaml(old_bytes, str(path), ProfileError)
     if not isinstance(raw, dict) or raw.get("robot") != cell.profile.robot:
         robot = raw.get("robot") if isinstance(raw, dict) else None
@@ -85,10 +116,7 @@ def write_profile(path: Path, cell, result: dict, date: str) -> Written:
     old_version = str(raw.get("version", "unversioned"))
     raw["measured"] = measured
     draft = parse_profile(cell.model, yaml.safe_dump(raw, sort_keys=False).encode(), str(path))
-    # a payload only where its interval lies above zero: an estimate within noise of none is no mass at all
-    payload = [e for e in result["estimates"] if e["parameter"] == "payload" and e["interval"] is not None
-               and e["interval"][0] > 0.0]
-    mjcf = calibrated_mjcf(cell, JointTerms.of_profile(cell, draft, payload[0]["value"] if payload else 0.0))
+    mjcf = calibrated_mjcf(cell, JointTerms.of_profile(cell, draft, _payload(result)))
     digest = hashlib.sha256(json.dumps([measured, old_version, mjcf], sort_keys=True).encode()).hexdigest()[:8]
     version = f"{date}-cal-{digest}"
     mjcf_path = path.with_name(f"{path.stem}.{version}.xml")
@@ -112,3 +140,13 @@ def write_profile(path: Path, cell, result: dict, date: str) -> Written:
             target.unlink(missing_ok=True)
         raise
     return Written(version, mjcf_path, kept, path)
+
+
+def _payload(result: dict) -> float:
+    """The payload [kg] the calibrated MJCF carries: the one fitted, only where its interval lies above zero (an
+    estimate within noise of none is no mass at all); else the one the fit held (``--only`` holds the
+    calibration's: dropping it would leave the model the re-fitted terms were not estimated on)."""
+    fitted = [e for e in result["estimates"] if e["parameter"] == "payload" and e["interval"] is not None]
+    if fitted:
+        return fitted[0]["value"] if fitted[0]["interval"][0] > 0.0 else 0.0
+    return float(result.get("payload_held_kg", 0.0))

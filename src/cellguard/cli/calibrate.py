@@ -77,11 +77,16 @@ def identify(
             for record in records:
                 refuse_output(write, record, option="--write")
         cell = make_cell(cell_name or record_robot(records[0]))
+        basis = None  # the profile --only holds its other terms at: --write refuses it if it changed meanwhile
         if only:
             from cellguard.calibrate.identify import parse_only, refit
             from cellguard.calibrate.torque_model import JointTerms
+            from cellguard.errors import ProfileError
+            from cellguard.yaml_file import read_bounded
 
-            pairs, terms = parse_only(only, cell), JointTerms.from_profile(cell, write)
+            pairs = parse_only(only, cell)
+            basis = read_bounded(write, "profile", ProfileError) if write is not None else None
+            terms = JointTerms.from_profile(cell, write, "--write")
             segments, healths = load_records(records, cell)
             _whole_for_write(write, healths)
             result = refit(segments, cell, pairs, terms)
@@ -95,11 +100,10 @@ def identify(
             result["warnings"].append(f"--write: {write} not written: a friction, damping or armature below zero "
                                       "is no calibration")
         elif write is not None:
-            import datetime as dt
-
+            from cellguard.calibrate.identify import measured_on
             from cellguard.calibrate.write import write_profile
 
-            written = write_profile(write, cell, result, dt.date.today().isoformat())
+            written = write_profile(write, cell, result, measured_on(records), basis)
             result["profile_version"], result["mjcf"] = written.version, str(written.mjcf)
             result["profile"] = str(written.profile)
     except CellguardError as exc:
@@ -125,6 +129,8 @@ def identify(
             bias = f", method bias {e['method_bias']:+.2g}" if e.get("method_bias") is not None else ""
             say(f"  {name:24s} {e['value']:.4g} {e['unit']}  [{lo:.4g}, {hi:.4g}]  (nominal {e['nominal']:.4g}"
                 f"{bias})", err=False)
+    if result.get("payload_held_kg"):
+        say(f"  {'payload':24s} {result['payload_held_kg']:.4g} kg held (the calibration's)", err=False)
     raise typer.Exit(damaged)
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import sys
 from decimal import ROUND_CEILING, ROUND_FLOOR, Decimal
+from pathlib import Path
 
 import typer
 from rich.console import Console
@@ -20,15 +21,24 @@ app.add_typer(embodiment_app, name="embodiment")
 @embodiment_app.command("show")
 def embodiment_show(
     cell: str = typer.Argument(..., help="A registered cell, e.g. arm-pick-place."),
+    profile_path: Path | None = typer.Option(None, "--profile", help="A profile file of this cell's robot (e.g. "
+                                             "one identify --write calibrated), checked against its model; "
+                                             "default: the cell's own."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),
 ) -> None:
     """Print a cell's embodiment profile: joints and limits with their units, measured parameters (as written, when
     and how), symmetry pairs and the calibration. Limits are SI, shown rounded inward; with --json the limits are
     SI and each measured value is in the unit it names (as written in the profile)."""
+    from cellguard.embodiment import load_profile
+    from cellguard.errors import ProfileError
     from cellguard.robot.registry import make_cell
 
     try:
-        profile = make_cell(cell).profile
+        robot = make_cell(cell)
+        profile = robot.profile if profile_path is None else load_profile(robot.model, profile_path)
+        if profile.robot != robot.profile.robot:
+            raise ProfileError(f"--profile: {profile_path} is a profile of robot {profile.robot!r}; the {cell} cell "
+                               f"is {robot.profile.robot!r}")
     except CellguardError as exc:
         fail(exc)
     if as_json:

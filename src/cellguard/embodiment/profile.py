@@ -2,18 +2,22 @@
 
 A profile is a YAML file next to the robot's MJCF. Loading checks it against the model: a
 joint the model does not have, a limit outside the model's range, or a number without its
-unit is refused with an error that names the field. So is a measured value that cannot be one of
+unit is refused with an error that names the field. So is a measured parameter cellguard does not
+know (``Friction`` was taken with any unit and sign), and a measured value that cannot be one of
 its parameter (friction, damping, armature, actuator_time_constant, backlash): in another dimension
 (friction is a torque on a hinge, a force on a slide; armature an inertia or a mass), below zero,
 or beyond its range (friction above the joint's effort); a second entry for the same joint and
-parameter (one of them would silently win); text with control characters; and a version that
-cannot name a file (``identify --write`` keeps ``NAME.VERSION.yaml`` beside the profile).
+parameter (one of them would silently win); a date that is not an ISO date (YYYY-MM-DD) of a day
+that has begun somewhere; a symmetry pair of a joint with itself, of two joints of different kinds,
+or named twice; text with control characters; and a version that cannot name a file
+(``identify --write`` keeps ``NAME.VERSION.yaml`` beside the profile).
 """
 
 from __future__ import annotations
 
 import datetime
 import hashlib
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -29,8 +33,8 @@ _LINEAR = {"position": ("length",), "velocity": ("length/s",), "acceleration": (
 _ANGULAR = {"position": ("angle",), "velocity": ("angle/s",), "acceleration": ("angle/s^2",),
             "jerk": ("angle/s^3",), "effort": ("torque",), "torque_constant": ("torque/A",)}
 _PARAMETER_DIMENSIONS = ("torque", "force", "time", "angle", "length", "mass", "inertia", "damping")
-# the dimension of a known measured parameter on a hinge or a slide joint (None: no unit cellguard reads yet);
-# each is at least zero. A parameter not listed may carry any of _PARAMETER_DIMENSIONS.
+# the dimension of a measured parameter on a hinge or a slide joint (None: no unit cellguard reads yet); each is
+# at least zero. A parameter not listed is refused: a misspelt one would be taken with any unit and sign.
 _MEASURED = {
     "friction": {"hinge": ("torque",), "slide": ("force",)},  # dry friction, at most the joint's effort
     "damping": {"hinge": ("damping",), "slide": None},
@@ -67,7 +71,7 @@ class MeasuredParameter:
     parameter: str
     value: float  # SI
     unit: str  # as written in the profile
-    measured: str  # ISO date
+    measured: str  # ISO date, YYYY-MM-DD
     method: str
 
     @property
@@ -97,7 +101,7 @@ class Calibration:
 
     version: str
     mjcf: str  # file name beside the profile
-    date: str  # ISO date
+    date: str  # ISO date, YYYY-MM-DD
     records: tuple[str, ...]
     previous: str  # the profile version before this calibration
 
@@ -215,7 +219,12 @@ def _profile(model: mujoco.MjModel, raw: object, sha256: str) -> Profile:
         if j != i:
             raise ProfileError(f"measured[{i}]: {m.parameter} of {m.joint} is already measured[{j}]; keep one entry "
                                "per joint and parameter (the one to use)")
-    symmetry = tuple(_symmetry(i, s, names) for i, s in enumerate(_list(raw, "symmetry")))
+    symmetry = tuple(_symmetry(i, s, by_name) for i, s in enumerate(_list(raw, "symmetry")))
+    pairs: dict[frozenset, int] = {}
+    for i, pair in enumerate(symmetry):
+        j = pairs.setdefault(frozenset((pair.left, pair.right)), i)
+        if j != i:
+            raise ProfileError(f"symmetry[{i}]: {pair.left} and {pair.right} are already paired in symmetry[{j}]")
     if "model" in raw:
         text_field(raw["model"], "model")
     return Profile(
@@ -237,14 +246,29 @@ def _list(raw: dict, key: str) -> list:
 
 
 def text_field(value: object, field: str, error: type[ConfigError] = ProfileError) -> str:
-    """A text field: a string, or a date YAML read as one (``measured: 2026-10-14``); anything else is a
+    """A text field: a string (the YAML loader reads ``measured: 2026-10-14`` as one); anything else is a
     mistake that ``str()`` would hide (``robot: [1]`` named the robot "[1]"). Action maps use it too."""
-    if isinstance(value, (str, datetime.date)):
-        text = str(value)
-        if not text.isprintable():  # an escape code recolours the terminal that prints it; a NUL ends a file name
-            raise error(f"{field}: {text!r} holds control characters")
-        return text
+    if isinstance(value, str):
+        if not value.isprintable():  # an escape code recolours the terminal that prints it; a NUL ends a file name
+            raise error(f"{field}: {value!r} holds control characters")
+        return value
     raise error(f"{field}: expected text, got {type(value).__name__}")
+
+
+def iso_date(value: object, field: str) -> str:
+    """A day as ``YYYY-MM-DD`` that exists and has begun somewhere (up to UTC's tomorrow: a site east of UTC
+    is a day ahead); ``2026-13-45``, ``yesterday`` or ``2999-01-01`` is no date a measurement was made on."""
+    text = text_field(value, field)
+    try:
+        day = datetime.date.fromisoformat(text) if re.fullmatch(r"[0-9]{4}-[0-9]{2}-[0-9]{2}", text) else None
+    except ValueError:
+        day = None
+    if day is None:
+        raise ProfileError(f"{field}: {text!r} is not a date; write YYYY-MM-DD, e.g. \"2026-10-14\"")
+    today = datetime.datetime.now(datetime.timezone.utc).date()
+    if day > today + datetime.timedelta(days=1):
+        raise ProfileError(f"{field}: {text} lies in the future (today is {today.isoformat()}, UTC)")
+    return text
 
 
 def _version(value: object, field: str) -> str:
@@ -320,23 +344,23 @@ def _measured(i: int, spec: object, joints: dict[str, JointLimits]) -> MeasuredP
         raise ProfileError(f"{field}.joint: {spec['joint']!r} is not a profiled joint")
     joint = joints[spec["joint"]]
     parameter = text_field(spec["parameter"], f"{field}.parameter")
+    if parameter not in _MEASURED:
+        raise ProfileError(f"{field}.parameter: {parameter!r} is not a parameter cellguard knows; known: "
+                           f"{', '.join(_MEASURED)}")
     return MeasuredParameter(
         joint=joint.name,
         parameter=parameter,
         value=_measured_value(spec["value"], f"{field}.value", parameter, joint),
         unit=str(spec["value"]).split()[1],
-        measured=text_field(spec["measured"], f"{field}.measured"),
+        measured=iso_date(spec["measured"], f"{field}.measured"),
         method=text_field(spec["method"], f"{field}.method"),
     )
 
 
 def _measured_value(text: object, field: str, parameter: str, joint: JointLimits) -> float:
     """The SI value of a measured ``parameter`` of ``joint``: in the parameter's dimension, at least zero and
-    within its range (friction at most the joint's effort) for the parameters cellguard knows."""
-    known = _MEASURED.get(parameter)
-    if known is None:
-        return _quantity(text, field, _PARAMETER_DIMENSIONS)
-    dims = known[joint.kind]
+    within its range (friction at most the joint's effort)."""
+    dims = _MEASURED[parameter][joint.kind]
     if dims is None:
         raise ProfileError(f"{field}: {parameter} of a {joint.kind} joint ({joint.name}) has no unit cellguard "
                            "reads yet; leave it out")
@@ -351,13 +375,20 @@ def _measured_value(text: object, field: str, parameter: str, joint: JointLimits
     return value
 
 
-def _symmetry(i: int, spec: object, names: set[str]) -> SymmetryPair:
+def _symmetry(i: int, spec: object, joints: dict[str, JointLimits]) -> SymmetryPair:
+    """One mirrored pair: two joints of the same kind (a hinge mirrors a hinge), not a joint with itself."""
     field = f"symmetry[{i}]"
     if not isinstance(spec, dict) or set(spec) != {"left", "right", "sign"}:
         raise ProfileError(f"{field}: expected {{left, right, sign}}")
     for side in ("left", "right"):
-        if not _is_joint(spec[side], names):
+        if not _is_joint(spec[side], set(joints)):
             raise ProfileError(f"{field}.{side}: {spec[side]!r} is not a profiled joint")
+    left, right = joints[spec["left"]], joints[spec["right"]]
+    if left.name == right.name:
+        raise ProfileError(f"{field}: {left.name} cannot mirror itself; pair it with the other side's joint")
+    if left.kind != right.kind:
+        raise ProfileError(f"{field}: {left.name} is a {left.kind} and {right.name} a {right.kind}; a joint mirrors "
+                           "one of its own kind")
     if isinstance(spec["sign"], bool) or spec["sign"] not in (1, -1):
         raise ProfileError(f"{field}.sign: must be 1 or -1, got {spec['sign']!r}")
     return SymmetryPair(left=spec["left"], right=spec["right"], sign=float(spec["sign"]))
@@ -377,7 +408,7 @@ def _calibration(spec: object) -> Calibration:
     for k, record in enumerate(records):
         text_field(record, f"calibration.records[{k}]")
     version, previous = (_version(spec[k], f"calibration.{k}") for k in ("version", "previous"))
-    mjcf, date = (text_field(spec[k], f"calibration.{k}") for k in ("mjcf", "date"))
+    mjcf, date = text_field(spec["mjcf"], "calibration.mjcf"), iso_date(spec["date"], "calibration.date")
     if Path(mjcf).name != mjcf:
         raise ProfileError(f"calibration.mjcf: {mjcf!r} must be a file name beside the profile, not a path")
     return Calibration(version, mjcf, date, tuple(records), previous)
