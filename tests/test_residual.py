@@ -80,4 +80,5 @@ def test_with_residual_adds_evidence_to_a_matching_finding_else_model_drift():
     assert len(merged) == 1 and merged[0].evidence[-1] == "residual monitor, cycle 12: m"
     other = with_residual([Finding("friction", 11, 0.8, ("x",), (), ("wrist_flex",))], [alarm])
     assert [f.cause for f in other] == ["friction", "model_drift"] and other[1].joints == ("elbow",)
-    assert "identify --only elbow,friction" in other[1].evidence[1]
+    assert "`cellguard identify DIR --only elbow,friction`" in other[1].evidence[1]  # on an excitation record
+    assert "cellguard excite CELL --seconds 20" in other[1].evidence[1]

@@ -50,6 +50,7 @@ def with_residual(findings: list[Finding], alarms: list[dict]) -> list[Finding]:
             continue
         refit = REFIT.get(a["parameter"], "--params {}").format(a["joint"])
         findings.append(Finding("model_drift", int(a["cycle"] or 0), CONFIDENCE, (
-            words, f"likely parameter: {a['parameter']}; `cellguard identify {refit}` re-fits it"),
+            words, f"likely parameter: {a['parameter']}; `cellguard excite CELL --seconds 20 --out DIR`, then "
+                   f"`cellguard identify DIR {refit}` re-fits it (a run record is 50 Hz between events)"),
             (f"residual.{a['joint']}.{a['signature']}",), (a["joint"],)))
     return findings
