@@ -225,3 +225,13 @@ def test_any_action_name_is_accepted_only_when_printable(name):
         assert "\n" not in str(exc)
     else:
         assert amap.names[0].isprintable()
+
+
+@pytest.mark.parametrize("names", [tuple(a["name"] for a in FOREIGN["actions"][:5]),
+                                   (*(a["name"] for a in FOREIGN["actions"]), "extra")])
+def test_a_names_list_of_another_length_than_the_output_is_refused_naming_both_counts(cell, names):
+    """Compared pairwise up to the shorter list, 5 or 7 names for 6 outputs were accepted."""
+    amap = parse_action_map(FOREIGN, cell.profile)
+    with pytest.raises(ConfigError, match=rf"onnx:x.onnx names {len(names)} actions but outputs 6 per step, and "
+                                          r"the map declares 6"):
+        amap.check_policy(6, names, "onnx:x.onnx")

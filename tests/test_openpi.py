@@ -211,3 +211,20 @@ def test_any_address_is_either_accepted_or_refused_with_a_config_error(tail):
     for address in (f"ws://{tail}", f"wss://127.0.0.1:{tail}", f"ws://[{tail}"):
         with contextlib.suppress(ConfigError):
             check_address(address)
+
+
+def test_a_reply_over_the_message_limit_names_the_limit_and_close_code_1009(map_file):
+    """It read as "connection lost (ConnectionClosedError)", with nothing saying the reply was too big."""
+
+    class Huge(ForeignScriptedPolicy):
+        def infer(self, obs):
+            reply = super().infer(obs)
+            return {**reply, "actions": np.repeat(reply["actions"], 20000, axis=0)}  # 200000 x 6 float64: 9.6 MB
+
+    with serve(Huge(), {"action_names": FOREIGN_NAMES}) as uri:
+        cell = ArmPickPlace()
+        policy = make_openpi_policy(f"{uri}?map={map_file}&retries=0&timeout=5", cell)
+        with pytest.raises(InferenceError, match=r"reply over the limit of 8388608 bytes \(8 MiB\); closed with 1009 "
+                                                 r"\(message too big\)"):
+            policy.infer(cell.observe())
+        policy.close()

@@ -95,6 +95,9 @@ class ActionMap:
         if action_dim != self.action_dim:
             raise ConfigError(f"action map: {source} outputs {action_dim} actions per step, the map declares "
                               f"{self.action_dim} ({', '.join(self.names)})")
+        if names is not None and len(names) != action_dim:  # compared pairwise, the extra or missing names went unseen
+            raise ConfigError(f"action map: {source} names {len(names)} actions but outputs "
+                              f"{action_dim} per step, and the map declares {self.action_dim}")
         if names is not None and tuple(names) != self.names:
             for i, (theirs, ours) in enumerate(zip(names, self.names)):
                 if theirs != ours:

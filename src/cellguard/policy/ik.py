@@ -2,7 +2,9 @@
 
 Runs off the servo path, once per chunk: each step starts from the previous step's solution, so
 a chunk of H poses costs H short solves. Joints outside ``IkSpec.joints`` (the gripper, a free
-part) are frozen; the model's joint ranges bound the solution.
+part) are frozen; the model's joint ranges bound the solution. A step the site cannot reach within
+``REACH_TOLERANCE`` refuses the whole chunk: the solver's best effort for an unreachable target
+flipped between two joint solutions step after step and moved the tool away from it.
 """
 
 from __future__ import annotations
@@ -13,8 +15,10 @@ import numpy as np
 from cellguard.embodiment import Profile
 from cellguard.errors import ConfigError
 from cellguard.embodiment.action_map import EE_AXES, IkSpec
+from cellguard.policy.adapter import InferenceError
 
 POSITION_TOLERANCE = 1e-4  # [m] a step's solve stops when the site is this close to its target
+REACH_TOLERANCE = 1e-3  # [m] a step whose site ends further than this from its target is out of reach
 MAX_ITERATIONS = 30  # per chunk step
 
 
@@ -61,7 +65,9 @@ class IkSolver:
     def solve(self, targets: np.ndarray, q_now: np.ndarray, delta: bool) -> np.ndarray:
         """Joint targets (H, len(spec.joints)) for pose targets (H, 6); axes outside ``spec.axes`` keep the pose
         at ``q_now``. A step whose set axes are not finite gives NaN joints, so the guard refuses the chunk
-        (never a silent hold). With ``delta`` the targets are offsets from the pose at ``q_now``.
+        (never a silent hold). With ``delta`` the targets are offsets from the pose at ``q_now``. A step
+        whose position the site cannot reach within REACH_TOLERANCE raises InferenceError naming it; the
+        orientation is a weighted compromise (``orientation_cost``), not checked.
         """
         mink = self._mink
         self._set(q_now)
@@ -85,8 +91,17 @@ class IkSolver:
                 velocity = mink.solve_ik(self._configuration, tasks, 1.0, "daqp", damping=1e-3,
                                          limits=self._limits, constraints=self._constraints)
                 self._configuration.integrate_inplace(velocity, 1.0)
+            self._check_reached(h, pose[:3])
             out[h] = self._configuration.q[self._qadr[self.joint_index]]
         return out
+
+    def _check_reached(self, step: int, target: np.ndarray) -> None:
+        miss = np.linalg.norm(self._pose_now()[:3] - target)
+        if miss > REACH_TOLERANCE:
+            where = ", ".join(f"{v * 1e3:.1f}" for v in target)
+            raise InferenceError(f"IK: step {step}: target ({where}) mm for site {self.spec.site!r} is out of "
+                                 f"reach: the nearest solution leaves it {miss * 1e3:.1f} mm away (tolerance "
+                                 f"{REACH_TOLERANCE * 1e3:g} mm); chunk refused")
 
     def _set(self, q: np.ndarray) -> None:
         full = self._configuration.q.copy()

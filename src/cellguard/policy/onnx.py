@@ -2,7 +2,9 @@
 
 The model's inputs are fed by name: ``state`` (1, A) the state in the policy's own space,
 ``time_s`` (1, 1) seconds since the episode began, and any camera measurement by its name
-(``part_in_camera`` (1, 3) [m]). Its first output is the chunk, (1, H, A), (H, A) or (1, A).
+(``part_in_camera`` (1, 3) [m]), each in the element type it declares (float16, float or double;
+any other type is refused at load). Its first output is the chunk, (1, H, A), (H, A) or (1, A);
+any other shape is refused (a batch of chunks was flattened into one long chunk).
 Metadata properties the model may carry: ``cellguard.action_names`` (comma-separated),
 ``cellguard.dt_s`` (step period), ``cellguard.action_map`` (an action map, YAML).
 """
@@ -15,11 +17,13 @@ from pathlib import Path
 import numpy as np
 
 from cellguard.errors import ConfigError
-from cellguard.policy.adapter import (DT_RANGE_S, MappedPolicy, PolicyInputs, bounded_float, option_float, resolve_map,
-                                      split_options)
+from cellguard.policy.adapter import (DT_RANGE_S, InferenceError, MappedPolicy, PolicyInputs, bounded_float,
+                                      option_float, resolve_map, split_options)
 
 OPTIONS = {"map": "action map YAML file", "dt": "step period [s], overrides the model's"}
 _FIXED_INPUTS = ("state", "time_s")
+_FEED_TYPES = {"tensor(float16)": np.float16, "tensor(float)": np.float32, "tensor(double)": np.float64}
+MAX_MODEL_BYTES = (1 << 31) - 1  # protobuf reads no message of 2 GiB or more; larger weights are external data
 
 
 class OnnxBackend:
@@ -33,18 +37,27 @@ class OnnxBackend:
         path = Path(path)
         if not path.is_file():
             raise ConfigError(f"policy: onnx:{path}: no such file")
-        self._bytes_hash = hashlib.sha256(path.read_bytes()).hexdigest()
+        size = path.stat().st_size
+        if size > MAX_MODEL_BYTES:  # refused by its size: reading it whole to hash it took 3.3 GB for a 3 GB file
+            raise ConfigError(f"policy: onnx:{path}: {size} bytes; protobuf reads no model file of 2 GiB or more, "
+                              f"so a model this large keeps its weights as ONNX external data beside it")
+        with path.open("rb") as file:
+            self._bytes_hash = hashlib.file_digest(file, "sha256").hexdigest()
+        self._where = f"onnx:{path}"
         options = ort.SessionOptions()
         options.intra_op_num_threads, options.inter_op_num_threads = 1, 1
         try:
             self.session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
         except Exception as exc:  # onnxruntime raises its own untyped errors for a bad file
             raise ConfigError(f"policy: onnx:{path}: not a loadable ONNX model ({type(exc).__name__})") from None
-        self.inputs = [(i.name, i.shape) for i in self.session.get_inputs()]
-        for name, _ in self.inputs:
+        self.inputs = [(i.name, i.shape, i.type) for i in self.session.get_inputs()]
+        for name, _, kind in self.inputs:
             if name not in _FIXED_INPUTS and name not in measurements:
                 raise ConfigError(f"policy: onnx:{path}: model input {name!r} cannot be fed; inputs a cell "
                                   f"offers: {', '.join(_FIXED_INPUTS + measurements)}")
+            if kind not in _FEED_TYPES:  # it loaded, and every call failed at run time
+                raise ConfigError(f"policy: onnx:{path}: model input {name!r} is {kind}; the cell's observations are "
+                                  f"floats, fed as {', '.join(_FEED_TYPES)}")
         meta = self.session.get_modelmeta().custom_metadata_map
         names = meta.get("cellguard.action_names")
         self.action_names = tuple(names.split(",")) if names else None
@@ -59,13 +72,16 @@ class OnnxBackend:
         if 0 in shape:  # an empty chunk (horizon 0) loaded, and the guard rejected every one at run time
             raise ConfigError(f"policy: onnx:{path}: first output {output.name!r} declares shape {shape}; a chunk "
                               f"needs at least one step of at least one action (no dimension 0)")
+        if len(shape) not in (2, 3) or (len(shape) == 3 and isinstance(shape[0], int) and shape[0] != 1):
+            raise ConfigError(f"policy: onnx:{path}: first output {output.name!r} declares shape {shape}; a chunk "
+                              f"is (1, H, {last}), (H, {last}) or (1, {last})")
         self.action_dim = last
         self._output = output.name
 
     def check_widths(self, widths: dict[str, int], source: str) -> None:
         """Refuse a model whose inputs cannot take what the cell feeds (every call would fail at run time);
         each is fed as (1, width)."""
-        for name, shape in self.inputs:
+        for name, shape, _ in self.inputs:
             last = shape[-1] if shape else None
             if len(shape) > 2 or (isinstance(last, int) and last != widths[name]):
                 raise ConfigError(f"policy: {source}: model input {name!r} has shape {shape}; the cell feeds it "
@@ -73,16 +89,20 @@ class OnnxBackend:
 
     def infer(self, inputs: PolicyInputs) -> np.ndarray:
         feed = {}
-        for name, _ in self.inputs:
+        for name, _, kind in self.inputs:
             if name == "state":
                 value = inputs.state
             elif name == "time_s":
                 value = np.array([inputs.time_s])
             else:
                 value = inputs.measurements[name]
-            feed[name] = np.asarray(value, dtype=np.float32).reshape(1, -1)
+            feed[name] = np.asarray(value, dtype=_FEED_TYPES[kind]).reshape(1, -1)
         out = self.session.run([self._output], feed)[0]
-        return out.reshape(-1, self.action_dim)
+        chunk = out[0] if out.ndim == 3 and out.shape[0] == 1 else out
+        if chunk.ndim != 2 or chunk.shape[1] != self.action_dim:
+            raise InferenceError(f"policy: {self._where}: first output has shape {out.shape}; a chunk is "
+                                 f"(1, H, {self.action_dim}), (H, {self.action_dim}) or (1, {self.action_dim})")
+        return chunk
 
     def reset(self) -> None:
         """Stateless: nothing to clear."""

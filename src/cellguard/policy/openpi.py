@@ -96,7 +96,7 @@ class OpenpiBackend:
         raise last
 
     def _exchange(self, message: bytes) -> np.ndarray:
-        from websockets.exceptions import WebSocketException
+        from websockets.exceptions import ConnectionClosed, WebSocketException
 
         if self._ws is None:
             self._connect()
@@ -106,6 +106,8 @@ class OpenpiBackend:
             reply = self._ws.recv(timeout=self.timeout_s)
         except TimeoutError:
             raise InferenceError(f"policy: openpi:{self.uri}: no reply within {self.timeout_s} s") from None
+        except ConnectionClosed as exc:
+            raise InferenceError(f"policy: openpi:{self.uri}: {closed_why(exc)}") from None
         except (OSError, WebSocketException) as exc:
             raise InferenceError(f"policy: openpi:{self.uri}: connection lost ({type(exc).__name__})") from None
         return decode_reply(reply, self.uri)
@@ -140,6 +142,14 @@ def check_address(uri: str) -> None:
         raise ConfigError(f"{where}: not a valid address ({why}); {expected}") from None
     if port == 0:
         raise ConfigError(f"{where}: port 0 cannot be connected to; a port is 1 to 65535")
+
+
+def closed_why(exc) -> str:
+    """Why the connection closed, with its close code: a reply over MAX_MESSAGE read as a lost connection."""
+    if exc.sent is not None and exc.sent.code == 1009:  # we closed it: the reply was over max_size
+        return (f"reply over the limit of {MAX_MESSAGE} bytes ({MAX_MESSAGE >> 20} MiB); closed with 1009 "
+                f"(message too big)")
+    return f"connection lost ({type(exc).__name__}: {exc})"
 
 
 def decode_reply(reply: bytes | str, uri: str) -> np.ndarray:
