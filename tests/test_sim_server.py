@@ -187,7 +187,9 @@ def test_power_removed_on_a_served_robot_ends_the_run_and_is_never_switched_back
 def test_the_server_killed_during_the_last_retreat_stops_the_run(server, tmp_path):
     """The retreat was aborted by the link fault and the run still exited 0 with no word of it."""
     proc, port = server
-    run = Run(parse_scenario(scenario(port, sway_file(tmp_path / "sway.npz"))))
+    raw = scenario(port, sway_file(tmp_path / "sway.npz"))
+    raw["cycle"]["seconds"] = 2.5  # the sway's far end, 0.1 rad from home: a retreat to play
+    run = Run(parse_scenario(raw))
 
     def kill():
         while not any(e.kind == "retreat_begin" for e in list(run.events)):

@@ -358,10 +358,13 @@ class Run:
     def _play(self, plan: Transition, name: str, t0: int, signals: int | None = None) -> np.ndarray:
         """Play a transition tick by tick; return the pose it left the robot at. A stop input, a link fault or
         an operator's signal past ``signals`` (default: those so far) aborts it: it brakes to a standstill
-        under the profile's limits and holds there."""
+        under the profile's limits and holds there. A plan that only settles the command is not told as a
+        transition (every run's last cycle ended with its command a few ms from rest)."""
         events, link, rec = self.events, self.link, self.recording
         signals = self.operator.count if signals is None else signals
-        events.append(Event(t0, EventKind(f"{name}_begin"), f"{name}: {plan.duration_s:.2f} s to {np.round(plan.target, 3).tolist()}"))
+        if not plan.settles:
+            events.append(Event(t0, EventKind(f"{name}_begin"),
+                                f"{name}: {plan.duration_s:.2f} s to {np.round(plan.target, 3).tolist()}"))
         t, held = t0, plan.start
         with self.clock.ticking():
             for steps, setpoint in enumerate(plan.setpoints()):
@@ -376,7 +379,8 @@ class Run:
                     return held if brake is None else self._send(brake.setpoints(), rec)
                 held = self._send([setpoint], rec)
                 t = self.clock.now()
-        events.append(Event(t, EventKind(f"{name}_done"), f"{name} complete"))
+        if not plan.settles:
+            events.append(Event(t, EventKind(f"{name}_done"), f"{name} complete"))
         return held
 
     def _send(self, setpoints, rec) -> np.ndarray:

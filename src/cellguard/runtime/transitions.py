@@ -19,7 +19,7 @@ import ruckig
 from cellguard.embodiment import Profile
 
 TOLERANCE = 0.01  # [rad] or [m]: closer than this, no transition is played
-AT_REST = 1e-9  # [unit/s], [unit/s²]: slower than this, a command is at rest
+AT_REST = 1e-9  # [unit/s], [unit/s²]: slower than this, a transition is at rest
 
 
 @dataclass(frozen=True)
@@ -29,6 +29,7 @@ class Transition:
     trajectories: tuple
     target: np.ndarray
     period_ns: int
+    settles: bool = False  # only brakes a command to rest, within tolerance of the target: no transition to tell
 
     @property
     def duration_s(self) -> float:
@@ -46,13 +47,16 @@ class Transition:
         if not all(np.isfinite(x).all() for x in (target, start, *moving)):
             return None
         first: tuple = ()
-        if max(float(np.abs(x).max()) for x in moving) >= AT_REST:
+        dt, jerk = period_ns * 1e-9, profile.array("jerk")
+        # stopped within one tick under the jerk limit, a command is at rest already (a settled arm's 1e-6 rad/s
+        # played a retreat of 0.00 s)
+        if (np.abs(moving[0]) > jerk * dt * dt).any() or (np.abs(moving[1]) > jerk * dt).any():
             stop = cls._stop(profile, start, *moving, period_ns)
             if stop is None:
                 return None
             first, start = stop.trajectories, stop.target
         if float(np.abs(target - start).max()) < tolerance:
-            return cls(first, start, int(period_ns)) if first else None
+            return cls(first, start, int(period_ns), settles=True) if first else None
         dof = profile.dof
         otg, inp, traj = ruckig.Ruckig(dof), ruckig.InputParameter(dof), ruckig.Trajectory(dof)
         inp.current_position, inp.target_position = start.tolist(), target.tolist()
