@@ -81,6 +81,13 @@ class ChunkCurve:
         return (((c[3] * u + c[2]) * u + c[1]) * u + c[0], (3.0 * c[3] * u + 2.0 * c[2]) * u + c[1],
                 6.0 * c[3] * u + 2.0 * c[2])
 
+    def segment(self, t_ns: int) -> tuple[int, float]:
+        """The segment at ``t_ns`` and the time into it [s] (the last one's end once held)."""
+        if t_ns >= self.end_ns:
+            return len(self.coefficients) - 1, self._h
+        k = max((t_ns - self.t0_ns) // self.h_ns, 0)
+        return k, (t_ns - self.t0_ns - k * self.h_ns) * 1e-9
+
     def at(self, t_ns: int) -> np.ndarray:
         """Position at ``t_ns``: the first segment extended before the first knot, held after the last."""
         if t_ns >= self.end_ns:
