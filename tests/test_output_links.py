@@ -88,8 +88,8 @@ def test_export_to_a_stdout_link_on_a_pipe_is_one_line_and_writes_nothing(run, t
     link.symlink_to("/proc/self/fd/1")
     result = _export(run, link, subprocess.PIPE)
     assert result.returncode == 2 and result.stdout == ""
-    assert result.stderr.splitlines() == [f"error: -o {link}: is a FIFO, not a regular file; cellguard replaces "
-                                          f"only regular files: choose another path (nothing written)"]
+    lines = result.stderr.splitlines()  # refused before the record is read, as any other output
+    assert len(lines) == 1 and lines[0].startswith(f"error: -o {link}: is a FIFO, not a regular file; "), lines
     assert sorted(p.name for p in tmp_path.iterdir()) == ["mystdout", "run"] and link.is_symlink()
 
 

@@ -59,7 +59,7 @@ def refuse_output(output: Path, source: Path | None, to_folder: bool = False, *,
             if head.startswith(SQLITE_MAGIC):
                 raise RecordError(f"{name}: is an SQLite database (a release or other store); cellguard never "
                                   f"overwrites a store; choose another path")
-        kind = not_regular(target)
+        kind = not_regular(Path(output))  # stat follows the link itself: /proc/self/fd/1 of a pipe resolves to no name
         parent = next((d for d in target.parents if d.exists()), None)
         blocked = parent is not None and not parent.is_dir()
     except (OSError, RuntimeError) as exc:  # RuntimeError: a symlink loop
