@@ -214,3 +214,7 @@ def test_bad_specs_are_one_line_errors_that_name_the_choices(tmp_path):
         make_bridge(f"lerobot:cellguard_so101?calibration_dir={tmp_path}&lockstep=yes", None)
     with pytest.raises(ConfigError, match="hz must be in"):
         make_bridge(f"lerobot:cellguard_so101?calibration_dir={tmp_path}&hz=0", None)
+    with pytest.raises(ConfigError, match="option hz given more than once"):
+        make_bridge(f"lerobot:cellguard_so101?calibration_dir={tmp_path}&hz=100&hz=5", None)
+    with pytest.raises(ConfigError, match="embodiment='ur5' is not one cellguard knows \\(known: so101\\)"):
+        make_bridge(f"lerobot:cellguard_so101?calibration_dir={tmp_path}&embodiment=ur5", None)

@@ -26,6 +26,8 @@ BASE = {"cell": "arm-pick-place"}
     ({"realtime": {"sleep": True}}, "realtime.sleep"),
     ({"cycle": {"source": "bell"}}, "cycle.source"),
     ({"cycle": {"seconds": 0}}, "cycle.seconds"),
+    ({"cycle": {"source": "task", "seconds": 5}}, "cycle: Value error, seconds belongs to another source than 'task'"),
+    ({"cycle": {"source": "home", "input": "x", "seconds": 5}}, "cycle: Value error, input, seconds belongs"),
     ({"robot": ""}, "robot"),
 ])
 def test_bad_runtime_keys_are_refused_naming_the_key(extra, key):

@@ -12,7 +12,7 @@ from pathlib import Path
 
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from cellguard.control.settings import GuardSettings
 from cellguard.errors import ScenarioError
@@ -35,6 +35,16 @@ class CycleSettings(BaseModel):
     tolerance: float = Field(default=0.01, gt=0.0, le=0.1, description="home pose tolerance per joint [rad] or [m] "
                              "(a cycle has left home 5 tolerances away)")
     seconds: float = Field(default=10.0, gt=0.0, le=3600.0, description="episode length (source: time) [s]")
+
+    @model_validator(mode="after")
+    def _only_its_own_settings(self):
+        """A setting of another source is a mistake (``source: task, seconds: 5`` ran with no time limit)."""
+        owner = {"input": "input", "tolerance": "home", "seconds": "time"}
+        stray = sorted(k for k in self.model_fields_set if owner.get(k, self.source) != self.source)
+        if stray:
+            raise ValueError(f"{', '.join(stray)} belongs to another source than {self.source!r} "
+                             f"({', '.join(f'{k}: {owner[k]}' for k in stray)})")
+        return self
 
 
 class RealtimeSettings(BaseModel):

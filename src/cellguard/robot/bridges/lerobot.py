@@ -272,12 +272,17 @@ def make_lerobot_robot(arg: str, read_timeout_s: float = READ_TIMEOUT_S) -> LeRo
     robot_type, _, query = arg.partition("?")
     if not robot_type:
         raise ConfigError("robot: lerobot: missing the robot type, write lerobot:TYPE?port=...&id=...")
-    options = dict(parse_qsl(query, keep_blank_values=True))
+    pairs = parse_qsl(query, keep_blank_values=True)
+    options = dict(pairs)
+    if len(options) < len(pairs):  # the last of two values won, silently
+        twice = sorted({k for k, _ in pairs if sum(k == j for j, _ in pairs) > 1})
+        raise ConfigError(f"robot: lerobot:{robot_type}: option {', '.join(twice)} given more than once")
     ours = {k: options.pop(k) for k in list(options) if k in OPTIONS}
     name = ours.get("embodiment", TYPE_EMBODIMENT.get(robot_type))
     if name not in EMBODIMENTS:
-        raise ConfigError(f"robot: lerobot:{robot_type}: no embodiment profile for this type; give "
-                          f"?embodiment=NAME (known: {', '.join(EMBODIMENTS)})")
+        what = (f"embodiment={name!r} is not one cellguard knows" if "embodiment" in ours
+                else "no embodiment profile for this type; give ?embodiment=NAME")
+        raise ConfigError(f"robot: lerobot:{robot_type}: {what} (known: {', '.join(EMBODIMENTS)})")
     from cellguard.embodiment.action_map import load_action_map  # the units map is an action map (data, checked)
 
     embodiment = EMBODIMENTS[name]()
