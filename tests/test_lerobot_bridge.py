@@ -193,6 +193,29 @@ def test_a_bus_that_hangs_is_a_read_timeout_and_a_stop_not_a_frozen_loop(tmp_pat
     assert "robot_read_timeout" in kinds and "protective_stop" in kinds, kinds
 
 
+def test_a_home_pose_given_in_lerobot_units_is_where_the_run_retreats_to(tmp_path):
+    """Without a home pose a LeRobot robot stayed wherever the run ended: no retreat, no home cycle source."""
+    plain = _bridge(tmp_path)
+    home = SO101PickPlace(seed=4).q_home
+    lerobot_home = ",".join(f"{v:.6f}" for v in plain.units.to_policy_state(home))
+    plain.close()
+    robot = (f"lerobot:cellguard_so101?seed=4&calibration_dir={tmp_path / 'calibration'}&hz=100"
+             f"&action_period_s=0.01&lockstep=1&home={lerobot_home}")
+    scenario = parse_scenario({"cell": "so101-pick-place", "robot": robot, "seed": 4, "acceptance_cycles": 1,
+                               "production_cycles": 0, "cycle": {"source": "time", "seconds": 1.5}})
+    teaching = SO101PickPlace(seed=4).context()
+    run = Run(scenario, policy_factory=lambda: ScriptedArmPolicy(calibration=teaching, teaching=SO101))
+    np.testing.assert_allclose(run.cell.q_home, home, atol=1e-5)
+    summary = run_scenario(scenario, tmp_path / "run", run=run)
+    kinds = [e["kind"] for e in summary["events"]]
+    assert "retreat_done" in kinds, kinds  # 1.5 s into the cycle the arm is on its way to the part
+    np.testing.assert_allclose(run.link.last_sent, home, atol=1e-4)
+    with pytest.raises(ConfigError, match="option home='1,2' must be 6 finite numbers"):
+        make_bridge(f"lerobot:cellguard_so101?calibration_dir={tmp_path}&home=1,2", None)
+    with pytest.raises(ConfigError, match="option home puts shoulder_pan at .* outside its limits"):
+        make_bridge(f"lerobot:cellguard_so101?calibration_dir={tmp_path}&home=1000,0,0,0,0,50", None)
+
+
 def test_power_off_goes_through_the_robots_motor_bus(tmp_path):
     bridge = _bridge(tmp_path)
     bridge.set_power(False)

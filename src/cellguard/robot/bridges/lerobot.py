@@ -46,7 +46,9 @@ from cellguard.robot.state import Observation, State
 OPTIONS = {"units": "units map YAML (default: the embodiment's LeRobot units map)",
            "embodiment": "profile to guard with (default from the robot type)",
            "hz": "servo rate [Hz] of the loop that drives it (default 50)",
-           "lockstep": "1: a simulated robot that moves one period per send_action; the loop keeps its time"}
+           "lockstep": "1: a simulated robot that moves one period per send_action; the loop keeps its time",
+           "home": "home pose, comma-separated in the units map's order and units (the retreat at the end goes "
+                   "there; cycle source home needs it); without it the robot stays where the run ends"}
 READ_TIMEOUT_S = 0.05  # the scenario's realtime.read_timeout_s default
 _AXES = ("x", "y", "z")
 
@@ -143,7 +145,7 @@ class LeRobotBridge:
     """A connected LeRobot ``Robot`` behind cellguard's Robot calls; arrays in the profile's joint order, SI."""
 
     def __init__(self, robot, profile: Profile, units: ActionMap, dt_ns: int, clock=time.monotonic_ns,
-                 lockstep: bool = False, timeout_s: float = READ_TIMEOUT_S):
+                 lockstep: bool = False, timeout_s: float = READ_TIMEOUT_S, home: np.ndarray | None = None):
         if units.ee_actions:
             raise ConfigError("units map: end-effector entries cannot drive a LeRobot robot's joints; "
                               "map each action key to a joint")
@@ -158,6 +160,7 @@ class LeRobotBridge:
         if lockstep:
             self.clock = lambda: self._t_ns
         self.name = f"lerobot:{robot.name}"
+        self.q_home = home  # (dof,) SI, or None: no retreat, no home cycle source
         self._kt = profile.array("torque_constant")
         self._current_keys = [f"{j}.current" for j in profile.joint_names]
         self._last: State | None = None
@@ -297,8 +300,27 @@ def make_lerobot_robot(arg: str, read_timeout_s: float = READ_TIMEOUT_S) -> LeRo
     lockstep = ours.get("lockstep", "0")
     if lockstep not in ("0", "1"):
         raise ConfigError(f"robot: lerobot: option lockstep must be 0 or 1, got {lockstep!r}")
+    home = _home(ours["home"], profile, units) if "home" in ours else None
     return LeRobotBridge(lerobot_robot(robot_type, options), profile, units, round(1e9 / hz), lockstep=lockstep == "1",
-                         timeout_s=read_timeout_s)
+                         timeout_s=read_timeout_s, home=home)
+
+
+def _home(text: str, profile: Profile, units: ActionMap) -> np.ndarray:
+    """``?home=v1,v2,...`` in the units map's order and units, as a joint pose (dof,) SI inside the limits."""
+    try:
+        values = np.array([float(v) for v in text.split(",")])
+    except ValueError:
+        values = np.array([np.nan])
+    if len(values) != len(units.names) or not np.isfinite(values).all():
+        raise ConfigError(f"robot: lerobot: option home={text[:80]!r} must be {len(units.names)} finite numbers, "
+                          f"comma-separated, for {', '.join(units.names)}")
+    q = units.to_robot(values[None], np.zeros(profile.dof))[0]
+    out = np.flatnonzero((q < profile.q_min) | (q > profile.q_max))
+    if out.size:
+        j = int(out[0])
+        raise ConfigError(f"robot: lerobot: option home puts {profile.joint_names[j]} at {q[j]:.4g}, outside its "
+                          f"limits [{profile.q_min[j]:.4g}, {profile.q_max[j]:.4g}]")
+    return q
 
 
 def lerobot_robot(robot_type: str, options: dict[str, str]):
