@@ -22,6 +22,7 @@ from cellguard.calibrate.identify import CalibrationError
 from cellguard.calibrate.write import write_profile
 from cellguard.cli import app
 from cellguard.embodiment import load_profile
+from cellguard.errors import ProfileError
 from cellguard.record.reader import open_record
 from cellguard.robot.arm_cell import ASSETS
 from cellguard.robot.registry import make_cell
@@ -71,6 +72,18 @@ def test_a_second_write_waits_for_the_first_and_names_its_version(profile):
         os.close(fd)
     waiting.join(30)
     assert _calibration(profile)["version"] == done["b"].version
+
+
+def test_a_folder_that_refuses_locks_is_one_line_and_the_profile_stays(profile, monkeypatch):
+    """flock on an NFS mount without its lock daemon raises ENOLCK: a traceback, exit 1."""
+    def no_locks(fd, op):
+        raise OSError(37, "No locks available")
+
+    before = profile.read_bytes()
+    monkeypatch.setattr(fcntl, "flock", no_locks)
+    with pytest.raises(ProfileError, match="cannot lock the profile's folder .* \\(No locks available\\)"):
+        write_profile(profile, make_cell(ARM), _result(0.3, "b"), "2026-11-02")
+    assert profile.read_bytes() == before
 
 
 def test_two_writes_at_once_keep_both_calibrations_in_one_chain(profile):

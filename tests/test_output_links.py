@@ -5,6 +5,7 @@ behind /dev/stdout is refused with one line."""
 from __future__ import annotations
 
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -106,3 +107,20 @@ def test_a_temporary_name_fits_wherever_its_target_does(name):
     temporary = _temporary_name(name)
     assert len(os.fsencode(temporary)) <= NAME_MAX and temporary.startswith(".") and temporary != name
     assert "/" not in temporary
+
+
+@pytest.mark.parametrize("magic, what", [(b"\x89MCAP0\r\n", "a record (MCAP)"),
+                                         (b"SQLite format 3\x00", "an SQLite database (a store)")])
+def test_a_link_to_a_record_or_a_store_is_never_written_through(tmp_path, magic, what):
+    """A run folder's report.html linked to another run's record: the default report path followed the link and
+    replaced that record with the page, exit 0."""
+    other = tmp_path / "B" / "record.mcap"
+    other.parent.mkdir()
+    other.write_bytes(magic + b"the rest")
+    link = tmp_path / "A" / "report.html"
+    link.parent.mkdir()
+    link.symlink_to("../B/record.mcap")
+    with pytest.raises(OutputError, match=f"report {link}: is {re.escape(what)} \\(through a link to {other}\\); "
+                                          "cellguard never overwrites one"):
+        write_output(link, "<!doctype html>", "report")
+    assert other.read_bytes() == magic + b"the rest" and link.is_symlink()

@@ -19,6 +19,8 @@ from typing import BinaryIO
 from cellguard.errors import OutputError
 
 NAME_MAX = 255  # the longest file name, in bytes, on ext4, XFS, btrfs and APFS
+# what an output never replaces, by the bytes it starts with (a link followed to one destroyed another run's record)
+NEVER_REPLACED = {b"\x89MCAP0\r\n": "a record (MCAP)", b"SQLite format 3\x00": "an SQLite database (a store)"}
 
 
 def make_folder(path: Path, what: str) -> Path:
@@ -116,7 +118,22 @@ def _final_target(path: Path, what: str) -> Path:
     if unnamed:
         raise OutputError(f"{what} {path}: is a link to {points_to}, which no file name reaches; "
                           f"choose another path (nothing written)")
+    kept = never_replaced(target)
+    if kept is not None:
+        via = "" if target == Path(os.path.abspath(path)) else f" (through a link to {target})"
+        raise OutputError(f"{what} {path}: is {kept}{via}; cellguard never overwrites one: choose another path "
+                          f"(nothing written)")
     return target
+
+
+def never_replaced(target: Path) -> str | None:
+    """What ``target`` is if it is a file an output never replaces (a record, a store), else None."""
+    try:
+        with open(target, "rb") as f:
+            head = f.read(max(map(len, NEVER_REPLACED)))
+    except OSError:  # unreadable: the write that follows says why
+        return None
+    return next((what for magic, what in NEVER_REPLACED.items() if head.startswith(magic)), None)
 
 
 def _new_target(path: Path, what: str) -> Path:

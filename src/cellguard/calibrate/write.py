@@ -80,7 +80,11 @@ def _folder_locked(folder: Path) -> Iterator[None]:
     except OSError as exc:
         raise ProfileError(f"--write: cannot open the profile's folder {folder} ({exc.strerror})") from None
     try:
-        fcntl.flock(fd, fcntl.LOCK_EX)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX)
+        except OSError as exc:  # ENOLCK on an NFS mount without its lock daemon
+            raise ProfileError(f"--write: cannot lock the profile's folder {folder} ({exc.strerror}); write the "
+                               "profile on a local disk and copy it") from None
         yield
     finally:
         os.close(fd)  # releases the lock

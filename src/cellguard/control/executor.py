@@ -65,7 +65,10 @@ class PreparedChunk:
 
 def _fade(x: float) -> float:
     """Weight of the reference before a switch, ``x`` (0..1) through the blend: 1 - the quintic smoothstep, so
-    the blend's value, rate and rate of rate match the old reference at 0 and the new chunk at 1."""
+    the blend's value, rate and rate of rate match the old reference at 0 and the new chunk at 1; 0 past it
+    (the polynomial goes negative there: a curve weighed below zero pushed the reference out of the chunks' span)."""
+    if x >= 1.0:
+        return 0.0
     return 1.0 - x * x * x * (10.0 + x * (6.0 * x - 15.0))
 
 
@@ -82,7 +85,7 @@ class Executor:
         self._max_tick_ns = max_tick_ns  # most the playback clock advances per tick [ns] (None: no bound)
         self._span = profile.q_max - profile.q_min
         self._curve = ChunkCurve(0, 1, np.array(q0, dtype=np.float64)[None])  # a hold
-        self._older: list[tuple[ChunkCurve, int]] = []  # curves still fading out, each with when the next took over
+        self._older: list[tuple[ChunkCurve, int, int]] = []  # curves fading out: (curve, switched, blend) [ns]
         self._chunk: PreparedChunk | None = None
         self._t_ns: int | None = None
         self.tau_ns = 0  # playback clock
@@ -127,7 +130,8 @@ class Executor:
         if first + (horizon - 1) * h <= now:
             return [Event(t_ns, EventKind.CHUNK_STALE, f"all {horizon} steps lie before now")]
         placed = curve.shifted(first) if shift else curve
-        self._older.append((self._curve, now))
+        old = self._curve  # fades out before it ends: a curve held past its end lags its plan (1 s blends of 0.5 s
+        self._older.append((old, now, self._blend_for(old, now)))  # chunks drove the tracker into its limits)
         if len(self._older) > MAX_BLENDED:  # chunks far faster than the blend: the oldest curve goes (a step of
             del self._older[0]              # its weight, the price of a bounded tick)
         self._curve = placed
@@ -150,10 +154,10 @@ class Executor:
         if chunk is not None and chunk.uncertainty is not None:
             k = (tau - chunk.curve.t0_ns) // chunk.dt_ns
             self.uncertainty = float(chunk.uncertainty[min(max(k, 0), len(chunk.uncertainty) - 1)])
-        older, blend = self._older, self.blend_ns
-        if older and tau - older[-1][1] >= blend:  # the newest switch's blend is over
+        older = self._older
+        if older and tau - older[-1][1] >= older[-1][2]:  # the newest switch's blend is over
             older.clear()
-        while len(older) > 1 and tau - older[1][1] >= blend:  # faded out under a later switch
+        while older and tau - older[0][1] >= older[0][2]:  # the oldest curve's own switch is over: it weighs nothing
             del older[0]
         if not older:
             return self._curve.at(tau)
@@ -166,12 +170,18 @@ class Executor:
             powers.extend((weight, weight * u, weight * u * u, weight * u * u * u))
         return np.dot(powers, np.concatenate(rows))
 
+    def _blend_for(self, old: ChunkCurve, now: int) -> int:
+        """How long ``old`` fades out from ``now`` [ns]: ``blend_ns``, or less where it ends sooner (a curve that
+        has ended holds its last point and fades over the whole blend); one servo period at least."""
+        left = old.end_ns - now
+        return self.blend_ns if left <= 0 else max(min(self.blend_ns, left), self.dt_ns)
+
     def _weights(self, tau: int):
         """The curves being blended and the weight of each at playback time ``tau``, newest first."""
         keep = 1.0
         curve = self._curve
-        for older, switched in reversed(self._older):
-            w = _fade((tau - switched) / self.blend_ns)
+        for older, switched, blend in reversed(self._older):
+            w = _fade((tau - switched) / blend)
             yield curve, keep * (1.0 - w)
             keep *= w
             curve = older

@@ -12,12 +12,10 @@ from fnmatch import fnmatch
 from pathlib import Path
 
 from cellguard.errors import RecordError
-from cellguard.output import not_regular
+from cellguard.output import never_replaced, not_regular
 from cellguard.record.reader import record_file
-from cellguard.record.scan import MAGIC
 from cellguard.record.writer import RECORD_FILE
 
-SQLITE_MAGIC = b"SQLite format 3\x00"  # the first bytes of every SQLite database (a release store, a fleet store)
 
 
 def refuse_output(output: Path, source: Path | None, to_folder: bool = False, *,
@@ -50,15 +48,9 @@ def refuse_output(output: Path, source: Path | None, to_folder: bool = False, *,
             where = "is a run folder" if run == target else f"is in the run folder {run}"
             raise RecordError(f"{name}: {where}, which holds a record; cellguard never overwrites a record "
                               f"or its run folder; choose a path outside it")
-        if target.is_file():
-            with open(target, "rb") as f:
-                head = f.read(max(len(MAGIC), len(SQLITE_MAGIC)))
-            if head.startswith(MAGIC):
-                raise RecordError(f"{name}: is a record; cellguard never overwrites a record; "
-                                  f"choose another path")
-            if head.startswith(SQLITE_MAGIC):
-                raise RecordError(f"{name}: is an SQLite database (a release or other store); cellguard never "
-                                  f"overwrites a store; choose another path")
+        kept = never_replaced(target) if target.is_file() else None
+        if kept is not None:
+            raise RecordError(f"{name}: is {kept}; cellguard never overwrites one; choose another path")
         kind = not_regular(Path(output))  # stat follows the link itself: /proc/self/fd/1 of a pipe resolves to no name
         parent = next((d for d in target.parents if d.exists()), None)
         blocked = parent is not None and not parent.is_dir()
