@@ -14,36 +14,19 @@ from pathlib import Path
 
 import pytest
 import yaml
+from arm_excitation import ARM, excited, profile  # noqa: F401 (fixtures)
 from cli_util import one_error
 from typer.testing import CliRunner
 
-from cellguard.calibrate.excitation import excitation_scenario, excite
 from cellguard.calibrate.identify import CalibrationError
 from cellguard.calibrate.write import write_profile
 from cellguard.cli import app
 from cellguard.embodiment import load_profile
 from cellguard.errors import ProfileError
 from cellguard.record.reader import open_record
-from cellguard.robot.arm_cell import ASSETS
 from cellguard.robot.registry import make_cell
 
-ARM = "arm-pick-place"
 runner = CliRunner()
-
-
-@pytest.fixture(scope="module")
-def excited(tmp_path_factory):
-    """A 3 s arm excitation (every tick, with motor current)."""
-    out = tmp_path_factory.mktemp("write") / "ex"
-    excite(excitation_scenario(ARM, 3.0), out)
-    return out
-
-
-@pytest.fixture
-def profile(tmp_path) -> Path:
-    path = tmp_path / "arm_profile.yaml"
-    path.write_bytes((ASSETS / "arm_profile.yaml").read_bytes())
-    return path
 
 
 def _result(friction: float, record: str) -> dict:

@@ -26,6 +26,15 @@ HOME = np.array([0.0, -0.3, 1.9, 1.55, 0.0, 0.025])
 NAMES = "shoulder_pan,shoulder_lift,elbow,wrist_flex,wrist_roll,gripper"
 
 
+def _save(graph, path):
+    """``graph`` as an opset-17 model naming the arm's six actions, saved at ``path``."""
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
+    model.ir_version = 8
+    helper.set_model_props(model, {"cellguard.action_names": NAMES})
+    onnx.save(model, path)
+    return path
+
+
 def constant_model(path, value: np.ndarray, declared: list, state_type=TensorProto.FLOAT):
     """A model answering ``value`` whatever its state input (of ``state_type``), its output declared ``declared``."""
     nodes = [helper.make_node("Cast", ["state"], ["s32"], to=TensorProto.FLOAT),
@@ -35,11 +44,7 @@ def constant_model(path, value: np.ndarray, declared: list, state_type=TensorPro
                               [helper.make_tensor_value_info("actions", TensorProto.FLOAT, declared)],
                               [numpy_helper.from_array(value.astype(np.float32), "value"),
                                numpy_helper.from_array(np.zeros((), np.float32), "zero")])
-    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
-    model.ir_version = 8
-    helper.set_model_props(model, {"cellguard.action_names": NAMES})
-    onnx.save(model, path)
-    return path
+    return _save(graph, path)
 
 
 @pytest.fixture(scope="module")
@@ -95,11 +100,7 @@ def batch_model(path, value: np.ndarray):
                               [numpy_helper.from_array(value.astype(np.float32).ravel(), "flat"),
                                numpy_helper.from_array(np.array(value.shape, np.int64), "shape"),
                                numpy_helper.from_array(np.zeros((), np.float32), "zero")])
-    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
-    model.ir_version = 8
-    helper.set_model_props(model, {"cellguard.action_names": NAMES})
-    onnx.save(model, path)
-    return path
+    return _save(graph, path)
 
 
 def test_an_undeclared_batch_of_chunks_is_refused_at_the_call_naming_its_shape(tmp_path, cell):
