@@ -121,6 +121,6 @@ def test_a_link_to_a_record_or_a_store_is_never_written_through(tmp_path, magic,
     link.parent.mkdir()
     link.symlink_to("../B/record.mcap")
     with pytest.raises(OutputError, match=f"report {link}: is {re.escape(what)} \\(through a link to {other}\\); "
-                                          "cellguard never overwrites one"):
+                                          "cellguard never overwrites a record or a store"):
         write_output(link, "<!doctype html>", "report")
     assert other.read_bytes() == magic + b"the rest" and link.is_symlink()

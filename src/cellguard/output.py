@@ -121,8 +121,8 @@ def _final_target(path: Path, what: str) -> Path:
     kept = never_replaced(target)
     if kept is not None:
         via = "" if target == Path(os.path.abspath(path)) else f" (through a link to {target})"
-        raise OutputError(f"{what} {path}: is {kept}{via}; cellguard never overwrites one: choose another path "
-                          f"(nothing written)")
+        raise OutputError(f"{what} {path}: is {kept}{via}; cellguard never overwrites a record or a store: choose "
+                          f"another path (nothing written)")
     return target
 
 

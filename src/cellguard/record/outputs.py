@@ -50,7 +50,8 @@ def refuse_output(output: Path, source: Path | None, to_folder: bool = False, *,
                               f"or its run folder; choose a path outside it")
         kept = never_replaced(target) if target.is_file() else None
         if kept is not None:
-            raise RecordError(f"{name}: is {kept}; cellguard never overwrites one; choose another path")
+            raise RecordError(f"{name}: is {kept}; cellguard never overwrites a record or a store; choose another "
+                              f"path")
         kind = not_regular(Path(output))  # stat follows the link itself: /proc/self/fd/1 of a pipe resolves to no name
         parent = next((d for d in target.parents if d.exists()), None)
         blocked = parent is not None and not parent.is_dir()
