@@ -19,7 +19,9 @@ SCENARIOS = __import__("pathlib").Path(__file__).parents[1] / "scenarios"
 class Loop:
     """The tick path of the runner, on the arm cell, with a hook per tick."""
 
-    def __init__(self, settings: GuardSettings | None = None, speed: float = 1.0):
+    def __init__(self, settings: GuardSettings | None = None, speed: float = 1.0, playback: bool = True):
+        """``playback``: the program reads the playback clock (a speed override slows it, as a taught
+        robot program's does); else it answers in real time, as a policy does."""
         self.cell = make_cell("arm-pick-place", seed=1)
         self.guard = build_guard(self.cell, settings)
         self.executor, self.envelope = self.guard.executor, self.guard.envelope
@@ -28,6 +30,7 @@ class Loop:
         self.policy._t0_ns = 0
         self.policy._program = self.policy._plan(self.cell.observe())
         self.program = lambda t: self.policy._at(np.asarray(t) * speed)
+        self.playback = playback
         self.events, self.log = [], []
 
     def run(self, ticks: int, hook=None, silent_after: int | None = None, uncertainty=None) -> np.ndarray:
@@ -37,7 +40,7 @@ class Loop:
             t = cell.t_ns
             if k % 50 == 0 and (silent_after is None or k < silent_after):
                 # a taught program reads the playback clock (speed override), so a slowed clock slows it
-                steps = ((ex.tau_ns if k else t) + (np.arange(25) + 1) * 20_000_000) * 1e-9
+                steps = ((ex.tau_ns if k and self.playback else t) + (np.arange(25) + 1) * 20_000_000) * 1e-9
                 unsure = None if uncertainty is None else np.full(25, uncertainty(k))
                 self.events += self.guard.push(ActionChunk(self.program(steps), t, 20_000_000, unsure), t)
             if hook is not None:
@@ -126,6 +129,41 @@ def test_reduced_speed_input_caps_the_tool_speed_and_keeps_the_path():
     assert max(s for _, _, s, _ in fast.log) > 0.4
     assert max(s for _, _, s, _ in slow.log[400:]) <= 0.25 * 1.05  # after the ramp-down
     assert "reduced_speed_input" in _kinds(slow.events)
+    # the slowed clock keeps the path: once slowed, the reference is under the cap and passes exactly
+    assert all(np.array_equal(r, s) for r, s, _, _ in slow.log[400:])
+
+
+def _tool_speeds(loop: Loop) -> np.ndarray:
+    """The tool speed of the setpoints sent [m/s], from the cell's kinematics (not the envelope's own figure)."""
+    tips = np.array([loop.cell.tool_point(s) for _, s, _, _ in loop.log])
+    return np.linalg.norm(np.diff(tips, axis=0), axis=1) / 1e-3
+
+
+@pytest.mark.parametrize("settings, reduced, cap", [(None, True, 0.25), (GuardSettings(tool_speed_max=0.3), False, 0.3),
+                                                    (GuardSettings(uncertainty_threshold=0.5), False, 0.25)])
+def test_a_speed_cap_holds_the_sent_setpoints_of_a_policy_that_answers_in_real_time(settings, reduced, cap):
+    """The slowed playback clock alone left them at 0.95 m/s: each chunk is placed where the program is now,
+    so the reference jumped ahead of the clock and the tracker caught up at full joint speed."""
+    loop = Loop(settings, playback=False)
+
+    def hook(k, lp):
+        lp.cell.safety_inputs = SafetyInputs(reduced_speed=reduced)
+
+    loop.run(1300, hook, uncertainty=lambda k: 0.9)
+    speeds = _tool_speeds(loop)
+    assert speeds.max() <= cap * 1.01 and speeds.max() > 0.5 * cap  # capped from rest (no ramp), still moving
+    sent = np.array([s for _, s, _, _ in loop.log])
+    assert (np.abs(np.diff(sent, axis=0)) <= loop.cell.profile.array("velocity") * 1e-3 * 1.002).all()
+
+
+def test_a_reference_under_the_speed_cap_passes_exactly():
+    # the program at 0.6 peaks at 0.318 m/s in its first 2 s: the playback clock slows for a stretch ahead
+    # faster than 0.9 of the cap, so this cap leaves the reference as it is
+    loop = Loop(GuardSettings(tool_speed_max=0.36), speed=0.6)
+    loop.run(2000)
+    assert 0.31 < _tool_speeds(loop).max() < 0.36
+    assert all(np.array_equal(r, s) for r, s, _, _ in loop.log)
+    assert not [e for e in loop.events if e.kind not in ("chunk_steps_dropped",)]
 
 
 def test_uncertainty_gate_holds_when_the_policy_is_unsure():

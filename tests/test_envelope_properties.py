@@ -12,6 +12,8 @@ the rule (|effort| above the fraction of the limit on consecutive ticks for the 
 
 from __future__ import annotations
 
+from functools import partial
+
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -20,6 +22,7 @@ from hypothesis import strategies as st
 from cellguard.control.config import GuardConfig
 from cellguard.control.envelope import Envelope
 from cellguard.control.executor import Executor
+from cellguard.control.guard import LOOKAHEAD_NS
 from cellguard.policy.chunk import ActionChunk
 from cellguard.robot.protocol import SafetyInputs
 from cellguard.robot.state import State
@@ -72,9 +75,13 @@ def _chunk(kind: str, t_ns: int, seed: int) -> ActionChunk | None:
     return ActionChunk(actions, t_obs, int(rng.choice([10, 20, 50])) * DT_NS)
 
 
-def _run(stream, stop_at: int | None = None, category: int = 2, ticks: int = 1500):
-    executor = Executor(PROFILE, Q0, DT_NS)
-    envelope = Envelope(PROFILE, Q0, DT_NS, GuardConfig(watchdog_s=0.2))
+def _run(stream, stop_at: int | None = None, category: int = 2, ticks: int = 1500, reduced: bool = False):
+    """The setpoints (ticks, D) and whether power was on; ``reduced``: the reduced-speed input held on, with
+    the cell's tool model (the cap needs one)."""
+    tool = CELL.tool_point if reduced else None
+    executor = Executor(PROFILE, Q0, DT_NS, tool=tool)
+    envelope = Envelope(PROFILE, Q0, DT_NS, GuardConfig(watchdog_s=0.2), tool=tool)
+    ahead = partial(executor.tool_speed_ahead, LOOKAHEAD_NS)
     schedule, t = {}, 0
     for gap, kind, seed in stream:
         t += gap * DT_NS
@@ -87,9 +94,9 @@ def _run(stream, stop_at: int | None = None, category: int = 2, ticks: int = 150
             chunk = _chunk(*schedule[t], t)
             if chunk is not None:
                 executor.push(chunk, t)
-        safety = SafetyInputs(stop=category) if stop_at is not None and k >= stop_at else SafetyInputs()
+        safety = SafetyInputs(stop=category if stop_at is not None and k >= stop_at else None, reduced_speed=reduced)
         reference = executor.reference(t, envelope.scale)
-        out[k], _ = envelope.apply(t, reference, None, safety, executor.last_chunk_ns, executor.uncertainty)
+        out[k], _ = envelope.apply(t, reference, None, safety, executor.last_chunk_ns, executor.uncertainty, ahead)
         powered[k] = envelope.power
     return out, powered
 
@@ -111,6 +118,18 @@ def _check_limits(setpoints: np.ndarray, powered: np.ndarray) -> None:
 def test_setpoints_never_exceed_the_limits(stream):
     setpoints, powered = _run(stream)
     _check_limits(setpoints, powered)
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(streams())
+def test_the_reduced_speed_input_caps_the_tool_speed_on_every_stream(stream):
+    """From rest, so from the first tick. 1 %: where the cap starts to bind, the joints' accelerations carry the
+    tool a little over it for a few milliseconds while ruckig eases them off."""
+    setpoints, powered = _run(stream, reduced=True)
+    _check_limits(setpoints, powered)
+    tips = np.array([CELL.tool_point(q) for q in np.vstack([Q0, setpoints])])
+    speeds = np.linalg.norm(np.diff(tips, axis=0), axis=1) / (DT_NS * 1e-9)
+    assert speeds.max() <= GuardConfig().reduced_speed * 1.01, speeds.max()
 
 
 def _stop_bound_s(v: np.ndarray, a: np.ndarray) -> float:

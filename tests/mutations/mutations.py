@@ -23,6 +23,14 @@ TRACKER = "src/cellguard/control/tracker.py"
 ENVELOPE = "src/cellguard/control/envelope.py"
 CHECKS = "src/cellguard/control/checks"
 EXECUTOR = "src/cellguard/control/executor.py"
+WORKSPACE = "tests/test_workspace.py"
+BOX_INSIDE = f"{WORKSPACE}::test_a_reference_inside_the_box_is_followed_without_leaving_it"
+BOX_LEAVES = f"{WORKSPACE}::test_a_stop_for_a_reference_that_leaves_the_box_ends_inside_it"
+BOX_BACK_IN = f"{WORKSPACE}::test_a_tool_found_outside_the_box_comes_back_in_without_a_stop"
+BOX_RANDOM = f"{WORKSPACE}::test_random_chunks_never_take_the_tool_out_of_the_box"
+REAL_TIME_CAP = f"{ENV}::test_a_speed_cap_holds_the_sent_setpoints_of_a_policy_that_answers_in_real_time"
+SOFT_5MS = f"{LIM}::test_a_joint_stops_inside_its_soft_limits_at_a_5_ms_servo_period"
+SPEEDS_UP = f"{LIM}::test_a_reference_that_speeds_up_past_the_velocity_limit_is_held_at_it"
 
 
 @dataclass(frozen=True)
@@ -39,17 +47,18 @@ class Mutation:
 MUTATIONS = (
     Mutation("position_lookahead_off", "position soft limit: stopping-distance look-ahead", TRACKER,
              "            if fit and (qj - far < lo or qj + far > hi):\n"
-             "                fit = self._stop_fits(j, qj, v, a)",
-             "            if False:\n                fit = self._stop_fits(j, qj, v, a)", (POSITION, LIMITS)),
+             "                fit = self._stop_fits(j, qj, v_end, a)",
+             "            if False:\n                fit = self._stop_fits(j, qj, v_end, a)",
+             (POSITION, LIMITS, SOFT_5MS)),
     Mutation("soft_margin_zero", "position: soft limits inside the hard limits", ENVELOPE,
              "margin = c.soft_margin * (hi - lo)", "margin = 0.0 * (hi - lo)", (POSITION,)),
     Mutation("recovery_ignores_position", "position: the recovery brakes and aims inside the soft limits", TRACKER,
-             "target = [min(max(x, lo), hi) for x, lo, hi in zip(r, self._lo_f, self._hi_f)]", "target = r",
+             "t = min(max(x, lo), hi)", "t = x",
              (POSITION, LIMITS),
              also=((TRACKER, "if not self._stop_fits(j, nq[j], nv[j], na[j]):", "if False:"),)),
     Mutation("velocity_limit_x10", "velocity limit", TRACKER,
              "np.stack([self.v_max, self.a_max, self.j_max])", "np.stack([self.v_max * 10, self.a_max, self.j_max])",
-             (f"{OVER}[velocity]", LIMITS)),
+             (f"{OVER}[velocity]", LIMITS, SPEEDS_UP)),
     Mutation("acceleration_limit_x10", "acceleration limit", TRACKER,
              "np.stack([self.v_max, self.a_max, self.j_max])", "np.stack([self.v_max, self.a_max * 10, self.j_max])",
              (f"{OVER}[acceleration]", LIMITS)),
@@ -67,17 +76,28 @@ MUTATIONS = (
              "self._hold = max(1, round(hold_s * 1e9 / dt_ns))", "self._hold = 3 * max(1, round(hold_s * 1e9 / dt_ns))",
              (f"{PROPS}::test_an_effort_stop_follows_exactly_from_the_measured_efforts",)),
     Mutation("box_off", "tool box", f"{CHECKS}/__init__.py",
-             "        after.append(WorkspaceLookahead(c.box, profile))", "        pass",
-             (f"{ENV}::test_workspace_box_stops_before_the_tool_leaves_it",)),
-    Mutation("box_lookahead_off", "tool box: look-ahead", f"{CHECKS}/workspace.py",
-             "k = 0.5 * t_stop + self._t_jerk", "k = 0.0",
-             (f"{ENV}::test_workspace_box_stops_before_the_tool_leaves_it",)),
+             "        after.append(WorkspaceLookahead(c.box, profile, tool, tracker))", "        pass",
+             (f"{ENV}::test_workspace_box_stops_before_the_tool_leaves_it", BOX_INSIDE)),
+    Mutation("box_lookahead_off", "tool box: look-ahead along the stop's path", f"{CHECKS}/workspace.py",
+             "        plan = tracker.stop_plan()\n        if plan is None:",
+             "        return _inside(tip, lo, hi, 0.0)\n        plan = tracker.stop_plan()\n        if plan is None:",
+             (f"{ENV}::test_workspace_box_stops_before_the_tool_leaves_it", BOX_INSIDE, BOX_LEAVES)),
+    Mutation("box_path_margin_off", "tool box: the path between the stop's samples", f"{CHECKS}/workspace.py",
+             "0.5 * max(gaps[k], gaps[k + 1])", "0.0", (BOX_INSIDE, BOX_LEAVES, BOX_RANDOM)),
+    Mutation("box_excursion_refused", "tool box: a tool found outside may come back in", f"{CHECKS}/workspace.py",
+             "return None if self._grown and self._end_fits(tracker) else STOP", "return STOP", (BOX_BACK_IN,)),
+    Mutation("box_resume_flood", "tool box: no stop flood where the way on leads out", f"{CHECKS}/workspace.py",
+             "return None if _depth(tool(step).tolist(), lo, hi) > depth else STOP", "return None",
+             (BOX_LEAVES,)),
     Mutation("tool_speed_cap_off", "tool speed cap", f"{CHECKS}/tool_speed.py",
              "        return self._cap", "        return None",
              (f"{ENV}::test_tool_speed_cap_holds_in_normal_operation",)),
     Mutation("reduced_speed_input_off", "reduced speed (safety controller input)", f"{CHECKS}/safety_input.py",
              "return self._cap if tick.safety.reduced_speed else None", "return None",
              (f"{ENV}::test_reduced_speed_input_caps_the_tool_speed_and_keeps_the_path",)),
+    Mutation("tool_speed_cap_tracker_off", "tool-speed cap: the sent setpoints, not just the playback clock",
+             ENVELOPE, "setpoint = tracker.follow(reference, tool_cap)", "setpoint = tracker.follow(reference)",
+             (REAL_TIME_CAP, f"{PROPS}::test_the_reduced_speed_input_caps_the_tool_speed_on_every_stream")),
     Mutation("reduced_speed_ignores_tool_speed", "reduced speed: cap on the tool speed ahead", ENVELOPE,
              "target = min(1.0, 0.9 * cap.cap / speed)", "target = min(1.0, 0.9 * cap.cap / speed * 4)",
              (f"{ENV}::test_reduced_speed_input_caps_the_tool_speed_and_keeps_the_path",)),

@@ -9,7 +9,13 @@ watchdog on policy silence; and stops of IEC 60204-1 categories 0, 1 and 2.
 
 Speed is lowered by slowing the executor's playback clock (``scale``), which keeps the path
 and stretches time. ``scale`` moves with bounded rate and rate of rate, so the slow-down itself
-stays inside the acceleration and jerk limits for a reference inside them.
+stays inside the acceleration and jerk limits for a reference inside them. The clock alone does
+not cap the setpoints: a policy that answers in real time places each chunk where the program is
+now, so the reference jumps ahead of a slowed clock. So where a reference sample would move the
+tool faster than the cap, or while the tracker recovers under one, the tracker gets the cap in
+joint terms (``reach.ToolCap``: the tool Jacobian's column norms at the setpoint, by finite
+differences of ``tool``) and shares it out among the joints (``tracker``). A sample under the cap
+passes exactly, and the Jacobian is computed only on the ticks where the cap binds.
 
 This is software, not a safety-rated function: it obeys the certified safety controller's
 protective-stop and reduced-speed inputs; it does not replace them.
@@ -17,7 +23,9 @@ protective-stop and reduced-speed inputs; it does not replace them.
 Every intervention is an ``Event`` with its time, joint, what was asked, what was sent and
 why; a lasting condition raises one event when it starts. The checks other than the joint
 limits are sibling modules in ``checks/``, each answering a stop or a speed-cap request per tick;
-``apply`` combines them in a short loop.
+``apply`` combines them in a short loop. A stop asked for after tracking (the box: a stop from the
+setpoint just computed may not end inside) replaces that setpoint: the stop starts from the last
+one, which was checked the same way a tick earlier.
 """
 
 from __future__ import annotations
@@ -30,6 +38,7 @@ import numpy as np
 from cellguard.control.checks import SpeedCap, Stop, Tick, build_checks
 from cellguard.control.config import GuardConfig
 from cellguard.control.events import Event, EventKind
+from cellguard.control.reach import ToolCap, reach_at
 from cellguard.control.tracker import PASS, STOP, Tracker
 from cellguard.embodiment import Profile
 from cellguard.robot.protocol import SafetyInputs
@@ -53,7 +62,7 @@ class Envelope:
         margin = c.soft_margin * (hi - lo)
         self.tracker = Tracker(q0, profile.array("velocity"), profile.array("acceleration"), profile.array("jerk"),
                                lo + margin, hi - margin, dt_ns * 1e-9)
-        checks = build_checks(profile, c, self.dt_ns, tool)
+        checks = build_checks(profile, c, self.dt_ns, tool, self.tracker)
         self._stops, self._speeds, self._after, self._all = (
             checks.stops, checks.speeds, checks.after, checks.stops + checks.speeds + checks.after)
         self._tick = Tick()
@@ -91,9 +100,11 @@ class Envelope:
                     events.append(r.detail)
                 if request is None or r.category < request.category:
                     request = r
+        resumed = None  # the stop cleared on this tick, and where its event is
         if request is not None:
             self._begin_stop(t_ns, request, events)
         elif self.stop_category == 2 and tracker.stopped:
+            resumed = (self.stop_category, self.stop_kind, self.stop_reason), len(events)
             events.append(Event(t_ns, EventKind.RESUME, f"cleared: {self.stop_reason}"))
             self.stop_category = self.stop_kind = self.stop_reason = None
             self._settle_tool()
@@ -106,21 +117,40 @@ class Envelope:
                 events.append(Event(t_ns, EventKind.POWER_REMOVED, f"category 1 stop complete: {self.stop_reason}",
                                     category=1))
             return setpoint, events
-        self._update_scale(tick, tool_speed_ahead, events)
+        cap = self._update_scale(tick, tool_speed_ahead, events)
         before = tracker.mode  # the modes before this tick (the tracker replaces its list, never changes it)
-        setpoint = tracker.follow(reference)
+        was = tracker.snapshot() if self._after else None
+        tip = tool_cap = None
+        if cap is not None and self._tool is not None:
+            tip, tool_cap = self._tool_cap(reference, cap)
+        setpoint = tracker.follow(reference, tool_cap)
         if tracker.failed is not None:  # ruckig refused its input: this tick braked every joint
             events.append(Event(t_ns, EventKind.TRACKER_FAILED, f"ruckig: {tracker.failed}; braking this tick"))
             tracker.failed = None
         if not tracker.passing:
             self._report_tracking(t_ns, reference, setpoint, before, events)
         if self._tool is not None:
-            self._follow_tool(tick, setpoint)
+            tip_was = self._tip
+            self._follow_tool(tick, setpoint, tip if setpoint is reference else None)
             for check in self._after:
                 r = check.request(tick)
                 if r is not None:
-                    self._begin_stop(t_ns, r, events)
+                    self._tip = tip_was
+                    return self._refuse(tick, r, was, resumed, events), events
         return setpoint, events
+
+    def _refuse(self, tick: Tick, stop: Stop, was: tuple, resumed, events: list[Event]) -> np.ndarray:
+        """A stop from the setpoint just computed may not fit: the stop starts from the last one instead
+        (``was``, checked a tick ago), and a stop cleared on this same tick (``resumed``) simply holds on."""
+        if resumed is not None and resumed[0][1] == stop.kind:
+            (self.stop_category, self.stop_kind, self.stop_reason), at = resumed
+            del events[at]
+        else:
+            self._begin_stop(tick.t_ns, stop, events)
+        self.tracker.restore(was)
+        setpoint = self.tracker.stop(tick.reference)
+        self._follow_tool(tick, setpoint)
+        return setpoint
 
     def target_problem(self, q: np.ndarray) -> str | None:
         """Why the pose ``q`` may not be a transition's target: its tool point lies outside the box (a transition
@@ -154,15 +184,22 @@ class Envelope:
         if self._tool is not None:
             self._tip = tuple(self._tool(self.tracker.p).tolist())
 
-    def _follow_tool(self, tick: Tick, setpoint: np.ndarray) -> None:
-        """The tool point of ``setpoint`` and its finite-difference velocity, into ``tick`` and ``tool_speed``."""
-        x, y, z = self._tool(setpoint).tolist()
+    def _tool_cap(self, reference: np.ndarray, cap: float) -> tuple[tuple, ToolCap | None]:
+        """The tool point of ``reference``, and the cap [m/s] in joint terms at the setpoint where the reference
+        sample would break it or the tracker is not passing through (else None: the sample passes as it is)."""
+        tip = x, y, z = tuple(self._tool(reference).tolist())
         px, py, pz = self._tip
-        inv_dt = 1e9 / self.dt_ns
-        vx, vy, vz = (x - px) * inv_dt, (y - py) * inv_dt, (z - pz) * inv_dt
+        if math.sqrt((x - px) ** 2 + (y - py) ** 2 + (z - pz) ** 2) * 1e9 <= cap * self.dt_ns and self.tracker.passing:
+            return tip, None
+        return tip, ToolCap(cap, reach_at(self._tool, self.tracker.p, self._tip))
+
+    def _follow_tool(self, tick: Tick, setpoint: np.ndarray, tip: tuple | None = None) -> None:
+        """The tool point of ``setpoint`` (``tip`` if already known) into ``tick``, its finite-difference speed
+        into ``tool_speed``."""
+        x, y, z = self._tool(setpoint).tolist() if tip is None else tip
+        px, py, pz = self._tip
         self._tip = tick.tip = (x, y, z)
-        tick.tip_v, tick.setpoint, tick.v = (vx, vy, vz), setpoint, self.tracker.samples[1]
-        self.tool_speed = math.sqrt(vx * vx + vy * vy + vz * vz)
+        self.tool_speed = math.sqrt((x - px) ** 2 + (y - py) ** 2 + (z - pz) ** 2) * 1e9 / self.dt_ns
 
     # -- stops -----------------------------------------------------------------------------
     def _begin_stop(self, t_ns: int, stop: Stop, events: list[Event]) -> None:
@@ -177,8 +214,9 @@ class Envelope:
 
     # -- speed -----------------------------------------------------------------------------
     def _update_scale(self, tick: Tick, speed_ahead: Callable[[], float | None] | None,
-                      events: list[Event]) -> None:
-        """The lowest tool-speed cap the speed checks ask for sets the playback speed; conditions reported."""
+                      events: list[Event]) -> float | None:
+        """The lowest tool-speed cap the speed checks ask for sets the playback speed; conditions reported.
+        Returns that cap [m/s], None if none is in force."""
         cap: SpeedCap | None = None
         without_tool = 1.0
         on = None
@@ -200,6 +238,7 @@ class Envelope:
             elif speed > 0.0:
                 target = min(1.0, 0.9 * cap.cap / speed)
         self._ramp(target)
+        return None if cap is None else cap.cap
 
     def _ramp(self, target: float) -> None:
         """Move ``scale`` toward ``target`` with bounded rate and rate of rate (a 2nd-order slew)."""

@@ -4,8 +4,9 @@ Transparency first. Each tick, per joint, the reference sample is checked as the
 setpoint: if the finite-difference velocity, acceleration and jerk of the setpoint sequence
 with that sample appended are inside the limits, and the joint could still stop before its
 soft position limit from there, the sample is sent exactly as it is (zero added delay, no
-filter). Only the joints where it is not are handed to ruckig (community edition), each joint
-on its own (no synchronisation, so one joint's intervention leaves the others untouched):
+filter). Only the joints where it is not are handed to ruckig (community edition), so one
+joint's intervention leaves the others untouched; the joints it recovers keep the direction
+they close on the reference with (phase synchronisation, ``_SYNC``), each stops on its own:
 
 * ``offset``: ruckig drives the *error* (setpoint minus reference) to zero within the headroom
   the reference leaves, so the setpoint lands exactly back on a moving reference and hands
@@ -15,6 +16,16 @@ on its own (no synchronisation, so one joint's intervention leaves the others un
   correction (the sample clipped to the soft limits), within the full limits; used when the offset candidate does not
   fit (the reference itself is too fast, or it heads past a limit).
 * ``stop``: ruckig's velocity interface to zero velocity, each joint time-optimal.
+
+A tool-speed cap (``ToolCap``, given on the ticks where it may bind) lowers each joint's velocity
+limit: the cap is shared out along the velocity the absolute recovery aims for (the closing
+velocity scaled as a whole, so the recovery keeps its direction) such that sum_j reach_j |v_j|
+<= cap, which bounds the tool speed whatever each joint does within its share. The shares apply
+once the sample breaks the cap and for as long as ruckig drives any joint; a sample under the cap
+passes exactly.
+Pass-through is refused where a sample is faster than its share, and ruckig brakes a joint that
+is above its share within the acceleration and jerk limits (its start state is never clipped to
+the lowered limit: that would be a velocity step).
 
 Position limits are never clamped: a sample is refused when the stopping distance from its
 velocity and acceleration no longer fits before the soft limit (a jerk-limited bound, more
@@ -26,12 +37,22 @@ never an exception on the servo path.
 
 from __future__ import annotations
 
+import math
+from collections.abc import Callable
+
 import numpy as np
 import ruckig
+
+from cellguard.control.reach import ToolCap
 
 PASS, OFFSET, ABSOLUTE, STOP = 0, 1, 2, 3
 GAIN = 8.0  # [1/s] position feedback of the absolute recovery; slow against the jerk ramps (A/J ~ 60 ms)
 _PLANNED = (ruckig.Result.Working, ruckig.Result.Finished)  # what ruckig returns when it has a plan
+# The joints of the absolute recovery keep the direction of their closing velocity: collinear profiles where
+# ruckig can, else they arrive together. One by one, each at its own best, they ran on the sign pattern of their
+# targets and the tool left the reference's path (out of the workspace box). Not under a tool-speed cap: from a
+# state off that direction, the synchronised profiles left a joint above its share of the cap.
+_SYNC = ruckig.Synchronization.Phase
 # result codes of ruckig's result.hpp that this binding's enum does not name (it raises ValueError on them)
 _UNNAMED = {"-101": "ErrorTrajectoryDuration: the trajectory duration exceeds its numerical limits",
             "-104": "ErrorZeroLimits: the trajectory conflicts with a limit of zero"}
@@ -64,8 +85,11 @@ class Tracker:
         # cheaper than the dozens of numpy calls on (D,) arrays it would take for a handful of joints
         self._vmax_f, self._amax_f, self._jmax_f, self._lo_f, self._hi_f = (
             x.tolist() for x in (self.v_max, self.a_max, self.j_max, self.lo, self.hi))
-        self._v3_f, self._v3sq_f, self._inv_2a_f, self._tail_f = (
-            x.tolist() for x in (self._v3, self._v3sq, self._inv_2a, self._tail))
+        self._half_inv_j_f = self._half_inv_j.tolist()
+        self._stop_consts = tuple(zip(*(x.tolist() for x in (self.a_max, self.j_max, self._v3, self._v3sq,
+                                                              self._inv_2a, self._tail))))  # what _travel reads
+        self._far_f = tuple(zip(*(x.tolist() for x in (self._far0, self._far1, self._inv_2a, self.a_max))))
+        self._jerk_tick = (self.j_max * dt).tolist()  # the acceleration one tick of full jerk removes
         self._joints = tuple(zip(*(x.tolist() for x in (*self._limits, self._half_inv_j, self._far0, self._far1,
                                                           self._inv_2a, self.lo, self.hi))))  # what _fits reads
         dof = len(self.v_max)
@@ -77,11 +101,13 @@ class Tracker:
         self._otg = {id(inp): (ruckig.Ruckig(dof, dt), ruckig.OutputParameter(dof))
                      for inp in (self._absolute_in, self._offset_in, self._stop_in)}
         self._stop_in.target_velocity = np.zeros(dof)
+        self._planner, self._plan = ruckig.Ruckig(dof), ruckig.Trajectory(dof)  # a stop planned whole (stop_plan)
         self._offset_in.target_position = np.zeros(dof)  # the error's target: none
         # the least headroom the offset plan keeps for v, a, j
         self._floors = tuple((0.05 * x).tolist() for x in (self.v_max, self.a_max, self.j_max))
         self._stop_in.target_acceleration = self._absolute_in.target_acceleration = np.zeros(dof)
-        self.failed: str | None = None
+        self.failed: str | None = None  # why ruckig refused the recovery, which then braked every joint
+        self._error: str | None = None  # why ruckig refused its last input
         self.reset(q0)
 
     def _input(self, dof: int, interface) -> ruckig.InputParameter:
@@ -103,62 +129,57 @@ class Tracker:
 
     # -- the checks ------------------------------------------------------------------------
     def _stop_distance(self, j: int, v: float, a: float) -> float:
-        """Distance [unit] a jerk-limited stop of joint ``j`` from velocity ``v`` and acceleration
-        ``a`` covers in the + direction: jerk down to -a_max, hold it, jerk back to zero as
-        velocity reaches zero. Exact for that profile; where the velocity runs out before -a_max
-        is reached it falls back to a looser bound, so it is never shorter than ruckig's
-        time-optimal stop. Plain floats: for a handful of joints near a limit this is several
-        times cheaper than array arithmetic on the servo tick.
-        """
-        amax, jmax = self._amax_f[j], self._jmax_f[j]
-        t1 = (max(a, -amax) + amax) / jmax
-        v1 = v + t1 * (a - 0.5 * jmax * t1)
-        if v1 >= self._v3_f[j]:
-            return (t1 * (v + t1 * (0.5 * a - jmax * t1 / 6.0)) + (v1 * v1 - self._v3sq_f[j]) * self._inv_2a_f[j]
-                    + self._tail_f[j])
-        if v > 0.0 or a > 0.0:
-            return max(v, 0.0) * t1 + 0.5 * max(a, 0.0) * t1 * t1 + self._tail_f[j]
-        return 0.0
+        """Distance [unit] a jerk-limited stop of joint ``j`` from velocity ``v`` and acceleration ``a``
+        covers in the + direction (``_travel``)."""
+        return _travel(v, a, *self._stop_consts[j])
 
     def _stop_fits(self, j: int, q: float, v: float, a: float) -> bool:
         """Would a jerk-limited stop of joint ``j`` from (q, v, a) end inside its soft limits?"""
         return (q + self._stop_distance(j, v, a) <= self._hi_f[j]
                 and q - self._stop_distance(j, -v, -a) >= self._lo_f[j])
 
-    def _fits(self, q: list[float]) -> tuple[list[bool], list[float], list[float]]:
+    def _fits(self, q: list[float], v_limit: list[float] | None = None
+              ) -> tuple[list[bool], list[float], list[float]]:
         """Per joint: can ``q[j]`` be the next setpoint? And the finite-difference v, a it implies.
 
-        Yes when its finite-difference v, a, j are inside the limits, its acceleration can be
-        brought to zero before the velocity limit, and a stop from it still fits before the soft
-        position limits (checked exactly only for joints a loose bound puts near a limit).
+        Yes when its finite-difference v, a, j are inside the limits (``v_limit``, D plain floats,
+        in place of the velocity limits where given), its acceleration can be brought to zero before
+        the velocity limit (a state ruckig could take over from without overshooting it), and a stop
+        from it still fits before the soft position limits (checked exactly only for joints a loose
+        bound puts near a limit).
         """
-        inv_dt = self._inv_dt
+        inv_dt, half_dt = self._inv_dt, 0.5 * self.dt
+        joints = self._joints if v_limit is None else [(w, *rest) for w, (_, *rest) in zip(v_limit, self._joints)]
         ok, vs, accs = [], [], []
         for j, (qj, pj, vj, aj, (v_max, a_max, j_max, half_inv_j, far0, far1, inv_2a, lo, hi)) in enumerate(
-                zip(q, *self.samples, self._joints)):
+                zip(q, *self.samples, joints)):
             v = (qj - pj) * inv_dt
             a = (v - vj) * inv_dt
             speed = abs(v)
-            # inside v, a, j; and the acceleration can still be brought to zero (jerk-limited) before v_max
+            # inside v, a, j; and the acceleration can still be brought to zero (jerk-limited) before v_max,
+            # and a stop still fits, both from the velocity at the end of the tick (v is its mean over the
+            # tick): what ruckig would start from (at a 5 ms period the mean read 10 mm/s slow on the gripper)
+            v_end = v + a * half_dt
             fit = (speed <= v_max and abs(a) <= a_max and abs((a - aj) * inv_dt) <= j_max
-                   and abs(v + a * abs(a) * half_inv_j) <= v_max)
-            far = far0 + speed * (far1 + speed * inv_2a)  # a loose bound of the stopping distance
+                   and abs(v_end + a * abs(a) * half_inv_j) <= v_max)
+            far = far0 + abs(v_end) * (far1 + abs(v_end) * inv_2a)  # a loose bound of the stopping distance
             if fit and (qj - far < lo or qj + far > hi):
-                fit = self._stop_fits(j, qj, v, a)
+                fit = self._stop_fits(j, qj, v_end, a)
             ok.append(fit)
             vs.append(v)
             accs.append(a)
         return ok, vs, accs
 
     # -- one tick --------------------------------------------------------------------------
-    def follow(self, r: np.ndarray) -> np.ndarray:
+    def follow(self, r: np.ndarray, cap: ToolCap | None = None) -> np.ndarray:
         """The next setpoint (D,) for the finite reference sample ``r`` (D,); sets ``mode``.
 
+        ``cap``: a tool-speed cap in joint terms at the setpoint, given where it may bind.
         Joint by joint on plain floats (ruckig takes and returns lists), as in ``_fits``.
         """
         samples = r.tolist()
         ok, v, a = self._fits(samples)
-        if self._passing and all(ok):
+        if cap is None and self._passing and all(ok):
             # pass-through after pass-through: the setpoint state is the reference's, and _fits()
             # has just computed its finite differences
             self.samples, self.p, self._ref = (samples, v, a), r, None
@@ -168,21 +189,26 @@ class Tracker:
         rv = [(x - x0) * inv_dt for x, x0 in zip(samples, previous[0])]
         ra = [(x - x0) * inv_dt for x, x0 in zip(rv, previous[1])]
         self._ref = (samples, rv, ra)
+        v_limit = None
+        if cap is not None:
+            v_limit = self._share(samples, rv, cap)
+            ok = self._fits(samples, v_limit)[0]
         if all(ok):
             return self._commit(r, samples, None, None, PASS)
         q, tv, ta = samples.copy(), self._tv.copy(), self._ta.copy()
         mode = [PASS if fit else ABSOLUTE for fit in ok]
-        recovering = [j for j, (fit, m) in enumerate(zip(ok, self.mode)) if not fit and m in (OFFSET, ABSOLUTE)]
-        if recovering and self._offset(rv, ra, previous):
+        recovering = self._landable(ok, samples, rv, ra, previous, v_limit)
+        if recovering and self._offset(recovering, rv, ra, previous, v_limit):
             out = self._out
             cand = [x + e for x, e in zip(samples, out.new_position)]
-            fits, ev, ea = self._fits(cand)[0], out.new_velocity, out.new_acceleration
+            fits, ev, ea = self._fits(cand, v_limit)[0], out.new_velocity, out.new_acceleration
             for j in recovering:
                 if fits[j]:
                     q[j], mode[j], tv[j], ta[j] = cand[j], OFFSET, ev[j] + rv[j], ea[j] + ra[j]
         rest = [j for j, m in enumerate(mode) if m == ABSOLUTE]
         if rest:
-            if not self._absolute(samples, rv):
+            if not self._absolute(samples, rv, v_limit):
+                self.failed = self._error
                 return self.stop()
             out = self._out
             nq, nv, na = out.new_position, out.new_velocity, out.new_acceleration
@@ -216,6 +242,48 @@ class Tracker:
         q = out.new_position
         return self._commit(np.array(q), q, v, a, STOP)
 
+    def stop_travel_bound(self, joints: tuple[int, ...]) -> list[float]:
+        """For each of ``joints``, a looser bound of ``stop_travel`` that holds whatever the acceleration within
+        the limit (the one ``_fits`` screens with): a few multiplications, where ``stop_travel`` costs a call."""
+        half_dt, v_all, far, out = 0.5 * self.dt, self.samples[1], self._far_f, []
+        for j in joints:
+            c0, c1, c2, a_max = far[j]
+            speed = abs(v_all[j]) + a_max * half_dt
+            out.append(c0 + speed * (c1 + speed * c2))
+        return out
+
+    def stop_travel(self, joints: tuple[int, ...]) -> list[float]:
+        """For each of ``joints``, how far a stop from the setpoint state could take it either way
+        (``_travel``), from the state at the end of the tick (plain floats). A way its velocity and
+        acceleration both lead away from is not computed: nothing there (the box asks on every tick)."""
+        half_dt, (_, v_all, a_all), consts, out = 0.5 * self.dt, self.samples, self._stop_consts, []
+        for j in joints:
+            a = a_all[j]
+            v = v_all[j] + a * half_dt
+            ahead = _travel(v, a, *consts[j]) if v > 0.0 or a > 0.0 else 0.0
+            out.append(max(ahead, _travel(-v, -a, *consts[j])) if v < 0.0 or a < 0.0 else ahead)
+        return out
+
+    def stop_plan(self) -> tuple[float, Callable[[float], list[float]]] | None:
+        """The stop ``stop`` would run from the setpoint state, planned whole: its duration [s] and the
+        positions at a time into it (t -> D plain floats). None where ruckig refuses the state (then ``stop``
+        holds)."""
+        try:
+            if self._planner.calculate(self._stop_input(), self._plan) not in _PLANNED:
+                return None
+        except (ruckig.RuckigError, ValueError):
+            return None
+        plan = self._plan
+        return plan.duration, lambda t: plan.at_time(t)[0]
+
+    def snapshot(self) -> tuple:
+        """The setpoint state, to ``restore`` if the setpoint just computed may not be sent after all."""
+        return self.p, self.samples, self.mode, self._tv, self._ta, self._ref, self._passing
+
+    def restore(self, state: tuple) -> None:
+        """Back to a ``snapshot`` (its lists are replaced on every tick, never changed in place)."""
+        self.p, self.samples, self.mode, self._tv, self._ta, self._ref, self._passing = state
+
     def hold(self) -> np.ndarray:
         """Standstill where the setpoint is, at once: power is removed, nothing is driven."""
         self.reset(self.p)
@@ -242,48 +310,114 @@ class Tracker:
         absolute positions starts from the samples instead.
         """
         half_dt, v, a = 0.5 * self.dt, [], []
-        for m, own_v, own_a, sv, sa, v_max, a_max in zip(self.mode, self._tv, self._ta, *self.samples[1:],
-                                                         self._vmax_f, self._amax_f):
+        for m, own_v, own_a, sv, sa in zip(self.mode, self._tv, self._ta, *self.samples[1:]):
             vj, aj = (own_v, own_a) if (m != PASS if offset else m >= ABSOLUTE) else (sv + sa * half_dt, sa)
-            if not offset:
-                vj, aj = min(max(vj, -v_max), v_max), min(max(aj, -a_max), a_max)
             v.append(vj)
             a.append(aj)
         return v, a
 
     def _brake(self) -> bool:
+        return self._step(self._stop_input())
+
+    def _stop_input(self) -> ruckig.InputParameter:
+        """ruckig's input for a stop of every joint from the hand-over state."""
         inp = self._stop_in
         v, a = self._handover()
         inp.current_position, inp.current_velocity, inp.current_acceleration = self.samples[0], v, a
-        return self._step(inp)
+        return inp
 
-    def _absolute(self, r: list[float], rv: list[float]) -> bool:
-        """ruckig's velocity interface toward the velocity that closes on the reference sample.
+    def _closing(self, r: list[float], rv: list[float]) -> list[float]:
+        """The velocity that closes on the reference sample ``r``: the sample's velocity plus ``GAIN``
+        times the position error (the sample clipped to the soft limits)."""
+        closing = []
+        for x, x_v, pj, lo, hi in zip(r, rv, self.samples[0], self._lo_f, self._hi_f):
+            t = min(max(x, lo), hi)
+            closing.append((x_v if t == x else 0.0) + GAIN * (t - pj))
+        return closing
 
-        Target velocity: the sample's velocity plus ``GAIN`` times the position error (the
-        sample clipped to the soft limits), within the limit. A position target with the
-        sample's velocity as target state would be time-optimal for a *fixed* target, and may
-        back away first to get a run-up; a moving target makes that run-up permanent.
+    def _share(self, r: list[float], rv: list[float], cap: ToolCap) -> list[float]:
+        """Per-joint velocity limits w with sum_j reach_j w_j <= the cap: the closing velocity scaled as a
+        whole (so the recovery keeps its direction), never above a joint's own limit.
+
+        A joint that cannot get down to its share this tick (its speed, or the peak its acceleration still
+        carries it to, is above it) is charged that speed instead, and the others share what is left:
+        one joint braking from above while another speeds up into its share ran the tool past the cap.
+        """
+        closing = [abs(c) for c in self._closing(r, rv)]
+        v, a = self._handover()
+        held = [max(abs(x), abs(x + y * abs(y) * h)) for x, y, h in zip(v, a, self._half_inv_j_f)]
+        reach, budget, free = cap.reach, cap.limit, list(range(len(closing)))
+        shares = [0.0] * len(closing)
+        while free:  # each pass the scale can only fall: the joints charged more than their share leave
+            need = sum(reach[j] * closing[j] for j in free)
+            scale = budget / need if need > 0.0 else 0.0
+            for j in free:
+                shares[j] = min(closing[j] * scale, self._vmax_f[j])
+            over = [j for j in free if held[j] > shares[j]]
+            if not over:
+                break
+            budget = max(budget - sum(reach[j] * held[j] for j in over), 0.0)
+            free = [j for j in free if j not in over]
+        return shares
+
+    def _absolute(self, r: list[float], rv: list[float], v_limit: list[float] | None = None) -> bool:
+        """ruckig's velocity interface toward the velocity that closes on the reference sample
+        (``_closing``), within the velocity limits (``v_limit`` where given).
+
+        A position target with the sample's velocity as target state would be time-optimal for a
+        *fixed* target, and may back away first to get a run-up; a moving target makes that run-up
+        permanent. A joint whose acceleration (more than one tick of jerk removes) already carries it
+        past the limit (taken over from a plan that rode the limit, or under a lowered one) is first
+        asked for the velocity it peaks at when its acceleration is brought to zero at full jerk:
+        time-optimal toward a target it must overshoot anyway, ruckig eases off the jerk and
+        overshoots further. The closing velocity is scaled as a whole into the limits, not clipped
+        joint by joint, so that it keeps its direction.
         """
         inp = self._absolute_in
         v, a = self._handover()
-        p = self.samples[0]
-        inp.current_position, inp.current_velocity, inp.current_acceleration = p, v, a
-        target = [min(max(x, lo), hi) for x, lo, hi in zip(r, self._lo_f, self._hi_f)]
-        closing = [(x_v if t == x else 0.0) + GAIN * (t - pj) for t, x, x_v, pj in zip(target, r, rv, p)]
-        inp.target_velocity = [min(max(c, -v_max), v_max) * 0.99 for c, v_max in zip(closing, self._vmax_f)]
+        inp.current_position, inp.current_velocity, inp.current_acceleration = self.samples[0], v, a
+        inp.synchronization = _SYNC if v_limit is None else ruckig.Synchronization.No
+        limit = self._vmax_f if v_limit is None else v_limit
+        closing = self._closing(r, rv)
+        scale = min([1.0] + [0.99 * w / abs(c) for c, w in zip(closing, limit) if abs(c) > 0.99 * w])
+        target = []
+        for c, w, vj, aj, half_inv_j, j_tick in zip(closing, limit, v, a, self._half_inv_j_f, self._jerk_tick):
+            peak = vj + aj * abs(aj) * half_inv_j
+            target.append(peak if abs(peak) > 0.99 * w and peak * aj > 0.0 and abs(aj) > j_tick else c * scale)
+        inp.target_velocity = target
         return self._step(inp)
 
-    def _offset(self, rv: list[float], ra: list[float], previous: tuple) -> bool:
-        """ruckig on the error e = setpoint - reference, from its state now to zero."""
+    def _landable(self, ok: list[bool], r: list[float], rv: list[float], ra: list[float], previous: tuple,
+                  v_limit: list[float] | None) -> list[int]:
+        """The joints ruckig was already recovering that an offset plan could land back on the reference:
+        those whose reference lies inside the soft limits and moves inside the velocity (``v_limit`` where
+        given) and acceleration limits, now and last tick. Landing on a reference outside them cannot fit:
+        the plan would run the joint at full speed toward a point it may not reach, into a state from
+        which the absolute recovery overshoots the velocity limit; and an error state built on such
+        derivatives (a jump read as 100 rad/s) makes ruckig refuse the whole plan, every joint's."""
+        limit = self._vmax_f if v_limit is None else v_limit
+        return [j for j, (fit, m, x, x_v, x_a, p_v, p_a, w, a_max, lo, hi) in enumerate(
+                    zip(ok, self.mode, r, rv, ra, previous[1], previous[2], limit, self._amax_f, self._lo_f,
+                        self._hi_f))
+                if not fit and m in (OFFSET, ABSOLUTE) and lo <= x <= hi and abs(x_v) <= w and abs(p_v) <= w
+                and abs(x_a) <= a_max and abs(p_a) <= a_max]
+
+    def _offset(self, joints: list[int], rv: list[float], ra: list[float], previous: tuple,
+                v_limit: list[float] | None = None) -> bool:
+        """ruckig on the error e = setpoint - reference of ``joints``, from its state now to zero (the other
+        joints' error is planned from zero: nothing to do)."""
         v, a = self._handover(offset=True)
         inp = self._offset_in
         r0, rv0, ra0 = previous
-        inp.current_position = [x - y for x, y in zip(self.samples[0], r0)]
-        inp.current_velocity = [x - y for x, y in zip(v, rv0)]
-        inp.current_acceleration = [x - y for x, y in zip(a, ra0)]
+        dof = len(v)
+        e, ev, ea = [0.0] * dof, [0.0] * dof, [0.0] * dof
+        for j in joints:
+            e[j], ev[j], ea[j] = self.samples[0][j] - r0[j], v[j] - rv0[j], a[j] - ra0[j]
+        inp.current_position, inp.current_velocity, inp.current_acceleration = e, ev, ea
+        inp.synchronization = _SYNC if v_limit is None else ruckig.Synchronization.No
         v_floor, a_floor, j_floor = self._floors
-        inp.max_velocity = [max(m - abs(x), f) for m, x, f in zip(self._vmax_f, rv, v_floor)]
+        limit = self._vmax_f if v_limit is None else v_limit
+        inp.max_velocity = [max(m - abs(x), f) for m, x, f in zip(limit, rv, v_floor)]
         inp.max_acceleration = [max(m - abs(x), f) for m, x, f in zip(self._amax_f, ra, a_floor)]
         inv_dt = self._inv_dt
         inp.max_jerk = [max(m - abs(x - x0) * inv_dt, f) for m, x, x0, f in zip(self._jmax_f, ra, ra0, j_floor)]
@@ -294,10 +428,11 @@ class Tracker:
         try:
             result = otg.update(inp, self._out)
         except (ruckig.RuckigError, ValueError) as exc:  # ValueError: a result code the binding does not name
-            self.failed = failure_text(exc)
+            self._error = failure_text(exc)
             otg.reset()
             return False
-        return result in _PLANNED
+        self._error = None if result in _PLANNED else str(result)
+        return self._error is None
 
     def _commit(self, q: np.ndarray, samples: list[float], tv: list[float] | None, ta: list[float] | None,
                 mode: int | list[int]) -> np.ndarray:
@@ -311,6 +446,24 @@ class Tracker:
         if tv is not None:
             self._tv, self._ta = tv, ta
         return q
+
+
+def _travel(v: float, a: float, amax: float, jmax: float, v3: float, v3sq: float, inv_2a: float,
+            tail: float) -> float:
+    """Distance [unit] a jerk-limited stop from velocity ``v`` and acceleration ``a`` covers in the +
+    direction: jerk down to -amax, hold it, jerk back to zero as velocity reaches zero (``v3``: the
+    velocity that last phase removes, ``tail``: its distance). Exact for that profile; where the
+    velocity runs out before -amax is reached it falls back to a looser bound, so it is never shorter
+    than ruckig's time-optimal stop. Plain floats: for a handful of joints this is several times
+    cheaper than array arithmetic on the servo tick.
+    """
+    t1 = (max(a, -amax) + amax) / jmax
+    v1 = v + t1 * (a - 0.5 * jmax * t1)
+    if v1 >= v3:
+        return t1 * (v + t1 * (0.5 * a - jmax * t1 / 6.0)) + (v1 * v1 - v3sq) * inv_2a + tail
+    if v > 0.0 or a > 0.0:
+        return max(v, 0.0) * t1 + 0.5 * max(a, 0.0) * t1 * t1 + tail
+    return 0.0
 
 
 def failure_text(exc: Exception) -> str:

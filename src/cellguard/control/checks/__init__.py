@@ -21,6 +21,7 @@ from cellguard.control.checks.uncertainty import UncertaintyGate, UncertaintyHol
 from cellguard.control.checks.watchdog import Watchdog
 from cellguard.control.checks.workspace import WorkspaceHold, WorkspaceLookahead
 from cellguard.control.config import GuardConfig
+from cellguard.control.tracker import Tracker
 from cellguard.embodiment import Profile
 
 __all__ = ["Check", "Checks", "SpeedCap", "Stop", "Tick", "build_checks"]
@@ -36,8 +37,9 @@ class Checks:
 
 
 def build_checks(profile: Profile, config: GuardConfig, dt_ns: int,
-                 tool: Callable[[np.ndarray], np.ndarray] | None) -> Checks:
-    """The checks ``config`` asks for; the box needs ``tool`` (joint positions (D,) -> tool point (3,) [m])."""
+                 tool: Callable[[np.ndarray], np.ndarray] | None, tracker: Tracker) -> Checks:
+    """The checks ``config`` asks for; the box needs ``tool`` (joint positions (D,) -> tool point (3,) [m]) and
+    the envelope's ``tracker`` (the stop it would run)."""
     c = config
     stops: list[Check] = [ProtectiveStopInput(), FiniteReference(),
                           EffortLimit(profile, c.effort_fraction, c.effort_hold_s, dt_ns),
@@ -54,6 +56,6 @@ def build_checks(profile: Profile, config: GuardConfig, dt_ns: int,
     if c.box is not None:
         if tool is None:
             raise ValueError("box: a tool model (forward kinematics) is needed to check the tool point")
-        stops.append(WorkspaceHold(c.box, tool))
-        after.append(WorkspaceLookahead(c.box, profile))
+        stops.append(WorkspaceHold(c.box, tool, tracker))
+        after.append(WorkspaceLookahead(c.box, profile, tool, tracker))
     return Checks(tuple(stops), tuple(speeds), tuple(after))

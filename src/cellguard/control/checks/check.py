@@ -11,8 +11,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numpy as np
-
 from cellguard.control.events import Event, EventKind
 from cellguard.robot.protocol import SafetyInputs
 
@@ -22,20 +20,16 @@ class Tick:
 
     ``reference``: the executor's sample (D,); ``finite``: whether it is all finite; ``state``:
     the measured robot state or None; ``last_chunk_ns``: when the last chunk was taken;
-    ``uncertainty``: the policy's, at this playback time; ``stop_kind``: the stop in force, if any;
-    after tracking, ``setpoint`` (D,) and the tool point ``tip`` (3,) [m] and velocity ``tip_v`` (3,) [m/s].
+    ``uncertainty``: the policy's, at this playback time; ``stop_kind``: the stop in force when the tick
+    began, if any; after tracking, the tool point ``tip`` (3,) [m] of the setpoint.
     """
 
-    __slots__ = ("t_ns", "reference", "finite", "state", "safety", "last_chunk_ns", "uncertainty", "stop_kind",
-                 "setpoint", "tip", "tip_v", "v")
+    __slots__ = ("t_ns", "reference", "finite", "state", "safety", "last_chunk_ns", "uncertainty", "stop_kind", "tip")
 
     def __init__(self):
         self.t_ns, self.reference, self.finite, self.state = 0, None, True, None
         self.safety, self.last_chunk_ns, self.uncertainty, self.stop_kind = SafetyInputs(), None, 0.0, None
-        self.setpoint: np.ndarray | None = None
         self.tip: tuple[float, float, float] | None = None
-        self.tip_v: tuple[float, float, float] | None = None
-        self.v: list[float] | None = None  # setpoint velocity (D plain floats) [unit/s]
 
 
 @dataclass(frozen=True)
