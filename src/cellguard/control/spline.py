@@ -70,17 +70,6 @@ class ChunkCurve:
         c[:, 3] = (m[1:] - m[:-1]) / (6.0 * h)
         return c
 
-    def state(self, t_ns: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Position, velocity and acceleration at ``t_ns`` (each (D,)); zero rates once held."""
-        if t_ns >= self.end_ns:
-            zero = np.zeros_like(self.points[-1])
-            return self.points[-1], zero, zero
-        k = max((t_ns - self.t0_ns) // self.h_ns, 0)
-        u = (t_ns - self.t0_ns - k * self.h_ns) * 1e-9
-        c = self.coefficients[k]
-        return (((c[3] * u + c[2]) * u + c[1]) * u + c[0], (3.0 * c[3] * u + 2.0 * c[2]) * u + c[1],
-                6.0 * c[3] * u + 2.0 * c[2])
-
     def segment(self, t_ns: int) -> tuple[int, float]:
         """The segment at ``t_ns`` and the time into it [s] (the last one's end once held)."""
         if t_ns >= self.end_ns:
@@ -92,6 +81,5 @@ class ChunkCurve:
         """Position at ``t_ns``: the first segment extended before the first knot, held after the last."""
         if t_ns >= self.end_ns:
             return self.points[-1]
-        k = max((t_ns - self.t0_ns) // self.h_ns, 0)
-        u = (t_ns - self.t0_ns - k * self.h_ns) * 1e-9
+        k, u = self.segment(t_ns)
         return np.dot((1.0, u, u * u, u * u * u), self.coefficients[k])  # one call: cheaper than Horner on (D,)
