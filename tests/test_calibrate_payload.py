@@ -1,4 +1,4 @@
-"""identify --only on a profile calibrated with a payload holds that payload, and the new MJCF keeps it."""
+"""identify on a profile calibrated with a payload: --only holds it, a fit never drops it, the new MJCF keeps it."""
 
 from __future__ import annotations
 
@@ -66,3 +66,19 @@ def test_a_calibration_whose_mjcf_is_gone_is_refused_naming_it(loaded, tmp_path)
     only = runner.invoke(app, ["identify", str(loaded), "--only", "elbow,friction", "--write", str(profile)])
     assert only.exit_code == 2 and "--write:" in only.output and "is not a file there" in only.output
     assert len(only.output.strip().splitlines()) == 1 and profile.read_bytes() == before
+
+
+def test_a_fit_leaving_out_the_calibrated_payload_is_refused_before_it_writes(loaded, tmp_path):
+    profile = tmp_path / "arm_profile.yaml"
+    profile.write_bytes((ASSETS / "arm_profile.yaml").read_bytes())
+    full = runner.invoke(app, ["identify", str(loaded), "--write", str(profile), "--json"])
+    assert full.exit_code == 0, full.output
+    before = sorted((p.name, p.read_bytes()) for p in tmp_path.iterdir())
+    friction = runner.invoke(app, ["identify", str(loaded), "--params", "friction", "--write", str(profile)])
+    assert friction.exit_code == 2 and "--params: leaves out payload" in friction.output, friction.output
+    assert len(friction.output.strip().splitlines()) == 1
+    assert sorted((p.name, p.read_bytes()) for p in tmp_path.iterdir()) == before  # nothing written
+    both = runner.invoke(app, ["identify", str(loaded), "--params", "friction,payload", "--write", str(profile),
+                               "--json"])
+    assert both.exit_code == 0, both.output
+    assert _payload(json.loads(both.output)["mjcf"]) == pytest.approx(TRUTH.payload_kg, rel=0.1)

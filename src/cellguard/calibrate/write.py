@@ -54,6 +54,18 @@ class Written:
     profile: Path
 
 
+def refuse_dropped_payload(path: Path, cell, wanted: tuple[str, ...]) -> None:
+    """A fit without ``payload`` would write an MJCF without the payload that ``path``'s calibration carries
+    (a full fit on the nominal model has no other place for it): refused before any record is read."""
+    if "payload" in wanted:
+        return
+    held = JointTerms.from_profile(cell, path, "--write").payload_kg
+    if held:
+        raise CalibrationError(f"--params: leaves out payload, which {path}'s calibration carries ({held:.4g} kg): "
+                               "the model written would lose it; add payload to --params, or re-fit single terms "
+                               "with --only (which holds it)")
+
+
 def write_profile(path: Path, cell, result: dict, date: str, basis: bytes | None = None) -> Written:
     """Update ``path`` (``cell``'s profile) with ``result`` (from ``identify``); a new calibration version.
 

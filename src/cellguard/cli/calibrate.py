@@ -92,6 +92,10 @@ def identify(
             result = refit(segments, cell, pairs, terms)
         else:
             wanted = parse_params(params, cell)  # before any record is read
+            if write is not None:
+                from cellguard.calibrate.write import refuse_dropped_payload
+
+                refuse_dropped_payload(write, cell, wanted)
             segments, healths = load_records(records, cell)
             _whole_for_write(write, healths)
             result = fit(segments, cell, wanted)
