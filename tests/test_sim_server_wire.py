@@ -192,6 +192,46 @@ def test_every_packet_not_acted_on_is_counted_and_said_at_most_once_a_second_and
                      "sim-server: refused command 6: a setpoint value is not finite (nonfinite_commands: 1)"]
 
 
+def test_a_finite_setpoint_outside_a_joints_range_is_refused_and_the_robot_holds(server):
+    """The elbow at 10 rad was driven past its limit at full torque; at 1e11 MuJoCo zeroed every control and all six
+    joints fell toward zero. A controller refuses a target beyond a joint's range."""
+    proc, port = server
+    client = Peer(port)
+    client.hello()
+    client.command(1, NUDGED)
+    for seq, elbow in enumerate((10.0, 1e11, -1e300), start=2):
+        client.command(seq, np.where(np.arange(DOF) == 2, elbow, HOME))
+    cmd_seq, applied = client.applied()
+    assert cmd_seq == 1 and np.allclose(applied, NUDGED)
+    client.command(5, HOME)  # a good command after them is taken
+    cmd_seq, applied = client.applied()
+    assert cmd_seq == 5 and np.allclose(applied, HOME)
+    assert client.counters()["out_of_range_commands"] == 3
+    out = said(proc)
+    assert "WARNING" not in out and "sim-server: refused command 2: elbow setpoint 10 outside its range [" in out
+
+
+def test_floods_of_hellos_and_counter_queries_neither_fill_the_log_nor_get_an_answer_each(server):
+    """16,863 'said hello' lines (1.6 MB) in a minute; answers to other peers' floods slowed the client's states."""
+    proc, port = server
+    client, other = Peer(port), Peer(port)
+    for _ in range(200):
+        client.hello()
+        client.sock.send(b"G")
+    other.sock.settimeout(0.2)
+    answers = 0
+    for _ in range(200):
+        other.sock.send(b"?")
+    with contextlib.suppress(TimeoutError):
+        while other.sock.recv(65536)[:1] == b"R":
+            answers += 1
+    client.hello()
+    assert client.counters()["sessions"] == 201
+    assert answers <= 20
+    out = said(proc).splitlines()
+    assert 1 <= sum("said hello" in line for line in out) <= 10 and sum("said goodbye" in line for line in out) <= 10
+
+
 # -- the bridge against a stand-in server --------------------------------------------------------------------------
 
 

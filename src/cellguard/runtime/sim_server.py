@@ -13,9 +13,12 @@ driving it, which then read a silent server. A client's goodbye (``G``) ends its
 once; a client silent that long has gone (a crashed run restarts on a new port) and the next
 hello takes over. On Linux a client whose process has died is gone at once: the kernel reports its
 closed port (ICMP port unreachable, read from the socket's error queue with the address it was
-for), so a run that crashed during its warm-up does not hold the robot for 30 s. A packet the server does not act on (a command from another peer, an older
-or non-finite one, a malformed packet) is counted by reason and said on stderr, the first of
-each reason and then at most once a second; a new client is said too.
+for), so a run that crashed during its warm-up does not hold the robot for 30 s. A packet the server does not
+act on (a command from another peer, an older or non-finite one, a setpoint outside a joint's position range,
+a malformed packet) is counted by reason and said on stderr, the first of each reason and then at most once
+a second; a new client and a goodbye are said the same way. Peers other than the client get at most
+``FOREIGN_REPLIES_PER_S`` answers a second (a refused hello's ``B``, a counter query's ``R``): a flood of
+them delayed the client's state packets by 46 ms.
 
 For tests of the robot link, the server can misbehave on purpose: ``delay_ms`` holds every
 state packet back, ``drop_every`` loses every n-th one. These are transport faults of the
@@ -40,6 +43,7 @@ from cellguard.runtime.clock import WallClock
 NOTE_EVERY_NS = 1_000_000_000  # a refusal of one reason is said on stderr at most this often
 CLIENT_LIVE_NS = 1_000_000_000  # a client heard within this is live; a hello from another peer is refused
 STARTING_LIVE_NS = 30_000_000_000  # the same before its first command (a policy's warm-up sends nothing)
+FOREIGN_REPLIES_PER_S = 20  # answers a second to peers other than the client (refused hellos, counter queries)
 IP_RECVERR = 11  # Linux: queue ICMP errors with the address they were for (the socket module has no name for it)
 
 
@@ -67,11 +71,13 @@ class SimServer:
                      "q_home": np.asarray(getattr(cell, "q_home", cell.read().q)).tolist(), "inputs": ["cycle_done"]}
         self.layout = Layout(cell.profile.dof, self.meta["measurements"])
         self.client, self._heard_ns = None, 0  # the client, and when it last sent a packet [ns]
-        self.counters = {"commands": 0, "nonfinite_commands": 0, "stale_commands": 0, "foreign_commands": 0,
-                         "refused_hellos": 0, "malformed_packets": 0, "states_sent": 0, "states_dropped": 0,
-                         "cycles": 0}
+        self.q_range = (cell.profile.q_min, cell.profile.q_max)  # a real controller refuses a target beyond these
+        self.counters = {"commands": 0, "nonfinite_commands": 0, "out_of_range_commands": 0, "stale_commands": 0,
+                         "foreign_commands": 0, "refused_hellos": 0, "malformed_packets": 0, "states_sent": 0,
+                         "states_dropped": 0, "cycles": 0, "sessions": 0}
         self._power, self._cmd_seq, self._seq = True, 0, 0
-        self._noted: dict[str, int] = {}  # when each refusal reason was last said [ns]
+        self._noted: dict[str, int] = {}  # when each reason was last said on stderr [ns]
+        self._foreign_replies: deque = deque()  # when the last answers to other peers went out [ns]
         self._delayed: deque = deque()
         self.task = OwnTask(cell)
 
@@ -113,7 +119,7 @@ class SimServer:
             if kind == b"H":
                 self._hello(addr)
             elif kind == b"?":
-                self._send(b"R" + json.dumps(self.counters).encode(), addr)
+                self._reply(b"R" + json.dumps(self.counters).encode(), addr)
             elif kind == b"C":
                 self._command(packet, addr)
             elif kind == b"G":
@@ -131,11 +137,12 @@ class SimServer:
             busy = {"client": _peer(self.client), "silent_ms": round(silent_ns * 1e-6), "live_ms": live_ns // 10**6}
             self._refuse("refused_hellos", f"refused a hello from {_peer(addr)}: client {busy['client']} is live "
                                            f"(heard {busy['silent_ms']} ms ago)")
-            self._send(b"B" + json.dumps(busy).encode(), addr)
+            self._reply(b"B" + json.dumps(busy).encode(), addr)
             return
         if addr != self.client:
             before = "" if self.client is None else f"; commands from {_peer(self.client)} are refused from now on"
-            sys.stderr.write(f"sim-server: client {_peer(addr)} said hello{before}\n")
+            self.counters["sessions"] += 1
+            self._note("sessions", f"client {_peer(addr)} said hello{before}")
             self.task.new_session()
         self.client, self._cmd_seq, self._heard_ns = addr, 0, time.monotonic_ns()
         self._delayed.clear()
@@ -146,7 +153,7 @@ class SimServer:
         if addr == self.client:
             self.client = None
             self._delayed.clear()
-            sys.stderr.write(f"sim-server: client {_peer(addr)} {why}\n")
+            self._note("ended_sessions", f"client {_peer(addr)} {why}")
 
     def _closed_ports(self) -> None:
         """Read the error queue: a packet to the client came back port-unreachable, so its process has gone."""
@@ -174,6 +181,14 @@ class SimServer:
         if not np.isfinite(setpoint).all():
             self._refuse("nonfinite_commands", f"refused command {seq}: a setpoint value is not finite")
             return
+        lo, hi = self.q_range
+        outside = np.flatnonzero((setpoint < lo) | (setpoint > hi))
+        if outside.size:
+            j = int(outside[0])
+            self._refuse("out_of_range_commands", f"refused command {seq}: {self.cell.profile.joint_names[j]} "
+                                                  f"setpoint {setpoint[j]:.6g} outside its range [{lo[j]:.6g}, "
+                                                  f"{hi[j]:.6g}]")
+            return
         if seq <= self._cmd_seq:
             self._refuse("stale_commands", f"ignored command {seq}: not newer than command {self._cmd_seq} in force")
             return
@@ -184,13 +199,28 @@ class SimServer:
         self.cell.write(setpoint)
 
     def _refuse(self, reason: str, why: str) -> None:
-        """Count a packet not acted on under ``reason``; say ``why`` on stderr the first time and then at most once
-        a second per reason (a flood neither fills the log nor stalls the tick)."""
+        """Count a packet not acted on under ``reason`` and say ``why``."""
         self.counters[reason] += 1
+        self._note(reason, f"{why} ({reason}: {self.counters[reason]})")
+
+    def _note(self, reason: str, line: str) -> None:
+        """Say ``line`` on stderr the first time and then at most once a second per ``reason`` (a flood of hellos,
+        goodbyes or refusals neither fills the log nor stalls the tick)."""
         now, last = time.monotonic_ns(), self._noted.get(reason)
         if last is None or now - last >= NOTE_EVERY_NS:
             self._noted[reason] = now
-            sys.stderr.write(f"sim-server: {why} ({reason}: {self.counters[reason]})\n")
+            sys.stderr.write(f"sim-server: {line}\n")
+
+    def _reply(self, packet: bytes, addr) -> None:
+        """Answer a peer: the client always, others at most ``FOREIGN_REPLIES_PER_S`` times a second in all."""
+        if addr != self.client:
+            now, sent = time.monotonic_ns(), self._foreign_replies
+            while sent and now - sent[0] >= 1_000_000_000:
+                sent.popleft()
+            if len(sent) >= FOREIGN_REPLIES_PER_S:
+                return
+            sent.append(now)
+        self._send(packet, addr)
 
     def _send(self, packet: bytes, addr, state: bool = False) -> None:
         """Send one packet; a peer that went away is no error (it says hello again when it comes back)."""
