@@ -29,6 +29,8 @@ BASE = {"cell": "arm-pick-place", "acceptance_cycles": 1, "production_cycles": 1
         ({"faults": [{"kind": "policy_latency", "at_cycle": 5, "ms": 50, "until_cycle": 2}]},
          "until_cycle 2 is before at_cycle 5"),
         ({"guard": {"box": [[0.5, -0.5, 0.0], [0.4, 0.5, 0.5]]}}, "guard.box: Value error, each minimum must be below"),
+        ({"faults": [{"kind": "servo_gain", "joint": [], "factor": 0.8}]}, "faults[0].joint: Value error, an empty "
+                                                                           "list names no joint"),
     ],
 )
 def test_bad_scenario_names_the_key(patch, message):
@@ -49,6 +51,17 @@ def test_unknown_joint_and_cell_are_refused_before_running():
 def test_unknown_policy_scheme_lists_known():
     with pytest.raises(UnknownNameError, match="unknown policy source 'carrier-pigeon'"):
         Run(parse_scenario({**BASE, "policy": "carrier-pigeon:x"}))
+
+
+def test_yaml_sets_and_binaries_are_refused_and_exponents_without_a_dot_are_numbers(tmp_path):
+    """``site: !!set {a, b}`` ran with the text "{'a', 'b'}" recorded as the site; ``5e-1`` was the text "5e-1"."""
+    for tag, value in (("!!set", "{a, b}"), ("!!binary", "aGVsbG8=")):
+        (tmp_path / "s.yaml").write_text(f"cell: arm-pick-place\nsite: {tag} {value}\n")
+        with pytest.raises(ScenarioError, match=f"site: a YAML {tag} is no scenario value"):
+            load_scenario(tmp_path / "s.yaml")
+    (tmp_path / "e.yaml").write_text("cell: arm-pick-place\nguard: {tool_speed_max: 5e-1, watchdog_s: 2E-1}\nseed: 7\n")
+    scenario = load_scenario(tmp_path / "e.yaml")
+    assert (scenario.guard.tool_speed_max, scenario.guard.watchdog_s, scenario.seed) == (0.5, 0.2, 7)
 
 
 def test_files(tmp_path):

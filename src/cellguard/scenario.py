@@ -165,7 +165,11 @@ def _check_cycles(scenario: Scenario, origin: str) -> None:
 
 
 def _check_values(value: object, loc: tuple, origin: str) -> None:
-    """Refuse NaN and infinities, and text with control characters (a ``site:`` that recolours a terminal)."""
+    """Refuse NaN and infinities, text with control characters (a ``site:`` that recolours a terminal), sets and
+    bytes."""
+    if isinstance(value, (set, bytes)):  # YAML's !!set and !!binary: their text would be recorded as the value
+        raise ScenarioError(f"{origin}: {_format_loc(loc)}: a YAML {'!!set' if isinstance(value, set) else '!!binary'} "
+                            "is no scenario value")
     if isinstance(value, float) and not math.isfinite(value):
         raise ScenarioError(f"{origin}: {_format_loc(loc)}: {value} is not a finite number")
     if isinstance(value, str) and not value.isprintable():

@@ -10,11 +10,14 @@ socket (refused before it is read: opening one waits for a writer) are each one 
 the file and what is wrong. A date is text, as it was written (``measured: 2026-10-14`` is the string
 "2026-10-14"): PyYAML's timestamps made a ``datetime.date`` that JSON cannot write, and an impossible
 date (``2026-02-30``) a ValueError in every reader; a field that must hold a date checks the text.
+A number in exponent form without a dot (``5e-1``, ``1e300``) is a number, as in YAML 1.2: PyYAML's
+YAML 1.1 read it as the text "5e-1", which a number field then refused with a puzzling message.
 """
 
 from __future__ import annotations
 
 import os
+import re
 import stat
 from collections.abc import Iterable, Mapping
 from pathlib import Path
@@ -33,12 +36,21 @@ class _Refused(yaml.YAMLError):
 
 
 _TIMESTAMP = "tag:yaml.org,2002:timestamp"
+_FLOAT = "tag:yaml.org,2002:float"
+# YAML 1.1's floats, plus YAML 1.2's exponent form without a dot (``1e-3``); an integer stays an integer
+_FLOAT_FORM = re.compile(r"""^(?:[-+]?(?:[0-9][0-9_]*)\.[0-9_]*(?:[eE][-+]?[0-9]+)?
+                    |[-+]?[0-9][0-9_]*[eE][-+]?[0-9]+
+                    |\.[0-9][0-9_]*(?:[eE][-+]?[0-9]+)?
+                    |[-+]?[0-9][0-9_]*(?::[0-5]?[0-9])+\.[0-9_]*
+                    |[-+]?\.(?:inf|Inf|INF)
+                    |\.(?:nan|NaN|NAN))$""", re.X)
 
 
 class _StrictLoader(yaml.SafeLoader):
     """SafeLoader that refuses duplicate keys and deep nesting while it composes, and reads dates as text."""
 
-    yaml_implicit_resolvers = {first: [(tag, regexp) for tag, regexp in resolvers if tag != _TIMESTAMP]
+    yaml_implicit_resolvers = {first: [(tag, _FLOAT_FORM if tag == _FLOAT else regexp) for tag, regexp in resolvers
+                                       if tag != _TIMESTAMP]
                                for first, resolvers in yaml.SafeLoader.yaml_implicit_resolvers.items()}
 
     def compose_node(self, parent, index):

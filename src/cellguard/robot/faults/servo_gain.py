@@ -16,7 +16,10 @@ class ServoGain(Fault):
     @field_validator("joint")
     @classmethod
     def _each_once(cls, joint):
-        """A joint listed twice had its gain scaled twice (the factors compose), while the record says once."""
+        """A joint listed twice had its gain scaled twice (the factors compose), while the record says once; an
+        empty list injected nothing while the ground truth named the fault."""
+        if isinstance(joint, list) and not joint:
+            raise ValueError("an empty list names no joint")
         if isinstance(joint, list) and len(set(joint)) < len(joint):
             raise ValueError(f"a joint is listed twice: {joint}")
         return joint
