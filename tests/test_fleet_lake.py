@@ -119,7 +119,7 @@ def hostile_lake(root, n: int = 120):
     write_fleet(root, sig, eff)
     day = sig["created_date"][0].as_py()
     secret = Signature("t4", "t4-s0", day.isoformat(), "secret_cause", 0.9, "arm5", "arm-pick-place",
-                       {"current_rms.elbow": 1.0}).to_dict()
+                       {"current_rms.elbow": 1.0}).to_dict() | {"signature_id": "secret"}
     odd = {**secret, "signature_id": "odd", "tenant_id": "t1", "site_id": "t1-s9", "cause": "odd",
            "effects": {"current_rms.elbow": float("nan"), "tracking_rms.elbow": float("inf")}}
     write_signatures(root, [secret, odd], "late")

@@ -23,6 +23,7 @@ from cellguard.yaml_file import read_yaml
 
 TODAY = dt.datetime.now(dt.timezone.utc).date()
 POLICY = DataPolicy("t-acme", "s-01")
+KEY = b"site-secret-of-the-tests"  # the site key signature ids are keyed with (site_key.py)
 
 
 def sigs() -> list[Signature]:
@@ -31,7 +32,7 @@ def sigs() -> list[Signature]:
 
 
 def good_batch() -> Batch:
-    return export_batch(sigs(), POLICY, TODAY)
+    return export_batch(sigs(), POLICY, TODAY, key=KEY)
 
 
 BAD_FILES = {

@@ -28,6 +28,7 @@ from fleet_server import admin_dsn_or_skip  # noqa: E402
 
 TODAY = dt.datetime.now(dt.timezone.utc).date()
 DOWN = "host=127.0.0.1 port=1 dbname=x user=x password=x"  # nothing listens on port 1
+KEY = b"site-secret-of-the-tests"  # the site key signature ids are keyed with (site_key.py)
 
 
 def sig(tenant: str, site: str, cause: str, n: int = 0) -> Signature:
@@ -145,7 +146,7 @@ def test_batches_the_store_refuses_stay_queued_and_do_not_stop_the_push(fleet, t
 def test_a_batch_of_a_newer_schema_stays_queued_and_the_others_go(fleet, tmp_path):
     store, dsns = fleet
     policy = DataPolicy("ta", "s4-n")
-    newer = export_batch(sigs("ta", "s4-n"), policy).to_dict()
+    newer = export_batch(sigs("ta", "s4-n"), policy, key=KEY).to_dict()
     newer["signatures"][0] = {**newer["signatures"][0], "schema_version": SCHEMA_VERSION + 1}
     box = tmp_path / "outbox"
     box.mkdir()
@@ -211,9 +212,8 @@ def test_a_malformed_queued_batch_stays_queued_and_the_others_go(fleet, tmp_path
     store, dsns = fleet
     site, lake = "s8-" + case, tmp_path / "lake"
     policy = DataPolicy("ta", site)
-    raw = export_batch(sigs("ta", site, 1), policy).to_dict(with_id=False)
+    raw = export_batch(sigs("ta", site, 1), policy, key=KEY).to_dict(with_id=False)
     raw["signatures"][0][field] = value
-    del raw["signatures"][0]["signature_id"]  # as a batch written by hand, or by an older cellguard, may be
     (tmp_path / "site" / "outbox").mkdir(parents=True)
     bad = tmp_path / "site" / "outbox" / "crafted.json"
     bad.write_text(json.dumps(raw))
@@ -305,3 +305,30 @@ def test_cli_withdraw_deletes_what_the_site_pooled_from_the_store_and_the_lake(f
     assert (rows_of_site(store, "s9-x"), rows_of_site(store, "s9-y")) == (0, 2)
     assert {r["site_id"] for r in DuckDBEngine(lake).run("similar", {"site": "none", "limit": 10},
                                                         [("current_rms.elbow", 6.0)])} == {"s9-y"}
+
+
+def test_cli_withdraw_with_an_unreadable_lake_deletes_nothing_anywhere(fleet, tmp_path):
+    store, dsns = fleet
+    lake = tmp_path / "lake"
+    push(sigs("ta", "s9-u"), DataPolicy("ta", "s9-u"), tmp_path / "site", TenantStore(dsns["ta"]), lake)
+    (next((lake / "tenant=ta" / "signatures").rglob("*.parquet"))).write_bytes(b"not parquet")
+    policy = tmp_path / "p.yaml"
+    policy.write_text("tenant: ta\nsite: s9-u\nexport: nothing\n")
+    result = CliRunner().invoke(app, ["fleet", "withdraw", "--policy", str(policy), "--store", dsns["ta"],
+                                      "--lake", str(lake)])
+    assert result.exit_code == 2 and result.stderr.count("\n") == 1 and "cannot read it" in result.stderr
+    assert rows_of_site(store, "s9-u") == 2  # the store's rows stay until the lake's can go too
+
+
+def test_cli_push_and_audit_lines_are_not_wrapped(fleet, tmp_path):
+    _, dsns = fleet
+    policy = tmp_path / "p.yaml"
+    policy.write_text("tenant: ta\nsite: s9-wrap-a-long-site-name-for-the-line\nexport: nothing\n")
+    site = tmp_path / "a-site-folder-with-a-name-long-enough-to-push-a-line-past-eighty-columns"
+    pushed = CliRunner().invoke(app, ["fleet", "push", str(tmp_path / "none"), "--policy", str(policy),
+                                      "--store", dsns["ta"], "--site-dir", str(site)], terminal_width=80)
+    assert pushed.exit_code == 0, pushed.output
+    assert pushed.stdout.count("\n") == 1 and len(pushed.stdout) > 81
+    audit = CliRunner().invoke(app, ["fleet", "audit", "--site-dir", str(site)], terminal_width=80)
+    assert audit.exit_code == 0 and audit.stdout.count("\n") == 2  # the title and one entry, each on one line
+    assert "batch=" in audit.stdout.splitlines()[1]

@@ -4,6 +4,7 @@ No server needed: these run everywhere."""
 from __future__ import annotations
 
 import datetime as dt
+import hashlib
 import json
 import os
 import stat
@@ -15,7 +16,7 @@ from typer.testing import CliRunner
 
 from cellguard.cli import app
 from cellguard.fleet.audit import append_audit, read_audit
-from cellguard.fleet.export import Batch, export_batch
+from cellguard.fleet.export import Batch, export_batch, refusal
 from cellguard.fleet.outbox import Outbox
 from cellguard.fleet.policy import KEYS, DataPolicy, PolicyError, load_policy, parse_policy
 from cellguard.fleet.signature import (SCHEMA_VERSION, WITHHOLDABLE, Signature, SignatureError, from_dict,
@@ -37,6 +38,7 @@ DIAGNOSIS = {"findings": [{"cause": "fixture_shift", "cycle": 8, "confidence": 0
                           "last_good": 398.6, "first_faulted": 401.5, "at_alarm": 401.55, "change": 3.05, "scales": 5.1},
                          {"signal": "current_rms.elbow", "onset": 6, "alarm_cycle": 9, "baseline": 0.731,
                           "last_good": 0.74, "first_faulted": 0.95, "at_alarm": 0.97, "change": 0.239, "scales": 7.9}]}
+KEY = b"site-secret-of-the-tests"  # the site key signature ids are keyed with (site_key.py)
 
 
 def sigs(tenant="t-acme", site="s-01", day=TODAY):
@@ -57,10 +59,28 @@ def test_one_signature_per_finding_with_effect_sizes_and_no_raw_values_or_names(
         assert raw not in text  # no raw feature values, no site or customer names, no evidence text
 
 
-def test_signature_id_is_a_content_hash():
+def test_signature_id_is_keyed_with_the_site_secret():
     a = sigs()[0]
-    assert a.signature_id == sigs()[0].signature_id
-    assert a.signature_id != sigs(site="s-02")[0].signature_id
+    assert a.signature_id(KEY) == sigs()[0].signature_id(KEY)  # the same finding at the same site: the same row
+    assert a.signature_id(KEY) != sigs(site="s-02")[0].signature_id(KEY)
+    assert a.signature_id(KEY) != a.signature_id(b"another site's key")
+
+
+def test_withheld_fields_cannot_be_recovered_from_the_id():
+    """The attack found: hash candidate values (those other rows show openly) until one gives the id."""
+    sig = sigs()[0]
+    policy = DataPolicy("t-acme", "s-01", withheld=("policy_version", "confidence", "onset_cycle"))
+    row = export_batch([sig], policy, TODAY, key=KEY).signatures[0]
+    assert row["policy_version"] is None and row["confidence"] is None and row["onset_cycle"] is None
+    body = {k: v for k, v in row.items() if k != "signature_id"}
+    tried = set()
+    for pv in (sig.policy_version, "pv-other", None):
+        for conf in [i / 100 for i in range(101)] + [sig.confidence]:
+            for onset in range(50):
+                guess = {**body, "policy_version": pv, "confidence": conf, "onset_cycle": onset}
+                text = json.dumps(guess, sort_keys=True, separators=(",", ":"))
+                tried.add(hashlib.sha256(text.encode()).hexdigest()[:32])
+    assert row["signature_id"] not in tried
 
 
 def test_newer_schema_version_is_refused_in_one_line():
@@ -89,9 +109,9 @@ def test_round_trip_and_withheld_fields_are_empty(cause, effects, withheld):
                     "c" * 12, "0.1.0")
     assert from_dict(sig.to_dict()) == sig
     policy = DataPolicy("t-a", "s-1", withheld=tuple(withheld))
-    row = export_batch([sig], policy, dt.date(2026, 11, 2)).signatures[0]
+    row = export_batch([sig], policy, dt.date(2026, 11, 2), key=KEY).signatures[0]
     assert all(row[name] is None for name in withheld)
-    assert row_from_dict(row) == row and row["signature_id"] == sig.signature_id  # one id whatever is withheld
+    assert row_from_dict(row) == row and row["signature_id"] == sig.signature_id(KEY)  # one id whatever is withheld
 
 
 def test_policy_unknown_key_names_it(tmp_path):
@@ -153,29 +173,49 @@ def test_a_tenant_or_query_text_ending_in_a_newline_is_refused_on_the_lake_and_i
 
 def test_nothing_exports_nothing_and_aggregates_respect_the_group_size():
     many = [s for d in range(6) for s in sigs(day=TODAY - dt.timedelta(days=d))]
-    nothing = export_batch(many, DataPolicy("t-acme", "s-01", export="nothing"), TODAY)
+    nothing = export_batch(many, DataPolicy("t-acme", "s-01", export="nothing"), TODAY, key=KEY)
     assert nothing.rows == 0 and nothing.signatures == () and nothing.withheld_rows == len(many)
-    agg = export_batch(many, DataPolicy("t-acme", "s-01", export="aggregates_only", min_group_size=6), TODAY)
+    agg = export_batch(many, DataPolicy("t-acme", "s-01", "aggregates_only", min_group_size=6), TODAY, key=KEY)
     assert agg.signatures == ()
     assert {(r["cause"], r["signatures"]) for r in agg.aggregates} == {("fixture_shift", 6), ("friction", 6)}
-    small = export_batch(many[:8], DataPolicy("t-acme", "s-01", export="aggregates_only", min_group_size=5), TODAY)
+    small = export_batch(many[:8], DataPolicy("t-acme", "s-01", "aggregates_only", min_group_size=5), TODAY, key=KEY)
     assert small.aggregates == () and small.withheld_rows == 8  # 4 and 4: under the group size
+
+
+def test_aggregates_leave_out_what_the_policy_withholds():
+    many = [s for d in range(6) for s in sigs(day=TODAY - dt.timedelta(days=d))]
+    policy = DataPolicy("t-acme", "s-01", "aggregates_only", min_group_size=6, withheld=("robot_model", "cell_type"))
+    batch = export_batch(many, policy, TODAY, key=KEY)
+    assert batch.aggregates and all(r["robot_model"] is None and r["cell_type"] is None for r in batch.aggregates)
+    assert "cellguard-arm5" not in json.dumps(batch.to_dict()) and "arm-pick-place" not in json.dumps(batch.to_dict())
+    assert refusal(batch, policy, TODAY) is None
+    open_batch = export_batch(many, DataPolicy("t-acme", "s-01", "aggregates_only", min_group_size=6), TODAY, key=KEY)
+    assert refusal(open_batch, policy, TODAY) == "it holds cell_type, robot_model, which the policy withholds"
+
+
+@pytest.mark.parametrize("value", ["p" * 100_014, "v1\x1b[31m", "v1\n"])
+def test_a_queued_batch_with_a_malformed_policy_version_is_refused(value):
+    raw = {**export_batch(sigs(), DataPolicy("t-acme", "s-01"), TODAY, key=KEY).to_dict(with_id=False),
+           "policy_version": value}
+    with pytest.raises(SignatureError, match="batch.policy_version: expected printable text") as info:
+        Batch.from_dict(raw)
+    assert "\n" not in str(info.value) and len(str(info.value)) < 400
 
 
 def test_retention_keeps_old_signatures_at_the_site():
     old = sigs(day=TODAY - dt.timedelta(days=40))
     new = sigs()
-    batch = export_batch(old + new, DataPolicy("t-acme", "s-01", retention_days=30), TODAY)
+    batch = export_batch(old + new, DataPolicy("t-acme", "s-01", retention_days=30), TODAY, key=KEY)
     assert {s["created_date"] for s in batch.signatures} == {TODAY.isoformat()} and batch.withheld_rows == 2
 
 
 def test_a_signature_of_another_site_is_not_sent():
     with pytest.raises(PolicyError, match="is not the policy's t-acme/s-01"):
-        export_batch(sigs(site="s-99"), DataPolicy("t-acme", "s-01"), TODAY)
+        export_batch(sigs(site="s-99"), DataPolicy("t-acme", "s-01"), TODAY, key=KEY)
 
 
 def test_audit_appends_and_outbox_is_idempotent(tmp_path):
-    batch = export_batch(sigs(), DataPolicy("t-acme", "s-01"), TODAY)
+    batch = export_batch(sigs(), DataPolicy("t-acme", "s-01"), TODAY, key=KEY)
     box = Outbox(tmp_path)
     box.put(batch)
     box.put(batch)
@@ -215,7 +255,7 @@ def test_cli_nothing_policy_logs_an_empty_export_without_reading_records(tmp_pat
 def test_cli_push_with_a_batch_of_a_newer_schema_queued_names_it_and_keeps_it(tmp_path):
     policy = tmp_path / "p.yaml"
     policy.write_text("tenant: t-acme\nsite: s-01\nexport: nothing\n")
-    newer = export_batch(sigs(), DataPolicy("t-acme", "s-01"), TODAY).to_dict()
+    newer = export_batch(sigs(), DataPolicy("t-acme", "s-01"), TODAY, key=KEY).to_dict()
     newer["signatures"][0] = {**newer["signatures"][0], "schema_version": SCHEMA_VERSION + 1}
     queued = tmp_path / "site" / "outbox" / "newer.json"  # left by a newer cellguard on this site
     queued.parent.mkdir(parents=True)
@@ -244,7 +284,7 @@ def test_a_mistyped_non_finite_or_unprintable_field_is_refused_naming_it(field, 
 
 
 def test_a_batch_whose_signatures_name_another_site_is_refused():
-    raw = export_batch(sigs(), DataPolicy("t-acme", "s-01"), TODAY).to_dict(with_id=False)
+    raw = export_batch(sigs(), DataPolicy("t-acme", "s-01"), TODAY, key=KEY).to_dict(with_id=False)
     raw["signatures"][1] = {**raw["signatures"][1], "site_id": "s-99"}
     with pytest.raises(SignatureError, match=r"batch.signatures\[1\]: of t-acme/s-99, in a batch of t-acme/s-01"):
         Batch.from_dict(raw)
@@ -253,7 +293,7 @@ def test_a_batch_whose_signatures_name_another_site_is_refused():
 def test_outbox_files_are_for_the_owner_and_group_only_as_the_audit_log(tmp_path):
     umask = os.umask(0o022)
     try:
-        batch = export_batch(sigs(), DataPolicy("t-acme", "s-01"), TODAY)
+        batch = export_batch(sigs(), DataPolicy("t-acme", "s-01"), TODAY, key=KEY)
         path = Outbox(tmp_path).put(batch)
         append_audit(tmp_path, batch, "queued", "nowhere")
     finally:

@@ -24,6 +24,7 @@ from fleet_server import admin_dsn_or_skip  # noqa: E402
 
 TODAY = dt.datetime.now(dt.timezone.utc).date()
 DOWN = "host=127.0.0.1 port=1 dbname=x user=x password=x"  # nothing listens on port 1
+KEY = b"site-secret-of-the-tests"  # the site key signature ids are keyed with (site_key.py)
 
 
 def _server() -> str:
@@ -48,7 +49,7 @@ def fleet(tmp_path_factory):
     dsns = {t: store.add_tenant(t) for t in ("ta", "tb", "tc", "td")}
     for tenant, sites in (("ta", ("sa1", "sa2")), ("tb", ("sb1",)), ("tc", ("sc1",))):
         for site in sites:
-            batch = export_batch(site_sigs(tenant, site), DataPolicy(tenant, site))
+            batch = export_batch(site_sigs(tenant, site), DataPolicy(tenant, site), key=KEY)
             assert TenantStore(dsns[tenant]).push(batch) == (3, 0)
     return store, dsns
 
@@ -136,9 +137,13 @@ def test_cannot_update_or_delete_or_insert_another_tenants_rows(fleet):
     assert isinstance(result, psycopg.errors.InsufficientPrivilege)
     deleted, _ = as_tenant(dsns["ta"], "DELETE FROM fleet.signatures WHERE tenant_id = 'tb' OR true "
                                        "AND site_id = 'nonexistent'")
-    assert deleted == 0
-    deleted, _ = as_tenant(dsns["ta"], "DELETE FROM fleet.effects WHERE tenant_id <> 'ta'")
-    assert deleted == 0
+    assert isinstance(deleted, psycopg.errors.InsufficientPrivilege)  # tenants delete through fleet.forget_site
+    deleted, _ = as_tenant(dsns["ta"], "SELECT fleet.forget_site('sb1', '9999-12-31', '9999-12')")
+    assert deleted == [(0,)]  # sb1 is tb's
+    with store.admin() as con:
+        theirs = con.execute("SELECT signature_id FROM fleet.signatures WHERE tenant_id = 'tb' LIMIT 1").fetchone()[0]
+    deleted, _ = as_tenant(dsns["ta"], f"SELECT fleet.drop_signature('{theirs}')")
+    assert deleted == [(0,)]  # tb's id, named by ta: nothing deleted
     result, _ = as_tenant(dsns["ta"], "INSERT INTO fleet.signatures (signature_id, tenant_id, site_id, created_date,"
                                       " cause, schema_version) VALUES ('x', 'tb', 'sb1', current_date, 'servo', 1)")
     assert isinstance(result, psycopg.errors.InsufficientPrivilege)  # row-level security's WITH CHECK
@@ -158,16 +163,17 @@ def test_statistics_do_not_leak_other_tenants_values(fleet):
 
 def test_cross_customer_aggregate_under_k_customers_is_refused(fleet):
     store, dsns = fleet
-    with pytest.raises(RefusedAggregate, match="refused: signatures from 3 customer.s., at least 5 needed"):
+    with pytest.raises(RefusedAggregate, match="^cross-customer query frequency refused: signatures from fewer "
+                                               "than 5 customers$"):  # not how many: a count under k
         TenantStore(dsns["ta"]).run("frequency", {"k": 5})
-    with pytest.raises(RefusedAggregate, match="at least 5 needed"):
+    with pytest.raises(RefusedAggregate, match="fewer than 5 customers"):
         TenantStore(dsns["ta"]).run("frequency", {"k": 2})  # the caller cannot go under the store's k
     store.set_min_customers(3)
     try:
         rows = TenantStore(dsns["tb"]).run("frequency", {"k": 3})
         assert {r["cause"] for r in rows} == {"friction", "fixture_shift", "servo"}
         assert all(r["customers"] == 3 and r["signatures"] == 4 for r in rows)
-        with pytest.raises(RefusedAggregate, match="at least 4 needed"):
+        with pytest.raises(RefusedAggregate, match="fewer than 4 customers"):
             TenantStore(dsns["tb"]).run("fixes", {"k": 4})
     finally:
         store.set_min_customers(5)
@@ -182,7 +188,7 @@ def test_own_scope_sees_only_own_rows(fleet):
 
 def test_upload_is_idempotent(fleet):
     store, dsns = fleet
-    batch = export_batch(site_sigs("tc", "sc2"), DataPolicy("tc", "sc2"))
+    batch = export_batch(site_sigs("tc", "sc2"), DataPolicy("tc", "sc2"), key=KEY)
     assert TenantStore(dsns["tc"]).push(batch) == (3, 0)
     assert TenantStore(dsns["tc"]).push(batch) == (0, 3)
     assert count(store, "site_id = 'sc2'") == 3
@@ -190,7 +196,7 @@ def test_upload_is_idempotent(fleet):
 
 def test_a_batch_under_another_tenants_name_is_refused(fleet):
     _, dsns = fleet
-    batch = export_batch(site_sigs("tb", "sb9"), DataPolicy("tb", "sb9"))
+    batch = export_batch(site_sigs("tb", "sb9"), DataPolicy("tb", "sb9"), key=KEY)
     with pytest.raises(StoreError, match="refused the batch of tenant tb"):
         TenantStore(dsns["ta"]).push(batch)
 
@@ -226,7 +232,7 @@ def test_aggregates_only_sends_counts_not_signatures(fleet, tmp_path):
     with store.admin() as con:
         assert con.execute("SELECT count(*) FROM fleet.signatures WHERE tenant_id = 'td'").fetchone()[0] == 0
         counts = con.execute("SELECT sum(signatures) FROM fleet.aggregates WHERE tenant_id = 'td'").fetchone()[0]
-    assert counts == sum(r["signatures"] for r in export_batch(many, policy).aggregates) > 0
+    assert counts == sum(r["signatures"] for r in export_batch(many, policy, key=KEY).aggregates) > 0
 
 
 def test_server_down_queues_and_the_next_push_sends(fleet, tmp_path):
@@ -264,7 +270,7 @@ def test_fleet_advice_counts_what_fixed_a_cause_over_k_customers_only():
     for tenant, fixed in (("ta", True), ("tb", True), ("tc", False)):
         slip = replace(sig(tenant, "s1", "tool_slip", {"grasp_offset_x_mm": 4.0}), recovery="retry_grasp",
                        recovery_outcome="success" if fixed else "failed")
-        TenantStore(dsns[tenant]).push(export_batch([slip], DataPolicy(tenant, "s1")))
+        TenantStore(dsns[tenant]).push(export_batch([slip], DataPolicy(tenant, "s1"), key=KEY))
     assert fleet_fixes(TenantStore(dsns["td"])) == []  # 3 customers: under the store's k of 5, no advice
     assert fleet_fixes(TenantStore(dsns["td"]), k=3) == []  # nor can the caller ask for less than the store's k
     store.set_min_customers(3)
@@ -354,3 +360,47 @@ def test_similar_leaves_out_a_non_finite_effect_already_in_the_store(fleet):
     finally:
         with store.admin() as con:
             con.execute("DELETE FROM fleet.signatures WHERE signature_id = 'nan1'")
+
+
+@pytest.mark.parametrize("sql", [
+    "SELECT n_tup_ins FROM pg_stat_user_tables",
+    "SELECT n_tup_ins FROM pg_stat_all_tables",
+    "SELECT n_tup_ins FROM pg_stat_xact_user_tables",
+    "SELECT heap_blks_read FROM pg_statio_user_tables",
+    "SELECT usename FROM pg_stat_activity",
+    "SELECT rolname FROM pg_roles",
+    "SELECT usename FROM pg_user",
+    "SELECT reltuples FROM pg_class",
+    "SELECT pg_relation_size('fleet.signatures')",
+    "SELECT pg_total_relation_size('fleet.signatures')",
+    "SELECT pg_stat_get_tuples_inserted('fleet.signatures'::regclass)",
+    "SELECT count(*) FROM pg_locks",
+])
+def test_server_statistics_sizes_and_roles_are_not_for_tenants(fleet, sql):
+    _, dsns = fleet
+    result, _ = as_tenant(dsns["ta"], sql)
+    assert isinstance(result, psycopg.errors.InsufficientPrivilege), f"{sql!r} answered {result!r}"
+
+
+@pytest.mark.parametrize("mode", ["ACCESS EXCLUSIVE", "EXCLUSIVE", "SHARE", "SHARE ROW EXCLUSIVE"])
+def test_a_tenant_cannot_lock_out_the_others(fleet, mode):
+    _, dsns = fleet
+    for table in ("signatures", "effects", "aggregates"):
+        with psycopg.connect(dsns["ta"]) as con, pytest.raises(psycopg.errors.InsufficientPrivilege):
+            con.execute(f"LOCK TABLE fleet.{table} IN {mode} MODE")
+
+
+def test_a_lock_held_elsewhere_ends_a_push_and_a_query_in_bounded_time(fleet, tmp_path):
+    store, dsns = fleet
+    policy = DataPolicy("tc", "sc-lock")
+    with store.admin() as holder:  # what a tenant could do before it lost DELETE; the operator still can
+        holder.execute("LOCK TABLE fleet.signatures IN ACCESS EXCLUSIVE MODE")
+        tenant = TenantStore(dsns["tc"], lock_timeout_s=1)
+        with pytest.raises(StoreUnavailable, match=r"busy: gave up after its lock_timeout 1 s") as info:
+            tenant.run("frequency", scope="own")
+        assert "\n" not in str(info.value)
+        result = push(site_sigs("tc", "sc-lock"), policy, tmp_path, tenant)
+        assert "lock_timeout" in result.unavailable and result.queued == 1 and result.sent_batches == 0
+        holder.rollback()
+    again = push([], policy, tmp_path, TenantStore(dsns["tc"]))
+    assert (again.sent_batches, again.new_rows, again.queued) == (1, 3, 0)

@@ -1,7 +1,8 @@
 """`cellguard fleet push/query/similar/audit/withdraw`: fault signatures pooled across sites under each
 customer's data policy. The store's DSN (the tenant's own credentials) comes from ``--store`` or
-``CELLGUARD_FLEET_DSN``; the site's audit log and outbox live in ``--site-dir``. Every value a
-store, a lake or another tenant wrote is printed through ``printable``."""
+``CELLGUARD_FLEET_DSN``; the site's audit log, outbox and key live in ``--site-dir``. Every line is
+printed through ``say``: as written, never wrapped (scripts read them), control characters escaped
+(a store, a lake or another tenant wrote the values)."""
 
 from __future__ import annotations
 
@@ -10,11 +11,10 @@ import sys
 from pathlib import Path
 
 import typer
-from rich.console import Console
 
 from cellguard.cli.app import app
 from cellguard.cli.errors import fail
-from cellguard.cli.text import printable
+from cellguard.cli.text import printable, say
 from cellguard.errors import CellguardError
 
 fleet_app = typer.Typer(no_args_is_help=True, help="Fault signatures pooled across sites under each customer's data policy.")
@@ -64,10 +64,9 @@ def push(
         sys.stdout.write(json.dumps(result.to_dict()) + "\n")
     else:
         b = result.batch
-        Console(highlight=False).print(
-            f"fleet push: {b.export}, {b.rows} row(s) exported, {b.withheld_rows} kept at the site "
+        say(f"fleet push: {b.export}, {b.rows} row(s) exported, {b.withheld_rows} kept at the site "
             f"(policy {b.policy_version}); {result.new_rows} new, {result.duplicate_rows} already in the store; "
-            f"{result.queued} batch(es) queued", markup=False)
+            f"{result.queued} batch(es) queued", err=False)
     if result.unavailable:
         sys.stderr.write(f"{result.unavailable}; {result.queued} batch(es) kept in {Path(site_dir) / 'outbox'}, "
                          f"sent on the next push\n")
@@ -123,10 +122,9 @@ def query(
     if as_json:
         sys.stdout.write(json.dumps({"query": name, "rows": rows}) + "\n")
         return
-    console = Console(highlight=False)
-    console.print(f"{name}: {q.doc} ({len(rows)} row(s))", markup=False)
+    say(f"{name}: {q.doc} ({len(rows)} row(s))", err=False)
     for r in rows:
-        console.print(printable("  " + ", ".join(f"{c}={v}" for c, v in r.items())), markup=False)
+        say("  " + ", ".join(f"{c}={v}" for c, v in r.items()), err=False)
 
 
 @fleet_app.command()
@@ -160,14 +158,13 @@ def similar(
     if as_json:
         sys.stdout.write(json.dumps({"findings": out}) + "\n")
         return
-    console = Console(highlight=False)
     for f in out:
-        console.print(printable(f"finding {f['cause']}: {len(f['neighbours'])} similar signature(s)"), markup=False)
+        say(f"finding {f['cause']}: {len(f['neighbours'])} similar signature(s)", err=False)
         for n in f["neighbours"]:
             fixes = "; ".join(f"{x['recovery'] or 'no recovery recorded'} fixed {x['fixed']}/{x['signatures']} "
                               f"({x['scope']})" for x in n["fixes"]) or "no fix known"
-            console.print(printable(f"  {n['similarity']:.3f} {n['cause']} at site {n['site_id']} "
-                                    f"({n['robot_model']}): {fixes}"), markup=False)
+            say(f"  {n['similarity']:.3f} {n['cause']} at site {n['site_id']} ({n['robot_model']}): {fixes}",
+                err=False)
 
 
 @fleet_app.command()
@@ -183,16 +180,13 @@ def audit(site_dir: Path = SITE_DIR, as_json: bool = JSON) -> None:
     if as_json:
         sys.stdout.write(json.dumps({"entries": entries, "damaged": damaged}) + "\n")
     else:
-        console = Console(highlight=False)
-        console.print(f"audit log of {printable(site_dir)}: {len(entries)} entr{'y' if len(entries) == 1 else 'ies'}",
-                      markup=False)
+        say(f"audit log of {site_dir}: {len(entries)} entr{'y' if len(entries) == 1 else 'ies'}", err=False)
         for e in entries:
             why = f" ({e['reason']})" if e.get("reason") else ""
             if e.get("policy_in_force") not in (None, e["policy_version"]):
                 why = f" in_force={e['policy_in_force']}{why}"
-            console.print(printable(f"  {e['when_utc']} {e['status']:<9} {e['what']:<15} rows={e['rows']} "
-                                    f"kept={e['withheld_rows']} policy={e['policy_version']} "
-                                    f"batch={e['batch_id'][:12]}{why}"), markup=False)
+            say(f"  {e['when_utc']} {e['status']:<9} {e['what']:<15} rows={e['rows']} kept={e['withheld_rows']} "
+                f"policy={e['policy_version']} batch={e['batch_id'][:12]}{why}", err=False)
     for line in damaged:
         sys.stderr.write(f"warning: {printable(Path(site_dir) / 'audit.jsonl')}: {printable(line)}; not shown\n")
     if damaged:
@@ -206,28 +200,32 @@ def withdraw(
     lake: Path | None = typer.Option(None, "--lake", help="Also take the site's signatures out of this lake."),
     as_json: bool = JSON,
 ) -> None:
-    """Delete every signature and aggregate this site pooled, from the store (as this tenant) and the lake:
+    """Delete every signature and aggregate this site pooled, from the lake and the store (as this tenant):
     a customer withdrawing its consent. What waits in the outbox stays at the site (set ``export: nothing``
-    to keep it there)."""
+    to keep it there). The lake goes first: it reads every file of the tenant's before it changes one, so
+    a lake it cannot read leaves both as they were; a store that then fails is named with what the lake
+    gave up."""
     from cellguard.errors import ConfigError
-    from cellguard.fleet.lake import check_lake, forget, refuse_links
+    from cellguard.fleet.lake import check_lake, forget
     from cellguard.fleet.policy import load_policy
 
+    in_lake = None
     try:
         pol = load_policy(policy)
         tenant_store = _store(store)
         if tenant_store is None and lake is None:
             raise ConfigError("--store: no fleet store DSN (or CELLGUARD_FLEET_DSN); or give --lake")
         if lake is not None:
-            check_lake(lake)
-            refuse_links(lake, pol.tenant)  # before the store's rows go: the lake's must be able to go too
+            in_lake = forget(check_lake(lake), pol.tenant, pol.site)
         in_store = tenant_store.forget(pol.site) if tenant_store is not None else 0
-        in_lake = forget(lake, pol.tenant, pol.site) if lake is not None else 0
     except CellguardError as exc:
+        if in_lake is not None:
+            exc = CellguardError(f"{exc}; {in_lake} signature(s) of site {pol.site} were taken out of the lake, the "
+                            f"store's were not: run fleet withdraw again")
         fail(exc)
     if as_json:
         sys.stdout.write(json.dumps({"tenant": pol.tenant, "site": pol.site, "store_rows": in_store,
-                                     "lake_signatures": in_lake}) + "\n")
+                                     "lake_signatures": in_lake or 0}) + "\n")
     else:
-        Console(highlight=False).print(f"fleet withdraw: site {pol.site} of {pol.tenant}: {in_store} row(s) deleted "
-                                       f"from the store, {in_lake} signature(s) from the lake", markup=False)
+        say(f"fleet withdraw: site {pol.site} of {pol.tenant}: {in_store} row(s) deleted from the store, "
+            f"{in_lake or 0} signature(s) from the lake", err=False)

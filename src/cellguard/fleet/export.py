@@ -1,7 +1,9 @@
 """Enforcing a data policy at export: from a site's signatures to the batch that may leave it.
 
-``signatures``: each signature with the withheld fields emptied; ``aggregates_only``: counts per
-(cause, robot model, cell type), a count over fewer than ``min_group_size`` signatures not sent;
+``signatures``: each signature with the withheld fields emptied, under an id keyed with the site's
+secret (``site_key.py``); ``aggregates_only``: counts per (cause, robot model, cell type, month), a
+withheld robot model or cell type left out of the grouping (null), a count over fewer than
+``min_group_size`` signatures not sent;
 ``nothing``: an empty batch. Signatures past the retention period are never sent. The batch is
 all that leaves the site: it holds no record, no tick and no raw feature value. A batch that
 waited in the outbox is checked again against the policy in force when it is to leave
@@ -65,6 +67,7 @@ class Batch:
         for key in ("tenant_id", "site_id", "policy_version", "export"):
             if not isinstance(raw.get(key), str):
                 raise SignatureError(f"batch.{key}: required text, got {raw.get(key)!r}")
+        check_text(raw["policy_version"], "batch.policy_version", required=True)
         if raw["export"] not in EXPORTS:
             raise SignatureError(f"batch.export: {raw['export']!r}; allowed: {', '.join(EXPORTS)}")
         for key in ("signatures", "aggregates"):
@@ -117,7 +120,8 @@ def refusal(batch: Batch, policy: DataPolicy, today: dt.date | None = None) -> s
         return "the policy exports nothing"
     if batch.signatures and policy.export != "signatures":
         return f"it holds signatures, the policy exports {policy.export}"
-    shown = sorted({n for s in batch.signatures for n in policy.withheld if s.get(n) not in (None, {})})
+    rows = (*batch.signatures, *batch.aggregates)
+    shown = sorted({n for r in rows for n in policy.withheld if r.get(n) not in (None, {})})
     if shown:
         return f"it holds {', '.join(shown)}, which the policy withholds"
     oldest = today - dt.timedelta(days=policy.retention_days)
@@ -132,8 +136,10 @@ def refusal(batch: Batch, policy: DataPolicy, today: dt.date | None = None) -> s
     return None
 
 
-def export_batch(signatures: Sequence[Signature], policy: DataPolicy, today: dt.date | None = None) -> Batch:
-    """The batch ``policy`` lets leave the site, from the site's ``signatures``."""
+def export_batch(signatures: Sequence[Signature], policy: DataPolicy, today: dt.date | None = None, *,
+                 key: bytes) -> Batch:
+    """The batch ``policy`` lets leave the site, from the site's ``signatures``; ``key`` is the site's
+    secret the signature ids are keyed with."""
     today = today or dt.datetime.now(dt.timezone.utc).date()
     oldest = today - dt.timedelta(days=policy.retention_days)
     live = [s for s in signatures if dt.date.fromisoformat(s.created_date) >= oldest]
@@ -141,7 +147,9 @@ def export_batch(signatures: Sequence[Signature], policy: DataPolicy, today: dt.
     if policy.export == "nothing":
         return Batch(**base, withheld_rows=len(signatures))
     if policy.export == "aggregates_only":
-        counts = Counter((s.cause, s.robot_model, s.cell_type, s.created_date[:7]) for s in live)
+        hide = policy.withheld  # a withheld robot model or cell type is not a group: one row over all of them
+        counts = Counter((s.cause, None if "robot_model" in hide else s.robot_model,
+                          None if "cell_type" in hide else s.cell_type, s.created_date[:7]) for s in live)
         rows = tuple({"cause": c, "robot_model": m, "cell_type": t, "month": mo, "signatures": n}
                      for (c, m, t, mo), n in sorted(counts.items(), key=str) if n >= policy.min_group_size)
         sent = sum(r["signatures"] for r in rows)
@@ -150,5 +158,5 @@ def export_batch(signatures: Sequence[Signature], policy: DataPolicy, today: dt.
         if (s.tenant_id, s.site_id) != (policy.tenant, policy.site):
             raise PolicyError(f"signature.tenant_id/site_id: {s.tenant_id}/{s.site_id} is not the policy's "
                               f"{policy.tenant}/{policy.site}")
-    rows = tuple(withhold(s, policy.withheld) for s in live)
+    rows = tuple(withhold(s, policy.withheld, key) for s in live)
     return Batch(**base, signatures=rows, withheld_rows=len(signatures) - len(rows))

@@ -42,6 +42,7 @@ from cellguard.fleet.lake import check_lake, forget, write_signatures
 from cellguard.fleet.outbox import Outbox
 from cellguard.fleet.policy import DataPolicy
 from cellguard.fleet.signature import Signature
+from cellguard.fleet.site_key import site_key
 from cellguard.fleet.store import StoreError, StoreUnavailable, TenantStore
 
 
@@ -69,7 +70,7 @@ def push(signatures: list[Signature], policy: DataPolicy, site_dir: Path, store:
     """Export ``signatures`` under ``policy`` and send them (and any queued batch it allows) to ``store``."""
     if lake is not None:
         check_lake(lake)  # before anything is queued or sent
-    batch = export_batch(signatures, policy, today)
+    batch = export_batch(signatures, policy, today, key=site_key(site_dir))
     outbox = Outbox(site_dir)
     destination = store.where if store is not None else "nowhere"
     if batch.export == "nothing" or batch.rows == 0:

@@ -7,7 +7,8 @@ feature, effect``: one row per changed feature) and, for ``similar``, ``probe`` 
 effect``: the signature looked for). Parameters (``:k``, ``:site``, ...) are validated and
 written in as literals by ``render``.
 
-A cross-customer query returns only groups seen at ``:k`` or more distinct customers.
+A cross-customer query returns only groups seen at ``:k`` or more distinct customers, and takes no value
+(a minimum, a date) from a group seen at fewer.
 """
 
 from __future__ import annotations
@@ -52,21 +53,22 @@ HAVING count(DISTINCT tenant_id) >= :k
 ORDER BY signatures DESC, cause, robot_model NULLS LAST, cellguard_version NULLS LAST
 """
 
+# k applies to the (cause, policy version) groups before anything is taken from them: "first seen" and
+# "deployed" are minimums over groups seen at k or more customers only, so one customer's lone (or old-dated)
+# signature neither shows its date nor hides a cause from everyone
 _INTRODUCED = """
 WITH per_version AS (
   SELECT cause, policy_version, min(created_date) AS first_seen, count(*) AS signatures,
          count(DISTINCT site_id) AS sites, count(DISTINCT tenant_id) AS customers
   FROM signatures WHERE policy_version IS NOT NULL
-  GROUP BY cause, policy_version),
-deployed AS (
-  SELECT policy_version, min(created_date) AS deployed FROM signatures
-  WHERE policy_version IS NOT NULL GROUP BY policy_version),
+  GROUP BY cause, policy_version
+  HAVING count(DISTINCT tenant_id) >= :k),
+deployed AS (SELECT policy_version, min(first_seen) AS deployed FROM per_version GROUP BY policy_version),
 earliest AS (SELECT cause, min(first_seen) AS first_seen FROM per_version GROUP BY cause)
 SELECT v.cause, v.policy_version, d.deployed, v.first_seen, v.signatures, v.sites, v.customers
 FROM per_version v
 JOIN earliest e ON v.cause = e.cause AND v.first_seen = e.first_seen
 JOIN deployed d ON v.policy_version = d.policy_version
-WHERE v.customers >= :k
 ORDER BY v.cause, v.policy_version
 """
 

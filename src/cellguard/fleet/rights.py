@@ -52,8 +52,8 @@ def access(lake: Path, query: NamedQuery, params: Mapping | None, tenant: str | 
         k = max(asked, min_customers) if isinstance(asked, int) and not isinstance(asked, bool) else asked
         n = len(tenants(lake))
         if isinstance(k, int) and n < k:
-            raise RefusedAggregate(f"cross-customer query {query.name} refused: signatures from {n} customer(s), "
-                                   f"at least {k} needed")
+            raise RefusedAggregate(f"cross-customer query {query.name} refused: signatures from fewer than {k} "
+                                   f"customers")  # not how many: a count under k is not for the caller
         return Access(every, {**params, "k": k})
     if tenant not in tenants(lake):
         raise ConfigError(f"--tenant {tenant}: no signatures of this tenant in {lake}")

@@ -6,9 +6,11 @@ onset and detection delay in cycles, the policy and calibration version stamps, 
 version, and the recovery taken with its outcome when known. No ticks, no images, no names:
 a tenant id and a site id, both opaque, assigned by the fleet operator.
 
-The signature id is the content hash of every field as diagnosed, before the data policy
-withholds any: a retried upload is the same row, and a push under a policy that withholds more
-replaces the row it sent before (the store and the lake keep one row per id, the latest).
+The signature id is an HMAC-SHA256, under the site's own secret key (``site_key.py``: it never
+leaves the site), of every field as diagnosed, before the data policy withholds any: a retried
+upload from the same site is the same row, and a push under a policy that withholds more replaces
+the row it sent before (the store and the lake keep one row per id, the latest). Keyed, because an
+unkeyed hash of withheld fields can be inverted by trying the values other rows show openly.
 
 Every field is checked when a signature is made or read (a queued batch): its type, a finite
 number in range, text without control characters, so nothing malformed reaches the store or the
@@ -19,6 +21,7 @@ from __future__ import annotations
 
 import datetime as dt
 import hashlib
+import hmac
 import json
 import math
 import re
@@ -88,16 +91,15 @@ class Signature:
                 check_text(feature, "signature.effects (a feature name)", required=True)
                 _number(value, f"signature.effects.{feature}", -EFFECT_LIMIT, EFFECT_LIMIT)
 
-    @property
-    def signature_id(self) -> str:
-        """sha256 of the canonical JSON of every field as diagnosed, 32 hex digits."""
-        body = json.dumps(self._fields(), sort_keys=True, separators=(",", ":"))
-        return hashlib.sha256(body.encode()).hexdigest()[:32]
+    def signature_id(self, key: bytes) -> str:
+        """HMAC-SHA256 under the site's ``key`` of the canonical JSON of every field as diagnosed, 32 hex
+        digits: the same finding keeps its id at its site, and no one without the key can test a guess
+        of a withheld field against it."""
+        body = json.dumps(self.to_dict(), sort_keys=True, separators=(",", ":"))
+        return hmac.new(key, body.encode(), hashlib.sha256).hexdigest()[:32]
 
     def to_dict(self) -> dict:
-        return {"signature_id": self.signature_id, **self._fields()}
-
-    def _fields(self) -> dict:
+        """Every field as diagnosed (no id: that needs the site's key, see ``withhold``)."""
         out = asdict(self)
         out["effects"] = dict(sorted(self.effects.items())) if self.effects is not None else None
         return out
@@ -107,20 +109,21 @@ WITHHOLDABLE = tuple(f.name for f in fields(Signature)
                      if f.name not in ("tenant_id", "site_id", "created_date", "cause", "schema_version"))
 
 
-def withhold(sig: Signature, names: tuple[str, ...]) -> dict:
+def withhold(sig: Signature, names: tuple[str, ...], key: bytes) -> dict:
     """The row that leaves the site: the signature's fields with the named ones emptied, under the id of
-    the signature as diagnosed (the same finding keeps its id whatever a policy withholds)."""
-    return {**sig.to_dict(), **{n: None for n in names}}
+    the signature as diagnosed, keyed with the site's ``key`` (the same finding keeps its id whatever a
+    policy withholds, and the id tells nothing of what was withheld)."""
+    return {"signature_id": sig.signature_id(key), **sig.to_dict(), **{n: None for n in names}}
 
 
 def row_from_dict(raw: object) -> dict:
-    """A sent row (``withhold``'s) from its JSON, every field checked; its id is kept (it is the hash
-    of fields the row may no longer hold, so it cannot be checked against them)."""
+    """A sent row (``withhold``'s) from its JSON, every field checked; its id is required and kept (it is
+    keyed with the site's secret over fields the row may no longer hold, so it cannot be checked here)."""
     row = from_dict(raw).to_dict()
-    given = raw.get("signature_id", row["signature_id"])
+    given = raw.get("signature_id")
     if not isinstance(given, str) or not _ID.fullmatch(given):
         raise SignatureError(f"signature.signature_id: expected 32 hex digits, got {given!r}")
-    return {**row, "signature_id": given}
+    return {"signature_id": given, **row}
 
 
 def from_dict(raw: object) -> Signature:
@@ -185,8 +188,9 @@ def check_text(value: object, name: str, required: bool = False) -> None:
     if value is None and not required:
         return
     if not isinstance(value, str) or not value.isprintable() or len(value) > 200 or (required and not value):
+        shown = repr(value) if len(repr(value)) <= 80 else f"{repr(value)[:60]}... ({len(repr(value))} characters)"
         raise SignatureError(f"{name}: expected {'' if required else 'null or '}printable text of at most 200 "
-                             f"characters, got {value!r}")
+                             f"characters, got {shown}")
 
 
 def _number(value: object, name: str, lo: float, hi: float) -> None:

@@ -9,11 +9,19 @@ Roles (``D`` is the database name):
   connect time by the password it authenticates with: the policies compare rows with
   ``fleet.session_tenant()``, a SECURITY DEFINER lookup of ``session_user``, which only a
   superuser can change (``SET ROLE`` changes ``current_user``, not ``session_user``; there is
-  no GUC to forge). Tenants may SELECT, INSERT and DELETE their own rows; nobody may UPDATE.
+  no GUC to forge). Tenants may SELECT and INSERT their own rows; nobody may UPDATE. A tenant
+  deletes its own rows only through SECURITY DEFINER functions (``fleet.drop_signature``,
+  ``fleet.drop_aggregate``, ``fleet.forget_site``): with no DELETE right it cannot ``LOCK`` a table
+  in a mode that would stop every other tenant's push and query. Every tenant connection also
+  runs with a ``lock_timeout`` and a ``statement_timeout``, so a wait on another session ends.
+- Tenants may not read the server's activity statistics, relation sizes or role list
+  (``pg_stat_*``, ``pg_statio_*``, ``pg_*_size``, ``pg_roles``, ``pg_class``): those count every
+  customer's rows or name every tenant. The planner's estimates (``EXPLAIN``) still show a
+  table's approximate total row count to whoever may read it: PostgreSQL gives no way to hide them.
 - ``D_agg`` (no login) reads every row, but only inside the cross-customer functions
   ``fleet.q_<query>(k)``, generated from the named queries (``queries.py``): each refuses when
-  fewer than k customers have signatures (k = max(the caller's, the store's setting, default 5))
-  and drops every group seen at fewer than k.
+  fewer than k customers have signatures (k = max(the caller's, the store's setting, default 5);
+  the refusal does not say how many there are) and drops every group seen at fewer than k.
 
 Every SECURITY DEFINER function names its tables with their schema and searches ``pg_temp`` last,
 and tenants may not create temporary objects at all: a temporary view called ``signatures`` read
@@ -45,6 +53,25 @@ SIGNATURE_COLUMNS = ("signature_id", "tenant_id", "site_id", "created_date", "ca
                      "cellguard_version", "recovery", "recovery_outcome", "schema_version")
 RELATIONS = {"signatures": "fleet.signatures", "effects": "fleet.effects",  # never a name pg_temp could shadow
              "probe": "unnest(%(features)s::text[], %(effects)s::double precision[]) AS probe (feature, effect)"}
+
+# the server's views and functions that count every customer's rows or name every tenant: a tenant reads none
+# (revoked from PUBLIC in the store's database only; pg_stats and pg_stats_ext already hide row-secured tables)
+_HIDDEN_CATALOG_SQL = r"""
+DO $$ DECLARE r record; BEGIN
+  FOR r IN SELECT c.oid::regclass AS rel FROM pg_catalog.pg_class c
+           WHERE c.relnamespace = 'pg_catalog'::regnamespace AND c.relkind = 'v'
+             AND (c.relname LIKE 'pg\_stat\_%' OR c.relname LIKE 'pg\_statio\_%') LOOP
+    EXECUTE format('REVOKE ALL ON %s FROM PUBLIC', r.rel);
+  END LOOP;
+  FOR r IN SELECT p.oid::regprocedure AS fn FROM pg_catalog.pg_proc p
+           WHERE p.pronamespace = 'pg_catalog'::regnamespace
+             AND (p.proname LIKE 'pg\_stat\_get\_%' OR p.proname LIKE 'pg\_%\_size' OR p.proname = 'pg_lock_status') LOOP
+    EXECUTE format('REVOKE ALL ON FUNCTION %s FROM PUBLIC', r.fn);
+  END LOOP;
+END $$;
+REVOKE ALL ON pg_catalog.pg_class, pg_catalog.pg_roles, pg_catalog.pg_user, pg_catalog.pg_group,
+  pg_catalog.pg_auth_members, pg_catalog.pg_locks FROM PUBLIC;
+"""
 
 
 class StoreError(CellguardError):
@@ -155,6 +182,7 @@ class FleetStore:
         with connect(self._admin_db()) as con:
             with con.transaction():
                 con.execute(self._schema_sql() if reset or not exists else self._session_tenant_sql())
+                con.execute(self._tenant_rights_sql())
                 for q in QUERIES.values():
                     if q.cross_customer:
                         con.execute(self._function_sql(q))
@@ -232,9 +260,38 @@ ALTER TABLE fleet.{t} FORCE ROW LEVEL SECURITY;
 CREATE POLICY own_rows ON fleet.{t} FOR ALL TO {a}
   USING (tenant_id = fleet.session_tenant()) WITH CHECK (tenant_id = fleet.session_tenant());
 CREATE POLICY cross_customer ON fleet.{t} FOR SELECT TO {g} USING (true);
-GRANT SELECT, INSERT, DELETE ON fleet.{t} TO {a};
+GRANT SELECT, INSERT ON fleet.{t} TO {a};
 GRANT SELECT ON fleet.{t} TO {g};
 """ for t in ("signatures", "effects", "aggregates"))
+
+    def _tenant_rights_sql(self) -> str:
+        """What a tenant may do beyond its own rows' SELECT and INSERT, on a new store and an older one:
+        delete them only through the owner's functions (no DELETE right, so no table lock that stops the
+        others), and read no statistics, size or role list of the server's (they count every customer)."""
+        o, a = f'"{self.owner}"', f'"{self.app}"'
+        mine = "tenant_id = fleet.session_tenant()"
+        out = "".join(f"""
+REVOKE DELETE ON fleet.{t} FROM {a};
+DROP POLICY IF EXISTS owner_deletes ON fleet.{t};
+CREATE POLICY owner_deletes ON fleet.{t} FOR ALL TO {o} USING ({mine});
+""" for t in ("signatures", "effects", "aggregates")) + f"""
+CREATE OR REPLACE FUNCTION fleet.drop_signature(sid text) RETURNS bigint LANGUAGE sql SECURITY DEFINER
+  SET search_path = pg_catalog, pg_temp AS $$
+  WITH d AS (DELETE FROM fleet.signatures WHERE {mine} AND signature_id = sid RETURNING 1) SELECT count(*) FROM d $$;
+CREATE OR REPLACE FUNCTION fleet.drop_aggregate(rid text) RETURNS bigint LANGUAGE sql SECURITY DEFINER
+  SET search_path = pg_catalog, pg_temp AS $$
+  WITH d AS (DELETE FROM fleet.aggregates WHERE {mine} AND row_id = rid RETURNING 1) SELECT count(*) FROM d $$;
+CREATE OR REPLACE FUNCTION fleet.forget_site(site text, before date, before_month text) RETURNS bigint
+  LANGUAGE sql SECURITY DEFINER SET search_path = pg_catalog, pg_temp AS $$
+  WITH s AS (DELETE FROM fleet.signatures WHERE {mine} AND site_id = site AND created_date < before RETURNING 1),
+       g AS (DELETE FROM fleet.aggregates WHERE {mine} AND site_id = site AND month < before_month RETURNING 1)
+  SELECT (SELECT count(*) FROM s) + (SELECT count(*) FROM g) $$;
+""" + "".join(f"""
+ALTER FUNCTION fleet.{f} OWNER TO {o};
+REVOKE ALL ON FUNCTION fleet.{f} FROM PUBLIC;
+GRANT EXECUTE ON FUNCTION fleet.{f} TO {a};
+""" for f in ("drop_signature(text)", "drop_aggregate(text)", "forget_site(text, date, text)"))
+        return out + _HIDDEN_CATALOG_SQL
 
     def _session_tenant_sql(self) -> str:
         return f"""
@@ -257,7 +314,7 @@ DECLARE
   n int := (SELECT count(DISTINCT t.tenant_id) FROM fleet.signatures t);
 BEGIN
   IF n < k_eff THEN
-    RAISE EXCEPTION 'cross-customer query {q.name} refused: signatures from % customer(s), at least % needed', n, k_eff
+    RAISE EXCEPTION 'cross-customer query {q.name} refused: signatures from fewer than % customers', k_eff
       USING ERRCODE = 'insufficient_privilege';
   END IF;
   RETURN QUERY {body};
@@ -269,15 +326,22 @@ GRANT EXECUTE ON FUNCTION fleet.q_{q.name}(int) TO "{self.app}";
 
 
 class TenantStore:
-    """A tenant's side: push batches and query, every statement as the tenant's own role."""
+    """A tenant's side: push batches and query, every statement as the tenant's own role.
 
-    def __init__(self, dsn: str, timeout_s: float = 3.0):
+    ``timeout_s`` bounds the connect, ``lock_timeout_s`` any wait on a lock another session holds and
+    ``statement_timeout_s`` any one statement: no other session can keep a push or a query waiting."""
+
+    def __init__(self, dsn: str, timeout_s: float = 3.0, lock_timeout_s: float = 10.0,
+                 statement_timeout_s: float = 300.0):
         self.dsn, self.timeout_s = check_dsn(dsn), timeout_s
+        self.lock_timeout_s, self.statement_timeout_s = lock_timeout_s, statement_timeout_s
         self.where = _where(dsn)
 
     def connection(self):
         con = connect(self.dsn, self.timeout_s)
-        con.execute("SET search_path = fleet, pg_catalog")
+        con.execute("SELECT set_config('search_path', 'fleet, pg_catalog', false), "
+                    "set_config('lock_timeout', %s, false), set_config('statement_timeout', %s, false)",
+                    (f"{round(self.lock_timeout_s * 1000)}ms", f"{round(self.statement_timeout_s * 1000)}ms"))
         con.commit()
         return con
 
@@ -311,12 +375,8 @@ class TenantStore:
         withdrawn). Returns the rows deleted."""
         month = before.isoformat()[:7] if before else "9999-12"
         with self._writing(f"refused to delete the rows of site {site_id}") as cur:
-            cur.execute("DELETE FROM fleet.signatures WHERE site_id = %s AND created_date < %s",
-                        (site_id, before or dt.date.max))
-            deleted = cur.rowcount
-            cur.execute("DELETE FROM fleet.aggregates WHERE site_id = %s AND month < %s", (site_id, month))
-            deleted += cur.rowcount
-        return deleted
+            cur.execute("SELECT fleet.forget_site(%s, %s, %s)", (site_id, before or dt.date.max, month))
+            return cur.fetchone()[0]
 
     @contextmanager
     def _writing(self, refused: str):
@@ -329,6 +389,8 @@ class TenantStore:
                     yield cur
             except psycopg.errors.InsufficientPrivilege as exc:
                 raise StoreError(f"fleet store {self.where}: {refused} ({exc.diag.message_primary})") from None
+            except (psycopg.errors.LockNotAvailable, psycopg.errors.QueryCanceled) as exc:
+                raise StoreUnavailable(self._busy(exc)) from None
             except psycopg.OperationalError as exc:
                 raise StoreUnavailable(f"fleet store {self.where} lost mid-transaction ({exc.__class__.__name__})") \
                     from None
@@ -343,31 +405,42 @@ class TenantStore:
         if scope not in ("fleet", "own"):
             raise ConfigError(f"--scope: {scope!r}; allowed: fleet, own")
         with self.connection() as con, con.transaction(), con.cursor() as cur:
-            if scope == "fleet" and q.cross_customer:
-                k = int((params or {}).get("k", MIN_CUSTOMERS))
-                try:
+            try:
+                if scope == "fleet" and q.cross_customer:
+                    k = int((params or {}).get("k", MIN_CUSTOMERS))
                     cur.execute(f"SELECT * FROM fleet.q_{q.name}(%s)", (k,))
-                except psycopg.errors.InsufficientPrivilege as exc:
-                    raise RefusedAggregate(exc.diag.message_primary) from None
-            else:  # the probe is bound as arrays: tenants may create no temporary table
-                cur.execute(render(q, params, k_expr="1", relations=RELATIONS),
-                            {"features": [f for f, _ in probe], "effects": [float(e) for _, e in probe]})
+                else:  # the probe is bound as arrays: tenants may create no temporary table
+                    cur.execute(render(q, params, k_expr="1", relations=RELATIONS),
+                                {"features": [f for f, _ in probe], "effects": [float(e) for _, e in probe]})
+            except psycopg.errors.InsufficientPrivilege as exc:
+                raise RefusedAggregate(exc.diag.message_primary) from None
+            except (psycopg.errors.LockNotAvailable, psycopg.errors.QueryCanceled) as exc:
+                raise StoreUnavailable(self._busy(exc)) from None
             cols = [d.name for d in cur.description]
             return [plain(dict(zip(cols, r))) for r in cur.fetchall()]
 
+    def _busy(self, exc: Exception) -> str:
+        """A wait cut short by ``lock_timeout`` or ``statement_timeout``, in one line."""
+        limit = (f"lock_timeout {self.lock_timeout_s:g} s" if isinstance(exc, _psycopg().errors.LockNotAvailable)
+                 else f"statement_timeout {self.statement_timeout_s:g} s")
+        return f"fleet store {self.where} busy: gave up after its {limit} ({_reason(exc, self.dsn)})"
 
+
+_DROP = {"signatures": ("drop_signature", "signature_id"), "aggregates": ("drop_aggregate", "row_id")}
 # a signature's effects are all there or none (withheld): its id is the hash of them all
 _SAME_EFFECTS = ("EXISTS (SELECT 1 FROM fleet.effects e WHERE e.tenant_id = %(tenant_id)s "
                  "AND e.signature_id = %(signature_id)s) = %(has_effects)s")
 
 
 def _replace(cur, table: str, row: Mapping, key: Sequence[str], same: str = "true", **params) -> int:
-    """Insert ``row`` into ``fleet.<table>``, first deleting a row with the same ``key`` whose values
-    differ (or for which the SQL condition ``same`` fails). 1 if it was inserted, 0 if it was there as it is."""
+    """Insert ``row`` into ``fleet.<table>``, first deleting (through ``fleet.<drop>``, as tenants hold no
+    DELETE right) a row with the same ``key`` whose values differ (or for which the SQL condition ``same``
+    fails). 1 if it was inserted, 0 if it was there as it is."""
     cols, values = ", ".join(row), ", ".join(f"%({c})s" for c in row)
     match = " AND ".join(f"{k} IS NOT DISTINCT FROM %({k})s" for k in key)
-    cur.execute(f"DELETE FROM fleet.{table} WHERE {match} AND NOT (({cols}) IS NOT DISTINCT FROM ({values}) "
-                f"AND {same})", {**row, **params})
+    drop, by = _DROP[table]
+    cur.execute(f"SELECT fleet.{drop}({by}) FROM fleet.{table} WHERE {match} "
+                f"AND NOT (({cols}) IS NOT DISTINCT FROM ({values}) AND {same})", {**row, **params})
     cur.execute(f"INSERT INTO fleet.{table} ({cols}) VALUES ({values}) ON CONFLICT DO NOTHING", row)
     return cur.rowcount
 

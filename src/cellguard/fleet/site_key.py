@@ -1,0 +1,62 @@
+"""The site's secret key: what signature ids are keyed with, so an id tells nothing of withheld fields.
+
+``SITE_DIR/site.key``, 32 random bytes as 64 hex digits, owner-only (0600), made at the site's
+first push and never sent anywhere. The same site keeps the same key, so a finding pushed again
+keeps its id (re-pushes add nothing); anyone without the key (the operator, other tenants) cannot
+test a guess of a withheld field against an id. Losing the key only means the site's next push
+stores its findings under new ids (``fleet withdraw`` then push again removes the old ones).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import secrets
+import stat
+from pathlib import Path
+
+from cellguard.errors import ConfigError, OutputError
+
+KEY_FILE = "site.key"
+_KEY = re.compile(r"[0-9a-f]{64}")
+
+
+def site_key(site_dir: Path) -> bytes:
+    """The site's key, made (mode 0600, written beside and linked into place) if it is not there yet;
+    ConfigError naming the file when it is not a key only its owner can read."""
+    path = Path(site_dir) / KEY_FILE
+    if not os.path.lexists(path):
+        _create(path)
+    try:
+        st = os.lstat(path)
+        if not stat.S_ISREG(st.st_mode):
+            raise ConfigError(f"site key {path}: not a regular file")
+        if st.st_mode & 0o077:
+            raise ConfigError(f"site key {path}: readable by others (mode {stat.S_IMODE(st.st_mode):o}); "
+                              f"chmod 600 it")
+        text = path.read_text(encoding="ascii").strip()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"site key {path}: cannot read it ({exc.__class__.__name__})") from None
+    if not _KEY.fullmatch(text):
+        raise ConfigError(f"site key {path}: expected 64 hex digits; restore the site's key (signature ids "
+                          f"depend on it) or remove the file to start a new one")
+    return bytes.fromhex(text)
+
+
+def _create(path: Path) -> None:
+    """A fresh key at ``path``; one made meanwhile by another push is kept (linking never overwrites)."""
+    tmp = path.with_name(f"{KEY_FILE}.{secrets.token_hex(4)}.tmp")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with os.fdopen(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600), "w") as f:
+            f.write(secrets.token_hex(32) + "\n")
+            f.flush()
+            os.fsync(f.fileno())
+        try:
+            os.link(tmp, path)
+        except FileExistsError:
+            pass
+    except OSError as exc:
+        raise OutputError(f"site key {path}: cannot write ({exc.strerror or exc.__class__.__name__})") from None
+    finally:
+        tmp.unlink(missing_ok=True)
