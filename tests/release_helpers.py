@@ -51,3 +51,15 @@ def two_runs_at_sim(tmp_path: Path, cycles: int) -> tuple[Path, Path, str]:
     store.add_bundle(bundle)
     promote(store, bundle.id, CELL, "sim")
     return plan, site, bundle.id
+
+
+def log_pass(store, stage: str, release: str) -> None:
+    """A gates entry passing ``release`` at ``stage``, its pointers set as ``release run`` sets them (the first
+    release to pass a stage is its own last_good): the earlier stages' gates, when their runs are not the point."""
+    from cellguard.release import log
+
+    with store.transaction():
+        log.append(store, {"kind": "gates", "cell": CELL, "stage": stage, "release": release, "verdict": "pass",
+                           "gates": [], "evidence": []})
+        if store.pointers(CELL, stage).last_good is None:
+            store.set_pointers(CELL, stage, release, release)

@@ -147,12 +147,14 @@ def test_a_gate_threshold_that_is_not_a_finite_number_is_refused(tmp_path, gate)
         load_plan(write_plan(tmp_path / "plan.yaml", {"sim": {"gates": [gate]}}))
 
 
-def test_a_threshold_yaml_reads_as_text_says_so(tmp_path):
-    """YAML 1.1 floats need a dot: ``max: 1e3`` is the string '1e3', which the gate refuses; the line says why."""
+def test_a_threshold_yaml_reads_as_text_says_so_and_an_exponent_without_a_dot_is_a_number(tmp_path):
+    """``max: "1e3"`` is text, which the gate refuses, saying why; ``max: 1e3`` (YAML 1.1's text) is 1000."""
     plan = tmp_path / "plan.yaml"
-    plan.write_text("stages:\n  sim:\n    gates:\n      - {metric: cycle_time_p95_s, max: 1e3}\n")
-    with pytest.raises(GateError, match=r"gates\[0\]\.max: .*got '1e3': text to YAML; .*1\.0e\+3"):
+    plan.write_text("stages:\n  sim:\n    gates:\n      - {metric: cycle_time_p95_s, max: \"1e3\"}\n")
+    with pytest.raises(GateError, match=r"gates\[0\]\.max: .*got '1e3': text to YAML; write the number unquoted"):
         load_plan(plan)
+    plan.write_text("stages:\n  sim:\n    gates:\n      - {metric: cycle_time_p95_s, max: 1e3}\n")
+    assert load_plan(plan)["sim"].gates[0].max == 1000.0
 
 
 def test_a_stage_flag_that_is_not_a_boolean_is_refused(tmp_path):

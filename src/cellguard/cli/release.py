@@ -143,6 +143,8 @@ def run_stage(
                   f"records {', '.join(result.evidence)})")
         if result.rolled_back_to:
             out.print(f"rolled back: production on {cell} is {result.rolled_back_to} again (last_good)")
+        if scenario is not None:
+            out.print(f"  {scenario} ran in place of the plan's runs: logged, not evidence a promotion accepts")
     if result.verdict != "pass":
         raise typer.Exit(1)
 

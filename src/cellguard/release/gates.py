@@ -134,13 +134,13 @@ def gate_error(where: str, exc) -> GateError:
     msg = "unknown key" if err["type"] == "extra_forbidden" else err["msg"].removeprefix("Value error, ")
     got = err.get("input")
     if isinstance(got, str | bool | int | float) and err["type"] != "extra_forbidden":
-        msg += f" (got {got!r}" + (": text to YAML; write a number unquoted, and 1e3 as 1.0e+3)"
+        msg += f" (got {got!r}" + (": text to YAML; write the number unquoted)"
                                     if isinstance(got, str) and _number_as_text(got) else ")")
     return GateError(f"{where}{'.' + loc if loc else ''}: {msg}")
 
 
 def _number_as_text(text: str) -> bool:
-    """YAML 1.1 reads 1e3 and 1e999 as strings (its floats need a dot)."""
+    """A number written in quotes (``max: "1e3"``), which YAML reads as text."""
     try:
         float(text)
     except ValueError:

@@ -94,16 +94,60 @@ def _body(text: str) -> dict | None:
 
 
 def entries(store) -> list[LogEntry]:
-    """Every entry; ReleaseError naming the first that is not a JSON object or does not match its hash (a command
-    never acts on an edited entry, nor reads a key an edit removed)."""
-    out = []
+    """Every entry; ReleaseError naming the first that is not a JSON object, does not match its hash or does not
+    follow the entry before it (a command never acts on an edited entry, nor reads a key an edit removed, nor
+    on a log with an entry deleted or moved from the middle: each entry alone still matched its own hash)."""
+    out, prev_hash = [], GENESIS
     for seq, text, prev, digest in _rows(store):
         body = _body(text)
         if body is None or entry_hash(prev, body) != digest:
             what = "not a JSON object" if body is None else "content does not match its hash"
-            raise ReleaseError(f"log entry {seq}: {what} (edited outside cellguard); release verify lists every break")
+        elif seq != len(out) + 1 or prev != prev_hash:
+            what = f"does not follow entry {len(out)} (an entry before it was deleted or moved)"
+        else:
+            what = None
+        if what is not None:
+            raise ReleaseError(f"log entry {seq}: {what} (edited outside cellguard); release verify lists every "
+                               f"break; nothing moved")
         out.append(LogEntry(seq, body, prev, digest))
+        prev_hash = digest
     return out
+
+
+def passed(body: dict) -> bool:
+    """A gates entry that lets its release on (promotion, last_good): a pass on the plan's own runs (a pass on
+    runs given with ``release run --scenario`` in place of the plan's is logged, never acted on)."""
+    return body.get("kind") == "gates" and body.get("verdict") == "pass" and not body.get("scenario")
+
+
+def check_pointers(store, cell: str, stage: str) -> tuple:
+    """(current, last_good) of (cell, stage) as stored; ReleaseError unless the log's entries set them so (a
+    pointer edited outside cellguard would run, promote or roll back a release no gate let there)."""
+    p = store.pointers(cell, stage)
+    want = pointers_by_log(entries(store)).get((cell, stage), (None, None))
+    if (p.current, p.last_good) != want:
+        raise ReleaseError(f"pointers of {stage} on {cell}: current {p.current}, last_good {p.last_good}; the log "
+                           f"says current {want[0]}, last_good {want[1]}: edited outside cellguard (release verify); "
+                           f"nothing moved, nothing run")
+    return p.current, p.last_good
+
+
+def run_problems(store, log_entries: list[LogEntry]) -> list[str]:
+    """Each run a gates entry counted (``runs``, ``last_good_runs``: [seq, record id]) that the store's runs no
+    longer hold as counted (deleted, its record or release relabelled), in words; empty when all are there."""
+    rows, problems = store.run_rows(), []
+    for e in log_entries:
+        b = e.body
+        for key, release in (("runs", b.get("release")), ("last_good_runs", b.get("last_good"))):
+            for seq, rid in b.get(key) or []:
+                row = rows.get(seq)
+                have = (row.record_id, row.cell, row.stage, row.release) if row else None
+                if have != (rid, b.get("cell"), b.get("stage"), release):
+                    now = "is gone" if row is None else (f"now holds record {row.record_id} of release {row.release} "
+                                                         f"at {row.stage} on {row.cell}")
+                    problems.append(f"run {seq} (record {rid} of release {release}), counted by log entry {e.seq}, "
+                                    f"{now} (the runs table edited outside cellguard)")
+    return problems
 
 
 def size(store) -> int:
@@ -122,19 +166,19 @@ def last_pointer_move(store, cell: str, stage: str) -> LogEntry | None:
 
 def pointers_by_log(log_entries: list[LogEntry]) -> dict[tuple, tuple]:
     """(cell, stage) -> (current, last_good) as the entries set them, by promotion.py's rules: a promotion
-    makes the outgoing release last_good if its latest gates there passed, the first release to pass a
+    makes the outgoing release last_good if its latest gates there ``passed``, the first release to pass a
     stage is its own last_good, a rollback makes last_good current."""
-    state, passed = {}, {}
+    state, ok = {}, {}
     for e in log_entries:
         b = e.body
         key = (b.get("cell"), b.get("stage"))
         current, last_good = state.get(key, (None, None))
         if b.get("kind") == "gates":
-            passed[(*key, b.get("release"))] = b.get("verdict") == "pass"
-            if b.get("verdict") == "pass" and last_good is None:
+            ok[(*key, b.get("release"))] = passed(b)
+            if passed(b) and last_good is None:
                 state[key] = (current, current)
         elif b.get("kind") == "promote":
-            state[key] = (b.get("to"), b.get("from") if passed.get((*key, b.get("from"))) else last_good)
+            state[key] = (b.get("to"), b.get("from") if ok.get((*key, b.get("from"))) else last_good)
         elif b.get("kind") == "rollback":
             state[key] = (b.get("to"), b.get("to"))
     return state
@@ -187,4 +231,5 @@ def verify_log(store, expect_head: str | None = None) -> list[str]:
         if have != want:
             problems.append(f"pointers of {stage} on {cell}: current {have[0]}, last_good {have[1]}; the log says "
                             f"current {want[0]}, last_good {want[1]} (edited outside cellguard)")
-    return problems + store.edited_bundles()
+    whole = [e for e in readable if entry_hash(e.prev_hash, e.body) == e.hash]  # an edited one is named above
+    return problems + run_problems(store, whole) + store.edited_bundles()

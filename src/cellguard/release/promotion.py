@@ -11,6 +11,7 @@ before the current one: a promotion moves it to the outgoing release when that o
 
 from __future__ import annotations
 
+import hashlib
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -18,7 +19,7 @@ from pathlib import Path
 from cellguard.errors import OperatorStopped, OutputError, RecordError
 from cellguard.output import make_folder
 from cellguard.release import log
-from cellguard.release.bundle import Bundle, verify_bundle
+from cellguard.release.bundle import Bundle, canonical_json, verify_bundle
 from cellguard.release.errors import BundleMismatch, ReleaseError, StageError
 from cellguard.release.evidence import RunEvidence, counted_run, record_id
 from cellguard.release.gates import FAIL, INCONCLUSIVE, PASS, GateResult, evaluate, verdict
@@ -27,6 +28,17 @@ from cellguard.release.plan import StagePlan, scenario_for
 from cellguard.release.store import STAGES, RunRow, Store, check_stage
 
 INCUMBENT_FALLBACK = "scripted"  # the cell's taught program: what a cell runs before any release
+
+
+@dataclass(frozen=True)
+class Start:
+    """What a stage's runs started on: its pointers and the log entry that last moved it. Its gates are logged, and
+    act, only if the stage is still so when they are: evaluated against a release a racing command made current
+    since, a failing run rolled back the newcomer and a passing one undid its promotion."""
+
+    current: str | None
+    last_good: str | None
+    move_seq: int
 
 
 @dataclass(frozen=True)
@@ -66,20 +78,27 @@ def promote(store: Store, release: str, cell: str, to: str) -> log.LogEntry:
         if evaluation is None:
             raise StageError(f"--to {to}: release {bundle.id} has no gate results at {prev} on {cell}; a stage is "
                              f"entered only from the one before it ({' -> '.join(STAGES)})")
+        if evaluation.body.get("scenario"):
+            raise StageError(f"--to {to}: the gates of {prev} for release {bundle.id} were evaluated on runs given "
+                             f"with --scenario ({', '.join(evaluation.body['scenario'])}; log entry {evaluation.seq}), "
+                             f"not on the plan's runs that define the stage: run {prev} with its plan first")
         if evaluation.body["verdict"] != PASS:
             failing = [g["metric"] for g in evaluation.body["gates"] if g["status"] != PASS]
             failing += ["runs not read as evidence"] if evaluation.body.get("refused") else []
             raise StageError(f"--to {to}: the gates of {prev} ended {evaluation.body['verdict']} for release "
                              f"{bundle.id} ({', '.join(failing)}; log entry {evaluation.seq})")
+        unbound = log.run_problems(store, [evaluation])
+        if unbound:
+            raise ReleaseError(f"--to {to}: {unbound[0]}; nothing moved")
     with store.transaction():  # the pointers read under the write lock: a racing promotion sees this one's
-        p = store.pointers(cell, to)
-        if p.current == bundle.id:
+        current, last_good = log.check_pointers(store, cell, to)
+        if current == bundle.id:
             raise StageError(f"--to {to}: release {bundle.id} is already current at {to} on {cell}")
-        outgoing = last_evaluation(store, cell, to, p.current) if p.current else None
-        last_good = p.current if outgoing is not None and outgoing.body["verdict"] == PASS else p.last_good
+        outgoing = last_evaluation(store, cell, to, current) if current else None
+        last_good = current if outgoing is not None and log.passed(outgoing.body) else last_good
         store.set_pointers(cell, to, bundle.id, last_good)
         return log.append(store, {"kind": "promote", "cell": cell, "stage": to, "release": bundle.id,
-                                  "from": p.current, "to": bundle.id,
+                                  "from": current, "to": bundle.id,
                                   "gates": evaluation.body["gates"] if evaluation else [],
                                   "evidence": evaluation.body["evidence"] if evaluation else [],
                                   "gates_entry": evaluation.seq if evaluation else None})
@@ -92,14 +111,14 @@ def rollback(store: Store, cell: str, stage: str, reason: str = "operator", auto
     if not store.db.in_transaction:
         with store.transaction():
             return rollback(store, cell, stage, reason, automatic, gates, evidence)
-    p = store.pointers(cell, check_stage(stage))
-    if p.last_good is None or p.last_good == p.current:
-        raise StageError(f"--stage {stage}: nothing to roll back to on {cell} (current {p.current}, "
-                         f"last_good {p.last_good})")
-    body = {"kind": "rollback", "cell": cell, "stage": stage, "release": p.last_good, "from": p.current,
-            "to": p.last_good, "automatic": automatic, "reason": reason, "gates": gates or [],
+    current, last_good = log.check_pointers(store, cell, check_stage(stage))
+    if last_good is None or last_good == current:
+        raise StageError(f"--stage {stage}: nothing to roll back to on {cell} (current {current}, "
+                         f"last_good {last_good})")
+    body = {"kind": "rollback", "cell": cell, "stage": stage, "release": last_good, "from": current,
+            "to": last_good, "automatic": automatic, "reason": reason, "gates": gates or [],
             "evidence": evidence or []}
-    store.set_pointers(cell, stage, p.last_good, p.last_good)
+    store.set_pointers(cell, stage, last_good, last_good)
     return log.append(store, body)
 
 
@@ -114,31 +133,33 @@ def run_stage(store: Store, plan: StagePlan, cell: str, stage: str, runs: list[d
     from cellguard.runtime import run_scenario
     from cellguard.runtime.operator_stop import by_operator
 
-    p = store.pointers(cell, check_stage(stage))
-    if p.current is None:
+    log.tail(store)  # a log edited by hand: refused before anything runs, as its gates could not be logged
+    current, last_good = log.check_pointers(store, cell, check_stage(stage))  # a pointer edited by hand: same
+    if current is None:
         raise StageError(f"--stage {stage}: no release is current at {stage} on {cell}; promote one first")
-    bundle = store.bundle(p.current)
+    bundle = store.bundle(current)
     verify_bundle(bundle)
+    incumbent = _incumbent(store, cell) if plan.shadow else None
     entries = runs if runs is not None else plan.runs
     if not entries:
         raise StageError(f"--stage {stage}: the plan has no runs for {stage}")
     if not plan.gates:
         raise StageError(f"--stage {stage}: the plan has no gates for {stage}; its runs could only end inconclusive")
-    log.tail(store)  # a log edited by hand: refused before anything runs, as its gates could not be logged
     moved = log.last_pointer_move(store, cell, stage)
+    start = Start(current, last_good, moved.seq if moved else 0)
     context = {"id": bundle.id, "cell": cell, "stage": stage, **bundle.short(),
                "switch": {k: moved.body.get(k) for k in ("kind", "from", "to", "automatic", "reason")}
                | {"log_seq": moved.seq, "at": moved.body["at"]} if moved else None}
-    make = _maker(store, plan, cell, bundle, context)
+    make = _maker(plan, bundle, incumbent, context)
     folders = []
     for entry in entries:
         name = entry.get("name", "run")
-        scenario = scenario_for(entry, cell, *_driver(store, plan, cell, bundle), origin=f"{stage} run")
+        scenario = scenario_for(entry, cell, *_driver(plan, bundle, incumbent), origin=f"{stage} run")
         folder = _claim_folder(store, cell, stage, name)
         if on_run is not None:
             on_run(f"{stage}: {name} ({scenario.total_cycles} cycles) -> {folder}")
         try:
-            run = _start(make, scenario, bundle, plan.shadow)
+            run = _start(make, scenario, bundle, incumbent, plan.shadow)
         except BaseException:
             folder.rmdir()  # claimed, nothing recorded in it
             raise
@@ -152,17 +173,35 @@ def run_stage(store: Store, plan: StagePlan, cell: str, stage: str, runs: list[d
                               f"evaluated; {folder / 'summary.json'} says what ran")
         if plan.shadow:
             run.write_shadow(folder)
-        store.add_run(record_id(folder), cell, stage, bundle.id, name, folder,
-                      moved.seq if moved else 0)
+        try:
+            store.add_run(record_id(folder), cell, stage, bundle.id, name, folder, start.move_seq)
+        except ReleaseError as exc:
+            raise ReleaseError(f"{stage} run {name!r} on {cell}: its record in {folder} is kept but could not be "
+                               f"counted ({exc}); the stage's gates were not evaluated") from None
         folders.append(str(folder))
-    return evaluate_stage(store, plan, cell, stage, folders)
+    scenario_runs = [e.get("name", "run") for e in runs] if runs is not None else []
+    return evaluate_stage(store, plan, cell, stage, folders, start, scenario_runs)
 
 
-def _start(make, scenario, bundle: Bundle, shadow: bool):
-    """The stage's run, built and checked: what it loaded is still the release (nothing recorded yet)."""
+def _incumbent(store: Store, cell: str) -> Bundle | None:
+    """What drives the cell in shadow mode: production's current release, its pointers checked against the log
+    and its inputs against its manifest (None: the taught program)."""
+    current, _ = log.check_pointers(store, cell, "production")
+    if current is None:
+        return None
+    incumbent = store.bundle(current)
+    verify_bundle(incumbent)
+    return incumbent
+
+
+def _start(make, scenario, bundle: Bundle, incumbent: Bundle | None, shadow: bool):
+    """The stage's run, built and checked: what it loaded is still the release, and in shadow mode the incumbent
+    that drives is still its own (nothing recorded yet)."""
     run = make(scenario)
     try:
         verify_bundle(bundle, run.policy.candidate if shadow else run.policy)
+        if incumbent is not None:
+            verify_bundle(incumbent, run.policy.incumbent)
     except BundleMismatch:
         run.close()
         raise
@@ -205,18 +244,26 @@ def _evidence(store: Store, rows: list[RunRow]) -> tuple[list[RunEvidence], list
     return runs, refused
 
 
-def evaluate_stage(store: Store, plan: StagePlan, cell: str, stage: str, folders: list[str] = ()) -> StageResult:
+def evaluate_stage(store: Store, plan: StagePlan, cell: str, stage: str, folders: list[str] = (),
+                   start: Start | None = None, scenario: list[str] = ()) -> StageResult:
     """Evaluate the gates of (cell, stage) on its current release's runs since it became current.
 
-    A counted run that cannot be read as the record counted (gone, damaged, replaced) is left out and named in
-    ``refused``: the verdict is then never pass, yet it is decided and logged (a failing production release
-    still rolls back), and the stage's next evaluation is not blocked by it."""
-    p = store.pointers(cell, stage)
-    moved = log.last_pointer_move(store, cell, stage)
-    runs, refused = _evidence(store, store.runs(cell, stage, p.current, moved.seq if moved else 0))
-    good = []
-    if p.last_good and p.last_good != p.current:
-        good, refused_good = _evidence(store, store.runs(cell, stage, p.last_good))
+    A counted run that cannot be read as the record counted (gone, damaged, replaced), or that an earlier gates
+    entry counted and the runs table no longer holds so, is left out and named in ``refused``: the verdict is
+    then never pass, yet it is decided and logged (a failing production release still rolls back), and the
+    stage's next evaluation is not blocked by it. ``start``: what the runs started on (default: the stage now);
+    StageError, nothing logged or moved, when the stage moved since. ``scenario``: the runs given in place of the
+    plan's, logged; such a pass lets nothing on (``log.passed``)."""
+    if start is None:
+        moved = log.last_pointer_move(store, cell, stage)
+        start = Start(*log.check_pointers(store, cell, stage), moved.seq if moved else 0)
+    rows = store.runs(cell, stage, start.current, start.move_seq)
+    runs, refused = _evidence(store, rows)
+    refused += _dropped(store, cell, stage, start, rows)
+    good, good_rows = [], []
+    if start.last_good and start.last_good != start.current:
+        good_rows = store.runs(cell, stage, start.last_good)
+        good, refused_good = _evidence(store, good_rows)
         refused += refused_good
     results = tuple(evaluate(g, runs, good) for g in plan.gates)
     outcome = verdict(results)
@@ -224,39 +271,68 @@ def evaluate_stage(store: Store, plan: StagePlan, cell: str, stage: str, folders
     evidence = [r.record_id for r in runs]
     rolled = None
     with store.transaction():
-        entry = log.append(store, {"kind": "gates", "cell": cell, "stage": stage, "release": p.current,
+        _still(store, cell, stage, start, folders)
+        entry = log.append(store, {"kind": "gates", "cell": cell, "stage": stage, "release": start.current,
                                    "verdict": outcome, "gates": [r.to_dict() for r in results],
                                    "evidence": evidence, "last_good_evidence": [r.record_id for r in good],
-                                   "refused": refused})
-        if outcome == PASS and p.last_good is None:  # the first release to pass here
-            store.set_pointers(cell, stage, p.current, p.current)
-        elif outcome == FAIL and stage == "production" and p.last_good and p.last_good != p.current:
+                                   "refused": refused, "last_good": start.last_good,
+                                   "runs": [[r.seq, r.record_id] for r in rows],
+                                   "last_good_runs": [[r.seq, r.record_id] for r in good_rows],
+                                   "scenario": list(scenario), "plan_sha256": plan_hash(plan)})
+        if log.passed(entry.body) and start.last_good is None:  # the first release to pass here
+            store.set_pointers(cell, stage, start.current, start.current)
+        elif outcome == FAIL and stage == "production" and start.last_good and start.last_good != start.current:
             failing = [r.metric for r in results if r.status == FAIL]
-            rollback(store, cell, stage, reason=f"production gates failed: {', '.join(failing)} (log entry "
-                     f"{entry.seq})", automatic=True, gates=[r.to_dict() for r in results], evidence=evidence)
-            rolled = p.last_good
-    return StageResult(cell, stage, p.current, outcome, results, tuple(evidence), tuple(refused), tuple(folders),
-                       rolled, entry.seq)
+            rolled = rollback(store, cell, stage, reason=f"production gates failed: {', '.join(failing)} (log "
+                              f"entry {entry.seq})", automatic=True, gates=[r.to_dict() for r in results],
+                              evidence=evidence).body["to"]
+    return StageResult(cell, stage, start.current, outcome, results, tuple(evidence), tuple(refused),
+                       tuple(folders), rolled, entry.seq)
 
 
-def _driver(store: Store, plan: StagePlan, cell: str, bundle: Bundle) -> tuple[str, dict]:
+def plan_hash(plan: StagePlan) -> str:
+    """The stage's plan (its runs and gates: the gate's definition) as logged beside its results."""
+    return hashlib.sha256(canonical_json(plan.model_dump(mode="json"))).hexdigest()
+
+
+def _dropped(store: Store, cell: str, stage: str, start: Start, rows: list[RunRow]) -> list[str]:
+    """Each run an earlier gates entry of this release here counted that ``rows`` no longer hold as counted (its
+    row deleted, relabelled, or moved before the release came: a failing run gone, the next evaluation passed)."""
+    have = {(r.seq, r.record_id) for r in rows}
+    return [f"run {seq} (record {rid}), counted by log entry {e.seq}, is no longer among this release's runs here "
+            f"(the runs table edited outside cellguard)"
+            for e in log.entries(store) if e.seq > start.move_seq and e.body.get("kind") == "gates"
+            and (e.body.get("cell"), e.body.get("stage"), e.body.get("release")) == (cell, stage, start.current)
+            for seq, rid in e.body.get("runs") or [] if (seq, rid) not in have]
+
+
+def _still(store: Store, cell: str, stage: str, start: Start, folders) -> None:
+    """StageError unless (cell, stage) is, under the write lock, as its runs started (a racing promotion,
+    rollback or evaluation moved it: these gates would act on a release they did not evaluate)."""
+    moved = log.last_pointer_move(store, cell, stage)
+    now = Start(*log.check_pointers(store, cell, stage), moved.seq if moved else 0)
+    if now != start:
+        kept = f"; the records stay in {', '.join(folders)}" if folders else ""
+        raise StageError(f"{stage} on {cell}: current {now.current}, last_good {now.last_good} (log entry "
+                         f"{now.move_seq}), moved by another command while the runs of {start.current} were going "
+                         f"or evaluated: their gates were not logged and nothing moved{kept}; run the stage again")
+
+
+def _driver(plan: StagePlan, bundle: Bundle, incumbent: Bundle | None) -> tuple[str, dict]:
     """(policy, envelope) of what drives the cell: the release, or in shadow mode the incumbent."""
     if not plan.shadow:
         return bundle.policy_spec, bundle.manifest["envelope"]
-    incumbent = store.pointers(cell, "production").current
     if incumbent is None:
         return INCUMBENT_FALLBACK, {}
-    inc = store.bundle(incumbent)
-    return inc.policy_spec, inc.manifest["envelope"]
+    return incumbent.policy_spec, incumbent.manifest["envelope"]
 
 
-def _maker(store: Store, plan: StagePlan, cell: str, bundle: Bundle, context: dict):
+def _maker(plan: StagePlan, bundle: Bundle, incumbent: Bundle | None, context: dict):
     """``make_run(scenario)`` for the stage: the plan's clock, or the shadow run in pilot (simulated time)."""
     if plan.shadow:
         from cellguard.release.shadow import ShadowRun
 
-        context = {**context, "mode": "shadow",
-                   "incumbent": store.pointers(cell, "production").current or INCUMBENT_FALLBACK}
+        context = {**context, "mode": "shadow", "incumbent": incumbent.id if incumbent else INCUMBENT_FALLBACK}
 
         def make(sc):
             return ShadowRun(sc, bundle.policy_spec, bundle.guard)

@@ -19,6 +19,7 @@ from cellguard.release.bundle import Bundle, canonical_json, release_id
 from cellguard.release.errors import ReleaseError
 
 STORE_FILE = "release.sqlite"
+LOCK_WAIT_S = 5.0  # how long a command waits for another's write lock before it is refused
 STAGES = ("sim", "bench", "pilot", "production")
 
 _SCHEMA = """
@@ -71,7 +72,7 @@ class Store:
             raise ReleaseError(f"--site {site}: no release store there ({STORE_FILE}); release create makes one")
         self.site = make_folder(Path(site), "--site")
         try:
-            self.db = sqlite3.connect(self.site / STORE_FILE, isolation_level=None)
+            self.db = sqlite3.connect(self.site / STORE_FILE, isolation_level=None, timeout=LOCK_WAIT_S)
             self.db.executescript(_SCHEMA)
         except sqlite3.Error as exc:
             raise ReleaseError(f"--site {site}: cannot open the release store ({exc})") from None
@@ -79,22 +80,37 @@ class Store:
     def close(self) -> None:
         self.db.close()
 
+    def write(self, sql: str, args: tuple = ()) -> sqlite3.Cursor:
+        """``sql`` executed; ReleaseError naming the lock when another process holds the store (a sqlite3 shell,
+        a backup) past LOCK_WAIT_S, or naming the fault: one line, never a traceback."""
+        try:
+            return self.db.execute(sql, args)
+        except sqlite3.OperationalError as exc:
+            if "locked" in str(exc) or "busy" in str(exc):
+                raise ReleaseError(f"--site {self.site}: {STORE_FILE} is locked by another process ({exc}, waited "
+                                   f"{LOCK_WAIT_S:g} s; a sqlite3 shell or a backup holding it?): nothing changed, "
+                                   f"run it again once it is free") from None
+            raise ReleaseError(f"--site {self.site}: cannot write {STORE_FILE} ({exc}); nothing changed") from None
+        except sqlite3.Error as exc:
+            raise ReleaseError(f"--site {self.site}: cannot write {STORE_FILE} ({exc}); nothing changed") from None
+
     @contextmanager
     def transaction(self):
-        """All or nothing: a CellguardError inside rolls every change back."""
-        self.db.execute("BEGIN IMMEDIATE")
+        """All or nothing: a CellguardError inside rolls every change back (so does a commit the lock refused)."""
+        self.write("BEGIN IMMEDIATE")
         try:
             yield self
+            self.write("COMMIT")
         except BaseException:
-            self.db.execute("ROLLBACK")
+            if self.db.in_transaction:
+                self.db.execute("ROLLBACK")
             raise
-        self.db.execute("COMMIT")
 
     # bundles
     def add_bundle(self, bundle: Bundle) -> bool:
         """Keep ``bundle``; False if it was already there (a bundle is never changed)."""
-        cur = self.db.execute("INSERT OR IGNORE INTO bundles VALUES (?, ?)",
-                              (bundle.id, canonical_json(bundle.manifest).decode()))
+        cur = self.write("INSERT OR IGNORE INTO bundles VALUES (?, ?)",
+                         (bundle.id, canonical_json(bundle.manifest).decode()))
         return cur.rowcount == 1
 
     def bundle(self, release: str) -> Bundle:
@@ -140,9 +156,9 @@ class Store:
                 since_log: int) -> None:
         """Count the run in ``folder`` (under the site): kept relative to the site, so the site is read the same
         from any working directory, and a copied site reads its own records."""
-        self.db.execute("INSERT INTO runs (record_id, cell, stage, release, name, folder, since_log) "
-                        "VALUES (?, ?, ?, ?, ?, ?, ?)", (record_id, cell, stage, release, name,
-                                                         Path(folder).relative_to(self.site).as_posix(), since_log))
+        self.write("INSERT INTO runs (record_id, cell, stage, release, name, folder, since_log) "
+                   "VALUES (?, ?, ?, ?, ?, ?, ?)", (record_id, cell, stage, release, name,
+                                                    Path(folder).relative_to(self.site).as_posix(), since_log))
 
     def run_folder(self, row: RunRow) -> Path:
         """Where ``row``'s run is in this site: ``runs/<cell>/<stage>/`` and the folder's own name (older stores
@@ -155,6 +171,11 @@ class Store:
                                "AND stage=? AND release=? AND since_log>=? ORDER BY seq",
                                (cell, stage, release, since_log))
         return [RunRow(*r) for r in rows]
+
+    def run_rows(self) -> dict[int, RunRow]:
+        """Every counted run by its seq, as stored: what the log's gates entries are checked against."""
+        rows = self.db.execute("SELECT seq, record_id, cell, stage, release, name, folder FROM runs")
+        return {r[0]: RunRow(*r) for r in rows}
 
     def next_run_number(self) -> int:
         return (self.db.execute("SELECT COALESCE(MAX(seq), 0) FROM runs").fetchone()[0]) + 1
