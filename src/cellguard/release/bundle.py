@@ -170,12 +170,14 @@ def _envelope(path: Path | None) -> GuardSettings:
     if path is None:
         return GuardSettings()
     raw = read_yaml(Path(path), "envelope", ReleaseError) or {}
-    try:
-        return GuardSettings.model_validate(raw)
-    except ValidationError as exc:
-        err = exc.errors()[0]
+    try:  # strict, as a scenario's guard: "0.5" or true is no watchdog time (true was 1 s), NaN no number
+        return GuardSettings.model_validate_json(json.dumps(raw), strict=True)
+    except (TypeError, ValueError) as exc:  # ValidationError is a ValueError
+        err = exc.errors()[0] if isinstance(exc, ValidationError) else {"loc": (), "type": "", "msg": str(exc)}
         where = ".".join(str(p) for p in err["loc"]) or "envelope"
         msg = "unknown key" if err["type"] == "extra_forbidden" else err["msg"]
+        if err.get("input") is not None and err["type"] != "extra_forbidden":
+            msg += f", got {err['input']!r}"
         raise ReleaseError(f"--envelope {path}: {where}: {msg}") from None
 
 
