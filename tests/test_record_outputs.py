@@ -206,3 +206,21 @@ def test_chunks_are_read_past_a_malformed_one(run, tmp_path):
     whole = [c.t_received_ns for c in open_record(run).chunks()]
     read = [c.t_received_ns for c in open_record(folder).chunks()]
     assert len(whole) > 3 and read == whole[:2] + whole[3:]
+
+
+def test_to_lerobot_on_a_full_disk_names_its_target_and_leaves_nothing(run, tmp_path, monkeypatch):
+    """It left the empty target folder it had made, and its line named the hidden staging folder beside it."""
+    import errno
+    import os
+
+    from cellguard.record import lerobot_export
+
+    def full(path, table):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(lerobot_export, "_write_parquet", full)
+    parent = tmp_path / "datasets"
+    parent.mkdir()
+    line = one_error(runner.invoke(app, ["record", "to-lerobot", str(run), "-o", str(parent / "x")]))
+    assert line == f"error: -o {parent / 'x'}: cannot write (No space left on device)"
+    assert list(parent.iterdir()) == []

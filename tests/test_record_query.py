@@ -80,6 +80,19 @@ def test_the_time_limit_covers_the_whole_query_and_kills_it(run_dir, monkeypatch
     _refused(run_dir, "SELECT 1", "--timeout", "0.5", contains="time limit of 0.5 s")
 
 
+def test_the_time_limit_stops_a_query_that_streams_rows(run_dir):
+    """Once rows streamed, a batch always waited in the pipe and the deadline was never looked at: a 2 s limit
+    ran 200 s until killed from outside. The reader here is slower than the child, as writing JSON lines is."""
+    started = time.monotonic()
+    names, rows = query.run_query(run_dir, "SELECT * FROM range(1000000000000)", timeout_s=1.0)
+    with pytest.raises(RecordError, match="stopped after the time limit of 1 s"):
+        for n, _ in enumerate(rows):
+            assert time.monotonic() - started < 30, f"still streaming after 30 s ({n} rows)"
+            if n % 100 == 0:
+                time.sleep(0.01)
+    assert time.monotonic() - started < 10
+
+
 def test_a_query_process_that_dies_is_one_line(run_dir, monkeypatch):
     monkeypatch.setattr(query, "_confine", lambda *args: os.kill(os.getpid(), signal.SIGKILL))
     _refused(run_dir, "SELECT 1", contains="ended without an answer (killed by signal 9)")

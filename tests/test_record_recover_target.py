@@ -35,3 +35,43 @@ def test_an_empty_folder_receives_the_copy_and_nothing_else(run, tmp_path):
     assert sorted(p.name for p in (tmp_path / "T").iterdir()) == ["index", "record.mcap"]
     with open_record(tmp_path / "T") as rec:
         assert rec.health().ok and [c.cycle for c in rec.cycles()] == list(range(6))
+
+
+def test_a_copy_that_appears_while_recovering_is_never_replaced(run, tmp_path, monkeypatch):
+    """Two recoveries into one new folder both checked it empty, both ended 0, and the later rename replaced the
+    first copy. Here the other copy lands while this one rebuilds its index: this one fails, that one stays."""
+    from cellguard.record import recovery
+
+    target = tmp_path / "T"
+    rebuild = recovery._rebuild_index
+
+    def the_other_lands(record, folder):
+        rebuild(record, folder)
+        (target / "record.mcap").write_bytes(b"the other copy")
+
+    monkeypatch.setattr(recovery, "_rebuild_index", the_other_lands)
+    line = one_error(runner.invoke(app, ["record", "recover", str(run), "-o", str(target)]))
+    assert line == (f"error: -o {target}: record.mcap appeared there while the copy was made (another recovery?); "
+                    f"nothing of it was replaced: give a new folder")
+    assert [p.name for p in target.iterdir()] == ["record.mcap"]
+    assert (target / "record.mcap").read_bytes() == b"the other copy"
+
+
+def test_a_killed_recoverys_staging_folder_is_removed_and_a_live_ones_is_named(run, tmp_path):
+    """After ``kill -9`` the rerun said only "exists and is not empty"."""
+    from cellguard.record import folder_lock
+
+    stale = tmp_path / "T" / ".recover-abc123.partial"
+    (stale / "index").mkdir(parents=True)
+    (stale / "record.mcap").write_bytes(b"half")
+    live = folder_lock.hold(stale, "-o")  # its process still runs
+    try:
+        line = one_error(runner.invoke(app, ["record", "recover", str(run), "-o", str(tmp_path / "T")]))
+    finally:
+        folder_lock.release(live)
+    assert line == (f"error: -o {tmp_path / 'T'}: another recovery is writing there (.recover-abc123.partial); wait "
+                    f"for it to end or give another folder")
+    assert (stale / "record.mcap").read_bytes() == b"half"
+    result = runner.invoke(app, ["record", "recover", str(run), "-o", str(tmp_path / "T")])  # its process is gone
+    assert result.exit_code == 0, result.output
+    assert sorted(p.name for p in (tmp_path / "T").iterdir()) == ["index", "record.mcap"]

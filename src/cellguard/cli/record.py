@@ -7,10 +7,12 @@ the pipe before the last row.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import sys
 from collections import Counter
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import typer
@@ -32,6 +34,25 @@ def _utc(wall_ns: int) -> str:
     import datetime as dt
 
     return dt.datetime.fromtimestamp(wall_ns * 1e-9, dt.timezone.utc).isoformat(timespec="milliseconds")
+
+
+@contextlib.contextmanager
+def _stdout(stop: Callable[[], None] = lambda: None) -> Iterator[None]:
+    """Write to stdout inside the block: a reader that stopped early (``| head``) ends the command quietly with
+    141, as ``cat`` does; stdout closed (``>&-``) or full (``> /dev/full``) is one line and exit 2 (it was a
+    traceback). ``stop``: what to end first (a query still running)."""
+    try:
+        if sys.stdout is None:  # Python's stand-in for a closed file descriptor 1
+            raise OSError("stdout is closed")
+        yield
+        sys.stdout.flush()
+    except OSError as exc:
+        stop()
+        if sys.stdout is not None:  # what is still buffered goes nowhere at exit instead of failing again
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        if isinstance(exc, BrokenPipeError):  # the reader took what it wanted
+            raise typer.Exit(EXIT_BROKEN_PIPE) from None
+        fail(RecordError(f"stdout: cannot write the output ({exc.strerror or exc})"))
 
 
 def warn_if_damaged(health, folder: Path) -> int:
@@ -82,10 +103,11 @@ def info(
         "run_lost": [{"t_s": e.t_ns * 1e-9, "reason": e.reason}
                      for e in events if e.kind == EventKind.RUN_PROCESS_LOST],
     }
-    if as_json:
-        sys.stdout.write(json.dumps(doc, indent=1, default=str) + "\n")
-    else:
-        _print_info(doc)
+    with _stdout():
+        if as_json:
+            sys.stdout.write(json.dumps(doc, indent=1, default=str) + "\n")
+        else:
+            _print_info(doc)
     raise typer.Exit(warn_if_damaged(health, folder))
 
 
@@ -201,14 +223,11 @@ def query(
     from cellguard.record.query import json_line, run_query
 
     try:
+        with _stdout():  # closed: refused before the query starts
+            pass
         names, rows = run_query(folder, sql, timeout_s)
-        try:
+        with _stdout(rows.close):
             for row in rows:
                 sys.stdout.write(json_line(names, row) + "\n")
-            sys.stdout.flush()
-        except BrokenPipeError:  # the reader took what it wanted (`| head`): stop the query, quietly
-            rows.close()
-            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # nothing left to flush at exit
-            raise typer.Exit(EXIT_BROKEN_PIPE) from None
     except CellguardError as exc:
         fail(exc)

@@ -13,8 +13,8 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from cellguard.cli.app import app
 from cellguard.cli.diagnose import print_diagnosis
 from cellguard.cli.errors import exit_if_stopped, fail
-from cellguard.cli.text import say
-from cellguard.errors import CellguardError
+from cellguard.cli.text import printable, say
+from cellguard.errors import CellguardError, OutputError
 from cellguard.output import make_folder
 from cellguard.scenario import Scenario, load_scenario
 
@@ -45,6 +45,12 @@ def _run(scenario: Scenario, out: Path, quiet: bool, realtime: bool = False, ove
             if created and out.is_dir() and not any(out.iterdir()):
                 out.rmdir()
             raise
+        rec = run.recording
+        if isinstance(exc, OutputError) and (rec.finished or rec.failed):  # the record closed; summary.json failed
+            state = "is finished and whole" if rec.finished else f"failed ({rec.failed})"
+            progress.stop()  # its last line before the error's
+            sys.stderr.write(f"error: {printable(f'{exc}; the record in {out} {state}; it has no summary.json')}\n")
+            raise typer.Exit(1) from None
         partial = f"the record in {out} is partial (no summary.json)"
         if isinstance(exc, CellguardError):
             raise CellguardError(f"{exc}; {partial}") from exc
@@ -53,6 +59,17 @@ def _run(scenario: Scenario, out: Path, quiet: bool, realtime: bool = False, ove
     finally:
         if progress.live.is_started:  # stopping one never shown prints a blank line on a pipe
             progress.stop()
+
+
+def _exit_if_unfinished(summary: dict, out: Path) -> None:
+    """A record that failed only at its close (its summary or its index could not be written): the cycles ran,
+    but the record is not whole; one line on stderr and exit 1, as for a write error mid-run."""
+    failed = summary.get("record_failed")
+    if failed:
+        sys.stderr.write(f"error: {printable(f'the record in {out} failed at its close: {failed}')}; "
+                         f"`cellguard record recover {printable(out)} -o NEW_DIR` writes a finished copy with its "
+                         f"index\n")
+        raise typer.Exit(1)
 
 
 def _print_summary(summary: dict, out: Path, as_json: bool) -> None:
@@ -93,6 +110,7 @@ def run(
     _print_summary(summary, out, as_json)
     _warn_short_acceptance(sc)
     exit_if_stopped(summary, out)
+    _exit_if_unfinished(summary, out)
 
 
 @app.command()
@@ -109,6 +127,7 @@ def demo(
         sc = load_scenario(DEMO_SCENARIO)
         summary = _run(sc, out, quiet=as_json, overwrite=overwrite)
         exit_if_stopped(summary, out)  # a stopped shift is not diagnosed
+        _exit_if_unfinished(summary, out)  # nor one whose record is not whole
         diagnosis = diagnose_record(out)
         report_path = write_report(out, diagnosis=diagnosis)
     except CellguardError as exc:

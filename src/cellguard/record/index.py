@@ -44,7 +44,9 @@ COLUMNS = {"cycles": ("cycle", "phase", "t_start_ns", "t_end_ns", "success", *_S
 
 
 def default_opener(path: Path) -> BinaryIO:
-    return open(path, "wb")
+    """A new file at ``path``; FileExistsError if anything is there: a record or an index part is never truncated
+    in place (``wb`` on a live run's record emptied it under its writer)."""
+    return open(path, "xb")
 
 
 def clear_index(folder: Path) -> None:

@@ -17,6 +17,7 @@ The layout is what lerobot 0.4 (``CODEBASE_VERSION = "v3.0"``) writes and reads:
 
 from __future__ import annotations
 
+import contextlib
 import json
 import shutil
 import tempfile
@@ -93,6 +94,7 @@ def export_lerobot(rec: Record, output: Path, fps: int = 50, task: str | None = 
         raise RecordError(f"{rec.file}: no cycle to export" + (f" ({'; '.join(skipped)})" if skipped else ""))
     data = {k: np.concatenate(v) for k, v in columns.items()}
     features = _features(data, joints, measurements)
+    made = not output.exists()
     staging = _prepare(output)
     robot_type = robot_type or (context.get("embodiment") or {}).get("robot")
     try:
@@ -101,8 +103,11 @@ def export_lerobot(rec: Record, output: Path, fps: int = 50, task: str | None = 
         # current folder); meta/ last: a dataset without meta/info.json is not one to LeRobot
         for part in sorted(staging.iterdir(), key=lambda p: p.name == "meta"):
             part.rename(output / part.name)
-    except OSError as exc:
-        raise RecordError(f"-o {output}: cannot write ({exc.strerror})") from None
+    except OSError as exc:  # named as given: the staging folder is this run's own, and gone after it
+        if made:  # a target this run made is removed again when empty (a full disk left it behind)
+            with contextlib.suppress(OSError):
+                output.rmdir()
+        raise RecordError(f"-o {output}: cannot write ({exc.strerror or exc})") from None
     finally:
         shutil.rmtree(staging, ignore_errors=True)  # this run's own folder; empty once its parts moved
     return LeRobotExport(str(output), fps, tuple(kept), len(data["index"]), tuple(skipped))
@@ -225,14 +230,8 @@ def _prepare(output: Path) -> Path:
 
 
 def _write_parquet(path: Path, table: pa.Table) -> None:
-    try:
-        pq.write_table(table, str(path))
-    except OSError as exc:
-        raise RecordError(f"-o {path}: cannot write ({exc})") from None
+    pq.write_table(table, str(path))  # OSError: the caller names -o as given
 
 
 def _write_json(path: Path, doc: dict) -> None:
-    try:
-        path.write_text(json.dumps(doc, indent=4))
-    except OSError as exc:
-        raise RecordError(f"-o {path}: cannot write ({exc.strerror})") from None
+    path.write_text(json.dumps(doc, indent=4))

@@ -153,8 +153,10 @@ def _rows(child, receiver, deadline: float, timeout_s: float) -> Iterator[tuple]
 
 
 def _receive(child, receiver, deadline: float, timeout_s: float) -> tuple[str, object]:
-    """The child's next message; RecordError for its error line, the time limit or a child that died."""
-    if not receiver.poll(max(0.0, deadline - time.monotonic())):
+    """The child's next message; RecordError for its error line, the time limit or a child that died. The deadline
+    is checked before the pipe: a child streaming rows always has one waiting (poll(0) is then True)."""
+    left = deadline - time.monotonic()
+    if left <= 0 or not receiver.poll(left):
         raise RecordError(f"sql: stopped after the time limit of {timeout_s:g} s (--timeout)")
     try:
         kind, value = pickle.loads(receiver.recv_bytes(_MESSAGE_BYTES))

@@ -7,11 +7,15 @@ markers and events that survived (a malformed one is left out of it, as the read
 metadata record (``RECOVERED``) says what the source was, so the copy never reads as a whole run (a
 record cut at its end has no gap to show: its copy read as complete). The target must be a new or
 empty folder; the copy is made in a hidden folder of its own inside it and moved into place once
-whole: a recovery that fails leaves nothing.
+whole: a recovery that fails leaves nothing. The staging folder is locked (``folder_lock``) while its process
+lives, so a second recovery into the same folder sees a live one (refused) or the leftovers of a killed one
+(removed); the final move happens under the target's lock, after the target is checked again, and links each
+file into place (never a rename over one): two recoveries started together both ended 0, one copy replaced.
 """
 
 from __future__ import annotations
 
+import errno
 import os
 import shutil
 import tempfile
@@ -21,6 +25,7 @@ from mcap.writer import CompressionType, Writer
 
 from cellguard.errors import RecordError
 from cellguard.output import refuse_filled_folder
+from cellguard.record import folder_lock
 from cellguard.record.index import IndexWriter, cycle_row, event_row
 from cellguard.record.reader import Health, open_record
 from cellguard.record.schemas import CHANNELS
@@ -40,15 +45,17 @@ def recover(source: Path, target: Path) -> Health:
     with open_record(source) as record:
         if target.resolve() in (record.file.parent.resolve(), record.file.resolve()):
             raise RecordError(f"-o {target}: would overwrite the record being recovered; choose another folder")
+        _clear_stale_staging(target)
         refuse_filled_folder(target, "-o")  # another run's index parts there were cleared, its other files mixed in
         health = record.health()
-        made, staging = False, None
+        made, staging, lock = False, None, None
         try:
             made = not target.exists()
             target.mkdir(parents=True, exist_ok=True)
             # inside the target: its files are renamed into place on the target's own filesystem (beside it, a
             # target that is a mount point failed with EXDEV, and a parent may not be writable)
-            staging = Path(tempfile.mkdtemp(prefix=".recover-", suffix=".partial", dir=target))
+            staging = Path(tempfile.mkdtemp(prefix=STAGING[0], suffix=STAGING[1], dir=target))
+            lock = folder_lock.hold(staging, "-o")
             with open(staging / RECORD_FILE, "wb") as f:
                 _copy_messages(record, f, {"source": _text(record.file), "source_health": health.describe()})
             _rebuild_index(record, staging / INDEX_DIR)
@@ -58,9 +65,40 @@ def recover(source: Path, target: Path) -> Health:
         finally:  # this run's own folders: the staging one is empty once its files moved
             if staging is not None:
                 shutil.rmtree(staging, ignore_errors=True)
+            folder_lock.release(lock)
             if made and not (target / RECORD_FILE).exists():
-                shutil.rmtree(target, ignore_errors=True)
+                try:
+                    target.rmdir()  # only if empty: another recovery's staging folder may be in it
+                except OSError:
+                    pass
     return health
+
+
+STAGING = (".recover-", ".partial")  # prefix and suffix of a recovery's staging folder inside its target
+
+
+def _staging(path: Path) -> bool:
+    return path.name.startswith(STAGING[0]) and path.name.endswith(STAGING[1]) and path.is_dir() \
+        and not path.is_symlink()
+
+
+def _clear_stale_staging(target: Path) -> None:
+    """Remove the staging folders of recoveries killed in ``target`` (nothing holds their lock); RecordError if a
+    recovery is still writing there. A rerun after ``kill -9`` was refused as "not empty", saying nothing of why."""
+    try:
+        leftovers = [p for p in target.iterdir() if _staging(p)] if target.is_dir() else []
+    except OSError:
+        return  # refuse_filled_folder says why the folder cannot be read
+    for old in leftovers:
+        try:
+            lock = folder_lock.hold(old, "-o")
+        except RecordError:
+            raise RecordError(f"-o {target}: another recovery is writing there ({old.name}); wait for it to end or "
+                              f"give another folder") from None
+        try:
+            shutil.rmtree(old, ignore_errors=True)
+        finally:
+            folder_lock.release(lock)
 
 
 def _text(path: Path) -> str:
@@ -69,13 +107,29 @@ def _text(path: Path) -> str:
 
 
 def _move_into(staging: Path, target: Path) -> None:
-    """Move the copy's files from ``staging`` into ``target`` (empty but for ``staging``), the record last: a
-    folder with a record reads as a finished copy, so the record appears only once its index is whole."""
-    files = sorted((p for p in staging.rglob("*") if p.is_file()), key=lambda p: p.name == RECORD_FILE)
-    for file in files:
-        destination = target / file.relative_to(staging)
-        destination.parent.mkdir(parents=True, exist_ok=True)
-        file.rename(destination)
+    """Move the copy's files from ``staging`` into ``target`` (empty but for staging folders), the record last: a
+    folder with a record reads as a finished copy, so the record appears only once its index is whole. Under the
+    target's lock, after looking again; each file is linked into place (a file there is never replaced)."""
+    lock = folder_lock.hold(target, "-o", wait=True)  # another recovery's move is short
+    try:
+        filled = sorted(p.name for p in target.iterdir() if not _staging(p))
+        if filled:
+            raise RecordError(f"-o {target}: {filled[0]} appeared there while the copy was made (another recovery?); "
+                              f"nothing of it was replaced: give a new folder")
+        files = sorted((p for p in staging.rglob("*") if p.is_file()), key=lambda p: p.name == RECORD_FILE)
+        for file in files:
+            destination = target / file.relative_to(staging)
+            destination.parent.mkdir(parents=True, exist_ok=True)
+            try:
+                os.link(file, destination)
+            except OSError as exc:
+                if exc.errno not in (errno.EPERM, errno.EOPNOTSUPP, errno.ENOTSUP, errno.EMLINK):
+                    raise  # EEXIST above all: never replaced
+                file.rename(destination)  # a filesystem without hard links: under the lock, checked empty
+                continue
+            file.unlink()
+    finally:
+        folder_lock.release(lock)
 
 
 def _copy_messages(record, stream, recovered: dict[str, str]) -> None:

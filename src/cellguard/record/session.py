@@ -53,6 +53,7 @@ from pathlib import Path
 
 from cellguard.control.events import Event, EventKind
 from cellguard.errors import RecordError
+from cellguard.record import folder_lock
 from cellguard.record.context import build_context, software_versions
 from cellguard.record.index import default_opener
 from cellguard.record.shared_pages import copy_shared_pages
@@ -72,9 +73,12 @@ HEAD, TAIL, FAILED = 0, 1, 2  # shared counters: ticks added by the loop, ticks 
 class RunRecording:
     """One run's record: context per cycle, measurements, chunks, ticks, events, cycle ends."""
 
-    def __init__(self, recorder: Recorder, run, queue_s: float = 2.0, reserve: Path | None = None):
+    def __init__(self, recorder: Recorder, run, queue_s: float = 2.0, reserve: Path | None = None,
+                 lock: int | None = None):
         self.run, self.name = run, recorder.name
+        self._lock = lock  # the folder's lock (``folder_lock``), shared with the writer process, let go at close
         self.failed: str | None = None
+        self.finished = False  # the writer finished the file and the index at close, without an error
         self.dropped = 0  # ticks not recorded because the writer was queue_s behind (wall time)
         self.high_water = 0  # most ticks the writer was behind
         self._events_seen = len(run.events)
@@ -112,26 +116,36 @@ class RunRecording:
               replace: bool = False, queue_s: float = 2.0) -> RunRecording:
         """Open the record of ``run`` in ``folder``; RecordError (nothing runs) if it cannot be written.
 
-        Refused if ``folder`` holds a record already, unless ``replace``. A small reserve file keeps
-        room for ``summary.json`` on a disk that fills up during the run; a disk without room for it is
-        refused here, since a run without one could end with a record and no summary.
+        Refused if ``folder`` holds a record already, unless ``replace``, and if another run is writing there
+        (``folder_lock``), even with ``replace``. A small reserve file keeps room for ``summary.json`` on a disk
+        that fills up during the run; a disk without room for it is refused here, since a run without one could
+        end with a record and no summary.
         """
         folder = Path(folder)
         refuse_existing(folder, replace)  # before anything is written there
-        cycles = getattr(run.scenario, "total_cycles", 100)
-        context = cls._context(run, config, software_versions())
-        profile = run.cell.profile
-        model = getattr(run.cell, "model", None)
-        description = None if model is None else describe(model, profile)
-        reserve = _reserve(folder / RESERVE_FILE, RESERVE_BYTES[0] + RESERVE_BYTES[1] * cycles)  # else nothing runs
         try:
+            folder.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise RecordError(f"{folder / RECORD_FILE}: cannot start the record ({exc.strerror or exc}); nothing "
+                              f"was run") from None
+        lock = folder_lock.hold(folder)
+        reserve = None
+        try:
+            refuse_existing(folder, replace)  # again under the lock: a run that just finished there has a record
+            cycles = getattr(run.scenario, "total_cycles", 100)
+            context = cls._context(run, config, software_versions())
+            profile = run.cell.profile
+            model = getattr(run.cell, "model", None)
+            description = None if model is None else describe(model, profile)
+            reserve = _reserve(folder / RESERVE_FILE, RESERVE_BYTES[0] + RESERVE_BYTES[1] * cycles)  # else nothing runs
             recorder = Recorder.create(folder, joints=profile.joint_names, dt_ns=run.cell.dt_ns, context=context,
                                        config=config, opener=opener, description=description, replace=replace,
                                        start_ns=run.clock.now())  # wall time: the monotonic clock, from boot
+            return cls(recorder, run, queue_s=queue_s, reserve=reserve, lock=lock)
         except BaseException:
             _release(reserve)
+            folder_lock.release(lock)
             raise
-        return cls(recorder, run, queue_s=queue_s, reserve=reserve)
 
     @staticmethod
     def _context(run, config: RecordConfig, software: dict, cycle: int = 0) -> dict:
@@ -201,11 +215,13 @@ class RunRecording:
             reply = self._reply(CLOSE_TIMEOUT_S)
             if reply is not None:
                 self.failed = self.failed or reply
+            self.finished = self.failed is None
         finally:
             self._process.join(CLOSE_TIMEOUT_S)
             self._replies.close()
             gc.unfreeze()
             _release(self._reserve)
+            folder_lock.release(self._lock)  # the writer process, joined, held it too
 
     def _put(self, name: str | None, *args) -> None:
         """A message for the writer, sent with the next batch: take the ticks added so far, then call recorder

@@ -144,17 +144,18 @@ class Recorder:
                start_ns: int = 0) -> Recorder:
         """Start a record in ``folder``; RecordError if it cannot be written or one is there already.
 
-        A record already in ``folder`` is refused unless ``replace``; then its file is overwritten
-        and only the index parts cellguard wrote are removed (other files under ``index/`` stay), with
-        the files derived from the old record (``RUN_OUTPUTS``): its baseline, bound to the old record,
-        made the new run's diagnosis refuse it (``demo --overwrite`` ended in exit 2).
+        A record already in ``folder`` is refused unless ``replace``; then its file is unlinked, never
+        truncated (a reader or a hard link keeps the old bytes), and only the index parts cellguard wrote are
+        removed (other files under ``index/`` stay), with the files derived from the old record
+        (``RUN_OUTPUTS``): its baseline, bound to the old record, made the new run's diagnosis refuse it
+        (``demo --overwrite`` ended in exit 2). The new file is created only where nothing is (``default_opener``).
         """
         folder = Path(folder)
         refuse_existing(folder, replace)
         try:
             folder.mkdir(parents=True, exist_ok=True)
             clear_index(folder / INDEX_DIR)
-            for name in RUN_OUTPUTS if replace else ():
+            for name in (*RUN_OUTPUTS, RECORD_FILE) if replace else ():
                 (folder / name).unlink(missing_ok=True)
             stream = opener(folder / RECORD_FILE)
         except OSError as exc:
@@ -408,9 +409,14 @@ class Recorder:
                 "epoch_wall_ns": str(self.epoch_wall_ns), "start_ns": str(self.start_ns),
                 "context": json.dumps(plain(self._context), allow_nan=False)})
         self._writer.finish()
+        self._sync()  # the record is whole on disk before the index, derived from it, is written
         if self._index is not None:
-            self._index.flush()
-        self._sync()
+            try:
+                self._index.flush()
+            except OSError as exc:
+                self._failed = _why(exc)
+                raise RecordError(f"{self._index.folder}: cannot write the index ({self._failed}); {self.name} is "
+                                  f"finished and whole") from None
 
 
 def refuse_existing(folder: Path, replace: bool = False) -> None:

@@ -516,6 +516,8 @@ def run_scenario(scenario: Scenario, out: Path, on_cycle: Callable[[dict], None]
         summary = run.summary()
         if run.stopped:
             summary["stopped"] = run.stopped
+        if run.recording.failed:  # mid-run (the cell was stopped), or only at close: the record is not whole
+            summary["record_failed"] = run.recording.failed
         write_output(out / "summary.json", json.dumps(summary, indent=1), "summary")
     return summary
 

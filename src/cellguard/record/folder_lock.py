@@ -1,0 +1,47 @@
+"""The lock a run holds on its folder while it writes its record there.
+
+``run --overwrite`` into a folder whose run was still writing truncated that record in place and then wrote
+beside its writer: both runs ended 0 and neither record was readable. The lock is an ``flock`` on the folder
+itself (no file is added to it), taken before anything is written there and shared with the forked writer
+process, so it holds until the last of them ends, the writer finishing a file after the loop's process died
+included, and the kernel lets go of it when they are gone (no stale lock after a crash).
+"""
+
+from __future__ import annotations
+
+import errno
+import fcntl
+import os
+from pathlib import Path
+
+from cellguard.errors import RecordError
+
+
+UNLOCKABLE = (errno.ENOLCK, errno.EOPNOTSUPP, errno.ENOTSUP, errno.EINVAL)  # flock is not offered there
+
+
+def hold(folder: Path, what: str = "--out", wait: bool = False) -> int | None:
+    """Lock ``folder`` (it must exist) for this process and the processes it forks; the descriptor that holds it
+    (``release`` lets go), None on a filesystem that offers no locks. RecordError naming the folder if another run
+    holds it, or with ``wait`` (a short hold by another process) once it let go."""
+    try:
+        fd = os.open(folder, os.O_RDONLY | os.O_DIRECTORY)
+    except OSError as exc:
+        raise RecordError(f"{what} {folder}: cannot be opened ({exc.strerror or exc})") from None
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | (0 if wait else fcntl.LOCK_NB))
+    except OSError as exc:
+        os.close(fd)
+        if exc.errno in UNLOCKABLE:  # a filesystem without locks (some network mounts): the run goes on unguarded
+            return None
+        raise RecordError(f"{what} {folder}: another run is still writing its record there; nothing was touched: "
+                          f"wait for it to end or choose another folder") from None
+    return fd
+
+
+def release(fd: int | None) -> None:
+    if fd is not None:
+        try:
+            os.close(fd)
+        except OSError:
+            pass
