@@ -23,7 +23,7 @@ import json
 import sys
 import tempfile
 import time
-from multiprocessing import Pool
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 from cellguard.diagnose.from_record import diagnose_record
@@ -94,9 +94,9 @@ def main(argv: list[str] | None = None) -> dict:
     seeds = range(100, 100 + args.seeds)
     report: dict = {"settings": {k: v for k, v in vars(args).items() if k != "cases"}}
     began = time.perf_counter()
-    with Pool(args.workers) as pool:
+    with ProcessPoolExecutor(args.workers) as pool:  # its workers may fork (a run's record writer); Pool's may not
         if "slip" in args.cases:
-            rows = pool.map(_slip, [(s, args) for s in seeds])
+            rows = list(pool.map(_slip, [(s, args) for s in seeds]))
             total = {k: sum(r[k]["cycles"] for r in rows) for k in ("without", "with")}
             ok = {k: sum(r[k]["succeeded"] for r in rows) for k in ("without", "with")}
             report["slip"] = {
@@ -106,7 +106,7 @@ def main(argv: list[str] | None = None) -> dict:
                 "recorded_with_outcome": sum(r["recorded_with_outcome"] for r in rows),
                 "record_matches_run": all(r["record_matches_run"] for r in rows), "runs": rows}
         if "late" in args.cases:
-            rows = pool.map(_late, [(s, args) for s in seeds])
+            rows = list(pool.map(_late, [(s, args) for s in seeds]))
             report["late"] = {"seeds": len(rows), "named_recovery": sum(r["named_recovery"] for r in rows),
                               "correct": sum(r["correct"] for r in rows), "runs": rows}
     report["wall_s"] = round(time.perf_counter() - began, 1)
