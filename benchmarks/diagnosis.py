@@ -179,15 +179,15 @@ def fault_hits(kind: str, cycle: int, seed: int) -> bool:
 
 QUADRUPED_CASES = {
     "servo_leg": ([{"kind": "servo_gain", "joint": ["rl_abduction", "rl_hip", "rl_knee"], "factor": 0.85,
-                    "at_cycle": 12}], "servo", "rl"),
-    "friction_knee": ([{"kind": "friction_step", "joint": "fr_knee", "factor": 1.5, "at_cycle": 12}],
+                    "at_cycle": 20}], "servo", "rl"),
+    "friction_knee": ([{"kind": "friction_step", "joint": "fr_knee", "factor": 1.5, "at_cycle": 20}],
                       "friction", "fr"),
 }
 
 
 def quadruped_case(name: str, seed: int) -> dict:
     faults, cause, leg = QUADRUPED_CASES[name]
-    r = run(seed, 10, faults, cell="quadruped-turns", acceptance=12)
+    r = run(seed, 10, faults, cell="quadruped-turns", acceptance=20)
     d = _diagnose(r, symmetry=r.symmetry)
     right = [f for f in d.findings if f.cause == cause and leg in f.legs]
     wrong = [f for f in d.findings if f.cause != cause or leg not in f.legs]  # another cause, or on another leg

@@ -12,7 +12,7 @@ from rich.console import Console
 
 from cellguard.cli.app import app
 from cellguard.cli.errors import fail
-from cellguard.cli.record import warn_if_damaged
+from cellguard.cli.record import EXIT_BROKEN_PIPE, warn_if_damaged
 from cellguard.cli.text import printable_tree, say
 from cellguard.errors import CellguardError, ConfigError
 
@@ -36,14 +36,19 @@ def diagnose(
         baseline_health = record_health(acceptance) if acceptance is not None else None
     except CellguardError as exc:
         fail(exc)
-    if as_json:
-        out = {**diagnosis.to_dict(), "record": {"ok": health.ok, "status": health.describe()}}
-        if baseline_health is not None:
-            out["acceptance_record"] = {"ok": baseline_health.ok, "status": baseline_health.describe()}
-        sys.stdout.write(json.dumps(out) + "\n")
-    else:
-        print_diagnosis(diagnosis)
-    raise typer.Exit(_warn(health, folder, baseline_health, acceptance))
+    out = {**diagnosis.to_dict(), "record": {"ok": health.ok, "status": health.describe()}}
+    if baseline_health is not None:
+        out["acceptance_record"] = {"ok": baseline_health.ok, "status": baseline_health.describe()}
+    try:
+        if as_json:
+            sys.stdout.write(json.dumps(out) + "\n")
+        else:
+            print_diagnosis(diagnosis)
+        sys.stdout.flush()
+    except BrokenPipeError:  # the reader took what it wanted (`| head -1`): quietly, as `record query` does
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # nothing left to flush at exit
+        raise typer.Exit(EXIT_BROKEN_PIPE) from None
+    raise typer.Exit(max(_warn(health, folder, baseline_health, acceptance), warn_if_unsteady(diagnosis.baseline)))
 
 
 @app.command()
@@ -65,12 +70,12 @@ def report(
             out = report_path(folder)
         health = record_health(folder)
         baseline_health = record_health(acceptance) if acceptance is not None else None
-        path = write_report(folder, out, diagnosis=diagnose_record(folder, acceptance=acceptance,
-                                                                   fleet=fleet_advice(fleet)), health=health)
+        diagnosis = diagnose_record(folder, acceptance=acceptance, fleet=fleet_advice(fleet))
+        path = write_report(folder, out, diagnosis=diagnosis, health=health)
     except CellguardError as exc:
         fail(exc)
     say(f"report: {path}", err=False)
-    raise typer.Exit(_warn(health, folder, baseline_health, acceptance))
+    raise typer.Exit(max(_warn(health, folder, baseline_health, acceptance), warn_if_unsteady(diagnosis.baseline)))
 
 
 def _warn(health, folder: Path, baseline_health, acceptance: Path | None) -> int:
@@ -80,6 +85,19 @@ def _warn(health, folder: Path, baseline_health, acceptance: Path | None) -> int
     if baseline_health is not None:
         code = max(code, warn_if_damaged(baseline_health, acceptance))
     return code
+
+
+def warn_if_unsteady(baseline) -> int:
+    """One warning line when features trended over the acceptance cycles (a fault already under way: the
+    baseline holds part of it); the exit code: 1 then, else 0."""
+    from cellguard.diagnose.diagnosis import trend_words
+
+    if not baseline.trends:
+        return 0
+    say(f"warning: baseline: the acceptance cycles were not steady ({trend_words(baseline, sorted(baseline.trends))}); "
+        "changes read against it are too small and may have begun before production: take the baseline from a "
+        "steady record with --acceptance DIR")
+    return 1
 
 
 def fleet_advice(use: bool | None) -> list[dict]:
@@ -107,8 +125,18 @@ def record_health(folder: Path):
         return rec.health()
 
 
+class _Console(Console):
+    """Rich's console, leaving a closed pipe to the command (rich exits 1 on it itself)."""
+
+    def on_broken_pipe(self) -> None:
+        self.quiet = True
+        raise BrokenPipeError
+
+
 def print_diagnosis(d) -> None:
-    console = Console(highlight=False)
+    from cellguard.diagnose.diagnosis import unwatched_words
+
+    console = _Console(highlight=False)
     data = printable_tree(d.to_dict())  # joint and signal names come from the record
     faulted = ("" if data["first_faulted_cycle"] is None else
                f", last good cycle {data['last_good_cycle']}, first faulted cycle {data['first_faulted_cycle']}")
@@ -121,6 +149,8 @@ def print_diagnosis(d) -> None:
         console.print(f"  {f['cause']}{joints} from cycle {f['cycle']}, confidence {f['confidence']:.2f}", markup=False)
         for line in f["evidence"]:
             console.print(f"    - {line}", markup=False)
+    if d.unwatched:
+        console.print(f"  note: {unwatched_words(d.unwatched)}", markup=False)
     if data.get("recoveries"):
         tally: dict[tuple[str, str], int] = {}
         for r in data["recoveries"]:

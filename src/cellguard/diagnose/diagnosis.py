@@ -44,6 +44,7 @@ class Diagnosis:
     recoveries: tuple[dict, ...] = ()  # every recovery attempt, with its cycle and outcome
     fixes: tuple[dict, ...] = ()  # per finding and behaviour: cycles it ran in and fixed (for the site's history)
     advice: tuple[dict, ...] = ()  # per finding: what fixed the same cause before at this site
+    unwatched: tuple[int, ...] = ()  # production cycles of another load: their joint currents and tracking unwatched
 
     def to_dict(self) -> dict:
         """The JSON of DESIGN.md (``cycles`` ... ``safety_events``) plus detail fields."""
@@ -54,6 +55,8 @@ class Diagnosis:
             "first_faulted_cycle": self.first_faulted_cycle,
             "drift_alarms": [a.to_dict() for a in self.drift.alarms],
             "findings": [f.to_dict() for f in self.findings],
+            "baseline_trends": dict(self.baseline.trends),
+            "load_features_unwatched_cycles": list(self.unwatched),
             "safety_events": list(self.safety_events),
             "changes": [c.to_dict() for c in self.changes],
             "asymmetry": self.asymmetry.to_dict() if self.asymmetry is not None else None,
@@ -114,6 +117,7 @@ def diagnose(rows: Iterable[object], events: Iterable[object] = (), context: Map
     lines = advice_lines(advised)
     findings = [replace(f, evidence=f.evidence + (lines[f.cause, f.cycle],)) if (f.cause, f.cycle) in lines else f
                 for f in with_running_again(findings, own)]
+    findings = _on_a_trend(findings, baseline)
     first = findings[0].cycle if findings else None
     good, faulted = last_good_and_faulted(cycles, first)
     return Diagnosis(
@@ -122,7 +126,35 @@ def diagnose(rows: Iterable[object], events: Iterable[object] = (), context: Map
         last_good_cycle=good.index if good else None, first_faulted_cycle=faulted.index if faulted else None,
         safety_events=tuple(_safety(e) for e in evs if e.get("kind") not in ROUTINE_EVENTS),
         asymmetry=asym, context=dict(context or {}), process=notes,
-        recoveries=tuple({"cycle": c, **o.to_dict()} for c, o in attempts), fixes=tuple(own), advice=tuple(advised))
+        recoveries=tuple({"cycle": c, **o.to_dict()} for c, o in attempts), fixes=tuple(own), advice=tuple(advised),
+        unwatched=tuple(baseline.other_load(watched)))
+
+
+def unwatched_words(cycles: Sequence[int]) -> str:
+    """The notice for production cycles whose load-dependent features went unwatched, in one line."""
+    shown = ", ".join(str(c) for c in cycles[:8]) + (" ..." if len(cycles) > 8 else "")
+    return (f"joint currents and tracking unwatched on {len(cycles)} production cycle(s) that carried another load "
+            f"than the acceptance (no part grasped): a joint fault there is not seen (cycles {shown})")
+
+
+def trend_words(baseline: Baseline, names: Sequence[str]) -> str:
+    """How ``names`` (features that trended in acceptance) moved over the acceptance cycles, in words."""
+    def change(n: str) -> str:
+        m, d = baseline.median(n), baseline.trends[n]
+        return f"{n} {d / abs(m) * 100:+.1f} %" if m else f"{n} {d:+.3g}"
+    return (f"{', '.join(change(n) for n in names[:4])}{' ...' if len(names) > 4 else ''} over acceptance "
+            f"cycles {baseline.cycles[0]} to {baseline.cycles[1]}")
+
+
+def _on_a_trend(findings: list[Finding], baseline: Baseline) -> list[Finding]:
+    """Findings in features that were not steady in acceptance, told so: the baseline holds part of
+    the change (it reads smaller than it is), and it may have begun before the first production cycle."""
+    out = []
+    for f in findings:
+        moved = sorted(set(f.signals) & set(baseline.trends))
+        out.append(told(f, (f"the acceptance cycles were not steady ({trend_words(baseline, moved)}): the baseline "
+                            "holds part of this change, which may have begun before production",)) if moved else f)
+    return out
 
 
 def _on_legs(findings: list[Finding], pairs: Sequence[SymmetryPair]) -> list[Finding]:

@@ -48,8 +48,11 @@ def diagnose_record(path: Path, acceptance: Path | None = None, fleet: list[dict
         baseline.check_binding(context, folder / BASELINE_FILE)
         baseline.check_fits(as_cycles(cycles), folder / BASELINE_FILE)
     past = site_history(folder, context.get("site")) if folder is not None else []
-    result = diagnose(cycles, events, {**context, "process": declared}, baseline=baseline,
-                      symmetry=symmetry_of(context), history=[*past, *fleet])
+    try:
+        result = diagnose(cycles, events, {**context, "process": declared}, baseline=baseline,
+                          symmetry=symmetry_of(context), history=[*past, *fleet])
+    except RecordError as exc:  # too few acceptance cycles, no production: say which record
+        raise RecordError(f"{path}: {exc}") from None
     if baseline is None:  # as a stored baseline is judged when read again, so the first diagnosis agrees
         result.baseline.check_fits(as_cycles(cycles), f"{path} (its own acceptance cycles)")
     if baseline is None and folder is not None:  # first: a baseline.json that cannot be written leaves nothing

@@ -9,7 +9,7 @@ import html
 import json
 from collections.abc import Callable, Mapping
 
-from cellguard.diagnose.diagnosis import Diagnosis
+from cellguard.diagnose.diagnosis import Diagnosis, unwatched_words
 from cellguard.report import plots
 
 Trace = Mapping  # {"t": (n,) s into the cycle, "current": (n, dof) A, "error": (n, dof) rad, "joints": names}
@@ -54,6 +54,8 @@ def _figure(name: str, svg: str) -> str:
 
 def _findings(d: Diagnosis) -> str:
     notes = "".join(f"<div class=ok>{_e(n.text)}</div>" for n in d.process)  # declared process changes
+    if d.unwatched:
+        notes += f"<div class=ok>{_e(unwatched_words(d.unwatched))}</div>"
     if not d.findings:
         return notes + "<div class=ok>No drift, fault or asymmetry found against the baseline.</div>"
     out = [notes]
