@@ -76,3 +76,12 @@ def test_a_finished_record_without_its_summary_is_not_called_partial(short, tmp_
     assert line == (f"error: summary {out / 'summary.json'}: cannot write (Operation not permitted); the record in "
                     f"{out} is finished and whole; it has no summary.json")
     assert runner.invoke(app, ["record", "info", str(out)]).exit_code == 0
+
+
+def test_an_excitation_whose_index_cannot_be_written_at_close_is_one_line_and_exit_1(tmp_path, monkeypatch):
+    """`excite` ended 0 with its usual line, and `identify` then read a record without its index."""
+    monkeypatch.setattr(index.IndexWriter, "flush", _denied)
+    out = tmp_path / "excite"
+    result = runner.invoke(app, ["excite", "arm-pick-place", "--seconds", "1", "--out", str(out)])
+    assert result.exit_code == 1, result.output
+    assert _error_line(result).startswith(f"error: the record in {out} failed at its close: {out / 'index'}")

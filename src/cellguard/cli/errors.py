@@ -29,7 +29,8 @@ STOP_EFFECTS = frozenset({"protective_stop", "power_removed", "approach_aborted"
 
 def exit_if_stopped(summary: dict, out: Path) -> None:
     """A run the loop stopped (record failure, robot link fault, overrun budget): one line on stderr and exit 1;
-    stopped by the operator (Ctrl-C, SIGTERM): one line and exit 130."""
+    stopped by the operator (Ctrl-C, SIGTERM): one line and exit 130; a record that failed only at its close (its
+    summary or its index could not be written: the cycles ran, the record is not whole): one line and exit 1."""
     from cellguard.runtime.operator_stop import by_operator
 
     stopped = summary.get("stopped")
@@ -40,4 +41,10 @@ def exit_if_stopped(summary: dict, out: Path) -> None:
                      if e.get("category") is not None and e["kind"] not in STOP_EFFECTS), "stop")
         sys.stderr.write(f"error: {printable(f'the cell was stopped ({kind}): {stopped}')}; "
                          f"{printable(out / 'summary.json')} says what ran\n")
+        raise typer.Exit(1)
+    failed = summary.get("record_failed")
+    if failed:
+        sys.stderr.write(f"error: {printable(f'the record in {out} failed at its close: {failed}')}; "
+                         f"`cellguard record recover {printable(out)} -o NEW_DIR` writes a finished copy with its "
+                         f"index\n")
         raise typer.Exit(1)
