@@ -299,3 +299,16 @@ def test_outbox_files_are_for_the_owner_and_group_only_as_the_audit_log(tmp_path
     finally:
         os.umask(umask)
     assert stat.S_IMODE(path.stat().st_mode) == 0o640 == stat.S_IMODE((tmp_path / "audit.jsonl").stat().st_mode)
+
+
+def test_a_similar_probe_leaves_the_site_as_its_policy_lets_it():
+    """`fleet similar RUN --policy` sent the run's robot model and effects to the store as query parameters even
+    under a policy that withheld them."""
+    from cellguard.errors import ConfigError
+    from cellguard.fleet.similar import as_sent
+
+    sig = sigs()[0]
+    assert sig.robot_model and as_sent(sig, ("robot_model",)).robot_model is None
+    assert as_sent(sig, ("robot_model",)).effects == sig.effects and as_sent(sig, ()) == sig
+    with pytest.raises(ConfigError, match="withholds effects, which `fleet similar` sends"):
+        as_sent(sig, ("effects",))

@@ -149,7 +149,9 @@ def similar(
             from cellguard.fleet.policy import load_policy
             if policy is None:
                 raise ConfigError("--policy: needed with a run folder (it names this site)")
-            probes = site_signatures(Path(target), load_policy(policy), acceptance)
+            site_policy = load_policy(policy)
+            probes = [sim.as_sent(p, site_policy.withheld) for p in site_signatures(Path(target), site_policy,
+                                                                                       acceptance)]
         else:
             probes = [sim.probe_of(st, target)]
         out = [{"cause": p.cause, "neighbours": [n.to_dict() for n in sim.similar(st, p, limit)]} for p in probes]

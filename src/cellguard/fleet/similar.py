@@ -8,7 +8,7 @@ query when at least k customers back it, else from the caller's own signatures.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from cellguard.errors import ConfigError
 from cellguard.fleet.signature import Signature
@@ -40,6 +40,15 @@ def probe_of(store: TenantStore, signature_id: str) -> Signature:
                                    (signature_id,)).fetchall())
     tenant, site, day, cause, model = row
     return Signature(tenant, site, day.isoformat(), cause, robot_model=model, effects=effects)
+
+
+def as_sent(probe: Signature, withheld: tuple[str, ...]) -> Signature:
+    """``probe`` as the site's data policy lets it leave for the store: a withheld robot model is not sent (it only
+    ranks the same model first); withheld effects leave nothing to compare, and a query would send them."""
+    if "effects" in withheld:
+        raise ConfigError("--policy: it withholds effects, which `fleet similar` sends to the store as its probe; "
+                          "nothing sent")
+    return replace(probe, robot_model=None) if "robot_model" in withheld else probe
 
 
 def similar(store: TenantStore, probe: Signature, limit: int = 5) -> list[Neighbour]:
