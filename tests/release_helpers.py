@@ -23,6 +23,29 @@ def write_plan(path: Path, stages: dict) -> Path:
     return path
 
 
+ONE = {"name": "one", "seed": 5, "acceptance_cycles": 1}
+KNOCKED = {"name": "knocked", "seed": 6, "acceptance_cycles": 1,
+           "faults": [{"kind": "fixture_shift", "at_cycle": 0, "dx_mm": 10.0}]}  # fails its cycle
+
+
+def sim_and_production_plan(tmp_path: Path, run: dict = ONE):
+    """A plan of one run (``run``) and a success gate at sim and at production, loaded."""
+    from cellguard.release import load_plan
+
+    gates = [{"metric": "success_rate", "min": 1.0}]
+    return load_plan(write_plan(tmp_path / "plan.yaml", {s: {"runs": [run], "gates": gates}
+                                                         for s in ("sim", "production")}))
+
+
+def stored_release(store, note: str) -> str:
+    """A scripted release of the arm cell, ``note`` making it new, added to ``store``; its id."""
+    from cellguard.release import create_bundle
+
+    bundle = create_bundle("scripted", None, CELL, None, note=note)
+    store.add_bundle(bundle)
+    return bundle.id
+
+
 def replay_file(path: Path, offset: float = 0.0) -> Path:
     """A replay policy file holding the arm's home pose (plus ``offset`` [rad] on every joint)."""
     from cellguard.robot.registry import make_cell

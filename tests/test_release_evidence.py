@@ -8,27 +8,11 @@ import shutil
 from pathlib import Path
 
 import pytest
-from release_helpers import CELL, log_pass, write_plan
+from release_helpers import CELL, KNOCKED, log_pass, sim_and_production_plan, stored_release
 
-from cellguard.release import Store, create_bundle, evaluate_stage, load_plan, log, promote, run_stage
+from cellguard.release import Store, evaluate_stage, log, promote, run_stage
 from cellguard.release.errors import StageError
 from cellguard.release.evidence import record_id
-
-ONE = {"name": "one", "seed": 5, "acceptance_cycles": 1}
-KNOCKED = {"name": "knocked", "seed": 6, "acceptance_cycles": 1,
-           "faults": [{"kind": "fixture_shift", "at_cycle": 0, "dx_mm": 10.0}]}  # fails its cycle
-
-
-def _plan(tmp_path):
-    gates = [{"metric": "success_rate", "min": 1.0}]
-    return load_plan(write_plan(tmp_path / "plan.yaml", {s: {"runs": [ONE], "gates": gates}
-                                                         for s in ("sim", "production")}))
-
-
-def _release(store, note: str) -> str:
-    bundle = create_bundle("scripted", None, CELL, None, note=note)
-    store.add_bundle(bundle)
-    return bundle.id
 
 
 def _to_production(store, release: str) -> None:
@@ -46,10 +30,10 @@ def _lost_run(store, release: str, stage: str) -> None:
 
 
 def test_a_site_reads_its_own_runs_from_any_working_directory_and_when_copied(tmp_path, monkeypatch):
-    plan = _plan(tmp_path)
+    plan = sim_and_production_plan(tmp_path)
     monkeypatch.chdir(tmp_path)
     store = Store("site")  # relative, as `--site site`
-    release = _release(store, "v1")
+    release = stored_release(store, "v1")
     promote(store, release, CELL, "sim")
     assert run_stage(store, plan["sim"], CELL, "sim").verdict == "pass"
     store.close()
@@ -64,8 +48,8 @@ def test_a_site_reads_its_own_runs_from_any_working_directory_and_when_copied(tm
 
 
 def test_a_run_that_cannot_be_read_is_never_a_pass_and_a_failing_production_release_still_rolls_back(tmp_path):
-    plan, store = _plan(tmp_path), Store(tmp_path / "site")
-    first, second = _release(store, "v1"), _release(store, "v2")
+    plan, store = sim_and_production_plan(tmp_path), Store(tmp_path / "site")
+    first, second = stored_release(store, "v1"), stored_release(store, "v2")
     _to_production(store, first)
     assert run_stage(store, plan["production"], CELL, "production").verdict == "pass"
     _lost_run(store, first, "production")
@@ -84,8 +68,8 @@ def test_a_run_that_cannot_be_read_is_never_a_pass_and_a_failing_production_rele
 def test_a_record_put_in_a_failed_runs_place_is_refused_naming_the_folder(tmp_path):
     """The passing record of release A copied over release B's failed run made B's gates pass, with the failed
     record's id logged as the evidence."""
-    plan, store = _plan(tmp_path), Store(tmp_path / "site")
-    first, second = _release(store, "v1"), _release(store, "v2")
+    plan, store = sim_and_production_plan(tmp_path), Store(tmp_path / "site")
+    first, second = stored_release(store, "v1"), stored_release(store, "v2")
     promote(store, first, CELL, "sim")
     passed = run_stage(store, plan["sim"], CELL, "sim")
     promote(store, second, CELL, "sim")
@@ -107,8 +91,8 @@ def test_a_run_folder_another_run_took_first_is_left_alone(tmp_path, monkeypatch
     """Two runs started at once picked the same number; the later one takes the next folder."""
     import cellguard.release.promotion as promotion
 
-    plan, store = _plan(tmp_path), Store(tmp_path / "site")
-    promote(store, _release(store, "v1"), CELL, "sim")
+    plan, store = sim_and_production_plan(tmp_path), Store(tmp_path / "site")
+    promote(store, stored_release(store, "v1"), CELL, "sim")
     taken = store.site / "runs" / CELL / "sim" / "0001-one"
     taken.mkdir(parents=True)
     (taken / "theirs.txt").write_text("the other run's")

@@ -7,28 +7,12 @@ from __future__ import annotations
 import sqlite3
 
 import pytest
-from release_helpers import CELL, cli, log_pass, write_plan
+from release_helpers import CELL, KNOCKED, ONE, cli, log_pass, sim_and_production_plan, stored_release
 
 import cellguard.release.store as store_module
-from cellguard.release import Store, create_bundle, load_plan, log, promote, run_stage, verify_log
+from cellguard.release import Store, log, promote, run_stage, verify_log
 from cellguard.release.errors import ReleaseError, StageError
 from cellguard.release.store import STORE_FILE
-
-ONE = {"name": "one", "seed": 5, "acceptance_cycles": 1}
-KNOCKED = {"name": "knocked", "seed": 6, "acceptance_cycles": 1,
-           "faults": [{"kind": "fixture_shift", "at_cycle": 0, "dx_mm": 10.0}]}  # fails its cycle
-
-
-def _plan(tmp_path, run: dict):
-    gates = [{"metric": "success_rate", "min": 1.0}]
-    return load_plan(write_plan(tmp_path / "plan.yaml", {s: {"runs": [run], "gates": gates}
-                                                         for s in ("sim", "production")}))
-
-
-def _release(store, note: str) -> str:
-    bundle = create_bundle("scripted", None, CELL, None, note=note)
-    store.add_bundle(bundle)
-    return bundle.id
 
 
 def _through(store, release: str, last: str) -> None:
@@ -53,8 +37,8 @@ def _when_gates_are_logged(store, act) -> None:
 
 def test_a_promotion_landing_during_production_gates_is_not_rolled_back(tmp_path):
     """Production's failing gates rolled back the release promoted meanwhile and printed a stale last_good."""
-    plan, store = _plan(tmp_path, KNOCKED), Store(tmp_path / "site")
-    good, failing, newcomer = (_release(store, n) for n in ("v1", "v2", "v3"))
+    plan, store = sim_and_production_plan(tmp_path, KNOCKED), Store(tmp_path / "site")
+    good, failing, newcomer = (stored_release(store, n) for n in ("v1", "v2", "v3"))
     _through(store, good, "production")
     log_pass(store, "production", good)
     _through(store, failing, "production")
@@ -72,8 +56,8 @@ def test_a_promotion_landing_during_production_gates_is_not_rolled_back(tmp_path
 def test_a_promotion_landing_during_sim_gates_is_not_undone(tmp_path):
     """A passing first evaluation set the pointers from what it read before: the racing promotion was undone and
     `verify` then called the store edited by hand."""
-    plan, store = _plan(tmp_path, ONE), Store(tmp_path / "site")
-    first, second = _release(store, "v1"), _release(store, "v2")
+    plan, store = sim_and_production_plan(tmp_path, ONE), Store(tmp_path / "site")
+    first, second = stored_release(store, "v1"), stored_release(store, "v2")
     promote(store, first, CELL, "sim")
     _when_gates_are_logged(store, lambda: promote(Store(store.site), second, CELL, "sim"))
     with pytest.raises(StageError, match="moved by another command"):
@@ -97,7 +81,7 @@ def short_wait(monkeypatch):
 def test_a_locked_store_is_one_line_exit_2_and_nothing_moves(tmp_path, short_wait):
     site = tmp_path / "site"
     store = Store(site)
-    first, second = _release(store, "v1"), _release(store, "v2")
+    first, second = stored_release(store, "v1"), stored_release(store, "v2")
     _through(store, first, "production")
     log_pass(store, "production", first)
     _through(store, second, "production")
@@ -115,8 +99,8 @@ def test_a_locked_store_is_one_line_exit_2_and_nothing_moves(tmp_path, short_wai
 
 
 def test_a_run_whose_record_could_not_be_counted_says_so_and_keeps_it(tmp_path, short_wait):
-    plan, store = _plan(tmp_path, ONE), Store(tmp_path / "site")
-    promote(store, _release(store, "v1"), CELL, "sim")
+    plan, store = sim_and_production_plan(tmp_path, ONE), Store(tmp_path / "site")
+    promote(store, stored_release(store, "v1"), CELL, "sim")
     holders = []
     with pytest.raises(ReleaseError, match=r"its record in .*0001-one is kept but could not be counted \(.*locked"):
         run_stage(store, plan["sim"], CELL, "sim", on_run=lambda _: holders.append(_lock(store.site)))
