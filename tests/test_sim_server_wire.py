@@ -208,7 +208,29 @@ def test_a_finite_setpoint_outside_a_joints_range_is_refused_and_the_robot_holds
     assert cmd_seq == 5 and np.allclose(applied, HOME)
     assert client.counters()["out_of_range_commands"] == 3
     out = said(proc)
-    assert "WARNING" not in out and "sim-server: refused command 2: elbow setpoint 10 outside its range [" in out
+    assert "WARNING" not in out and "sim-server: refused command 2: elbow setpoint 10 is 7.5 past its upper limit 2.5" \
+        in out
+
+
+@pytest.mark.parametrize("excess", [1e-9, np.nan])
+def test_a_power_off_is_taken_even_with_a_setpoint_the_drives_refuse(excess):
+    """The range check refused the whole command, power-off included: the drives stayed powered; and a value a
+    nanoradian past the limit was printed as the limit itself."""
+    from cellguard.runtime.sim_server import SimServer
+
+    server = SimServer("arm-pick-place", port=0)
+    try:
+        server.client = ("127.0.0.1", 9)
+        q = np.asarray(server.cell.read().q, dtype=float)
+        server._command(pack_command(1, 0, True, q), server.client)
+        bad = q.copy()
+        bad[2] = server.cell.profile.q_max[2] + excess
+        server._command(pack_command(2, 0, False, bad), server.client)
+        assert server._power is False and server._cmd_seq == 1  # the stop taken, the setpoint not
+        server._command(pack_command(3, 0, True, bad), server.client)
+        assert server._power is False  # a bad setpoint never powers the drives on
+    finally:
+        server.sock.close()
 
 
 def test_floods_of_hellos_and_counter_queries_neither_fill_the_log_nor_get_an_answer_each(server):

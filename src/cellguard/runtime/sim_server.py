@@ -178,25 +178,39 @@ class SimServer:
             return
         seq, _, power, setpoint = parsed
         self.counters["commands"] += 1
-        if not np.isfinite(setpoint).all():
-            self._refuse("nonfinite_commands", f"refused command {seq}: a setpoint value is not finite")
-            return
-        lo, hi = self.q_range
-        outside = np.flatnonzero((setpoint < lo) | (setpoint > hi))
-        if outside.size:
-            j = int(outside[0])
-            self._refuse("out_of_range_commands", f"refused command {seq}: {self.cell.profile.joint_names[j]} "
-                                                  f"setpoint {setpoint[j]:.6g} outside its range [{lo[j]:.6g}, "
-                                                  f"{hi[j]:.6g}]")
-            return
+        refused = self._refused_setpoint(seq, setpoint)
         if seq <= self._cmd_seq:
-            self._refuse("stale_commands", f"ignored command {seq}: not newer than command {self._cmd_seq} in force")
+            if not refused:
+                self._refuse("stale_commands", f"ignored command {seq}: not newer than command {self._cmd_seq} in "
+                                               f"force")
+            return
+        if refused:
+            if not power and self._power:  # a power-off is a stop: taken whatever setpoint came with it
+                self._power = False
+                self.cell.set_power(False)
             return
         self._cmd_seq = seq
         if power != self._power:
             self._power = power
             self.cell.set_power(power)
         self.cell.write(setpoint)
+
+    def _refused_setpoint(self, seq: int, setpoint: np.ndarray) -> bool:
+        """Count and say a setpoint the drives must not take (not finite, or past a joint's position limit, as a
+        controller refuses a target beyond its range); True if so."""
+        if not np.isfinite(setpoint).all():
+            self._refuse("nonfinite_commands", f"refused command {seq}: a setpoint value is not finite")
+            return True
+        lo, hi = self.q_range
+        outside = np.flatnonzero((setpoint < lo) | (setpoint > hi))
+        if not outside.size:
+            return False
+        j = int(outside[0])
+        side, limit = ("upper", hi[j]) if setpoint[j] > hi[j] else ("lower", lo[j])
+        self._refuse("out_of_range_commands", f"refused command {seq}: {self.cell.profile.joint_names[j]} setpoint "
+                                              f"{setpoint[j]:.9g} is {abs(setpoint[j] - limit):.3g} past its {side} "
+                                              f"limit {limit:.9g}")
+        return True
 
     def _refuse(self, reason: str, why: str) -> None:
         """Count a packet not acted on under ``reason`` and say ``why``."""
