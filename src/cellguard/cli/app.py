@@ -4,4 +4,12 @@ from __future__ import annotations
 
 import typer
 
+from cellguard.cli import stdout
+
 app = typer.Typer(add_completion=False, no_args_is_help=True, help="Adapt, guard, record and diagnose robot policies.")
+
+
+@app.callback()
+def _root() -> None:
+    """Adapt, guard, record and diagnose robot policies."""
+    stdout.guard()  # a stdout that cannot be written ends any command in one line

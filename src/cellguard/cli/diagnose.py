@@ -12,7 +12,7 @@ from rich.console import Console
 
 from cellguard.cli.app import app
 from cellguard.cli.errors import fail
-from cellguard.cli.record import EXIT_BROKEN_PIPE, warn_if_damaged
+from cellguard.cli.record import warn_if_damaged
 from cellguard.cli.text import printable_tree, say
 from cellguard.errors import CellguardError, ConfigError
 
@@ -39,15 +39,10 @@ def diagnose(
     out = {**diagnosis.to_dict(), "record": {"ok": health.ok, "status": health.describe()}}
     if baseline_health is not None:
         out["acceptance_record"] = {"ok": baseline_health.ok, "status": baseline_health.describe()}
-    try:
-        if as_json:
-            sys.stdout.write(json.dumps(out) + "\n")
-        else:
-            print_diagnosis(diagnosis)
-        sys.stdout.flush()
-    except BrokenPipeError:  # the reader took what it wanted (`| head -1`): quietly, as `record query` does
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # nothing left to flush at exit
-        raise typer.Exit(EXIT_BROKEN_PIPE) from None
+    if as_json:  # a stdout that cannot take it (`| head`, full, closed) ends the command: cli.stdout
+        sys.stdout.write(json.dumps(out) + "\n")
+    else:
+        print_diagnosis(diagnosis)
     raise typer.Exit(max(_warn(health, folder, baseline_health, acceptance), warn_if_unsteady(diagnosis.baseline)))
 
 
@@ -125,18 +120,10 @@ def record_health(folder: Path):
         return rec.health()
 
 
-class _Console(Console):
-    """Rich's console, leaving a closed pipe to the command (rich exits 1 on it itself)."""
-
-    def on_broken_pipe(self) -> None:
-        self.quiet = True
-        raise BrokenPipeError
-
-
 def print_diagnosis(d) -> None:
     from cellguard.diagnose.diagnosis import unwatched_words
 
-    console = _Console(highlight=False)
+    console = Console(highlight=False)
     data = printable_tree(d.to_dict())  # joint and signal names come from the record
     faulted = ("" if data["first_faulted_cycle"] is None else
                f", last good cycle {data['last_good_cycle']}, first faulted cycle {data['first_faulted_cycle']}")

@@ -7,12 +7,9 @@ the pipe before the last row.
 
 from __future__ import annotations
 
-import contextlib
 import json
-import os
 import sys
 from collections import Counter
-from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import typer
@@ -20,6 +17,7 @@ from rich.console import Console
 
 from cellguard.cli.app import app
 from cellguard.cli.errors import fail
+from cellguard.cli.stdout import require_open
 from cellguard.cli.text import printable_tree, say
 from cellguard.control.events import EventKind
 from cellguard.errors import CellguardError, RecordError
@@ -27,32 +25,12 @@ from cellguard.errors import CellguardError, RecordError
 record_app = typer.Typer(no_args_is_help=True, help="Read, export, recover and query fault records.")
 app.add_typer(record_app, name="record")
 FORMATS = ("csv", "parquet")
-EXIT_BROKEN_PIPE = 141  # 128 + SIGPIPE: what `cat` or `git log` return when `| head` stops reading
 
 
 def _utc(wall_ns: int) -> str:
     import datetime as dt
 
     return dt.datetime.fromtimestamp(wall_ns * 1e-9, dt.timezone.utc).isoformat(timespec="milliseconds")
-
-
-@contextlib.contextmanager
-def _stdout(stop: Callable[[], None] = lambda: None) -> Iterator[None]:
-    """Write to stdout inside the block: a reader that stopped early (``| head``) ends the command quietly with
-    141, as ``cat`` does; stdout closed (``>&-``) or full (``> /dev/full``) is one line and exit 2 (it was a
-    traceback). ``stop``: what to end first (a query still running)."""
-    try:
-        if sys.stdout is None:  # Python's stand-in for a closed file descriptor 1
-            raise OSError("stdout is closed")
-        yield
-        sys.stdout.flush()
-    except OSError as exc:
-        stop()
-        if sys.stdout is not None:  # what is still buffered goes nowhere at exit instead of failing again
-            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-        if isinstance(exc, BrokenPipeError):  # the reader took what it wanted
-            raise typer.Exit(EXIT_BROKEN_PIPE) from None
-        fail(RecordError(f"stdout: cannot write the output ({exc.strerror or exc})"))
 
 
 def warn_if_damaged(health, folder: Path) -> int:
@@ -103,11 +81,10 @@ def info(
         "run_lost": [{"t_s": e.t_ns * 1e-9, "reason": e.reason}
                      for e in events if e.kind == EventKind.RUN_PROCESS_LOST],
     }
-    with _stdout():
-        if as_json:
-            sys.stdout.write(json.dumps(doc, indent=1, default=str) + "\n")
-        else:
-            _print_info(doc)
+    if as_json:
+        sys.stdout.write(json.dumps(doc, indent=1, default=str) + "\n")
+    else:
+        _print_info(doc)
     raise typer.Exit(warn_if_damaged(health, folder))
 
 
@@ -223,11 +200,13 @@ def query(
     from cellguard.record.query import json_line, run_query
 
     try:
-        with _stdout():  # closed: refused before the query starts
-            pass
+        require_open()  # closed: refused before the query starts
         names, rows = run_query(folder, sql, timeout_s)
-        with _stdout(rows.close):
+        try:  # a stdout that fails ends the command (cli.stdout): the query is stopped first
             for row in rows:
                 sys.stdout.write(json_line(names, row) + "\n")
+            sys.stdout.flush()
+        finally:
+            rows.close()
     except CellguardError as exc:
         fail(exc)

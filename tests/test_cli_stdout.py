@@ -1,0 +1,28 @@
+"""A stdout that cannot be written (full, closed) ends every command in one line and exit 2; a reader that
+stopped early ends it with 141 (diagnose, report, fleet audit and release status gave tracebacks)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+CLI = [sys.executable, "-c", "from cellguard.cli import app; app()"]
+
+
+@pytest.mark.parametrize("args", [["embodiment", "show", "arm-pick-place"], ["embodiment", "show", "quadruped-turns", "--json"]])
+def test_a_full_or_closed_stdout_is_one_line_and_exit_2(args):
+    with open("/dev/full", "w") as full:
+        done = subprocess.run(CLI + args, stdout=full, stderr=subprocess.PIPE, text=True, timeout=120)
+    assert done.returncode == 2 and done.stderr == "error: stdout: cannot write the output (No space left on device)\n"
+    closed = subprocess.run(CLI + args, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, timeout=120,
+                            preexec_fn=lambda: __import__("os").close(1))
+    assert closed.returncode == 2 and closed.stderr == "error: stdout: cannot write the output (stdout is closed)\n"
+
+
+def test_a_reader_that_stops_early_ends_the_command_with_141():
+    proc = subprocess.Popen(CLI + ["embodiment", "show", "arm-pick-place", "--json"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    proc.stdout.close()  # gone before the command writes
+    assert proc.wait(timeout=120) == 141 and proc.stderr.read() == ""
