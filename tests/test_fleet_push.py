@@ -332,3 +332,19 @@ def test_cli_push_and_audit_lines_are_not_wrapped(fleet, tmp_path):
     audit = CliRunner().invoke(app, ["fleet", "audit", "--site-dir", str(site)], terminal_width=80)
     assert audit.exit_code == 0 and audit.stdout.count("\n") == 2  # the title and one entry, each on one line
     assert "batch=" in audit.stdout.splitlines()[1]
+
+
+def test_a_batch_queued_without_the_site_key_is_held_not_sent(fleet, tmp_path):
+    """Batches queued by the version before the site key carry unkeyed ids, from which withheld fields can be
+    recovered: the push after the upgrade sent them beside the new keyed rows (two rows for one finding)."""
+    _, dsns = fleet
+    policy = DataPolicy("ta", "s3-old", withheld=("robot_model",))
+    queue_while_down(tmp_path, policy, sigs("ta", "s3-old"))
+    (path,) = (tmp_path / "outbox").glob("*.json")
+    raw = json.loads(path.read_text())
+    del raw["key_id"], raw["batch_id"]  # as the version before wrote it
+    path.write_text(json.dumps(raw))
+    result = push([], policy, tmp_path, TenantStore(dsns["ta"]))
+    assert result.sent_batches == 0 and result.queued == 1
+    assert len(result.held) == 1 and "not made with this site's key" in result.held[0]
+    assert read_audit(tmp_path)[-1]["status"] == "held"

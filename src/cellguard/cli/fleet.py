@@ -72,6 +72,10 @@ def push(
                          f"sent on the next push\n")
     elif store is None and result.queued:
         sys.stderr.write(f"no --store given: {result.queued} batch(es) kept in {Path(site_dir) / 'outbox'}\n")
+    if result.new_key:
+        sys.stderr.write(f"note: {printable(result.new_key)}: a new site key; signature ids are keyed with it, so keep "
+                         f"it with the site (a push from another --site-dir makes another key and stores every "
+                         f"signature again)\n")
     for line in result.held:
         sys.stderr.write(f"note: {printable(line)}\n")
     for line in result.failed:

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 from cellguard.fleet.policy import EXPORTS, DataPolicy, PolicyError
 from cellguard.fleet.signature import Signature, SignatureError, check_text, row_from_dict, withhold
+from cellguard.fleet.site_key import fingerprint
 
 
 @dataclass(frozen=True)
@@ -35,6 +36,7 @@ class Batch:
     signatures: tuple[dict, ...] = ()
     aggregates: tuple[dict, ...] = ()
     withheld_rows: int = 0  # signatures kept at the site by the policy (too few, too old, or nothing)
+    key_id: str | None = None  # the site key its signature ids were made with (``site_key.fingerprint``)
 
     def __post_init__(self):
         for i, s in enumerate(self.signatures):  # the batch's tenant and site are what the policy checks
@@ -54,7 +56,7 @@ class Batch:
     def to_dict(self, with_id: bool = True) -> dict:
         out = {"tenant_id": self.tenant_id, "site_id": self.site_id, "policy_version": self.policy_version,
                "export": self.export, "signatures": list(self.signatures), "aggregates": list(self.aggregates),
-               "withheld_rows": self.withheld_rows}
+               "withheld_rows": self.withheld_rows, **({"key_id": self.key_id} if self.key_id else {})}
         return {"batch_id": self.batch_id, **out} if with_id else out
 
     @classmethod
@@ -76,9 +78,12 @@ class Batch:
         withheld = raw.get("withheld_rows", 0)
         if isinstance(withheld, bool) or not isinstance(withheld, int) or withheld < 0:
             raise SignatureError(f"batch.withheld_rows: expected a count, got {withheld!r}")
+        key_id = raw.get("key_id")
+        if key_id is not None and not (isinstance(key_id, str) and re.fullmatch(r"[0-9a-f]{16}", key_id)):
+            raise SignatureError(f"batch.key_id: expected 16 hex digits, got {key_id!r}")
         batch = cls(raw["tenant_id"], raw["site_id"], raw["policy_version"], raw["export"],
                     tuple(row_from_dict(s) for s in raw["signatures"]),
-                    tuple(_aggregate(r) for r in raw["aggregates"]), withheld)
+                    tuple(_aggregate(r) for r in raw["aggregates"]), withheld, key_id)
         if "batch_id" in raw and raw["batch_id"] != batch.batch_id:
             raise SignatureError(f"batch.batch_id: {raw['batch_id']!r} does not match its content")
         return batch
@@ -159,4 +164,4 @@ def export_batch(signatures: Sequence[Signature], policy: DataPolicy, today: dt.
             raise PolicyError(f"signature.tenant_id/site_id: {s.tenant_id}/{s.site_id} is not the policy's "
                               f"{policy.tenant}/{policy.site}")
     rows = tuple(withhold(s, policy.withheld, key) for s in live)
-    return Batch(**base, signatures=rows, withheld_rows=len(signatures) - len(rows))
+    return Batch(**base, signatures=rows, withheld_rows=len(signatures) - len(rows), key_id=fingerprint(key))

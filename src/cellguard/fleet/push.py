@@ -42,7 +42,7 @@ from cellguard.fleet.lake import check_lake, forget, write_signatures
 from cellguard.fleet.outbox import Outbox
 from cellguard.fleet.policy import DataPolicy
 from cellguard.fleet.signature import Signature
-from cellguard.fleet.site_key import site_key
+from cellguard.fleet.site_key import KEY_FILE, fingerprint, site_key
 from cellguard.fleet.store import StoreError, StoreUnavailable, TenantStore
 
 
@@ -56,13 +56,14 @@ class PushResult:
     unavailable: str | None = None  # why the store could not be reached
     held: tuple[str, ...] = ()  # one line per queued batch the policy in force keeps at the site
     failed: tuple[str, ...] = ()  # one line per queued file that cannot be read or that the store refused
+    new_key: str | None = None  # the site key this push made (ids of this site's earlier pushes differ)
 
     def to_dict(self) -> dict:
         return {"batch_id": self.batch.batch_id, "export": self.batch.export, "rows": self.batch.rows,
                 "withheld_rows": self.batch.withheld_rows, "policy_version": self.batch.policy_version,
                 "sent_batches": self.sent_batches, "new_rows": self.new_rows, "duplicate_rows": self.duplicate_rows,
                 "queued": self.queued, "unavailable": self.unavailable, "held": list(self.held),
-                "failed": list(self.failed)}
+                "failed": list(self.failed), "new_key": self.new_key}
 
 
 def push(signatures: list[Signature], policy: DataPolicy, site_dir: Path, store: TenantStore | None,
@@ -70,7 +71,9 @@ def push(signatures: list[Signature], policy: DataPolicy, site_dir: Path, store:
     """Export ``signatures`` under ``policy`` and send them (and any queued batch it allows) to ``store``."""
     if lake is not None:
         check_lake(lake)  # before anything is queued or sent
-    batch = export_batch(signatures, policy, today, key=site_key(site_dir))
+    made = None if (Path(site_dir) / KEY_FILE).exists() else str(Path(site_dir) / KEY_FILE)
+    key = site_key(site_dir)
+    batch = export_batch(signatures, policy, today, key=key)
     outbox = Outbox(site_dir)
     destination = store.where if store is not None else "nowhere"
     if batch.export == "nothing" or batch.rows == 0:
@@ -86,11 +89,14 @@ def push(signatures: list[Signature], policy: DataPolicy, site_dir: Path, store:
     last = _last_entries(site_dir) if queued and store is not None else {}
     for path, waiting in queued if store is not None and unavailable is None else ():
         why = refusal(waiting, policy, today)
-        if why is not None:
+        unkeyed = _unkeyed(waiting, key) if why is None else None
+        if why is not None or unkeyed is not None:
             said = last.get(waiting.batch_id, {})
-            if (said.get("status"), said.get("reason"), said.get("policy_in_force")) != ("held", why, policy.version):
-                append_audit(site_dir, waiting, "held", destination, reason=why, policy_in_force=policy.version)
-            held.append(f"{path}: held at the site, the policy in force ({policy.version}) does not allow it: {why}")
+            reason = why or unkeyed
+            if (said.get("status"), said.get("reason"), said.get("policy_in_force")) != ("held", reason, policy.version):
+                append_audit(site_dir, waiting, "held", destination, reason=reason, policy_in_force=policy.version)
+            held.append(f"{path}: held at the site, " + (f"the policy in force ({policy.version}) does not allow it: "
+                                                         f"{why}" if why else unkeyed))
             continue
         land = partial(write_signatures, lake, waiting.signatures, waiting.batch_id) if lake is not None else None
         try:
@@ -108,7 +114,16 @@ def push(signatures: list[Signature], policy: DataPolicy, site_dir: Path, store:
         outbox.done(path)
         append_audit(site_dir, waiting, "sent" if n else "duplicate", destination, policy_in_force=policy.version)
         sent, new, dup = sent + 1, new + n, dup + d
-    return PushResult(batch, sent, new, dup, outbox.count(), unavailable, tuple(held), tuple(failed))
+    return PushResult(batch, sent, new, dup, outbox.count(), unavailable, tuple(held), tuple(failed), made)
+
+
+def _unkeyed(batch: Batch, key: bytes) -> str | None:
+    """Why a queued batch's signature ids may not leave: made without this site's key (queued by a version before
+    the key, or under a key since replaced), they are hashes from which withheld fields can be recovered."""
+    if not batch.signatures or batch.key_id == fingerprint(key):
+        return None
+    return ("its signature ids were not made with this site's key (queued before it existed, or under another): "
+            "push the runs again, which exports them keyed, then delete this file")
 
 
 def _apply_retention(policy: DataPolicy, store: TenantStore | None, lake: Path | None, today: dt.date | None,

@@ -9,6 +9,8 @@ stores its findings under new ids (``fleet withdraw`` then push again removes th
 
 from __future__ import annotations
 
+import hashlib
+import hmac
 import os
 import re
 import secrets
@@ -41,6 +43,11 @@ def site_key(site_dir: Path) -> bytes:
         raise ConfigError(f"site key {path}: expected 64 hex digits; restore the site's key (signature ids "
                           f"depend on it) or remove the file to start a new one")
     return bytes.fromhex(text)
+
+
+def fingerprint(key: bytes) -> str:
+    """16 hex digits naming ``key`` without revealing it: what a queued batch says its ids were keyed with."""
+    return hmac.new(key, b"cellguard site key", hashlib.sha256).hexdigest()[:16]
 
 
 def _create(path: Path) -> None:
