@@ -54,14 +54,15 @@ def test_an_unknown_envelope_key_is_one_line_exit_2(tmp_path):
 
 @pytest.mark.parametrize(("text", "message"), [("watchdog_s: true", "valid number, got True"),
                                               ("watchdog_s: '0.5'", "valid number, got '0.5'"),
-                                              ("watchdog_s: .nan", "got nan")])
+                                              ("watchdog_s: .nan", "got nan"),
+                                              ("watchdog_s: !!set {a}", "a YAML !!set or !!binary is no envelope")])
 def test_an_envelope_value_of_the_wrong_type_is_refused_as_in_a_scenario(tmp_path, text, message):
     """The envelope was validated leniently: ``watchdog_s: true`` froze a 1 s watchdog into the release."""
     guard = tmp_path / "guard.yaml"
     guard.write_text(text + "\n")
     result = cli("create", "--policy", "scripted", "--profile", CELL, "--envelope", str(guard),
                  "--site", str(tmp_path / "site"))
-    assert result.exit_code == 2 and "watchdog_s: Input should be" in result.stderr and message in result.stderr
+    assert result.exit_code == 2 and "watchdog_s: " in result.stderr and message in result.stderr
     assert len(result.stderr.strip().splitlines()) == 1 and not (tmp_path / "site").exists()
 
 

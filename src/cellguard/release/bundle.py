@@ -172,8 +172,10 @@ def _envelope(path: Path | None) -> GuardSettings:
     raw = read_yaml(Path(path), "envelope", ReleaseError) or {}
     try:  # strict, as a scenario's guard: "0.5" or true is no watchdog time (true was 1 s), NaN no number
         return GuardSettings.model_validate_json(json.dumps(raw), strict=True)
-    except (TypeError, ValueError) as exc:  # ValidationError is a ValueError
-        err = exc.errors()[0] if isinstance(exc, ValidationError) else {"loc": (), "type": "", "msg": str(exc)}
+    except (TypeError, ValueError) as exc:  # ValidationError is a ValueError; TypeError: a YAML !!set or !!binary
+        tagged = [k for k, v in raw.items() if isinstance(v, (set, bytes))] if isinstance(raw, dict) else []
+        err = exc.errors()[0] if isinstance(exc, ValidationError) else \
+            {"loc": tagged[:1], "type": "", "msg": "a YAML !!set or !!binary is no envelope value"}
         where = ".".join(str(p) for p in err["loc"]) or "envelope"
         msg = "unknown key" if err["type"] == "extra_forbidden" else err["msg"]
         if err.get("input") is not None and err["type"] != "extra_forbidden":
