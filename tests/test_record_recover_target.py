@@ -75,3 +75,23 @@ def test_a_killed_recoverys_staging_folder_is_removed_and_a_live_ones_is_named(r
     result = runner.invoke(app, ["record", "recover", str(run), "-o", str(tmp_path / "T")])  # its process is gone
     assert result.exit_code == 0, result.output
     assert sorted(p.name for p in (tmp_path / "T").iterdir()) == ["index", "record.mcap"]
+
+
+def test_a_run_writing_in_the_target_ends_the_recovery_in_one_line_not_a_silent_wait(run, tmp_path, monkeypatch):
+    """A run started in the recovery's target (its staging folder did not count as a record) held the folder's lock
+    for its whole life, and the recovery waited on it without a word: it waits a bounded time, then says why."""
+    import time
+
+    from cellguard.record import folder_lock, recovery
+
+    monkeypatch.setattr(recovery, "MOVE_WAIT_S", 0.3)
+    target = tmp_path / "T"
+    target.mkdir()
+    held = folder_lock.hold(target)  # as a run writing there holds it
+    try:
+        began = time.monotonic()
+        line = one_error(runner.invoke(app, ["record", "recover", str(run), "-o", str(target)]))
+        assert time.monotonic() - began < 60 and "another run is still writing its record there" in line
+    finally:
+        folder_lock.release(held)
+    assert not (target / "record.mcap").exists()

@@ -12,6 +12,7 @@ from __future__ import annotations
 import errno
 import fcntl
 import os
+import time
 from pathlib import Path
 
 from cellguard.errors import RecordError
@@ -20,23 +21,32 @@ from cellguard.errors import RecordError
 UNLOCKABLE = (errno.ENOLCK, errno.EOPNOTSUPP, errno.ENOTSUP, errno.EINVAL)  # flock is not offered there
 
 
-def hold(folder: Path, what: str = "--out", wait: bool = False) -> int | None:
+def hold(folder: Path, what: str = "--out", wait_s: float = 0.0) -> int | None:
     """Lock ``folder`` (it must exist) for this process and the processes it forks; the descriptor that holds it
-    (``release`` lets go), None on a filesystem that offers no locks. RecordError naming the folder if another run
-    holds it, or with ``wait`` (a short hold by another process) once it let go."""
+    (``release`` lets go), None on a filesystem that offers no locks. RecordError naming the folder if another
+    process holds it for more than ``wait_s`` (a recovery's short move waits; a run's whole life is not waited on:
+    a recovery blocked silently for as long as a run that had started in its target)."""
     try:
         fd = os.open(folder, os.O_RDONLY | os.O_DIRECTORY)
     except OSError as exc:
         raise RecordError(f"{what} {folder}: cannot be opened ({exc.strerror or exc})") from None
-    try:
-        fcntl.flock(fd, fcntl.LOCK_EX | (0 if wait else fcntl.LOCK_NB))
-    except OSError as exc:
-        os.close(fd)
-        if exc.errno in UNLOCKABLE:  # a filesystem without locks (some network mounts): the run goes on unguarded
-            return None
-        raise RecordError(f"{what} {folder}: another run is still writing its record there; nothing was touched: "
-                          f"wait for it to end or choose another folder") from None
-    return fd
+    deadline = time.monotonic() + wait_s
+    while True:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            return fd
+        except BlockingIOError:
+            if time.monotonic() < deadline:
+                time.sleep(0.05)
+                continue
+            os.close(fd)
+            raise RecordError(f"{what} {folder}: another run is still writing its record there; nothing was touched: "
+                              f"wait for it to end or choose another folder") from None
+        except OSError as exc:
+            os.close(fd)
+            if exc.errno in UNLOCKABLE:  # a filesystem without locks (some network mounts): goes on unguarded
+                return None
+            raise RecordError(f"{what} {folder}: cannot be locked ({exc.strerror or exc})") from None
 
 
 def release(fd: int | None) -> None:

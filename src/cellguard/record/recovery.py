@@ -74,6 +74,7 @@ def recover(source: Path, target: Path) -> Health:
     return health
 
 
+MOVE_WAIT_S = 10.0  # [s] how long a recovery waits for the target's lock before its move (another recovery's move)
 STAGING = (".recover-", ".partial")  # prefix and suffix of a recovery's staging folder inside its target
 
 
@@ -110,7 +111,7 @@ def _move_into(staging: Path, target: Path) -> None:
     """Move the copy's files from ``staging`` into ``target`` (empty but for staging folders), the record last: a
     folder with a record reads as a finished copy, so the record appears only once its index is whole. Under the
     target's lock, after looking again; each file is linked into place (a file there is never replaced)."""
-    lock = folder_lock.hold(target, "-o", wait=True)  # another recovery's move is short
+    lock = folder_lock.hold(target, "-o", wait_s=MOVE_WAIT_S)  # another recovery's move is short; a run's life is not
     try:
         filled = sorted(p.name for p in target.iterdir() if not _staging(p))
         if filled:
