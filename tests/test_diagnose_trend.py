@@ -81,3 +81,27 @@ def test_cycles_that_carried_no_part_are_named_as_unwatched_for_joint_faults(cap
     said = " ".join(capsys.readouterr().out.split())
     assert "unwatched on 15 production cycle(s)" in said and "(cycles 25, 26, 27, 28, 29, 30, 31, 32 ...)" in said
     assert "class=ok>joint currents and tracking unwatched on 15" in render_report(d)
+
+
+def test_a_baseline_json_an_earlier_version_took_from_this_record_is_taken_again(tmp_path):
+    """A run folder diagnosed before the small-sample bound kept its winsorised scales (too low: a healthy arm
+    named part_misplaced) in baseline.json, and every later diagnosis reused them."""
+    import json
+
+    record(tmp_path / "run", 20, 3)
+    assert CliRunner().invoke(app, ["diagnose", str(tmp_path / "run")]).exit_code in (0, 1)
+    path = tmp_path / "run" / "baseline.json"
+    fresh = json.loads(path.read_text())
+    assert fresh["method"] == 2
+    old = json.loads(path.read_text())
+    del old["method"]  # as the version before wrote it
+    for stats in old["motions"].values():
+        for feature in stats["features"].values():
+            feature["scale"] /= 3
+    path.write_text(json.dumps(old))
+    assert CliRunner().invoke(app, ["diagnose", str(tmp_path / "run")]).exit_code in (0, 1)
+    assert json.loads(path.read_text()) == fresh
+    stored = {**fresh, "source": "acceptance cycles of another record", "method": 1}
+    path.write_text(json.dumps(stored))  # one a person put there on purpose is kept as it is
+    CliRunner().invoke(app, ["diagnose", str(tmp_path / "run")])
+    assert json.loads(path.read_text()) == stored

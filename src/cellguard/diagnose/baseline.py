@@ -33,6 +33,10 @@ from cellguard.output import write_output
 
 MAD_TO_SIGMA = 1.4826
 LOAD_FEATURE = "grasped"
+# how a baseline's scales are taken: 1 winsorised every acceptance (5 cycles clipped the one honest reading: a
+# healthy arm named part_misplaced); 2 not below 10 cycles, and bounded so a scale reads low at most 5 % of the time
+METHOD = 2
+OWN_SOURCE = "acceptance cycles of this record"
 MIN_CYCLES = 5
 BINDING_KEYS = ("robot", "profile_sha256", "record_id")
 WINSORISE_FROM = 10  # acceptance cycles: fewer, and one odd cycle is as likely honest as not
@@ -63,9 +67,10 @@ class Baseline:
     cycles: tuple[int, int]  # first and last acceptance cycle
     n: int
     load: float | None  # the usual value of ``grasped`` in acceptance, if the cell reports it
-    source: str = "acceptance cycles of this record"
+    source: str = OWN_SOURCE
     bound_to: Mapping[str, str | None] = field(default_factory=dict)  # robot, profile_sha256, record_id
     trends: Mapping[str, float] = field(default_factory=dict)  # features not steady in acceptance: their change
+    method: int = METHOD  # how the scales were taken (a file without one: 1, before the small-sample bound)
 
     def bind(self, context: Mapping) -> Baseline:
         """This baseline bound to the record whose ``context`` it came from."""
@@ -113,7 +118,7 @@ class Baseline:
                               f"{len(cycles)} cycles), only for {', '.join(repr(k) for k in self.motions)}")
 
     @classmethod
-    def from_cycles(cls, cycles: Sequence[Cycle], source: str = "acceptance cycles of this record") -> Baseline:
+    def from_cycles(cls, cycles: Sequence[Cycle], source: str = OWN_SOURCE) -> Baseline:
         """Baseline of ``cycles`` (the acceptance phase); at least MIN_CYCLES per motion."""
         if len(cycles) < MIN_CYCLES:
             raise RecordError(f"baseline: needs at least {MIN_CYCLES} acceptance cycles, got {len(cycles)}")
@@ -177,7 +182,7 @@ class Baseline:
     def to_dict(self) -> dict:
         return {"source": self.source, "cycles": list(self.cycles), "n": self.n, "load": self.load,
                 "bound_to": dict(self.bound_to), "names": list(self.names), "motions": {k: m.to_dict(self.names) for k, m in self.motions.items()},
-                "trends": dict(self.trends)}
+                "trends": dict(self.trends), "method": self.method}
 
     @classmethod
     def from_dict(cls, raw: object) -> Baseline:
@@ -198,8 +203,12 @@ class Baseline:
             if not isinstance(raw.get("bound_to") or {}, Mapping):
                 raise RecordError("baseline: malformed: bound_to must be an object (robot, profile_sha256, record_id)")
             bound = {str(k): (None if v is None else str(v)) for k, v in dict(raw.get("bound_to") or {}).items()}
+            method = raw.get("method", 1)
+            if isinstance(method, bool) or not isinstance(method, int) or not 1 <= method <= METHOD:
+                raise RecordError(f"baseline: malformed: method must be an integer from 1 to {METHOD}, got {method!r}")
             return cls(names, motions, cycles, n, _load(raw.get("load"), names),
-                       str(raw.get("source", "stored baseline")), bound, _trends(raw.get("trends") or {}, names))
+                       str(raw.get("source", "stored baseline")), bound, _trends(raw.get("trends") or {}, names),
+                       method)
         except (KeyError, TypeError, ValueError, AttributeError) as exc:
             raise RecordError(f"baseline: malformed ({exc.__class__.__name__}: {exc})") from None
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from cellguard.diagnose.baseline import Baseline, check_same_robot
+from cellguard.diagnose.baseline import METHOD, OWN_SOURCE, Baseline, check_same_robot
 from cellguard.diagnose.cycles import as_cycles
 from cellguard.diagnose.diagnosis import Diagnosis, diagnose
 from cellguard.diagnose.recovery import policy_cycles
@@ -46,7 +46,10 @@ def diagnose_record(path: Path, acceptance: Path | None = None, fleet: list[dict
     elif folder is not None and (folder / BASELINE_FILE).is_file():
         baseline = Baseline.load(folder / BASELINE_FILE)
         baseline.check_binding(context, folder / BASELINE_FILE)
-        baseline.check_fits(as_cycles(cycles), folder / BASELINE_FILE)
+        if baseline.method < METHOD and baseline.source == OWN_SOURCE:  # an earlier version's, from this record:
+            baseline = None  # taken again from its acceptance cycles and written again (its scales read too low)
+        else:
+            baseline.check_fits(as_cycles(cycles), folder / BASELINE_FILE)
     past = site_history(folder, context.get("site")) if folder is not None else []
     try:
         result = diagnose(cycles, events, {**context, "process": declared}, baseline=baseline,
