@@ -26,3 +26,16 @@ def test_a_reader_that_stops_early_ends_the_command_with_141():
                             stderr=subprocess.PIPE, text=True)
     proc.stdout.close()  # gone before the command writes
     assert proc.wait(timeout=120) == 141 and proc.stderr.read() == ""
+
+
+def test_a_run_whose_stdout_fails_after_its_record_is_written_exits_1_saying_it_is_kept(tmp_path):
+    """Exit 2 says nothing was done; the run's record was there, whole."""
+    scenario = tmp_path / "s.yaml"
+    scenario.write_text("cell: arm-pick-place\nseed: 3\nacceptance_cycles: 0\nproduction_cycles: 1\n")
+    with open("/dev/full", "w") as full:
+        done = subprocess.run(CLI + ["run", str(scenario), "--out", str(tmp_path / "out")], stdout=full,
+                              stderr=subprocess.PIPE, text=True, timeout=300)
+    assert done.returncode == 1, done.stderr
+    assert done.stderr.splitlines()[-1] == (f"error: stdout: cannot write the output (No space left on device); the "
+                                            f"record in {tmp_path / 'out'} is written and kept")
+    assert subprocess.run(CLI + ["record", "info", str(tmp_path / "out")], capture_output=True).returncode == 0

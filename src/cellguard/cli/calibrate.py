@@ -8,6 +8,7 @@ from pathlib import Path
 
 import typer
 
+from cellguard.cli import stdout
 from cellguard.cli.app import app
 from cellguard.cli.errors import exit_if_stopped, fail
 from cellguard.cli.text import say
@@ -37,6 +38,7 @@ def excite(
 
         summary = run_excitation(excitation_scenario(base, seconds), out, overwrite=overwrite,
                                  stand=Stand() if stand else None)
+        stdout.written(f"the record in {out}")
     except CellguardError as exc:
         fail(exc)
     exit_if_stopped(summary, out)  # a stopped excitation is a record to read, not one to identify from unread

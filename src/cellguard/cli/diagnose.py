@@ -10,6 +10,7 @@ from pathlib import Path
 import typer
 from rich.console import Console
 
+from cellguard.cli import stdout
 from cellguard.cli.app import app
 from cellguard.cli.errors import fail
 from cellguard.cli.record import warn_if_damaged
@@ -67,6 +68,7 @@ def report(
         baseline_health = record_health(acceptance) if acceptance is not None else None
         diagnosis = diagnose_record(folder, acceptance=acceptance, fleet=fleet_advice(fleet))
         path = write_report(folder, out, diagnosis=diagnosis, health=health)
+        stdout.written(path)
     except CellguardError as exc:
         fail(exc)
     say(f"report: {path}", err=False)

@@ -10,6 +10,7 @@ import typer
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
+from cellguard.cli import stdout
 from cellguard.cli.app import app
 from cellguard.cli.diagnose import print_diagnosis
 from cellguard.cli.errors import exit_if_stopped, fail
@@ -39,7 +40,9 @@ def _run(scenario: Scenario, out: Path, quiet: bool, realtime: bool = False, ove
         progress.update(task, advance=1, description=f"{scenario.cell} [{outcome['phase']}]")
 
     try:
-        return run_scenario(scenario, out, on_cycle=advance, overwrite=overwrite, run=run)
+        summary = run_scenario(scenario, out, on_cycle=advance, overwrite=overwrite, run=run)
+        stdout.written(f"the record in {out}")
+        return summary
     except BaseException as exc:
         if run.recording is None:  # refused before the record started: leave no empty folder behind
             if created and out.is_dir() and not any(out.iterdir()):

@@ -3,8 +3,9 @@
 Every command writes its output through ``sys.stdout`` (rich's consoles included). ``guard()``, run before
 any command, puts a thin wrapper there whose writes and flushes turn an OSError into the command's end: a
 reader that stopped early (``| head``) ends it quietly with 141, as ``cat`` does; stdout closed (``>&-``) or
-full (``> /dev/full``) is one line on stderr and exit 2. Before, each was a traceback, or exit 1 (rich and
-click end a closed pipe so), which reads as "the record is damaged".
+full (``> /dev/full``) is one line on stderr and exit 2, or 1 once the command has written what it makes
+(``written()``: a run's record is there, and 2 says nothing was done). Before, each was a traceback, or exit 1
+(rich and click end a closed pipe so), which reads as "the record is damaged".
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ import os
 import sys
 
 EXIT_BROKEN_PIPE = 141  # 128 + SIGPIPE: what `cat` or `git log` return when `| head` stops reading
+_done = {"written": None}  # what the command has written when its stdout fails, if anything
 
 
 class _Guarded:
@@ -59,12 +61,19 @@ def _end(exc: OSError) -> None:
         pass
     if isinstance(exc, BrokenPipeError):  # the reader took what it wanted
         raise SystemExit(EXIT_BROKEN_PIPE)
-    sys.stderr.write(f"error: stdout: cannot write the output ({exc.strerror or exc})\n")
-    raise SystemExit(2)
+    kept = f"; {_done['written']} is written and kept" if _done["written"] else ""
+    sys.stderr.write(f"error: stdout: cannot write the output ({exc.strerror or exc}){kept}\n")
+    raise SystemExit(1 if _done["written"] else 2)
+
+
+def written(what: object) -> None:
+    """The command has written ``what`` (a run folder, a report): a stdout that fails from now on exits 1."""
+    _done["written"] = what
 
 
 def guard() -> None:
     """Wrap ``sys.stdout`` (once) so that a failing write ends the command as the module says."""
+    _done["written"] = None
     if not isinstance(sys.stdout, (_Guarded, _Closed)):
         sys.stdout = _Closed() if sys.stdout is None else _Guarded(sys.stdout)
 
