@@ -124,12 +124,17 @@ def check_pointers(store, cell: str, stage: str) -> tuple:
     """(current, last_good) of (cell, stage) as stored; ReleaseError unless the log's entries set them so (a
     pointer edited outside cellguard would run, promote or roll back a release no gate let there)."""
     p = store.pointers(cell, stage)
-    want = pointers_by_log(entries(store)).get((cell, stage), (None, None))
-    if (p.current, p.last_good) != want:
-        raise ReleaseError(f"pointers of {stage} on {cell}: current {p.current}, last_good {p.last_good}; the log "
-                           f"says current {want[0]}, last_good {want[1]}: edited outside cellguard (release verify); "
+    have, want = (p.current, p.last_good), pointers_by_log(entries(store)).get((cell, stage), (None, None))
+    if have != want:
+        raise ReleaseError(f"{_pointer_break(cell, stage, have, want)}: edited outside cellguard (release verify); "
                            f"nothing moved, nothing run")
-    return p.current, p.last_good
+    return have
+
+
+def _pointer_break(cell: str, stage: str, have: tuple, want: tuple) -> str:
+    """Stored pointers (current, last_good) that are not what the log set, in words."""
+    return (f"pointers of {stage} on {cell}: current {have[0]}, last_good {have[1]}; the log says current "
+            f"{want[0]}, last_good {want[1]}")
 
 
 def run_problems(store, log_entries: list[LogEntry]) -> list[str]:
@@ -229,7 +234,6 @@ def verify_log(store, expect_head: str | None = None) -> list[str]:
     for cell, stage in sorted(by_log.keys() | stored.keys(), key=str):
         have, want = stored.get((cell, stage), (None, None)), by_log.get((cell, stage), (None, None))
         if have != want:
-            problems.append(f"pointers of {stage} on {cell}: current {have[0]}, last_good {have[1]}; the log says "
-                            f"current {want[0]}, last_good {want[1]} (edited outside cellguard)")
+            problems.append(f"{_pointer_break(cell, stage, have, want)} (edited outside cellguard)")
     whole = [e for e in readable if entry_hash(e.prev_hash, e.body) == e.hash]  # an edited one is named above
     return problems + run_problems(store, whole) + store.edited_bundles()
