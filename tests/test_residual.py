@@ -82,3 +82,38 @@ def test_with_residual_adds_evidence_to_a_matching_finding_else_model_drift():
     assert [f.cause for f in other] == ["friction", "model_drift"] and other[1].joints == ("elbow",)
     assert "`cellguard identify DIR --only elbow,friction`" in other[1].evidence[1]  # on an excitation record
     assert "cellguard excite CELL --seconds 20" in other[1].evidence[1]
+
+
+def test_a_scenario_asks_for_the_monitor_and_cellguard_run_records_and_diagnoses_its_alarm(tmp_path):
+    """``residual_monitor: true``: `cellguard run` watches every cycle (the acceptance cycles learn), the
+    windows are in the record and an elbow friction step is named there and in the diagnosis."""
+    from typer.testing import CliRunner
+
+    from cellguard.cli import app
+    from cellguard.record.reader import open_record
+
+    scenario = tmp_path / "watched.yaml"
+    scenario.write_text(f"cell: {ARM}\nacceptance_cycles: 10\nproduction_cycles: 3\nresidual_monitor: true\n"
+                        "faults:\n  - {kind: friction_step, joint: elbow, at_cycle: 11, factor: 1.3}\n")
+    result = CliRunner().invoke(app, ["run", str(scenario), "--out", str(tmp_path / "run"), "--json"])
+    assert result.exit_code == 0, result.output
+    with open_record(tmp_path / "run") as rec:
+        windows = [c.outcome["residual"] for c in rec.cycles()]
+    assert len(windows) == 13 and all(w.get("baseline") for w in windows[:10]) and not windows[10].get("baseline")
+    alarms = [a for w in windows[11:] for a in w["alarms"]]
+    assert alarms and {(a["joint"], a["parameter"]) for a in alarms} == {("elbow", "friction")}
+    d = diagnose_record(tmp_path / "run").to_dict()
+    assert any(e.startswith("residual monitor") and "elbow" in e for f in d["findings"] for e in f["evidence"])
+
+
+def test_the_monitor_wants_ten_acceptance_cycles_and_says_so(tmp_path):
+    from typer.testing import CliRunner
+
+    from cellguard.cli import app
+
+    scenario = tmp_path / "short.yaml"
+    scenario.write_text(f"cell: {ARM}\nacceptance_cycles: 5\nproduction_cycles: 1\nresidual_monitor: true\n")
+    result = CliRunner().invoke(app, ["run", str(scenario), "--out", str(tmp_path / "run"), "--json"])
+    assert result.exit_code == 2
+    assert "residual_monitor: needs acceptance_cycles >= 10" in result.output
+    assert not (tmp_path / "run").exists()

@@ -9,6 +9,12 @@
     ├── OutputError          another output file or folder that cannot be written
     └── OperatorStopped      Ctrl-C or SIGTERM ended work that runs cycles (exit 130, not 2)
 
+Subclasses that belong to one part live beside its code: under ``ConfigError`` the release's
+``ReleaseError`` (``BundleMismatch``, ``StageError``, ``GateError``), ``CalibrationError``,
+``StartupRefused``, the fleet's ``SignatureError``, ``PolicyError`` and ``AuditError``; under
+``CellguardError`` the robot's ``RobotLinkError`` and ``BridgeError``, the policy's ``WireError`` and
+``InferenceError``, the fleet's ``RefusedAggregate`` and ``StoreError`` (``StoreUnavailable``).
+
 Every message names the field (or file) and what was allowed, in one line, so that the CLI
 can print it and exit 2 without a traceback.
 """

@@ -84,6 +84,9 @@ class Scenario(BaseModel):
     calibration: Path | None = Field(default=None, description="a profile written by `identify --write`: the robot "
                                      "runs with its measured values, and every record names its calibration version")
 
+    residual_monitor: bool = Field(default=False, description="watch each cycle's measured torque against the "
+                                   "model's (the calibration's, else the profile's measured values): the point where "
+                                   "the robot has drifted beyond its simulator, in the record and the diagnosis")
     @property
     def total_cycles(self) -> int:
         return self.acceptance_cycles + self.production_cycles

@@ -370,7 +370,7 @@ def _fit(segments: list[Segment], cell, wanted: list[str], errors: bool = True) 
     fitted = [Fitted("kp", name, value, se, float(model.actuator_gainprm[act[k], 0]))
               for k, (name, (value, se)) in enumerate(zip(names, drive))]
     if wanted:
-        fitted += _joint_fit(segments, cell, joints, names, dadr, kv_nom, lag, "payload" in wanted, dt, errors)
+        fitted += _joint_fit(segments, cell, joints, names, dadr, kv_nom, "payload" in wanted, dt, errors)
     return lag, fitted
 
 
@@ -434,7 +434,7 @@ def _drive_fit(segments, model, act, joints, errors: bool = True) -> tuple[int, 
     return lag, fits
 
 
-def _joint_fit(segments, cell, joints, names, dadr, kv_nom, lag, payload, dt,
+def _joint_fit(segments, cell, joints, names, dadr, kv_nom, payload, dt,
                errors: bool = True) -> list[Fitted]:
     """Armature, damping, friction per joint and (if ``payload``) the payload, from one stacked least-squares
     solve."""

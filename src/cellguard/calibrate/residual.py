@@ -44,6 +44,7 @@ from scipy import stats
 from cellguard.calibrate.torque_model import MIN_SPEED, JointTerms, TorqueModel, inverse_torques, rigid_model
 from cellguard.diagnose.cycles import LABELS
 from cellguard.diagnose.drift import DriftConfig
+from cellguard.errors import ScenarioError
 
 SIGNATURES = ("friction", "inertia", "payload", "delay")
 LIKELY = {"friction": "friction", "inertia": "inertia/payload", "payload": "inertia/payload", "delay": "delay"}
@@ -206,6 +207,23 @@ class ResidualMonitor:
         error = np.where(scored, coef - forecast, 0.0)
         forecast = np.where(use & (seen == 0), coef, forecast + FORECAST * error)
         self._learnt[label] = (seen + use, forecast, n + scored, sse + error * error)
+
+
+def watch_scenario(run) -> None:
+    """The monitor a scenario's ``residual_monitor: true`` asks for, on ``run``: the model with the calibration's
+    terms (else the profile's measured values over the nominal model), learning from the acceptance cycles
+    (fewer than ``BASELINE_WINDOWS`` is refused: the threshold's false-alarm rate was measured from ten)."""
+    scenario = run.scenario
+    if not scenario.residual_monitor:
+        return
+    if not hasattr(run.cell, "model"):
+        raise ScenarioError(f"residual_monitor: robot {scenario.robot!r} has no MuJoCo model to compare the measured "
+                            "torques with (simulated cells only)")
+    if scenario.acceptance_cycles < BASELINE_WINDOWS:
+        raise ScenarioError(f"residual_monitor: needs acceptance_cycles >= {BASELINE_WINDOWS} (the monitor learns "
+                            f"each joint's residual from them), got {scenario.acceptance_cycles}")
+    terms = JointTerms.from_profile(run.cell, scenario.calibration, option="calibration")
+    watch(run, ResidualMonitor(run.cell, terms, baseline=scenario.acceptance_cycles))
 
 
 def watch(run, monitor: ResidualMonitor) -> None:

@@ -24,11 +24,17 @@ DEMO_SCENARIO = Path(__file__).parents[1] / "scenarios" / "demo.yaml"
 
 
 def _run(scenario: Scenario, out: Path, quiet: bool, realtime: bool = False, overwrite: bool = False) -> dict:
+    from cellguard.calibrate.residual import watch_scenario
     from cellguard.record.writer import refuse_existing
     from cellguard.runtime import Run, run_scenario
 
     refuse_existing(out, overwrite)  # a run never overwrites a record unless asked
     run = Run(scenario, realtime=realtime)  # every check (cell, faults, policy) before anything is created or printed
+    try:
+        watch_scenario(run)
+    except BaseException:
+        run.close()
+        raise
     created = not out.exists()
     # no markup: "arm-pick-place [acceptance]" would lose its phase as an unknown tag
     progress = Progress(TextColumn("{task.description}", markup=False), BarColumn(), MofNCompleteColumn(),

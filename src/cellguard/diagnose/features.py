@@ -2,7 +2,7 @@
 
 Computed once, when the cycle ends, from the cycle's ticks, its chunks' latencies, its events
 and the cell's own outcome (grasp pose, camera readings). Names are flat and stable
-(``current_peak.elbow``, ``grasp_x_mm``) so that they become Parquet columns as they are.
+(``current_peak.elbow``, ``grasp_offset_x_mm``) so that they become Parquet columns as they are.
 """
 
 from __future__ import annotations

@@ -12,7 +12,6 @@ from __future__ import annotations
 import hashlib
 import json
 import platform
-from dataclasses import asdict, is_dataclass
 from importlib import metadata
 
 _SOFTWARE = ("cellguard", "mujoco", "numpy", "mcap", "pyarrow", "duckdb", "ruckig")
@@ -32,21 +31,11 @@ def build_context(*, scenario, cell, policy, envelope, software: dict | None = N
                        "joints": list(profile.joint_names),
                        "calibration_dates": sorted({m.measured for m in profile.measured}), **calibration},
         **cell.context(),
-        "envelope": envelope_config(envelope),
+        "envelope": envelope.to_dict(),
         "servo_period_ns": cell.dt_ns,
         "scenario": scenario.model_dump(mode="json", exclude={"faults", "process_changes"}),
         "software": software or software_versions(),
     }
-
-
-def envelope_config(envelope) -> dict:
-    """The envelope's settings: its own ``to_dict()`` when it offers one, else the limits it enforces."""
-    if hasattr(envelope, "to_dict"):
-        return envelope.to_dict()
-    if is_dataclass(getattr(envelope, "config", None)):
-        return _plain(asdict(envelope.config))
-    profile = envelope.profile
-    return {"position_limits": {j.name: list(j.position) for j in profile.joints}}
 
 
 def software_versions() -> dict:
@@ -79,16 +68,3 @@ def changed_keys(before: dict | None, after: dict) -> list[str]:
 
 def _digest(value) -> str:
     return hashlib.sha256(json.dumps(value, sort_keys=True, default=str).encode()).hexdigest()[:12]
-
-
-def _plain(value):
-    """JSON-safe copy of a config (tuples to lists, sets sorted, numpy to lists)."""
-    if isinstance(value, dict):
-        return {str(k): _plain(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_plain(v) for v in value]
-    if isinstance(value, (set, frozenset)):
-        return sorted(_plain(v) for v in value)
-    if hasattr(value, "tolist"):
-        return value.tolist()
-    return value

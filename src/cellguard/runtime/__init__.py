@@ -1,12 +1,19 @@
 """The runtime: one tick loop for simulated cells and robot bridges, paced by a clock.
 
     loop         Run, run_scenario: policy -> executor -> envelope -> robot -> recorder
-    clock        SimClock (steps physics), WallClock (sleeps, then spins to each deadline)
+    build        the robot, clock and inference worker a scenario names
+    clock        SimClock (steps physics), LockStepClock (a served cell stepped per command),
+                 WallClock (sleeps, then spins to each deadline)
+    servo_thread what the servo thread asks of the OS; idle_window: its idle time lent to the recorder
     cycles       where a cycle ends: the cell's task, a digital input, home pose, policy, time
     inference    simulated inference, or a thread/process worker; never blocks a tick
     link         watched robot reads and finite writes; link faults become stops
     startup      checks that refuse to move; transitions: approach and retreat
     timing       period error, compute time and overruns in bounded memory
+    history      the run's events and cycle outcomes in bounded memory
+    recovery     the scenario's recovery behaviour driving the cell after a failed check
+    operator_stop  Ctrl-C or SIGTERM as a stop input
+    sim_server   ``cellguard sim-server``: a simulated cell served as a robot on wall time
 """
 
 from cellguard.runtime.loop import Run, run_scenario

@@ -40,7 +40,7 @@ def make_clock(robot, realtime: bool):
     return WallClock(robot.dt_ns)
 
 
-def make_inference(run, realtime: bool):
+def make_inference(run):
     """Simulated inference in simulated time; a thread or process worker on wall time (both at most at the
     scenario's ``policy_hz``)."""
     if not run.clock.realtime:

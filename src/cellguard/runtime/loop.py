@@ -1,7 +1,7 @@
 """The one tick loop: policy -> executor -> envelope -> robot -> recorder, cycle after cycle.
 
-Simulation and hardware share it. The ``Clock`` paces it (simulated time steps physics; wall
-time sleeps and spins to each deadline), a cycle source says where a cycle ends, inference is
+Simulation and hardware share it. A clock paces it (``SimClock`` steps physics; ``WallClock``
+sleeps and spins to each deadline), a cycle source says where a cycle ends, inference is
 simulated (simulated time) or runs on a worker (wall time) and never blocks a tick, and the
 robot is reached through ``RobotLink`` (watched reads, finite writes). Fault injection is a
 simulated cell's concern only: it is applied when the robot is a simulated cell.
@@ -104,7 +104,7 @@ class Run:
     def cycle(self) -> dict:
         """Run the next cycle; return its outcome (success, timing, measured poses)."""
         if self.inference is None:
-            self.inference = make_inference(self, self.clock.realtime)
+            self.inference = make_inference(self)
             self.source = make_cycle_source(self.scenario.cycle, self.cell, self.policy)
         index = self.cycles.total
         cell, clock, link, inference, events = self.cell, self.clock, self.link, self.inference, self.events
