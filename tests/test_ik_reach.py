@@ -34,10 +34,27 @@ def arm():
 
 def test_an_unreachable_target_refuses_the_chunk_naming_step_target_and_miss(arm):
     cell, amap, solver = arm
-    with pytest.raises(InferenceError, match=r"IK: step 0: target \(2000.0, 40.0, 150.0\) mm for site 'tcp' is "
-                                             r"out of reach: the nearest solution leaves it \d+\.\d mm away "
-                                             r"\(tolerance 1 mm\)"):
+    with pytest.raises(InferenceError, match=r"IK: step 0: target \(2000.0, 40.0, 150.0\) mm for site 'tcp' not "
+                                             r"reached from the current pose: the solve ends \d+\.\d mm away "
+                                             r"\(tolerance 1 mm; out of reach, or only reached from another joint "
+                                             r"configuration\)"):
         amap.to_robot(np.tile(FAR, (10, 1)), cell.q_home, solver)
+
+
+def test_a_target_reached_only_from_another_configuration_is_not_called_out_of_reach(arm):
+    """The tool point with the base turned 2.4 rad (inside its limits) is not found from home, a local minimum:
+    the refusal said "out of reach", and the operator looked for a workspace fault that was not there."""
+    cell, amap, solver = arm
+    turned = cell.q_home.copy()
+    turned[cell.profile.index("shoulder_pan")] = 2.4
+    target = [*(solver.pose(turned)[:3] * 1e3), 20.0]
+    with pytest.raises(InferenceError, match=r"not reached from the current pose") as refused:
+        amap.to_robot(np.array([target]), cell.q_home, solver)
+    assert "out of reach:" not in str(refused.value)
+    start = cell.q_home.copy()
+    start[cell.profile.index("shoulder_pan")] = 2.3
+    reached = amap.to_robot(np.array([target]), start, solver)[0]
+    assert np.linalg.norm(solver.pose(reached)[:3] * 1e3 - target[:3]) < 1.0  # [mm] reachable from nearby
 
 
 def test_the_first_unreachable_step_of_a_chunk_is_the_one_named(arm):

@@ -18,6 +18,7 @@ from onnx import TensorProto, helper, numpy_helper  # noqa: E402
 
 from cellguard.errors import ConfigError  # noqa: E402
 from cellguard.policy.adapter import InferenceError  # noqa: E402
+from cellguard.policy.chunk import MAX_HORIZON  # noqa: E402
 from cellguard.policy.onnx import OnnxBackend  # noqa: E402
 from cellguard.policy.registry import make_policy  # noqa: E402
 from cellguard.robot.arm_cell import ArmPickPlace  # noqa: E402
@@ -35,13 +36,16 @@ def _save(graph, path):
     return path
 
 
-def constant_model(path, value: np.ndarray, declared: list, state_type=TensorProto.FLOAT):
-    """A model answering ``value`` whatever its state input (of ``state_type``), its output declared ``declared``."""
+def constant_model(path, value: np.ndarray, declared: list, state_type=TensorProto.FLOAT,
+                   output_type=TensorProto.FLOAT, state_shape=(1, 6)):
+    """A model answering ``value`` whatever its state input (of ``state_type``, ``state_shape``), its output
+    declared ``declared`` of ``output_type``."""
     nodes = [helper.make_node("Cast", ["state"], ["s32"], to=TensorProto.FLOAT),
              helper.make_node("ReduceSum", ["s32"], ["sum"], keepdims=0),
-             helper.make_node("Mul", ["sum", "zero"], ["z"]), helper.make_node("Add", ["value", "z"], ["actions"])]
-    graph = helper.make_graph(nodes, "constant", [helper.make_tensor_value_info("state", state_type, [1, 6])],
-                              [helper.make_tensor_value_info("actions", TensorProto.FLOAT, declared)],
+             helper.make_node("Mul", ["sum", "zero"], ["z"]), helper.make_node("Add", ["value", "z"], ["sum32"]),
+             helper.make_node("Cast", ["sum32"], ["actions"], to=output_type)]
+    graph = helper.make_graph(nodes, "constant", [helper.make_tensor_value_info("state", state_type, [*state_shape])],
+                              [helper.make_tensor_value_info("actions", output_type, declared)],
                               [numpy_helper.from_array(value.astype(np.float32), "value"),
                                numpy_helper.from_array(np.zeros((), np.float32), "zero")])
     return _save(graph, path)
@@ -142,3 +146,77 @@ def test_a_model_with_its_weights_as_external_data_still_loads(tmp_path, cell):
     assert (tmp_path / "m.weights").stat().st_size > 0
     policy = make_policy(f"onnx:{path}", cell)
     np.testing.assert_allclose(policy.infer(cell.observe()).actions, np.tile(HOME, (10, 1)), atol=1e-6)
+
+
+@pytest.mark.parametrize("output_type, kind", [(TensorProto.INT64, "tensor(int64)"), (TensorProto.BOOL, "tensor(bool)"),
+                                               (TensorProto.STRING, "tensor(string)")])
+def test_a_chunk_of_other_than_floats_is_refused_at_load(tmp_path, cell, output_type, kind):
+    """An int64 chunk loaded and was truncated (the arm driven to a wrong pose); bool or string failed every call."""
+    path = constant_model(tmp_path / "m.onnx", np.tile(HOME, (1, 10, 1)), [1, 10, 6], output_type=output_type)
+    with pytest.raises(ConfigError, match=rf"first output 'actions' is {re.escape(kind)}; a chunk is joint targets, "
+                                          r"floats: tensor\(float16\), tensor\(float\), tensor\(double\)"):
+        make_policy(f"onnx:{path}", cell)
+
+
+@pytest.mark.parametrize("state_shape", [(6,), (2, 6), (1, 1, 6), ()])
+def test_an_input_of_another_rank_or_batch_than_fed_is_refused_at_load(tmp_path, cell, state_shape):
+    """A state input (6,) or (2, 6) loaded, then every call failed: 240 inference_failed and a protective stop."""
+    path = constant_model(tmp_path / "m.onnx", np.tile(HOME, (1, 10, 1)), [1, 10, 6], state_shape=state_shape)
+    with pytest.raises(ConfigError, match=rf"model input 'state' has shape {re.escape(str(list(state_shape)))}; "
+                                          r"the cell feeds it \(1, 6\)"):
+        make_policy(f"onnx:{path}", cell)
+
+
+def test_a_state_input_with_a_free_batch_dimension_loads(tmp_path, cell):
+    path = constant_model(tmp_path / "m.onnx", np.tile(HOME, (1, 10, 1)), [1, 10, 6], state_shape=("B", 6))
+    np.testing.assert_allclose(make_policy(f"onnx:{path}", cell).infer(cell.observe()).actions,
+                               np.tile(HOME, (10, 1)), atol=1e-6)
+
+
+def _external(tmp_path, location="m.weights"):
+    """The constant model with its weights in external data named ``location`` (relative to its folder)."""
+    path = constant_model(tmp_path / "m.onnx", np.tile(HOME, (1, 10, 1)), [1, 10, 6])
+    onnx.save(onnx.load(path), path, save_as_external_data=True, all_tensors_to_one_file=True, location=location,
+              size_threshold=0)
+    return path
+
+
+def test_new_external_weights_beside_an_unchanged_model_file_are_a_new_hash(tmp_path, cell):
+    """A release froze the .onnx file's hash only: weights swapped after create passed promote, and drove the arm."""
+    path = _external(tmp_path)
+    before = make_policy(f"onnx:{path}", cell).content_hash()
+    weights = np.fromfile(tmp_path / "m.weights", dtype=np.float32)
+    weights[:6] += 0.5
+    weights.tofile(tmp_path / "m.weights")
+    after = make_policy(f"onnx:{path}", cell)
+    assert not np.allclose(after.infer(cell.observe()).actions, np.tile(HOME, (10, 1)), atol=1e-3)
+    assert after.content_hash() != before
+    assert before != hashlib.sha256(path.read_bytes()).hexdigest()  # the weights are in it
+
+
+@pytest.mark.parametrize("location", ["../outside.weights", "link.weights", "missing.weights"])
+def test_external_data_out_of_the_models_folder_or_missing_is_refused_naming_it(tmp_path, cell, location):
+    """Only files beside the model are hashed; one elsewhere (a path up, a link out) is refused, not read."""
+    folder = tmp_path / "model"
+    folder.mkdir()
+    path = _external(folder)
+    model = onnx.load(path, load_external_data=False)
+    for tensor in model.graph.initializer:
+        for entry in tensor.external_data:
+            if entry.key == "location":
+                entry.value = location
+    onnx.save(model, path)
+    (tmp_path / "outside.weights").write_bytes((folder / "m.weights").read_bytes())
+    (folder / "link.weights").symlink_to(tmp_path / "outside.weights")
+    with pytest.raises(ConfigError, match=rf"external data '{re.escape(location)}' is not a file in the model's "):
+        make_policy(f"onnx:{path}", cell)
+
+
+@pytest.mark.parametrize("declared", [[1, MAX_HORIZON + 1, 6], [MAX_HORIZON + 1, 6]])
+def test_a_chunk_longer_than_the_guard_takes_is_refused_at_load(tmp_path, cell, declared):
+    """A fixed horizon of 1001 loaded, then the guard rejected every chunk (chunk_rejected, exit 0)."""
+    path = constant_model(tmp_path / "m.onnx", np.tile(HOME, (1, MAX_HORIZON + 1, 1)).reshape(declared), declared)
+    with pytest.raises(ConfigError, match=rf"{MAX_HORIZON + 1} steps; the guard takes a chunk of at most {MAX_HORIZON}"):
+        make_policy(f"onnx:{path}", cell)
+    ok = constant_model(tmp_path / "ok.onnx", np.tile(HOME, (1, MAX_HORIZON, 1)), [1, MAX_HORIZON, 6])
+    assert make_policy(f"onnx:{ok}", cell).infer(cell.observe()).horizon == MAX_HORIZON

@@ -89,3 +89,16 @@ def test_a_fifo_or_device_as_the_map_or_policy_is_one_line_exit_2(tmp_path, opti
     result = run_with_fifo_guard(fifo, lambda: cli(*args))
     assert result.exit_code == 2 and result.stderr.count("\n") == 1 and says in result.stderr, result.output
     assert not (tmp_path / "site").exists()
+
+
+@pytest.mark.parametrize("policy", ["onnx:m.onnx?map=MAP", "onnx:m.onnx?ma%70=MAP", "onnx:m.onnx?dt=0.05&%6Dap=MAP",
+                                    "lerobot:policy_dir?ma%70=MAP", "openpi:ws://127.0.0.1:1?map=MAP"])
+def test_an_action_map_given_as_a_policy_option_however_encoded_is_one_line_exit_2(tmp_path, policy):
+    """``?ma%70=FILE`` passed the check of the text ``map=``; the adapter decoded it to ``map`` and used the map
+    unhashed (edited after create, it still promoted). openpi's ``?map=`` was not checked at all."""
+    args = ["create", "--policy", policy.replace("MAP", str(tmp_path / "map.yaml")), "--profile", CELL,
+            "--site", str(tmp_path / "site")]
+    result = cli(*args)
+    assert result.exit_code == 2 and result.stderr == "error: --policy: give the action map with --map, not ?map=\n", \
+        result.output
+    assert not (tmp_path / "site").exists()

@@ -43,9 +43,8 @@ import numpy as np
 from cellguard.control.events import Event, EventKind
 from cellguard.control.spline import ChunkCurve
 from cellguard.embodiment import Profile
-from cellguard.policy.chunk import ActionChunk
+from cellguard.policy.chunk import MAX_HORIZON, ActionChunk
 
-MAX_HORIZON = 1000  # steps; a longer chunk is refused as malformed
 MIN_STEP_NS, MAX_STEP_NS = 1_000_000, 1_000_000_000  # a chunk's step: 1 ms to 1 s
 HISTORY_TICKS = 8192  # playback clock remembered for mapping late chunks [ticks]
 MAX_BLENDED = 64  # curves in one blend at most, a bound on the tick's cost (50 Hz chunks in a 1 s blend: 51)

@@ -6,6 +6,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+MAX_HORIZON = 1000  # steps; the executor refuses a longer chunk as malformed
+
 
 @dataclass(frozen=True)
 class ActionChunk:

@@ -2,9 +2,12 @@
 
 Runs off the servo path, once per chunk: each step starts from the previous step's solution, so
 a chunk of H poses costs H short solves. Joints outside ``IkSpec.joints`` (the gripper, a free
-part) are frozen; the model's joint ranges bound the solution. A step the site cannot reach within
+part) are frozen; the model's joint ranges bound the solution. A step the site does not reach within
 ``REACH_TOLERANCE`` refuses the whole chunk: the solver's best effort for an unreachable target
-flipped between two joint solutions step after step and moved the tool away from it.
+flipped between two joint solutions step after step and moved the tool away from it. The solver is
+local (it follows on from the current pose, so a chunk stays continuous): a miss says the target was
+not reached from there, not that no joint pose reaches it (one far behind the base can need the base
+turned further than a local solve finds; re-seeding it would give a jump the guard refuses anyway).
 """
 
 from __future__ import annotations
@@ -18,7 +21,7 @@ from cellguard.embodiment.action_map import EE_AXES, IkSpec
 from cellguard.policy.adapter import InferenceError
 
 POSITION_TOLERANCE = 1e-4  # [m] a step's solve stops when the site is this close to its target
-REACH_TOLERANCE = 1e-3  # [m] a step whose site ends further than this from its target is out of reach
+REACH_TOLERANCE = 1e-3  # [m] a step whose site ends further than this from its target was not reached
 MAX_ITERATIONS = 30  # per chunk step
 
 
@@ -99,9 +102,10 @@ class IkSolver:
         miss = np.linalg.norm(self._pose_now()[:3] - target)
         if miss > REACH_TOLERANCE:
             where = ", ".join(f"{v * 1e3:.1f}" for v in target)
-            raise InferenceError(f"IK: step {step}: target ({where}) mm for site {self.spec.site!r} is out of "
-                                 f"reach: the nearest solution leaves it {miss * 1e3:.1f} mm away (tolerance "
-                                 f"{REACH_TOLERANCE * 1e3:g} mm); chunk refused")
+            raise InferenceError(f"IK: step {step}: target ({where}) mm for site {self.spec.site!r} not reached "
+                                 f"from the current pose: the solve ends {miss * 1e3:.1f} mm away (tolerance "
+                                 f"{REACH_TOLERANCE * 1e3:g} mm; out of reach, or only reached from another joint "
+                                 f"configuration); chunk refused")
 
     def _set(self, q: np.ndarray) -> None:
         full = self._configuration.q.copy()

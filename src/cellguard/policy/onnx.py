@@ -3,8 +3,9 @@
 The model's inputs are fed by name: ``state`` (1, A) the state in the policy's own space,
 ``time_s`` (1, 1) seconds since the episode began, and any camera measurement by its name
 (``part_in_camera`` (1, 3) [m]), each in the element type it declares (float16, float or double;
-any other type is refused at load). Its first output is the chunk, (1, H, A), (H, A) or (1, A);
-any other shape is refused (a batch of chunks was flattened into one long chunk).
+any other type is refused at load). Its first output is the chunk, floats too, (1, H, A), (H, A) or
+(1, A); any other shape is refused (a batch of chunks was flattened into one long chunk). Its content
+hash covers the model file and the external-data files it names, which lie in its folder.
 Metadata properties the model may carry: ``cellguard.action_names`` (comma-separated),
 ``cellguard.dt_s`` (step period), ``cellguard.action_map`` (an action map, YAML).
 """
@@ -19,6 +20,7 @@ import numpy as np
 from cellguard.errors import ConfigError
 from cellguard.policy.adapter import (DT_RANGE_S, InferenceError, MappedPolicy, PolicyInputs, bounded_float,
                                       option_float, resolve_map, split_options)
+from cellguard.policy.chunk import MAX_HORIZON
 
 OPTIONS = {"map": "action map YAML file", "dt": "step period [s], overrides the model's"}
 _FIXED_INPUTS = ("state", "time_s")
@@ -41,8 +43,7 @@ class OnnxBackend:
         if size > MAX_MODEL_BYTES:  # refused by its size: reading it whole to hash it took 3.3 GB for a 3 GB file
             raise ConfigError(f"policy: onnx:{path}: {size} bytes; protobuf reads no model file of 2 GiB or more, "
                               f"so a model this large keeps its weights as ONNX external data beside it")
-        with path.open("rb") as file:
-            self._bytes_hash = hashlib.file_digest(file, "sha256").hexdigest()
+        self._bytes_hash = _content_hash(path)
         self._where = f"onnx:{path}"
         options = ort.SessionOptions()
         options.intra_op_num_threads, options.inter_op_num_threads = 1, 1
@@ -65,6 +66,9 @@ class OnnxBackend:
         self.dt_s = (bounded_float(meta["cellguard.dt_s"], f"policy: onnx:{path}: metadata cellguard.dt_s", *DT_RANGE_S)
                      if "cellguard.dt_s" in meta else None)
         output = self.session.get_outputs()[0]
+        if output.type not in _FEED_TYPES:  # a string or bool chunk failed every call; an int64 one was truncated
+            raise ConfigError(f"policy: onnx:{path}: first output {output.name!r} is {output.type}; a chunk is joint "
+                              f"targets, floats: {', '.join(_FEED_TYPES)}")
         shape = output.shape
         last = shape[-1] if shape else None
         if not isinstance(last, int):
@@ -75,15 +79,18 @@ class OnnxBackend:
         if len(shape) not in (2, 3) or (len(shape) == 3 and isinstance(shape[0], int) and shape[0] != 1):
             raise ConfigError(f"policy: onnx:{path}: first output {output.name!r} declares shape {shape}; a chunk "
                               f"is (1, H, {last}), (H, {last}) or (1, {last})")
+        if isinstance(shape[-2], int) and shape[-2] > MAX_HORIZON:  # loaded, and every chunk was rejected at run time
+            raise ConfigError(f"policy: onnx:{path}: first output {output.name!r} declares shape {shape}: "
+                              f"{shape[-2]} steps; the guard takes a chunk of at most {MAX_HORIZON}")
         self.action_dim = last
         self._output = output.name
 
     def check_widths(self, widths: dict[str, int], source: str) -> None:
         """Refuse a model whose inputs cannot take what the cell feeds (every call would fail at run time);
-        each is fed as (1, width)."""
+        each is fed as (1, width): rank 2, each fixed dimension that size."""
         for name, shape, _ in self.inputs:
-            last = shape[-1] if shape else None
-            if len(shape) > 2 or (isinstance(last, int) and last != widths[name]):
+            fed = (1, widths[name])
+            if len(shape) != 2 or any(isinstance(d, int) and d != n for d, n in zip(shape, fed)):
                 raise ConfigError(f"policy: {source}: model input {name!r} has shape {shape}; the cell feeds it "
                                   f"(1, {widths[name]})")
 
@@ -109,6 +116,61 @@ class OnnxBackend:
 
     def content_hash(self) -> str:
         return self._bytes_hash
+
+
+def _content_hash(path: Path) -> str:
+    """sha256 of the model file, read in pieces, then of each external-data file it names (sorted; name, size,
+    bytes): new weights beside an unchanged .onnx are a new model. A model without external data hashes as its file.
+
+    Only a file holding the bytes ``location`` (the key of every external-data entry) is parsed to list them: a
+    model of 2 GiB is not read whole into memory for nothing."""
+    digest, tail, names_data = hashlib.sha256(), b"", False
+    with path.open("rb") as file:
+        while piece := file.read(1 << 20):
+            digest.update(piece)
+            names_data = names_data or b"location" in tail + piece[:7] or b"location" in piece
+            tail = piece[-7:]
+    for name in _external_data(path) if names_data else ():
+        file = path.parent / name
+        digest.update(f"\0{name}\0{file.stat().st_size}\0".encode())
+        with file.open("rb") as data:
+            hashlib.file_digest(data, lambda: digest)
+    return digest.hexdigest()
+
+
+def _external_data(path: Path) -> list[str]:
+    """The external-data files the model names, sorted, each a regular file in the model's folder (onnxruntime
+    1.32 refuses one out of it, older ones read it: an unhashed file, or a FIFO that hangs the load)."""
+    import onnx
+    from onnx.external_data_helper import uses_external_data
+
+    try:
+        model = onnx.load(str(path), load_external_data=False)
+    except Exception as exc:  # protobuf's DecodeError and onnx's own, untyped
+        raise ConfigError(f"policy: onnx:{path}: not a loadable ONNX model ({type(exc).__name__})") from None
+    names = sorted({entry.value for tensor in _tensors(model) if uses_external_data(tensor)
+                    for entry in tensor.external_data if entry.key == "location"})
+    folder = path.parent.resolve()
+    for name in names:
+        file = (path.parent / name).resolve()
+        if not file.is_relative_to(folder) or not file.is_file():
+            raise ConfigError(f"policy: onnx:{path}: external data {name!r} is not a file in the model's folder "
+                              f"{folder}; a model's weights lie beside it")
+    return names
+
+
+def _tensors(message):
+    """Every TensorProto inside ``message``: initializers, sparse ones, attributes, subgraphs, functions."""
+    from google.protobuf.message import Message
+    from onnx import TensorProto
+
+    for field, value in message.ListFields():
+        if field.type != field.TYPE_MESSAGE:
+            continue
+        for item in (value,) if isinstance(value, Message) else value:
+            if isinstance(item, TensorProto):
+                yield item
+            yield from _tensors(item)
 
 
 def make_onnx_policy(arg: str, cell) -> MappedPolicy:

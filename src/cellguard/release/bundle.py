@@ -1,6 +1,6 @@
 """Release bundles: a manifest freezing everything that decides how a policy behaves on a cell.
 
-The manifest holds the policy's content hash (weights file, program source or server metadata,
+The manifest holds the policy's content hash (weights files, program source or server metadata,
 as its adapter computes it), the action map's bytes hash, the embodiment profile with its
 calibration version, the envelope settings and the cellguard version. The release id is the
 sha256 of the manifest's canonical JSON (sorted keys, no spaces), so identical inputs give the
@@ -187,10 +187,9 @@ def _absolute_spec(spec: str) -> str:
     """A policy file named relative to here is frozen by its absolute path; a FIFO, device or socket there is
     refused before its adapter waits on it or calls it missing."""
     scheme, sep, arg = spec.partition(":")
+    _refuse_map_option(scheme, arg)
     if scheme in ("onnx", "lerobot", "replay") and sep:
         target, q, query = arg.partition("?")
-        if "map=" in query:
-            raise ReleaseError("--policy: give the action map with --map, not ?map=")
         path = Path(target).resolve()
         try:
             kind = not_regular(path)
@@ -200,3 +199,20 @@ def _absolute_spec(spec: str) -> str:
             raise ReleaseError(f"--policy {target}: is {kind}, not a regular file")
         return f"{scheme}:{path}{q}{query}"
     return spec
+
+
+def _refuse_map_option(scheme: str, arg: str) -> None:
+    """An action map given as a policy option is used unhashed: it goes with --map. The adapter's own parser
+    decides what is an option (``?ma%70=`` is ``map`` once decoded; the text ``map=`` was checked)."""
+    from cellguard.policy import lerobot, onnx, openpi
+    from cellguard.policy.adapter import split_options
+
+    adapter = {"onnx": onnx, "lerobot": lerobot, "openpi": openpi}.get(scheme)
+    if adapter is None:
+        return
+    try:
+        _, options = split_options(arg, adapter.OPTIONS, scheme)
+    except CellguardError as exc:
+        raise ReleaseError(f"--policy: {exc}") from None
+    if "map" in options:
+        raise ReleaseError("--policy: give the action map with --map, not ?map=")

@@ -149,6 +149,11 @@ class LeRobotBridge:
         if units.ee_actions:
             raise ConfigError("units map: end-effector entries cannot drive a LeRobot robot's joints; "
                               "map each action key to a joint")
+        driven = {a.joint for a in units.joint_actions}
+        undriven = [name for j, name in enumerate(profile.joint_names) if j not in driven]
+        if undriven:  # a held joint read as its hold value, not where the robot is, and was never commanded
+            raise ConfigError(f"units map: joints {', '.join(undriven)} have no action key; the bridge reads and "
+                              f"commands every joint of a LeRobot robot through its key (no hold)")
         missing = [n for n in units.names if n not in robot.action_features]
         if missing:
             raise ConfigError(f"units map: actions {', '.join(missing)} are not action keys of LeRobot robot "
