@@ -158,7 +158,7 @@ def _read_member(member, declared: int, what: str) -> np.ndarray:
     except (ValueError, TypeError, SyntaxError, EOFError) as exc:
         raise ConfigError(f"{what}: not a readable .npy array ({exc.__class__.__name__})") from None
     if dtype.kind not in _NUMERIC_KINDS or dtype.hasobject or dtype.fields is not None or dtype.subdtype is not None:
-        raise ConfigError(f"{what}: dtype {dtype.str!r} is not allowed; arrays hold numbers (bool, int, float)")
+        raise ConfigError(f"{what}: dtype {dtype.str!r} is not allowed; arrays hold numbers (int, float)")
     count = int(np.prod(shape, dtype=object))
     if count * dtype.itemsize > declared:
         raise ConfigError(f"{what}: its header declares shape {shape}, {count * dtype.itemsize} bytes, but the "
