@@ -19,6 +19,7 @@ from cellguard.errors import ScenarioError
 from cellguard.robot.faults import FAULTS, AnyFault
 from cellguard.robot.process import PROCESS_CHANGES, AnyProcessChange, declared_changes
 from cellguard.robot.recovery import RECOVERIES, RecoveryPolicy
+from cellguard.robot.world_changes import first_refused
 from cellguard.yaml_file import read_yaml
 
 
@@ -83,10 +84,10 @@ class Scenario(BaseModel):
     recovery: RecoveryPolicy | None = None
     calibration: Path | None = Field(default=None, description="a profile written by `identify --write`: the robot "
                                      "runs with its measured values, and every record names its calibration version")
-
     residual_monitor: bool = Field(default=False, description="watch each cycle's measured torque against the "
                                    "model's (the calibration's, else the profile's measured values): the point where "
                                    "the robot has drifted beyond its simulator, in the record and the diagnosis")
+
     @property
     def total_cycles(self) -> int:
         return self.acceptance_cycles + self.production_cycles
@@ -103,6 +104,9 @@ class Scenario(BaseModel):
                     f"faults[{i}].kind: {fault.kind!r} cannot be simulated in cell {cell.name!r}; "
                     f"it supports: {', '.join(sorted(cell.supported_faults))}"
                 )
+            if fault.kind == "late_recovery" and self.recovery is None:
+                raise ScenarioError(f"faults[{i}].kind: 'late_recovery' slows recoveries and the scenario has no "
+                                    f"recovery: section, so it would never act")
             for joint in fault.joints():
                 if joint not in cell.profile.joint_names:
                     raise ScenarioError(
@@ -113,6 +117,11 @@ class Scenario(BaseModel):
             if not hasattr(cell, change.hook):
                 raise ScenarioError(f"process_changes[{i}].kind: {change.kind!r} cannot be simulated in cell "
                                     f"{cell.name!r}")
+        refused = first_refused(cell, self.process_changes)
+        if refused is not None:
+            i, why = refused
+            raise ScenarioError(f"process_changes[{i}]: from cycle {self.process_changes[i].at_cycle}, with every "
+                                f"change in force then, {why}")
         if self.recovery is not None:
             self.recovery.check_against(cell)
 

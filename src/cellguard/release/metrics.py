@@ -129,15 +129,16 @@ def drift_alarms(runs) -> Measure:
 
 
 def chunk_seam_jump_max(runs) -> Measure:
-    """Largest step between the outgoing and incoming chunk at each switch [mrad], as received."""
+    """Largest step between the outgoing and incoming chunk at each switch [mrad], as received: at its arrival,
+    or at the incoming chunk's first step where it arrives before it (no target of its own before then)."""
     worst, where, seams = 0.0, "", 0
     for r in runs:
         for old, new in zip(r.chunks, r.chunks[1:]):
-            t = new.t_received_ns
-            a_old = action_at(old, t)
-            if a_old is None:
+            t = max(new.t_received_ns, new.t_obs_ns + new.dt_ns)
+            a_old, a_new = action_at(old, t), action_at(new, t)
+            if a_old is None or a_new is None:  # the old one had ended, or the new one all past (stale)
                 continue
-            jump = float(np.abs(action_at(new, t) - a_old).max()) * 1e3
+            jump = float(np.abs(a_new - a_old).max()) * 1e3
             seams += 1
             if jump > worst:
                 worst, where = jump, f"{r.label()} at t={t * 1e-9:.3f} s"
@@ -146,13 +147,15 @@ def chunk_seam_jump_max(runs) -> Measure:
 
 
 def action_at(chunk, t_ns: int):
-    """The chunk's action at ``t_ns`` (linear between steps), or None past its end."""
-    s = (t_ns - chunk.t_obs_ns) / chunk.dt_ns
-    if s < 0 or s > len(chunk.actions) - 1:
+    """The chunk's action at ``t_ns``, linear between its steps, step ``i`` due at ``t_obs + (i + 1) * dt``
+    (``ActionChunk.step_times_ns``); None before its first step or past its last (it names no target there)."""
+    n = len(chunk.actions)
+    s = (t_ns - chunk.t_obs_ns) / chunk.dt_ns - 1  # in steps from the first
+    if s < 0 or s > n - 1:
         return None
-    i = min(int(s), len(chunk.actions) - 2) if len(chunk.actions) > 1 else 0
-    if len(chunk.actions) == 1:
+    if n == 1:
         return chunk.actions[0]
+    i = min(int(s), n - 2)
     f = s - i
     return (1 - f) * chunk.actions[i] + f * chunk.actions[i + 1]
 

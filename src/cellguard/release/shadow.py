@@ -24,6 +24,7 @@ from cellguard.control.events import EventKind
 from cellguard.control.settings import GuardSettings, build_guard
 from cellguard.diagnose.diagnosis import ROUTINE_EVENTS
 from cellguard.errors import ConfigError
+from cellguard.policy.chunk import ActionChunk
 from cellguard.policy.registry import make_policy
 from cellguard.release.evidence import SHADOW_FILE
 from cellguard.release.metrics import action_at
@@ -57,16 +58,22 @@ class ShadowedPolicy:
                "clamped": False, "stopped": False}
         if not self.guard.power:  # the candidate's guard stopped with power removed: reset it on the live state
             self.guard.reset(observation.q)
-        try:
-            candidate = self.candidate.infer(observation)
+        try:  # the whole candidate side: whatever it answers, it never fails the incumbent's inference
+            self._take(row, chunk, self.candidate.infer(observation), observation.t_ns)
         except Exception as exc:  # noqa: BLE001 - a failing candidate is a would-be stop, never the incumbent's
             row.update(events=[f"inference_failed: {type(exc).__name__}"], stopped=True)
-        else:
-            row["distance_rad"] = _distance(chunk, candidate)
-            self._note(row, self.guard.push(candidate, observation.t_ns))
         self.rows.append(row)
         self._open = row
         return chunk
+
+    def _take(self, row: dict, chunk, candidate, t_ns: int) -> None:
+        """The candidate's answer into its guard as the loop hands a chunk over: no chunk at all is a failed
+        inference; one the guard refuses (another action dimension, NaN, a bad step) is its rejection, and a
+        stop once the guard's watchdog runs out, as it would be live."""
+        if not isinstance(candidate, ActionChunk):
+            raise TypeError(f"the candidate answered {type(candidate).__name__}, not an ActionChunk")
+        row["distance_rad"] = _distance(chunk, candidate)
+        self._note(row, self.guard.push(candidate, t_ns))
 
     def _advance(self, t_ns: int) -> None:
         """Tick the shadow guard up to ``t_ns``; its events belong to the candidate chunk it was following."""
@@ -97,11 +104,15 @@ class ShadowedPolicy:
 
 
 def _distance(a, b) -> float | None:
-    """Max |a - b| over joints at a's steps that both chunks cover [rad]; NaN anywhere is infinite;
-    None when they share no step (the candidate answered for another time)."""
+    """Max |a - b| over joints at a's steps (``ActionChunk.step_times_ns``) that b covers [rad]; NaN anywhere
+    is infinite; None when they share no step (the candidate answered for another time), when b has no step
+    period or another action dimension than a (its guard refuses it: an event), or when the incumbent's
+    answer is no chunk (its own failure is the run's event)."""
+    if not isinstance(a, ActionChunk) or np.shape(a.actions)[1:] != np.shape(b.actions)[1:] or not b.dt_ns > 0:
+        return None
     worst = None
-    for k in range(len(a.actions)):
-        other = action_at(b, a.t_obs_ns + k * a.dt_ns)
+    for k, t_ns in enumerate(a.step_times_ns()):
+        other = action_at(b, int(t_ns))
         if other is None:
             continue
         d = np.abs(np.asarray(a.actions[k]) - other)

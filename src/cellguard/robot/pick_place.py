@@ -305,6 +305,13 @@ class PickPlaceCell(DrivenCell):
         self._part_offset = np.asarray(offset, dtype=np.float64)
 
     # -- Process changes --------------------------------------------------------------------
+    def payload_problem(self, extra_kg: float) -> str | None:
+        """Why the part cannot carry ``extra_kg`` more (it would weigh nothing or less), or None."""
+        part = self.nominal["part_mass"]
+        if part + extra_kg > 0:
+            return None
+        return f"the part would weigh {(part + extra_kg) * 1e3:g} g ({part * 1e3:g} g {extra_kg * 1e3:+g} g)"
+
     def set_payload(self, extra_kg: float) -> None:
         """The part carried weighs ``extra_kg`` more than at commissioning (a new product variant)."""
         mass = self.nominal["part_mass"] + extra_kg

@@ -10,7 +10,7 @@ joint (offsets and payloads add, friction and gain factors multiply), and the ce
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 
 import numpy as np
 
@@ -40,6 +40,11 @@ class _Effects:
     def _multiply(self, setter: str, joint: str, factor: float) -> None:
         self._products[setter, joint] = self._products.get((setter, joint), 1.0) * float(factor)
 
+    def refused_by(self, cell) -> str | None:
+        """Why ``cell`` cannot take the composed values (a part of no mass), or None."""
+        payload = self._sums.get("set_payload")
+        return None if payload is None else cell.payload_problem(float(payload))
+
     def apply_to(self, cell) -> None:
         for setter, value in self._sums.items():
             getattr(cell, setter)(value if value.ndim else float(value))
@@ -53,3 +58,16 @@ def apply_world_changes(cell, changes: Iterable, cycle: int) -> None:
     for change in changes:
         change.apply(effects, cycle)
     effects.apply_to(cell)
+
+
+def first_refused(cell, changes: Sequence) -> tuple[int, str] | None:
+    """The first of ``changes`` (by ``at_cycle``) whose cycle ``cell`` cannot take once every change in force then is
+    composed, with why; None if it takes them all. Payloads are steps, so their sum is lowest where one starts."""
+    for i in sorted(range(len(changes)), key=lambda k: changes[k].at_cycle):
+        effects = _Effects(cell)
+        for change in changes:
+            change.apply(effects, changes[i].at_cycle)
+        why = effects.refused_by(cell)
+        if why is not None:
+            return i, why
+    return None

@@ -5,14 +5,20 @@ Each attempt is a ``recovery_start`` / ``recovery_end`` event pair; the end says
 when the arm arrived at its contact pose (measured) against when the gripper was told to shut, and
 the outcome: ``resumed`` (its plan ran out with no failed check: the cell carries on), ``failed``
 (another attempt follows), ``escalated`` (its ``then`` follows), ``gave_up`` (nothing left, or the
-per-cycle limit: the cell goes home), ``cut_off`` (the cell's task ended the cycle first). Once a
+per-cycle limit: the cell goes home), ``cut_off`` (the cell's task ended the cycle first, or a category 0 or 1
+stop removed the power mid-plan: no attempt starts after it in that cycle). Once a
 recovery has started it drives the cell to the end of the cycle, and the cycle's time-out waits for
 the attempt in progress (``attempting``): an operator hand-over holds for its whole ``hold_s`` and
 ends in its reset, and no attempt is left mid-move for the next cycle's policy to start from (an
 operator hold of 30 s was cut off after 6 s and the cell moved again with no reset). Attempts are
 bounded by ``attempts``, acyclic escalation or ``max_per_cycle``. A failed check during an attempt ends it once
 the arm has reached its contact pose (or the plan has passed it): a controller finishes the move in
-progress before it reacts.
+progress before it reacts. A category 2 stop (power kept) holds the arm and pauses the attempt's plan
+until it clears, as a controller pauses its program: the plan's clock running on under the stop shut the
+gripper before the held arm arrived, the very signature the diagnosis reads as a late recovery. Arrival and
+close times are plan times; the duration is the time the attempt took. The cycle's time-out does not wait
+for a held attempt (a stop that never clears, such as a workspace stop waiting for a reference that no longer
+moves, would hold the cycle for ever): the time-out ends it ``cut_off``.
 """
 
 from __future__ import annotations
@@ -21,6 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from cellguard.control.checks.safety_input import ASKED_BY_LOOP, RECOVERY_HOLD
 from cellguard.control.events import Event, EventKind
 from cellguard.policy.chunk import ActionChunk
 from cellguard.robot.recovery import Plan, RecoveryPolicy
@@ -38,8 +45,9 @@ class _Attempt:
     trigger: str
     attempt: int
     plan: Plan
-    t0: int
-    arrival_ns: int | None = None
+    t0: int  # the plan's time origin: moved on while a stop holds the arm, so the plan waits for it
+    start: int  # when the attempt began [ns]
+    arrived_ns: int | None = None  # plan time of the arrival at the contact pose [ns]
     failed_ns: int | None = None
     reset_ns: int | None = None  # an operator hand-over: when the operator reset the cell
     left: bool = False  # the arm has been away from the contact pose (an arrival counts only after)
@@ -65,13 +73,17 @@ class RecoveryRunner:
         self._log: list[dict] = []
         self._origin: np.ndarray | None = None  # the reference when the cycle's first check failed
         self._now = 0
+        self._seen = len(self.events)  # the events read so far (a stop of the cycle before is not this one's)
+        self._held = False  # a category 2 stop holds the arm (see _follow_stops)
+        self._powered = True  # False after a category 0 or 1 stop: nothing moves until a reset
         self.held_at_end = False  # the cycle ended (an operator stop) while a hand-over hold was in force
 
     @property
     def attempting(self) -> bool:
         """An attempt, or the move home after the last one gave up, is in progress: the cycle's time-out waits
-        for it to end (a move home cut off mid-way started the next cycle 1 rad from home)."""
-        return self._active is not None or self._now < self._home_by
+        for it to end (a move home cut off mid-way started the next cycle 1 rad from home). Not an attempt that
+        another stop holds: its plan waits for the stop, the time-out does not (a stop that never clears)."""
+        return (self._active is not None and not self._held) or self._now < self._home_by
 
     @property
     def stop(self) -> int | None:
@@ -81,13 +93,19 @@ class RecoveryRunner:
 
     def drives(self, t: int, state, reference: np.ndarray) -> bool:
         """Once per tick: True while a recovery drives the cell (from a failed check to the cycle's end)."""
+        a = self._active
+        if self._follow_stops() and a is not None:
+            self._end(a, t, "cut_off")  # a stop removed the power: the plan did not run out
+            self._tail = (a.plan, a.t0)
+            a = None
+        elif a is not None and self._held and self.stop is None:
+            a.t0 += t - self._now  # the plan waits while a stop holds the arm, as a paused program does
         self._now = t
         failed = self._failed_check()
-        a = self._active
         if a is None:
             if self._tail is not None:
                 return True
-            behaviour = self.policy.for_trigger(failed) if failed else None
+            behaviour = self.policy.for_trigger(failed) if failed and self._powered else None
             if behaviour is None:
                 return False
             self._origin = np.array(reference, dtype=np.float64)
@@ -96,16 +114,16 @@ class RecoveryRunner:
         if a.plan.hold_s and a.reset_ns is None and t - a.t0 >= a.plan.hold_s * 1e9:
             a.reset_ns = t
             self.events.append(Event(t, EventKind.RESET, f"operator reset after the hand-over ({a.trigger})"))
-        if a.plan.contact_q is not None and a.arrival_ns is None:
+        if a.plan.contact_q is not None and a.arrived_ns is None:
             near = float(np.abs(state.q[:-1] - a.plan.contact_q).max()) < ARRIVE_TOL
             a.left = a.left or not near
             if near and a.left:
-                a.arrival_ns = t
+                a.arrived_ns = t - a.t0
         if failed and a.failed_ns is None:
             a.failed_ns = t
         if a.failed_ns is not None:
             passed = a.plan.close_t is None or (t - a.t0) * 1e-9 * self.arm_speed > a.plan.close_t + WAIT_S
-            if a.arrival_ns is not None or passed:
+            if a.arrived_ns is not None or passed:
                 self._after_failure(a, t, reference)
         elif t - a.t0 >= a.plan.duration(self.arm_speed) * 1e9:
             self._end(a, t, "resumed")
@@ -123,12 +141,12 @@ class RecoveryRunner:
 
     def end_cycle(self, stopped: bool = False) -> dict:
         """The cycle's recovery outcome fields (flat, SI) and its log. An attempt still running when the
-        cell's task ended the cycle with no failed check resumed the cell; one with a failed check, or ended by
-        a stop of the run (``stopped``: the operator, the robot link), was cut off."""
+        cell's task ended the cycle with no failed check resumed the cell; one with a failed check, held by a
+        stop, or ended by a stop of the run (``stopped``: the operator, the robot link), was cut off."""
         a = self._active
         self.held_at_end = self.stop is not None
         if a is not None:
-            cut = a.failed_ns is not None or self.held_at_end or stopped
+            cut = a.failed_ns is not None or self.held_at_end or stopped or self._held
             self._end(a, self._now, "cut_off" if cut else "resumed")
             self._active = None
         log = self._log
@@ -145,6 +163,23 @@ class RecoveryRunner:
             out["recovery_log"] = log
         return out
 
+    def _follow_stops(self) -> bool:
+        """Read the events since the last tick; True when a category 0 or 1 stop removed the power in them.
+        A category 2 stop other than the runner's own hand-over hold holds the arm (and the plan) until its
+        ``resume``."""
+        log, seen = self.events, self._seen
+        self._seen = len(log)
+        cut = False
+        for i in range(seen, self._seen):
+            e = log[i]
+            if e.kind == EventKind.RESUME:
+                self._held = False
+            elif e.category is not None and e.category < 2:
+                cut, self._powered = True, False
+            elif e.category == 2 and e.reason != ASKED_BY_LOOP + RECOVERY_HOLD:
+                self._held = True
+        return cut
+
     # -- attempts -----------------------------------------------------------------------------------
     def _begin(self, behaviour, trigger: str, attempt: int, t: int, reference: np.ndarray) -> None:
         limit = self.policy.max_per_cycle
@@ -158,7 +193,7 @@ class RecoveryRunner:
                                      f"planned ({exc})"))
             self._give_up(t, reference, "a plan the arm cannot reach")
             return
-        self._active = _Attempt(behaviour, trigger, attempt, plan, t)
+        self._active = _Attempt(behaviour, trigger, attempt, plan, t, t)
         self._next_chunk = t
         self.events.append(Event(t, EventKind.RECOVERY_START, f"{behaviour.do}: attempt {attempt} of "
                                  f"{behaviour.attempts} after {trigger}"))
@@ -187,8 +222,8 @@ class RecoveryRunner:
         self.events.append(Event(t, EventKind.RECOVERY_END, f"no recovery left ({why}): home, the cycle fails"))
 
     def _end(self, a: _Attempt, t: int, outcome: str) -> None:
-        arrival = (a.arrival_ns - a.t0) * 1e-9 if a.arrival_ns is not None and a.plan.close_t is not None else None
-        done = RecoveryOutcome(a.behaviour.do, a.trigger, a.attempt, outcome, round((t - a.t0) * 1e-9, 3),
+        arrival = a.arrived_ns * 1e-9 if a.arrived_ns is not None and a.plan.close_t is not None else None
+        done = RecoveryOutcome(a.behaviour.do, a.trigger, a.attempt, outcome, round((t - a.start) * 1e-9, 3),
                                None if arrival is None else round(arrival, 3), a.plan.close_t)
         self._log.append(done.to_dict())
         self.events.append(Event(t, EventKind.RECOVERY_END, done.reason()))
