@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from cellguard.control.settings import GuardSettings, build_guard
+from cellguard.control.config import GuardConfig
+from cellguard.control.settings import build_guard
 from cellguard.policy.chunk import ActionChunk
 from cellguard.policy.scripted_arm import ScriptedArmPolicy
 from cellguard.robot.protocol import SafetyInputs
@@ -19,7 +20,7 @@ SCENARIOS = __import__("pathlib").Path(__file__).parents[1] / "scenarios"
 class Loop:
     """The tick path of the runner, on the arm cell, with a hook per tick."""
 
-    def __init__(self, settings: GuardSettings | None = None, speed: float = 1.0, playback: bool = True):
+    def __init__(self, settings: GuardConfig | None = None, speed: float = 1.0, playback: bool = True):
         """``playback``: the program reads the playback clock (a speed override slows it, as a taught
         robot program's does); else it answers in real time, as a policy does."""
         self.cell = make_cell("arm-pick-place", seed=1)
@@ -109,7 +110,7 @@ def test_protective_stop_released_resumes_motion():
 
 
 def test_watchdog_stops_a_silent_policy():
-    loop = Loop(GuardSettings(watchdog_s=0.1), speed=0.6)
+    loop = Loop(GuardConfig(watchdog_s=0.1), speed=0.6)
     sent = loop.run(900, silent_after=300)
     stop = [e for e in loop.events if e.kind == "watchdog_stop"]
     assert len(stop) == 1 and stop[0].category == 2
@@ -139,8 +140,8 @@ def _tool_speeds(loop: Loop) -> np.ndarray:
     return np.linalg.norm(np.diff(tips, axis=0), axis=1) / 1e-3
 
 
-@pytest.mark.parametrize("settings, reduced, cap", [(None, True, 0.25), (GuardSettings(tool_speed_max=0.3), False, 0.3),
-                                                    (GuardSettings(uncertainty_threshold=0.5), False, 0.25)])
+@pytest.mark.parametrize("settings, reduced, cap", [(None, True, 0.25), (GuardConfig(tool_speed_max=0.3), False, 0.3),
+                                                    (GuardConfig(uncertainty_threshold=0.5), False, 0.25)])
 def test_a_speed_cap_holds_the_sent_setpoints_of_a_policy_that_answers_in_real_time(settings, reduced, cap):
     """The slowed playback clock alone left them at 0.95 m/s: each chunk is placed where the program is now,
     so the reference jumped ahead of the clock and the tracker caught up at full joint speed."""
@@ -159,7 +160,7 @@ def test_a_speed_cap_holds_the_sent_setpoints_of_a_policy_that_answers_in_real_t
 def test_a_reference_under_the_speed_cap_passes_exactly():
     # the program at 0.6 peaks at 0.318 m/s in its first 2 s: the playback clock slows for a stretch ahead
     # faster than 0.9 of the cap, so this cap leaves the reference as it is
-    loop = Loop(GuardSettings(tool_speed_max=0.36), speed=0.6)
+    loop = Loop(GuardConfig(tool_speed_max=0.36), speed=0.6)
     loop.run(2000)
     assert 0.31 < _tool_speeds(loop).max() < 0.36
     assert all(np.array_equal(r, s) for r, s, _, _ in loop.log)
@@ -167,21 +168,21 @@ def test_a_reference_under_the_speed_cap_passes_exactly():
 
 
 def test_uncertainty_gate_holds_when_the_policy_is_unsure():
-    loop = Loop(GuardSettings(uncertainty_threshold=0.5, uncertainty_action="hold"), speed=0.6)
+    loop = Loop(GuardConfig(uncertainty_threshold=0.5, uncertainty_action="hold"), speed=0.6)
     loop.run(600, uncertainty=lambda k: 0.9 if k >= 300 else 0.1)
     assert [e.category for e in loop.events if e.kind == "uncertainty_hold"] == [2]
     assert loop.envelope.tracker.stopped
 
 
 def test_uncertainty_gate_reduces_the_tool_speed_when_the_policy_is_unsure():
-    loop = Loop(GuardSettings(uncertainty_threshold=0.5, uncertainty_action="reduce"))
+    loop = Loop(GuardConfig(uncertainty_threshold=0.5, uncertainty_action="reduce"))
     loop.run(1300, uncertainty=lambda k: 0.9)
     assert "uncertainty_gate" in _kinds(loop.events) and loop.envelope.power
     assert max(s for _, _, s, _ in loop.log[400:]) <= 0.25 * 1.05  # after the ramp-down
 
 
 def test_tool_speed_cap_holds_in_normal_operation():
-    loop = Loop(GuardSettings(tool_speed_max=0.3))
+    loop = Loop(GuardConfig(tool_speed_max=0.3))
     loop.run(1300)
     speeds = [s for _, _, s, _ in loop.log]
     assert max(speeds[400:]) <= 0.3 * 1.05 and max(speeds) > 0.2  # capped, still moving
@@ -190,7 +191,7 @@ def test_tool_speed_cap_holds_in_normal_operation():
 
 def test_workspace_box_stops_before_the_tool_leaves_it():
     box = ((-0.45, -0.45, 0.05), (0.45, 0.45, 0.55))  # floor raised above the pick height
-    loop = Loop(GuardSettings(box=box), speed=0.6)
+    loop = Loop(GuardConfig(box=box), speed=0.6)
     sent = loop.run(2500)
     assert "workspace_stop" in _kinds(loop.events)
     tips = np.array([loop.cell.tool_point(q) for q in sent])

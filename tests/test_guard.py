@@ -9,7 +9,7 @@ from pydantic import ValidationError
 from cellguard.control.config import GuardConfig
 from cellguard.control.events import ROUTINE_EVENTS, EventKind
 from cellguard.control.guard import Guard
-from cellguard.control.settings import GuardSettings, build_guard
+from cellguard.control.settings import build_guard
 from cellguard.policy.chunk import ActionChunk
 from cellguard.robot.protocol import SafetyInputs
 from cellguard.robot.registry import make_cell
@@ -40,9 +40,9 @@ def test_a_stricter_stop_overrides_the_one_in_force():
 
 
 def test_build_guard_takes_the_cells_box_and_a_scenarios_settings():
-    guard = build_guard(CELL, GuardSettings(watchdog_s=0.5))
+    guard = build_guard(CELL, GuardConfig(watchdog_s=0.5))
     assert guard.config.box == CELL.workspace_box and guard.config.watchdog_s == 0.5
-    assert GuardSettings is GuardConfig
+    assert GuardConfig is GuardConfig
 
 
 @pytest.mark.parametrize("key, value", [("watchdog_s", 0.0), ("reduced_speed", 0.3), ("soft_margin", 0.5),
@@ -113,5 +113,5 @@ def test_a_tool_setting_on_a_cell_without_a_tool_model_is_refused(setting):
     from cellguard.errors import ConfigError
 
     with pytest.raises(ConfigError, match=f"guard.{next(iter(setting))}: cell quadruped-turns has no tool model"):
-        build_guard(make_cell("quadruped-turns"), GuardSettings(**setting))
-    build_guard(make_cell("arm-pick-place"), GuardSettings(**setting))  # the arm has one: accepted
+        build_guard(make_cell("quadruped-turns"), GuardConfig(**setting))
+    build_guard(make_cell("arm-pick-place"), GuardConfig(**setting))  # the arm has one: accepted

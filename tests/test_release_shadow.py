@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from release_helpers import CELL, replay_file
 
-from cellguard.control.settings import GuardSettings
+from cellguard.control.config import GuardConfig
 from cellguard.errors import ConfigError
 from cellguard.record.reader import open_record
 from cellguard.release.evidence import load_run
@@ -21,7 +21,7 @@ from cellguard.scenario import parse_scenario
 def _shadow_run(tmp_path, candidate: str, name: str):
     scenario = parse_scenario({"cell": CELL, "seed": 3, "policy": "scripted", "acceptance_cycles": 1,
                                "production_cycles": 0})
-    run = ShadowRun(scenario, candidate, GuardSettings())
+    run = ShadowRun(scenario, candidate, GuardConfig())
     folder = tmp_path / name
     summary = run_scenario(scenario, folder, run=run)
     run.write_shadow(folder)
@@ -56,7 +56,7 @@ def test_shadow_with_the_policy_in_its_own_process_is_refused():
     scenario = parse_scenario({"cell": CELL, "seed": 3, "policy": "scripted", "acceptance_cycles": 1,
                                "production_cycles": 0, "realtime": {"inference": "process"}})
     with pytest.raises(ConfigError, match="realtime.inference must be 'thread'"):
-        ShadowRun(scenario, "scripted", GuardSettings())
+        ShadowRun(scenario, "scripted", GuardConfig())
 
 
 def test_a_candidate_whose_chunks_are_never_taken_would_stop_the_cell(tmp_path):

@@ -16,7 +16,7 @@ import pytest
 from release_helpers import CELL
 
 import cellguard.release.shadow as shadow
-from cellguard.control.settings import GuardSettings
+from cellguard.control.config import GuardConfig
 from cellguard.policy.chunk import ActionChunk
 from cellguard.release.evidence import load_run
 from cellguard.release.metrics import METRICS, action_at
@@ -48,7 +48,7 @@ def _shadow_run(tmp_path, monkeypatch, spoil):
     monkeypatch.setattr(shadow, "make_policy", lambda spec, cell: _Wrong(real(spec, cell), spoil))
     scenario = parse_scenario({"cell": CELL, "seed": 3, "policy": "scripted", "acceptance_cycles": 1,
                                "production_cycles": 0})
-    run = shadow.ShadowRun(scenario, "scripted", GuardSettings())
+    run = shadow.ShadowRun(scenario, "scripted", GuardConfig())
     folder = tmp_path / "shadow"
     summary = run_scenario(scenario, folder, run=run)
     run.write_shadow(folder)

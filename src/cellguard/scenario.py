@@ -14,7 +14,7 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from cellguard.control.settings import GuardSettings
+from cellguard.control.config import GuardConfig
 from cellguard.errors import ScenarioError
 from cellguard.robot.faults import FAULTS, AnyFault
 from cellguard.robot.process import PROCESS_CHANGES, AnyProcessChange, declared_changes
@@ -77,7 +77,7 @@ class Scenario(BaseModel):
     cell_id: str = "cell-1"
     faults: list[AnyFault] = Field(default_factory=list, max_length=10_000)
     process_changes: list[AnyProcessChange] = Field(default_factory=list, max_length=10_000)
-    guard: GuardSettings = Field(default_factory=GuardSettings)
+    guard: GuardConfig = Field(default_factory=GuardConfig)
     robot: str = Field(default="sim", min_length=1, description="sim, or a bridge: SCHEME:ARGUMENT")
     cycle: CycleSettings = Field(default_factory=CycleSettings)
     realtime: RealtimeSettings = Field(default_factory=RealtimeSettings)

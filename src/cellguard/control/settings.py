@@ -1,7 +1,4 @@
-"""The ``guard:`` section of a scenario file, and building the guard layer for a cell.
-
-``GuardSettings`` is the scenario's name for ``GuardConfig``: one frozen configuration, no copy.
-"""
+"""Building the guard layer for a cell from its ``guard:`` settings (``GuardConfig``)."""
 
 from __future__ import annotations
 
@@ -10,9 +7,6 @@ import numpy as np
 from cellguard.control.config import GuardConfig
 from cellguard.control.guard import Guard
 from cellguard.errors import ConfigError
-
-GuardSettings = GuardConfig
-
 
 def build_guard(cell, settings: GuardConfig | None = None, q0: np.ndarray | None = None) -> Guard:
     """The guard layer for ``cell``, with its kinematics and workspace box if it has them, at rest at ``q0``

@@ -17,7 +17,7 @@ from pathlib import Path
 from pydantic import ValidationError
 
 from cellguard import __version__
-from cellguard.control.settings import GuardSettings
+from cellguard.control.config import GuardConfig
 from cellguard.embodiment.profile import load_profile
 from cellguard.errors import CellguardError
 from cellguard.output import not_regular
@@ -66,8 +66,8 @@ class Bundle:
         return f"{spec}{'&' if '?' in spec else '?'}map={amap['path']}"
 
     @property
-    def guard(self) -> GuardSettings:
-        return GuardSettings.model_validate(self.manifest["envelope"])
+    def guard(self) -> GuardConfig:
+        return GuardConfig.model_validate(self.manifest["envelope"])
 
     def short(self) -> dict:
         """What a record's context and the log say about this release."""
@@ -166,12 +166,12 @@ def _resolve_profile(profile: str) -> tuple[str, Path | None]:
     raise ReleaseError(f"--profile {profile}: neither a profile file nor a cell; cells: {', '.join(CELLS)}")
 
 
-def _envelope(path: Path | None) -> GuardSettings:
+def _envelope(path: Path | None) -> GuardConfig:
     if path is None:
-        return GuardSettings()
+        return GuardConfig()
     raw = read_yaml(Path(path), "envelope", ReleaseError) or {}
     try:  # strict, as a scenario's guard: "0.5" or true is no watchdog time (true was 1 s), NaN no number
-        return GuardSettings.model_validate_json(json.dumps(raw), strict=True)
+        return GuardConfig.model_validate_json(json.dumps(raw), strict=True)
     except (TypeError, ValueError) as exc:  # ValidationError is a ValueError; TypeError: a YAML !!set or !!binary
         tagged = [k for k, v in raw.items() if isinstance(v, (set, bytes))] if isinstance(raw, dict) else []
         err = exc.errors()[0] if isinstance(exc, ValidationError) else \

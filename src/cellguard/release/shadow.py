@@ -21,7 +21,8 @@ import numpy as np
 
 from cellguard.control.guard import Guard
 from cellguard.control.events import EventKind
-from cellguard.control.settings import GuardSettings, build_guard
+from cellguard.control.config import GuardConfig
+from cellguard.control.settings import build_guard
 from cellguard.diagnose.diagnosis import ROUTINE_EVENTS
 from cellguard.errors import ConfigError
 from cellguard.policy.chunk import ActionChunk
@@ -123,7 +124,7 @@ def _distance(a, b) -> float | None:
 class ShadowRun(Run):
     """A run of the incumbent (``scenario.policy``) with ``candidate`` in shadow mode."""
 
-    def __init__(self, scenario: Scenario, candidate: str, candidate_guard: GuardSettings):
+    def __init__(self, scenario: Scenario, candidate: str, candidate_guard: GuardConfig):
         if scenario.realtime.inference == "process":  # the process would run the incumbent alone
             raise ConfigError("shadow mode runs the candidate beside the incumbent in the loop's process: "
                               "realtime.inference must be 'thread'")
