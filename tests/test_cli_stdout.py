@@ -39,3 +39,13 @@ def test_a_run_whose_stdout_fails_after_its_record_is_written_exits_1_saying_it_
     assert done.stderr.splitlines()[-1] == (f"error: stdout: cannot write the output (No space left on device); the "
                                             f"record in {tmp_path / 'out'} is written and kept")
     assert subprocess.run(CLI + ["record", "info", str(tmp_path / "out")], capture_output=True).returncode == 0
+
+
+def test_a_closed_descriptor_is_held_so_no_file_the_command_opens_takes_its_number(tmp_path):
+    """With stdout closed, the first file a command opened got descriptor 1: a child process inherited it as its
+    stdout, and the guard's end put /dev/null over it."""
+    probe = ("import os; from cellguard.cli import stdout; stdout.guard(); "
+             f"fd = os.open({str(tmp_path / 'f')!r}, os.O_WRONLY | os.O_CREAT); os.write(2, str(fd).encode())")
+    done = subprocess.run([sys.executable, "-c", probe], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                          timeout=120, preexec_fn=lambda: (__import__("os").close(0), __import__("os").close(1)))
+    assert done.returncode == 0 and int(done.stderr) > 2, done.stderr

@@ -110,6 +110,8 @@ def identify(
             from cellguard.calibrate.write import write_profile
 
             written = write_profile(write, cell, result, measured_on(records), basis)
+            stdout.written(f"calibration version {written.version} ({written.profile}, calibrated MJCF "
+                           f"{written.mjcf}; the old profile kept as {written.kept})")
             result["profile_version"], result["mjcf"] = written.version, str(written.mjcf)
             result["profile"] = str(written.profile)
     except CellguardError as exc:
@@ -180,6 +182,7 @@ def replay(
         refuse_output(page, record, inputs=[("--profile file", profile)], own=("replay-cycle-*.html",))
         result = run_replay(record, cycle, model=model, profile=profile, vary=vary)
         write_replay(result, page)
+        stdout.written(f"the replay page {page}")
     except CellguardError as exc:
         fail(exc)
     d = result.to_dict()

@@ -29,10 +29,13 @@ def diagnose(
     fleet: bool | None = typer.Option(None, "--fleet/--no-fleet", help=FLEET_HELP),
 ) -> None:
     """Read a record, find drift and faults against the acceptance baseline, name probable causes."""
-    from cellguard.diagnose.from_record import diagnose_record
+    from cellguard.diagnose.from_record import diagnose_record, run_folder
 
     try:
         diagnosis = diagnose_record(folder, acceptance=acceptance, fleet=fleet_advice(fleet))
+        beside = run_folder(folder)  # where fixes.json (and the record's own baseline) were written; None: nowhere
+        if beside is not None:
+            stdout.written(f"the diagnosis in {beside} ({'' if acceptance else 'baseline.json, '}fixes.json)")
         health = record_health(folder)
         baseline_health = record_health(acceptance) if acceptance is not None else None
     except CellguardError as exc:

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import typer
 
+from cellguard.cli import stdout
 from cellguard.cli.app import app
 from cellguard.cli.errors import fail
 from cellguard.cli.text import printable, say
@@ -58,6 +59,7 @@ def push(
             check_lake(lake)
         sigs = site_signatures(folder, pol, acceptance) if pol.export != "nothing" else []
         result = do_push(sigs, pol, site_dir, tenant_store, lake)
+        stdout.written(f"batch {result.batch.batch_id} in the audit log of {site_dir}")
     except CellguardError as exc:
         fail(exc)
     if as_json:
@@ -224,6 +226,9 @@ def withdraw(
         if lake is not None:
             in_lake = forget(check_lake(lake), pol.tenant, pol.site)
         in_store = tenant_store.forget(pol.site) if tenant_store is not None else 0
+        if in_store or in_lake:
+            stdout.written(f"the withdrawal of site {pol.site} ({in_store} row(s) from the store, {in_lake or 0} "
+                           f"signature(s) from the lake)")
     except CellguardError as exc:
         if in_lake is not None:
             exc = CellguardError(f"{exc}; {in_lake} signature(s) of site {pol.site} were taken out of the lake, the "

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import typer
 
+from cellguard.cli import stdout
 from cellguard.cli.app import app
 from cellguard.cli.errors import fail
 from cellguard.cli.text import say
@@ -38,6 +39,7 @@ def train_demo_policy(
         refuse_output(out, None, replace=overwrite)
         report = train(out, cycles=cycles, random_features=random_features, seed=seed, fixture_dx_mm=fixture_dx_mm,
                        overwrite=overwrite)
+        stdout.written(f"the policy {report.path}")
     except CellguardError as exc:
         fail(exc)
     if as_json:

@@ -9,6 +9,7 @@ from pathlib import Path
 import typer
 from rich.console import Console
 
+from cellguard.cli import stdout
 from cellguard.cli.app import app
 from cellguard.cli.errors import fail
 from cellguard.errors import CellguardError
@@ -71,6 +72,8 @@ def create(
         bundle = create_bundle(policy, action_map, profile, envelope, note)
         store = _store(site)
         new = store.add_bundle(bundle)
+        if new:
+            stdout.written(f"release {bundle.id} in {site}")
     except CellguardError as exc:
         fail(exc)
     if as_json:
@@ -92,6 +95,7 @@ def promote(
 
     try:
         entry = do(_store(site), release, cell, to)
+        stdout.written(f"log entry {entry.seq} ({entry.body['release']} current at {to} on {cell})")
     except CellguardError as exc:
         fail(exc)
     before = f"was {entry.body['from']}" if entry.body["from"] else "the first here"
@@ -124,6 +128,9 @@ def run_stage(
             check_run(runs[0], str(scenario))
         result = do(_store(site), plans[check_stage(stage)], cell, stage, runs,
                     on_run=None if as_json else err.print)
+        rolled = f", rolled back to {result.rolled_back_to}" if result.rolled_back_to else ""
+        stdout.written(f"log entry {result.log_seq} ({stage} gates on {cell}: {result.verdict}{rolled}) with its "
+                       f"records in {Path(result.folders[0]).parent}")
     except CellguardError as exc:
         fail(exc)
     if as_json:
@@ -143,6 +150,9 @@ def run_stage(
                   f"records {', '.join(result.evidence)})")
         if result.rolled_back_to:
             out.print(f"rolled back: production on {cell} is {result.rolled_back_to} again (last_good)")
+        elif stage == "production" and result.verdict == "fail":
+            out.print(f"nothing to roll back to: {result.release} stays current at production on {cell} (no other "
+                      f"release is last_good there)")
         if scenario is not None:
             out.print(f"  {scenario} ran in place of the plan's runs: logged, not evidence a promotion accepts")
     if result.verdict != "pass":
@@ -161,6 +171,7 @@ def rollback(
 
     try:
         entry = do(_store(site), cell, stage, reason=reason)
+        stdout.written(f"log entry {entry.seq} ({stage} on {cell} back to {entry.body['to']})")
     except CellguardError as exc:
         fail(exc)
     out.print(f"{stage} on {cell}: {entry.body['from']} -> {entry.body['to']} (last_good); log entry {entry.seq}")
@@ -223,6 +234,7 @@ def report(
 
     try:
         path = write_release_page(_store(site, create=False), release, output)
+        stdout.written(f"the release page {path}")
     except CellguardError as exc:
         fail(exc)
     out.print(f"release page: {path}")

@@ -4,14 +4,17 @@ Every command writes its output through ``sys.stdout`` (rich's consoles included
 any command, puts a thin wrapper there whose writes and flushes turn an OSError into the command's end: a
 reader that stopped early (``| head``) ends it quietly with 141, as ``cat`` does; stdout closed (``>&-``) or
 full (``> /dev/full``) is one line on stderr and exit 2, or 1 once the command has written what it makes
-(``written()``: a run's record is there, and 2 says nothing was done). Before, each was a traceback, or exit 1
-(rich and click end a closed pipe so), which reads as "the record is damaged".
+(``written()``, called by every command that writes, moves or deletes something, as soon as that is stored: a
+record, a page, a release log entry, which the line then names as kept; 2 says nothing was done). Before, each
+was a traceback, or exit 1 (rich and click end a closed pipe so), which reads as "the record is damaged".
 """
 
 from __future__ import annotations
 
 import os
 import sys
+
+from cellguard.cli.text import printable
 
 EXIT_BROKEN_PIPE = 141  # 128 + SIGPIPE: what `cat` or `git log` return when `| head` stops reading
 _done = {"written": None}  # what the command has written when its stdout fails, if anything
@@ -61,7 +64,7 @@ def _end(exc: OSError) -> None:
         pass
     if isinstance(exc, BrokenPipeError):  # the reader took what it wanted
         raise SystemExit(EXIT_BROKEN_PIPE)
-    kept = f"; {_done['written']} is written and kept" if _done["written"] else ""
+    kept = f"; {printable(_done['written'])} is written and kept" if _done["written"] else ""
     sys.stderr.write(f"error: stdout: cannot write the output ({exc.strerror or exc}){kept}\n")
     raise SystemExit(1 if _done["written"] else 2)
 
@@ -75,7 +78,21 @@ def guard() -> None:
     """Wrap ``sys.stdout`` (once) so that a failing write ends the command as the module says."""
     _done["written"] = None
     if not isinstance(sys.stdout, (_Guarded, _Closed)):
+        _hold_closed_descriptors()
         sys.stdout = _Closed() if sys.stdout is None else _Guarded(sys.stdout)
+
+
+def _hold_closed_descriptors() -> None:
+    """Put /dev/null on a closed descriptor 0, 1 or 2: else the next file the command opens takes its number, a
+    child process inherits that file as its stdin, stdout or stderr, and ``_end`` put /dev/null over it."""
+    for fd in (0, 1, 2):
+        try:
+            os.fstat(fd)
+        except OSError:
+            null = os.open(os.devnull, os.O_RDWR)  # the lowest free number: this one, or a lower closed one
+            if null != fd:
+                os.dup2(null, fd)
+                os.close(null)
 
 
 def require_open() -> None:
