@@ -75,3 +75,16 @@ def test_a_stopped_run_names_its_cause_not_the_stop_that_carried_it_out(tmp_path
         exit_if_stopped({"stopped": "robot link: robot_packets_dropped: 101 packets lost", "events": events}, tmp_path)
     assert ended.value.exit_code == 1
     assert capsys.readouterr().err.startswith("error: the cell was stopped (robot_packets_dropped): robot link")
+
+
+def test_a_stopped_run_names_the_cause_its_stop_names_not_a_later_one(tmp_path, capsys):
+    """A stale state stopped the run, then the server's silence became robot_server_gone: the line named the later."""
+    import typer
+
+    from cellguard.cli.errors import exit_if_stopped
+
+    events = [{"kind": "robot_state_stale", "category": 1, "t_ns": 1}, {"kind": "protective_stop", "category": 1,
+              "t_ns": 1}, {"kind": "robot_server_gone", "category": 1, "t_ns": 9}]
+    with pytest.raises(typer.Exit):
+        exit_if_stopped({"stopped": "robot link: robot_state_stale: 25 ms old", "events": events}, tmp_path)
+    assert capsys.readouterr().err.startswith("error: the cell was stopped (robot_state_stale): robot link")

@@ -37,8 +37,10 @@ def exit_if_stopped(summary: dict, out: Path) -> None:
     if by_operator(stopped):
         fail(OperatorStopped(f"{stopped}; the record in {out} is complete"))
     if stopped:
-        kind = next((e["kind"] for e in reversed(summary["events"])  # the cause, not the stop carrying it out
-                     if e.get("category") is not None and e["kind"] not in STOP_EFFECTS), "stop")
+        causes = [e["kind"] for e in summary["events"]  # the cause, not the stop carrying it out
+                  if e.get("category") is not None and e["kind"] not in STOP_EFFECTS]
+        # the one ``stopped`` names (a stale state, then the server gone: the first); else the last
+        kind = next((k for k in causes if k in stopped), causes[-1] if causes else "stop")
         sys.stderr.write(f"error: {printable(f'the cell was stopped ({kind}): {stopped}')}; "
                          f"{printable(out / 'summary.json')} says what ran\n")
         raise typer.Exit(1)
