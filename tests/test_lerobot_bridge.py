@@ -235,9 +235,9 @@ def test_bad_specs_are_one_line_errors_that_name_the_choices(tmp_path):
         make_bridge(f"lerobot:cellguard_so101?calibration_dir={tmp_path}&speed=3", None)
     with pytest.raises(ConfigError, match="lockstep must be 0 or 1"):
         make_bridge(f"lerobot:cellguard_so101?calibration_dir={tmp_path}&lockstep=yes", None)
-    with pytest.raises(ConfigError, match="hz must be in"):
+    with pytest.raises(ConfigError, match=r"option hz: .0. is outside \[1, 1000\]"):
         make_bridge(f"lerobot:cellguard_so101?calibration_dir={tmp_path}&hz=0", None)
-    with pytest.raises(ConfigError, match="option hz given more than once"):
+    with pytest.raises(ConfigError, match="option 'hz' is given twice"):
         make_bridge(f"lerobot:cellguard_so101?calibration_dir={tmp_path}&hz=100&hz=5", None)
     with pytest.raises(ConfigError, match="embodiment='ur5' is not one cellguard knows \\(known: so101\\)"):
         make_bridge(f"lerobot:cellguard_so101?calibration_dir={tmp_path}&embodiment=ur5", None)

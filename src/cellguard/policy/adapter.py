@@ -14,12 +14,13 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Protocol
-from urllib.parse import parse_qsl
 
 import numpy as np
 
 from cellguard.errors import CellguardError, ConfigError
 from cellguard.embodiment.action_map import ActionMap, load_action_map, parse_action_map
+from cellguard.options import bounded_float
+from cellguard.options import split_options as _split
 from cellguard.policy.chunk import ActionChunk
 from cellguard.robot.state import Observation
 from cellguard.yaml_file import parse_yaml
@@ -54,43 +55,12 @@ class Backend(Protocol):
 
 
 def split_options(arg: str, allowed: dict[str, str], scheme: str) -> tuple[str, dict[str, str]]:
-    """``"TARGET?k=v&k2=v2"`` -> (TARGET, options); an unknown option lists the allowed ones, a repeated one
-    is refused (the last silently won)."""
-    target, _, query = arg.partition("?")
-    options: dict[str, str] = {}
-    for key, value in parse_qsl(query, keep_blank_values=True):
-        if key not in allowed:
-            known = ", ".join(f"{k} ({v})" for k, v in allowed.items())
-            raise ConfigError(f"policy: {scheme}: unknown option {key!r}; options: {known}")
-        if key in options:
-            raise ConfigError(f"policy: {scheme}: option {key!r} is given twice ({options[key]!r} and {value!r}); "
-                              "give it once")
-        options[key] = value
-    if not target:
-        raise ConfigError(f"policy: {scheme}: missing target, write {scheme}:TARGET")
-    return target, options
+    """A policy source's ``TARGET?k=v`` (``options.split_options``), its errors named ``policy: SCHEME``."""
+    return _split(arg, allowed, f"policy: {scheme}", f"{scheme}:TARGET")
 
 
 DT_RANGE_S = (0.001, 1.0)  # a chunk's step period [s]: from a 1 kHz servo step to 1 s
 TIMEOUT_RANGE_S = (0.01, 60.0)  # a receive timeout [s]
-
-
-def bounded_float(value: object, field: str, lo: float, hi: float) -> float:
-    """A number written as text or carried in metadata (``"0.02"``, ``0.02``) that lies in [lo, hi].
-
-    The one gate for numbers that arrive as strings: option values (``?dt=``) and model or server
-    metadata (``cellguard.dt_s``, ``dt_s``). A non-number, a boolean, NaN, infinity or a value out
-    of range raises ConfigError naming ``field`` and the range.
-    """
-    if isinstance(value, bool) or not isinstance(value, (str, int, float)):
-        raise ConfigError(f"{field}: expected a number in [{lo:g}, {hi:g}], got {value!r}")
-    try:
-        number = float(value)
-    except (ValueError, OverflowError):
-        raise ConfigError(f"{field}: {value!r} is not a number; expected one in [{lo:g}, {hi:g}]") from None
-    if not lo <= number <= hi:  # NaN fails this too
-        raise ConfigError(f"{field}: {value!r} is outside [{lo:g}, {hi:g}]")
-    return number
 
 
 def option_float(options: dict[str, str], key: str, default: float, scheme: str,

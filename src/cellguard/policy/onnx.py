@@ -18,8 +18,9 @@ from pathlib import Path
 import numpy as np
 
 from cellguard.errors import ConfigError
-from cellguard.policy.adapter import (DT_RANGE_S, InferenceError, MappedPolicy, PolicyInputs, bounded_float,
-                                      option_float, resolve_map, split_options)
+from cellguard.options import bounded_float
+from cellguard.policy.adapter import (DT_RANGE_S, InferenceError, MappedPolicy, PolicyInputs, option_float, resolve_map,
+                                      split_options)
 from cellguard.policy.chunk import MAX_HORIZON
 
 OPTIONS = {"map": "action map YAML file", "dt": "step period [s], overrides the model's"}

@@ -22,8 +22,9 @@ from urllib.parse import urlsplit
 import numpy as np
 
 from cellguard.errors import ConfigError
+from cellguard.options import bounded_float
 from cellguard.policy.adapter import (DT_RANGE_S, TIMEOUT_RANGE_S, InferenceError, MappedPolicy, PolicyInputs,
-                                      bounded_float, option_float, resolve_map, split_options)
+                                      option_float, resolve_map, split_options)
 from cellguard.policy.wire import WireError, packb, unpackb
 
 OPTIONS = {"map": "action map YAML file", "dt": "step period [s]", "timeout": "receive timeout [s]",

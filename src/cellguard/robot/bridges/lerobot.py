@@ -32,7 +32,6 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from urllib.parse import parse_qsl
 
 import numpy as np
 
@@ -40,6 +39,7 @@ from typing import TYPE_CHECKING
 
 from cellguard.embodiment import Profile, load_profile
 from cellguard.errors import CellguardError, ConfigError
+from cellguard.options import bounded_float, split_options
 from cellguard.robot.protocol import RobotLinkError, SafetyInputs
 from cellguard.robot.state import Observation, State
 
@@ -277,31 +277,20 @@ class LeRobotBridge:
 
 def make_lerobot_robot(arg: str, read_timeout_s: float = READ_TIMEOUT_S) -> LeRobotBridge:
     """``TYPE?opt=value&...``: LeRobot's robot ``TYPE`` with its config options, plus ``units``/``embodiment``/``hz``."""
-    robot_type, _, query = arg.partition("?")
-    if not robot_type:
-        raise ConfigError("robot: lerobot: missing the robot type, write lerobot:TYPE?port=...&id=...")
-    pairs = parse_qsl(query, keep_blank_values=True)
-    options = dict(pairs)
-    if len(options) < len(pairs):  # the last of two values won, silently
-        twice = sorted({k for k, _ in pairs if sum(k == j for j, _ in pairs) > 1})
-        raise ConfigError(f"robot: lerobot:{robot_type}: option {', '.join(twice)} given more than once")
+    where = f"robot: lerobot:{arg.partition('?')[0]}"
+    robot_type, options = split_options(arg, None, where, "lerobot:TYPE?port=...&id=...")  # the rest go to TYPE's config
     ours = {k: options.pop(k) for k in list(options) if k in OPTIONS}
     name = ours.get("embodiment", TYPE_EMBODIMENT.get(robot_type))
     if name not in EMBODIMENTS:
         what = (f"embodiment={name!r} is not one cellguard knows" if "embodiment" in ours
                 else "no embodiment profile for this type; give ?embodiment=NAME")
-        raise ConfigError(f"robot: lerobot:{robot_type}: {what} (known: {', '.join(EMBODIMENTS)})")
+        raise ConfigError(f"{where}: {what} (known: {', '.join(EMBODIMENTS)})")
     from cellguard.embodiment.action_map import load_action_map  # the units map is an action map (data, checked)
 
     embodiment = EMBODIMENTS[name]()
     profile = load_profile(embodiment.load_model(), embodiment.profile)
     units = load_action_map(Path(ours.get("units", embodiment.units)), profile)
-    try:
-        hz = float(ours.get("hz", 50.0))
-    except ValueError:
-        raise ConfigError(f"robot: lerobot: option hz={ours['hz']!r} is not a number") from None
-    if not 1.0 <= hz <= 1000.0:
-        raise ConfigError(f"robot: lerobot: option hz must be in [1, 1000], got {hz:g}")
+    hz = bounded_float(ours.get("hz", 50.0), f"{where}: option hz", 1.0, 1000.0)
     lockstep = ours.get("lockstep", "0")
     if lockstep not in ("0", "1"):
         raise ConfigError(f"robot: lerobot: option lockstep must be 0 or 1, got {lockstep!r}")
