@@ -10,6 +10,7 @@ from typer.testing import CliRunner
 
 from cellguard.cli import app
 from cellguard.errors import CellguardError, ScenarioError
+from cellguard.record.reader import open_record
 from cellguard.robot.bridges import make_bridge, parse_bridge
 from cellguard.robot.bridges.sim_server import parse_address
 from cellguard.runtime import Run
@@ -78,9 +79,10 @@ def test_a_cycle_source_the_robot_or_policy_cannot_serve_leaves_out_as_it_was(tm
     assert [p.name for p in (tmp_path / "kept").iterdir()] == ["notes.txt"]
 
 
-def test_an_error_after_the_record_started_says_where_the_partial_record_is(tmp_path):
+def test_an_error_after_the_record_started_says_where_the_record_is_and_that_it_is_whole(tmp_path):
     """A start-up check refuses on the first chunk, after the record has started (a one-step chunk of 1 ms
-    cannot cover the simulated 10 ms latency); the error line names the folder that keeps it."""
+    cannot cover the simulated 10 ms latency); the error line names the folder that keeps it. The record closed
+    whole and holds the refusal: it was called partial and held only the watchdog's stop."""
     home = np.array([0.0, -0.3, 1.9, 1.55, 0.0, 0.025])
     np.savez(tmp_path / "short.npz", t=np.arange(0.0, 2.0, 0.05), actions=np.broadcast_to(home, (40, 1, 6)), dt=0.001)
     out = tmp_path / "out"
@@ -88,11 +90,14 @@ def test_an_error_after_the_record_started_says_where_the_partial_record_is(tmp_
                                 "production_cycles: 0\ncycle: {source: time, seconds: 1}\n", out)
     assert result.exit_code == 2, result.output
     assert result.stderr.startswith("error: start-up: inference latency")
-    assert result.stderr.endswith(f"; the record in {out} is partial (no summary.json)\n")
+    assert result.stderr.endswith(f"; the record in {out} is finished and whole; it has no summary.json\n")
     assert (out / "record.mcap").exists() and not (out / "summary.json").exists()
+    with open_record(out) as rec:
+        refused = [e.reason for e in rec.events() if e.kind == "startup_refused"]
+    assert len(refused) == 1 and refused[0].startswith("start-up: inference latency")
 
 
-def test_a_crash_after_the_record_started_says_where_the_partial_record_is(tmp_path, monkeypatch):
+def test_a_crash_after_the_record_started_says_where_the_record_is(tmp_path, monkeypatch):
     def crash(self, on_cycle=None):
         raise RuntimeError("a bug")
 
@@ -100,5 +105,5 @@ def test_a_crash_after_the_record_started_says_where_the_partial_record_is(tmp_p
     out = tmp_path / "out"
     result = _cli_run(tmp_path, "cell: arm-pick-place\nacceptance_cycles: 1\nproduction_cycles: 0\n", out)
     assert isinstance(result.exception, RuntimeError)  # a bug keeps its traceback, after the line
-    assert result.stderr == f"error: the record in {out} is partial (no summary.json)\n"
+    assert result.stderr == f"error: the record in {out} is finished and whole; it has no summary.json\n"
     assert (out / "record.mcap").exists()

@@ -55,19 +55,28 @@ def _run(scenario: Scenario, out: Path, quiet: bool, realtime: bool = False, ove
                 out.rmdir()
             raise
         rec = run.recording
+        left = _record_left(rec, out)
         if isinstance(exc, OutputError) and (rec.finished or rec.failed):  # the record closed; summary.json failed
-            state = "is finished and whole" if rec.finished else f"failed ({rec.failed})"
             progress.stop()  # its last line before the error's
-            sys.stderr.write(f"error: {printable(f'{exc}; the record in {out} {state}; it has no summary.json')}\n")
+            sys.stderr.write(f"error: {printable(f'{exc}; {left}')}\n")
             raise typer.Exit(1) from None
-        partial = f"the record in {out} is partial (no summary.json)"
         if isinstance(exc, CellguardError):
-            raise CellguardError(f"{exc}; {partial}") from exc
-        say(f"error: {partial}")  # then the traceback, or Ctrl-C's line
+            raise CellguardError(f"{exc}; {left}") from exc
+        say(f"error: {left}")  # then the traceback, or Ctrl-C's line
         raise
     finally:
         if progress.live.is_started:  # stopping one never shown prints a blank line on a pipe
             progress.stop()
+
+
+def _record_left(rec, out: Path) -> str:
+    """What a run that raised left in ``out``, by how its record closed (a start-up refusal mid-tick closes it
+    whole, and was called partial): never a summary.json."""
+    if rec.finished:
+        return f"the record in {out} is finished and whole; it has no summary.json"
+    if rec.failed:
+        return f"the record in {out} failed ({rec.failed}); it has no summary.json"
+    return f"the record in {out} is partial (no summary.json)"
 
 
 def _print_summary(summary: dict, out: Path, as_json: bool) -> None:

@@ -47,6 +47,8 @@ class EventKind(StrEnum):
     # the loop
     RESET = "reset"
     INFERENCE_FAILED = "inference_failed"
+    POLICY_LOST = "policy_lost"  # its process ended or a call hung: the watchdog's category, and the run ends
+    STARTUP_REFUSED = "startup_refused"  # a start-up check refused to move (or the warm-up never answered)
     RECORD_FAILED = "record_failed", False, 2
     RECORD_QUEUE_FULL = "record_queue_full"
     WATCHDOG_NO_FIRST_CHUNK = "watchdog_no_first_chunk"

@@ -28,6 +28,7 @@ from cellguard.policy.protocol import Policy
 from cellguard.robot.state import Observation
 
 RESULTS_KEPT = 1000  # newest results kept in memory; the record holds every chunk
+WAIT_S = 0.1  # a warm-up waiting for its answer asks whether to stop this often [s] (an operator's Ctrl-C)
 
 
 @dataclass(frozen=True)
@@ -53,6 +54,7 @@ class PolicyProcess:
     A pure-Python policy holds the GIL while it computes; in its own process it cannot stall
     the servo thread. ``infer`` sends the observation over a pipe and waits for the chunk (the
     waiting thread releases the GIL); an exception in the child comes back as a RuntimeError.
+    ``ended`` says why once the process is found gone: it answers no more.
     """
 
     def __init__(self, factory: Callable[[], Policy], sha256: str | None = None):
@@ -62,6 +64,7 @@ class PolicyProcess:
                                     daemon=True)
         self._process.start()
         child.close()
+        self.ended: str | None = None
 
     def reset(self) -> None:
         try:
@@ -88,14 +91,16 @@ class PolicyProcess:
 
     def _ended(self) -> RuntimeError:
         self._process.join(1.0)  # reaped, its exit code is known (it read None)
-        return RuntimeError(f"policy process ended (exit code {self._process.exitcode})")
+        self.ended = f"policy process ended (exit code {self._process.exitcode})"
+        return RuntimeError(self.ended)
 
-    def close(self) -> None:
+    def close(self, timeout_s: float = 5.0) -> None:
+        """Ask the process to close its policy; killed if it has not ended after ``timeout_s``."""
         try:
             self._conn.send(("close", None))
         except OSError:
             pass
-        self._process.join(5.0)
+        self._process.join(timeout_s)
         if self._process.is_alive():
             self._process.kill()
 
@@ -148,6 +153,7 @@ class AsyncInference:
         self.results: deque[InferenceResult] = deque(maxlen=RESULTS_KEPT)
         self._lock = threading.Lock()
         self._wake = threading.Condition(self._lock)
+        self._answered = threading.Condition(self._lock)  # a result is done (a warm-up waits for it)
         self._request: tuple[Observation, int, int] | None = None
         self._done: InferenceResult | None = None
         self._in_flight = False
@@ -194,12 +200,31 @@ class AsyncInference:
         keep = int(np.floor(self.threshold * horizon))  # steps that may still lie ahead when asking
         self._due_ns = -(1 << 62) if keep >= horizon else int(step_times[horizon - 1 - keep])
 
-    def warm_up(self, observation: Observation) -> None:
-        """One call before the loop starts (loads, compiles, fills caches); its chunk is dropped."""
-        if self._remote is None:
-            self.policy.infer(observation)
-        else:
-            self._remote.infer(observation)
+    @property
+    def busy(self) -> bool:
+        """A call asked for and not answered yet (one answered and not taken is not busy)."""
+        return self._in_flight and self._done is None
+
+    @property
+    def ended(self) -> str | None:
+        """Why the policy answers no more: its process ended (a thread worker never says so)."""
+        return None if self._remote is None else self._remote.ended
+
+    def warm_up(self, observation: Observation, timeout_s: float, stop: Callable[[], bool] = lambda: False) -> bool:
+        """One call before the loop starts (loads, compiles, fills caches), on the worker; its chunk is dropped.
+        Waited for at most ``timeout_s`` and until ``stop()``, asked every ``WAIT_S`` (called on the main thread,
+        a policy hung in it hung the run, deaf to SIGTERM). True once answered, a failure too (the loop's first
+        request reports it); False: given up, the call still in flight."""
+        self.submit(observation)
+        deadline = time.monotonic() + timeout_s
+        with self._lock:
+            while self._done is None:
+                left = deadline - time.monotonic()
+                if left <= 0 or stop():
+                    return False
+                self._answered.wait(min(left, WAIT_S))
+            self._done, self._in_flight = None, False
+        return True
 
     def discard(self) -> None:
         """A new episode: forget the queue and a finished result (one still in flight arrives late); the
@@ -212,13 +237,14 @@ class AsyncInference:
         self._set_queue(np.zeros(0, dtype=np.int64))
 
     def close(self, timeout_s: float = 5.0) -> None:
-        """Stop the worker after its current call (bounded wait)."""
+        """Stop the worker after its current call (bounded wait); a policy process still in its call then is
+        killed at once (it would answer the call before it reads the close)."""
         with self._wake:
             self._closed = True
             self._wake.notify()
         self._thread.join(timeout_s)
         if self._remote is not None:
-            self._remote.close()
+            self._remote.close(0.0 if self._thread.is_alive() else timeout_s)
 
     def _work(self) -> None:
         while True:
@@ -245,3 +271,4 @@ class AsyncInference:
                     chunk, error = None, f"preparing the chunk: {type(exc).__name__}: {exc}"
             with self._lock:
                 self._done = InferenceResult(chunk, error, observation.t_ns, t_submit, t_done, depth, prepared)
+                self._answered.notify()

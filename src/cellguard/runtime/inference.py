@@ -3,8 +3,9 @@
 ``SimulatedInference`` (simulated time): a request at the policy's cadence, one at a time; the
 policy is called at once and its chunk reaches the loop ``latency_ns`` later in simulated time
 (the latency a fault may raise). ``WorkerInference`` (wall time): the policy runs on its own
-thread or process (``policy.async_inference``) and the chunk arrives when it is done.
-Both measure the wall time of every call.
+thread or process (``policy.async_inference``) and the chunk arrives when it is done; a worker whose
+process ended, or whose call has run ``hang_ns``, has lost its policy: that is one arrival (``lost``)
+and no request follows. Both measure the wall time of every call.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from dataclasses import dataclass, replace
 from cellguard.policy.chunk import ActionChunk
 
 NOMINAL_INFERENCE_S = 0.010  # simulated inference latency of a healthy policy [s]
+NEVER = 1 << 62  # a time no tick reaches [ns]
 
 
 @dataclass(frozen=True)
@@ -27,6 +29,7 @@ class Arrival:
     wall_ns: int
     error: str | None = None
     prepared: object | None = None  # the chunk checked and fitted off the servo thread, if it was
+    lost: bool = False  # the policy answers no more (its process ended, a call hung): ``error`` says why
 
 
 class SimulatedInference:
@@ -83,24 +86,30 @@ class WorkerInference:
         self._corrupt: Callable[[ActionChunk], ActionChunk] | None = None
         self.extra_ns = 0  # a simulated cell's policy_latency fault on wall time: each chunk held back this long
         self._held: tuple[int, object] | None = None  # (due [ns], the worker's result) while held back
+        self.hang_ns = NEVER  # a call not answered this long after its request has hung (the loop sets it) [ns]
+        self.lost: str | None = None  # why the policy is asked no more (its process ended, a call hung)
+        self._answer_by = NEVER  # past it, the last request may have hung: the worker is asked [ns]
 
-    def warm_up(self, observation) -> None:
-        """A first call off the clock: a cold policy's first answer is not its latency."""
-        try:
-            self.worker.warm_up(observation)
-        except Exception:  # noqa: BLE001 - the loop's first request reports the failure as an event
-            pass
+    def warm_up(self, observation, timeout_s: float, stop: Callable[[], bool]) -> None:
+        """A first call off the clock (a cold policy's first answer is not its latency), waited for at most
+        ``timeout_s`` and until ``stop()``. A call given up, or one whose process ended, loses the policy."""
+        if not self.worker.warm_up(observation, timeout_s, stop):
+            self._lose("the policy's first call was given up at a stop" if stop() else
+                       f"the policy's first call has not answered in {timeout_s:g} s")
+        elif self.worker.ended:
+            self._lose(self.worker.ended)
 
     def begin_cycle(self, t_ns: int) -> None:
         """A new episode: the worker drops what it holds and resets the policy on its own thread."""
         self.worker.discard()
-        self._next = t_ns
+        self._next = t_ns if self.lost is None else NEVER
 
     def due(self, t_ns: int) -> bool:
         return self._held is None and t_ns >= self._next and self.worker.wants_observation(t_ns)
 
     def submit(self, t_ns: int, observation) -> Arrival | None:
         self._next = t_ns + self.period_ns
+        self._answer_by = t_ns + self.hang_ns
         self.worker.submit(observation)
         return None
 
@@ -110,9 +119,13 @@ class WorkerInference:
         self._corrupt = corrupt
 
     def take(self, t_ns: int) -> Arrival | None:
+        if t_ns > self._answer_by:  # one compare a tick
+            return self._overdue(t_ns)
         result = self._late(t_ns) if self.extra_ns else self.worker.take()
         if result is None:
             return None
+        if result.chunk is None and self.worker.ended:  # every later call would fail the same way
+            return self._lose(self.worker.ended)
         chunk, prepared = result.chunk, result.prepared
         if self._corrupt is not None and chunk is not None:  # unprepared: the guard checks it as it arrives
             chunk, prepared, self._corrupt = self._corrupt(chunk), None, None
@@ -131,5 +144,25 @@ class WorkerInference:
         self._held = None
         return replace(result, t_done_ns=result.t_done_ns + self.extra_ns)
 
+    def _overdue(self, t_ns: int) -> Arrival | None:
+        """``hang_ns`` since the last request: the policy lost if the worker is still in that call, else (it
+        answered, or its answer was dropped at a new episode) nothing is overdue. A lost policy gives nothing
+        (a hung call's late chunk included)."""
+        if self.lost is not None:
+            return None
+        if self.worker.busy:
+            return self._lose(f"the policy's call has not answered in {self.hang_ns * 1e-9:.1f} s")
+        self._answer_by = NEVER
+        return self.take(t_ns)
+
+    def _lose(self, why: str) -> Arrival:
+        """The policy answers no more: no request follows; the one arrival that says so."""
+        self.lost, self._answer_by, self._next = why, -NEVER, NEVER
+        return Arrival(None, 0, 0, why, lost=True)
+
     def close(self) -> None:
-        self.worker.close()
+        """Stop the worker; a lost policy's call is not waited for (a hung one held the run's end 5 s)."""
+        if self.lost is None:
+            self.worker.close()
+        else:
+            self.worker.close(timeout_s=0.0)

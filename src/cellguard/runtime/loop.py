@@ -7,7 +7,8 @@ robot is reached through ``RobotLink`` (watched reads, finite writes). Fault inj
 simulated cell's concern only: it is applied when the robot is a simulated cell.
 
 Start-up (the first request of the run): the checks of ``startup`` may refuse to move; a first
-target far from the measured pose is approached with a limit-respecting trajectory first.
+target far from the measured pose is approached with a limit-respecting trajectory first. A policy
+that answers no more (its process ended, a call hung) stops the run.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ import json
 from collections.abc import Callable
 from pathlib import Path
 from time import perf_counter_ns as perf_ns
+from typing import NoReturn
 
 import numpy as np
 
@@ -41,7 +43,7 @@ from cellguard.runtime.inference import NOMINAL_INFERENCE_S
 from cellguard.runtime.link import RobotLink
 from cellguard.runtime.operator_stop import OperatorStop
 from cellguard.runtime.recovery import RecoveryRunner
-from cellguard.runtime.startup import check_startup
+from cellguard.runtime.startup import StartupRefused, check_startup
 from cellguard.runtime.transitions import Transition
 from cellguard.scenario import Scenario
 
@@ -49,6 +51,14 @@ CYCLE_TIMEOUT_S = 12.0  # a cycle that has not finished by then is ended as fail
 NAN_AFTER_S = 1.0  # a policy_nan fault corrupts the first chunk this long into its cycle [s]
 STOP_SETTLE_S = 0.3  # a category 2 stop holds the measured position this long before the run ends [s]
 STANDSTILL = 0.05  # an operator stop ends the run once every measured joint speed is below this [rad/s, m/s]
+# A call still running this many watchdog times after its request has hung: the policy is lost. The watchdog has
+# held the robot since one watchdog time and lets it go on at the next chunk, so a slow call is survived; ten
+# (3 s by default) is several chunk horizons (the start-up check wants a latency below one), its answer stale.
+HUNG_WATCHDOGS = 10
+# The policy's first call (wall time, off the clock) may take this long: it loads and compiles (a large model
+# on a cold cache takes minutes). Nothing moves while it runs and Ctrl-C or SIGTERM ends the wait at once, so the
+# bound is generous: it only keeps an unattended service from waiting forever on a policy hung in that call.
+WARM_UP_TIMEOUT_S = 300.0
 
 
 class Run:
@@ -90,6 +100,7 @@ class Run:
         # to the outcome (the calibration's residual monitor adds ``residual``)
         self.cycle_monitors: list[Callable[[CycleBuffer, dict], None]] = []
         self.stopped: str | None = None  # why the run stopped early, if it did
+        self.policy_lost: str | None = None  # why the policy answers no more (its process ended, a call hung)
         self.operator = OperatorStop()  # Ctrl-C / SIGTERM while the cycles run: a stop, not an exception
         self.inference = None  # built at the first cycle (the policy may be swapped before)
         self.source = None
@@ -170,7 +181,7 @@ class Run:
                 guard = self.guard
                 safety = cell.safety()
                 stop = asked_by = None
-                if link.stop is not None or guard.executor.last_chunk_ns is None or operator.count:  # else no stop
+                if link.stop is not None or guard.executor.last_chunk_ns is None or operator.count or self.policy_lost:
                     stop, asked_by = self._stop_input(t, guard)
                 if driving and recovery.stop is not None and (stop is None or recovery.stop < stop):
                     stop, asked_by = recovery.stop, RECOVERY_HOLD
@@ -202,6 +213,9 @@ class Run:
                         break
                 if link.stop is not None and (link.lost or guard.envelope.tracker.stopped):
                     self.stopped = self.stopped or f"robot link: {link.reason}"
+                    break
+                if self.policy_lost and guard.envelope.tracker.stopped:
+                    self.stopped = self.stopped or f"policy lost: {self.policy_lost}"
                     break
                 if self.stopped and not guard.power:  # a robot behind a bridge lost its power (above)
                     break
@@ -235,6 +249,9 @@ class Run:
         """A finished request: its chunk to the guard (the run's first one after the start-up checks), or
         its failure as an event. True when an approach was played (the clock moved on meanwhile)."""
         if arrival.chunk is None:
+            if arrival.lost:  # for good: one event, not one a request
+                self._lose_policy(t_ns, arrival.error)
+                return False
             self.events.append(Event(t_ns, EventKind.INFERENCE_FAILED, arrival.error))
             self._wall_ns.append(arrival.wall_ns)
             return False
@@ -274,9 +291,18 @@ class Run:
     # -- start, stops ---------------------------------------------------------------------------
     def _warm_up(self) -> None:
         """Wall time, before the first cycle: one policy call off the clock (a cold policy's first answer
-        is not its latency), then a bridge drops the states that queued up meanwhile."""
-        self.inference.warm_up(self.cell.observe())
-        self.policy.reset()
+        is not its latency), then a bridge drops the states that queued up meanwhile. The call runs on the
+        worker, waited for at most ``WARM_UP_TIMEOUT_S`` and until the operator's signal (the first tick then
+        stops the run); one not answered in time, or whose policy process ended, refuses the start."""
+        inference, operator = self.inference, self.operator
+        inference.hang_ns = round(HUNG_WATCHDOGS * self.scenario.guard.watchdog_s * 1e9)
+        inference.warm_up(self.cell.observe(), WARM_UP_TIMEOUT_S, lambda: operator.count > 0)
+        if operator.count:
+            self._operator_stop(self.clock.now(), " during the policy's warm-up")
+        elif inference.lost is not None:
+            self._refuse(f"start-up: {inference.lost}; not moving")
+        else:
+            self.policy.reset()
         resync = getattr(self.cell, "resync", None)
         if callable(resync):
             try:
@@ -295,7 +321,10 @@ class Run:
         chunk = arrival.chunk
         # Simulated time: the healthy latency; an injected latency fault is an incident to diagnose, not a refusal.
         latency = arrival.latency_ns if self.clock.realtime else round(NOMINAL_INFERENCE_S * 1e9)
-        check_startup(self.policy, self._first_observation, chunk, latency, self.scenario.guard.blend_s)
+        try:
+            check_startup(self.policy, self._first_observation, chunk, latency, self.scenario.guard.blend_s)
+        except StartupRefused as exc:
+            self._refuse(str(exc))
         # from where the robot was commanded to be (the measured pose lags it: planning from there stepped the command)
         approach = Transition.plan(self.cell.profile, self.link.last_sent, self._first_target(chunk),
                                    self.clock.period_ns, **self._commanded_motion())
@@ -307,6 +336,11 @@ class Run:
         self.source.begin(self.cycles.total, self._armed_at)  # the cycle (and episode) starts at the approached pose
         self.inference.begin_cycle(self._armed_at)  # and resets the policy
         return None
+
+    def _refuse(self, why: str) -> NoReturn:
+        """Refuse to start: the refusal in the record (it held only the watchdog's stop), then StartupRefused."""
+        self.events.append(Event(self.clock.now(), EventKind.STARTUP_REFUSED, why))
+        raise StartupRefused(why) from None
 
     def _not_startable(self, chunk: ActionChunk) -> str | None:
         """Why the run's first chunk may not start it now: its target outside the box, or a stop in force (an
@@ -402,6 +436,8 @@ class Run:
         if self.operator.count:
             self._operator_stop(t_ns)
             asked.append((EventKind.OPERATOR_STOP.category, self.operator.reason))
+        if self.policy_lost:
+            asked.append((self.scenario.guard.watchdog_category, EventKind.POLICY_LOST.value))
         if guard.executor.last_chunk_ns is None:
             watchdog = self.scenario.guard
             if t_ns - self._armed_at > watchdog.watchdog_s * 1e9:
@@ -412,12 +448,21 @@ class Run:
                 asked.append((watchdog.watchdog_category, EventKind.WATCHDOG_NO_FIRST_CHUNK.value))
         return min(asked, key=lambda a: a[0]) if asked else (None, None)
 
-    def _operator_stop(self, t_ns: int) -> None:
+    def _operator_stop(self, t_ns: int, during: str = "") -> None:
         """The operator's first signal, once in the record: mid-cycle the run ends at standstill and the retreat
         follows; during a transition it aborts it."""
         if not self.events.has(EventKind.OPERATOR_STOP):
-            self.events.append(Event(t_ns, EventKind.OPERATOR_STOP, f"{self.operator.signal}: the operator asked a stop",
-                                     category=EventKind.OPERATOR_STOP.category))
+            self.events.append(Event(t_ns, EventKind.OPERATOR_STOP, f"{self.operator.signal}: the operator asked a "
+                                     f"stop{during}", category=EventKind.OPERATOR_STOP.category))
+
+    def _lose_policy(self, t_ns: int, why: str) -> None:
+        """The policy answers no more (its process ended, or a call hung ``HUNG_WATCHDOGS`` watchdog times): one
+        event and the watchdog's stop category (silence for good is what it configures), the run ends once the
+        command is at rest and the retreat follows. Each cycle waited out its time-out before, a dead process
+        failing every request (an event each 50 ms), and the run ended with nothing stopped."""
+        self.policy_lost = why
+        self.events.append(Event(t_ns, EventKind.POLICY_LOST, f"{why}; the run stops",
+                                 category=self.scenario.guard.watchdog_category))
 
     def _overrun(self, t_ns: int) -> None:
         timing = self.clock.timing
