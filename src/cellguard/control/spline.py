@@ -51,6 +51,30 @@ class ChunkCurve:
         other.t0_ns, other.end_ns = int(t0_ns), int(t0_ns) + (len(self.points) - 1) * self.h_ns
         return other
 
+    def less_motion(self, t_ns: int, q: np.ndarray, until_ns: int) -> ChunkCurve:
+        """This curve less its position, velocity and acceleration at ``t_ns`` (before its end), plus ``q``: at rest
+        at ``q`` there, then moving as the curve does beyond that quadratic; held past its end as ``at`` reads it,
+        and defined to ``until_ns`` at least (the quadratic goes on where the curve holds)."""
+        k, u = self.segment(t_ns)
+        c = self.coefficients[k]
+        q_at = np.dot((1.0, u, u * u, u * u * u), c)
+        v, half_a = c[1] + u * (2.0 * c[2] + 3.0 * u * c[3]), c[2] + 3.0 * u * c[3]
+        extra = max(-(-(until_ns - self.end_ns) // self.h_ns), 1)  # held segments past the end
+        points = np.concatenate([self.points, np.repeat(self.points[-1:], extra, axis=0)])
+        held = np.zeros((extra, 4, points.shape[1]))
+        held[:, 0] = self.points[-1]
+        coefficients = np.concatenate([self.coefficients[:len(self.points) - 1], held])  # a hold's one is past its end
+        d = ((self.t0_ns - t_ns + np.arange(len(points)) * self.h_ns) * 1e-9)[:, None]  # each knot from t_ns [s]
+        other = copy.copy(self)
+        other.points = points - (q_at - q) - d * (v + d * half_a)
+        other.end_ns = self.end_ns + extra * self.h_ns
+        other.coefficients = coefficients
+        d = d[:-1]
+        coefficients[:, 0] = other.points[:-1]
+        coefficients[:, 1] -= v + 2.0 * d * half_a
+        coefficients[:, 2] -= half_a
+        return other
+
     @staticmethod
     def _fit(y: np.ndarray, h: float) -> np.ndarray:
         n = len(y)
