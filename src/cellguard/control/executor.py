@@ -194,8 +194,8 @@ class Executor:
         carry it away from ``q`` (a 3 mrad zig-zag by 0.17 rad): that joint fades out of the hold as before."""
         moving = curve.less_motion(now, q, now + self.blend_ns)
         knots = np.arange(now, now + self.blend_ns + 1, curve.h_ns)
-        away = np.abs(np.array([moving.at(t) for t in knots]) - q).max(axis=0)
-        near = away <= np.abs(np.array([curve.at(t) for t in knots]) - q).max(axis=0)
+        away = np.abs(moving.at_times(knots) - q).max(axis=0)
+        near = away <= np.abs(curve.at_times(knots) - q).max(axis=0)
         if not near.any():
             return ChunkCurve(now, 1, q[None])
         held = np.zeros_like(moving.coefficients)

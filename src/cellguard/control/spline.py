@@ -107,3 +107,14 @@ class ChunkCurve:
             return self.points[-1]
         k, u = self.segment(t_ns)
         return np.dot((1.0, u, u * u, u * u * u), self.coefficients[k])  # one call: cheaper than Horner on (D,)
+
+    def at_times(self, t_ns: np.ndarray) -> np.ndarray:
+        """Positions (n, D) at the times ``t_ns`` (n,), each as ``at`` reads it, in one evaluation (a push from
+        rest samples a whole blend: one ``at`` per sample cost 11 ms for a 1 s blend of 1 ms steps)."""
+        t = np.asarray(t_ns, dtype=np.int64)
+        k = np.clip((t - self.t0_ns) // self.h_ns, 0, len(self.coefficients) - 1)
+        u = ((t - self.t0_ns - k * self.h_ns) * 1e-9)[:, None]
+        c = self.coefficients[k]
+        out = c[:, 0] + u * (c[:, 1] + u * (c[:, 2] + u * c[:, 3]))
+        out[t >= self.end_ns] = self.points[-1]
+        return out
