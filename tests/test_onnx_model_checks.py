@@ -212,6 +212,21 @@ def test_external_data_out_of_the_models_folder_or_missing_is_refused_naming_it(
         make_policy(f"onnx:{path}", cell)
 
 
+def test_a_model_linked_into_a_hugging_face_cache_loads_with_its_external_weights(tmp_path, cell):
+    """snapshots/REV/{m.onnx, m.weights} link to blobs named by their hashes: the weights resolved out of
+    snapshots/REV and were refused, though onnxruntime reads them (from the folder the model's file lies in)."""
+    blobs, snapshot = tmp_path / "blobs", tmp_path / "snapshots" / "rev"
+    blobs.mkdir()
+    snapshot.mkdir(parents=True)
+    _external(blobs)
+    for name in ("m.onnx", "m.weights"):
+        blob = hashlib.sha256((blobs / name).read_bytes()).hexdigest()
+        (blobs / name).rename(blobs / blob)
+        (snapshot / name).symlink_to(f"../../blobs/{blob}")
+    policy = make_policy(f"onnx:{snapshot / 'm.onnx'}", cell)
+    assert np.allclose(policy.infer(cell.observe()).actions, np.tile(HOME, (10, 1)), atol=1e-3)
+
+
 @pytest.mark.parametrize("declared", [[1, MAX_HORIZON + 1, 6], [MAX_HORIZON + 1, 6]])
 def test_a_chunk_longer_than_the_guard_takes_is_refused_at_load(tmp_path, cell, declared):
     """A fixed horizon of 1001 loaded, then the guard rejected every chunk (chunk_rejected, exit 0)."""

@@ -141,7 +141,9 @@ def _content_hash(path: Path) -> str:
 
 def _external_data(path: Path) -> list[str]:
     """The external-data files the model names, sorted, each a regular file in the model's folder (onnxruntime
-    1.32 refuses one out of it, older ones read it: an unhashed file, or a FIFO that hangs the load)."""
+    1.32 refuses one out of it, older ones read it: an unhashed file, or a FIFO that hangs the load). The folder
+    is the one the model is named in or the one its file lies in, as onnxruntime takes it: a Hugging Face cache
+    links both files from ``snapshots/REV/`` into ``blobs/``."""
     import onnx
     from onnx.external_data_helper import uses_external_data
 
@@ -151,10 +153,10 @@ def _external_data(path: Path) -> list[str]:
         raise ConfigError(f"policy: onnx:{path}: not a loadable ONNX model ({type(exc).__name__})") from None
     names = sorted({entry.value for tensor in _tensors(model) if uses_external_data(tensor)
                     for entry in tensor.external_data if entry.key == "location"})
-    folder = path.parent.resolve()
+    folder, stored = path.parent.resolve(), path.resolve().parent
     for name in names:
         file = (path.parent / name).resolve()
-        if not file.is_relative_to(folder) or not file.is_file():
+        if not (file.is_relative_to(folder) or file.is_relative_to(stored)) or not file.is_file():
             raise ConfigError(f"policy: onnx:{path}: external data {name!r} is not a file in the model's folder "
                               f"{folder}; a model's weights lie beside it")
     return names
