@@ -54,3 +54,11 @@ def test_a_units_map_driving_every_joint_reads_where_the_robot_is(profile):
     assert bridge.read().q[profile.index("wrist_roll")] == pytest.approx(1.5)
     bridge.write(np.zeros(profile.dof))
     assert sorted(robot.sent[-1]) == sorted(profile.joint_names)
+
+
+@pytest.mark.parametrize("arg", ["", "?port=/dev/ttyACM0"])
+def test_a_bridge_without_a_robot_type_says_so_in_one_line(arg):
+    from cellguard.robot.bridges.lerobot import make_lerobot_robot
+
+    with pytest.raises(ConfigError, match=r"^robot: lerobot: missing target, write lerobot:TYPE\?port=\.\.\.&id=\.\.\.$"):
+        make_lerobot_robot(arg)

@@ -277,7 +277,7 @@ class LeRobotBridge:
 
 def make_lerobot_robot(arg: str, read_timeout_s: float = READ_TIMEOUT_S) -> LeRobotBridge:
     """``TYPE?opt=value&...``: LeRobot's robot ``TYPE`` with its config options, plus ``units``/``embodiment``/``hz``."""
-    where = f"robot: lerobot:{arg.partition('?')[0]}"
+    where = f"robot: lerobot:{arg.partition('?')[0]}".rstrip(":")  # no type: "robot: lerobot: missing target"
     robot_type, options = split_options(arg, None, where, "lerobot:TYPE?port=...&id=...")  # the rest go to TYPE's config
     ours = {k: options.pop(k) for k in list(options) if k in OPTIONS}
     name = ours.get("embodiment", TYPE_EMBODIMENT.get(robot_type))
