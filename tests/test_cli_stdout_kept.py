@@ -203,3 +203,17 @@ def test_production_failing_with_no_last_good_says_it_stays_current(tmp_path):
     assert (f"nothing to roll back to: {rid} stays current at production on {CELL} (no other release is last_good "
             f"there)") in " ".join(result.stdout.split())  # as rich wraps it
     assert store.pointers(CELL, "production").current == rid
+
+
+def test_a_second_diagnosis_names_only_the_file_it_wrote(tmp_path, recorded):
+    """The kept line named baseline.json on every diagnosis; it is written only when no stored one fits."""
+    fresh = shutil.copytree(recorded, tmp_path / "run")
+    lines = []
+    for _ in range(2):
+        with open("/dev/full", "w") as full:
+            done = subprocess.run(CLI + ["diagnose", str(fresh)], stdout=full, stderr=subprocess.PIPE, text=True,
+                                  timeout=300)
+        assert done.returncode == 1, done.stderr
+        lines.append(done.stderr.splitlines()[-1])
+    assert lines[0].endswith(f"the diagnosis in {fresh} (baseline.json, fixes.json){KEPT}")
+    assert lines[1].endswith(f"the diagnosis in {fresh} (fixes.json){KEPT}")

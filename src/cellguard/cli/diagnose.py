@@ -29,13 +29,15 @@ def diagnose(
     fleet: bool | None = typer.Option(None, "--fleet/--no-fleet", help=FLEET_HELP),
 ) -> None:
     """Read a record, find drift and faults against the acceptance baseline, name probable causes."""
-    from cellguard.diagnose.from_record import diagnose_record, run_folder
+    from cellguard.diagnose.from_record import BASELINE_FILE, diagnose_record, run_folder
 
     try:
+        beside = run_folder(folder)  # where fixes.json (and the record's own baseline) are written; None: nowhere
+        baseline_was = _file_version(beside / BASELINE_FILE) if beside is not None else None
         diagnosis = diagnose_record(folder, acceptance=acceptance, fleet=fleet_advice(fleet))
-        beside = run_folder(folder)  # where fixes.json (and the record's own baseline) were written; None: nowhere
         if beside is not None:
-            stdout.written(f"the diagnosis in {beside} ({'' if acceptance else 'baseline.json, '}fixes.json)")
+            new = _file_version(beside / BASELINE_FILE) != baseline_was  # written only when none fit
+            stdout.written(f"the diagnosis in {beside} ({'baseline.json, ' if new else ''}fixes.json)")
         health = record_health(folder)
         baseline_health = record_health(acceptance) if acceptance is not None else None
     except CellguardError as exc:
@@ -150,3 +152,12 @@ def print_diagnosis(d) -> None:
         cycles = len({r["cycle"] for r in data["recoveries"]})
         console.print(f"  recoveries: {len(data['recoveries'])} attempt(s) in {cycles} cycle(s): " + ", ".join(
             f"{b} {o} {n}" for (b, o), n in sorted(tally.items())), markup=False)
+
+
+def _file_version(path: Path) -> tuple[int, int] | None:
+    """(inode, modification time) of ``path``, None if there is none: a file written beside and renamed differs."""
+    try:
+        st = path.stat()
+    except OSError:
+        return None
+    return st.st_ino, st.st_mtime_ns
