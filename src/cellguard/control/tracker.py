@@ -10,8 +10,9 @@ they close on the reference with (phase synchronisation, ``_SYNC``), each stops 
 
 * ``offset``: ruckig drives the *error* (setpoint minus reference) to zero within the headroom
   the reference leaves, so the setpoint lands exactly back on a moving reference and hands
-  back to pass-through. Chasing the reference's position instead would lag it by velocity
-  times ruckig's horizon for as long as it moves.
+  back to pass-through once it has (not on the first tick a sample fits). Chasing the
+  reference's position instead would lag it by velocity times ruckig's horizon for as long as
+  it moves.
 * ``absolute``: ruckig's velocity interface toward the reference's velocity plus a position
   correction (the sample clipped to the soft limits), within the full limits; used when the offset candidate does not
   fit (the reference itself is too fast, or it heads past a limit).
@@ -108,6 +109,7 @@ class Tracker:
         self._stop_in.target_acceleration = self._absolute_in.target_acceleration = np.zeros(dof)
         self.failed: str | None = None  # why ruckig refused the recovery, which then braked every joint
         self._error: str | None = None  # why ruckig refused its last input
+        self._finished = False  # ruckig's last plan ends within this tick (the state is its target)
         self.reset(q0)
 
     def _input(self, dof: int, interface) -> ruckig.InputParameter:
@@ -193,18 +195,21 @@ class Tracker:
         if cap is not None:
             v_limit = self._share(samples, rv, cap)
             ok = self._fits(samples, v_limit)[0]
-        if all(ok):
+        recovering = self._landable(samples, rv, ra, previous, v_limit)
+        if all(ok) and not recovering:
             return self._commit(r, samples, None, None, PASS)
         q, tv, ta = samples.copy(), self._tv.copy(), self._ta.copy()
         mode = [PASS if fit else ABSOLUTE for fit in ok]
-        recovering = self._landable(ok, samples, rv, ra, previous, v_limit)
         if recovering and self._offset(recovering, rv, ra, previous, v_limit):
             out = self._out
             cand = [x + e for x, e in zip(samples, out.new_position)]
             fits, ev, ea = self._fits(cand, v_limit)[0], out.new_velocity, out.new_acceleration
+            end = _at_end(rv, ra, self.dt)
             for j in recovering:
+                if self._finished and ok[j]:  # landed: the sample itself, passed through again
+                    continue
                 if fits[j]:
-                    q[j], mode[j], tv[j], ta[j] = cand[j], OFFSET, ev[j] + rv[j], ea[j] + ra[j]
+                    q[j], mode[j], tv[j], ta[j] = cand[j], OFFSET, ev[j] + end[j], ea[j] + ra[j]
         rest = [j for j, m in enumerate(mode) if m == ABSOLUTE]
         if rest:
             if not self._absolute(samples, rv, v_limit):
@@ -387,19 +392,21 @@ class Tracker:
         inp.target_velocity = target
         return self._step(inp)
 
-    def _landable(self, ok: list[bool], r: list[float], rv: list[float], ra: list[float], previous: tuple,
+    def _landable(self, r: list[float], rv: list[float], ra: list[float], previous: tuple,
                   v_limit: list[float] | None) -> list[int]:
-        """The joints ruckig was already recovering that an offset plan could land back on the reference:
+        """The joints ruckig was already recovering that an offset plan could land back on the reference,
+        whether or not their sample fits (until the plan has landed, the setpoint crosses the reference at
+        a speed of its own: the next sample would break the jerk limit and the recovery start over):
         those whose reference lies inside the soft limits and moves inside the velocity (``v_limit`` where
         given) and acceleration limits, now and last tick. Landing on a reference outside them cannot fit:
         the plan would run the joint at full speed toward a point it may not reach, into a state from
         which the absolute recovery overshoots the velocity limit; and an error state built on such
         derivatives (a jump read as 100 rad/s) makes ruckig refuse the whole plan, every joint's."""
         limit = self._vmax_f if v_limit is None else v_limit
-        return [j for j, (fit, m, x, x_v, x_a, p_v, p_a, w, a_max, lo, hi) in enumerate(
-                    zip(ok, self.mode, r, rv, ra, previous[1], previous[2], limit, self._amax_f, self._lo_f,
+        return [j for j, (m, x, x_v, x_a, p_v, p_a, w, a_max, lo, hi) in enumerate(
+                    zip(self.mode, r, rv, ra, previous[1], previous[2], limit, self._amax_f, self._lo_f,
                         self._hi_f))
-                if not fit and m in (OFFSET, ABSOLUTE) and lo <= x <= hi and abs(x_v) <= w and abs(p_v) <= w
+                if m in (OFFSET, ABSOLUTE) and lo <= x <= hi and abs(x_v) <= w and abs(p_v) <= w
                 and abs(x_a) <= a_max and abs(p_a) <= a_max]
 
     def _offset(self, joints: list[int], rv: list[float], ra: list[float], previous: tuple,
@@ -409,10 +416,11 @@ class Tracker:
         v, a = self._handover(offset=True)
         inp = self._offset_in
         r0, rv0, ra0 = previous
+        end = _at_end(rv0, ra0, self.dt)
         dof = len(v)
         e, ev, ea = [0.0] * dof, [0.0] * dof, [0.0] * dof
         for j in joints:
-            e[j], ev[j], ea[j] = self.samples[0][j] - r0[j], v[j] - rv0[j], a[j] - ra0[j]
+            e[j], ev[j], ea[j] = self.samples[0][j] - r0[j], v[j] - end[j], a[j] - ra0[j]
         inp.current_position, inp.current_velocity, inp.current_acceleration = e, ev, ea
         inp.synchronization = _SYNC if v_limit is None else ruckig.Synchronization.No
         v_floor, a_floor, j_floor = self._floors
@@ -432,6 +440,7 @@ class Tracker:
             otg.reset()
             return False
         self._error = None if result in _PLANNED else str(result)
+        self._finished = result == ruckig.Result.Finished
         return self._error is None
 
     def _commit(self, q: np.ndarray, samples: list[float], tv: list[float] | None, ta: list[float] | None,
@@ -446,6 +455,15 @@ class Tracker:
         if tv is not None:
             self._tv, self._ta = tv, ta
         return q
+
+
+def _at_end(v: list[float], a: list[float], dt: float) -> list[float]:
+    """The velocity at the end of a tick from its finite-difference velocity ``v`` (the mean over the
+    tick) and acceleration ``a``, as ``_handover`` reads the samples: the offset plan's error is the
+    setpoint's state less the reference's at the same instant. Taken at mid-tick, the reference's
+    velocity was half a tick of its acceleration short, a step at every hand-over between the plans."""
+    half_dt = 0.5 * dt
+    return [x + y * half_dt for x, y in zip(v, a)]
 
 
 def _travel(v: float, a: float, amax: float, jmax: float, v3: float, v3sq: float, inv_2a: float,
