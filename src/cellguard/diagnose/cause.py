@@ -20,14 +20,16 @@ candidate finding, classified from the size and sign of its changes over the fau
   servo holds more torque through a larger error, so friction raises its tracking error about
   as much as its current, while a weaker gain raises the tracking error and leaves the work over
   the travel where it was. Not on a leg where current and tracking error moved more: there the
-  ground's share of that work shifts with the gait.
+  ground's share of that work shifts with the gait. The rise that names the cause must itself
+  reach ``MATERIAL``: a joint whose current fell 3 % while its error rose 0.3 % names no weaker servo.
   The joints of an arm are coupled: a joint that lags more moves the others' loads a little. A
   joint whose change is under ``COUPLED`` of a joint's that changed no later is that joint's
   consequence, told in its evidence, not a second cause; unless its tracking error grew with no
-  more current (a coupled joint's change reaches it as a load, which its servo answers with current).
+  more current (a coupled joint's change reaches it as a load, which its servo answers with current),
+  or, on an arm, more than its current under a friction lead (friction keeps the lead's motion).
 - policy timing (latency, stale chunks) and policy output (rejected chunks) speak for
   themselves; joint changes, and the gait of legs, that start with a latency change are its
-  consequence.
+  consequence (a joint change that comes on some cycles only is dated by the first of them).
 """
 
 from __future__ import annotations
@@ -120,18 +122,36 @@ class _Window:
         ``STEP_CLIP``) best by least squares over all cycles. The median change point (``_onset``)
         where none can be fitted. One CUSUM's change point wanders with the noise before the step;
         the fit reads every cycle on both sides."""
-        cols = [(self.baseline.names.index(a.signal), a.direction) for a in _distinct(alarms)
-                if a.signal in self.baseline.names and a.direction]
-        if not cols:
+        index, s = self._signed(alarms)
+        if not len(s):
             return _onset(alarms)
-        z = np.clip(self.z[:, [j for j, _ in cols]], -STEP_CLIP, STEP_CLIP) * np.array([d for _, d in cols])
-        seen = ~np.all(np.isnan(z), axis=1)
-        s = np.nanmean(z[seen], axis=1)
-        index = np.array([c.index for c in self.cycles])[seen]
         lo, hi = min(a.onset for a in alarms), min(a.cycle for a in alarms)
         fits = [(float(np.sum((s[:k] - s[:k].mean()) ** 2) + np.sum((s[k:] - s[k:].mean()) ** 2)), int(index[k]))
                 for k in range(1, len(s)) if lo <= index[k] <= hi]
         return min(fits)[1] if fits else _onset(alarms)
+
+    def first_of_some(self, alarms: Sequence[DriftAlarm], since: int) -> int | None:
+        """The first cycle from ``since`` on that ``alarms``' features were off (their signed mean residual
+        ``UNCHANGED_Z`` or more), where they are off on some cycles only (that mean under it on most cycles
+        from their change point on): a CUSUM decays between such cycles and dates the change late.
+        None for a step (off on most cycles), or where no cycle was off."""
+        index, s = self._signed(alarms)
+        after = s[index >= _onset(alarms)]
+        if not len(after) or np.median(after) >= UNCHANGED_Z:
+            return None
+        off = index[(index >= since) & (s >= UNCHANGED_Z)]
+        return int(off[0]) if len(off) else None
+
+    def _signed(self, alarms: Sequence[DriftAlarm]) -> tuple[np.ndarray, np.ndarray]:
+        """(cycle index, mean residual) over the cycles that read ``alarms``' features: each residual
+        signed by its alarm's direction and clipped at ``STEP_CLIP``."""
+        cols = [(self.baseline.names.index(a.signal), a.direction) for a in _distinct(alarms)
+                if a.signal in self.baseline.names and a.direction]
+        if not cols:
+            return np.zeros(0, dtype=int), np.zeros(0)
+        z = np.clip(self.z[:, [j for j, _ in cols]], -STEP_CLIP, STEP_CLIP) * np.array([d for _, d in cols])
+        seen = ~np.all(np.isnan(z), axis=1)
+        return np.array([c.index for c in self.cycles])[seen], np.nanmean(z[seen], axis=1)
 
     def xy(self, stem: str, start: int) -> np.ndarray | None:
         v = np.array([self.delta(f"{stem}_x_mm", start), self.delta(f"{stem}_y_mm", start)])
@@ -156,20 +176,17 @@ def name_causes(baseline: Baseline, cycles: Sequence[Cycle], z: np.ndarray, alar
         findings.append(Finding("policy_output", first, 0.95, (
             f"the guard rejected {len(rejected)} policy chunk(s) in {n} cycle(s), first in cycle {first}: "
             f"{rejected[0][1]}", "a policy that emits non-finite or malformed actions"), ("chunks_rejected",)))
-    latency_at = None
+    joint_groups = {k.split(":", 1)[1]: v for k, v in groups.items() if k.startswith("joint:")}
     if any(kind_of(a.signal).unit == "ms" for a in groups.get("latency", ())):  # the policy answered later
         f = _latency(w, groups.pop("latency"))
-        latency_at = f.cycle
         f, groups["gait"] = _with_late_gait(f, groups.get("gait", []))
+        f, joint_groups = _with_late_joints(w, f, joint_groups)
         findings.append(f)
     groups.pop("output", None)
     outcome = groups.pop("outcome", [])
     geometry = groups.pop("geometry", [])
     grasp = _geometry(w, geometry, outcome) if geometry else None
     outcome = [] if geometry else outcome
-    joint_groups = {k.split(":", 1)[1]: v for k, v in groups.items() if k.startswith("joint:")}
-    if latency_at is not None:
-        joint_groups = {j: v for j, v in joint_groups.items() if abs(_onset(v) - latency_at) > CONCURRENT}
     findings.extend(_joints(w, joint_groups, grounded=_grounded(baseline)))
     findings.extend(_feet(w, groups.pop("gait", [])))
     if grasp is not None:
@@ -202,7 +219,7 @@ def _latency(w: _Window, alarms: list[DriftAlarm]) -> Finding:
     evidence = [f"policy latency {base + d:.0f} ms per chunk vs {base:.0f} ms at acceptance"]
     if np.isfinite(stale) and stale > 0:
         evidence.append(f"{stale:.0f} more stale chunk steps dropped per cycle")
-    evidence.append("late chunks answer old observations, so the arm tracks a stale plan")
+    evidence.append("late chunks answer old observations, so the robot follows a stale plan")
     conf = 0.95 if np.isfinite(d) and d > 5.0 else 0.6
     return Finding("policy_latency", start, conf, tuple(evidence), tuple(sorted({a.signal for a in alarms})))
 
@@ -220,6 +237,27 @@ def _with_late_gait(late: Finding, gait: list[DriftAlarm]) -> tuple[Finding, lis
             f"{' ...' if len(signals) > 4 else ''}): the legs step to the stale plan",)
     rest = [a for a in gait if member_of(a.signal) not in with_it]
     return told(late, note, signals, before_last=True), rest
+
+
+def _with_late_joints(w: _Window, late: Finding, groups: dict[str, list[DriftAlarm]]
+                      ) -> tuple[Finding, dict[str, list[DriftAlarm]]]:
+    """The joints whose change began with the latency (``_began_with``) follow the stale plan: told in the
+    latency finding, not as joint findings. Returns the finding and the other joints' alarm groups."""
+    with_it = sorted(j for j, alarms in groups.items() if _began_with(w, alarms, late.cycle))
+    if not with_it:
+        return late, groups
+    signals = sorted({a.signal for j in with_it for a in groups[j]})
+    note = (f"also joint {', '.join(with_it)} from cycle {late.cycle} ({', '.join(signals[:4])}"
+            f"{' ...' if len(signals) > 4 else ''}): the stale plan moves the joints, not their drives",)
+    return told(late, note, signals, before_last=True), {j: v for j, v in groups.items() if j not in with_it}
+
+
+def _began_with(w: _Window, alarms: list[DriftAlarm], at: int) -> bool:
+    """Whether the change ``alarms`` tell of began within ``CONCURRENT`` of cycle ``at``: by their change
+    point or, where they are off on some cycles only (the motions a stale plan spoils), by the first
+    of those cycles (``_Window.first_of_some``), which their CUSUM, decaying between them, dates late."""
+    first = w.first_of_some(alarms, at - CONCURRENT)
+    return abs(_onset(alarms) - at) <= CONCURRENT or (first is not None and first - at <= CONCURRENT)
 
 
 def told(f: Finding, words: tuple[str, ...], signals=(), before_last: bool = False) -> Finding:
@@ -352,7 +390,7 @@ def _joints(w: _Window, groups: dict[str, list[DriftAlarm]], grounded: bool = Fa
             share = min(0.95, 1.0 - max(free, 0.0) / carry)
             rated.append((start, "load_change", joint, carry, free, share, alarms, 0.0, current))
             continue
-        if c + t <= 0.0:
+        if max(c, t) < MATERIAL:  # what moved fell: no rise names friction or a weaker servo
             cause, share = "unknown", 0.5
         else:
             share = c / (c + t)
@@ -360,7 +398,7 @@ def _joints(w: _Window, groups: dict[str, list[DriftAlarm]], grounded: bool = Fa
             share = share if cause == "friction" else 1.0 - share
         rated.append((start, cause, joint, cur, trk, share, alarms, ft, current))
     rated.sort()
-    rated, follows = _coupled(rated)
+    rated, follows = _coupled(rated, grounded)
     findings: list[Finding] = []
     while rated:
         start, cause = rated[0][0], rated[0][1]
@@ -410,9 +448,10 @@ def _friction(w: _Window, joint: str, start: int) -> float:
     return w.relative(name, start) if abs(w.zmed(name, start)) >= UNCHANGED_Z else 0.0
 
 
-def _coupled(rated: list[tuple]) -> tuple[list[tuple], dict[str, list[tuple]]]:
+def _coupled(rated: list[tuple], grounded: bool) -> tuple[list[tuple], dict[str, list[tuple]]]:
     """Split the rated joints (``_joints``'s tuples, by onset) into those that carry a cause and, per
-    leading joint, those whose change is under ``COUPLED`` of its change and began no earlier."""
+    leading joint, those whose change is under ``COUPLED`` of its change and began no earlier, unless
+    it is its own drive's (``_own_drive``)."""
     def size(r: tuple) -> float:
         return max(abs(r[3]), abs(r[4]))
 
@@ -421,18 +460,25 @@ def _coupled(rated: list[tuple]) -> tuple[list[tuple], dict[str, list[tuple]]]:
     for r in sorted(rated, key=size, reverse=True):
         leads = [m for m in kept if m[1] != "load_change" and m[0] <= r[0] + CONCURRENT]
         lead = max(leads, key=size, default=None)
-        if r[1] != "load_change" and lead is not None and size(r) < COUPLED * size(lead) and not _own_drive(r):
+        if (r[1] != "load_change" and lead is not None and size(r) < COUPLED * size(lead)
+                and not _own_drive(r, lead, grounded)):
             follows.setdefault(lead[2], []).append(r)
         else:
             kept.append(r)
     return sorted(kept), follows
 
 
-def _own_drive(r: tuple) -> bool:
-    """A rated joint whose tracking error rose by ``QUIET`` or more with its current within ``MATERIAL``:
-    a coupled joint's change reaches it as a load, which a position servo answers with current (and the
-    error that holds it); an error that grew with no more current is its own drive's."""
-    return r[1] == "servo" and r[4] >= QUIET and abs(r[8]) < MATERIAL
+def _own_drive(r: tuple, lead: tuple, grounded: bool) -> bool:
+    """Whether rated joint ``r``'s change is its own drive's, not ``lead``'s consequence: a coupled joint's
+    change reaches it as a load, which a position servo answers with current (and the error that holds
+    it), so an error that grew by ``QUIET`` or more with its current within ``MATERIAL`` is its own.
+    Under a friction lead on a robot off the ground so is any error that rose more than its current
+    (rated ``servo``): friction acts between the lead joint's own two links, whose drive supplies it and
+    keeps the motion (its error rose a little), so the others feel a load no larger than that small lag
+    makes (on an arm a friction x1.5 leaves the other joints' current and error within their noise).
+    On a leg a joint rated friction may be one carrying a weak leg's share, not a lead of its own."""
+    return r[1] == "servo" and ((r[4] >= QUIET and abs(r[8]) < MATERIAL)
+                                or (lead[1] == "friction" and not grounded))
 
 
 def _by_leg(alarms: Sequence[DriftAlarm]) -> dict[str, list[DriftAlarm]]:
@@ -462,13 +508,24 @@ def intermittent_finding(baseline: Baseline, cycles: Sequence[Cycle], z: np.ndar
     rows = [i for i, c in enumerate(cycles) if c.index in set(found.cycles)]
     hits = [cycles[i] for i in rows]
     w = _Window(baseline, hits, z[rows])
-    alarms = [DriftAlarm(s, found.first, 0.0, found.first, 0) for s in found.signals]
+    alarms = [DriftAlarm(s, found.first, 0.0, found.first, 0) for s in _off_on_hits(w, found)]
     named = _geometry(w, alarms, []) if found.family == "geometry" else Finding(
         "unknown", found.first, 0.3, (f"{', '.join(found.signals[:4])} off on some cycles",), found.signals)
     watched = len(cycles) - next(i for i, c in enumerate(cycles) if c.index == found.first)
     head = (f"intermittent: {len(hits)} of {watched} cycles from cycle {found.first} on ({found.rate:.0%}), "
             f"cycles {', '.join(str(i) for i in found.cycles[:8])}{' ...' if len(hits) > 8 else ''}",)
     return Finding(named.cause, found.first, named.confidence, head + named.evidence, named.signals, rate=found.rate)
+
+
+def _off_on_hits(w: _Window, found) -> tuple[str, ...]:
+    """The features of an intermittent pattern: those that crossed the outlier line and, for geometry,
+    those off by ``UNCHANGED_Z`` or more in the median over its hit cycles (``w``'s), under the line on
+    each (a part presented 3 mm off reads about 5 scales in the camera on every cycle it is off)."""
+    if found.family != "geometry":
+        return tuple(found.signals)
+    off = {n for n in w.baseline.names
+           if kind_of(n).family == "geometry" and abs(w.zmed(n, found.first)) >= UNCHANGED_Z}
+    return tuple(sorted(off.union(found.signals)))
 
 
 def intermittent_findings(baseline: Baseline, cycles: Sequence[Cycle], z: np.ndarray, found: Sequence) -> list[Finding]:
