@@ -51,6 +51,7 @@ from cellguard.policy.chunk import MAX_HORIZON, ActionChunk
 MIN_STEP_NS, MAX_STEP_NS = 1_000_000, 1_000_000_000  # a chunk's step: 1 ms to 1 s
 HISTORY_TICKS = 8192  # playback clock remembered for mapping late chunks [ticks]
 MAX_BLENDED = 64  # curves in one blend at most, a bound on the tick's cost (50 Hz chunks in a 1 s blend: 51)
+HOLD_SAMPLES = 65  # samples of a blend that decide, per joint, how a hold fades out when a chunk comes from rest
 
 
 @dataclass(frozen=True)
@@ -192,12 +193,17 @@ class Executor:
         first chunk: 1.4 rad/s² there, 7.2 later, entered at 15.02 against the 15 limit). Less its own motion the
         curve differs from the hold by that state only. A noisy curve's velocity and acceleration at the switch
         carry it away from ``q`` (a 3 mrad zig-zag by 0.17 rad): that joint fades out of the hold as before."""
-        moving = curve.less_motion(now, q, now + self.blend_ns)
-        knots = np.arange(now, now + self.blend_ns + 1, curve.h_ns)
-        away = np.abs(moving.at_times(knots) - q).max(axis=0)
-        near = away <= np.abs(curve.at_times(knots) - q).max(axis=0)
+        until = now + self.blend_ns
+        knots = np.arange(now, until + 1, curve.h_ns)
+        if len(knots) > HOLD_SAMPLES:  # 1 ms steps over a 1 s blend: a thousand samples on the servo tick
+            knots = np.linspace(now, until, HOLD_SAMPLES).astype(np.int64)
+        at, (q_at, v, half_a) = curve.at_times(knots), curve.state_at(now)
+        d = ((knots - now) * 1e-9)[:, None]
+        away = np.abs(at - q_at - d * (v + d * half_a)).max(axis=0)  # the curve less its motion, from q
+        near = away <= np.abs(at - q).max(axis=0)
         if not near.any():
             return ChunkCurve(now, 1, q[None])
+        moving = curve.less_motion(now, q, until)
         held = np.zeros_like(moving.coefficients)
         held[:, 0] = q
         moving.points = np.where(near, moving.points, q)
