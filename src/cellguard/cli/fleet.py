@@ -7,6 +7,7 @@ printed through ``say``: as written, never wrapped (scripts read them), control 
 from __future__ import annotations
 
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -50,13 +51,15 @@ def push(
     from cellguard.fleet.from_record import site_signatures
     from cellguard.fleet.lake import check_lake
     from cellguard.fleet.policy import load_policy
+    from cellguard.fleet.push import check_key_history
     from cellguard.fleet.push import push as do_push
 
     try:
         pol = load_policy(policy)
-        tenant_store = _store(store)  # a malformed DSN or a --lake that is a file: refused before the diagnosis
-        if lake is not None:
+        tenant_store = _store(store)  # a malformed DSN, a --lake that is a file, a site that must withdraw first:
+        if lake is not None:  # refused before the diagnosis
             check_lake(lake)
+        check_key_history(site_dir, pol)
         sigs = site_signatures(folder, pol, acceptance) if pol.export != "nothing" else []
         result = do_push(sigs, pol, site_dir, tenant_store, lake)
         stdout.written(f"batch {result.batch.batch_id} in the audit log of {site_dir}")
@@ -75,15 +78,18 @@ def push(
     elif store is None and result.queued:
         sys.stderr.write(f"no --store given: {result.queued} batch(es) kept in {Path(site_dir) / 'outbox'}\n")
     if result.new_key:
-        sys.stderr.write(f"note: {printable(result.new_key)}: a new site key; signature ids are keyed with it, so keep "
-                         f"it with the site (a push from another --site-dir makes another key and stores every "
-                         f"signature again)\n")
+        _new_key_note(result.new_key)
     for line in result.held:
         sys.stderr.write(f"note: {printable(line)}\n")
     for line in result.failed:
         sys.stderr.write(f"warning: {printable(line)}\n")
     if result.failed:
         raise typer.Exit(1)
+
+
+def _new_key_note(path: str) -> None:
+    sys.stderr.write(f"note: {printable(path)}: a new site key; signature ids are keyed with it, so keep it with the "
+                     f"site (a push from another --site-dir makes another key and stores every signature again)\n")
 
 
 @fleet_app.command()
@@ -206,13 +212,15 @@ def withdraw(
     policy: Path = typer.Option(..., "--policy", help="The site's data policy (it names the tenant and site)."),
     store: str | None = STORE,
     lake: Path | None = typer.Option(None, "--lake", help="Also take the site's signatures out of this lake."),
+    site_dir: Path = SITE_DIR,
     as_json: bool = JSON,
 ) -> None:
     """Delete every signature and aggregate this site pooled, from the lake and the store (as this tenant):
     a customer withdrawing its consent. What waits in the outbox stays at the site (set ``export: nothing``
     to keep it there). The lake goes first: it reads every file of the tenant's before it changes one, so
     a lake it cannot read leaves both as they were; a store that then fails is named with what the lake
-    gave up."""
+    gave up. Once the store holds nothing of the site, an existing --site-dir with no site key gets one:
+    a push from there (refused while batches sent without the key were in the store) stores nothing twice."""
     from cellguard.errors import ConfigError
     from cellguard.fleet.lake import check_lake, forget
     from cellguard.fleet.policy import load_policy
@@ -234,9 +242,26 @@ def withdraw(
             exc = CellguardError(f"{exc}; {in_lake} signature(s) of site {pol.site} were taken out of the lake, the "
                             f"store's were not: run fleet withdraw again")
         fail(exc)
+    if tenant_store is not None:
+        _key_after_withdrawal(site_dir)
     if as_json:
         sys.stdout.write(json.dumps({"tenant": pol.tenant, "site": pol.site, "store_rows": in_store,
                                      "lake_signatures": in_lake or 0}) + "\n")
     else:
         say(f"fleet withdraw: site {pol.site} of {pol.tenant}: {in_store} row(s) deleted from the store, "
             f"{in_lake or 0} signature(s) from the lake", err=False)
+
+
+def _key_after_withdrawal(site_dir: Path) -> None:
+    """Make the site key of an existing ``site_dir`` that has none (noted): the site's rows are gone from the store,
+    so ids keyed from now on repeat nothing there (``push.check_key_history``)."""
+    from cellguard.fleet.site_key import KEY_FILE, site_key
+
+    path = Path(site_dir) / KEY_FILE
+    if not Path(site_dir).is_dir() or os.path.lexists(path):
+        return
+    try:
+        site_key(site_dir)
+    except CellguardError as exc:
+        fail(exc)
+    _new_key_note(str(path))

@@ -94,7 +94,8 @@ def _print_info(doc: dict) -> None:
     ctx = doc["context"]
     policy, emb = ctx.get("policy") or {}, ctx.get("embodiment") or {}
     out.print(f"record   {doc['file']}  [{doc['health']['status']}]", markup=False)
-    out.print(f"run      {doc['record_id']}  started {doc['start_utc']}  (record format {doc['record_version']})",
+    run = doc["record_id"] or "no run id"  # format 1 has none
+    out.print(f"run      {run}  started {doc['start_utc']}  (record format {doc['record_version']})",
               markup=False)
     out.print(f"site     {ctx.get('site')} / {ctx.get('cell_id')} ({ctx.get('cell')})", markup=False)
     out.print(f"policy   {policy.get('source')}  sha256 {str(policy.get('sha256'))[:12]}", markup=False)

@@ -26,6 +26,10 @@ queued.
 Every push applies the policy's retention to the store (when it can be reached) and to ``lake``:
 the site's signatures older than ``retention_days`` and its aggregates of the months before are
 deleted, whatever is sent, even nothing.
+
+A site folder with no site key whose audit log says the store took batches of the site (sent before the key, or
+under a key since lost) is refused before anything is made: a new key gave the same findings new ids, stored a
+second time. ``fleet withdraw`` deletes what the site pooled and makes the key; then the site pushes again.
 """
 
 from __future__ import annotations
@@ -35,7 +39,7 @@ from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
 
-from cellguard.errors import OutputError
+from cellguard.errors import ConfigError, OutputError
 from cellguard.fleet.audit import append_audit, scan_audit
 from cellguard.fleet.export import Batch, export_batch, refusal
 from cellguard.fleet.lake import check_lake, forget, write_signatures
@@ -72,6 +76,7 @@ def push(signatures: list[Signature], policy: DataPolicy, site_dir: Path, store:
     if lake is not None:
         check_lake(lake)  # before anything is queued or sent
     made = None if (Path(site_dir) / KEY_FILE).exists() else str(Path(site_dir) / KEY_FILE)
+    check_key_history(site_dir, policy)
     key = site_key(site_dir)
     batch = export_batch(signatures, policy, today, key=key)
     outbox = Outbox(site_dir)
@@ -115,6 +120,23 @@ def push(signatures: list[Signature], policy: DataPolicy, site_dir: Path, store:
         append_audit(site_dir, waiting, "sent" if n else "duplicate", destination, policy_in_force=policy.version)
         sent, new, dup = sent + 1, new + n, dup + d
     return PushResult(batch, sent, new, dup, outbox.count(), unavailable, tuple(held), tuple(failed), made)
+
+
+def check_key_history(site_dir: Path, policy: DataPolicy) -> None:
+    """ConfigError if ``site_dir`` has no site key but its audit log says the store took batches of this site: sent
+    by a version before the key, or under a key since lost. A new key gives their findings new ids, so the push
+    stored each of them a second time (and ids made before the key keep withheld fields recoverable); withdrawing
+    the site first deletes them, and makes the key (``fleet withdraw``)."""
+    site_dir = Path(site_dir)
+    if (site_dir / KEY_FILE).exists() or not site_dir.is_dir():
+        return
+    taken = {e["batch_id"] for e in scan_audit(site_dir)[0] if e["status"] in ("sent", "duplicate")
+             and (e.get("tenant_id"), e.get("site_id")) == (policy.tenant, policy.site)}
+    if taken:
+        raise ConfigError(f"--site-dir {site_dir}: no site key ({KEY_FILE}), but {len(taken)} batch(es) of site "
+                          f"{policy.site} went to the store from here without it; a push would store their findings "
+                          f"again under new ids: run `cellguard fleet withdraw --policy POLICY --site-dir {site_dir}` "
+                          f"once (with --lake if they landed in one), then push again")
 
 
 def _unkeyed(batch: Batch, key: bytes) -> str | None:

@@ -5,12 +5,14 @@ passed its chunk CRC is copied with its original times and sequence numbers (so 
 visible), into chunks of the usual span and size; the Parquet index is rebuilt from the cycle
 markers and events that survived (a malformed one is left out of it, as the reader skips it). A
 metadata record (``RECOVERED``) says what the source was, so the copy never reads as a whole run (a
-record cut at its end has no gap to show: its copy read as complete). The target must be a new or
-empty folder; the copy is made in a hidden folder of its own inside it and moved into place once
-whole: a recovery that fails leaves nothing. The staging folder is locked (``folder_lock``) while its process
-lives, so a second recovery into the same folder sees a live one (refused) or the leftovers of a killed one
-(removed); the final move happens under the target's lock, after the target is checked again, and links each
-file into place (never a rename over one): two recoveries started together both ended 0, one copy replaced.
+record cut at its end has no gap to show: its copy read as complete). The copy is of its source's format, stated
+in its ``cellguard`` metadata, with that format's channels: a format-1 record (no metadata, log times on the run
+clock) stays format 1. The target must be a new or empty folder; the copy is made in a hidden folder of its own
+inside it and moved into place once whole: a recovery that fails leaves nothing. The staging folder is locked
+(``folder_lock``) while its process lives, so a second recovery into the same folder sees a live one (refused) or
+the leftovers of a killed one (removed); the final move happens under the target's lock, after the target is
+checked again, and links each file into place (never a rename over one): two recoveries started together both
+ended 0, one copy replaced.
 """
 
 from __future__ import annotations
@@ -28,7 +30,7 @@ from cellguard.output import refuse_filled_folder
 from cellguard.record import folder_lock
 from cellguard.record.index import IndexWriter, cycle_row, event_row
 from cellguard.record.reader import Health, open_record
-from cellguard.record.schemas import CHANNELS
+from cellguard.record.schemas import BY_TOPIC, CHANNELS, ChannelSpec
 from cellguard.record.writer import CHUNK_BYTES, INDEX_DIR, PROFILE, RECORD_FILE
 
 CHUNK_SPAN_NS = 100_000_000  # recovered chunks hold this much log time
@@ -136,7 +138,9 @@ def _move_into(staging: Path, target: Path) -> None:
 def _copy_messages(record, stream, recovered: dict[str, str]) -> None:
     writer = Writer(stream, chunk_size=1 << 30, compression=CompressionType.ZSTD, enable_crcs=True)
     writer.start(profile=PROFILE, library="cellguard record recover")
-    for name, values in record.layout.metadata.items():  # foxglove, cellguard, cellguard.context
+    # foxglove, cellguard, cellguard.context; format 1 has none, and its copy must state it is format 1 (a copy
+    # with no format and ROS 2 channels read as format 2 whose metadata was lost: its spans were years off)
+    for name, values in {"cellguard": {}, **record.layout.metadata}.items():
         if name in ("cellguard", "cellguard.context"):  # the format, epoch and start the contexts state
             values = {**values, **record.facts()}
         if name != RECOVERED:  # a copy of a copy names the file it was made from
@@ -146,12 +150,12 @@ def _copy_messages(record, stream, recovered: dict[str, str]) -> None:
         data = record.attachment(name)
         if data is not None:
             writer.add_attachment(record.start_wall_ns, record.start_wall_ns, name, "application/xml", data)
-    for c in CHANNELS:
+    channels = _channels(record.version)
+    for c in channels:
         schema = writer.register_schema(c.schema_name, c.schema_encoding, c.schema_text.encode())
         writer.register_channel(c.topic, c.message_encoding, schema)
-    ids = {c.topic: c.id for c in CHANNELS}
     chunk_end, size = None, 0
-    for m in record.messages(list(ids)):
+    for m in record.messages([c.topic for c in channels]):
         if chunk_end is not None and (m.log_time >= chunk_end or size >= CHUNK_BYTES):  # a backlog shares one time
             writer.flush()
             chunk_end, size = None, 0
@@ -160,6 +164,12 @@ def _copy_messages(record, stream, recovered: dict[str, str]) -> None:
         writer.add_message(m.channel_id, m.log_time, m.data, m.publish_time, m.sequence)
         size += len(m.data)
     writer.finish()
+
+
+def _channels(version: int) -> tuple[ChannelSpec, ...]:
+    """The channels of a record of format ``version``: the ROS 2 ones, from ``/joint_states`` on, came with format 2
+    (the reader takes them for its sign), so a format-1 copy has cellguard's own channels only, as its source."""
+    return CHANNELS if version >= 2 else tuple(c for c in CHANNELS if c.id < BY_TOPIC["/joint_states"].id)
 
 
 def _rebuild_index(record, folder: Path) -> None:
