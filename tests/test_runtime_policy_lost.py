@@ -79,9 +79,33 @@ def test_a_call_that_hangs_far_past_the_watchdog_stops_the_run(tmp_path, monkeyp
     monkeypatch.setattr(loop, "HUNG_WATCHDOGS", 2, raising=False)  # 0.6 s with the default 0.3 s watchdog
     summary, answered = _run(_scenario(), tmp_path / "out", at=4)
     kinds = [e["kind"] for e in summary["events"]]
-    assert summary["stopped"] == "policy lost: the policy's call has not answered in 0.6 s"
+    # 0.6 s, or two of the scripted program's 0.5 s chunks once one has come
+    assert summary["stopped"] == "policy lost: the policy's call has not answered in 1.0 s"
     assert kinds.count("policy_lost") == 1 and kinds.index("watchdog_stop") < kinds.index("policy_lost")
     assert len(summary["cycles"]) == 1 and not answered  # never waited for, not even at close
+
+
+class _Slow(_Stalls):
+    """The scripted arm policy, every call taking ``seconds`` (its warm-up too)."""
+
+    def __init__(self, seconds: float):
+        super().__init__(at=0)
+        self.seconds = seconds
+
+    def infer(self, observation):
+        threading.Event().wait(self.seconds)
+        return super().infer(observation)
+
+
+def test_a_slow_policy_that_answers_is_not_lost(tmp_path, monkeypatch):
+    """A live policy slower than the watchdog bound (here 0.15 s) but inside its chunks (0.25 s a call for 0.5 s
+    chunks, which start-up accepts) was stopped as lost at its first timed call."""
+    monkeypatch.setattr(loop, "HUNG_WATCHDOGS", 0.5, raising=False)
+    scenario = _scenario()
+    run = Run(scenario, realtime=True, policy_factory=partial(_Slow, 0.25))
+    summary = run_scenario(scenario, tmp_path / "out", run=run)
+    assert "stopped" not in summary and len(summary["cycles"]) == 2
+    assert "policy_lost" not in [e["kind"] for e in summary["events"]]
 
 
 def test_a_policy_hung_in_its_warm_up_refuses_the_start_with_the_refusal_in_the_record(tmp_path, monkeypatch):

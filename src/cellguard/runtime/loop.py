@@ -52,9 +52,12 @@ NAN_AFTER_S = 1.0  # a policy_nan fault corrupts the first chunk this long into 
 STOP_SETTLE_S = 0.3  # a category 2 stop holds the measured position this long before the run ends [s]
 STANDSTILL = 0.05  # an operator stop ends the run once every measured joint speed is below this [rad/s, m/s]
 # A call still running this many watchdog times after its request has hung: the policy is lost. The watchdog has
-# held the robot since one watchdog time and lets it go on at the next chunk, so a slow call is survived; ten
-# (3 s by default) is several chunk horizons (the start-up check wants a latency below one), its answer stale.
+# held the robot since one watchdog time and lets it go on at the next chunk, so a slow call is survived. A policy
+# slower than that may still be a live one with long chunks (the start-up check takes a latency up to a horizon,
+# and a horizon may be 1000 steps): the bound is also at least HUNG_CALLS times its warm-up call and, once chunks
+# come, HUNG_CALLS horizons of the last one (an answer later than that is stale whatever it says).
 HUNG_WATCHDOGS = 10
+HUNG_CALLS = 2
 # The policy's first call (wall time, off the clock) may take this long: it loads and compiles (a large model
 # on a cold cache takes minutes). Nothing moves while it runs and Ctrl-C or SIGTERM ends the wait at once, so the
 # bound is generous: it only keeps an unattended service from waiting forever on a policy hung in that call.
@@ -106,6 +109,7 @@ class Run:
         self.source = None
         self._started = False  # the first chunk has come and the start-up checks passed
         self._clock_started = False
+        self._hang_floor_ns = 0  # wall time: how long a call may run before the policy is lost (set at warm-up) [ns]
         self._armed_at = 0
         self._first_observation = None
         # the cycle in progress: its start [ns], chunk latencies [ns], wall time per call [ns], a pending NaN fault
@@ -268,6 +272,9 @@ class Run:
                     return True
         if self.recording is not None:
             self.recording.chunk(arrival.chunk, t_ns, arrival.latency_ns)
+        if self.clock.realtime:  # a policy with long chunks may take long: see HUNG_CALLS
+            chunk = arrival.chunk
+            self.inference.hang_ns = max(self._hang_floor_ns, HUNG_CALLS * chunk.horizon * chunk.dt_ns)
         self.events.extend(self.guard.push(arrival.prepared or arrival.chunk, t_ns))
         self._latencies.append(arrival.latency_ns)
         self._wall_ns.append(arrival.wall_ns)
@@ -295,8 +302,11 @@ class Run:
         worker, waited for at most ``WARM_UP_TIMEOUT_S`` and until the operator's signal (the first tick then
         stops the run); one not answered in time, or whose policy process ended, refuses the start."""
         inference, operator = self.inference, self.operator
-        inference.hang_ns = round(HUNG_WATCHDOGS * self.scenario.guard.watchdog_s * 1e9)
+        began = perf_ns()
         inference.warm_up(self.cell.observe(), WARM_UP_TIMEOUT_S, lambda: operator.count > 0)
+        self._hang_floor_ns = max(round(HUNG_WATCHDOGS * self.scenario.guard.watchdog_s * 1e9),
+                                  HUNG_CALLS * (perf_ns() - began))
+        inference.hang_ns = self._hang_floor_ns
         if operator.count:
             self._operator_stop(self.clock.now(), " during the policy's warm-up")
         elif inference.lost is not None:
