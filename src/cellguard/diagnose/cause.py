@@ -27,6 +27,8 @@ candidate finding, classified from the size and sign of its changes over the fau
   consequence, told in its evidence, not a second cause; unless its tracking error grew with no
   more current (a coupled joint's change reaches it as a load, which its servo answers with current),
   or, on an arm, more than its current under a friction lead (friction keeps the lead's motion).
+  Where the camera saw the part move and the grasp pose followed it, the arm moves to another pick
+  point: a joint change under ``PATH`` that began with it is its new path's, told in the geometry finding.
 - policy timing (latency, stale chunks) and policy output (rejected chunks) speak for
   themselves; joint changes, and the gait of legs, that start with a latency change are its
   consequence (a joint change that comes on some cycles only is dated by the first of them).
@@ -54,6 +56,8 @@ QUIET = 0.02  # current and tracking error both moved less: the friction torque 
 STEP_CLIP = 8.0  # [scales] residuals clipped this far when a step is fitted (one odd cycle does not move it)
 COUPLED = 0.2  # a joint's change under this share of an earlier joint's change follows from it
 CARRY_ONLY = 0.5  # current while carrying rose, while not less than this share of it: the load changed
+PATH = 0.02  # a joint's change under this, from a moved pick point on, is the new path's: a 4 mm fixture shift
+# (grasp pose 3 mm) moved the arm's elbow 1.1 to 1.3 %; with servo gain x0.85 or friction x1.08 there too, 3.5 to 3.9 %
 
 
 @dataclass(frozen=True)
@@ -187,10 +191,12 @@ def name_causes(baseline: Baseline, cycles: Sequence[Cycle], z: np.ndarray, alar
     geometry = groups.pop("geometry", [])
     grasp = _geometry(w, geometry, outcome) if geometry else None
     outcome = [] if geometry else outcome
-    findings.extend(_joints(w, joint_groups, grounded=_grounded(baseline)))
+    new_path = grasp.cycle if grasp is not None and _pick_moved(w, geometry, grasp.cycle) else None
+    joints, on_path = _joints(w, joint_groups, grounded=_grounded(baseline), new_path=new_path)
+    findings.extend(joints)
     findings.extend(_feet(w, groups.pop("gait", [])))
     if grasp is not None:
-        findings = _with_grasp(w, grasp, geometry, findings)
+        findings = _with_grasp(w, _with_path(grasp, on_path), geometry, findings)
     other = _distinct([a for k, v in groups.items() if not k.startswith("joint:") for a in v] + outcome)
     if other and not findings:
         findings.append(Finding("unknown", _onset(other), 0.3, tuple(
@@ -361,6 +367,21 @@ def _with_grasp(w: _Window, grasp: Finding, alarms: list[DriftAlarm], findings: 
     return [told(f, note, grasp.signals) if f is host else f for f in findings]
 
 
+def _pick_moved(w: _Window, alarms: Sequence[DriftAlarm], start: int) -> bool:
+    """Whether the arm goes to another pick point from ``start`` on: the camera saw the part move and the
+    grasp pose followed it by ``SIGNIFICANT_MM`` or more."""
+    tcp = w.xy("grasp_tcp", start)
+    return (any(a.signal.startswith(("part_seen_", "fixture_seen_")) for a in alarms) and tcp is not None
+            and float(np.linalg.norm(tcp)) >= SIGNIFICANT_MM)
+
+
+def _with_path(grasp: Finding, on_path: Sequence[tuple]) -> Finding:
+    """The geometry finding ``grasp`` with the joints whose change is its new path's (``_on_path``) told in it."""
+    words = tuple(f"also {r[2]} from cycle {r[0]}: {_torque(r)}, tracking error {_pct(r[4])}: the arm moves to "
+                  "another pick point, not a change in its drive" for r in on_path)
+    return told(grasp, words, [a.signal for r in on_path for a in r[6]]) if on_path else grasp
+
+
 def _grounded(baseline: Baseline) -> bool:
     """Whether the robot stands on the ground (it has gait features): then the ground takes a share of
     its drives' work that shifts with the gait, and the friction torque speaks only where current and
@@ -368,8 +389,10 @@ def _grounded(baseline: Baseline) -> bool:
     return any(kind_of(n).family == "gait" for n in baseline.names)
 
 
-def _joints(w: _Window, groups: dict[str, list[DriftAlarm]], grounded: bool = False) -> list[Finding]:
-    """One finding per cause and episode: joints of the same kind of change that start together.
+def _joints(w: _Window, groups: dict[str, list[DriftAlarm]], grounded: bool = False,
+            new_path: int | None = None) -> tuple[list[Finding], list[tuple]]:
+    """One finding per cause and episode: joints of the same kind of change that start together; and,
+    apart, the rated joints whose change is the arm's new path from cycle ``new_path`` on (``_on_path``).
 
     The torque a joint needs is read from its current and, where it alarmed (on a robot off the
     ground) or where current and tracking error stayed under ``QUIET``, from its friction torque."""
@@ -399,6 +422,7 @@ def _joints(w: _Window, groups: dict[str, list[DriftAlarm]], grounded: bool = Fa
         rated.append((start, cause, joint, cur, trk, share, alarms, ft, current))
     rated.sort()
     rated, follows = _coupled(rated, grounded)
+    rated, on_path = _on_path(rated, new_path)
     findings: list[Finding] = []
     while rated:
         start, cause = rated[0][0], rated[0][1]
@@ -431,7 +455,7 @@ def _joints(w: _Window, groups: dict[str, list[DriftAlarm]], grounded: bool = Fa
         findings.append(Finding(cause, start, conf, tuple(evidence),
                                 tuple(sorted({a.signal for r in same + [r for r, _ in coupled] for a in r[6]})),
                                 joints))
-    return findings
+    return findings, on_path
 
 
 def _torque(r: tuple) -> str:
@@ -452,20 +476,33 @@ def _coupled(rated: list[tuple], grounded: bool) -> tuple[list[tuple], dict[str,
     """Split the rated joints (``_joints``'s tuples, by onset) into those that carry a cause and, per
     leading joint, those whose change is under ``COUPLED`` of its change and began no earlier, unless
     it is its own drive's (``_own_drive``)."""
-    def size(r: tuple) -> float:
-        return max(abs(r[3]), abs(r[4]))
-
     kept: list[tuple] = []
     follows: dict[str, list[tuple]] = {}
-    for r in sorted(rated, key=size, reverse=True):
+    for r in sorted(rated, key=_size, reverse=True):
         leads = [m for m in kept if m[1] != "load_change" and m[0] <= r[0] + CONCURRENT]
-        lead = max(leads, key=size, default=None)
-        if (r[1] != "load_change" and lead is not None and size(r) < COUPLED * size(lead)
+        lead = max(leads, key=_size, default=None)
+        if (r[1] != "load_change" and lead is not None and _size(r) < COUPLED * _size(lead)
                 and not _own_drive(r, lead, grounded)):
             follows.setdefault(lead[2], []).append(r)
         else:
             kept.append(r)
     return sorted(kept), follows
+
+
+def _size(r: tuple) -> float:
+    """A rated joint's change: the larger of its torque's and its tracking error's."""
+    return max(abs(r[3]), abs(r[4]))
+
+
+def _on_path(rated: list[tuple], new_path: int | None) -> tuple[list[tuple], list[tuple]]:
+    """Split the rated joints into those that carry a cause and those whose change is the arm's new path:
+    under ``PATH``, begun within ``CONCURRENT`` of cycle ``new_path``, where the arm goes to another pick point
+    (its joints move through other angles, at other speeds, so their errors and currents shift a little; a
+    drive that changed with it changes more). A load change reads carrying against not carrying: its own."""
+    if new_path is None:
+        return rated, []
+    moved = [r for r in rated if r[1] != "load_change" and abs(r[0] - new_path) <= CONCURRENT and _size(r) < PATH]
+    return [r for r in rated if r not in moved], moved
 
 
 def _own_drive(r: tuple, lead: tuple, grounded: bool) -> bool:
