@@ -254,7 +254,8 @@ def _with_late_joints(w: _Window, late: Finding, groups: dict[str, list[DriftAla
         return late, groups
     signals = sorted({a.signal for j in with_it for a in groups[j]})
     note = (f"also joint {', '.join(with_it)} from cycle {late.cycle} ({', '.join(signals[:4])}"
-            f"{' ...' if len(signals) > 4 else ''}): the stale plan moves the joints, not their drives",)
+            f"{' ...' if len(signals) > 4 else ''}): they change with the stale plan (a drive that changed at the same "
+            "cycle would read the same: check these joints once the latency is fixed)",)
     return told(late, note, signals, before_last=True), {j: v for j, v in groups.items() if j not in with_it}
 
 
