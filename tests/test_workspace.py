@@ -78,11 +78,11 @@ def test_a_tool_found_outside_the_box_does_not_go_further_out():
 @given(st.lists(st.tuples(st.integers(20, 300), st.integers(2, 20), st.sampled_from([10, 20, 50]),
                           st.integers(0, 2**31 - 1)), min_size=1, max_size=12))
 # two streams that leave the box by a few micrometres without the margin between the stop's samples (found
-# by search; random draws alone found them in one mutation run of two)
-@example([(62, 2, 20, 611661699), (266, 10, 20, 1205401500), (39, 13, 20, 2123793207), (151, 8, 20, 1785406306),
-          (136, 20, 50, 175405568), (169, 12, 50, 1746602033)])
-@example([(276, 6, 50, 967859952), (52, 2, 20, 1945328539), (191, 2, 20, 684563394), (103, 19, 50, 1112430964),
-          (194, 12, 10, 1394850511), (261, 15, 20, 692812488), (193, 4, 50, 1331032894), (154, 10, 20, 1312445988)])
+# by search against the guard as it is since the tracker's landing and the executor's entry from rest changed
+# the paths: the earlier pair no longer reached that case; random draws alone rarely do)
+@example([(151, 11, 50, 808092298), (158, 13, 50, 1070433802), (71, 2, 20, 1789057393)])
+@example([(34, 3, 50, 667257572), (248, 5, 50, 374056897), (206, 10, 10, 720738903), (144, 6, 20, 261637266),
+          (197, 20, 20, 968889979), (209, 19, 10, 334193851), (119, 20, 20, 141905744)])
 def test_random_chunks_never_take_the_tool_out_of_the_box(stream):
     """Chunks between random poses: wherever the reference goes, no setpoint's tool point leaves the box."""
     q0 = CELL.read().q
