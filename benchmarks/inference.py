@@ -34,6 +34,7 @@ from cellguard.policy.scripted_arm import ScriptedArmPolicy
 from cellguard.robot.arm_cell import ArmPickPlace
 
 THRESHOLD = 0.5
+WARM_UP_S = 60.0  # the policy's first call, off the clock, may take this long
 
 
 class SlowPolicy:
@@ -80,7 +81,8 @@ def run(mode: str, seconds: float, latency_s: float, horizon: int, busy: bool = 
     if mode.startswith("async"):
         worker = AsyncInference(policy, THRESHOLD, worker="process" if mode == "async-process" else "thread",
                                 factory=factory)
-        worker.warm_up(cell.observe())
+        if not worker.warm_up(cell.observe(), WARM_UP_S):
+            raise SystemExit(f"{mode}: the policy's first call has not answered in {WARM_UP_S:g} s")
     dt, n_ticks = cell.dt_ns, round(seconds * 1e9 / cell.dt_ns)
     step_times = np.zeros(0, dtype=np.int64)
     latencies, depths, stalls, late, dropped, sent = [], [], 0, 0, 0, cell.read().q
