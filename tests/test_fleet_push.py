@@ -234,7 +234,7 @@ def test_a_lake_that_cannot_take_a_batch_leaves_the_store_as_it_was(fleet, tmp_p
     first = push(sigs("ta", "s8-lake"), policy, tmp_path / "site", TenantStore(dsns["ta"]), lake)
     assert (first.sent_batches, first.queued, rows_of_site(store, "s8-lake")) == (0, 1, 0)
     (line,) = first.failed
-    assert "cannot write" in line and "it stays queued" in line
+    assert f"{blocked}: cannot create the folder" in line and "it stays queued" in line
     blocked.unlink()
     again = push([], policy, tmp_path / "site", TenantStore(dsns["ta"]), lake)
     assert (again.sent_batches, again.queued, rows_of_site(store, "s8-lake")) == (1, 0, 2)

@@ -50,7 +50,7 @@ def refuse_filled_folder(path: Path, what: str) -> None:
 
 
 @contextlib.contextmanager
-def atomic_file(path: Path, what: str, replace: bool = True) -> Iterator[BinaryIO]:
+def atomic_file(path: Path, what: str, replace: bool = True, mode: int = 0o666) -> Iterator[BinaryIO]:
     """A binary file that becomes ``path`` only when the block ends without an error.
 
     The data goes to a temporary file in the same folder (same filesystem, so the rename is
@@ -61,7 +61,8 @@ def atomic_file(path: Path, what: str, replace: bool = True) -> Iterator[BinaryI
     written beside and replaced, so a link is never turned into a file (``-o`` naming a link to
     /proc/self/fd/1 with stdout redirected to a file replaced the link and left the file empty).
     A folder, device, FIFO or socket there is refused before anything is written, and the target is
-    looked up again just before the rename.
+    looked up again just before the rename. ``mode`` is the new file's permissions before the umask
+    (0o640: a site's own data, not for every local user).
     """
     path = Path(path)
     _final_target(path, what)  # refused before any folder is made
@@ -69,7 +70,7 @@ def atomic_file(path: Path, what: str, replace: bool = True) -> Iterator[BinaryI
     target = _final_target(path, what)
     tmp = target.with_name(_temporary_name(target.name))
     try:
-        with open(tmp, "wb") as f:
+        with open(tmp, "wb", opener=lambda name, flags: os.open(name, flags, mode)) as f:
             yield f
             f.flush()
             os.fsync(f.fileno())

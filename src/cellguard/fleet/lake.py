@@ -33,6 +33,7 @@ import pyarrow.parquet as pq
 
 from cellguard.errors import ConfigError, OutputError
 from cellguard.fleet.signature import ID_PATTERN
+from cellguard.output import atomic_file
 
 SIGNATURES = pa.schema([
     ("signature_id", pa.string()), ("tenant_id", pa.string()), ("site_id", pa.string()),
@@ -231,10 +232,5 @@ def _value(row: Mapping, name: str):
 
 
 def _atomic(table: pa.Table, path: Path) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        pq.write_table(table, tmp, compression="zstd")
-        os.replace(tmp, path)
-    except OSError as exc:
-        raise OutputError(f"lake file {path}: cannot write ({exc.strerror or exc.__class__.__name__})") from None
+    with atomic_file(path, "lake file") as f:
+        pq.write_table(table, f, compression="zstd")

@@ -9,12 +9,11 @@ only named.
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 
-from cellguard.errors import OutputError
 from cellguard.fleet.export import Batch
 from cellguard.fleet.signature import SignatureError
+from cellguard.output import atomic_file
 from cellguard.yaml_file import read_bounded
 
 OUTBOX = "outbox"
@@ -28,16 +27,8 @@ class Outbox:
 
     def put(self, batch: Batch) -> Path:
         path = self.folder / f"{batch.batch_id}.json"
-        tmp = path.with_suffix(".json.tmp")
-        try:
-            self.folder.mkdir(parents=True, exist_ok=True)
-            with os.fdopen(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, FILE_MODE), "w") as f:
-                json.dump(batch.to_dict(), f)
-                f.flush()
-                os.fsync(f.fileno())
-            os.replace(tmp, path)
-        except OSError as exc:
-            raise OutputError(f"outbox {path}: cannot write ({exc.strerror or exc.__class__.__name__})") from None
+        with atomic_file(path, "outbox", mode=FILE_MODE) as f:
+            f.write(json.dumps(batch.to_dict()).encode("utf-8"))
         return path
 
     def pending(self) -> list[tuple[Path, Batch]]:

@@ -14,7 +14,6 @@ Written to ``shadow.json`` beside the record.
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 
 import numpy as np
@@ -25,6 +24,7 @@ from cellguard.control.config import GuardConfig
 from cellguard.control.settings import build_guard
 from cellguard.diagnose.diagnosis import ROUTINE_EVENTS
 from cellguard.errors import ConfigError
+from cellguard.output import write_output
 from cellguard.policy.chunk import ActionChunk
 from cellguard.policy.registry import make_policy
 from cellguard.release.evidence import SHADOW_FILE
@@ -139,10 +139,7 @@ class ShadowRun(Run):
 
     def write_shadow(self, folder: Path) -> Path:
         """``shadow.json`` beside the record, written to a temporary name and renamed (atomic)."""
-        path = Path(folder) / SHADOW_FILE
-        tmp = path.with_suffix(".json.tmp")
         rows = [{**r, "distance_rad": r["distance_rad"] if r["distance_rad"] is None or np.isfinite(r["distance_rad"])
                  else 1e9} for r in self.policy.rows]
-        tmp.write_text(json.dumps({"candidate": self.policy.candidate.source, "chunks": rows}))
-        os.replace(tmp, path)
-        return path
+        return write_output(Path(folder) / SHADOW_FILE, json.dumps({"candidate": self.policy.candidate.source,
+                                                                     "chunks": rows}), "shadow record")
