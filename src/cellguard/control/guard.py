@@ -56,6 +56,12 @@ class Guard:
         """False after a category 0 or 1 stop removed drive power."""
         return self.envelope.power
 
+    @property
+    def stop(self) -> tuple[int, str] | None:
+        """The stop in force, (category, reason), or None."""
+        envelope = self.envelope
+        return None if envelope.stop_category is None else (envelope.stop_category, envelope.stop_reason)
+
     def reset(self, q: np.ndarray) -> None:
         """Operator reset after a stop: power on, standstill at the measured ``q``."""
         self.envelope.reset(q)

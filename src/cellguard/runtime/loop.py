@@ -169,7 +169,7 @@ class Run:
         t = now()
         with clock.ticking():  # wall time: the servo thread is a real-time thread while the ticks run
             while True:
-                driving = recovery is not None and recovery.drives(t, state, self.guard.reference)
+                driving = recovery is not None and recovery.drives(t, state, self.guard)
                 if driving:  # a recovery behaviour feeds the guard in place of the policy
                     chunk = recovery.chunk(t)
                     if chunk is not None:

@@ -29,6 +29,7 @@ import numpy as np
 
 from cellguard.control.checks.safety_input import ASKED_BY_LOOP, RECOVERY_HOLD
 from cellguard.control.events import Event, EventKind
+from cellguard.control.guard import Guard
 from cellguard.policy.chunk import ActionChunk
 from cellguard.robot.recovery import Plan, RecoveryPolicy
 from cellguard.robot.recovery.base import go_home
@@ -73,8 +74,7 @@ class RecoveryRunner:
         self._log: list[dict] = []
         self._origin: np.ndarray | None = None  # the reference when the cycle's first check failed
         self._now = 0
-        self._seen = len(self.events)  # the events read so far (a stop of the cycle before is not this one's)
-        self._held = False  # a category 2 stop holds the arm (see _follow_stops)
+        self._held = False  # a category 2 stop holds the arm (see _follow)
         self._powered = True  # False after a category 0 or 1 stop: nothing moves until a reset
         self.held_at_end = False  # the cycle ended (an operator stop) while a hand-over hold was in force
 
@@ -91,10 +91,12 @@ class RecoveryRunner:
         a = self._active
         return 2 if a is not None and a.plan.hold_s and self._now - a.t0 < a.plan.hold_s * 1e9 else None
 
-    def drives(self, t: int, state, reference: np.ndarray) -> bool:
-        """Once per tick: True while a recovery drives the cell (from a failed check to the cycle's end)."""
+    def drives(self, t: int, state, guard: Guard) -> bool:
+        """Once per tick, before the guard's tick: True while a recovery drives the cell (from a failed check to
+        the cycle's end). ``guard``: its reference and the stop in force."""
+        reference = guard.reference
         a = self._active
-        if self._follow_stops() and a is not None:
+        if self._follow(guard.stop) and a is not None:
             self._end(a, t, "cut_off")  # a stop removed the power: the plan did not run out
             self._tail = (a.plan, a.t0)
             a = None
@@ -163,22 +165,16 @@ class RecoveryRunner:
             out["recovery_log"] = log
         return out
 
-    def _follow_stops(self) -> bool:
-        """Read the events since the last tick; True when a category 0 or 1 stop removed the power in them.
-        A category 2 stop other than the runner's own hand-over hold holds the arm (and the plan) until its
-        ``resume``."""
-        log, seen = self.events, self._seen
-        self._seen = len(log)
-        cut = False
-        for i in range(seen, self._seen):
-            e = log[i]
-            if e.kind == EventKind.RESUME:
-                self._held = False
-            elif e.category is not None and e.category < 2:
-                cut, self._powered = True, False
-            elif e.category == 2 and e.reason != ASKED_BY_LOOP + RECOVERY_HOLD:
-                self._held = True
-        return cut
+    def _follow(self, stop: tuple[int, str] | None) -> bool:
+        """Follow the guard's stop in force; True on the tick a category 0 or 1 stop is first seen (it removes the
+        power: nothing starts again this cycle). A category 2 stop other than the runner's own hand-over hold
+        holds the arm (and the plan) while it lasts."""
+        category, reason = stop if stop is not None else (None, None)
+        self._held = category == 2 and reason != ASKED_BY_LOOP + RECOVERY_HOLD
+        if category is not None and category < 2 and self._powered:
+            self._powered = False
+            return True
+        return False
 
     # -- attempts -----------------------------------------------------------------------------------
     def _begin(self, behaviour, trigger: str, attempt: int, t: int, reference: np.ndarray) -> None:
