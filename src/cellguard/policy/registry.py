@@ -1,7 +1,8 @@
 """Policy sources by scheme: ``scripted``, ``replay:FILE``, and the adapters' schemes.
 
 ``make_policy(spec, cell)`` parses the scenario's ``policy:`` string; an unknown scheme lists
-the known ones.
+the known ones. ``scripted`` is the cell's taught program: a plugin cell's comes from the entry-point
+group ``cellguard.scripted_policies`` of its package.
 """
 
 from __future__ import annotations
@@ -10,15 +11,16 @@ from collections.abc import Callable
 
 from cellguard.errors import ConfigError, UnknownNameError
 from cellguard.policy.protocol import Policy
+from cellguard.robot.registry import load_plugin, plugins
 
 
 def _scripted(arg: str, cell) -> Policy:
     if arg:
         raise ConfigError(f"policy: 'scripted' takes no argument, got 'scripted:{arg}'")
-    try:
-        factory = SCRIPTED[cell.name]
-    except KeyError:
-        raise UnknownNameError("scripted policy for cell", cell.name, list(SCRIPTED)) from None
+    factory = SCRIPTED.get(cell.name) or load_plugin(SCRIPTED_PLUGINS, cell.name, "scripted policy for cell")
+    if factory is None:
+        raise UnknownNameError("scripted policy for cell", cell.name,
+                               [*SCRIPTED, *(n for n in plugins(SCRIPTED_PLUGINS) if n not in SCRIPTED)])
     return factory(cell)
 
 
@@ -43,6 +45,8 @@ def _scripted_quadruped(cell) -> Policy:
 SCRIPTED: dict[str, Callable[[object], Policy]] = {"arm-pick-place": _scripted_arm,
                                                    "so101-pick-place": _scripted_so101,
                                                    "quadruped-turns": _scripted_quadruped}
+# a plugin cell's taught program: entry point name = the cell's name, value = a callable cell -> Policy
+SCRIPTED_PLUGINS = "cellguard.scripted_policies"
 def _onnx(arg: str, cell) -> Policy:
     from cellguard.policy.onnx import make_onnx_policy
 

@@ -1,20 +1,54 @@
-"""Registered simulated cells: a plain dict from name to class; an unknown name lists the rest."""
+"""Registered simulated cells: the built-in ones, and those a plugin registers; an unknown name lists the rest.
+
+A new cell is one file in its own package, registered in that package's metadata under the entry-point
+group ``cellguard.cells`` (the name is the cell's ``name``, the value its class), as LeRobot finds robot
+plugins: ``make_cell`` and every command that opens a record of the cell later (``identify``, ``replay``)
+find it in any process, with no edit to cellguard. A plugin is imported only when its cell is asked for.
+"""
 
 from __future__ import annotations
 
-from cellguard.errors import UnknownNameError
+from importlib.metadata import EntryPoint, entry_points
+
+from cellguard.errors import ConfigError, UnknownNameError
 from cellguard.robot.arm_cell import ArmPickPlace
 from cellguard.robot.quadruped_cell import QuadrupedTurns
 from cellguard.robot.so101_cell import SO101PickPlace
 
 CELLS: dict[str, type] = {ArmPickPlace.name: ArmPickPlace, QuadrupedTurns.name: QuadrupedTurns,
                           SO101PickPlace.name: SO101PickPlace}
+CELL_PLUGINS = "cellguard.cells"  # the entry-point group of cells other packages add
+
+
+def cell_names() -> list[str]:
+    """Every cell ``make_cell`` can build: the built-in ones, then the plugins'."""
+    return [*CELLS, *(name for name in plugins(CELL_PLUGINS) if name not in CELLS)]
 
 
 def make_cell(name: str, seed: int = 0):
     """Build the simulated cell ``name`` with its random generator seeded by ``seed``."""
-    try:
-        cls = CELLS[name]
-    except KeyError:
-        raise UnknownNameError("cell", name, list(CELLS)) from None
+    cls = CELLS.get(name) or load_plugin(CELL_PLUGINS, name, "cell")
+    if cls is None:
+        raise UnknownNameError("cell", name, cell_names())
+    if getattr(cls, "name", None) != name:
+        raise ConfigError(f"cell {name!r}: its plugin's class {cls.__module__}.{cls.__qualname__} is named "
+                          f"{getattr(cls, 'name', None)!r}; the entry point's name must be the cell's name")
     return cls(seed=seed)
+
+
+def plugins(group: str) -> dict[str, EntryPoint]:
+    """The entry points of ``group`` in the installed distributions, by name (not loaded)."""
+    return {ep.name: ep for ep in entry_points(group=group)}
+
+
+def load_plugin(group: str, name: str, what: str):
+    """What the entry point ``name`` of ``group`` names, or None if no package registers it; ConfigError naming
+    the plugin when it cannot be imported (one line, not a plugin's traceback)."""
+    ep = plugins(group).get(name)
+    if ep is None:
+        return None
+    try:
+        return ep.load()
+    except Exception as exc:  # any error of a plugin's import is the plugin's, named here
+        raise ConfigError(f"{what} {name!r}: its plugin {ep.value} (entry point group {group}) cannot be loaded: "
+                          f"{type(exc).__name__}: {exc}") from None

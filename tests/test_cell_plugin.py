@@ -1,0 +1,109 @@
+"""A new cell is one file in its own package, found through the entry-point group ``cellguard.cells``.
+
+A probe's copy of the arm with a new name could not be run: ``make_cell`` knew only a dict inside cellguard,
+``scripted`` only another, and a record of the new cell could not be re-fitted or replayed in a later process.
+The plugin here is a real distribution on ``sys.path`` (a ``.dist-info`` with ``entry_points.txt``), found by
+``importlib.metadata`` as an installed package is.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from cellguard.errors import ConfigError, UnknownNameError
+from cellguard.policy.registry import make_policy
+from cellguard.robot.registry import cell_names, make_cell
+
+NAME = "armcopy-pick-place"
+PLUGIN = f'''
+from cellguard.robot.arm_cell import ArmPickPlace
+
+
+class ArmCopy(ArmPickPlace):
+    """The arm cell under another name, as a site's own robot would be."""
+    name = "{NAME}"
+
+
+def scripted(cell):
+    from cellguard.policy.scripted_arm import ScriptedArmPolicy
+    return ScriptedArmPolicy(calibration=cell.context())
+'''
+
+
+def install(folder: Path, entry_points: str, module: str = PLUGIN) -> Path:
+    (folder / "armcopy.py").write_text(module)
+    info = folder / "armcopy-0.1.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: armcopy\nVersion: 0.1\n")
+    (info / "entry_points.txt").write_text(entry_points)
+    return folder
+
+
+ENTRY_POINTS = f"[cellguard.cells]\n{NAME} = armcopy:ArmCopy\n\n[cellguard.scripted_policies]\n{NAME} = armcopy:scripted\n"
+
+
+@pytest.fixture
+def plugin(tmp_path, monkeypatch):
+    (tmp_path / "site").mkdir()
+    folder = install(tmp_path / "site", ENTRY_POINTS)
+    monkeypatch.syspath_prepend(str(folder))
+    yield folder
+    sys.modules.pop("armcopy", None)
+
+
+def test_a_plugin_cell_and_its_taught_program_are_found_by_name(plugin):
+    cell = make_cell(NAME, seed=3)
+    assert type(cell).__name__ == "ArmCopy" and cell.name == NAME and NAME in cell_names()
+    policy = make_policy("scripted", cell)
+    assert type(policy).__name__ == "ScriptedArmPolicy"
+
+
+def test_an_unknown_cell_lists_the_plugins_too(plugin):
+    with pytest.raises(UnknownNameError, match=NAME):
+        make_cell("no-such-cell")
+
+
+def test_a_plugin_that_cannot_be_imported_is_one_line_naming_it(tmp_path, monkeypatch):
+    folder = tmp_path / "site"
+    folder.mkdir()
+    install(folder, ENTRY_POINTS, module="raise RuntimeError('the vendor SDK is missing')\n")
+    monkeypatch.syspath_prepend(str(folder))
+    try:
+        with pytest.raises(ConfigError, match=r"armcopy:ArmCopy.*RuntimeError: the vendor SDK is missing"):
+            make_cell(NAME)
+    finally:
+        sys.modules.pop("armcopy", None)
+
+
+def test_a_plugin_whose_class_has_another_name_is_refused(tmp_path, monkeypatch):
+    folder = tmp_path / "site"
+    folder.mkdir()
+    install(folder, ENTRY_POINTS.replace(f"{NAME} = armcopy:ArmCopy", "other-name = armcopy:ArmCopy"))
+    monkeypatch.syspath_prepend(str(folder))
+    try:
+        with pytest.raises(ConfigError, match="must be the cell's name"):
+            make_cell("other-name")
+    finally:
+        sys.modules.pop("armcopy", None)
+
+
+def test_a_plugin_cell_runs_and_its_record_is_diagnosed_in_later_processes(plugin, tmp_path):
+    scenario = tmp_path / "s.yaml"
+    scenario.write_text(f"cell: {NAME}\nseed: 1\npolicy: scripted\nacceptance_cycles: 5\nproduction_cycles: 1\n")
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(plugin), os.environ.get("PYTHONPATH", "")])}
+    cli = [sys.executable, "-c", "from cellguard.cli import app; app()"]
+    ran = subprocess.run([*cli, "run", str(scenario), "--out", str(tmp_path / "out")], env=env,
+                         capture_output=True, text=True, timeout=600)
+    assert ran.returncode == 0, ran.stderr
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary["scenario"]["cell"] == NAME and len(summary["cycles"]) == 6
+    diagnosed = subprocess.run([*cli, "diagnose", str(tmp_path / "out"), "--json"], env=env, capture_output=True,
+                               text=True, timeout=600)
+    assert diagnosed.returncode == 0, diagnosed.stderr
+    assert json.loads(diagnosed.stdout)["findings"] == []
