@@ -4,12 +4,16 @@ An adapter (ONNX, openpi, LeRobot) is a small ``Backend``: it turns ``PolicyInpu
 state in the policy's own order and units, time since reset, camera measurements, the task)
 into raw actions (H, A). ``MappedPolicy`` wraps it into the ``Policy`` protocol: it builds the
 inputs through the ``ActionMap``, maps the raw actions onto this robot's joints, stamps the
-chunk with the observation time and keeps the latency of every call.
+chunk with the observation time and keeps the latency of every call. Its ``map_document`` is the
+map in force, resolved, for the record's context: the model's hash alone reads the same under a
+map in rad and one in deg.
 """
 
 from __future__ import annotations
 
 import copy
+import hashlib
+import json
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -93,12 +97,37 @@ def resolve_map(backend: Backend, cell, map_path: str | None, source: str) -> Ac
     return amap
 
 
+def map_document(amap: ActionMap, joint_names: tuple[str, ...]) -> dict:
+    """``amap`` as resolved, in the policy's action order, and its sha256, to record with the run: two maps that
+    drive the robot differently (a unit, a sign, an offset) differ here, two spellings of one do not. A joint
+    [rad or m] = offset + sign * si_per_unit * action; an ee target [m or rad] = sign * si_per_unit * action.
+    ``resolved_sha256`` hashes this document, not the map's file."""
+    actions: list[dict] = [{}] * amap.action_dim
+    for a in amap.joint_actions:
+        actions[a.column] = {"name": a.name, "joint": joint_names[a.joint], "sign": 1 if a.factor > 0 else -1,
+                             "si_per_unit": abs(a.factor), "offset": a.offset}
+    for e in amap.ee_actions:
+        actions[e.column] = {"name": e.name, "ee": e.axis, "sign": 1 if e.factor > 0 else -1,
+                             "si_per_unit": abs(e.factor)}
+    ik = amap.ik
+    doc = {
+        "robot": amap.robot,
+        "actions": actions,
+        "hold": {joint_names[j]: value for j, value in sorted(amap.held)},
+        "ik": None if ik is None else {"site": ik.site, "joints": list(ik.joints), "mode": ik.mode,
+                                       "orientation_cost": ik.orientation_cost, "axes": list(ik.axes)},
+    }
+    text = json.dumps(doc, sort_keys=True, separators=(",", ":"), ensure_ascii=False)
+    return {**doc, "resolved_sha256": hashlib.sha256(text.encode()).hexdigest()}
+
+
 class MappedPolicy:
     """A backend behind the ``Policy`` protocol, mapped onto ``cell`` by ``action_map``."""
 
     def __init__(self, backend: Backend, action_map: ActionMap, cell, source: str, dt_s: float, task: str = ""):
         self.backend, self.action_map, self.source, self.task = backend, action_map, source, task
         self.dt_ns = round(dt_s * 1e9)
+        self.map_document = map_document(action_map, cell.profile.joint_names)
         self.solver = None
         if action_map.ik is not None:
             from cellguard.policy.ik import IkSolver

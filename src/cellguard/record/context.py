@@ -1,10 +1,15 @@
 """The context manifest: what a technician needs months later to read a record correctly.
 
-Policy source and content hash, embodiment profile hash and calibration dates (and, for a profile
-written by ``identify --write``, its calibration: version id and calibrated MJCF), envelope
-configuration, fixture datum, site, cell id, scenario and software versions. Short version
-stamps (``policy``, ``calibration``, ``datum``, ``context``) are hashes of the relevant parts;
-every index row carries them so that a query can separate cycles run under different versions.
+Policy source and content hash, and for a learned policy the action map in force (resolved: joint,
+sign, SI per unit, offset per action, with its own sha256; the model's hash alone reads the same
+under a map in rad and one in deg); the embodiment profile's hash and calibration dates (and, for
+a profile written by ``identify --write``, its calibration: version id and calibrated MJCF) and
+its whole document as ``embodiment show --json`` prints it (the limits the guard enforced, what
+was measured; bounded as the profile file is); envelope configuration, fixture datum, site, cell
+id, scenario and software versions. Short version stamps (``policy``, ``calibration``, ``datum``,
+``context``) are hashes of the relevant parts; every index row carries them so that a query can
+separate cycles run under different versions. A reader recomputes a record's stamps from its own
+context, so an older record (no map, no profile document) keeps the stamps it was written with.
 """
 
 from __future__ import annotations
@@ -22,14 +27,18 @@ def build_context(*, scenario, cell, policy, envelope, software: dict | None = N
     profile = cell.profile
     # only a calibrated profile adds the key, so an uncalibrated run's context (and its stamps) reads as before
     calibration = {"calibration": profile.calibration.to_dict()} if profile.calibration is not None else {}
+    # a learned policy's action map (MappedPolicy.map_document) is part of the policy: its stamp changes with it
+    action_map = getattr(policy, "map_document", None)
     return {
         "site": scenario.site,
         "cell_id": scenario.cell_id,
         "cell": cell.name,
-        "policy": {"source": policy.source, "sha256": policy.content_hash()},
+        "policy": {"source": policy.source, "sha256": policy.content_hash(),
+                   **({"action_map": action_map} if action_map is not None else {})},
         "embodiment": {"robot": profile.robot, "version": profile.version, "sha256": profile.sha256,
                        "joints": list(profile.joint_names),
-                       "calibration_dates": sorted({m.measured for m in profile.measured}), **calibration},
+                       "calibration_dates": sorted({m.measured for m in profile.measured}), **calibration,
+                       "profile": profile.to_dict()},
         **cell.context(),
         "envelope": envelope.to_dict(),
         "servo_period_ns": cell.dt_ns,
@@ -49,8 +58,12 @@ def software_versions() -> dict:
 
 
 def versions(context: dict) -> dict[str, str]:
-    """Short stamps of the parts that change how a cycle reads: policy, calibration, datum, whole."""
+    """Short stamps of the parts that change how a cycle reads: policy (its action map included), calibration
+    (the embodiment), datum, whole. The profile's document is left out of the calibration stamp: its sha256 is
+    in it, and the same profile keeps the stamp records made before the document was recorded have."""
     calibration = {k: context.get(k) for k in ("embodiment", "camera_calibration", "tool_offset")}
+    if isinstance(calibration["embodiment"], dict):
+        calibration["embodiment"] = {k: v for k, v in calibration["embodiment"].items() if k != "profile"}
     return {
         "policy_version": _digest(context.get("policy")),
         "calibration_version": _digest(calibration),

@@ -5,8 +5,9 @@ Contract (fields may be added, not renamed)::
     from cellguard.record.reader import open_record
 
     rec = open_record("out/")        # a run folder holding record.mcap, or the .mcap file itself
-    rec.context                      # dict: context at the start (policy source and sha256, embodiment
-                                     #   profile sha256 and calibration dates, envelope, fixture_datum,
+    rec.context                      # dict: context at the start (policy source and sha256, its action_map
+                                     #   if mapped; embodiment profile sha256, calibration dates and
+                                     #   document; envelope, fixture_datum,
                                      #   camera_calibration, site, cell_id, scenario, software versions)
     rec.contexts                     # [ContextChange(t_ns, version, changed, versions, context)], one per change
     rec.epoch_wall_ns                # wall clock at t_ns == 0 [ns since 1970] (display only; order by t_ns)

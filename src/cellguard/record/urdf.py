@@ -2,11 +2,12 @@
 
 Foxglove's 3D panel draws a URDF (from a topic or a file) and places each link by the ``/tf``
 transforms named after the links. MuJoCo's compiled model already holds every body's pose in its
-parent (``body_pos``, ``body_quat``), each joint's axis and range and each geom's shape, so the URDF
-is read off it: one link per body, one joint per body (revolute or prismatic for a recorded joint,
-fixed otherwise, floating for a free base), boxes, spheres and cylinders as visuals (a capsule is
-drawn as its cylinder; meshes and planes are left out). ``JointFrames`` turns recorded joint
-positions into the parent-to-child transforms of the moving joints.
+parent (``body_pos``, ``body_quat``), each joint's axis and each geom's shape, so the URDF is read
+off it (a recorded joint's limits are the profile's, those the guard enforced): one link per body,
+one joint per body (revolute or prismatic for a recorded joint, fixed otherwise, floating for a
+free base), boxes, spheres and cylinders as visuals (a capsule is drawn as its cylinder; meshes
+and planes are left out). ``JointFrames`` turns recorded joint positions into the parent-to-child
+transforms of the moving joints.
 
 Limits of the approximation: a joint whose anchor is off its body's origin (``jnt_pos``) is drawn
 about the body origin, and joints not in the record (a mimic finger, a free part) stay at their
@@ -81,8 +82,9 @@ class JointFrames:
 def describe(model: mujoco.MjModel, profile: Profile) -> tuple[str, JointFrames]:
     """The URDF text of ``model`` and the frames of the ``profile``'s joints (the recorded ones, in its order).
 
-    A moving joint's URDF limit states the profile's effort [N·m or N] and velocity [rad/s or m/s]: a URDF
-    reader (MoveIt, a planner) takes 0 there as a joint that cannot move or push.
+    A moving joint's URDF limit states the profile's position range, effort [N·m or N] and velocity [rad/s or
+    m/s], the limits the guard enforced: the model's range may be wider (a viewer showed limits not in force),
+    and a URDF reader (MoveIt, a planner) takes 0 effort or velocity as a joint that cannot move or push.
     """
     column = {name: i for i, name in enumerate(profile.joint_names)}
     limits = {j.name: j for j in profile.joints}
@@ -104,7 +106,7 @@ def describe(model: mujoco.MjModel, profile: Profile) -> tuple[str, JointFrames]
             prismatic = jtype == _SLIDE
             kind = "prismatic" if prismatic else "revolute"
             axis = model.jnt_axis[joint] / np.linalg.norm(model.jnt_axis[joint])
-            lo, hi = model.jnt_range[joint] if model.jnt_limited[joint] else (-math.pi, math.pi)
+            lo, hi = limits[jname].position
             extra = (f'<axis xyz="{_v(axis)}"/><limit lower="{lo:.6g}" upper="{hi:.6g}" '
                      f'effort="{limits[jname].effort:.6g}" velocity="{limits[jname].velocity:.6g}"/>')
             moving.append((column[jname], MovingJoint(jname, parent, link, xyz, quat, axis, bool(prismatic))))

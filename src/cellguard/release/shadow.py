@@ -39,6 +39,7 @@ class ShadowedPolicy:
     def __init__(self, incumbent, candidate, guard: Guard, dt_ns: int, cycle, watchdog_s: float):
         self.incumbent, self.candidate, self.guard, self.dt_ns, self.cycle = incumbent, candidate, guard, dt_ns, cycle
         self.source = incumbent.source
+        self.map_document = getattr(incumbent, "map_document", None)  # the record's map is the incumbent's
         self.rows: list[dict] = []
         self._open: dict | None = None  # the candidate chunk now in the shadow guard
         self._t_ns: int | None = None  # the shadow guard's next tick

@@ -50,6 +50,7 @@ class _Recorder:
     def __init__(self, policy, horizon: int, period_ns: int):
         self.policy, self.horizon, self.period_ns = policy, horizon, period_ns
         self.source = policy.source
+        self.map_document = getattr(policy, "map_document", None)  # the record states the expert's map
         self.x: list[np.ndarray] = []
         self.y: list[np.ndarray] = []
         self._t0: int | None = None
