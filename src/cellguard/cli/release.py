@@ -59,7 +59,8 @@ def _plan(site: Path, plan: Path | None):
 def create(
     policy: str = typer.Option(..., "--policy", help="Policy spec: scripted, onnx:FILE, lerobot:DIR, openpi:ws://..."),
     action_map: Path = typer.Option(None, "--map", help="Action map YAML (the policy's actions onto this robot)."),
-    profile: str = typer.Option(..., "--profile", help="Embodiment profile YAML, or a cell name for its own."),
+    profile: str = typer.Option(..., "--profile", help="A cell's name for its own profile, or a profile YAML: the "
+                                                      "cell's own, or a calibration of it (identify --write)."),
     envelope: Path = typer.Option(None, "--envelope", help="Envelope settings YAML (a scenario's guard: section)."),
     note: str = typer.Option("", "--note", help="Free text kept in the manifest."),
     site: Path = SITE,
@@ -79,8 +80,9 @@ def create(
     if as_json:
         sys.stdout.write(json.dumps({"id": bundle.id, "new": new, "manifest": bundle.manifest}) + "\n")
         return
+    calibrated = f" calibrated by {bundle.calibration}" if bundle.calibration else ""
     out.print(f"release {bundle.id} ({'created' if new else 'already there, unchanged'}): "
-              f"{bundle.manifest['policy']['spec']} on {bundle.cell}")
+              f"{bundle.manifest['policy']['spec']} on {bundle.cell}{calibrated}")
 
 
 @release_app.command()

@@ -2,7 +2,9 @@
 
 The manifest holds the policy's content hash (weights files, program source or server metadata,
 as its adapter computes it), the action map's bytes hash, the embodiment profile with its
-calibration version, the envelope settings and the cellguard version. The release id is the
+calibration version, a calibrated profile of it when ``--profile`` names one (its path and
+sha256: the stages' runs take it as their scenario's ``calibration``), the envelope settings and
+the cellguard version. The release id is the
 sha256 of the manifest's canonical JSON (sorted keys, no spaces), so identical inputs give the
 same id and an edited manifest no longer matches its id.
 """
@@ -18,11 +20,11 @@ from pydantic import ValidationError
 
 from cellguard import __version__
 from cellguard.control.config import GuardConfig
-from cellguard.embodiment.profile import load_profile
-from cellguard.errors import CellguardError
+from cellguard.embodiment.profile import calibrated_profile
+from cellguard.errors import CellguardError, ProfileError
 from cellguard.output import not_regular
 from cellguard.release.errors import BundleMismatch, ReleaseError
-from cellguard.robot.registry import CELLS, make_cell
+from cellguard.robot.registry import cell_names, make_cell
 from cellguard.yaml_file import read_bounded, read_yaml
 
 ID_CHARS = 16  # hex characters of the sha256 shown as the release id
@@ -40,10 +42,11 @@ def sha256_file(path: Path, what: str) -> str:
         raise ReleaseError(f"{what} {path}: cannot read ({exc.strerror or exc.__class__.__name__})") from None
 
 
-def map_sha256(path: Path) -> str:
-    """The action map's hash, read as every YAML input is: a FIFO, a device or a file over the limit is one line
-    (it was read whole before any check: ``/dev/zero`` filled the memory, a FIFO waited forever)."""
-    return hashlib.sha256(read_bounded(path, "action map", ReleaseError)).hexdigest()
+def yaml_sha256(path: Path, what: str) -> str:
+    """A frozen YAML input's hash (the action map, a calibration), read as every YAML input is: a FIFO, a device
+    or a file over the limit is one line (it was read whole before any check: ``/dev/zero`` filled the memory,
+    a FIFO waited forever)."""
+    return hashlib.sha256(read_bounded(path, what, ReleaseError)).hexdigest()
 
 
 @dataclass(frozen=True)
@@ -66,6 +69,12 @@ class Bundle:
         return f"{spec}{'&' if '?' in spec else '?'}map={amap['path']}"
 
     @property
+    def calibration(self) -> str | None:
+        """The calibrated profile the release's runs take (a manifest from before calibrations has none)."""
+        calibration = self.manifest.get("calibration")
+        return calibration["path"] if calibration else None
+
+    @property
     def guard(self) -> GuardConfig:
         return GuardConfig.model_validate(self.manifest["envelope"])
 
@@ -83,15 +92,12 @@ def create_bundle(policy: str, action_map: Path | None, profile: str, envelope: 
     """Freeze the inputs into a manifest; every file is read and checked (a bad one names itself)."""
     cell_name, profile_path = _resolve_profile(profile)
     cell = make_cell(cell_name)
-    prof = cell.profile if profile_path is None else load_profile(cell.model, profile_path)
-    if prof.sha256 != cell.profile.sha256:
-        raise ReleaseError(f"--profile {profile_path}: differs from the profile cell {cell_name!r} runs with "
-                           f"(sha256 {prof.sha256[:12]} vs {cell.profile.sha256[:12]}); install it with the cell first")
+    prof, calibrated = cell.profile, _calibration(cell, profile_path)  # the cell's own, and a calibration of it
     settings = _envelope(envelope)
     amap = None
     if action_map is not None:
         path = Path(action_map).resolve()
-        amap = {"path": str(path), "sha256": map_sha256(path)}
+        amap = {"path": str(path), "sha256": yaml_sha256(path, "action map")}
     manifest = {
         "format": 1,
         "policy": {"spec": _absolute_spec(policy), "sha256": ""},
@@ -102,20 +108,24 @@ def create_bundle(policy: str, action_map: Path | None, profile: str, envelope: 
         "cellguard": __version__,
         "note": note,
     }
+    if calibrated is not None:  # only then: a release on the cell's own profile keeps the id it had before
+        manifest["calibration"] = {"path": str(profile_path), "sha256": calibrated.sha256,
+                                   "version": calibrated.version}
     manifest["policy"]["sha256"] = policy_hash(Bundle("", manifest))
     return Bundle(release_id(manifest), manifest)
 
 
-def verify_bundle(bundle: Bundle, policy=None) -> None:
+def verify_bundle(bundle: Bundle, policy=None, profile=None) -> None:
     """Raise BundleMismatch, one line naming the input, if anything frozen has changed since create.
 
     ``policy``: the release's policy as a run has loaded it (its adapter hashed what it loaded), compared
-    instead of loading the policy again: a file swapped between two runs of a stage is caught there."""
+    instead of loading the policy again: a file swapped between two runs of a stage is caught there.
+    ``profile``: the profile the run's robot took, compared with the release's calibration the same way."""
     if release_id(bundle.manifest) != bundle.id:
         raise BundleMismatch(f"release {bundle.id}: manifest edited (hashes to {release_id(bundle.manifest)})")
     m = bundle.manifest
     if m["action_map"] is not None:
-        now = map_sha256(Path(m["action_map"]["path"]))
+        now = yaml_sha256(Path(m["action_map"]["path"]), "action map")
         if now != m["action_map"]["sha256"]:
             raise BundleMismatch(f"release {bundle.id}: action map {m['action_map']['path']} changed since create "
                                  f"(sha256 {now[:12]}, frozen {m['action_map']['sha256'][:12]})")
@@ -123,6 +133,7 @@ def verify_bundle(bundle: Bundle, policy=None) -> None:
     if cell.profile.sha256 != m["profile"]["sha256"]:
         raise BundleMismatch(f"release {bundle.id}: profile of {bundle.cell!r} changed since create "
                              f"(sha256 {cell.profile.sha256[:12]}, frozen {m['profile']['sha256'][:12]})")
+    _verify_calibration(bundle, profile)
     now = policy_hash(bundle, cell) if policy is None else policy.content_hash()
     if now != m["policy"]["sha256"]:
         raise BundleMismatch(f"release {bundle.id}: policy {m['policy']['spec']} changed since create "
@@ -152,18 +163,47 @@ def calibration_version(profile) -> str:
     return hashlib.sha256(canonical_json([profile.version, measured])).hexdigest()[:12]
 
 
+def _calibration(cell, path: Path | None):
+    """The profile at ``path`` when it is a calibration of the cell's own (``identify --write``), checked as a
+    scenario's ``calibration:`` is: same robot, joints and limits. None for the cell's own profile. Other limits
+    are refused: the envelope and the gates are the cell's, so its own profile must change first."""
+    if path is None:
+        return None
+    try:
+        prof = calibrated_profile(cell.model, cell.profile, path)
+    except ProfileError as exc:
+        raise ReleaseError(f"--profile: {exc}; a release runs on the cell's own profile (--profile {cell.name}) "
+                           f"or on a calibration of it (`cellguard identify --write` writes one): change the "
+                           f"cell's own profile for other joints or limits") from None
+    return None if prof.sha256 == cell.profile.sha256 else prof
+
+
+def _verify_calibration(bundle: Bundle, loaded) -> None:
+    """BundleMismatch if the calibrated profile the release binds is not what ``create`` hashed (``loaded``: the
+    profile a run's robot took; else the file is read again), as for the action map and the policy."""
+    frozen = bundle.manifest.get("calibration")
+    if frozen is None:
+        return
+    now = loaded.sha256 if loaded is not None else yaml_sha256(Path(frozen["path"]), "calibration")
+    if now != frozen["sha256"]:
+        raise BundleMismatch(f"release {bundle.id}: calibration {frozen['path']} changed since create "
+                             f"(sha256 {now[:12]}, frozen {frozen['sha256'][:12]})")
+
+
 def _resolve_profile(profile: str) -> tuple[str, Path | None]:
     """``--profile`` is a profile YAML file (its ``robot:`` names the cell) or a registered cell's name."""
     path = Path(profile)
     if path.is_file():
         raw = read_yaml(path, "profile", ReleaseError)
         robot = raw.get("robot") if isinstance(raw, dict) else None
-        if not isinstance(robot, str) or robot not in CELLS:
-            raise ReleaseError(f"--profile {path}: robot {robot!r} is not a registered cell; cells: {', '.join(CELLS)}")
+        cells = cell_names()
+        if not isinstance(robot, str) or robot not in cells:
+            raise ReleaseError(f"--profile {path}: robot {robot!r} is not a registered cell; cells: {', '.join(cells)}")
         return str(robot), path.resolve()
-    if profile in CELLS:
+    cells = cell_names()
+    if profile in cells:
         return profile, None
-    raise ReleaseError(f"--profile {profile}: neither a profile file nor a cell; cells: {', '.join(CELLS)}")
+    raise ReleaseError(f"--profile {profile}: neither a profile file nor a cell; cells: {', '.join(cells)}")
 
 
 def _envelope(path: Path | None) -> GuardConfig:

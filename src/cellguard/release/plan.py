@@ -15,8 +15,8 @@ stages:
   production: {runs: [...], gates: [...]}
 ```
 
-A run entry is a scenario without ``cell``, ``policy`` and ``guard``: those come from the
-release; ``production_cycles`` defaults to 0. Read with the project's YAML loader; an unknown metric, key or stage is one line.
+A run entry is a scenario without ``cell``, ``policy``, ``guard`` and ``calibration``: those come
+from the release; ``production_cycles`` defaults to 0. Read with the project's YAML loader; an unknown metric, key or stage is one line.
 """
 
 from __future__ import annotations
@@ -89,7 +89,9 @@ def check_run(run: dict, where: str) -> None:
     scenario_for(run, "arm-pick-place", "scripted", {}, origin=where)
 
 
-def scenario_for(run: dict, cell: str, policy: str, guard: dict, origin: str = "run") -> Scenario:
-    """The scenario of one run entry for a release (its cell, policy and envelope)."""
+def scenario_for(run: dict, cell: str, policy: str, guard: dict, calibration: str | None = None,
+                 origin: str = "run") -> Scenario:
+    """The scenario of one run entry for a release (its cell, policy, envelope and calibrated profile)."""
     fields = {"production_cycles": 0, **{k: v for k, v in run.items() if k != "name"}}
-    return parse_scenario({**fields, "cell": cell, "policy": policy, "guard": guard}, origin=origin)
+    return parse_scenario({**fields, "cell": cell, "policy": policy, "guard": guard, "calibration": calibration},
+                          origin=origin)

@@ -154,7 +154,8 @@ def run_stage(store: Store, plan: StagePlan, cell: str, stage: str, runs: list[d
     folders = []
     for entry in entries:
         name = entry.get("name", "run")
-        scenario = scenario_for(entry, cell, *_driver(plan, bundle, incumbent), origin=f"{stage} run")
+        scenario = scenario_for(entry, cell, *_driver(plan, bundle, incumbent), bundle.calibration,
+                                origin=f"{stage} run")
         folder = _claim_folder(store, cell, stage, name)
         if on_run is not None:
             on_run(f"{stage}: {name} ({scenario.total_cycles} cycles) -> {folder}")
@@ -199,7 +200,7 @@ def _start(make, scenario, bundle: Bundle, incumbent: Bundle | None, shadow: boo
     that drives is still its own (nothing recorded yet)."""
     run = make(scenario)
     try:
-        verify_bundle(bundle, run.policy.candidate if shadow else run.policy)
+        verify_bundle(bundle, run.policy.candidate if shadow else run.policy, run.cell.profile)
         if incumbent is not None:
             verify_bundle(incumbent, run.policy.incumbent)
     except BundleMismatch:
