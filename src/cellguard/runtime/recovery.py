@@ -184,7 +184,7 @@ class RecoveryRunner:
             return
         try:
             plan = behaviour.plan(self.cell, np.asarray(reference, dtype=np.float64), attempt, self._origin)
-        except ValueError as exc:  # a search offset the arm cannot reach
+        except ValueError as exc:  # a pose the arm cannot reach: a search offset, a lift from where it is
             self.events.append(Event(t, EventKind.RECOVERY_END, f"{behaviour.do}: attempt {attempt} cannot be "
                                      f"planned ({exc})"))
             self._give_up(t, reference, "a plan the arm cannot reach")
@@ -211,7 +211,8 @@ class RecoveryRunner:
             self._give_up(t, reference, f"{b.do} failed {b.attempts} time(s)")
 
     def _give_up(self, t: int, reference: np.ndarray, why: str) -> None:
-        """Nothing left to try: the cell goes home and the cycle ends failed."""
+        """Nothing left to try: the cell goes home (a plan that cannot fail, so nothing is left to handle here)
+        and the cycle ends failed."""
         self._active = None
         home = go_home(self.cell, np.asarray(reference, dtype=np.float64), 1.0)
         self._tail, self._home_by = (home, t), t + round(home.duration(self.arm_speed) * 1e9)

@@ -85,7 +85,7 @@ def pick_and_finish(cell, q: np.ndarray, target: np.ndarray, speed_scale: float)
     above, pick = cell.reach(target + up, arm), cell.reach(target, arm)
     above_drop, at_drop = cell.reach(drop + up, above), cell.reach(drop, above)
     home = np.asarray(cell.q_home[:-1], dtype=np.float64)
-    lift_now = cell.reach(cell.tool_taught(arm) + up, arm)
+    lift_now = lift(cell, arm)
     g_open, g_shut = cell.gripper_open, cell.gripper_shut
     s = 1.0 / speed_scale
     arm_steps = [(0.0, arm), (0.25, arm), (0.65, lift_now), (1.15, above), (1.65, pick), (2.15, pick),
@@ -97,11 +97,22 @@ def pick_and_finish(cell, q: np.ndarray, target: np.ndarray, speed_scale: float)
                 contact_q=pick, close_t=1.8 * s)
 
 
+def lift(cell, arm: np.ndarray) -> np.ndarray:
+    """Arm joints (dof-1,) with the tool ``approach_height`` straight above where it is at ``arm``; ValueError
+    where the arm cannot keep its tool down there (an SO-101 already at its approach height over the drop zone)."""
+    return cell.reach(cell.tool_taught(arm) + [0.0, 0.0, cell.approach_height], arm)
+
+
 def go_home(cell, q: np.ndarray, speed_scale: float, hold_s: float = 0.0) -> Plan:
-    """Open the gripper and go home (a held part is let go where it is). Times at ``speed_scale``."""
+    """Open the gripper, lift the tool, and go home (a held part is let go where it is). Times at ``speed_scale``.
+    It cannot fail: where the arm cannot lift its tool straight up it goes home in joint space from where it is
+    (the last resort after a plan that failed, the same IK among them, must still get the arm home)."""
     s = 1.0 / speed_scale
     home = np.asarray(cell.q_home[:-1], dtype=np.float64)
     arm = q[:-1]
-    lift = cell.reach(cell.tool_taught(arm) + [0.0, 0.0, cell.approach_height], arm)
-    return Plan(np.array([0.0, 0.3 * s, 0.8 * s, 1.6 * s]), np.array([arm, arm, lift, home]),
+    try:
+        up = lift(cell, arm)
+    except ValueError:
+        up = arm
+    return Plan(np.array([0.0, 0.3 * s, 0.8 * s, 1.6 * s]), np.array([arm, arm, up, home]),
                 np.array([0.0, 0.3 * s]), np.array([q[-1], cell.gripper_open], dtype=np.float64), hold_s=hold_s)
