@@ -3,17 +3,21 @@
 The chunks recorded in cycle N go through a fresh guard (the run's own settings) into the simulated
 cell, started from the recorded state at the cycle's start, with the cell's task set up for cycle N
 (the part at the fixture). The model is the nominal MJCF or the calibrated one (a profile's measured
-friction, damping and armature, as ``identify --write`` leaves them). The simulated joint positions
-and currents are sampled at the recorded ticks' times (any rate: a production record's 50 Hz stream
-will do). With a ``Vary`` (``friction:elbow=0.8..1.6``) the factor on that parameter that best
-reproduces the recorded currents is searched: a grid over the range, then a bounded scalar search
+friction, damping and armature, as ``identify --write`` leaves them): by default the profile the record was
+made with (its sha256 is in the record's context), found where its run read it; the result names the profile
+it used and says so when that is not the record's (a newer calibration, or the record's one not found). The
+simulated joint positions and currents are sampled at the recorded ticks' times (any rate: a production
+record's 50 Hz stream will do). With a ``Vary`` (``friction:elbow=0.8..1.6``) the factor on that parameter
+that best reproduces the recorded currents is searched: a grid over the range, then a bounded scalar search
 around the best grid point. This is how a technician checks a hypothesis before touching the robot.
 """
 
 from __future__ import annotations
 
+import hashlib
+import os
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import mujoco
@@ -86,11 +90,14 @@ class RecordedCycle:
     guard: dict  # the run's guard settings (scenario ``guard``)
     mount: str | None = None  # the record's context ``mount``: "stand" when the base was held (``excite --stand``)
     health: object = None  # the record's ``Health`` (a full read): a damaged record replays what was readable
+    profile: dict = field(default_factory=dict)  # the record's context ``embodiment``: version, sha256, calibration
+    calibration_file: str | None = None  # the run's scenario ``calibration``: the profile file it ran with
 
 
 def load_cycle(path: Path, cycle: int) -> RecordedCycle:
     """Cycle ``cycle`` of the record in ``path``: its ticks (every rate), its chunks, the run's settings, its
-    mount and its health (what a full read found: the caller warns when the record is not whole)."""
+    mount, its profile (and the file the run read it from) and its health (what a full read found: the caller
+    warns when the record is not whole)."""
     from cellguard.record.reader import open_record
 
     with open_record(path) as rec:
@@ -113,7 +120,8 @@ def load_cycle(path: Path, cycle: int) -> RecordedCycle:
     t = (ticks.t_ns - c.t_start_ns) * 1e-9
     return RecordedCycle(ctx.get("cell"), int(scenario.get("seed", 0)), cycle, tuple(ticks.joints), c.t_start_ns,
                          ticks.t_ns, Trajectory(t, ticks.q_meas, ticks.current, ticks.q_cmd), ticks.qd_meas[0],
-                         chunks, scenario.get("guard") or {}, ctx.get("mount"), health)
+                         chunks, scenario.get("guard") or {}, ctx.get("mount"), health, ctx.get("embodiment") or {},
+                         calibration if isinstance(calibration := scenario.get("calibration"), str) else None)
 
 
 def simulate(rc: RecordedCycle, terms: JointTerms, vary: Vary | None = None, factor: float = 1.0) -> Trajectory:
@@ -190,6 +198,98 @@ def mismatch(rc: RecordedCycle, sim: Trajectory, joints: list[int]) -> dict:
 
 
 @dataclass(frozen=True)
+class UsedProfile:
+    """The profile whose measured terms the replay put in (none for the nominal model), beside the record's: a
+    replay months later says which model it ran, and ``note`` says so when that is not the record's."""
+
+    version: str | None = None
+    sha256: str | None = None
+    calibration: str | None = None  # its calibration version; None: typed-in values (or the nominal model)
+    path: str | None = None  # the file read; None: the cell's own profile
+    recorded: str | None = None  # the sha256 of the profile the record was made with, as its context says
+    note: str | None = None  # the record's profile and this one, when they differ
+
+    @property
+    def is_records(self) -> bool:
+        return self.sha256 is not None and self.sha256 == self.recorded
+
+    def describe(self) -> str:
+        """``profile VERSION (calibration C, sha256 S) from FILE``, or ``the cell's own profile ...``."""
+        named = _named(self.version, self.calibration, self.sha256)
+        return f"the cell's own {named}" if self.path is None else f"{named} from {self.path}"
+
+    def model(self, model: str) -> str:
+        """The model replayed in, in words: which profile, and whether it is the record's."""
+        if model == "nominal":
+            return "nominal model (the MJCF's terms, no profile's)"
+        whose = ("the record names no profile" if self.recorded is None else
+                 "the record's" if self.is_records else "not the record's")
+        return f"calibrated model of {self.describe()}, {whose}"
+
+    def to_dict(self) -> dict:
+        return {"profile_version": self.version, "profile_sha256": self.sha256, "calibration": self.calibration,
+                "profile": self.path, "record_profile_sha256": self.recorded, "profile_note": self.note}
+
+
+def model_terms(rc: RecordedCycle, cell, model: str, profile: Path | None) -> tuple[JointTerms, UsedProfile]:
+    """The terms to replay ``rc`` with and which profile they are: ``profile`` (``--profile``), else the record's
+    own (the file its run read, or the copy a later ``identify --write`` kept beside it), else the cell's own,
+    with a note whenever that is not the profile the record was made with."""
+    from cellguard.embodiment import load_profile
+
+    recorded = rc.profile.get("sha256")
+    if model == "nominal":
+        return JointTerms.nominal(cell), UsedProfile(recorded=recorded)
+    looked: list[Path] = []
+    option = "--profile"
+    if profile is None:
+        profile, looked = _record_profile(rc, cell)
+        option = "the record's profile"
+    terms = JointTerms.from_profile(cell, profile, option)
+    prof = cell.profile if profile is None else load_profile(cell.model, profile)
+    used = UsedProfile(prof.version, prof.sha256, prof.calibration.version if prof.calibration else None,
+                       None if profile is None else str(profile), recorded)
+    if used.is_records or not recorded:
+        return terms, used
+    calibration = (rc.profile.get("calibration") or {}).get("version")
+    where = f", not found at {' or '.join(map(str, looked))} (name it with --profile)" if looked else ""
+    note = (f"the record was made with {_named(rc.profile.get('version'), calibration, recorded)}{where}; "
+            f"replaying with {used.describe()}")
+    return terms, replace(used, note=note)
+
+
+def _record_profile(rc: RecordedCycle, cell) -> tuple[Path | None, list[Path]]:
+    """The profile file the record was made with, found by its sha256 where its run read it or, recalibrated
+    since, as the kept ``NAME.VERSION.yaml`` beside it; None when it is the cell's own or not found (with the
+    paths looked at)."""
+    recorded = rc.profile.get("sha256")
+    if not rc.calibration_file or not recorded or recorded == cell.profile.sha256:
+        return None, []
+    given = Path(rc.calibration_file)
+    target = Path(os.path.realpath(given)) if given.is_symlink() else given  # the old copy is beside a link's target
+    looked = [given, target.parent / f"{target.stem}.{rc.profile.get('version')}{target.suffix}"]
+    for path in looked:
+        if _sha256(path) == recorded:
+            return path, []
+    return None, looked
+
+
+def _sha256(path: Path) -> str | None:
+    """The sha256 of the file at ``path``; None when there is none to read."""
+    from cellguard.errors import ProfileError
+    from cellguard.yaml_file import read_bounded
+
+    try:
+        return hashlib.sha256(read_bounded(path, "profile", ProfileError)).hexdigest()
+    except (ProfileError, ValueError):  # ValueError: a NUL in a path from the record
+        return None
+
+
+def _named(version, calibration, sha256) -> str:
+    return f"profile {version} (calibration {calibration or 'none'}, sha256 {str(sha256)[:12]})"
+
+
+@dataclass(frozen=True)
 class ReplayResult:
     rc: RecordedCycle
     model: str  # calibrated | nominal
@@ -198,10 +298,11 @@ class ReplayResult:
     vary: Vary | None = None
     best: float | None = None  # the factor that best reproduces the cycle
     search: tuple[tuple[float, float], ...] = ()  # (factor, cost) in the order tried
+    profile: UsedProfile = UsedProfile()
 
     def to_dict(self) -> dict:
         out = {"cell": self.rc.cell, "cycle": self.rc.cycle, "model": self.model, "ticks": int(len(self.rc.t_ns)),
-               "joints": list(self.rc.joints), "mismatch": self.mismatch}
+               "joints": list(self.rc.joints), **self.profile.to_dict(), "mismatch": self.mismatch}
         if self.vary is not None:
             out["vary"] = {"parameter": self.vary.parameter, "joint": self.vary.joint,
                            "range": [self.vary.low, self.vary.high], "best_factor": self.best,
@@ -221,12 +322,12 @@ def replay(path: Path, cycle: int, model: str = "calibrated", profile: Path | No
     if tuple(cell.profile.joint_names) != rc.joints:
         raise CalibrationError(f"{path}: joints {list(rc.joints)}; the {rc.cell} model has "
                                f"{list(cell.profile.joint_names)}")
-    terms = JointTerms.from_profile(cell, profile) if model == "calibrated" else JointTerms.nominal(cell)
+    terms, used = model_terms(rc, cell, model, profile)
     joints = hinge_joints(cell)
     v = parse_vary(vary, cell) if vary is not None else None
     if v is None:
         sim = simulate(rc, terms)
-        return ReplayResult(rc, model, sim, mismatch(rc, sim, joints))
+        return ReplayResult(rc, model, sim, mismatch(rc, sim, joints), profile=used)
     tried: dict[float, float] = {}
 
     def cost(factor: float) -> float:
@@ -240,4 +341,4 @@ def replay(path: Path, cycle: int, model: str = "calibrated", profile: Path | No
     found = minimize_scalar(cost, bounds=(lo, hi), method="bounded", options={"xatol": XTOL})
     factor = float(found.x) if found.fun <= tried[best] else float(best)
     sim = simulate(rc, terms, v, factor)
-    return ReplayResult(rc, model, sim, mismatch(rc, sim, joints), v, factor, tuple(tried.items()))
+    return ReplayResult(rc, model, sim, mismatch(rc, sim, joints), v, factor, tuple(tried.items()), used)

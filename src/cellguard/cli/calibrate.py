@@ -158,7 +158,9 @@ def replay(
     cycle: int = typer.Option(..., "--cycle", help="The cycle to replay."),
     model: str = typer.Option("calibrated", "--model", help="calibrated (the profile's measured values) or nominal."),
     profile: Path | None = typer.Option(None, "--profile", help="The calibrated profile (identify --write's); "
-                                        "default: the cell's own."),
+                                        "default: the one the record was made with (found by its sha256 where "
+                                        "the run read it, or kept beside it), else the cell's own. A profile "
+                                        "other than the record's is used with a warning naming both."),
     vary: str | None = typer.Option(None, "--vary", help="PARAM:JOINT=LOW..HIGH, e.g. friction:elbow=0.8..1.6: "
                                     "search the factor that best reproduces the recorded cycle."),
     out: Path | None = typer.Option(None, "-o", "--out", help="HTML page (default: replay-cycle-N.html in the "
@@ -166,7 +168,9 @@ def replay(
     as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),
 ) -> None:
     """Re-run a recorded cycle's chunks in the simulator from its recorded start; overlay simulated and recorded.
-    Exit 1 (one warning line) when the record is not whole: what was readable is replayed."""
+    Exit 1 (one warning line) when the record is not whole: what was readable is replayed. A calibrated replay
+    with a profile other than the record's says so in one warning line (exit 0: comparing a record against a
+    newer calibration is a check of its own)."""
     from cellguard.calibrate.identify import CalibrationError
     from cellguard.calibrate.replay import replay as run_replay
     from cellguard.cli.record import warn_if_damaged
@@ -188,10 +192,12 @@ def replay(
     d = result.to_dict()
     d["page"] = str(page)
     damaged = warn_if_damaged(result.rc.health, record) if result.rc.health is not None else 0
+    if result.profile.note is not None:
+        say(f"warning: {result.profile.note}")
     if as_json:
         typer.echo(json.dumps(d, indent=1))
         raise typer.Exit(damaged)
-    say(f"{record}: cycle {cycle} replayed in the {model} model ({d['ticks']} ticks); "
+    say(f"{record}: cycle {cycle} replayed in the {result.profile.model(result.model)}: {d['ticks']} ticks, "
         f"mean current NRMSE {d['mismatch']['cost']:.4f}", err=False)
     if result.vary is not None:
         v = result.vary

@@ -1,4 +1,5 @@
-"""The incident replay page: recorded versus simulated joint positions and currents of one cycle.
+"""The incident replay page: recorded versus simulated joint positions and currents of one cycle, and the
+profile the simulation ran with beside the record's (a note at the top when they differ).
 
 Self-contained HTML in the incident report's style (same CSS, inline SVG charts).
 """
@@ -23,8 +24,10 @@ def render_replay(r: ReplayResult) -> str:
     rows = "".join(f"<tr><td>{_e(r.rc.joints[j])}</td><td>{a:.3f}</td><td>{b * 1e3:.3f}</td><td>{c * 1e3:.3f}</td></tr>"
                    for j, a, b, c in zip(hinge, m["current_nrmse"], m["position_rms"], m["setpoint_max_gap"]))
     parts = [f"<h1>{title}</h1>",
-             f"<p class=muted>{d['ticks']} recorded ticks replayed through the {_e(r.model)} model from the recorded "
-             "start state; the chunks recorded in the cycle went through a fresh guard.</p>"]
+             *([f"<div class=damaged id=profile-note>{_e(r.profile.note)}</div>"] if r.profile.note else []),
+             f"<p class=muted>{d['ticks']} recorded ticks replayed from the recorded start state in the "
+             f"{_e(r.profile.model(r.model))}; the chunks recorded in the cycle went through a fresh guard.</p>",
+             _profile_table(d)]
     if r.vary is not None:
         v = r.vary
         parts += ["<h2>Hypothesis</h2>",
@@ -38,6 +41,17 @@ def render_replay(r: ReplayResult) -> str:
               f"<th>largest setpoint gap [mrad]</th></tr>{rows}</table>"]
     return ("<!doctype html><html lang=en><head><meta charset=utf-8><title>cellguard replay</title>"
             f"<style>{_CSS}</style></head><body>{''.join(parts)}</body></html>")
+
+
+def _profile_table(d: dict) -> str:
+    """The profile replayed with, whole sha256 and all, beside the record's: which model this page shows."""
+    source = d["profile"] or ("the cell's own" if d["profile_sha256"] else None)
+    rows = [("model", d["model"]), ("profile version", d["profile_version"]), ("profile sha256", d["profile_sha256"]),
+            ("calibration", d["calibration"]), ("profile file", source),
+            ("the record's profile sha256", d["record_profile_sha256"])]
+    body = "".join(f"<tr><th>{name}</th><td>{_e('none' if value is None else value)}</td></tr>"
+                   for name, value in rows)
+    return f"<table id=profile>{body}</table>"
 
 
 def write_replay(r: ReplayResult, out: Path) -> Path:

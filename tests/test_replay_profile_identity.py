@@ -1,0 +1,146 @@
+"""``replay`` runs the model the record was made with, or says which it ran: the record's calibrated profile is
+found where its run read it (or, recalibrated since, as the copy kept beside it); a profile other than the
+record's is used with one warning naming both; the JSON and the page name the profile, its sha256 and its
+calibration. It used to take the cell's stock profile silently and call that "the calibrated model"."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from cellguard.calibrate.excitation import excitation_scenario, excite
+from cellguard.calibrate.replay import load_cycle
+from cellguard.calibrate.torque_model import JointTerms
+from cellguard.cli import app
+from cellguard.record.reader import open_record
+from cellguard.robot.arm_cell import ASSETS
+from cellguard.robot.physics import Physics
+from cellguard.robot.registry import make_cell
+from cellguard.runtime.loop import run_scenario
+from cellguard.scenario import Scenario
+
+ARM = "arm-pick-place"
+PROFILE = Path("cal/arm_profile.yaml")  # as the scenario names it: relative to where the run was started
+runner = CliRunner()
+
+
+@pytest.fixture(scope="module")
+def made(tmp_path_factory):
+    """A site folder: ``cal/`` with a profile calibrated by ``identify --write`` (elbow friction x1.5 found), and
+    ``run/``, one cycle recorded with ``calibration: cal/arm_profile.yaml``."""
+    base = tmp_path_factory.mktemp("identity") / "site"
+    (base / "cal").mkdir(parents=True)
+    excite(excitation_scenario(ARM, 3.0), base / "ex", physics=Physics(friction={"elbow": 1.5}))
+    (base / PROFILE).write_bytes((ASSETS / "arm_profile.yaml").read_bytes())
+    written = runner.invoke(app, ["identify", str(base / "ex"), "--params", "friction", "--write",
+                                  str(base / PROFILE)])
+    assert written.exit_code == 0, written.output
+    here = Path.cwd()
+    os.chdir(base)
+    try:
+        run_scenario(Scenario(cell=ARM, acceptance_cycles=1, production_cycles=0, calibration=PROFILE), base / "run")
+    finally:
+        os.chdir(here)
+    return base
+
+
+@pytest.fixture
+def site(made, tmp_path, monkeypatch):
+    """A copy of the site per test, the working folder as at the run: a test may move or replace its profile."""
+    copy = Path(shutil.copytree(made, tmp_path / "site"))
+    monkeypatch.chdir(copy)
+    return copy
+
+
+def recorded(site: Path) -> dict:
+    with open_record(site / "run") as rec:
+        return rec.context["embodiment"]
+
+
+def used(site: Path, profile: Path | None = None, model: str = "calibrated"):
+    """The terms and the profile a replay of the record in ``site`` runs with."""
+    from cellguard.calibrate.replay import model_terms  # new with the fix: the CLI tests still run without it
+
+    return model_terms(load_cycle(site / "run", 0), make_cell(ARM), model, profile)
+
+
+def replay_json(*args: str):
+    result = runner.invoke(app, ["replay", "run", "--cycle", "0", "-o", "page.html", "--json", *args])
+    assert result.exit_code == 0, result.output
+    return result, json.loads(result.stdout)
+
+
+def test_the_record_replays_in_its_own_calibrated_profile(site):
+    emb = recorded(site)
+    assert emb["sha256"] != make_cell(ARM).profile.sha256  # a calibrated record, not the stock profile
+    terms, p = used(site)
+    assert (p.sha256, p.version, p.calibration, p.path) == (emb["sha256"], emb["version"],
+                                                            emb["calibration"]["version"], str(PROFILE))
+    assert p.note is None and p.is_records
+    elbow = list(make_cell(ARM).profile.joint_names).index("elbow")
+    stock = JointTerms.of_profile(make_cell(ARM), make_cell(ARM).profile)
+    assert terms.friction[elbow] == pytest.approx(0.3, rel=0.05) != stock.friction[elbow]
+
+
+def test_recalibrated_since_the_kept_copy_of_the_records_profile_is_used(site):
+    """A later identify --write replaced cal/arm_profile.yaml and kept the record's as NAME.VERSION.yaml."""
+    version = recorded(site)["version"]
+    kept = PROFILE.with_name(f"arm_profile.{version}.yaml")
+    shutil.copyfile(PROFILE, kept)
+    PROFILE.write_bytes(PROFILE.read_bytes() + b"# recalibrated\n")  # a newer calibration: other bytes
+    _, p = used(site)
+    assert p.path == str(kept) and p.is_records and p.note is None
+
+
+def test_the_records_profile_gone_replays_the_cells_own_and_says_so(site):
+    shutil.rmtree(site / "cal")
+    emb = recorded(site)
+    result, d = replay_json()
+    stock = make_cell(ARM).profile
+    assert (d["profile_version"], d["profile_sha256"], d["calibration"]) == (stock.version, stock.sha256, None)
+    assert d["record_profile_sha256"] == emb["sha256"]
+    warning = result.stderr.splitlines()
+    assert len(warning) == 1 and warning[0] == f"warning: {d['profile_note']}"
+    assert f"made with profile {emb['version']} (calibration {emb['calibration']['version']}, sha256 " \
+           f"{emb['sha256'][:12]}), not found at {PROFILE}" in warning[0]
+    assert f"replaying with the cell's own profile {stock.version}" in warning[0]
+    page = (site / "page.html").read_text()
+    assert "id=profile-note" in page and stock.sha256 in page and emb["sha256"] in page
+
+
+def test_a_profile_other_than_the_records_is_used_with_one_warning_naming_both(site):
+    other = site / "newer.yaml"
+    other.write_bytes((ASSETS / "arm_profile.yaml").read_bytes())
+    emb = recorded(site)
+    result, d = replay_json("--profile", str(other))
+    sha = hashlib.sha256(other.read_bytes()).hexdigest()
+    assert (d["profile"], d["profile_sha256"]) == (str(other), sha)
+    warning = result.stderr.splitlines()
+    assert len(warning) == 1 and emb["sha256"][:12] in warning[0] and sha[:12] in warning[0], result.stderr
+    summary = runner.invoke(app, ["replay", "run", "--cycle", "0", "-o", "page.html", "--profile", str(other)])
+    assert summary.exit_code == 0 and f"from {other}, not the record's: " in summary.stdout, summary.output
+
+
+def test_by_default_the_cli_replays_what_the_records_own_profile_given_does(site):
+    """No --profile is the record's own profile given, and neither warns (the stock profile replays otherwise)."""
+    emb = recorded(site)
+    _, default = replay_json()
+    result, d = replay_json("--profile", str(PROFILE))
+    assert default["mismatch"] == d["mismatch"]
+    assert result.stderr == "" and d["profile_note"] is None and default["profile_note"] is None
+    assert (d["profile_version"], d["profile_sha256"], d["calibration"]) == (emb["version"], emb["sha256"],
+                                                                            emb["calibration"]["version"])
+    page = (site / "page.html").read_text()
+    assert "id=profile-note" not in page and emb["sha256"] in page and emb["version"] in page
+
+
+def test_the_nominal_model_names_no_profile(site):
+    _, p = used(site, model="nominal")
+    assert (p.version, p.sha256, p.calibration, p.note) == (None, None, None, None)
+    assert p.recorded == recorded(site)["sha256"]
