@@ -42,7 +42,8 @@ def diagnose(
         baseline_health = record_health(acceptance) if acceptance is not None else None
     except CellguardError as exc:
         fail(exc)
-    out = {**diagnosis.to_dict(), "record": {"ok": health.ok, "status": health.describe()}}
+    out = diagnosis.to_dict()
+    out["record"] = {"ok": health.ok, "status": health.describe(), **out["record"]}
     if baseline_health is not None:
         out["acceptance_record"] = {"ok": baseline_health.ok, "status": baseline_health.describe()}
     if as_json:  # a stdout that cannot take it (`| head`, full, closed) ends the command: cli.stdout

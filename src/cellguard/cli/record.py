@@ -27,11 +27,6 @@ app.add_typer(record_app, name="record")
 FORMATS = ("csv", "parquet")
 
 
-def _utc(wall_ns: int) -> str:
-    import datetime as dt
-
-    return dt.datetime.fromtimestamp(wall_ns * 1e-9, dt.timezone.utc).isoformat(timespec="milliseconds")
-
 
 def warn_if_damaged(health, folder: Path) -> int:
     """Print one warning line saying what was lost (stderr); the exit code: 0 complete, 1 truncated or damaged."""
@@ -62,7 +57,7 @@ def info(
     context = contexts[0].context if contexts else {}
     doc = {
         "file": str(rec.file), "record_id": rec.record_id, "record_version": rec.version,
-        "start_utc": _utc(rec.start_wall_ns) if rec.epoch_wall_ns else None,
+        "start_utc": rec.start_utc,
         "health": {"ok": health.ok, "status": health.describe(), "finished": health.finished,
                    "truncated": health.truncated, "damage": list(health.damage), "context_loss": health.context_loss,
                    "recovered_from": health.recovered},

@@ -64,6 +64,7 @@ class Diagnosis:
             "recoveries": list(self.recoveries),
             "fixes": list(self.fixes),
             "advice": list(self.advice),
+            "record": record_facts(self.context),
             "monitor": {"cusum_k": self.drift.k, "cusum_h": round(self.drift.threshold, 3),
                         "pooled_k": self.drift.pooled_k, "pooled_h": round(self.drift.pooled_threshold, 3),
                         "mewma_limit": round(self.drift.mewma_threshold, 2), "features": len(self.drift.names),
@@ -128,6 +129,14 @@ def diagnose(rows: Iterable[object], events: Iterable[object] = (), context: Map
         asymmetry=asym, context=dict(context or {}), process=notes,
         recoveries=tuple({"cycle": c, **o.to_dict()} for c, o in attempts), fixes=tuple(own), advice=tuple(advised),
         unwatched=tuple(baseline.other_load(watched)))
+
+
+def record_facts(context: Mapping) -> dict:
+    """What dates and names the diagnosed run, from its context: record id, start (UTC, ISO 8601) and embodiment
+    profile version; None for what an older record's context does not hold."""
+    emb = context.get("embodiment")
+    return {"record_id": context.get("record_id"), "start_utc": context.get("start_utc"),
+            "profile_version": emb.get("version") if isinstance(emb, Mapping) else None}
 
 
 def unwatched_words(cycles: Sequence[int]) -> str:
@@ -278,7 +287,7 @@ def _rejections(watched: Sequence[Cycle], events: list[dict]) -> list[tuple[int,
 
 def _safety(e: dict) -> dict:
     out = {"t": round(e["t_ns"] * 1e-9, 3), "kind": e.get("kind"), "cycle": e.get("cycle")}
-    for k in ("category", "joint", "reason"):
+    for k in ("category", "joint", "asked", "sent", "reason"):
         if e.get(k) is not None:
             out[k] = e[k]
     return out

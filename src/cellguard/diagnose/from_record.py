@@ -32,7 +32,8 @@ def diagnose_record(path: Path, acceptance: Path | None = None, fleet: list[dict
 
     folder = run_folder(path)
     with open_record(path) as rec:
-        cycles, events, context = list(rec.cycles()), list(rec.events()), {**rec.context, "record_id": rec.record_id}
+        cycles, events, context = list(rec.cycles()), list(rec.events()), {**rec.context, "record_id": rec.record_id,
+                                                                      "start_utc": rec.start_utc}
         declared = rec.contexts[-1].context.get("process", [])  # process changes declared up to the end
     baseline = None
     if acceptance is not None:

@@ -41,6 +41,7 @@ anything was lost.
 from __future__ import annotations
 
 import bisect
+import datetime as dt
 import itertools
 import json
 import math
@@ -308,6 +309,14 @@ class Record:
         """The wall clock when the record started [ns since 1970]."""
         _ = self.contexts  # a context message states the epoch and the start where the metadata was lost
         return self.epoch_wall_ns + self.start_ns
+
+    @property
+    def start_utc(self) -> str | None:
+        """When the record started, UTC ISO 8601 to the millisecond; None where the record states no wall clock."""
+        wall = self.start_wall_ns  # reads the contexts, which state the epoch where the metadata was lost
+        if not self.epoch_wall_ns:
+            return None
+        return dt.datetime.fromtimestamp(wall * 1e-9, dt.timezone.utc).isoformat(timespec="milliseconds")
 
     @property
     def context(self) -> dict:

@@ -9,7 +9,7 @@ import html
 import json
 from collections.abc import Callable, Mapping
 
-from cellguard.diagnose.diagnosis import Diagnosis, unwatched_words
+from cellguard.diagnose.diagnosis import Diagnosis, record_facts, unwatched_words
 from cellguard.report import plots
 
 Trace = Mapping  # {"t": (n,) s into the cycle, "current": (n, dof) A, "error": (n, dof) rad, "joints": names}
@@ -33,6 +33,7 @@ def render_report(d: Diagnosis, trace: Callable[[int], Trace | None] | None = No
     parts = [f"<h1>cellguard incident report: {_e(ctx.get('cell', 'cell'))}</h1>",
              *([f"<div class=damaged id=record-damage>The record is not whole: {_e(damage)}. This page shows what "
                 "could be read.</div>"] if damage else []),
+             _run(ctx),
              f"<p class=muted>{len(d.cycles)} cycles, baseline of {d.baseline.n} "
              f"({_e(d.baseline.source)}); site {_e(ctx.get('site', '?'))}, cell id {_e(ctx.get('cell_id', '?'))}</p>",
              "<h2>Findings</h2>", _findings(d), "<h2>Timeline</h2>", _figure("timeline", plots.timeline(d)),
@@ -46,6 +47,13 @@ def render_report(d: Diagnosis, trace: Callable[[int], Trace | None] | None = No
 
 def _e(v: object) -> str:
     return html.escape(str(v))
+
+
+def _run(ctx: Mapping) -> str:
+    """The line that dates the run and names its record, so the page can be traced on its own."""
+    facts = {k: "unknown" if v is None else v for k, v in record_facts(ctx).items()}
+    return (f"<p id=run>Run started <b>{_e(facts['start_utc'])}</b> (UTC), record <code>{_e(facts['record_id'])}"
+            f"</code>, embodiment profile version {_e(facts['profile_version'])}</p>")
 
 
 def _figure(name: str, svg: str) -> str:
@@ -110,11 +118,18 @@ def _events(d: Diagnosis) -> str:
     if not d.safety_events:
         return "<p>None.</p>"
     rows = "".join(f"<tr><td>{e['t']:.3f}</td><td>{_e(e.get('cycle'))}</td><td>{_e(e.get('kind'))}</td>"
-                   f"<td>{_e(e.get('category', ''))}</td><td>{_e(e.get('reason', ''))}</td></tr>"
-                   for e in d.safety_events[:200])
+                   f"<td>{_e(e.get('joint', ''))}</td><td>{_reading(e.get('asked'))}</td>"
+                   f"<td>{_reading(e.get('sent'))}</td><td>{_e(e.get('category', ''))}</td>"
+                   f"<td>{_e(e.get('reason', ''))}</td></tr>" for e in d.safety_events[:200])
     more = f"<p class=muted>{len(d.safety_events) - 200} more not shown.</p>" if len(d.safety_events) > 200 else ""
-    head = "<tr><th>t [s]</th><th>cycle</th><th>kind</th><th>stop cat.</th><th>reason</th></tr>"
+    head = ("<tr><th>t [s]</th><th>cycle</th><th>kind</th><th>joint</th><th>asked</th><th>sent</th><th>stop cat.</th>"
+            "<th>reason</th></tr>")
     return f"<table>{head}{rows}</table>{more}"
+
+
+def _reading(v: object) -> str:
+    """An event's asked or sent value (SI) to nine digits (a limit often moves it in the seventh); empty if none."""
+    return "" if v is None else _e(f"{v:.9g}" if isinstance(v, float) else v)
 
 
 def _context(ctx: Mapping) -> str:

@@ -20,8 +20,11 @@ GOOD, BAD, ALARM, BASE = "#2a9d8f", "#e63946", "#f4a261", "#8d99ae"
 
 
 def _svg(fig) -> str:
+    """The figure as SVG text that is the same each time it is drawn: no date (the report's date is the run's,
+    not when the page was written) and element ids hashed with a fixed salt instead of a random one."""
     buf = io.StringIO()
-    fig.savefig(buf, format="svg", bbox_inches="tight")
+    with matplotlib.rc_context({"svg.hashsalt": "cellguard-report"}):
+        fig.savefig(buf, format="svg", bbox_inches="tight", metadata={"Date": None})
     plt.close(fig)
     text = buf.getvalue()
     return text[text.index("<svg"):]
