@@ -48,7 +48,7 @@ def append(store, body: dict) -> LogEntry:
     seq, head = tail(store)
     seq += 1
     digest = entry_hash(head, body)
-    store.db.execute("INSERT INTO log VALUES (?, ?, ?, ?)", (seq, canonical_json(body).decode(), head, digest))
+    store.write("INSERT INTO log VALUES (?, ?, ?, ?)", (seq, canonical_json(body).decode(), head, digest))
     store.set_meta("log_head", digest)
     store.set_meta("log_count", str(seq))
     return LogEntry(seq, body, head, digest)

@@ -80,31 +80,39 @@ class Store:
     def close(self) -> None:
         self.db.close()
 
-    def write(self, sql: str, args: tuple = ()) -> sqlite3.Cursor:
-        """``sql`` executed; ReleaseError naming the lock when another process holds the store (a sqlite3 shell,
-        a backup) past LOCK_WAIT_S, or naming the fault: one line, never a traceback."""
+    @contextmanager
+    def _faults(self):
+        """Any sqlite3.Error inside as ReleaseError naming the store: the lock when another process holds it (a
+        sqlite3 shell, a backup) past LOCK_WAIT_S, else the fault (a full disk, a read-only store): one line, never
+        a traceback."""
         try:
-            return self.db.execute(sql, args)
-        except sqlite3.OperationalError as exc:
+            yield
+        except sqlite3.Error as exc:
             if "locked" in str(exc) or "busy" in str(exc):
                 raise ReleaseError(f"--site {self.site}: {STORE_FILE} is locked by another process ({exc}, waited "
                                    f"{LOCK_WAIT_S:g} s; a sqlite3 shell or a backup holding it?): nothing changed, "
                                    f"run it again once it is free") from None
             raise ReleaseError(f"--site {self.site}: cannot write {STORE_FILE} ({exc}); nothing changed") from None
-        except sqlite3.Error as exc:
-            raise ReleaseError(f"--site {self.site}: cannot write {STORE_FILE} ({exc}); nothing changed") from None
+
+    def write(self, sql: str, args: tuple = ()) -> sqlite3.Cursor:
+        """``sql`` executed, a sqlite3.Error as ReleaseError (``_faults``): what every write goes through."""
+        with self._faults():
+            return self.db.execute(sql, args)
 
     @contextmanager
     def transaction(self):
-        """All or nothing: a CellguardError inside rolls every change back (so does a commit the lock refused)."""
-        self.write("BEGIN IMMEDIATE")
-        try:
-            yield self
-            self.write("COMMIT")
-        except BaseException:
-            if self.db.in_transaction:
-                self.db.execute("ROLLBACK")
-            raise
+        """All or nothing: a CellguardError inside rolls every change back (so does a commit the lock refused). A
+        sqlite3.Error anywhere inside (a write, the commit) is rolled back too and becomes a ReleaseError
+        (``_faults``), so no write in a transaction can end a command in a traceback."""
+        with self._faults():
+            self.db.execute("BEGIN IMMEDIATE")
+            try:
+                yield self
+                self.db.execute("COMMIT")
+            except BaseException:
+                if self.db.in_transaction:
+                    self.db.execute("ROLLBACK")
+                raise
 
     # bundles
     def add_bundle(self, bundle: Bundle) -> bool:
@@ -146,7 +154,7 @@ class Store:
         return [Pointers(*r) for r in self.db.execute("SELECT cell, stage, current, last_good FROM pointers")]
 
     def set_pointers(self, cell: str, stage: str, current: str | None, last_good: str | None) -> None:
-        self.db.execute("INSERT OR REPLACE INTO pointers VALUES (?, ?, ?, ?)", (cell, stage, current, last_good))
+        self.write("INSERT OR REPLACE INTO pointers VALUES (?, ?, ?, ?)", (cell, stage, current, last_good))
 
     def cells(self) -> list[str]:
         return [r[0] for r in self.db.execute("SELECT DISTINCT cell FROM pointers ORDER BY cell")]
@@ -186,7 +194,7 @@ class Store:
         return row[0] if row else None
 
     def set_meta(self, key: str, value: str) -> None:
-        self.db.execute("INSERT OR REPLACE INTO meta VALUES (?, ?)", (key, value))
+        self.write("INSERT OR REPLACE INTO meta VALUES (?, ?)", (key, value))
 
 
 def _stored_bundle(rid: str, text: str) -> Bundle:
