@@ -20,7 +20,8 @@ and per run: period error p50/p99/max [us], compute time, overruns, ticks two or
 late, the recorder's cost on the servo thread per tick [us] (calls over 200 us, and why: on the CPU,
 waited, preempted, unexplained; the floor times a 1 us row copy the same way), the scheduler the servo thread got
 (``fifo:N`` where SCHED_FIFO is permitted, else ``other``), inference latency [ms], packets
-lost, link events, the recorder queue high-water mark [ticks], and the CPU time a hypervisor
+lost, link events, the recorder queue high-water mark [ticks; it includes up to one batch, 100 ticks
+at 1 kHz] and the writer's lag beyond it, and the CPU time a hypervisor
 took for other guests meanwhile (``host_steal_ms``, Linux guests; a real-time thread cannot
 win that back).
 

@@ -7,8 +7,9 @@ program, and every simulated minute a disturbance in turn (a NaN chunk, a late c
 stop of category 2, or once an hour 0 followed by an operator reset, a silence that trips the
 watchdog), so that every event path runs all day. With
 ``--record DIR`` the ticks and events are also written by the recorder (decimated stream, event
-windows, index). Prints the resident set size (VmRSS) after a warm-up hour and at each simulated
-hour, and the growth from start to end.
+windows, index). Prints the resident set size (VmRSS) at each simulated hour and at the end, and
+its growth from the first hour (a warm-up) to the end, per million ticks: ``null`` for a run of an
+hour or less, which has nothing after the warm-up to compare.
 
     python benchmarks/soak.py [--hours 24] [--dt-ms 200] [--chunk-ms 1000] [--record DIR]
 """
@@ -61,7 +62,11 @@ def soak(hours: float, dt_ms: float, chunk_ms: float, record: Path | None) -> di
     events: Counter = Counter()
     ticks = round(hours * HOUR_NS / dt_ns)
     per_hour = max(1, round(HOUR_NS / dt_ns))
-    samples: list[dict] = []
+    samples: list[dict] = []  # VmRSS at each whole hour and at the end
+
+    def sample(done: int) -> None:
+        samples.append({"hour": round(done * dt_ns / HOUR_NS, 3), "ticks": done, "rss_mib": round(rss_mib(), 1)})
+
     began = time.perf_counter()
     for k in range(ticks):
         t = k * dt_ns
@@ -88,15 +93,25 @@ def soak(hours: float, dt_ms: float, chunk_ms: float, record: Path | None) -> di
                 recorder.event(e, minute)
             recorder.tick(minute, guard.reference, setpoint, State(t, setpoint, zero, zero, zero))
         if (k + 1) % per_hour == 0:
-            samples.append({"hour": round((k + 1) * dt_ns / HOUR_NS, 3), "rss_mib": round(rss_mib(), 1)})
+            sample(k + 1)
+    if ticks % per_hour:  # the tail after the last whole hour counts too
+        sample(ticks)
     if recorder is not None:
         recorder.close()
-    start = samples[0]["rss_mib"] if samples else rss_mib()
-    end = samples[-1]["rss_mib"] if samples else rss_mib()
-    return {"simulated_hours": hours, "dt_ms": dt_ms, "chunk_ms": chunk_ms, "ticks": ticks, "events": dict(events),
-            "recorded": record is not None, "rss_start_mib": start, "rss_end_mib": end,
-            "rss_growth_mib": round(end - start, 1),
+    return {"simulated_hours": hours, "servo_period_ms": dt_ms, "chunk_ms": chunk_ms, "ticks": ticks,
+            "events": dict(events), "recorded": record is not None, **_growth(samples),
             "wall_s": round(time.perf_counter() - began, 1), "rss_by_hour": samples}
+
+
+def _growth(samples: list[dict]) -> dict:
+    """VmRSS after the warm-up hour and at the end [MiB], and the growth between them, also per million
+    ticks; the growth is None when the run ended within the warm-up hour (a 0.0 there would hide a leak)."""
+    first, last = samples[0], samples[-1]
+    ticks = last["ticks"] - first["ticks"]
+    growth = round(last["rss_mib"] - first["rss_mib"], 1) if ticks else None
+    return {"rss_start_mib": first["rss_mib"], "rss_end_mib": last["rss_mib"], "rss_growth_mib": growth,
+            "rss_growth_ticks": ticks,
+            "rss_growth_mib_per_million_ticks": None if growth is None else round(growth / ticks * 1e6, 2)}
 
 
 def main() -> None:
@@ -106,6 +121,11 @@ def main() -> None:
     parser.add_argument("--chunk-ms", type=float, default=1000.0, help="a chunk every this long [ms]")
     parser.add_argument("--record", type=Path, default=None, help="also write a record into this folder")
     args = parser.parse_args()
+    if not (args.hours > 0 and args.dt_ms > 0 and args.chunk_ms > 0):  # NaN included
+        parser.error(f"--hours, --dt-ms and --chunk-ms must be positive, got {args.hours}, {args.dt_ms} and "
+                     f"{args.chunk_ms}")
+    if args.hours * HOUR_NS < args.dt_ms * 1e6:
+        parser.error(f"--hours {args.hours} is shorter than one servo period (--dt-ms {args.dt_ms})")
     print(json.dumps(soak(args.hours, args.dt_ms, args.chunk_ms, args.record), indent=1))
 
 

@@ -17,7 +17,9 @@ Figures: limit violations (ticks whose finite-difference velocity or acceleratio
 limit by more than 0.2 % and 2 %, or position beyond the limit), tracking error against the
 reference, lag by cross-correlation of reference and setpoint velocity (inside only), and the
 per-tick cost of executor + envelope with the cell's forward kinematics (median, p99 [µs]),
-plus the cost of one ruckig call, and the tick cost as a number of ruckig calls. The ruckig calls
+plus the cost of one ruckig call, and the tick cost as a number of ruckig calls. The tool-speed
+checks run only under a speed cap, so each stream is timed again with the README's example cap
+(``capped``: ``tool_speed_max`` 1.0 m/s; the rows without it have the workspace box only). The ruckig calls
 are timed in small batches between the timed ticks of each stream, so the ratio compares costs
 measured at the same moments (on a shared machine the load changes within seconds).
 """
@@ -38,6 +40,8 @@ from cellguard.robot.arm_cell import ArmPickPlace
 DT_NS = 1_000_000
 PERIOD_NS, LATENCY_NS, HORIZON, STEP_NS = 50_000_000, 10_000_000, 25, 20_000_000
 V_TOL, A_TOL = 2e-3, 2e-2
+SPEED_CAP = 1.0  # [m/s] the README's example guard.yaml (tool_speed_max): the tool-speed checks run on every tick
+STREAMS = (("inside", 1.0, None), ("outside", 1.6, 1.5))  # name, playback speed, when the off-plan chunk comes [s]
 
 
 def _program(cell: ArmPickPlace, speed: float):
@@ -87,11 +91,12 @@ class RuckigProbe:
 PROBE_EVERY, PROBE_CALLS, PROBE_WARM = 200, 20, 20  # ticks between batches of ruckig calls; timed and warm-up calls
 
 
-def _reference_and_cellguard(cell, chunks, ticks, probe: RuckigProbe):
+def _reference_and_cellguard(cell, chunks, ticks, probe: RuckigProbe, speed_cap: float | None = None):
     """Executor reference and cellguard's setpoints per tick, and the per-tick cost [ns]; ``probe``
-    times ruckig calls between the ticks."""
+    times ruckig calls between the ticks. ``speed_cap``: the guard's ``tool_speed_max`` [m/s]."""
     profile, q0 = cell.profile, cell.q_home
-    guard = Guard(profile, q0, DT_NS, GuardConfig(box=cell.workspace_box), tool=cell.tool_point)
+    guard = Guard(profile, q0, DT_NS, GuardConfig(box=cell.workspace_box, tool_speed_max=speed_cap),
+                  tool=cell.tool_point)
     ref, sp, cost = np.empty((ticks, profile.dof)), np.empty((ticks, profile.dof)), np.empty(ticks, dtype=np.int64)
     arrivals = {}
     for arrive, chunk in chunks:
@@ -179,13 +184,16 @@ def figures(quick: bool = False) -> dict:
     profile = cell.profile
     result: dict = {"cell": cell.name, "servo_hz": 1000, "chunk_hz": 20, "tolerance": {"velocity": V_TOL,
                     "acceleration": A_TOL}}
-    streams, probe, one_call = {}, RuckigProbe(profile.dof), {}
-    for name, speed, yank in (("inside", 1.0, None), ("outside", 1.6, 1.5)):
+    streams, probe, one_call, capped = {}, RuckigProbe(profile.dof), {}, {}
+    for name, speed, yank in STREAMS:
         program, duration = _program(cell, speed)
-        ticks = round(duration * 1e9 / DT_NS)
+        ticks, chunks = round(duration * 1e9 / DT_NS), _chunks(program, duration, yank)
         since = len(probe.times)
-        ref, sp, cost = _reference_and_cellguard(cell, _chunks(program, duration, yank), ticks, probe)
+        ref, sp, cost = _reference_and_cellguard(cell, chunks, ticks, probe)
         streams[name], one_call[name] = (ref, sp, cost), probe.median_us(since)
+        since = len(probe.times)
+        _, sp_capped, cost = _reference_and_cellguard(cell, chunks, ticks, probe, SPEED_CAP)
+        capped[name] = cost, probe.median_us(since), float((sp_capped != sp).any(axis=1).mean())
     amax = profile.array("acceleration")
     alpha = _tune_alpha(streams["outside"][0], _peak_accel(streams["outside"][1], amax), amax)
     step = profile.array("velocity") * DT_NS * 1e-9
@@ -216,5 +224,17 @@ def figures(quick: bool = False) -> dict:
     result["tick_cost_in_ruckig_calls"] = {name: {"median": cost["median"] / one_call[name],
                                                   "p99": cost["p99"] / one_call[name]}
                                            for name, cost in result["tick_cost_us"].items()}
+    _capped_rows(result, capped)
     return result
+
+
+def _capped_rows(result: dict, capped: dict) -> None:
+    """The ``capped`` rows: each stream's tick cost under ``SPEED_CAP`` [µs, and in ruckig calls timed
+    between those ticks], and the fraction of its ticks whose setpoint the cap changed."""
+    result["speed_cap_m_s"] = SPEED_CAP
+    result["tick_cost_us"]["capped"] = {name: _cost(ns) for name, (ns, _, _) in capped.items()}
+    result["tick_cost_in_ruckig_calls"]["capped"] = {
+        name: {"median": cost["median"] / capped[name][1], "p99": cost["p99"] / capped[name][1]}
+        for name, cost in result["tick_cost_us"]["capped"].items()}
+    result["capped_changed_ticks_fraction"] = {name: changed for name, (_, _, changed) in capped.items()}
 

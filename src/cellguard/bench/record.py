@@ -157,7 +157,8 @@ def tick_cost(seconds: float = 120.0) -> dict:
     return {**out, "ticks": len(costs), "ticks_over_200us": int(np.count_nonzero(np.asarray(costs) > 200_000)),
             "over_200us": slow.counts,
             "gc_collections": collections.count, "gc_longest_us": collections.longest_ns * 1e-3,
-            "queue_high_water_ticks": recording.high_water, "ticks_dropped": recording.dropped,
+            "queue_high_water_ticks": recording.high_water, "writer_lag_ticks": recording.writer_lag,
+            "ticks_dropped": recording.dropped,
             "servo_scheduler": recording.run.clock.scheduler,
             "record_failed": recording.failed}
 

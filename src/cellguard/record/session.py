@@ -14,7 +14,11 @@ The loop may run ``queue_s`` of ticks ahead of the writer. On wall time a tick p
 recorded: it is counted and a ``record_queue_full`` event is raised (once per episode); the
 servo thread never blocks. In simulated time no tick has a deadline, so the loop waits for the
 writer instead and nothing is dropped. The durability policy is the recorder's either way
-(chunks and fsync by tick time); the writer looks at the ring at least every ``POLL_S``.
+(chunks and fsync by tick time). The writer takes the ring's ticks only when a message tells it
+to: every ``_every`` ticks (a chunk's worth, at most half the queue) and with each cycle's end,
+so the ring holds up to that many ticks even for a writer that keeps up (``high_water``).
+``writer_lag`` is the longest the writer took to take ticks after it was told to [ticks]: the
+feeder's wait for an idle window, the pipe and the writer's own work, not the batching.
 
 A write error, or any fault inside the recorder, ends the recording for good: the writer raises a
 flag in the shared memory, the loop reads it after each tick and stops the cell (category 2,
@@ -60,7 +64,7 @@ from cellguard.record.shared_pages import copy_shared_pages
 from cellguard.record.urdf import describe
 from cellguard.record.writer import RECORD_FILE, RecordConfig, Recorder, refuse_existing
 
-POLL_S = 0.002  # the writer takes the ticks in the ring at least this often [s]
+POLL_S = 0.002  # how often the writer checks the loop's process, and the feeder and the loop's waits poll [s]
 WRITER_NICE = 10  # the writer process yields the CPU to the loop and the policy
 WINDOW_MARGIN_NS = 150_000  # the feeder sends a batch only with this much of the servo thread's sleep left
 CLOSE_TIMEOUT_S = 60.0  # longest wait for the writer to finish the file at close [s]
@@ -80,7 +84,10 @@ class RunRecording:
         self.failed: str | None = None
         self.finished = False  # the writer finished the file and the index at close, without an error
         self.dropped = 0  # ticks not recorded because the writer was queue_s behind (wall time)
-        self.high_water = 0  # most ticks the writer was behind
+        self.high_water = 0  # most ticks in the ring not taken yet (up to ``_every`` not told of yet)
+        self.writer_lag = 0  # longest the writer took to take ticks after it was told to [ticks]
+        self._told = 0  # the ticks the writer has been told to take: the ring's count at the last batch sent
+        self._caught_up = 0  # the ring's count at the last tick when the writer had taken all it was told to
         self._events_seen = len(run.events)
         self._software = software_versions()
         self._config = recorder.config
@@ -176,7 +183,12 @@ class RunRecording:
         if len(self.run.events) > self._events_seen:
             self.events()
         ring, ctl = self._ring, self._ctl
-        waiting = ring.n - ctl[TAIL]
+        tail = ctl[TAIL]
+        if tail >= self._told:
+            self._caught_up = ring.n
+        elif ring.n - self._caught_up > self.writer_lag:
+            self.writer_lag = ring.n - self._caught_up
+        waiting = ring.n - tail
         if waiting >= self._slack:
             if self._realtime:
                 return self._drop(t_ns, waiting)
@@ -232,6 +244,7 @@ class RunRecording:
         """Send the batch with this message last: on wall time through the feeder thread (the servo thread never
         waits on the pipe), in simulated time from the loop's thread (no second thread taking turns with it)."""
         self._put(name, *args)
+        self._told = self._ring.n
         if self._feeder is not None:
             return
         batch = list(self._outbox)

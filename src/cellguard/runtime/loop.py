@@ -542,6 +542,8 @@ class Run:
                                  "packets_dropped": getattr(self.cell, "dropped", 0),
                                  # the recorder's bounded queue off the servo thread [ticks waiting at most]
                                  "recorder_queue_high_water": getattr(self.recording, "high_water", None),
+                                 # the longest the writer took to take ticks once told [ticks]: its lag, not batching
+                                 "recorder_writer_lag_ticks": getattr(self.recording, "writer_lag", None),
                                  # shared copy-on-write with the recorder's writer, copied before the ticks
                                  "pages_copied_after_fork": getattr(self.recording, "pages_copied", None)}
         return summary

@@ -2,10 +2,11 @@
 
 Per tick: lateness (woke minus deadline), compute time (tick start to the wait) and what handing
 the tick to the recorder cost the servo thread [ns]; on wall time also why a call over 200 µs was
-slow (``SlowCalls``). The last ``window`` ticks are kept for percentiles; counts and maxima cover
-the whole run. An overrun is a tick that woke at least one period late. A pause between two stretches of ticks
-(a cycle's end, before a transition: the robot holds its last setpoint) is no tick; it is
-counted with its longest length.
+slow (``SlowCalls``). Percentiles, counts and maxima cover the whole run: each duration is
+counted in a log-bucket histogram (``_Durations``), in memory that does not grow (a window of the
+last 65,536 ticks made a 300 s run's p99 that of its last minute). An overrun is a tick that woke
+at least one period late. A pause between two stretches of ticks (a cycle's end, before a
+transition: the robot holds its last setpoint) is no tick; it is counted with its longest length.
 """
 
 from __future__ import annotations
@@ -15,28 +16,46 @@ import time
 
 import numpy as np
 
-WINDOW = 65_536  # ticks kept for percentiles (about a minute at 1 kHz)
+SUB_BITS = 7  # 2**7 buckets per octave: 1 ns wide below 256 ns, above at most 1/128 (0.8 %) of the value
+EXACT = (2 << SUB_BITS) - 1  # durations up to this have a bucket each [ns]
+BUCKETS = (63 - SUB_BITS + 1) << SUB_BITS  # enough for any duration below 2**63 ns (a monotonic_ns difference)
 SLOW_NS = 200_000  # a recorder call longer than this is counted, and on wall time explained [ns]
 
 
-class _Durations:
-    """One duration per tick [ns]: the last ``window`` kept for percentiles, the count and maximum over the run."""
+def _bucket_bounds(index: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Lowest duration and width of histogram buckets ``index`` [ns] (``_Durations.add`` inverted)."""
+    shift = np.maximum((index >> SUB_BITS) - 1, 0)
+    return np.where(index <= EXACT, index, (index - (shift << SUB_BITS)) << shift), np.left_shift(1, shift)
 
-    def __init__(self, window: int):
-        self._values = np.zeros(window, dtype=np.int64)
-        self.count = 0
+
+class _Durations:
+    """One duration per tick [ns, >= 0], counted in a log-bucket histogram: percentiles over the whole
+    run in fixed memory (a bucket is 1 ns, or at most 0.8 % of its durations, wide)."""
+
+    def __init__(self):
+        self._counts = [0] * BUCKETS
+        self.count = 0  # kept, not summed: the overrun event reads it on a late tick
         self.max_ns = 0
 
     def add(self, ns: int) -> None:
-        self._values[self.count % len(self._values)] = ns
+        """O(1) and branch-light, on the servo thread every tick: the bucket is ``ns`` itself up to
+        ``EXACT``, above it the top ``SUB_BITS + 1`` bits of ``ns`` after its octave's."""
+        shift = (ns | EXACT).bit_length() - SUB_BITS - 1
+        self._counts[(shift << SUB_BITS) + (ns >> shift)] += 1
         self.count += 1
         if ns > self.max_ns:
             self.max_ns = ns
 
+    def percentile_ns(self, q: float) -> float:
+        """The ``q`` th percentile [ns]: the middle of the bucket that holds the duration of that rank."""
+        cumulative = np.cumsum(self._counts)
+        bucket = np.searchsorted(cumulative, q / 100 * (cumulative[-1] - 1), side="right")
+        low, width = _bucket_bounds(bucket)
+        return float(low + (width - 1) / 2)
+
     def summary_us(self) -> dict:
-        """p50 and p99 over the window, max over the run [us]."""
-        us = self._values[:min(self.count, len(self._values))] * 1e-3
-        return {"p50": float(np.percentile(us, 50)), "p99": float(np.percentile(us, 99)), "max": self.max_ns * 1e-3}
+        """p50, p99 and max over the run [us]."""
+        return {"p50": self.percentile_ns(50) * 1e-3, "p99": self.percentile_ns(99) * 1e-3, "max": self.max_ns * 1e-3}
 
 
 class SlowCalls:
@@ -74,12 +93,11 @@ class SlowCalls:
 
 
 class TickTiming:
-    """Lateness, compute time and the recorder's cost per tick; overrun count; the last ``window`` ticks
-    for percentiles."""
+    """Lateness, compute time and the recorder's cost per tick, over the whole run; overrun count."""
 
-    def __init__(self, period_ns: int, window: int = WINDOW, explain_slow: bool = False):
+    def __init__(self, period_ns: int, explain_slow: bool = False):
         self.period_ns = int(period_ns)
-        self._late, self._compute, self._recorder = _Durations(window), _Durations(window), _Durations(window)
+        self._late, self._compute, self._recorder = _Durations(), _Durations(), _Durations()
         self.overruns = 0
         self.late_twice = 0  # ticks two or more periods late
         self.recorder_over_200us = 0
@@ -119,8 +137,8 @@ class TickTiming:
         self.max_pause_ns = max(self.max_pause_ns, int(pause_ns))
 
     def summary(self) -> dict:
-        """Period error, compute time and the recorder's servo-thread cost [us] (p50/p99 over the window,
-        max over the run), overruns."""
+        """Period error, compute time and the recorder's servo-thread cost [us] (p50/p99/max over the
+        run), overruns."""
         if self.ticks == 0:
             return {"ticks": 0, "overruns": 0}
         recorder = {}
