@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import re
 import shutil
 import tempfile
 from dataclasses import dataclass
@@ -30,6 +31,7 @@ import pyarrow.parquet as pq
 
 from cellguard.errors import RecordError
 from cellguard.output import refuse_filled_folder
+from cellguard.record import folder_lock
 from cellguard.record.reader import Record
 
 CODEBASE_VERSION = "v3.0"
@@ -37,6 +39,7 @@ DATA_FILE = "data/chunk-000/file-000.parquet"
 EPISODES_FILE = "meta/episodes/chunk-000/file-000.parquet"
 QUANTILES = (0.01, 0.10, 0.50, 0.90, 0.99)
 STEP_TOLERANCE_NS = 1000  # a frame step this close to the period is the period; a missing frame is 1/fps off
+STAGING_SUFFIX = ".partial"  # of the folder beside -o that a run writes into: .NAME.XXXXXXXX.partial
 INDEX_FEATURES = ("timestamp", "frame_index", "episode_index", "index", "task_index")
 _TICK_FEATURES = {"observation.state": "q_meas", "observation.velocity": "qd_meas",
                   "observation.effort": "effort", "action": "q_cmd"}
@@ -97,20 +100,34 @@ def export_lerobot(rec: Record, output: Path, fps: int = 50, task: str | None = 
     made = not output.exists()
     staging = _prepare(output)
     robot_type = robot_type or (context.get("embodiment") or {}).get("robot")
+    lock, moved = None, []
     try:
+        lock = folder_lock.hold(staging, "-o")  # while this run lives: the next export clears it once it was killed
         _write_dataset(staging, data, features, episodes, kept, task, robot_type, fps)
         # into the empty folder _prepare checked or made, which stays the same folder (it may be a shell's
         # current folder); meta/ last: a dataset without meta/info.json is not one to LeRobot
         for part in sorted(staging.iterdir(), key=lambda p: p.name == "meta"):
             part.rename(output / part.name)
-    except OSError as exc:  # named as given: the staging folder is this run's own, and gone after it
-        if made:  # a target this run made is removed again when empty (a full disk left it behind)
-            with contextlib.suppress(OSError):
-                output.rmdir()
-        raise RecordError(f"-o {output}: cannot write ({exc.strerror or exc})") from None
+            moved.append(output / part.name)
+    except BaseException as exc:  # a full disk, Ctrl-C, SIGTERM: nothing of this run's is left in -o
+        _undo(output, moved, made)
+        if isinstance(exc, OSError):  # named as given: the staging folder is this run's own, and gone after it
+            raise RecordError(f"-o {output}: cannot write ({exc.strerror or exc})") from None
+        raise
     finally:
         shutil.rmtree(staging, ignore_errors=True)  # this run's own folder; empty once its parts moved
+        folder_lock.release(lock)
     return LeRobotExport(str(output), fps, tuple(kept), len(data["index"]), tuple(skipped))
+
+
+def _undo(output: Path, moved: list[Path], made: bool) -> None:
+    """Remove the parts of the dataset already moved into ``output``, and ``output`` itself if this run made it (a
+    full disk or an interrupted export left an empty folder behind, or one with data/ and no meta/)."""
+    for part in moved:
+        shutil.rmtree(part, ignore_errors=True)
+    if made:
+        with contextlib.suppress(OSError):
+            output.rmdir()  # only if empty
 
 
 def _write_dataset(output: Path, data: dict, features: dict, episodes: list, kept: list, task: str,
@@ -217,16 +234,34 @@ def _stats(values: np.ndarray) -> dict[str, list]:
 
 
 def _prepare(output: Path) -> Path:
-    """Check or make the empty folder ``output``; a new folder beside it, unique to this run, to write into."""
+    """Check or make the empty folder ``output`` (``output.resolve()``); a new folder beside it, unique to this run,
+    to write into."""
     refuse_filled_folder(output, "-o")
+    _clear_stale_staging(output)
     try:
         output.mkdir(parents=True, exist_ok=True)
-        where = output.absolute()  # "." has no name and no parent of its own
-        staging = Path(tempfile.mkdtemp(prefix=f".{where.name}.", suffix=".partial", dir=where.parent))
+        staging = Path(tempfile.mkdtemp(prefix=_staging_prefix(output), suffix=STAGING_SUFFIX, dir=output.parent))
         staging.chmod(output.stat().st_mode & 0o7777)  # mkdtemp's 0700 would hide the dataset from other users
         return staging
     except OSError as exc:
         raise RecordError(f"-o {output}: cannot write ({exc.strerror})") from None
+
+
+def _staging_prefix(output: Path) -> str:
+    return f".{output.name}."
+
+
+def _clear_stale_staging(output: Path) -> None:
+    """Remove the staging folders beside ``output`` of exports killed before their clean-up (SIGKILL: nothing holds
+    their lock; each stayed for good); RecordError if an export into ``output`` is still writing."""
+    prefix = _staging_prefix(output)
+    mine = re.compile(re.escape(prefix) + r"[a-z0-9_]{8}" + re.escape(STAGING_SUFFIX))  # mkdtemp's 8 characters
+    try:
+        leftovers = [p for p in output.parent.iterdir()
+                     if mine.fullmatch(p.name) and p.is_dir() and not p.is_symlink()]
+    except OSError:
+        return  # the folder's own write says why it cannot be read
+    folder_lock.clear_stale(leftovers, f"-o {output}: another export is writing there")
 
 
 def _write_parquet(path: Path, table: pa.Table) -> None:

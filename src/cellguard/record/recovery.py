@@ -92,16 +92,7 @@ def _clear_stale_staging(target: Path) -> None:
         leftovers = [p for p in target.iterdir() if _staging(p)] if target.is_dir() else []
     except OSError:
         return  # refuse_filled_folder says why the folder cannot be read
-    for old in leftovers:
-        try:
-            lock = folder_lock.hold(old, "-o")
-        except RecordError:
-            raise RecordError(f"-o {target}: another recovery is writing there ({old.name}); wait for it to end or "
-                              f"give another folder") from None
-        try:
-            shutil.rmtree(old, ignore_errors=True)
-        finally:
-            folder_lock.release(lock)
+    folder_lock.clear_stale(leftovers, f"-o {target}: another recovery is writing there")
 
 
 def _text(path: Path) -> str:
