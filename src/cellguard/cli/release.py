@@ -36,6 +36,8 @@ app.add_typer(release_app, name="release")
 
 SITE = typer.Option(Path("cellguard-site"), "--site", envvar="CELLGUARD_SITE",
                     help="The site's folder: release store, run records.")
+PLAN = typer.Option(None, "--plan", help="Release plan YAML (default: SITE/release-plan.yaml, else the packaged one "
+                                         "for the cell's kind: a pick-place cell's, or any other cell's).")
 out = Console()
 err = Console(stderr=True)
 
@@ -47,11 +49,12 @@ def _store(site: Path, create: bool = True):
     return Store(site, create)
 
 
-def _plan(site: Path, plan: Path | None):
-    from cellguard.release import load_plan
+def _plan(site: Path, plan: Path | None, cell: str):
+    """``--plan``, else the site's plan, else the packaged plan for the cell's kind."""
+    from cellguard.release.plan import default_plan, load_plan
 
-    if plan is None and (site / "release-plan.yaml").is_file():
-        plan = site / "release-plan.yaml"
+    if plan is None:
+        plan = site / "release-plan.yaml" if (site / "release-plan.yaml").is_file() else default_plan(cell)
     return load_plan(plan)
 
 
@@ -90,13 +93,16 @@ def promote(
     release: str = typer.Argument(..., help="Release id (a unique prefix is enough)."),
     cell: str = typer.Option(..., "--cell"),
     to: str = typer.Option(..., "--to", help="sim, bench, pilot or production: only the stage after one passed."),
+    plan: Path = PLAN,
     site: Path = SITE,
 ) -> None:
-    """Make a release current at a stage, from the stage before it with its gates passed."""
+    """Make a release current at a stage, from the stage before it with its gates passed, and its plan there one the
+    cell can run."""
     from cellguard.release import promote as do
+    from cellguard.release.store import check_stage
 
     try:
-        entry = do(_store(site), release, cell, to)
+        entry = do(_store(site), release, cell, to, _plan(site, plan, cell)[check_stage(to)])
         stdout.written(f"log entry {entry.seq} ({entry.body['release']} current at {to} on {cell})")
     except CellguardError as exc:
         fail(exc)
@@ -108,8 +114,7 @@ def promote(
 def run_stage(
     cell: str = typer.Option(..., "--cell"),
     stage: str = typer.Option(..., "--stage"),
-    plan: Path = typer.Option(None, "--plan", help="Release plan YAML (default: SITE/release-plan.yaml, else the "
-                                                  "packaged one)."),
+    plan: Path = PLAN,
     scenario: Path = typer.Option(None, "--scenario", help="One run (scenario keys without cell, policy, guard) "
                                                           "instead of the plan's runs, e.g. with a fault."),
     site: Path = SITE,
@@ -123,7 +128,7 @@ def run_stage(
     from cellguard.yaml_file import read_yaml
 
     try:
-        plans = _plan(site, plan)
+        plans = _plan(site, plan, cell)
         runs = None
         if scenario is not None:
             runs = [read_yaml(scenario, "run", GateError)]

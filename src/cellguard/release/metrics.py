@@ -3,7 +3,9 @@
 A metric returns ``Measure(value, cycles, evidence)``: ``cycles`` is how much data it saw (a
 gate with fewer than ``min_cycles`` is inconclusive), ``evidence`` names the records and cycles
 that made the value what it is (a failed cycle, a stop, the worst seam). ``value`` is None when
-the runs hold nothing to measure (no shadow data, no acceptance baseline).
+the runs hold nothing to measure (no shadow data, no acceptance baseline). A metric that only some cells
+or only shadow runs can report says so (``needs``, ``shadow``): a gate on it elsewhere could only end
+inconclusive, so a plan's stage holding one is refused before it runs.
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ from cellguard.control.checks.safety_input import ASKED_BY_LOOP, RECOVERY_HOLD
 from cellguard.diagnose.diagnosis import ROUTINE_EVENTS, diagnose
 from cellguard.errors import CellguardError
 from cellguard.release.evidence import RunEvidence
+from cellguard.robot.pick_place import PickPlaceCell
 from cellguard.robot.registry import make_cell
 
 VELOCITY_MARGIN = 1.05  # a measured speed this far over the profile's limit counts as a violation (noise)
@@ -30,6 +33,20 @@ class Measure:
 
 
 @dataclass(frozen=True)
+class Needs:
+    """What a cell must have for a metric to have any data: its cycles report what the metric reads."""
+
+    what: str
+    cell_type: type
+
+    def met_by(self, cell) -> bool:
+        return isinstance(cell, self.cell_type)
+
+
+PICK_PLACE = Needs("a pick-place task (a part placed in a drop zone: its place error)", PickPlaceCell)
+
+
+@dataclass(frozen=True)
 class Metric:
     name: str
     unit: str
@@ -37,6 +54,8 @@ class Metric:
     hard: bool = False  # a safety count: failure limit 0, decided even on too few cycles
     doc: str = ""
     most: float = float("inf")  # the largest value it can take (every metric is at least 0)
+    needs: Needs | None = None  # what the cell must have (None: every cell's runs give it data)
+    shadow: bool = False  # measured on shadow runs only (a stage with ``shadow: true``)
 
 
 def _n(runs) -> int:
@@ -194,14 +213,14 @@ def shadow_would_stop(runs) -> Measure:
 METRICS: dict[str, Metric] = {m.name: m for m in (
     Metric("success_rate", "", success_rate, doc="completed cycles that succeeded", most=1.0),
     Metric("cycle_time_p95_s", "s", cycle_time_p95),
-    Metric("place_error_p95_mm", "mm", place_error_p95, doc="successful cycles' place error, p95"),
+    Metric("place_error_p95_mm", "mm", place_error_p95, doc="successful cycles' place error, p95", needs=PICK_PLACE),
     Metric("interventions_per_hour", "1/h", interventions_per_hour, doc="envelope and executor events, not routine"),
     Metric("protective_stops", "", protective_stops, hard=True, doc="stop events of any category"),
     Metric("limit_violations", "", limit_violations, hard=True, doc="50 Hz ticks outside position/velocity limits"),
     Metric("drift_alarms", "", drift_alarms, doc="diagnosis alarms against each run's acceptance cycles"),
     Metric("chunk_seam_jump_max_mrad", "mrad", chunk_seam_jump_max),
     Metric("inference_latency_p99_ms", "ms", inference_latency_p99),
-    Metric("shadow_distance_p95_mrad", "mrad", shadow_distance_p95),
-    Metric("shadow_would_clamp", "", shadow_would_clamp, most=1.0),
-    Metric("shadow_would_stop", "", shadow_would_stop, hard=True),
+    Metric("shadow_distance_p95_mrad", "mrad", shadow_distance_p95, shadow=True),
+    Metric("shadow_would_clamp", "", shadow_would_clamp, most=1.0, shadow=True),
+    Metric("shadow_would_stop", "", shadow_would_stop, hard=True, shadow=True),
 )}

@@ -17,6 +17,9 @@ stages:
 
 A run entry is a scenario without ``cell``, ``policy``, ``guard`` and ``calibration``: those come
 from the release; ``production_cycles`` defaults to 0. Read with the project's YAML loader; an unknown metric, key or stage is one line.
+The file is checked on no cell when it is read; ``check_cell`` checks a stage against its cell (the faults it can
+simulate, the metrics it reports) at ``promote`` and before the stage's first run. The packaged plan is one per kind
+of cell (``default_plan``): a pick-place cell's, with a moved fixture and the place error, and one for every other.
 """
 
 from __future__ import annotations
@@ -27,13 +30,18 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
+from cellguard.errors import ScenarioError
 from cellguard.release.errors import GateError
 from cellguard.release.gates import Gate, gate_error
+from cellguard.release.metrics import METRICS, PICK_PLACE
 from cellguard.release.store import STAGES
+from cellguard.robot.registry import make_cell
 from cellguard.scenario import Scenario, parse_scenario
 from cellguard.yaml_file import read_yaml, reject_unknown_keys
 
-DEFAULT_PLAN = Path(__file__).parents[1] / "scenarios" / "release-plan.yaml"
+PLANS = Path(__file__).parents[1] / "scenarios"
+PICK_PLACE_PLAN = PLANS / "release-plan.yaml"
+ANY_CELL_PLAN = PLANS / "release-plan-any-cell.yaml"
 RUN_KEYS = ("name", "seed", "acceptance_cycles", "production_cycles", "policy_hz", "site", "cell_id", "faults", "robot",
             "realtime", "cycle")
 RUN_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,63}")  # a run's folder is named after it: no path, no escapes
@@ -48,9 +56,16 @@ class StagePlan(BaseModel):
     gates: list[Gate] = Field(default_factory=list)
 
 
-def load_plan(path: Path | None = None) -> dict[str, StagePlan]:
-    """Every stage's plan from ``path`` (the packaged plan when None); a stage left out has no runs."""
-    path = Path(path) if path is not None else DEFAULT_PLAN
+def default_plan(cell: str) -> Path:
+    """The packaged plan for ``cell``: the pick-place one where the cell has a part to place (a moved fixture, the
+    place error), else the one any cell can run (one plan for all ran the quadruped's sim stage into a fault it
+    cannot simulate)."""
+    return PICK_PLACE_PLAN if PICK_PLACE.met_by(make_cell(cell)) else ANY_CELL_PLAN
+
+
+def load_plan(path: Path) -> dict[str, StagePlan]:
+    """Every stage's plan from ``path``; a stage left out has no runs."""
+    path = Path(path)
     raw = read_yaml(path, "release plan", GateError)
     if not isinstance(raw, dict) or not isinstance(raw.get("stages"), dict):
         raise GateError(f"{path}: stages: expected a mapping of stage name to its runs and gates")
@@ -73,12 +88,17 @@ def load_plan(path: Path | None = None) -> dict[str, StagePlan]:
             raise gate_error(where, exc) from None
         for i, run in enumerate(plans[stage].runs):
             check_run(run, f"{where}.runs[{i}]")
+        for i, gate in enumerate(plans[stage].gates):
+            if METRICS[gate.metric].shadow and not plans[stage].shadow:
+                raise GateError(f"{where}.gates[{i}].metric: {gate.metric} is measured on shadow runs only and this "
+                                f"stage has no shadow: true; the gate could only end inconclusive")
         if plans[stage].runs and not plans[stage].gates:
             raise GateError(f"{where}: runs but no gates; they could only end inconclusive")
     return plans
 
 
 def check_run(run: dict, where: str) -> None:
+    """A run entry's keys and values, on no cell in particular (``check_cell`` checks it against its cell)."""
     if not isinstance(run, dict):
         raise GateError(f"{where}: expected a mapping of scenario keys")
     reject_unknown_keys(run, RUN_KEYS, f"{where}.", GateError)
@@ -87,6 +107,31 @@ def check_run(run: dict, where: str) -> None:
         raise GateError(f"{where}.name: {repr(name)[:80]} is not a run name (1 to 64 of A-Z a-z 0-9 . _ -, "
                         f"not starting with . _ -): it names the run's folder")
     scenario_for(run, "arm-pick-place", "scripted", {}, origin=where)
+
+
+def check_cell(plan: StagePlan, cell: str, stage: str, runs: list[dict] | None = None) -> None:
+    """GateError naming the first of the stage's runs (``runs`` in place of the plan's) that ``cell`` cannot
+    simulate (a fault it does not have, a cycle end it cannot tell), or its first gate on a metric the cell never
+    reports. Called at ``promote`` and before the stage's first run: the runtime's check of each run as it starts
+    refused a later run after the earlier ones had run, and such a gate could only end inconclusive."""
+    from cellguard.runtime.cycles import make_cycle_source
+
+    robot = make_cell(cell)
+    for run in plan.runs if runs is None else runs:
+        name = run.get("name", "run")
+        scenario = scenario_for(run, cell, "scripted", {}, origin=f"{stage} run {name!r}")
+        try:
+            if scenario.robot == "sim":  # as the runtime: a bridge is no simulated cell to check against
+                scenario.check_against(robot)
+                if scenario.cycle.source != "policy":  # the policy's episode end: checked as its run loads it
+                    make_cycle_source(scenario.cycle, robot, None)
+        except ScenarioError as exc:
+            raise GateError(f"{stage} run {name!r}: {exc}") from None
+    for i, gate in enumerate(plan.gates):
+        needs = METRICS[gate.metric].needs
+        if needs is not None and not needs.met_by(robot):
+            raise GateError(f"stages.{stage}.gates[{i}].metric: {gate.metric} needs {needs.what}; cell {cell!r} has "
+                            f"none, so the gate could only end inconclusive")
 
 
 def scenario_for(run: dict, cell: str, policy: str, guard: dict, calibration: str | None = None,

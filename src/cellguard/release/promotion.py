@@ -24,7 +24,7 @@ from cellguard.release.errors import BundleMismatch, ReleaseError, StageError
 from cellguard.release.evidence import RunEvidence, counted_run, record_id
 from cellguard.release.gates import FAIL, INCONCLUSIVE, PASS, GateResult, evaluate, verdict
 from cellguard.release.loops import CLOCKS
-from cellguard.release.plan import StagePlan, scenario_for
+from cellguard.release.plan import StagePlan, check_cell, scenario_for
 from cellguard.release.store import STAGES, RunRow, Store, check_stage
 
 INCUMBENT_FALLBACK = "scripted"  # the cell's taught program: what a cell runs before any release
@@ -63,8 +63,9 @@ def last_evaluation(store: Store, cell: str, stage: str, release: str) -> log.Lo
     return None
 
 
-def promote(store: Store, release: str, cell: str, to: str) -> log.LogEntry:
-    """Make ``release`` current at (cell, to); StageError (nothing moved) when out of order."""
+def promote(store: Store, release: str, cell: str, to: str, plan: StagePlan | None = None) -> log.LogEntry:
+    """Make ``release`` current at (cell, to); StageError (nothing moved) when out of order, GateError when ``plan``
+    (the stage's) holds a run or gate the cell cannot carry out (``check_cell``)."""
     check_stage(to)
     bundle = store.bundle(release)
     if bundle.cell != cell:
@@ -90,6 +91,8 @@ def promote(store: Store, release: str, cell: str, to: str) -> log.LogEntry:
         unbound = log.run_problems(store, [evaluation])
         if unbound:
             raise ReleaseError(f"--to {to}: {unbound[0]}; nothing moved")
+    if plan is not None:
+        check_cell(plan, cell, to)
     with store.transaction():  # the pointers read under the write lock: a racing promotion sees this one's
         current, last_good = log.check_pointers(store, cell, to)
         if current == bundle.id:
@@ -145,6 +148,7 @@ def run_stage(store: Store, plan: StagePlan, cell: str, stage: str, runs: list[d
         raise StageError(f"--stage {stage}: the plan has no runs for {stage}")
     if not plan.gates:
         raise StageError(f"--stage {stage}: the plan has no gates for {stage}; its runs could only end inconclusive")
+    check_cell(plan, cell, stage, entries)  # every run, before the first starts
     moved = log.last_pointer_move(store, cell, stage)
     start = Start(current, last_good, moved.seq if moved else 0)
     context = {"id": bundle.id, "cell": cell, "stage": stage, **bundle.short(),
