@@ -37,10 +37,11 @@ from cellguard.calibrate.mjcf import calibrated_mjcf
 from cellguard.calibrate.torque_model import JointTerms
 from cellguard.embodiment.profile import parse_profile
 from cellguard.errors import OutputError, ProfileError
-from cellguard.output import write_output
+from cellguard.output import NAME_MAX, write_output
 from cellguard.yaml_file import parse_yaml, read_bounded
 
 WRITTEN = ("friction", "damping", "armature")  # per-joint parameters the profile's units express
+NEW_VERSION = "YYYY-MM-DD-cal-HASHHASH"  # the form of the version a write makes (``DATE-cal-HASH``): its length
 
 
 @dataclass(frozen=True)
@@ -66,6 +67,21 @@ def refuse_dropped_payload(path: Path, cell, wanted: tuple[str, ...]) -> None:
                                "with --only (which holds it)")
 
 
+def refuse_long_names(path: Path, cell) -> None:
+    """The files a write adds beside ``path`` (a link: its target) must have names a file system takes, at most
+    NAME_MAX bytes: the old profile kept as NAME.VERSION.yaml and the calibrated MJCF as NAME.DATE-cal-HASH.xml.
+    Checked before any record is read: a 300-character version failed only after the fit, in a traceback."""
+    path = _target(path)
+    version = _checked(path, cell, read_bounded(path, "profile", ProfileError))["version"]
+    kept = f"the old profile's copy {path.stem}.VERSION{path.suffix} (its version is {_bytes(version)} bytes)"
+    for name, what, fix in ((_beside(path, version, path.suffix).name, kept, "give the profile a shorter version"),
+                            (_beside(path, NEW_VERSION, ".xml").name, f"the calibrated MJCF {path.stem}.DATE-cal-HASH"
+                             ".xml", "give the profile a shorter file name")):
+        if _bytes(name) > NAME_MAX:
+            raise ProfileError(f"--write: {path}: the name of {what} would be {_bytes(name)} bytes, over the "
+                               f"{NAME_MAX} a file name may have; {fix} (nothing written)")
+
+
 def write_profile(path: Path, cell, result: dict, date: str, basis: bytes | None = None) -> Written:
     """Update ``path`` (``cell``'s profile) with ``result`` (from ``identify``); a new calibration version.
 
@@ -76,11 +92,20 @@ def write_profile(path: Path, cell, result: dict, date: str, basis: bytes | None
     and ``calibration`` name them. Read, rewrite and rename happen under an exclusive lock on the profile's
     folder: two writes at once lost one calibration while both reported a version. ``basis``: the profile's
     bytes the fit held its other terms at (``--only``); a profile changed since is refused, not rewritten."""
-    path = Path(path)
-    if path.is_symlink():
-        path = path.resolve()
+    path = _target(path)
     with _folder_locked(path.parent):
         return _write(path, cell, result, date, basis)
+
+
+def _target(path: Path) -> Path:
+    """The file a write of ``path`` rewrites: a link's target (the link stays), else ``path``."""
+    path = Path(path)
+    return path.resolve() if path.is_symlink() else path
+
+
+def _beside(path: Path, version: str, suffix: str) -> Path:
+    """``NAME.VERSION.SUFFIX`` beside the profile ``path``: a kept old profile, a calibrated MJCF."""
+    return path.with_name(f"{path.stem}.{version}{suffix}")
 
 
 @contextlib.contextmanager
@@ -107,12 +132,7 @@ def _write(path: Path, cell, result: dict, date: str, basis: bytes | None) -> Wr
     if basis is not None and old_bytes != basis:
         raise CalibrationError(f"--write: {path} changed while the re-fit ran (another calibration was written); "
                                "the terms it held are no longer the profile's: run identify --only again")
-    raw = parse_yaml(old_bytes, str(path), ProfileError)
-    if not isinstance(raw, dict) or raw.get("robot") != cell.profile.robot:
-        robot = raw.get("robot") if isinstance(raw, dict) else None
-        raise CalibrationError(f"--write: {path} is a profile of robot {robot!r}; the records are of "
-                               f"{cell.profile.robot!r} ({cell.name})")
-    parse_profile(cell.model, old_bytes, str(path))  # every field checked before any is used
+    raw = _checked(path, cell, old_bytes)
     new = [e for e in result["estimates"] if e["parameter"] in WRITTEN and e["interval"] is not None]
     if not new:
         raise CalibrationError(f"--write: nothing identified to write (of {', '.join(WRITTEN)})")
@@ -135,19 +155,19 @@ def _write(path: Path, cell, result: dict, date: str, basis: bytes | None) -> Wr
     mjcf = calibrated_mjcf(cell, JointTerms.of_profile(cell, draft, _payload(result)))
     digest = hashlib.sha256(json.dumps([measured, old_version, mjcf], sort_keys=True).encode()).hexdigest()[:8]
     version = f"{date}-cal-{digest}"
-    mjcf_path = path.with_name(f"{path.stem}.{version}.xml")
+    mjcf_path = _beside(path, version, ".xml")
     raw["version"] = version
     raw["model"] = mjcf_path.name
     raw["calibration"] = {"version": version, "mjcf": mjcf_path.name, "date": date, "records": records,
                           "previous": old_version}
     text = yaml.safe_dump(raw, sort_keys=False, allow_unicode=True)
     parse_profile(mujoco.MjModel.from_xml_string(mjcf), text.encode(), str(path))  # loads on its own model
-    kept = path.with_name(f"{path.stem}.{old_version}{path.suffix}")
+    kept = _beside(path, old_version, path.suffix)
     added = []
     try:
         # an older version already kept there is never overwritten; a folder there fails here, before the profile
         for target, data, what in ((kept, old_bytes, "previous profile"), (mjcf_path, mjcf, "calibrated MJCF")):
-            if not target.is_file():
+            if not _is_file(target, what):
                 write_output(target, data, what)
                 added.append(target)
         write_output(path, text, "profile")
@@ -156,6 +176,31 @@ def _write(path: Path, cell, result: dict, date: str, basis: bytes | None) -> Wr
             target.unlink(missing_ok=True)
         raise
     return Written(version, mjcf_path, kept, path)
+
+
+def _checked(path: Path, cell, data: bytes) -> dict:
+    """The profile at ``path`` (its bytes ``data``) as YAML, checked whole before anything is taken from it: of
+    ``cell``'s robot (CalibrationError naming both), then every field."""
+    raw = parse_yaml(data, str(path), ProfileError)
+    if not isinstance(raw, dict) or raw.get("robot") != cell.profile.robot:
+        robot = raw.get("robot") if isinstance(raw, dict) else None
+        raise CalibrationError(f"--write: {path} is a profile of robot {robot!r}; the records are of "
+                               f"{cell.profile.robot!r} ({cell.name})")
+    parse_profile(cell.model, data, str(path))
+    return raw
+
+
+def _bytes(name: str) -> int:
+    return len(os.fsencode(name))
+
+
+def _is_file(path: Path, what: str) -> bool:
+    """Whether ``path`` (a ``what``) is a file; OutputError naming it where it cannot be looked at (a name over
+    NAME_MAX bytes, no access), where ``Path.is_file`` raises OSError."""
+    try:
+        return path.is_file()
+    except OSError as exc:
+        raise OutputError(f"{what} {path}: cannot write ({exc.strerror or exc}); nothing written") from None
 
 
 def _payload(result: dict) -> float:
