@@ -162,6 +162,19 @@ def write_output(path: Path, data: str | bytes, what: str, replace: bool = True)
     return path
 
 
+def keep_output(path: Path, data: str | bytes, what: str) -> Path:
+    """``write_output`` unless ``path`` is a regular file holding exactly ``data`` already: a file made again from its
+    source (a record's baseline.json and fixes.json) is left as it is, so a record on read-only storage (an archive)
+    is diagnosed and reported as often as wanted; it failed on a write that would have changed nothing."""
+    path = Path(path)
+    data = data if isinstance(data, bytes) else data.encode("utf-8")
+    try:
+        same = path.is_file() and path.stat().st_size == len(data) and path.read_bytes() == data
+    except OSError:  # cannot be read or looked at: the write says why
+        same = False
+    return path if same else write_output(path, data, what)
+
+
 def not_regular(path: Path) -> str | None:
     """What ``path`` is, after following links, if it exists and is neither a regular file nor a folder ("a FIFO",
     ...); None otherwise. A rename replaces such a node itself: a device file (as root, /dev/null) becomes a

@@ -34,8 +34,9 @@ def diagnose(
     try:
         beside = run_folder(folder)  # where fixes.json (and the record's own baseline) are written; None: nowhere
         baseline_was = _file_version(beside / BASELINE_FILE) if beside is not None else None
-        diagnosis = diagnose_record(folder, acceptance=acceptance, fleet=fleet_advice(fleet))
-        if beside is not None:
+        unkept: list[str] = []
+        diagnosis = diagnose_record(folder, acceptance=acceptance, fleet=fleet_advice(fleet), unkept=unkept)
+        if beside is not None and not unkept:
             new = _file_version(beside / BASELINE_FILE) != baseline_was  # written only when none fit
             stdout.written(f"the diagnosis in {beside} ({'baseline.json, ' if new else ''}fixes.json)")
         health = record_health(folder)
@@ -50,7 +51,8 @@ def diagnose(
         sys.stdout.write(json.dumps(out) + "\n")
     else:
         print_diagnosis(diagnosis)
-    raise typer.Exit(max(_warn(health, folder, baseline_health, acceptance), warn_if_unsteady(diagnosis.baseline)))
+    raise typer.Exit(max(_warn(health, folder, baseline_health, acceptance), warn_if_unsteady(diagnosis.baseline),
+                         warn_if_unkept(unkept)))
 
 
 @app.command()
@@ -72,13 +74,15 @@ def report(
             out = report_path(folder)
         health = record_health(folder)
         baseline_health = record_health(acceptance) if acceptance is not None else None
-        diagnosis = diagnose_record(folder, acceptance=acceptance, fleet=fleet_advice(fleet))
+        unkept: list[str] = []
+        diagnosis = diagnose_record(folder, acceptance=acceptance, fleet=fleet_advice(fleet), unkept=unkept)
         path = write_report(folder, out, diagnosis=diagnosis, health=health)
         stdout.written(path)
     except CellguardError as exc:
         fail(exc)
     say(f"report: {path}", err=False)
-    raise typer.Exit(max(_warn(health, folder, baseline_health, acceptance), warn_if_unsteady(diagnosis.baseline)))
+    raise typer.Exit(max(_warn(health, folder, baseline_health, acceptance), warn_if_unsteady(diagnosis.baseline),
+                         warn_if_unkept(unkept)))
 
 
 def _warn(health, folder: Path, baseline_health, acceptance: Path | None) -> int:
@@ -101,6 +105,14 @@ def warn_if_unsteady(baseline) -> int:
         "changes read against it are too small and may have begun before production: take the baseline from a "
         "steady record with --acceptance DIR")
     return 1
+
+
+def warn_if_unkept(unkept: list[str]) -> int:
+    """One warning line per file beside the record that could not be written (read-only storage); the exit code: 1
+    then, else 0. The diagnosis stands: each is made again from the record when missing or out of date."""
+    for line in unkept:
+        say(f"warning: {line} (the diagnosis stands without it)")
+    return 1 if unkept else 0
 
 
 def fleet_advice(use: bool | None) -> list[dict]:

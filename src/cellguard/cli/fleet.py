@@ -47,7 +47,9 @@ def push(
 ) -> None:
     """Diagnose the runs in FOLDER and send their fault signatures as the policy allows; queue if the store is down.
     Queued batches go only as the policy in force allows; one it does not, or one that cannot be read or
-    that the store refuses, stays queued and is named on stderr (exit 1 for the last two)."""
+    that the store refuses, stays queued and is named on stderr (exit 1 for the last two); a run whose diagnosis
+    files cannot be kept beside it (read-only storage) is pushed, with one warning line each (exit 1)."""
+    from cellguard.cli.diagnose import warn_if_unkept
     from cellguard.fleet.from_record import site_signatures
     from cellguard.fleet.lake import check_lake
     from cellguard.fleet.policy import load_policy
@@ -60,7 +62,8 @@ def push(
         if lake is not None:  # refused before the diagnosis
             check_lake(lake)
         check_key_history(site_dir, pol)
-        sigs = site_signatures(folder, pol, acceptance) if pol.export != "nothing" else []
+        unkept: list[str] = []
+        sigs = site_signatures(folder, pol, acceptance, unkept) if pol.export != "nothing" else []
         result = do_push(sigs, pol, site_dir, tenant_store, lake)
         stdout.written(f"batch {result.batch.batch_id} in the audit log of {site_dir}")
     except CellguardError as exc:
@@ -83,7 +86,7 @@ def push(
         sys.stderr.write(f"note: {printable(line)}\n")
     for line in result.failed:
         sys.stderr.write(f"warning: {printable(line)}\n")
-    if result.failed:
+    if warn_if_unkept(unkept) or result.failed:
         raise typer.Exit(1)
 
 

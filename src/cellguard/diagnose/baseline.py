@@ -29,7 +29,7 @@ from cellguard.diagnose.cycles import Cycle
 from cellguard.diagnose.feature_kinds import NOT_MONITORED, kind_of, scale_floor
 from cellguard.diagnose import steady
 from cellguard.errors import RecordError
-from cellguard.output import write_output
+from cellguard.output import keep_output
 
 MAD_TO_SIGMA = 1.4826
 LOAD_FEATURE = "grasped"
@@ -213,7 +213,7 @@ class Baseline:
             raise RecordError(f"baseline: malformed ({exc.__class__.__name__}: {exc})") from None
 
     def save(self, path: Path) -> None:
-        write_output(Path(path), json.dumps(self.to_dict(), indent=1), "baseline")
+        keep_output(Path(path), json.dumps(self.to_dict(), indent=1), "baseline")  # not rewritten unchanged
 
     @classmethod
     def load(cls, path: Path) -> Baseline:

@@ -6,6 +6,8 @@ summary, whose ground truth holds the injected faults.
 
 from __future__ import annotations
 
+import os
+from collections.abc import Callable
 from pathlib import Path
 
 from cellguard.diagnose.baseline import METHOD, OWN_SOURCE, Baseline, check_same_robot
@@ -14,20 +16,23 @@ from cellguard.diagnose.diagnosis import Diagnosis, diagnose
 from cellguard.diagnose.recovery import policy_cycles
 from cellguard.diagnose.site_history import save_fixes, site_history
 from cellguard.embodiment.profile import SymmetryPair
-from cellguard.errors import CellguardError, RecordError
+from cellguard.errors import CellguardError, OutputError, RecordError
 
 BASELINE_FILE = "baseline.json"
 
 
-def diagnose_record(path: Path, acceptance: Path | None = None, fleet: list[dict] | tuple = ()) -> Diagnosis:
+def diagnose_record(path: Path, acceptance: Path | None = None, fleet: list[dict] | tuple = (),
+                    unkept: list[str] | None = None) -> Diagnosis:
     """Diagnose the record at ``path`` (a run folder, or its record.mcap); the baseline comes from
     ``acceptance`` (another record of the same robot and profile) if given, else from
     ``folder/baseline.json``, else from the record's acceptance cycles, and is then written to
     ``folder/baseline.json``. A baseline from another robot, profile or record, or one that cannot
     watch this record's features and motions, is refused. Advice comes from the site's other
     diagnosed records beside it and from ``fleet`` (rows of ``cellguard.fleet.advice.fleet_fixes``);
-    what fixed each cause here is written to ``folder/fixes.json``. A loose .mcap file outside a run
-    folder is diagnosed against its own acceptance cycles and nothing is written beside it."""
+    what fixed each cause here is written to ``folder/fixes.json``. Neither is rewritten unchanged; where ``folder``
+    cannot be written (a record on read-only storage), each that fails adds its line to ``unkept`` and the diagnosis
+    stands (OutputError where no list is given). A loose .mcap file outside a run folder is diagnosed against its own
+    acceptance cycles and nothing is written beside it."""
     from cellguard.record.reader import open_record
 
     folder = run_folder(path)
@@ -59,11 +64,23 @@ def diagnose_record(path: Path, acceptance: Path | None = None, fleet: list[dict
         raise RecordError(f"{path}: {exc}") from None
     if baseline is None:  # as a stored baseline is judged when read again, so the first diagnosis agrees
         result.baseline.check_fits(as_cycles(cycles), f"{path} (its own acceptance cycles)")
-    if baseline is None and folder is not None:  # first: a baseline.json that cannot be written leaves nothing
-        result.baseline.bind(context).save(folder / BASELINE_FILE)
+    if baseline is None and folder is not None:  # first: a baseline.json refused (a FIFO there) leaves nothing
+        _keep(lambda: result.baseline.bind(context).save(folder / BASELINE_FILE), folder, unkept)
     if folder is not None:
-        save_fixes(folder, context, result.fixes)
+        _keep(lambda: save_fixes(folder, context, result.fixes), folder, unkept)
     return result
+
+
+def _keep(save: Callable[[], object], folder: Path, unkept: list[str] | None) -> None:
+    """Run ``save``, which writes a file beside the record in ``folder`` (made again from the record when missing).
+    Where ``folder`` cannot be written (read-only storage: an archive), its OutputError goes to ``unkept`` if a list
+    is given: the diagnosis is whole without the file. Any other refusal (a FIFO or a record where it goes) ends it."""
+    try:
+        save()
+    except OutputError as exc:
+        if unkept is None or os.access(folder, os.W_OK):
+            raise
+        unkept.append(str(exc))
 
 
 def run_folder(path: Path) -> Path | None:

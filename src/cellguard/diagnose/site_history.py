@@ -12,15 +12,15 @@ import json
 from collections.abc import Mapping
 from pathlib import Path
 
-from cellguard.output import write_output
+from cellguard.output import keep_output
 
 FIXES_FILE = "fixes.json"
 
 
 def save_fixes(folder: Path, context: Mapping, fixes) -> None:
-    """Write what fixed each cause in the record in ``folder`` beside it (atomic)."""
+    """Write what fixed each cause in the record in ``folder`` beside it (atomic; not rewritten unchanged)."""
     body = {"record_id": context.get("record_id"), "site": context.get("site"), "fixes": list(fixes)}
-    write_output(Path(folder) / FIXES_FILE, json.dumps(body, indent=1), "fixes")
+    keep_output(Path(folder) / FIXES_FILE, json.dumps(body, indent=1), "fixes")
 
 
 def site_history(folder: Path, site: str | None) -> list[dict]:

@@ -28,9 +28,11 @@ def run_folders(folder: Path) -> list[Path]:
     return found
 
 
-def site_signatures(folder: Path, policy: DataPolicy, acceptance: Path | None = None) -> list[Signature]:
+def site_signatures(folder: Path, policy: DataPolicy, acceptance: Path | None = None,
+                    unkept: list[str] | None = None) -> list[Signature]:
     """Every finding of every run under ``folder``, as signatures of the policy's tenant and site;
-    ``acceptance``: the record folder whose acceptance cycles are the baseline of every run."""
+    ``acceptance``: the record folder whose acceptance cycles are the baseline of every run; ``unkept``: as
+    ``diagnose_record``'s (a run on read-only storage is pushed, the files its diagnosis keeps beside it named)."""
     from cellguard.diagnose.from_record import diagnose_record
     from cellguard.record.reader import open_record
 
@@ -38,7 +40,7 @@ def site_signatures(folder: Path, policy: DataPolicy, acceptance: Path | None = 
     for run in run_folders(folder):
         with open_record(run) as rec:
             epoch_ns = rec.start_wall_ns if rec.epoch_wall_ns else 0  # stated in the context messages too
-        diagnosis = diagnose_record(run, acceptance=acceptance)
+        diagnosis = diagnose_record(run, acceptance=acceptance, unkept=unkept)
         day = (dt.datetime.fromtimestamp(epoch_ns * 1e-9, dt.timezone.utc) if epoch_ns > 0
                else dt.datetime.now(dt.timezone.utc)).date()  # no epoch stated: the day of export
         out.extend(signatures_of(diagnosis.to_dict(), diagnosis.context, policy.tenant, policy.site, day))
