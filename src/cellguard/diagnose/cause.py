@@ -122,16 +122,19 @@ class _Window:
 
     def step_onset(self, alarms: Sequence[DriftAlarm]) -> int:
         """The cycle a step in ``alarms``' features began: the split, between their earliest change point
-        and their first alarm, that fits one step in the mean of their residuals (signed, clipped at
-        ``STEP_CLIP``) best by least squares over all cycles. The median change point (``_onset``)
-        where none can be fitted. One CUSUM's change point wanders with the noise before the step;
-        the fit reads every cycle on both sides."""
+        and their first alarm, that fits one step from the baseline in the mean of their residuals (signed,
+        clipped at ``STEP_CLIP``) best by least squares over all cycles: before the split they read the
+        baseline (residual 0), from it on their own mean. The median change point (``_onset``) where none
+        can be fitted. One CUSUM's change point wanders with the noise before the step; the fit reads every
+        cycle on both sides. With the baseline before the first watched cycle a step there is fitted too (a
+        fault from the first production cycle on, or one present from the start of a record read against
+        another run's acceptance)."""
         index, s = self._signed(alarms)
         if not len(s):
             return _onset(alarms)
         lo, hi = min(a.onset for a in alarms), min(a.cycle for a in alarms)
-        fits = [(float(np.sum((s[:k] - s[:k].mean()) ** 2) + np.sum((s[k:] - s[k:].mean()) ** 2)), int(index[k]))
-                for k in range(1, len(s)) if lo <= index[k] <= hi]
+        fits = [(float(np.sum(s[:k] ** 2) + np.sum((s[k:] - s[k:].mean()) ** 2)), int(index[k]))
+                for k in range(len(s)) if lo <= index[k] <= hi]
         return min(fits)[1] if fits else _onset(alarms)
 
     def first_of_some(self, alarms: Sequence[DriftAlarm], since: int) -> int | None:
