@@ -6,23 +6,17 @@ from __future__ import annotations
 import json
 
 import pytest
-import yaml
 from typer.testing import CliRunner
 
 from cellguard.cli import app
+from cli_util import record_run
 
 runner = CliRunner()
 
 
 @pytest.fixture(scope="module")
 def recorded(tmp_path_factory):
-    root = tmp_path_factory.mktemp("acc")
-    (root / "scenario.yaml").write_text(yaml.safe_dump({
-        "cell": "arm-pick-place", "seed": 3, "acceptance_cycles": 6, "production_cycles": 4,
-        "faults": [{"kind": "fixture_shift", "at_cycle": 7, "dx_mm": 4.0}]}))
-    result = runner.invoke(app, ["run", str(root / "scenario.yaml"), "--out", str(root / "out"), "--json"])
-    assert result.exit_code == 0, result.output
-    return root / "out"
+    return record_run(tmp_path_factory.mktemp("acc"))
 
 
 def test_a_truncated_acceptance_record_is_warned_of_and_exits_1(recorded, tmp_path):

@@ -14,6 +14,7 @@ from typer.testing import CliRunner
 from cellguard.cli import app
 from cellguard.diagnose import diagnose
 from cellguard.report import render_report
+from cli_util import record_run
 
 runner = CliRunner()
 START = "2026-11-26T18:13:27.383+00:00"
@@ -72,13 +73,7 @@ def test_the_charts_carry_no_date_and_the_page_draws_the_same_twice():
 
 @pytest.fixture(scope="module")
 def recorded(tmp_path_factory):
-    root = tmp_path_factory.mktemp("dated")
-    (root / "scenario.yaml").write_text(yaml.safe_dump({
-        "cell": "arm-pick-place", "seed": 3, "acceptance_cycles": 6, "production_cycles": 4,
-        "faults": [{"kind": "fixture_shift", "at_cycle": 7, "dx_mm": 4.0}]}))
-    result = runner.invoke(app, ["run", str(root / "scenario.yaml"), "--out", str(root / "out"), "--json"])
-    assert result.exit_code == 0, result.output
-    return root / "out"
+    return record_run(tmp_path_factory.mktemp("dated"))
 
 
 def test_a_recorded_run_is_dated_as_record_info_dates_it(recorded, tmp_path):
