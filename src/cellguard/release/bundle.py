@@ -2,9 +2,9 @@
 
 The manifest holds the policy's content hash (weights files, program source or server metadata,
 as its adapter computes it), the action map's bytes hash, the embodiment profile with its
-calibration version, a calibrated profile of it when ``--profile`` names one (its path and
-sha256: the stages' runs take it as their scenario's ``calibration``), the envelope settings and
-the cellguard version. The release id is the
+calibration version, a calibrated profile of it when ``--profile`` names one (its path, sha256 and
+version: the stages' runs take the file that still holds those bytes as their scenario's ``calibration``),
+the envelope settings and the cellguard version. The release id is the
 sha256 of the manifest's canonical JSON (sorted keys, no spaces), so identical inputs give the
 same id and an edited manifest no longer matches its id.
 """
@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -70,7 +71,8 @@ class Bundle:
 
     @property
     def calibration(self) -> str | None:
-        """The calibrated profile the release's runs take (a manifest from before calibrations has none)."""
+        """The calibrated profile's path as frozen (a manifest from before calibrations has none); the runs take
+        the file that holds its bytes now (``calibration_file``)."""
         calibration = self.manifest.get("calibration")
         return calibration["path"] if calibration else None
 
@@ -115,12 +117,14 @@ def create_bundle(policy: str, action_map: Path | None, profile: str, envelope: 
     return Bundle(release_id(manifest), manifest)
 
 
-def verify_bundle(bundle: Bundle, policy=None, profile=None) -> None:
+def verify_bundle(bundle: Bundle, policy=None, profile=None, calibration: bool = True) -> None:
     """Raise BundleMismatch, one line naming the input, if anything frozen has changed since create.
 
     ``policy``: the release's policy as a run has loaded it (its adapter hashed what it loaded), compared
     instead of loading the policy again: a file swapped between two runs of a stage is caught there.
-    ``profile``: the profile the run's robot took, compared with the release's calibration the same way."""
+    ``profile``: the profile the run's robot took, compared with the release's calibration the same way.
+    ``calibration`` False: the release's calibration is not checked, for a release whose policy drives a robot
+    that runs on another's (the incumbent in a shadow run, on the candidate's)."""
     if release_id(bundle.manifest) != bundle.id:
         raise BundleMismatch(f"release {bundle.id}: manifest edited (hashes to {release_id(bundle.manifest)})")
     m = bundle.manifest
@@ -133,7 +137,8 @@ def verify_bundle(bundle: Bundle, policy=None, profile=None) -> None:
     if cell.profile.sha256 != m["profile"]["sha256"]:
         raise BundleMismatch(f"release {bundle.id}: profile of {bundle.cell!r} changed since create "
                              f"(sha256 {cell.profile.sha256[:12]}, frozen {m['profile']['sha256'][:12]})")
-    _verify_calibration(bundle, profile)
+    if calibration:
+        _verify_calibration(bundle, profile)
     now = policy_hash(bundle, cell) if policy is None else policy.content_hash()
     if now != m["policy"]["sha256"]:
         raise BundleMismatch(f"release {bundle.id}: policy {m['policy']['spec']} changed since create "
@@ -178,16 +183,49 @@ def _calibration(cell, path: Path | None):
     return None if prof.sha256 == cell.profile.sha256 else prof
 
 
+def calibration_file(bundle: Bundle) -> Path | None:
+    """The file that holds the calibration the release binds, found by its bytes: the path frozen or, recalibrated
+    in place since (``identify --write`` rewrites the profile), the old profile it kept beside it (a link's target)
+    as NAME.VERSION.yaml, with the calibrated MJCF that calibration names. Bound by path, a release stopped
+    running at the next recalibration, and so did a rollback to it. BundleMismatch naming both when neither
+    holds it; None without a calibration."""
+    frozen = bundle.manifest.get("calibration")
+    if frozen is None:
+        return None
+    path = Path(frozen["path"])
+    target = Path(os.path.realpath(path)) if path.is_symlink() else path
+    looked = [path, target.parent / f"{target.stem}.{frozen['version']}{target.suffix}"]
+    held = []
+    for candidate in looked:
+        sha256, what = _held(candidate)
+        if sha256 == frozen["sha256"]:
+            return candidate
+        held.append(what)
+    raise BundleMismatch(f"release {bundle.id}: calibration {path} changed since create and no copy of it is kept "
+                         f"({'; '.join(held)}; frozen: version {frozen['version']}, sha256 {frozen['sha256'][:12]})")
+
+
+def _held(path: Path) -> tuple[str | None, str]:
+    """The sha256 of the calibration file ``path`` and, in words, what it holds (or why it cannot be read)."""
+    try:
+        sha256 = yaml_sha256(path, "calibration")
+    except ReleaseError as exc:
+        return None, str(exc)
+    return sha256, f"{path}: sha256 {sha256[:12]}"
+
+
 def _verify_calibration(bundle: Bundle, loaded) -> None:
     """BundleMismatch if the calibrated profile the release binds is not what ``create`` hashed (``loaded``: the
-    profile a run's robot took; else the file is read again), as for the action map and the policy."""
+    profile a run's robot took; else the file that holds it is looked for again), as for the action map and the
+    policy."""
     frozen = bundle.manifest.get("calibration")
     if frozen is None:
         return
-    now = loaded.sha256 if loaded is not None else yaml_sha256(Path(frozen["path"]), "calibration")
-    if now != frozen["sha256"]:
+    if loaded is None:
+        calibration_file(bundle)
+    elif loaded.sha256 != frozen["sha256"]:
         raise BundleMismatch(f"release {bundle.id}: calibration {frozen['path']} changed since create "
-                             f"(sha256 {now[:12]}, frozen {frozen['sha256'][:12]})")
+                             f"(sha256 {loaded.sha256[:12]}, frozen {frozen['sha256'][:12]})")
 
 
 def _resolve_profile(profile: str) -> tuple[str, Path | None]:

@@ -19,7 +19,7 @@ from pathlib import Path
 from cellguard.errors import OperatorStopped, OutputError, RecordError
 from cellguard.output import make_folder
 from cellguard.release import log
-from cellguard.release.bundle import Bundle, canonical_json, verify_bundle
+from cellguard.release.bundle import Bundle, calibration_file, canonical_json, verify_bundle
 from cellguard.release.errors import BundleMismatch, ReleaseError, StageError
 from cellguard.release.evidence import RunEvidence, counted_run, record_id
 from cellguard.release.gates import FAIL, INCONCLUSIVE, PASS, GateResult, evaluate, verdict
@@ -158,7 +158,7 @@ def run_stage(store: Store, plan: StagePlan, cell: str, stage: str, runs: list[d
     folders = []
     for entry in entries:
         name = entry.get("name", "run")
-        scenario = scenario_for(entry, cell, *_driver(plan, bundle, incumbent), bundle.calibration,
+        scenario = scenario_for(entry, cell, *_driver(plan, bundle, incumbent), _calibration(bundle),
                                 origin=f"{stage} run")
         folder = _claim_folder(store, cell, stage, name)
         if on_run is not None:
@@ -188,14 +188,22 @@ def run_stage(store: Store, plan: StagePlan, cell: str, stage: str, runs: list[d
     return evaluate_stage(store, plan, cell, stage, folders, start, scenario_runs)
 
 
+def _calibration(bundle: Bundle) -> str | None:
+    """The file a run of ``bundle`` takes as its calibration, looked for again before each run: recalibrated in
+    place since the stage started, the release's runs go on from the copy kept beside it."""
+    path = calibration_file(bundle)
+    return None if path is None else str(path)
+
+
 def _incumbent(store: Store, cell: str) -> Bundle | None:
     """What drives the cell in shadow mode: production's current release, its pointers checked against the log
-    and its inputs against its manifest (None: the taught program)."""
+    and its inputs against its manifest (None: the taught program). Not its calibration: the robot runs on the
+    candidate's (a recalibration since the incumbent was made stopped the pilot of the release made on it)."""
     current, _ = log.check_pointers(store, cell, "production")
     if current is None:
         return None
     incumbent = store.bundle(current)
-    verify_bundle(incumbent)
+    verify_bundle(incumbent, calibration=False)
     return incumbent
 
 
@@ -206,7 +214,7 @@ def _start(make, scenario, bundle: Bundle, incumbent: Bundle | None, shadow: boo
     try:
         verify_bundle(bundle, run.policy.candidate if shadow else run.policy, run.cell.profile)
         if incumbent is not None:
-            verify_bundle(incumbent, run.policy.incumbent)
+            verify_bundle(incumbent, run.policy.incumbent, calibration=False)
     except BundleMismatch:
         run.close()
         raise
