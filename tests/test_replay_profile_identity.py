@@ -1,7 +1,9 @@
 """``replay`` runs the model the record was made with, or says which it ran: the record's calibrated profile is
-found where its run read it (or, recalibrated since, as the copy kept beside it); a profile other than the
-record's is used with one warning naming both; the JSON and the page name the profile, its sha256 and its
-calibration. It used to take the cell's stock profile silently and call that "the calibrated model"."""
+found where its run read it (the absolute file its context names, from any working folder; or, recalibrated
+since, as the copy kept beside it), else taken from the profile document the record holds; a profile other than
+the record's is used with one warning naming both; the JSON and the page name the profile, its sha256 and its
+calibration. It used to take the cell's stock profile silently and call that "the calibrated model", and then,
+replayed from another folder than the run's, could not find the calibration the scenario named relative to it."""
 
 from __future__ import annotations
 
@@ -9,15 +11,19 @@ import hashlib
 import json
 import os
 import shutil
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
 from typer.testing import CliRunner
 
+from cellguard.calibrate import replay as replay_module
 from cellguard.calibrate.excitation import excitation_scenario, excite
+from cellguard.calibrate.identify import CalibrationError
 from cellguard.calibrate.replay import load_cycle
 from cellguard.calibrate.torque_model import JointTerms
 from cellguard.cli import app
+from cellguard.record.context import versions
 from cellguard.record.reader import open_record
 from cellguard.robot.arm_cell import ASSETS
 from cellguard.robot.physics import Physics
@@ -52,10 +58,13 @@ def made(tmp_path_factory):
 
 @pytest.fixture
 def site(made, tmp_path, monkeypatch):
-    """A copy of the site per test, the working folder as at the run: a test may move or replace its profile."""
-    copy = Path(shutil.copytree(made, tmp_path / "site"))
-    monkeypatch.chdir(copy)
-    return copy
+    """The site, the working folder as at the run (the record names its profile file absolute, so the site stays
+    where it was made): a test may move or replace its profile; ``cal/`` is put back after it."""
+    kept = shutil.copytree(made / "cal", tmp_path / "cal")
+    monkeypatch.chdir(made)
+    yield made
+    shutil.rmtree(made / "cal", ignore_errors=True)
+    shutil.copytree(kept, made / "cal")
 
 
 def recorded(site: Path) -> dict:
@@ -70,8 +79,8 @@ def used(site: Path, profile: Path | None = None, model: str = "calibrated"):
     return model_terms(load_cycle(site / "run", 0), make_cell(ARM), model, profile)
 
 
-def replay_json(*args: str):
-    result = runner.invoke(app, ["replay", "run", "--cycle", "0", "-o", "page.html", "--json", *args])
+def replay_json(*args: str, record: str = "run"):
+    result = runner.invoke(app, ["replay", record, "--cycle", "0", "-o", "page.html", "--json", *args])
     assert result.exit_code == 0, result.output
     return result, json.loads(result.stdout)
 
@@ -81,7 +90,7 @@ def test_the_record_replays_in_its_own_calibrated_profile(site):
     assert emb["sha256"] != make_cell(ARM).profile.sha256  # a calibrated record, not the stock profile
     terms, p = used(site)
     assert (p.sha256, p.version, p.calibration, p.path) == (emb["sha256"], emb["version"],
-                                                            emb["calibration"]["version"], str(PROFILE))
+                                                            emb["calibration"]["version"], str(PROFILE.resolve()))
     assert p.note is None and p.is_records
     elbow = list(make_cell(ARM).profile.joint_names).index("elbow")
     stock = JointTerms.of_profile(make_cell(ARM), make_cell(ARM).profile)
@@ -95,10 +104,78 @@ def test_recalibrated_since_the_kept_copy_of_the_records_profile_is_used(site):
     shutil.copyfile(PROFILE, kept)
     PROFILE.write_bytes(PROFILE.read_bytes() + b"# recalibrated\n")  # a newer calibration: other bytes
     _, p = used(site)
-    assert p.path == str(kept) and p.is_records and p.note is None
+    assert p.path == str(kept.resolve()) and p.is_records and p.note is None
 
 
-def test_the_records_profile_gone_replays_the_cells_own_and_says_so(site):
+def test_the_record_names_its_profile_file_absolute_outside_the_calibration_stamp(site):
+    with open_record(site / "run") as rec:
+        context = rec.context
+    assert context["embodiment"]["file"] == str((site / PROFILE).resolve())
+    assert context["scenario"]["calibration"] == str(PROFILE)  # as typed: relative to the run's folder
+    elsewhere = {**context, "embodiment": {**context["embodiment"], "file": "/elsewhere/arm_profile.yaml"}}
+    assert versions(elsewhere)["calibration_version"] == versions(context)["calibration_version"]
+
+
+def test_replayed_from_another_folder_the_records_calibration_is_found(site, tmp_path, monkeypatch):
+    """The scenario says cal/arm_profile.yaml, relative to the run's folder: replayed from elsewhere that named
+    no file, and the stock profile was used with a warning that the record's was not found."""
+    emb = recorded(site)
+    _, there = replay_json()
+    monkeypatch.chdir(tmp_path)
+    result, d = replay_json(record=str(site / "run"))
+    assert result.stderr == "" and d["profile_note"] is None
+    assert (d["profile"], d["profile_sha256"]) == (str((site / PROFILE).resolve()), emb["sha256"])
+    assert d["mismatch"] == there["mismatch"]
+
+
+def test_the_records_profile_file_gone_replays_the_records_own_document(site):
+    """Its measured friction, damping and armature from the record's context; the payload from the calibrated
+    MJCF still beside where the file was. The same replay as with the file, and no warning."""
+    emb = recorded(site)
+    _, with_file = replay_json()
+    PROFILE.unlink()
+    result, d = replay_json()
+    assert result.stderr == "" and d["profile_note"] is None
+    assert (d["profile"], d["profile_version"], d["profile_sha256"], d["calibration"]) == (
+        "the record's own document", emb["version"], emb["sha256"], emb["calibration"]["version"])
+    assert d["mismatch"]["cost"] == pytest.approx(with_file["mismatch"]["cost"], rel=1e-6)
+    page = (site / "page.html").read_text()
+    assert "the record&#x27;s own document" in page and "id=profile-note" not in page
+    stock = replay_json("--profile", str(ASSETS / "arm_profile.yaml"))[1]["mismatch"]["cost"]
+    assert abs(stock - d["mismatch"]["cost"]) > 1e3 * abs(d["mismatch"]["cost"] - with_file["mismatch"]["cost"])
+
+
+def test_without_its_calibrated_mjcf_the_document_replays_with_one_warning_that_the_payload_is_missing(site):
+    """The profile keeps no payload: it is in the calibrated MJCF, gone with the folder. Not a silent 0."""
+    emb = recorded(site)
+    shutil.rmtree(site / "cal")
+    result, d = replay_json()
+    assert (d["profile"], d["profile_sha256"]) == ("the record's own document", emb["sha256"])
+    warning = result.stderr.splitlines()
+    assert len(warning) == 1 and warning[0] == f"warning: {d['profile_note']}"
+    mjcf = (site / "cal").resolve() / emb["calibration"]["mjcf"]
+    assert "holds no payload" in warning[0] and f"cannot be read at {mjcf}: replayed without a payload" in warning[0]
+    assert "id=profile-note" in (site / "page.html").read_text()
+
+
+def test_a_record_document_that_is_not_the_records_profile_is_one_calibration_error(site):
+    shutil.rmtree(site / "cal")
+    rc = load_cycle(site / "run", 0)
+    forged = {**rc.profile, "profile": {**rc.profile["profile"], "sha256": "0" * 64}}
+    with pytest.raises(CalibrationError, match=r"^the record's profile document \(context embodiment.profile\) "
+                                               r"cannot be read: its sha256 0+ is not the record's"):
+        replay_module.model_terms(replace(rc, profile=forged), make_cell(ARM), "calibrated", None)
+
+
+def test_an_older_record_without_its_profile_replays_the_cells_own_and_says_so(site, monkeypatch):
+    """A record from before its context held the profile's document and file: only the scenario's path."""
+    load = replay_module.load_cycle
+
+    def older(path, cycle):
+        rc = load(path, cycle)
+        return replace(rc, profile={k: v for k, v in rc.profile.items() if k not in ("profile", "file")})
+
+    monkeypatch.setattr(replay_module, "load_cycle", older)
     shutil.rmtree(site / "cal")
     emb = recorded(site)
     result, d = replay_json()
@@ -108,7 +185,7 @@ def test_the_records_profile_gone_replays_the_cells_own_and_says_so(site):
     warning = result.stderr.splitlines()
     assert len(warning) == 1 and warning[0] == f"warning: {d['profile_note']}"
     assert f"made with profile {emb['version']} (calibration {emb['calibration']['version']}, sha256 " \
-           f"{emb['sha256'][:12]}), not found at {PROFILE}" in warning[0]
+           f"{emb['sha256'][:12]}), not found at {PROFILE.resolve()}" in warning[0]
     assert f"replaying with the cell's own profile {stock.version}" in warning[0]
     page = (site / "page.html").read_text()
     assert "id=profile-note" in page and stock.sha256 in page and emb["sha256"] in page

@@ -4,8 +4,10 @@ The chunks recorded in cycle N go through a fresh guard (the run's own settings)
 cell, started from the recorded state at the cycle's start, with the cell's task set up for cycle N
 (the part at the fixture). The model is the nominal MJCF or the calibrated one (a profile's measured
 friction, damping and armature, as ``identify --write`` leaves them): by default the profile the record was
-made with (its sha256 is in the record's context), found where its run read it; the result names the profile
-it used and says so when that is not the record's (a newer calibration, or the record's one not found). The
+made with (its sha256 is in the record's context), found where its run read it (the absolute file the context
+names, from any working folder) or, gone from there, taken from the profile document the context holds; the
+result names the profile it used and says so when that is not the record's (a newer calibration, or an older
+record's profile not found). The
 simulated joint positions and currents are sampled at the recorded ticks' times (any rate: a production
 record's 50 Hz stream will do). With a ``Vary`` (``friction:elbow=0.8..1.6``) the factor on that parameter
 that best reproduces the recorded currents is searched: a grid over the range, then a bounded scalar search
@@ -26,9 +28,12 @@ from scipy.optimize import minimize_scalar
 
 from cellguard.calibrate.identify import CalibrationError
 from cellguard.calibrate.torque_model import JointTerms, hinge_joints
+from cellguard.embodiment.profile import kept_copy
 
 VARIED = ("friction", "damping", "armature")
 GRID = 5  # factors tried across the range before the bounded search
+DOCUMENT = "the record's own document"  # where the profile's terms came from when its file is gone
+_TERMS = ("torque", "force", "damping", "inertia", "mass")  # the dimensions of friction, damping and armature
 XTOL = 0.01  # the search stops when the factor is known to this [1]
 _VARY = re.compile(r"^(?P<param>\w+):(?P<joint>\w+)=(?P<low>[0-9.]+)\.\.(?P<high>[0-9.]+)$")
 
@@ -90,8 +95,9 @@ class RecordedCycle:
     guard: dict  # the run's guard settings (scenario ``guard``)
     mount: str | None = None  # the record's context ``mount``: "stand" when the base was held (``excite --stand``)
     health: object = None  # the record's ``Health`` (a full read): a damaged record replays what was readable
-    profile: dict = field(default_factory=dict)  # the record's context ``embodiment``: version, sha256, calibration
-    calibration_file: str | None = None  # the run's scenario ``calibration``: the profile file it ran with
+    profile: dict = field(default_factory=dict)  # the record's context ``embodiment``: version, sha256, calibration,
+    # the profile's document and the file it was read from (absolute; older records have neither)
+    calibration_file: str | None = None  # the run's scenario ``calibration``, as typed: relative to the run's folder
 
 
 def load_cycle(path: Path, cycle: int) -> RecordedCycle:
@@ -205,7 +211,7 @@ class UsedProfile:
     version: str | None = None
     sha256: str | None = None
     calibration: str | None = None  # its calibration version; None: typed-in values (or the nominal model)
-    path: str | None = None  # the file read; None: the cell's own profile
+    path: str | None = None  # the file read, or DOCUMENT; None: the cell's own profile
     recorded: str | None = None  # the sha256 of the profile the record was made with, as its context says
     note: str | None = None  # the record's profile and this one, when they differ
 
@@ -226,6 +232,12 @@ class UsedProfile:
                  "the record's" if self.is_records else "not the record's")
         return f"calibrated model of {self.describe()}, {whose}"
 
+    @classmethod
+    def of(cls, profile, path: str | None, recorded: str | None) -> UsedProfile:
+        """``profile`` read from ``path`` (a file, ``DOCUMENT``, or None for the cell's own)."""
+        return cls(profile.version, profile.sha256, profile.calibration.version if profile.calibration else None,
+                   path, recorded)
+
     def to_dict(self) -> dict:
         return {"profile_version": self.version, "profile_sha256": self.sha256, "calibration": self.calibration,
                 "profile": self.path, "record_profile_sha256": self.recorded, "profile_note": self.note}
@@ -233,8 +245,9 @@ class UsedProfile:
 
 def model_terms(rc: RecordedCycle, cell, model: str, profile: Path | None) -> tuple[JointTerms, UsedProfile]:
     """The terms to replay ``rc`` with and which profile they are: ``profile`` (``--profile``), else the record's
-    own (the file its run read, or the copy a later ``identify --write`` kept beside it), else the cell's own,
-    with a note whenever that is not the profile the record was made with."""
+    own (the file its run read, or the copy a later ``identify --write`` kept beside it; gone, the document the
+    record holds), else (an older record) the cell's own, with a note whenever that is not the profile the record
+    was made with or its calibration's payload could not be had."""
     from cellguard.embodiment import load_profile
 
     recorded = rc.profile.get("sha256")
@@ -245,10 +258,14 @@ def model_terms(rc: RecordedCycle, cell, model: str, profile: Path | None) -> tu
     if profile is None:
         profile, looked = _record_profile(rc, cell)
         option = "the record's profile"
+        document = _record_document(rc, cell) if profile is None else None
+        if document is not None:
+            payload, note = _document_payload(rc, document)
+            return (JointTerms.of_profile(cell, document, payload),
+                    replace(UsedProfile.of(document, DOCUMENT, recorded), note=note))
     terms = JointTerms.from_profile(cell, profile, option)
     prof = cell.profile if profile is None else load_profile(cell.model, profile)
-    used = UsedProfile(prof.version, prof.sha256, prof.calibration.version if prof.calibration else None,
-                       None if profile is None else str(profile), recorded)
+    used = UsedProfile.of(prof, None if profile is None else str(profile), recorded)
     if used.is_records or not recorded:
         return terms, used
     calibration = (rc.profile.get("calibration") or {}).get("version")
@@ -263,15 +280,70 @@ def _record_profile(rc: RecordedCycle, cell) -> tuple[Path | None, list[Path]]:
     since, as the kept ``NAME.VERSION.yaml`` beside it; None when it is the cell's own or not found (with the
     paths looked at)."""
     recorded = rc.profile.get("sha256")
-    if not rc.calibration_file or not recorded or recorded == cell.profile.sha256:
+    if not recorded or recorded == cell.profile.sha256:
         return None, []
-    given = Path(rc.calibration_file)
-    target = Path(os.path.realpath(given)) if given.is_symlink() else given  # the old copy is beside a link's target
-    looked = [given, target.parent / f"{target.stem}.{rc.profile.get('version')}{target.suffix}"]
+    version = rc.profile.get("version")
+    looked = [path for place in _places(rc)
+              for path in (place, kept_copy(place, version))]
     for path in looked:
         if _sha256(path) == recorded:
             return path, []
     return None, looked
+
+
+def _places(rc: RecordedCycle) -> list[Path]:
+    """Where the record's run read its profile, resolved (the old copy is beside a link's target), once each: the
+    file the context names (absolute) and the scenario's path as typed (relative to the working folder: an older
+    record's only clue). A NUL in a path from the record names no file."""
+    named = [p for p in (rc.profile.get("file"), rc.calibration_file) if isinstance(p, str) and "\0" not in p]
+    return list(dict.fromkeys(Path(os.path.realpath(p)) for p in named))
+
+
+def _record_document(rc: RecordedCycle, cell):
+    """The profile the record was made with as replay reads it, from the document its context holds (``embodiment
+    show --json``: each measured value in the unit it names): its version, sha256, calibration and measured
+    friction, damping and armature, on the cell's joints. None when that is the cell's own profile, or the record
+    is older than the document; CalibrationError when the document is not one."""
+    from cellguard.embodiment import Calibration, MeasuredParameter
+    from cellguard.units import parse_quantity
+
+    doc, recorded = rc.profile.get("profile"), rc.profile.get("sha256")
+    if doc is None or not recorded or recorded == cell.profile.sha256:
+        return None
+    try:
+        if doc["sha256"] != recorded:
+            raise ValueError(f"its sha256 {doc['sha256']} is not the record's {recorded}")
+        measured = tuple(MeasuredParameter(**m | {"value": parse_quantity(f"{m['value']} {m['unit']}",
+                                                                            f"measured[{i}].value", _TERMS)})
+                         for i, m in enumerate(doc["measured"]) if m["parameter"] in VARIED)
+        cal = doc["calibration"]
+        if cal is not None and (not cal["mjcf"] or Path(cal["mjcf"]).name != cal["mjcf"]):
+            raise ValueError(f"calibration.mjcf {cal['mjcf']!r} is not a file name")
+        calibration = None if cal is None else Calibration(**cal | {"records": tuple(cal["records"])})
+        return replace(cell.profile, version=str(doc["version"]), sha256=recorded, measured=measured,
+                       calibration=calibration)
+    except (KeyError, TypeError, AttributeError, ValueError) as exc:
+        raise CalibrationError(f"the record's profile document (context embodiment.profile) cannot be read: "
+                               f"{exc}; name the profile with --profile") from None
+
+
+def _document_payload(rc: RecordedCycle, document) -> tuple[float, str | None]:
+    """The payload [kg] the record's calibration put into its calibrated MJCF (the profile and its document keep
+    none: the MJCF stores it), read beside where the run read the profile; 0 and a note saying so when it is not
+    there."""
+    from cellguard.calibrate.mjcf import calibrated_payload
+
+    if document.calibration is None:
+        return 0.0, None
+    for place in _places(rc):
+        try:
+            return calibrated_payload(place, document, "the record's profile"), None
+        except CalibrationError:
+            continue
+    mjcf = " or ".join(str(p.with_name(document.calibration.mjcf)) for p in _places(rc)) or document.calibration.mjcf
+    return 0.0, (f"the record's profile file was not found; its own document gave the measured terms but holds no "
+                 f"payload, and the calibrated MJCF that does cannot be read at {mjcf}: replayed without a payload "
+                 "(name the profile with --profile)")
 
 
 def _sha256(path: Path) -> str | None:

@@ -35,7 +35,7 @@ import yaml
 from cellguard.calibrate.identify import CalibrationError, describe_value, negative_values
 from cellguard.calibrate.mjcf import calibrated_mjcf
 from cellguard.calibrate.torque_model import JointTerms
-from cellguard.embodiment.profile import parse_profile
+from cellguard.embodiment.profile import kept_copy, parse_profile
 from cellguard.errors import OutputError, ProfileError
 from cellguard.output import NAME_MAX, write_output
 from cellguard.yaml_file import parse_yaml, read_bounded
@@ -74,8 +74,8 @@ def refuse_long_names(path: Path, cell) -> None:
     path = _target(path)
     version = _checked(path, cell, read_bounded(path, "profile", ProfileError))["version"]
     kept = f"the old profile's copy {path.stem}.VERSION{path.suffix} (its version is {_bytes(version)} bytes)"
-    for name, what, fix in ((_beside(path, version, path.suffix).name, kept, "give the profile a shorter version"),
-                            (_beside(path, NEW_VERSION, ".xml").name, f"the calibrated MJCF {path.stem}.DATE-cal-HASH"
+    for name, what, fix in ((kept_copy(path, version).name, kept, "give the profile a shorter version"),
+                            (_mjcf(path, NEW_VERSION).name, f"the calibrated MJCF {path.stem}.DATE-cal-HASH"
                              ".xml", "give the profile a shorter file name")):
         if _bytes(name) > NAME_MAX:
             raise ProfileError(f"--write: {path}: the name of {what} would be {_bytes(name)} bytes, over the "
@@ -103,9 +103,9 @@ def _target(path: Path) -> Path:
     return path.resolve() if path.is_symlink() else path
 
 
-def _beside(path: Path, version: str, suffix: str) -> Path:
-    """``NAME.VERSION.SUFFIX`` beside the profile ``path``: a kept old profile, a calibrated MJCF."""
-    return path.with_name(f"{path.stem}.{version}{suffix}")
+def _mjcf(path: Path, version: str) -> Path:
+    """``NAME.VERSION.xml`` beside the profile ``path``: its calibrated MJCF."""
+    return path.with_name(f"{path.stem}.{version}.xml")
 
 
 @contextlib.contextmanager
@@ -155,14 +155,14 @@ def _write(path: Path, cell, result: dict, date: str, basis: bytes | None) -> Wr
     mjcf = calibrated_mjcf(cell, JointTerms.of_profile(cell, draft, _payload(result)))
     digest = hashlib.sha256(json.dumps([measured, old_version, mjcf], sort_keys=True).encode()).hexdigest()[:8]
     version = f"{date}-cal-{digest}"
-    mjcf_path = _beside(path, version, ".xml")
+    mjcf_path = _mjcf(path, version)
     raw["version"] = version
     raw["model"] = mjcf_path.name
     raw["calibration"] = {"version": version, "mjcf": mjcf_path.name, "date": date, "records": records,
                           "previous": old_version}
     text = yaml.safe_dump(raw, sort_keys=False, allow_unicode=True)
     parse_profile(mujoco.MjModel.from_xml_string(mjcf), text.encode(), str(path))  # loads on its own model
-    kept = _beside(path, old_version, path.suffix)
+    kept = kept_copy(path, old_version)
     added = []
     try:
         # an older version already kept there is never overwritten; a folder there fails here, before the profile

@@ -162,8 +162,9 @@ def replay(
     cycle: int = typer.Option(..., "--cycle", help="The cycle to replay."),
     model: str = typer.Option("calibrated", "--model", help="calibrated (the profile's measured values) or nominal."),
     profile: Path | None = typer.Option(None, "--profile", help="The calibrated profile (identify --write's); "
-                                        "default: the one the record was made with (found by its sha256 where "
-                                        "the run read it, or kept beside it), else the cell's own. A profile "
+                                        "default: the one the record was made with (found by its sha256 in the "
+                                        "file the run read, or kept beside it; gone, the record's own profile "
+                                        "document), else the cell's own. A profile "
                                         "other than the record's is used with a warning naming both."),
     vary: str | None = typer.Option(None, "--vary", help="PARAM:JOINT=LOW..HIGH, e.g. friction:elbow=0.8..1.6: "
                                     "search the factor that best reproduces the recorded cycle."),

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import datetime
 import hashlib
+import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -172,6 +173,15 @@ class Profile:
 def load_profile(model: mujoco.MjModel, path: Path) -> Profile:
     """Read ``path`` and check it against ``model``; raise ProfileError naming the bad field."""
     return parse_profile(model, read_bounded(path, "profile", ProfileError), str(path))
+
+
+def kept_copy(path: Path, version: str) -> Path:
+    """Where ``identify --write``, rewriting the profile at ``path``, keeps it as it was at ``version``:
+    ``NAME.VERSION.yaml`` beside it (beside a link's target: the target is what is rewritten). A release and a
+    replay bound to that version find it there."""
+    path = Path(path)
+    target = Path(os.path.realpath(path)) if path.is_symlink() else path
+    return target.with_name(f"{target.stem}.{version}{target.suffix}")
 
 
 def calibrated_profile(model: mujoco.MjModel, current: Profile, path: Path) -> Profile:

@@ -5,11 +5,13 @@ sign, SI per unit, offset per action, with its own sha256; the model's hash alon
 under a map in rad and one in deg); the embodiment profile's hash and calibration dates (and, for
 a profile written by ``identify --write``, its calibration: version id and calibrated MJCF) and
 its whole document as ``embodiment show --json`` prints it (the limits the guard enforced, what
-was measured; bounded as the profile file is); envelope configuration, fixture datum, site, cell
-id, scenario and software versions. Short version stamps (``policy``, ``calibration``, ``datum``,
-``context``) are hashes of the relevant parts; every index row carries them so that a query can
-separate cycles run under different versions. A reader recomputes a record's stamps from its own
-context, so an older record (no map, no profile document) keeps the stamps it was written with.
+was measured; bounded as the profile file is) and, for a scenario's ``calibration``, the file it was
+read from, absolute (``replay`` looks for it there, from any working folder); envelope configuration,
+fixture datum, site, cell id, scenario and software versions. Short version stamps (``policy``,
+``calibration``, ``datum``, ``context``) are hashes of the relevant parts; every index row carries them
+so that a query can separate cycles run under different versions. A reader recomputes a record's stamps
+from its own context, so an older record (no map, no profile document) keeps the stamps it was written
+with.
 """
 
 from __future__ import annotations
@@ -29,6 +31,8 @@ def build_context(*, scenario, cell, policy, envelope, software: dict | None = N
     calibration = {"calibration": profile.calibration.to_dict()} if profile.calibration is not None else {}
     # a learned policy's action map (MappedPolicy.map_document) is part of the policy: its stamp changes with it
     action_map = getattr(policy, "map_document", None)
+    # the calibration file the robot read, resolved when it was read (runtime.build.make_robot)
+    file = getattr(cell, "profile_file", None)
     return {
         "site": scenario.site,
         "cell_id": scenario.cell_id,
@@ -38,7 +42,7 @@ def build_context(*, scenario, cell, policy, envelope, software: dict | None = N
         "embodiment": {"robot": profile.robot, "version": profile.version, "sha256": profile.sha256,
                        "joints": list(profile.joint_names),
                        "calibration_dates": sorted({m.measured for m in profile.measured}), **calibration,
-                       "profile": profile.to_dict()},
+                       "profile": profile.to_dict(), **({"file": str(file)} if file is not None else {})},
         **cell.context(),
         "envelope": envelope.to_dict(),
         "servo_period_ns": cell.dt_ns,
@@ -59,11 +63,13 @@ def software_versions() -> dict:
 
 def versions(context: dict) -> dict[str, str]:
     """Short stamps of the parts that change how a cycle reads: policy (its action map included), calibration
-    (the embodiment), datum, whole. The profile's document is left out of the calibration stamp: its sha256 is
-    in it, and the same profile keeps the stamp records made before the document was recorded have."""
+    (the embodiment), datum, whole. The profile's document and file are left out of the calibration stamp: its
+    sha256 is in it, and the same profile keeps the stamp records made before they were recorded have (and read
+    from another folder, the same stamp)."""
     calibration = {k: context.get(k) for k in ("embodiment", "camera_calibration", "tool_offset")}
     if isinstance(calibration["embodiment"], dict):
-        calibration["embodiment"] = {k: v for k, v in calibration["embodiment"].items() if k != "profile"}
+        calibration["embodiment"] = {k: v for k, v in calibration["embodiment"].items()
+                                    if k not in ("profile", "file")}
     return {
         "policy_version": _digest(context.get("policy")),
         "calibration_version": _digest(calibration),

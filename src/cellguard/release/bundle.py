@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -21,7 +20,7 @@ from pydantic import ValidationError
 
 from cellguard import __version__
 from cellguard.control.config import GuardConfig
-from cellguard.embodiment.profile import calibrated_profile
+from cellguard.embodiment.profile import calibrated_profile, kept_copy
 from cellguard.errors import CellguardError, ProfileError
 from cellguard.output import not_regular
 from cellguard.release.errors import BundleMismatch, ReleaseError
@@ -193,8 +192,7 @@ def calibration_file(bundle: Bundle) -> Path | None:
     if frozen is None:
         return None
     path = Path(frozen["path"])
-    target = Path(os.path.realpath(path)) if path.is_symlink() else path
-    looked = [path, target.parent / f"{target.stem}.{frozen['version']}{target.suffix}"]
+    looked = [path, kept_copy(path, frozen["version"])]
     held = []
     for candidate in looked:
         sha256, what = _held(candidate)

@@ -1,5 +1,6 @@
 """The incident replay page: recorded versus simulated joint positions and currents of one cycle, and the
-profile the simulation ran with beside the record's (a note at the top when they differ).
+profile the simulation ran with beside the record's, and where it was read from (a note at the top when they
+differ, or its payload could not be had).
 
 Self-contained HTML in the incident report's style (same CSS, inline SVG charts).
 """
@@ -44,10 +45,11 @@ def render_replay(r: ReplayResult) -> str:
 
 
 def _profile_table(d: dict) -> str:
-    """The profile replayed with, whole sha256 and all, beside the record's: which model this page shows."""
+    """The profile replayed with, whole sha256 and all, beside the record's, and where it was read from (a file,
+    the record's own document, the cell's own): which model this page shows."""
     source = d["profile"] or ("the cell's own" if d["profile_sha256"] else None)
     rows = [("model", d["model"]), ("profile version", d["profile_version"]), ("profile sha256", d["profile_sha256"]),
-            ("calibration", d["calibration"]), ("profile file", source),
+            ("calibration", d["calibration"]), ("profile read from", source),
             ("the record's profile sha256", d["record_profile_sha256"])]
     body = "".join(f"<tr><th>{name}</th><td>{_e('none' if value is None else value)}</td></tr>"
                    for name, value in rows)

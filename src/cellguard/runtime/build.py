@@ -13,7 +13,9 @@ from cellguard.runtime.inference import SimulatedInference, WorkerInference
 
 def make_robot(scenario):
     """``robot: sim`` is the scenario's simulated cell; anything else a bridge (``SCHEME:ARGUMENT``). With a
-    ``calibration`` (a profile ``identify --write`` wrote) the robot takes that profile in place of its own."""
+    ``calibration`` (a profile ``identify --write`` wrote) the robot takes that profile in place of its own, and
+    ``profile_file``, the file read, resolved now: the scenario's path is relative to this working folder (a replay
+    from another folder found no file there), and a link repointed later is not the file this run read."""
     if scenario.robot == "sim":
         robot = make_cell(scenario.cell, seed=scenario.seed)
     else:
@@ -25,6 +27,7 @@ def make_robot(scenario):
             raise ScenarioError(f"calibration: robot {scenario.robot!r} has no MuJoCo model to check the profile "
                                 "against; give a bridge its calibrated profile with its embodiment= option")
         robot.profile = calibrated_profile(robot.model, robot.profile, scenario.calibration)
+        robot.profile_file = scenario.calibration.resolve()
     return robot
 
 
