@@ -104,3 +104,19 @@ def test_a_writable_record_is_not_rewritten_unchanged(diagnosed, tmp_path):
     result = runner.invoke(app, ["diagnose", str(run), "--no-fleet", "--json"])
     assert result.exit_code == 0, result.output
     assert {name: (run / name).stat().st_ino for name in CACHES} == inodes  # a write renames a new file in
+
+
+def test_fleet_similar_of_an_archived_record_warns_of_the_files_it_cannot_keep(diagnosed, tmp_path):
+    """`fleet similar RUN` diagnoses the run as push does: it ended `error: ... cannot write`, exit 2. The store is
+    asked only for the run's findings, and this run has none, so an unreachable one is not contacted."""
+    run = _copy(diagnosed, tmp_path, without=CACHES)
+    policy = tmp_path / "policy.yaml"
+    policy.write_text("tenant: ta\nsite: s1\nexport: signatures\n")
+    store = "host=127.0.0.1 port=1 dbname=x user=x password=x"
+    with read_only(run) as ro:
+        similar = runner.invoke(app, ["fleet", "similar", str(ro), "--policy", str(policy), "--store", store,
+                                      "--json"])
+    assert similar.exception is None or isinstance(similar.exception, SystemExit), similar.output
+    assert similar.exit_code == 1, similar.output
+    assert json.loads(similar.stdout) == {"findings": []}
+    assert [line.startswith("warning: ") for line in similar.stderr.splitlines()] == [True, True], similar.stderr

@@ -152,9 +152,11 @@ def similar(
     as_json: bool = JSON,
 ) -> None:
     """The nearest signatures from other sites (same robot model first), with what fixed them and how often."""
+    from cellguard.cli.diagnose import warn_if_unkept
     from cellguard.errors import ConfigError
     from cellguard.fleet import similar as sim
 
+    unkept: list[str] = []  # a run folder on read-only storage: its diagnosis's files not kept beside it
     try:
         if not store:
             raise ConfigError("--store: no fleet store DSN (or CELLGUARD_FLEET_DSN)")
@@ -166,7 +168,7 @@ def similar(
                 raise ConfigError("--policy: needed with a run folder (it names this site)")
             site_policy = load_policy(policy)
             probes = [sim.as_sent(p, site_policy.withheld) for p in site_signatures(Path(target), site_policy,
-                                                                                       acceptance)]
+                                                                                       acceptance, unkept)]
         else:
             probes = [sim.probe_of(st, target)]
         out = [{"cause": p.cause, "neighbours": [n.to_dict() for n in sim.similar(st, p, limit)]} for p in probes]
@@ -174,14 +176,16 @@ def similar(
         fail(exc)
     if as_json:
         sys.stdout.write(json.dumps({"findings": out}) + "\n")
-        return
-    for f in out:
-        say(f"finding {f['cause']}: {len(f['neighbours'])} similar signature(s)", err=False)
-        for n in f["neighbours"]:
-            fixes = "; ".join(f"{x['recovery'] or 'no recovery recorded'} fixed {x['fixed']}/{x['signatures']} "
-                              f"({x['scope']})" for x in n["fixes"]) or "no fix known"
-            say(f"  {n['similarity']:.3f} {n['cause']} at site {n['site_id']} ({n['robot_model']}): {fixes}",
-                err=False)
+    else:
+        for f in out:
+            say(f"finding {f['cause']}: {len(f['neighbours'])} similar signature(s)", err=False)
+            for n in f["neighbours"]:
+                fixes = "; ".join(f"{x['recovery'] or 'no recovery recorded'} fixed {x['fixed']}/{x['signatures']} "
+                                  f"({x['scope']})" for x in n["fixes"]) or "no fix known"
+                say(f"  {n['similarity']:.3f} {n['cause']} at site {n['site_id']} ({n['robot_model']}): {fixes}",
+                    err=False)
+    if warn_if_unkept(unkept):
+        raise typer.Exit(1)
 
 
 @fleet_app.command()
