@@ -154,8 +154,41 @@ def test_without_its_calibrated_mjcf_the_document_replays_with_one_warning_that_
     warning = result.stderr.splitlines()
     assert len(warning) == 1 and warning[0] == f"warning: {d['profile_note']}"
     mjcf = (site / "cal").resolve() / emb["calibration"]["mjcf"]
-    assert "holds no payload" in warning[0] and f"cannot be read at {mjcf}: replayed without a payload" in warning[0]
+    assert warning[0].startswith("warning: the record's profile file was not found; its own document gave the "
+                                 "measured terms, but the calibrated MJCF")
+    assert f"cannot be read at {mjcf}: replayed without a payload" in warning[0]
     assert "id=profile-note" in (site / "page.html").read_text()
+
+
+def test_the_records_file_without_its_calibrated_mjcf_replays_as_the_document_does(site):
+    """Removing only the MJCF ended the replay (exit 2) while removing the profile file too replayed with a
+    warning: the same missing payload is the same warning, whichever file is still there."""
+    emb = recorded(site)
+    mjcf = (site / "cal").resolve() / emb["calibration"]["mjcf"]
+    mjcf.unlink()
+    result, d = replay_json()
+    assert result.exit_code == 0, result.output
+    assert d["profile_sha256"] == emb["sha256"] and d["profile"] == str((site / PROFILE).resolve())
+    warning = result.stderr.splitlines()
+    assert len(warning) == 1 and warning[0] == f"warning: {d['profile_note']}"
+    assert warning[0].startswith("warning: the record's profile file was found, but the calibrated MJCF")
+    assert f"cannot be read at {mjcf}: replayed without a payload" in warning[0]
+
+
+def test_a_record_document_of_another_robot_is_one_calibration_error_not_terms_dropped(site):
+    """Its measured joints are not the model's: every term was dropped and the replay called "the record's"."""
+    shutil.rmtree(site / "cal")
+    rc = load_cycle(site / "run", 0)
+    doc = rc.profile["profile"]
+    other = {**doc, "robot": "another-arm",
+             "measured": [{**m, "joint": f"{m['joint']}_2"} for m in doc["measured"]]}
+    with pytest.raises(CalibrationError, match="it is a profile of robot 'another-arm'"):
+        replay_module.model_terms(replace(rc, profile={**rc.profile, "profile": other}), make_cell(ARM),
+                                  "calibrated", None)
+    renamed = {**doc, "measured": [{**m, "joint": f"{m['joint']}_2"} for m in doc["measured"]]}
+    with pytest.raises(CalibrationError, match="it measured joints the arm-pick-place model lacks: elbow_2"):
+        replay_module.model_terms(replace(rc, profile={**rc.profile, "profile": renamed}), make_cell(ARM),
+                                  "calibrated", None)
 
 
 def test_a_record_document_that_is_not_the_records_profile_is_one_calibration_error(site):

@@ -254,16 +254,20 @@ def model_terms(rc: RecordedCycle, cell, model: str, profile: Path | None) -> tu
     if model == "nominal":
         return JointTerms.nominal(cell), UsedProfile(recorded=recorded)
     looked: list[Path] = []
-    option = "--profile"
     if profile is None:
         profile, looked = _record_profile(rc, cell)
-        option = "the record's profile"
-        document = _record_document(rc, cell) if profile is None else None
+        if profile is not None:  # the record's own file: its payload as the document's, a missing MJCF noted
+            found = load_profile(cell.model, profile)
+            payload, note = _payload([profile], found, "the record's profile file was found")
+            return JointTerms.of_profile(cell, found, payload), replace(UsedProfile.of(found, str(profile), recorded),
+                                                                       note=note)
+        document = _record_document(rc, cell)
         if document is not None:
-            payload, note = _document_payload(rc, document)
+            payload, note = _payload(_places(rc), document, "the record's profile file was not found; its own "
+                                     "document gave the measured terms")
             return (JointTerms.of_profile(cell, document, payload),
                     replace(UsedProfile.of(document, DOCUMENT, recorded), note=note))
-    terms = JointTerms.from_profile(cell, profile, option)
+    terms = JointTerms.from_profile(cell, profile)
     prof = cell.profile if profile is None else load_profile(cell.model, profile)
     used = UsedProfile.of(prof, None if profile is None else str(profile), recorded)
     if used.is_records or not recorded:
@@ -292,10 +296,12 @@ def _record_profile(rc: RecordedCycle, cell) -> tuple[Path | None, list[Path]]:
 
 
 def _places(rc: RecordedCycle) -> list[Path]:
-    """Where the record's run read its profile, resolved (the old copy is beside a link's target), once each: the
-    file the context names (absolute) and the scenario's path as typed (relative to the working folder: an older
-    record's only clue). A NUL in a path from the record names no file."""
-    named = [p for p in (rc.profile.get("file"), rc.calibration_file) if isinstance(p, str) and "\0" not in p]
+    """Where the record's run read its profile, resolved (the old copy is beside a link's target): the file the
+    context names (absolute), or for an older record the scenario's path as typed (relative to the working folder:
+    its only clue). A NUL in a path from the record names no file."""
+    file = rc.profile.get("file")  # a record that names its file: the path as typed is relative to another folder
+    named = [p for p in ((file,) if isinstance(file, str) else (rc.calibration_file,))
+             if isinstance(p, str) and "\0" not in p]
     return list(dict.fromkeys(Path(os.path.realpath(p)) for p in named))
 
 
@@ -313,6 +319,12 @@ def _record_document(rc: RecordedCycle, cell):
     try:
         if doc["sha256"] != recorded:
             raise ValueError(f"its sha256 {doc['sha256']} is not the record's {recorded}")
+        if doc["robot"] != cell.profile.robot:  # its terms would name joints the model lacks: dropped unseen
+            raise ValueError(f"it is a profile of robot {doc['robot']!r}; the {cell.name} model is of "
+                             f"{cell.profile.robot!r}")
+        strange = sorted({m["joint"] for m in doc["measured"]} - set(cell.profile.joint_names) - {None})
+        if strange:
+            raise ValueError(f"it measured joints the {cell.name} model lacks: {', '.join(map(str, strange))}")
         measured = tuple(MeasuredParameter(**m | {"value": parse_quantity(f"{m['value']} {m['unit']}",
                                                                             f"measured[{i}].value", _TERMS)})
                          for i, m in enumerate(doc["measured"]) if m["parameter"] in VARIED)
@@ -327,23 +339,22 @@ def _record_document(rc: RecordedCycle, cell):
                                f"{exc}; name the profile with --profile") from None
 
 
-def _document_payload(rc: RecordedCycle, document) -> tuple[float, str | None]:
-    """The payload [kg] the record's calibration put into its calibrated MJCF (the profile and its document keep
-    none: the MJCF stores it), read beside where the run read the profile; 0 and a note saying so when it is not
-    there."""
+def _payload(places: list[Path], prof, why: str) -> tuple[float, str | None]:
+    """The payload [kg] ``prof``'s calibration put into its calibrated MJCF (a profile and its document keep none:
+    the MJCF stores it), read beside the first of ``places`` that has it; 0 and a note saying so (``why`` the note
+    begins) when none has."""
     from cellguard.calibrate.mjcf import calibrated_payload
 
-    if document.calibration is None:
+    if prof.calibration is None:
         return 0.0, None
-    for place in _places(rc):
+    for place in places:
         try:
-            return calibrated_payload(place, document, "the record's profile"), None
+            return calibrated_payload(place, prof, "the record's profile"), None
         except CalibrationError:
             continue
-    mjcf = " or ".join(str(p.with_name(document.calibration.mjcf)) for p in _places(rc)) or document.calibration.mjcf
-    return 0.0, (f"the record's profile file was not found; its own document gave the measured terms but holds no "
-                 f"payload, and the calibrated MJCF that does cannot be read at {mjcf}: replayed without a payload "
-                 "(name the profile with --profile)")
+    mjcf = " or ".join(str(p.with_name(prof.calibration.mjcf)) for p in places) or prof.calibration.mjcf
+    return 0.0, (f"{why}, but the calibrated MJCF that holds the payload cannot be read at {mjcf}: replayed "
+                 "without a payload (name the profile with --profile)")
 
 
 def _sha256(path: Path) -> str | None:
