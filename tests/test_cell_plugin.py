@@ -107,3 +107,70 @@ def test_a_plugin_cell_runs_and_its_record_is_diagnosed_in_later_processes(plugi
                                text=True, timeout=600)
     assert diagnosed.returncode == 0, diagnosed.stderr
     assert json.loads(diagnosed.stdout)["findings"] == []
+
+
+BROKEN = f'''
+from cellguard.robot.arm_cell import ArmPickPlace
+
+
+class NoBus(ArmPickPlace):
+    name = "{NAME}"
+
+    def __init__(self, seed=0):
+        raise OSError("cannot open /dev/ttyUSB0")
+
+
+class NotACell:
+    name = "{NAME}"
+
+    def __init__(self, seed=0):
+        pass
+
+
+def junk(cell):
+    return 42
+'''
+
+
+@pytest.mark.parametrize("value, error", [
+    ("armcopy:NoBus", r"cell 'armcopy-pick-place': its plugin armcopy failed: OSError: cannot open /dev/ttyUSB0"),
+    ("armcopy:NotACell", r"returned a NotACell, not a SimCell: it has no begin_cycle, .*profile"),
+])
+def test_a_plugin_cell_that_cannot_be_built_is_one_line_naming_it(tmp_path, monkeypatch, value, error):
+    """Imported, then failing (a vendor SDK that cannot open its bus) or not a cell: a traceback, exit 1, before."""
+    folder = tmp_path / "site"
+    folder.mkdir()
+    install(folder, f"[cellguard.cells]\n{NAME} = {value}\n", module=BROKEN)
+    monkeypatch.syspath_prepend(str(folder))
+    try:
+        with pytest.raises(ConfigError, match=error):
+            make_cell(NAME)
+    finally:
+        sys.modules.pop("armcopy", None)
+
+
+def test_a_plugin_taught_program_that_is_no_policy_is_one_line_naming_it(tmp_path, monkeypatch):
+    folder = tmp_path / "site"
+    folder.mkdir()
+    install(folder, ENTRY_POINTS.replace("armcopy:scripted", "armcopy:junk"), module=PLUGIN + BROKEN)
+    monkeypatch.syspath_prepend(str(folder))
+    try:
+        with pytest.raises(ConfigError, match=r"scripted policy for cell 'armcopy-pick-place': its plugin armcopy "
+                                              r"returned a int, not a Policy: it has no close, content_hash"):
+            make_policy("scripted", make_cell(NAME))
+    finally:
+        sys.modules.pop("armcopy", None)
+
+
+def test_a_cell_name_two_plugins_register_is_refused_naming_both(plugin, tmp_path, monkeypatch):
+    """Which one won followed the order the folders were listed in: a record could read as another robot."""
+    other = tmp_path / "other"
+    other.mkdir()
+    info = other / "othercopy-0.1.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: othercopy\nVersion: 0.1\n")
+    (info / "entry_points.txt").write_text(f"[cellguard.cells]\n{NAME} = othercopy:Quadruped\n")
+    monkeypatch.syspath_prepend(str(other))
+    with pytest.raises(ConfigError, match=rf"cellguard.cells '{NAME}': registered twice, as .* and as .*; "
+                                          r"uninstall one of the two plugins"):
+        make_cell(NAME)

@@ -47,3 +47,15 @@ def test_a_long_version_that_fits_is_written_and_kept(excited, profile):
     result = runner.invoke(app, ["identify", str(excited), "--params", "friction", "--write", str(profile)])
     assert result.exit_code == 0, result.output
     assert (profile.parent / f"arm_profile.{'v' * 200}.yaml").is_file()
+
+
+def test_a_kept_copy_is_not_rewritten(excited, profile):
+    """Rewritten in place, a kept copy's release could no longer run (its bytes went to NAME.V.V.yaml, a name no one
+    looks for): refused before the fit, nothing written; the profile it was kept from is written as before."""
+    first = runner.invoke(app, ["identify", str(excited), "--params", "friction", "--write", str(profile)])
+    assert first.exit_code == 0, first.output
+    (kept,) = [p for p in profile.parent.glob("arm_profile.*.yaml")]
+    names, before = sorted(p.name for p in profile.parent.iterdir()), kept.read_bytes()
+    line = one_error(runner.invoke(app, ["identify", str(excited), "--params", "friction", "--write", str(kept)]))
+    assert f"{kept} is the copy of version" in line and "kept when its profile was recalibrated" in line, line
+    assert sorted(p.name for p in profile.parent.iterdir()) == names and kept.read_bytes() == before

@@ -67,12 +67,14 @@ def refuse_dropped_payload(path: Path, cell, wanted: tuple[str, ...]) -> None:
                                "with --only (which holds it)")
 
 
-def refuse_long_names(path: Path, cell) -> None:
-    """The files a write adds beside ``path`` (a link: its target) must have names a file system takes, at most
-    NAME_MAX bytes: the old profile kept as NAME.VERSION.yaml and the calibrated MJCF as NAME.DATE-cal-HASH.xml.
-    Checked before any record is read: a 300-character version failed only after the fit, in a traceback."""
+def check_write_target(path: Path, cell) -> None:
+    """Before any record is read: ``path`` (a link: its target) is not a kept copy (``_refuse_kept_copy``), and the
+    files a write adds beside it have names a file system takes, at most NAME_MAX bytes: the old profile kept as
+    NAME.VERSION.yaml and the calibrated MJCF as NAME.DATE-cal-HASH.xml (a 300-character version failed only after
+    the fit, in a traceback)."""
     path = _target(path)
     version = _checked(path, cell, read_bounded(path, "profile", ProfileError))["version"]
+    _refuse_kept_copy(path, str(version))
     kept = f"the old profile's copy {path.stem}.VERSION{path.suffix} (its version is {_bytes(version)} bytes)"
     for name, what, fix in ((kept_copy(path, version).name, kept, "give the profile a shorter version"),
                             (_mjcf(path, NEW_VERSION).name, f"the calibrated MJCF {path.stem}.DATE-cal-HASH"
@@ -95,6 +97,16 @@ def write_profile(path: Path, cell, result: dict, date: str, basis: bytes | None
     path = _target(path)
     with _folder_locked(path.parent):
         return _write(path, cell, result, date, basis)
+
+
+def _refuse_kept_copy(path: Path, version: str) -> None:
+    """A kept copy (``NAME.VERSION.yaml`` of version VERSION) is what releases and records of that version are
+    read from: rewritten in place, every release bound to it could no longer run (its bytes went to a name no one
+    looks for). Refused: calibrate the profile it was kept from, or a copy of it under another name."""
+    if path.name.endswith(f".{version}{path.suffix}"):
+        raise ProfileError(f"--write: {path} is the copy of version {version} kept when its profile was recalibrated "
+                           f"(releases and records of that version read it); write the profile it was kept from, or "
+                           f"copy it to another name first (nothing written)")
 
 
 def _target(path: Path) -> Path:
@@ -133,6 +145,7 @@ def _write(path: Path, cell, result: dict, date: str, basis: bytes | None) -> Wr
         raise CalibrationError(f"--write: {path} changed while the re-fit ran (another calibration was written); "
                                "the terms it held are no longer the profile's: run identify --only again")
     raw = _checked(path, cell, old_bytes)
+    _refuse_kept_copy(path, str(raw.get("version", "unversioned")))
     new = [e for e in result["estimates"] if e["parameter"] in WRITTEN and e["interval"] is not None]
     if not new:
         raise CalibrationError(f"--write: nothing identified to write (of {', '.join(WRITTEN)})")

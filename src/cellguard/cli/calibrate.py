@@ -79,10 +79,11 @@ def identify(
             for record in records:
                 refuse_output(write, record, option="--write")
         cell = make_cell(cell_name or record_robot(records[0]))
-        if write is not None:  # the names it adds beside the profile, before the fit (a name too long failed after)
-            from cellguard.calibrate.write import refuse_long_names
+        if write is not None:  # not a kept copy, and the names it adds beside it, before the fit (a name too long
+            # failed after it)
+            from cellguard.calibrate.write import check_write_target
 
-            refuse_long_names(write, cell)
+            check_write_target(write, cell)
         basis = None  # the profile --only holds its other terms at: --write refuses it if it changed meanwhile
         if only:
             from cellguard.calibrate.identify import parse_only, refit

@@ -11,17 +11,20 @@ from collections.abc import Callable
 
 from cellguard.errors import ConfigError, UnknownNameError
 from cellguard.policy.protocol import Policy
-from cellguard.robot.registry import load_plugin, plugins
+from cellguard.robot.registry import from_plugin, load_plugin, plugins
 
 
 def _scripted(arg: str, cell) -> Policy:
     if arg:
         raise ConfigError(f"policy: 'scripted' takes no argument, got 'scripted:{arg}'")
-    factory = SCRIPTED.get(cell.name) or load_plugin(SCRIPTED_PLUGINS, cell.name, "scripted policy for cell")
+    if cell.name in SCRIPTED:
+        return SCRIPTED[cell.name](cell)
+    factory = load_plugin(SCRIPTED_PLUGINS, cell.name, "scripted policy for cell")
     if factory is None:
         raise UnknownNameError("scripted policy for cell", cell.name,
                                [*SCRIPTED, *(n for n in plugins(SCRIPTED_PLUGINS) if n not in SCRIPTED)])
-    return factory(cell)
+    return from_plugin(lambda: factory(cell), Policy, f"scripted policy for cell {cell.name!r}: its plugin "
+                       f"{getattr(factory, '__module__', factory)}")
 
 
 def _scripted_arm(cell) -> Policy:

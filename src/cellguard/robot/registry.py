@@ -8,10 +8,12 @@ find it in any process, with no edit to cellguard. A plugin is imported only whe
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from importlib.metadata import EntryPoint, entry_points
 
 from cellguard.errors import ConfigError, UnknownNameError
 from cellguard.robot.arm_cell import ArmPickPlace
+from cellguard.robot.protocol import SimCell
 from cellguard.robot.quadruped_cell import QuadrupedTurns
 from cellguard.robot.so101_cell import SO101PickPlace
 
@@ -26,19 +28,47 @@ def cell_names() -> list[str]:
 
 
 def make_cell(name: str, seed: int = 0):
-    """Build the simulated cell ``name`` with its random generator seeded by ``seed``."""
-    cls = CELLS.get(name) or load_plugin(CELL_PLUGINS, name, "cell")
+    """Build the simulated cell ``name`` with its random generator seeded by ``seed``. A built-in cell's name is
+    always the built-in cell (a plugin registering it is never loaded)."""
+    if name in CELLS:
+        return CELLS[name](seed=seed)
+    cls = load_plugin(CELL_PLUGINS, name, "cell")
     if cls is None:
         raise UnknownNameError("cell", name, cell_names())
     if getattr(cls, "name", None) != name:
         raise ConfigError(f"cell {name!r}: its plugin's class {cls.__module__}.{cls.__qualname__} is named "
                           f"{getattr(cls, 'name', None)!r}; the entry point's name must be the cell's name")
-    return cls(seed=seed)
+    return from_plugin(lambda: cls(seed=seed), SimCell, f"cell {name!r}: its plugin {cls.__module__}")
+
+
+def from_plugin(make: Callable[[], object], protocol: type, what: str):
+    """What ``make`` (a plugin's code) returns, checked to have every member of ``protocol``; ConfigError naming
+    ``what`` when it raises or returns something else (a plugin's traceback, or an AttributeError deep in a run)."""
+    try:
+        made = make()
+    except Exception as exc:  # any error of a plugin's own code is the plugin's, named here
+        raise ConfigError(f"{what} failed: {type(exc).__name__}: {exc}") from None
+    members = {n for n in dir(protocol) if not n.startswith("_")}
+    for base in protocol.__mro__:
+        members |= set(getattr(base, "__annotations__", {}))
+    missing = sorted(m for m in members if not hasattr(made, m))
+    if missing:
+        raise ConfigError(f"{what} returned a {type(made).__name__}, not a {protocol.__name__}: it has no "
+                          f"{', '.join(missing)}")
+    return made
 
 
 def plugins(group: str) -> dict[str, EntryPoint]:
-    """The entry points of ``group`` in the installed distributions, by name (not loaded)."""
-    return {ep.name: ep for ep in entry_points(group=group)}
+    """The entry points of ``group`` in the installed distributions, by name (not loaded). ConfigError naming both
+    when two distributions register one name with other values: which one won followed the order the folders were
+    listed in, so the same record could read as another robot on another host."""
+    found: dict[str, EntryPoint] = {}
+    for ep in entry_points(group=group):
+        other = found.setdefault(ep.name, ep)
+        if other.value != ep.value:
+            raise ConfigError(f"{group} {ep.name!r}: registered twice, as {other.value} and as {ep.value}; "
+                              f"uninstall one of the two plugins")
+    return found
 
 
 def load_plugin(group: str, name: str, what: str):
