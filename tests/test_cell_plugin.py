@@ -129,6 +129,14 @@ class NotACell:
 
 def junk(cell):
     return 42
+
+
+class LazyFaults(ArmPickPlace):
+    name = "{NAME}"
+
+    @property
+    def supported_faults(self):
+        raise RuntimeError("the fault table is read from the vendor SDK")
 '''
 
 
@@ -174,3 +182,30 @@ def test_a_cell_name_two_plugins_register_is_refused_naming_both(plugin, tmp_pat
     with pytest.raises(ConfigError, match=rf"cellguard.cells '{NAME}': registered twice, as .* and as .*; "
                                           r"uninstall one of the two plugins"):
         make_cell(NAME)
+
+
+def test_a_plugin_cell_whose_member_raises_when_read_is_not_a_traceback(tmp_path, monkeypatch):
+    """The member check ran a property that raised: a traceback, exit 1. Members are looked up, not run."""
+    folder = tmp_path / "site"
+    folder.mkdir()
+    install(folder, f"[cellguard.cells]\n{NAME} = armcopy:LazyFaults\n", module=BROKEN)
+    monkeypatch.syspath_prepend(str(folder))
+    try:
+        cell = make_cell(NAME)
+        assert type(cell).__name__ == "LazyFaults"
+    finally:
+        sys.modules.pop("armcopy", None)
+
+
+def test_a_name_two_plugins_register_leaves_every_other_name_as_it_was(plugin, tmp_path, monkeypatch):
+    """The conflict was raised while listing the group: every cell, built-in ones included, was refused."""
+    other = tmp_path / "other"
+    other.mkdir()
+    info = other / "othercopy-0.1.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: othercopy\nVersion: 0.1\n")
+    (info / "entry_points.txt").write_text(f"[cellguard.cells]\n{NAME} = othercopy:Quadruped\n")
+    monkeypatch.syspath_prepend(str(other))
+    assert make_cell("arm-pick-place").name == "arm-pick-place" and NAME in cell_names()
+    with pytest.raises(UnknownNameError, match="arm-pick-place"):
+        make_cell("arm-pick-plac")

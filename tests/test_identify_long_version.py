@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import re
 
+import yaml
 from arm_excitation import ARM, excited, profile  # noqa: F401 (fixtures)
 from cli_util import one_error
 from typer.testing import CliRunner
@@ -59,3 +60,11 @@ def test_a_kept_copy_is_not_rewritten(excited, profile):
     line = one_error(runner.invoke(app, ["identify", str(excited), "--params", "friction", "--write", str(kept)]))
     assert f"{kept} is the copy of version" in line and "kept when its profile was recalibrated" in line, line
     assert sorted(p.name for p in profile.parent.iterdir()) == names and kept.read_bytes() == before
+
+
+def test_a_profile_named_like_a_kept_copy_but_kept_from_nothing_is_written(excited, profile):
+    """Only a copy beside the NAME.yaml it was kept from is one: a user's own myarm.VERSION.yaml was refused."""
+    version = yaml.safe_load(profile.read_text())["version"]
+    own = profile.rename(profile.with_name(f"myarm.{version}.yaml"))
+    result = runner.invoke(app, ["identify", str(excited), "--params", "friction", "--write", str(own)])
+    assert result.exit_code == 0, result.output

@@ -254,3 +254,14 @@ def test_the_nominal_model_names_no_profile(site):
     _, p = used(site, model="nominal")
     assert (p.version, p.sha256, p.calibration, p.note) == (None, None, None, None)
     assert p.recorded == recorded(site)["sha256"]
+
+
+def test_a_site_folder_copied_whole_replays_from_its_own_profile_file(site, tmp_path, monkeypatch):
+    """The absolute file is gone (the site moved); the scenario's path from the copied site's folder is the same
+    bytes: the record's own file, with its MJCF and payload, no warning (the document lost the payload)."""
+    moved = Path(shutil.copytree(site, tmp_path / "moved", ignore=shutil.ignore_patterns("*.html")))
+    shutil.rmtree(site / "cal")
+    monkeypatch.chdir(moved)
+    result, d = replay_json()
+    assert d["profile"] == str((moved / PROFILE).resolve()) and d["profile_note"] is None
+    assert result.stderr == ""

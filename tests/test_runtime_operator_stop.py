@@ -1,4 +1,5 @@
-"""Ctrl-C (SIGINT) or SIGTERM while the cycles run: a category 2 stop, the retreat, a complete record; exit 130."""
+"""Ctrl-C (SIGINT), SIGTERM or a closed terminal's SIGHUP while the cycles run: a category 2 stop, the retreat, a
+complete record; exit 130. SIGHUP ended the process mid-motion, with no summary and no word on stderr."""
 
 from __future__ import annotations
 
@@ -46,7 +47,7 @@ def _signal_mid_run(args: list[str], out, signum: int, group: bool = False) -> s
     return stderr
 
 
-@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP])
 def test_a_stop_signal_mid_run_stops_the_arm_retreats_it_and_the_record_says_so(tmp_path, signum):
     scenario = tmp_path / "scenario.yaml"
     scenario.write_text(yaml.safe_dump({"cell": "arm-pick-place", "acceptance_cycles": 1, "production_cycles": 30}))

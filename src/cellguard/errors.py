@@ -7,7 +7,7 @@
     ├── UnknownNameError     a registry lookup that failed; lists the names that exist
     ├── RecordError          a record that cannot be written or read
     ├── OutputError          another output file or folder that cannot be written
-    └── OperatorStopped      Ctrl-C or SIGTERM ended work that runs cycles (exit 130, not 2)
+    └── OperatorStopped      Ctrl-C/SIGTERM/SIGHUP ended work that runs cycles (exit 130, not 2)
 
 Subclasses that belong to one part live beside its code: under ``ConfigError`` the release's
 ``ReleaseError`` (``BundleMismatch``, ``StageError``, ``GateError``), ``CalibrationError``,

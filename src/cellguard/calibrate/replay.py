@@ -296,12 +296,11 @@ def _record_profile(rc: RecordedCycle, cell) -> tuple[Path | None, list[Path]]:
 
 
 def _places(rc: RecordedCycle) -> list[Path]:
-    """Where the record's run read its profile, resolved (the old copy is beside a link's target): the file the
-    context names (absolute), or for an older record the scenario's path as typed (relative to the working folder:
-    its only clue). A NUL in a path from the record names no file."""
-    file = rc.profile.get("file")  # a record that names its file: the path as typed is relative to another folder
-    named = [p for p in ((file,) if isinstance(file, str) else (rc.calibration_file,))
-             if isinstance(p, str) and "\0" not in p]
+    """Where the record's run read its profile, resolved (the old copy is beside a link's target), once each: the
+    file the context names (absolute), then the scenario's path as typed (relative to the working folder: an older
+    record's only clue, and a site folder moved or copied whole). Each is taken only if its sha256 is the record's.
+    A NUL in a path from the record names no file."""
+    named = [p for p in (rc.profile.get("file"), rc.calibration_file) if isinstance(p, str) and "\0" not in p]
     return list(dict.fromkeys(Path(os.path.realpath(p)) for p in named))
 
 

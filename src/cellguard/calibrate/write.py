@@ -100,10 +100,11 @@ def write_profile(path: Path, cell, result: dict, date: str, basis: bytes | None
 
 
 def _refuse_kept_copy(path: Path, version: str) -> None:
-    """A kept copy (``NAME.VERSION.yaml`` of version VERSION) is what releases and records of that version are
-    read from: rewritten in place, every release bound to it could no longer run (its bytes went to a name no one
+    """A kept copy (``NAME.VERSION.yaml`` of version VERSION, beside the ``NAME.yaml`` it was kept from) is what
+    releases and records of that version are read from: rewritten in place, every release bound to it could no longer run (its bytes went to a name no one
     looks for). Refused: calibrate the profile it was kept from, or a copy of it under another name."""
-    if path.name.endswith(f".{version}{path.suffix}"):
+    kept_from = path.with_name(path.name.removesuffix(f".{version}{path.suffix}") + path.suffix)
+    if path.name.endswith(f".{version}{path.suffix}") and kept_from != path and kept_from.is_file():
         raise ProfileError(f"--write: {path} is the copy of version {version} kept when its profile was recalibrated "
                            f"(releases and records of that version read it); write the profile it was kept from, or "
                            f"copy it to another name first (nothing written)")

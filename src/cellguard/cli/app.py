@@ -27,16 +27,16 @@ def _root(ctx: typer.Context) -> None:
 def _ended_by_signals() -> Iterator[None]:
     """While a command runs, SIGTERM or SIGHUP end it as Ctrl-C does, by an exception (SystemExit, 128 + the signal:
     143 for SIGTERM), so that its clean-up runs: killed outright, an export left its hidden temporary file or
-    staging folder beside the target for good. A run's operator stop (``runtime.operator_stop``) takes SIGTERM over
-    while its cycles run; a SIGHUP then, or either signal in a forked child, ends the process at once as before
-    (no exception mid-tick). Installed only on the main thread (Python delivers signals there), restored after."""
+    staging folder beside the target for good. A run's operator stop (``runtime.operator_stop``) takes both over
+    while it runs; either signal in a forked child ends the process at once as before (no exception mid-tick).
+    Installed only on the main thread (Python delivers signals there), restored after."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
     pid = os.getpid()
 
     def end(signum: int, frame) -> None:
-        if os.getpid() != pid or signal.getsignal(signal.SIGTERM) is not end:
+        if os.getpid() != pid:
             signal.signal(signum, signal.SIG_DFL)
             os.kill(os.getpid(), signum)
             return

@@ -52,7 +52,7 @@ class EventKind(StrEnum):
     RECORD_FAILED = "record_failed", False, 2
     RECORD_QUEUE_FULL = "record_queue_full"
     WATCHDOG_NO_FIRST_CHUNK = "watchdog_no_first_chunk"
-    OPERATOR_STOP = "operator_stop", False, 2  # Ctrl-C or SIGTERM while the cycles run
+    OPERATOR_STOP = "operator_stop", False, 2  # Ctrl-C, SIGTERM or SIGHUP while the cycles run
     RUN_PROCESS_LOST = "run_process_lost"  # written by the recorder alone: the run's process died (SIGKILL, OOM)
     # the real-time loop: ticks later than one period, and the budget that stops the cell
     OVERRUN = "overrun"

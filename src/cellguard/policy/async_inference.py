@@ -108,7 +108,8 @@ class PolicyProcess:
 def _serve_policy(conn, factory, sha256: str | None) -> None:
     """Answer the parent's requests. The policy is loaded again here; unless its content hash is ``sha256``
     (the copy the run checked, recorded and released) it is not run: its file changed in between."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # a terminal's Ctrl-C reaches the whole group: the loop decides
+    for signum in (signal.SIGINT, signal.SIGHUP):  # a terminal's Ctrl-C and hangup reach the whole group: the
+        signal.signal(signum, signal.SIG_IGN)  # loop decides
     try:
         policy, broken = factory(), None
         loaded = policy.content_hash() if sha256 is not None else None

@@ -26,8 +26,8 @@ flag in the shared memory, the loop reads it after each tick and stops the cell 
 the same. When the loop's process dies (SIGKILL, out of memory), the writer takes the ticks already
 in the ring, records a ``run_process_lost`` event and finishes the file, so a crash loses at most
 the messages not yet sent (a few ticks' worth) instead of the open chunk, and the record says the
-run did not end. Ctrl-C and SIGTERM reach the writer too (a terminal or a service manager signals
-the whole process group): it ignores them and finishes when the loop, which stops the cell on
+run did not end. Ctrl-C, SIGTERM and SIGHUP reach the writer too (a terminal or a service manager
+signals the whole process group): it ignores them and finishes when the loop, which stops the cell on
 them and retreats, closes the recording. Finishing on SIGTERM itself closed the file in the
 feeder's first pause on wall time, before the stop and the retreat were recorded.
 
@@ -329,6 +329,7 @@ def _serve(recorder: Recorder, ctl, ops, op_writer, replies, reserve: Path | Non
     op_writer.close()  # the loop's end only: a loop that dies mid-message then reads as the end of the pipe
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the loop stops the cell on these and then closes the recording
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    signal.signal(signal.SIGHUP, signal.SIG_IGN)  # a closed terminal's, to the whole group: a stop for the loop too
     try:
         os.nice(WRITER_NICE)
     except OSError:

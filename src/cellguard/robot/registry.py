@@ -8,6 +8,7 @@ find it in any process, with no edit to cellguard. A plugin is imported only whe
 
 from __future__ import annotations
 
+import inspect
 from collections.abc import Callable
 from importlib.metadata import EntryPoint, entry_points
 
@@ -51,7 +52,8 @@ def from_plugin(make: Callable[[], object], protocol: type, what: str):
     members = {n for n in dir(protocol) if not n.startswith("_")}
     for base in protocol.__mro__:
         members |= set(getattr(base, "__annotations__", {}))
-    missing = sorted(m for m in members if not hasattr(made, m))
+    absent = object()  # looked up without running a property (one that raises is the plugin's, not a traceback)
+    missing = sorted(m for m in members if inspect.getattr_static(made, m, absent) is absent)
     if missing:
         raise ConfigError(f"{what} returned a {type(made).__name__}, not a {protocol.__name__}: it has no "
                           f"{', '.join(missing)}")
@@ -59,24 +61,23 @@ def from_plugin(make: Callable[[], object], protocol: type, what: str):
 
 
 def plugins(group: str) -> dict[str, EntryPoint]:
-    """The entry points of ``group`` in the installed distributions, by name (not loaded). ConfigError naming both
-    when two distributions register one name with other values: which one won followed the order the folders were
-    listed in, so the same record could read as another robot on another host."""
-    found: dict[str, EntryPoint] = {}
-    for ep in entry_points(group=group):
-        other = found.setdefault(ep.name, ep)
-        if other.value != ep.value:
-            raise ConfigError(f"{group} {ep.name!r}: registered twice, as {other.value} and as {ep.value}; "
-                              f"uninstall one of the two plugins")
-    return found
+    """The entry points of ``group`` in the installed distributions, by name (not loaded)."""
+    return {ep.name: ep for ep in entry_points(group=group)}
 
 
 def load_plugin(group: str, name: str, what: str):
     """What the entry point ``name`` of ``group`` names, or None if no package registers it; ConfigError naming
-    the plugin when it cannot be imported (one line, not a plugin's traceback)."""
-    ep = plugins(group).get(name)
-    if ep is None:
+    the plugin when it cannot be imported (one line, not a plugin's traceback), or naming both when two
+    distributions register ``name`` with other values (which one won followed the order the folders were listed
+    in, so the same record could read as another robot on another host; other names are not affected)."""
+    found = [ep for ep in entry_points(group=group) if ep.name == name]
+    if not found:
         return None
+    ep = found[0]
+    others = sorted({e.value for e in found} - {ep.value})
+    if others:
+        raise ConfigError(f"{group} {name!r}: registered twice, as {ep.value} and as {others[0]}; uninstall one of "
+                          f"the two plugins")
     try:
         return ep.load()
     except Exception as exc:  # any error of a plugin's import is the plugin's, named here

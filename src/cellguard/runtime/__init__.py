@@ -12,7 +12,7 @@
     timing       period error, compute time and overruns in bounded memory
     history      the run's events and cycle outcomes in bounded memory
     recovery     the scenario's recovery behaviour driving the cell after a failed check
-    operator_stop  Ctrl-C or SIGTERM as a stop input
+    operator_stop  Ctrl-C, SIGTERM or SIGHUP as a stop input
     sim_server   ``cellguard sim-server``: a simulated cell served as a robot on wall time
 """
 

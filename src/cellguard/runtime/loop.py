@@ -104,7 +104,7 @@ class Run:
         self.cycle_monitors: list[Callable[[CycleBuffer, dict], None]] = []
         self.stopped: str | None = None  # why the run stopped early, if it did
         self.policy_lost: str | None = None  # why the policy answers no more (its process ended, a call hung)
-        self.operator = OperatorStop()  # Ctrl-C / SIGTERM while the cycles run: a stop, not an exception
+        self.operator = OperatorStop()  # Ctrl-C / SIGTERM / SIGHUP while the cycles run: a stop
         self.inference = None  # built at the first cycle (the policy may be swapped before)
         self.source = None
         self._started = False  # the first chunk has come and the start-up checks passed

@@ -1,4 +1,5 @@
-"""The operator's Ctrl-C (SIGINT), or a service manager's SIGTERM, as a stop input rather than an exception.
+"""The operator's Ctrl-C (SIGINT), a service manager's SIGTERM, or a closed terminal's SIGHUP, as a stop input
+rather than an exception.
 
 A KeyboardInterrupt raised mid-tick would leave the robot with no setpoint in the middle of a
 motion (and LeRobot's ``disconnect`` then drops the torque), and the record would end with no
@@ -18,7 +19,7 @@ from __future__ import annotations
 import signal
 import threading
 
-SIGNALS = (signal.SIGINT, signal.SIGTERM)
+SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)  # SIGHUP: the terminal or ssh session closed
 INSIST = 3  # the signal that raises KeyboardInterrupt after all
 REASON = "operator stop"
 
