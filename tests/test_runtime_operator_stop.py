@@ -75,14 +75,17 @@ def test_a_stop_signal_mid_run_stops_the_arm_retreats_it_and_the_record_says_so(
     assert kinds[-2:] == (["retreat_begin", "retreat_done"] if away else ["operator_stop", "protective_stop"])
 
 
-def test_sigterm_to_the_whole_group_on_wall_time_keeps_the_record_to_the_end_of_the_retreat(tmp_path):
-    """A service manager's stop signals the recorder's process too: it must not finish the file on it (it did, in
-    the feeder's first pause, and the loop then failed with ``record_failed`` before its stop was recorded)."""
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGHUP])
+def test_a_stop_signal_to_the_whole_group_on_wall_time_keeps_the_record_to_the_end_of_the_retreat(tmp_path, signum):
+    """A service manager's stop (or a closed terminal) signals the recorder's process too: it must not finish the
+    file on it (it did, in the feeder's first pause, and the loop then failed with ``record_failed`` before its stop
+    was recorded; on SIGHUP the writer died)."""
     scenario = tmp_path / "scenario.yaml"
     scenario.write_text(yaml.safe_dump({"cell": "arm-pick-place", "acceptance_cycles": 1, "production_cycles": 30}))
     out = tmp_path / "run"
-    stderr = _signal_mid_run(["run", str(scenario), "--out", str(out), "--realtime"], out, signal.SIGTERM, group=True)
-    assert stderr.strip().splitlines()[-1].startswith("stopped by the operator: operator stop (SIGTERM)")
+    stderr = _signal_mid_run(["run", str(scenario), "--out", str(out), "--realtime"], out, signum, group=True)
+    name = signal.Signals(signum).name
+    assert stderr.strip().splitlines()[-1].startswith(f"stopped by the operator: operator stop ({name})")
     with open_record(out, strict=True) as rec:
         kinds = [e.kind for e in rec.events()]
     assert "operator_stop" in kinds and "record_failed" not in kinds and "run_process_lost" not in kinds
