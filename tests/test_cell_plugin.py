@@ -36,11 +36,14 @@ def scripted(cell):
 '''
 
 
-def install(folder: Path, entry_points: str, module: str = PLUGIN) -> Path:
-    (folder / "armcopy.py").write_text(module)
-    info = folder / "armcopy-0.1.dist-info"
+def install(folder: Path, entry_points: str, module: str | None = PLUGIN, dist: str = "armcopy") -> Path:
+    """A distribution ``dist`` in ``folder`` (made): its module (none: entry points only) and its metadata."""
+    folder.mkdir()
+    if module is not None:
+        (folder / f"{dist}.py").write_text(module)
+    info = folder / f"{dist}-0.1.dist-info"
     info.mkdir()
-    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: armcopy\nVersion: 0.1\n")
+    (info / "METADATA").write_text(f"Metadata-Version: 2.1\nName: {dist}\nVersion: 0.1\n")
     (info / "entry_points.txt").write_text(entry_points)
     return folder
 
@@ -49,12 +52,20 @@ ENTRY_POINTS = f"[cellguard.cells]\n{NAME} = armcopy:ArmCopy\n\n[cellguard.scrip
 
 
 @pytest.fixture
-def plugin(tmp_path, monkeypatch):
-    (tmp_path / "site").mkdir()
-    folder = install(tmp_path / "site", ENTRY_POINTS)
-    monkeypatch.syspath_prepend(str(folder))
-    yield folder
+def plug(tmp_path, monkeypatch):
+    """Installs a distribution on ``sys.path`` (``install``'s arguments); its module is forgotten afterwards."""
+    def put(entry_points: str, module: str | None = PLUGIN, dist: str = "armcopy") -> Path:
+        folder = install(tmp_path / dist, entry_points, module, dist)
+        monkeypatch.syspath_prepend(str(folder))
+        return folder
+
+    yield put
     sys.modules.pop("armcopy", None)
+
+
+@pytest.fixture
+def plugin(plug):
+    return plug(ENTRY_POINTS)
 
 
 def test_a_plugin_cell_and_its_taught_program_are_found_by_name(plugin):
@@ -69,28 +80,16 @@ def test_an_unknown_cell_lists_the_plugins_too(plugin):
         make_cell("no-such-cell")
 
 
-def test_a_plugin_that_cannot_be_imported_is_one_line_naming_it(tmp_path, monkeypatch):
-    folder = tmp_path / "site"
-    folder.mkdir()
-    install(folder, ENTRY_POINTS, module="raise RuntimeError('the vendor SDK is missing')\n")
-    monkeypatch.syspath_prepend(str(folder))
-    try:
-        with pytest.raises(ConfigError, match=r"armcopy:ArmCopy.*RuntimeError: the vendor SDK is missing"):
-            make_cell(NAME)
-    finally:
-        sys.modules.pop("armcopy", None)
+def test_a_plugin_that_cannot_be_imported_is_one_line_naming_it(plug):
+    plug(ENTRY_POINTS, module="raise RuntimeError('the vendor SDK is missing')\n")
+    with pytest.raises(ConfigError, match=r"armcopy:ArmCopy.*RuntimeError: the vendor SDK is missing"):
+        make_cell(NAME)
 
 
-def test_a_plugin_whose_class_has_another_name_is_refused(tmp_path, monkeypatch):
-    folder = tmp_path / "site"
-    folder.mkdir()
-    install(folder, ENTRY_POINTS.replace(f"{NAME} = armcopy:ArmCopy", "other-name = armcopy:ArmCopy"))
-    monkeypatch.syspath_prepend(str(folder))
-    try:
-        with pytest.raises(ConfigError, match="must be the cell's name"):
-            make_cell("other-name")
-    finally:
-        sys.modules.pop("armcopy", None)
+def test_a_plugin_whose_class_has_another_name_is_refused(plug):
+    plug(ENTRY_POINTS.replace(f"{NAME} = armcopy:ArmCopy", "other-name = armcopy:ArmCopy"))
+    with pytest.raises(ConfigError, match="must be the cell's name"):
+        make_cell("other-name")
 
 
 def test_a_plugin_cell_runs_and_its_record_is_diagnosed_in_later_processes(plugin, tmp_path):
@@ -144,68 +143,38 @@ class LazyFaults(ArmPickPlace):
     ("armcopy:NoBus", r"cell 'armcopy-pick-place': its plugin armcopy failed: OSError: cannot open /dev/ttyUSB0"),
     ("armcopy:NotACell", r"returned a NotACell, not a SimCell: it has no begin_cycle, .*profile"),
 ])
-def test_a_plugin_cell_that_cannot_be_built_is_one_line_naming_it(tmp_path, monkeypatch, value, error):
+def test_a_plugin_cell_that_cannot_be_built_is_one_line_naming_it(plug, value, error):
     """Imported, then failing (a vendor SDK that cannot open its bus) or not a cell: a traceback, exit 1, before."""
-    folder = tmp_path / "site"
-    folder.mkdir()
-    install(folder, f"[cellguard.cells]\n{NAME} = {value}\n", module=BROKEN)
-    monkeypatch.syspath_prepend(str(folder))
-    try:
-        with pytest.raises(ConfigError, match=error):
-            make_cell(NAME)
-    finally:
-        sys.modules.pop("armcopy", None)
+    plug(f"[cellguard.cells]\n{NAME} = {value}\n", module=BROKEN)
+    with pytest.raises(ConfigError, match=error):
+        make_cell(NAME)
 
 
-def test_a_plugin_taught_program_that_is_no_policy_is_one_line_naming_it(tmp_path, monkeypatch):
-    folder = tmp_path / "site"
-    folder.mkdir()
-    install(folder, ENTRY_POINTS.replace("armcopy:scripted", "armcopy:junk"), module=PLUGIN + BROKEN)
-    monkeypatch.syspath_prepend(str(folder))
-    try:
-        with pytest.raises(ConfigError, match=r"scripted policy for cell 'armcopy-pick-place': its plugin armcopy "
-                                              r"returned a int, not a Policy: it has no close, content_hash"):
-            make_policy("scripted", make_cell(NAME))
-    finally:
-        sys.modules.pop("armcopy", None)
+def test_a_plugin_taught_program_that_is_no_policy_is_one_line_naming_it(plug):
+    plug(ENTRY_POINTS.replace("armcopy:scripted", "armcopy:junk"), module=PLUGIN + BROKEN)
+    with pytest.raises(ConfigError, match=r"scripted policy for cell 'armcopy-pick-place': its plugin armcopy "
+                                          r"returned a int, not a Policy: it has no close, content_hash"):
+        make_policy("scripted", make_cell(NAME))
 
 
-def test_a_cell_name_two_plugins_register_is_refused_naming_both(plugin, tmp_path, monkeypatch):
+def test_a_cell_name_two_plugins_register_is_refused_naming_both(plugin, plug):
     """Which one won followed the order the folders were listed in: a record could read as another robot."""
-    other = tmp_path / "other"
-    other.mkdir()
-    info = other / "othercopy-0.1.dist-info"
-    info.mkdir()
-    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: othercopy\nVersion: 0.1\n")
-    (info / "entry_points.txt").write_text(f"[cellguard.cells]\n{NAME} = othercopy:Quadruped\n")
-    monkeypatch.syspath_prepend(str(other))
+    plug(f"[cellguard.cells]\n{NAME} = othercopy:Quadruped\n", module=None, dist="othercopy")
     with pytest.raises(ConfigError, match=rf"cellguard.cells '{NAME}': registered twice, as .* and as .*; "
                                           r"uninstall one of the two plugins"):
         make_cell(NAME)
 
 
-def test_a_plugin_cell_whose_member_raises_when_read_is_not_a_traceback(tmp_path, monkeypatch):
+def test_a_plugin_cell_whose_member_raises_when_read_is_not_a_traceback(plug):
     """The member check ran a property that raised: a traceback, exit 1. Members are looked up, not run."""
-    folder = tmp_path / "site"
-    folder.mkdir()
-    install(folder, f"[cellguard.cells]\n{NAME} = armcopy:LazyFaults\n", module=BROKEN)
-    monkeypatch.syspath_prepend(str(folder))
-    try:
-        cell = make_cell(NAME)
-        assert type(cell).__name__ == "LazyFaults"
-    finally:
-        sys.modules.pop("armcopy", None)
+    plug(f"[cellguard.cells]\n{NAME} = armcopy:LazyFaults\n", module=BROKEN)
+    cell = make_cell(NAME)
+    assert type(cell).__name__ == "LazyFaults"
 
 
-def test_a_name_two_plugins_register_leaves_every_other_name_as_it_was(plugin, tmp_path, monkeypatch):
+def test_a_name_two_plugins_register_leaves_every_other_name_as_it_was(plugin, plug):
     """The conflict was raised while listing the group: every cell, built-in ones included, was refused."""
-    other = tmp_path / "other"
-    other.mkdir()
-    info = other / "othercopy-0.1.dist-info"
-    info.mkdir()
-    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: othercopy\nVersion: 0.1\n")
-    (info / "entry_points.txt").write_text(f"[cellguard.cells]\n{NAME} = othercopy:Quadruped\n")
-    monkeypatch.syspath_prepend(str(other))
+    plug(f"[cellguard.cells]\n{NAME} = othercopy:Quadruped\n", module=None, dist="othercopy")
     assert make_cell("arm-pick-place").name == "arm-pick-place" and NAME in cell_names()
     with pytest.raises(UnknownNameError, match="arm-pick-place"):
         make_cell("arm-pick-plac")

@@ -60,16 +60,25 @@ def _copy(diagnosed: Path, tmp_path: Path, without: tuple[str, ...] = ()) -> Pat
     return run
 
 
+def _policy(tmp_path: Path) -> Path:
+    policy = tmp_path / "policy.yaml"
+    policy.write_text("tenant: ta\nsite: s1\nexport: signatures\n")
+    return policy
+
+
+def _read_by_three_commands(ro: Path, tmp_path: Path):
+    """``diagnose``, ``report`` (to a page elsewhere) and ``fleet push`` (without a store) of the record at ``ro``."""
+    return (runner.invoke(app, ["diagnose", str(ro), "--no-fleet", "--json"]),
+            runner.invoke(app, ["report", str(ro), "--no-fleet", "-o", str(tmp_path / "page.html")]),
+            runner.invoke(app, ["fleet", "push", str(ro), "--policy", str(_policy(tmp_path)), "--site-dir",
+                                str(tmp_path / "site")]))
+
+
 def test_an_archived_record_with_current_files_is_diagnosed_reported_and_pushed(diagnosed, tmp_path):
     run = _copy(diagnosed, tmp_path)
     before = {name: (run / name).read_bytes() for name in CACHES}
-    policy = tmp_path / "policy.yaml"
-    policy.write_text("tenant: ta\nsite: s1\nexport: signatures\n")
     with read_only(run) as ro:
-        diagnose = runner.invoke(app, ["diagnose", str(ro), "--no-fleet", "--json"])
-        report = runner.invoke(app, ["report", str(ro), "--no-fleet", "-o", str(tmp_path / "page.html")])
-        push = runner.invoke(app, ["fleet", "push", str(ro), "--policy", str(policy), "--site-dir",
-                                   str(tmp_path / "site")])
+        diagnose, report, push = _read_by_three_commands(ro, tmp_path)
     assert diagnose.exit_code == 0, diagnose.output
     assert json.loads(diagnose.stdout)["baseline_cycles"] == 5
     assert report.exit_code == 0 and (tmp_path / "page.html").is_file(), report.output
@@ -79,13 +88,8 @@ def test_an_archived_record_with_current_files_is_diagnosed_reported_and_pushed(
 
 def test_files_that_cannot_be_written_are_one_warning_each_and_the_diagnosis_stands(diagnosed, tmp_path):
     run = _copy(diagnosed, tmp_path, without=CACHES)
-    policy = tmp_path / "policy.yaml"
-    policy.write_text("tenant: ta\nsite: s1\nexport: signatures\n")
     with read_only(run) as ro:
-        diagnose = runner.invoke(app, ["diagnose", str(ro), "--no-fleet", "--json"])
-        report = runner.invoke(app, ["report", str(ro), "--no-fleet", "-o", str(tmp_path / "page.html")])
-        push = runner.invoke(app, ["fleet", "push", str(ro), "--policy", str(policy), "--site-dir",
-                                   str(tmp_path / "site")])
+        diagnose, report, push = _read_by_three_commands(ro, tmp_path)
     assert diagnose.exception is None or isinstance(diagnose.exception, SystemExit), diagnose.output
     assert diagnose.exit_code == 1, diagnose.output
     assert json.loads(diagnose.stdout)["baseline_cycles"] == 5  # the diagnosis, printed whole
@@ -110,8 +114,7 @@ def test_fleet_similar_of_an_archived_record_warns_of_the_files_it_cannot_keep(d
     """`fleet similar RUN` diagnoses the run as push does: it ended `error: ... cannot write`, exit 2. The store is
     asked only for the run's findings, and this run has none, so an unreachable one is not contacted."""
     run = _copy(diagnosed, tmp_path, without=CACHES)
-    policy = tmp_path / "policy.yaml"
-    policy.write_text("tenant: ta\nsite: s1\nexport: signatures\n")
+    policy = _policy(tmp_path)
     store = "host=127.0.0.1 port=1 dbname=x user=x password=x"
     with read_only(run) as ro:
         similar = runner.invoke(app, ["fleet", "similar", str(ro), "--policy", str(policy), "--store", store,
