@@ -106,3 +106,16 @@ def test_a_shadow_gate_on_a_stage_without_shadow_runs_is_refused(tmp_path):
                                                       "gates": [{"metric": "shadow_would_stop", "max": 0}]}})
     with pytest.raises(GateError, match=r"stages.sim.gates\[0\].metric: shadow_would_stop is measured on shadow runs"):
         load_plan(plan)
+
+
+@pytest.mark.parametrize("stage", [{"runs": [], "gates": [{"metric": "success_rate", "min": 1.0}]}, None],
+                         ids=["runs-empty", "stage-left-out"])
+def test_a_promotion_onto_a_stage_its_plan_gives_no_runs_is_refused(tmp_path, stage):
+    """It moved the release, then ``release run`` refused the stage: a release no run could ever pass on from."""
+    site = tmp_path / "site"
+    plan = write_plan(tmp_path / "plan.yaml", {"bench": {"runs": [{"name": "one"}],
+                                                        "gates": [{"metric": "success_rate", "min": 1.0}]},
+                                               **({"sim": stage} if stage else {})})
+    refused = cli("promote", _stored(site), "--cell", QUADRUPED, "--to", "sim", "--plan", str(plan), "--site", str(site))
+    assert refused.exit_code == 2 and len(refused.stderr.strip().splitlines()) == 1
+    assert "--plan: stage sim has no runs" in refused.stderr and pointers(site) == []

@@ -17,9 +17,11 @@ import time
 
 import numpy as np
 import pytest
+import yaml
 from sim_server_util import HOME, scenario, server_counters, start_server, sway_file
 
 from cellguard.errors import CellguardError
+from cellguard.release.plan import load_plan
 from cellguard.robot.bridges.sim_server import COMMAND_HEAD, STATE_HEAD, Layout, SimServerRobot, pack_command
 from cellguard.robot.protocol import RobotLinkError
 from cellguard.runtime import Run
@@ -410,12 +412,23 @@ def test_a_client_whose_process_died_before_its_first_command_is_gone_at_once(se
 @pytest.mark.parametrize("key, value", [("faults", [{"kind": "friction_step", "at_cycle": 0, "joint": "elbow",
                                                       "factor": 2.0}]),
                                          ("process_changes", [{"kind": "payload", "at_cycle": 0, "grams": 40.0}])])
-def test_simulation_only_changes_on_a_bridge_are_refused(server, tmp_path, key, value):
-    """A payload change on a sim-server robot was accepted: never applied, yet listed as ground truth."""
-    _, port = server
-    body = {**scenario(port, sway_file(tmp_path / "s.npz")), key: value}
+def test_simulation_only_changes_on_a_bridge_are_refused(tmp_path, key, value):
+    """A payload change on a sim-server robot was accepted: never applied, yet listed as ground truth. Refused as
+    the scenario is read, no server needed."""
+    body = {**scenario(9, sway_file(tmp_path / "s.npz")), key: value}
     with pytest.raises(CellguardError, match=f"{key}: applied to simulated cells only"):
-        Run(parse_scenario(body))
+        parse_scenario(body)
+
+
+def test_a_release_plan_with_faults_on_a_bridge_is_refused_as_it_is_read(tmp_path):
+    """Such a run was refused only as it started: the stage's earlier runs had run by then."""
+    fault = {"kind": "friction_step", "at_cycle": 0, "joint": "elbow", "factor": 2.0}
+    plan = tmp_path / "plan.yaml"
+    plan.write_text(yaml.safe_dump({"stages": {"bench": {
+        "runs": [{"name": "first"}, {"name": "r", "robot": "sim-server:tcp://127.0.0.1:9", "faults": [fault]}],
+        "gates": [{"metric": "protective_stops", "max": 0}]}}}))
+    with pytest.raises(CellguardError, match=r"stages.bench.runs\[1\]: faults: applied to simulated cells only"):
+        load_plan(plan)
 
 
 

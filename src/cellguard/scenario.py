@@ -157,7 +157,20 @@ def parse_scenario(raw: object, origin: str = "scenario") -> Scenario:
             msg = f"{msg}, got {err['input']!r}"
         raise ScenarioError(f"{origin}: {loc}: {msg}") from None
     _check_cycles(scenario, origin)
+    _check_bridge(scenario, origin)
     return scenario
+
+
+def _check_bridge(scenario: Scenario, origin: str) -> None:
+    """Refuse faults and process changes on a robot behind a bridge: it would never see them, and the record would
+    list them as what happened. Here, not as the run starts: a release plan's check refuses the stage before its
+    first run (a later run refused after the earlier ones had run)."""
+    if scenario.robot == "sim":
+        return
+    for key in ("faults", "process_changes"):
+        if getattr(scenario, key):
+            raise ScenarioError(f"{origin}: {key}: applied to simulated cells only; robot {scenario.robot!r} is a "
+                                "bridge")
 
 
 def _check_cycles(scenario: Scenario, origin: str) -> None:

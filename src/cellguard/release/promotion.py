@@ -64,8 +64,8 @@ def last_evaluation(store: Store, cell: str, stage: str, release: str) -> log.Lo
 
 
 def promote(store: Store, release: str, cell: str, to: str, plan: StagePlan | None = None) -> log.LogEntry:
-    """Make ``release`` current at (cell, to); StageError (nothing moved) when out of order, GateError when ``plan``
-    (the stage's) holds a run or gate the cell cannot carry out (``check_cell``)."""
+    """Make ``release`` current at (cell, to); StageError (nothing moved) when out of order or ``plan`` (the stage's)
+    has no runs, GateError when it holds a run or gate the cell cannot carry out (``check_cell``)."""
     check_stage(to)
     bundle = store.bundle(release)
     if bundle.cell != cell:
@@ -92,6 +92,9 @@ def promote(store: Store, release: str, cell: str, to: str, plan: StagePlan | No
         if unbound:
             raise ReleaseError(f"--to {to}: {unbound[0]}; nothing moved")
     if plan is not None:
+        if not plan.runs:  # a dead end: ``release run`` refuses the stage, so nothing could pass it
+            raise StageError(f"--plan: stage {to} has no runs, so `release run --stage {to}` could gather no "
+                             f"evidence there; give the stage runs and gates; nothing moved")
         check_cell(plan, cell, to)
     with store.transaction():  # the pointers read under the write lock: a racing promotion sees this one's
         current, last_good = log.check_pointers(store, cell, to)

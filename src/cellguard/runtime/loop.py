@@ -28,7 +28,7 @@ from cellguard.control.executor import PreparedChunk
 from cellguard.control.settings import build_guard
 from cellguard.diagnose.cycle_buffer import CycleBuffer
 from cellguard.diagnose.features import cycle_features
-from cellguard.errors import RecordError, ScenarioError
+from cellguard.errors import RecordError
 from cellguard.output import make_folder, write_output
 from cellguard.policy.chunk import ActionChunk
 from cellguard.policy.registry import make_policy
@@ -78,11 +78,8 @@ class Run:
 
     def _set_up(self, scenario: Scenario, realtime: bool, policy_factory: Callable[[], object] | None) -> None:
         self.simulated = hasattr(self.cell, "step")  # fault injection and simulated inference
-        if self.simulated:
+        if self.simulated:  # a bridge's faults were refused as its scenario was read
             scenario.check_against(self.cell)
-        elif scenario.faults or scenario.process_changes:  # the robot would never see them; the record would say so
-            key = "faults" if scenario.faults else "process_changes"
-            raise ScenarioError(f"{key}: applied to simulated cells only; robot {scenario.robot!r} is a bridge")
         # a policy_factory (picklable, for the process worker) replaces the scenario's policy source
         self.policy_factory = policy_factory
         self.policy = policy_factory() if policy_factory is not None else make_policy(scenario.policy, self.cell)
