@@ -113,6 +113,20 @@ def test_an_asymmetry_that_began_long_after_a_latency_is_a_finding_of_its_own():
     assert [f.cause for f in _with_asymmetry([late], asym, began=26)] == ["policy_latency"]
 
 
+def test_a_gait_asymmetry_told_in_a_latency_finding_names_what_differs():
+    """A quadruped's sides differ in their gait, on no joint: the latency finding said "from cycle 12 ():"."""
+    from cellguard.diagnose.asymmetry import Asymmetry, MirrorDifference
+    from cellguard.diagnose.cause import Finding
+    from cellguard.diagnose.diagnosis import _with_asymmetry
+
+    d = MirrorDifference("step_period_s.rl", "step_period_s.rl during left turns", "step_period_s.rr during right turns",
+                         1.45, 0.73, 0.66, 130.0, "step_period_s.rr", ("left", "right"))
+    asym = Asymmetry("right", (), (d,), ("the right side differs from its mirror",))
+    late = Finding("policy_latency", 12, 0.95, ("latency +200 ms from cycle 12",), ("latency_mean_ms",))
+    (told,) = _with_asymmetry([late], asym, began=12)
+    assert told.evidence[-1].startswith("mirrored motions differ on the right side from cycle 12 (step_period_s): ")
+
+
 def test_an_asymmetry_is_dated_when_it_began_not_at_the_first_production_cycle():
     from cellguard.diagnose.asymmetry import asymmetry_onset
 
