@@ -4,6 +4,7 @@ joint and asked/sent values; charts that carry no date of their own (an older re
 
 from __future__ import annotations
 
+import html
 import json
 import re
 
@@ -62,6 +63,17 @@ def test_guard_events_show_their_joint_and_asked_and_sent_values():
     assert "<td>watchdog_stop</td><td></td><td></td><td></td><td>2</td>" in table  # none: empty, not "None"
     limit = next(e for e in d.to_dict()["safety_events"] if e["kind"] == "limit_intervention")
     assert (limit["joint"], limit["asked"], limit["sent"]) == ("shoulder_lift", LIMIT["asked"], LIMIT["sent"])
+
+
+def test_a_long_context_entry_is_folded_whole_and_a_short_one_is_inline():
+    """The profile's whole document (2.4 KB of JSON) filled the context table as one line."""
+    document = {"robot": "so101", "joints": [{"name": f"joint_{i}", "velocity": 1.5 + i} for i in range(40)]}
+    d = diagnose(_rows(), [STOP], {**CONTEXT, "embodiment": {"version": "1.4.0", "document": document}})
+    table = render_report(d).split("<h2>Context</h2>", 1)[1]
+    folded = re.search(r"<tr><th>embodiment</th><td><details><summary>version, document</summary><pre>(.*?)</pre>",
+                       table, re.S)
+    assert folded and json.loads(html.unescape(folded.group(1)))["document"] == document
+    assert "<tr><th>cell</th><td><code>arm-pick-place</code></td></tr>" in table
 
 
 def test_the_charts_carry_no_date_and_the_page_draws_the_same_twice():

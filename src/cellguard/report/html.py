@@ -12,6 +12,7 @@ from collections.abc import Callable, Mapping
 from cellguard.diagnose.diagnosis import Diagnosis, record_facts, unwatched_words
 from cellguard.report import plots
 
+FOLD_CHARS = 600  # a context entry longer than this is folded in the report (click to open)
 Trace = Mapping  # {"t": (n,) s into the cycle, "current": (n, dof) A, "error": (n, dof) rad, "joints": names}
 
 _CSS = """
@@ -21,7 +22,7 @@ table{border-collapse:collapse;font-size:13px}td,th{border:1px solid #dde;paddin
 .finding{border-left:5px solid #e63946;padding:6px 12px;margin:10px 0;background:#fdf1f2}
 .ok{border-left:5px solid #2a9d8f;padding:6px 12px;background:#eef8f6}
 .damaged{border-left:5px solid #e9a23b;padding:6px 12px;margin:10px 0;background:#fdf6ea}
-figure.plot{margin:8px 0}figure.plot svg{max-width:100%;height:auto}.muted{color:#667}
+pre{margin:4px 0;font-size:12px;white-space:pre-wrap}figure.plot{margin:8px 0}figure.plot svg{max-width:100%;height:auto}.muted{color:#667}
 """
 
 
@@ -135,6 +136,16 @@ def _reading(v: object) -> str:
 def _context(ctx: Mapping) -> str:
     if not ctx:
         return "<p class=muted>The record holds no context.</p>"
-    rows = "".join(f"<tr><th>{_e(k)}</th><td><code>{_e(v if isinstance(v, str) else json.dumps(v, default=str))}"
-                   "</code></td></tr>" for k, v in ctx.items())
+    rows = "".join(f"<tr><th>{_e(k)}</th><td>{_context_value(v)}</td></tr>" for k, v in ctx.items())
     return f"<table>{rows}</table>"
+
+
+def _context_value(v: object) -> str:
+    """One context entry, on one line; a long one (the profile's whole document is kilobytes) folded, its keys as
+    the summary, indented inside: the table stays readable and nothing is left out."""
+    text = v if isinstance(v, str) else json.dumps(v, default=str)
+    if len(text) <= FOLD_CHARS:
+        return f"<code>{_e(text)}</code>"
+    keys = f"{', '.join(map(str, v))}" if isinstance(v, Mapping) else f"{len(text):,} characters"
+    full = text if isinstance(v, str) else json.dumps(v, indent=1, default=str)
+    return f"<details><summary>{_e(keys)}</summary><pre>{_e(full)}</pre></details>"
