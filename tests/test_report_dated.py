@@ -76,6 +76,24 @@ def test_a_long_context_entry_is_folded_whole_and_a_short_one_is_inline():
     assert "<tr><th>cell</th><td><code>arm-pick-place</code></td></tr>" in table
 
 
+def test_events_of_a_run_on_wall_time_are_timed_from_its_start():
+    """On hardware the run clock counts from the host's boot: the events read 61234.5 s into a 3-minute run."""
+    boot = 61_234_000_000_000
+    stop = {**STOP, "t_ns": boot + 1_500_000_000}
+    page = render_report(diagnose(_rows(), [stop], {**CONTEXT, "start_ns": boot}))
+    table = page[page.index("<h2>Guard events</h2>"):page.index("<h2>Context</h2>")]
+    assert "<th>t [s] from start</th>" in table and "<tr><td>1.500</td>" in table
+
+
+def test_a_gait_asymmetry_names_the_measures_that_differ():
+    from cellguard.diagnose.asymmetry import Asymmetry, MirrorDifference
+
+    d = MirrorDifference("step_period_s.rl", "step_period_s.rl during left turns", "step_period_s.rr during right turns",
+                         1.45, 0.73, 0.66, 130.0, "step_period_s.rr", ("left", "right"))
+    assert Asymmetry("right", (), (d,), ()).what == ("step_period_s",)
+    assert Asymmetry("right", ("rr_knee",), (d,), ()).what == ("rr_knee",)
+
+
 def test_the_charts_carry_no_date_and_the_page_draws_the_same_twice():
     d = diagnose(_rows(), [STOP], CONTEXT)
     page = render_report(d)

@@ -68,6 +68,11 @@ class Asymmetry:
     def significant(self) -> tuple[MirrorDifference, ...]:
         return tuple(d for d in self.differences if d.significant)
 
+    @property
+    def what(self) -> tuple[str, ...]:
+        """What differs, in words: the side's joints, else (a gait, on no joint) the measures that differ."""
+        return self.joints or tuple(sorted({d.feature.rsplit(".", 1)[0] for d in self.significant}))
+
     def to_dict(self) -> dict:
         return {"side": self.side, "joints": list(self.joints), "evidence": list(self.evidence),
                 "differences": [d.to_dict() for d in self.significant]}

@@ -229,9 +229,8 @@ def _with_asymmetry(findings: list[Finding], asym: Asymmetry, began: int) -> lis
     late = next((f for f in findings if f.cause == "policy_latency" and abs(f.cycle - began) <= CONCURRENT), None)
     if late is None:
         return findings + [_asymmetry_finding(asym, began)]
-    what = asym.joints[:5] or sorted({d.feature.rsplit(".", 1)[0] for d in asym.significant})  # a gait differs
     note = (f"mirrored motions differ on the {asym.side} side from cycle {began} "
-            f"({', '.join(what)}): the late chunks, not a joint",)
+            f"({', '.join(asym.what[:5])}): the late chunks, not a joint",)
     return [told(f, note, [d.feature for d in asym.significant]) if f is late else f for f in findings]
 
 

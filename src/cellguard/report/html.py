@@ -111,19 +111,22 @@ def _asymmetry(d: Diagnosis) -> str:
     if a is None:
         return "<p class=muted>This cell has no symmetry map: no mirrored comparison.</p>"
     verdict = (f"<div class=finding>The <b>{_e(a.side)}</b> side differs from its mirror "
-               f"({_e(', '.join(a.joints))}).</div>" if a.side else "<div class=ok>Mirrored motions agree.</div>")
+               f"({_e(', '.join(a.what))}).</div>" if a.side else "<div class=ok>Mirrored motions agree.</div>")
     return verdict + _figure("asymmetry", plots.asymmetry_chart(d))
 
 
 def _events(d: Diagnosis) -> str:
+    """The guard's events, timed from the record's start (a run on wall time counts its clock from the host's boot)."""
     if not d.safety_events:
         return "<p>None.</p>"
-    rows = "".join(f"<tr><td>{e['t']:.3f}</td><td>{_e(e.get('cycle'))}</td><td>{_e(e.get('kind'))}</td>"
+    start = d.context.get("start_ns")
+    t0 = start * 1e-9 if isinstance(start, int) else 0.0
+    rows = "".join(f"<tr><td>{e['t'] - t0:.3f}</td><td>{_e(e.get('cycle'))}</td><td>{_e(e.get('kind'))}</td>"
                    f"<td>{_e(e.get('joint', ''))}</td><td>{_reading(e.get('asked'))}</td>"
                    f"<td>{_reading(e.get('sent'))}</td><td>{_e(e.get('category', ''))}</td>"
                    f"<td>{_e(e.get('reason', ''))}</td></tr>" for e in d.safety_events[:200])
     more = f"<p class=muted>{len(d.safety_events) - 200} more not shown.</p>" if len(d.safety_events) > 200 else ""
-    head = ("<tr><th>t [s]</th><th>cycle</th><th>kind</th><th>joint</th><th>asked</th><th>sent</th><th>stop cat.</th>"
+    head = ("<tr><th>t [s] from start</th><th>cycle</th><th>kind</th><th>joint</th><th>asked</th><th>sent</th><th>stop cat.</th>"
             "<th>reason</th></tr>")
     return f"<table>{head}{rows}</table>{more}"
 
