@@ -1,7 +1,8 @@
 """A record's cycles as a LeRobotDataset v3, for fine-tuning a policy on this robot's own data.
 
 One completed cycle is one episode. Frames come from the record's continuous decimated tick
-stream (``decimated_hz``, 50 Hz by default), every ``k``-th tick for ``fps = decimated_hz / k``;
+stream (every ``round(servo rate / decimated_hz)``-th servo tick, at least every one: 50 Hz at 1 kHz,
+30 Hz at 30 Hz), every ``k``-th tick of it for a whole ``fps`` (LeRobot's fps is an integer);
 the full-rate windows around events are not used, so every episode has the same frame period.
 Per frame: ``observation.state`` the measured joint positions, ``observation.velocity`` and
 ``observation.effort`` the measured velocities and efforts, ``action`` the setpoint actually
@@ -151,7 +152,12 @@ def evenly_spaced(t_ns: np.ndarray, fps: float) -> bool:
     """Whether frames at ``t_ns`` [ns] follow each other at ``fps`` with none missing: each step within
     ``STEP_TOLERANCE_NS`` of the period (the clock's steps round to the nanosecond: an exact test dropped 3 of
     the demo's 80 cycles as "gaps" for steps of 20,000,001 ns)."""
-    return bool(np.all(np.abs(np.diff(t_ns) - 1e9 / fps) <= STEP_TOLERANCE_NS))
+    return bool(np.all(_is_period(np.diff(t_ns), fps)))
+
+
+def _is_period(step_ns, fps: float) -> np.ndarray:
+    """Whether each step [ns] is the frame period at ``fps``, to ``STEP_TOLERANCE_NS``."""
+    return np.abs(np.asarray(step_ns) - 1e9 / fps) <= STEP_TOLERANCE_NS
 
 
 def _stride(context: dict, fps: int) -> int:
@@ -162,12 +168,21 @@ def _stride(context: dict, fps: int) -> int:
         raise RecordError("record context: servo_period_ns or record.decimated_hz is missing; "
                           "cannot tell the tick rate")
     period_ns = max(1, round(1e9 / dt_ns / hz)) * dt_ns
-    frame_ns = 1e9 / fps if fps > 0 else 0.0
-    stride = round(frame_ns / period_ns)
-    if fps <= 0 or stride < 1 or stride * period_ns != frame_ns:
-        raise RecordError(f"--fps: {fps} must divide the record's continuous tick rate "
-                          f"{1e9 / period_ns:g} Hz (e.g. {1e9 / period_ns:g}, {1e9 / period_ns / 2:g})")
-    return stride
+    rates, rate = _whole_rates(period_ns), 1e9 / period_ns
+    if not rates:
+        raise RecordError(f"--fps: no whole frame rate divides the record's continuous tick rate {rate:g} Hz "
+                          "(a LeRobotDataset's fps is a whole number)")
+    if fps not in rates:
+        raise RecordError(f"--fps: {fps} must divide the record's continuous tick rate {rate:g} Hz "
+                          f"(e.g. {', '.join(map(str, rates[:3]))})")
+    return round(rate / fps)
+
+
+def _whole_rates(period_ns: int) -> list[int]:
+    """The whole frame rates [Hz] that every k-th tick of a stream ``period_ns`` apart gives, fastest first (a tick
+    period is whole nanoseconds: 30 Hz is 33,333,333 ns, its frames within ``STEP_TOLERANCE_NS`` of 1/30 s)."""
+    candidates = ((k, round(1e9 / period_ns / k)) for k in range(1, int(1e9 // period_ns) + 1))
+    return [fps for k, fps in candidates if _is_period(k * period_ns, fps)]
 
 
 def _measurements(rec: Record) -> dict[int, tuple[np.ndarray, np.ndarray, tuple[str, ...]]]:
