@@ -73,7 +73,7 @@ MUTATIONS = (
              "        if state is None:\n            return None", "        if True:\n            return None",
              (f"{PROPS}::test_an_effort_stop_follows_exactly_from_the_measured_efforts",)),
     Mutation("effort_hold_x3", "effort limit: hold time", f"{CHECKS}/effort.py",
-             "self._hold = max(1, round(hold_s * 1e9 / dt_ns))", "self._hold = 3 * max(1, round(hold_s * 1e9 / dt_ns))",
+             "self._hold = _hold_samples(hold_s, dt_ns)", "self._hold = 3 * _hold_samples(hold_s, dt_ns)",
              (f"{PROPS}::test_an_effort_stop_follows_exactly_from_the_measured_efforts",)),
     Mutation("box_off", "tool box", f"{CHECKS}/__init__.py",
              "        after.append(WorkspaceLookahead(c.box, profile, tool, tracker))", "        pass",

@@ -2,7 +2,8 @@
 
 One servo period per tick, paced by ``WallClock``: take the newest command (a non-finite one is
 counted and never applied), step the physics, and send the client one state packet stamped
-with the monotonic clock. The cell runs its own task (``OwnTask``): when a cycle is over the
+with the monotonic clock. A period is whole physics steps: a ``rate_hz`` they cannot serve within 1 % is refused,
+and the start line says the rate served. The cell runs its own task (``OwnTask``): when a cycle is over the
 next part arrives at once and the digital input ``cycle_done`` pulses.
 
 A hello starts a session: its sender is the client, and the command sequence starts again.
@@ -28,6 +29,7 @@ simulated robot, not cell faults.
 from __future__ import annotations
 
 import json
+import math
 import socket
 import sys
 import time
@@ -35,6 +37,7 @@ from collections import deque
 
 import numpy as np
 
+from cellguard.errors import ConfigError
 from cellguard.robot.bridges.sim_server import Layout, command_size, unpack_command
 from cellguard.robot.own_task import OwnTask
 from cellguard.robot.registry import make_cell
@@ -44,6 +47,7 @@ NOTE_EVERY_NS = 1_000_000_000  # a refusal of one reason is said on stderr at mo
 CLIENT_LIVE_NS = 1_000_000_000  # a client heard within this is live; a hello from another peer is refused
 STARTING_LIVE_NS = 30_000_000_000  # the same before its first command (a policy's warm-up sends nothing)
 FOREIGN_REPLIES_PER_S = 20  # answers a second to peers other than the client (refused hellos, counter queries)
+RATE_TOLERANCE = 0.01  # --rate-hz is served if whole physics steps per period come this close (333 Hz: 3 ms)
 IP_RECVERR = 11  # Linux: queue ICMP errors with the address they were for (the socket module has no name for it)
 
 
@@ -54,8 +58,7 @@ class SimServer:
                  rate_hz: float | None = None):
         self.cell = make_cell(cell_name, seed=seed)
         cell = self.cell
-        # servo rate of the served robot: whole physics steps per period (the physics step is the cell's)
-        self.substeps = 1 if rate_hz is None else max(1, round(1e9 / rate_hz / cell.dt_ns))
+        self.substeps = 1 if rate_hz is None else served_substeps(rate_hz, cell.dt_ns)
         self.dt_ns = self.substeps * cell.dt_ns
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.bind(("127.0.0.1", port))
@@ -259,12 +262,31 @@ def _peer(addr) -> str:
     return f"{addr[0]}:{addr[1]}"
 
 
+def served_substeps(rate_hz: float, step_ns: int) -> int:
+    """Physics steps per servo period for ``rate_hz``: a period is whole steps of the cell's physics, so a rate
+    that none serves within ``RATE_TOLERANCE`` is refused, naming the nearest that are (400 Hz was served at
+    500 Hz and 60 Hz at 58.8 Hz without a word, and the client took the served period as the robot's)."""
+    exact = 1e9 / rate_hz / step_ns
+    steps = max(1, round(exact))
+    if abs(_rate_hz(steps, step_ns) - rate_hz) <= RATE_TOLERANCE * rate_hz:
+        return steps
+    nearby = sorted({_rate_hz(max(1, n), step_ns) for n in (math.floor(exact), math.ceil(exact))})
+    raise ConfigError(f"--rate-hz: {rate_hz:g} Hz is not served: a servo period is a whole number of the cell's "
+                      f"{step_ns * 1e-6:g} ms physics steps; nearest rates served: "
+                      f"{' and '.join(f'{r:.4g}' for r in nearby)} Hz")
+
+
+def _rate_hz(steps: int, step_ns: int) -> float:
+    return 1e9 / (steps * step_ns)
+
+
 def serve(cell_name: str, port: int, seed: int = 0, delay_ms: float = 0.0, drop_every: int = 0,
           duration_s: float | None = None, rate_hz: float | None = None) -> None:
     """Serve ``cell_name`` on udp://127.0.0.1:``port`` until killed (or for ``duration_s``)."""
     server = SimServer(cell_name, port, seed, delay_ms, drop_every, rate_hz)
     clock = WallClock(server.dt_ns, step=server.tick)
-    sys.stdout.write(f"sim-server {cell_name} on udp://127.0.0.1:{server.port}\n")
+    sys.stdout.write(f"sim-server {cell_name} on udp://127.0.0.1:{server.port} at "
+                     f"{1e9 / server.dt_ns:.4g} Hz ({server.dt_ns * 1e-6:g} ms period)\n")
     sys.stdout.flush()
     end = None if duration_s is None else time.monotonic_ns() + round(duration_s * 1e9)
     clock.start()

@@ -11,14 +11,16 @@ from cellguard.embodiment import Profile
 
 
 class EffortLimit(Check):
-    """Stop when a joint's |effort| stays above ``fraction`` of its limit for ``hold_s`` [s]."""
+    """Stop when a joint's |effort| stays above ``fraction`` of its limit for ``hold_s`` [s], in whole servo
+    samples (at least 2); the event says the hold that was served."""
 
     def __init__(self, profile: Profile, fraction: float, hold_s: float, dt_ns: int):
         self._names, self._limit = profile.joint_names, profile.array("effort").tolist()
         self._max = (profile.array("effort") * fraction).tolist()
         self._ticks = [0] * profile.dof  # ticks each joint has been above (plain ints: cheaper per tick than numpy)
-        self._hold = max(1, round(hold_s * 1e9 / dt_ns))
-        self._reason = f"effort above {fraction:.0%} of the limit for {hold_s * 1e3:.0f} ms"
+        self._hold = _hold_samples(hold_s, dt_ns)
+        self._reason = (f"effort above {fraction:.0%} of the limit for {_ms(self._hold * dt_ns)} ms "
+                        f"({self._hold} samples of {_ms(dt_ns)} ms)")
 
     def request(self, tick: Tick) -> Stop | None:
         state = tick.state
@@ -37,3 +39,13 @@ class EffortLimit(Check):
 
     def reset(self) -> None:
         self._ticks = [0] * len(self._ticks)
+
+
+def _hold_samples(hold_s: float, dt_ns: int) -> int:
+    """Samples over the limit that make a stop: never less than ``hold_s`` (rounding to the nearest sample
+    made the 50 ms hold one sample at 20 Hz and below, so one peak stopped the robot), and at least 2."""
+    return max(2, -(-round(hold_s * 1e9) // dt_ns))
+
+
+def _ms(ns: int) -> str:
+    return f"{round(ns * 1e-6, 1):g}"
