@@ -32,8 +32,8 @@ class GuardConfig(BaseModel):
                                description="soft limits this fraction of each joint's range inside the hard limits")
     effort_fraction: float = Field(default=0.98, gt=0.0, le=1.0,
                                    description="measured |effort| above this fraction of the limit ...")
-    effort_hold_s: float = Field(default=0.05, gt=0.0, le=1.0, description="... for at least this long, in whole servo samples "
-                                 "(at least 2): category 2 stop [s]")
+    effort_hold_s: float = Field(default=0.05, gt=0.0, le=1.0, description="... for at least this long, in whole "
+                                 "servo samples (at least 2): category 2 stop [s]")
     scale_rate: float = Field(default=2.0, gt=0.0, description="largest rate of change of the speed scale [1/s]")
     scale_accel: float = Field(default=40.0, gt=0.0, description="[1/s²]")
 
