@@ -54,8 +54,8 @@ def test_an_unknown_envelope_key_is_one_line_exit_2(tmp_path):
 
 @pytest.mark.parametrize(("text", "message"), [("watchdog_s: true", "valid number, got True"),
                                               ("watchdog_s: '0.5'", "valid number, got '0.5'"),
-                                              ("watchdog_s: .nan", "got nan"),
-                                              ("watchdog_s: !!set {a}", "a YAML !!set or !!binary is no envelope")])
+                                              ("watchdog_s: .nan", "nan is not a finite number"),
+                                              ("watchdog_s: !!set {a}", "a YAML !!set is no scenario value")])
 def test_an_envelope_value_of_the_wrong_type_is_refused_as_in_a_scenario(tmp_path, text, message):
     """The envelope was validated leniently: ``watchdog_s: true`` froze a 1 s watchdog into the release."""
     guard = tmp_path / "guard.yaml"
@@ -85,7 +85,8 @@ def test_a_fifo_or_device_as_the_map_or_policy_is_one_line_exit_2(tmp_path, opti
     fifo = tmp_path / "fifo"
     os.mkfifo(fifo)
     value = value.replace("fifo", str(fifo))
-    args = ["create", "--policy", "scripted", "--profile", CELL, "--site", str(tmp_path / "site"), option, value]
+    args = ["create", "--policy", f"onnx:{tmp_path / 'm.onnx'}", "--profile", CELL, "--site", str(tmp_path / "site"),
+            option, value]  # a policy that takes a map (a later --policy replaces it)
     result = run_with_fifo_guard(fifo, lambda: cli(*args))
     assert result.exit_code == 2 and result.stderr.count("\n") == 1 and says in result.stderr, result.output
     assert not (tmp_path / "site").exists()

@@ -16,15 +16,14 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
-from pydantic import ValidationError
-
 from cellguard import __version__
 from cellguard.control.config import GuardConfig
 from cellguard.embodiment.profile import calibrated_profile, kept_copy
-from cellguard.errors import CellguardError, ProfileError
+from cellguard.errors import CellguardError, ProfileError, ScenarioError, UnknownNameError
 from cellguard.output import not_regular
 from cellguard.release.errors import BundleMismatch, ReleaseError
 from cellguard.robot.registry import cell_names, make_cell
+from cellguard.scenario import parse_scenario
 from cellguard.yaml_file import read_bounded, read_yaml
 
 ID_CHARS = 16  # hex characters of the sha256 shown as the release id
@@ -94,9 +93,10 @@ def create_bundle(policy: str, action_map: Path | None, profile: str, envelope: 
     cell_name, profile_path = _resolve_profile(profile)
     cell = make_cell(cell_name)
     prof, calibrated = cell.profile, _calibration(cell, profile_path)  # the cell's own, and a calibration of it
-    settings = _envelope(envelope)
+    settings = _envelope(envelope, cell_name)
     amap = None
     if action_map is not None:
+        _check_takes_map(policy)
         path = Path(action_map).resolve()
         amap = {"path": str(path), "sha256": yaml_sha256(path, "action map")}
     manifest = {
@@ -242,21 +242,16 @@ def _resolve_profile(profile: str) -> tuple[str, Path | None]:
     raise ReleaseError(f"--profile {profile}: neither a profile file nor a cell; cells: {', '.join(cells)}")
 
 
-def _envelope(path: Path | None) -> GuardConfig:
+def _envelope(path: Path | None, cell: str) -> GuardConfig:
+    """The envelope file read as a scenario's ``guard:`` section, by the scenario's own checks: every stage's run
+    validates it so, and a rule of create's own let ``.inf`` or a document ``[]`` through to fail only there."""
     if path is None:
         return GuardConfig()
-    raw = read_yaml(Path(path), "envelope", ReleaseError) or {}
-    try:  # strict, as a scenario's guard: "0.5" or true is no watchdog time (true was 1 s), NaN no number
-        return GuardConfig.model_validate_json(json.dumps(raw), strict=True)
-    except (TypeError, ValueError) as exc:  # ValidationError is a ValueError; TypeError: a YAML !!set or !!binary
-        tagged = [k for k, v in raw.items() if isinstance(v, (set, bytes))] if isinstance(raw, dict) else []
-        err = exc.errors()[0] if isinstance(exc, ValidationError) else \
-            {"loc": tagged[:1], "type": "", "msg": "a YAML !!set or !!binary is no envelope value"}
-        where = ".".join(str(p) for p in err["loc"]) or "envelope"
-        msg = "unknown key" if err["type"] == "extra_forbidden" else err["msg"]
-        if err.get("input") is not None and err["type"] != "extra_forbidden":
-            msg += f", got {err['input']!r}"
-        raise ReleaseError(f"--envelope {path}: {where}: {msg}") from None
+    raw = read_yaml(Path(path), "envelope", ReleaseError)
+    try:
+        return parse_scenario({"cell": cell, "guard": raw}, origin=f"--envelope {path}").guard
+    except ScenarioError as exc:
+        raise ReleaseError(str(exc)) from None
 
 
 def _absolute_spec(spec: str) -> str:
@@ -277,13 +272,33 @@ def _absolute_spec(spec: str) -> str:
     return spec
 
 
+def _adapters() -> dict:
+    """The policy adapters by scheme: the policies that take options, an action map among them."""
+    from cellguard.policy import lerobot, onnx, openpi
+
+    return {"onnx": onnx, "lerobot": lerobot, "openpi": openpi}
+
+
+def _check_takes_map(spec: str) -> None:
+    """--map is given to the policy as its ``?map=`` option (``Bundle.policy_spec``): refused here for a policy
+    without one, which named the joined text as an unknown policy source the user never typed."""
+    from cellguard.policy.registry import SCHEMES
+
+    scheme = spec.partition(":")[0]
+    mapped = [s for s, adapter in _adapters().items() if "map" in adapter.OPTIONS]
+    if scheme not in SCHEMES:
+        raise ReleaseError(f"--policy: {UnknownNameError('policy source', scheme, list(SCHEMES))}")
+    if scheme not in mapped:
+        raise ReleaseError(f"--map: the {scheme} policy drives the robot's joints directly; it takes no action map "
+                           f"(the {', '.join(mapped)} policies do)")
+
+
 def _refuse_map_option(scheme: str, arg: str) -> None:
     """An action map given as a policy option is used unhashed: it goes with --map. The adapter's own parser
     decides what is an option (``?ma%70=`` is ``map`` once decoded; the text ``map=`` was checked)."""
-    from cellguard.policy import lerobot, onnx, openpi
     from cellguard.policy.adapter import split_options
 
-    adapter = {"onnx": onnx, "lerobot": lerobot, "openpi": openpi}.get(scheme)
+    adapter = _adapters().get(scheme)
     if adapter is None:
         return
     try:

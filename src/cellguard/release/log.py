@@ -5,9 +5,9 @@ prev_hash is 64 zeros. The store keeps the head (last hash and count) beside the
 deleted last entry shows, unless the head was moved back in the same edit: in the same file
 nothing can tell that from a log that was never longer. A head kept elsewhere (``verify_log``'s
 ``expect_head``) does. ``verify_log`` recomputes the chain and names every break, and checks
-every stage's pointers against the ones the log's entries set and every bundle's manifest
-against its id. Commands act only on entries that match their hashes, and append only after the
-store's head.
+every stage's pointers against the ones the log's entries set, every bundle's manifest against
+its id and every release a pointer, an entry or a run names against the bundles kept. Commands
+act only on entries that match their hashes, and append only after the store's head.
 """
 
 from __future__ import annotations
@@ -201,9 +201,9 @@ def head(store) -> str:
 
 
 def verify_log(store, expect_head: str | None = None) -> list[str]:
-    """Every break in the chain, every pointer the log does not account for and every edited bundle, in words;
-    empty when whole. ``expect_head``: a head kept elsewhere (a hash or a prefix of one); the log must still hold
-    that entry, which finds last entries deleted together with the store's head."""
+    """Every break in the chain, every pointer the log does not account for, every edited bundle and every release
+    named without one, in words; empty when whole. ``expect_head``: a head kept elsewhere (a hash or a prefix of
+    one); the log must still hold that entry, which finds last entries deleted together with the store's head."""
     if expect_head is not None and not re.fullmatch(r"[0-9a-f]{12,64}", expect_head):
         raise ReleaseError(f"--expect-head {expect_head[:80]!r}: not a hash (12 to 64 lowercase hex characters)")
     problems, prev, expected_seq, readable, hashes = [], GENESIS, 1, [], []
@@ -236,4 +236,21 @@ def verify_log(store, expect_head: str | None = None) -> list[str]:
         if have != want:
             problems.append(f"{_pointer_break(cell, stage, have, want)} (edited outside cellguard)")
     whole = [e for e in readable if entry_hash(e.prev_hash, e.body) == e.hash]  # an edited one is named above
-    return problems + run_problems(store, whole) + store.edited_bundles()
+    return problems + run_problems(store, whole) + store.edited_bundles() + missing_bundles(store, whole)
+
+
+def missing_bundles(store, log_entries: list[LogEntry]) -> list[str]:
+    """Each release a pointer, a log entry or a counted run names that has no bundle (deleted outside cellguard:
+    it can be neither run nor promoted again, and nothing else says it is gone), in words, with what names it."""
+    named: dict[str, list[str]] = {}
+    for p in store.all_pointers():
+        for key in ("current", "last_good"):
+            named.setdefault(getattr(p, key), []).append(f"{key} of {p.stage} on {p.cell}")
+    for e in log_entries:
+        for rid in {e.body.get(k) for k in ("release", "from", "to", "last_good")}:
+            named.setdefault(rid, []).append(f"log entry {e.seq}")
+    for seq, row in store.run_rows().items():
+        named.setdefault(row.release, []).append(f"run {seq}")
+    bundles = store.bundle_ids()
+    return [f"release {rid}: no bundle (deleted outside cellguard); named by {', '.join(where)}"
+            for rid, where in named.items() if rid is not None and rid not in bundles]

@@ -73,11 +73,13 @@ def load_plan(path: Path) -> dict[str, StagePlan]:
     reject_unknown_keys(raw["stages"], STAGES, f"{path}: stages.", GateError)
     plans = {}
     for stage in STAGES:
-        spec = raw["stages"].get(stage) or {}
+        spec = raw["stages"].get(stage)
+        spec = {} if spec is None else spec  # ``sim:`` left empty; ``sim: false`` is no mapping
         where = f"{path}: stages.{stage}"
         if not isinstance(spec, dict):
             raise GateError(f"{where}: expected a mapping with runs and gates")
-        for i, gate in enumerate(spec.get("gates") or []):
+        gates = spec.get("gates")
+        for i, gate in enumerate(gates if isinstance(gates, list) else []):  # else StagePlan names it, not a TypeError
             try:
                 Gate.model_validate(gate)
             except ValidationError as exc:

@@ -73,6 +73,7 @@ class Store:
         self.site = make_folder(Path(site), "--site")
         try:
             self.db = sqlite3.connect(self.site / STORE_FILE, isolation_level=None, timeout=LOCK_WAIT_S)
+            self.db.text_factory = _text
             self.db.executescript(_SCHEMA)
         except sqlite3.Error as exc:
             raise ReleaseError(f"--site {site}: cannot open the release store ({exc})") from None
@@ -143,6 +144,10 @@ class Store:
                 problems.append(str(exc))
         return problems
 
+    def bundle_ids(self) -> set[str]:
+        """The id of every bundle stored, edited or not: a release named anywhere else must be one of them."""
+        return {r[0] for r in self.db.execute("SELECT CAST(id AS TEXT) FROM bundles")}
+
     # pointers
     def pointers(self, cell: str, stage: str) -> Pointers:
         row = self.db.execute("SELECT current, last_good FROM pointers WHERE cell=? AND stage=?",
@@ -157,6 +162,15 @@ class Store:
         self.write("INSERT OR REPLACE INTO pointers VALUES (?, ?, ?, ?)", (cell, stage, current, last_good))
 
     def cells(self) -> list[str]:
+        """Every cell with pointers; ReleaseError for a row whose cell or releases are not text (a NULL cell, bytes:
+        edited outside cellguard), which ``release status`` could neither show nor name."""
+        row = self.db.execute("SELECT cell, stage, current, last_good FROM pointers WHERE typeof(cell) != 'text' "
+                              "OR typeof(current) NOT IN ('text', 'null') OR typeof(last_good) NOT IN ('text', 'null')"
+                              ).fetchone()
+        if row is not None:
+            raise ReleaseError(f"the pointers row cell {row[0]!r}, stage {row[1]!r}, current {row[2]!r}, last_good "
+                               f"{row[3]!r}: names no cell or release (edited outside cellguard); release verify "
+                               f"lists every break")
         return [r[0] for r in self.db.execute("SELECT DISTINCT cell FROM pointers ORDER BY cell")]
 
     # runs
@@ -195,6 +209,12 @@ class Store:
 
     def set_meta(self, key: str, value: str) -> None:
         self.write("INSERT OR REPLACE INTO meta VALUES (?, ?)", (key, value))
+
+
+def _text(raw: bytes) -> str:
+    """A text value as str; bytes that are no UTF-8 (written outside cellguard) read with U+FFFD in their place, so
+    the entry or bundle holding them shows as edited (sqlite3 raised, a traceback in verify and status)."""
+    return raw.decode("utf-8", "replace")
 
 
 def _stored_bundle(rid: str, text: str) -> Bundle:
