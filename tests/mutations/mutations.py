@@ -21,6 +21,7 @@ STOP = f"{LIM}::test_a_stop_from_speed_reaches_zero_velocity_within_its_bound"
 STOPS = f"{PROPS}::test_every_stop_reaches_zero_velocity_within_its_bound"
 TRACKER = "src/cellguard/control/tracker.py"
 ENVELOPE = "src/cellguard/control/envelope.py"
+STOP_POWER = "tests/test_stop_power.py"
 CHECKS = "src/cellguard/control/checks"
 EXECUTOR = "src/cellguard/control/executor.py"
 WORKSPACE = "tests/test_workspace.py"
@@ -119,6 +120,13 @@ MUTATIONS = (
     Mutation("category1_keeps_power", "stop category 1: power removed at standstill", ENVELOPE,
              "if self.stop_category == 1 and tracker.stopped:", "if False:",
              (STOP,)),
+    Mutation("category1_power_off_while_moving", "stop category 1: power removed once the measured joints are still",
+             ENVELOPE, "if not speed < STANDSTILL:", "if False:",
+             (f"{STOP_POWER}::test_power_stays_on_while_the_measured_arm_still_moves_after_its_setpoint_is_at_rest",)),
+    Mutation("category1_never_gives_up", "stop category 1: power removed one stopping time after rest anyway",
+             ENVELOPE, "if waited < self._settle_ns:", "if True:",
+             (f"{STOP_POWER}::test_power_is_removed_one_stopping_time_after_the_setpoint_rests_on_a_robot_that_never_"
+              "reads_still",)),
     Mutation("stop_never_reaches_zero", "stop categories 1/2: zero velocity within the bound", TRACKER,
              "self._stop_in.target_velocity = np.zeros(dof)", "self._stop_in.target_velocity = np.full(dof, 0.05)",
              (STOP, STOPS)),

@@ -5,7 +5,9 @@ delay). Around it: soft and hard position limits with stopping-distance look-ahe
 acceleration and jerk limits; an effort limit on the measured joint efforts; a Cartesian box
 for the tool point with its own look-ahead; a tool-speed cap, lowered to the reduced speed
 (250 mm/s, ISO 10218-1) when the safety controller asks for it or the policy is unsure; a
-watchdog on policy silence; and stops of IEC 60204-1 categories 0, 1 and 2.
+watchdog on policy silence; and stops of IEC 60204-1 categories 0, 1 and 2. A category 1 stop removes
+power once the machine has stopped: the setpoint at rest and every measured joint speed under ``STANDSTILL``,
+or one stopping time of the profile after the setpoint came to rest whatever the joints read.
 
 Speed is lowered by slowing the executor's playback clock (``scale``), which keeps the path
 and stretches time. ``scale`` moves with bounded rate and rate of rate, so the slow-down itself
@@ -45,6 +47,14 @@ from cellguard.robot.protocol import SafetyInputs
 
 NO_INPUTS = SafetyInputs()
 INTERVENTION_QUIET_NS = 200_000_000  # a joint's intervention is a new event after this long untouched
+STANDSTILL = 0.05  # every measured joint speed below this: the machine has stopped [rad/s, m/s]
+
+
+def stopping_time_ns(profile: Profile) -> int:
+    """The longest stop the profile lets a joint take [ns]: jerk-limited from full speed, v/a + a/j. A drive
+    that follows its setpoint within these limits is at rest this long after the setpoint is, from any speed."""
+    v, a, j = (profile.array(k) for k in ("velocity", "acceleration", "jerk"))
+    return round(float((v / a + a / j).max()) * 1e9)
 
 
 class Envelope:
@@ -73,6 +83,8 @@ class Envelope:
         self.stop_kind: EventKind | None = None
         self.stop_reason: str | None = None
         self.power = True
+        self._rest_ns: int | None = None  # when the setpoint of the category 1 stop in force came to rest
+        self._settle_ns = stopping_time_ns(profile)  # then how long the measured joints may take to follow it
         self._active: dict[EventKind, str] = {}  # lasting conditions already reported, with their reason
         self.tool_speed = 0.0  # [m/s] of the last setpoint
         self._last_intervention = [-(2**62)] * profile.dof  # per joint [ns]
@@ -113,9 +125,7 @@ class Envelope:
                 return tracker.hold(), events
             setpoint = tracker.stop(reference if finite else None)
             if self.stop_category == 1 and tracker.stopped:
-                self.power = False
-                events.append(Event(t_ns, EventKind.POWER_REMOVED, f"category 1 stop complete: {self.stop_reason}",
-                                    category=1))
+                self._end_category_1(t_ns, state, events)
             return setpoint, events
         cap = self._update_scale(tick, tool_speed_ahead, events)
         before = tracker.mode  # the modes before this tick (the tracker replaces its list, never changes it)
@@ -173,6 +183,7 @@ class Envelope:
         self.tracker.reset(q)
         self.stop_category = self.stop_kind = self.stop_reason = None
         self.power = True
+        self._rest_ns = None
         self._active.clear()
         for check in self._all:
             check.reset()
@@ -202,6 +213,12 @@ class Envelope:
         self.tool_speed = math.sqrt((x - px) ** 2 + (y - py) ** 2 + (z - pz) ** 2) * 1e9 / self.dt_ns
 
     # -- stops -----------------------------------------------------------------------------
+    @property
+    def stop_complete(self) -> bool:
+        """The stop in force has run its course: power removed (category 0 at once, 1 once the machine has
+        stopped), or the setpoint of a category 2 stop at rest."""
+        return not self.power or (self.stop_category == 2 and self.tracker.stopped)
+
     def _begin_stop(self, t_ns: int, stop: Stop, events: list[Event]) -> None:
         category = stop.category
         if self.stop_category is not None and self.stop_category <= category:
@@ -211,6 +228,30 @@ class Envelope:
         if category == 0 and self.power:
             self.power = False
             events.append(Event(t_ns, EventKind.POWER_REMOVED, f"category 0 stop: {stop.reason}", category=0))
+
+    def _end_category_1(self, t_ns: int, state, events: list[Event]) -> None:
+        """With the setpoint at rest, power off once the machine has stopped (IEC 60204-1 category 1): every
+        measured joint speed below ``STANDSTILL``, or ``_settle_ns`` later whatever they read (a robot that never
+        reads still must not keep power). The event names the fastest joint, its speed (asked) and the threshold
+        (sent). Without a measured state (benchmarks) the setpoint at rest is all there is to go by."""
+        reason = f"category 1 stop complete: {self.stop_reason}"
+        if state is None:
+            self.power = False
+            events.append(Event(t_ns, EventKind.POWER_REMOVED, reason, category=1))
+            return
+        if self._rest_ns is None:
+            self._rest_ns = t_ns
+        speeds = np.abs(state.qd)
+        j = int(speeds.argmax())
+        speed, waited = float(speeds[j]), t_ns - self._rest_ns
+        if not speed < STANDSTILL:  # a speed that reads NaN is no standstill either
+            if waited < self._settle_ns:
+                return
+            reason = (f"category 1 stop: still moving {waited * 1e-6:.0f} ms after the setpoint came to rest, "
+                      f"power removed anyway: {self.stop_reason}")
+        self.power = False
+        events.append(Event(t_ns, EventKind.POWER_REMOVED, reason, joint=self._names[j], asked=speed,
+                            sent=STANDSTILL, category=1))
 
     # -- speed -----------------------------------------------------------------------------
     def _update_scale(self, tick: Tick, speed_ahead: Callable[[], float | None] | None,

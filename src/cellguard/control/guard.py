@@ -32,7 +32,7 @@ class Guard:
     def __init__(self, profile: Profile, q0: np.ndarray, dt_ns: int, config: GuardConfig | None = None,
                  tool: Callable[[np.ndarray], np.ndarray] | None = None):
         config = config or GuardConfig()
-        self.config = config
+        self.config, self.tool = config, tool
         # the playback clock advances one period per tick at most: a late tick lags, never jumps
         self.executor = Executor(profile, q0, dt_ns, blend_ns=round(config.blend_s * 1e9), tool=tool,
                                  max_tick_ns=dt_ns)

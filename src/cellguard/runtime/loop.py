@@ -23,8 +23,10 @@ from typing import NoReturn
 import numpy as np
 
 from cellguard.control.checks.safety_input import RECOVERY_HOLD
+from cellguard.control.envelope import STANDSTILL
 from cellguard.control.events import Event, EventKind
 from cellguard.control.executor import PreparedChunk
+from cellguard.control.reach import max_reach
 from cellguard.control.settings import build_guard
 from cellguard.diagnose.cycle_buffer import CycleBuffer
 from cellguard.diagnose.features import cycle_features
@@ -44,13 +46,12 @@ from cellguard.runtime.link import RobotLink
 from cellguard.runtime.operator_stop import OperatorStop
 from cellguard.runtime.recovery import RecoveryRunner
 from cellguard.runtime.startup import StartupRefused, check_startup
-from cellguard.runtime.transitions import Transition
+from cellguard.runtime.transitions import Transition, speed_cap
 from cellguard.scenario import Scenario
 
 CYCLE_TIMEOUT_S = 12.0  # a cycle that has not finished by then is ended as failed, once no recovery attempt runs [s]
 NAN_AFTER_S = 1.0  # a policy_nan fault corrupts the first chunk this long into its cycle [s]
 STOP_SETTLE_S = 0.3  # a category 2 stop holds the measured position this long before the run ends [s]
-STANDSTILL = 0.05  # an operator stop ends the run once every measured joint speed is below this [rad/s, m/s]
 # A call still running this many watchdog times after its request has hung: the policy is lost. The watchdog has
 # held the robot since one watchdog time and lets it go on at the next chunk, so a slow call is survived. A policy
 # slower than that may still be a live one with long chunks (the start-up check takes a latency up to a horizon,
@@ -86,6 +87,10 @@ class Run:
         make_cycle_source(scenario.cycle, self.cell, self.policy)  # refused here, before the record starts; the
         # source itself is built at the first cycle, for the policy then in place
         self.guard = build_guard(self.cell, scenario.guard)
+        profile, tool = self.cell.profile, self.guard.tool
+        # each joint's largest reach by the guard's tool model, for the transitions' tool-speed cap: computed here,
+        # off the ticks (15 ms: a stall of the servo loop where a cap comes on mid-transition)
+        self._reach = None if tool is None else max_reach(tool, profile.q_min, profile.q_max).norm
         self.events = EventLog()
         self.cycles = CycleWindow()
         self.clock = make_clock(self.cell, realtime)
@@ -150,8 +155,10 @@ class Run:
         ticks = self.ticks
         ticks.clear()
         timed_out = False
-        if not self.guard.power:  # a category 0/1 stop in the last cycle: the simulated shift's operator resets
-            cell.set_power(True)  # the cell (a robot behind a bridge ends the run instead: see the ticks)
+        if not self.guard.power and cell.safety().stop is None:  # a category 0/1 stop in the last cycle: the
+            # simulated shift's operator resets the cell, never while the stop input is held (IEC 60204-1; the run
+            # ends then: see the cycle's end); a robot behind a bridge ends the run instead: see the ticks
+            cell.set_power(True)
             self.guard.reset(link.read(start).q)
             events.append(Event(start, EventKind.RESET, "simulated operator reset after a stop with power removed"))
             self._armed_at = start  # the no-first-chunk watchdog runs again from the reset
@@ -192,9 +199,7 @@ class Run:
                 if new:
                     events.extend(new)
                     if not guard.power:
-                        link.power_off(t)
-                        if not self.simulated:  # power comes back only by a person's deliberate reset (IEC 60204-1)
-                            self.stopped = self.stopped or self._power_removed(guard.envelope)
+                        self._power_off(t)
                 sent = link.write(t, setpoint)
                 advance()
                 if timing.new_overrun:
@@ -212,10 +217,10 @@ class Run:
                     timing.recorder(perf_ns() - began, usage)
                     if not recorded:
                         break
-                if link.stop is not None and (link.lost or guard.envelope.tracker.stopped):
+                if link.stop is not None and (link.lost or guard.envelope.stop_complete):
                     self.stopped = self.stopped or f"robot link: {link.reason}"
                     break
-                if self.policy_lost and guard.envelope.tracker.stopped:
+                if self.policy_lost and guard.envelope.stop_complete:
                     self.stopped = self.stopped or f"policy lost: {self.policy_lost}"
                     break
                 if self.stopped and not guard.power:  # a robot behind a bridge lost its power (above)
@@ -229,6 +234,8 @@ class Run:
                 if t >= timeout and not (driving and recovery.attempting):
                     timed_out = True
                     break
+        if not self.guard.power and cell.safety().stop is not None:
+            self.stopped = self.stopped or self._still_held(self.guard.envelope)
         t_end = clock.now()
         stopped = any(e.category is not None for e in events.since(first_event))
         outcome = {"cycle": index, "phase": self._phase(index), **self.source.end(t_end, stopped)}
@@ -334,11 +341,12 @@ class Run:
             self._refuse(str(exc))
         # from where the robot was commanded to be (the measured pose lags it: planning from there stepped the command)
         approach = Transition.plan(self.cell.profile, self.link.last_sent, self._first_target(chunk),
-                                   self.clock.period_ns, **self._commanded_motion())
+                                   self.clock.period_ns, **self._commanded_motion(), **self._cap(self.cell.safety()))
         if approach is None:
             return arrival
         held = self._play(approach, "approach", self.clock.now())
-        self.guard = build_guard(self.cell, self.scenario.guard, q0=held)  # where the commands left the robot
+        if self.guard.power:  # else a category 0/1 stop aborted it: the guard holds there, power removed
+            self.guard = build_guard(self.cell, self.scenario.guard, q0=held)  # where the commands left the robot
         self._armed_at = self.clock.now()
         self.source.begin(self.cycles.total, self._armed_at)  # the cycle (and episode) starts at the approached pose
         self.inference.begin_cycle(self._armed_at)  # and resets the policy
@@ -377,9 +385,13 @@ class Run:
                                      "stopped during an operator's hand-over hold; the robot stays where it is held"))
             return
         plan = Transition.plan(self.cell.profile, self.link.last_sent, np.asarray(home), self.clock.period_ns,
-                               **self._commanded_motion())
-        if plan is not None:  # the operator's first signal stopped the run (or ends it now); a second aborts this
-            self._play(plan, "retreat", self.clock.now(), signals=min(self.operator.count, 1))
+                               **self._commanded_motion(), **self._cap(self.cell.safety()))
+        if plan is None:
+            return
+        self._play(plan, "retreat", self.clock.now(), signals=min(self.operator.count, 1))  # the operator's first
+        # signal stopped the run (or ends it now); a second aborts this
+        if not self.guard.power:  # a category 0/1 stop aborted it: no reset follows, the run ends stopped
+            self.stopped = self.stopped or self._power_removed(self.guard.envelope)
 
     def _power_removed(self, envelope) -> str:
         """Why a robot behind a bridge stopped for good: the link fault that asked it, else the guard's stop."""
@@ -387,6 +399,20 @@ class Run:
             return f"robot link: {self.link.reason}"
         return (f"power removed by a category {envelope.stop_category} stop ({envelope.stop_reason}); reset the cell "
                 "and start a new run")
+
+    def _still_held(self, envelope) -> str:
+        """Why a simulated cell stays off: the stop input that removed its power is still held at the cycle's end,
+        and no reset is allowed while it is (IEC 60204-1). The shift's operator reset it at the next cycle, and
+        the stop removed power again at once, cycle after cycle until the time-outs ran out."""
+        return (f"power removed by a category {envelope.stop_category} stop ({envelope.stop_reason}) and the stop "
+                "input is still held: no reset while it is; clear it, reset the cell and start a new run")
+
+    def _power_off(self, t_ns: int) -> None:
+        """Drive power off, the guard having removed it (a category 0 or 1 stop); a robot behind a bridge ends the
+        run: power comes back only by a person's deliberate reset (IEC 60204-1)."""
+        self.link.power_off(t_ns)
+        if not self.simulated:
+            self.stopped = self.stopped or self._power_removed(self.guard.envelope)
 
     def _commanded_motion(self) -> dict:
         """The command's velocity and acceleration now (the guard's setpoints'), where a transition starts: a
@@ -396,33 +422,79 @@ class Run:
         half_dt = 0.5 * tracker.dt
         return {"velocity": [x + y * half_dt for x, y in zip(v, a)], "acceleration": a}
 
+    def _cap(self, safety: SafetyInputs) -> dict:
+        """The guard's tool-speed cap in force with these inputs (``transitions.speed_cap``) and the tool's reach:
+        what a transition goes under."""
+        return {"cap": speed_cap(self.guard.config, safety), "reach": self._reach}
+
     def _play(self, plan: Transition, name: str, t0: int, signals: int | None = None) -> np.ndarray:
         """Play a transition tick by tick; return the pose it left the robot at. A stop input, a link fault or
-        an operator's signal past ``signals`` (default: those so far) aborts it: it brakes to a standstill
-        under the profile's limits and holds there. A plan that only settles the command is not told as a
-        transition (every run's last cycle ended with its command a few ms from rest)."""
-        events, link, rec = self.events, self.link, self.recording
+        an operator's signal past ``signals`` (default: those so far) aborts it as the stop's category asks
+        (``_ticks``); a category 0 or 1 stop then removes power through the guard, at rest there. A plan that
+        only settles the command is not told as a transition (every run's last cycle ended with its command a
+        few ms from rest)."""
         signals = self.operator.count if signals is None else signals
         if not plan.settles:
-            events.append(Event(t0, EventKind(f"{name}_begin"),
-                                f"{name}: {plan.duration_s:.2f} s to {np.round(plan.target, 3).tolist()}"))
-        t, held = t0, plan.start
+            self.events.append(Event(t0, EventKind(f"{name}_begin"),
+                                     f"{name}: {plan.duration_s:.2f} s to {np.round(plan.target, 3).tolist()}"))
         with self.clock.ticking():
-            for steps, setpoint in enumerate(plan.setpoints()):
-                t = self.clock.now()
-                operator = self.operator.count > signals
-                if self.cell.safety().stop is not None or link.stop is not None or operator:
-                    if operator:
-                        self._operator_stop(t)
-                    events.append(Event(t, EventKind(f"{name}_aborted"),
-                                        "stop input, robot link fault or operator stop during the transition", category=2))
-                    brake = plan.brake(self.cell.profile, steps)
-                    return held if brake is None else self._send(brake.setpoints(), rec)
-                held = self._send([setpoint], rec)
-                t = self.clock.now()
-        if not plan.settles:
-            events.append(Event(t, EventKind(f"{name}_done"), f"{name} complete"))
+            held, stop = self._ticks(plan, name, signals)
+            if stop is not None and stop[0] < 2:
+                self.guard.reset(held)  # at rest where the transition left the robot
+                self._remove_power(*stop)
+        if stop is None and not plan.settles:
+            self.events.append(Event(self.clock.now(), EventKind(f"{name}_done"), f"{name} complete"))
         return held
+
+    def _ticks(self, plan: Transition, name: str, signals: int) -> tuple[np.ndarray, tuple[int, str | None] | None]:
+        """The transition's setpoints, one per servo period; return the last one sent and the stop that aborted
+        it, (category, who asked: None for the safety controller), if one did. A category 0 stop sends nothing
+        more (power goes at once); 1 and 2 brake to a standstill under the profile's limits (stopping the
+        setpoints dead at full speed stepped the command 63 mrad in one 1 ms tick). A reduced-speed input that
+        comes on replans the rest under its cap (``Transition.slowed``)."""
+        profile, rec, held = self.cell.profile, self.recording, plan.start
+        for steps, setpoint in enumerate(plan.setpoints()):
+            t = self.clock.now()
+            safety = self.cell.safety()
+            stop = self._transition_stop(t, safety, signals)
+            if stop is not None:
+                why = stop[1] or "the safety controller's protective stop input"
+                self.events.append(Event(t, EventKind(f"{name}_aborted"), f"{why}: a category {stop[0]} stop "
+                                         "during the transition", category=stop[0]))
+                brake = None if stop[0] == 0 else plan.brake(profile, steps)
+                return (held if brake is None else self._send(brake.setpoints(), rec)), stop
+            if safety.reduced_speed:
+                slower = plan.slowed(profile, steps, **self._cap(safety))
+                if slower is not None:
+                    self.events.append(Event(t, EventKind.REDUCED_SPEED_INPUT, f"safety controller reduced-speed "
+                                             f"input: the {name} slows down, {slower.duration_s:.2f} s to go"))
+                    return self._ticks(slower, name, signals)
+            held = self._send([setpoint], rec)
+        return held, None
+
+    def _transition_stop(self, t_ns: int, safety: SafetyInputs, signals: int) -> tuple[int, str | None] | None:
+        """The strictest stop asked during a transition: the safety controller's input, a robot link fault, an
+        operator's signal past ``signals``; (category, who asked: None for the controller) or None."""
+        asked = [] if safety.stop is None else [(safety.stop, None)]
+        if self.link.stop is not None:
+            asked.append((self.link.stop, f"robot link, {self.link.reason}"))
+        if self.operator.count > signals:
+            self._operator_stop(t_ns)
+            asked.append((EventKind.OPERATOR_STOP.category, self.operator.reason))
+        return min(asked, key=lambda a: a[0], default=None)
+
+    def _remove_power(self, category: int, asked_by: str | None) -> None:
+        """Drive power off by the guard's own stop, as on the cycles' ticks: at once for category 0, for category 1
+        once the guard finds the machine stopped (it holds meanwhile, reading the robot every tick)."""
+        safety, rec = SafetyInputs(category, False, asked_by), self.recording
+        while True:
+            t = self.clock.now()
+            setpoint, new = self.guard.tick(t, self.link.state, safety)
+            self.events.extend(new)
+            if not self.guard.power:
+                self._power_off(t)
+                return
+            self._send([setpoint], rec)
 
     def _send(self, setpoints, rec) -> np.ndarray:
         """Write each setpoint in its own servo period (read and record after it); return the last."""

@@ -7,19 +7,60 @@ first brakes it to a standstill under the same limits, then goes from rest to re
 rest there stopped the command dead (156 times the acceleration limit in one tick). A pose within
 ``tolerance`` of the target needs no transition. One that is aborted brakes to a standstill under
 the same limits (``brake``) from where it is.
+
+A transition obeys the guard's tool-speed cap (``speed_cap``: the reduced-speed input's, the guard's
+``tool_speed_max``) through its joint velocity limits (``velocity_limits``), lowered so that no motion
+within them moves the tool faster; a cap that comes on mid-way replans the rest (``slowed``). The
+retreat went home at 0.66 m/s at the tool with the reduced-speed input (0.25 m/s) held.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 import ruckig
 
+from cellguard.control.checks import SpeedCap, Tick
+from cellguard.control.checks.safety_input import ReducedSpeedInput
+from cellguard.control.checks.tool_speed import ToolSpeedCap
+from cellguard.control.config import GuardConfig
 from cellguard.embodiment import Profile
+from cellguard.robot.protocol import SafetyInputs
 
 TOLERANCE = 0.01  # [rad] or [m]: closer than this, no transition is played
 AT_REST = 1e-9  # [unit/s], [unit/s²]: slower than this, a transition is at rest
+
+
+def speed_cap(config: GuardConfig, safety: SafetyInputs) -> SpeedCap | None:
+    """The lowest tool-speed cap the envelope's speed checks ask with these inputs: the reduced-speed input's and
+    ``tool_speed_max``'s (a transition plays no chunk: the uncertainty gate has nothing to read); None: no cap."""
+    tick = Tick()
+    tick.safety = safety
+    checks = [ReducedSpeedInput(config.reduced_speed)]
+    if config.tool_speed_max is not None:
+        checks.append(ToolSpeedCap(config.tool_speed_max))
+    caps = [cap for cap in (check.request(tick) for check in checks) if cap is not None]
+    return min(caps, key=lambda cap: cap.cap, default=None)
+
+
+def velocity_limits(profile: Profile, travel: np.ndarray, cap: SpeedCap | None,
+                    reach: list[float] | None) -> np.ndarray:
+    """The profile's joint velocity limits for a motion of ``travel`` (D,), lowered so that sum_j reach_j v_j <= the
+    cap: whatever each joint does within its limit, the tool moves no faster (``reach``: each joint's largest reach
+    over its range, ``reach.max_reach``). The cap is shared out in proportion to each joint's travel, as the
+    tracker shares it along the closing velocity: the joints then take about as long (all scaled alike, the
+    joints that travel little held the others back: 7.4 s for a 4.2 s retreat). Without a tool model (``reach``
+    None), the cap's playback scale, as the guard's."""
+    limits = profile.array("velocity")
+    if cap is None:
+        return limits
+    if reach is None:
+        return limits * cap.scale_without_tool
+    travel = np.abs(travel)
+    along = float(np.dot(reach, travel))  # [m] at the tool at most
+    return np.minimum(limits, cap.cap * travel / along) if along > 0.0 else limits
 
 
 @dataclass(frozen=True)
@@ -30,6 +71,7 @@ class Transition:
     target: np.ndarray
     period_ns: int
     settles: bool = False  # only brakes a command to rest, within tolerance of the target: no transition to tell
+    cap: float = math.inf  # the tool-speed cap it goes to the target under [m/s]
 
     @property
     def duration_s(self) -> float:
@@ -37,10 +79,11 @@ class Transition:
 
     @classmethod
     def plan(cls, profile: Profile, start: np.ndarray, target: np.ndarray, period_ns: int,
-             tolerance: float = TOLERANCE, velocity=None, acceleration=None) -> Transition | None:
+             tolerance: float = TOLERANCE, velocity=None, acceleration=None, cap: SpeedCap | None = None,
+             reach: list[float] | None = None) -> Transition | None:
         """The transition from ``start`` (moving at ``velocity``, ``acceleration``: default at rest) to
-        ``target`` (clipped into the limits), or None if already there at rest or a state is not finite
-        (ruckig raises on NaN)."""
+        ``target`` (clipped into the limits) under the tool-speed ``cap`` (``velocity_limits``; default none),
+        or None if already there at rest or a state is not finite (ruckig raises on NaN)."""
         target = np.clip(np.asarray(target, dtype=np.float64), profile.q_min, profile.q_max)
         start = np.asarray(start, dtype=np.float64)
         moving = [np.zeros_like(start) if x is None else np.asarray(x, dtype=np.float64) for x in (velocity, acceleration)]
@@ -62,8 +105,20 @@ class Transition:
         inp.current_position, inp.target_position = start.tolist(), target.tolist()
         inp.current_velocity = inp.current_acceleration = [0.0] * dof
         inp.target_velocity = inp.target_acceleration = [0.0] * dof
-        rest = cls._solve(profile, otg, inp, traj, period_ns)
-        return None if rest is None else cls(first + rest.trajectories, rest.target, int(period_ns))
+        rest = cls._solve(profile, otg, inp, traj, period_ns, velocity_limits(profile, target - start, cap, reach))
+        return None if rest is None else cls(first + rest.trajectories, rest.target, int(period_ns),
+                                             cap=math.inf if cap is None else cap.cap)
+
+    def slowed(self, profile: Profile, steps: int, cap: SpeedCap | None,
+               reach: list[float] | None) -> Transition | None:
+        """The rest of this transition from its ``steps``-th setpoint under a lower tool-speed ``cap`` (one came on):
+        braked to a standstill under the profile's limits, then on to the target under the cap. None where the cap
+        is no lower (or the transition only brakes: it slows down anyway)."""
+        if cap is None or cap.cap >= self.cap or self.settles:
+            return None
+        position, velocity, acceleration = self.state_at(steps * self.period_ns * 1e-9)
+        return self.plan(profile, position, self.target, self.period_ns, velocity=velocity,
+                         acceleration=acceleration, cap=cap, reach=reach)
 
     def brake(self, profile: Profile, steps: int) -> Transition | None:
         """A standstill from this transition's ``steps``-th setpoint (its position, velocity and acceleration)
@@ -87,8 +142,8 @@ class Transition:
         return cls._solve(profile, otg, inp, traj, period_ns)
 
     @classmethod
-    def _solve(cls, profile: Profile, otg, inp, traj, period_ns: int) -> Transition | None:
-        inp.max_velocity = profile.array("velocity").tolist()
+    def _solve(cls, profile: Profile, otg, inp, traj, period_ns: int, max_velocity=None) -> Transition | None:
+        inp.max_velocity = (profile.array("velocity") if max_velocity is None else max_velocity).tolist()
         inp.max_acceleration = profile.array("acceleration").tolist()
         inp.max_jerk = profile.array("jerk").tolist()
         try:
