@@ -1,7 +1,8 @@
 """``cellguard record``: look into a fault record, export its ticks, recover a damaged one, query the index.
 
-Exit codes: 0 the record is complete; 1 it was read but is truncated or damaged (the message says
-what was recovered); 2 bad input or nothing readable; 141 (quietly) when `record query`'s reader closed
+Exit codes: 0 the record is complete, or still being written by its run with nothing lost so far (a note says
+so); 1 it was read but is truncated or damaged (the message says what was recovered); 2 bad input or nothing
+readable, and `record recover` of a record still being written; 141 (quietly) when `record query`'s reader closed
 the pipe before the last row.
 """
 
@@ -29,11 +30,15 @@ FORMATS = ("csv", "parquet")
 
 
 def warn_if_damaged(health, folder: Path) -> int:
-    """Print one warning line saying what was lost (stderr); the exit code: 0 complete, 1 truncated or damaged."""
+    """Print one warning line saying what was lost (stderr); the exit code: 0 complete, 1 truncated or damaged.
+    A record still being written with nothing lost so far is no damage: one note, 0 (it read as truncated, 1)."""
     if health.ok:
         return 0
+    if health.writing and health.intact:
+        say(f"note: {folder}: {health.describe()}; read it again once its run has ended for the whole record")
+        return 0
     hint = (f"; `cellguard record recover {folder} -o NEW_DIR` writes a finished copy"
-            if health.recoverable else "")
+            if health.recoverable and not health.writing else "")
     say(f"warning: {folder}: {health.describe()}{hint}")
     return 1
 
@@ -60,7 +65,7 @@ def info(
         "start_utc": rec.start_utc,
         "health": {"ok": health.ok, "status": health.describe(), "finished": health.finished,
                    "truncated": health.truncated, "damage": list(health.damage), "context_loss": health.context_loss,
-                   "recovered_from": health.recovered},
+                   "recovered_from": health.recovered, "writing": health.writing},
         "span_s": None if health.span_ns is None else [health.span_ns[0] * 1e-9, health.span_ns[1] * 1e-9],
         "messages": health.messages,
         "context": {k: context.get(k) for k in ("site", "cell_id", "cell", "policy", "embodiment", "fixture_datum",

@@ -4,7 +4,8 @@
 beside its writer: both runs ended 0 and neither record was readable. The lock is an ``flock`` on the folder
 itself (no file is added to it), taken before anything is written there and shared with the forked writer
 process, so it holds until the last of them ends, the writer finishing a file after the loop's process died
-included, and the kernel lets go of it when they are gone (no stale lock after a crash).
+included, and the kernel lets go of it when they are gone (no stale lock after a crash). Readers look at it
+(``holder``) to tell a record still being written from a truncated one.
 """
 
 from __future__ import annotations
@@ -49,6 +50,43 @@ def hold(folder: Path, what: str = "--out", wait_s: float = 0.0) -> int | None:
             if exc.errno in UNLOCKABLE:  # a filesystem without locks (some network mounts): goes on unguarded
                 return None
             raise RecordError(f"{what} {folder}: cannot be locked ({exc.strerror or exc})") from None
+
+
+def holder(folder: Path) -> str | None:
+    """"a running process (pid N)" while a process holds ``folder``'s lock (the pid where the kernel shows it), else
+    None, also where the folder cannot be opened or offers no locks. A shared lock tried without waiting: the holder's
+    lock is neither waited on nor changed, and a free one is let go at once (a run started in that microsecond is
+    refused as if another run were there). A record read while its run wrote it was told as truncated."""
+    try:
+        fd = os.open(folder, os.O_RDONLY | os.O_DIRECTORY)
+    except OSError:
+        return None
+    try:
+        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+        return None
+    except BlockingIOError:
+        pid = _locker(os.fstat(fd))
+        return f"a running process{f' (pid {pid})' if pid else ''}"
+    except OSError:
+        return None
+    finally:
+        os.close(fd)  # and with it a shared lock taken
+
+
+def _locker(stat: os.stat_result) -> int | None:
+    """The pid holding the exclusive flock on the file of ``stat``, as /proc/locks shows it (Linux; 0 there for a
+    process gone or in another pid namespace), else None."""
+    where = f"{os.major(stat.st_dev):02x}:{os.minor(stat.st_dev):02x}:{stat.st_ino}"
+    try:
+        with open("/proc/locks") as f:
+            lines = f.read().splitlines()
+    except OSError:
+        return None
+    for line in lines:  # "1: FLOCK  ADVISORY  WRITE 14908 fe:00:3171386 0 EOF"; a waiter's line has "->" second
+        fields = line.split()
+        if fields[1:4] == ["FLOCK", "ADVISORY", "WRITE"] and fields[5:6] == [where] and fields[4].isdigit():
+            return int(fields[4]) or None
+    return None
 
 
 def release(fd: int | None) -> None:

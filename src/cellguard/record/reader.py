@@ -26,7 +26,8 @@ Contract (fields may be added, not renamed)::
                                      #   effort, current (n, dof) float64; rate="decimated" | "full" | "all"
     rec.chunks()                     # RecordedChunk: the policy's chunks as received
     rec.measurements()               # Measurement: t_ns, cycle, names, values (n,) of the readings the policy saw
-    rec.health()                     # Health: finished, truncated, chunks ok/damaged, sequence gaps
+    rec.health()                     # Health: finished, truncated, chunks ok/damaged, sequence gaps, writing
+    rec.writing                      # None, or who still writes the record ("a running process (pid N)")
 
 A truncated or damaged file opens: every chunk that passes its CRC is read, a damaged one is
 skipped, so is a message that does not decode or fit its schema (a context whose fields readers
@@ -35,7 +36,8 @@ and start are taken from its first readable context (written with the log times,
 CRC): the metadata record at the file's start has no CRC, and one that says otherwise is reported
 as damage. Messages are read a chunk or two at a time, so a long record takes no more memory.
 ``open_record`` raises RecordError only when nothing can be read; ``strict=True`` also raises when
-anything was lost.
+anything was lost. A record whose run still holds its folder (``folder_lock``) when it is opened is read as far
+as it is written: its unfinished end is no damage, and ``health()`` says who is writing it.
 """
 
 from __future__ import annotations
@@ -56,6 +58,7 @@ import pyarrow.parquet as pq
 from mcap.records import Message
 
 from cellguard.errors import RecordError
+from cellguard.record import folder_lock
 from cellguard.record.index import foreign_run
 from cellguard.record.scan import ChunkRef, Layout, open_buffer, read_chunk, scan
 from cellguard.record.schemas import BY_TOPIC, CHUNK, TICK_FIELDS, TICKS
@@ -153,11 +156,17 @@ class Health:
     recovered: str | None = None  # a copy made by ``record recover``: what a full read of its source found
     facts: str | None = None  # the metadata record states another format, epoch or start than the context
     repeats: dict[str, int] = field(default_factory=dict)  # topic -> messages whose sequence number is not new
+    writing: str | None = None  # the unfinished file's run still holds its folder: who ("a running process (pid N)")
 
     @property
     def ok(self) -> bool:
-        return (self.finished and not self.truncated and not self.damage and not any(self.gaps.values())
-                and self.context_loss is None and self.facts is None)
+        return self.finished and not self.truncated and self.intact
+
+    @property
+    def intact(self) -> bool:
+        """Nothing read was lost: what ``ok`` asks but for a finished file (a record still being written has
+        no end yet, and the record it holds so far may be whole)."""
+        return not self.damage and not any(self.gaps.values()) and self.context_loss is None and self.facts is None
 
     @property
     def recoverable(self) -> bool:
@@ -171,7 +180,8 @@ class Health:
         copy = f"; a recovered copy of a record that was {self.recovered}" if self.recovered else ""
         if self.ok:
             return f"complete: {self.chunks_ok} chunks, {sum(self.messages.values())} messages{copy}"
-        state = ("truncated" if self.truncated else "not finished" if not self.finished
+        state = (f"still being written by {self.writing}" if self.writing
+                 else "truncated" if self.truncated else "not finished" if not self.finished
                  else "damaged" if self.damage or self.context_loss or self.facts else "finished, with gaps")
         notes = "".join(f"; {note}" for note in (self.context_loss, self.facts) if note)
         notes += "".join(f"; {n} {topic} message(s) malformed, skipped" for topic, n in self.off_schema.items())
@@ -179,7 +189,8 @@ class Health:
         lost = sum(b - a + 1 for g in self.gaps.values() for a, b in g)
         span = ("" if self.span_ns is None
                 else f", readable {self.span_ns[0] * 1e-9:.3f} s to {self.span_ns[1] * 1e-9:.3f} s")
-        return (f"{state}: recovered {self.chunks_ok} chunks ({sum(self.messages.values())} messages{span}); "
+        read = "read so far" if self.writing else "recovered"
+        return (f"{state}: {read} {self.chunks_ok} chunks ({sum(self.messages.values())} messages{span}); "
                 f"{self.chunks_damaged} damaged chunks skipped, {lost} messages missing by sequence number"
                 f"{notes}{copy}")
 
@@ -193,7 +204,12 @@ def open_record(path: Path | str, strict: bool = False) -> Record:
         raise RecordError(f"{file}: cannot be read ({exc.strerror or exc})") from None
     if not there:
         raise RecordError(f"{file}: no record here")
-    record = Record(file, scan(file))
+    # before the scan: a run lets go of its folder once the file is finished, so a file read after that is whole
+    writing = folder_lock.holder(file.parent) if file.name == RECORD_FILE else None
+    record = Record(file, scan(file), writing)
+    if not record.layout.chunks and record.writing:
+        raise RecordError(f"{file}: still being written by {record.writing}, no chunk of it yet; wait for its first "
+                          f"chunk or for the run to end")
     if not record.layout.chunks:
         problems = "; ".join(d.why for d in record.layout.damage) or "no chunk in the file"
         raise RecordError(f"{file}: nothing can be recovered ({problems})")
@@ -218,8 +234,9 @@ def record_file(path: Path | str) -> Path:
 class Record:
     """One record file, read lazily chunk by chunk; see the module docstring for the contract."""
 
-    def __init__(self, file: Path, layout: Layout):
+    def __init__(self, file: Path, layout: Layout, writing: str | None = None):
         self.file, self.layout = file, layout
+        self.writing = None if layout.finished else writing  # finished: only its index or summary is being written
         self._buf = open_buffer(file)
         self._late_damage: dict[int, str] = {}
         self._off_schema: dict[str, set[tuple[int, int]]] = {}  # topic -> (log time, sequence) of each bad message
@@ -468,7 +485,8 @@ class Record:
                                  self._decoded(every(["/chunks"]), "/chunks", _recorded_chunk),
                                  self._tick_batches({t: every([t]) for t in _TICK_TOPICS.values()})):
             pass
-        damage = ([d.why for d in self.layout.damage] + list(self._late_damage.values())
+        damage = ([d.why for d in self.layout.damage if not (self.writing and d.at_end)]  # its end, not written yet
+                  + list(self._late_damage.values())
                   + [f"{len(bad)} {topic} message(s) off their schema, skipped"
                      for topic, bad in self._off_schema.items()]
                   + [f"{n} {topic} message(s) repeat an earlier sequence number" for topic, n in repeats.items()])
@@ -478,7 +496,7 @@ class Record:
                       None if first_t is None else (first_t - offset, last_t - offset), self.context_loss,
                       {topic: len(bad) for topic, bad in self._off_schema.items()},
                       self.layout.metadata.get("cellguard.recovered", {}).get("source_health"), self._facts_note,
-                      repeats)
+                      repeats, self.writing)
 
     # -- raw messages ---------------------------------------------------------------------
     def messages(self, topics: list[str], start_ns: int | None = None, end_ns: int | None = None

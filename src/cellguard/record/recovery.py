@@ -40,11 +40,14 @@ RECOVERED = "cellguard.recovered"  # metadata of a recovered copy: its source an
 def recover(source: Path, target: Path) -> Health:
     """Copy what is readable of ``source`` (folder or .mcap) into ``target/record.mcap`` and ``target/index``.
 
-    Returns the health of the source as read; RecordError if nothing is readable or ``target``
-    would overwrite the source, OutputError if ``target`` is a folder that holds anything.
+    Returns the health of the source as read; RecordError if nothing is readable, a run is still writing the source
+    or ``target`` would overwrite it, OutputError if ``target`` is a folder that holds anything.
     """
     source, target = Path(source), Path(target)
     with open_record(source) as record:
+        if record.writing:  # a copy of what is written so far read as the recovery of a truncated record
+            raise RecordError(f"{source}: still being written by {record.writing}; nothing was copied: wait for it "
+                              f"to end, it finishes the record itself (recover it then only if it is left truncated)")
         if target.resolve() in (record.file.parent.resolve(), record.file.resolve()):
             raise RecordError(f"-o {target}: would overwrite the record being recovered; choose another folder")
         _clear_stale_staging(target)

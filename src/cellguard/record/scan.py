@@ -61,6 +61,7 @@ class ChunkRef:
 class Damage:
     offset: int
     why: str
+    at_end: bool = False  # the file ends inside this record: its last bytes are not written (yet, in a live record)
 
 
 @dataclass
@@ -278,8 +279,8 @@ def _linear(path: Path, size: int, magic_ok: bool) -> Layout:
                 tried.add(pos)
                 nxt = _resync(buf, floor, tried)
                 if nxt >= size:  # nothing after: the file was cut here
-                    layout.damage.append(Damage(pos, "truncated: the file ends inside a record"
-                                                if op in _VALID_OPCODES else "unreadable bytes up to the end"))
+                    layout.damage.append(Damage(pos, "truncated: the file ends inside a record", True)
+                                         if op in _VALID_OPCODES else Damage(pos, "unreadable bytes up to the end"))
                     break
                 layout.damage.append(Damage(pos, f"unreadable bytes up to byte {nxt}"))
                 pos = nxt
