@@ -80,6 +80,19 @@ def test_metadata_numbers_in_other_digits_are_damage_not_a_traceback(original, t
     assert not health.ok and f"{fact} '\u00b2'" in health.describe()
 
 
+@pytest.mark.parametrize("fact", ["epoch_wall_ns", "record_version", "start_ns"])
+def test_a_metadata_number_of_thousands_of_digits_is_damage_not_a_traceback(original, tmp_path, fact):
+    """int() refuses more than 4,300 digits: every reader of such a record failed, record recover included."""
+    rewrite(original, tmp_path / "run", metadata={"cellguard": {fact: "9" * 5000}})
+    with open_record(tmp_path / "run") as rec:
+        health = rec.health()
+        assert len(rec.ticks(cycle=1)) == 1000 and rec.version == 2 and rec.epoch_wall_ns == _EPOCH
+    assert not health.ok and "(5,002 characters)" in health.describe() and len(health.describe()) < 600
+    recover(tmp_path / "run", tmp_path / "copy")
+    with open_record(tmp_path / "copy") as rec:
+        assert rec.health().facts is None
+
+
 @pytest.mark.parametrize("metadata", [{"epoch_wall_ns": str(_EPOCH - _YEAR_NS)}, {"record_version": "0"},
                                       {"epoch_wall_ns": "99999999999999999999"}])
 def test_a_metadata_epoch_other_than_the_contexts_reads_by_the_context(original, tmp_path, metadata):

@@ -311,7 +311,7 @@ class Record:
         elif self._offset is None:
             self._offset = log_offset
         found = self.facts()
-        wrong = [f"{key} {written!r} (the context: {found[key]})" for key, written in self._stated.items()
+        wrong = [f"{key} {_shown(written)} (the context: {found[key]})" for key, written in self._stated.items()
                  if key in stated and written != found[key]]
         if wrong:
             self._facts_note = f"the metadata record states {', '.join(wrong)}; the context's values are used"
@@ -558,10 +558,18 @@ _VERSIONS = ("policy_version", "calibration_version", "datum_version", "context_
 _INT64 = 2**63  # the ns stamps are int64: a larger one overflows Parquet, dates and numpy
 
 
+def _shown(value: object, limit: int = 40) -> str:
+    """``value`` as its repr, cut to ``limit`` characters with the length said (a 5,000-digit field filled the warning)."""
+    text = repr(value)
+    return text if len(text) <= limit else f"{text[:limit]}... ({len(text):,} characters)"
+
+
 def _natural(text: str | None) -> int | None:
     """A count as metadata text states it (ASCII digits, below 2^63), else None: ``"²".isdigit()`` holds, and
-    ``int("²")`` raises."""
-    return int(text) if text and text.isascii() and text.isdigit() and int(text) < _INT64 else None
+    ``int("²")`` raises; so does ``int`` of more than 4,300 digits (every reader of such a record failed, recover
+    included), hence the length first."""
+    return (int(text) if text and len(text) <= 19 and text.isascii() and text.isdigit() and int(text) < _INT64
+            else None)
 
 
 def _saved_context(saved: dict[str, str]) -> tuple[ContextChange, dict] | None:
