@@ -54,6 +54,13 @@ def test_a_30_hz_record_exports_at_30_fps_and_its_whole_divisors(hz30, tmp_path,
     assert info["total_frames"] == sum(len(t.t_ns[::stride]) for t in ticks) == 2 * len(range(0, 40, stride))
 
 
+def test_without_fps_a_30_hz_record_exports_at_its_own_rate(hz30, tmp_path):
+    """The default was 50 fps: every 30 Hz record (LeRobot's usual rate) needed --fps to export at all."""
+    result = runner.invoke(app, ["record", "to-lerobot", str(hz30), "-o", str(tmp_path / "ds")])
+    assert result.exit_code == 0, result.output
+    assert json.loads((tmp_path / "ds/meta/info.json").read_text())["fps"] == 30 and "at 30 fps" in result.output
+
+
 def test_an_fps_that_does_not_divide_names_only_whole_rates_that_do(hz30, tmp_path):
     result = runner.invoke(app, ["record", "to-lerobot", str(hz30), "-o", str(tmp_path / "ds"), "--fps", "50"])
     assert result.exit_code == 2 and not (tmp_path / "ds").exists()
@@ -63,7 +70,7 @@ def test_an_fps_that_does_not_divide_names_only_whole_rates_that_do(hz30, tmp_pa
 @pytest.mark.parametrize("dt_ns, fps, stride", [(16_666_667, 30, 2), (8_333_333, 60, 1), (8_333_333, 20, 3),
                                                  (1_000_000, 50, 1), (1_000_000, 25, 2), (20_000_000, 10, 5)])
 def test_stride_at_servo_rates_that_are_not_whole_nanoseconds(dt_ns, fps, stride):
-    assert _stride({"servo_period_ns": dt_ns, "record": {"decimated_hz": 50.0}}, fps) == stride
+    assert _stride({"servo_period_ns": dt_ns, "record": {"decimated_hz": 50.0}}, fps) == (stride, fps)
 
 
 def test_a_stream_no_whole_fps_divides_suggests_none():
@@ -78,4 +85,4 @@ def test_suggested_rates_are_accepted():
     context = {"servo_period_ns": 8_333_333, "record": {"decimated_hz": 50.0}}  # 120 Hz: 60 Hz decimated
     with pytest.raises(RecordError, match=r"\(e\.g\. 60, 30, 20\)$"):
         _stride(context, 50)
-    assert [_stride(context, fps) for fps in (60, 30, 20)] == [1, 2, 3]
+    assert [_stride(context, fps)[0] for fps in (60, 30, 20)] == [1, 2, 3]

@@ -152,7 +152,8 @@ def export(
 def to_lerobot(
     folder: Path = typer.Argument(..., help="Run folder (holding record.mcap) or the .mcap file."),
     output: Path = typer.Option(..., "-o", "--output", help="New folder for the dataset."),
-    fps: int = typer.Option(50, "--fps", help="Frames per second; must divide the record's decimated rate."),
+    fps: int | None = typer.Option(None, "--fps", help="Frames per second; must divide the record's decimated rate "
+                                   "(default: that rate, 50 Hz at most servo rates)."),
     task: str | None = typer.Option(None, "--task", help="Task string of every episode (default: the cell's name)."),
     success_only: bool = typer.Option(False, "--success-only", help="Only cycles that succeeded."),
 ) -> None:

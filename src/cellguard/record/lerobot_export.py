@@ -57,14 +57,15 @@ class LeRobotExport:
     skipped: tuple[str, ...]
 
 
-def export_lerobot(rec: Record, output: Path, fps: int = 50, task: str | None = None, success_only: bool = False,
-                   robot_type: str | None = None) -> LeRobotExport:
-    """Write the completed cycles of ``rec`` into the new folder ``output`` as a LeRobotDataset v3."""
+def export_lerobot(rec: Record, output: Path, fps: int | None = None, task: str | None = None,
+                   success_only: bool = False, robot_type: str | None = None) -> LeRobotExport:
+    """Write the completed cycles of ``rec`` into the new folder ``output`` as a LeRobotDataset v3, at ``fps``
+    (default: the record's decimated rate, 50 Hz at most servo rates, 30 Hz for a 30 Hz robot)."""
     if task is not None and not task.isprintable():  # one line in tasks.parquet, as every other text cellguard takes
         raise RecordError(f"--task: {task!r} holds control characters; give the task as one line of text")
     output = Path(output).resolve()  # "." and ".." have no name to put the staging folder beside
     context = rec.context
-    stride = _stride(context, fps)
+    stride, fps = _stride(context, fps)
     task = task or (context.get("cell") or "cycle").replace("-", " ")
     measurements = _measurements(rec)
     columns: dict[str, list[np.ndarray]] = {}
@@ -160,8 +161,9 @@ def _is_period(step_ns, fps: float) -> np.ndarray:
     return np.abs(np.asarray(step_ns) - 1e9 / fps) <= STEP_TOLERANCE_NS
 
 
-def _stride(context: dict, fps: int) -> int:
-    """Every how many decimated ticks one frame is taken; RecordError unless fps divides the stream's rate."""
+def _stride(context: dict, fps: int | None) -> tuple[int, int]:
+    """Every how many decimated ticks one frame is taken, and the fps (None: the stream's own, if whole; a fixed
+    default of 50 refused every 30 Hz record); RecordError unless fps divides the stream's rate."""
     dt_ns = context.get("servo_period_ns")
     hz = (context.get("record") or {}).get("decimated_hz")
     if not dt_ns or not hz:
@@ -172,10 +174,11 @@ def _stride(context: dict, fps: int) -> int:
     if not rates:
         raise RecordError(f"--fps: no whole frame rate divides the record's continuous tick rate {rate:g} Hz "
                           "(a LeRobotDataset's fps is a whole number)")
+    fps = rates[0] if fps is None else fps
     if fps not in rates:
         raise RecordError(f"--fps: {fps} must divide the record's continuous tick rate {rate:g} Hz "
                           f"(e.g. {', '.join(map(str, rates[:3]))})")
-    return round(rate / fps)
+    return round(rate / fps), fps
 
 
 def _whole_rates(period_ns: int) -> list[int]:
