@@ -7,7 +7,8 @@ for the tool point with its own look-ahead; a tool-speed cap, lowered to the red
 (250 mm/s, ISO 10218-1) when the safety controller asks for it or the policy is unsure; a
 watchdog on policy silence; and stops of IEC 60204-1 categories 0, 1 and 2. A category 1 stop removes
 power once the machine has stopped: the setpoint at rest and every measured joint speed under ``STANDSTILL``,
-or one stopping time of the profile after the setpoint came to rest whatever the joints read.
+or one stopping time of the profile (at least ``SETTLE_MIN_NS``) after the setpoint came to rest whatever
+the joints read.
 
 Speed is lowered by slowing the executor's playback clock (``scale``), which keeps the path
 and stretches time. ``scale`` moves with bounded rate and rate of rate, so the slow-down itself
@@ -48,6 +49,9 @@ from cellguard.robot.protocol import SafetyInputs
 NO_INPUTS = SafetyInputs()
 INTERVENTION_QUIET_NS = 200_000_000  # a joint's intervention is a new event after this long untouched
 STANDSTILL = 0.05  # every measured joint speed below this: the machine has stopped [rad/s, m/s]
+# A category 1 stop waits at least this long after its setpoint rests for the joints to read still [ns]: a drive
+# follows with a lag of its own (the quadruped's loaded legs read still 0.4 to 0.5 s after a 40 ms stopping time)
+SETTLE_MIN_NS = 1_000_000_000
 
 
 def stopping_time_ns(profile: Profile) -> int:
@@ -84,7 +88,8 @@ class Envelope:
         self.stop_reason: str | None = None
         self.power = True
         self._rest_ns: int | None = None  # when the setpoint of the category 1 stop in force came to rest
-        self._settle_ns = stopping_time_ns(profile)  # then how long the measured joints may take to follow it
+        # then how long the measured joints may take to follow it
+        self._settle_ns = max(stopping_time_ns(profile), SETTLE_MIN_NS)
         self._active: dict[EventKind, str] = {}  # lasting conditions already reported, with their reason
         self.tool_speed = 0.0  # [m/s] of the last setpoint
         self._last_intervention = [-(2**62)] * profile.dof  # per joint [ns]
