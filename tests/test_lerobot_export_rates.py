@@ -86,3 +86,11 @@ def test_suggested_rates_are_accepted():
     with pytest.raises(RecordError, match=r"\(e\.g\. 60, 30, 20\)$"):
         _stride(context, 50)
     assert [_stride(context, fps)[0] for fps in (60, 30, 20)] == [1, 2, 3]
+
+
+def test_whole_rates_are_tried_per_frame_rate_up_to_1000():
+    """A context stating a 1 ns tick ran k to 10^9 (145 s before an answer); a 60 Hz stream offers 60 itself."""
+    from cellguard.record.lerobot_export import _whole_rates
+
+    assert _stride({"servo_period_ns": 1, "record": {"decimated_hz": 1e8}}, None)[1] == 1000
+    assert _whole_rates(16_666_667)[:2] == [60, 30]

@@ -143,3 +143,42 @@ def test_a_record_read_during_a_real_run_is_told_as_being_written_and_the_run_ke
 def test_a_probe_of_a_free_folder_lets_go_of_it(tmp_path):
     assert folder_lock.holder(tmp_path) is None
     folder_lock.release(folder_lock.hold(tmp_path))  # free again: the probe's shared lock went with its descriptor
+
+
+@pytest.mark.parametrize("link", ["view/record.mcap", "cell1-latest.mcap"])
+def test_a_record_being_written_read_through_a_link_says_so(live, tmp_path, link):
+    """The lock was looked for beside the link, not beside the record: truncated, exit 1, and recover copied it."""
+    folder, pid = live
+    path = tmp_path / link
+    path.parent.mkdir(exist_ok=True)
+    path.symlink_to(folder / RECORD_FILE)
+    result = runner.invoke(app, ["record", "info", str(path)])
+    assert result.exit_code == 0 and f"still being written by a running process (pid {pid})" in result.stderr
+
+
+def test_nothing_is_left_beside_a_record_being_written(live, tmp_path):
+    """report.html, baseline.json and fixes.json written beside it described a part of it once the run ended (the
+    report still said "still being written")."""
+    folder, _ = live
+    refused = one_error(runner.invoke(app, ["report", str(folder)]))
+    assert refused.startswith(f"error: {folder}: still being written by a running process") and "-o FILE" in refused
+    assert runner.invoke(app, ["diagnose", str(folder), "--json"]).exit_code == 0
+    assert sorted(p.name for p in folder.iterdir()) == [RECORD_FILE]
+
+
+def test_a_reader_takes_no_lock_where_the_kernel_lists_them(tmp_path, monkeypatch):
+    """Its shared lock, held a few microseconds, refused a run starting that instant (11 of 20,000 starts)."""
+    if not Path("/proc/locks").exists():
+        pytest.skip("no /proc/locks on this OS")
+    taken = []
+    monkeypatch.setattr(folder_lock.fcntl, "flock", lambda fd, op: taken.append(op))
+    assert folder_lock.holder(tmp_path) is None and taken == []
+
+
+def test_the_diagnosis_context_has_the_records_start(finished):
+    """The report times events from it: without it, events of a run on wall time read seconds since boot."""
+    from cellguard.diagnose.from_record import diagnose_record
+
+    with open_record(finished) as rec:
+        start = rec.start_ns
+    assert diagnose_record(finished).context["start_ns"] == start

@@ -15,7 +15,7 @@ from cellguard.cli.app import app
 from cellguard.cli.errors import fail
 from cellguard.cli.record import warn_if_damaged
 from cellguard.cli.text import printable_tree, say
-from cellguard.errors import CellguardError, ConfigError
+from cellguard.errors import CellguardError, ConfigError, RecordError
 
 FLEET_HELP = ("Add what fixed each cause at other sites (the fleet store, as CELLGUARD_FLEET_DSN's tenant); "
               "default: when that is set.")
@@ -68,11 +68,14 @@ def report(
     from cellguard.report.from_record import report_path, write_report
 
     try:
+        health = record_health(folder)
         if out is not None:  # the default, FOLDER/report.html, is the one file a report writes in a run folder
             refuse_output(out, folder)
+        elif health.writing:  # left beside the finished record, it said "still being written" of it
+            raise RecordError(f"{folder}: still being written by {health.writing}; a report beside it would describe "
+                              "a part of it: give -o FILE, or report once the run has ended")
         else:
             out = report_path(folder)
-        health = record_health(folder)
         baseline_health = record_health(acceptance) if acceptance is not None else None
         unkept: list[str] = []
         diagnosis = diagnose_record(folder, acceptance=acceptance, fleet=fleet_advice(fleet), unkept=unkept)

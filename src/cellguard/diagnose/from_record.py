@@ -32,13 +32,14 @@ def diagnose_record(path: Path, acceptance: Path | None = None, fleet: list[dict
     what fixed each cause here is written to ``folder/fixes.json``. Neither is rewritten unchanged; where ``folder``
     cannot be written (a record on read-only storage), each that fails adds its line to ``unkept`` and the diagnosis
     stands (OutputError where no list is given). A loose .mcap file outside a run folder is diagnosed against its own
-    acceptance cycles and nothing is written beside it."""
+    acceptance cycles and nothing is written beside it; nor beside a record its run is still writing."""
     from cellguard.record.reader import open_record
 
     folder = run_folder(path)
     with open_record(path) as rec:
-        cycles, events, context = list(rec.cycles()), list(rec.events()), {**rec.context, "record_id": rec.record_id,
-                                                                      "start_utc": rec.start_utc}
+        cycles, events = list(rec.cycles()), list(rec.events())
+        context = {**rec.context, "record_id": rec.record_id, "start_utc": rec.start_utc, "start_ns": rec.start_ns}
+        writing = rec.writing  # a run still writes it: nothing is kept beside it, it would describe a part
         declared = rec.contexts[-1].context.get("process", [])  # process changes declared up to the end
     baseline = None
     if acceptance is not None:
@@ -64,9 +65,9 @@ def diagnose_record(path: Path, acceptance: Path | None = None, fleet: list[dict
         raise RecordError(f"{path}: {exc}") from None
     if baseline is None:  # as a stored baseline is judged when read again, so the first diagnosis agrees
         result.baseline.check_fits(as_cycles(cycles), f"{path} (its own acceptance cycles)")
-    if baseline is None and folder is not None:  # first: a baseline.json refused (a FIFO there) leaves nothing
+    if baseline is None and folder is not None and not writing:  # first: a baseline.json refused (a FIFO there) leaves nothing
         _keep(lambda: result.baseline.bind(context).save(folder / BASELINE_FILE), folder, unkept)
-    if folder is not None:
+    if folder is not None and not writing:
         _keep(lambda: save_fixes(folder, context, result.fixes), folder, unkept)
     return result
 

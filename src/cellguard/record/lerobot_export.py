@@ -39,6 +39,7 @@ CODEBASE_VERSION = "v3.0"
 DATA_FILE = "data/chunk-000/file-000.parquet"
 EPISODES_FILE = "meta/episodes/chunk-000/file-000.parquet"
 QUANTILES = (0.01, 0.10, 0.50, 0.90, 0.99)
+MAX_FPS = 1000  # [Hz] the fastest frame rate a dataset is written at (a servo rate's)
 STEP_TOLERANCE_NS = 1000  # a frame step this close to the period is the period; a missing frame is 1/fps off
 STAGING_SUFFIX = ".partial"  # of the folder beside -o that a run writes into: .NAME.XXXXXXXX.partial
 INDEX_FEATURES = ("timestamp", "frame_index", "episode_index", "index", "task_index")
@@ -182,9 +183,12 @@ def _stride(context: dict, fps: int | None) -> tuple[int, int]:
 
 
 def _whole_rates(period_ns: int) -> list[int]:
-    """The whole frame rates [Hz] that every k-th tick of a stream ``period_ns`` apart gives, fastest first (a tick
-    period is whole nanoseconds: 30 Hz is 33,333,333 ns, its frames within ``STEP_TOLERANCE_NS`` of 1/30 s)."""
-    candidates = ((k, round(1e9 / period_ns / k)) for k in range(1, int(1e9 // period_ns) + 1))
+    """The whole frame rates [Hz], at most ``MAX_FPS``, that every k-th tick of a stream ``period_ns`` apart gives,
+    fastest first (a tick period is whole nanoseconds: 30 Hz is 33,333,333 ns, its frames within
+    ``STEP_TOLERANCE_NS`` of 1/30 s). Tried per frame rate, not per k: a context stating a 1 ns tick made k run
+    to 10^9."""
+    rate = 1e9 / period_ns
+    candidates = ((max(1, round(rate / fps)), fps) for fps in range(min(round(rate), MAX_FPS), 0, -1))
     return [fps for k, fps in candidates if _is_period(k * period_ns, fps)]
 
 

@@ -205,7 +205,8 @@ def open_record(path: Path | str, strict: bool = False) -> Record:
     if not there:
         raise RecordError(f"{file}: no record here")
     # before the scan: a run lets go of its folder once the file is finished, so a file read after that is whole
-    writing = folder_lock.holder(file.parent) if file.name == RECORD_FILE else None
+    real = file.resolve()  # a link to a run's record (cell1-latest.mcap): the run holds the folder it is in
+    writing = folder_lock.holder(real.parent) if real.name == RECORD_FILE else None
     record = Record(file, scan(file), writing)
     if not record.layout.chunks and record.writing:
         raise RecordError(f"{file}: still being written by {record.writing}, no chunk of it yet; wait for its first "
