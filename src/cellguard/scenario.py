@@ -48,6 +48,11 @@ class CycleSettings(BaseModel):
         return self
 
 
+STALE_FLOOR_S = 0.02  # the default staleness limit at least: at 1 kHz 2.5 periods would be a scheduler's hiccup [s]
+STALE_PERIODS = 2.5  # the default staleness limit in servo periods: one lost packet (two periods) and some jitter
+STALE_MIN_PERIODS = 2  # a staleness limit or streaming read timeout under this many periods is refused
+
+
 class RealtimeSettings(BaseModel):
     """The wall-clock loop: inference worker, overrun budget, and the robot link's watchdogs."""
 
@@ -56,10 +61,28 @@ class RealtimeSettings(BaseModel):
     inference: Literal["thread", "process"] = "thread"
     overrun_budget: int = Field(default=50, ge=0, le=1_000_000,
                                 description="ticks later than one period allowed before a stop")
-    stale_s: float = Field(default=0.02, gt=0.0, le=5.0, description="robot state older than this is stale [s]")
+    stale_s: float | None = Field(default=None, gt=0.0, le=5.0, description="robot state older than this is stale "
+                                  "[s]; unset: the longer of 20 ms and 2.5 servo periods of the robot")
     read_timeout_s: float = Field(default=0.05, gt=0.0, le=5.0, description="a read waits at most this long [s]")
     drop_budget: int = Field(default=100, ge=0, le=1_000_000, description="lost robot packets allowed before a stop")
     stop_category: Literal[0, 1, 2] = Field(default=1, description="stop category of a robot link fault")
+
+    def for_robot(self, period_ns: int, streams: bool) -> RealtimeSettings:
+        """These settings on a robot of servo period ``period_ns``, with the staleness limit in force (what the
+        record states). One lost packet leaves the newest state two periods old, so a limit under two periods
+        stopped a 50 Hz robot at its first lost packet (the 20 ms default, one period there) and is refused, as is
+        the read timeout of a robot that ``streams`` states (the silence since its last packet; a LeRobot call's
+        timeout is the call's own time, not the period's)."""
+        default_s = max(STALE_FLOOR_S, STALE_PERIODS * period_ns * 1e-9)
+        limits = {"stale_s": self.stale_s, "read_timeout_s": self.read_timeout_s if streams else None}
+        for key, value in limits.items():
+            if value is not None and round(value * 1e9) < STALE_MIN_PERIODS * period_ns:
+                unset = f", or leave it unset ({default_s:g} s on this robot)" if key == "stale_s" else ""
+                raise ScenarioError(f"realtime.{key}: {value * 1e3:g} ms is under two servo periods of the robot "
+                                    f"({STALE_MIN_PERIODS * period_ns * 1e-6:g} ms at {1e9 / period_ns:.4g} Hz): one "
+                                    f"lost packet would stop it; give at least "
+                                    f"{STALE_MIN_PERIODS * period_ns * 1e-9:g} s{unset}")
+        return self.model_copy(update={"stale_s": default_s if self.stale_s is None else self.stale_s})
 
 
 class Scenario(BaseModel):

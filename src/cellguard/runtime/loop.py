@@ -81,6 +81,10 @@ class Run:
         self.simulated = hasattr(self.cell, "step")  # fault injection and simulated inference
         if self.simulated:  # a bridge's faults were refused as its scenario was read
             scenario.check_against(self.cell)
+        # the link's limits on this robot's period (too short ones refused), as the record and summary state them;
+        # a robot that counts lost packets streams its states
+        limits = scenario.realtime.for_robot(self.cell.dt_ns, streams=hasattr(self.cell, "dropped"))
+        scenario = self.scenario = scenario.model_copy(update={"realtime": limits})
         # a policy_factory (picklable, for the process worker) replaces the scenario's policy source
         self.policy_factory = policy_factory
         self.policy = policy_factory() if policy_factory is not None else make_policy(scenario.policy, self.cell)
@@ -336,7 +340,8 @@ class Run:
         # Simulated time: the healthy latency; an injected latency fault is an incident to diagnose, not a refusal.
         latency = arrival.latency_ns if self.clock.realtime else round(NOMINAL_INFERENCE_S * 1e9)
         try:
-            check_startup(self.policy, self._first_observation, chunk, latency, self.scenario.guard.blend_s)
+            check_startup(self.policy, self._first_observation, chunk, latency, self.scenario.guard.blend_s,
+                          self.clock.period_ns)
         except StartupRefused as exc:
             self._refuse(str(exc))
         # from where the robot was commanded to be (the measured pose lags it: planning from there stepped the command)

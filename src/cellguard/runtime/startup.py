@@ -6,8 +6,10 @@ policy offers them as ``normalisation_stats() -> {name: (q01, q99)}`` (finite, q
 per observed value, else refused too: NaN statistics compared false and passed; in the cell's units
 and joint order, as the policy's adapter sees the observation; a name the cell does not observe is
 refused, not skipped: the check never ran); and the inference
-latency fits the chunk (latency < horizon minus the blend time, the blend counted at most half
-the horizon), else the robot would run out of steps before the next chunk arrives.
+latency fits the chunk (latency plus one servo period < horizon minus the blend time, the blend
+counted at most half the horizon), else the robot would run out of steps before the next chunk
+arrives. A chunk is taken at the tick after it is ready, up to one period later: a 2 Hz robot
+took every 500 ms chunk with all its steps past, and did nothing.
 """
 
 from __future__ import annotations
@@ -25,8 +27,10 @@ class StartupRefused(ConfigError):
     """A start-up check failed: the robot does not move."""
 
 
-def check_startup(policy, observation, chunk, latency_ns: int, blend_s: float, margin: float = STATS_MARGIN) -> None:
-    """Raise StartupRefused naming the first dimension out of range or a latency the chunk cannot cover."""
+def check_startup(policy, observation, chunk, latency_ns: int, blend_s: float, period_ns: int,
+                  margin: float = STATS_MARGIN) -> None:
+    """Raise StartupRefused naming the first dimension out of range or a latency the chunk cannot cover
+    (``period_ns``: the servo period, the longest a ready chunk waits for its tick)."""
     stats = getattr(policy, "normalisation_stats", None)
     if callable(stats) and observation is not None:
         given = stats()
@@ -50,8 +54,9 @@ def check_startup(policy, observation, chunk, latency_ns: int, blend_s: float, m
                                      f"(q01..q99 with {margin:.0%} margin); not moving")
     horizon_s = chunk.actions.shape[0] * chunk.dt_ns * 1e-9
     blend_s = min(blend_s, 0.5 * horizon_s)  # a chunk shorter than two blends is re-asked for within its first half
-    if latency_ns * 1e-9 >= horizon_s - blend_s:
-        raise StartupRefused(f"start-up: inference latency {latency_ns * 1e-6:.0f} ms does not fit the chunk: "
+    if (latency_ns + period_ns) * 1e-9 >= horizon_s - blend_s:
+        raise StartupRefused(f"start-up: inference latency {latency_ns * 1e-6:.0f} ms plus one servo period "
+                             f"{period_ns * 1e-6:.0f} ms (a chunk is taken at the next tick) does not fit the chunk: "
                              f"horizon {horizon_s * 1e3:.0f} ms minus blend {blend_s * 1e3:.0f} ms; not moving")
 
 
