@@ -182,3 +182,35 @@ def test_the_diagnosis_context_has_the_records_start(finished):
     with open_record(finished) as rec:
         start = rec.start_ns
     assert diagnose_record(finished).context["start_ns"] == start
+
+
+def test_a_run_writes_its_summary_while_it_still_holds_its_folder(tmp_path, monkeypatch):
+    """The summary was written after the lock was let go: a run started there in between had it beside its own
+    record."""
+    import cellguard.runtime.loop as loop
+    from cellguard.runtime import run_scenario
+    from cellguard.scenario import parse_scenario
+
+    seen, write = [], loop.write_output
+    monkeypatch.setattr(loop, "write_output", lambda path, *a: (seen.append(folder_lock.holder(path.parent)),
+                                                                write(path, *a))[1])
+    run_scenario(parse_scenario({"cell": "arm-pick-place", "acceptance_cycles": 1, "production_cycles": 0}),
+                 tmp_path / "out")
+    assert len(seen) == 1 and seen[0] is not None and folder_lock.holder(tmp_path / "out") is None
+
+
+def test_the_demo_holds_its_folder_until_its_report_is_written(tmp_path, monkeypatch):
+    """Its report was written after the run let go of the folder: a run started there in between got a report of
+    the demo's record, which it had replaced, beside its own."""
+    import cellguard.cli.run as cli_run
+    import cellguard.report.from_record as from_record
+
+    scenario = tmp_path / "demo.yaml"
+    scenario.write_text(json.dumps(FIXTURE_SHIFT_RUN))
+    monkeypatch.setattr(cli_run, "DEMO_SCENARIO", scenario)
+    seen, write = [], from_record.write_report
+    monkeypatch.setattr(from_record, "write_report", lambda folder, **k: (seen.append(folder_lock.holder(folder)),
+                                                                          write(folder, **k))[1])
+    result = runner.invoke(app, ["demo", "--out", str(tmp_path / "out"), "--json"])
+    assert result.exit_code == 0, result.output
+    assert len(seen) == 1 and seen[0] is not None and folder_lock.holder(tmp_path / "out") is None

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import typer
@@ -17,13 +19,15 @@ from cellguard.cli.errors import exit_if_stopped, fail
 from cellguard.cli.text import printable, say
 from cellguard.errors import CellguardError, OutputError
 from cellguard.output import make_folder
+from cellguard.record import folder_lock
 from cellguard.scenario import Scenario, load_scenario
 
 err = Console(stderr=True)
 DEMO_SCENARIO = Path(__file__).parents[1] / "scenarios" / "demo.yaml"
 
 
-def _run(scenario: Scenario, out: Path, quiet: bool, realtime: bool = False, overwrite: bool = False) -> dict:
+def _run(scenario: Scenario, out: Path, quiet: bool, realtime: bool = False, overwrite: bool = False,
+         lock: int | None = None) -> dict:
     from cellguard.calibrate.residual import watch_scenario
     from cellguard.record.writer import refuse_existing
     from cellguard.runtime import Run, run_scenario
@@ -46,13 +50,12 @@ def _run(scenario: Scenario, out: Path, quiet: bool, realtime: bool = False, ove
         progress.update(task, advance=1, description=f"{scenario.cell} [{outcome['phase']}]")
 
     try:
-        summary = run_scenario(scenario, out, on_cycle=advance, overwrite=overwrite, run=run)
+        summary = run_scenario(scenario, out, on_cycle=advance, overwrite=overwrite, run=run, lock=lock)
         stdout.written(f"the record in {out}")
         return summary
     except BaseException as exc:
         if run.recording is None:  # refused before the record started: leave no empty folder behind
-            if created and out.is_dir() and not any(out.iterdir()):
-                out.rmdir()
+            _remove_if_empty(out, created)
             raise
         rec = run.recording
         left = _record_left(rec, out)
@@ -119,6 +122,31 @@ def run(
     exit_if_stopped(summary, out)
 
 
+@contextmanager
+def _held(out: Path) -> Iterator[int | None]:
+    """``out`` made and locked (``folder_lock``) for what the command writes there; a folder it made and left empty
+    is removed again."""
+    created = not out.exists()
+    folder = make_folder(out, "--out")
+    try:
+        lock = folder_lock.hold(folder)
+    except BaseException:
+        _remove_if_empty(folder, created)
+        raise
+    try:
+        yield lock
+    except BaseException:
+        _remove_if_empty(folder, created)
+        raise
+    finally:
+        folder_lock.release(lock)
+
+
+def _remove_if_empty(folder: Path, created: bool) -> None:
+    if created and folder.is_dir() and not any(folder.iterdir()):
+        folder.rmdir()
+
+
 @app.command()
 def demo(
     out: Path = typer.Option(Path("cellguard-demo"), "--out", help="Folder for the demo's outputs."),
@@ -131,10 +159,12 @@ def demo(
 
     try:
         sc = load_scenario(DEMO_SCENARIO)
-        summary = _run(sc, out, quiet=as_json, overwrite=overwrite)
-        exit_if_stopped(summary, out)  # a stopped shift is not diagnosed, nor one whose record is not whole
-        diagnosis = diagnose_record(out)
-        report_path = write_report(out, diagnosis=diagnosis)
+        with _held(out) as lock:  # until the report is written: a run started there after the record closed had
+            # the demo's report, of the demo's record, written beside its own
+            summary = _run(sc, out, quiet=as_json, overwrite=overwrite, lock=lock)
+            exit_if_stopped(summary, out)  # a stopped shift is not diagnosed, nor one whose record is not whole
+            diagnosis = diagnose_record(out)
+            report_path = write_report(out, diagnosis=diagnosis)
     except CellguardError as exc:
         fail(exc)
     if as_json:

@@ -120,13 +120,14 @@ class RunRecording:
 
     @classmethod
     def start(cls, folder: Path, run, config: RecordConfig = RecordConfig(), opener=default_opener,
-              replace: bool = False, queue_s: float = 2.0) -> RunRecording:
+              replace: bool = False, queue_s: float = 2.0, lock: int | None = None) -> RunRecording:
         """Open the record of ``run`` in ``folder``; RecordError (nothing runs) if it cannot be written.
 
         Refused if ``folder`` holds a record already, unless ``replace``, and if another run is writing there
         (``folder_lock``), even with ``replace``. A small reserve file keeps room for ``summary.json`` on a disk
         that fills up during the run; a disk without room for it is refused here, since a run without one could
-        end with a record and no summary.
+        end with a record and no summary. ``lock``: the folder's lock, held already by a caller that writes more
+        beside the record (the demo's report); it is the caller's to let go.
         """
         folder = Path(folder)
         refuse_existing(folder, replace)  # before anything is written there
@@ -135,7 +136,8 @@ class RunRecording:
         except OSError as exc:
             raise RecordError(f"{folder / RECORD_FILE}: cannot start the record ({exc.strerror or exc}); nothing "
                               f"was run") from None
-        lock = folder_lock.hold(folder)
+        held = lock if lock is not None else folder_lock.hold(folder)
+        owned = None if lock is not None else held
         reserve = None
         try:
             refuse_existing(folder, replace)  # again under the lock: a run that just finished there has a record
@@ -148,10 +150,10 @@ class RunRecording:
             recorder = Recorder.create(folder, joints=profile.joint_names, dt_ns=run.cell.dt_ns, context=context,
                                        config=config, opener=opener, description=description, replace=replace,
                                        start_ns=run.clock.now())  # wall time: the monotonic clock, from boot
-            return cls(recorder, run, queue_s=queue_s, reserve=reserve, lock=lock)
+            return cls(recorder, run, queue_s=queue_s, reserve=reserve, lock=owned)
         except BaseException:
             _release(reserve)
-            folder_lock.release(lock)
+            folder_lock.release(owned)
             raise
 
     @staticmethod
@@ -216,9 +218,10 @@ class RunRecording:
             self._put("event", event, self._cycle)
         self._events_seen = len(events)
 
-    def close(self) -> None:
+    def close(self, keep_folder: bool = False) -> None:
         """Let the writer take what is queued and finish the file (after a failure only the handle is
-        closed); free the reserve."""
+        closed); free the reserve; let go of the folder unless ``keep_folder`` (``release_folder`` does, once the
+        summary is beside the record: written after, it could land in the folder of a run started in between)."""
         self.events()
         self._send(None)
         if self._feeder is not None:
@@ -233,7 +236,13 @@ class RunRecording:
             self._replies.close()
             gc.unfreeze()
             _release(self._reserve)
-            folder_lock.release(self._lock)  # the writer process, joined, held it too
+            if not keep_folder:
+                self.release_folder()
+
+    def release_folder(self) -> None:
+        """Let go of the folder's lock (the writer process, joined, held it too)."""
+        folder_lock.release(self._lock)
+        self._lock = None
 
     def _put(self, name: str | None, *args) -> None:
         """A message for the writer, sent with the next batch: take the ticks added so far, then call recorder

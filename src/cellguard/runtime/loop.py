@@ -625,31 +625,37 @@ class Run:
 
 def run_scenario(scenario: Scenario, out: Path, on_cycle: Callable[[dict], None] | None = None,
                  realtime: bool = False, policy_factory: Callable[[], object] | None = None,
-                 overwrite: bool = False, run: Run | None = None, record: RecordConfig | None = None) -> dict:
+                 overwrite: bool = False, run: Run | None = None, record: RecordConfig | None = None,
+                 lock: int | None = None) -> dict:
     """Run every cycle of ``scenario`` and write ``out/summary.json``; return the summary.
 
     A folder that holds a record already is refused unless ``overwrite``. ``run``: the scenario's
     ``Run`` if the caller built it already (every check before ``out`` is created), or a subclass
     that observes the loop (the release's shadow run). ``record``: the recorder's rates (excitation
-    records every tick)."""
+    records every tick). ``lock``: ``out``'s lock, held by a caller that writes more beside the record; else the
+    run holds it until the summary is written."""
     run = run if run is not None else Run(scenario, realtime=realtime, policy_factory=policy_factory)
     with run.operator:  # a signal while the record closes and the summary is written is counted, never fatal
         try:
             out = make_folder(Path(out), "--out")
-            run.recording = RunRecording.start(out, run, replace=overwrite, **({"config": record} if record else {}))  # RecordError here: nothing runs
+            run.recording = RunRecording.start(out, run, replace=overwrite, lock=lock,
+                                               **({"config": record} if record else {}))  # RecordError: nothing runs
             try:
                 run.run_cycles(on_cycle)
             finally:
                 run.recording.events()
-                run.recording.close()
+                run.recording.close(keep_folder=True)
         finally:
             run.close()
-        summary = run.summary()
-        if run.stopped:
-            summary["stopped"] = run.stopped
-        if run.recording.failed:  # mid-run (the cell was stopped), or only at close: the record is not whole
-            summary["record_failed"] = run.recording.failed
-        write_output(out / "summary.json", json.dumps(summary, indent=1), "summary")
+        try:
+            summary = run.summary()
+            if run.stopped:
+                summary["stopped"] = run.stopped
+            if run.recording.failed:  # mid-run (the cell was stopped), or only at close: the record is not whole
+                summary["record_failed"] = run.recording.failed
+            write_output(out / "summary.json", json.dumps(summary, indent=1), "summary")
+        finally:
+            run.recording.release_folder()
     return summary
 
 
