@@ -12,7 +12,7 @@ import mujoco
 import numpy as np
 
 from cellguard.control.settings import build_guard
-from cellguard.robot.protocol import SafetyInputs
+from cellguard.robot.protocol import RobotLinkError, SafetyInputs
 from cellguard.runtime import Run
 from cellguard.scenario import parse_scenario
 
@@ -24,9 +24,11 @@ ONE_CYCLE = {"cell": "arm-pick-place", "seed": 3, "acceptance_cycles": 1, "produ
 
 class Watched:
     """A run whose cell reads the safety inputs ``inputs(t [s])`` gives; every setpoint written and every drive
-    power switch is kept, with the simulated time [s] and the events so far."""
+    power switch is kept, with the simulated time [s] and the events so far. From ``lost`` [s] on, every read
+    fails with the link lost (a bridge whose robot is gone)."""
 
-    def __init__(self, raw: dict, inputs: Callable[[float], SafetyInputs], away: np.ndarray | None = None):
+    def __init__(self, raw: dict, inputs: Callable[[float], SafetyInputs], away: np.ndarray | None = None,
+                 lost: float | None = None):
         self.run = run = Run(parse_scenario(raw))
         cell = self.cell = run.cell
         if away is not None:  # the arm starts away from the program's first target: an approach is played
@@ -37,8 +39,10 @@ class Watched:
             run.guard = build_guard(cell, run.scenario.guard)
         self.writes: list[tuple[float, int, np.ndarray]] = []
         self.power: list[tuple[float, bool]] = []
-        write, set_power = cell.write, cell.set_power
+        write, set_power, read = cell.write, cell.set_power, cell.read
         cell.safety = lambda: inputs(cell.t_ns * 1e-9)
+        if lost is not None:
+            cell.read = lambda: read() if cell.t_ns * 1e-9 < lost else _gone()
         cell.write = lambda q: (self.writes.append((cell.t_ns * 1e-9, run.events.total, np.array(q))), write(q))[1]
         cell.set_power = lambda on: (self.power.append((cell.t_ns * 1e-9, on)), set_power(on))[1]
         try:
@@ -46,9 +50,13 @@ class Watched:
         finally:
             run.close()
 
+    def events(self, kind: str) -> list:
+        """Every event of ``kind``, in order."""
+        return [e for e in self.run.events if e.kind == kind]
+
     def event(self, kind: str):
         """The first event of ``kind``."""
-        found = [e for e in self.run.events if e.kind == kind]
+        found = self.events(kind)
         assert found, f"no {kind} event among {[e.kind for e in self.run.events]}"
         return found[0]
 
@@ -77,6 +85,10 @@ class Watched:
         a = np.diff(v, axis=0) / dt
         return bool((np.abs(v) <= profile.array("velocity") * slack).all()
                     and (np.abs(a) <= profile.array("acceleration") * slack).all())
+
+
+def _gone():
+    raise RobotLinkError("robot_read_failed", "bus gone", lost=True)
 
 
 def test_with_the_reduced_speed_input_held_the_retreat_keeps_the_tool_under_the_reduced_speed():
@@ -172,3 +184,68 @@ def test_the_reset_follows_once_the_stop_input_has_cleared():
     run = watched.run
     assert [on for _, on in watched.power] == [False, True] and run.events.has("reset")
     assert run.cycles.total == 2 and run.stopped is None
+
+
+def _stricter(first: int, then: float):
+    """The safety controller's input: category ``first`` from 2.6 s (0.1 s into the retreat, at speed), category 0
+    from ``then`` [s] on."""
+    return lambda t: SafetyInputs(stop=0 if t >= then else first if t >= 2.6 else None)
+
+
+def test_a_category_0_input_during_a_category_2_brake_removes_power_on_its_tick_and_moves_nothing_more():
+    """The brake was played to its end without reading the inputs again, and nothing read them after a category 2
+    abort: the category 0 input never removed power, the run ended clean with it held."""
+    watched = Watched(ONE_CYCLE, _stricter(2, 2.62))
+    run = watched.run
+    assert [e.category for e in watched.events("retreat_aborted")] == [2, 0]
+    escalated, removed = watched.events("retreat_aborted")[1], watched.event("power_removed")
+    assert escalated.t_ns == removed.t_ns == round(2.62e9) and removed.category == 0
+    assert watched.power == [(removed.t_ns * 1e-9, False)]
+    braking = watched.after("retreat_aborted")
+    assert np.abs(braking[1] - braking[0]).max() > 1e-4  # it was moving at the abort
+    assert all(t < 2.62 for t, _, _ in watched.writes)  # nothing written from the category 0 tick on
+    assert not run.guard.power and run.stopped.startswith("power removed by a category 0 stop")
+
+
+def test_a_category_0_input_during_a_category_1_brake_removes_power_at_once_not_after_the_brake():
+    watched = Watched(ONE_CYCLE, _stricter(1, 2.62))
+    removed = watched.event("power_removed")
+    assert removed.category == 0 and removed.t_ns == round(2.62e9)  # category 1, 59 ms later
+    assert all(t < 2.62 for t, _, _ in watched.writes)
+    assert watched.run.stopped.startswith("power removed by a category 0 stop")
+
+
+def test_a_category_0_input_while_a_category_1_stop_waits_for_standstill_removes_power_at_once():
+    """After the brake, the guard holds until the joints read still; the stop it ticked with was the one of the
+    abort, the inputs never read again."""
+    plain = Watched(ONE_CYCLE, _stricter(1, 99.0)).event("power_removed")
+    then = 2.67  # the brake ended at 2.662 s, the joints read still at 2.679 s
+    assert plain.category == 1 and plain.t_ns > round(then * 1e9)
+    watched = Watched(ONE_CYCLE, _stricter(1, then))
+    removed = watched.event("power_removed")
+    assert removed.category == 0 and removed.t_ns == round(then * 1e9)
+    assert watched.events("retreat_aborted")[-1].category == 1  # the brake had ended: the guard tells the rest
+
+
+def test_a_category_1_input_during_a_category_2_brake_removes_power_at_rest_and_the_run_ends_stopped():
+    watched = Watched(ONE_CYCLE, lambda t: SafetyInputs(stop=1 if t >= 2.62 else 2 if t >= 2.6 else None))
+    run = watched.run
+    assert [e.category for e in watched.events("retreat_aborted")] == [2, 1]
+    removed = watched.event("power_removed")
+    assert removed.category == 1 and [on for _, on in watched.power] == [False]
+    braking = watched.after("retreat_aborted")
+    assert watched.within_limits(braking) and np.abs(braking[-1] - braking[-2]).max() < 1e-6  # braked to rest
+    assert not run.guard.power and run.stopped.startswith("power removed by a category 1 stop")
+
+
+def test_a_link_lost_during_the_retreat_with_category_1_removes_power_at_once_naming_it():
+    """The brake went to the dead link, then the guard waited out the stopping time on the last state read and
+    removed power 'still moving ... anyway' a second later."""
+    watched = Watched({**ONE_CYCLE, "realtime": {"stop_category": 1}}, lambda t: SafetyInputs(), lost=2.7)
+    run = watched.run
+    failed, aborted, removed = (watched.event(k) for k in ("robot_read_failed", "retreat_aborted", "power_removed"))
+    assert aborted.t_ns == removed.t_ns == failed.t_ns  # on the tick that found the link lost
+    assert removed.category == aborted.category == 0 and "robot link lost" in removed.reason
+    assert watched.power == [(removed.t_ns * 1e-9, False)]
+    assert len(watched.after("retreat_aborted")) == 1  # nothing written to the dead link after it
+    assert run.stopped.startswith("robot link: robot_read_failed")

@@ -435,9 +435,9 @@ class Run:
     def _play(self, plan: Transition, name: str, t0: int, signals: int | None = None) -> np.ndarray:
         """Play a transition tick by tick; return the pose it left the robot at. A stop input, a link fault or
         an operator's signal past ``signals`` (default: those so far) aborts it as the stop's category asks
-        (``_ticks``); a category 0 or 1 stop then removes power through the guard, at rest there. A plan that
-        only settles the command is not told as a transition (every run's last cycle ended with its command a
-        few ms from rest)."""
+        (``_ticks``); a category 0 or 1 stop then removes power through the guard, where the brake left the robot.
+        A plan that only settles the command is not told as a transition (every run's last cycle ended with its
+        command a few ms from rest)."""
         signals = self.operator.count if signals is None else signals
         if not plan.settles:
             self.events.append(Event(t0, EventKind(f"{name}_begin"),
@@ -445,8 +445,8 @@ class Run:
         with self.clock.ticking():
             held, stop = self._ticks(plan, name, signals)
             if stop is not None and stop[0] < 2:
-                self.guard.reset(held)  # at rest where the transition left the robot
-                self._remove_power(*stop)
+                self.guard.reset(held)  # where the transition left the robot
+                self._remove_power(stop, signals)
         if stop is None and not plan.settles:
             self.events.append(Event(self.clock.now(), EventKind(f"{name}_done"), f"{name} complete"))
         return held
@@ -463,11 +463,8 @@ class Run:
             safety = self.cell.safety()
             stop = self._transition_stop(t, safety, signals)
             if stop is not None:
-                why = stop[1] or "the safety controller's protective stop input"
-                self.events.append(Event(t, EventKind(f"{name}_aborted"), f"{why}: a category {stop[0]} stop "
-                                         "during the transition", category=stop[0]))
-                brake = None if stop[0] == 0 else plan.brake(profile, steps)
-                return (held if brake is None else self._send(brake.setpoints(), rec)), stop
+                self._aborted(t, name, stop)
+                return self._brake(None if stop[0] == 0 else plan.brake(profile, steps), name, held, stop, signals)
             if safety.reduced_speed:
                 slower = plan.slowed(profile, steps, **self._cap(safety))
                 if slower is not None:
@@ -477,24 +474,58 @@ class Run:
             held = self._send([setpoint], rec)
         return held, None
 
-    def _transition_stop(self, t_ns: int, safety: SafetyInputs, signals: int) -> tuple[int, str | None] | None:
-        """The strictest stop asked during a transition: the safety controller's input, a robot link fault, an
-        operator's signal past ``signals``; (category, who asked: None for the controller) or None."""
+    def _brake(self, brake: Transition | None, name: str, held: np.ndarray, stop: tuple[int, str | None],
+               signals: int) -> tuple[np.ndarray, tuple[int, str | None]]:
+        """An aborted transition's brake (None: none), one servo period at a time, the stops read every tick as
+        before the abort: a stricter one counts from its tick, category 0 sending nothing more (it went on braking
+        to the end, and a category 0 input after a category 2 abort never removed power). Return the last
+        setpoint sent and the strictest stop."""
+        for setpoint in () if brake is None else brake.setpoints():
+            held = self._send([setpoint], self.recording)
+            t = self.clock.now()
+            asked = self._transition_stop(t, self.cell.safety(), signals, stop)
+            if asked[0] < stop[0]:
+                stop = asked
+                self._aborted(t, name, stop)
+                if stop[0] == 0:
+                    break
+        return held, stop
+
+    def _aborted(self, t_ns: int, name: str, stop: tuple[int, str | None]) -> None:
+        """The transition's ``*_aborted`` event for ``stop``: the abort, and each stricter stop during its brake."""
+        why = stop[1] or "the safety controller's protective stop input"
+        self.events.append(Event(t_ns, EventKind(f"{name}_aborted"), f"{why}: a category {stop[0]} stop during the "
+                                 "transition", category=stop[0]))
+
+    def _transition_stop(self, t_ns: int, safety: SafetyInputs, signals: int,
+                         since: tuple[int, str | None] | None = None) -> tuple[int, str | None] | None:
+        """The strictest stop asked during a transition: ``since`` (one asked before, still in force), the safety
+        controller's input, a robot link fault, an operator's signal past ``signals``; (category, who asked: None
+        for the controller) or None. A lost link makes a category 1 stop a 0: with no state to read and no
+        command that arrives, there is no brake to play and no standstill to wait for (it waited out the
+        stopping time on the last state read, its brake sent to the dead link)."""
         asked = [] if safety.stop is None else [(safety.stop, None)]
+        if since is not None:
+            asked.append(since)
         if self.link.stop is not None:
             asked.append((self.link.stop, f"robot link, {self.link.reason}"))
         if self.operator.count > signals:
             self._operator_stop(t_ns)
             asked.append((EventKind.OPERATOR_STOP.category, self.operator.reason))
-        return min(asked, key=lambda a: a[0], default=None)
+        stop = min(asked, key=lambda a: a[0], default=None)
+        if stop is not None and stop[0] == 1 and self.link.lost:
+            return 0, f"robot link lost, {self.link.reason}"
+        return stop
 
-    def _remove_power(self, category: int, asked_by: str | None) -> None:
+    def _remove_power(self, stop: tuple[int, str | None], signals: int) -> None:
         """Drive power off by the guard's own stop, as on the cycles' ticks: at once for category 0, for category 1
-        once the guard finds the machine stopped (it holds meanwhile, reading the robot every tick)."""
-        safety, rec = SafetyInputs(category, False, asked_by), self.recording
+        once the guard finds the machine stopped (it holds meanwhile, reading the robot every tick). The stops
+        are read every tick meanwhile: a stricter one counts at once (``_transition_stop``)."""
+        rec = self.recording
         while True:
             t = self.clock.now()
-            setpoint, new = self.guard.tick(t, self.link.state, safety)
+            stop = self._transition_stop(t, self.cell.safety(), signals, stop)
+            setpoint, new = self.guard.tick(t, self.link.state, SafetyInputs(stop[0], False, stop[1]))
             self.events.extend(new)
             if not self.guard.power:
                 self._power_off(t)
