@@ -86,3 +86,30 @@ def log_pass(store, stage: str, release: str) -> None:
                            "gates": [], "evidence": []})
         if store.pointers(CELL, stage).last_good is None:
             store.set_pointers(CELL, stage, release, release)
+
+
+def promoted_site(tmp_path: Path, notes=("v1",)) -> tuple[Path, list[str]]:
+    """A site where each release (one per note) was promoted to sim in turn: (site, release ids)."""
+    from cellguard.release import Store, create_bundle, promote
+
+    site, ids = tmp_path / "site", []
+    store = Store(site)
+    for note in notes:
+        bundle = create_bundle("scripted", None, CELL, None, note=note)
+        store.add_bundle(bundle)
+        promote(store, bundle.id, CELL, "sim")
+        ids.append(bundle.id)
+    store.close()
+    return site, ids
+
+
+def edit_store(site: Path, sql: str) -> None:
+    """One SQL statement on the site's store, as an edit outside cellguard."""
+    import sqlite3
+
+    from cellguard.release.store import STORE_FILE
+
+    db = sqlite3.connect(site / STORE_FILE)
+    db.execute(sql)
+    db.commit()
+    db.close()

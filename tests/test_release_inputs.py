@@ -4,34 +4,11 @@ takes no action map."""
 
 from __future__ import annotations
 
-import sqlite3
-
 import pytest
-from release_helpers import CELL, cli, write_plan
+from release_helpers import CELL, cli, edit_store, promoted_site, write_plan
 
-from cellguard.release import Store, create_bundle, load_plan, promote
+from cellguard.release import load_plan
 from cellguard.release.errors import GateError
-from cellguard.release.store import STORE_FILE
-
-
-def _site(tmp_path, notes=("v1",)):
-    """A site where each release (one per note) was promoted to sim in turn: (site, release ids)."""
-    site, ids = tmp_path / "site", []
-    store = Store(site)
-    for note in notes:
-        bundle = create_bundle("scripted", None, CELL, None, note=note)
-        store.add_bundle(bundle)
-        promote(store, bundle.id, CELL, "sim")
-        ids.append(bundle.id)
-    store.close()
-    return site, ids
-
-
-def _edit(site, sql: str) -> None:
-    db = sqlite3.connect(site / STORE_FILE)
-    db.execute(sql)
-    db.commit()
-    db.close()
 
 
 def _one_line(result, code: int = 2) -> str:
@@ -60,7 +37,7 @@ def test_an_envelope_a_scenario_guard_refuses_is_refused_at_create(tmp_path, tex
 @pytest.mark.parametrize("value", ["1.5", "true", "3"])
 def test_a_plan_stage_whose_gates_or_runs_are_no_list_is_one_line(tmp_path, key, value):
     """``gates: 1.5`` was ``TypeError: 'float' object is not iterable`` from promote and run, exit 1."""
-    site, (rid,) = _site(tmp_path)
+    site, (rid,) = promoted_site(tmp_path)
     plan = tmp_path / "plan.yaml"
     plan.write_text(f"stages:\n  sim:\n    {key}: {value}\n")
     with pytest.raises(GateError, match=f"stages.sim.{key}: Input should be a valid list"):
@@ -79,9 +56,9 @@ def test_a_stage_that_is_no_mapping_is_refused_not_an_empty_stage(tmp_path):
 
 def test_verify_names_every_release_named_with_its_bundle_deleted(tmp_path):
     """`DELETE FROM bundles` passed verify ("chain verified"), while promote then said the release was unknown."""
-    site, (old, new) = _site(tmp_path, ("v1", "v2"))
+    site, (old, new) = promoted_site(tmp_path, ("v1", "v2"))
     assert cli("verify", "--site", str(site)).exit_code == 0
-    _edit(site, "DELETE FROM bundles")
+    edit_store(site, "DELETE FROM bundles")
     result = cli("verify", "--site", str(site))
     assert result.exit_code == 1
     said = " ".join(result.stdout.split())  # rich wraps its lines
@@ -93,8 +70,8 @@ def test_verify_names_every_release_named_with_its_bundle_deleted(tmp_path):
                                   "UPDATE pointers SET current=CAST(current AS BLOB)"])
 def test_status_on_a_pointers_row_edited_into_no_name_is_one_line(tmp_path, edit):
     """A NULL cell was ``TypeError: unsupported format string passed to NoneType.__format__``, exit 1."""
-    site, (rid,) = _site(tmp_path)
-    _edit(site, edit)
+    site, (rid,) = promoted_site(tmp_path)
+    edit_store(site, edit)
     for extra in ((), ("--json",)):
         result = cli("status", *extra, "--site", str(site))
         assert "the pointers row cell " in _one_line(result) and "edited outside cellguard" in result.stderr
@@ -105,8 +82,8 @@ def test_status_on_a_pointers_row_edited_into_no_name_is_one_line(tmp_path, edit
                                   "UPDATE bundles SET id=X'00ff'"])
 def test_bytes_that_are_no_utf8_are_an_edit_verify_names(tmp_path, edit):
     """sqlite3's "Could not decode to UTF-8" ended verify in a traceback, exit 1 with no break named."""
-    site, _ = _site(tmp_path)
-    _edit(site, edit)
+    site, _ = promoted_site(tmp_path)
+    edit_store(site, edit)
     result = cli("verify", "--site", str(site))
     assert result.exit_code == 1 and "broken: " in result.stdout and "Traceback" not in result.output
 

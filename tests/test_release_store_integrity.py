@@ -7,33 +7,12 @@ import sqlite3
 import threading
 
 import pytest
-from release_helpers import CELL, cli, log_pass
+from release_helpers import CELL, cli, edit_store, log_pass, promoted_site
 
 from cellguard.release import Store, create_bundle, promote, verify_log
 from cellguard.release.errors import StageError
 from cellguard.release.log import entries
 from cellguard.release.store import STORE_FILE
-
-
-def _site(tmp_path, notes=("v1",)):
-    """A site where each release (one per note) was promoted to sim in turn: (site, release ids)."""
-    site = tmp_path / "site"
-    store = Store(site)
-    ids = []
-    for note in notes:
-        bundle = create_bundle("scripted", None, CELL, None, note=note)
-        store.add_bundle(bundle)
-        promote(store, bundle.id, CELL, "sim")
-        ids.append(bundle.id)
-    store.close()
-    return site, ids
-
-
-def _edit(site, sql: str) -> None:
-    db = sqlite3.connect(site / STORE_FILE)
-    db.execute(sql)
-    db.commit()
-    db.close()
 
 
 def test_two_promotions_racing_for_the_store_move_the_stage_once(tmp_path):
@@ -68,8 +47,8 @@ def test_two_promotions_racing_for_the_store_move_the_stage_once(tmp_path):
 
 @pytest.mark.parametrize("body", ["not json", "[1]"])
 def test_a_log_entry_that_is_not_a_json_object_is_named_not_a_traceback(tmp_path, body):
-    site, _ = _site(tmp_path, ("v1", "v2"))
-    _edit(site, f"UPDATE log SET body='{body}' WHERE seq=1")
+    site, _ = promoted_site(tmp_path, ("v1", "v2"))
+    edit_store(site, f"UPDATE log SET body='{body}' WHERE seq=1")
     verify = cli("verify", "--site", str(site))
     assert verify.exit_code == 1 and "broken: entry 1: not a JSON object (edited)" in verify.stdout
     status = cli("status", "--site", str(site))
@@ -88,23 +67,23 @@ def test_a_read_only_command_on_a_site_with_no_store_refuses_and_creates_nothing
 @pytest.mark.parametrize("edit", ["current='0000000000000000', last_good='0000000000000000'",
                                   "last_good=current"])
 def test_edited_pointers_are_found_by_verify(tmp_path, edit):
-    site, (_, second) = _site(tmp_path, ("v1", "v2"))
+    site, (_, second) = promoted_site(tmp_path, ("v1", "v2"))
     assert cli("verify", "--site", str(site)).exit_code == 0
-    _edit(site, f"UPDATE pointers SET {edit} WHERE stage='sim'")
+    edit_store(site, f"UPDATE pointers SET {edit} WHERE stage='sim'")
     result = cli("verify", "--site", str(site))
     assert result.exit_code == 1 and "broken: pointers of sim on arm-pick-place" in result.stdout
     assert f"the log says current {second}, last_good None" in result.stdout
 
 
 def test_a_deleted_pointer_row_is_found_by_verify(tmp_path):
-    site, _ = _site(tmp_path)
-    _edit(site, "DELETE FROM pointers")
+    site, _ = promoted_site(tmp_path)
+    edit_store(site, "DELETE FROM pointers")
     result = cli("verify", "--site", str(site))
     assert result.exit_code == 1 and "broken: pointers of sim on arm-pick-place: current None" in result.stdout
 
 
 def test_a_report_into_a_folder_is_refused_and_a_file_named_like_a_temporary_is_kept(tmp_path):
-    site, (rid,) = _site(tmp_path)
+    site, (rid,) = promoted_site(tmp_path)
     folder = tmp_path / "pages"
     folder.mkdir()
     result = cli("report", rid, "-o", str(folder), "--site", str(site))
@@ -121,15 +100,15 @@ def test_a_report_into_a_folder_is_refused_and_a_file_named_like_a_temporary_is_
 @pytest.mark.parametrize("prefix", [lambda rid: "_" + rid[1:4], lambda rid: rid[:3] + "%", lambda rid: "%",
                                     lambda rid: "", lambda rid: rid[:4] + " "])
 def test_a_release_prefix_is_hex_and_taken_literally(tmp_path, prefix):
-    site, (rid,) = _site(tmp_path)
+    site, (rid,) = promoted_site(tmp_path)
     result = cli("promote", prefix(rid), "--cell", CELL, "--to", "sim", "--site", str(site))
     assert result.exit_code == 2 and result.stderr.count("\n") == 1 and "not a release id" in result.stderr
 
 
 def test_a_promotion_from_hand_edited_pointers_is_refused_and_moves_nothing(tmp_path):
     """The log, not an edited pointers row, says where a stage is: a move from elsewhere is not logged."""
-    site, (first, second) = _site(tmp_path, ("v1", "v2"))
-    _edit(site, f"UPDATE pointers SET current='{first}', last_good='{second}' WHERE stage='sim'")  # log: second
+    site, (first, second) = promoted_site(tmp_path, ("v1", "v2"))
+    edit_store(site, f"UPDATE pointers SET current='{first}', last_good='{second}' WHERE stage='sim'")  # log: second
     before = len(entries(Store(site)))
     result = cli("rollback", "--cell", CELL, "--stage", "sim", "--site", str(site))
     assert result.exit_code == 2 and f"the log says current {second}" in result.stderr
@@ -138,7 +117,7 @@ def test_a_promotion_from_hand_edited_pointers_is_refused_and_moves_nothing(tmp_
 
 def test_a_report_over_the_store_or_any_store_is_refused_and_the_store_kept(tmp_path):
     """`report -o SITE/release.sqlite` replaced the release store (every bundle and the log) with the page."""
-    site, (rid,) = _site(tmp_path)
+    site, (rid,) = promoted_site(tmp_path)
     store_file = site / STORE_FILE
     before = store_file.read_bytes()
     other = tmp_path / "fleet.sqlite"
@@ -169,9 +148,9 @@ EDITS = {  # a hand edit, and the commands that read what it broke
 def test_a_hand_edited_store_is_one_line_exit_2_not_a_traceback(tmp_path, edit):
     """A gates entry without its verdict was a KeyError, a log count that is no number a ValueError, a manifest
     that is not JSON a JSONDecodeError; a run is refused before it runs (its gates could not be logged)."""
-    site, (rid,) = _site(tmp_path)
+    site, (rid,) = promoted_site(tmp_path)
     _gates_entry(site)
-    _edit(site, edit)
+    edit_store(site, edit)
     before = (site / STORE_FILE).read_bytes()
     commands = {"promote": ("promote", rid, "--cell", CELL, "--to", "bench"), "status": ("status",),
                 "report": ("report", rid, "-o", str(tmp_path / "page.html")), "run": ("run", "--cell", CELL, "--stage",
@@ -185,7 +164,7 @@ def test_a_hand_edited_store_is_one_line_exit_2_not_a_traceback(tmp_path, edit):
 
 
 def test_verify_finds_a_manifest_that_no_longer_hashes_to_its_id(tmp_path):
-    site, (rid,) = _site(tmp_path)
-    _edit(site, "UPDATE bundles SET manifest=json_set(manifest, '$.note', 'v2')")
+    site, (rid,) = promoted_site(tmp_path)
+    edit_store(site, "UPDATE bundles SET manifest=json_set(manifest, '$.note', 'v2')")
     result = cli("verify", "--site", str(site))
     assert result.exit_code == 1 and f"broken: release {rid}: its manifest hashes to" in result.stdout
