@@ -69,12 +69,12 @@ class RealtimeSettings(BaseModel):
 
     def for_robot(self, period_ns: int, streams: bool) -> RealtimeSettings:
         """These settings on a robot of servo period ``period_ns``, with the staleness limit in force (what the
-        record states). One lost packet leaves the newest state two periods old, so a limit under two periods
-        stopped a 50 Hz robot at its first lost packet (the 20 ms default, one period there) and is refused, as is
-        the read timeout of a robot that ``streams`` states (the silence since its last packet; a LeRobot call's
-        timeout is the call's own time, not the period's)."""
+        record states). On a robot that ``streams`` its states, one lost packet leaves the newest state two periods
+        old, so a staleness limit or read timeout (the silence since its last packet) under two periods stopped a
+        50 Hz robot at its first lost packet (the 20 ms default, one period there) and is refused. A robot read on
+        each tick (a LeRobot bridge, a simulated cell) stamps its state at the read: no limit of its is refused."""
         default_s = max(STALE_FLOOR_S, STALE_PERIODS * period_ns * 1e-9)
-        limits = {"stale_s": self.stale_s, "read_timeout_s": self.read_timeout_s if streams else None}
+        limits = {"stale_s": self.stale_s, "read_timeout_s": self.read_timeout_s} if streams else {}
         for key, value in limits.items():
             if value is not None and round(value * 1e9) < STALE_MIN_PERIODS * period_ns:
                 unset = f", or leave it unset ({default_s:g} s on this robot)" if key == "stale_s" else ""
