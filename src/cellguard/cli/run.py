@@ -123,9 +123,13 @@ def run(
 
 
 @contextmanager
-def _held(out: Path) -> Iterator[int | None]:
-    """``out`` made and locked (``folder_lock``) for what the command writes there; a folder it made and left empty
-    is removed again."""
+def _held(out: Path, overwrite: bool) -> Iterator[int | None]:
+    """``out`` made and locked (``folder_lock``) for what the command writes there, once ``refuse_existing`` lets
+    it (a folder inside another run's was made before the refusal); a folder it made and left empty is removed
+    again."""
+    from cellguard.record.writer import refuse_existing
+
+    refuse_existing(out, overwrite)
     created = not out.exists()
     folder = make_folder(out, "--out")
     try:
@@ -159,7 +163,7 @@ def demo(
 
     try:
         sc = load_scenario(DEMO_SCENARIO)
-        with _held(out) as lock:  # until the report is written: a run started there after the record closed had
+        with _held(out, overwrite) as lock:  # until the report is written: a run started there after the record closed had
             # the demo's report, of the demo's record, written beside its own
             summary = _run(sc, out, quiet=as_json, overwrite=overwrite, lock=lock)
             exit_if_stopped(summary, out)  # a stopped shift is not diagnosed, nor one whose record is not whole
