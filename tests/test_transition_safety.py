@@ -152,6 +152,13 @@ def test_a_category_2_input_during_the_retreat_brakes_and_holds_with_power_kept(
     assert watched.within_limits(braking) and np.abs(braking[-1] - braking[-2]).max() < 1e-6
 
 
+def test_a_category_2_pulse_during_the_retreat_ends_the_run_stopped_away_from_home():
+    """The robot was left held 0.9 rad from home, power on, and the run ended clean (exit 0)."""
+    watched = Watched(ONE_CYCLE, lambda t: SafetyInputs(stop=2 if 2.6 <= t < 2.8 else None))
+    assert watched.event("retreat_aborted").category == 2 and watched.run.guard.power
+    assert watched.run.stopped.startswith("the retreat was aborted by a category 2 stop")
+
+
 def test_a_category_0_pulse_during_the_approach_leaves_the_power_off_until_the_next_cycles_reset():
     """The approach's new guard forgot the stop: power stayed on, and a pulse that had cleared left the cycle
     commanding as if nothing had happened."""
