@@ -256,3 +256,9 @@ def test_a_link_lost_during_the_retreat_with_category_1_removes_power_at_once_na
     assert watched.power == [(removed.t_ns * 1e-9, False)]
     assert len(watched.after("retreat_aborted")) == 1  # nothing written to the dead link after it
     assert run.stopped.startswith("robot link: robot_read_failed")
+
+
+def test_a_link_fault_that_aborts_the_retreat_as_category_2_is_named_as_the_cause():
+    """The run said the robot was "held where it braked, power on" of a robot whose link was gone."""
+    watched = Watched({**ONE_CYCLE, "realtime": {"stop_category": 2}}, lambda t: SafetyInputs(), lost=2.7)
+    assert watched.run.stopped == "robot link: robot_read_failed: bus gone"

@@ -393,15 +393,24 @@ class Run:
                                **self._commanded_motion(), **self._cap(self.cell.safety()))
         if plan is None:
             return
-        first = self.events.total
-        self._play(plan, "retreat", self.clock.now(), signals=min(self.operator.count, 1))  # the operator's first
-        # signal stopped the run (or ends it now); a second aborts this
+        first, signals = self.events.total, min(self.operator.count, 1)  # the operator's first signal stopped the
+        # run (or ends it now); a second aborts this
+        self._play(plan, "retreat", self.clock.now(), signals=signals)
         if not self.guard.power:  # a category 0/1 stop aborted it: no reset follows, the run ends stopped
             self.stopped = self.stopped or self._power_removed(self.guard.envelope)
         elif any(e.kind == EventKind.RETREAT_ABORTED for e in self.events.since(first)):  # a category 2 pulse ended
-            # the run clean, the robot held away from home
-            self.stopped = self.stopped or ("the retreat was aborted by a category 2 stop: the robot is held where it "
-                                            "braked, not at home, power on; bring it home before the next run")
+            self.stopped = self.stopped or self._retreat_aborted(signals)  # the run clean, away from home
+
+    def _retreat_aborted(self, signals: int) -> str:
+        """Why the run ended with its retreat aborted by a category 2 stop: the operator's signal (its own words,
+        which the command reads as an operator stop), a robot link fault, else the safety controller's input,
+        which holds the robot where it braked."""
+        if self.operator.count > signals:
+            return self.operator.reason
+        if self.link.stop is not None:
+            return f"robot link: {self.link.reason}"
+        return ("the retreat was aborted by a category 2 stop: the robot is held where it braked, not at home, power "
+                "on; bring it home before the next run")
 
     def _power_removed(self, envelope) -> str:
         """Why a robot behind a bridge stopped for good: the link fault that asked it, else the guard's stop."""
