@@ -34,6 +34,7 @@ from cellguard.errors import RecordError
 from cellguard.output import refuse_filled_folder
 from cellguard.record import folder_lock
 from cellguard.record.reader import Record
+from cellguard.record.writer import decimation_stride
 
 CODEBASE_VERSION = "v3.0"
 DATA_FILE = "data/chunk-000/file-000.parquet"
@@ -170,7 +171,7 @@ def _stride(context: dict, fps: int | None) -> tuple[int, int]:
     if not dt_ns or not hz:
         raise RecordError("record context: servo_period_ns or record.decimated_hz is missing; "
                           "cannot tell the tick rate")
-    period_ns = max(1, round(1e9 / dt_ns / hz)) * dt_ns
+    period_ns = decimation_stride(dt_ns, hz) * dt_ns
     rates, rate = _whole_rates(period_ns), 1e9 / period_ns
     if not rates:
         raise RecordError(f"--fps: no whole frame rate divides the record's continuous tick rate {rate:g} Hz "

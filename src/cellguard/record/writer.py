@@ -71,6 +71,12 @@ _LOG_LEVEL = {0: ros2.FATAL, 1: ros2.ERROR, 2: ros2.WARN}  # stop category -> lo
 CHUNK_BYTES = 1 << 20  # [bytes] a long backlog is split into chunks of about this many bytes (messages)
 
 
+def decimation_stride(dt_ns: int, decimated_hz: float) -> int:
+    """Every how many servo ticks the decimated stream takes one: the rate nearest ``decimated_hz``, at least every
+    tick (the readers work the stream's period out of the context with the same rule)."""
+    return max(1, round(1e9 / dt_ns / decimated_hz))
+
+
 @dataclass(frozen=True)
 class RecordConfig:
     """How often data reaches the disk and at which rates ticks are kept."""
@@ -113,7 +119,7 @@ class Recorder:
         self.record_id = record_id or uuid.uuid4().hex
         self._stream, self._index = stream, index
         self._failed: str | None = None
-        self._stride = max(1, round(1e9 / dt_ns / config.decimated_hz))
+        self._stride = decimation_stride(dt_ns, config.decimated_hz)
         self._batch = max(1, config.chunk_ns // dt_ns)
         self._back = math.ceil(config.pre_trigger_s * 1e9 / dt_ns)
         self._ring = TickRing(len(self.joints), self._back + 4 * self._batch + self._stride)

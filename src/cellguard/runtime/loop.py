@@ -479,7 +479,8 @@ class Run:
             if stop is not None:
                 self._aborted(t, name, stop)
                 return self._brake(None if stop[0] == 0 else plan.brake(profile, steps), name, held, stop, signals)
-            if safety.reduced_speed:
+            if safety.reduced_speed and plan.cap > self.guard.config.reduced_speed:  # it comes on: once, off the
+                # other ticks (the cap is worked out from the guard's checks)
                 slower = plan.slowed(profile, steps, **self._cap(safety))
                 if slower is not None:
                     self.events.append(Event(t, EventKind.REDUCED_SPEED_INPUT, f"safety controller reduced-speed "
