@@ -4,15 +4,15 @@ from __future__ import annotations
 
 import json
 
-import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from cellguard.record.reader import CycleRecord, Ticks
+from cellguard.record.reader import CycleRecord
 from cellguard.release import Store, verify_log
 from cellguard.release import log as release_log
 from cellguard.release.evidence import RunEvidence
 from cellguard.release.gates import Gate, evaluate
+from cellguard.release.reductions import LimitTicks, reduce_chunks
 
 bodies = st.lists(st.dictionaries(st.sampled_from(["kind", "cell", "stage", "reason"]),  # no release: it has no bundle
                                   st.text(max_size=8), min_size=1), min_size=1, max_size=6)
@@ -39,9 +39,7 @@ def test_any_single_edit_or_deletion_is_found(tmp_path_factory, bodies, pick, de
 def _run(successes: list[bool]) -> RunEvidence:
     cycles = tuple(CycleRecord(i, "acceptance", i * 5_000_000_000, i * 5_000_000_000 + 4_400_000_000, ok, {}, {}, {})
                    for i, ok in enumerate(successes))
-    empty = np.zeros((0, 1))
-    ticks = Ticks(("j",), np.zeros(0, dtype=np.int64), np.zeros(0), empty, empty, empty, empty, empty, empty)
-    return RunEvidence("r", "synthetic", ".", {}, cycles, (), (), ticks, None)
+    return RunEvidence("r", "synthetic", ".", {}, cycles, (), reduce_chunks(()), LimitTicks(), None)
 
 
 @settings(max_examples=60, deadline=None)

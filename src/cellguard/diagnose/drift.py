@@ -95,8 +95,7 @@ class DriftResult:
     mewma_threshold: float
     alarms: tuple[DriftAlarm, ...]
     set_arl: float  # fault-free cycles between false alarms of the whole set, by design
-    pooled: tuple[str, ...] = ()  # pooled channel names (``tracking_pooled.<joint>`` ...)
-    pooled_k: float = 0.5
+    pooled_k: float = 0.5  # of the pooled channels, named in their alarms (``tracking_pooled.<joint>`` ...)
     pooled_threshold: float = float("nan")
 
     def series(self, name: str) -> tuple[np.ndarray, np.ndarray]:
@@ -127,7 +126,7 @@ def detect_drift(baseline: Baseline, cycles: Sequence[Cycle], config: DriftConfi
         alarms.append(mv_alarm)
     alarms.sort(key=lambda a: (a.cycle, a.onset, a.signal))
     return DriftResult(baseline.names, tuple(index), config.k, z, upper, lower, h, mewma, limit, tuple(alarms),
-                       config.set_arl, names, config.pooled_k, hp)
+                       config.set_arl, config.pooled_k, hp)
 
 
 def pooled_channels(baseline: Baseline, zc: np.ndarray) -> tuple[tuple[str, ...], np.ndarray]:

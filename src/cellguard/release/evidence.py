@@ -3,7 +3,7 @@
 A run folder holds ``record.mcap`` (read with ``cellguard.record.reader``) and, for a pilot run in
 shadow mode, ``shadow.json`` (per chunk: distance to the incumbent, would-clamp, would-stop). A
 counted run is read only as the record that was counted: hashed again, its context naming the
-release, cell and stage that counted it.
+release, cell and stage that counted it. Its chunks and ticks are kept reduced (``reductions``).
 """
 
 from __future__ import annotations
@@ -13,11 +13,13 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from cellguard.errors import CellguardError
-from cellguard.record.reader import CycleRecord, EventRecord, RecordedChunk, Ticks, open_record
+from cellguard.record.reader import CycleRecord, EventRecord, open_record
 from cellguard.record.writer import RECORD_FILE
 from cellguard.release.bundle import sha256_file
 from cellguard.release.errors import ReleaseError
+from cellguard.release.reductions import Chunks, LimitTicks, limit_ticks, reduce_chunks
 from cellguard.release.store import RunRow, Store
+from cellguard.robot.registry import make_cell
 
 SHADOW_FILE = "shadow.json"
 
@@ -32,8 +34,8 @@ class RunEvidence:
     context: dict
     cycles: tuple[CycleRecord, ...]
     events: tuple[EventRecord, ...]
-    chunks: tuple[RecordedChunk, ...]
-    ticks: Ticks
+    chunks: Chunks
+    limits: LimitTicks  # its recorded (decimated) ticks outside the profile's limits
     shadow: tuple[dict, ...] | None  # per candidate chunk, or None when the run had no shadow
 
     def label(self, cycle: int | None = None) -> str:
@@ -50,11 +52,12 @@ def load_run(folder: Path, name: str) -> RunEvidence:
     folder = Path(folder)
     with open_record(folder) as rec:
         context = rec.context
-        cycles, events, chunks = tuple(rec.cycles()), tuple(rec.events()), tuple(rec.chunks())
+        cycles, events, chunks = tuple(rec.cycles()), tuple(rec.events()), reduce_chunks(rec.chunks())
         ticks = rec.ticks(rate="decimated")
+        limits = limit_ticks(ticks, make_cell(str(context.get("cell"))).profile) if len(ticks) else LimitTicks()
     shadow_path = folder / SHADOW_FILE
     shadow = tuple(json.loads(shadow_path.read_text())["chunks"]) if shadow_path.is_file() else None
-    return RunEvidence(record_id(folder), name, str(folder), context, cycles, events, chunks, ticks, shadow)
+    return RunEvidence(record_id(folder), name, str(folder), context, cycles, events, chunks, limits, shadow)
 
 
 def counted_run(store: Store, row: RunRow) -> RunEvidence:

@@ -20,9 +20,6 @@ from cellguard.diagnose.diagnosis import ROUTINE_EVENTS, diagnose
 from cellguard.errors import CellguardError
 from cellguard.release.evidence import RunEvidence
 from cellguard.robot.pick_place import PickPlaceCell
-from cellguard.robot.registry import make_cell
-
-VELOCITY_MARGIN = 1.05  # a measured speed this far over the profile's limit counts as a violation (noise)
 
 
 @dataclass(frozen=True)
@@ -52,7 +49,6 @@ class Metric:
     unit: str
     compute: Callable[[Sequence[RunEvidence]], Measure]
     hard: bool = False  # a safety count: failure limit 0, decided even on too few cycles
-    doc: str = ""
     most: float = float("inf")  # the largest value it can take (every metric is at least 0)
     needs: Needs | None = None  # what the cell must have (None: every cell's runs give it data)
     shadow: bool = False  # measured on shadow runs only (a stage with ``shadow: true``)
@@ -63,6 +59,7 @@ def _n(runs) -> int:
 
 
 def success_rate(runs) -> Measure:
+    """Completed cycles that succeeded."""
     failed = [r.label(c.cycle) for r in runs for c in r.cycles if not c.success]
     n = _n(runs)
     return Measure(1.0 - len(failed) / n if n else None, n, tuple(f"{x}: failed" for x in failed[:10]))
@@ -83,11 +80,13 @@ def cycle_time_p95(runs) -> Measure:
 
 
 def place_error_p95(runs) -> Measure:
+    """Successful cycles' place error, p95 [mm]."""
     return _percentile(runs, [(c.features.get("place_error_mm", np.nan), r.label(c.cycle))
                               for r in runs for c in r.cycles if c.success], 95, "mm")
 
 
 def interventions_per_hour(runs) -> Measure:
+    """Envelope and executor events, not routine ones, per hour of cycles."""
     hours = sum(c.t_end_ns - c.t_start_ns for r in runs for c in r.cycles) / 3.6e12
     found = [(r.label(e.cycle), e.kind) for r in runs for e in r.events if e.kind not in ROUTINE_EVENTS]
     ev = tuple(f"{where}: {kind}" for where, kind in found[:10])
@@ -95,6 +94,7 @@ def interventions_per_hour(runs) -> Measure:
 
 
 def protective_stops(runs) -> Measure:
+    """Stop events of any category, each stop once (``_stops``)."""
     stops = [f"{r.label(e.cycle)}: {e.kind} (category {e.category}): {e.reason}" for r in runs for e in _stops(r)]
     return Measure(float(len(stops)), _n(runs), tuple(stops[:10]))
 
@@ -115,21 +115,11 @@ def _stops(run: RunEvidence):
 
 
 def limit_violations(runs) -> Measure:
-    """Measured joint positions outside the profile's range or speeds over its limit (50 Hz ticks)."""
-    count, ev = 0, []
-    for r in runs:
-        if not len(r.ticks):
-            continue
-        profile = make_cell(str(r.context.get("cell"))).profile
-        q, qd = r.ticks.q_meas, r.ticks.qd_meas
-        bad = (q < profile.q_min) | (q > profile.q_max) | (np.abs(qd) > profile.array("velocity") * VELOCITY_MARGIN)
-        rows = np.flatnonzero(bad.any(axis=1))
-        count += len(rows)
-        if len(rows):
-            j = int(np.flatnonzero(bad[rows[0]])[0])
-            ev.append(f"{r.label(int(r.ticks.cycle[rows[0]]))}: {profile.joint_names[j]} outside its limits "
-                      f"({len(rows)} ticks)")
-    return Measure(float(count), _n(runs), tuple(ev))
+    """Measured joint positions outside the profile's range or speeds over its limit (the decimated
+    ticks: 50 Hz on the arm)."""
+    ev = tuple(f"{r.label(r.limits.first_cycle)}: {r.limits.joint} outside its limits ({r.limits.count} ticks)"
+               for r in runs if r.limits.count)
+    return Measure(float(sum(r.limits.count for r in runs)), _n(runs), ev)
 
 
 def drift_alarms(runs) -> Measure:
@@ -148,41 +138,24 @@ def drift_alarms(runs) -> Measure:
 
 
 def chunk_seam_jump_max(runs) -> Measure:
-    """Largest step between the outgoing and incoming chunk at each switch [mrad], as received: at its arrival,
-    or at the incoming chunk's first step where it arrives before it (no target of its own before then)."""
-    worst, where, seams = 0.0, "", 0
-    for r in runs:
-        for old, new in zip(r.chunks, r.chunks[1:]):
-            t = max(new.t_received_ns, new.t_obs_ns + new.dt_ns)
-            a_old, a_new = action_at(old, t), action_at(new, t)
-            if a_old is None or a_new is None:  # the old one had ended, or the new one all past (stale)
-                continue
-            jump = float(np.abs(a_new - a_old).max()) * 1e3
-            seams += 1
-            if jump > worst:
-                worst, where = jump, f"{r.label()} at t={t * 1e-9:.3f} s"
-    ev = (f"largest seam {worst:.1f} mrad in {where}",) if where else ()
-    return Measure(worst if seams else None, _n(runs), ev)
-
-
-def action_at(chunk, t_ns: int):
-    """The chunk's action at ``t_ns``, linear between its steps, step ``i`` due at ``t_obs + (i + 1) * dt``
-    (``ActionChunk.step_times_ns``); None before its first step or past its last (it names no target there)."""
-    n = len(chunk.actions)
-    s = (t_ns - chunk.t_obs_ns) / chunk.dt_ns - 1  # in steps from the first
-    if s < 0 or s > n - 1:
-        return None
-    if n == 1:
-        return chunk.actions[0]
-    i = min(int(s), n - 2)
-    f = s - i
-    return (1 - f) * chunk.actions[i] + f * chunk.actions[i + 1]
+    """Largest step between the outgoing and incoming chunk at each switch [mrad], as received
+    (``reductions.reduce_chunks``)."""
+    stepped = [r for r in runs if r.chunks.worst_seam_t_ns is not None]
+    worst = max(stepped, key=lambda r: r.chunks.worst_seam_mrad, default=None)
+    ev = (f"largest seam {worst.chunks.worst_seam_mrad:.1f} mrad in {worst.label()} at "
+          f"t={worst.chunks.worst_seam_t_ns * 1e-9:.3f} s",) if worst else ()
+    seams = sum(r.chunks.seams for r in runs)
+    return Measure(worst.chunks.worst_seam_mrad if worst else 0.0, _n(runs), ev) if seams else Measure(None, _n(runs))
 
 
 def inference_latency_p99(runs) -> Measure:
     """Observation-to-chunk latency the loop applied, p99 over chunks [ms]."""
-    lat = [(c.latency_ns * 1e-6, r.label()) for r in runs for c in r.chunks]
-    return _percentile(runs, lat, 99, "ms")
+    have = [r for r in runs if len(r.chunks.latency_ms)]
+    if not have:
+        return Measure(None, 0)
+    worst = max(have, key=lambda r: r.chunks.latency_ms.max())
+    value = float(np.percentile(np.concatenate([r.chunks.latency_ms for r in have]), 99))
+    return Measure(value, _n(runs), (f"worst {worst.chunks.latency_ms.max():.3g} ms in {worst.label()}",))
 
 
 def _shadow(runs) -> list[tuple[dict, RunEvidence]]:
@@ -211,13 +184,13 @@ def shadow_would_stop(runs) -> Measure:
 
 
 METRICS: dict[str, Metric] = {m.name: m for m in (
-    Metric("success_rate", "", success_rate, doc="completed cycles that succeeded", most=1.0),
+    Metric("success_rate", "", success_rate, most=1.0),
     Metric("cycle_time_p95_s", "s", cycle_time_p95),
-    Metric("place_error_p95_mm", "mm", place_error_p95, doc="successful cycles' place error, p95", needs=PICK_PLACE),
-    Metric("interventions_per_hour", "1/h", interventions_per_hour, doc="envelope and executor events, not routine"),
-    Metric("protective_stops", "", protective_stops, hard=True, doc="stop events of any category"),
-    Metric("limit_violations", "", limit_violations, hard=True, doc="50 Hz ticks outside position/velocity limits"),
-    Metric("drift_alarms", "", drift_alarms, doc="diagnosis alarms against each run's acceptance cycles"),
+    Metric("place_error_p95_mm", "mm", place_error_p95, needs=PICK_PLACE),
+    Metric("interventions_per_hour", "1/h", interventions_per_hour),
+    Metric("protective_stops", "", protective_stops, hard=True),
+    Metric("limit_violations", "", limit_violations, hard=True),
+    Metric("drift_alarms", "", drift_alarms),
     Metric("chunk_seam_jump_max_mrad", "mrad", chunk_seam_jump_max),
     Metric("inference_latency_p99_ms", "ms", inference_latency_p99),
     Metric("shadow_distance_p95_mrad", "mrad", shadow_distance_p95, shadow=True),

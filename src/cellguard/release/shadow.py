@@ -28,7 +28,7 @@ from cellguard.output import write_output
 from cellguard.policy.chunk import ActionChunk
 from cellguard.policy.registry import make_policy
 from cellguard.release.evidence import SHADOW_FILE
-from cellguard.release.metrics import action_at
+from cellguard.release.reductions import action_at
 from cellguard.runtime import Run
 from cellguard.scenario import Scenario
 
