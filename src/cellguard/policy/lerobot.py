@@ -18,6 +18,7 @@ from cellguard.errors import ConfigError
 from cellguard.policy.adapter import DT_RANGE_S, MappedPolicy, PolicyInputs, option_float, resolve_map, split_options
 
 OPTIONS = {"map": "action map YAML file", "dt": "step period [s]", "task": "task text for language-conditioned policies"}
+TAKES_FILE = True  # lerobot:DIR, a folder, frozen in a release by its absolute path (cellguard.policy.registry)
 
 
 class LeRobotBackend:

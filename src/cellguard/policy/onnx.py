@@ -24,6 +24,7 @@ from cellguard.policy.adapter import (DT_RANGE_S, InferenceError, MappedPolicy, 
 from cellguard.policy.chunk import MAX_HORIZON
 
 OPTIONS = {"map": "action map YAML file", "dt": "step period [s], overrides the model's"}
+TAKES_FILE = True  # onnx:FILE, frozen in a release by its absolute path (cellguard.policy.registry)
 _FIXED_INPUTS = ("state", "time_s")
 _FEED_TYPES = {"tensor(float16)": np.float16, "tensor(float)": np.float32, "tensor(double)": np.float64}
 MAX_MODEL_BYTES = (1 << 31) - 1  # protobuf reads no message of 2 GiB or more; larger weights are external data

@@ -30,6 +30,7 @@ from cellguard.policy.wire import WireError, packb, unpackb
 OPTIONS = {"map": "action map YAML file", "dt": "step period [s]", "timeout": "receive timeout [s]",
            "api_key_env": "environment variable holding the API key", "prompt": "task text sent as prompt",
            "retries": "reconnect attempts per call"}
+TAKES_FILE = False  # openpi:ws://HOST:PORT, an address (cellguard.policy.registry)
 MAX_MESSAGE = 8 << 20  # [bytes] largest message accepted; a reply of 100 steps x 64 actions is 26 kB
 MAX_ACTION_DIM = 256
 

@@ -3,11 +3,17 @@
 ``make_policy(spec, cell)`` parses the scenario's ``policy:`` string; an unknown scheme lists
 the known ones. ``scripted`` is the cell's taught program: a plugin cell's comes from the entry-point
 group ``cellguard.scripted_policies`` of its package.
+
+A source is a module: its factory ``(arg, cell) -> Policy`` and what it takes, ``OPTIONS`` (its ``?name=``
+options, ``map`` among them for one that takes an action map) and ``TAKES_FILE`` (its argument names a file or
+folder, which a release freezes by its absolute path). A new source is a new module and its line in ``SCHEMES``.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from importlib import import_module
+from types import ModuleType
 
 from cellguard.errors import ConfigError, UnknownNameError
 from cellguard.policy.protocol import Policy
@@ -50,40 +56,33 @@ SCRIPTED: dict[str, Callable[[object], Policy]] = {"arm-pick-place": _scripted_a
                                                    "quadruped-turns": _scripted_quadruped}
 # a plugin cell's taught program: entry point name = the cell's name, value = a callable cell -> Policy
 SCRIPTED_PLUGINS = "cellguard.scripted_policies"
-def _onnx(arg: str, cell) -> Policy:
-    from cellguard.policy.onnx import make_onnx_policy
+OPTIONS: dict[str, str] = {}  # what scripted takes (this module is its source): no options, no file
+TAKES_FILE = False
 
-    return make_onnx_policy(arg, cell)
-
-
-def _openpi(arg: str, cell) -> Policy:
-    from cellguard.policy.openpi import make_openpi_policy
-
-    return make_openpi_policy(arg, cell)
-
-
-def _lerobot(arg: str, cell) -> Policy:
-    from cellguard.policy.lerobot import make_lerobot_policy
-
-    return make_lerobot_policy(arg, cell)
+# scheme -> "module:factory"; a module is imported only when its scheme is asked for (an adapter's extra may be absent)
+SCHEMES: dict[str, str] = {"scripted": f"{__name__}:_scripted",
+                           "replay": "cellguard.policy.replay:make_replay_policy",
+                           "onnx": "cellguard.policy.onnx:make_onnx_policy",
+                           "openpi": "cellguard.policy.openpi:make_openpi_policy",
+                           "lerobot": "cellguard.policy.lerobot:make_lerobot_policy"}
 
 
-def _replay(arg: str, cell) -> Policy:
-    from cellguard.policy.replay import make_replay_policy
-
-    return make_replay_policy(arg, cell)
-
-
-SCHEMES: dict[str, Callable[[str, object], Policy]] = {"scripted": _scripted, "replay": _replay, "onnx": _onnx,
-                                                       "openpi": _openpi,
-                                                       "lerobot": _lerobot}
+def source(scheme: str) -> ModuleType:
+    """The module of the policy source ``scheme``, which declares what it takes (``OPTIONS``, ``TAKES_FILE``): a
+    release reads it there, so a new source needs no edit to the release code."""
+    try:
+        module = SCHEMES[scheme].partition(":")[0]
+    except KeyError:
+        raise UnknownNameError("policy source", scheme, list(SCHEMES)) from None
+    try:
+        return import_module(module)
+    except ModuleNotFoundError as exc:  # an adapter's extra is not installed: a traceback named only the module
+        raise ConfigError(f"policy source {scheme}: needs the Python package {exc.name!r}, which is not installed "
+                          f"(pip install 'cellguard[{scheme}]')") from None
 
 
 def make_policy(spec: str, cell) -> Policy:
     """Build the policy named by ``spec`` (``scheme`` or ``scheme:argument``) for ``cell``."""
     scheme, _, arg = spec.partition(":")
-    try:
-        factory = SCHEMES[scheme]
-    except KeyError:
-        raise UnknownNameError("policy source", scheme, list(SCHEMES)) from None
+    factory = getattr(source(scheme), SCHEMES[scheme].partition(":")[2])
     return factory(arg, cell)

@@ -22,6 +22,9 @@ from cellguard.errors import ConfigError
 from cellguard.policy.chunk import ActionChunk
 from cellguard.robot.state import Observation
 
+OPTIONS: dict[str, str] = {}  # replay:FILE takes no options: the whole argument is the file
+TAKES_FILE = True  # frozen in a release by its absolute path (cellguard.policy.registry)
+
 DEFAULT_DT_S = 0.02
 MAX_BYTES = 512 << 20  # [bytes] the largest replay file, and the most its arrays may expand to
 _MAX_HEADER = 10_000  # [bytes] numpy's own default limit for one .npy header

@@ -19,7 +19,7 @@ from pathlib import Path
 from cellguard import __version__
 from cellguard.control.config import GuardConfig
 from cellguard.embodiment.profile import calibrated_profile, kept_copy
-from cellguard.errors import CellguardError, ProfileError, ScenarioError, UnknownNameError
+from cellguard.errors import CellguardError, ProfileError, ScenarioError
 from cellguard.output import not_regular
 from cellguard.release.errors import BundleMismatch, ReleaseError
 from cellguard.robot.registry import cell_names, make_cell
@@ -255,11 +255,12 @@ def _envelope(path: Path | None, cell: str) -> GuardConfig:
 
 
 def _absolute_spec(spec: str) -> str:
-    """A policy file named relative to here is frozen by its absolute path; a FIFO, device or socket there is
-    refused before its adapter waits on it or calls it missing."""
+    """A policy file named relative to here is frozen by its absolute path (its source declares ``TAKES_FILE``); a
+    FIFO, device or socket there is refused before its adapter waits on it or calls it missing."""
     scheme, sep, arg = spec.partition(":")
-    _refuse_map_option(scheme, arg)
-    if scheme in ("onnx", "lerobot", "replay") and sep:
+    source = _source(scheme)
+    _refuse_map_option(source, scheme, arg)
+    if source.TAKES_FILE and sep:
         target, q, query = arg.partition("?")
         path = Path(target).resolve()
         try:
@@ -272,11 +273,14 @@ def _absolute_spec(spec: str) -> str:
     return spec
 
 
-def _adapters() -> dict:
-    """The policy adapters by scheme: the policies that take options, an action map among them."""
-    from cellguard.policy import lerobot, onnx, openpi
+def _source(scheme: str):
+    """The module of the policy source ``scheme`` (``registry.SCHEMES``), which declares what it takes."""
+    from cellguard.policy.registry import source
 
-    return {"onnx": onnx, "lerobot": lerobot, "openpi": openpi}
+    try:
+        return source(scheme)
+    except CellguardError as exc:
+        raise ReleaseError(f"--policy: {exc}") from None
 
 
 def _check_takes_map(spec: str) -> None:
@@ -285,24 +289,29 @@ def _check_takes_map(spec: str) -> None:
     from cellguard.policy.registry import SCHEMES
 
     scheme = spec.partition(":")[0]
-    mapped = [s for s, adapter in _adapters().items() if "map" in adapter.OPTIONS]
-    if scheme not in SCHEMES:
-        raise ReleaseError(f"--policy: {UnknownNameError('policy source', scheme, list(SCHEMES))}")
-    if scheme not in mapped:
+    if "map" not in _source(scheme).OPTIONS:
+        mapped = [s for s in SCHEMES if _takes_map(s)]
         raise ReleaseError(f"--map: the {scheme} policy drives the robot's joints directly; it takes no action map "
                            f"(the {', '.join(mapped)} policies do)")
 
 
-def _refuse_map_option(scheme: str, arg: str) -> None:
+def _takes_map(scheme: str) -> bool:
+    """Whether the source ``scheme`` takes an action map; False when its extra is not installed here."""
+    try:
+        return "map" in _source(scheme).OPTIONS
+    except ReleaseError:
+        return False
+
+
+def _refuse_map_option(source, scheme: str, arg: str) -> None:
     """An action map given as a policy option is used unhashed: it goes with --map. The adapter's own parser
     decides what is an option (``?ma%70=`` is ``map`` once decoded; the text ``map=`` was checked)."""
     from cellguard.policy.adapter import split_options
 
-    adapter = _adapters().get(scheme)
-    if adapter is None:
+    if "map" not in source.OPTIONS:
         return
     try:
-        _, options = split_options(arg, adapter.OPTIONS, scheme)
+        _, options = split_options(arg, source.OPTIONS, scheme)
     except CellguardError as exc:
         raise ReleaseError(f"--policy: {exc}") from None
     if "map" in options:
