@@ -1,4 +1,4 @@
-"""The two calls a robot offers cellguard, the extra calls a simulated cell offers the tick loop, and link errors."""
+"""What a robot offers cellguard, the extra calls a simulated cell offers the tick loop, and link errors."""
 
 from __future__ import annotations
 
@@ -28,9 +28,12 @@ class SafetyInputs:
 
 
 class Robot(Protocol):
-    """A robot at servo rate: MuJoCo cells here; a hardware bridge implements the same calls."""
+    """A robot at servo rate: MuJoCo cells here; a hardware bridge has the same members (``make_bridge`` refuses
+    one that lacks any: the loop, the policy and the record read every one)."""
 
+    name: str  # the robot in the record's context; a bridge's need not be a cell's (``lerobot:TYPE``)
     profile: Profile
+    dt_ns: int  # servo period
 
     def read(self) -> State:
         """The measured state now."""
@@ -44,19 +47,20 @@ class Robot(Protocol):
     def set_power(self, on: bool) -> None:
         """Drive power: off removes torque and engages the brakes (stop categories 0 and 1)."""
 
+    def observe(self) -> Observation:
+        """What the policy sees now (joint state, camera measurements)."""
+
+    def context(self) -> dict:
+        """Calibration, fixture datum and other context a record needs to be read later."""
+
 
 class SimCell(Robot, Protocol):
     """A simulated cell: a robot plus its task, cycles, camera and injectable faults."""
 
-    name: str
-    dt_ns: int  # servo period
     supported_faults: frozenset[str]
 
     def step(self) -> None:
         """Advance physics by one servo period."""
-
-    def observe(self) -> Observation:
-        """What the policy sees now (joint state, camera measurements)."""
 
     def begin_cycle(self, cycle: int) -> None:
         """Set up the next cycle (a new part, the next turn)."""
@@ -69,9 +73,6 @@ class SimCell(Robot, Protocol):
 
     def end_cycle(self) -> dict:
         """Close the cycle and return its outcome: ``success`` plus measured values (SI)."""
-
-    def context(self) -> dict:
-        """Calibration, fixture datum and other context a record needs to be read later."""
 
 
 class RobotLinkError(CellguardError):

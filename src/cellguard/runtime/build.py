@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from functools import partial
 
+from cellguard.embodiment import Profile
 from cellguard.embodiment.profile import calibrated_profile
 from cellguard.errors import ScenarioError
 from cellguard.robot.registry import make_cell
+from cellguard.robot.state import Observation
 from cellguard.runtime.clock import LockStepClock, SimClock, WallClock
 from cellguard.runtime.inference import SimulatedInference, WorkerInference
 
@@ -51,10 +54,21 @@ def make_inference(run):
     from cellguard.policy.async_inference import AsyncInference
 
     kind = run.scenario.realtime.inference
-    factory = run.policy_factory or partial(policy_in_process, run.scenario.policy, run.cell.name, run.scenario.seed)
-    worker = AsyncInference(run.policy, worker=kind, factory=factory if kind == "process" else None,
+    factory = (run.policy_factory or _policy_again(run)) if kind == "process" else None
+    worker = AsyncInference(run.policy, worker=kind, factory=factory,
                             prepare=lambda chunk: run.guard.executor.prepare(chunk))  # the guard of the moment
     return WorkerInference(worker, round(1e9 / run.scenario.policy_hz))
+
+
+def _policy_again(run):
+    """How the inference process builds the run's policy again: a simulated cell's from the cell built anew by its
+    registered name (a plugin's program reads what it reads of its cell); a bridge's from what the run's was built
+    from, as the run's process saw the bridge (its name need not be a cell's; its link is the run's alone)."""
+    if run.simulated:
+        return partial(policy_in_process, run.scenario.policy, run.cell.name, run.scenario.seed)
+    from cellguard.policy.registry import make_policy
+
+    return partial(make_policy, run.scenario.policy, BridgeSeen.of(run.cell))
 
 
 def policy_in_process(spec: str, cell_name: str, seed: int):
@@ -62,3 +76,25 @@ def policy_in_process(spec: str, cell_name: str, seed: int):
     from cellguard.policy.registry import make_policy
 
     return make_policy(spec, make_cell(cell_name, seed=seed))
+
+
+@dataclass(frozen=True)
+class BridgeSeen:
+    """What building a policy reads of a bridge (``make_policy``: name, profile, context, an observation, its model if
+    it has one), copied in the run's process so that it pickles into the inference process."""
+
+    name: str
+    profile: Profile
+    manifest: dict  # its context()
+    observation: Observation
+    model: object | None = None
+
+    @classmethod
+    def of(cls, robot) -> BridgeSeen:
+        return cls(robot.name, robot.profile, robot.context(), robot.observe(), getattr(robot, "model", None))
+
+    def context(self) -> dict:
+        return self.manifest
+
+    def observe(self) -> Observation:
+        return self.observation

@@ -1,9 +1,9 @@
 """Robot bridges by scheme: a plain dict from scheme to factory, each bridge one module.
 
 A scenario's ``robot: SCHEME:ARGUMENT`` (``sim-server:udp://127.0.0.1:PORT``, ``lerobot:TYPE?...``)
-is parsed once into a ``BridgeSpec``; the factory gets it and the scenario. A bridge implements
-the ``Robot`` protocol (``read``, ``write``, ``safety``, ``set_power``) plus ``observe``,
-``profile``, ``dt_ns`` and ``context()``; its failures raise ``RobotLinkError``.
+is parsed once into a ``BridgeSpec``; the factory gets it and the scenario. A bridge has every member
+of the ``Robot`` protocol (``name``, ``profile``, ``dt_ns``, ``read``, ``write``, ``safety``, ``set_power``,
+``observe``, ``context``); its failures raise ``RobotLinkError``.
 """
 
 from __future__ import annotations
@@ -11,7 +11,8 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from cellguard.errors import ScenarioError, UnknownNameError
+from cellguard.errors import ConfigError, ScenarioError, UnknownNameError
+from cellguard.robot.protocol import Robot
 
 
 @dataclass(frozen=True)
@@ -47,10 +48,20 @@ def parse_bridge(text: str) -> BridgeSpec:
 
 
 def make_bridge(text: str, scenario):
-    """Connect the bridge ``text`` names; an unknown scheme lists the known ones."""
+    """Connect the bridge ``text`` names; an unknown scheme lists the known ones. A bridge that lacks a member of
+    ``Robot`` (one written to a shorter list) is closed and refused in one line, not an AttributeError mid-run."""
+    from cellguard.robot.registry import from_plugin
+
     spec = parse_bridge(text)
     try:
         factory = BRIDGES[spec.scheme]
     except KeyError:
         raise UnknownNameError("robot bridge", spec.scheme, list(BRIDGES)) from None
-    return factory(spec, scenario)
+    robot = factory(spec, scenario)
+    try:
+        return from_plugin(lambda: robot, Robot, f"robot bridge {spec.scheme!r}")
+    except ConfigError:
+        close = getattr(robot, "close", None)  # a link it opened (a sim-server holds the session until goodbye)
+        if callable(close):
+            close()
+        raise
