@@ -98,11 +98,14 @@ class _Slow(_Stalls):
 
 
 def test_a_slow_policy_that_answers_is_not_lost(tmp_path, monkeypatch):
-    """A live policy slower than the watchdog bound (here 0.15 s) but inside its chunks (0.25 s a call for 0.5 s
-    chunks, which start-up accepts) was stopped as lost at its first timed call."""
+    """A live policy slower than the watchdog bound (here 0.15 s) but inside its chunks (0.17 s a call for 0.5 s
+    chunks with a 20 ms blend: the next chunk in 342 ms, which start-up accepts) was stopped as lost at its first
+    timed call. (0.25 s calls ran every chunk out: start-up refuses them.)"""
     monkeypatch.setattr(loop, "HUNG_WATCHDOGS", 0.5, raising=False)
-    scenario = _scenario()
-    run = Run(scenario, realtime=True, policy_factory=partial(_Slow, 0.25))
+    scenario = parse_scenario({"cell": ARM, "acceptance_cycles": 1, "production_cycles": 1,
+                               "cycle": {"source": "time", "seconds": 2.0}, "guard": {"blend_s": 0.02},
+                               "realtime": {"overrun_budget": 1_000_000}})
+    run = Run(scenario, realtime=True, policy_factory=partial(_Slow, 0.17))
     summary = run_scenario(scenario, tmp_path / "out", run=run)
     assert "stopped" not in summary and len(summary["cycles"]) == 2
     assert "policy_lost" not in [e["kind"] for e in summary["events"]]

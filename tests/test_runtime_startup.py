@@ -86,10 +86,12 @@ def test_statistics_as_wide_as_the_float_range_pass_without_an_overflow_warning(
 
 
 def test_a_latency_the_chunk_cannot_cover_is_refused():
-    check_startup(object(), None, _chunk(h=25, dt_ms=20), 290_000_000, 0.2, MS)  # 290 + 1 ms < 500 - 200
-    with pytest.raises(StartupRefused, match="latency 300 ms plus one servo period 1 ms .* does not fit the chunk: "
-                                             "horizon 500 ms minus blend 200"):
-        check_startup(object(), None, _chunk(h=25, dt_ms=20), 300_000_000, 0.2, MS)
+    # 140 + 1 ms from the next observation, itself 141 ms in (one request at a time): 282 < 500 - 200
+    check_startup(object(), None, _chunk(h=25, dt_ms=20), 140_000_000, 0.2, MS)
+    with pytest.raises(StartupRefused, match="latency 150 ms plus one servo period 1 ms .* does not fit the chunk: "
+                                             "horizon 500 ms minus blend 200 ms, counted from the next observation, "
+                                             "151 ms after this one"):
+        check_startup(object(), None, _chunk(h=25, dt_ms=20), 150_000_000, 0.2, MS)
 
 
 def test_a_run_with_an_out_of_distribution_observation_does_not_move():
@@ -136,9 +138,9 @@ def test_a_robot_away_from_the_first_target_is_approached_first_and_the_cycle_st
 
 
 def test_a_short_chunk_counts_at_most_half_its_horizon_as_blend():
-    check_startup(object(), None, _chunk(h=10, dt_ms=20), 90_000_000, 0.2, MS)  # 200 ms chunk: 100 ms budget, 1 ms tick
+    check_startup(object(), None, _chunk(h=10, dt_ms=20), 40_000_000, 0.2, MS)  # 200 ms chunk: 100 ms budget, 41 + 41
     with pytest.raises(StartupRefused, match="horizon 200 ms minus blend 100 ms"):
-        check_startup(object(), None, _chunk(h=10, dt_ms=20), 100_000_000, 0.2, MS)
+        check_startup(object(), None, _chunk(h=10, dt_ms=20), 50_000_000, 0.2, MS)
 
 
 class _Constant:

@@ -134,6 +134,7 @@ class Executor:
             return [Event(t_ns, EventKind.CHUNK_STALE, f"all {horizon} steps lie before now")]
         placed = curve.shifted(first) if shift else curve
         old = self._curve
+        events = self._ran_out(old, now, t_ns)
         if self._resting(now):  # a hold fades out as the new curve less its state at the switch
             old = self._hold_for(old.points[-1], placed, now)
         # fades out before it ends: a curve held past its end lags its plan (1 s blends of 0.5 s chunks drove the
@@ -145,7 +146,18 @@ class Executor:
         self._chunk = PreparedChunk(chunk.t_obs_ns, chunk.dt_ns, placed, chunk.uncertainty, chunk.tool_speed)
         self.last_chunk_ns = t_ns
         dropped = int(min(max((now - first) // h + 1, 0), horizon))
-        return [Event(t_ns, EventKind.CHUNK_STEPS_DROPPED, f"{dropped} steps already past")] if dropped else []
+        if dropped:
+            events.append(Event(t_ns, EventKind.CHUNK_STEPS_DROPPED, f"{dropped} steps already past"))
+        return events
+
+    def _ran_out(self, old: ChunkCurve, now: int, t_ns: int) -> list[Event]:
+        """The event for a chunk in use that ended before the one arriving at ``now`` (playback time): the reference
+        held its last step meanwhile and stopped dead, and the guard's interventions braking it said nothing of why.
+        Told here, once per run-out and off the tick, with how long the reference held."""
+        if self._chunk is None or old.end_ns >= now:  # a hold before the first chunk, or the next came in time
+            return []
+        return [Event(t_ns, EventKind.CHUNK_RAN_OUT, f"the chunk in use ran out {(now - old.end_ns) * 1e-6:.0f} ms "
+                                                     f"before this one arrived: its last step was held meanwhile")]
 
     def reference(self, t_ns: int, scale: float = 1.0) -> np.ndarray:
         """The joint reference (D,) at servo tick ``t_ns``; the playback clock advances by ``scale``."""

@@ -339,9 +339,10 @@ class Run:
         chunk = arrival.chunk
         # Simulated time: the healthy latency; an injected latency fault is an incident to diagnose, not a refusal.
         latency = arrival.latency_ns if self.clock.realtime else round(NOMINAL_INFERENCE_S * 1e9)
+        period = self.clock.period_ns
         try:
-            check_startup(self.policy, self._first_observation, chunk, latency, self.scenario.guard.blend_s,
-                          self.clock.period_ns)
+            check_startup(self.policy, self._first_observation, chunk, latency, self.scenario.guard.blend_s, period,
+                          max(round(1e9 / self.scenario.policy_hz), latency + period))  # to the next observation
         except StartupRefused as exc:
             self._refuse(str(exc))
         # from where the robot was commanded to be (the measured pose lags it: planning from there stepped the command)

@@ -5,11 +5,16 @@ normalisation statistics (per-dimension q01..q99, widened by a margin of the ran
 policy offers them as ``normalisation_stats() -> {name: (q01, q99)}`` (finite, q01 <= q99, one
 per observed value, else refused too: NaN statistics compared false and passed; in the cell's units
 and joint order, as the policy's adapter sees the observation; a name the cell does not observe is
-refused, not skipped: the check never ran); and the inference
-latency fits the chunk (latency plus one servo period < horizon minus the blend time, the blend
-counted at most half the horizon), else the robot would run out of steps before the next chunk
-arrives. A chunk is taken at the tick after it is ready, up to one period later: a 2 Hz robot
-took every 500 ms chunk with all its steps past, and did nothing.
+refused, not skipped: the check never ran); and the next chunk arrives in time to be blended in
+(the next observation's time after this one, plus latency, plus one servo period < horizon minus
+the blend time, the blend counted at most half the horizon), else the robot would run out of steps
+before the next chunk arrives. A chunk is taken at the tick after it is ready, up to one period
+later: a 2 Hz robot took every 500 ms chunk with all its steps past, and did nothing. The next
+observation waits for this chunk (one request at a time) and the policy's period: counting the
+latency alone let through 298 ms on the scripted arm's 500 ms chunks, at which every chunk ended
+before the next arrived and the guard braked each. A worker may ask later still, when the chunk
+runs low (half its horizon, as LeRobot's async client): that shortens a blend, it never lets a
+chunk run out, since this check keeps the latency under half the horizon.
 """
 
 from __future__ import annotations
@@ -28,9 +33,11 @@ class StartupRefused(ConfigError):
 
 
 def check_startup(policy, observation, chunk, latency_ns: int, blend_s: float, period_ns: int,
-                  margin: float = STATS_MARGIN) -> None:
+                  spacing_ns: int | None = None, margin: float = STATS_MARGIN) -> None:
     """Raise StartupRefused naming the first dimension out of range or a latency the chunk cannot cover
-    (``period_ns``: the servo period, the longest a ready chunk waits for its tick)."""
+    (``period_ns``: the servo period, the longest a ready chunk waits for its tick; ``spacing_ns``: the longest
+    time from one observation to the next; None: until the chunk is taken, the least with one request at a
+    time)."""
     stats = getattr(policy, "normalisation_stats", None)
     if callable(stats) and observation is not None:
         given = stats()
@@ -54,10 +61,14 @@ def check_startup(policy, observation, chunk, latency_ns: int, blend_s: float, p
                                      f"(q01..q99 with {margin:.0%} margin); not moving")
     horizon_s = chunk.actions.shape[0] * chunk.dt_ns * 1e-9
     blend_s = min(blend_s, 0.5 * horizon_s)  # a chunk shorter than two blends is re-asked for within its first half
-    if (latency_ns + period_ns) * 1e-9 >= horizon_s - blend_s:
+    taken_ns = latency_ns + period_ns
+    spacing_ns = taken_ns if spacing_ns is None else spacing_ns
+    if (spacing_ns + taken_ns) * 1e-9 >= horizon_s - blend_s:  # the next chunk, taken after this one's observation
         raise StartupRefused(f"start-up: inference latency {latency_ns * 1e-6:.0f} ms plus one servo period "
                              f"{period_ns * 1e-6:.0f} ms (a chunk is taken at the next tick) does not fit the chunk: "
-                             f"horizon {horizon_s * 1e3:.0f} ms minus blend {blend_s * 1e3:.0f} ms; not moving")
+                             f"horizon {horizon_s * 1e3:.0f} ms minus blend {blend_s * 1e3:.0f} ms, counted from the "
+                             f"next observation, {spacing_ns * 1e-6:.0f} ms after this one (one request at a time); "
+                             f"not moving")
 
 
 def _checked_stats(name: str, pair, value: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

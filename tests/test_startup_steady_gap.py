@@ -1,0 +1,70 @@
+"""The start-up latency check counts when the NEXT chunk arrives: one request at a time, the next observation
+waits for this chunk and the policy's period. Counting the latency alone let through 298 ms on the scripted arm's
+500 ms chunks, at which every chunk ended before the next arrived."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from cellguard.policy.chunk import ActionChunk
+from cellguard.robot.registry import make_cell
+from cellguard.runtime import Run
+from cellguard.runtime.startup import StartupRefused, check_startup
+from cellguard.scenario import parse_scenario
+
+MS = 1_000_000
+
+
+class _Held:
+    """A policy that answers every observation with the pose ``q``, held for ``h`` steps of 20 ms."""
+
+    source = "test:held"
+
+    def __init__(self, q, h: int = 25):
+        self.q, self.h = np.asarray(q, dtype=np.float64), h
+
+    def reset(self):
+        pass
+
+    def content_hash(self):
+        return "0" * 64
+
+    def infer(self, observation):
+        return ActionChunk(np.tile(self.q, (self.h, 1)), observation.t_ns, 20 * MS)
+
+
+def _chunk(t_obs_ns: int = 0) -> ActionChunk:
+    return ActionChunk(np.zeros((25, 6)), t_obs_ns, 20 * MS)  # the scripted arm's: 25 steps of 20 ms
+
+
+def test_a_latency_at_which_every_chunk_runs_out_is_refused():
+    """250 ms on 500 ms chunks at 20 Hz: the next observation goes when this chunk is in (251 ms), its chunk 251 ms
+    later: 502 ms, past the 300 ms before the blend. The latency alone (251 ms) fitted; so does it with no spacing
+    given (the least: until the chunk is taken)."""
+    with pytest.raises(StartupRefused, match=r"latency 250 ms plus one servo period 1 ms .* horizon 500 ms minus "
+                                             r"blend 200 ms, counted from the next observation, 251 ms after this one"):
+        check_startup(object(), None, _chunk(), 250 * MS, 0.2, MS)
+    check_startup(object(), None, _chunk(), 140 * MS, 0.2, MS)  # 282 ms
+
+
+def test_a_short_chunk_asked_for_at_10_hz_is_refused_before_the_robot_moves():
+    """100 ms chunks at 10 Hz on simulated time: each ended 11 ms before the next arrived (the guard braked the
+    reference at every chunk); the check took the 10 ms latency alone against the 50 ms budget and moved."""
+    q0 = make_cell("arm-pick-place").q_home
+    run = Run(parse_scenario({"cell": "arm-pick-place", "policy_hz": 10, "acceptance_cycles": 1, "production_cycles": 0,
+                              "cycle": {"source": "time", "seconds": 1.0}}), policy_factory=lambda: _Held(q0, h=5))
+    with pytest.raises(StartupRefused, match=r"latency 10 ms plus one servo period 1 ms .* horizon 100 ms minus "
+                                             r"blend 50 ms, counted from the next observation, 100 ms after this one"):
+        run.cycle()
+    assert [e.kind for e in run.events][-1] == "startup_refused"
+    assert np.abs(run.cell.read().q - q0).max() < 1e-3
+
+
+def test_a_simulated_latency_fault_is_still_no_refusal():
+    """On simulated time the check takes the healthy latency: a latency fault is an incident to diagnose."""
+    run = Run(parse_scenario({"cell": "arm-pick-place", "acceptance_cycles": 1, "production_cycles": 0,
+                              "cycle": {"source": "time", "seconds": 0.5},
+                              "faults": [{"kind": "policy_latency", "at_cycle": 0, "ms": 280}]}))
+    run.cycle()
+    assert "startup_refused" not in [e.kind for e in run.events]
