@@ -225,6 +225,27 @@ def test_ctrl_c_in_a_release_stage_counts_no_run_and_evaluates_no_gate(tmp_path,
     assert [r.name for r in Store(site).runs(CELL, "sim", release)] == ["first", "second"]
 
 
+def test_ctrl_c_while_a_release_runs_record_closes_stops_the_stage(tmp_path, monkeypatch):
+    """A signal after the cycles, while the record closed or the summary was written, was counted and forgotten:
+    the stage started its next run, evaluated its gates and exited 0 (the operator's stop ignored)."""
+    plan, site, release = two_runs_at_sim(tmp_path, 1)
+    close = Run.close
+
+    def close_under_a_signal(run):
+        signal.raise_signal(signal.SIGINT)
+        close(run)
+
+    monkeypatch.setattr(Run, "close", close_under_a_signal)
+    result = cli("run", "--cell", CELL, "--stage", "sim", "--plan", str(plan), "--site", str(site))
+    assert result.exit_code == 130, result.output
+    assert "during sim run 'first'" in result.stderr.strip().splitlines()[-1]
+    folders = list((site / "runs" / CELL / "sim").iterdir())
+    assert len(folders) == 1  # the second run never started
+    assert json.loads((folders[0] / "summary.json").read_text())["stopped"] == "operator stop (SIGINT)"
+    assert Store(site).runs(CELL, "sim", release) == []
+    assert [e.body["kind"] for e in entries(Store(site))] == ["promote"]
+
+
 def test_a_stop_during_an_operator_hand_over_hold_plays_no_retreat():
     """Ctrl-C while the cell was held for an operator (someone in the cell): the attempt read 'resumed' and the
     arm was driven home at once."""

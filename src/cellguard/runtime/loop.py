@@ -695,14 +695,23 @@ def run_scenario(scenario: Scenario, out: Path, on_cycle: Callable[[dict], None]
         finally:
             run.close()
         try:
-            summary = run.summary()
-            if run.stopped:
-                summary["stopped"] = run.stopped
-            if run.recording.failed:  # mid-run (the cell was stopped), or only at close: the record is not whole
-                summary["record_failed"] = run.recording.failed
-            write_output(out / "summary.json", json.dumps(summary, indent=1), "summary")
+            summary = _write_summary(run, out)
+            if run.operator.count and not run.stopped:  # a signal while the record closed or the summary was written
+                run.stopped = run.operator.reason  # is the operator's stop all the same (a release ran its next run)
+                summary = _write_summary(run, out)
         finally:
             run.recording.release_folder()
+    return summary
+
+
+def _write_summary(run: Run, out: Path) -> dict:
+    """``out/summary.json``: the run's summary, why it stopped, whether its record is whole; returned."""
+    summary = run.summary()
+    if run.stopped:
+        summary["stopped"] = run.stopped
+    if run.recording.failed:  # mid-run (the cell was stopped), or only at close: the record is not whole
+        summary["record_failed"] = run.recording.failed
+    write_output(out / "summary.json", json.dumps(summary, indent=1), "summary")
     return summary
 
 
