@@ -26,7 +26,8 @@ candidate finding, classified from the size and sign of its changes over the fau
   joint whose change is under ``COUPLED`` of a joint's that changed no later is that joint's
   consequence, told in its evidence, not a second cause; unless its tracking error grew with no
   more current (a coupled joint's change reaches it as a load, which its servo answers with current),
-  or, on an arm, more than its current under a friction lead (friction keeps the lead's motion).
+  or, on an arm, more than its current under a friction lead (friction keeps the lead's motion), or, on
+  an arm, its own friction torque rose (its drive does more work over its own travel).
   Where the camera saw the part move and the grasp pose followed it, the arm moves to another pick
   point: a joint change under ``PATH`` that began with it is its new path's, told in the geometry finding.
 - policy timing (latency, stale chunks) and policy output (rejected chunks) speak for
@@ -51,6 +52,7 @@ CAUSES = ("fixture_shift", "friction", "servo", "camera_shift", "tool_slip", "po
 SIGNIFICANT_MM = 0.3  # [mm] a geometric change smaller than this is noise at this camera
 CONCURRENT = 2  # [cycles] changes this close together are one episode
 UNCHANGED_Z = 3.0  # |median residual| below this, in baseline scales, reads as "unchanged"
+BACK = 1.0  # [scales] a change whose features read under this (median) on the cycles after it has ended
 MATERIAL = 0.01  # a joint whose current and tracking error moved less than 1 % stays an alarm, not a cause
 QUIET = 0.02  # current and tracking error both moved less: the friction torque speaks for the joint
 STEP_CLIP = 8.0  # [scales] residuals clipped this far when a step is fitted (one odd cycle does not move it)
@@ -101,14 +103,19 @@ class _Window:
         centre, _ = baseline.centre_and_scale(cycles)
         self._d = feature_matrix(cycles, baseline.names) - centre  # change from the motion's baseline
 
-    def delta(self, name: str, start: int) -> float:
-        """Median change of ``name`` over cycles >= ``start`` [its unit]; NaN if never read."""
+    def delta(self, name: str, start: int, plus: Sequence[str] = (), minus: Sequence[str] = (),
+              end: int | None = None) -> float:
+        """Median change of ``name`` over cycles >= ``start`` (and before ``end``, a change that ended) [its unit],
+        each cycle's plus those of the features ``plus`` and minus those of ``minus`` that are read (a position
+        from its parts, whose noise is measured against each other's); NaN if never read."""
         if name not in self.baseline.names:
             return float("nan")
-        j = self.baseline.names.index(name)
-        rows = [i for i, c in enumerate(self.cycles) if c.index >= start]
-        col = np.where(np.isnan(self.z[rows, j]), np.nan, self._d[rows, j])  # z is NaN at another load
-        col = col[~np.isnan(col)]
+        terms = [(self.baseline.names.index(n), sign) for names, sign in (((name, *plus), 1.0), (minus, -1.0))
+                 for n in names if n in self.baseline.names]
+        rows = [i for i, c in enumerate(self.cycles) if start <= c.index and (end is None or c.index < end)]
+        cols, signs = [j for j, _ in terms], np.array([sign for _, sign in terms])
+        col = (np.where(np.isnan(self.z[np.ix_(rows, cols)]), np.nan, self._d[np.ix_(rows, cols)]) * signs).sum(axis=1)
+        col = col[~np.isnan(col)]  # z is NaN at another load
         return float(np.median(col)) if len(col) else float("nan")
 
     def zmed(self, name: str, start: int) -> float:
@@ -148,6 +155,15 @@ class _Window:
             return None
         off = index[(index >= since) & (s >= UNCHANGED_Z)]
         return int(off[0]) if len(off) else None
+
+    def until(self, alarms: Sequence[DriftAlarm], start: int) -> int | None:
+        """The cycle ``alarms``' change ended on: the one after the last that their features were off (signed mean
+        residual ``UNCHANGED_Z`` or more) from ``start`` on, where more than ``CONCURRENT`` cycles follow it and
+        read the baseline (median under ``BACK``); None while it lasts to the record's end."""
+        index, s = self._signed(alarms)
+        off = index[(index >= start) & (s >= UNCHANGED_Z)]
+        after = index > off[-1] if len(off) else np.zeros(0, dtype=bool)
+        return int(index[after][0]) if after.sum() > CONCURRENT and np.median(s[after]) < BACK else None
 
     def _signed(self, alarms: Sequence[DriftAlarm]) -> tuple[np.ndarray, np.ndarray]:
         """(cycle index, mean residual) over the cycles that read ``alarms``' features: each residual
@@ -204,12 +220,12 @@ def name_causes(baseline: Baseline, cycles: Sequence[Cycle], z: np.ndarray, alar
     if other and not findings:
         findings.append(Finding("unknown", _onset(other), 0.3, tuple(
             f"{a.signal} went {'up' if a.direction > 0 else 'down'} from cycle {a.onset} "
-            f"({_fmt(w.delta(a.signal, a.onset))} vs baseline)" for a in other[:4]) + (
+            f"({_fmt(w.delta(a.signal, a.onset, end=w.until([a], a.onset)))} vs baseline)" for a in other[:4]) + (
             "no pattern of a known cause",), tuple(sorted({a.signal for a in other}))))
     elif other:
         first = min(findings, key=lambda f: abs(f.cycle - _onset(other)))
         extra = tuple(f"also {a.signal} {'up' if a.direction > 0 else 'down'} "
-                      f"({_fmt(w.delta(a.signal, a.onset))})" for a in other[:3])
+                      f"({_fmt(w.delta(a.signal, a.onset, end=w.until([a], a.onset)))})" for a in other[:3])
         findings[findings.index(first)] = Finding(first.cause, first.cycle, first.confidence,
                                                   first.evidence + extra, first.signals, first.joints)
     return sorted(findings, key=lambda f: (f.cycle, f.cause))
@@ -223,9 +239,11 @@ def _onset(alarms: Sequence[DriftAlarm]) -> int:
 def _latency(w: _Window, alarms: list[DriftAlarm]) -> Finding:
     start = _onset(alarms)
     base = w.baseline.median("latency_mean_ms") if "latency_mean_ms" in w.baseline.names else float("nan")
-    d = w.delta("latency_mean_ms", start)
-    stale = w.delta("stale_chunks", start)
-    evidence = [f"policy latency {base + d:.0f} ms per chunk vs {base:.0f} ms at acceptance"]
+    end = w.until(alarms, start)  # a latency that came and went is read over its own cycles
+    d = w.delta("latency_mean_ms", start, end=end)
+    stale = w.delta("stale_chunks", start, end=end)
+    evidence = [f"policy latency {base + d:.0f} ms per chunk vs {base:.0f} ms at acceptance" + (
+        f", on cycles {start} to {end - 1}; back to {base:.0f} ms from cycle {end}" if end is not None else "")]
     if np.isfinite(stale) and stale > 0:
         evidence.append(f"{stale:.0f} more stale chunk steps dropped per cycle")
     evidence.append("late chunks answer old observations, so the robot follows a stale plan")
@@ -320,9 +338,10 @@ def _geometry(w: _Window, alarms: list[DriftAlarm], outcome: list[DriftAlarm]) -
         why = (f"the part really sat only {_vec(real)} from its acceptance place: the camera moved "
                "(its calibration no longer holds)")
         return Finding("camera_shift", start, conf, words + (why,) + tuple(tail), signals)
-    if np.linalg.norm(off) >= SIGNIFICANT_MM:
-        q = [abs(w.zmed(n, start)) for n in w.baseline.names if n.startswith("grasp_q.")]
-        q_still = not q or np.nanmax(q) < UNCHANGED_Z
+    q = [w.zmed(n, start) for n in w.baseline.names if n.startswith("grasp_q.")]
+    q_still = not q or np.linalg.norm(np.nan_to_num(q)) < UNCHANGED_Z
+    stayed = _part_stayed(w, alarms, start)
+    if np.linalg.norm(off) >= SIGNIFICANT_MM and (q_still or not stayed):  # else the joints closed the tool elsewhere
         conf = _squash(np.linalg.norm(off) / (np.linalg.norm(off) + np.linalg.norm(seen))) if q_still else 0.4
         words = (f"part-to-tool offset at grasp changed {_vec(off)}",
                  f"camera-seen part unchanged ({_vec(seen)})",
@@ -330,9 +349,9 @@ def _geometry(w: _Window, alarms: list[DriftAlarm], outcome: list[DriftAlarm]) -
                  "the tool point moved on the flange: the tool slipped")
         return Finding("tool_slip", start, conf, words + tuple(tail), signals)
     words = (f"geometry changed in no pattern of a known cause: {_moved(w, alarms, start)}",)
-    if _part_stayed(w, alarms, start):
+    if stayed:
         words += ("the part really sat where it did (grasp pose plus offset within "
-                  f"{SIGNIFICANT_MM} mm on every axis): the tool closed on it at another point",)
+                  f"{SIGNIFICANT_MM} mm of the camera's reading on every axis): the tool closed on it at another point",)
     return Finding("unknown", start, 0.3, words + tuple(tail), signals)
 
 
@@ -347,26 +366,28 @@ CONSEQUENCE_OF = ("policy_latency", "servo", "friction", "load_change")  # what 
 
 def _part_stayed(w: _Window, alarms: Sequence[DriftAlarm], start: int) -> bool:
     """Whether only the grasp moved: the camera saw nothing, and on each axis the grasp pose plus the
-    part-to-tool offset (where the part really sat) stayed within ``SIGNIFICANT_MM``."""
+    part-to-tool offset (where the part really sat) stayed within ``SIGNIFICANT_MM`` of where the camera
+    saw it, cycle by cycle (a stale plan that nudges the part moves both)."""
     if any(a.signal.startswith(("part_seen_", "fixture_seen_")) for a in alarms):
         return False
-    real = [w.delta(f"grasp_tcp_{ax}_mm", start) + w.delta(f"grasp_offset_{ax}_mm", start) for ax in "xyz"]
+    real = [w.delta(f"grasp_tcp_{ax}_mm", start, [f"grasp_offset_{ax}_mm"], [f"part_seen_{ax}_mm"]) for ax in "xyz"]
     real = [r for r in real if np.isfinite(r)]
     return bool(real) and max(abs(r) for r in real) < SIGNIFICANT_MM
 
 
-def _with_grasp(w: _Window, grasp: Finding, alarms: list[DriftAlarm], findings: list[Finding]) -> list[Finding]:
+def _with_grasp(w: _Window, grasp: Finding, alarms: list[DriftAlarm], findings: list[Finding],
+                when: str = "") -> list[Finding]:
     """``findings`` with the geometry finding ``grasp``: an unknown one where only the grasp moved (the
     part really sat where it did) is the consequence of a concurrent change in how the arm moves (a
     stale plan, a joint that lags or needs more torque closes the tool at another point of its path):
-    told in that finding's evidence."""
+    told in that finding's evidence, on the cycles ``when`` says (from its first on by default)."""
     host = None
     if grasp.cause == "unknown" and _part_stayed(w, alarms, grasp.cycle):
         near = [f for f in findings if f.cause in CONSEQUENCE_OF and abs(f.cycle - grasp.cycle) <= CONCURRENT]
         host = min(near, key=lambda f: (abs(f.cycle - grasp.cycle), -f.confidence), default=None)
     if host is None:
         return findings + [grasp]
-    note = (f"also from cycle {grasp.cycle} the tool closed at another point of its path "
+    note = (f"also {when or f'from cycle {grasp.cycle}'} the tool closed at another point of its path "
             f"({_moved(w, alarms, grasp.cycle)}), the part where it was",)
     return [told(f, note, grasp.signals) if f is host else f for f in findings]
 
@@ -517,9 +538,12 @@ def _own_drive(r: tuple, lead: tuple, grounded: bool) -> bool:
     (rated ``servo``): friction acts between the lead joint's own two links, whose drive supplies it and
     keeps the motion (its error rose a little), so the others feel a load no larger than that small lag
     makes (on an arm a friction x1.5 leaves the other joints' current and error within their noise).
+    Off the ground so is a joint whose friction torque stood out of its noise and rose ``MATERIAL`` or more: the
+    work its drive does over its own travel grew, which a coupled joint's load, answered by a little current
+    (an arm's follower: 1.5 %), does not make (a wrist's friction x4 leaves the shoulder's within its noise).
     On a leg a joint rated friction may be one carrying a weak leg's share, not a lead of its own."""
-    return r[1] == "servo" and ((r[4] >= QUIET and abs(r[8]) < MATERIAL)
-                                or (lead[1] == "friction" and not grounded))
+    own_error = r[1] == "servo" and ((r[4] >= QUIET and abs(r[8]) < MATERIAL) or (lead[1] == "friction" and not grounded))
+    return own_error or (not grounded and r[7] >= MATERIAL)
 
 
 def _by_leg(alarms: Sequence[DriftAlarm]) -> dict[str, list[DriftAlarm]]:
@@ -546,16 +570,24 @@ def _feet(w: _Window, alarms: list[DriftAlarm]) -> list[Finding]:
 
 def intermittent_finding(baseline: Baseline, cycles: Sequence[Cycle], z: np.ndarray, found) -> Finding:
     """Name an intermittent pattern from its hit cycles alone, the way a persistent one is named."""
-    rows = [i for i, c in enumerate(cycles) if c.index in set(found.cycles)]
-    hits = [cycles[i] for i in rows]
-    w = _Window(baseline, hits, z[rows])
-    alarms = [DriftAlarm(s, found.first, 0.0, found.first, 0) for s in _off_on_hits(w, found)]
+    w, alarms = _on_hits(baseline, cycles, z, found)
     named = _geometry(w, alarms, []) if found.family == "geometry" else Finding(
         "unknown", found.first, 0.3, (f"{', '.join(found.signals[:4])} off on some cycles",), found.signals)
     watched = len(cycles) - next(i for i, c in enumerate(cycles) if c.index == found.first)
-    head = (f"intermittent: {len(hits)} of {watched} cycles from cycle {found.first} on ({found.rate:.0%}), "
-            f"cycles {', '.join(str(i) for i in found.cycles[:8])}{' ...' if len(hits) > 8 else ''}",)
+    head = (f"intermittent: {len(found.cycles)} of {watched} cycles from cycle {found.first} on ({found.rate:.0%}), "
+            f"{_hit_cycles(found)}",)
     return Finding(named.cause, found.first, named.confidence, head + named.evidence, named.signals, rate=found.rate)
+
+
+def _on_hits(baseline: Baseline, cycles: Sequence[Cycle], z: np.ndarray, found) -> tuple[_Window, list[DriftAlarm]]:
+    """The window over an intermittent pattern's hit cycles, and its features as alarms from its first."""
+    rows = [i for i, c in enumerate(cycles) if c.index in set(found.cycles)]
+    w = _Window(baseline, [cycles[i] for i in rows], z[rows])
+    return w, [DriftAlarm(s, found.first, 0.0, found.first, 0) for s in _off_on_hits(w, found)]
+
+
+def _hit_cycles(found) -> str:
+    return f"cycles {', '.join(str(i) for i in found.cycles[:8])}{' ...' if len(found.cycles) > 8 else ''}"
 
 
 def _off_on_hits(w: _Window, found) -> tuple[str, ...]:
@@ -569,21 +601,30 @@ def _off_on_hits(w: _Window, found) -> tuple[str, ...]:
     return tuple(sorted(off.union(found.signals)))
 
 
-def intermittent_findings(baseline: Baseline, cycles: Sequence[Cycle], z: np.ndarray, found: Sequence) -> list[Finding]:
-    """Each intermittent pattern named (``intermittent_finding``); a pattern with no known cause whose
-    cycles are all cycles of a named one (the place error off on the cycles the tool slipped) is that
-    fault seen again, told in its evidence."""
+def intermittent_findings(baseline: Baseline, cycles: Sequence[Cycle], z: np.ndarray, found: Sequence,
+                          findings: Sequence[Finding] = ()) -> list[Finding]:
+    """``findings`` (the persistent ones) and each intermittent pattern named (``intermittent_finding``); a
+    pattern with no known cause whose cycles are all cycles of a named one (the place error off on the cycles
+    the tool slipped), or of a geometry one, is that fault seen again, told in its evidence. A geometry pattern
+    where only the grasp moved is told in a concurrent finding of how the arm moves, as a persistent one is
+    (``_with_grasp``: a latency on a few cycles closes the tool elsewhere on just those)."""
     named = [(f, intermittent_finding(baseline, cycles, z, f)) for f in found]
-    hosts = {id(f): next((g for g, other in named if other.cause != "unknown" and set(f.cycles) <= set(g.cycles)), None)
+    hosts = {id(f): next((g for g, other in named if (other.cause != "unknown" or g.family == "geometry")
+                          and g is not f and set(f.cycles) <= set(g.cycles)), None)
              if finding.cause == "unknown" else None for f, finding in named}
-    out = []
+    out = list(findings)
     for g, finding in named:
         if hosts[id(g)] is not None:
             continue
         same = [f for f, _ in named if hosts[id(f)] is g]
         words = tuple(f"also {', '.join(f.signals[:4])} off on {'the same' if f.cycles == g.cycles else 'some of its'} "
                       "cycles" for f in same)
-        out.append(told(finding, words, [s for f in same for s in f.signals]))
+        finding = told(finding, words, [s for f in same for s in f.signals])
+        if g.family == "geometry":
+            w, alarms = _on_hits(baseline, cycles, z, g)
+            out = _with_grasp(w, finding, alarms, out, when=f"on {_hit_cycles(g)}")
+        else:
+            out.append(finding)
     return out
 
 

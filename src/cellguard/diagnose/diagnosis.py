@@ -101,8 +101,8 @@ def diagnose(rows: Iterable[object], events: Iterable[object] = (), context: Map
         if e.get("cycle") is None:
             e["cycle"] = _cycle_of(e["t_ns"], spans)
     rejected = _rejections(watched, evs)
-    findings = list(name_causes(baseline, watched, drift.z, drift.alarms, rejected))
-    findings += intermittent_findings(baseline, watched, z, found)
+    findings = intermittent_findings(baseline, watched, z, found,
+                                     name_causes(baseline, watched, drift.z, drift.alarms, rejected))
     findings = with_residual(findings, residual_alarms(rows))  # the calibration's residual monitor, if it ran
     asym = mirrored_asymmetry(watched, symmetry)
     if asym is not None and asym.side:
