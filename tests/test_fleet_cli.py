@@ -67,7 +67,8 @@ def test_similar_from_a_folder_and_by_id_within_the_callers_rights(env):
         r = cli("push", root / "run", "--policy", root / f"{tenant}-{site}.yaml", "--site-dir", root / site,
                 dsn=tenants[tenant])
         assert r.exit_code == 0, r.output
-    out = cli("similar", root / "run", "--policy", root / "ta-s1.yaml", "--json", dsn=tenants["ta"])
+    out = cli("similar", root / "run", "--policy", root / "ta-s1.yaml", "--site-dir", root / "s1-similar", "--json",
+              dsn=tenants["ta"])  # its probes are logged there (not in ./cellguard-fleet)
     assert out.exit_code == 0, out.output
     findings = json.loads(out.stdout)["findings"]
     top = findings[0]["neighbours"]

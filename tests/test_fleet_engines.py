@@ -128,13 +128,15 @@ def test_a_tenant_gets_cross_customer_rows_only_over_k_customers(lake):
         DuckDBEngine(root, "t0").run("frequency", {"k": 2})  # the lake's least (5) wins over the k asked
     with pytest.raises(RefusedAggregate, match="fewer than 4 customers"):
         DuckDBEngine(root, "t0", min_customers=2).run("introduced", {"k": 4})
-    t0 = DuckDBEngine(root, "t0", min_customers=3)
+    with pytest.raises(RefusedAggregate, match="fewer than 3 customers"):
+        DuckDBEngine(root, "t0", min_customers=3).run("frequency", {"k": 1})  # its own folder counts toward no k
+    t9 = DuckDBEngine(root, "t9", min_customers=3)  # holds nothing in the lake: its 3 customers are others
     for name in ("frequency", "introduced", "fixes"):
-        rows = t0.run(name, {"k": 1})  # asked for 1, given 3
+        rows = t9.run(name, {"k": 1})  # asked for 1, given 3
         assert rows == operator.run(name, {"k": 3}), name
         assert all(r["customers"] >= 3 for r in rows)
     with pytest.raises(ConfigError, match="--scope: 'all'"):
-        t0.run("frequency", scope="all")
+        t9.run("frequency", scope="all")
 
 
 def test_duckdb_and_postgresql_agree_within_one_tenants_rights(lake, tmp_path):

@@ -170,11 +170,13 @@ def test_cross_customer_aggregate_under_k_customers_is_refused(fleet):
         TenantStore(dsns["ta"]).run("frequency", {"k": 2})  # the caller cannot go under the store's k
     store.set_min_customers(3)
     try:
-        rows = TenantStore(dsns["tb"]).run("frequency", {"k": 3})
+        rows = TenantStore(dsns["td"]).run("frequency", {"k": 3})  # td holds none: the 3 customers are others
         assert {r["cause"] for r in rows} == {"friction", "fixture_shift", "servo"}
         assert all(r["customers"] == 3 and r["signatures"] == 4 for r in rows)
+        with pytest.raises(RefusedAggregate, match="fewer than 3 customers"):
+            TenantStore(dsns["tb"]).run("frequency", {"k": 3})  # tb's own rows count toward no k: 2 others
         with pytest.raises(RefusedAggregate, match="fewer than 4 customers"):
-            TenantStore(dsns["tb"]).run("fixes", {"k": 4})
+            TenantStore(dsns["td"]).run("fixes", {"k": 4})
     finally:
         store.set_min_customers(5)
 
@@ -311,9 +313,9 @@ GRANT SELECT ON signatures TO cgtest_fleet_agg;
 
 def test_a_temporary_view_cannot_stand_in_for_the_table_of_a_cross_customer_function(fleet):
     store, dsns = fleet
-    store.set_min_customers(3)  # the 3 customers' rows pass k, so the function body runs
+    store.set_min_customers(2)  # the 2 customers besides ta pass k, so the function body runs
     try:
-        honest = TenantStore(dsns["ta"]).run("frequency", {"k": 3})
+        honest = TenantStore(dsns["ta"]).run("frequency", {"k": 2})
         made, _ = as_tenant(dsns["ta"], HIJACK)
         assert isinstance(made, psycopg.errors.InsufficientPrivilege)  # tenants create no temporary object
         with store.admin() as con:  # and were one made, the function still reads fleet.signatures
@@ -321,7 +323,7 @@ def test_a_temporary_view_cannot_stand_in_for_the_table_of_a_cross_customer_func
             con.commit()
         with psycopg.connect(dsns["ta"], autocommit=True) as con:
             con.execute(HIJACK)
-            rows = con.execute("SELECT cause, customers FROM fleet.q_frequency(3)").fetchall()
+            rows = con.execute("SELECT cause, customers FROM fleet.q_frequency(2)").fetchall()
         assert sorted(rows) == sorted((r["cause"], r["customers"]) for r in honest)
         assert not any("|" in cause for cause, _ in rows)
         store.install()  # an existing store brought up to date: the grant is gone again

@@ -48,7 +48,8 @@ def push(
     """Diagnose the runs in FOLDER and send their fault signatures as the policy allows; queue if the store is down.
     Queued batches go only as the policy in force allows; one it does not, or one that cannot be read or
     that the store refuses, stays queued and is named on stderr (exit 1 for the last two); a run whose diagnosis
-    files cannot be kept beside it (read-only storage) is pushed, with one warning line each (exit 1)."""
+    files cannot be kept beside it (read-only storage) is pushed, with one warning line each (exit 1); a run whose
+    record is not whole (truncated, damaged, still being written) is not: one warning line each (exit 1)."""
     from cellguard.cli.diagnose import warn_if_unkept
     from cellguard.fleet.from_record import site_signatures
     from cellguard.fleet.lake import check_lake
@@ -63,7 +64,8 @@ def push(
             check_lake(lake)
         check_key_history(site_dir, pol)
         unkept: list[str] = []
-        sigs = site_signatures(folder, pol, acceptance, unkept) if pol.export != "nothing" else []
+        skipped: list[str] = []
+        sigs = site_signatures(folder, pol, acceptance, unkept, skipped) if pol.export != "nothing" else []
         result = do_push(sigs, pol, site_dir, tenant_store, lake)
         stdout.written(f"batch {result.batch.batch_id} in the audit log of {site_dir}")
     except CellguardError as exc:
@@ -86,8 +88,15 @@ def push(
         sys.stderr.write(f"note: {printable(line)}\n")
     for line in result.failed:
         sys.stderr.write(f"warning: {printable(line)}\n")
-    if warn_if_unkept(unkept) or result.failed:
+    if max(warn_if_unkept(unkept), _warn_if_skipped(skipped)) or result.failed:
         raise typer.Exit(1)
+
+
+def _warn_if_skipped(skipped: list[str]) -> int:
+    """One warning line per run left out because its record is not whole; the exit code: 1 then, else 0."""
+    for line in skipped:
+        say(f"warning: {line}")
+    return 1 if skipped else 0
 
 
 def _new_key_note(path: str) -> None:
@@ -101,7 +110,8 @@ def query(
     lake: Path | None = typer.Option(None, "--lake", help="Run on this Parquet lake instead of the store."),
     engine: str = typer.Option("duckdb", "--engine", help="On a lake: duckdb or spark."),
     spark_master: str = typer.Option("local[2]", "--spark-master", help="Spark master URL (spark://HOST:7077)."),
-    k: int = typer.Option(5, "--k", help="Least number of distinct customers behind a cross-customer row."),
+    k: int = typer.Option(5, "--k", help="Least number of distinct customers besides yours behind a "
+                          "cross-customer row (1..1000000; never under the store's or lake's least)."),
     scope: str = typer.Option("fleet", "--scope", help="fleet (cross-customer, k applies) or own (your rows)."),
     tenant: str | None = typer.Option(None, "--tenant", help="On a lake: query with this tenant's rights (its own "
                                       "folder; cross-customer only over k customers). Without it: the operator."),
@@ -149,14 +159,19 @@ def similar(
     limit: int = typer.Option(5, "--limit", help="Neighbours per finding."),
     acceptance: Path | None = ACCEPTANCE,
     store: str | None = STORE,
+    site_dir: Path = SITE_DIR,
     as_json: bool = JSON,
 ) -> None:
-    """The nearest signatures from other sites (same robot model first), with what fixed them and how often."""
+    """The nearest signatures from other sites (same robot model first), with what fixed them and how often.
+    A run folder's findings are sent to the store as probes: only under a policy that exports signatures, and
+    logged in the audit log of --site-dir first; a run whose record is not whole is left out (one warning line
+    each, exit 1)."""
     from cellguard.cli.diagnose import warn_if_unkept
     from cellguard.errors import ConfigError
     from cellguard.fleet import similar as sim
 
     unkept: list[str] = []  # a run folder on read-only storage: its diagnosis's files not kept beside it
+    skipped: list[str] = []  # a run whose record is not whole
     try:
         if not store:
             raise ConfigError("--store: no fleet store DSN (or CELLGUARD_FLEET_DSN)")
@@ -167,8 +182,10 @@ def similar(
             if policy is None:
                 raise ConfigError("--policy: needed with a run folder (it names this site)")
             site_policy = load_policy(policy)
+            sim.check_policy(site_policy)
             probes = [sim.as_sent(p, site_policy.withheld) for p in site_signatures(Path(target), site_policy,
-                                                                                       acceptance, unkept)]
+                                                                                       acceptance, unkept, skipped)]
+            sim.log_probes(site_dir, probes, site_policy, st.where)
         else:
             probes = [sim.probe_of(st, target)]
         out = [{"cause": p.cause, "neighbours": [n.to_dict() for n in sim.similar(st, p, limit)]} for p in probes]
@@ -184,7 +201,7 @@ def similar(
                                   f"({x['scope']})" for x in n["fixes"]) or "no fix known"
                 say(f"  {n['similarity']:.3f} {n['cause']} at site {n['site_id']} ({n['robot_model']}): {fixes}",
                     err=False)
-    if warn_if_unkept(unkept):
+    if max(warn_if_unkept(unkept), _warn_if_skipped(skipped)):
         raise typer.Exit(1)
 
 

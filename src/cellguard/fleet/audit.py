@@ -3,8 +3,9 @@
 Append-only at the site, never sent. A line is written whole (one ``write`` of an ``O_APPEND``
 file, then fsync), so a crash leaves every earlier line intact. Statuses: ``queued`` (in the
 outbox), ``sent``, ``duplicate`` (the store had every row), ``nothing`` (an empty export),
-``held`` (the policy in force no longer lets a queued batch leave; ``reason`` says why) and
-``refused`` (the store refused it; ``reason``); a held or refused batch stays in the outbox. A
+``held`` (the policy in force no longer lets a queued batch leave; ``reason`` says why),
+``refused`` (the store refused it; ``reason``) and ``probed`` (a run's findings sent by ``fleet
+similar`` to look for similar faults, never stored); a held or refused batch stays in the outbox. A
 batch that leaves is logged with ``policy_in_force``, the version of the policy it left under.
 
 A damaged log is read as far as it goes: ``scan_audit`` returns the entries and names each line
@@ -23,7 +24,7 @@ from cellguard.fleet.export import Batch
 from cellguard.yaml_file import read_bounded
 
 AUDIT_FILE = "audit.jsonl"
-STATUSES = ("queued", "sent", "duplicate", "nothing", "held", "refused")
+STATUSES = ("queued", "sent", "duplicate", "nothing", "held", "refused", "probed")
 FIELDS = {"when_utc": str, "what": str, "rows": int, "withheld_rows": int, "policy_version": str, "batch_id": str,
           "status": str}  # in every entry, of these types
 MAX_AUDIT_BYTES = 1 << 30  # [bytes] about 3 million entries

@@ -52,7 +52,7 @@ class DuckDBEngine:
                               "effect": pa.array([float(e) for _, e in probe], pa.float64())})
             self.con.register("probe", table)
             try:
-                cur = self.con.execute(render(q, allowed.params))
+                cur = self.con.execute(render(q, allowed.params, allowed.exprs))
                 cols = [d[0] for d in cur.description]
                 return [plain(dict(zip(cols, r))) for r in cur.fetchall()]
             finally:

@@ -1,4 +1,4 @@
-"""A site's signatures from its run folders: each folder's record diagnosed, each finding one row.
+"""A site's signatures from its run folders: each folder's whole record diagnosed, each finding one row.
 
 Reads the record (``record.mcap``) through the diagnosis, never the run's summary (its ground
 truth holds the injected faults). DIR is a run folder or a folder of run folders. The baseline
@@ -29,10 +29,14 @@ def run_folders(folder: Path) -> list[Path]:
 
 
 def site_signatures(folder: Path, policy: DataPolicy, acceptance: Path | None = None,
-                    unkept: list[str] | None = None) -> list[Signature]:
-    """Every finding of every run under ``folder``, as signatures of the policy's tenant and site;
+                    unkept: list[str] | None = None, skipped: list[str] | None = None) -> list[Signature]:
+    """Every finding of every whole run under ``folder``, as signatures of the policy's tenant and site;
     ``acceptance``: the record folder whose acceptance cycles are the baseline of every run; ``unkept``: as
-    ``diagnose_record``'s (a run on read-only storage is pushed, the files its diagnosis keeps beside it named)."""
+    ``diagnose_record``'s (a run on read-only storage is pushed, the files its diagnosis keeps beside it named).
+    A run whose record is not whole (truncated, damaged, or still being written) is not diagnosed: its findings
+    would differ from the whole record's (another onset, another confidence: other signature ids), so pooled now
+    they would be pooled again once it is whole. It is named in ``skipped``, one line each; with no list to name
+    it in, RecordError."""
     from cellguard.diagnose.from_record import diagnose_record
     from cellguard.record.reader import open_record
 
@@ -40,8 +44,22 @@ def site_signatures(folder: Path, policy: DataPolicy, acceptance: Path | None = 
     for run in run_folders(folder):
         with open_record(run) as rec:
             epoch_ns = rec.start_wall_ns if rec.epoch_wall_ns else 0  # stated in the context messages too
+            health = rec.health()
+        if not health.ok:
+            if skipped is None:
+                raise RecordError(_not_whole(run, health))
+            skipped.append(_not_whole(run, health))
+            continue
         diagnosis = diagnose_record(run, acceptance=acceptance, unkept=unkept)
         day = (dt.datetime.fromtimestamp(epoch_ns * 1e-9, dt.timezone.utc) if epoch_ns > 0
                else dt.datetime.now(dt.timezone.utc)).date()  # no epoch stated: the day of export
         out.extend(signatures_of(diagnosis.to_dict(), diagnosis.context, policy.tenant, policy.site, day))
     return out
+
+
+def _not_whole(run: Path, health) -> str:
+    """One line naming a run left out, what its record lacks and what makes it whole."""
+    then = ("run the command again once its run has ended" if health.writing
+            else f"`cellguard record recover {run} -o NEW_DIR` writes a finished copy" if health.recoverable
+            else "only a whole record's findings are pooled")
+    return f"{run}: {health.describe()}; its findings were left out: {then}"

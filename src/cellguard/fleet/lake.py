@@ -119,12 +119,6 @@ def tenant_of(path: str) -> str:
     return Path(path).parents[2].name.removeprefix("tenant=")
 
 
-def files(lake: Path, relation: str, tenant: str | None = None) -> str:
-    """The glob of ``relation``'s files: one tenant's, or (``None``) every tenant's."""
-    root = tenant_dir(lake, tenant) if tenant is not None else Path(lake) / "tenant=*"
-    return str(root / relation / "date=*" / "*.parquet")
-
-
 def paths(lake: Path, relation: str, tenant: str | None = None) -> list[str]:
     """``relation``'s files, listed (the lake's own path is taken literally, never as a pattern); a file
     that is a link or lies behind one below the lake is not listed."""

@@ -7,8 +7,9 @@ feature, effect``: one row per changed feature) and, for ``similar``, ``probe`` 
 effect``: the signature looked for). Parameters (``:k``, ``:site``, ...) are validated and
 written in as literals by ``render``.
 
-A cross-customer query returns only groups seen at ``:k`` or more distinct customers, and takes no value
-(a minimum, a date) from a group seen at fewer.
+A cross-customer query returns only groups seen at ``:k`` or more distinct customers other than the
+caller (``:caller``: a tenant's own rows, crafted or not, never make up the k it is shown), and takes no
+value (a minimum, a date) from a group seen at fewer.
 """
 
 from __future__ import annotations
@@ -44,25 +45,30 @@ class NamedQuery:
     cross_customer: bool = True  # False: rows of single signatures, only within the caller's rights
 
 
-_FREQUENCY = """
+# the customers behind a group who are not the caller: only they count toward k
+_OTHERS = "count(DISTINCT CASE WHEN tenant_id <> :caller THEN tenant_id END)"
+# a site is its tenant's: two customers' "s-1" are two sites (a tenant id holds no space)
+_SITES = "count(DISTINCT tenant_id || ' ' || site_id) AS sites"
+
+_FREQUENCY = f"""
 SELECT cause, robot_model, cellguard_version,
-       count(*) AS signatures, count(DISTINCT site_id) AS sites, count(DISTINCT tenant_id) AS customers
+       count(*) AS signatures, {_SITES}, count(DISTINCT tenant_id) AS customers
 FROM signatures
 GROUP BY cause, robot_model, cellguard_version
-HAVING count(DISTINCT tenant_id) >= :k
+HAVING {_OTHERS} >= :k
 ORDER BY signatures DESC, cause, robot_model NULLS LAST, cellguard_version NULLS LAST
 """
 
 # k applies to the (cause, policy version) groups before anything is taken from them: "first seen" and
 # "deployed" are minimums over groups seen at k or more customers only, so one customer's lone (or old-dated)
 # signature neither shows its date nor hides a cause from everyone
-_INTRODUCED = """
+_INTRODUCED = f"""
 WITH per_version AS (
   SELECT cause, policy_version, min(created_date) AS first_seen, count(*) AS signatures,
-         count(DISTINCT site_id) AS sites, count(DISTINCT tenant_id) AS customers
+         {_SITES}, count(DISTINCT tenant_id) AS customers
   FROM signatures WHERE policy_version IS NOT NULL
   GROUP BY cause, policy_version
-  HAVING count(DISTINCT tenant_id) >= :k),
+  HAVING {_OTHERS} >= :k),
 deployed AS (SELECT policy_version, min(first_seen) AS deployed FROM per_version GROUP BY policy_version),
 earliest AS (SELECT cause, min(first_seen) AS first_seen FROM per_version GROUP BY cause)
 SELECT v.cause, v.policy_version, d.deployed, v.first_seen, v.signatures, v.sites, v.customers
@@ -72,13 +78,13 @@ JOIN deployed d ON v.policy_version = d.policy_version
 ORDER BY v.cause, v.policy_version
 """
 
-_FIXES = """
+_FIXES = f"""
 SELECT cause, robot_model, recovery, count(*) AS signatures,
        sum(CASE WHEN recovery_outcome = 'success' THEN 1 ELSE 0 END) AS fixed,
        count(DISTINCT tenant_id) AS customers
 FROM signatures
 GROUP BY cause, robot_model, recovery
-HAVING count(DISTINCT tenant_id) >= :k
+HAVING {_OTHERS} >= :k
 ORDER BY cause, robot_model NULLS LAST, signatures DESC, recovery NULLS LAST
 """
 
@@ -129,35 +135,43 @@ def named(name: str) -> NamedQuery:
     return QUERIES[name]
 
 
-def render(query: NamedQuery, params: Mapping[str, object] | None = None, k_expr: str | None = None,
+def render(query: NamedQuery, params: Mapping[str, object] | None = None, exprs: Mapping[str, str] | None = None,
            relations: Mapping[str, str] | None = None) -> str:
-    """The query's SQL with its parameters written in; ``k_expr`` replaces ``:k`` with an expression and
+    """The query's SQL with its parameters written in; ``exprs`` replaces parameters with SQL expressions (``k``;
+    ``caller``, the tenant whose own rows count toward no k: by default no tenant, every customer counts) and
     ``relations`` what each relation read is (``fleet.signatures``: a name no temporary object can stand for)."""
     values = {**query.defaults, **(params or {})}
     for key in values:
         if key not in query.defaults:
             raise ConfigError(f"query {query.name}: parameter {key!r} unknown; allowed: {', '.join(query.defaults)}")
+    exprs = {"caller": literal(""), **(exprs or {})}
 
-    def literal(m: re.Match) -> str:
+    def written(m: re.Match) -> str:
         key = m.group(1)
-        if key == "k" and k_expr is not None:
-            return k_expr
-        v = values[key]
-        if isinstance(v, bool) or not isinstance(v, (int, str)):
-            raise ConfigError(f"query {query.name}: parameter {key} must be an integer or text, got {v!r}")
-        if isinstance(v, int):
-            if not 1 <= v <= 1_000_000:
-                raise ConfigError(f"query {query.name}: parameter {key} must be 1..1000000, got {v}")
-            return str(v)
-        if not _TEXT.fullmatch(v):
-            raise ConfigError(f"query {query.name}: parameter {key} must match {_TEXT.pattern}, got {v!r}")
-        return f"'{v}'"
+        return exprs[key] if key in exprs else literal(checked(query, key, values[key]))
 
-    sql = re.sub(r":([a-z_]+)\b", literal, query.sql)
+    sql = re.sub(r":([a-z_]+)\b", written, query.sql)
     if relations is None:
         return sql
     return re.sub(r"\b(FROM|JOIN)\s+(signatures|effects|probe)\b",
                   lambda m: f"{m.group(1)} {relations[m.group(2)]}", sql)
+
+
+def checked(query: NamedQuery, key: str, value: object) -> int | str:
+    """``value`` if the parameter ``key`` of ``query`` may take it (an integer 1..1000000, or text matching
+    ``_TEXT``), else ConfigError naming it: the one rule on every engine and the store."""
+    if isinstance(value, bool) or not isinstance(value, (int, str)):
+        raise ConfigError(f"query {query.name}: parameter {key} must be an integer or text, got {value!r}")
+    if isinstance(value, int) and not 1 <= value <= 1_000_000:
+        raise ConfigError(f"query {query.name}: parameter {key} must be 1..1000000, got {value}")
+    if isinstance(value, str) and not _TEXT.fullmatch(value):
+        raise ConfigError(f"query {query.name}: parameter {key} must match {_TEXT.pattern}, got {value!r}")
+    return value
+
+
+def literal(value: int | str) -> str:
+    """A checked value (``checked``, or a tenant id) written as SQL."""
+    return str(value) if isinstance(value, int) else f"'{value}'"
 
 
 def plain(row: Mapping[str, object]) -> dict:

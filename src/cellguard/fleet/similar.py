@@ -4,13 +4,21 @@ Nearest by the named ``similar`` query (cosine of log-scaled effect sizes, same 
 first), run as the caller's tenant role, so the store's row-level security decides what it may
 see. What fixed each neighbour's cause, and how often, comes from the cross-customer ``fixes``
 query when at least k customers back it, else from the caller's own signatures.
+
+A run's findings leave the site as probes (their effect sizes, feature names, robot model and site
+id reach the store): only under a policy that exports signatures, and each command's probes are
+logged in the site's audit log (status ``probed``) before they are sent, as an export is.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from pathlib import Path
 
 from cellguard.errors import ConfigError
+from cellguard.fleet.audit import append_audit
+from cellguard.fleet.export import Batch
+from cellguard.fleet.policy import DataPolicy
 from cellguard.fleet.signature import Signature
 from cellguard.fleet.store import RefusedAggregate, TenantStore
 
@@ -49,6 +57,24 @@ def as_sent(probe: Signature, withheld: tuple[str, ...]) -> Signature:
         raise ConfigError("--policy: it withholds effects, which `fleet similar` sends to the store as its probe; "
                           "nothing sent")
     return replace(probe, robot_model=None) if "robot_model" in withheld else probe
+
+
+def check_policy(policy: DataPolicy) -> None:
+    """ConfigError unless ``policy`` lets findings leave the site as signatures: a probe sends what
+    ``aggregates_only`` and ``nothing`` keep at the site. Checked before the runs are diagnosed."""
+    if policy.export != "signatures":
+        raise ConfigError(f"--policy: export: {policy.export}; `fleet similar` sends each finding's effect sizes, "
+                          f"robot model and site to the store, which only export: signatures allows; nothing sent")
+
+
+def log_probes(site_dir: Path, probes: list[Signature], policy: DataPolicy, destination: str) -> None:
+    """Append the probes ``similar`` will send (those with effect sizes, ``as_sent``'s) to the site's audit log
+    as one export, status ``probed``: the log names everything that left the site."""
+    rows = tuple({"tenant_id": p.tenant_id, "site_id": p.site_id, "robot_model": p.robot_model,
+                  "effects": p.effects} for p in probes if p.effects)
+    if rows:
+        append_audit(site_dir, Batch(policy.tenant, policy.site, policy.version, policy.export, rows), "probed",
+                     destination)
 
 
 def similar(store: TenantStore, probe: Signature, limit: int = 5) -> list[Neighbour]:

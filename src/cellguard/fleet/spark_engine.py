@@ -89,7 +89,7 @@ class SparkEngine:
                 source.createOrReplaceTempView(rel)
             self.spark.createDataFrame([(f, float(e)) for f, e in probe], "feature string, effect double") \
                 .createOrReplaceTempView("probe")
-            return [plain(r.asDict()) for r in self.spark.sql(render(q, allowed.params)).collect()]
+            return [plain(r.asDict()) for r in self.spark.sql(render(q, allowed.params, allowed.exprs)).collect()]
         except _spark_errors() as exc:
             raise ConfigError(f"--lake {self.lake}: query {q.name} failed in Spark ({_why(exc)})") from None
 

@@ -20,8 +20,9 @@ Roles (``D`` is the database name):
   table's approximate total row count to whoever may read it: PostgreSQL gives no way to hide them.
 - ``D_agg`` (no login) reads every row, but only inside the cross-customer functions
   ``fleet.q_<query>(k)``, generated from the named queries (``queries.py``): each refuses when
-  fewer than k customers have signatures (k = max(the caller's, the store's setting, default 5);
-  the refusal does not say how many there are) and drops every group seen at fewer than k.
+  fewer than k customers other than the caller have signatures (k = max(the caller's, the store's
+  setting, default 5); the refusal does not say how many there are) and drops every group seen at
+  fewer than k of them: a tenant's own rows, which it may craft, never make up the k it is shown.
 
 Every SECURITY DEFINER function names its tables with their schema and searches ``pg_temp`` last,
 and tenants may not create temporary objects at all: a temporary view called ``signatures`` read
@@ -30,7 +31,9 @@ with the definer's rights would hand a tenant every customer's rows.
 Uploads are idempotent: a signature's key is (tenant, signature id), an aggregate's (tenant, site,
 month, cause, robot model, cell type). A row sent again with other content (fewer fields, once
 the policy withholds more; a new count, once a growing folder is pushed again) replaces the one
-there: deleted and inserted in one transaction, as tenants update nothing.
+there: deleted and inserted in one transaction, as tenants update nothing. A batch's aggregates
+are the site's counts for the months it covers: the site's other groups of those months (grouped
+by a robot model the policy now withholds) are deleted in the same transaction.
 """
 
 from __future__ import annotations
@@ -46,7 +49,8 @@ from pathlib import Path
 
 from cellguard.errors import CellguardError, ConfigError
 from cellguard.fleet.export import Batch
-from cellguard.fleet.queries import MIN_CUSTOMERS, QUERIES, RefusedAggregate, first_line, named, plain, render
+from cellguard.fleet.queries import (MIN_CUSTOMERS, QUERIES, RefusedAggregate, checked, first_line, named, plain,
+                                     render)
 
 SIGNATURE_COLUMNS = ("signature_id", "tenant_id", "site_id", "created_date", "cause", "confidence", "robot_model",
                      "cell_type", "onset_cycle", "detection_delay_cycles", "policy_version", "calibration_version",
@@ -299,19 +303,20 @@ CREATE OR REPLACE FUNCTION fleet.session_tenant() RETURNS text LANGUAGE sql STAB
   SET search_path = pg_catalog, pg_temp AS $$ SELECT tenant_id FROM fleet.tenants WHERE role_name = session_user $$;
 ALTER FUNCTION fleet.session_tenant() OWNER TO "{self.owner}";
 REVOKE ALL ON FUNCTION fleet.session_tenant() FROM PUBLIC;
-GRANT EXECUTE ON FUNCTION fleet.session_tenant() TO "{self.app}";
+GRANT EXECUTE ON FUNCTION fleet.session_tenant() TO "{self.app}", "{self.agg}";
 """
 
     def _function_sql(self, q) -> str:
         cols = ", ".join(f"{c} {t}" for c, t in q.columns)
-        body = render(q, k_expr="k_eff", relations=RELATIONS)
+        body = render(q, exprs={"k": "k_eff", "caller": "caller"}, relations=RELATIONS)
         return f"""
 CREATE OR REPLACE FUNCTION fleet.q_{q.name}(min_customers int DEFAULT {MIN_CUSTOMERS}) RETURNS TABLE ({cols})
 LANGUAGE plpgsql STABLE SECURITY DEFINER SET search_path = fleet, pg_catalog, pg_temp AS $fn$
 #variable_conflict use_column
 DECLARE
   k_eff int := greatest(min_customers, (SELECT s.min_customers FROM fleet.settings s));
-  n int := (SELECT count(DISTINCT t.tenant_id) FROM fleet.signatures t);
+  caller text := coalesce(fleet.session_tenant(), '');  -- its own rows count toward no k
+  n int := (SELECT count(DISTINCT t.tenant_id) FROM fleet.signatures t WHERE t.tenant_id <> caller);
 BEGIN
   IF n < k_eff THEN
     RAISE EXCEPTION 'cross-customer query {q.name} refused: signatures from fewer than % customers', k_eff
@@ -360,9 +365,10 @@ class TenantStore:
                                     "VALUES (%s, %s, %s, %s)",
                                     [(s["tenant_id"], s["signature_id"], f, e) for f, e in effects])
                 new += inserted
-            for r in batch.aggregates:
-                row = {"tenant_id": batch.tenant_id, "site_id": batch.site_id, "month": r["month"], "cause": r["cause"],
-                       "robot_model": r["robot_model"], "cell_type": r["cell_type"]}
+            groups = [{"tenant_id": batch.tenant_id, "site_id": batch.site_id, "month": r["month"], "cause": r["cause"],
+                       "robot_model": r["robot_model"], "cell_type": r["cell_type"]} for r in batch.aggregates]
+            _drop_other_groups(cur, batch.site_id, groups)
+            for r, row in zip(batch.aggregates, groups):
                 new += _replace(cur, "aggregates", {"row_id": _group_key(row), **row, "signatures": r["signatures"],
                                                     "policy_version": batch.policy_version}, tuple(row))
             if then is not None:
@@ -383,19 +389,12 @@ class TenantStore:
         """A cursor in one transaction as this tenant; a refusal is a StoreError saying ``refused`` and why,
         a lost server StoreUnavailable (rolled back: what was to be sent stays queued)."""
         psycopg = _psycopg()
-        with self.connection() as con:
+        with self.connection() as con, self._mapped(refused):
             try:
                 with con.transaction(), con.cursor() as cur:
                     yield cur
             except psycopg.errors.InsufficientPrivilege as exc:
                 raise StoreError(f"fleet store {self.where}: {refused} ({exc.diag.message_primary})") from None
-            except (psycopg.errors.LockNotAvailable, psycopg.errors.QueryCanceled) as exc:
-                raise StoreUnavailable(self._busy(exc)) from None
-            except psycopg.OperationalError as exc:
-                raise StoreUnavailable(f"fleet store {self.where} lost mid-transaction ({exc.__class__.__name__})") \
-                    from None
-            except psycopg.Error as exc:  # any other refusal (a constraint, a type)
-                raise StoreError(f"fleet store {self.where}: {refused} ({_reason(exc, self.dsn)})") from None
 
     def run(self, query: str, params: Mapping | None = None, probe: Sequence[tuple[str, float]] = (),
             scope: str = "fleet") -> list[dict]:
@@ -404,20 +403,36 @@ class TenantStore:
         q = named(query)
         if scope not in ("fleet", "own"):
             raise ConfigError(f"--scope: {scope!r}; allowed: fleet, own")
-        with self.connection() as con, con.transaction(), con.cursor() as cur:
+        fleet_wide = scope == "fleet" and q.cross_customer
+        if fleet_wide:  # checked here as the lake checks it: the function's argument is an int
+            k = checked(q, "k", (params or {}).get("k", MIN_CUSTOMERS))
+        with self.connection() as con, self._mapped(f"query {q.name} failed"), con.transaction(), \
+                con.cursor() as cur:
             try:
-                if scope == "fleet" and q.cross_customer:
-                    k = int((params or {}).get("k", MIN_CUSTOMERS))
+                if fleet_wide:
                     cur.execute(f"SELECT * FROM fleet.q_{q.name}(%s)", (k,))
                 else:  # the probe is bound as arrays: tenants may create no temporary table
-                    cur.execute(render(q, params, k_expr="1", relations=RELATIONS),
+                    cur.execute(render(q, params, {"k": "1"}, relations=RELATIONS),
                                 {"features": [f for f, _ in probe], "effects": [float(e) for _, e in probe]})
             except psycopg.errors.InsufficientPrivilege as exc:
                 raise RefusedAggregate(exc.diag.message_primary) from None
-            except (psycopg.errors.LockNotAvailable, psycopg.errors.QueryCanceled) as exc:
-                raise StoreUnavailable(self._busy(exc)) from None
             cols = [d.name for d in cur.description]
             return [plain(dict(zip(cols, r))) for r in cur.fetchall()]
+
+    @contextmanager
+    def _mapped(self, refused: str):
+        """A driver error inside as one line: a wait cut short or a lost server StoreUnavailable, any other
+        refusal (a constraint, a type) a StoreError saying ``refused`` and why."""
+        psycopg = _psycopg()
+        try:
+            yield
+        except (psycopg.errors.LockNotAvailable, psycopg.errors.QueryCanceled) as exc:
+            raise StoreUnavailable(self._busy(exc)) from None
+        except psycopg.OperationalError as exc:
+            raise StoreUnavailable(f"fleet store {self.where} lost mid-transaction ({exc.__class__.__name__})") \
+                from None
+        except psycopg.Error as exc:
+            raise StoreError(f"fleet store {self.where}: {refused} ({_reason(exc, self.dsn)})") from None
 
     def _busy(self, exc: Exception) -> str:
         """A wait cut short by ``lock_timeout`` or ``statement_timeout``, in one line."""
@@ -443,6 +458,16 @@ def _replace(cur, table: str, row: Mapping, key: Sequence[str], same: str = "tru
                 f"AND NOT (({cols}) IS NOT DISTINCT FROM ({values}) AND {same})", {**row, **params})
     cur.execute(f"INSERT INTO fleet.{table} ({cols}) VALUES ({values}) ON CONFLICT DO NOTHING", row)
     return cur.rowcount
+
+
+def _drop_other_groups(cur, site_id: str, groups: Sequence[Mapping]) -> None:
+    """Delete the site's aggregates of the months ``groups`` cover that are none of them: a batch's counts are
+    the site's for those months (a group the policy now merges, withholding its robot model, is not left beside
+    the merged one to be counted twice)."""
+    if groups:
+        cur.execute("SELECT fleet.drop_aggregate(row_id) FROM fleet.aggregates WHERE site_id = %s "
+                    "AND month = ANY(%s) AND row_id <> ALL(%s)",
+                    (site_id, sorted({g["month"] for g in groups}), [_group_key(g) for g in groups]))
 
 
 def _group_key(group: Mapping) -> str:
