@@ -62,6 +62,8 @@ class ChunkCurve:
         at ``q`` there, then moving as the curve does beyond that quadratic; held past its end as ``at`` reads it.
         Only the segments from ``t_ns`` to ``until_ns`` are kept (the quadratic goes on where the curve holds): it is
         built on the servo tick that takes a chunk from rest."""
+        if len(self.points) == 1:  # a hold (a one-step chunk, its step still ahead): less its position, a hold at q
+            return ChunkCurve(t_ns, self.h_ns, np.asarray(q, dtype=np.float64)[None])
         q_at, v, half_a = self.state_at(t_ns)
         h = self.h_ns
         first = min(self.segment(t_ns)[0], len(self.points) - 1)
