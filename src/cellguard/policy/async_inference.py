@@ -211,21 +211,22 @@ class AsyncInference:
         """Why the policy answers no more: its process ended (a thread worker never says so)."""
         return None if self._remote is None else self._remote.ended
 
-    def warm_up(self, observation: Observation, timeout_s: float, stop: Callable[[], bool] = lambda: False) -> bool:
+    def warm_up(self, observation: Observation, timeout_s: float,
+                stop: Callable[[], bool] = lambda: False) -> InferenceResult | None:
         """One call before the loop starts (loads, compiles, fills caches), on the worker; its chunk is dropped.
         Waited for at most ``timeout_s`` and until ``stop()``, asked every ``WAIT_S`` (called on the main thread,
-        a policy hung in it hung the run, deaf to SIGTERM). True once answered, a failure too (the loop's first
-        request reports it); False: given up, the call still in flight."""
+        a policy hung in it hung the run, deaf to SIGTERM). Its answer, a failure too; None: given up, the call
+        still in flight."""
         self.submit(observation)
         deadline = time.monotonic() + timeout_s
         with self._lock:
             while self._done is None:
                 left = deadline - time.monotonic()
                 if left <= 0 or stop():
-                    return False
+                    return None
                 self._answered.wait(min(left, WAIT_S))
-            self._done, self._in_flight = None, False
-        return True
+            done, self._done, self._in_flight = self._done, None, False
+        return done
 
     def discard(self) -> None:
         """A new episode: forget the queue and a finished result (one still in flight arrives late); the

@@ -92,12 +92,17 @@ class WorkerInference:
 
     def warm_up(self, observation, timeout_s: float, stop: Callable[[], bool]) -> None:
         """A first call off the clock (a cold policy's first answer is not its latency), waited for at most
-        ``timeout_s`` and until ``stop()``. A call given up, or one whose process ended, loses the policy."""
-        if not self.worker.warm_up(observation, timeout_s, stop):
+        ``timeout_s`` and until ``stop()``. A call given up, one whose process ended, or one that failed (a policy
+        that cannot be built, a server that answers errors: the run went on to a watchdog stop, exit 0, never having
+        moved) loses the policy."""
+        answer = self.worker.warm_up(observation, timeout_s, stop)
+        if answer is None:
             self._lose("the policy's first call was given up at a stop" if stop() else
                        f"the policy's first call has not answered in {timeout_s:g} s")
         elif self.worker.ended:
             self._lose(self.worker.ended)
+        elif answer.error is not None:
+            self._lose(f"the policy's first call failed: {answer.error}")
 
     def begin_cycle(self, t_ns: int) -> None:
         """A new episode: the worker drops what it holds and resets the policy on its own thread."""
