@@ -9,8 +9,10 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import fcntl
 import hashlib
 import os
+import re
 import stat
 from collections.abc import Iterator
 from pathlib import Path
@@ -19,6 +21,9 @@ from typing import BinaryIO
 from cellguard.errors import OutputError
 
 NAME_MAX = 255  # the longest file name, in bytes, on ext4, XFS, btrfs and APFS
+PID_MAX = 4194304  # the highest pid Linux gives (2**22), for the longest temporary name
+TEMPORARY_SUFFIX = ".tmp"
+UNLOCKABLE = (errno.ENOLCK, errno.EOPNOTSUPP, errno.ENOTSUP, errno.EINVAL)  # flock is not offered there
 # what an output never replaces, by the bytes it starts with (a link followed to one destroyed another run's record)
 NEVER_REPLACED = {b"\x89MCAP0\r\n": "a record (MCAP)", b"SQLite format 3\x00": "an SQLite database (a store)"}
 
@@ -55,7 +60,9 @@ def atomic_file(path: Path, what: str, replace: bool = True, mode: int = 0o666) 
 
     The data goes to a temporary file in the same folder (same filesystem, so the rename is
     atomic), is fsynced, and then replaces ``path``; on any error the temporary file is removed,
-    ``path`` is untouched and OutputError names it. With ``replace=False`` a file that appeared at
+    ``path`` is untouched and OutputError names it. The temporary file is locked while it is written, so
+    the one of a write killed outright (no clean-up ran) is told from a live one's and removed by the next
+    write of ``path``. With ``replace=False`` a file that appeared at
     ``path`` while the data was made is kept and OutputError says so (a check at the start of a
     long job does not hold at its end). A link is followed: its final target is what is checked,
     written beside and replaced, so a link is never turned into a file (``-o`` naming a link to
@@ -68,18 +75,19 @@ def atomic_file(path: Path, what: str, replace: bool = True, mode: int = 0o666) 
     _final_target(path, what)  # refused before any folder is made
     make_folder(path.parent, what)
     target = _final_target(path, what)
+    _clear_stale_temporaries(target)
     tmp = target.with_name(_temporary_name(target.name))
     try:
-        with open(tmp, "wb", opener=lambda name, flags: os.open(name, flags, mode)) as f:
+        with _locked_temporary(tmp, mode) as f:  # locked until renamed: no other write takes it for a killed one's
             yield f
             f.flush()
             os.fsync(f.fileno())
-        if replace:
-            if _final_target(path, what) != target:  # a link put or moved there while the data was written
-                raise FileExistsError(path)
-            os.replace(tmp, target)  # a FIFO or folder made there meanwhile was refused just above
-        else:
-            _rename_new(tmp, target)
+            if replace:
+                if _final_target(path, what) != target:  # a link put or moved there while the data was written
+                    raise FileExistsError(path)
+                os.replace(tmp, target)  # a FIFO or folder made there meanwhile was refused just above
+            else:
+                _rename_new(tmp, target)
     except FileExistsError:
         _remove(tmp)
         raise OutputError(f"{what} {path}: something was put there while it was being made; it is kept "
@@ -147,11 +155,74 @@ def _new_target(path: Path, what: str) -> Path:
 
 
 def _temporary_name(name: str) -> str:
-    """A hidden temporary name beside ``name`` that stays within the 255 bytes a file name may have."""
-    tail = f".{os.getpid()}.tmp"
-    if len(os.fsencode(f".{name}{tail}")) > NAME_MAX:
+    """A hidden temporary name beside ``name`` (``.NAME.PID.tmp``) that stays within the 255 bytes a file name may
+    have."""
+    return f"{_temporary_prefix(name)}{os.getpid()}{TEMPORARY_SUFFIX}"
+
+
+def _temporary_prefix(name: str) -> str:
+    """What every temporary name beside ``name`` starts with, whatever the pid: the same hashed or not."""
+    if len(os.fsencode(f".{name}.{PID_MAX}{TEMPORARY_SUFFIX}")) > NAME_MAX:
         name = hashlib.sha256(os.fsencode(name)).hexdigest()[:32]
-    return f".{name}{tail}"
+    return f".{name}."
+
+
+@contextlib.contextmanager
+def _locked_temporary(tmp: Path, mode: int) -> Iterator[BinaryIO]:
+    """``tmp`` created (or emptied), open for writing and ``flock``ed until the block ends: a lock not held marks the
+    temporary file of a killed write (``_clear_stale_temporaries``). Without locks there, it is written unlocked."""
+    while True:
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT, mode)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX)  # a clearing write holds it a moment
+            if _same_file(os.fstat(fd), os.lstat(tmp)):
+                break
+        except FileNotFoundError:  # a clearing write took it for a killed one's before it was locked: made again
+            pass
+        except OSError as exc:
+            if exc.errno not in UNLOCKABLE:
+                os.close(fd)
+                raise
+            break
+        os.close(fd)
+    os.ftruncate(fd, 0)  # once locked: a killed write's file of the same name may be there
+    with os.fdopen(fd, "wb") as f:
+        yield f
+
+
+def _clear_stale_temporaries(target: Path) -> None:
+    """Remove the temporary files beside ``target`` of writes killed before their clean-up (SIGKILL: each stayed for
+    good, as large as its output): those whose lock is free. One a live write holds, or one that cannot be locked
+    (a filesystem without locks), is kept."""
+    mine = re.compile(re.escape(_temporary_prefix(target.name)) + r"\d+" + re.escape(TEMPORARY_SUFFIX))
+    try:
+        names = [name for name in os.listdir(target.parent) if mine.fullmatch(name)]
+    except OSError:  # the write itself says why the folder cannot be used
+        return
+    for name in names:
+        _remove_if_stale(target.parent / name)
+
+
+def _remove_if_stale(tmp: Path) -> None:
+    """Remove the regular file ``tmp`` if no process holds its lock, still under this name once locked here."""
+    try:
+        if not stat.S_ISREG(os.lstat(tmp).st_mode):  # a folder, link or device of that name is not even opened
+            return
+        fd = os.open(tmp, os.O_RDWR | os.O_NOFOLLOW | os.O_NONBLOCK)  # for writing: NFS locks only such a file
+    except OSError:
+        return
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)  # OSError: a live write holds it, or no locks here
+        if _same_file(os.fstat(fd), os.lstat(tmp)):
+            os.unlink(tmp)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+def _same_file(a: os.stat_result, b: os.stat_result) -> bool:
+    return (a.st_dev, a.st_ino) == (b.st_dev, b.st_ino)
 
 
 def write_output(path: Path, data: str | bytes, what: str, replace: bool = True) -> Path:
