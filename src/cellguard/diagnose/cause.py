@@ -10,7 +10,10 @@ candidate finding, classified from the size and sign of its changes over the fau
   camera saw it move and it did not, the camera moved; if the camera saw nothing and the part
   sat off the tool with the joints' grasp pose unchanged, the tool slipped on its flange. A grasp
   that moved with the part where it really sat (pose plus offset unchanged) is where the tool
-  closed: a concurrent change in how the arm moves (latency, a joint) explains it.
+  closed: a concurrent change in how the arm moves (latency, a joint) explains it. A second geometry step
+  after the first (alarms that began more than ``CONCURRENT`` cycles later, where the geometry stepped
+  again) is a finding of its own, read from the level the first left: a camera that moved after the
+  fixture sees the part back toward its acceptance place, which no monitor alarms on.
 - one joint (current, tracking error): friction raises the current the joint needs more than
   its tracking error; a weaker servo gain raises the tracking error more than the current. On a
   loaded joint friction hardly moves the current's RMS (it adds on one stroke, subtracts on the
@@ -100,6 +103,7 @@ class _Window:
 
     def __init__(self, baseline: Baseline, cycles: Sequence[Cycle], z: np.ndarray):
         self.baseline, self.cycles, self.z = baseline, cycles, z
+        self.level: tuple[int, int] | None = None  # (first, last) cycle changes are read from, if not the baseline
         centre, _ = baseline.centre_and_scale(cycles)
         self._d = feature_matrix(cycles, baseline.names) - centre  # change from the motion's baseline
 
@@ -117,6 +121,30 @@ class _Window:
         col = (np.where(np.isnan(self.z[np.ix_(rows, cols)]), np.nan, self._d[np.ix_(rows, cols)]) * signs).sum(axis=1)
         col = col[~np.isnan(col)]  # z is NaN at another load
         return float(np.median(col)) if len(col) else float("nan")
+
+    def before(self, end: int) -> _Window:
+        """The window over the cycles before ``end``, a later episode's start: an episode read over its own cycles."""
+        return self._rows(np.array([c.index < end for c in self.cycles]))
+
+    def from_level(self, since: int, start: int) -> _Window:
+        """The window over the cycles from ``since`` on, each feature's change read from its median over cycles
+        ``since`` to ``start`` (the level an earlier episode left; the baseline where it left no reading), not from
+        the baseline: a second step is measured on its own (a camera that moved after the fixture moved the part
+        seen back toward its acceptance place)."""
+        w = self._rows(np.array([c.index >= since for c in self.cycles]))
+        rows, w.level = np.array([c.index < start for c in w.cycles]), (since, start - 1)
+        for j in range(len(w.baseline.names)):
+            read = rows & ~np.isnan(w.z[:, j])
+            if read.any():
+                w._d[:, j] -= np.median(w._d[read, j])
+                w.z[:, j] -= np.median(w.z[read, j])
+        return w
+
+    def _rows(self, keep: np.ndarray) -> _Window:
+        """The window over the cycles ``keep`` marks, its changes read as this one reads them."""
+        w = _Window(self.baseline, [c for c, k in zip(self.cycles, keep) if k], self.z[keep].copy())
+        w._d, w.level = self._d[keep].copy(), self.level
+        return w
 
     def zmed(self, name: str, start: int) -> float:
         d = self.delta(name, start)
@@ -208,14 +236,15 @@ def name_causes(baseline: Baseline, cycles: Sequence[Cycle], z: np.ndarray, alar
     groups.pop("output", None)
     outcome = groups.pop("outcome", [])
     geometry = groups.pop("geometry", [])
-    grasp = _geometry(w, geometry, outcome) if geometry else None
+    grasps = [(_geometry(ew, g, o), ew, g) for ew, g, o in (_episodes(w, geometry, outcome) if geometry else [])]
     outcome = [] if geometry else outcome
-    new_path = grasp.cycle if grasp is not None and _pick_moved(w, geometry, grasp.cycle) else None
-    joints, on_path = _joints(w, joint_groups, grounded=_grounded(baseline), new_path=new_path)
+    new_paths = [f.cycle for f, ew, g in grasps if _pick_moved(ew, g, f.cycle)]
+    joints, on_path = _joints(w, joint_groups, grounded=_grounded(baseline), new_paths=new_paths)
     findings.extend(joints)
     findings.extend(_feet(w, groups.pop("gait", [])))
-    if grasp is not None:
-        findings = _with_grasp(w, _with_path(grasp, on_path), geometry, findings)
+    for grasp, ew, g in grasps:
+        path = [r for r in on_path if abs(r[0] - grasp.cycle) <= CONCURRENT]
+        findings = _with_grasp(ew, _with_path(grasp, path), g, findings)
     other = _distinct([a for k, v in groups.items() if not k.startswith("joint:") for a in v] + outcome)
     if other and not findings:
         findings.append(Finding("unknown", _onset(other), 0.3, tuple(
@@ -303,6 +332,35 @@ def _distinct(alarms: Sequence[DriftAlarm]) -> list[DriftAlarm]:
     return [a for a in alarms if seen[a.signal] is a]
 
 
+def _episodes(w: _Window, geometry: list[DriftAlarm], outcome: list[DriftAlarm]
+              ) -> list[tuple[_Window, list[DriftAlarm], list[DriftAlarm]]]:
+    """The geometry and outcome alarms split into episodes, one geometry finding each, with the window each is read
+    over: where alarms began more than ``CONCURRENT`` cycles after the geometry's onset (at their median change
+    point) and geometry features stepped there from the level the episode before left (``_stepped``), that is another
+    episode, read from that level, and it bounds the one before (a camera that moved after the fixture was told as
+    the fixture, from a blend of both). Each episode's (geometry, outcome) alarms."""
+    start = w.step_onset(geometry)
+    later = [a for a in geometry + outcome if a.onset > start + CONCURRENT]
+    if not later:
+        return [(w, geometry, outcome)]
+    nxt = _onset(later)
+    level = w.from_level(start, nxt)
+    stepped = _stepped(level, nxt)
+    if not stepped:
+        return [(w, geometry, outcome)]
+    first = (w.before(nxt), [a for a in geometry if a not in later], [a for a in outcome if a not in later])
+    return [first, *_episodes(level, [a for a in later if a in geometry] + stepped, [a for a in later if a in outcome])]
+
+
+def _stepped(w: _Window, start: int) -> list[DriftAlarm]:
+    """The geometry features whose median from ``start`` on moved ``UNCHANGED_Z`` scales and ``SIGNIFICANT_MM`` or more
+    in ``w``, as alarms from ``start``: a step back toward the acceptance place raises no alarm of its own (the
+    feature's monitor alarmed the other way on the first step and reads it as less of that change)."""
+    moved = [(n, w.zmed(n, start)) for n in w.baseline.names if kind_of(n).family == "geometry"
+             and kind_of(n).unit == "mm" and abs(w.delta(n, start)) >= SIGNIFICANT_MM]
+    return [DriftAlarm(n, start, 0.0, start, int(np.sign(z))) for n, z in moved if abs(z) >= UNCHANGED_Z]
+
+
 def _geometry(w: _Window, alarms: list[DriftAlarm], outcome: list[DriftAlarm]) -> Finding:
     start = w.step_onset(alarms)
     signals = tuple(sorted({a.signal for a in alarms + outcome}))
@@ -314,7 +372,10 @@ def _geometry(w: _Window, alarms: list[DriftAlarm], outcome: list[DriftAlarm]) -
     off = np.zeros(2) if off is None else off
     real = tcp + off  # where the part really sat at grasp, relative to acceptance
     current = _unchanged_currents(w, start)
-    tail = [current] if current else []
+    place = "its acceptance place" if w.level is None else f"where it sat on cycles {w.level[0]} to {w.level[1]}"
+    tail = [f"each change read from where the change from cycle {w.level[0]} left it (cycles {w.level[0]} to "
+            f"{w.level[1]}), not from acceptance"] if w.level is not None else []
+    tail += [current] if current else []
     tail += [f"success fell to {np.mean([c.success for c in w.cycles if c.index >= start]):.0%} of cycles"
              ] if any(a.signal in ("success", "grasped") for a in outcome) else []
     seen_alarmed = any(a.signal.startswith(("part_seen_", "fixture_seen_")) for a in alarms)
@@ -333,9 +394,9 @@ def _geometry(w: _Window, alarms: list[DriftAlarm], outcome: list[DriftAlarm]) -
         words = (f"camera-seen part and fixture moved {_vec(seen)}", f"grasp pose moved {_vec(tcp)}",
                  f"part-to-tool offset at grasp changed {_vec(off)}")
         if moved:
-            why = f"the part really sat {_vec(real)} from its acceptance place, as the camera saw: the fixture moved"
+            why = f"the part really sat {_vec(real)} from {place}, as the camera saw: the fixture moved"
             return Finding("fixture_shift", start, conf, words + (why,) + tuple(tail), signals)
-        why = (f"the part really sat only {_vec(real)} from its acceptance place: the camera moved "
+        why = (f"the part really sat only {_vec(real)} from {place}: the camera moved "
                "(its calibration no longer holds)")
         return Finding("camera_shift", start, conf, words + (why,) + tuple(tail), signals)
     q = [w.zmed(n, start) for n in w.baseline.names if n.startswith("grasp_q.")]
@@ -415,9 +476,9 @@ def _grounded(baseline: Baseline) -> bool:
 
 
 def _joints(w: _Window, groups: dict[str, list[DriftAlarm]], grounded: bool = False,
-            new_path: int | None = None) -> tuple[list[Finding], list[tuple]]:
+            new_paths: Sequence[int] = ()) -> tuple[list[Finding], list[tuple]]:
     """One finding per cause and episode: joints of the same kind of change that start together; and,
-    apart, the rated joints whose change is the arm's new path from cycle ``new_path`` on (``_on_path``).
+    apart, the rated joints whose change is the arm's new path from a cycle of ``new_paths`` on (``_on_path``).
 
     The torque a joint needs is read from its current and, where it alarmed (on a robot off the
     ground) or where current and tracking error stayed under ``QUIET``, from its friction torque."""
@@ -447,7 +508,7 @@ def _joints(w: _Window, groups: dict[str, list[DriftAlarm]], grounded: bool = Fa
         rated.append((start, cause, joint, cur, trk, share, alarms, ft, current))
     rated.sort()
     rated, follows = _coupled(rated, grounded)
-    rated, on_path = _on_path(rated, new_path)
+    rated, on_path = _on_path(rated, new_paths)
     findings: list[Finding] = []
     while rated:
         start, cause = rated[0][0], rated[0][1]
@@ -519,14 +580,13 @@ def _size(r: tuple) -> float:
     return max(abs(r[3]), abs(r[4]))
 
 
-def _on_path(rated: list[tuple], new_path: int | None) -> tuple[list[tuple], list[tuple]]:
+def _on_path(rated: list[tuple], new_paths: Sequence[int]) -> tuple[list[tuple], list[tuple]]:
     """Split the rated joints into those that carry a cause and those whose change is the arm's new path:
-    under ``PATH``, begun within ``CONCURRENT`` of cycle ``new_path``, where the arm goes to another pick point
+    under ``PATH``, begun within ``CONCURRENT`` of a cycle of ``new_paths``, where the arm goes to another pick point
     (its joints move through other angles, at other speeds, so their errors and currents shift a little; a
     drive that changed with it changes more). A load change reads carrying against not carrying: its own."""
-    if new_path is None:
-        return rated, []
-    moved = [r for r in rated if r[1] != "load_change" and abs(r[0] - new_path) <= CONCURRENT and _size(r) < PATH]
+    moved = [r for r in rated if r[1] != "load_change" and _size(r) < PATH
+             and any(abs(r[0] - p) <= CONCURRENT for p in new_paths)]
     return [r for r in rated if r not in moved], moved
 
 
