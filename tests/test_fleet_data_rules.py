@@ -112,6 +112,24 @@ def test_a_record_still_being_written_is_not_pooled(env, tmp_path):
     assert json.loads(alone.stdout)["new_rows"] == 0  # the same findings: nothing of the live run went
 
 
+def test_a_record_that_cannot_even_be_opened_is_left_out_and_the_others_go(env, tmp_path):
+    """Cut inside its first chunk (or a run's first seconds, before its first chunk): the whole push stopped, exit 2,
+    nothing sent."""
+    root, store, tenants = env
+    policy = tmp_path / "p.yaml"
+    policy.write_text("tenant: ta\nsite: s-start\n")
+    cut = cut_copy(root / "run", tmp_path / "runs" / "start", fraction=0.001)
+    whole = tmp_path / "runs" / "whole"
+    whole.mkdir()
+    shutil.copy(root / "run" / "record.mcap", whole / "record.mcap")
+    out = cli("push", tmp_path / "runs", "--policy", policy, "--site-dir", tmp_path / "site", "--json",
+              dsn=tenants["ta"])
+    assert out.exit_code == 1, out.output
+    [line] = warning_lines(out)
+    assert str(cut) in line and "its findings were left out" in line
+    assert signatures_of(store, "ta", "s-start") == json.loads(out.stdout)["rows"] >= 1  # the whole run's
+
+
 # -- 2: a probe leaves only under export: signatures, and is logged --------------------------------------------------
 
 

@@ -79,11 +79,11 @@ def test_the_largest_seam_is_the_step_between_the_chunks_when_the_new_one_takes_
 
 
 class _Run:
-    def __init__(self, chunks):
-        self.chunks, self.cycles = chunks, ()
+    def __init__(self, chunks, name: str = "run"):
+        self.chunks, self.cycles, self.name = chunks, (), name
 
     def label(self, cycle=None):
-        return "run"
+        return self.name
 
 
 def test_seam_and_latency_gates_read_the_reductions():
@@ -95,3 +95,11 @@ def test_seam_and_latency_gates_read_the_reductions():
     assert latency.value == pytest.approx(np.percentile([5.0, 9.0, 5.0], 99))
     assert latency.evidence == ("worst 9 ms in run",)
     assert METRICS["chunk_seam_jump_max_mrad"].compute(runs[1:]).value is None  # no seam: no data
+
+
+def test_a_latency_tie_names_the_run_it_named_before():
+    """The evidence goes into the hash-chained log: on equal worst latencies it names the run whose label sorts
+    last, as when every chunk's latency was held whole."""
+    runs = [_Run(reduce_chunks([_chunk(0, 0.0)]), "record b"), _Run(reduce_chunks([_chunk(0, 0.0)]), "record c"),
+            _Run(reduce_chunks([_chunk(0, 0.0)]), "record a")]
+    assert METRICS["inference_latency_p99_ms"].compute(runs).evidence == ("worst 5 ms in record c",)

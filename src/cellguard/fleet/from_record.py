@@ -42,13 +42,17 @@ def site_signatures(folder: Path, policy: DataPolicy, acceptance: Path | None = 
 
     out = []
     for run in run_folders(folder):
-        with open_record(run) as rec:
-            epoch_ns = rec.start_wall_ns if rec.epoch_wall_ns else 0  # stated in the context messages too
-            health = rec.health()
-        if not health.ok:
+        try:
+            with open_record(run) as rec:
+                epoch_ns = rec.start_wall_ns if rec.epoch_wall_ns else 0  # stated in the context messages too
+                health = rec.health()
+            problem = None if health.ok else _not_whole(run, health)
+        except RecordError as exc:  # not even opened: cut inside its first chunk, or a run only just begun
+            problem = f"{exc}; its findings were left out"
+        if problem is not None:
             if skipped is None:
-                raise RecordError(_not_whole(run, health))
-            skipped.append(_not_whole(run, health))
+                raise RecordError(problem)
+            skipped.append(problem)
             continue
         diagnosis = diagnose_record(run, acceptance=acceptance, unkept=unkept)
         day = (dt.datetime.fromtimestamp(epoch_ns * 1e-9, dt.timezone.utc) if epoch_ns > 0

@@ -153,7 +153,7 @@ def inference_latency_p99(runs) -> Measure:
     have = [r for r in runs if len(r.chunks.latency_ms)]
     if not have:
         return Measure(None, 0)
-    worst = max(have, key=lambda r: r.chunks.latency_ms.max())
+    worst = max(have, key=lambda r: (r.chunks.latency_ms.max(), r.label()))  # a tie: the last label, as ever
     value = float(np.percentile(np.concatenate([r.chunks.latency_ms for r in have]), 99))
     return Measure(value, _n(runs), (f"worst {worst.chunks.latency_ms.max():.3g} ms in {worst.label()}",))
 
