@@ -96,7 +96,7 @@ def run(mode: str, seconds: float, latency_s: float, horizon: int, busy: bool = 
     if mode.startswith("async"):
         worker = AsyncInference(policy, THRESHOLD, worker="process" if mode == "async-process" else "thread",
                                 factory=factory)
-        if worker.warm_up(cell.observe(), WARM_UP_S) is None:
+        if not worker.warm_up(cell.observe(), WARM_UP_S):
             raise SystemExit(f"{mode}: the policy's first call has not answered in {WARM_UP_S:g} s")
     dt, n_ticks = cell.dt_ns, round(seconds * 1e9 / cell.dt_ns)
     step_times = np.zeros(0, dtype=np.int64)

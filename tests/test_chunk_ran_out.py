@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from cellguard.control.executor import Executor
+from cellguard.diagnose.diagnosis import ROUTINE_EVENTS
 from cellguard.policy.chunk import ActionChunk
 from cellguard.robot.registry import make_cell
 from cellguard.runtime import Run
@@ -52,3 +53,15 @@ def test_a_run_whose_chunks_run_out_says_so_once_per_chunk():
     ran_out = _ran_out(run.events)
     assert 3 <= len(ran_out) <= 2.0 / 0.280  # one a run-out (at an arrival, one a latency at most), not one a tick
     assert all(e.reason.startswith("the chunk in use ran out ") for e in ran_out)
+
+
+def test_a_chunk_that_ran_out_is_no_intervention_of_its_own():
+    """The guard's braking after it is the intervention: counted too, the event doubled interventions_per_hour (a
+    release gate) and the diagnosis' interventions feature for the same motion."""
+    run = Run(parse_scenario({"cell": "arm-pick-place", "seed": 3, "acceptance_cycles": 1, "production_cycles": 0,
+                              "cycle": {"source": "time", "seconds": 2.0},
+                              "faults": [{"kind": "policy_latency", "at_cycle": 0, "ms": 280}]}))
+    outcome = run.cycle()
+    assert _ran_out(run.events)
+    assert outcome["features"]["interventions"] == sum(e.kind not in ROUTINE_EVENTS and e.kind != "chunk_ran_out"
+                                                       for e in run.events)

@@ -246,6 +246,27 @@ def test_ctrl_c_while_a_release_runs_record_closes_stops_the_stage(tmp_path, mon
     assert [e.body["kind"] for e in entries(Store(site))] == ["promote"]
 
 
+def test_ctrl_c_after_a_run_stopped_for_another_reason_still_stops_the_stage(tmp_path, monkeypatch):
+    """After a fault stop is when an operator presses Ctrl-C: the run's first reason kept, the signal was forgotten
+    and the stage ran its next run."""
+    plan, site, release = two_runs_at_sim(tmp_path, 1)
+    close = Run.close
+
+    def link_lost_then_a_signal(run):
+        run.stopped = run.stopped or "robot link: the server vanished"
+        signal.raise_signal(signal.SIGINT)
+        close(run)
+
+    monkeypatch.setattr(Run, "close", link_lost_then_a_signal)
+    result = cli("run", "--cell", CELL, "--stage", "sim", "--plan", str(plan), "--site", str(site))
+    assert result.exit_code == 130, result.output
+    folders = list((site / "runs" / CELL / "sim").iterdir())
+    assert len(folders) == 1  # the second run never started
+    stopped = json.loads((folders[0] / "summary.json").read_text())["stopped"]
+    assert stopped == "operator stop (SIGINT) (after robot link: the server vanished)"
+    assert Store(site).runs(CELL, "sim", release) == []
+
+
 def test_a_stop_during_an_operator_hand_over_hold_plays_no_retreat():
     """Ctrl-C while the cell was held for an operator (someone in the cell): the attempt read 'resumed' and the
     arm was driven home at once."""

@@ -99,11 +99,11 @@ class _Slow(_Stalls):
 
 def test_a_slow_policy_that_answers_is_not_lost(tmp_path, monkeypatch):
     """A live policy slower than the watchdog bound (here 0.15 s) but inside its chunks (0.17 s a call for 0.5 s
-    chunks with a 20 ms blend: the next chunk in 342 ms, which start-up accepts) was stopped as lost at its first
-    timed call. (0.25 s calls ran every chunk out: start-up refuses them.)"""
+    chunks: asked again 260 ms in, the next chunk 431 ms after this one's observation, which start-up accepts) was
+    stopped as lost at its first timed call. (0.25 s calls ran every chunk out: start-up refuses them.)"""
     monkeypatch.setattr(loop, "HUNG_WATCHDOGS", 0.5, raising=False)
     scenario = parse_scenario({"cell": ARM, "acceptance_cycles": 1, "production_cycles": 1,
-                               "cycle": {"source": "time", "seconds": 2.0}, "guard": {"blend_s": 0.02},
+                               "cycle": {"source": "time", "seconds": 2.0},
                                "realtime": {"overrun_budget": 1_000_000}})
     run = Run(scenario, realtime=True, policy_factory=partial(_Slow, 0.17))
     summary = run_scenario(scenario, tmp_path / "out", run=run)

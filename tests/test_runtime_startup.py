@@ -48,12 +48,12 @@ def _chunk(h=25, dt_ms=20):
 def test_an_observation_outside_the_statistics_is_refused_naming_the_dimension():
     stats = {"q": (np.array([-1.0, -1.0, -1.0]), np.array([1.0, 1.0, 1.0]))}
     policy = _WithStats(None, stats)
-    check_startup(policy, _obs([0.5, 1.1, -0.9]), _chunk(), 10_000_000, 0.2, MS)  # 1.1 is inside the 10 % margin
+    check_startup(policy, _obs([0.5, 1.1, -0.9]), _chunk(), 10_000_000, MS)  # 1.1 is inside the 10 % margin
     with pytest.raises(StartupRefused, match=r"observation q\[2\] = -1.5 .* not moving"):
-        check_startup(policy, _obs([0.5, 0.0, -1.5]), _chunk(), 10_000_000, 0.2, MS)
+        check_startup(policy, _obs([0.5, 0.0, -1.5]), _chunk(), 10_000_000, MS)
     camera = {"part_in_camera": (np.array([0.0, 0.0, 0.0]), np.array([0.05, 0.5, 2.0]))}
     with pytest.raises(StartupRefused, match=r"part_in_camera\[0\]"):
-        check_startup(_WithStats(None, camera), _obs([0, 0, 0]), _chunk(), 10_000_000, 0.2, MS)
+        check_startup(_WithStats(None, camera), _obs([0, 0, 0]), _chunk(), 10_000_000, MS)
 
 
 _ONES = np.ones(3)
@@ -76,22 +76,22 @@ def test_statistics_that_are_not_finite_ordered_or_the_observations_size_are_ref
     """NaN statistics passed (NaN compares false), the wrong length was a bare ValueError, q01 > q99 an
     inverted range in the message."""
     with pytest.raises(StartupRefused, match=message + ".*not moving"):
-        check_startup(_WithStats(None, stats), _obs([0.0, 0.0, 0.0]), _chunk(), 10_000_000, 0.2, MS)
+        check_startup(_WithStats(None, stats), _obs([0.0, 0.0, 0.0]), _chunk(), 10_000_000, MS)
 
 
 @pytest.mark.filterwarnings("error::RuntimeWarning")
 def test_statistics_as_wide_as_the_float_range_pass_without_an_overflow_warning():
     check_startup(_WithStats(None, {"q": (-_ONES * 1e308, _ONES * 1e308)}), _obs([0.0, 0.0, 0.0]), _chunk(),
-                  10_000_000, 0.2, MS)
+                  10_000_000, MS)
 
 
 def test_a_latency_the_chunk_cannot_cover_is_refused():
-    # 140 + 1 ms from the next observation, itself 141 ms in (one request at a time): 282 < 500 - 200
-    check_startup(object(), None, _chunk(h=25, dt_ms=20), 140_000_000, 0.2, MS)
-    with pytest.raises(StartupRefused, match="latency 150 ms plus one servo period 1 ms .* does not fit the chunk: "
-                                             "horizon 500 ms minus blend 200 ms, counted from the next observation, "
-                                             "151 ms after this one"):
-        check_startup(object(), None, _chunk(h=25, dt_ms=20), 150_000_000, 0.2, MS)
+    # the next observation 241 ms in (one request at a time), its chunk 241 ms later: 482 < 500
+    check_startup(object(), None, _chunk(h=25, dt_ms=20), 240_000_000, MS)
+    with pytest.raises(StartupRefused, match="latency 250 ms plus one servo period 1 ms .* does not fit the chunk: "
+                                             "the next one, asked for 251 ms after this one's observation .* would "
+                                             "arrive 502 ms after it, past its horizon 500 ms"):
+        check_startup(object(), None, _chunk(h=25, dt_ms=20), 250_000_000, MS)
 
 
 def test_a_run_with_an_out_of_distribution_observation_does_not_move():
@@ -137,10 +137,10 @@ def test_a_robot_away_from_the_first_target_is_approached_first_and_the_cycle_st
     assert "watchdog_stop" not in kinds
 
 
-def test_a_short_chunk_counts_at_most_half_its_horizon_as_blend():
-    check_startup(object(), None, _chunk(h=10, dt_ms=20), 40_000_000, 0.2, MS)  # 200 ms chunk: 100 ms budget, 41 + 41
-    with pytest.raises(StartupRefused, match="horizon 200 ms minus blend 100 ms"):
-        check_startup(object(), None, _chunk(h=10, dt_ms=20), 50_000_000, 0.2, MS)
+def test_a_short_chunk_is_refused_once_its_successor_would_arrive_past_it():
+    check_startup(object(), None, _chunk(h=10, dt_ms=20), 90_000_000, MS)  # 200 ms chunk: 91 + 91 ms
+    with pytest.raises(StartupRefused, match="would arrive 202 ms after it, past its horizon 200 ms"):
+        check_startup(object(), None, _chunk(h=10, dt_ms=20), 100_000_000, MS)
 
 
 class _Constant:

@@ -1,15 +1,21 @@
 """The start-up latency check counts when the NEXT chunk arrives: one request at a time, the next observation
-waits for this chunk and the policy's period. Counting the latency alone let through 298 ms on the scripted arm's
-500 ms chunks, at which every chunk ended before the next arrived."""
+waits for this chunk, the policy's period and (on a worker) until the chunk runs low. Counting the latency alone
+let through 298 ms on the scripted arm's 500 ms chunks, at which every chunk ended before the next arrived; counting
+the blend too refused what ran (a next chunk inside the blend only shortens it)."""
 
 from __future__ import annotations
+
+import time
 
 import numpy as np
 import pytest
 
+from cellguard.policy.async_inference import AsyncInference
 from cellguard.policy.chunk import ActionChunk
 from cellguard.robot.registry import make_cell
+from cellguard.robot.state import Observation
 from cellguard.runtime import Run
+from cellguard.runtime.inference import SimulatedInference, WorkerInference
 from cellguard.runtime.startup import StartupRefused, check_startup
 from cellguard.scenario import parse_scenario
 
@@ -42,10 +48,10 @@ def test_a_latency_at_which_every_chunk_runs_out_is_refused():
     """250 ms on 500 ms chunks at 20 Hz: the next observation goes when this chunk is in (251 ms), its chunk 251 ms
     later: 502 ms, past the 300 ms before the blend. The latency alone (251 ms) fitted; so does it with no spacing
     given (the least: until the chunk is taken)."""
-    with pytest.raises(StartupRefused, match=r"latency 250 ms plus one servo period 1 ms .* horizon 500 ms minus "
-                                             r"blend 200 ms, counted from the next observation, 251 ms after this one"):
-        check_startup(object(), None, _chunk(), 250 * MS, 0.2, MS)
-    check_startup(object(), None, _chunk(), 140 * MS, 0.2, MS)  # 282 ms
+    with pytest.raises(StartupRefused, match=r"latency 250 ms plus one servo period 1 ms .* the next one, asked for "
+                                             r"251 ms after this one's observation .* would arrive 502 ms after it"):
+        check_startup(object(), None, _chunk(), 250 * MS, MS)
+    check_startup(object(), None, _chunk(), 240 * MS, MS)  # 482 ms: the blend shortened, no step missing
 
 
 def test_a_short_chunk_asked_for_at_10_hz_is_refused_before_the_robot_moves():
@@ -54,8 +60,8 @@ def test_a_short_chunk_asked_for_at_10_hz_is_refused_before_the_robot_moves():
     q0 = make_cell("arm-pick-place").q_home
     run = Run(parse_scenario({"cell": "arm-pick-place", "policy_hz": 10, "acceptance_cycles": 1, "production_cycles": 0,
                               "cycle": {"source": "time", "seconds": 1.0}}), policy_factory=lambda: _Held(q0, h=5))
-    with pytest.raises(StartupRefused, match=r"latency 10 ms plus one servo period 1 ms .* horizon 100 ms minus "
-                                             r"blend 50 ms, counted from the next observation, 100 ms after this one"):
+    with pytest.raises(StartupRefused, match=r"latency 10 ms plus one servo period 1 ms .* asked for 100 ms after this "
+                                             r"one's observation .* would arrive 111 ms after it, past its horizon 100"):
         run.cycle()
     assert [e.kind for e in run.events][-1] == "startup_refused"
     assert np.abs(run.cell.read().q - q0).max() < 1e-3
@@ -68,3 +74,30 @@ def test_a_simulated_latency_fault_is_still_no_refusal():
                               "faults": [{"kind": "policy_latency", "at_cycle": 0, "ms": 280}]}))
     run.cycle()
     assert "startup_refused" not in [e.kind for e in run.events]
+
+
+def test_a_worker_counts_its_wait_until_the_chunk_runs_low():
+    """LeRobot's threshold 0.5: the next observation goes once 12 of 25 steps are left, 260 ms in, whatever the
+    latency below it; the same time at which ``wants_observation`` turns true."""
+    worker = AsyncInference(_Held(np.zeros(6)), threshold=0.5)
+    try:
+        inference = WorkerInference(worker, 50 * MS)
+        assert inference.spacing_ns(11 * MS, _chunk()) == 260 * MS
+        assert inference.spacing_ns(300 * MS, _chunk()) == 300 * MS
+        worker.submit(Observation(40 * MS, np.zeros(6), np.zeros(6)))
+        for _ in range(500):  # bounded: 5 s
+            if worker.take() is not None:
+                break
+            time.sleep(0.01)
+        wait = worker.wait_ns(_chunk(40 * MS))
+        assert not worker.wants_observation(40 * MS + wait - 1) and worker.wants_observation(40 * MS + wait)
+    finally:
+        worker.close()
+    check_startup(object(), None, _chunk(), 230 * MS, MS, inference.spacing_ns(231 * MS, _chunk()))  # 491 ms
+    with pytest.raises(StartupRefused, match=r"latency 240 ms .* asked for 260 ms after .* would arrive 501 ms"):
+        check_startup(object(), None, _chunk(), 240 * MS, MS, inference.spacing_ns(241 * MS, _chunk()))
+
+
+def test_in_simulated_time_the_policy_period_spaces_the_requests():
+    """At 10 Hz a 10 ms policy's next chunk comes 111 ms after this one's observation."""
+    assert SimulatedInference(_Held(np.zeros(6)), 100 * MS).spacing_ns(11 * MS, _chunk()) == 100 * MS

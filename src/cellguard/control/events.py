@@ -26,7 +26,9 @@ class EventKind(StrEnum):
     CHUNK_REJECTED = "chunk_rejected"
     CHUNK_STALE = "chunk_stale"
     CHUNK_STEPS_DROPPED = "chunk_steps_dropped", True
-    CHUNK_RAN_OUT = "chunk_ran_out"  # the chunk in use ended before the next arrived: the reference held its end
+    # the chunk in use ended before the next arrived: the reference held its end. Routine: the guard's braking is the
+    # intervention (its event opens the full-rate window); counted again here it doubled interventions_per_hour
+    CHUNK_RAN_OUT = "chunk_ran_out", True
     # envelope: stops (category None: the category is the request's, e.g. the safety input's)
     PROTECTIVE_STOP = "protective_stop"
     REFERENCE_INVALID = "reference_invalid", False, 2

@@ -54,7 +54,8 @@ class PolicyProcess:
     A pure-Python policy holds the GIL while it computes; in its own process it cannot stall
     the servo thread. ``infer`` sends the observation over a pipe and waits for the chunk (the
     waiting thread releases the GIL); an exception in the child comes back as a RuntimeError.
-    ``ended`` says why once the process is found gone: it answers no more.
+    ``ended`` says why once the process is found gone, or holds no policy it may run (one it could not build, or
+    not the run's): it answers no more.
     """
 
     def __init__(self, factory: Callable[[], Policy], sha256: str | None = None):
@@ -85,7 +86,9 @@ class PolicyProcess:
             kind, value = self._conn.recv()
         except (EOFError, OSError):
             raise self._ended() from None
-        if kind == "error":
+        if kind == "broken":  # the policy could not be built there, or is not the run's: it answers no more
+            self.ended = value
+        if kind in ("error", "broken"):
             raise RuntimeError(value)
         return value
 
@@ -121,7 +124,7 @@ def _serve_policy(conn, factory, sha256: str | None) -> None:
     while True:
         kind, value = conn.recv()
         if broken is not None and kind != "close":
-            conn.send(("error", broken))
+            conn.send(("broken", broken))  # for good: the parent asks no more
             continue
         if kind == "close":
             close = getattr(policy, "close", None)
@@ -193,13 +196,22 @@ class AsyncInference:
             self._set_queue(result.chunk.step_times_ns())
         return result
 
+    def wait_ns(self, chunk: ActionChunk) -> int:
+        """How long after ``chunk``'s observation the next one is due, once the chunk is the queue [ns] (the
+        start-up check counts it: at a threshold of 0.5 the next chunk is asked for half a horizon in)."""
+        return max(self._due(chunk.step_times_ns()) - chunk.t_obs_ns, 0)
+
     def _set_queue(self, step_times: np.ndarray) -> None:
-        """The newest chunk's step times [ns], ascending; an observation is due from the time at which
-        at most ``threshold`` of the horizon is left (``remaining_steps(t) <= threshold * horizon``)."""
+        """The newest chunk's step times [ns], ascending, and when an observation is due."""
         self._step_times = step_times
+        self._due_ns = self._due(step_times)
+
+    def _due(self, step_times: np.ndarray) -> int:
+        """When an observation is due for a chunk with these step times [ns]: from the time at which at most
+        ``threshold`` of the horizon is left (``remaining_steps(t) <= threshold * horizon``)."""
         horizon = len(step_times)
         keep = int(np.floor(self.threshold * horizon))  # steps that may still lie ahead when asking
-        self._due_ns = -(1 << 62) if keep >= horizon else int(step_times[horizon - 1 - keep])
+        return -(1 << 62) if keep >= horizon else int(step_times[horizon - 1 - keep])
 
     @property
     def busy(self) -> bool:
@@ -211,22 +223,22 @@ class AsyncInference:
         """Why the policy answers no more: its process ended (a thread worker never says so)."""
         return None if self._remote is None else self._remote.ended
 
-    def warm_up(self, observation: Observation, timeout_s: float,
-                stop: Callable[[], bool] = lambda: False) -> InferenceResult | None:
+    def warm_up(self, observation: Observation, timeout_s: float, stop: Callable[[], bool] = lambda: False) -> bool:
         """One call before the loop starts (loads, compiles, fills caches), on the worker; its chunk is dropped.
         Waited for at most ``timeout_s`` and until ``stop()``, asked every ``WAIT_S`` (called on the main thread,
-        a policy hung in it hung the run, deaf to SIGTERM). Its answer, a failure too; None: given up, the call
-        still in flight."""
+        a policy hung in it hung the run, deaf to SIGTERM). True once answered, a failure too (the loop's first
+        request reports it; a policy its process could not build ends the worker: ``ended``); False: given up, the
+        call still in flight."""
         self.submit(observation)
         deadline = time.monotonic() + timeout_s
         with self._lock:
             while self._done is None:
                 left = deadline - time.monotonic()
                 if left <= 0 or stop():
-                    return None
+                    return False
                 self._answered.wait(min(left, WAIT_S))
-            done, self._done, self._in_flight = self._done, None, False
-        return done
+            self._done, self._in_flight = None, False
+        return True
 
     def discard(self) -> None:
         """A new episode: forget the queue and a finished result (one still in flight arrives late); the

@@ -60,6 +60,11 @@ class SimulatedInference:
         self._pending = (t_ns + self.latency_ns, Arrival(chunk, self.latency_ns, time.perf_counter_ns() - began))
         return None
 
+    def spacing_ns(self, taken_ns: int, chunk: ActionChunk) -> int:
+        """The longest time from one observation to the next when a chunk is taken ``taken_ns`` after its
+        observation [ns]: the next request waits for it and for the policy's period (``chunk``: unused here)."""
+        return max(self.period_ns, taken_ns)
+
     def corrupt_pending(self, corrupt: Callable[[ActionChunk], ActionChunk]) -> None:
         """Replace the pending chunk by ``corrupt(chunk)`` (a simulated fault in the policy's output)."""
         at, arrival = self._pending
@@ -92,17 +97,13 @@ class WorkerInference:
 
     def warm_up(self, observation, timeout_s: float, stop: Callable[[], bool]) -> None:
         """A first call off the clock (a cold policy's first answer is not its latency), waited for at most
-        ``timeout_s`` and until ``stop()``. A call given up, one whose process ended, or one that failed (a policy
-        that cannot be built, a server that answers errors: the run went on to a watchdog stop, exit 0, never having
-        moved) loses the policy."""
-        answer = self.worker.warm_up(observation, timeout_s, stop)
-        if answer is None:
+        ``timeout_s`` and until ``stop()``. A call given up, or a process that ended or could not build the policy,
+        loses the policy (a failed call does not: a cold server may answer the next)."""
+        if not self.worker.warm_up(observation, timeout_s, stop):
             self._lose("the policy's first call was given up at a stop" if stop() else
                        f"the policy's first call has not answered in {timeout_s:g} s")
         elif self.worker.ended:
             self._lose(self.worker.ended)
-        elif answer.error is not None:
-            self._lose(f"the policy's first call failed: {answer.error}")
 
     def begin_cycle(self, t_ns: int) -> None:
         """A new episode: the worker drops what it holds and resets the policy on its own thread."""
@@ -117,6 +118,12 @@ class WorkerInference:
         self._answer_by = t_ns + self.hang_ns
         self.worker.submit(observation)
         return None
+
+    def spacing_ns(self, taken_ns: int, chunk: ActionChunk) -> int:
+        """The longest time from one observation to the next when ``chunk`` is taken ``taken_ns`` after its
+        observation [ns]: the next request waits for it, for the policy's period and for the worker (until
+        ``chunk`` runs low: half its horizon, as LeRobot's async client)."""
+        return max(self.period_ns, taken_ns, self.worker.wait_ns(chunk))
 
     def corrupt_pending(self, corrupt: Callable[[ActionChunk], ActionChunk]) -> None:
         """The next chunk to arrive becomes ``corrupt(chunk)`` (a simulated fault in the policy's output, on

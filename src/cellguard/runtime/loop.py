@@ -43,7 +43,7 @@ from cellguard.runtime.cycles import make_cycle_source
 from cellguard.runtime.history import CycleWindow, EventLog
 from cellguard.runtime.inference import NOMINAL_INFERENCE_S
 from cellguard.runtime.link import RobotLink
-from cellguard.runtime.operator_stop import OperatorStop
+from cellguard.runtime.operator_stop import OperatorStop, by_operator
 from cellguard.runtime.recovery import RecoveryRunner
 from cellguard.runtime.startup import StartupRefused, check_startup
 from cellguard.runtime.transitions import Transition, speed_cap
@@ -341,8 +341,8 @@ class Run:
         latency = arrival.latency_ns if self.clock.realtime else round(NOMINAL_INFERENCE_S * 1e9)
         period = self.clock.period_ns
         try:
-            check_startup(self.policy, self._first_observation, chunk, latency, self.scenario.guard.blend_s, period,
-                          max(round(1e9 / self.scenario.policy_hz), latency + period))  # to the next observation
+            check_startup(self.policy, self._first_observation, chunk, latency, period,
+                          self.inference.spacing_ns(latency + period, chunk))
         except StartupRefused as exc:
             self._refuse(str(exc))
         # from where the robot was commanded to be (the measured pose lags it: planning from there stepped the command)
@@ -696,8 +696,9 @@ def run_scenario(scenario: Scenario, out: Path, on_cycle: Callable[[dict], None]
             run.close()
         try:
             summary = _write_summary(run, out)
-            if run.operator.count and not run.stopped:  # a signal while the record closed or the summary was written
-                run.stopped = run.operator.reason  # is the operator's stop all the same (a release ran its next run)
+            if run.operator.count and not by_operator(run.stopped):  # a signal while the record closed, the summary
+                # was written, or after another stop: the operator's stop all the same (a release ran its next run)
+                run.stopped = run.operator.reason + (f" (after {run.stopped})" if run.stopped else "")
                 summary = _write_summary(run, out)
         finally:
             run.recording.release_folder()

@@ -5,16 +5,17 @@ normalisation statistics (per-dimension q01..q99, widened by a margin of the ran
 policy offers them as ``normalisation_stats() -> {name: (q01, q99)}`` (finite, q01 <= q99, one
 per observed value, else refused too: NaN statistics compared false and passed; in the cell's units
 and joint order, as the policy's adapter sees the observation; a name the cell does not observe is
-refused, not skipped: the check never ran); and the next chunk arrives in time to be blended in
-(the next observation's time after this one, plus latency, plus one servo period < horizon minus
-the blend time, the blend counted at most half the horizon), else the robot would run out of steps
-before the next chunk arrives. A chunk is taken at the tick after it is ready, up to one period
-later: a 2 Hz robot took every 500 ms chunk with all its steps past, and did nothing. The next
-observation waits for this chunk (one request at a time) and the policy's period: counting the
-latency alone let through 298 ms on the scripted arm's 500 ms chunks, at which every chunk ended
-before the next arrived and the guard braked each. A worker may ask later still, when the chunk
-runs low (half its horizon, as LeRobot's async client): that shortens a blend, it never lets a
-chunk run out, since this check keeps the latency under half the horizon.
+refused, not skipped: the check never ran); and the next chunk arrives before this one ends (the
+next observation's time after this one, plus the latency, plus one servo period < the horizon),
+else the robot would run out of steps and the guard brake it at every chunk. A chunk is taken at
+the tick after it is ready, up to one period later: a 2 Hz robot took every 500 ms chunk with all
+its steps past, and did nothing. The next observation waits for this chunk (one request at a
+time), the policy's period and, on a worker, until the chunk runs low (half its horizon, as
+LeRobot's async client): counting the latency alone let through 298 ms on the scripted arm's
+500 ms chunks in simulated time, at which every chunk ended before the next arrived. This also
+refuses what the latency alone could not fit (latency at or over the horizon less the blend, the
+blend at most half the horizon); a next chunk that arrives within the blend time of the end only
+shortens the blend (continuous still, and guarded).
 """
 
 from __future__ import annotations
@@ -32,8 +33,8 @@ class StartupRefused(ConfigError):
     """A start-up check failed: the robot does not move."""
 
 
-def check_startup(policy, observation, chunk, latency_ns: int, blend_s: float, period_ns: int,
-                  spacing_ns: int | None = None, margin: float = STATS_MARGIN) -> None:
+def check_startup(policy, observation, chunk, latency_ns: int, period_ns: int, spacing_ns: int | None = None,
+                  margin: float = STATS_MARGIN) -> None:
     """Raise StartupRefused naming the first dimension out of range or a latency the chunk cannot cover
     (``period_ns``: the servo period, the longest a ready chunk waits for its tick; ``spacing_ns``: the longest
     time from one observation to the next; None: until the chunk is taken, the least with one request at a
@@ -59,15 +60,15 @@ def check_startup(policy, observation, chunk, latency_ns: int, blend_s: float, p
                 raise StartupRefused(f"start-up: observation {name}[{i}] = {value[i]:.4g} is outside the policy's "
                                      f"normalisation range [{q01[i] - pad[i]:.4g}, {q99[i] + pad[i]:.4g}] "
                                      f"(q01..q99 with {margin:.0%} margin); not moving")
-    horizon_s = chunk.actions.shape[0] * chunk.dt_ns * 1e-9
-    blend_s = min(blend_s, 0.5 * horizon_s)  # a chunk shorter than two blends is re-asked for within its first half
+    horizon_ns = chunk.actions.shape[0] * chunk.dt_ns  # its last step is due this long after its observation
     taken_ns = latency_ns + period_ns
     spacing_ns = taken_ns if spacing_ns is None else spacing_ns
-    if (spacing_ns + taken_ns) * 1e-9 >= horizon_s - blend_s:  # the next chunk, taken after this one's observation
+    if spacing_ns + taken_ns >= horizon_ns:  # the next chunk, taken after this one's observation
         raise StartupRefused(f"start-up: inference latency {latency_ns * 1e-6:.0f} ms plus one servo period "
                              f"{period_ns * 1e-6:.0f} ms (a chunk is taken at the next tick) does not fit the chunk: "
-                             f"horizon {horizon_s * 1e3:.0f} ms minus blend {blend_s * 1e3:.0f} ms, counted from the "
-                             f"next observation, {spacing_ns * 1e-6:.0f} ms after this one (one request at a time); "
+                             f"the next one, asked for {spacing_ns * 1e-6:.0f} ms after this one's observation (one "
+                             f"request at a time), would arrive {(spacing_ns + taken_ns) * 1e-6:.0f} ms after it, "
+                             f"past its horizon {horizon_ns * 1e-6:.0f} ms: the robot would run out of steps; "
                              f"not moving")
 
 
