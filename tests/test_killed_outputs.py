@@ -1,14 +1,12 @@
-"""A command killed outright (SIGKILL, the OOM killer, a power switch) runs no clean-up. Killed during its final move,
-``record to-lerobot`` left half a dataset at -o (data/ without meta/) and ``record recover`` an index without a
-record, and every rerun refused the filled folder until it was removed by hand; every killed write of an output file
-left its hidden temporary file (``.NAME.PID.tmp``, as large as the output) beside it for good. The next run of the
-same command takes out exactly what the killed one made, and nothing that a live one or anyone else put there."""
+"""A command killed outright (SIGKILL, the OOM killer, a power switch) runs no clean-up: every killed write of an
+output file left its hidden temporary file (``.NAME.PID.tmp``, as large as the output) beside it for good. The next
+write of the same file takes out exactly what a killed one left, and nothing that a live one or anyone else put
+there."""
 
 from __future__ import annotations
 
 import errno
 import fcntl
-import json
 import os
 import signal
 import subprocess
@@ -17,15 +15,12 @@ import time
 from pathlib import Path
 
 import pytest
-from cli_util import one_error
 from run_copies import recorded, run  # noqa: F401 (fixtures)
 from typer.testing import CliRunner
 
 from cellguard import output
 from cellguard.cli import app
 from cellguard.output import write_output
-from cellguard.record import recovery
-from cellguard.record.reader import open_record
 
 runner = CliRunner()
 
@@ -56,72 +51,6 @@ def _killed(call: str, name: str, *args) -> None:
 
 def _names(folder: Path) -> list[str]:
     return sorted(os.listdir(folder))
-
-
-@pytest.mark.parametrize("made", [True, False])
-def test_a_to_lerobot_killed_between_data_and_meta_is_taken_out_by_the_rerun(run, tmp_path, made):
-    out = tmp_path / "lr" / "ds"
-    (tmp_path / "lr").mkdir()
-    (tmp_path / "lr" / "keep.txt").write_text("mine\n")
-    if not made:
-        out.mkdir()
-    _killed("rename", "data", "record", "to-lerobot", run, "-o", out)
-    assert _names(out) == ["data"]  # half a dataset, its staging folder beside it
-    result = runner.invoke(app, ["record", "to-lerobot", str(run), "-o", str(out)])
-    assert result.exit_code == 0, result.output
-    assert _names(tmp_path / "lr") == ["ds", "keep.txt"] and _names(out) == ["data", "meta"]
-    assert json.loads((out / "meta" / "info.json").read_text())["total_episodes"] == 6
-
-
-def test_what_replaced_a_killed_to_lerobots_part_is_never_taken_out(run, tmp_path):
-    """Only the very folder the killed export moved is removed: data/ put there by anyone else stays, and the folder
-    is refused as filled."""
-    out = tmp_path / "ds"
-    _killed("rename", "data", "record", "to-lerobot", run, "-o", out)
-    os.rename(out / "data", tmp_path / "moved-away")
-    (out / "data").mkdir()
-    (out / "data" / "mine.txt").write_text("mine\n")
-    line = one_error(runner.invoke(app, ["record", "to-lerobot", str(run), "-o", str(out)]))
-    assert line == f"error: -o {out}: exists and is not empty; give a new folder"
-    assert (out / "data" / "mine.txt").read_text() == "mine\n" and _names(out) == ["data"]
-    assert _names(tmp_path) == ["ds", "moved-away", "run"]  # the killed export's staging folder cleared
-
-
-def test_a_recover_killed_during_its_move_is_taken_out_by_the_rerun(run, tmp_path):
-    target = tmp_path / "T"
-    _killed("link", "*", "record", "recover", run, "-o", target)
-    assert "record.mcap" not in os.listdir(target) and (target / "index").is_dir()  # an index without a record
-    result = runner.invoke(app, ["record", "recover", str(run), "-o", str(target)])
-    assert result.exit_code == 0, result.output
-    assert _names(target) == ["index", "record.mcap"]
-    with open_record(target) as rec:
-        assert [c.cycle for c in rec.cycles()] == list(range(6))
-
-
-def test_a_file_that_replaced_one_a_killed_recover_moved_is_never_taken_out(run, tmp_path):
-    target = tmp_path / "T"
-    _killed("link", "*", "record", "recover", run, "-o", target)
-    moved = next(p for p in (target / "index").rglob("*") if p.is_file())
-    moved.unlink()
-    moved.write_bytes(b"mine")
-    line = one_error(runner.invoke(app, ["record", "recover", str(run), "-o", str(target)]))
-    assert line == f"error: -o {target}: exists and is not empty; give a new folder"
-    assert moved.read_bytes() == b"mine" and _names(target) == ["index"]
-
-
-def test_a_recover_whose_move_fails_leaves_nothing(run, tmp_path, monkeypatch):
-    """A link that failed after the index was moved left the index without its record."""
-    link = os.link
-
-    def failing(src, dst, *args, **kwargs):
-        if Path(dst).name == "record.mcap":
-            raise OSError(errno.EIO, "Input/output error")
-        return link(src, dst, *args, **kwargs)
-
-    monkeypatch.setattr(recovery.os, "link", failing)
-    line = one_error(runner.invoke(app, ["record", "recover", str(run), "-o", str(tmp_path / "T")]))
-    assert line == f"error: {tmp_path / 'T'}: cannot write the recovered record (Input/output error)"
-    assert _names(tmp_path) == ["run"]
 
 
 def _temporaries(folder: Path) -> list[str]:
@@ -206,3 +135,14 @@ def test_only_a_regular_temporary_file_of_the_same_output_is_removed(tmp_path, n
     kept.mkdir() if name.endswith("/") else kept.write_bytes(b"other")
     write_output(tmp_path / "t.csv", "rows", "-o")
     assert _names(tmp_path) == sorted([kept.name, "t.csv"])
+
+
+def test_a_link_at_the_temporary_name_is_one_error_not_a_spin(tmp_path):
+    """A dangling link under the write's own temporary name: the write followed it (making its target) and spun at
+    full CPU for ever, its check that the file it locked is the one under that name failing every time."""
+    tmp = tmp_path / f".t.csv.{os.getpid()}.tmp"
+    tmp.symlink_to(tmp_path / "elsewhere")
+    began = time.monotonic()
+    with pytest.raises(output.OutputError, match=r"t\.csv: cannot write"):
+        write_output(tmp_path / "t.csv", "a,b\n", "--out")
+    assert time.monotonic() - began < 5 and not (tmp_path / "elsewhere").exists() and not (tmp_path / "t.csv").exists()

@@ -23,6 +23,7 @@ from cellguard.errors import OutputError
 NAME_MAX = 255  # the longest file name, in bytes, on ext4, XFS, btrfs and APFS
 PID_MAX = 4194304  # the highest pid Linux gives (2**22), for the longest temporary name
 TEMPORARY_SUFFIX = ".tmp"
+TEMPORARY_TRIES = 100  # a temporary file taken from under a write is made again at most this often
 UNLOCKABLE = (errno.ENOLCK, errno.EOPNOTSUPP, errno.ENOTSUP, errno.EINVAL)  # flock is not offered there
 # what an output never replaces, by the bytes it starts with (a link followed to one destroyed another run's record)
 NEVER_REPLACED = {b"\x89MCAP0\r\n": "a record (MCAP)", b"SQLite format 3\x00": "an SQLite database (a store)"}
@@ -171,8 +172,8 @@ def _temporary_prefix(name: str) -> str:
 def _locked_temporary(tmp: Path, mode: int) -> Iterator[BinaryIO]:
     """``tmp`` created (or emptied), open for writing and ``flock``ed until the block ends: a lock not held marks the
     temporary file of a killed write (``_clear_stale_temporaries``). Without locks there, it is written unlocked."""
-    while True:
-        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT, mode)
+    for _ in range(TEMPORARY_TRIES):
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_NOFOLLOW, mode)  # a link there: ELOOP, never followed
         try:
             fcntl.flock(fd, fcntl.LOCK_EX)  # a clearing write holds it a moment
             if _same_file(os.fstat(fd), os.lstat(tmp)):
@@ -185,6 +186,8 @@ def _locked_temporary(tmp: Path, mode: int) -> Iterator[BinaryIO]:
                 raise
             break
         os.close(fd)
+    else:  # replaced under it again and again: no file of its own to write (it spun at full CPU on a link)
+        raise FileExistsError(tmp)
     os.ftruncate(fd, 0)  # once locked: a killed write's file of the same name may be there
     with os.fdopen(fd, "wb") as f:
         yield f

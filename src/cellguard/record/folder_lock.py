@@ -11,7 +11,6 @@ included, and the kernel lets go of it when they are gone (no stale lock after a
 from __future__ import annotations
 
 import fcntl
-import json
 import os
 import shutil
 import time
@@ -20,9 +19,6 @@ from pathlib import Path
 
 from cellguard.errors import RecordError
 from cellguard.output import UNLOCKABLE
-
-
-MOVING = ".moving.json"  # in a staging folder: what its command moves into its target, each part's identity
 
 
 def hold(folder: Path, what: str = "--out", wait_s: float = 0.0) -> int | None:
@@ -105,55 +101,15 @@ def release(fd: int | None) -> None:
             pass
 
 
-def clear_stale(staging: Iterable[Path], busy: str, target: Path) -> None:
+def clear_stale(staging: Iterable[Path], busy: str) -> None:
     """Remove the staging folders of commands killed before their clean-up (SIGKILL: nothing holds their lock, and
-    each stayed for good) and what each had moved into ``target`` (``withdraw``: a kill between two moves left half
-    an output there, and every rerun refused the filled folder); RecordError ``busy`` (naming the folder) if one is
-    still held by a live command."""
+    each stayed for good); RecordError ``busy`` (naming the folder) if one is still held by a live command."""
     for old in staging:
         try:
             lock = hold(old, "-o")
         except RecordError:
             raise RecordError(f"{busy} ({old.name}); wait for it to end or give another folder") from None
         try:
-            if lock is not None:  # its command is gone; without locks, what it moved is not known to be unfinished
-                withdraw(old, target)
             shutil.rmtree(old, ignore_errors=True)
         finally:
             release(lock)
-
-
-def note_moving(staging: Path, parts: Iterable[Path]) -> None:
-    """Write down in ``staging``, before any is moved, which of its ``parts`` (paths inside it) are moved into the
-    target and which file or folder each is (a rename or a hard link keeps it), so that ``withdraw`` can take out
-    exactly these if the move does not end."""
-    identities = {str(part): _identity(staging / part) for part in parts}
-    (staging / MOVING).write_text(json.dumps(identities))
-
-
-def withdraw(staging: Path, target: Path) -> None:
-    """Remove from ``target`` the parts of ``staging`` moved there (``note_moving``), each only where it is still the
-    very file or folder moved, and the folders this leaves empty: never anything another command put there."""
-    try:
-        identities = json.loads((staging / MOVING).read_text())
-    except (OSError, ValueError):  # no move started
-        return
-    for part, identity in identities.items():
-        moved = target / part
-        try:
-            if _identity(moved) != identity:
-                continue
-            if moved.is_dir():
-                shutil.rmtree(moved)
-            else:
-                moved.unlink()
-            for folder in moved.parents[:len(Path(part).parents) - 1]:
-                folder.rmdir()  # OSError once one holds anything else
-        except OSError:
-            continue
-
-
-def _identity(path: Path) -> list[int]:
-    """Which file or folder ``path`` is, not following a link (JSON: a list)."""
-    st = os.lstat(path)
-    return [st.st_dev, st.st_ino]

@@ -42,7 +42,6 @@ EPISODES_FILE = "meta/episodes/chunk-000/file-000.parquet"
 QUANTILES = (0.01, 0.10, 0.50, 0.90, 0.99)
 MAX_FPS = 1000  # [Hz] the fastest frame rate a dataset is written at (a servo rate's)
 STEP_TOLERANCE_NS = 1000  # a frame step this close to the period is the period; a missing frame is 1/fps off
-PARTS = ("data", "meta")  # moved into -o in this order: a dataset without meta/info.json is not one to LeRobot
 STAGING_SUFFIX = ".partial"  # of the folder beside -o that a run writes into: .NAME.XXXXXXXX.partial
 INDEX_FEATURES = ("timestamp", "frame_index", "episode_index", "index", "task_index")
 _TICK_FEATURES = {"observation.state": "q_meas", "observation.velocity": "qd_meas",
@@ -105,30 +104,31 @@ def export_lerobot(rec: Record, output: Path, fps: int | None = None, task: str 
     made = not output.exists()
     staging = _prepare(output)
     robot_type = robot_type or (context.get("embodiment") or {}).get("robot")
-    lock = None
+    lock, moved = None, []
     try:
         lock = folder_lock.hold(staging, "-o")  # while this run lives: the next export clears it once it was killed
         _write_dataset(staging, data, features, episodes, kept, task, robot_type, fps)
         # into the empty folder _prepare checked or made, which stays the same folder (it may be a shell's
-        # current folder); noted first, so that the next export takes out what a killed one had moved
-        folder_lock.note_moving(staging, map(Path, PARTS))
-        for part in PARTS:
-            (staging / part).rename(output / part)
+        # current folder); meta/ last: a dataset without meta/info.json is not one to LeRobot
+        for part in sorted(staging.iterdir(), key=lambda p: p.name == "meta"):
+            part.rename(output / part.name)
+            moved.append(output / part.name)
     except BaseException as exc:  # a full disk, Ctrl-C, SIGTERM: nothing of this run's is left in -o
-        _undo(output, staging, made)
+        _undo(output, moved, made)
         if isinstance(exc, OSError):  # named as given: the staging folder is this run's own, and gone after it
             raise RecordError(f"-o {output}: cannot write ({exc.strerror or exc})") from None
         raise
     finally:
-        shutil.rmtree(staging, ignore_errors=True)  # this run's own folder; only the note of its move once moved
+        shutil.rmtree(staging, ignore_errors=True)  # this run's own folder; empty once its parts moved
         folder_lock.release(lock)
     return LeRobotExport(str(output), fps, tuple(kept), len(data["index"]), tuple(skipped))
 
 
-def _undo(output: Path, staging: Path, made: bool) -> None:
+def _undo(output: Path, moved: list[Path], made: bool) -> None:
     """Remove the parts of the dataset already moved into ``output``, and ``output`` itself if this run made it (a
     full disk or an interrupted export left an empty folder behind, or one with data/ and no meta/)."""
-    folder_lock.withdraw(staging, output)
+    for part in moved:
+        shutil.rmtree(part, ignore_errors=True)
     if made:
         with contextlib.suppress(OSError):
             output.rmdir()  # only if empty
@@ -259,8 +259,8 @@ def _stats(values: np.ndarray) -> dict[str, list]:
 def _prepare(output: Path) -> Path:
     """Check or make the empty folder ``output`` (``output.resolve()``); a new folder beside it, unique to this run,
     to write into."""
-    _clear_stale_staging(output)  # first: what a killed export had moved into -o goes with its staging folder
     refuse_filled_folder(output, "-o")
+    _clear_stale_staging(output)
     try:
         output.mkdir(parents=True, exist_ok=True)
         staging = Path(tempfile.mkdtemp(prefix=_staging_prefix(output), suffix=STAGING_SUFFIX, dir=output.parent))
@@ -276,8 +276,7 @@ def _staging_prefix(output: Path) -> str:
 
 def _clear_stale_staging(output: Path) -> None:
     """Remove the staging folders beside ``output`` of exports killed before their clean-up (SIGKILL: nothing holds
-    their lock; each stayed for good) and the parts each had moved into ``output``; RecordError if an export into
-    ``output`` is still writing."""
+    their lock; each stayed for good); RecordError if an export into ``output`` is still writing."""
     prefix = _staging_prefix(output)
     mine = re.compile(re.escape(prefix) + r"[a-z0-9_]{8}" + re.escape(STAGING_SUFFIX))  # mkdtemp's 8 characters
     try:
@@ -285,7 +284,7 @@ def _clear_stale_staging(output: Path) -> None:
                      if mine.fullmatch(p.name) and p.is_dir() and not p.is_symlink()]
     except OSError:
         return  # the folder's own write says why it cannot be read
-    folder_lock.clear_stale(leftovers, f"-o {output}: another export is writing there", output)
+    folder_lock.clear_stale(leftovers, f"-o {output}: another export is writing there")
 
 
 def _write_parquet(path: Path, table: pa.Table) -> None:

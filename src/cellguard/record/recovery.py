@@ -89,14 +89,13 @@ def _staging(path: Path) -> bool:
 
 
 def _clear_stale_staging(target: Path) -> None:
-    """Remove the staging folders of recoveries killed in ``target`` (nothing holds their lock) and the files each
-    had moved into ``target``; RecordError if a recovery is still writing there. A rerun after ``kill -9`` was
-    refused as "not empty", saying nothing of why (after a kill during the move: an index and no record)."""
+    """Remove the staging folders of recoveries killed in ``target`` (nothing holds their lock); RecordError if a
+    recovery is still writing there. A rerun after ``kill -9`` was refused as "not empty", saying nothing of why."""
     try:
         leftovers = [p for p in target.iterdir() if _staging(p)] if target.is_dir() else []
     except OSError:
         return  # refuse_filled_folder says why the folder cannot be read
-    folder_lock.clear_stale(leftovers, f"-o {target}: another recovery is writing there", target)
+    folder_lock.clear_stale(leftovers, f"-o {target}: another recovery is writing there")
 
 
 def _text(path: Path) -> str:
@@ -114,30 +113,20 @@ def _move_into(staging: Path, target: Path) -> None:
         if filled:
             raise RecordError(f"-o {target}: {filled[0]} appeared there while the copy was made (another recovery?); "
                               f"nothing of it was replaced: give a new folder")
-        files = sorted((p.relative_to(staging) for p in staging.rglob("*") if p.is_file()),
-                       key=lambda p: p.name == RECORD_FILE)
-        folder_lock.note_moving(staging, files)  # what a recovery killed during its move leaves: the next one clears it
-        try:
-            for file in files:
-                _move_file(staging / file, target / file)
-        except BaseException:  # a failed or interrupted move leaves nothing of this copy (an index without a record)
-            folder_lock.withdraw(staging, target)
-            raise
+        files = sorted((p for p in staging.rglob("*") if p.is_file()), key=lambda p: p.name == RECORD_FILE)
+        for file in files:
+            destination = target / file.relative_to(staging)
+            destination.parent.mkdir(parents=True, exist_ok=True)
+            try:
+                os.link(file, destination)
+            except OSError as exc:
+                if exc.errno not in (errno.EPERM, errno.EOPNOTSUPP, errno.ENOTSUP, errno.EMLINK):
+                    raise  # EEXIST above all: never replaced
+                file.rename(destination)  # a filesystem without hard links: under the lock, checked empty
+                continue
+            file.unlink()
     finally:
         folder_lock.release(lock)
-
-
-def _move_file(file: Path, destination: Path) -> None:
-    """Link ``file`` to ``destination`` and unlink it (a file there is never replaced)."""
-    destination.parent.mkdir(parents=True, exist_ok=True)
-    try:
-        os.link(file, destination)
-    except OSError as exc:
-        if exc.errno not in (errno.EPERM, errno.EOPNOTSUPP, errno.ENOTSUP, errno.EMLINK):
-            raise  # EEXIST above all: never replaced
-        file.rename(destination)  # a filesystem without hard links: under the lock, checked empty
-        return
-    file.unlink()
 
 
 def _copy_messages(record, stream, recovered: dict[str, str]) -> None:
