@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -113,3 +114,14 @@ def edit_store(site: Path, sql: str) -> None:
     db.execute(sql)
     db.commit()
     db.close()
+
+
+@dataclass(frozen=True)
+class Received:
+    """A chunk as the record holds it (``RecordedChunk``'s fields the gates read), for synthetic streams."""
+
+    t_obs_ns: int
+    t_received_ns: int
+    latency_ns: int
+    dt_ns: int
+    actions: np.ndarray

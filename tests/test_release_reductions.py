@@ -7,7 +7,7 @@ import pickle
 
 import numpy as np
 import pytest
-from release_helpers import CELL
+from release_helpers import CELL, Received
 
 from cellguard.record.reader import open_record
 from cellguard.release.evidence import load_run
@@ -54,18 +54,9 @@ def test_ticks_outside_a_narrowed_range_are_counted_with_the_first_ones_cycle_an
     assert (limits.first_cycle, limits.joint) == (int(ticks.cycle[over[0]]), profile.joint_names[j])
 
 
-@dataclasses.dataclass(frozen=True)
-class _Received:
-    t_obs_ns: int
-    t_received_ns: int
-    latency_ns: int
-    dt_ns: int
-    actions: np.ndarray
-
-
-def _chunk(t_obs_ns: int, value: float, latency_ns: int = 5_000_000) -> _Received:
+def _chunk(t_obs_ns: int, value: float, latency_ns: int = 5_000_000) -> Received:
     """Ten steps of 20 ms holding ``value`` on two joints, received ``latency_ns`` after its observation."""
-    return _Received(t_obs_ns, t_obs_ns + latency_ns, latency_ns, 20_000_000, np.full((10, 2), value))
+    return Received(t_obs_ns, t_obs_ns + latency_ns, latency_ns, 20_000_000, np.full((10, 2), value))
 
 
 def test_the_largest_seam_is_the_step_between_the_chunks_when_the_new_one_takes_over():

@@ -9,11 +9,10 @@ chunk is due at ``t_obs + (i + 1) * dt``; the shadow sampled it at ``t_obs + i *
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
 
 import numpy as np
 import pytest
-from release_helpers import CELL
+from release_helpers import CELL, Received
 
 import cellguard.release.shadow as shadow
 from cellguard.control.config import GuardConfig
@@ -90,15 +89,6 @@ def test_a_chunk_step_is_read_at_its_due_time():
     assert action_at(chunk, int(due[-1]) + 1) is None
 
 
-@dataclass(frozen=True)
-class _Received:
-    t_obs_ns: int
-    t_received_ns: int
-    latency_ns: int
-    dt_ns: int
-    actions: np.ndarray
-
-
 class _Run:
     def __init__(self, chunks):
         self.chunks, self.cycles = reduce_chunks(chunks), ()
@@ -111,6 +101,6 @@ def test_two_chunks_of_one_motion_meet_without_a_seam():
     """Each chunk a sample of one ramp; the next arrives 10 ms after its observation, before its first step."""
     a, b = _ramp(20_000_000, 25), _ramp(20_000_000, 25, t_obs_ns=1_100_000_000)
     shift = (b.t_obs_ns - a.t_obs_ns) * 1e-9  # b's ramp starts from 0 at its own observation: put it on a's
-    chunks = [_Received(c.t_obs_ns, c.t_obs_ns + 10_000_000, 10_000_000, c.dt_ns, np.asarray(c.actions) + s)
+    chunks = [Received(c.t_obs_ns, c.t_obs_ns + 10_000_000, 10_000_000, c.dt_ns, np.asarray(c.actions) + s)
               for c, s in ((a, 0.0), (b, shift))]
     assert METRICS["chunk_seam_jump_max_mrad"].compute([_Run(chunks)]).value == pytest.approx(0.0, abs=1e-9)
