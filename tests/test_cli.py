@@ -88,3 +88,17 @@ def test_a_stopped_run_names_the_cause_its_stop_names_not_a_later_one(tmp_path, 
     with pytest.raises(typer.Exit):
         exit_if_stopped({"stopped": "robot link: robot_state_stale: 25 ms old", "events": events}, tmp_path)
     assert capsys.readouterr().err.startswith("error: the cell was stopped (robot_state_stale): robot link")
+
+
+def test_an_operator_stop_whose_record_failed_does_not_call_it_complete(tmp_path, capsys):
+    """Ctrl-C while a failed record closed: the line said the record was complete."""
+    import typer
+
+    from cellguard.cli.errors import exit_if_stopped
+
+    with pytest.raises(typer.Exit) as ended:
+        exit_if_stopped({"stopped": "operator stop (SIGINT)", "record_failed": "No space left on device",
+                         "events": []}, tmp_path)
+    assert ended.value.exit_code == 130
+    err = capsys.readouterr().err
+    assert "is not whole (No space left on device)" in err and "complete" not in err

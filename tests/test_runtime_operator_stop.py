@@ -247,8 +247,8 @@ def test_ctrl_c_while_a_release_runs_record_closes_stops_the_stage(tmp_path, mon
 
 
 def test_ctrl_c_after_a_run_stopped_for_another_reason_still_stops_the_stage(tmp_path, monkeypatch):
-    """After a fault stop is when an operator presses Ctrl-C: the run's first reason kept, the signal was forgotten
-    and the stage ran its next run."""
+    """After a fault stop is when an operator presses Ctrl-C: the signal was forgotten and the stage ran its next
+    run. The run stays the fault's evidence (counted, its reason kept); the stage stops there."""
     plan, site, release = two_runs_at_sim(tmp_path, 1)
     close = Run.close
 
@@ -260,11 +260,12 @@ def test_ctrl_c_after_a_run_stopped_for_another_reason_still_stops_the_stage(tmp
     monkeypatch.setattr(Run, "close", link_lost_then_a_signal)
     result = cli("run", "--cell", CELL, "--stage", "sim", "--plan", str(plan), "--site", str(site))
     assert result.exit_code == 130, result.output
+    assert "after it stopped (robot link: the server vanished)" in result.stderr.strip().splitlines()[-1]
     folders = list((site / "runs" / CELL / "sim").iterdir())
     assert len(folders) == 1  # the second run never started
-    stopped = json.loads((folders[0] / "summary.json").read_text())["stopped"]
-    assert stopped == "operator stop (SIGINT) (after robot link: the server vanished)"
-    assert Store(site).runs(CELL, "sim", release) == []
+    assert json.loads((folders[0] / "summary.json").read_text())["stopped"] == "robot link: the server vanished"
+    assert [r.name for r in Store(site).runs(CELL, "sim", release)] == ["first"]  # a fault's run is evidence
+    assert [e.body["kind"] for e in entries(Store(site))] == ["promote"]  # no gates entry
 
 
 def test_a_stop_during_an_operator_hand_over_hold_plays_no_retreat():

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from cellguard.policy.chunk import ActionChunk
-from cellguard.runtime import Run
+from cellguard.runtime import Run, run_scenario
 from cellguard.runtime.startup import StartupRefused
 from cellguard.scenario import parse_scenario
 
@@ -74,3 +74,23 @@ def test_a_policy_whose_first_calls_fail_moves_once_it_answers():
     kinds = [e.kind for e in run.events]
     assert "startup_refused" not in kinds and kinds.count("inference_failed") >= 1
     assert run.guard.executor.last_chunk_ns is not None  # it answered, and its chunk was played
+
+
+class _Failing(_Still):
+    """A policy whose every call raises (a server answering 500 to everything)."""
+
+    def infer(self, observation):
+        raise RuntimeError("the policy server answered 500")
+
+
+@pytest.mark.parametrize("realtime", [False, True], ids=["simulated", "wall"])
+def test_a_policy_that_never_answers_stops_the_run_as_lost(tmp_path, realtime):
+    """Every call failed: the run went on asking it, one inference_failed per request, every cycle failed and it
+    ended clean (exit 0), never having moved. A cold one that answers within the watchdog is not lost (above)."""
+    scenario = parse_scenario({"cell": "arm-pick-place", "acceptance_cycles": 3, "production_cycles": 0,
+                               "realtime": {"overrun_budget": 1_000_000}})
+    run = Run(scenario, realtime=realtime, policy_factory=_Failing)
+    summary = run_scenario(scenario, tmp_path / "out", run=run)
+    assert summary["stopped"] == ("policy lost: every call failed before the first chunk (the last: RuntimeError: "
+                                  "the policy server answered 500)")
+    assert len(summary["cycles"]) == 1

@@ -35,7 +35,10 @@ def exit_if_stopped(summary: dict, out: Path) -> None:
 
     stopped = summary.get("stopped")
     if by_operator(stopped):
-        fail(OperatorStopped(f"{stopped}; the record in {out} is complete"))
+        failed = summary.get("record_failed")
+        fail(OperatorStopped(f"{stopped}; the record in {out} " + (f"is not whole ({failed}): `cellguard record "
+                                                                   f"recover` writes a finished copy" if failed
+                                                                   else "is complete")))
     if stopped:
         causes = [e["kind"] for e in summary["events"]  # the cause, not the stop carrying it out
                   if e.get("category") is not None and e["kind"] not in STOP_EFFECTS]

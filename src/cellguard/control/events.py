@@ -26,9 +26,7 @@ class EventKind(StrEnum):
     CHUNK_REJECTED = "chunk_rejected"
     CHUNK_STALE = "chunk_stale"
     CHUNK_STEPS_DROPPED = "chunk_steps_dropped", True
-    # the chunk in use ended before the next arrived: the reference held its end. Routine: the guard's braking is the
-    # intervention (its event opens the full-rate window); counted again here it doubled interventions_per_hour
-    CHUNK_RAN_OUT = "chunk_ran_out", True
+    CHUNK_RAN_OUT = "chunk_ran_out"  # the chunk in use ended before the next arrived: the reference held its end
     # envelope: stops (category None: the category is the request's, e.g. the safety input's)
     PROTECTIVE_STOP = "protective_stop"
     REFERENCE_INVALID = "reference_invalid", False, 2
@@ -81,6 +79,9 @@ class EventKind(StrEnum):
 
 
 ROUTINE_EVENTS = frozenset(k.value for k in EventKind if k.routine)  # kinds that are normal bookkeeping
+# kinds that are no intervention of the guard's: a chunk that ran out is the policy's timing, told beside the braking
+# that follows it (counted too, it doubled interventions_per_hour and the interventions feature for the same motion)
+NO_INTERVENTION = ROUTINE_EVENTS | {EventKind.CHUNK_RAN_OUT.value}
 
 
 @dataclass(frozen=True)

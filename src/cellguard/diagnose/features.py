@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from cellguard.control.events import ROUTINE_EVENTS, Event, EventKind
+from cellguard.control.events import NO_INTERVENTION, Event, EventKind
 from cellguard.diagnose.cycle_buffer import CycleBuffer
 from cellguard.embodiment import Profile
 
@@ -35,7 +35,7 @@ def cycle_features(
     _friction_torques(f, profile, ticks)
     f["latency_mean_ms"] = float(np.mean(latencies_ns)) * 1e-6 if latencies_ns else 0.0
     f["latency_max_ms"] = float(np.max(latencies_ns)) * 1e-6 if latencies_ns else 0.0
-    f["interventions"] = float(sum(e.kind not in ROUTINE_EVENTS for e in events))
+    f["interventions"] = float(sum(e.kind not in NO_INTERVENTION for e in events))
     f["chunks_rejected"] = float(sum(e.kind == EventKind.CHUNK_REJECTED for e in events))
     f["stale_chunks"] = float(sum(e.kind in (EventKind.CHUNK_STEPS_DROPPED, EventKind.CHUNK_STALE) for e in events))
     for key, value in outcome.items():

@@ -16,7 +16,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from cellguard.control.checks.safety_input import ASKED_BY_LOOP, RECOVERY_HOLD
-from cellguard.diagnose.diagnosis import ROUTINE_EVENTS, diagnose
+from cellguard.control.events import NO_INTERVENTION
+from cellguard.diagnose.diagnosis import diagnose
 from cellguard.errors import CellguardError
 from cellguard.release.evidence import RunEvidence
 from cellguard.robot.pick_place import PickPlaceCell
@@ -88,7 +89,7 @@ def place_error_p95(runs) -> Measure:
 def interventions_per_hour(runs) -> Measure:
     """Envelope and executor events, not routine ones, per hour of cycles."""
     hours = sum(c.t_end_ns - c.t_start_ns for r in runs for c in r.cycles) / 3.6e12
-    found = [(r.label(e.cycle), e.kind) for r in runs for e in r.events if e.kind not in ROUTINE_EVENTS]
+    found = [(r.label(e.cycle), e.kind) for r in runs for e in r.events if e.kind not in NO_INTERVENTION]
     ev = tuple(f"{where}: {kind}" for where, kind in found[:10])
     return Measure(len(found) / hours if hours else None, _n(runs), ev)
 

@@ -173,8 +173,9 @@ def run_stage(store: Store, plan: StagePlan, cell: str, stage: str, runs: list[d
             raise
         run_scenario(scenario, folder, run=run)
         if by_operator(run.stopped):  # not evidence about the release: not counted, nothing else run or evaluated
+            whole = f"could not be written whole ({run.recording.failed})" if run.recording.failed else "is complete"
             raise OperatorStopped(f"{run.stopped} during {stage} run {name!r} on {cell}; its "
-                                  f"record in {folder} is complete, not counted; the stage's gates were not evaluated")
+                                  f"record in {folder} {whole}, not counted; the stage's gates were not evaluated")
         if run.recording.failed:  # a disk's fault, not the release's (mid-run or at close)
             raise RecordError(f"the record of {stage} run {name!r} on {cell} could not be written "
                               f"({run.recording.failed}); the run is not counted and the stage's gates were not "
@@ -187,6 +188,10 @@ def run_stage(store: Store, plan: StagePlan, cell: str, stage: str, runs: list[d
             raise ReleaseError(f"{stage} run {name!r} on {cell}: its record in {folder} is kept but could not be "
                                f"counted ({exc}); the stage's gates were not evaluated") from None
         folders.append(str(folder))
+        if run.operator.count:  # pressed after the run had stopped for a cause of its own: that run is evidence
+            raise OperatorStopped(f"{run.operator.reason} during {stage} run {name!r} on {cell}, after it stopped "
+                                  f"({run.stopped}); its record in {folder} is counted; no further run was started "
+                                  f"and the stage's gates were not evaluated")
     scenario_runs = [e.get("name", "run") for e in runs] if runs is not None else []
     return evaluate_stage(store, plan, cell, stage, folders, start, scenario_runs)
 

@@ -19,10 +19,9 @@ from pathlib import Path
 import numpy as np
 
 from cellguard.control.guard import Guard
-from cellguard.control.events import EventKind
+from cellguard.control.events import NO_INTERVENTION, EventKind
 from cellguard.control.config import GuardConfig
 from cellguard.control.settings import build_guard
-from cellguard.diagnose.diagnosis import ROUTINE_EVENTS
 from cellguard.errors import ConfigError
 from cellguard.output import write_output
 from cellguard.policy.chunk import ActionChunk
@@ -96,7 +95,7 @@ class ShadowedPolicy:
     @staticmethod
     def _note(row: dict, events) -> None:
         for e in events:
-            if e.kind in ROUTINE_EVENTS:
+            if e.kind in NO_INTERVENTION:  # a candidate chunk that ran out is no clamp of the envelope's
                 continue
             row["events"].append(e.kind)
             if e.category is not None:

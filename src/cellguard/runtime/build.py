@@ -8,7 +8,7 @@ from functools import partial
 from cellguard.embodiment import Profile
 from cellguard.embodiment.profile import calibrated_profile
 from cellguard.errors import ScenarioError
-from cellguard.robot.registry import cell_names, make_cell
+from cellguard.robot.registry import make_cell
 from cellguard.robot.state import Observation
 from cellguard.runtime.clock import LockStepClock, SimClock, WallClock
 from cellguard.runtime.inference import SimulatedInference, WorkerInference
@@ -61,11 +61,11 @@ def make_inference(run):
 
 
 def _policy_again(run):
-    """How the inference process builds the run's policy again: from the cell built anew by its registered name (a
-    simulated cell, or a bridge to one such as sim-server's: a plugin's program reads what it reads of its cell);
-    else from what the run's was built from, as the run's process saw the bridge (``lerobot:TYPE`` names no cell;
-    its link is the run's alone)."""
-    if run.simulated or run.cell.name in cell_names():
+    """How the inference process builds the run's policy again: a simulated cell's from the cell built anew by its
+    registered name (a plugin's program reads what it reads of its cell); a bridge's from what the run's was built
+    from, as the run's process saw the bridge (its name need not be a cell's, its servo rate and seed may differ from
+    a cell built by that name; its link is the run's alone)."""
+    if run.simulated:
         return partial(policy_in_process, run.scenario.policy, run.cell.name, run.scenario.seed)
     from cellguard.policy.registry import make_policy
 

@@ -43,7 +43,7 @@ from cellguard.runtime.cycles import make_cycle_source
 from cellguard.runtime.history import CycleWindow, EventLog
 from cellguard.runtime.inference import NOMINAL_INFERENCE_S
 from cellguard.runtime.link import RobotLink
-from cellguard.runtime.operator_stop import OperatorStop, by_operator
+from cellguard.runtime.operator_stop import OperatorStop
 from cellguard.runtime.recovery import RecoveryRunner
 from cellguard.runtime.startup import StartupRefused, check_startup
 from cellguard.runtime.transitions import Transition, speed_cap
@@ -576,6 +576,7 @@ class Run:
                     self.events.append(Event(t_ns, EventKind.WATCHDOG_NO_FIRST_CHUNK, f"no chunk within "
                                              f"{watchdog.watchdog_s * 1e3:.0f} ms of the start",
                                              category=watchdog.watchdog_category))
+                    self._never_answered(t_ns)
                 asked.append((watchdog.watchdog_category, EventKind.WATCHDOG_NO_FIRST_CHUNK.value))
         return min(asked, key=lambda a: a[0]) if asked else (None, None)
 
@@ -585,6 +586,15 @@ class Run:
         if not self.events.has(EventKind.OPERATOR_STOP):
             self.events.append(Event(t_ns, EventKind.OPERATOR_STOP, f"{self.operator.signal}: the operator asked a "
                                      f"stop{during}", category=EventKind.OPERATOR_STOP.category))
+
+    def _never_answered(self, t_ns: int) -> None:
+        """No chunk within the watchdog of the start and every call failed: the policy is lost (a server that
+        answers only errors, a model that raises on every observation). The run went on asking it, one
+        ``inference_failed`` per request, every cycle failed and it ended clean, exit 0, never having moved; a
+        cold one that answers within the watchdog is not (the first failure of each kind says what went wrong)."""
+        failed = [e for e in self.events if e.kind == EventKind.INFERENCE_FAILED]
+        if failed and not self.events.has(EventKind.CHUNK_REJECTED) and not self.policy_lost:
+            self._lose_policy(t_ns, f"every call failed before the first chunk (the last: {failed[-1].reason})")
 
     def _lose_policy(self, t_ns: int, why: str) -> None:
         """The policy answers no more (its process ended, or a call hung ``HUNG_WATCHDOGS`` watchdog times): one
@@ -696,9 +706,8 @@ def run_scenario(scenario: Scenario, out: Path, on_cycle: Callable[[dict], None]
             run.close()
         try:
             summary = _write_summary(run, out)
-            if run.operator.count and not by_operator(run.stopped):  # a signal while the record closed, the summary
-                # was written, or after another stop: the operator's stop all the same (a release ran its next run)
-                run.stopped = run.operator.reason + (f" (after {run.stopped})" if run.stopped else "")
+            if run.operator.count and not run.stopped:  # a signal while the record closed or the summary was written
+                run.stopped = run.operator.reason  # is the operator's stop all the same (a release ran its next run)
                 summary = _write_summary(run, out)
         finally:
             run.recording.release_folder()
