@@ -225,21 +225,28 @@ def test_ctrl_c_in_a_release_stage_counts_no_run_and_evaluates_no_gate(tmp_path,
     assert [r.name for r in Store(site).runs(CELL, "sim", release)] == ["first", "second"]
 
 
-def test_ctrl_c_while_a_release_runs_record_closes_stops_the_stage(tmp_path, monkeypatch):
-    """A signal after the cycles, while the record closed or the summary was written, was counted and forgotten:
-    the stage started its next run, evaluated its gates and exited 0 (the operator's stop ignored)."""
+def _stage_signalled_at_close(tmp_path, monkeypatch, stopped: str | None = None):
+    """Two sim runs of a release stage; SIGINT raised while the first run closes (its record, then its summary),
+    after it stopped for ``stopped`` if given: (the command's result, the site, the release, the run folders)."""
     plan, site, release = two_runs_at_sim(tmp_path, 1)
     close = Run.close
 
     def close_under_a_signal(run):
+        run.stopped = run.stopped or stopped
         signal.raise_signal(signal.SIGINT)
         close(run)
 
     monkeypatch.setattr(Run, "close", close_under_a_signal)
     result = cli("run", "--cell", CELL, "--stage", "sim", "--plan", str(plan), "--site", str(site))
+    return result, site, release, list((site / "runs" / CELL / "sim").iterdir())
+
+
+def test_ctrl_c_while_a_release_runs_record_closes_stops_the_stage(tmp_path, monkeypatch):
+    """A signal after the cycles, while the record closed or the summary was written, was counted and forgotten:
+    the stage started its next run, evaluated its gates and exited 0 (the operator's stop ignored)."""
+    result, site, release, folders = _stage_signalled_at_close(tmp_path, monkeypatch)
     assert result.exit_code == 130, result.output
     assert "during sim run 'first'" in result.stderr.strip().splitlines()[-1]
-    folders = list((site / "runs" / CELL / "sim").iterdir())
     assert len(folders) == 1  # the second run never started
     assert json.loads((folders[0] / "summary.json").read_text())["stopped"] == "operator stop (SIGINT)"
     assert Store(site).runs(CELL, "sim", release) == []
@@ -249,19 +256,10 @@ def test_ctrl_c_while_a_release_runs_record_closes_stops_the_stage(tmp_path, mon
 def test_ctrl_c_after_a_run_stopped_for_another_reason_still_stops_the_stage(tmp_path, monkeypatch):
     """After a fault stop is when an operator presses Ctrl-C: the signal was forgotten and the stage ran its next
     run. The run stays the fault's evidence (counted, its reason kept); the stage stops there."""
-    plan, site, release = two_runs_at_sim(tmp_path, 1)
-    close = Run.close
-
-    def link_lost_then_a_signal(run):
-        run.stopped = run.stopped or "robot link: the server vanished"
-        signal.raise_signal(signal.SIGINT)
-        close(run)
-
-    monkeypatch.setattr(Run, "close", link_lost_then_a_signal)
-    result = cli("run", "--cell", CELL, "--stage", "sim", "--plan", str(plan), "--site", str(site))
+    result, site, release, folders = _stage_signalled_at_close(tmp_path, monkeypatch,
+                                                               "robot link: the server vanished")
     assert result.exit_code == 130, result.output
     assert "after it stopped (robot link: the server vanished)" in result.stderr.strip().splitlines()[-1]
-    folders = list((site / "runs" / CELL / "sim").iterdir())
     assert len(folders) == 1  # the second run never started
     assert json.loads((folders[0] / "summary.json").read_text())["stopped"] == "robot link: the server vanished"
     assert [r.name for r in Store(site).runs(CELL, "sim", release)] == ["first"]  # a fault's run is evidence

@@ -591,7 +591,7 @@ class Run:
         """No chunk within the watchdog of the start and every call failed: the policy is lost (a server that
         answers only errors, a model that raises on every observation). The run went on asking it, one
         ``inference_failed`` per request, every cycle failed and it ended clean, exit 0, never having moved; a
-        cold one that answers within the watchdog is not (the first failure of each kind says what went wrong)."""
+        cold one that answers within the watchdog is not. A rejected chunk is an answer: the guard's business."""
         failed = [e for e in self.events if e.kind == EventKind.INFERENCE_FAILED]
         if failed and not self.events.has(EventKind.CHUNK_REJECTED) and not self.policy_lost:
             self._lose_policy(t_ns, f"every call failed before the first chunk (the last: {failed[-1].reason})")
