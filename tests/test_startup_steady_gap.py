@@ -101,3 +101,30 @@ def test_a_worker_counts_its_wait_until_the_chunk_runs_low():
 def test_in_simulated_time_the_policy_period_spaces_the_requests():
     """At 10 Hz a 10 ms policy's next chunk comes 111 ms after this one's observation."""
     assert SimulatedInference(_Held(np.zeros(6)), 100 * MS).spacing_ns(11 * MS, _chunk()) == 100 * MS
+
+
+def test_a_watchdog_the_chunks_cannot_feed_is_refused():
+    """The gap between chunks is the spacing plus one servo period (a chunk is taken at the next tick)."""
+    with pytest.raises(StartupRefused, match=r"guard.watchdog_s 300 ms is not longer than the time between chunks, "
+                                             r"up to 301 ms .* set guard.watchdog_s above 301 ms"):
+        check_startup(object(), None, _chunk(), 10 * MS, MS, 300 * MS, watchdog_ns=300 * MS)
+    check_startup(object(), None, _chunk(), 10 * MS, MS, 298 * MS, watchdog_ns=300 * MS)  # 299 ms: fed in time
+
+
+@pytest.mark.parametrize("watchdog_s", [None, 0.6])
+def test_one_second_chunks_on_a_worker_need_a_watchdog_longer_than_half_a_chunk(watchdog_s):
+    """1 s chunks on wall time: the worker asks again 500 ms in, so the default 300 ms watchdog stopped the robot
+    at every chunk (six watchdog stops and five resumes in 3 s); a watchdog above the gap runs without one."""
+    q0 = make_cell("arm-pick-place").q_home
+    run = Run(parse_scenario({"cell": "arm-pick-place", "acceptance_cycles": 1, "production_cycles": 0,
+                              "cycle": {"source": "time", "seconds": 1.5}, "realtime": {"overrun_budget": 1_000_000},
+                              **({"guard": {"watchdog_s": watchdog_s}} if watchdog_s else {})}),
+              realtime=True, policy_factory=lambda: _Held(q0, h=50))
+    if watchdog_s is None:
+        with pytest.raises(StartupRefused, match=r"guard.watchdog_s 300 ms .* up to 501 ms"):
+            run.cycle()
+        assert [e.kind for e in run.events][-1] == "startup_refused"
+    else:
+        run.cycle()
+        kinds = [e.kind for e in run.events]
+        assert "watchdog_stop" not in kinds and "startup_refused" not in kinds

@@ -342,7 +342,8 @@ class Run:
         period = self.clock.period_ns
         try:
             check_startup(self.policy, self._first_observation, chunk, latency, period,
-                          self.inference.spacing_ns(latency + period, chunk))
+                          self.inference.spacing_ns(latency + period, chunk),
+                          round(self.scenario.guard.watchdog_s * 1e9))
         except StartupRefused as exc:
             self._refuse(str(exc))
         # from where the robot was commanded to be (the measured pose lags it: planning from there stepped the command)

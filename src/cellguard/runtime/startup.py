@@ -15,7 +15,9 @@ LeRobot's async client): counting the latency alone let through 298 ms on the sc
 500 ms chunks in simulated time, at which every chunk ended before the next arrived. This also
 refuses what the latency alone could not fit (latency at or over the horizon less the blend, the
 blend at most half the horizon); a next chunk that arrives within the blend time of the end only
-shortens the blend (continuous still, and guarded).
+shortens the blend (continuous still, and guarded). The same spacing refuses a policy watchdog
+(``guard.watchdog_s``) no longer than the time between chunks: the default 300 ms stopped the robot at every
+chunk of a 1 s chunk policy on a worker (asked again half a chunk in), a stop and a resume each time.
 """
 
 from __future__ import annotations
@@ -34,11 +36,11 @@ class StartupRefused(ConfigError):
 
 
 def check_startup(policy, observation, chunk, latency_ns: int, period_ns: int, spacing_ns: int | None = None,
-                  margin: float = STATS_MARGIN) -> None:
-    """Raise StartupRefused naming the first dimension out of range or a latency the chunk cannot cover
-    (``period_ns``: the servo period, the longest a ready chunk waits for its tick; ``spacing_ns``: the longest
-    time from one observation to the next; None: until the chunk is taken, the least with one request at a
-    time)."""
+                  watchdog_ns: int | None = None, margin: float = STATS_MARGIN) -> None:
+    """Raise StartupRefused naming the first dimension out of range, a latency the chunk cannot cover or a
+    watchdog the chunks cannot feed (``period_ns``: the servo period, the longest a ready chunk waits for its tick;
+    ``spacing_ns``: the longest time from one observation to the next; None: until the chunk is taken, the least
+    with one request at a time; ``watchdog_ns``: the policy-silence watchdog, None: not checked)."""
     stats = getattr(policy, "normalisation_stats", None)
     if callable(stats) and observation is not None:
         given = stats()
@@ -70,6 +72,13 @@ def check_startup(policy, observation, chunk, latency_ns: int, period_ns: int, s
                              f"request at a time), would arrive {(spacing_ns + taken_ns) * 1e-6:.0f} ms after it, "
                              f"past its horizon {horizon_ns * 1e-6:.0f} ms: the robot would run out of steps; "
                              f"not moving")
+    gap_ns = spacing_ns + period_ns  # from one chunk taken to the next, taken up to one period late
+    if watchdog_ns is not None and gap_ns >= watchdog_ns:
+        raise StartupRefused(f"start-up: guard.watchdog_s {watchdog_ns * 1e-6:.0f} ms is not longer than the time "
+                             f"between chunks, up to {gap_ns * 1e-6:.0f} ms (the next asked for "
+                             f"{spacing_ns * 1e-6:.0f} ms after this one's observation, taken up to one servo period "
+                             f"late): the watchdog would stop the robot at every chunk; set guard.watchdog_s above "
+                             f"{gap_ns * 1e-6:.0f} ms; not moving")
 
 
 def _checked_stats(name: str, pair, value: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
