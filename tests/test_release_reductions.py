@@ -22,7 +22,8 @@ from cellguard.scenario import parse_scenario
 def record(tmp_path_factory):
     """Three scripted cycles on the arm: a real record with thousands of chunks and ticks."""
     out = tmp_path_factory.mktemp("reduce") / "run"
-    run_scenario(parse_scenario({"cell": CELL, "seed": 3, "policy": "scripted", "acceptance_cycles": 3}), out)
+    run_scenario(parse_scenario({"cell": CELL, "seed": 3, "policy": "scripted", "acceptance_cycles": 3,
+                                  "production_cycles": 0}), out)
     return out
 
 

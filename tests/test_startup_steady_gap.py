@@ -111,7 +111,7 @@ def test_a_watchdog_the_chunks_cannot_feed_is_refused():
     check_startup(object(), None, _chunk(), 10 * MS, MS, 298 * MS, watchdog_ns=300 * MS)  # 299 ms: fed in time
 
 
-@pytest.mark.parametrize("watchdog_s", [None, 0.6])
+@pytest.mark.parametrize("watchdog_s", [None, 0.8])
 def test_one_second_chunks_on_a_worker_need_a_watchdog_longer_than_half_a_chunk(watchdog_s):
     """1 s chunks on wall time: the worker asks again 500 ms in, so the default 300 ms watchdog stopped the robot
     at every chunk (six watchdog stops and five resumes in 3 s); a watchdog above the gap runs without one."""
