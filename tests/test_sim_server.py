@@ -61,9 +61,12 @@ def test_server_killed_mid_cycle_stops_within_the_watchdog_and_the_record_names_
     assert link and link[0]["category"] == 1  # the scenario's default stop category for a link fault
     watchdog_ns = 0.3e9
     assert link[0]["t_ns"] - killed["t_ns"] < watchdog_ns
+    # a category 1 stop cannot brake a robot it no longer reaches: power off at once (the run ended with power on)
+    removed = [e for e in summary["events"] if e["kind"] == "power_removed"]
+    assert removed and removed[0]["category"] == 0 and "robot link lost" in removed[0]["reason"], summary["events"]
     with open_record(tmp_path / "out") as record:
         kinds = [e.kind for e in record.events()]
-    assert link[0]["kind"] in kinds
+    assert link[0]["kind"] in kinds and "power_removed" in kinds
 
 
 @pytest.mark.parametrize("server", [("--delay-ms", "50")], indirect=True)

@@ -223,6 +223,9 @@ class Run:
                         break
                 if link.stop is not None and (link.lost or guard.envelope.stop_complete):
                     self.stopped = self.stopped or f"robot link: {link.reason}"
+                    if link.lost and link.stop <= 1 and guard.power:  # lost on this tick: the guard never saw it
+                        self._remove_power(self._without_link((link.stop, f"robot link, {link.reason}")),
+                                           operator.count)
                     break
                 if self.policy_lost and guard.envelope.stop_complete:
                     self.stopped = self.stopped or f"policy lost: {self.policy_lost}"
@@ -518,9 +521,7 @@ class Run:
                          since: tuple[int, str | None] | None = None) -> tuple[int, str | None] | None:
         """The strictest stop asked during a transition: ``since`` (one asked before, still in force), the safety
         controller's input, a robot link fault, an operator's signal past ``signals``; (category, who asked: None
-        for the controller) or None. A lost link makes a category 1 stop a 0: with no state to read and no
-        command that arrives, there is no brake to play and no standstill to wait for (it waited out the
-        stopping time on the last state read, its brake sent to the dead link)."""
+        for the controller) or None; a lost link makes a category 1 stop a 0 (``_without_link``)."""
         asked = [] if safety.stop is None else [(safety.stop, None)]
         if since is not None:
             asked.append(since)
@@ -529,7 +530,12 @@ class Run:
         if self.operator.count > signals:
             self._operator_stop(t_ns)
             asked.append((EventKind.OPERATOR_STOP.category, self.operator.reason))
-        stop = min(asked, key=lambda a: a[0], default=None)
+        return self._without_link(min(asked, key=lambda a: a[0], default=None))
+
+    def _without_link(self, stop: tuple[int, str | None] | None) -> tuple[int, str | None] | None:
+        """A lost link makes a category 1 stop a 0: with no state to read and no command that arrives, there is no
+        brake to play and no standstill to wait for (a transition waited out the stopping time on the last state
+        read, its brake sent to the dead link; a cycle ended with power never switched off)."""
         if stop is not None and stop[0] == 1 and self.link.lost:
             return 0, f"robot link lost, {self.link.reason}"
         return stop
@@ -563,7 +569,7 @@ class Run:
 
     def _stop_input(self, t_ns: int, guard) -> tuple[int | None, str | None]:
         """The stop the loop itself asks for (a robot link fault, an operator stop, or no first chunk within
-        the watchdog): the strictest one's category and who asked it."""
+        the watchdog): the strictest one's category and who asked it; a lost link makes a category 1 a 0."""
         asked = [] if self.link.stop is None else [(self.link.stop, f"robot link, {self.link.reason}")]
         if self.operator.count:
             self._operator_stop(t_ns)
@@ -579,7 +585,7 @@ class Run:
                                              category=watchdog.watchdog_category))
                     self._never_answered(t_ns)
                 asked.append((watchdog.watchdog_category, EventKind.WATCHDOG_NO_FIRST_CHUNK.value))
-        return min(asked, key=lambda a: a[0]) if asked else (None, None)
+        return self._without_link(min(asked, key=lambda a: a[0], default=None)) or (None, None)
 
     def _operator_stop(self, t_ns: int, during: str = "") -> None:
         """The operator's first signal, once in the record: mid-cycle the run ends at standstill and the retreat
