@@ -35,6 +35,8 @@ fit's time. Not done where a floating base moved freely (the replay cannot repro
 
 from __future__ import annotations
 
+import datetime
+import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -234,8 +236,6 @@ def record_robot(path: Path) -> str:
 def measured_on(paths: list[Path]) -> str:
     """The day the records were measured: the UTC date of the latest record's start (``YYYY-MM-DD``). Not the
     day identify runs, nor a local date: west of UTC a local ``today`` stamped the day before the record."""
-    import datetime as dt
-
     from cellguard.record.reader import open_record
 
     starts = []
@@ -243,8 +243,24 @@ def measured_on(paths: list[Path]) -> str:
         with open_record(path) as rec:
             starts.append(rec.start_wall_ns)
     if min(starts) <= 0:  # a record without a wall-clock epoch: the day it is read on, in UTC
-        return dt.datetime.now(dt.timezone.utc).date().isoformat()
-    return dt.datetime.fromtimestamp(max(starts) / 1e9, dt.timezone.utc).date().isoformat()
+        return utc_today().isoformat()
+    return datetime.datetime.fromtimestamp(max(starts) / 1e9, datetime.timezone.utc).date().isoformat()
+
+
+def utc_today() -> datetime.date:
+    """Today in UTC by this host's wall clock."""
+    return datetime.datetime.fromtimestamp(time.time(), datetime.timezone.utc).date()
+
+
+def refuse_ahead(day: str, what: str, fix: str) -> None:
+    """CalibrationError where ``day`` (YYYY-MM-DD, UTC) lies after tomorrow by this host's clock (a site east of
+    UTC is a day ahead): the clock that stamped it ran ahead, or this host's is behind. Checked where a measured
+    date is made, never where a profile is loaded: a profile must load on any host at any time (one dated by a
+    fast clock stopped the cell once NTP set it right; a host whose clock reset to 1970 could load none)."""
+    today = utc_today()
+    if datetime.date.fromisoformat(day) > today + datetime.timedelta(days=1):
+        raise CalibrationError(f"{what} is {day}, after tomorrow (today is {today.isoformat()}, UTC, by this "
+                               f"host's clock): {fix}")
 
 
 def load_segments(paths: list[Path], cell, cycle: int | None = None) -> list[Segment]:
@@ -257,7 +273,7 @@ def load_records(paths: list[Path], cell, cycle: int | None = None) -> tuple[lis
     to carry motor current, split where a tick is missing; and each record's ``Health`` (what a full read
     found), for the caller to warn about a record that is not whole. A record given twice (its id, or for
     a record without one its file, under any spelling) is refused: it would count its ticks twice and
-    shrink every interval."""
+    shrink every interval. So is one that started after tomorrow (``refuse_ahead``)."""
     from cellguard.record.reader import open_record, record_file
 
     segments, healths, seen = [], [], {}
@@ -273,6 +289,10 @@ def load_records(paths: list[Path], cell, cycle: int | None = None) -> tuple[lis
             robot = rec.context.get("cell")
             if robot != cell.name:
                 raise CalibrationError(f"{path}: a record of robot {robot!r}; the model is {cell.name!r}")
+            if rec.start_utc is not None:  # before the fit: its date would be the calibration's
+                refuse_ahead(rec.start_utc[:10], f"{path}: the start of run {record_id}",
+                             "the clock that recorded it ran ahead (or this host's is behind), so a calibration "
+                             "would be dated after today; record again with the clock set (NTP)")
             ticks = rec.ticks(cycle=cycle, rate="all")
             on_stand = rec.context.get("mount") == "stand"
             healths.append((path, rec.health()))

@@ -32,7 +32,7 @@ from pathlib import Path
 import mujoco
 import yaml
 
-from cellguard.calibrate.identify import CalibrationError, describe_value, negative_values
+from cellguard.calibrate.identify import CalibrationError, describe_value, negative_values, refuse_ahead
 from cellguard.calibrate.mjcf import calibrated_mjcf
 from cellguard.calibrate.torque_model import JointTerms
 from cellguard.embodiment.profile import kept_copy, parse_profile
@@ -93,7 +93,11 @@ def write_profile(path: Path, cell, result: dict, date: str, basis: bytes | None
     link to it), and the calibrated MJCF and the kept old profile go beside that file, where its ``model``
     and ``calibration`` name them. Read, rewrite and rename happen under an exclusive lock on the profile's
     folder: two writes at once lost one calibration while both reported a version. ``basis``: the profile's
-    bytes the fit held its other terms at (``--only``); a profile changed since is refused, not rewritten."""
+    bytes the fit held its other terms at (``--only``); a profile changed since is refused, not rewritten. A
+    ``date`` after tomorrow (UTC) is refused (``refuse_ahead``): a profile loads whatever its dates say, so it is
+    here that a date from a clock that ran ahead is kept out."""
+    refuse_ahead(date, "--write: the measured date", f"the records' clock ran ahead (or this host's is behind); {path} "
+                 "not written")
     path = _target(path)
     with _folder_locked(path.parent):
         return _write(path, cell, result, date, basis)

@@ -7,8 +7,8 @@ know (``Friction`` was taken with any unit and sign), and a measured value that 
 its parameter (friction, damping, armature, actuator_time_constant, backlash): in another dimension
 (friction is a torque on a hinge, a force on a slide; armature an inertia or a mass), below zero,
 or beyond its range (friction above the joint's effort); a second entry for the same joint and
-parameter (one of them would silently win); a date that is not an ISO date (YYYY-MM-DD) of a day
-that has begun somewhere; a symmetry pair of a joint with itself, of two joints of different kinds,
+parameter (one of them would silently win); a date that is not an ISO date (YYYY-MM-DD), never compared
+with today (``iso_date``); a symmetry pair of a joint with itself, of two joints of different kinds,
 or named twice; text with control characters; and a version that cannot name a file
 (``identify --write`` keeps ``NAME.VERSION.yaml`` beside the profile).
 """
@@ -266,8 +266,10 @@ def text_field(value: object, field: str, error: type[ConfigError] = ProfileErro
 
 
 def iso_date(value: object, field: str) -> str:
-    """A day as ``YYYY-MM-DD`` that exists and has begun somewhere (up to UTC's tomorrow: a site east of UTC
-    is a day ahead); ``2026-13-45``, ``yesterday`` or ``2999-01-01`` is no date a measurement was made on."""
+    """A day as ``YYYY-MM-DD`` that exists (``2026-13-45`` and ``yesterday`` are none). Not compared with today's
+    clock: a profile loads the same on any host at any time (one dated while the clock ran fast stopped the cell
+    once NTP set it right, and a host whose clock reset to 1970 could load none); ``identify`` refuses a date
+    after tomorrow where it makes one (``calibrate.identify.refuse_ahead``)."""
     text = text_field(value, field)
     try:
         day = datetime.date.fromisoformat(text) if re.fullmatch(r"[0-9]{4}-[0-9]{2}-[0-9]{2}", text) else None
@@ -275,9 +277,6 @@ def iso_date(value: object, field: str) -> str:
         day = None
     if day is None:
         raise ProfileError(f"{field}: {text!r} is not a date; write YYYY-MM-DD, e.g. \"2026-10-14\"")
-    today = datetime.datetime.now(datetime.timezone.utc).date()
-    if day > today + datetime.timedelta(days=1):
-        raise ProfileError(f"{field}: {text} lies in the future (today is {today.isoformat()}, UTC)")
     return text
 
 
