@@ -43,17 +43,21 @@ def test_malformed_chunks_become_events(actions, dt, why):
 
 
 def test_late_steps_are_dropped_not_replayed():
+    """Observed while the reference moved (a chunk in use): the robot went on meanwhile, so the steps behind the
+    playback clock are dropped."""
     ex = Executor(PROFILE, Q0, MS)
-    ex.reference(0)
-    late = _chunk(0)
-    events = ex.push(late, 250 * MS)  # arrives 250 ms after its observation
+    ex.push(_chunk(0), 0)
+    for t in range(0, 350):
+        ex.reference(t * MS)
+    late = _chunk(100 * MS)
+    events = ex.push(late, 350 * MS)  # arrives 250 ms after its observation
     assert events[0].kind == "chunk_steps_dropped" and events[0].reason.startswith("12 ")
-    stale = ex.push(_chunk(-600 * MS + 1), 250 * MS)  # older than the one in use
+    stale = ex.push(_chunk(-600 * MS + 1), 350 * MS)  # older than the one in use
     assert stale[0].kind == "chunk_rejected" and "out of order" in stale[0].reason
     # once the blend from the old reference has decayed, the reference is the late chunk's curve at now,
     # not its first steps replayed from now on
-    q = [ex.reference(t * MS) for t in range(251, 500)][-1]
-    assert np.abs(q - _wave(np.array([0.499]))[0]).max() < 1e-3
+    q = [ex.reference(t * MS) for t in range(351, 600)][-1]
+    assert np.abs(q - _wave(np.array([0.599]))[0]).max() < 1e-3
 
 
 def test_a_fully_stale_chunk_is_refused():
