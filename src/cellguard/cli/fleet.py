@@ -76,7 +76,7 @@ def push(
         b = result.batch
         say(f"fleet push: {b.export}, {b.rows} row(s) exported, {b.withheld_rows} kept at the site "
             f"(policy {b.policy_version}); {result.new_rows} new, {result.duplicate_rows} already in the store; "
-            f"{result.queued} batch(es) queued", err=False)
+            f"{result.retention_removed} row(s) deleted by retention; {result.queued} batch(es) queued", err=False)
     if result.unavailable:
         sys.stderr.write(f"{result.unavailable}; {result.queued} batch(es) kept in {Path(site_dir) / 'outbox'}, "
                          f"sent on the next push\n")

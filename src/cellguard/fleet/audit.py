@@ -7,6 +7,8 @@ outbox), ``sent``, ``duplicate`` (the store had every row), ``nothing`` (an empt
 ``refused`` (the store refused it; ``reason``) and ``probed`` (a run's findings sent by ``fleet
 similar`` to look for similar faults, never stored); a held or refused batch stays in the outbox. A
 batch that leaves is logged with ``policy_in_force``, the version of the policy it left under.
+``retention``: the push's retention deleted ``rows`` of the site's rows from ``destination`` (rows
+older than ``before``), or, with ``reason``, did not run there; it names no batch.
 
 A damaged log is read as far as it goes: ``scan_audit`` returns the entries and names each line
 it cannot read; ``read_audit`` refuses a damaged log in one line.
@@ -21,10 +23,11 @@ from pathlib import Path
 
 from cellguard.errors import ConfigError, OutputError
 from cellguard.fleet.export import Batch
+from cellguard.fleet.policy import DataPolicy
 from cellguard.yaml_file import read_bounded
 
 AUDIT_FILE = "audit.jsonl"
-STATUSES = ("queued", "sent", "duplicate", "nothing", "held", "refused", "probed")
+STATUSES = ("queued", "sent", "duplicate", "nothing", "held", "refused", "probed", "retention")
 FIELDS = {"when_utc": str, "what": str, "rows": int, "withheld_rows": int, "policy_version": str, "batch_id": str,
           "status": str}  # in every entry, of these types
 MAX_AUDIT_BYTES = 1 << 30  # [bytes] about 3 million entries
@@ -37,11 +40,24 @@ class AuditError(ConfigError):
 def append_audit(site_dir: Path, batch: Batch, status: str, destination: str, **more: str) -> dict:
     """Append the export of ``batch`` (``status``: one of ``STATUSES``) to the log; ``more``: fields such as
     ``reason`` and ``policy_in_force``."""
-    entry = {"when_utc": dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"),
-             "what": batch.export, "rows": batch.rows, "withheld_rows": batch.withheld_rows,
-             "policy_version": batch.policy_version, "batch_id": batch.batch_id,
-             "tenant_id": batch.tenant_id, "site_id": batch.site_id, "status": status, "destination": destination,
-             **more}
+    return _append(site_dir, {"what": batch.export, "rows": batch.rows, "withheld_rows": batch.withheld_rows,
+                              "policy_version": batch.policy_version, "batch_id": batch.batch_id,
+                              "tenant_id": batch.tenant_id, "site_id": batch.site_id, "status": status,
+                              "destination": destination, **more})
+
+
+def append_retention(site_dir: Path, policy: DataPolicy, removed: int, destination: str, **more: str) -> dict:
+    """Append what ``policy``'s retention deleted from ``destination`` (``more``: ``before``, or ``reason`` where
+    it did not run): a deletion cannot be undone, so the site's log says what went, though no batch did."""
+    return _append(site_dir, {"what": policy.export, "rows": removed, "withheld_rows": 0,
+                              "policy_version": policy.version, "batch_id": "", "tenant_id": policy.tenant,
+                              "site_id": policy.site, "status": "retention", "destination": destination,
+                              "retention_days": policy.retention_days, **more})
+
+
+def _append(site_dir: Path, fields: dict) -> dict:
+    """Write ``fields``, stamped with the time, as one whole line at the end of the log."""
+    entry = {"when_utc": dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"), **fields}
     path = Path(site_dir) / AUDIT_FILE
     try:
         path.parent.mkdir(parents=True, exist_ok=True)

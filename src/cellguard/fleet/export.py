@@ -116,7 +116,6 @@ def refusal(batch: Batch, policy: DataPolicy, today: dt.date | None = None) -> s
     no longer allows, a field it withholds, a row past its retention, a count under its group
     size). Aggregates may go under a policy that allows signatures (they say less).
     """
-    today = today or dt.datetime.now(dt.timezone.utc).date()
     if (batch.tenant_id, batch.site_id) != (policy.tenant, policy.site):
         return f"it is {batch.tenant_id}/{batch.site_id}'s, the policy is {policy.tenant}/{policy.site}'s"
     if batch.rows == 0:
@@ -129,7 +128,7 @@ def refusal(batch: Batch, policy: DataPolicy, today: dt.date | None = None) -> s
     shown = sorted({n for r in rows for n in policy.withheld if r.get(n) not in (None, {})})
     if shown:
         return f"it holds {', '.join(shown)}, which the policy withholds"
-    oldest = today - dt.timedelta(days=policy.retention_days)
+    oldest = oldest_kept(policy, today)
     old = sum(dt.date.fromisoformat(s["created_date"]) < oldest for s in batch.signatures) + \
         sum(r["month"] < oldest.isoformat()[:7] for r in batch.aggregates)
     if old:
@@ -141,12 +140,16 @@ def refusal(batch: Batch, policy: DataPolicy, today: dt.date | None = None) -> s
     return None
 
 
+def oldest_kept(policy: DataPolicy, today: dt.date | None = None) -> dt.date:
+    """The first day the policy's retention keeps, counted from ``today`` (default: this host's UTC date)."""
+    return (today or dt.datetime.now(dt.timezone.utc).date()) - dt.timedelta(days=policy.retention_days)
+
+
 def export_batch(signatures: Sequence[Signature], policy: DataPolicy, today: dt.date | None = None, *,
                  key: bytes) -> Batch:
     """The batch ``policy`` lets leave the site, from the site's ``signatures``; ``key`` is the site's
     secret the signature ids are keyed with."""
-    today = today or dt.datetime.now(dt.timezone.utc).date()
-    oldest = today - dt.timedelta(days=policy.retention_days)
+    oldest = oldest_kept(policy, today)
     live = [s for s in signatures if dt.date.fromisoformat(s.created_date) >= oldest]
     base = dict(tenant_id=policy.tenant, site_id=policy.site, policy_version=policy.version, export=policy.export)
     if policy.export == "nothing":

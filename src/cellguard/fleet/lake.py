@@ -82,6 +82,15 @@ def forget(lake: Path, tenant: str, site: str, before: dt.date | None = None) ->
     return sum(len(_take_out(f, table, pc.equal(table["site_id"], site))) for f, table in found)
 
 
+def newest(lake: Path, tenant: str, site: str) -> dt.date | None:
+    """The date of ``site``'s newest signature in ``tenant``'s folder, or None: with no store's clock to check a
+    retention's date against, the lake's own data is what it is checked with."""
+    for f in reversed(paths(lake, "signatures", tenant)):  # the newest date's partition first
+        if site in _read(Path(f), ["site_id"]).column("site_id").to_pylist():
+            return dt.date.fromisoformat(Path(f).parent.name.removeprefix("date="))
+    return None
+
+
 def check_lake(lake: Path) -> Path:
     """``lake`` if signatures can land there (a folder, or a path whose nearest existing parent is one),
     else OutputError: checked before anything is sent."""
@@ -202,9 +211,9 @@ def _take_out(sig_file: Path, table: pa.Table, which: pa.ChunkedArray) -> set[st
     return set(gone.to_pylist())
 
 
-def _read(path: Path) -> pa.Table:
+def _read(path: Path, columns: list[str] | None = None) -> pa.Table:
     try:
-        return pq.read_table(path, partitioning=None)
+        return pq.read_table(path, columns=columns, partitioning=None)
     except (OSError, pa.ArrowException) as exc:
         raise OutputError(f"lake file {path}: cannot read it ({exc.__class__.__name__})") from None
 

@@ -4,21 +4,34 @@ Written beside their target and renamed (a crash leaves a whole file or none), m
 audit log; named by the batch's content hash, so queueing the same batch twice keeps one file.
 Removed only after the store has taken the batch; a file that cannot be read is never removed,
 only named.
+
+Batches are sent in the order they were queued: a later one replaces an earlier one's rows in the
+store (a site's counts of a month), so the order decides what the store keeps. Each file holds its
+place in the queue (``queued``), one more than any queued before it, given under a lock on the
+outbox folder; never a time, as the site's clock can step back (an older batch written under a fast
+clock was sent last and its stale count kept). Files queued before the place was written hold none:
+they go first, oldest first by modification time.
 """
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import json
+import os
+from collections.abc import Iterator
 from pathlib import Path
 
+from cellguard.errors import OutputError
 from cellguard.fleet.export import Batch
 from cellguard.fleet.signature import SignatureError
-from cellguard.output import atomic_file
+from cellguard.output import UNLOCKABLE, atomic_file, make_folder
 from cellguard.yaml_file import read_bounded
 
 OUTBOX = "outbox"
 MAX_BATCH_BYTES = 1 << 28  # [bytes] a queued batch larger is not read (a signature is about 1 kB in one)
 FILE_MODE = 0o640  # as the audit log: the site's own data, not for every local user
+PLACE = "queued"  # a queued file's place in the queue, beside the batch (not part of its content hash)
 
 
 class Outbox:
@@ -26,9 +39,12 @@ class Outbox:
         self.folder = Path(site_dir) / OUTBOX
 
     def put(self, batch: Batch) -> Path:
+        """Queue ``batch`` last: one place after every batch queued (the same batch queued again moves there)."""
         path = self.folder / f"{batch.batch_id}.json"
-        with atomic_file(path, "outbox", mode=FILE_MODE) as f:
-            f.write(json.dumps(batch.to_dict()).encode("utf-8"))
+        with _locked(make_folder(self.folder, "outbox")):
+            place = 1 + max((n for n, _, _ in self._queue()[0]), default=0)
+            with atomic_file(path, "outbox", mode=FILE_MODE) as f:
+                f.write(json.dumps({**batch.to_dict(), PLACE: place}).encode("utf-8"))
         return path
 
     def pending(self) -> list[tuple[Path, Batch]]:
@@ -41,10 +57,15 @@ class Outbox:
         A file that cannot be read (not JSON, not a batch, a newer cellguard's schema, a link to
         nothing, a FIFO) is never removed: it stays queued for a person, or a newer cellguard, to
         deal with, and the other batches go on without it."""
+        queue, unreadable = self._queue()
+        return [(p, batch) for _, p, batch in queue], unreadable
+
+    def _queue(self) -> tuple[list[tuple[int, Path, Batch]], list[tuple[Path, str]]]:
+        """``read``'s, each batch with its place (0: queued before places were written), in the queue's order."""
         if not self.folder.is_dir():
             return [], []
-        batches, unreadable = [], []
-        for p in sorted(self.folder.glob("*.json"), key=_age):
+        queue, unreadable = [], []
+        for p in sorted(self.folder.glob("*.json"), key=_age):  # so the placeless keep their order of old
             try:
                 raw = json.loads(read_bounded(p, "queued batch", SignatureError, MAX_BATCH_BYTES))
             except SignatureError as exc:
@@ -54,10 +75,10 @@ class Outbox:
                 unreadable.append((p, f"not a batch's JSON ({exc.__class__.__name__})"))
                 continue
             try:
-                batches.append((p, Batch.from_dict(raw)))
+                queue.append((_place(raw), p, Batch.from_dict(raw)))
             except SignatureError as exc:
                 unreadable.append((p, str(exc)))
-        return batches, unreadable
+        return sorted(queue, key=lambda q: q[0]), unreadable
 
     def count(self) -> int:
         """Files queued, readable or not."""
@@ -67,8 +88,37 @@ class Outbox:
         path.unlink(missing_ok=True)
 
 
+def _place(raw: object) -> int:
+    """A queued file's place in the queue; 0 for one queued before places were written, SignatureError for one
+    that is not a count."""
+    place = raw.get(PLACE, 0) if isinstance(raw, dict) else 0
+    if isinstance(place, bool) or not isinstance(place, int) or place < 0:
+        raise SignatureError(f"batch.{PLACE}: expected its place in the queue (a count), got {place!r}")
+    return place
+
+
+@contextlib.contextmanager
+def _locked(folder: Path) -> Iterator[None]:
+    """An exclusive ``flock`` on the outbox ``folder`` while the block runs (a second push waits), so two pushes
+    never take the same place; on a filesystem that offers no locks, unguarded."""
+    try:
+        fd = os.open(folder, os.O_RDONLY | os.O_DIRECTORY)
+    except OSError as exc:
+        raise OutputError(f"outbox {folder}: cannot be opened ({exc.strerror or exc})") from None
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX)
+        except OSError as exc:
+            if exc.errno not in UNLOCKABLE:
+                raise OutputError(f"outbox {folder}: cannot be locked ({exc.strerror or exc})") from None
+        yield
+    finally:
+        os.close(fd)  # releases the lock
+
+
 def _age(p: Path) -> tuple[int, str]:
-    """Oldest first by modification time; a file that cannot be stat'ed (a link to nothing) first."""
+    """Oldest first by modification time (the order of files queued before places were written); a file that
+    cannot be stat'ed (a link to nothing) first."""
     try:
         return p.stat().st_mtime_ns, p.name
     except OSError:

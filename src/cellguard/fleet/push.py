@@ -25,7 +25,11 @@ queued.
 
 Every push applies the policy's retention to the store (when it can be reached) and to ``lake``:
 the site's signatures older than ``retention_days`` and its aggregates of the months before are
-deleted, whatever is sent, even nothing.
+deleted, whatever is sent, even nothing; the rows deleted are counted and logged. The days are
+counted on the store's clock (in its SQL), and a deletion cannot be undone, so this host's date is
+checked before anything goes: more than a day off the store's, or, with no store to ask, more than
+the retention after the site's newest signature (it would delete them all: a clock a year fast),
+retention deletes nothing this push and says so in one line naming the dates.
 
 A site folder with no site key whose audit log says the store took batches of the site (sent before the key, or
 under a key since lost) is refused before anything is made: a new key gave the same findings new ids, stored a
@@ -40,9 +44,9 @@ from functools import partial
 from pathlib import Path
 
 from cellguard.errors import ConfigError, OutputError
-from cellguard.fleet.audit import append_audit, scan_audit
-from cellguard.fleet.export import Batch, export_batch, refusal
-from cellguard.fleet.lake import check_lake, forget, write_signatures
+from cellguard.fleet.audit import append_audit, append_retention, scan_audit
+from cellguard.fleet.export import Batch, export_batch, oldest_kept, refusal
+from cellguard.fleet.lake import check_lake, forget, newest, write_signatures
 from cellguard.fleet.outbox import Outbox
 from cellguard.fleet.policy import DataPolicy
 from cellguard.fleet.signature import Signature
@@ -61,13 +65,14 @@ class PushResult:
     held: tuple[str, ...] = ()  # one line per queued batch the policy in force keeps at the site
     failed: tuple[str, ...] = ()  # one line per queued file that cannot be read or that the store refused
     new_key: str | None = None  # the site key this push made (ids of this site's earlier pushes differ)
+    retention_removed: int = 0  # rows the policy's retention deleted from the store and the lake
 
     def to_dict(self) -> dict:
         return {"batch_id": self.batch.batch_id, "export": self.batch.export, "rows": self.batch.rows,
                 "withheld_rows": self.batch.withheld_rows, "policy_version": self.batch.policy_version,
                 "sent_batches": self.sent_batches, "new_rows": self.new_rows, "duplicate_rows": self.duplicate_rows,
                 "queued": self.queued, "unavailable": self.unavailable, "held": list(self.held),
-                "failed": list(self.failed), "new_key": self.new_key}
+                "failed": list(self.failed), "new_key": self.new_key, "retention_removed": self.retention_removed}
 
 
 def push(signatures: list[Signature], policy: DataPolicy, site_dir: Path, store: TenantStore | None,
@@ -90,7 +95,7 @@ def push(signatures: list[Signature], policy: DataPolicy, site_dir: Path, store:
     failed = [f"{path}: {why}; it stays queued" for path, why in unreadable]
     held: list[str] = []
     sent = new = dup = 0
-    unavailable = _apply_retention(policy, store, lake, today, failed)
+    removed, unavailable = _apply_retention(policy, site_dir, store, lake, today, signatures, failed)
     last = _last_entries(site_dir) if queued and store is not None else {}
     for path, waiting in queued if store is not None and unavailable is None else ():
         why = refusal(waiting, policy, today)
@@ -119,7 +124,7 @@ def push(signatures: list[Signature], policy: DataPolicy, site_dir: Path, store:
         outbox.done(path)
         append_audit(site_dir, waiting, "sent" if n else "duplicate", destination, policy_in_force=policy.version)
         sent, new, dup = sent + 1, new + n, dup + d
-    return PushResult(batch, sent, new, dup, outbox.count(), unavailable, tuple(held), tuple(failed), made)
+    return PushResult(batch, sent, new, dup, outbox.count(), unavailable, tuple(held), tuple(failed), made, removed)
 
 
 def check_key_history(site_dir: Path, policy: DataPolicy) -> None:
@@ -148,21 +153,63 @@ def _unkeyed(batch: Batch, key: bytes) -> str | None:
             "push the runs again, which exports them keyed, then delete this file")
 
 
-def _apply_retention(policy: DataPolicy, store: TenantStore | None, lake: Path | None, today: dt.date | None,
-                     failed: list[str]) -> str | None:
-    """Delete the site's rows past the policy's retention from ``store`` and ``lake``, adding a line to
-    ``failed`` for each that refused; why the store could not be reached, or None."""
-    oldest = (today or dt.datetime.now(dt.timezone.utc).date()) - dt.timedelta(days=policy.retention_days)
-    places = [partial(forget, lake, policy.tenant)] if lake is not None else []
+def _apply_retention(policy: DataPolicy, site_dir: Path, store: TenantStore | None, lake: Path | None,
+                     today: dt.date | None, signatures: list[Signature], failed: list[str]) -> tuple[int, str | None]:
+    """Delete the site's rows past the policy's retention from ``store`` and ``lake``, logging each deletion and
+    adding a line to ``failed`` for each place that refused; (rows deleted, why the store could not be reached,
+    or None). A date the deletion cannot trust (``_distrust``) deletes nothing: one line in ``failed`` says so."""
+    local = today or dt.datetime.now(dt.timezone.utc).date()
+    server = unavailable = None
     if store is not None:
-        places.append(store.forget)
-    for forget_older in places:
         try:
-            forget_older(policy.site, oldest)
+            server = store.today()
         except StoreUnavailable as exc:
-            return str(exc)
+            unavailable = str(exc)
+    before = oldest_kept(policy, server or local)
+    places = [(str(lake), partial(forget, lake, policy.tenant, policy.site, before))] if lake is not None else []
+    if server is not None:
+        places.append((store.where, partial(store.forget, policy.site, policy.retention_days)))
+    removed = 0
+    try:
+        doubt = _distrust(local, server, policy, lake, signatures) if places else None
+    except OutputError as exc:  # a lake file that cannot be read: the lake's forget would refuse it too
+        places, doubt = [], None
+        failed.append(f"{exc}; the retention of {policy.retention_days} days is not applied there")
+    if doubt:
+        failed.append(f"{doubt}: the retention of {policy.retention_days} days deletes nothing this push")
+        for where, _ in places:
+            append_retention(site_dir, policy, 0, where, reason=doubt)
+        places = []
+    for where, forget_older in places:
+        try:
+            n = forget_older()
+        except StoreUnavailable as exc:
+            return removed, str(exc)
         except (OutputError, StoreError) as exc:
             failed.append(f"{exc}; the retention of {policy.retention_days} days is not applied there")
+            continue
+        if n:
+            append_retention(site_dir, policy, n, where, before=before.isoformat())
+        removed += n
+    return removed, unavailable
+
+
+def _distrust(local: dt.date, server: dt.date | None, policy: DataPolicy, lake: Path | None,
+              signatures: list[Signature]) -> str | None:
+    """Why this host's date ``local`` is not one to delete by, or None: more than a day off the store's
+    (``server``); with no store to ask, later than the site's newest signature (pushed now or in ``lake``) by more
+    than the retention, which would delete every one of them (a clock set a year fast, not a year without a
+    finding, is the likely cause; the next push with a right clock deletes what is due)."""
+    if server is not None:
+        off = abs((local - server).days)
+        return f"this host's date {local} is {off} days off the fleet store's {server}" if off > 1 else None
+    dates = [dt.date.fromisoformat(s.created_date) for s in signatures]
+    if lake is not None:
+        dates.append(newest(lake, policy.tenant, policy.site))
+    last = max((d for d in dates if d is not None), default=None)
+    if last is not None and last < oldest_kept(policy, local):
+        return (f"this host's date {local} is more than the retention after the site's newest signature ({last}), "
+                f"and would delete every one")
     return None
 
 

@@ -55,6 +55,7 @@ from cellguard.fleet.queries import (MIN_CUSTOMERS, QUERIES, RefusedAggregate, c
 SIGNATURE_COLUMNS = ("signature_id", "tenant_id", "site_id", "created_date", "cause", "confidence", "robot_model",
                      "cell_type", "onset_cycle", "detection_delay_cycles", "policy_version", "calibration_version",
                      "cellguard_version", "recovery", "recovery_outcome", "schema_version")
+SERVER_DATE = "(now() AT TIME ZONE 'UTC')::date"  # the store's UTC date, as sites count theirs
 RELATIONS = {"signatures": "fleet.signatures", "effects": "fleet.effects",  # never a name pg_temp could shadow
              "probe": "unnest(%(features)s::text[], %(effects)s::double precision[]) AS probe (feature, effect)"}
 
@@ -375,14 +376,21 @@ class TenantStore:
                 then()
         return new, batch.rows - new
 
-    def forget(self, site_id: str, before: dt.date | None = None) -> int:
-        """Delete this tenant's signatures of ``site_id`` made before ``before`` (its retention) and its
-        aggregates of the months wholly before it; every row of the site when ``before`` is None (consent
-        withdrawn). Returns the rows deleted."""
-        month = before.isoformat()[:7] if before else "9999-12"
+    def forget(self, site_id: str, keep_days: int | None = None) -> int:
+        """Delete this tenant's signatures of ``site_id`` more than ``keep_days`` old (its retention) and its
+        aggregates of the months wholly before; every row of the site when ``keep_days`` is None (consent
+        withdrawn). The days are counted on the server's clock, in the statement: a site's clock set wrong
+        does not choose what is deleted. Returns the rows deleted."""
         with self._writing(f"refused to delete the rows of site {site_id}") as cur:
-            cur.execute("SELECT fleet.forget_site(%s, %s, %s)", (site_id, before or dt.date.max, month))
+            cur.execute("SELECT fleet.forget_site(%(site)s, before, to_char(before, 'YYYY-MM')) FROM "
+                        f"(SELECT coalesce({SERVER_DATE} - %(days)s::int, DATE '9999-12-31') AS before) cutoff",
+                        {"site": site_id, "days": keep_days})
             return cur.fetchone()[0]
+
+    def today(self) -> dt.date:
+        """The server's UTC date: the one clock every site's retention is counted on."""
+        with self.connection() as con, self._mapped("could not read its date"):
+            return con.execute(f"SELECT {SERVER_DATE}").fetchone()[0]
 
     @contextmanager
     def _writing(self, refused: str):

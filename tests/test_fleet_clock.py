@@ -1,0 +1,165 @@
+"""A site's wall clock set wrong during a push: retention counts its days on the store's clock and deletes nothing
+by a date it cannot trust (a clock a year fast emptied the store and the lake, silently, exit 0), says and logs
+what it deleted; queued batches go in the order they were queued, whatever the clock did meanwhile (a batch
+written under a fast clock was sent last and its stale count replaced the newer one)."""
+
+from __future__ import annotations
+
+import datetime as dt
+import json
+import os
+import time
+
+import pyarrow.parquet as pq
+import pytest
+
+from cellguard.fleet.audit import read_audit
+from cellguard.fleet.export import export_batch
+from cellguard.fleet.lake import write_signatures
+from cellguard.fleet.outbox import Outbox
+from cellguard.fleet.policy import DataPolicy
+from cellguard.fleet.push import push
+from cellguard.fleet.signature import Signature, withhold
+from cellguard.fleet.store import FleetStore, TenantStore
+from fleet_server import admin_dsn_or_skip
+
+KEY = b"site-secret-of-the-tests"  # the site key signature ids are keyed with (site_key.py)
+HOST_TODAY = dt.datetime.now(dt.timezone.utc).date()
+
+
+def sig(tenant: str, site: str, day: dt.date, cause: str = "friction", n: int = 0) -> Signature:
+    return Signature(tenant, site, day.isoformat(), cause, 0.8, "arm5", "arm-pick-place",
+                     {"current_rms.elbow": 6.0 + n}, 7, 1, "pv-1", "cal-1", "0.1.0")
+
+
+def aged(tenant: str, site: str, today: dt.date, *days: int) -> list[Signature]:
+    return [sig(tenant, site, today - dt.timedelta(days=d), n=i) for i, d in enumerate(days)]
+
+
+def lake_rows(lake) -> int:
+    return sum(pq.read_table(f).num_rows for f in (lake / "tenant=ta" / "signatures").rglob("*.parquet"))
+
+
+@pytest.fixture(scope="module")
+def fleet():
+    store = FleetStore(admin_dsn_or_skip(), "cgtest_clock")
+    store.install(reset=True)
+    with store.admin() as con:  # the server's date: the tests' "today" wherever the host's differs
+        today = con.execute("SELECT (now() AT TIME ZONE 'UTC')::date").fetchone()[0]
+    return store, store.add_tenant("ta"), today
+
+
+def stored(store, site: str) -> int:
+    with store.admin() as con:
+        return con.execute("SELECT count(*) FROM fleet.signatures WHERE site_id = %s", (site,)).fetchone()[0]
+
+
+# -- retention by a clock it can trust ------------------------------------------------------------------------------
+
+
+def test_a_clock_a_year_fast_deletes_nothing_from_the_store_or_the_lake_and_says_so(fleet, tmp_path):
+    store, dsn, today = fleet
+    policy, lake, site = DataPolicy("ta", "sk-fast", retention_days=365), tmp_path / "lake", tmp_path / "site"
+    first = push(aged("ta", "sk-fast", today, 1, 20, 60), policy, site, TenantStore(dsn), lake, today=today)
+    assert (first.new_rows, stored(store, "sk-fast"), lake_rows(lake)) == (3, 3, 3)
+    fast = today + dt.timedelta(days=400)
+    result = push([], policy, site, TenantStore(dsn), lake, today=fast)
+    assert (stored(store, "sk-fast"), lake_rows(lake)) == (3, 3)
+    assert result.retention_removed == 0
+    (line,) = result.failed  # one warning line (the CLI's exit 1), naming both dates
+    assert str(fast) in line and str(today) in line and "deletes nothing" in line
+    skipped = [e for e in read_audit(site) if e["status"] == "retention"]
+    assert {e["destination"] for e in skipped} == {str(lake), TenantStore(dsn).where}
+    assert all(e["rows"] == 0 and str(fast) in e["reason"] for e in skipped)
+
+
+def test_the_stores_cutoff_is_counted_on_the_servers_clock(fleet, tmp_path):
+    """A host a day fast (within the day it may be off) deletes by the server's date, not its own."""
+    store, dsn, today = fleet
+    policy = DataPolicy("ta", "sk-edge", retention_days=30)
+    push(aged("ta", "sk-edge", today, 30), policy, tmp_path, TenantStore(dsn), today=today)
+    result = push([], policy, tmp_path, TenantStore(dsn), today=today + dt.timedelta(days=1))
+    assert stored(store, "sk-edge") == 1  # 30 days old by the server's date: kept
+    assert (result.retention_removed, result.failed) == (0, ())
+
+
+def test_retention_with_a_right_clock_deletes_and_every_push_says_and_logs_how_many(fleet, tmp_path):
+    store, dsn, today = fleet
+    lake, site = tmp_path / "lake", tmp_path / "site"
+    push(aged("ta", "sk-ok", today, 2000, 2000, 1), DataPolicy("ta", "sk-ok", retention_days=36500), site,
+         TenantStore(dsn), lake, today=today)
+    result = push([], DataPolicy("ta", "sk-ok", retention_days=30), site, TenantStore(dsn), lake, today=today)
+    assert (result.failed, stored(store, "sk-ok"), lake_rows(lake)) == ((), 1, 1)
+    assert result.retention_removed == 4 and result.to_dict()["retention_removed"] == 4  # 2 from each
+    logged = {e["destination"]: e for e in read_audit(site) if e["status"] == "retention"}
+    assert {d: e["rows"] for d, e in logged.items()} == {str(lake): 2, TenantStore(dsn).where: 2}
+    assert {e["before"] for e in logged.values()} == {str(today - dt.timedelta(days=30))}
+
+
+def test_a_lake_without_a_store_is_not_emptied_by_a_clock_past_all_its_data(tmp_path):
+    lake = tmp_path / "lake"
+    rows = [withhold(s, (), KEY) for s in aged("ta", "sk-lake", HOST_TODAY, 1, 20, 60)]
+    write_signatures(lake, rows, "earlier")
+    policy = DataPolicy("ta", "sk-lake", retention_days=365)
+    fast = HOST_TODAY + dt.timedelta(days=400)
+    result = push([], policy, tmp_path / "site", None, lake, today=fast)
+    assert lake_rows(lake) == 3
+    assert result.retention_removed == 0
+    (line,) = result.failed
+    assert str(fast) in line and str(HOST_TODAY - dt.timedelta(days=1)) in line  # the site's newest signature
+    # the right date: what is past the retention goes
+    right = push([], DataPolicy("ta", "sk-lake", retention_days=30), tmp_path / "site", None, lake, today=HOST_TODAY)
+    assert (lake_rows(lake), right.retention_removed, right.failed) == (2, 1, ())
+
+
+# -- the outbox's order ---------------------------------------------------------------------------------------------
+
+
+def counts(n: int) -> list[Signature]:
+    return [sig("ta", "sk-box", HOST_TODAY) for _ in range(n)]
+
+
+AGGREGATES = DataPolicy("ta", "sk-box", export="aggregates_only", min_group_size=2)
+
+
+def fast_mtime(path) -> None:
+    t = time.time() + 600
+    os.utime(path, (t, t))
+
+
+def test_queued_batches_go_in_the_order_they_were_queued_whatever_their_mtime(tmp_path):
+    box = Outbox(tmp_path)
+    older, newer = (export_batch(counts(n), AGGREGATES, key=KEY) for n in (5, 7))
+    fast_mtime(box.put(older))  # written while the clock was ten minutes fast; NTP then stepped it back
+    box.put(newer)
+    assert [b for _, b in box.pending()] == [older, newer]
+
+
+def test_a_batch_queued_by_an_older_cellguard_goes_before_those_with_a_place(tmp_path):
+    box = Outbox(tmp_path)
+    legacy, later, latest = (export_batch(counts(n), AGGREGATES, key=KEY) for n in (3, 4, 5))
+    for i, b in enumerate((legacy, later)):  # two files as older versions wrote them: no place, oldest by mtime
+        path = tmp_path / "outbox" / f"{b.batch_id}.json"
+        path.parent.mkdir(exist_ok=True)
+        path.write_text(json.dumps(b.to_dict()))
+        os.utime(path, (time.time() + 600 * (i + 1),) * 2)
+    box.put(latest)
+    assert [b for _, b in box.pending()] == [legacy, later, latest]
+
+
+def test_a_queued_file_whose_place_is_not_a_count_is_named_and_kept(tmp_path):
+    box = Outbox(tmp_path)
+    path = box.put(export_batch(counts(2), AGGREGATES, key=KEY))
+    path.write_text(json.dumps({**json.loads(path.read_text()), "queued": "1"}))
+    batches, ((bad, why),) = box.read()
+    assert (batches, bad) == ([], path) and "batch.queued" in why and box.count() == 1
+
+
+def test_after_the_clock_steps_back_the_store_keeps_the_newest_count(fleet, tmp_path):
+    store, dsn, _ = fleet
+    push(counts(5), AGGREGATES, tmp_path, None)  # no store: queued
+    fast_mtime(next((tmp_path / "outbox").glob("*.json")))
+    result = push(counts(7), AGGREGATES, tmp_path, TenantStore(dsn))
+    assert (result.sent_batches, result.queued) == (2, 0)
+    with store.admin() as con:
+        assert con.execute("SELECT signatures FROM fleet.aggregates WHERE site_id = 'sk-box'").fetchall() == [(7,)]
