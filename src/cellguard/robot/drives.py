@@ -13,7 +13,7 @@ import numpy as np
 
 from cellguard.embodiment import Profile
 from cellguard.embodiment.kinematics import span
-from cellguard.robot.protocol import SafetyInputs
+from cellguard.robot.protocol import RobotLinkError, SafetyInputs
 from cellguard.robot.state import State
 
 
@@ -79,12 +79,29 @@ class DrivenCell:
     data: mujoco.MjData
     drives: PositionDrives
     safety_inputs: SafetyInputs
+    unstable: str | None = None  # why the physics stopped being a robot (set by ``physics_step``)
 
     @property
     def t_ns(self) -> int:
         return round(self.data.time * 1e9)
 
+    def physics_step(self) -> None:
+        """One ``mj_step``. MuJoCo resets a state gone NaN, Inf or huge (its time back to 0) and carries on: the run
+        went on with time gone back and wrote a record its readers call damaged (ticks repeating sequence numbers),
+        exit 0. Here time keeps running and every later read fails, the link lost: the run stops, named."""
+        before = self.data.time
+        mujoco.mj_step(self.model, self.data)
+        if self.data.time < before and self.unstable is None:
+            self.data.time = before + self.model.opt.timestep
+            self.unstable = (f"the simulation became unstable at {before:.3f} s: MuJoCo found a NaN, Inf or huge value "
+                             f"in its state and reset it (the cell's physics, not a robot fault: see the scenario's "
+                             f"faults and process changes)")
+        elif self.unstable is not None:
+            self.data.time = max(self.data.time, before + self.model.opt.timestep)
+
     def read(self) -> State:
+        if self.unstable is not None:
+            raise RobotLinkError("robot_read_failed", self.unstable, lost=True)
         return self.drives.read(self.t_ns)
 
     def write(self, setpoint: np.ndarray) -> np.ndarray:

@@ -126,7 +126,7 @@ class PickPlaceCell(DrivenCell):
         return self._fk.tool_point(q)
 
     def step(self) -> None:
-        mujoco.mj_step(self.model, self.data)
+        self.physics_step()
         self._update_grasp()
 
     # -- Task ------------------------------------------------------------------------

@@ -93,7 +93,7 @@ class QuadrupedTurns(DrivenCell):
 
     # -- Robot -------------------------------------------------------------------------
     def step(self) -> None:
-        mujoco.mj_step(self.model, self.data)
+        self.physics_step()
         self._ticks += 1
         elapsed = self.data.time - self._cycle_start_ns * 1e-9
         in_window = STEADY_FROM_S <= elapsed < TURN_S
