@@ -14,10 +14,12 @@ from cellguard.runtime import run_scenario
 from cellguard.scenario import parse_scenario
 
 
+@pytest.mark.parametrize("steps", [0, 5])  # at 0 s the reset leaves time where it was
 @pytest.mark.parametrize("name", ["arm-pick-place", "quadruped-turns"])
-def test_a_state_mujoco_resets_fails_every_later_read_and_time_runs_on(name):
+def test_a_state_mujoco_resets_fails_every_later_read_and_time_runs_on(name, steps, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
     cell = make_cell(name)
-    for _ in range(5):
+    for _ in range(steps):
         cell.step()
     before = cell.data.time
     cell.data.qvel[:] = 1e30  # huge: MuJoCo's check resets the state
@@ -26,6 +28,7 @@ def test_a_state_mujoco_resets_fails_every_later_read_and_time_runs_on(name):
     with pytest.raises(RobotLinkError, match=r"simulation became unstable at .* reset it") as info:
         cell.read()
     assert info.value.lost and info.value.kind == "robot_read_failed"
+    assert list(tmp_path.iterdir()) == []  # MuJoCo wrote MUJOCO_LOG.TXT into the working folder
 
 
 def test_a_payload_the_physics_cannot_carry_stops_the_run_and_the_record_is_whole(tmp_path):

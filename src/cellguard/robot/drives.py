@@ -8,6 +8,8 @@ absolute multiples of the commissioned values, so re-applying a fault is harmles
 
 from __future__ import annotations
 
+import sys
+
 import mujoco
 import numpy as np
 
@@ -68,6 +70,20 @@ class PositionDrives:
         self.model.actuator_biasprm[self.act[i], 1:3] = self.nominal_bias[i] * factor
 
 
+# MuJoCo's checks of the state: what each found bad (it then resets the state)
+BAD_STATE = {mujoco.mjtWarning.mjWARN_BADQPOS: "position", mujoco.mjtWarning.mjWARN_BADQVEL: "velocity",
+             mujoco.mjtWarning.mjWARN_BADQACC: "acceleration"}
+
+
+def _warn(message: str) -> None:
+    """MuJoCo's warnings on stderr: by default it also appended them to MUJOCO_LOG.TXT in whatever folder the
+    process ran in (a user's working folder, the repository under the tests)."""
+    sys.stderr.write(f"MuJoCo: {message}\n")
+
+
+mujoco.set_mju_user_warning(_warn)
+
+
 class DrivenCell:
     """The Robot calls of a MuJoCo cell whose joints are ``PositionDrives``; a cell adds its task.
 
@@ -91,12 +107,14 @@ class DrivenCell:
         exit 0. Here time keeps running and every later read fails, the link lost: the run stops, named."""
         before = self.data.time
         mujoco.mj_step(self.model, self.data)
-        if self.data.time < before and self.unstable is None:
-            self.data.time = before + self.model.opt.timestep
-            self.unstable = (f"the simulation became unstable at {before:.3f} s: MuJoCo found a NaN, Inf or huge value "
-                             f"in its state and reset it (the cell's physics, not a robot fault: see the scenario's "
-                             f"faults and process changes)")
-        elif self.unstable is not None:
+        if self.unstable is None:
+            bad = [(w, self.data.warning[w]) for w in BAD_STATE if self.data.warning[w].number]
+            if bad:
+                warning, stat = bad[0]
+                self.unstable = (f"the simulation became unstable at {before:.3f} s: MuJoCo found a NaN, Inf or huge "
+                                 f"{BAD_STATE[warning]} of DOF {stat.lastinfo} and reset its state (the cell's "
+                                 f"physics, not a robot fault: see the scenario's faults and process changes)")
+        if self.unstable is not None:
             self.data.time = max(self.data.time, before + self.model.opt.timestep)
 
     def read(self) -> State:
