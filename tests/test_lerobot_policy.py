@@ -32,7 +32,7 @@ def act_dir(tmp_path_factory):
 
 def test_act_policy_runs_the_arm_cell_through_the_tick_path(act_dir):
     scenario = parse_scenario({"cell": "arm-pick-place", "acceptance_cycles": 1, "production_cycles": 0,
-                               "policy": f"lerobot:{act_dir}?map={act_dir / 'foreign.yaml'}"})
+                               "policy": f"lerobot:{act_dir}?map={act_dir / 'foreign.yaml'}&dt=0.02"})
     run = Run(scenario)
     outcome = run.cycle()
     assert outcome["inference"]["chunks"] > 50 and outcome["inference"]["wall_ms_mean"] > 0
@@ -47,7 +47,7 @@ def test_act_policy_runs_the_arm_cell_through_the_tick_path(act_dir):
 
 def test_a_chunk_comes_back_in_robot_joints_and_stamped(act_dir):
     cell = ArmPickPlace()
-    policy = make_policy(f"lerobot:{act_dir}?map={act_dir / 'foreign.yaml'}", cell)
+    policy = make_policy(f"lerobot:{act_dir}?map={act_dir / 'foreign.yaml'}&dt=0.02", cell)
     obs = cell.observe()
     chunk = policy.infer(obs)
     assert chunk.actions.shape == (50, 6) and chunk.t_obs_ns == obs.t_ns

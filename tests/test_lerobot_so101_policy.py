@@ -43,7 +43,7 @@ def act_dir(tmp_path_factory):
 
 def test_actions_in_lerobot_units_map_onto_the_cell_with_the_units_map_only(act_dir):
     cell = SO101PickPlace()
-    policy = make_policy(f"lerobot:{act_dir}?map={UNITS}", cell)
+    policy = make_policy(f"lerobot:{act_dir}?map={UNITS}&dt=0.02", cell)
     obs = cell.observe()
     np.testing.assert_allclose(policy.action_map.to_policy_state(obs.q), _lerobot_units(obs.q), atol=1e-9)
     raw = policy.backend.infer(PolicyInputs(state=_lerobot_units(obs.q), time_s=0.0, measurements=obs.measurements))

@@ -28,10 +28,10 @@ NAMES = "shoulder_pan,shoulder_lift,elbow,wrist_flex,wrist_roll,gripper"
 
 
 def _save(graph, path):
-    """``graph`` as an opset-17 model naming the arm's six actions, saved at ``path``."""
+    """``graph`` as an opset-17 model naming the arm's six actions and its step period, saved at ``path``."""
     model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
     model.ir_version = 8
-    helper.set_model_props(model, {"cellguard.action_names": NAMES})
+    helper.set_model_props(model, {"cellguard.action_names": NAMES, "cellguard.dt_s": "0.02"})
     onnx.save(model, path)
     return path
 

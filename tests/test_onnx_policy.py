@@ -103,7 +103,7 @@ def test_a_model_whose_state_input_has_another_width_is_refused_at_load(tmp_path
               y_std=np.ones(12), horizon=2)
     path = save_mlp_onnx(mlp, tmp_path / "narrow.onnx", {})
     with pytest.raises(ConfigError, match=r"model input 'state' has shape \[1, 3\]; the cell feeds it \(1, 6\)"):
-        make_policy(f"onnx:{path}", ArmPickPlace())
+        make_policy(f"onnx:{path}?dt=0.02", ArmPickPlace())
 
 
 def test_a_repeated_option_is_refused_naming_it(foreign_model):

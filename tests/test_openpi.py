@@ -143,7 +143,7 @@ def test_receive_timeout_then_reconnect(map_file):
     with serve(ForeignScriptedPolicy(delay_s=0.6), {"action_names": FOREIGN_NAMES}) as uri:
         cell = ArmPickPlace()
         cell.begin_cycle(0)
-        policy = make_openpi_policy(f"{uri}?map={map_file}&timeout=0.15&retries=1", cell)
+        policy = make_openpi_policy(f"{uri}?map={map_file}&timeout=0.15&retries=1&dt=0.02", cell)
         with pytest.raises(InferenceError, match="no reply within 0.15 s|cannot connect"):
             policy.infer(cell.observe())
         time.sleep(0.8)  # the server finishes its slow call and drops the closed connection
@@ -169,7 +169,7 @@ def test_api_key_header_is_sent_and_server_errors_surface(map_file, monkeypatch)
 
     with serve(Failing(), {"action_names": FOREIGN_NAMES}) as uri:
         cell = ArmPickPlace()
-        policy = make_openpi_policy(f"{uri}?map={map_file}&api_key_env=CELLGUARD_TEST_KEY&retries=0", cell)
+        policy = make_openpi_policy(f"{uri}?map={map_file}&api_key_env=CELLGUARD_TEST_KEY&retries=0&dt=0.02", cell)
         assert seen[-1] == "Api-Key s3cret"
         with pytest.raises(InferenceError, match="server error: RuntimeError: model exploded"):
             policy.infer(cell.observe())
@@ -223,7 +223,7 @@ def test_a_reply_over_the_message_limit_names_the_limit_and_close_code_1009(map_
 
     with serve(Huge(), {"action_names": FOREIGN_NAMES}) as uri:
         cell = ArmPickPlace()
-        policy = make_openpi_policy(f"{uri}?map={map_file}&retries=0&timeout=5", cell)
+        policy = make_openpi_policy(f"{uri}?map={map_file}&retries=0&timeout=5&dt=0.02", cell)
         with pytest.raises(InferenceError, match=r"reply over the limit of 8388608 bytes \(8 MiB\); closed with 1009 "
                                                  r"\(message too big\)"):
             policy.infer(cell.observe())

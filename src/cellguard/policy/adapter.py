@@ -50,6 +50,7 @@ class Backend(Protocol):
     action_dim: int
     action_names: tuple[str, ...] | None  # as the model names them, when it does
     embedded_map: str | None  # an action map shipped with the model (YAML text), if any
+    dt_s: float | None  # the step period [s] the model or server states, if it does
 
     def infer(self, inputs: PolicyInputs) -> np.ndarray: ...
 
@@ -73,14 +74,28 @@ def option_float(options: dict[str, str], key: str, default: float, scheme: str,
     return bounded_float(options.get(key, default), f"policy: {scheme}: option {key}", *limits)
 
 
+def stated_dt(metadata: dict, key: str, where: str) -> float | None:
+    """The step period a model's or server's ``metadata`` states under ``key``, checked; None when it states none."""
+    return bounded_float(metadata[key], f"{where} {key}", *DT_RANGE_S) if key in metadata else None
+
+
+def step_period(backend: Backend, options: dict[str, str], source: str) -> float:
+    """The chunk's step period [s]: ``?dt=``, else the one the model or server states. Neither is refused: the
+    20 ms once assumed played a policy of 100 ms steps five times too fast, and nothing said so."""
+    if "dt" not in options and backend.dt_s is None:
+        raise ConfigError(f"policy: {source}: the step period is not stated: give ?dt=SECONDS (the policy's control "
+                          f"period, e.g. 0.0667 for 15 Hz)")
+    return option_float(options, "dt", backend.dt_s, source.partition(":")[0], DT_RANGE_S)
+
+
 def resolve_map(backend: Backend, cell, map_path: str | None, source: str) -> ActionMap:
     """The action map for ``backend`` on ``cell``: a file, else the model's own, else by joint name."""
     profile = cell.profile
     if map_path:
-        amap = load_action_map(Path(map_path), profile)
+        amap = load_action_map(Path(map_path), profile, cell.name)
     elif backend.embedded_map:
         amap = parse_action_map(parse_yaml(backend.embedded_map, f"{source} (embedded map)"), profile,
-                                origin=f"{source} (embedded map)")
+                                origin=f"{source} (embedded map)", cell=cell.name)
     else:
         names = backend.action_names
         joints = tuple(n.removesuffix(".pos") for n in names) if names else profile.joint_names

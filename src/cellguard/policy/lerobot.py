@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from cellguard.errors import ConfigError
-from cellguard.policy.adapter import DT_RANGE_S, MappedPolicy, PolicyInputs, option_float, resolve_map, split_options
+from cellguard.policy.adapter import MappedPolicy, PolicyInputs, resolve_map, split_options, step_period
 
 OPTIONS = {"map": "action map YAML file", "dt": "step period [s]", "task": "task text for language-conditioned policies"}
 TAKES_FILE = True  # lerobot:DIR, a folder, frozen in a release by its absolute path (cellguard.policy.registry)
@@ -35,6 +35,7 @@ class LeRobotBackend:
         self.action_dim = int(features["action"].shape[0])
         self.action_names = None
         self.embedded_map = None
+        self.dt_s = None  # a saved policy states no control period: the source gives ?dt=
         self._environment = "observation.environment_state" in policy.config.input_features
         self._hash = content_hash
 
@@ -83,10 +84,10 @@ def load_backend(folder: Path) -> LeRobotBackend:
 
 
 def make_lerobot_policy(arg: str, cell) -> MappedPolicy:
-    """``lerobot:DIR[?map=FILE&dt=0.02&task=...]`` for ``cell``."""
+    """``lerobot:DIR?dt=0.0333[&map=FILE&task=...]`` for ``cell``."""
     target, options = split_options(arg, OPTIONS, "lerobot")
     backend = load_backend(Path(target))
     source = f"lerobot:{target}"
     amap = resolve_map(backend, cell, options.get("map"), source)
-    dt = option_float(options, "dt", 0.02, "lerobot", DT_RANGE_S)
+    dt = step_period(backend, options, source)
     return MappedPolicy(backend, amap, cell, source, dt, task=options.get("task", ""))

@@ -7,7 +7,7 @@ any other type is refused at load). Its first output is the chunk, floats too, (
 (1, A); any other shape is refused (a batch of chunks was flattened into one long chunk). Its content
 hash covers the model file and the external-data files it names, which lie in its folder.
 Metadata properties the model may carry: ``cellguard.action_names`` (comma-separated),
-``cellguard.dt_s`` (step period), ``cellguard.action_map`` (an action map, YAML).
+``cellguard.dt_s`` (step period; without it the source gives ``?dt=``), ``cellguard.action_map`` (an action map, YAML).
 """
 
 from __future__ import annotations
@@ -18,9 +18,8 @@ from pathlib import Path
 import numpy as np
 
 from cellguard.errors import ConfigError
-from cellguard.options import bounded_float
-from cellguard.policy.adapter import (DT_RANGE_S, InferenceError, MappedPolicy, PolicyInputs, option_float, resolve_map,
-                                      split_options)
+from cellguard.policy.adapter import (InferenceError, MappedPolicy, PolicyInputs, resolve_map, split_options, stated_dt,
+                                      step_period)
 from cellguard.policy.chunk import MAX_HORIZON
 
 OPTIONS = {"map": "action map YAML file", "dt": "step period [s], overrides the model's"}
@@ -65,8 +64,7 @@ class OnnxBackend:
         names = meta.get("cellguard.action_names")
         self.action_names = tuple(names.split(",")) if names else None
         self.embedded_map = meta.get("cellguard.action_map")
-        self.dt_s = (bounded_float(meta["cellguard.dt_s"], f"policy: onnx:{path}: metadata cellguard.dt_s", *DT_RANGE_S)
-                     if "cellguard.dt_s" in meta else None)
+        self.dt_s = stated_dt(meta, "cellguard.dt_s", f"policy: onnx:{path}: metadata")
         output = self.session.get_outputs()[0]
         if output.type not in _FEED_TYPES:  # a string or bool chunk failed every call; an int64 one was truncated
             raise ConfigError(f"policy: onnx:{path}: first output {output.name!r} is {output.type}; a chunk is joint "
@@ -183,8 +181,7 @@ def make_onnx_policy(arg: str, cell) -> MappedPolicy:
     backend = OnnxBackend(Path(target), tuple(cell.observe().measurements))
     source = f"onnx:{target}"
     amap = resolve_map(backend, cell, options.get("map"), source)
-    dt = option_float(options, "dt", backend.dt_s or 0.02, "onnx", DT_RANGE_S)
-    policy = MappedPolicy(backend, amap, cell, source, dt)
+    policy = MappedPolicy(backend, amap, cell, source, step_period(backend, options, source))
     observation = cell.observe()
     backend.check_widths({"state": amap.to_policy_state(observation.q, policy.solver).size, "time_s": 1,
                           **{k: np.size(v) for k, v in observation.measurements.items()}}, source)

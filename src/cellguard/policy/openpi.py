@@ -22,9 +22,8 @@ from urllib.parse import urlsplit
 import numpy as np
 
 from cellguard.errors import ConfigError
-from cellguard.options import bounded_float
-from cellguard.policy.adapter import (DT_RANGE_S, TIMEOUT_RANGE_S, InferenceError, MappedPolicy, PolicyInputs,
-                                      option_float, resolve_map, split_options)
+from cellguard.policy.adapter import (TIMEOUT_RANGE_S, InferenceError, MappedPolicy, PolicyInputs, option_float,
+                                      resolve_map, split_options, stated_dt, step_period)
 from cellguard.policy.wire import WireError, packb, unpackb
 
 OPTIONS = {"map": "action map YAML file", "dt": "step period [s]", "timeout": "receive timeout [s]",
@@ -63,6 +62,8 @@ class OpenpiBackend:
                               f"integer in 1..{MAX_ACTION_DIM}")
         self.action_dim = dim
         self.embedded_map = None
+        # openpi's own servers send no dt_s: the source gives ?dt=
+        self.dt_s = stated_dt(self.metadata, "dt_s", f"policy: openpi:{uri}: server metadata")
 
     def _connect(self) -> dict:
         from websockets.exceptions import InvalidHandshake, WebSocketException
@@ -170,7 +171,8 @@ def decode_reply(reply: bytes | str, uri: str) -> np.ndarray:
 
 
 def make_openpi_policy(arg: str, cell) -> MappedPolicy:
-    """``openpi:ws://HOST:PORT[?map=FILE&timeout=1&api_key_env=VAR&prompt=...&dt=0.02&retries=1]``."""
+    """``openpi:ws://HOST:PORT?dt=0.0667[&map=FILE&timeout=1&api_key_env=VAR&prompt=...&retries=1]`` (``dt`` unless
+    the server's metadata gives ``dt_s``)."""
     target, options = split_options(arg, OPTIONS, "openpi")
     key = None
     if "api_key_env" in options:
@@ -186,6 +188,5 @@ def make_openpi_policy(arg: str, cell) -> MappedPolicy:
     backend = OpenpiBackend(target, key, option_float(options, "timeout", 2.0, "openpi", TIMEOUT_RANGE_S), retries)
     source = f"openpi:{target}"
     amap = resolve_map(backend, cell, options.get("map"), source)
-    server_dt = bounded_float(backend.metadata.get("dt_s", 0.02), f"policy: {source}: server metadata dt_s", *DT_RANGE_S)
-    dt = option_float(options, "dt", server_dt, "openpi", DT_RANGE_S)
+    dt = step_period(backend, options, source)
     return MappedPolicy(backend, amap, cell, source, dt, task=options.get("prompt", ""))
