@@ -18,6 +18,9 @@ from cellguard.scenario import parse_scenario
 CELL = make_cell("arm-pick-place")
 
 
+DT = np.array(0.02)
+
+
 def _write(path, **arrays):
     np.savez(path, **arrays)
     return path
@@ -26,17 +29,20 @@ def _write(path, **arrays):
 @pytest.mark.parametrize("arrays, says", [
     ({"actions": np.zeros((2, 3, 6))}, "missing array 't'"),
     ({"t": np.zeros(2)}, "missing array 'actions'"),
-    ({"t": np.zeros(2), "actions": np.zeros((2, 3, 5))}, "actions must have shape (N=2, H>0, D=6)"),
-    ({"t": np.zeros(3), "actions": np.zeros((2, 3, 6))}, "actions must have shape"),
-    ({"t": np.array([0.0, np.nan]), "actions": np.zeros((2, 3, 6))}, "t must be"),
-    ({"t": np.zeros(2), "actions": np.zeros((2, 3, 6)), "uncertainty": np.zeros(2)}, "uncertainty must have shape"),
+    ({"t": np.zeros(2), "actions": np.zeros((2, 3, 6))}, "missing array 'dt'"),  # was played at an assumed 20 ms
+    ({"t": np.zeros(2), "actions": np.zeros((2, 3, 5)), "dt": DT}, "actions must have shape (N=2, H>0, D=6)"),
+    ({"t": np.zeros(3), "actions": np.zeros((2, 3, 6)), "dt": DT}, "actions must have shape"),
+    ({"t": np.array([0.0, np.nan]), "actions": np.zeros((2, 3, 6)), "dt": DT}, "t must be"),
+    ({"t": np.zeros(2), "actions": np.zeros((2, 3, 6)), "uncertainty": np.zeros(2), "dt": DT},
+     "uncertainty must have shape"),
     ({"t": np.zeros(2), "actions": np.zeros((2, 3, 6)), "dt": np.array([0.02, 0.02])}, "dt must be"),
-    ({"t": np.zeros(2), "actions": np.zeros((2, 3, 6)), "extra": np.zeros(1)}, "unknown array"),
+    ({"t": np.zeros(2), "actions": np.zeros((2, 3, 6)), "extra": np.zeros(1), "dt": DT}, "unknown array"),
     # finite, but past int64 nanoseconds: RuntimeWarnings, then every chunk stale
-    ({"t": np.array([0.0, 1e300]), "actions": np.zeros((2, 3, 6))}, "t must be finite seconds within +-1e+09 s"),
-    ({"t": np.array([-2e9, 0.0]), "actions": np.zeros((2, 3, 6))}, "got t[0] = -2000000000.0"),
+    ({"t": np.array([0.0, 1e300]), "actions": np.zeros((2, 3, 6)), "dt": DT},
+     "t must be finite seconds within +-1e+09 s"),
+    ({"t": np.array([-2e9, 0.0]), "actions": np.zeros((2, 3, 6)), "dt": DT}, "got t[0] = -2000000000.0"),
     ({"t": np.zeros(2), "actions": np.zeros((2, 3, 6)), "dt": np.array(True)}, "dt is of dtype bool"),
-    ({"t": np.zeros(2, dtype=bool), "actions": np.zeros((2, 3, 6))}, "t is of dtype bool"),
+    ({"t": np.zeros(2, dtype=bool), "actions": np.zeros((2, 3, 6)), "dt": DT}, "t is of dtype bool"),
 ])
 def test_bad_files_raise_one_error_naming_what_is_wrong(tmp_path, arrays, says):
     path = _write(tmp_path / "bad.npz", **arrays)
@@ -57,7 +63,8 @@ def test_missing_and_unreadable_files(tmp_path):
 
 def test_records_are_handed_out_in_order_once_due(tmp_path):
     actions = np.repeat(CELL.q_home[None, None], 3, axis=0).repeat(4, axis=1)
-    path = _write(tmp_path / "s.npz", t=np.array([0.0, 0.1, 0.05]), actions=actions, uncertainty=np.zeros((3, 4)))
+    path = _write(tmp_path / "s.npz", t=np.array([0.0, 0.1, 0.05]), actions=actions, uncertainty=np.zeros((3, 4)),
+                  dt=DT)
     policy = make_policy(f"replay:{path}", CELL)
     obs = CELL.observe()
     first = policy.infer(obs)

@@ -2,7 +2,8 @@
 
 The file holds ``t`` (N,) [s], when each chunk's observation was taken, counted from the start
 of the cycle; ``actions`` (N, H, D) in the cell's joint order and SI units; optionally
-``uncertainty`` (N, H) and ``dt`` (a scalar [s], the step of every chunk; 0.02 s if absent).
+``uncertainty`` (N, H); and ``dt`` (a scalar [s], the step of every chunk; required: a file without it was
+played at an assumed 20 ms, as the other sources once were).
 Each cycle replays the file from its start. Records are handed out in file order once their
 time has come, stamped with that time, so late, out-of-order and silent streams replay as
 recorded; the values are not checked here (NaN and wrong sizes are what such streams are for):
@@ -25,7 +26,6 @@ from cellguard.robot.state import Observation
 OPTIONS: dict[str, str] = {}  # replay:FILE takes no options: the whole argument is the file
 TAKES_FILE = True  # frozen in a release by its absolute path (cellguard.policy.registry)
 
-DEFAULT_DT_S = 0.02
 MAX_BYTES = 512 << 20  # [bytes] the largest replay file, and the most its arrays may expand to
 _MAX_HEADER = 10_000  # [bytes] numpy's own default limit for one .npy header
 _NUMERIC_KINDS = frozenset("biuf")  # bool, signed, unsigned, float
@@ -68,9 +68,8 @@ class ReplayPolicy:
 
 def _load(path: Path, dof: int):
     where = f"replay file {path}"
-    data = read_npz(path, where, ("t", "actions", "uncertainty", "dt"), ("t", "actions"))
-    t, actions, unc = data["t"], data["actions"], data.get("uncertainty")
-    dt = data.get("dt", np.asarray(DEFAULT_DT_S))
+    data = read_npz(path, where, ("t", "actions", "uncertainty", "dt"), ("t", "actions", "dt"))
+    t, actions, unc, dt = data["t"], data["actions"], data.get("uncertainty"), data["dt"]
     for name, array in data.items():
         if array.dtype.kind == "b":  # dt = True was taken for 1 s
             raise ConfigError(f"{where}: {name} is of dtype bool; it holds numbers (int or float)")
