@@ -80,21 +80,26 @@ def test_a_one_step_chunk_from_rest_is_reached_smoothly():
     assert np.allclose(q[-1], Q0 + 0.005) and np.abs(np.diff(q, 2, axis=0)).max() / 1e-6 < 1.0
 
 
-@pytest.mark.parametrize("rest_ms", [0, 300])  # the first chunk; one after the last chunk's curve has ended
-def test_a_plan_from_rest_taken_late_starts_at_its_first_step(rest_ms):
+def test_a_first_plan_taken_late_starts_at_its_first_step():
     """The robot waited at rest while the policy thought: a pi0-shaped plan (1 s) taken 450 ms after its
     observation had its first 22 steps cut, and the blend from rest made up 0.63 rad of their motion in 200 ms
     (the tracker lagged the plan by as much). Now it plays from its first step, as if observed when taken."""
     ex = Executor(PROFILE, Q0, MS)
-    t0 = 0
-    if rest_ms:
-        ex.push(_chunk(lambda t: np.repeat(Q0[None], len(t), axis=0)), 0)
-        t0 = rest_ms * MS
-    ex.reference(t0)
-    plan = _chunk(lambda t: _from_rest(t - t0 * 1e-9), t0, horizon=50)
-    taken = t0 + 450 * MS
-    assert "chunk_steps_dropped" not in [e.kind for e in ex.push(plan, taken)]
-    ref = np.array([ex.reference(taken + k * MS)[ELBOW] for k in range(0, 1000)])
+    ex.reference(0)
+    plan = _chunk(_from_rest, 0, horizon=50)
+    assert ex.push(plan, 450 * MS) == []  # nothing dropped
+    ref = np.array([ex.reference((450 + k) * MS)[ELBOW] for k in range(0, 1000)])
     expected = _from_rest(np.arange(1000) * 1e-3)[:, ELBOW]  # the plan, 450 ms later
     assert np.abs(ref - expected).max() < 1e-3
     assert np.abs(np.diff(ref, 2)).max() / 1e-6 < PROFILE.array("acceleration")[ELBOW]
+
+
+def test_after_a_chunk_ran_out_a_late_chunk_drops_its_past_steps():
+    """The reference rests once a chunk has ended, but the setpoint may still be braking: a late chunk observed
+    there is not re-timed (replayed, its steps repeated motion the robot had made)."""
+    ex = Executor(PROFILE, Q0, MS)
+    ex.push(_chunk(lambda t: np.repeat(Q0[None], len(t), axis=0)), 0)
+    for k in range(0, 300):
+        ex.reference(k * MS)
+    events = ex.push(_chunk(lambda t: _from_rest(t - 0.3), 300 * MS, horizon=50), 400 * MS)
+    assert "chunk_steps_dropped" in [e.kind for e in events]

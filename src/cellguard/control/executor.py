@@ -29,10 +29,11 @@ Time: chunks are stamped in the policy's (real) time; the reference is read on a
 clock that runs at ``scale`` (1 = real time). Speed scaling slows the clock, so the path keeps
 its geometry and only time stretches. A chunk's steps are placed on the playback clock from the
 time of the observation they answer; steps already behind the clock when the chunk arrives are
-dropped (the curve is never read before now), never replayed; except a plan from rest: a chunk observed while
-the reference rested (before the first chunk, or after one ran out) starts when it is taken, as if observed then
-(the robot did not move while the policy thought; cut, its first steps' motion was made up in the blend from rest,
-0.63 rad in 200 ms for a 1 s chunk 450 ms late, and the tracker lagged the plan by as much). With ``max_tick_ns`` (the guard
+dropped (the curve is never read before now), never replayed; except the first chunk's: the robot waited at rest
+(the start, or an approach) while the policy thought, so it starts when it is taken, as if observed then (cut, its
+first steps' motion was made up in the blend from rest, 0.63 rad in 200 ms for a 1 s chunk 450 ms late, and the
+tracker lagged the plan by as much). After a chunk ran out the setpoint may still be braking: a late chunk's steps
+are dropped there as anywhere (replayed, a plan of the robot's own path was missed by 0.22 rad). With ``max_tick_ns`` (the guard
 sets one servo period) the playback clock advances at most that much per tick: a tick that
 wakes late on wall time does not jump the reference (a 1 ms finite difference reads a 2 ms
 step as a velocity spike); the time lost becomes lag, as a slow-down would, and later chunks
@@ -135,9 +136,8 @@ class Executor:
         horizon = len(curve.points)
         if first + (horizon - 1) * h <= now:
             return [Event(t_ns, EventKind.CHUNK_STALE, f"all {horizon} steps lie before now")]
-        observed = chunk.t_obs_ns - shift  # on the playback clock
-        if first <= now and self._resting(observed):  # the robot waited at rest while the policy thought: its plan
-            first += now - observed  # from rest starts now, not cut (450 ms cut 22 steps, 0.63 rad, off a 1 s chunk)
+        if first <= now and self._chunk is None:  # the first: the robot waited at rest while the policy thought, so
+            first += now - (chunk.t_obs_ns - shift)  # its plan starts now, not cut (450 ms cut 0.63 rad off a 1 s chunk)
         placed = curve.shifted(first) if first != curve.t0_ns else curve
         old = self._curve
         events = self._ran_out(old, now, t_ns)
