@@ -8,6 +8,7 @@ absolute multiples of the commissioned values, so re-applying a fault is harmles
 
 from __future__ import annotations
 
+import functools
 import sys
 
 import mujoco
@@ -71,8 +72,9 @@ class PositionDrives:
 
 
 # MuJoCo's checks of the state: what each found bad (it then resets the state)
-BAD_STATE = {mujoco.mjtWarning.mjWARN_BADQPOS: "position", mujoco.mjtWarning.mjWARN_BADQVEL: "velocity",
-             mujoco.mjtWarning.mjWARN_BADQACC: "acceleration"}
+QPOS, QVEL, QACC = (int(w) for w in (mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL,
+                                     mujoco.mjtWarning.mjWARN_BADQACC))
+BAD_STATE = {QPOS: "position", QVEL: "velocity", QACC: "acceleration"}
 
 
 def _warn(message: str) -> None:
@@ -107,15 +109,23 @@ class DrivenCell:
         exit 0. Here time keeps running and every later read fails, the link lost: the run stops, named."""
         before = self.data.time
         mujoco.mj_step(self.model, self.data)
+        counts = self._warning_counts
+        if counts[QPOS] or counts[QVEL] or counts[QACC]:  # one look a step: indexing ``data.warning`` cost 3 µs
+            self._unstable_since(before)
+
+    @functools.cached_property
+    def _warning_counts(self) -> np.ndarray:
+        """A live view of MuJoCo's warning counters (the cell's one MjData, kept for its life)."""
+        return self.data.warning.number
+
+    def _unstable_since(self, before: float) -> None:
+        """Name the first blow-up (what went bad, where) and keep time running from ``before`` [s]."""
         if self.unstable is None:
-            bad = [(w, self.data.warning[w]) for w in BAD_STATE if self.data.warning[w].number]
-            if bad:
-                warning, stat = bad[0]
-                self.unstable = (f"the simulation became unstable at {before:.3f} s: MuJoCo found a NaN, Inf or huge "
-                                 f"{BAD_STATE[warning]} of DOF {stat.lastinfo} and reset its state (the cell's "
-                                 f"physics, not a robot fault: see the scenario's faults and process changes)")
-        if self.unstable is not None:
-            self.data.time = max(self.data.time, before + self.model.opt.timestep)
+            warning = next(w for w in BAD_STATE if self.data.warning[w].number)
+            self.unstable = (f"the simulation became unstable at {before:.3f} s: MuJoCo found a NaN, Inf or huge "
+                             f"{BAD_STATE[warning]} of DOF {self.data.warning[warning].lastinfo} and reset its state "
+                             f"(the cell's physics, not a robot fault: see the scenario's faults and process changes)")
+        self.data.time = max(self.data.time, before + self.model.opt.timestep)
 
     def read(self) -> State:
         if self.unstable is not None:
