@@ -163,3 +163,15 @@ def test_after_the_clock_steps_back_the_store_keeps_the_newest_count(fleet, tmp_
     assert (result.sent_batches, result.queued) == (2, 0)
     with store.admin() as con:
         assert con.execute("SELECT signatures FROM fleet.aggregates WHERE site_id = 'sk-box'").fetchall() == [(7,)]
+
+
+def test_a_push_whose_own_signatures_carry_the_fast_date_does_not_vouch_for_it(tmp_path):
+    """The runs pushed were recorded under the same fast clock, so their signatures carry its date: counted as
+    the site's newest, they let a year-fast clock with the store down empty the lake (exit 0, nothing said)."""
+    lake = tmp_path / "lake"
+    write_signatures(lake, [withhold(s, (), KEY) for s in aged("ta", "sk-own", HOST_TODAY, 1, 20, 60)], "earlier")
+    fast = HOST_TODAY + dt.timedelta(days=400)
+    result = push([sig("ta", "sk-own", fast, n=9)], DataPolicy("ta", "sk-own", retention_days=365),
+                  tmp_path / "site", None, lake, today=fast)
+    assert result.retention_removed == 0 and lake_rows(lake) >= 3
+    assert any(str(fast) in line for line in result.failed)

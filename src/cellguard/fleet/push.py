@@ -95,7 +95,7 @@ def push(signatures: list[Signature], policy: DataPolicy, site_dir: Path, store:
     failed = [f"{path}: {why}; it stays queued" for path, why in unreadable]
     held: list[str] = []
     sent = new = dup = 0
-    removed, unavailable = _apply_retention(policy, site_dir, store, lake, today, signatures, failed)
+    removed, unavailable = _apply_retention(policy, site_dir, store, lake, today, failed)
     last = _last_entries(site_dir) if queued and store is not None else {}
     for path, waiting in queued if store is not None and unavailable is None else ():
         why = refusal(waiting, policy, today)
@@ -154,7 +154,7 @@ def _unkeyed(batch: Batch, key: bytes) -> str | None:
 
 
 def _apply_retention(policy: DataPolicy, site_dir: Path, store: TenantStore | None, lake: Path | None,
-                     today: dt.date | None, signatures: list[Signature], failed: list[str]) -> tuple[int, str | None]:
+                     today: dt.date | None, failed: list[str]) -> tuple[int, str | None]:
     """Delete the site's rows past the policy's retention from ``store`` and ``lake``, logging each deletion and
     adding a line to ``failed`` for each place that refused; (rows deleted, why the store could not be reached,
     or None). A date the deletion cannot trust (``_distrust``) deletes nothing: one line in ``failed`` says so."""
@@ -171,7 +171,7 @@ def _apply_retention(policy: DataPolicy, site_dir: Path, store: TenantStore | No
         places.append((store.where, partial(store.forget, policy.site, policy.retention_days)))
     removed = 0
     try:
-        doubt = _distrust(local, server, policy, lake, signatures) if places else None
+        doubt = _distrust(local, server, policy, lake) if places else None
     except OutputError as exc:  # a lake file that cannot be read: the lake's forget would refuse it too
         places, doubt = [], None
         failed.append(f"{exc}; the retention of {policy.retention_days} days is not applied there")
@@ -194,19 +194,17 @@ def _apply_retention(policy: DataPolicy, site_dir: Path, store: TenantStore | No
     return removed, unavailable
 
 
-def _distrust(local: dt.date, server: dt.date | None, policy: DataPolicy, lake: Path | None,
-              signatures: list[Signature]) -> str | None:
+def _distrust(local: dt.date, server: dt.date | None, policy: DataPolicy, lake: Path | None) -> str | None:
     """Why this host's date ``local`` is not one to delete by, or None: more than a day off the store's
-    (``server``); with no store to ask, later than the site's newest signature (pushed now or in ``lake``) by more
-    than the retention, which would delete every one of them (a clock set a year fast, not a year without a
-    finding, is the likely cause; the next push with a right clock deletes what is due)."""
+    (``server``); with no store to ask, later than the site's newest signature already in ``lake`` by more than the
+    retention, which would delete every one of them (a clock set a year fast, not a year without a finding, is the
+    likely cause; the next push with a right clock deletes what is due). This push's own signatures are no
+    witness: a clock that ran fast while they were recorded dates them as fast (counted, a year-fast clock with
+    the store down emptied the lake, exit 0)."""
     if server is not None:
         off = abs((local - server).days)
         return f"this host's date {local} is {off} days off the fleet store's {server}" if off > 1 else None
-    dates = [dt.date.fromisoformat(s.created_date) for s in signatures]
-    if lake is not None:
-        dates.append(newest(lake, policy.tenant, policy.site))
-    last = max((d for d in dates if d is not None), default=None)
+    last = newest(lake, policy.tenant, policy.site) if lake is not None else None
     if last is not None and last < oldest_kept(policy, local):
         return (f"this host's date {local} is more than the retention after the site's newest signature ({last}), "
                 f"and would delete every one")
