@@ -140,20 +140,23 @@ def identity_map(profile: Profile, names: tuple[str, ...] | None = None) -> Acti
     return parse_action_map({"robot": profile.robot, "actions": actions}, profile)
 
 
-def load_action_map(path: Path, profile: Profile, cell: str | None = None) -> ActionMap:
-    """Read an action map file and check it against ``profile`` (of the cell named ``cell``, when there is one)."""
+def load_action_map(path: Path, profile: Profile) -> ActionMap:
+    """Read an action map file and check it against ``profile``."""
     raw = read_yaml(path, "action map")
-    return parse_action_map(raw, profile, origin=str(path), cell=cell)
+    return parse_action_map(raw, profile, origin=str(path))
 
 
-def parse_action_map(raw: object, profile: Profile, origin: str = "action map", cell: str | None = None) -> ActionMap:
+def parse_action_map(raw: object, profile: Profile, origin: str = "action map") -> ActionMap:
     """Validate a decoded action map against ``profile``; raise ConfigError naming the field. Its ``robot:`` is the
-    profile's robot or the name of the cell it runs on (``cell``, when there is one): a scenario names the cell,
-    which is not always its robot's name (cell so101-pick-place, robot so101)."""
+    profile's robot, which is not always the name of the cell a scenario names (cell so101-pick-place, robot
+    so101): the refusal says which to write (the cell's name was called the map's, the robot's the cell's)."""
     if not isinstance(raw, dict):
         raise ConfigError(f"{origin}: expected a mapping with keys {', '.join(sorted(_TOP_KEYS))}")
     reject_unknown_keys(raw, sorted(_TOP_KEYS), f"{origin}: ")
-    _check_robot(raw.get("robot"), profile.robot, cell, origin)
+    robot = raw.get("robot")
+    if robot != profile.robot:
+        raise ConfigError(f"{origin}: robot: the map is for {robot!r}; this cell's robot (its profile) is "
+                          f"{profile.robot!r}: write robot: {profile.robot}")
     entries = raw.get("actions")
     if not isinstance(entries, list) or not entries:
         raise ConfigError(f"{origin}: actions: expected a non-empty list, one entry per policy action")
@@ -254,15 +257,6 @@ def _raw_factor(entry: dict, dims: tuple[str, ...], field: str, joint: str | Non
     if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not np.isfinite(scale) or scale == 0:
         raise ConfigError(f"{field}.scale: with unit {unit!r} the scale is a non-zero number, got {scale!r}")
     return factor * float(scale)
-
-
-def _check_robot(robot: object, profile_robot: str, cell: str | None, origin: str) -> None:
-    """Refuse a map written for another robot; the error gives each name this one answers to."""
-    if robot == profile_robot or (cell is not None and robot == cell):
-        return
-    this = (f"this robot is {profile_robot!r}" if cell in (None, profile_robot)
-            else f"this cell is {cell!r} (robot {profile_robot!r}); either name is taken")
-    raise ConfigError(f"{origin}: robot: the map is for {robot!r}; {this}")
 
 
 def _held(raw: object, profile: Profile, kinds: dict, driven: dict, origin: str) -> tuple[tuple[int, float], ...]:

@@ -92,10 +92,10 @@ def resolve_map(backend: Backend, cell, map_path: str | None, source: str) -> Ac
     """The action map for ``backend`` on ``cell``: a file, else the model's own, else by joint name."""
     profile = cell.profile
     if map_path:
-        amap = load_action_map(Path(map_path), profile, cell.name)
+        amap = load_action_map(Path(map_path), profile)
     elif backend.embedded_map:
         amap = parse_action_map(parse_yaml(backend.embedded_map, f"{source} (embedded map)"), profile,
-                                origin=f"{source} (embedded map)", cell=cell.name)
+                                origin=f"{source} (embedded map)")
     else:
         names = backend.action_names
         joints = tuple(n.removesuffix(".pos") for n in names) if names else profile.joint_names
