@@ -86,3 +86,17 @@ def test_an_openpi_period_comes_from_dt_else_from_the_server(metadata, query, dt
             assert policy.dt_ns == dt_ns
         finally:
             policy.close()
+
+
+def test_a_release_frozen_without_a_period_says_it_is_the_release_and_what_to_do(tmp_path):
+    """A release made before the period was required: its refusal said `--policy:`, an option `release run` has not,
+    and `give ?dt=`, which cannot be done to a frozen release."""
+    from cellguard.release.bundle import Bundle, policy_hash
+    from cellguard.release.errors import ReleaseError
+
+    model = _onnx(tmp_path / "dp.onnx")
+    old = Bundle("r-0001", {"profile": {"cell": "arm-pick-place"}, "policy": {"spec": f"onnx:{model}"},
+                            "action_map": None})
+    with pytest.raises(ReleaseError, match=r"^release r-0001: its policy \(create a new release to change it\): "
+                                           r"policy: onnx:.* the step period is not stated"):
+        policy_hash(old)

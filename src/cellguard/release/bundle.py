@@ -151,8 +151,9 @@ def policy_hash(bundle: Bundle, cell=None) -> str:
     cell = cell if cell is not None else make_cell(bundle.cell)
     try:
         policy = make_policy(bundle.policy_spec, cell)
-    except CellguardError as exc:
-        raise ReleaseError(f"--policy: {exc}") from None
+    except CellguardError as exc:  # at create, what --policy gave; later, what the release froze (never edited)
+        where = f"release {bundle.id}: its policy (create a new release to change it)" if bundle.id else "--policy"
+        raise ReleaseError(f"{where}: {exc}") from None
     try:
         return policy.content_hash()
     finally:
