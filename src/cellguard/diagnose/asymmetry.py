@@ -73,6 +73,11 @@ class Asymmetry:
         """What differs, in words: the side's joints, else (a gait, on no joint) the measures that differ."""
         return self.joints or tuple(sorted({d.feature.rsplit(".", 1)[0] for d in self.significant}))
 
+    @property
+    def where(self) -> str:
+        """Where mirrored motions differ, in words: on a side, else between the motions (no side told)."""
+        return f"on the {self.side} side" if self.side else "between the motions, on no side a joint or leg tells"
+
     def to_dict(self) -> dict:
         return {"side": self.side, "joints": list(self.joints), "evidence": list(self.evidence),
                 "differences": [d.to_dict() for d in self.significant]}
@@ -176,24 +181,36 @@ def _side_series(cycles: Sequence[Cycle], name: str, turn: str) -> np.ndarray:
 
 
 def _judge(diffs: tuple[MirrorDifference, ...], mirror: dict[str, str], joint_names: set[str]) -> Asymmetry:
-    """Name the side whose joints track worse than their mirrors, and say by how much."""
-    sig = [d for d in diffs if d.significant]
-    joint_sig = [d for d in sig if d.feature.startswith("tracking_")]
-    vote = sum(np.sign(d.relative) for d in joint_sig)
-    side = None if not sig else "left" if vote > 0 else "right" if vote < 0 else None
-    if side is None and sig:
-        side = "left" if sum(np.sign(d.relative) for d in sig if "." in d.feature) > 0 else "right"
+    """Name the side whose joints track worse than their mirrors (else whose members differ most often, each
+    comparison a vote by its sign), and its joints whose comparisons point to it, and say by how much. No side
+    where nothing votes or the votes tie: the motion features alone (yaw rate reached) do not tell it, as a weaker
+    servo makes its side's turns overshoot on the quadruped and friction makes them fall short."""
+    sig = sorted((d for d in diffs if d.significant), key=lambda d: -abs(d.relative))
+    members = [d for d in sig if "." in d.feature]
+    vote = sum(np.sign(d.relative) for d in members if d.feature.startswith("tracking_"))
+    vote = vote or sum(np.sign(d.relative) for d in members)
+    side = "left" if vote > 0 else "right" if vote < 0 else None
+    toward = [d for d in members if np.sign(d.relative) == np.sign(vote)]  # none where no side
     joints: list[str] = []
-    for d in sorted(sig, key=lambda d: -abs(d.relative)):
-        if "." not in d.feature:
-            continue
+    for d in toward:
         member = d.feature.split(".", 1)[1]
         name = member if side == "left" else mirror.get(member, member)
         if name not in joints and name in joint_names:
             joints.append(name)
-    evidence = []
-    for d in sorted(sig, key=lambda d: -abs(d.relative))[:8]:
-        evidence.append(f"{d.left} {d.left_value:.4g} vs {d.right} {d.right_value:.4g} ({d.relative * 100:+.0f} %)")
-    if side:
-        evidence.insert(0, f"the {side} side differs from its mirror in {len(sig)} comparison(s)")
+    evidence = [f"{d.left} {d.left_value:.4g} vs {d.right} {d.right_value:.4g} ({d.relative * 100:+.0f} %)"
+                for d in sig[:8]]
+    if sig:
+        evidence.insert(0, _header(side, sig, [d for d in members if d not in toward]))
     return Asymmetry(side, tuple(joints), diffs, tuple(evidence))
+
+
+def _header(side: str | None, sig: list[MirrorDifference], against: list[MirrorDifference]) -> str:
+    """The first line of an asymmetry's evidence: the side and how many comparisons, and those of members that
+    point the other way (their joints not named), or why no side is named."""
+    if side is None:
+        return (f"mirrored motions differ in {len(sig)} comparison(s), which side they do not tell "
+                f"({'as many members each way' if against else 'no joint or leg differs'})")
+    other = sorted({d.feature for d in against})
+    return f"the {side} side differs from its mirror in {len(sig)} comparison(s)" + (
+        f"; {len(against)} point to the {MIRROR_LABEL[side]} side, not named: {', '.join(other[:4])}"
+        f"{' ...' if len(other) > 4 else ''}" if against else "")

@@ -77,6 +77,7 @@ class Finding:
     joints: tuple[str, ...] = ()
     rate: float | None = None  # share of cycles hit, for an intermittent fault
     legs: tuple[str, ...] = ()  # the legs the joints belong to, on a legged robot
+    last: int | None = None  # the last cycle of a change read over its span (a latency that lasts: the last watched)
 
     def to_dict(self) -> dict:
         out = {"cause": self.cause, "cycle": self.cycle, "confidence": round(self.confidence, 2),
@@ -255,8 +256,7 @@ def name_causes(baseline: Baseline, cycles: Sequence[Cycle], z: np.ndarray, alar
         first = min(findings, key=lambda f: abs(f.cycle - _onset(other)))
         extra = tuple(f"also {a.signal} {'up' if a.direction > 0 else 'down'} "
                       f"({_fmt(w.delta(a.signal, a.onset, end=w.until([a], a.onset)))})" for a in other[:3])
-        findings[findings.index(first)] = Finding(first.cause, first.cycle, first.confidence,
-                                                  first.evidence + extra, first.signals, first.joints)
+        findings[findings.index(first)] = replace(first, evidence=first.evidence + extra)
     return sorted(findings, key=lambda f: (f.cycle, f.cause))
 
 
@@ -277,7 +277,8 @@ def _latency(w: _Window, alarms: list[DriftAlarm]) -> Finding:
         evidence.append(f"{stale:.0f} more stale chunk steps dropped per cycle")
     evidence.append("late chunks answer old observations, so the robot follows a stale plan")
     conf = 0.95 if np.isfinite(d) and d > 5.0 else 0.6
-    return Finding("policy_latency", start, conf, tuple(evidence), tuple(sorted({a.signal for a in alarms})))
+    return Finding("policy_latency", start, conf, tuple(evidence), tuple(sorted({a.signal for a in alarms})),
+                   last=w.cycles[-1].index if end is None else end - 1)
 
 
 def _with_late_gait(late: Finding, gait: list[DriftAlarm]) -> tuple[Finding, list[DriftAlarm]]:

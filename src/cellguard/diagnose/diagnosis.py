@@ -105,7 +105,7 @@ def diagnose(rows: Iterable[object], events: Iterable[object] = (), context: Map
                                      name_causes(baseline, watched, drift.z, drift.alarms, rejected))
     findings = with_residual(findings, residual_alarms(rows))  # the calibration's residual monitor, if it ran
     asym = mirrored_asymmetry(watched, symmetry)
-    if asym is not None and asym.side:
+    if asym is not None and asym.significant:
         findings = _fold_compensation(findings, asym, symmetry)
         if not any(set(f.joints) & set(asym.joints) for f in findings):
             findings = _with_asymmetry(findings, asym, asymmetry_onset(cycles, asym, symmetry, watched[0].index))
@@ -229,7 +229,7 @@ def _with_asymmetry(findings: list[Finding], asym: Asymmetry, began: int) -> lis
     late = next((f for f in findings if f.cause == "policy_latency" and abs(f.cycle - began) <= CONCURRENT), None)
     if late is None:
         return findings + [_asymmetry_finding(asym, began)]
-    note = (f"mirrored motions differ on the {asym.side} side from cycle {began} "
+    note = (f"mirrored motions differ {asym.where} from cycle {began} "
             f"({', '.join(asym.what[:5])}): the late chunks, not a joint",)
     return [told(f, note, [d.feature for d in asym.significant]) if f is late else f for f in findings]
 
@@ -243,7 +243,7 @@ def _asymmetry_finding(asym: Asymmetry, cycle: int) -> Finding:
     cause = "servo" if t >= c and trk else "friction" if cur else "unknown"
     share = max(t, c) / (t + c) if t + c > 0 else 0.5
     conf = float(min(0.95, 0.5 + 0.9 * (share - 0.5))) if cause != "unknown" else 0.3
-    return Finding(cause, cycle, conf, (f"mirrored motions differ on the {asym.side} side",) + asym.evidence[1:5],
+    return Finding(cause, cycle, conf, (f"mirrored motions differ {asym.where}",) + asym.evidence[1:5],
                    tuple(sorted({d.feature for d in sig})), asym.joints)
 
 

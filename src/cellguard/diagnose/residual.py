@@ -3,25 +3,37 @@
 A run watched by ``calibrate.residual`` carries, in each cycle's outcome, ``residual.alarms``: the
 joint whose measured torque left its model and the likely parameter. A finding that already names
 that joint with a matching cause (``friction`` for a friction-like residual; ``servo`` for an
-inertia-like one, a weaker servo's changed motion) gains the alarm as evidence; an alarm that arrives
-with a policy latency (within ``CONCURRENT`` cycles of it) is the stale plan's motion, against loads the
-joint model does not hold (a leg's foot forces), told in that finding as ``cause`` tells the joints that
-change with it; otherwise the alarm becomes a ``model_drift`` finding of its own, whose advice is the
-re-fit its cell allows (a robot on its feet is excited on a stand: ``identify`` refuses a free base's
-record; payload only where the monitor's model has one).
+inertia-like one, a weaker servo's changed motion, and on a robot on its feet for a friction-like one too)
+gains the alarm as evidence; an alarm that comes with a change the joint model cannot follow is told in
+that change's finding, as ``cause`` tells the joints that change with it: a policy latency (from ``CONCURRENT``
+cycles before it to the monitor's latency after it ended) is the stale plan's motion, and on a robot on its feet
+a weaker servo (up to the monitor's latency after it began) leaves its share of the body to the other legs, both
+against foot forces the joint model does not hold; otherwise the alarm becomes a ``model_drift`` finding of its
+own, whose advice is the re-fit its cell allows (a robot on its feet is excited on a stand: ``identify`` refuses
+a free base's record; payload only where the monitor's model has one).
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
+from dataclasses import replace
 
 from cellguard.diagnose.cause import CONCURRENT, Finding, told
+from cellguard.diagnose.cycles import as_cycles
 from cellguard.diagnose.feature_kinds import kind_of
 
 # A weaker servo moves its joint otherwise (it lags, accelerates later): the residual of the model over that
 # motion then shifts along the acceleration, read as inertia-like, with no change of the arm's mass.
 MATCHES = {"friction": ("friction",), "inertia/payload": ("tool_slip", "part_misplaced", "servo"), "delay": ("servo",)}
-WHY = {("inertia/payload", "servo"): " (the weaker servo moves the joint otherwise; the model reads that as inertia)"}
+# On its feet a weaker servo's leg carries less of the body: its foot forces, which the joint model does not hold,
+# change, and the model reads that as friction (a fr_knee servo gain x0.8 on the quadruped: friction -0.58 N*m).
+ON_FEET = {"friction": ("servo",)}
+WHY = {("inertia/payload", "servo"): " (the weaker servo moves the joint otherwise; the model reads that as inertia)",
+       ("friction", "servo"): " (the weaker leg carries less of the body, against foot forces the model does not "
+                              "hold; the model reads that as friction)"}
+# Per cause of a change the joint model cannot follow: what the joints do with it, what to fix first (``_told_with``)
+WITH = {"policy_latency": ("the joints move to the stale plan", "latency"),
+        "servo": ("the other legs take the weak leg's share", "servo")}
 CONFIDENCE = 0.7
 # what to re-fit, per likely parameter ({} the joint); payload is offered where the model has one (``_refit``)
 REFIT = {"friction": "--only {},friction", "inertia/payload": "--only {},armature", "delay": "--params delay"}
@@ -30,7 +42,12 @@ REFIT = {"friction": "--only {},friction", "inertia/payload": "--only {},armatur
 def residual_alarms(rows: Iterable[object]) -> list[dict]:
     """The alarms carried by cycle rows (mappings or objects with an ``outcome``), in cycle order, each with
     what its re-fit depends on: ``payload`` (the monitor's model has a payload signature) and ``stand`` (the
-    robot stands on its feet: its row has gait features)."""
+    robot stands on its feet: its row has gait features); and ``lag``, the monitor's latency in cycles: a change
+    that lasts alarms on its second window of the same motion (a window's score is capped), so up to two rounds
+    of the cell's motions after it began (a change begun within a cycle: its second full window), 4 cycles on a
+    cell that alternates left and right turns."""
+    rows = list(rows)
+    lag = 2 * len({c.label for c in as_cycles(rows)})
     out = []
     for row in rows:
         get = row.get if isinstance(row, Mapping) else (lambda k: getattr(row, k, None))
@@ -39,49 +56,63 @@ def residual_alarms(rows: Iterable[object]) -> list[dict]:
         if isinstance(residual, Mapping):
             features = get("features") if isinstance(get("features"), Mapping) else {}
             cell = {"payload": "payload" in (residual.get("signatures") or ()),
-                    "stand": any(kind_of(n).family == "gait" for n in features)}
+                    "stand": any(kind_of(n).family == "gait" for n in features), "lag": lag}
             out += [{**a, **cell, "cycle": get("cycle")} for a in residual.get("alarms") or []
                     if isinstance(a, Mapping)]
     return sorted(out, key=lambda a: (a["cycle"] is None, a["cycle"] or 0))
 
 
 def with_residual(findings: list[Finding], alarms: list[dict]) -> list[Finding]:
-    """``findings`` with each alarm added as evidence to a matching one, told in the policy latency it arrived
-    with (``_stale_plan``), or as a ``model_drift`` finding."""
+    """``findings`` with each alarm added as evidence to a matching one, told in the change it came with
+    (``_came_with``: a policy latency, a weaker servo on a robot on its feet), or as a ``model_drift`` finding."""
     findings = list(findings)
-    stale: dict[int, list[dict]] = {}  # per latency finding (its place in findings), the alarms that came with it
+    told_in: dict[int, list[dict]] = {}  # per finding (its place in findings), the alarms that came with its change
     for a in alarms:
         words = f"residual monitor, cycle {a['cycle']}: {a.get('message', a['parameter'])}"
-        match = next((i for i, f in enumerate(findings) if a["joint"] in f.joints
-                      and f.cause in MATCHES.get(a["parameter"], ())), None)
-        late = next((i for i, f in enumerate(findings) if f.cause == "policy_latency" and a["cycle"] is not None
-                     and abs(a["cycle"] - f.cycle) <= CONCURRENT), None)
+        match = next((i for i, f in enumerate(findings) if a["joint"] in f.joints and f.cause in _matching(a)), None)
+        along = next((i for i, f in enumerate(findings) if _came_with(a, f)), None)
         if match is not None:
             f = findings[match]
             signal = f"residual.{a['joint']}.{a['signature']}"
-            findings[match] = Finding(f.cause, f.cycle, f.confidence,
-                                      f.evidence + (words + WHY.get((a["parameter"], f.cause), ""),),
-                                      f.signals + (signal,), f.joints, f.rate, f.legs)
-        elif late is not None:
-            stale.setdefault(late, []).append(a)
+            findings[match] = replace(f, evidence=f.evidence + (words + WHY.get((a["parameter"], f.cause), ""),),
+                                      signals=f.signals + (signal,))
+        elif along is not None:
+            told_in.setdefault(along, []).append(a)
         else:
             findings.append(Finding("model_drift", int(a["cycle"] or 0), CONFIDENCE, (
                 words, f"likely parameter: {a['parameter']}; {_refit(a)} re-fits it (a run record is 50 Hz between "
                        "events)"), (f"residual.{a['joint']}.{a['signature']}",), (a["joint"],)))
-    return [_stale_plan(f, stale[i]) if i in stale else f for i, f in enumerate(findings)]
+    return [_told_with(f, told_in[i]) if i in told_in else f for i, f in enumerate(findings)]
 
 
-def _stale_plan(late: Finding, alarms: list[dict]) -> Finding:
-    """The policy latency finding ``late`` with the residual ``alarms`` that arrived with it (within ``CONCURRENT``
-    cycles) told in it: the joints move to the stale plan, against loads the joint model does not hold (a leg's
-    foot forces), so the model's torque no longer fits them; not a drift of the model (a drive that changed
-    at the same cycle would read the same)."""
+def _matching(alarm: dict) -> tuple[str, ...]:
+    """The causes of a finding on ``alarm``'s joint that its likely parameter tells of (``ON_FEET`` too on a robot
+    on its feet)."""
+    feet = ON_FEET.get(alarm["parameter"], ()) if alarm.get("stand") else ()
+    return MATCHES.get(alarm["parameter"], ()) + feet
+
+
+def _came_with(alarm: dict, f: Finding) -> bool:
+    """Whether ``alarm`` came with ``f``'s change, one the joint model cannot follow: a policy latency, or on a robot
+    on its feet a weaker servo on other joints; from ``CONCURRENT`` cycles before it began to the monitor's latency
+    (``lag``) after its last cycle (``Finding.last``; where it does not say, after it began)."""
+    if alarm["cycle"] is None or f.cause not in WITH or (f.cause == "servo" and not alarm.get("stand")):
+        return False
+    end = f.cycle if f.last is None else f.last
+    return f.cycle - CONCURRENT <= alarm["cycle"] <= end + alarm.get("lag", CONCURRENT)
+
+
+def _told_with(f: Finding, alarms: list[dict]) -> Finding:
+    """The finding ``f`` with the residual ``alarms`` that came with its change told in it: the joints move
+    otherwise (to a stale plan; the other legs carry a weak leg's share), against loads the joint model does not
+    hold (a leg's foot forces), so the model's torque no longer fits them; not a drift of the model (a drive that
+    changed at the same cycle would read the same)."""
     kinds = sorted({a["parameter"] for a in alarms})
     note = (f"also the residual monitor from cycle {min(a['cycle'] for a in alarms)} at "
-            f"{', '.join(a['joint'] for a in alarms)} ({'-, '.join(kinds)}-like): the joints move to the stale plan, "
-            "against loads the model does not hold, not a drift of the model (check these joints once the latency "
-            "is fixed)",)
-    return told(late, note, [f"residual.{a['joint']}.{a['signature']}" for a in alarms])
+            f"{', '.join(a['joint'] for a in alarms)} ({'-, '.join(kinds)}-like): {WITH[f.cause][0]}, "
+            f"against loads the model does not hold, not a drift of the model (check these joints once the "
+            f"{WITH[f.cause][1]} is fixed)",)
+    return told(f, note, [f"residual.{a['joint']}.{a['signature']}" for a in alarms])
 
 
 def _refit(alarm: dict) -> str:

@@ -110,8 +110,13 @@ def _asymmetry(d: Diagnosis) -> str:
     a = d.asymmetry
     if a is None:
         return "<p class=muted>This cell has no symmetry map: no mirrored comparison.</p>"
-    verdict = (f"<div class=finding>The <b>{_e(a.side)}</b> side differs from its mirror "
-               f"({_e(', '.join(a.what))}).</div>" if a.side else "<div class=ok>Mirrored motions agree.</div>")
+    if a.side:
+        verdict = (f"<div class=finding>The <b>{_e(a.side)}</b> side differs from its mirror "
+                   f"({_e(', '.join(a.what))}).</div>")
+    elif a.significant:  # the motions differ and no joint or leg tells the side: never "agree"
+        verdict = f"<div class=finding>Mirrored motions differ {_e(a.where)} ({_e(', '.join(a.what))}).</div>"
+    else:
+        verdict = "<div class=ok>Mirrored motions agree.</div>"
     return verdict + _figure("asymmetry", plots.asymmetry_chart(d))
 
 
