@@ -32,7 +32,7 @@ from cellguard.control.events import Event, EventKind
 from cellguard.control.guard import Guard
 from cellguard.policy.chunk import ActionChunk
 from cellguard.robot.recovery import Plan, RecoveryPolicy
-from cellguard.robot.recovery.base import go_home
+from cellguard.robot.recovery.base import PlanError, go_home
 from cellguard.robot.recovery.outcome import RecoveryOutcome
 
 ARRIVE_TOL = 0.01  # [rad or m] every arm joint this close to the contact pose: the tool has arrived
@@ -183,16 +183,37 @@ class RecoveryRunner:
             self._give_up(t, reference, f"the limit of {limit} recoveries per cycle")
             return
         try:
-            plan = behaviour.plan(self.cell, np.asarray(reference, dtype=np.float64), attempt, self._origin)
+            plan = self._plan(behaviour, attempt, reference)
         except ValueError as exc:  # a pose the arm cannot reach: a search offset, a lift from where it is
-            self.events.append(Event(t, EventKind.RECOVERY_END, f"{behaviour.do}: attempt {attempt} cannot be "
-                                     f"planned ({exc})"))
-            self._give_up(t, reference, "a plan the arm cannot reach")
+            self._unplanned(behaviour, attempt, t, reference, str(exc), "a plan the arm cannot reach")
+            return
+        except Exception as exc:  # noqa: BLE001 - a behaviour's bug (a plugin's) fails the cycle, not the run
+            self._unplanned(behaviour, attempt, t, reference, f"{type(exc).__name__}: {exc}",
+                            f"{behaviour.do} could not make a plan")
             return
         self._active = _Attempt(behaviour, trigger, attempt, plan, t, t)
         self._next_chunk = t
         self.events.append(Event(t, EventKind.RECOVERY_START, f"{behaviour.do}: attempt {attempt} of "
                                  f"{behaviour.attempts} after {trigger}"))
+
+    def _plan(self, behaviour, attempt: int, reference: np.ndarray) -> Plan:
+        """The behaviour's plan for this attempt, checked against the arm: the loop samples it on every tick, where
+        a wrong type or width would end the run."""
+        plan = behaviour.plan(self.cell, np.asarray(reference, dtype=np.float64), attempt, self._origin)
+        if not isinstance(plan, Plan):
+            raise PlanError(f"plan() returned a {type(plan).__name__}, not a Plan")
+        joints = len(reference) - 1
+        for name in ("arm_q", "contact_q"):
+            value = getattr(plan, name)
+            if value is not None and np.shape(value)[-1:] != (joints,):
+                raise PlanError(f"its {name} has shape {np.shape(value)}, for an arm of {joints} joints")
+        return plan
+
+    def _unplanned(self, behaviour, attempt: int, t: int, reference: np.ndarray, error: str, why: str) -> None:
+        """An attempt that cannot be planned is logged naming its behaviour and the error; then nothing is left."""
+        self.events.append(Event(t, EventKind.RECOVERY_END, f"{behaviour.do}: attempt {attempt} cannot be "
+                                 f"planned ({error})"))
+        self._give_up(t, reference, why)
 
     def _after_failure(self, a: _Attempt, t: int, reference: np.ndarray) -> None:
         b = a.behaviour

@@ -18,6 +18,12 @@ from typing import ClassVar
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
+
+class PlanError(Exception):
+    """A plan no behaviour means to make: a behaviour's bug (a plugin's), told apart from a pose the arm cannot
+    reach (ValueError); the runner logs it and gives up on the attempt as on one it cannot plan."""
+
+
 @dataclass(frozen=True)
 class Plan:
     """Timed waypoints of one recovery; the arm and the gripper on separate tracks.
@@ -36,6 +42,18 @@ class Plan:
     contact_q: np.ndarray | None = None
     close_t: float | None = None
     hold_s: float = 0.0
+
+    def __post_init__(self):
+        """Refuse a plan the loop cannot follow: a number that is not finite reached the guard as a target, or
+        (``close_t``) hid the attempt from the diagnosis, which reads it back from the words of its event."""
+        for name in ("arm_t", "arm_q", "grip_t", "grip_q", "contact_q", "close_t", "hold_s"):
+            value = getattr(self, name)
+            if value is not None and not np.isfinite(np.asarray(value, dtype=np.float64)).all():
+                raise PlanError(f"its {name} is not finite")
+        if np.ndim(self.arm_q) != 2 or len(self.arm_q) != len(self.arm_t):
+            raise PlanError(f"its arm_q is not {len(self.arm_t)} poses, one per arm_t")
+        if np.shape(self.grip_q) != np.shape(self.grip_t):
+            raise PlanError(f"its grip_q is not {len(self.grip_t)} values, one per grip_t")
 
     def duration(self, arm_speed: float = 1.0) -> float:
         """Length of the plan [s] when the arm runs at ``arm_speed`` of its plan (the gripper keeps its own)."""

@@ -8,7 +8,8 @@ import re
 from dataclasses import dataclass
 
 OUTCOMES = ("resumed", "failed", "escalated", "gave_up", "cut_off")
-_PATTERN = re.compile(r"^(?P<behaviour>[a-z_]+): attempt (?P<attempt>\d+) after (?P<trigger>[^,]+), "
+# the behaviour: any name up to its attempt (regrasp2, ReGrasp: a name outside [a-z_] hid its every attempt)
+_PATTERN = re.compile(r"^(?P<behaviour>.+?): attempt (?P<attempt>\d+) after (?P<trigger>[^,]+), "
                       r"(?P<duration>[\d.]+) s(?:; arrived at contact at (?P<arrival>[\d.]+ s|never), "
                       r"gripper shut at (?P<close>[\d.]+) s)?; outcome (?P<outcome>[a-z_]+)$")
 
