@@ -1,7 +1,10 @@
 """Residual alarms on a robot on its feet that come with a weaker servo or a lasting policy latency are told in
 that finding, not ``model_drift`` findings: a weak leg's servo shows a friction-like residual on its own joint
 (its foot forces change), the other legs' joints alarm up to the monitor's latency later (its second window of
-the same motion: 4 cycles on a cell that alternates two turns), and a latency's stale plan lasts as long as it."""
+the same motion: 4 cycles on a cell that alternates two turns), and a latency's stale plan alarms as soon. Later
+alarms are changes of their own: an elbow friction x1.5 six cycles into a lasting latency on the arm, told in it,
+was lost; and a weak joint's friction that ROSE is no servo's evidence (a friction x3 the diagnosis misread as a
+servo lost its re-fit advice)."""
 
 from __future__ import annotations
 
@@ -12,8 +15,8 @@ from cellguard.diagnose.cause import Finding
 from cellguard.diagnose.residual import residual_alarms, with_residual
 
 
-def _alarm(joint: str, parameter: str = "friction") -> dict:
-    return {"joint": joint, "parameter": parameter, "signature": parameter.split("/")[0],
+def _alarm(joint: str, parameter: str = "friction", change: float = -0.5) -> dict:
+    return {"joint": joint, "parameter": parameter, "signature": parameter.split("/")[0], "change": change,
             "message": f"drifted at {joint}"}
 
 
@@ -39,6 +42,12 @@ def test_a_friction_like_residual_on_a_weak_leg_s_joint_is_its_servo_s_evidence(
     assert [f.cause for f in merged] == ["servo"], [f.to_dict() for f in merged]
     assert "residual.fr_knee.friction" in merged[0].signals
     assert "foot forces the model does not hold" in merged[0].evidence[-1], merged[0].evidence
+
+
+def test_a_friction_that_rose_on_the_servo_s_joint_stays_its_own_finding():
+    merged = with_residual([_servo()], residual_alarms(_rows({15: [_alarm("fr_knee", change=0.105)]})))
+    assert [(f.cause, f.cycle) for f in merged] == [("servo", 14), ("model_drift", 15)], [f.to_dict() for f in merged]
+    assert "identify DIR --only fr_knee,friction" in " ".join(merged[1].evidence)
 
 
 def test_the_other_legs_alarms_up_to_the_monitor_s_latency_are_told_in_the_servo_finding():
@@ -73,10 +82,16 @@ def _latency_record(back: int | None, alarm_at: int) -> list[dict]:
     return rows
 
 
-def test_alarms_while_a_latency_lasts_are_told_in_it():
-    d = diagnose(_latency_record(None, 23), [], {})
+def test_alarms_up_to_the_monitor_s_latency_after_a_latency_began_are_told_in_it():
+    d = diagnose(_latency_record(None, 18), [], {})
     assert [f.cause for f in d.findings] == ["policy_latency"], [f.to_dict() for f in d.findings]
-    assert "residual monitor from cycle 23 at fl_knee" in " ".join(d.findings[0].evidence)
+    assert "residual monitor from cycle 18 at fl_knee" in " ".join(d.findings[0].evidence)
+
+
+def test_an_alarm_later_in_a_lasting_latency_is_a_change_of_its_own():
+    d = diagnose(_latency_record(None, 23), [], {})
+    assert [(f.cause, f.cycle) for f in d.findings] == [("policy_latency", 14), ("model_drift", 23)], [
+        f.to_dict() for f in d.findings]
 
 
 def test_an_alarm_long_after_a_latency_ended_is_a_model_drift():

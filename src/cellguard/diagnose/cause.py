@@ -77,7 +77,6 @@ class Finding:
     joints: tuple[str, ...] = ()
     rate: float | None = None  # share of cycles hit, for an intermittent fault
     legs: tuple[str, ...] = ()  # the legs the joints belong to, on a legged robot
-    last: int | None = None  # the last cycle of a change read over its span (a latency that lasts: the last watched)
 
     def to_dict(self) -> dict:
         out = {"cause": self.cause, "cycle": self.cycle, "confidence": round(self.confidence, 2),
@@ -277,8 +276,7 @@ def _latency(w: _Window, alarms: list[DriftAlarm]) -> Finding:
         evidence.append(f"{stale:.0f} more stale chunk steps dropped per cycle")
     evidence.append("late chunks answer old observations, so the robot follows a stale plan")
     conf = 0.95 if np.isfinite(d) and d > 5.0 else 0.6
-    return Finding("policy_latency", start, conf, tuple(evidence), tuple(sorted({a.signal for a in alarms})),
-                   last=w.cycles[-1].index if end is None else end - 1)
+    return Finding("policy_latency", start, conf, tuple(evidence), tuple(sorted({a.signal for a in alarms})))
 
 
 def _with_late_gait(late: Finding, gait: list[DriftAlarm]) -> tuple[Finding, list[DriftAlarm]]:

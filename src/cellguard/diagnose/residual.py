@@ -6,7 +6,7 @@ that joint with a matching cause (``friction`` for a friction-like residual; ``s
 inertia-like one, a weaker servo's changed motion, and on a robot on its feet for a friction-like one too)
 gains the alarm as evidence; an alarm that comes with a change the joint model cannot follow is told in
 that change's finding, as ``cause`` tells the joints that change with it: a policy latency (from ``CONCURRENT``
-cycles before it to the monitor's latency after it ended) is the stale plan's motion, and on a robot on its feet
+cycles before it to the monitor's latency after it began) is the stale plan's motion, and on a robot on its feet
 a weaker servo (up to the monitor's latency after it began) leaves its share of the body to the other legs, both
 against foot forces the joint model does not hold; otherwise the alarm becomes a ``model_drift`` finding of its
 own, whose advice is the re-fit its cell allows (a robot on its feet is excited on a stand: ``identify`` refuses
@@ -87,19 +87,23 @@ def with_residual(findings: list[Finding], alarms: list[dict]) -> list[Finding]:
 
 def _matching(alarm: dict) -> tuple[str, ...]:
     """The causes of a finding on ``alarm``'s joint that its likely parameter tells of (``ON_FEET`` too on a robot
-    on its feet)."""
-    feet = ON_FEET.get(alarm["parameter"], ()) if alarm.get("stand") else ()
+    on its feet, where the joint's friction-like residual fell: a weak leg carries less; one that rose is friction
+    the servo finding may have misread, kept as its own finding with its re-fit)."""
+    fell = isinstance(alarm.get("change"), (int, float)) and alarm["change"] < 0
+    feet = ON_FEET.get(alarm["parameter"], ()) if alarm.get("stand") and fell else ()
     return MATCHES.get(alarm["parameter"], ()) + feet
 
 
 def _came_with(alarm: dict, f: Finding) -> bool:
     """Whether ``alarm`` came with ``f``'s change, one the joint model cannot follow: a policy latency, or on a robot
     on its feet a weaker servo on other joints; from ``CONCURRENT`` cycles before it began to the monitor's latency
-    (``lag``) after its last cycle (``Finding.last``; where it does not say, after it began)."""
-    if alarm["cycle"] is None or f.cause not in WITH or (f.cause == "servo" and not alarm.get("stand")):
+    (``lag``) after it began. Not later, whether the change lasts or not: an alarm then is a change of its own (up to
+    the latency's last cycle, an elbow friction x1.5 six cycles after a lasting latency on the arm was told in it)."""
+    if alarm["cycle"] is None or f.cause not in WITH:
         return False
-    end = f.cycle if f.last is None else f.last
-    return f.cycle - CONCURRENT <= alarm["cycle"] <= end + alarm.get("lag", CONCURRENT)
+    if f.cause == "servo" and (not alarm.get("stand") or alarm["joint"] in f.joints):  # its own: ``_matching``
+        return False
+    return f.cycle - CONCURRENT <= alarm["cycle"] <= f.cycle + alarm.get("lag", CONCURRENT)
 
 
 def _told_with(f: Finding, alarms: list[dict]) -> Finding:
