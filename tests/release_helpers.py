@@ -78,13 +78,16 @@ def two_runs_at_sim(tmp_path: Path, cycles: int) -> tuple[Path, Path, str]:
 
 
 def log_pass(store, stage: str, release: str) -> None:
-    """A gates entry passing ``release`` at ``stage``, its pointers set as ``release run`` sets them (the first
-    release to pass a stage is its own last_good): the earlier stages' gates, when their runs are not the point."""
-    from cellguard.release import log
+    """A gates entry passing ``release`` at ``stage`` on the packaged plan, its pointers set as ``release run`` sets
+    them (the first release to pass a stage is its own last_good): the earlier stages' gates, when their runs are
+    not the point."""
+    from cellguard.release import load_plan, log
+    from cellguard.release.plan import PICK_PLACE_PLAN
+    from cellguard.release.promotion import plan_hash
 
     with store.transaction():
         log.append(store, {"kind": "gates", "cell": CELL, "stage": stage, "release": release, "verdict": "pass",
-                           "gates": [], "evidence": []})
+                           "gates": [], "evidence": [], "plan_sha256": plan_hash(load_plan(PICK_PLACE_PLAN)[stage])})
         if store.pointers(CELL, stage).last_good is None:
             store.set_pointers(CELL, stage, release, release)
 

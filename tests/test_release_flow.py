@@ -34,7 +34,8 @@ def _through_every_stage(site, plan, note: str, last_run: str = "production") ->
     made = cli("create", "--policy", "scripted", "--profile", CELL, "--note", note, "--site", str(site), "--json")
     rid = json.loads(made.stdout)["id"]
     for stage in STAGES:
-        assert cli("promote", rid, "--cell", CELL, "--to", stage, "--site", str(site)).exit_code == 0
+        promoted = cli("promote", rid, "--cell", CELL, "--to", stage, "--plan", str(plan), "--site", str(site))
+        assert promoted.exit_code == 0, promoted.output
         result = cli("run", "--cell", CELL, "--stage", stage, "--plan", str(plan), "--site", str(site), "--json")
         assert result.exit_code == 0, result.output
         assert json.loads(result.stdout)["verdict"] == "pass"
@@ -50,7 +51,8 @@ def test_a_production_failure_rolls_back_to_last_good_and_the_next_run_records_i
     second = _through_every_stage(site, plan, "v2", last_run="pilot")
     pilot = open_record(sorted((site / "runs" / CELL / "pilot").iterdir())[-1])
     assert pilot.context["release"]["mode"] == "shadow" and pilot.context["release"]["incumbent"] == first
-    assert cli("promote", second, "--cell", CELL, "--to", "production", "--site", str(site)).exit_code == 0
+    promoted = cli("promote", second, "--cell", CELL, "--to", "production", "--plan", str(plan), "--site", str(site))
+    assert promoted.exit_code == 0, promoted.output
     status = json.loads(cli("status", "--site", str(site), "--json").stdout)["stages"]
     production = next(s for s in status if s["stage"] == "production")
     assert production["current"] == second and production["last_good"] == first

@@ -103,9 +103,10 @@ def test_a_pass_on_runs_given_with_scenario_promotes_nothing(tmp_path):
     entry = log.entries(Store(site))[-1].body
     assert entry["scenario"] == ["mine"] and len(entry["plan_sha256"]) == 64
     assert Store(site).pointers(CELL, "sim").last_good is None  # logged, not acted on: no last_good from it
-    _refused(cli("promote", rid, "--cell", CELL, "--to", "bench", "--site", str(site)), "--scenario", "plan's runs")
+    to_bench = ("promote", rid, "--cell", CELL, "--to", "bench", "--plan", str(plan), "--site", str(site))
+    _refused(cli(*to_bench), "--scenario", "plan's runs")
     assert cli("run", "--cell", CELL, "--stage", "sim", "--plan", str(plan), "--site", str(site)).exit_code == 0
-    assert cli("promote", rid, "--cell", CELL, "--to", "bench", "--site", str(site)).exit_code == 0
+    assert cli(*to_bench).exit_code == 0
     assert cli("verify", "--site", str(site)).exit_code == 0
 
 
@@ -127,4 +128,5 @@ def test_a_relabelled_run_row_is_found_by_verify_and_promote(tmp_path):
     _edit(site, f"UPDATE runs SET release='{other}'")
     verify = cli("verify", "--site", str(site))
     assert verify.exit_code == 1 and "now holds record" in verify.stdout and f"of release {other}" in verify.stdout
-    _refused(cli("promote", rid, "--cell", CELL, "--to", "bench", "--site", str(site)), "counted by log entry 2")
+    _refused(cli("promote", rid, "--cell", CELL, "--to", "bench", "--plan", str(plan), "--site", str(site)),
+             "counted by log entry 2")

@@ -99,10 +99,9 @@ def promote(
     """Make a release current at a stage, from the stage before it with its gates passed, and its plan there one the
     cell can run."""
     from cellguard.release import promote as do
-    from cellguard.release.store import check_stage
 
     try:
-        entry = do(_store(site), release, cell, to, _plan(site, plan, cell)[check_stage(to)])
+        entry = do(_store(site), release, cell, to, _plan(site, plan, cell))
         stdout.written(f"log entry {entry.seq} ({entry.body['release']} current at {to} on {cell})")
     except CellguardError as exc:
         fail(exc)

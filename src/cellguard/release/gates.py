@@ -9,6 +9,8 @@ occurrence, however few cycles ran.
 
 from __future__ import annotations
 
+import math
+import numbers
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -16,9 +18,10 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from cellguard.release.errors import GateError
 from cellguard.release.evidence import RunEvidence
-from cellguard.release.metrics import METRICS, Measure
+from cellguard.release.metrics import METRICS, Measure, Metric
 
 PASS, FAIL, INCONCLUSIVE = "pass", "fail", "inconclusive"
+NO_DATA = Measure(None, 0)
 MAX_MIN_CYCLES = 1_000_000  # more cycles than any stage runs: such a gate could only stay inconclusive
 
 
@@ -85,13 +88,16 @@ class GateResult:
 def evaluate(gate: Gate, runs: Sequence[RunEvidence], last_good_runs: Sequence[RunEvidence] = ()) -> GateResult:
     """The gate's result on ``runs``; ``last_good_runs`` are last_good's runs on the same stage."""
     metric = METRICS[gate.metric]
-    m = metric.compute(runs)
-    lg = metric.compute(last_good_runs).value if last_good_runs else None
+    m, wrong = _measured(metric, runs)
+    lg_measure, lg_wrong = _measured(metric, last_good_runs) if last_good_runs else (NO_DATA, None)
+    lg = lg_measure.value
 
     def result(status: str, detail: str, measure: Measure = m) -> GateResult:
         return GateResult(gate.metric, status, measure.value, lg, gate.condition(), measure.cycles, gate.min_cycles,
                           gate.is_hard, detail, measure.evidence)
 
+    if wrong:  # no figure to hold against the limit: a hard gate is not shown to be 0
+        return result(FAIL if gate.is_hard else INCONCLUSIVE, wrong)
     if m.value is None:
         return result(INCONCLUSIVE, "no data in these runs")
     if gate.is_hard and m.value > 0:
@@ -111,10 +117,35 @@ def evaluate(gate: Gate, runs: Sequence[RunEvidence], last_good_runs: Sequence[R
             broken.append(f"{m.value:.4g} > {gate.max_vs_last_good:g} x last_good {lg:.4g}")
     if broken:
         return result(FAIL, "; ".join(broken))
+    if relative and lg_wrong:
+        return result(INCONCLUSIVE, f"last_good's runs: {lg_wrong}")
     if relative and lg is None and gate.min is None and gate.max is None:
         return result(INCONCLUSIVE, "no last_good figure on this stage to compare with")
     note = " (no last_good on this stage: absolute limit only)" if relative and lg is None else ""
     return result(PASS, f"{m.value:.4g} {metric.unit}{note}")
+
+
+def _measured(metric: Metric, runs: Sequence[RunEvidence]) -> tuple[Measure, str | None]:
+    """``metric`` on ``runs``, or no data and what was wrong, in words: it raised, or gave no Measure of a finite
+    value, a cycle count and text evidence (a NaN compares false with every limit: it passed every gate, hard ones
+    included; a raise left a stage's counted runs without their gates entry)."""
+    try:
+        m = metric.compute(runs)
+    except Exception as exc:  # a metric's own fault is its gate's result, logged with the others
+        return NO_DATA, f"{metric.name} raised {type(exc).__name__}: {' '.join(str(exc).split())[:200]}"
+    if not isinstance(m, Measure):
+        return NO_DATA, f"{metric.name} returned {repr(m)[:80]}, not a Measure"
+    if m.value is not None and not (_number(m.value, numbers.Real) and math.isfinite(m.value)):
+        return NO_DATA, f"{metric.name} measured {repr(m.value)[:80]}, not a finite number"
+    if not (_number(m.cycles, numbers.Integral) and m.cycles >= 0 and isinstance(m.evidence, tuple)
+            and all(isinstance(e, str) for e in m.evidence)):
+        return NO_DATA, f"{metric.name} returned {repr(m)[:120]}: its cycles are no count or its evidence no text"
+    return Measure(None if m.value is None else float(m.value), int(m.cycles), m.evidence), None
+
+
+def _number(value, kind: type) -> bool:
+    """``value`` is of the numbers ``kind`` (numpy's too), not a bool."""
+    return isinstance(value, kind) and not isinstance(value, bool)
 
 
 def verdict(results: Sequence[GateResult]) -> str:

@@ -63,9 +63,11 @@ def last_evaluation(store: Store, cell: str, stage: str, release: str) -> log.Lo
     return None
 
 
-def promote(store: Store, release: str, cell: str, to: str, plan: StagePlan | None = None) -> log.LogEntry:
-    """Make ``release`` current at (cell, to); StageError (nothing moved) when out of order or ``plan`` (the stage's)
-    has no runs, GateError when it holds a run or gate the cell cannot carry out (``check_cell``)."""
+def promote(store: Store, release: str, cell: str, to: str, plans: dict[str, StagePlan] | None = None) -> log.LogEntry:
+    """Make ``release`` current at (cell, to); StageError (nothing moved) when out of order, when its pass at the
+    stage before ran another plan there than ``plans`` (the plan in force, every stage's) holds, or when ``plans``
+    has no runs at ``to``; GateError when ``to``'s plan holds a run or gate the cell cannot carry out
+    (``check_cell``). ``plans`` None: no plan is checked."""
     check_stage(to)
     bundle = store.bundle(release)
     if bundle.cell != cell:
@@ -88,10 +90,13 @@ def promote(store: Store, release: str, cell: str, to: str, plan: StagePlan | No
             failing += ["runs not read as evidence"] if evaluation.body.get("refused") else []
             raise StageError(f"--to {to}: the gates of {prev} ended {evaluation.body['verdict']} for release "
                              f"{bundle.id} ({', '.join(failing)}; log entry {evaluation.seq})")
+        if plans is not None:
+            _check_plan(evaluation, plans[prev], to)
         unbound = log.run_problems(store, [evaluation])
         if unbound:
             raise ReleaseError(f"--to {to}: {unbound[0]}; nothing moved")
-    if plan is not None:
+    if plans is not None:
+        plan = plans[to]
         if not plan.runs:  # a dead end: ``release run`` refuses the stage, so nothing could pass it
             raise StageError(f"--plan: stage {to} has no runs, so `release run --stage {to}` could gather no "
                              f"evidence there; give the stage runs and gates; nothing moved")
@@ -108,6 +113,20 @@ def promote(store: Store, release: str, cell: str, to: str, plan: StagePlan | No
                                   "gates": evaluation.body["gates"] if evaluation else [],
                                   "evidence": evaluation.body["evidence"] if evaluation else [],
                                   "gates_entry": evaluation.seq if evaluation else None})
+
+
+def _check_plan(evaluation: log.LogEntry, plan: StagePlan, to: str) -> None:
+    """StageError unless the pass ``evaluation`` logged ran ``plan``, its stage's part of the plan in force: the
+    runs and gates of another plan (``release run --plan``) do not define the stage. The stage's part, not the
+    whole file: a later stage's edit changes nothing its runs showed, and is checked when that stage is left. An
+    entry without the hash (an older cellguard) cannot show its plan: refused as well."""
+    b, now = evaluation.body, plan_hash(plan)
+    logged = b.get("plan_sha256")
+    if logged != now:
+        ran = f"plan {str(logged)[:12]}" if logged else "a plan it did not log (an older cellguard)"
+        raise StageError(f"--to {to}: the gates of {b['stage']} for release {b['release']} passed on {ran} for "
+                         f"{b['stage']} (log entry {evaluation.seq}); the plan in force has {now[:12]} there, and "
+                         f"its runs define the stage: run {b['stage']} with it first; nothing moved")
 
 
 def rollback(store: Store, cell: str, stage: str, reason: str = "operator", automatic: bool = False,
