@@ -53,8 +53,18 @@ def _scalar_contact(self, cell, q, attempt, origin):
                 np.float64(0.3), 0.5)
 
 
+def _lists(self, cell, q, attempt, origin):
+    """Tracks as Python lists: sampled, they ended the run in a TypeError."""
+    return Plan([0.0, 1.0], [list(q[:-1]), list(q[:-1])], [0.0, 1.0], [q[-1], q[-1]])
+
+
+def _empty(self, cell, q, attempt, origin):
+    return Plan(np.zeros(0), np.zeros((0, len(q) - 1)), np.zeros(0), np.zeros(0))
+
+
 @pytest.mark.parametrize(("plan", "error"), [
     (_boom, "RuntimeError: plugin recovery blew up"),
+    (_empty, "PlanError: its arm_t is not one or more times in order"),
     (_dict, "PlanError: plan() returned a dict, not a Plan"),
     (_nan_close, "PlanError: its close_t is not finite"),
     (_narrow, "PlanError: its arm_q has shape (2, 2), for an arm of 5 joints"),
@@ -70,6 +80,15 @@ def test_a_behaviour_that_cannot_plan_is_logged_and_the_cell_goes_home(monkeypat
     assert not any(e.kind == "recovery_start" for e in run.events)
     home = np.asarray(run.cell.q_home)
     assert np.abs(run.guard.reference[:-1] - home[:-1]).max() < 1e-3  # the next cycle starts at home
+
+
+def test_a_plan_of_lists_is_followed_as_arrays(monkeypatch):
+    """Checked with np.shape and len, a plan of lists passed and ended the run when the loop sampled it."""
+    monkeypatch.setattr(RetryGrasp, "plan", _lists)
+    run = Run(parse_scenario(SCENARIO))
+    run.cycle()
+    assert any(e.kind == "recovery_start" for e in run.events)
+    assert not any("cannot be planned" in e.reason for e in run.events if e.kind == "recovery_end")
 
 
 def test_a_run_whose_behaviour_blows_up_ends_whole_with_its_summary(monkeypatch, tmp_path):
@@ -113,3 +132,15 @@ def test_a_plan_whose_tracks_do_not_match_their_times_is_refused(arm_q, grip_q, 
 
     with pytest.raises(PlanError, match=message):
         Plan(np.array([0.0, 1.0]), arm_q, np.array([0.0, 1.0]), grip_q)
+
+
+@pytest.mark.parametrize(("arm_t", "grip_t", "message"), [
+    (np.array([1.0, 0.0]), np.array([0.0, 1.0]), "its arm_t is not one or more times in order"),
+    (np.array([[0.0, 1.0]]), np.array([0.0, 1.0]), "its arm_t is not one or more times in order"),
+    (np.array([0.0, 1.0]), np.array(0.0), "its grip_t is not one or more times in order"),
+])
+def test_a_plan_whose_times_are_not_a_track_is_refused(arm_t, grip_t, message):
+    from cellguard.robot.recovery.base import PlanError
+
+    with pytest.raises(PlanError, match=message):
+        Plan(arm_t, np.array([[0.0], [1.0]]), grip_t, np.array([0.02, 0.0]))

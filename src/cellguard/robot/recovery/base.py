@@ -45,14 +45,27 @@ class Plan:
 
     def __post_init__(self):
         """Refuse a plan the loop cannot follow: a number that is not finite reached the guard as a target, or
-        (``close_t``) hid the attempt from the diagnosis, which reads it back from the words of its event."""
+        (``close_t``) hid the attempt from the diagnosis, which reads it back from the words of its event; tracks
+        that are empty, out of time order or given as lists ended the run in a traceback when sampled. The tracks
+        are kept as float arrays."""
+        for name in ("arm_t", "arm_q", "grip_t", "grip_q", "contact_q"):
+            value = getattr(self, name)
+            if value is not None:
+                try:
+                    object.__setattr__(self, name, np.asarray(value, dtype=np.float64))
+                except (TypeError, ValueError):
+                    raise PlanError(f"its {name} is not an array of numbers") from None
         for name in ("arm_t", "arm_q", "grip_t", "grip_q", "contact_q", "close_t", "hold_s"):
             value = getattr(self, name)
             if value is not None and not np.isfinite(np.asarray(value, dtype=np.float64)).all():
                 raise PlanError(f"its {name} is not finite")
-        if np.ndim(self.arm_q) != 2 or len(self.arm_q) != len(self.arm_t):
+        for name in ("arm_t", "grip_t"):
+            times = getattr(self, name)
+            if times.ndim != 1 or not len(times) or (np.diff(times) < 0).any():
+                raise PlanError(f"its {name} is not one or more times in order")
+        if self.arm_q.ndim != 2 or len(self.arm_q) != len(self.arm_t):
             raise PlanError(f"its arm_q is not {len(self.arm_t)} poses, one per arm_t")
-        if np.shape(self.grip_q) != np.shape(self.grip_t):
+        if self.grip_q.shape != self.grip_t.shape:
             raise PlanError(f"its grip_q is not {len(self.grip_t)} values, one per grip_t")
 
     def duration(self, arm_speed: float = 1.0) -> float:
