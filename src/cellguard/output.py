@@ -14,7 +14,7 @@ import hashlib
 import os
 import re
 import stat
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import BinaryIO
 
@@ -166,6 +166,26 @@ def _temporary_prefix(name: str) -> str:
     if len(os.fsencode(f".{name}.{PID_MAX}{TEMPORARY_SUFFIX}")) > NAME_MAX:
         name = hashlib.sha256(os.fsencode(name)).hexdigest()[:32]
     return f".{name}."
+
+
+@contextlib.contextmanager
+def folder_locked(folder: Path, error: Callable[[str, OSError], Exception], unguarded: bool = False) -> Iterator[None]:
+    """An exclusive ``flock`` on ``folder`` while the block runs (a second holder waits): a lock on the folder, not a
+    lock file, leaves nothing behind. ``error(doing, exc)``: what to raise when the folder cannot be opened
+    (``"open"``) or locked (``"lock"``); ``unguarded``: on a filesystem that offers no locks the block runs anyway."""
+    try:
+        fd = os.open(folder, os.O_RDONLY | os.O_DIRECTORY)
+    except OSError as exc:
+        raise error("open", exc) from None
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX)
+        except OSError as exc:
+            if not (unguarded and exc.errno in UNLOCKABLE):
+                raise error("lock", exc) from None
+        yield
+    finally:
+        os.close(fd)  # releases the lock
 
 
 @contextlib.contextmanager

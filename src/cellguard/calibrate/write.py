@@ -20,12 +20,9 @@ beside it.
 
 from __future__ import annotations
 
-import contextlib
-import fcntl
 import hashlib
 import json
 import os
-from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -37,7 +34,7 @@ from cellguard.calibrate.mjcf import calibrated_mjcf
 from cellguard.calibrate.torque_model import JointTerms
 from cellguard.embodiment.profile import kept_copy, parse_profile
 from cellguard.errors import OutputError, ProfileError
-from cellguard.output import NAME_MAX, write_output
+from cellguard.output import NAME_MAX, folder_locked, write_output
 from cellguard.yaml_file import parse_yaml, read_bounded
 
 WRITTEN = ("friction", "damping", "armature")  # per-joint parameters the profile's units express
@@ -125,23 +122,14 @@ def _mjcf(path: Path, version: str) -> Path:
     return path.with_name(f"{path.stem}.{version}.xml")
 
 
-@contextlib.contextmanager
-def _folder_locked(folder: Path) -> Iterator[None]:
-    """An exclusive ``flock`` on ``folder`` while the block runs (a second writer waits): a lock on the folder,
-    not a lock file, leaves nothing behind and does not move with the profile's rename."""
-    try:
-        fd = os.open(folder, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
-    except OSError as exc:
-        raise ProfileError(f"--write: cannot open the profile's folder {folder} ({exc.strerror})") from None
-    try:
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX)
-        except OSError as exc:  # ENOLCK on an NFS mount without its lock daemon
-            raise ProfileError(f"--write: cannot lock the profile's folder {folder} ({exc.strerror}); write the "
-                               "profile on a local disk and copy it") from None
-        yield
-    finally:
-        os.close(fd)  # releases the lock
+def _folder_locked(folder: Path):
+    """An exclusive lock on the profile's ``folder`` while the block runs (a second writer waits): on the folder, not
+    a lock file, it does not move with the profile's rename. No locks there (NFS without its daemon) is refused."""
+    def refused(doing: str, exc: OSError) -> ProfileError:
+        advice = "; write the profile on a local disk and copy it" if doing == "lock" else ""
+        return ProfileError(f"--write: cannot {doing} the profile's folder {folder} ({exc.strerror}){advice}")
+
+    return folder_locked(folder, refused)
 
 
 def _write(path: Path, cell, result: dict, date: str, basis: bytes | None) -> Written:

@@ -15,17 +15,13 @@ they go first, oldest first by modification time.
 
 from __future__ import annotations
 
-import contextlib
-import fcntl
 import json
-import os
-from collections.abc import Iterator
 from pathlib import Path
 
 from cellguard.errors import OutputError
 from cellguard.fleet.export import Batch
 from cellguard.fleet.signature import SignatureError
-from cellguard.output import UNLOCKABLE, atomic_file, make_folder
+from cellguard.output import atomic_file, folder_locked, make_folder
 from cellguard.yaml_file import read_bounded
 
 OUTBOX = "outbox"
@@ -41,7 +37,8 @@ class Outbox:
     def put(self, batch: Batch) -> Path:
         """Queue ``batch`` last: one place after every batch queued (the same batch queued again moves there)."""
         path = self.folder / f"{batch.batch_id}.json"
-        with _locked(make_folder(self.folder, "outbox")):
+        # a second push waits, so two never take the same place; a filesystem without locks goes unguarded
+        with folder_locked(make_folder(self.folder, "outbox"), _refused, unguarded=True):
             place = 1 + max((n for n, _, _ in self._queue()[0]), default=0)
             with atomic_file(path, "outbox", mode=FILE_MODE) as f:
                 f.write(json.dumps({**batch.to_dict(), PLACE: place}).encode("utf-8"))
@@ -88,6 +85,10 @@ class Outbox:
         path.unlink(missing_ok=True)
 
 
+def _refused(doing: str, exc: OSError) -> OutputError:
+    return OutputError(f"outbox: cannot {doing} its folder ({exc.strerror or exc})")
+
+
 def _place(raw: object) -> int:
     """A queued file's place in the queue; 0 for one queued before places were written, SignatureError for one
     that is not a count."""
@@ -95,25 +96,6 @@ def _place(raw: object) -> int:
     if isinstance(place, bool) or not isinstance(place, int) or place < 0:
         raise SignatureError(f"batch.{PLACE}: expected its place in the queue (a count), got {place!r}")
     return place
-
-
-@contextlib.contextmanager
-def _locked(folder: Path) -> Iterator[None]:
-    """An exclusive ``flock`` on the outbox ``folder`` while the block runs (a second push waits), so two pushes
-    never take the same place; on a filesystem that offers no locks, unguarded."""
-    try:
-        fd = os.open(folder, os.O_RDONLY | os.O_DIRECTORY)
-    except OSError as exc:
-        raise OutputError(f"outbox {folder}: cannot be opened ({exc.strerror or exc})") from None
-    try:
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX)
-        except OSError as exc:
-            if exc.errno not in UNLOCKABLE:
-                raise OutputError(f"outbox {folder}: cannot be locked ({exc.strerror or exc})") from None
-        yield
-    finally:
-        os.close(fd)  # releases the lock
 
 
 def _age(p: Path) -> tuple[int, str]:
