@@ -99,7 +99,7 @@ def test_a_pass_on_runs_given_with_scenario_promotes_nothing(tmp_path):
     scenario.write_text("{name: mine, seed: 5, acceptance_cycles: 1}\n")
     ran = cli("run", "--cell", CELL, "--stage", "sim", "--plan", str(plan), "--scenario", str(scenario),
               "--site", str(site))
-    assert ran.exit_code == 0 and "ran in place of the plan's runs" in ran.stdout
+    assert ran.exit_code == 0 and "ran in place of the plan's runs" in " ".join(ran.stdout.split())  # wrapped
     entry = log.entries(Store(site))[-1].body
     assert entry["scenario"] == ["mine"] and len(entry["plan_sha256"]) == 64
     assert Store(site).pointers(CELL, "sim").last_good is None  # logged, not acted on: no last_good from it

@@ -119,7 +119,9 @@ def run_stage(
     site: Path = SITE,
     as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),
 ) -> None:
-    """Run a stage's plan with its current release and evaluate its gates (production: roll back on fail)."""
+    """Run a stage's plan with its current release and evaluate its gates (production: roll back on fail). A pass
+    under --plan makes its release last_good here only where that stage's part is the plan in force's (the site's
+    plan, else the packaged one)."""
     from cellguard.release import run_stage as do
     from cellguard.release.errors import GateError
     from cellguard.release.plan import check_run
@@ -128,12 +130,13 @@ def run_stage(
 
     try:
         plans = _plan(site, plan, cell)
+        in_force = plans if plan is None else _plan(site, None, cell)
         runs = None
         if scenario is not None:
             runs = [read_yaml(scenario, "run", GateError)]
             check_run(runs[0], str(scenario))
         result = do(_store(site), plans[check_stage(stage)], cell, stage, runs,
-                    on_run=None if as_json else err.print)
+                    on_run=None if as_json else err.print, in_force=in_force[stage])
         rolled = f", rolled back to {result.rolled_back_to}" if result.rolled_back_to else ""
         stdout.written(f"log entry {result.log_seq} ({stage} gates on {cell}: {result.verdict}{rolled}) with its "
                        f"records in {Path(result.folders[0]).parent}")
@@ -143,7 +146,8 @@ def run_stage(
         sys.stdout.write(json.dumps({"cell": cell, "stage": stage, "release": result.release,
                                      "verdict": result.verdict, "gates": [g.to_dict() for g in result.gates],
                                      "evidence": list(result.evidence), "refused": list(result.refused),
-                                     "rolled_back_to": result.rolled_back_to, "log_seq": result.log_seq}) + "\n")
+                                     "rolled_back_to": result.rolled_back_to, "log_seq": result.log_seq,
+                                     "counted": result.counted}) + "\n")
     else:
         for g in result.gates:
             value = "-" if g.value is None else f"{g.value:.4g}"
@@ -161,6 +165,10 @@ def run_stage(
                       f"release is last_good there)")
         if scenario is not None:
             out.print(f"  {scenario} ran in place of the plan's runs: logged, not evidence a promotion accepts")
+        elif result.verdict == "pass" and not result.counted:
+            out.print(f"  --plan {plan}: not the plan in force at {stage} (the site's release-plan.yaml, else the "
+                      f"packaged plan): this pass is logged; a promotion, and last_good, take it only under the same "
+                      f"--plan")
     if result.verdict != "pass":
         raise typer.Exit(1)
 

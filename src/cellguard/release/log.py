@@ -23,6 +23,7 @@ from cellguard.release.errors import ReleaseError, StageError
 
 GENESIS = "0" * 64
 MOVES = ("promote", "rollback")  # the entries that move a stage's current
+IN_FORCE = "plan_in_force_sha256"  # a gates or promote entry's key: the stage's part of the plan in force then
 
 
 @dataclass(frozen=True)
@@ -114,10 +115,20 @@ def entries(store) -> list[LogEntry]:
     return out
 
 
-def passed(body: dict) -> bool:
+def passed(body: dict, in_force: str | None) -> bool:
     """A gates entry that lets its release on (promotion, last_good): a pass on the plan's own runs (a pass on
-    runs given with ``release run --scenario`` in place of the plan's is logged, never acted on)."""
-    return body.get("kind") == "gates" and body.get("verdict") == "pass" and not body.get("scenario")
+    runs given with ``release run --scenario`` in place of the plan's is logged, never acted on), that plan the
+    stage's part of the plan in force (``ran_plan``)."""
+    return (body.get("kind") == "gates" and body.get("verdict") == "pass" and not body.get("scenario")
+            and ran_plan(body, in_force))
+
+
+def ran_plan(body: dict, in_force: str | None) -> bool:
+    """The gates entry's runs and gates were ``in_force`` (the sha256 of the stage's part of the plan in force;
+    None: no plan checked, as entries logged before it was recorded were acted on). Another plan's pass (``release
+    run --plan``, one cycle and ``success_rate min: 0``) defines nothing, and an entry that logged no plan (an older
+    cellguard) cannot show it ran this one."""
+    return in_force is None or body.get("plan_sha256") == in_force
 
 
 def check_pointers(store, cell: str, stage: str) -> tuple:
@@ -171,19 +182,22 @@ def last_pointer_move(store, cell: str, stage: str) -> LogEntry | None:
 
 def pointers_by_log(log_entries: list[LogEntry]) -> dict[tuple, tuple]:
     """(cell, stage) -> (current, last_good) as the entries set them, by promotion.py's rules: a promotion
-    makes the outgoing release last_good if its latest gates there ``passed``, the first release to pass a
-    stage is its own last_good, a rollback makes last_good current."""
-    state, ok = {}, {}
+    makes the outgoing release last_good if its latest gates there ``passed`` under the plan in force the promotion
+    logged, the first release to pass a stage under the plan in force its gates entry logged is its own last_good,
+    a rollback makes last_good current. Each entry names the plan in force when it acted (``IN_FORCE``), so the
+    replay needs no plan file, and a plan edited since leaves the pointers as they were set."""
+    state, latest = {}, {}
     for e in log_entries:
         b = e.body
         key = (b.get("cell"), b.get("stage"))
         current, last_good = state.get(key, (None, None))
         if b.get("kind") == "gates":
-            ok[(*key, b.get("release"))] = passed(b)
-            if passed(b) and last_good is None:
+            latest[(*key, b.get("release"))] = b
+            if last_good is None and passed(b, b.get(IN_FORCE)):
                 state[key] = (current, current)
         elif b.get("kind") == "promote":
-            state[key] = (b.get("to"), b.get("from") if ok.get((*key, b.get("from"))) else last_good)
+            outgoing = latest.get((*key, b.get("from")), {})
+            state[key] = (b.get("to"), b.get("from") if passed(outgoing, b.get(IN_FORCE)) else last_good)
         elif b.get("kind") == "rollback":
             state[key] = (b.get("to"), b.get("to"))
     return state

@@ -6,7 +6,9 @@ stage's plan with the stage's ``current`` release, evaluates the gates on those 
 ``last_good``'s runs on the same stage), logs the result with the record ids, and in production
 rolls ``current`` back to ``last_good`` on a fail. ``last_good`` is the release that passed there
 before the current one: a promotion moves it to the outgoing release when that one had passed
-(the first release to pass a stage is its own last_good).
+(the first release to pass a stage is its own last_good). A pass counts, for a promotion and for
+``last_good`` alike, only on the stage's part of the plan in force (``log.passed``): a weak ad-hoc
+plan's pass made its release a rollback target.
 """
 
 from __future__ import annotations
@@ -53,6 +55,7 @@ class StageResult:
     folders: tuple[str, ...]
     rolled_back_to: str | None
     log_seq: int
+    counted: bool  # a pass a promotion and last_good take (``log.passed``)
 
 
 def last_evaluation(store: Store, cell: str, stage: str, release: str) -> log.LogEntry | None:
@@ -67,7 +70,8 @@ def promote(store: Store, release: str, cell: str, to: str, plans: dict[str, Sta
     """Make ``release`` current at (cell, to); StageError (nothing moved) when out of order, when its pass at the
     stage before ran another plan there than ``plans`` (the plan in force, every stage's) holds, or when ``plans``
     has no runs at ``to``; GateError when ``to``'s plan holds a run or gate the cell cannot carry out
-    (``check_cell``). ``plans`` None: no plan is checked."""
+    (``check_cell``). The outgoing release becomes last_good only if its latest gates at ``to`` passed under
+    ``plans``' part there. ``plans`` None: no plan is checked."""
     check_stage(to)
     bundle = store.bundle(release)
     if bundle.cell != cell:
@@ -95,6 +99,7 @@ def promote(store: Store, release: str, cell: str, to: str, plans: dict[str, Sta
         unbound = log.run_problems(store, [evaluation])
         if unbound:
             raise ReleaseError(f"--to {to}: {unbound[0]}; nothing moved")
+    in_force = None if plans is None else plan_hash(plans[to])
     if plans is not None:
         plan = plans[to]
         if not plan.runs:  # a dead end: ``release run`` refuses the stage, so nothing could pass it
@@ -106,10 +111,10 @@ def promote(store: Store, release: str, cell: str, to: str, plans: dict[str, Sta
         if current == bundle.id:
             raise StageError(f"--to {to}: release {bundle.id} is already current at {to} on {cell}")
         outgoing = last_evaluation(store, cell, to, current) if current else None
-        last_good = current if outgoing is not None and log.passed(outgoing.body) else last_good
+        last_good = current if outgoing is not None and log.passed(outgoing.body, in_force) else last_good
         store.set_pointers(cell, to, bundle.id, last_good)
         return log.append(store, {"kind": "promote", "cell": cell, "stage": to, "release": bundle.id,
-                                  "from": current, "to": bundle.id,
+                                  "from": current, "to": bundle.id, log.IN_FORCE: in_force,
                                   "gates": evaluation.body["gates"] if evaluation else [],
                                   "evidence": evaluation.body["evidence"] if evaluation else [],
                                   "gates_entry": evaluation.seq if evaluation else None})
@@ -122,7 +127,7 @@ def _check_plan(evaluation: log.LogEntry, plan: StagePlan, to: str) -> None:
     entry without the hash (an older cellguard) cannot show its plan: refused as well."""
     b, now = evaluation.body, plan_hash(plan)
     logged = b.get("plan_sha256")
-    if logged != now:
+    if not log.ran_plan(b, now):
         ran = f"plan {str(logged)[:12]}" if logged else "a plan it did not log (an older cellguard)"
         raise StageError(f"--to {to}: the gates of {b['stage']} for release {b['release']} passed on {ran} for "
                          f"{b['stage']} (log entry {evaluation.seq}); the plan in force has {now[:12]} there, and "
@@ -148,8 +153,9 @@ def rollback(store: Store, cell: str, stage: str, reason: str = "operator", auto
 
 
 def run_stage(store: Store, plan: StagePlan, cell: str, stage: str, runs: list[dict] | None = None,
-              on_run: Callable[[str], None] | None = None) -> StageResult:
+              on_run: Callable[[str], None] | None = None, in_force: StagePlan | None = None) -> StageResult:
     """Run the stage's plan (or ``runs``) with its current release, evaluate its gates, act on the verdict.
+    ``in_force``: the stage's part of the plan in force, when ``plan`` is another (``evaluate_stage``).
 
     A run the operator stopped, or one whose record could not be written, is no evidence about the
     release: it is not counted, no later run starts and no gate is evaluated (OperatorStopped,
@@ -212,7 +218,7 @@ def run_stage(store: Store, plan: StagePlan, cell: str, stage: str, runs: list[d
                                   f"({run.stopped}); its record in {folder} is counted; no further run was started "
                                   f"and the stage's gates were not evaluated")
     scenario_runs = [e.get("name", "run") for e in runs] if runs is not None else []
-    return evaluate_stage(store, plan, cell, stage, folders, start, scenario_runs)
+    return evaluate_stage(store, plan, cell, stage, folders, start, scenario_runs, in_force)
 
 
 def _calibration(bundle: Bundle) -> str | None:
@@ -285,7 +291,8 @@ def _evidence(store: Store, rows: list[RunRow]) -> tuple[list[RunEvidence], list
 
 
 def evaluate_stage(store: Store, plan: StagePlan, cell: str, stage: str, folders: list[str] = (),
-                   start: Start | None = None, scenario: list[str] = ()) -> StageResult:
+                   start: Start | None = None, scenario: list[str] = (),
+                   in_force: StagePlan | None = None) -> StageResult:
     """Evaluate the gates of (cell, stage) on its current release's runs since it became current.
 
     A counted run that cannot be read as the record counted (gone, damaged, replaced), or that an earlier gates
@@ -293,7 +300,9 @@ def evaluate_stage(store: Store, plan: StagePlan, cell: str, stage: str, folders
     then never pass, yet it is decided and logged (a failing production release still rolls back), and the
     stage's next evaluation is not blocked by it. ``start``: what the runs started on (default: the stage now);
     StageError, nothing logged or moved, when the stage moved since. ``scenario``: the runs given in place of the
-    plan's, logged; such a pass lets nothing on (``log.passed``)."""
+    plan's, logged; such a pass lets nothing on (``log.passed``). ``in_force``: the stage's part of the plan in
+    force (default ``plan``), logged beside ``plan``'s hash: a pass on another plan is logged and lets nothing on,
+    nor makes its release last_good."""
     if start is None:
         moved = log.last_pointer_move(store, cell, stage)
         start = Start(*log.check_pointers(store, cell, stage), moved.seq if moved else 0)
@@ -318,8 +327,10 @@ def evaluate_stage(store: Store, plan: StagePlan, cell: str, stage: str, folders
                                    "refused": refused, "last_good": start.last_good,
                                    "runs": [[r.seq, r.record_id] for r in rows],
                                    "last_good_runs": [[r.seq, r.record_id] for r in good_rows],
-                                   "scenario": list(scenario), "plan_sha256": plan_hash(plan)})
-        if log.passed(entry.body) and start.last_good is None:  # the first release to pass here
+                                   "scenario": list(scenario), "plan_sha256": plan_hash(plan),
+                                   log.IN_FORCE: plan_hash(plan if in_force is None else in_force)})
+        counted = log.passed(entry.body, entry.body[log.IN_FORCE])
+        if counted and start.last_good is None:  # the first release to pass here
             store.set_pointers(cell, stage, start.current, start.current)
         elif outcome == FAIL and stage == "production" and start.last_good and start.last_good != start.current:
             failing = [r.metric for r in results if r.status == FAIL]
@@ -327,7 +338,7 @@ def evaluate_stage(store: Store, plan: StagePlan, cell: str, stage: str, folders
                               f"entry {entry.seq})", automatic=True, gates=[r.to_dict() for r in results],
                               evidence=evidence).body["to"]
     return StageResult(cell, stage, start.current, outcome, results, tuple(evidence), tuple(refused),
-                       tuple(folders), rolled, entry.seq)
+                       tuple(folders), rolled, entry.seq, counted)
 
 
 def plan_hash(plan: StagePlan) -> str:
