@@ -34,6 +34,10 @@ class InferenceError(CellguardError):
     """A policy call that failed at run time: a timeout, a lost server, a malformed reply."""
 
 
+class StepPeriodUnstated(ConfigError):
+    """A policy source that states no step period and was given no ``?dt=`` (a frozen release says what to do)."""
+
+
 @dataclass(frozen=True)
 class PolicyInputs:
     """What a backend sees: ``state`` (A,) in the policy's units, measurements by name, SI."""
@@ -83,7 +87,7 @@ def step_period(backend: Backend, options: dict[str, str], source: str) -> float
     """The chunk's step period [s]: ``?dt=``, else the one the model or server states. Neither is refused: the
     20 ms once assumed played a policy of 100 ms steps five times too fast, and nothing said so."""
     if "dt" not in options and backend.dt_s is None:
-        raise ConfigError(f"policy: {source}: the step period is not stated: give ?dt=SECONDS (the policy's control "
+        raise StepPeriodUnstated(f"policy: {source}: the step period is not stated: give ?dt=SECONDS (the policy's control "
                           f"period, e.g. 0.0667 for 15 Hz)")
     return option_float(options, "dt", backend.dt_s, source.partition(":")[0], DT_RANGE_S)
 

@@ -152,14 +152,29 @@ def policy_hash(bundle: Bundle, cell=None) -> str:
     try:
         policy = make_policy(bundle.policy_spec, cell)
     except CellguardError as exc:  # at create, what --policy gave; later, what the release froze (never edited)
-        where = f"release {bundle.id}: its policy (create a new release to change it)" if bundle.id else "--policy"
-        raise ReleaseError(f"{where}: {exc}") from None
+        if not bundle.id:
+            raise ReleaseError(f"--policy: {exc}") from None
+        raise ReleaseError(f"release {bundle.id}: its policy (create a new release to change it): "
+                           f"{_frozen(bundle, exc)}") from None
     try:
         return policy.content_hash()
     finally:
         close = getattr(policy, "close", None)
         if close is not None:
             close()
+
+
+def _frozen(bundle: Bundle, exc: CellguardError) -> str:
+    """Why the release's policy does not load, as what can be done: a source that states no step period
+    (``adapter.step_period``'s refusal) needs a new release whose policy gives it, as its own refusal's ``give
+    ?dt=SECONDS`` cannot be done to a frozen release."""
+    from cellguard.policy.adapter import StepPeriodUnstated
+
+    if not isinstance(exc, StepPeriodUnstated):
+        return str(exc)
+    spec = bundle.manifest["policy"]["spec"]
+    return (f"policy: {spec}: the step period is not stated: create a new release whose policy gives it, e.g. release create --policy "
+            f"'{spec}{'&' if '?' in spec else '?'}dt=SECONDS' (the policy's control period, e.g. 0.0667 for 15 Hz)")
 
 
 def calibration_version(profile) -> str:
