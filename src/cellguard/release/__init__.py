@@ -3,7 +3,7 @@
     bundle.py     a release's manifest and id (hash of its canonical JSON); verify its inputs
     store.py      SQLite in the site's folder: bundles, (cell, stage) -> current / last_good, runs
     plan.py       per stage: the runs that make its evidence and its gates (YAML)
-    metrics.py    the registry of metrics computed from the runs' records
+    metrics/      the metrics computed from the runs' records, one module per group, found by discovery
     gates.py      a condition on a metric: pass / fail / inconclusive; hard gates
     loops.py      how a stage's runs are driven (simulated time, wall time)
     shadow.py     pilot: the candidate beside the incumbent, never actuating

@@ -42,7 +42,7 @@ class Gate(BaseModel):
     @model_validator(mode="after")
     def _check(self):
         if self.metric not in METRICS:
-            raise ValueError(f"unknown metric {self.metric!r}; known: {', '.join(METRICS)}")
+            raise ValueError(f"unknown metric {self.metric!r}; known: {', '.join(sorted(METRICS))}")
         if self.is_hard and (self.max != 0 or self.min is not None):
             raise ValueError(f"{self.metric} is a hard gate: its failure limit is 0, write max: 0")
         if all(v is None for v in (self.min, self.max, self.min_vs_last_good, self.max_vs_last_good)):

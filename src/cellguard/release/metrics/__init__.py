@@ -1,0 +1,99 @@
+"""Gate metrics, each computed from a stage's run records; one registry, filled from this package's modules.
+
+A metric returns ``Measure(value, cycles, evidence)``: ``cycles`` is how much data it saw (a
+gate with fewer than ``min_cycles`` is inconclusive), ``evidence`` names the records and cycles
+that made the value what it is (a failed cycle, a stop, the worst seam). ``value`` is None when
+the runs hold nothing to measure (no shadow data, no acceptance baseline). A metric that only some cells
+or only shadow runs can report says so (``needs``, ``shadow``): a gate on it elsewhere could only end
+inconclusive, so a plan's stage holding one is refused before it runs.
+
+A new metric is one new module here: it defines ``METRICS``, a tuple of ``Metric``, and ``discover`` finds it (a
+module whose name starts with ``_`` is no metric module). Named in one list beside the metrics' own files, a
+metric written and tested was unknown to every plan until that list was edited too.
+"""
+
+from __future__ import annotations
+
+import importlib
+import pkgutil
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from cellguard.release.evidence import RunEvidence
+from cellguard.robot.pick_place import PickPlaceCell
+
+
+@dataclass(frozen=True)
+class Measure:
+    value: float | None
+    cycles: int
+    evidence: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class Needs:
+    """What a cell must have for a metric to have any data: its cycles report what the metric reads."""
+
+    what: str
+    cell_type: type
+
+    def met_by(self, cell) -> bool:
+        return isinstance(cell, self.cell_type)
+
+
+PICK_PLACE = Needs("a pick-place task (a part placed in a drop zone: its place error)", PickPlaceCell)
+
+
+@dataclass(frozen=True)
+class Metric:
+    name: str
+    unit: str
+    compute: Callable[[Sequence[RunEvidence]], Measure]
+    hard: bool = False  # a safety count: failure limit 0, decided even on too few cycles
+    most: float = float("inf")  # the largest value it can take (every metric is at least 0)
+    needs: Needs | None = None  # what the cell must have (None: every cell's runs give it data)
+    shadow: bool = False  # measured on shadow runs only (a stage with ``shadow: true``)
+
+
+def cycles_in(runs) -> int:
+    """The cycles ``runs`` hold: how much data a metric over all of them saw."""
+    return sum(len(r.cycles) for r in runs)
+
+
+def percentile(runs, values: list[tuple[float, str]], q: float, unit: str) -> Measure:
+    """The ``q`` percentile of the finite ``values`` ((value, where) pairs), naming where the worst was."""
+    vals = [(v, where) for v, where in values if np.isfinite(v)]
+    if not vals:
+        return Measure(None, 0)
+    x = np.array([v for v, _ in vals])
+    worst = max(vals)
+    return Measure(float(np.percentile(x, q)), cycles_in(runs), (f"worst {worst[0]:.3g} {unit} in {worst[1]}",))
+
+
+METRICS: dict[str, Metric] = {}  # name -> metric, in the order of the modules' names; filled by ``discover``
+
+
+def discover() -> dict[str, Metric]:
+    """Fill ``METRICS`` (in place: the gates hold it) from every module on this package's ``__path__``. A module
+    without a tuple of ``Metric`` as ``METRICS`` is refused naming it, and a name two metrics take naming both: a
+    second ``success_rate`` would have changed every plan's gate on it unseen."""
+    found: dict[str, tuple[Metric, str]] = {}
+    for info in sorted(pkgutil.iter_modules(__path__), key=lambda m: m.name):
+        if info.name.startswith("_"):
+            continue
+        module = importlib.import_module(f"{__name__}.{info.name}")
+        metrics = getattr(module, "METRICS", None)
+        if not (isinstance(metrics, tuple) and metrics and all(isinstance(m, Metric) for m in metrics)):
+            raise TypeError(f"{module.__name__}: a metric module defines METRICS, a tuple of Metric")
+        for m in metrics:
+            if m.name in found:
+                raise ValueError(f"metric {m.name!r} is defined by both {found[m.name][1]} and {module.__name__}")
+            found[m.name] = (m, module.__name__)
+    METRICS.clear()
+    METRICS.update({name: m for name, (m, _) in found.items()})
+    return METRICS
+
+
+discover()
