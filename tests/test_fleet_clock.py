@@ -13,6 +13,7 @@ import time
 import pyarrow.parquet as pq
 import pytest
 
+from cellguard.fleet import clock
 from cellguard.fleet.audit import read_audit
 from cellguard.fleet.export import export_batch
 from cellguard.fleet.lake import write_signatures
@@ -110,6 +111,57 @@ def test_a_lake_without_a_store_is_not_emptied_by_a_clock_past_all_its_data(tmp_
     # the right date: what is past the retention goes
     right = push([], DataPolicy("ta", "sk-lake", retention_days=30), tmp_path / "site", None, lake, today=HOST_TODAY)
     assert (lake_rows(lake), right.retention_removed, right.failed) == (2, 1, ())
+
+
+# -- the export by the store's date ---------------------------------------------------------------------------------
+
+
+def test_a_host_a_year_fast_exports_fresh_signatures_by_the_stores_date(fleet, tmp_path):
+    """The export counted the retention on this host's date: a clock a year fast kept every fresh signature at the
+    site as too old (0 rows sent, all withheld) while the store was there to ask."""
+    store, dsn, today = fleet
+    policy = DataPolicy("ta", "sk-fresh", retention_days=365)
+    result = push(aged("ta", "sk-fresh", today, 1, 20), policy, tmp_path, TenantStore(dsn),
+                  today=today + dt.timedelta(days=400))
+    assert (result.batch.rows, result.batch.withheld_rows, result.new_rows) == (2, 0, 2)
+    assert stored(store, "sk-fresh") == 2
+
+
+def test_a_batch_queued_with_a_right_clock_is_not_held_by_a_host_a_year_fast(fleet, tmp_path):
+    store, dsn, today = fleet
+    policy = DataPolicy("ta", "sk-held", retention_days=365)
+    assert push(aged("ta", "sk-held", today, 1), policy, tmp_path, None, today=today).queued == 1
+    result = push([], policy, tmp_path, TenantStore(dsn), today=today + dt.timedelta(days=400))
+    assert (result.sent_batches, result.held, result.queued, stored(store, "sk-held")) == (1, (), 0, 1)
+
+
+def test_with_no_store_to_ask_the_export_counts_on_this_hosts_date(tmp_path):
+    result = push(aged("ta", "sk-alone", HOST_TODAY, 1, 40), DataPolicy("ta", "sk-alone", retention_days=30),
+                  tmp_path, None, today=HOST_TODAY)
+    assert (result.batch.rows, result.batch.withheld_rows, result.queued) == (1, 1, 1)
+
+
+def test_a_push_reads_this_hosts_clock_through_one_helper(fleet, tmp_path, monkeypatch):
+    """push and the export take this host's date from ``clock`` (push spelled its own UTC date)."""
+    store, dsn, today = fleet
+    fast = dt.datetime.now(dt.timezone.utc) + dt.timedelta(days=400)
+    monkeypatch.setattr(clock, "utc_now", lambda: fast)
+    result = push(aged("ta", "sk-one", today, 1), DataPolicy("ta", "sk-one", retention_days=365), tmp_path,
+                  TenantStore(dsn))
+    (line,) = result.failed
+    assert str(fast.date()) in line and result.new_rows == 1
+
+
+def test_a_records_start_is_dated_in_utc_whatever_the_hosts_time_zone(monkeypatch):
+    monkeypatch.setenv("TZ", "Etc/GMT-14")  # 14 hours east of UTC: 23:30 UTC is the next day there
+    time.tzset()
+    try:
+        late = dt.datetime(2026, 11, 23, 23, 30, tzinfo=dt.timezone.utc)
+        assert clock.utc_day(int(late.timestamp() * 1e9)) == dt.date(2026, 11, 23)
+        assert clock.utc_today() == dt.datetime.now(dt.timezone.utc).date()
+    finally:
+        monkeypatch.undo()
+        time.tzset()
 
 
 # -- the outbox's order ---------------------------------------------------------------------------------------------

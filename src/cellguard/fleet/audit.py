@@ -16,12 +16,12 @@ it cannot read; ``read_audit`` refuses a damaged log in one line.
 
 from __future__ import annotations
 
-import datetime as dt
 import json
 import os
 from pathlib import Path
 
 from cellguard.errors import ConfigError, OutputError
+from cellguard.fleet.clock import utc_now
 from cellguard.fleet.export import Batch
 from cellguard.fleet.policy import DataPolicy
 from cellguard.yaml_file import read_bounded
@@ -57,7 +57,7 @@ def append_retention(site_dir: Path, policy: DataPolicy, removed: int, destinati
 
 def _append(site_dir: Path, fields: dict) -> dict:
     """Write ``fields``, stamped with the time, as one whole line at the end of the log."""
-    entry = {"when_utc": dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"), **fields}
+    entry = {"when_utc": utc_now().isoformat(timespec="seconds"), **fields}
     path = Path(site_dir) / AUDIT_FILE
     try:
         path.parent.mkdir(parents=True, exist_ok=True)

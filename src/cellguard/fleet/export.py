@@ -20,6 +20,7 @@ from collections import Counter
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
+from cellguard.fleet.clock import utc_today
 from cellguard.fleet.policy import EXPORTS, DataPolicy, PolicyError
 from cellguard.fleet.signature import Signature, SignatureError, check_text, row_from_dict, withhold
 from cellguard.fleet.site_key import fingerprint
@@ -142,13 +143,13 @@ def refusal(batch: Batch, policy: DataPolicy, today: dt.date | None = None) -> s
 
 def oldest_kept(policy: DataPolicy, today: dt.date | None = None) -> dt.date:
     """The first day the policy's retention keeps, counted from ``today`` (default: this host's UTC date)."""
-    return (today or dt.datetime.now(dt.timezone.utc).date()) - dt.timedelta(days=policy.retention_days)
+    return (today or utc_today()) - dt.timedelta(days=policy.retention_days)
 
 
 def export_batch(signatures: Sequence[Signature], policy: DataPolicy, today: dt.date | None = None, *,
                  key: bytes) -> Batch:
     """The batch ``policy`` lets leave the site, from the site's ``signatures``; ``key`` is the site's
-    secret the signature ids are keyed with."""
+    secret the signature ids are keyed with; ``today``: the date retention counts from (``push``: the store's)."""
     oldest = oldest_kept(policy, today)
     live = [s for s in signatures if dt.date.fromisoformat(s.created_date) >= oldest]
     base = dict(tenant_id=policy.tenant, site_id=policy.site, policy_version=policy.version, export=policy.export)

@@ -8,10 +8,10 @@ production runs diagnosed against it).
 
 from __future__ import annotations
 
-import datetime as dt
 from pathlib import Path
 
 from cellguard.errors import RecordError
+from cellguard.fleet.clock import utc_day, utc_today
 from cellguard.fleet.policy import DataPolicy
 from cellguard.fleet.signature import Signature, signatures_of
 
@@ -55,8 +55,7 @@ def site_signatures(folder: Path, policy: DataPolicy, acceptance: Path | None = 
             skipped.append(problem)
             continue
         diagnosis = diagnose_record(run, acceptance=acceptance, unkept=unkept)
-        day = (dt.datetime.fromtimestamp(epoch_ns * 1e-9, dt.timezone.utc) if epoch_ns > 0
-               else dt.datetime.now(dt.timezone.utc)).date()  # no epoch stated: the day of export
+        day = utc_day(epoch_ns) if epoch_ns > 0 else utc_today()  # no epoch stated: the day of export
         out.extend(signatures_of(diagnosis.to_dict(), diagnosis.context, policy.tenant, policy.site, day))
     return out
 

@@ -23,6 +23,10 @@ queued too, named in one line; the other batches go on. With ``lake``, a batch l
 before the store commits it: a lake that cannot take it leaves the store as it was, and the batch
 queued.
 
+What the export sends and what a queued batch may take out are counted on the store's UTC date when the store
+answers, on this host's only when it does not (a host clock a year fast kept every fresh signature at the site as
+too old, and held every queued batch).
+
 Every push applies the policy's retention to the store (when it can be reached) and to ``lake``:
 the site's signatures older than ``retention_days`` and its aggregates of the months before are
 deleted, whatever is sent, even nothing; the rows deleted are counted and logged. The days are
@@ -45,6 +49,7 @@ from pathlib import Path
 
 from cellguard.errors import ConfigError, OutputError
 from cellguard.fleet.audit import append_audit, append_retention, scan_audit
+from cellguard.fleet.clock import utc_today
 from cellguard.fleet.export import Batch, export_batch, oldest_kept, refusal
 from cellguard.fleet.lake import check_lake, forget, newest, write_signatures
 from cellguard.fleet.outbox import Outbox
@@ -77,13 +82,16 @@ class PushResult:
 
 def push(signatures: list[Signature], policy: DataPolicy, site_dir: Path, store: TenantStore | None,
          lake: Path | None = None, today: dt.date | None = None) -> PushResult:
-    """Export ``signatures`` under ``policy`` and send them (and any queued batch it allows) to ``store``."""
+    """Export ``signatures`` under ``policy`` and send them (and any queued batch it allows) to ``store``;
+    ``today``: this host's UTC date (default: its clock's)."""
     if lake is not None:
         check_lake(lake)  # before anything is queued or sent
     made = None if (Path(site_dir) / KEY_FILE).exists() else str(Path(site_dir) / KEY_FILE)
     check_key_history(site_dir, policy)
     key = site_key(site_dir)
-    batch = export_batch(signatures, policy, today, key=key)
+    local = today or utc_today()
+    server, unavailable = _store_date(store)
+    batch = export_batch(signatures, policy, server or local, key=key)
     outbox = Outbox(site_dir)
     destination = store.where if store is not None else "nowhere"
     if batch.export == "nothing" or batch.rows == 0:
@@ -95,10 +103,11 @@ def push(signatures: list[Signature], policy: DataPolicy, site_dir: Path, store:
     failed = [f"{path}: {why}; it stays queued" for path, why in unreadable]
     held: list[str] = []
     sent = new = dup = 0
-    removed, unavailable = _apply_retention(policy, site_dir, store, lake, today, failed)
+    removed, lost = _apply_retention(policy, site_dir, store, lake, local, server, failed)
+    unavailable = unavailable or lost
     last = _last_entries(site_dir) if queued and store is not None else {}
     for path, waiting in queued if store is not None and unavailable is None else ():
-        why = refusal(waiting, policy, today)
+        why = refusal(waiting, policy, server)
         unkeyed = _unkeyed(waiting, key) if why is None else None
         if why is not None or unkeyed is not None:
             said = last.get(waiting.batch_id, {})
@@ -153,18 +162,20 @@ def _unkeyed(batch: Batch, key: bytes) -> str | None:
             "push the runs again, which exports them keyed, then delete this file")
 
 
+def _store_date(store: TenantStore | None) -> tuple[dt.date | None, str | None]:
+    """(the store's UTC date, or None with no store; why it could not be reached, or None)."""
+    try:
+        return (store.today() if store is not None else None), None
+    except StoreUnavailable as exc:
+        return None, str(exc)
+
+
 def _apply_retention(policy: DataPolicy, site_dir: Path, store: TenantStore | None, lake: Path | None,
-                     today: dt.date | None, failed: list[str]) -> tuple[int, str | None]:
-    """Delete the site's rows past the policy's retention from ``store`` and ``lake``, logging each deletion and
-    adding a line to ``failed`` for each place that refused; (rows deleted, why the store could not be reached,
-    or None). A date the deletion cannot trust (``_distrust``) deletes nothing: one line in ``failed`` says so."""
-    local = today or dt.datetime.now(dt.timezone.utc).date()
-    server = unavailable = None
-    if store is not None:
-        try:
-            server = store.today()
-        except StoreUnavailable as exc:
-            unavailable = str(exc)
+                     local: dt.date, server: dt.date | None, failed: list[str]) -> tuple[int, str | None]:
+    """Delete the site's rows past the policy's retention from the store (when its date ``server`` was read) and
+    ``lake``, logging each deletion and adding a line to ``failed`` for each place that refused; (rows deleted,
+    why the store was lost meanwhile, or None). A host date ``local`` the deletion cannot trust (``_distrust``)
+    deletes nothing: one line in ``failed`` says so."""
     before = oldest_kept(policy, server or local)
     places = [(str(lake), partial(forget, lake, policy.tenant, policy.site, before))] if lake is not None else []
     if server is not None:
@@ -191,7 +202,7 @@ def _apply_retention(policy: DataPolicy, site_dir: Path, store: TenantStore | No
         if n:
             append_retention(site_dir, policy, n, where, before=before.isoformat())
         removed += n
-    return removed, unavailable
+    return removed, None
 
 
 def _distrust(local: dt.date, server: dt.date | None, policy: DataPolicy, lake: Path | None) -> str | None:
