@@ -1,14 +1,17 @@
 """Legitimate process changes the record declares, and how the diagnosis conditions on them.
 
 The record's context lists the process changes declared so far (``context["process"]``: a new
-product variant's payload, a restart after idle). A change the line declared is not a fault:
+product variant's payload, a restart after idle). A change the line declared is not a fault; its
+kind's class (``robot/process``) says how it is conditioned on (``diagnosis``) and how a note names
+it (``describe``), so a new kind needs no edit here. A kind this version does not know is not
+conditioned on.
 
-- ``payload``: every load-dependent feature (declared in ``feature_kinds``) moves with the new
-  load. From the change on, those features are compared with a new centre, the median of the
+- ``rebase`` (``payload``): every load-dependent feature (declared in ``feature_kinds``) moves with
+  the new load. From the change on, those features are compared with a new centre, the median of the
   first ``REBASE`` cycles at the new load, keeping the acceptance scale; those cycles themselves
   are not watched. A fault that begins inside them is seen only once it grows further.
-- ``warmup``: cold joints have more friction for the first cycles after idle, decaying. Each
-  friction-dependent feature is not watched from the restart until it is back within
+- ``settle`` (``warmup``): cold joints have more friction for the first cycles after idle, decaying.
+  Each friction-dependent feature is not watched from the restart until it is back within
   ``SETTLED`` scales of its baseline (at most ``WARMUP_MAX`` cycles; a joint that never settles
   is watched again and alarms as it would).
 
@@ -25,6 +28,7 @@ import numpy as np
 from cellguard.diagnose.baseline import Baseline
 from cellguard.diagnose.cycles import Cycle
 from cellguard.diagnose.feature_kinds import kind_of
+from cellguard.robot.process import PROCESS_CHANGES
 
 REBASE = 5  # [cycles] at a declared new load that set the new centre
 SETTLED = 2.0  # [scales] a warm-up is over for a feature once it is back this close to its baseline
@@ -58,18 +62,17 @@ def condition(baseline: Baseline, cycles: Sequence[Cycle], z: np.ndarray,
     index = np.array([c.index for c in cycles])
     notes = []
     for change in changes:
-        at = int(change["at_cycle"])
-        rows = np.flatnonzero(index >= at)
-        if not len(rows):
-            continue
-        if change["kind"] == "payload":
-            notes.append(_rebase(baseline, z, index, rows, change))
-        elif change["kind"] == "warmup":
-            notes.append(_warmup(baseline, z, index, rows, change))
+        kind = PROCESS_CHANGES.get(change["kind"])
+        how = _HOW.get(kind.diagnosis) if kind is not None else None
+        rows = np.flatnonzero(index >= int(change["at_cycle"]))
+        if how is not None and len(rows):
+            notes.append(ProcessNote(change["kind"], int(change["at_cycle"]),
+                                     f"{kind.describe(change)} declared at cycle {change['at_cycle']}: "
+                                     + how(baseline, z, index, rows)))
     return z, tuple(notes)
 
 
-def _rebase(baseline: Baseline, z: np.ndarray, index: np.ndarray, rows: np.ndarray, change: Mapping) -> ProcessNote:
+def _rebase(baseline: Baseline, z: np.ndarray, index: np.ndarray, rows: np.ndarray) -> str:
     cols = np.array([j for j, n in enumerate(baseline.names) if kind_of(n).load], dtype=int)
     window = rows[:REBASE]
     with np.errstate(all="ignore"):
@@ -77,14 +80,10 @@ def _rebase(baseline: Baseline, z: np.ndarray, index: np.ndarray, rows: np.ndarr
     shift = np.where(np.isnan(shift), 0.0, shift)
     z[np.ix_(rows, cols)] -= shift
     z[np.ix_(window, cols)] = np.nan
-    grams = change.get("grams")
-    what = f"payload {grams:+g} g" if isinstance(grams, (int, float)) else "payload change"
-    return ProcessNote("payload", int(change["at_cycle"]),
-                       f"{what} declared at cycle {change['at_cycle']}: {len(cols)} load-dependent features "
-                       f"re-baselined on cycles {index[window[0]]}-{index[window[-1]]}")
+    return f"{len(cols)} load-dependent features re-baselined on cycles {index[window[0]]}-{index[window[-1]]}"
 
 
-def _warmup(baseline: Baseline, z: np.ndarray, index: np.ndarray, rows: np.ndarray, change: Mapping) -> ProcessNote:
+def _settle(baseline: Baseline, z: np.ndarray, index: np.ndarray, rows: np.ndarray) -> str:
     cols = [j for j, n in enumerate(baseline.names) if kind_of(n).friction]
     span = rows[:WARMUP_MAX]
     settled_by = index[span[0]]
@@ -95,9 +94,8 @@ def _warmup(baseline: Baseline, z: np.ndarray, index: np.ndarray, rows: np.ndarr
         z[span[:end], j] = np.nan
         if end:
             settled_by = max(settled_by, index[span[min(end, len(span) - 1)]])
-    idle = change.get("idle_min")
-    after = f" after {idle:g} min idle" if isinstance(idle, (int, float)) else ""
-    return ProcessNote("warmup", int(change["at_cycle"]),
-                       f"restart{after} declared at cycle {change['at_cycle']}: warm-up recognised, "
-                       f"friction-dependent features watched again once back within {SETTLED:g} scales "
-                       f"(all by cycle {settled_by})")
+    return (f"warm-up recognised, friction-dependent features watched again once back within {SETTLED:g} scales "
+            f"(all by cycle {settled_by})")
+
+
+_HOW = {"rebase": _rebase, "settle": _settle}  # by a kind's ``diagnosis``: each conditions ``z`` and says how

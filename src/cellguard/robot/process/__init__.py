@@ -1,17 +1,16 @@
-"""Process change kinds for simulated cells, registered in one place: ``PROCESS_CHANGES`` maps kind to class."""
+"""Process change kinds for simulated cells: every module of this package that defines one (a ``ProcessChange``
+with its ``kind``) is found here, so a new kind is one new file; ``PROCESS_CHANGES`` maps kind to class."""
 
 from collections.abc import Sequence
 from typing import Annotated, Union
 
 from pydantic import Field
 
+from cellguard.robot.kinds import discover
 from cellguard.robot.process.base import ProcessChange
-from cellguard.robot.process.payload import Payload
-from cellguard.robot.process.warmup import Warmup
 
-_KINDS = (Payload, Warmup)
-PROCESS_CHANGES: dict[str, type[ProcessChange]] = {k.model_fields["kind"].annotation.__args__[0]: k for k in _KINDS}
-AnyProcessChange = Annotated[Union[_KINDS], Field(discriminator="kind")]  # noqa: UP007
+PROCESS_CHANGES: dict[str, type[ProcessChange]] = discover(__name__, __path__, ProcessChange, "process change kind")
+AnyProcessChange = Annotated[Union[tuple(PROCESS_CHANGES.values())], Field(discriminator="kind")]  # noqa: UP007
 
 
 def declared_changes(changes: Sequence[ProcessChange], cycle: int) -> list[dict]:

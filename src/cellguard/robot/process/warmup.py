@@ -5,6 +5,7 @@ from ``at_cycle`` on (lubricant viscosity falls as the drives warm up).
 """
 
 import math
+from collections.abc import Mapping
 from typing import ClassVar, Literal
 
 from pydantic import Field
@@ -18,6 +19,12 @@ class Warmup(ProcessChange):
     friction: float = Field(default=0.5, ge=0, le=5.0, description="extra friction at the restart, x nominal")
     cycles: float = Field(default=4.0, gt=0, le=1000, description="decay constant [cycles]")
     hook: ClassVar[str] = "set_friction_scale"
+    diagnosis: ClassVar[str] = "settle"
+
+    @classmethod
+    def describe(cls, declared: Mapping) -> str:
+        idle = declared.get("idle_min")
+        return "restart" + (f" after {idle:g} min idle" if isinstance(idle, (int, float)) else "")
 
     def apply(self, cell, cycle: int) -> None:
         if cycle >= self.at_cycle:
