@@ -1,7 +1,9 @@
-"""The recovery cause from recorded attempts, what fixed each finding, and advice, on cycles built by hand."""
+"""The recovery cause from recorded attempts, what fixed each finding, and advice, on cycles built by hand (each
+cycle's attempts in its ``recovery_log``, as the runner writes it)."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -21,8 +23,15 @@ def _cycle(i, phase="production", success=True, recoveries=0, after=0):
 
 
 def _end(cycle, outcome, arrival, close=1.8, attempt=1, behaviour="retry_grasp"):
-    done = RecoveryOutcome(behaviour, "grasp_missed", attempt, outcome, 2.0, arrival, close)
-    return {"t_ns": cycle, "cycle": cycle, "kind": "recovery_end", "reason": done.reason()}
+    return cycle, RecoveryOutcome(behaviour, "grasp_missed", attempt, outcome, 2.0, arrival, close)
+
+
+def _attempts(ends):
+    """The attempts as the diagnosis reads them: from cycle rows whose recovery_log holds them."""
+    logs = {}
+    for cycle, done in ends:
+        logs.setdefault(cycle, []).append(done.to_dict())
+    return attempts_of([{"cycle": c, "features": {}, "recovery_log": log} for c, log in logs.items()])
 
 
 def _run(late_arrival):
@@ -35,7 +44,7 @@ def _run(late_arrival):
 
 def test_recoveries_late_at_contact_are_named_recovery_with_the_arrival_as_evidence():
     cycles, events = _run(late_arrival=3.2)
-    f = recovery_finding(cycles, attempts_of(events))
+    f = recovery_finding(cycles, _attempts(events))
     assert "recovery" in CAUSES and f.cause == "recovery" and f.cycle == 8 and f.confidence >= 0.9
     assert "arrived at contact 3.20 s after they started (median) vs 1.60 s for the 2 acceptance recoveries" in f.evidence[0]
     assert "1.40 s before the arm arrived" in f.evidence[1]
@@ -44,9 +53,8 @@ def test_recoveries_late_at_contact_are_named_recovery_with_the_arrival_as_evide
 
 def test_recoveries_on_time_are_not_a_cause():
     cycles, events = _run(late_arrival=1.62)
-    events = [e if "attempt 2" not in e["reason"] else {**e, "reason": e["reason"].replace("gave_up", "resumed")}
-              for e in events]
-    assert recovery_finding(cycles, attempts_of(events)) is None
+    events = [(c, dataclasses.replace(d, outcome="resumed") if d.attempt == 2 else d) for c, d in events]
+    assert recovery_finding(cycles, _attempts(events)) is None
 
 
 def test_a_next_cycle_that_fails_after_each_recovery_is_a_recovery_cause():
@@ -54,7 +62,7 @@ def test_a_next_cycle_that_fails_after_each_recovery_is_a_recovery_cause():
     cycles += [_cycle(5, recoveries=1), _cycle(6, success=False, after=1), _cycle(7),
                _cycle(8, recoveries=1), _cycle(9, success=False, after=1), _cycle(10)]
     events = [_end(5, "resumed", 1.6), _end(8, "resumed", 1.6)]
-    f = recovery_finding(cycles, attempts_of(events))
+    f = recovery_finding(cycles, _attempts(events))
     assert f.cycle == 6 and "the cycle after a recovery failed in 2 of 2" in f.evidence[0]
 
 
@@ -74,7 +82,7 @@ def test_fixes_belong_to_the_latest_finding_and_advice_ranks_by_success_rate(tmp
     events = [_end(5, "resumed", 1.6), _end(6, "resumed", 1.6), _end(9, "failed", 1.6),
               _end(9, "resumed", 1.6, attempt=2, behaviour="back_off"), _end(10, "resumed", 1.6)]
     findings = [Finding("tool_slip", 4, 0.9, ("slip",)), Finding("fixture_shift", 9, 0.8, ("moved",))]
-    own = fixes(findings, cycles, attempts_of(events))
+    own = fixes(findings, cycles, _attempts(events))
     assert [(r["cause"], r["recovery"], r["tried"], r["fixed"]) for r in own] == [
         ("tool_slip", "retry_grasp", 2, 2), ("fixture_shift", "back_off", 1, 0), ("fixture_shift", "retry_grasp", 2, 1)]
     lines = [f.evidence[-1] for f in with_running_again(findings, own)]

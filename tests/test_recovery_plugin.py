@@ -3,10 +3,10 @@
 An exception from a behaviour's ``plan()`` other than the arm's reach (ValueError), or a result that was not
 a Plan, left the servo loop as a traceback: exit 1, no summary.json, nothing in the record saying why the run
 ended. A plan with a time that is not finite ran, and its attempt vanished from the diagnosis, as did every
-attempt of a behaviour whose name held anything outside [a-z_] (``regrasp2``): the diagnosis reads attempts
-back from the words of their events. Each is an unplannable attempt now: logged naming the behaviour and the
-error, then home, and the cycle fails. A behaviour is registered only in ``_KINDS`` (robot/recovery/__init__.py),
-so these tests stand the plugin's ``plan()`` in for retry_grasp's.
+attempt of a behaviour whose name held anything outside [a-z_] (``regrasp2``): the diagnosis read attempts back
+from the words of their events (it reads each cycle's ``recovery_log`` now). Each is an unplannable attempt now:
+logged naming the behaviour and the error, then home, and the cycle fails. These tests stand the plugin's
+``plan()`` in for retry_grasp's (``test_recovery_discovery.py`` adds a behaviour module of its own).
 """
 
 from __future__ import annotations
@@ -102,12 +102,11 @@ def test_a_run_whose_behaviour_blows_up_ends_whole_with_its_summary(monkeypatch,
     assert sum(HOME == e["reason"] for e in summary["events"]) == 2
 
 
-@pytest.mark.parametrize("name", ["regrasp2", "retry_grasp_v2", "ReGrasp", "re-grasp"])
+@pytest.mark.parametrize("name", ["regrasp2", "retry_grasp_v2", "ReGrasp", "re-grasp", "retry: attempt 9 after"])
 @pytest.mark.parametrize("close", [1.8, None])
-def test_a_behaviour_with_any_name_reads_back_from_its_event(name, close):
+def test_a_behaviour_with_any_name_reads_back_from_its_log(name, close):
     done = RecoveryOutcome(name, "grasp_missed", 2, "failed", 3.25, 1.5 if close else None, close)
-    assert RecoveryOutcome.parse(done.reason()) == done
-    assert attempts_of([{"kind": "recovery_end", "reason": done.reason(), "cycle": 4}]) == [(4, done)]
+    assert attempts_of([{"cycle": 4, "features": {}, "outcome": {"recovery_log": [done.to_dict()]}}]) == [(4, done)]
 
 
 @pytest.mark.parametrize(("field", "value"), [("close_t", float("nan")), ("close_t", float("inf")),

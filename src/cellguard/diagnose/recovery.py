@@ -1,6 +1,7 @@
 """Recoveries in a diagnosis: the ``recovery`` cause, what got the cell running again, and advice.
 
-Read from the record's ``recovery_end`` events (one per attempt, see ``RecoveryOutcome``):
+Read from each cycle's ``recovery_log`` (one entry per attempt, see ``RecoveryOutcome``), never from the words
+of the ``recovery_end`` events: rewording an event changes no diagnosis.
 
 - a recovery that made things worse is a finding of its own, cause ``recovery``: attempts that
   arrived at their contact pose later than the acceptance recoveries did (or after the gripper
@@ -14,15 +15,14 @@ Read from the record's ``recovery_end`` events (one per attempt, see ``RecoveryO
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import replace
 from types import MappingProxyType
 
 import numpy as np
 
-from cellguard.control.events import EventKind
 from cellguard.diagnose.cause import Finding
-from cellguard.diagnose.cycles import Cycle
+from cellguard.diagnose.cycles import Cycle, as_cycle
 from cellguard.diagnose.feature_kinds import kind_of
 from cellguard.robot.recovery.outcome import RecoveryOutcome
 
@@ -65,23 +65,26 @@ def without_recovery_motion(names: Sequence[str], cycles: Sequence[Cycle], z: np
     return z
 
 
-def attempts_of(events: Sequence[Mapping]) -> list[tuple[int | None, RecoveryOutcome]]:
-    """(cycle, attempt) for every recovery attempt the events record, in order."""
+def attempts_of(rows: Iterable[object]) -> list[tuple[int, RecoveryOutcome]]:
+    """(cycle, attempt) for every recovery attempt, in cycle order, from the cycle rows' ``recovery_log`` (at the top
+    of a run's outcome, inside ``outcome`` of a record's cycle); an entry that is not a whole attempt is left out.
+    Every record with recoveries has the log: it came with the recovery events themselves."""
     out = []
-    for e in events:
-        if e.get("kind") == EventKind.RECOVERY_END:
-            done = RecoveryOutcome.parse(str(e.get("reason", "")))
-            if done is not None:
-                out.append((e.get("cycle"), done))
-    return out
+    for row in rows:
+        get = row.get if isinstance(row, Mapping) else lambda k, r=row: getattr(r, k, None)
+        outcome = get("outcome")
+        log = outcome.get("recovery_log") if isinstance(outcome, Mapping) else get("recovery_log")
+        attempts = [RecoveryOutcome.from_dict(entry) for entry in (log if isinstance(log, list) else ())]
+        out += [(as_cycle(row).index, done) for done in attempts if done is not None]
+    return sorted(out, key=lambda a: a[0])  # stable: a cycle's attempts stay in their order
 
 
-def recovery_finding(cycles: Sequence[Cycle], attempts: Sequence[tuple[int | None, RecoveryOutcome]]) -> Finding | None:
+def recovery_finding(cycles: Sequence[Cycle], attempts: Sequence[tuple[int, RecoveryOutcome]]) -> Finding | None:
     """The ``recovery`` cause, if recoveries in production arrived late, repeated without effect, or
     left a failing next cycle; None otherwise."""
     phase = {c.index: c.phase for c in cycles}
     acc = [o for c, o in attempts if phase.get(c) == "acceptance"]
-    prod = [(c, o) for c, o in attempts if c is not None and phase.get(c, "production") != "acceptance"]
+    prod = [(c, o) for c, o in attempts if phase.get(c) != "acceptance"]
     evidence, starts, shares = [], [], []
     ref = [o.arrival_s for o in acc if o.arrival_s is not None]
     ref_s = float(np.median(ref)) if ref else None
@@ -163,7 +166,7 @@ def _next_cycle(cycles: Sequence[Cycle]) -> tuple[int, str] | None:
 
 
 def fixes(findings: Sequence[Finding], cycles: Sequence[Cycle],
-          attempts: Sequence[tuple[int | None, RecoveryOutcome]]) -> list[dict]:
+          attempts: Sequence[tuple[int, RecoveryOutcome]]) -> list[dict]:
     """Per finding and behaviour: cycles it ran in (``tried``) and those it resumed and that then
     succeeded (``fixed``). A cycle belongs to the latest finding that started by then."""
     success = {c.index: c.success for c in cycles}
@@ -174,7 +177,7 @@ def fixes(findings: Sequence[Finding], cycles: Sequence[Cycle],
         end = later[0] if later else None
         ran: dict[str, dict[int, bool]] = {}
         for c, o in attempts:
-            if c is None or c < f.cycle or (end is not None and c >= end):
+            if c < f.cycle or (end is not None and c >= end):
                 continue
             ok = o.outcome == "resumed" and success.get(c, False)
             ran.setdefault(o.behaviour, {})[c] = ran.get(o.behaviour, {}).get(c, False) or ok

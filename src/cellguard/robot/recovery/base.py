@@ -45,7 +45,7 @@ class Plan:
 
     def __post_init__(self):
         """Refuse a plan the loop cannot follow: a number that is not finite reached the guard as a target, or
-        (``close_t``) hid the attempt from the diagnosis, which reads it back from the words of its event; tracks
+        (``close_t``) hid the attempt from the diagnosis, which leaves out a log entry of times not finite; tracks
         that are empty, out of time order or given as lists ended the run in a traceback when sampled. The tracks
         are kept as float arrays."""
         for name in ("arm_t", "arm_q", "grip_t", "grip_q", "contact_q"):

@@ -1,17 +1,15 @@
-"""How one recovery attempt ended, written into the ``recovery_end`` event's reason and read back
-from it: the record keeps the words a technician reads, and the diagnosis parses the same words.
+"""How one recovery attempt ended, written twice: as words in the ``recovery_end`` event's reason, for a
+technician, and as fields in the cycle's ``recovery_log``, which the diagnosis reads. It never parses the words,
+so rewording them changes no diagnosis.
 """
 
 from __future__ import annotations
 
-import re
+import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 OUTCOMES = ("resumed", "failed", "escalated", "gave_up", "cut_off")
-# the behaviour: any name up to its attempt (regrasp2, ReGrasp: a name outside [a-z_] hid its every attempt)
-_PATTERN = re.compile(r"^(?P<behaviour>.+?): attempt (?P<attempt>\d+) after (?P<trigger>[^,]+), "
-                      r"(?P<duration>[\d.]+) s(?:; arrived at contact at (?P<arrival>[\d.]+ s|never), "
-                      r"gripper shut at (?P<close>[\d.]+) s)?; outcome (?P<outcome>[a-z_]+)$")
 
 
 @dataclass(frozen=True)
@@ -38,12 +36,19 @@ class RecoveryOutcome:
         return dict(self.__dict__)
 
     @classmethod
-    def parse(cls, reason: str) -> RecoveryOutcome | None:
-        """The attempt a ``recovery_end`` reason describes; None for one that is not an attempt's end."""
-        m = _PATTERN.match(reason)
-        if m is None:
+    def from_dict(cls, entry: object) -> RecoveryOutcome | None:
+        """The attempt a ``recovery_log`` entry holds (``to_dict``'s fields, read back from JSON); None for one
+        that is not a whole attempt (a damaged or crafted record), which a reader leaves out."""
+        if not isinstance(entry, Mapping):
             return None
-        arrival = m["arrival"]
-        return cls(m["behaviour"], m["trigger"], int(m["attempt"]), m["outcome"], float(m["duration"]),
-                   float(arrival[:-2]) if arrival and arrival != "never" else None,
-                   float(m["close"]) if m["close"] else None)
+        text = [entry.get(k) for k in ("behaviour", "trigger", "outcome")]
+        times = [entry.get(k) for k in ("duration_s", "arrival_s", "close_s")]
+        attempt = entry.get("attempt")
+        if (not all(isinstance(v, str) for v in text) or type(attempt) is not int or times[0] is None
+                or not all(v is None or _finite(v) for v in times)):
+            return None
+        return cls(text[0], text[1], attempt, text[2], *(None if v is None else float(v) for v in times))
+
+
+def _finite(value: object) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
