@@ -223,7 +223,7 @@ class Run:
                         break
                 if link.stop is not None and (link.lost or guard.envelope.stop_complete):
                     self.stopped = self.stopped or f"robot link: {link.reason}"
-                    if link.lost and link.stop <= 1 and guard.power:  # lost on this tick: the guard never saw it
+                    if link.lost and guard.power:  # lost on this tick: the guard never saw it
                         self._remove_power(self._without_link((link.stop, f"robot link, {link.reason}")),
                                            operator.count)
                     break
@@ -521,7 +521,7 @@ class Run:
                          since: tuple[int, str | None] | None = None) -> tuple[int, str | None] | None:
         """The strictest stop asked during a transition: ``since`` (one asked before, still in force), the safety
         controller's input, a robot link fault, an operator's signal past ``signals``; (category, who asked: None
-        for the controller) or None; a lost link makes a category 1 stop a 0 (``_without_link``)."""
+        for the controller) or None; a lost link makes a category 1 or 2 stop a 0 (``_without_link``)."""
         asked = [] if safety.stop is None else [(safety.stop, None)]
         if since is not None:
             asked.append(since)
@@ -533,11 +533,13 @@ class Run:
         return self._without_link(min(asked, key=lambda a: a[0], default=None))
 
     def _without_link(self, stop: tuple[int, str | None] | None) -> tuple[int, str | None] | None:
-        """A lost link makes a category 1 stop a 0: with no state to read and no command that arrives, there is no
-        brake to play and no standstill to wait for (a transition waited out the stopping time on the last state
-        read, its brake sent to the dead link; a cycle ended with power never switched off)."""
-        if stop is not None and stop[0] == 1 and self.link.lost:
-            return 0, f"robot link lost, {self.link.reason}"
+        """A lost link makes a category 1 or 2 stop a 0: a controlled stop is braked by commands over the link, and
+        with no state to read and no command that arrives there is no brake to play, no standstill to wait for and
+        no hold (a transition waited out the stopping time on the last state read, its brake sent to the dead link;
+        a cycle ended with power never switched off, under category 2 with no stop at all)."""
+        if stop is not None and stop[0] > 0 and self.link.lost:
+            return 0, (f"robot link lost, {self.link.reason}; the category {stop[0]} stop cannot be commanded "
+                       "without it")
         return stop
 
     def _remove_power(self, stop: tuple[int, str | None], signals: int) -> None:
@@ -569,7 +571,7 @@ class Run:
 
     def _stop_input(self, t_ns: int, guard) -> tuple[int | None, str | None]:
         """The stop the loop itself asks for (a robot link fault, an operator stop, or no first chunk within
-        the watchdog): the strictest one's category and who asked it; a lost link makes a category 1 a 0."""
+        the watchdog): the strictest one's category and who asked it; a lost link makes a category 1 or 2 a 0."""
         asked = [] if self.link.stop is None else [(self.link.stop, f"robot link, {self.link.reason}")]
         if self.operator.count:
             self._operator_stop(t_ns)
