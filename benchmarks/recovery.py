@@ -59,7 +59,7 @@ def _slip(job) -> dict:
             out[name] = {"cycles": len(prod), "succeeded": sum(c["success"] for c in prod)}
             if recovery:
                 logged = [r for c in summary["cycles"] for r in c.get("recovery_log", [])]
-                read = diagnose_record(folder).recoveries  # read back from the record's events
+                read = diagnose_record(folder).recoveries  # read back from the record's cycles (their recovery_log)
                 out["recoveries"] = len(logged)
                 out["recorded_with_outcome"] = sum(1 for r in read if r.get("outcome"))
                 out["record_matches_run"] = ([(r["behaviour"], r["outcome"]) for r in read]
