@@ -13,7 +13,7 @@ from typer.testing import CliRunner
 
 from cellguard.cli import app
 from cellguard.errors import RecordError
-from cellguard.record.lerobot_export import _stride
+from cellguard.record.lerobot_export import _exporting_servo_rates, _stride
 from cellguard.record.reader import open_record
 from cellguard.record.writer import RecordConfig, Recorder
 from cellguard.robot.state import State
@@ -73,12 +73,42 @@ def test_stride_at_servo_rates_that_are_not_whole_nanoseconds(dt_ns, fps, stride
     assert _stride({"servo_period_ns": dt_ns, "record": {"decimated_hz": 50.0}}, fps) == (stride, fps)
 
 
-def test_a_stream_no_whole_fps_divides_suggests_none():
-    """333 Hz (3 ms) decimates to every 7th tick, 47.619 Hz: no whole rate takes every k-th of those ticks."""
+def test_a_stream_no_whole_fps_divides_names_its_rate_and_the_servo_rates_that_export():
+    """333 Hz (3 ms) decimates to every 7th tick, 47.619 Hz: no whole rate takes every k-th of those ticks. The error
+    said only that, leaving the user to guess at which rate to record instead."""
     with pytest.raises(RecordError) as err:
         _stride({"servo_period_ns": 3_000_000, "record": {"decimated_hz": 50.0}}, 50)
-    assert str(err.value).startswith("--fps: no whole frame rate divides the record's continuous tick rate 47.619 Hz")
-    assert "e.g." not in str(err.value)
+    assert str(err.value) == ("--fps: no whole frame rate divides the record's continuous tick rate 47.619 Hz (1 in 7 "
+                              "ticks of its 333.333 Hz servo); a LeRobotDataset's fps is a whole number. Records at "
+                              "servo rates of 1000, 500, 250, 200, 100, 50 Hz export (of those whose period is whole "
+                              "milliseconds, up to 20 ms)")
+
+
+@pytest.mark.parametrize("decimated_hz", [50.0, 25.0, 100.0])
+def test_the_servo_rates_named_are_exactly_the_whole_millisecond_ones_that_export(decimated_hz):
+    """Of sim-server's 1 ms to 20 ms periods, at the default 50 Hz stream, 14 were refused."""
+    named = _exporting_servo_rates(decimated_hz)
+    for ms in range(1, 21):
+        context = {"servo_period_ns": ms * 1_000_000, "record": {"decimated_hz": decimated_hz}}
+        try:
+            _stride(context, None)
+            exports = True
+        except RecordError:
+            exports = False
+        assert exports == (1e3 / ms in named), ms
+    if decimated_hz == 50.0:
+        assert len(named) == 6
+
+
+def test_a_625_hz_record_is_refused_in_one_line_naming_both_rates(tmp_path):
+    hz625 = _record(tmp_path / "rec", 16_000_000)
+    result = runner.invoke(app, ["record", "to-lerobot", str(hz625), "-o", str(tmp_path / "ds")])
+    assert result.exit_code == 2 and not (tmp_path / "ds").exists()
+    assert result.output == ("error: --fps: no whole frame rate divides the record's continuous tick rate 62.5 Hz (its "
+                             "servo rate); a LeRobotDataset's fps is a whole number. Records at servo rates of 1000, "
+                             "500, 250, 200, 100, 50 Hz export (of those whose period is whole milliseconds, up to 20 "
+                             "ms)\n")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["rec"]
 
 
 def test_suggested_rates_are_accepted():

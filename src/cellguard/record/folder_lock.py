@@ -12,9 +12,7 @@ from __future__ import annotations
 
 import fcntl
 import os
-import shutil
 import time
-from collections.abc import Iterable
 from pathlib import Path
 
 from cellguard.errors import RecordError
@@ -99,17 +97,3 @@ def release(fd: int | None) -> None:
             os.close(fd)
         except OSError:
             pass
-
-
-def clear_stale(staging: Iterable[Path], busy: str) -> None:
-    """Remove the staging folders of commands killed before their clean-up (SIGKILL: nothing holds their lock, and
-    each stayed for good); RecordError ``busy`` (naming the folder) if one is still held by a live command."""
-    for old in staging:
-        try:
-            lock = hold(old, "-o")
-        except RecordError:
-            raise RecordError(f"{busy} ({old.name}); wait for it to end or give another folder") from None
-        try:
-            shutil.rmtree(old, ignore_errors=True)
-        finally:
-            release(lock)

@@ -32,7 +32,7 @@ import pyarrow.parquet as pq
 
 from cellguard.errors import RecordError
 from cellguard.output import refuse_filled_folder
-from cellguard.record import folder_lock
+from cellguard.record import folder_lock, staged
 from cellguard.record.reader import Record
 from cellguard.record.writer import decimation_stride
 
@@ -42,7 +42,11 @@ EPISODES_FILE = "meta/episodes/chunk-000/file-000.parquet"
 QUANTILES = (0.01, 0.10, 0.50, 0.90, 0.99)
 MAX_FPS = 1000  # [Hz] the fastest frame rate a dataset is written at (a servo rate's)
 STEP_TOLERANCE_NS = 1000  # a frame step this close to the period is the period; a missing frame is 1/fps off
+# [ms] the servo periods a refused record's message looks through for rates that export: whole milliseconds, as the
+# simulated cells' 1 ms physics steps serve them (sim-server --rate-hz)
+SUGGESTED_PERIODS_MS = range(1, 21)
 STAGING_SUFFIX = ".partial"  # of the folder beside -o that a run writes into: .NAME.XXXXXXXX.partial
+DATASET_PARTS = ("data", "meta")  # moved into -o in this order
 INDEX_FEATURES = ("timestamp", "frame_index", "episode_index", "index", "task_index")
 _TICK_FEATURES = {"observation.state": "q_meas", "observation.velocity": "qd_meas",
                   "observation.effort": "effort", "action": "q_cmd"}
@@ -104,17 +108,20 @@ def export_lerobot(rec: Record, output: Path, fps: int | None = None, task: str 
     made = not output.exists()
     staging = _prepare(output)
     robot_type = robot_type or (context.get("embodiment") or {}).get("robot")
-    lock, moved = None, []
+    lock = None
     try:
         lock = folder_lock.hold(staging, "-o")  # while this run lives: the next export clears it once it was killed
         _write_dataset(staging, data, features, episodes, kept, task, robot_type, fps)
+        staged.note_files(staging)  # a rerun after a kill between the moves takes out what they moved
         # into the empty folder _prepare checked or made, which stays the same folder (it may be a shell's
         # current folder); meta/ last: a dataset without meta/info.json is not one to LeRobot
-        for part in sorted(staging.iterdir(), key=lambda p: p.name == "meta"):
-            part.rename(output / part.name)
-            moved.append(output / part.name)
+        for part in DATASET_PARTS:
+            (staging / part).rename(output / part)
     except BaseException as exc:  # a full disk, Ctrl-C, SIGTERM: nothing of this run's is left in -o
-        _undo(output, moved, made)
+        staged.take_back(staging, output)
+        if made:
+            with contextlib.suppress(OSError):
+                output.rmdir()  # only if empty
         if isinstance(exc, OSError):  # named as given: the staging folder is this run's own, and gone after it
             raise RecordError(f"-o {output}: cannot write ({exc.strerror or exc})") from None
         raise
@@ -122,16 +129,6 @@ def export_lerobot(rec: Record, output: Path, fps: int | None = None, task: str 
         shutil.rmtree(staging, ignore_errors=True)  # this run's own folder; empty once its parts moved
         folder_lock.release(lock)
     return LeRobotExport(str(output), fps, tuple(kept), len(data["index"]), tuple(skipped))
-
-
-def _undo(output: Path, moved: list[Path], made: bool) -> None:
-    """Remove the parts of the dataset already moved into ``output``, and ``output`` itself if this run made it (a
-    full disk or an interrupted export left an empty folder behind, or one with data/ and no meta/)."""
-    for part in moved:
-        shutil.rmtree(part, ignore_errors=True)
-    if made:
-        with contextlib.suppress(OSError):
-            output.rmdir()  # only if empty
 
 
 def _write_dataset(output: Path, data: dict, features: dict, episodes: list, kept: list, task: str,
@@ -165,17 +162,22 @@ def _is_period(step_ns, fps: float) -> np.ndarray:
 
 def _stride(context: dict, fps: int | None) -> tuple[int, int]:
     """Every how many decimated ticks one frame is taken, and the fps (None: the stream's own, if whole; a fixed
-    default of 50 refused every 30 Hz record); RecordError unless fps divides the stream's rate."""
+    default of 50 refused every 30 Hz record); RecordError unless fps divides the stream's rate.
+
+    A stream no whole fps divides (14 of the 20 rates sim-server serves up to 20 ms, e.g. 62.5 Hz) is refused, naming
+    the servo rates that export: lerobot 0.4 takes fps as an int (``create_empty_dataset_info(fps: int)`` and
+    ``LeRobotDatasetMetadata.fps -> int`` in ``lerobot/datasets/utils.py`` and ``lerobot_dataset.py``; its video
+    writer's time base is ``Fraction(1, fps)``) and a frame's timestamp as ``frame_index / fps``, so frames on another
+    grid would be values the robot never measured nor was sent."""
     dt_ns = context.get("servo_period_ns")
     hz = (context.get("record") or {}).get("decimated_hz")
     if not dt_ns or not hz:
         raise RecordError("record context: servo_period_ns or record.decimated_hz is missing; "
                           "cannot tell the tick rate")
-    period_ns = decimation_stride(dt_ns, hz) * dt_ns
-    rates, rate = _whole_rates(period_ns), 1e9 / period_ns
+    stride = decimation_stride(dt_ns, hz)
+    rates, rate = _whole_rates(stride * dt_ns), 1e9 / (stride * dt_ns)
     if not rates:
-        raise RecordError(f"--fps: no whole frame rate divides the record's continuous tick rate {rate:g} Hz "
-                          "(a LeRobotDataset's fps is a whole number)")
+        raise _no_whole_rate(dt_ns, stride, hz)
     fps = rates[0] if fps is None else fps
     if fps not in rates:
         raise RecordError(f"--fps: {fps} must divide the record's continuous tick rate {rate:g} Hz "
@@ -191,6 +193,23 @@ def _whole_rates(period_ns: int) -> list[int]:
     rate = 1e9 / period_ns
     candidates = ((max(1, round(rate / fps)), fps) for fps in range(min(round(rate), MAX_FPS), 0, -1))
     return [fps for k, fps in candidates if _is_period(k * period_ns, fps)]
+
+
+def _no_whole_rate(dt_ns: int, stride: int, decimated_hz: float) -> RecordError:
+    """The refusal of a record whose continuous stream no whole fps divides: its rate, and the servo rates that do."""
+    servo = "its servo rate" if stride == 1 else f"1 in {stride} ticks of its {1e9 / dt_ns:g} Hz servo"
+    working = ", ".join(f"{r:g}" for r in _exporting_servo_rates(decimated_hz))
+    remedy = (f"Records at servo rates of {working} Hz export (of those whose period is whole milliseconds, up to "
+              f"{SUGGESTED_PERIODS_MS[-1]} ms)" if working else
+              f"No record at record.decimated_hz {decimated_hz:g} does (a whole fps is 1 Hz at least)")
+    return RecordError(f"--fps: no whole frame rate divides the record's continuous tick rate "
+                       f"{1e9 / (stride * dt_ns):g} Hz ({servo}); a LeRobotDataset's fps is a whole number. {remedy}")
+
+
+def _exporting_servo_rates(decimated_hz: float) -> list[float]:
+    """The servo rates [Hz] of ``SUGGESTED_PERIODS_MS`` whose continuous stream at ``decimated_hz`` has a whole fps."""
+    return [1e3 / ms for ms in SUGGESTED_PERIODS_MS
+            if _whole_rates(decimation_stride(ms * 1_000_000, decimated_hz) * ms * 1_000_000)]
 
 
 def _measurements(rec: Record) -> dict[int, tuple[np.ndarray, np.ndarray, tuple[str, ...]]]:
@@ -257,10 +276,10 @@ def _stats(values: np.ndarray) -> dict[str, list]:
 
 
 def _prepare(output: Path) -> Path:
-    """Check or make the empty folder ``output`` (``output.resolve()``); a new folder beside it, unique to this run,
-    to write into."""
-    refuse_filled_folder(output, "-o")
+    """Check or make the empty folder ``output`` (``output.resolve()``), once what a killed export had moved into it is
+    taken out; a new folder beside it, unique to this run, to write into."""
     _clear_stale_staging(output)
+    refuse_filled_folder(output, "-o")
     try:
         output.mkdir(parents=True, exist_ok=True)
         staging = Path(tempfile.mkdtemp(prefix=_staging_prefix(output), suffix=STAGING_SUFFIX, dir=output.parent))
@@ -276,7 +295,8 @@ def _staging_prefix(output: Path) -> str:
 
 def _clear_stale_staging(output: Path) -> None:
     """Remove the staging folders beside ``output`` of exports killed before their clean-up (SIGKILL: nothing holds
-    their lock; each stayed for good); RecordError if an export into ``output`` is still writing."""
+    their lock; each stayed for good), and the parts of the dataset one had moved into ``output`` before it was
+    killed (the rerun was refused as "not empty"); RecordError if an export into ``output`` is still writing."""
     prefix = _staging_prefix(output)
     mine = re.compile(re.escape(prefix) + r"[a-z0-9_]{8}" + re.escape(STAGING_SUFFIX))  # mkdtemp's 8 characters
     try:
@@ -284,7 +304,7 @@ def _clear_stale_staging(output: Path) -> None:
                      if mine.fullmatch(p.name) and p.is_dir() and not p.is_symlink()]
     except OSError:
         return  # the folder's own write says why it cannot be read
-    folder_lock.clear_stale(leftovers, f"-o {output}: another export is writing there")
+    staged.clear_killed(leftovers, output, f"-o {output}: another export is writing there")
 
 
 def _write_parquet(path: Path, table: pa.Table) -> None:

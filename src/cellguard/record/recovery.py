@@ -27,7 +27,7 @@ from mcap.writer import CompressionType, Writer
 
 from cellguard.errors import RecordError
 from cellguard.output import refuse_filled_folder
-from cellguard.record import folder_lock
+from cellguard.record import folder_lock, staged
 from cellguard.record.index import IndexWriter, cycle_row, event_row
 from cellguard.record.reader import Health, open_record
 from cellguard.record.schemas import BY_TOPIC, CHANNELS, ChannelSpec
@@ -64,9 +64,13 @@ def recover(source: Path, target: Path) -> Health:
             with open(staging / RECORD_FILE, "wb") as f:
                 _copy_messages(record, f, {"source": _text(record.file), "source_health": health.describe()})
             _rebuild_index(record, staging / INDEX_DIR)
-            _move_into(staging, target)
-        except OSError as exc:
-            raise RecordError(f"{target}: cannot write the recovered record ({exc.strerror or exc})") from None
+            _move_into(staging, target, staged.note_files(staging))  # a rerun after a kill takes out what it moved
+        except BaseException as exc:
+            if staging is not None:
+                staged.take_back(staging, target)  # cut short in its moves: none of the copy is left
+            if isinstance(exc, OSError):
+                raise RecordError(f"{target}: cannot write the recovered record ({exc.strerror or exc})") from None
+            raise
         finally:  # this run's own folders: the staging one is empty once its files moved
             if staging is not None:
                 shutil.rmtree(staging, ignore_errors=True)
@@ -89,13 +93,14 @@ def _staging(path: Path) -> bool:
 
 
 def _clear_stale_staging(target: Path) -> None:
-    """Remove the staging folders of recoveries killed in ``target`` (nothing holds their lock); RecordError if a
-    recovery is still writing there. A rerun after ``kill -9`` was refused as "not empty", saying nothing of why."""
+    """Remove the staging folders of recoveries killed in ``target`` (nothing holds their lock), and the files one had
+    moved into ``target`` before it was killed; RecordError if a recovery is still writing there. A rerun after
+    ``kill -9`` was refused as "not empty", saying nothing of why."""
     try:
         leftovers = [p for p in target.iterdir() if _staging(p)] if target.is_dir() else []
     except OSError:
         return  # refuse_filled_folder says why the folder cannot be read
-    folder_lock.clear_stale(leftovers, f"-o {target}: another recovery is writing there")
+    staged.clear_killed(leftovers, target, f"-o {target}: another recovery is writing there")
 
 
 def _text(path: Path) -> str:
@@ -103,19 +108,18 @@ def _text(path: Path) -> str:
     return os.fsencode(path).decode("utf-8", "backslashreplace")
 
 
-def _move_into(staging: Path, target: Path) -> None:
-    """Move the copy's files from ``staging`` into ``target`` (empty but for staging folders), the record last: a
-    folder with a record reads as a finished copy, so the record appears only once its index is whole. Under the
-    target's lock, after looking again; each file is linked into place (a file there is never replaced)."""
+def _move_into(staging: Path, target: Path, files: list[Path]) -> None:
+    """Move the copy's ``files`` (relative) from ``staging`` into ``target`` (empty but for staging folders), the record
+    last: a folder with a record reads as a finished copy, so the record appears only once its index is whole. Under
+    the target's lock, after looking again; each file is linked into place (a file there is never replaced)."""
     lock = folder_lock.hold(target, "-o", wait_s=MOVE_WAIT_S)  # another recovery's move is short; a run's life is not
     try:
         filled = sorted(p.name for p in target.iterdir() if not _staging(p))
         if filled:
             raise RecordError(f"-o {target}: {filled[0]} appeared there while the copy was made (another recovery?); "
                               f"nothing of it was replaced: give a new folder")
-        files = sorted((p for p in staging.rglob("*") if p.is_file()), key=lambda p: p.name == RECORD_FILE)
-        for file in files:
-            destination = target / file.relative_to(staging)
+        for name in sorted(files, key=lambda p: p == Path(RECORD_FILE)):
+            file, destination = staging / name, target / name
             destination.parent.mkdir(parents=True, exist_ok=True)
             try:
                 os.link(file, destination)
