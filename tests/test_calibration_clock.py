@@ -16,10 +16,13 @@ from cli_util import one_error
 from typer.testing import CliRunner
 
 import cellguard.calibrate.identify as identify_module
+from cellguard import dates
 from cellguard.calibrate.excitation import excitation_scenario, excite
 from cellguard.calibrate.identify import CalibrationError
 from cellguard.calibrate.write import write_profile
 from cellguard.cli import app
+from cellguard.fleet.export import oldest_kept
+from cellguard.fleet.policy import DataPolicy
 from cellguard.record.reader import open_record
 from cellguard.robot.registry import make_cell
 from cellguard.runtime.build import make_robot
@@ -128,3 +131,11 @@ def test_write_never_stores_a_measured_date_after_tomorrow(profile):
     written = write_profile(profile, make_cell(ARM), result, _utc_day(1))  # a site east of UTC is a day ahead
     assert written.version.startswith(f"{_utc_day(1)}-cal-")
 
+
+
+def test_identify_and_the_fleet_read_the_utc_date_through_one_helper(monkeypatch):
+    """identify kept its own UTC date beside the fleet's (fleet/clock.py): the host's clock read by two copies."""
+    monkeypatch.setattr(dates, "utc_now", lambda: dt.datetime(2031, 5, 6, 23, 59, tzinfo=dt.timezone.utc))
+    with pytest.raises(CalibrationError, match=r"is 2031-05-08, after tomorrow \(today is 2031-05-06, UTC"):
+        identify_module.refuse_ahead("2031-05-08", "the date", "set the clock")
+    assert oldest_kept(DataPolicy("ta", "s1", retention_days=1)) == dt.date(2031, 5, 5)

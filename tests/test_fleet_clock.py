@@ -1,19 +1,33 @@
-"""A site's wall clock set wrong during a push: retention counts its days on the store's clock and deletes nothing
-by a date it cannot trust (a clock a year fast emptied the store and the lake, silently, exit 0), says and logs
-what it deleted; queued batches go in the order they were queued, whatever the clock did meanwhile (a batch
-written under a fast clock was sent last and its stale count replaced the newer one)."""
+"""A site's or the store's wall clock set wrong during a push: retention counts its days on the store's clock and
+deletes nothing by a date it cannot trust (a clock a year fast emptied the store and the lake, silently, exit 0),
+says and logs what it deleted; with the two dates more than a day apart nothing is sent either (a store a year slow
+let a signature past the retention leave; a year fast, it held a batch queued with a right clock); the batch is
+queued before the store is asked (a store that never answered, then Ctrl-C, left nothing); queued batches go in
+the order they were queued, whatever the clock did meanwhile (a batch written under a fast clock was sent last and
+its stale count replaced the newer one).
+
+A store whose clock is wrong is the tests' own database with ``fleet.now()`` shifted (``store_clock_off``): the
+store's date and its retention's cutoff are read from SQL ``now()`` in the tenant's session, whose search path
+puts ``fleet`` before ``pg_catalog``; checked against a server run under libfaketime, it behaves the same."""
 
 from __future__ import annotations
 
+import contextlib
 import datetime as dt
 import json
 import os
+import signal
+import socket
+import subprocess
+import sys
 import time
 
 import pyarrow.parquet as pq
 import pytest
+from typer.testing import CliRunner
 
-from cellguard.fleet import clock
+from cellguard import dates
+from cellguard.cli import app
 from cellguard.fleet.audit import read_audit
 from cellguard.fleet.export import export_batch
 from cellguard.fleet.lake import write_signatures
@@ -55,6 +69,28 @@ def stored(store, site: str) -> int:
         return con.execute("SELECT count(*) FROM fleet.signatures WHERE site_id = %s", (site,)).fetchone()[0]
 
 
+@contextlib.contextmanager
+def store_clock_off(fleet, days: int):
+    """The store's clock ``days`` off, as on a server whose clock is set wrong: every date its tenants' statements
+    read (``TenantStore.today``, the retention's cutoff) comes from ``now()``, here ``fleet.now()``."""
+    store, dsn, today = fleet
+    with store.admin() as con:
+        con.execute("CREATE FUNCTION fleet.now() RETURNS timestamptz LANGUAGE sql STABLE AS "
+                    f"$$ SELECT pg_catalog.now() + interval '{int(days)} days' $$")
+        con.commit()
+    try:
+        assert TenantStore(dsn).today() == today + dt.timedelta(days=days)  # the store's date did move
+        yield
+    finally:
+        with store.admin() as con:
+            con.execute("DROP FUNCTION IF EXISTS fleet.now()")
+            con.commit()
+
+
+def statuses(site) -> list[str]:
+    return [e["status"] for e in read_audit(site)]
+
+
 # -- retention by a clock it can trust ------------------------------------------------------------------------------
 
 
@@ -68,7 +104,7 @@ def test_a_clock_a_year_fast_deletes_nothing_from_the_store_or_the_lake_and_says
     assert (stored(store, "sk-fast"), lake_rows(lake)) == (3, 3)
     assert result.retention_removed == 0
     (line,) = result.failed  # one warning line (the CLI's exit 1), naming both dates
-    assert str(fast) in line and str(today) in line and "deletes nothing" in line
+    assert str(fast) in line and str(today) in line and "deletes nothing" in line and "nothing is sent" in line
     skipped = [e for e in read_audit(site) if e["status"] == "retention"]
     assert {e["destination"] for e in skipped} == {str(lake), TenantStore(dsn).where}
     assert all(e["rows"] == 0 and str(fast) in e["reason"] for e in skipped)
@@ -113,26 +149,76 @@ def test_a_lake_without_a_store_is_not_emptied_by_a_clock_past_all_its_data(tmp_
     assert (lake_rows(lake), right.retention_removed, right.failed) == (2, 1, ())
 
 
-# -- the export by the store's date ---------------------------------------------------------------------------------
+# -- nothing leaves when the host's and the store's dates disagree ------------------------------------------------
 
 
-def test_a_host_a_year_fast_exports_fresh_signatures_by_the_stores_date(fleet, tmp_path):
-    """The export counted the retention on this host's date: a clock a year fast kept every fresh signature at the
-    site as too old (0 rows sent, all withheld) while the store was there to ask."""
+def test_a_store_a_year_slow_lets_no_signature_past_the_retention_leave(fleet, tmp_path):
+    """Counted on the store's date, a signature 400 days old by the true date was sent under a 365-day retention."""
     store, dsn, today = fleet
-    policy = DataPolicy("ta", "sk-fresh", retention_days=365)
-    result = push(aged("ta", "sk-fresh", today, 1, 20), policy, tmp_path, TenantStore(dsn),
-                  today=today + dt.timedelta(days=400))
-    assert (result.batch.rows, result.batch.withheld_rows, result.new_rows) == (2, 0, 2)
-    assert stored(store, "sk-fresh") == 2
+    policy = DataPolicy("ta", "sk-slow", retention_days=365)
+    with store_clock_off(fleet, -400):
+        result = push(aged("ta", "sk-slow", today, 1, 400), policy, tmp_path, TenantStore(dsn), today=today)
+    assert (stored(store, "sk-slow"), result.sent_batches, result.queued, result.held) == (0, 0, 1, ())
+    (line,) = result.failed
+    assert str(today) in line and str(today - dt.timedelta(days=400)) in line and "nothing is sent" in line
+    assert statuses(tmp_path) == ["queued", "retention"]  # the retention's entry says why it did not run
+    right = push([], policy, tmp_path, TenantStore(dsn), today=today)  # the store's clock set right
+    assert (right.sent_batches, right.queued, right.failed, stored(store, "sk-slow")) == (1, 0, (), 1)
+    with store.admin() as con:
+        assert con.execute("SELECT min(created_date) FROM fleet.signatures WHERE site_id = 'sk-slow'"
+                           ).fetchone()[0] == today - dt.timedelta(days=1)
 
 
-def test_a_batch_queued_with_a_right_clock_is_not_held_by_a_host_a_year_fast(fleet, tmp_path):
+def test_a_store_a_year_fast_holds_nothing_queued_with_a_right_clock_and_sends_nothing(fleet, tmp_path):
+    """Counted on the store's date, every fresh signature stayed at the site and a batch queued with a right clock
+    was held (logged held, as if the policy forbade it)."""
+    store, dsn, today = fleet
+    policy = DataPolicy("ta", "sk-ahead", retention_days=365)
+    assert push(aged("ta", "sk-ahead", today, 2), policy, tmp_path, None, today=today).queued == 1
+    with store_clock_off(fleet, 400):
+        result = push(aged("ta", "sk-ahead", today, 1, 20), policy, tmp_path, TenantStore(dsn), today=today)
+    assert (result.batch.rows, result.batch.withheld_rows) == (2, 0)  # exported on this host's date
+    assert (result.sent_batches, result.queued, result.held, stored(store, "sk-ahead")) == (0, 2, (), 0)
+    (line,) = result.failed
+    assert str(today + dt.timedelta(days=400)) in line and "2 batch(es) stay queued" in line
+    assert "held" not in statuses(tmp_path)
+    right = push([], policy, tmp_path, TenantStore(dsn), today=today)
+    assert (right.sent_batches, right.queued, stored(store, "sk-ahead")) == (2, 0, 3)
+
+
+def test_a_host_a_year_fast_sends_nothing_until_its_clock_is_set(fleet, tmp_path):
+    """The batch it queued with its right clock waits (it was held, then sent counted on the store's date)."""
     store, dsn, today = fleet
     policy = DataPolicy("ta", "sk-held", retention_days=365)
     assert push(aged("ta", "sk-held", today, 1), policy, tmp_path, None, today=today).queued == 1
     result = push([], policy, tmp_path, TenantStore(dsn), today=today + dt.timedelta(days=400))
-    assert (result.sent_batches, result.held, result.queued, stored(store, "sk-held")) == (1, (), 0, 1)
+    assert (result.sent_batches, result.held, result.queued, stored(store, "sk-held")) == (0, (), 1, 0)
+    assert "held" not in statuses(tmp_path)
+    right = push([], policy, tmp_path, TenantStore(dsn), today=today)
+    assert (right.sent_batches, right.queued, right.failed, stored(store, "sk-held")) == (1, 0, (), 1)
+
+
+def test_clocks_a_day_apart_agree_and_a_batch_is_not_held_by_its_own_push(fleet, tmp_path):
+    """A host a day slow (the day the dates may differ) exports a signature at the retention's last day by its
+    date; the same push lets it leave: what it built is checked on the date it was built on."""
+    store, dsn, today = fleet
+    policy = DataPolicy("ta", "sk-edge-send", retention_days=30)
+    slow = today - dt.timedelta(days=1)
+    result = push(aged("ta", "sk-edge-send", slow, 30), policy, tmp_path, TenantStore(dsn), today=slow)
+    assert (result.batch.rows, result.sent_batches, result.held, result.failed) == (1, 1, (), ())
+
+
+def test_a_push_with_the_store_a_year_off_is_one_warning_line_exit_1(fleet, tmp_path):
+    store, dsn, today = fleet
+    policy = tmp_path / "policy.yaml"
+    policy.write_text("tenant: ta\nsite: sk-cli\nexport: nothing\n")
+    with store_clock_off(fleet, 400):
+        result = CliRunner().invoke(app, ["fleet", "push", str(tmp_path), "--policy", str(policy), "--site-dir",
+                                          str(tmp_path / "site"), "--store", dsn])
+    assert result.exit_code == 1, result.output
+    (line,) = [x for x in result.stderr.splitlines() if x.startswith("warning:")]
+    assert str(dates.utc_today()) in line and str(today + dt.timedelta(days=400)) in line, line
+    assert "nothing is sent" in line and "deletes nothing" in line, line
 
 
 def test_with_no_store_to_ask_the_export_counts_on_this_hosts_date(tmp_path):
@@ -141,15 +227,27 @@ def test_with_no_store_to_ask_the_export_counts_on_this_hosts_date(tmp_path):
     assert (result.batch.rows, result.batch.withheld_rows, result.queued) == (1, 1, 1)
 
 
+def test_an_exports_audit_entry_names_the_date_its_retention_was_counted_on(tmp_path):
+    """``when_utc`` is the host's clock at the write; the date the export kept rows by was not logged."""
+    counted = HOST_TODAY - dt.timedelta(days=400)
+    policy = DataPolicy("ta", "sk-dated", retention_days=30)
+    push(aged("ta", "sk-dated", counted, 1), policy, tmp_path, None, today=counted)
+    push([], policy, tmp_path, None, today=counted)
+    assert [(e["status"], e["retention_counted_on"]) for e in read_audit(tmp_path)] == [
+        ("queued", str(counted)), ("nothing", str(counted))]
+
+
 def test_a_push_reads_this_hosts_clock_through_one_helper(fleet, tmp_path, monkeypatch):
-    """push and the export take this host's date from ``clock`` (push spelled its own UTC date)."""
+    """push, the export and the audit log take this host's date from ``dates`` (push spelled its own UTC date)."""
     store, dsn, today = fleet
     fast = dt.datetime.now(dt.timezone.utc) + dt.timedelta(days=400)
-    monkeypatch.setattr(clock, "utc_now", lambda: fast)
+    monkeypatch.setattr(dates, "utc_now", lambda: fast)
     result = push(aged("ta", "sk-one", today, 1), DataPolicy("ta", "sk-one", retention_days=365), tmp_path,
                   TenantStore(dsn))
     (line,) = result.failed
-    assert str(fast.date()) in line and result.new_rows == 1
+    assert str(fast.date()) in line and result.new_rows == 0 and result.batch.withheld_rows == 1
+    (entry, *_) = read_audit(tmp_path)
+    assert entry["retention_counted_on"] == str(fast.date())
 
 
 def test_a_records_start_is_dated_in_utc_whatever_the_hosts_time_zone(monkeypatch):
@@ -157,11 +255,56 @@ def test_a_records_start_is_dated_in_utc_whatever_the_hosts_time_zone(monkeypatc
     time.tzset()
     try:
         late = dt.datetime(2026, 11, 23, 23, 30, tzinfo=dt.timezone.utc)
-        assert clock.utc_day(int(late.timestamp() * 1e9)) == dt.date(2026, 11, 23)
-        assert clock.utc_today() == dt.datetime.now(dt.timezone.utc).date()
+        assert dates.utc_day(int(late.timestamp() * 1e9)) == dt.date(2026, 11, 23)
+        assert dates.utc_today() == dt.datetime.now(dt.timezone.utc).date()
     finally:
         monkeypatch.undo()
         time.tzset()
+
+
+# -- a store that never answers -------------------------------------------------------------------------------------
+
+INTERRUPTED = """
+import datetime as dt, sys
+from pathlib import Path
+from cellguard.fleet.policy import DataPolicy
+from cellguard.fleet.push import push
+from cellguard.fleet.signature import Signature
+from cellguard.fleet.store import TenantStore
+day = dt.datetime.now(dt.timezone.utc).date().isoformat()
+push([Signature("ta", "sk-hang", day, "friction", 0.8, "arm5", "c", {"x": 1.0}, 7, 1, "p", "c", "0")],
+     DataPolicy("ta", "sk-hang"), Path(sys.argv[1]),
+     TenantStore(f"host=127.0.0.1 port={sys.argv[2]} user=x password=x dbname=x", timeout_s=120))
+"""
+
+
+def test_a_push_interrupted_while_the_store_never_answers_leaves_its_batch_queued_and_logged(tmp_path):
+    """The store was asked for its date before the batch was queued: Ctrl-C while it did not answer left no
+    outbox and no audit line."""
+    pytest.importorskip("psycopg")
+    with socket.socket() as silent:  # takes the connection, never answers
+        silent.bind(("127.0.0.1", 0))
+        silent.listen(1)
+        silent.settimeout(1.0)
+        site = tmp_path / "site"
+        child = subprocess.Popen([sys.executable, "-c", INTERRUPTED, str(site), str(silent.getsockname()[1])],
+                                 stderr=subprocess.PIPE, text=True)
+        try:
+            while child.poll() is None:
+                try:
+                    asking, _ = silent.accept()
+                    break
+                except TimeoutError:
+                    continue
+            assert child.poll() is None, child.stderr.read()  # the push is waiting on the store
+            child.send_signal(signal.SIGINT)
+            assert "KeyboardInterrupt" in child.communicate(timeout=60)[1]
+            asking.close()
+        finally:
+            child.kill()
+            child.wait()
+    assert len(list((site / "outbox").glob("*.json"))) == 1
+    assert statuses(site) == ["queued"]
 
 
 # -- the outbox's order ---------------------------------------------------------------------------------------------

@@ -36,7 +36,6 @@ fit's time. Not done where a floating base moved freely (the replay cannot repro
 from __future__ import annotations
 
 import datetime
-import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -46,6 +45,7 @@ from scipy import stats
 from threadpoolctl import threadpool_limits
 
 from cellguard.calibrate.torque_model import MIN_SPEED, hinge_joints, inverse_torques, rigid_model
+from cellguard.dates import utc_today
 from cellguard.errors import ConfigError
 
 PARAMS = ("friction", "armature", "damping", "kp", "delay", "payload")
@@ -245,11 +245,6 @@ def measured_on(paths: list[Path]) -> str:
     if min(starts) <= 0:  # a record without a wall-clock epoch: the day it is read on, in UTC
         return utc_today().isoformat()
     return datetime.datetime.fromtimestamp(max(starts) / 1e9, datetime.timezone.utc).date().isoformat()
-
-
-def utc_today() -> datetime.date:
-    """Today in UTC by this host's wall clock."""
-    return datetime.datetime.fromtimestamp(time.time(), datetime.timezone.utc).date()
 
 
 def refuse_ahead(day: str, what: str, fix: str) -> None:

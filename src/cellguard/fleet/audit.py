@@ -6,6 +6,8 @@ outbox), ``sent``, ``duplicate`` (the store had every row), ``nothing`` (an empt
 ``held`` (the policy in force no longer lets a queued batch leave; ``reason`` says why),
 ``refused`` (the store refused it; ``reason``) and ``probed`` (a run's findings sent by ``fleet
 similar`` to look for similar faults, never stored); a held or refused batch stays in the outbox. A
+push's export (``queued`` or ``nothing``) is logged with ``retention_counted_on``, the UTC date its retention was
+counted from (rows older by ``retention_days`` stayed at the site), which ``when_utc`` need not be. A
 batch that leaves is logged with ``policy_in_force``, the version of the policy it left under.
 ``retention``: the push's retention deleted ``rows`` of the site's rows from ``destination`` (rows
 older than ``before``), or, with ``reason``, did not run there; it names no batch.
@@ -20,8 +22,8 @@ import json
 import os
 from pathlib import Path
 
+from cellguard.dates import utc_now
 from cellguard.errors import ConfigError, OutputError
-from cellguard.fleet.clock import utc_now
 from cellguard.fleet.export import Batch
 from cellguard.fleet.policy import DataPolicy
 from cellguard.yaml_file import read_bounded

@@ -20,7 +20,7 @@ from collections import Counter
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
-from cellguard.fleet.clock import utc_today
+from cellguard.dates import utc_today
 from cellguard.fleet.policy import EXPORTS, DataPolicy, PolicyError
 from cellguard.fleet.signature import Signature, SignatureError, check_text, row_from_dict, withhold
 from cellguard.fleet.site_key import fingerprint
@@ -149,7 +149,8 @@ def oldest_kept(policy: DataPolicy, today: dt.date | None = None) -> dt.date:
 def export_batch(signatures: Sequence[Signature], policy: DataPolicy, today: dt.date | None = None, *,
                  key: bytes) -> Batch:
     """The batch ``policy`` lets leave the site, from the site's ``signatures``; ``key`` is the site's
-    secret the signature ids are keyed with; ``today``: the date retention counts from (``push``: the store's)."""
+    secret the signature ids are keyed with; ``today``: the date retention counts from (default: this
+    host's UTC date)."""
     oldest = oldest_kept(policy, today)
     live = [s for s in signatures if dt.date.fromisoformat(s.created_date) >= oldest]
     base = dict(tenant_id=policy.tenant, site_id=policy.site, policy_version=policy.version, export=policy.export)

@@ -10,8 +10,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from cellguard.dates import utc_day, utc_today
 from cellguard.errors import RecordError
-from cellguard.fleet.clock import utc_day, utc_today
 from cellguard.fleet.policy import DataPolicy
 from cellguard.fleet.signature import Signature, signatures_of
 

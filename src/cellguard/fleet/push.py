@@ -1,8 +1,9 @@
 """One push from a site: queued batches first, then this one; whatever cannot be sent waits.
 
 Order of work, so that nothing is lost: the batch is built under the policy, written to the
-outbox, logged in the audit log, then sent; it leaves the outbox only once the store has taken
-it. A store that is down leaves every batch queued for the next push.
+outbox, logged in the audit log, and only then is the store asked for anything; a batch leaves the
+outbox only once the store has taken it. A store that is down, or never answers and the push is
+interrupted, leaves every batch queued for the next push.
 
 Each queued batch is sent only if the policy in force now allows it (``export.refusal``): the
 policy it was built under may have been replaced since it was queued. One the policy no longer
@@ -23,17 +24,21 @@ queued too, named in one line; the other batches go on. With ``lake``, a batch l
 before the store commits it: a lake that cannot take it leaves the store as it was, and the batch
 queued.
 
-What the export sends and what a queued batch may take out are counted on the store's UTC date when the store
-answers, on this host's only when it does not (a host clock a year fast kept every fresh signature at the site as
-too old, and held every queued batch).
+What the export keeps and what a queued batch may take out are counted on this host's UTC date (the export is
+built before the store is asked: see the order above), which the store's date vouches for: when the two are more
+than a day apart (``_distrust``) one of the clocks is wrong and nothing says which, so the push sends nothing
+(every batch stays queued) and its retention deletes nothing, in one warning line naming both dates. Either way
+would act on a wrong date: a store a year slow let a 400-day-old signature past a 365-day retention leave; a store
+a year fast, or a host a year fast, kept every fresh signature at the site and held batches queued with a right
+clock. The next push with the clocks agreeing sends what is queued.
 
 Every push applies the policy's retention to the store (when it can be reached) and to ``lake``:
 the site's signatures older than ``retention_days`` and its aggregates of the months before are
 deleted, whatever is sent, even nothing; the rows deleted are counted and logged. The days are
 counted on the store's clock (in its SQL), and a deletion cannot be undone, so this host's date is
-checked before anything goes: more than a day off the store's, or, with no store to ask, more than
-the retention after the site's newest signature (it would delete them all: a clock a year fast),
-retention deletes nothing this push and says so in one line naming the dates.
+checked before anything goes: more than a day off the store's (then nothing is sent either, above), or, with no
+store to ask, more than the retention after the site's newest signature (it would delete them all: a clock a year
+fast), retention deletes nothing this push and says so in one line naming the dates.
 
 A site folder with no site key whose audit log says the store took batches of the site (sent before the key, or
 under a key since lost) is refused before anything is made: a new key gave the same findings new ids, stored a
@@ -47,9 +52,9 @@ from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
 
+from cellguard.dates import utc_today
 from cellguard.errors import ConfigError, OutputError
 from cellguard.fleet.audit import append_audit, append_retention, scan_audit
-from cellguard.fleet.clock import utc_today
 from cellguard.fleet.export import Batch, export_batch, oldest_kept, refusal
 from cellguard.fleet.lake import check_lake, forget, newest, write_signatures
 from cellguard.fleet.outbox import Outbox
@@ -90,24 +95,29 @@ def push(signatures: list[Signature], policy: DataPolicy, site_dir: Path, store:
     check_key_history(site_dir, policy)
     key = site_key(site_dir)
     local = today or utc_today()
-    server, unavailable = _store_date(store)
-    batch = export_batch(signatures, policy, server or local, key=key)
+    batch = export_batch(signatures, policy, local, key=key)
     outbox = Outbox(site_dir)
     destination = store.where if store is not None else "nowhere"
+    counted = {"retention_counted_on": local.isoformat()}
     if batch.export == "nothing" or batch.rows == 0:
-        append_audit(site_dir, batch, "nothing", destination)
+        append_audit(site_dir, batch, "nothing", destination, **counted)
     else:
         outbox.put(batch)
-        append_audit(site_dir, batch, "queued", destination)
+        append_audit(site_dir, batch, "queued", destination, **counted)
+    server, unavailable = _store_date(store)  # only now: a store that never answers leaves the batch queued
     queued, unreadable = outbox.read()
     failed = [f"{path}: {why}; it stays queued" for path, why in unreadable]
     held: list[str] = []
     sent = new = dup = 0
-    removed, lost = _apply_retention(policy, site_dir, store, lake, local, server, failed)
+    removed, lost, doubt = _apply_retention(policy, site_dir, store, lake, local, server, failed)
     unavailable = unavailable or lost
-    last = _last_entries(site_dir) if queued and store is not None else {}
-    for path, waiting in queued if store is not None and unavailable is None else ():
-        why = refusal(waiting, policy, server)
+    if doubt:
+        sends = f"nothing is sent ({len(queued)} batch(es) stay queued) and " if server is not None else ""
+        failed.append(f"{doubt}: {sends}the retention of {policy.retention_days} days deletes nothing this push")
+    sending = server is not None and not doubt and unavailable is None
+    last = _last_entries(site_dir) if queued and sending else {}
+    for path, waiting in queued if sending else ():
+        why = refusal(waiting, policy, local)
         unkeyed = _unkeyed(waiting, key) if why is None else None
         if why is not None or unkeyed is not None:
             said = last.get(waiting.batch_id, {})
@@ -171,11 +181,11 @@ def _store_date(store: TenantStore | None) -> tuple[dt.date | None, str | None]:
 
 
 def _apply_retention(policy: DataPolicy, site_dir: Path, store: TenantStore | None, lake: Path | None,
-                     local: dt.date, server: dt.date | None, failed: list[str]) -> tuple[int, str | None]:
+                     local: dt.date, server: dt.date | None, failed: list[str]) -> tuple[int, str | None, str | None]:
     """Delete the site's rows past the policy's retention from the store (when its date ``server`` was read) and
     ``lake``, logging each deletion and adding a line to ``failed`` for each place that refused; (rows deleted,
-    why the store was lost meanwhile, or None). A host date ``local`` the deletion cannot trust (``_distrust``)
-    deletes nothing: one line in ``failed`` says so."""
+    why the store was lost meanwhile, or None; why the host date ``local`` cannot be trusted (``_distrust``), or
+    None: then nothing is deleted, each place's log entry says why, and the caller says so)."""
     before = oldest_kept(policy, server or local)
     places = [(str(lake), partial(forget, lake, policy.tenant, policy.site, before))] if lake is not None else []
     if server is not None:
@@ -187,27 +197,27 @@ def _apply_retention(policy: DataPolicy, site_dir: Path, store: TenantStore | No
         places, doubt = [], None
         failed.append(f"{exc}; the retention of {policy.retention_days} days is not applied there")
     if doubt:
-        failed.append(f"{doubt}: the retention of {policy.retention_days} days deletes nothing this push")
         for where, _ in places:
             append_retention(site_dir, policy, 0, where, reason=doubt)
-        places = []
+        return 0, None, doubt
     for where, forget_older in places:
         try:
             n = forget_older()
         except StoreUnavailable as exc:
-            return removed, str(exc)
+            return removed, str(exc), None
         except (OutputError, StoreError) as exc:
             failed.append(f"{exc}; the retention of {policy.retention_days} days is not applied there")
             continue
         if n:
             append_retention(site_dir, policy, n, where, before=before.isoformat())
         removed += n
-    return removed, None
+    return removed, None, None
 
 
 def _distrust(local: dt.date, server: dt.date | None, policy: DataPolicy, lake: Path | None) -> str | None:
     """Why this host's date ``local`` is not one to delete by, or None: more than a day off the store's
-    (``server``); with no store to ask, later than the site's newest signature already in ``lake`` by more than the
+    (``server``: then one of the two clocks is wrong, and nothing is sent by either date either); with no store to
+    ask, later than the site's newest signature already in ``lake`` by more than the
     retention, which would delete every one of them (a clock set a year fast, not a year without a finding, is the
     likely cause; the next push with a right clock deletes what is due). This push's own signatures are no
     witness: a clock that ran fast while they were recorded dates them as fast (counted, a year-fast clock with

@@ -1,6 +1,6 @@
-"""This host's clock and a record's wall times as UTC dates, made here only: a site's dates are compared with
-the fleet store's UTC date (``store.SERVER_DATE``, retention) and name the lake's day partitions, so a local
-date would move them by the host's time zone."""
+"""This host's clock and wall times as UTC dates, made here only: a site's dates are compared with the fleet
+store's UTC date, name the lake's day partitions and stamp calibrations, so a local date would move them by the
+host's time zone (west of UTC a local ``today`` is the day before). A leaf: it imports nothing of cellguard's."""
 
 from __future__ import annotations
 
