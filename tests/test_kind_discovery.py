@@ -4,6 +4,7 @@ took its file plus an edit of the package's list, and of the diagnosis for a pro
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 import textwrap
@@ -12,6 +13,7 @@ from pathlib import Path
 import pytest
 
 from cellguard.errors import ScenarioError
+from cellguard.plugins import PluginError
 from cellguard.robot.faults import FAULTS, Fault
 from cellguard.robot.kinds import discover
 from cellguard.robot.process import PROCESS_CHANGES
@@ -80,15 +82,17 @@ SCRIPT = '''
     except ScenarioError as exc:
         unknown = str(exc)
     sys.path.insert(0, sys.argv[3])
-    from test_diagnose_power import record, scaled
+    from test_diagnose_power import _carry_load, record
 
-    load = scaled(30, {f"current_carry_rms.{j}": 1.06 for j in ("shoulder_lift", "elbow")})
-    d = diagnose(record(1, change=load), [], {"process": [{"kind": "new_gripper", "at_cycle": 30, "grams": 40.0}]})
+    undeclared = diagnose(record(1, change=_carry_load))  # the same heavier load, nobody told the record
+    d = diagnose(record(1, change=_carry_load), [], {"process": [{"kind": "new_gripper", "at_cycle": 30,
+                                                                  "grams": 40.0}]})
     print(json.dumps({
         "fixture_mm": float((cell.data.mocap_pos[0] - cell.nominal["fixture"])[0] * 1e3),
         "part_kg": float(cell.model.body_mass[cell._part_body]), "declared": scenario.declared_process(0),
         "cycles": len(run.cycles), "unknown": unknown,
-        "notes": [p.to_dict() for p in d.process], "findings": [f.cause for f in d.findings]}))
+        "notes": [p.to_dict() for p in d.process], "findings": [f.cause for f in d.findings],
+        "alarms": len(d.drift.alarms), "undeclared": [f.cause for f in undeclared.findings]}))
 '''
 
 
@@ -112,10 +116,12 @@ def test_a_fault_and_a_process_change_in_files_of_their_own_run_from_a_scenario(
     assert out["declared"] == [{"kind": "new_gripper", "at_cycle": 0, "grams": 40.0}]
     # an unknown kind still names every known one: the shipped ones in their order, then the new one
     assert out["unknown"].endswith("known: " + ", ".join(repr(k) for k in [*FAULTS, "fixture_nudge"]))
-    # the diagnosis conditions on the new change by its class's own ``diagnosis``, with no edit of its own
+    # the diagnosis conditions on the new change by its class's own ``diagnosis``, with no edit of its own: the load
+    # that is a load change undeclared is, declared, neither a finding nor an alarm
+    assert out["undeclared"] == ["load_change"] and (out["findings"], out["alarms"]) == ([], 0)
     (note,) = out["notes"]
     assert note["kind"] == "new_gripper" and note["text"].startswith("new_gripper declared at cycle 30: ")
-    assert "re-baselined" in note["text"] and out["findings"] == []
+    assert "re-baselined" in note["text"]
 
 
 def test_the_shipped_kinds_keep_their_names_order_and_error():
@@ -133,8 +139,9 @@ def test_two_modules_claiming_one_kind_are_named(tmp_path, monkeypatch):
     for name in ("first", "second"):
         _module(package, name, NUDGE)
     monkeypatch.syspath_prepend(str(tmp_path))
-    with pytest.raises(TypeError, match=r"^fault kind 'fixture_nudge' is defined twice: twice_kinds\.first\."
-                                        r"FixtureNudge and twice_kinds\.second\.FixtureNudge$"):
+    with pytest.raises(PluginError, match=f"^{re.escape(str(package / 'second.py'))}: "
+                                          r"fault kind 'fixture_nudge' is defined twice: twice_kinds\.first\."
+                                          r"FixtureNudge and twice_kinds\.second\.FixtureNudge$"):
         discover("twice_kinds", [str(package)], Fault, "fault kind")
 
 
@@ -142,8 +149,9 @@ def test_a_kind_whose_name_is_not_one_literal_is_named(tmp_path, monkeypatch):
     package = _module(tmp_path / "loose_kinds", "__init__", "")
     _module(package, "loose", NUDGE.replace('Literal["fixture_nudge"]', "str"))
     monkeypatch.syspath_prepend(str(tmp_path))
-    with pytest.raises(TypeError, match=r"^fault kind loose_kinds\.loose\.FixtureNudge: kind must be "
-                                        r"Literal\['a_name'\]$"):
+    with pytest.raises(PluginError, match=f"^{re.escape(str(package / 'loose.py'))}: "
+                                          r"fault kind loose_kinds\.loose\.FixtureNudge: kind must be "
+                                          r"Literal\['a_name'\]$"):
         discover("loose_kinds", [str(package)], Fault, "fault kind")
 
 

@@ -5,12 +5,15 @@ Before, a metric's own file was not enough: it was unknown to every plan until t
 
 from __future__ import annotations
 
+import os
+import re
 import sys
 from contextlib import contextmanager
 
 import pytest
 from release_helpers import CELL, ONE, promoted_site, write_plan
 
+from cellguard.plugins import PluginError
 from cellguard.release import Store, load_plan, metrics, run_stage
 from cellguard.release.errors import GateError
 
@@ -64,15 +67,16 @@ def test_a_metric_module_dropped_into_the_package_is_a_plans_gate(tmp_path):
         load_plan(plan)
 
 
-@pytest.mark.parametrize("text, why", [
-    ("from cellguard.release.metrics import Metric\nMETRICS = (Metric('success_rate', '', len),)\n",
-     r"^metric 'success_rate' is defined by both cellguard\.release\.metrics\.again and "
+@pytest.mark.parametrize("text, file, why", [  # the file: the second, by name, of the modules taking one name
+    ("from cellguard.release.metrics import Metric\nMETRICS = (Metric('success_rate', '', len),)\n", "cycles",
+     r"metric 'success_rate' is defined twice: cellguard\.release\.metrics\.again and "
      r"cellguard\.release\.metrics\.cycles$"),
-    ("METRICS = ['success_rate']\n",
-     r"^cellguard\.release\.metrics\.again: a metric module defines METRICS, a tuple of Metric$"),
+    ("METRICS = ['success_rate']\n", "again", r"a metric module defines METRICS, a tuple of Metric$"),
 ])
-def test_a_module_that_takes_a_metrics_name_or_defines_none_is_refused_naming_it(tmp_path, text, why):
+def test_a_module_that_takes_a_metrics_name_or_defines_none_is_refused_naming_it(tmp_path, text, file, why):
     """A second ``success_rate`` would have replaced the one every plan's gate means, unseen."""
-    with pytest.raises((ValueError, TypeError), match=why), dropped_in(tmp_path, "again", text):
+    folder = {"cycles": metrics.__path__[0], "again": tmp_path}[file]
+    with pytest.raises(PluginError, match=f"^{re.escape(os.path.join(folder, file + '.py'))}: {why}"), \
+            dropped_in(tmp_path, "again", text):
         pass
     assert metrics.METRICS["success_rate"].compute.__module__ == "cellguard.release.metrics.cycles"

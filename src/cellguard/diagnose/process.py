@@ -4,7 +4,8 @@ The record's context lists the process changes declared so far (``context["proce
 product variant's payload, a restart after idle). A change the line declared is not a fault; its
 kind's class (``robot/process``) says how it is conditioned on (``diagnosis``) and how a note names
 it (``describe``), so a new kind needs no edit here. A kind this version does not know is not
-conditioned on.
+conditioned on; a kind whose ``diagnosis`` is none of the ways below (misspelt, left out) is refused
+when this module is imported, naming its class: it would not have been conditioned on, unseen.
 
 - ``rebase`` (``payload``): every load-dependent feature (declared in ``feature_kinds``) moves with
   the new load. From the change on, those features are compared with a new centre, the median of the
@@ -20,15 +21,18 @@ An undeclared payload change is named by ``cause`` (``load_change``), never as a
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+import sys
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
+from cellguard import plugins
 from cellguard.diagnose.baseline import Baseline
 from cellguard.diagnose.cycles import Cycle
 from cellguard.diagnose.feature_kinds import kind_of
 from cellguard.robot.process import PROCESS_CHANGES
+from cellguard.robot.process.base import ProcessChange
 
 REBASE = 5  # [cycles] at a declared new load that set the new centre
 SETTLED = 2.0  # [scales] a warm-up is over for a feature once it is back this close to its baseline
@@ -99,3 +103,15 @@ def _settle(baseline: Baseline, z: np.ndarray, index: np.ndarray, rows: np.ndarr
 
 
 _HOW = {"rebase": _rebase, "settle": _settle}  # by a kind's ``diagnosis``: each conditions ``z`` and says how
+
+
+def _refuse_unknown_ways(kinds: Iterable[type[ProcessChange]]) -> None:
+    """PluginError naming the first of ``kinds`` whose ``diagnosis`` is none of ``_HOW``'s, and the ways there are."""
+    for kind in kinds:
+        if kind.diagnosis not in _HOW:
+            raise plugins.refused(sys.modules[kind.__module__],
+                                  f"process change kind {kind.__module__}.{kind.__name__}: diagnosis "
+                                  f"{kind.diagnosis!r} is not one of {', '.join(map(repr, _HOW))}")
+
+
+_refuse_unknown_ways(PROCESS_CHANGES.values())

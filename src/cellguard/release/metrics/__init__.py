@@ -7,20 +7,20 @@ the runs hold nothing to measure (no shadow data, no acceptance baseline). A met
 or only shadow runs can report says so (``needs``, ``shadow``): a gate on it elsewhere could only end
 inconclusive, so a plan's stage holding one is refused before it runs.
 
-A new metric is one new module here: it defines ``METRICS``, a tuple of ``Metric``, and ``discover`` finds it (a
-module whose name starts with ``_`` is no metric module). Named in one list beside the metrics' own files, a
-metric written and tested was unknown to every plan until that list was edited too.
+A new metric is one new module here: it defines ``METRICS``, a tuple of ``Metric``, and ``discover`` finds it
+(which modules are, and how a broken one is refused: ``cellguard.plugins``). Named in one list beside the metrics'
+own files, a metric written and tested was unknown to every plan until that list was edited too.
 """
 
 from __future__ import annotations
 
-import importlib
-import pkgutil
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from types import ModuleType
 
 import numpy as np
 
+from cellguard import plugins
 from cellguard.release.evidence import RunEvidence
 from cellguard.robot.pick_place import PickPlaceCell
 
@@ -79,21 +79,17 @@ def discover() -> dict[str, Metric]:
     """Fill ``METRICS`` (in place: the gates hold it) from every module on this package's ``__path__``. A module
     without a tuple of ``Metric`` as ``METRICS`` is refused naming it, and a name two metrics take naming both: a
     second ``success_rate`` would have changed every plan's gate on it unseen."""
-    found: dict[str, tuple[Metric, str]] = {}
-    for info in sorted(pkgutil.iter_modules(__path__), key=lambda m: m.name):
-        if info.name.startswith("_"):
-            continue
-        module = importlib.import_module(f"{__name__}.{info.name}")
-        metrics = getattr(module, "METRICS", None)
-        if not (isinstance(metrics, tuple) and metrics and all(isinstance(m, Metric) for m in metrics)):
-            raise TypeError(f"{module.__name__}: a metric module defines METRICS, a tuple of Metric")
-        for m in metrics:
-            if m.name in found:
-                raise ValueError(f"metric {m.name!r} is defined by both {found[m.name][1]} and {module.__name__}")
-            found[m.name] = (m, module.__name__)
+    found = plugins.discover(__name__, __path__, _metrics_in, "metric")
     METRICS.clear()
-    METRICS.update({name: m for name, (m, _) in found.items()})
+    METRICS.update(found)
     return METRICS
+
+
+def _metrics_in(module: ModuleType) -> list[tuple[str, str, Metric]]:
+    metrics = getattr(module, "METRICS", None)
+    if not (isinstance(metrics, tuple) and metrics and all(isinstance(m, Metric) for m in metrics)):
+        raise plugins.refused(module, "a metric module defines METRICS, a tuple of Metric")
+    return [(m.name, module.__name__, m) for m in metrics]
 
 
 discover()
