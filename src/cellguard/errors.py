@@ -11,9 +11,11 @@
 
 Subclasses that belong to one part live beside its code: under ``ConfigError`` the release's
 ``ReleaseError`` (``BundleMismatch``, ``StageError``, ``GateError``), ``CalibrationError``,
-``StartupRefused``, the fleet's ``SignatureError``, ``PolicyError`` and ``AuditError``; under
+``StartupRefused``, the policy's ``StepPeriodUnstated``, the fleet's ``SignatureError``, ``PolicyError`` and
+``AuditError``; under
 ``CellguardError`` the robot's ``RobotLinkError`` and ``BridgeError``, the policy's ``WireError`` and
-``InferenceError``, the fleet's ``RefusedAggregate`` and ``StoreError`` (``StoreUnavailable``).
+``InferenceError``, the fleet's ``RefusedAggregate`` and ``StoreError`` (``StoreUnavailable``), and
+``plugins.PluginError`` (a plugin module that cannot be imported or takes a name twice).
 
 Every message names the field (or file) and what was allowed, in one line, so that the CLI
 can print it and exit 2 without a traceback.
