@@ -198,14 +198,30 @@ def test_a_host_a_year_fast_sends_nothing_until_its_clock_is_set(fleet, tmp_path
     assert (right.sent_batches, right.queued, right.failed, stored(store, "sk-held")) == (1, 0, (), 1)
 
 
-def test_clocks_a_day_apart_agree_and_a_batch_is_not_held_by_its_own_push(fleet, tmp_path):
-    """A host a day slow (the day the dates may differ) exports a signature at the retention's last day by its
-    date; the same push lets it leave: what it built is checked on the date it was built on."""
+def test_clocks_a_day_apart_count_what_leaves_on_the_stores_date(fleet, tmp_path):
+    """A host a day behind the store (as either is around midnight UTC) built its batch with a signature 31 days old
+    by the store's date, which the store's own retention deletes: recounted on the store's date, it stays at the
+    site (it was sent, and the store kept a row its audit said was deleted); the queued file is replaced, logged."""
     store, dsn, today = fleet
     policy = DataPolicy("ta", "sk-edge-send", retention_days=30)
     slow = today - dt.timedelta(days=1)
-    result = push(aged("ta", "sk-edge-send", slow, 30), policy, tmp_path, TenantStore(dsn), today=slow)
-    assert (result.batch.rows, result.sent_batches, result.held, result.failed) == (1, 1, (), ())
+    result = push(aged("ta", "sk-edge-send", slow, 30, 1), policy, tmp_path, TenantStore(dsn), today=slow)
+    assert (result.batch.rows, result.batch.withheld_rows, result.sent_batches, result.queued) == (1, 1, 1, 0)
+    assert stored(store, "sk-edge-send") == 1
+    exports = [e for e in read_audit(tmp_path) if e["status"] == "queued"]
+    assert [e["retention_counted_on"] for e in exports] == [str(slow), str(today)]
+    assert "recounted on the store's date" in exports[1]["reason"]
+
+
+def test_a_host_a_day_ahead_holds_no_batch_queued_with_a_right_clock(fleet, tmp_path):
+    """A batch queued with a right clock holds a signature 30 days old by the store's date; a host a day ahead
+    (31 by its date) counts it on the store's and sends it, not held."""
+    store, dsn, today = fleet
+    policy = DataPolicy("ta", "sk-day-ahead", retention_days=30)
+    push(aged("ta", "sk-day-ahead", today, 30, 1), policy, tmp_path, None, today=today)  # no store: queued
+    result = push([], policy, tmp_path, TenantStore(dsn), today=today + dt.timedelta(days=1))
+    assert (result.sent_batches, result.held, result.queued) == (1, (), 0)
+    assert stored(store, "sk-day-ahead") == 2
 
 
 def test_a_push_with_the_store_a_year_off_is_one_warning_line_exit_1(fleet, tmp_path):

@@ -24,13 +24,15 @@ queued too, named in one line; the other batches go on. With ``lake``, a batch l
 before the store commits it: a lake that cannot take it leaves the store as it was, and the batch
 queued.
 
-What the export keeps and what a queued batch may take out are counted on this host's UTC date (the export is
-built before the store is asked: see the order above), which the store's date vouches for: when the two are more
-than a day apart (``_distrust``) one of the clocks is wrong and nothing says which, so the push sends nothing
-(every batch stays queued) and its retention deletes nothing, in one warning line naming both dates. Either way
-would act on a wrong date: a store a year slow let a 400-day-old signature past a 365-day retention leave; a store
-a year fast, or a host a year fast, kept every fresh signature at the site and held batches queued with a right
-clock. The next push with the clocks agreeing sends what is queued.
+What the export keeps and what a queued batch may take out are counted on the store's UTC date, as its retention
+is: the batch is built and queued on this host's date (the order above), and once the store's date is read and is
+within a day of it, recounted on the store's, replacing the queued file where that changes it (the audit says so):
+around midnight UTC, or with a host a day slow, a row the store's retention had just deleted was sent again. When
+the two dates are more than a day apart (``_distrust``) one of the clocks is wrong and nothing says which, so the
+push sends nothing (every batch stays queued) and its retention deletes nothing, in one warning line naming both
+dates: a store a year slow let a 400-day-old signature past a 365-day retention leave; a store, or a host, a year
+fast kept every fresh signature at the site and held batches queued with a right clock. The next push with the
+clocks agreeing sends what is queued.
 
 Every push applies the policy's retention to the store (when it can be reached) and to ``lake``:
 the site's signatures older than ``retention_days`` and its aggregates of the months before are
@@ -98,13 +100,17 @@ def push(signatures: list[Signature], policy: DataPolicy, site_dir: Path, store:
     batch = export_batch(signatures, policy, local, key=key)
     outbox = Outbox(site_dir)
     destination = store.where if store is not None else "nowhere"
-    counted = {"retention_counted_on": local.isoformat()}
-    if batch.export == "nothing" or batch.rows == 0:
-        append_audit(site_dir, batch, "nothing", destination, **counted)
-    else:
-        outbox.put(batch)
-        append_audit(site_dir, batch, "queued", destination, **counted)
+    mine = _queue(batch, outbox, site_dir, destination, local)
     server, unavailable = _store_date(store)  # only now: a store that never answers leaves the batch queued
+    if server is not None and server != local and abs((server - local).days) <= 1:
+        local = server  # within a day: counted on the store's date, as its retention is (around midnight UTC too)
+        again = export_batch(signatures, policy, local, key=key)
+        if again.batch_id != batch.batch_id:
+            if mine is not None:
+                outbox.done(mine)
+            _queue(again, outbox, site_dir, destination, local, reason=f"recounted on the store's date: replaces "
+                                                                          f"batch {batch.batch_id}")
+            batch = again
     queued, unreadable = outbox.read()
     failed = [f"{path}: {why}; it stays queued" for path, why in unreadable]
     held: list[str] = []
@@ -170,6 +176,18 @@ def _unkeyed(batch: Batch, key: bytes) -> str | None:
         return None
     return ("its signature ids were not made with this site's key (queued before it existed, or under another): "
             "push the runs again, which exports them keyed, then delete this file")
+
+
+def _queue(batch: Batch, outbox: Outbox, site_dir: Path, destination: str, counted_on: dt.date,
+           **more: str) -> Path | None:
+    """Queue ``batch`` and log it (or log that it holds nothing); its outbox file, or None."""
+    counted = {"retention_counted_on": counted_on.isoformat(), **more}
+    if batch.export == "nothing" or batch.rows == 0:
+        append_audit(site_dir, batch, "nothing", destination, **counted)
+        return None
+    path = outbox.put(batch)
+    append_audit(site_dir, batch, "queued", destination, **counted)
+    return path
 
 
 def _store_date(store: TenantStore | None) -> tuple[dt.date | None, str | None]:
