@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 import json
+import os
 
 import pytest
 from typer.testing import CliRunner
 
 from cellguard.cli import app
 from cellguard.embodiment import load_profile
-from cellguard.output import TEMPORARY_SLOTS
 from cellguard.record.writer import RecordConfig
 from cellguard.robot.arm_cell import ASSETS
 from cellguard.robot.registry import make_cell
@@ -68,10 +68,8 @@ def test_an_unwritable_profile_is_left_as_it_was(production, tmp_path):
     assert profile.read_bytes() == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["arm_profile.2026-11-01.yaml", "arm_profile.yaml"]
     (tmp_path / "arm_profile.2026-11-01.yaml").rmdir()
-    blocked = [f".arm_profile.yaml.{slot}.tmp" for slot in range(TEMPORARY_SLOTS)]
-    for name in blocked:  # every temporary name taken: the new profile cannot be written beside
-        (tmp_path / name).mkdir()
+    (tmp_path / f".arm_profile.yaml.{os.getpid()}.tmp").mkdir()  # the new profile cannot be written beside
     result = runner.invoke(app, ["identify", str(production), "--only", "elbow,friction", "--write", str(profile)])
     assert result.exit_code == 2 and "any earlier file there is unchanged" in result.output
     assert profile.read_bytes() == before
-    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([*blocked, "arm_profile.yaml"])
+    assert sorted(p.name for p in tmp_path.iterdir()) == [f".arm_profile.yaml.{os.getpid()}.tmp", "arm_profile.yaml"]

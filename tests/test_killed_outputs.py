@@ -1,7 +1,7 @@
 """A command killed outright (SIGKILL, the OOM killer, a power switch) runs no clean-up: every killed write of an
-output file left its hidden temporary file (``.NAME.SLOT.tmp``, as large as the output) beside it for good. The next
+output file left its hidden temporary file (``.NAME.PID.tmp``, as large as the output) beside it for good. The next
 write of the same file takes out exactly what a killed one left, and nothing that a live one or anyone else put
-there, looking up only its own temporary names."""
+there."""
 
 from __future__ import annotations
 
@@ -68,7 +68,7 @@ def test_the_temporary_file_of_a_killed_write_is_removed_by_the_next(run, tmp_pa
 
 def test_the_temporary_file_of_a_live_write_is_kept(tmp_path):
     """A write still going on holds its temporary file's lock: another write of the same file leaves it be."""
-    live = tmp_path / ".t.csv.0.tmp"
+    live = tmp_path / ".t.csv.4000001.tmp"
     live.write_bytes(b"being written")
     fd = os.open(live, os.O_WRONLY)
     fcntl.flock(fd, fcntl.LOCK_EX)
@@ -117,7 +117,7 @@ def test_a_temporary_file_taken_before_it_was_locked_is_made_again(tmp_path, mon
 
 def test_without_locks_a_temporary_file_is_kept(tmp_path, monkeypatch):
     """Where the filesystem offers no flock, a temporary file is never known stale: it is left as it is."""
-    stale = tmp_path / ".t.csv.0.tmp"
+    stale = tmp_path / ".t.csv.4000001.tmp"
     stale.write_bytes(b"killed")
 
     def no_locks(fd, operation):
@@ -128,54 +128,128 @@ def test_without_locks_a_temporary_file_is_kept(tmp_path, monkeypatch):
     assert _names(tmp_path) == [stale.name, "t.csv"] and (tmp_path / "t.csv").read_text() == "rows"
 
 
-@pytest.mark.parametrize("name", [".t.csv.0.tmp/", ".t.csv.x1.tmp", ".u.csv.0.tmp", "t.csv.1.tmp", ".t.csv.32.tmp"])
+@pytest.mark.parametrize("name", [".t.csv.4000001.tmp/", ".t.csv.x1.tmp", ".u.csv.4000001.tmp", "t.csv.1.tmp"])
 def test_only_a_regular_temporary_file_of_the_same_output_is_removed(tmp_path, name):
-    """A folder of that name (passed over), or the temporary file of another output (or not one at all), is kept."""
+    """A folder of that name, or the temporary file of another output (or not one at all), is kept."""
     kept = tmp_path / name.rstrip("/")
     kept.mkdir() if name.endswith("/") else kept.write_bytes(b"other")
     write_output(tmp_path / "t.csv", "rows", "-o")
     assert _names(tmp_path) == sorted([kept.name, "t.csv"])
 
 
-def test_a_link_at_a_temporary_name_is_passed_over_never_followed(tmp_path):
+def test_a_link_at_the_temporary_name_is_one_error_not_a_spin(tmp_path):
     """A dangling link under the write's own temporary name: the write followed it (making its target) and spun at
     full CPU for ever, its check that the file it locked is the one under that name failing every time."""
-    link = tmp_path / ".t.csv.0.tmp"
-    link.symlink_to(tmp_path / "elsewhere")
-    write_output(tmp_path / "t.csv", "a,b\n", "--out")
-    assert _names(tmp_path) == [link.name, "t.csv"] and link.is_symlink() and not (tmp_path / "elsewhere").exists()
-
-
-def test_all_temporary_names_taken_is_one_error_not_a_spin(tmp_path):
-    for slot in range(output.TEMPORARY_SLOTS):
-        (tmp_path / f".t.csv.{slot}.tmp").symlink_to(tmp_path / "elsewhere")
+    tmp = tmp_path / f".t.csv.{os.getpid()}.tmp"
+    tmp.symlink_to(tmp_path / "elsewhere")
     began = time.monotonic()
-    with pytest.raises(output.OutputError, match=r"t\.csv: cannot write \(its temporary names beside it, \.t\.csv\.0"
-                                                 r"\.tmp to \.t\.csv\.31\.tmp, are all taken\); any earlier file"):
+    with pytest.raises(output.OutputError, match=r"t\.csv: cannot write"):
         write_output(tmp_path / "t.csv", "a,b\n", "--out")
     assert time.monotonic() - began < 5 and not (tmp_path / "elsewhere").exists() and not (tmp_path / "t.csv").exists()
+    assert tmp.is_symlink()  # not the write's own file: left as it is
 
 
-def test_a_killed_writes_temporary_file_in_any_slot_is_removed(tmp_path):
-    """Two writes of one file at once take two names; the second one's, left by a kill, is found as the first's."""
-    (tmp_path / ".t.csv.7.tmp").write_bytes(b"killed")
+def test_a_killed_writes_file_under_any_pid_is_removed(tmp_path):
+    """Temporary names of 32 fixed slots left the ``.NAME.PID.tmp`` of writes killed before them for good."""
+    (tmp_path / ".t.csv.4000001.tmp").write_bytes(b"killed")
     write_output(tmp_path / "t.csv", "rows", "-o")
     assert _names(tmp_path) == ["t.csv"]
 
 
-def test_a_write_looks_up_its_own_temporary_names_not_the_whole_folder(tmp_path, monkeypatch):
-    """Each write listed the folder for killed writes' temporary files: 8 ms a write beside 20,000 files (a record's
-    folder, a lake partition), 8 times the write itself."""
-    for i in range(100):
-        (tmp_path / f".f{i}.csv.0.tmp").write_bytes(b"another output's")
-    listed = []
-    for name in ("listdir", "scandir"):
-        real = getattr(os, name)
-        monkeypatch.setattr(os, name, lambda *a, real=real, name=name: listed.append(name) or real(*a))
-    (tmp_path / ".t.csv.3.tmp").write_bytes(b"killed")
+def test_without_locks_the_files_of_many_killed_writes_never_block_a_write(tmp_path, monkeypatch):
+    """Where there are no locks every killed write's file is kept; under 32 fixed temporary names, 32 killed writes
+    blocked the file for good ("its temporary names ... are all taken" on every later write)."""
+    killed = [tmp_path / f".t.csv.{pid}.tmp" for pid in range(40) if pid != os.getpid()]
+    for stale in killed:
+        stale.write_bytes(b"killed")
+
+    def no_locks(fd, operation):
+        raise OSError(errno.ENOLCK, "No locks available")
+
+    monkeypatch.setattr(output.fcntl, "flock", no_locks)
     write_output(tmp_path / "t.csv", "rows", "-o")
+    assert _names(tmp_path) == sorted([*(p.name for p in killed), "t.csv"])
+    assert (tmp_path / "t.csv").read_text() == "rows"
+
+
+def test_forty_live_writes_of_one_file_do_not_stop_another(tmp_path):
+    """Each write has a temporary name of its own: under 32 fixed names the 33rd of 40 writes of one file at once
+    failed."""
+    live = [tmp_path / f".t.json.{pid}.tmp" for pid in range(40) if pid != os.getpid()]
+    fds = []
+    try:
+        for tmp in live:  # written and locked, as by writes in other processes
+            tmp.write_bytes(b"being written")
+            fds.append(os.open(tmp, os.O_WRONLY))
+            fcntl.flock(fds[-1], fcntl.LOCK_EX)
+        write_output(tmp_path / "t.json", "rows", "-o")
+    finally:
+        for fd in fds:
+            os.close(fd)
+    assert _names(tmp_path) == sorted([*(p.name for p in live), "t.json"])
+    assert (tmp_path / "t.json").read_text() == "rows"
+
+
+def test_a_write_stopped_right_after_its_rename_removes_no_other_file(tmp_path, monkeypatch):
+    """SIGTERM right after the rename (the CLI's handler raises SystemExit there): the clean-up removed whatever then
+    had the temporary name, free since the rename: another write's file. It removes only its own."""
+    tmp, replace = tmp_path / output._temporary_name("t.json"), os.replace
+
+    def renamed_then_stopped(source, destination):
+        replace(source, destination)
+        tmp.write_bytes(b"another write's")  # the free name taken meanwhile
+        raise SystemExit(143)
+
+    monkeypatch.setattr(os, "replace", renamed_then_stopped)
+    with pytest.raises(SystemExit):
+        write_output(tmp_path / "t.json", "mine", "-o")
     monkeypatch.undo()
-    assert listed == [] and len(_names(tmp_path)) == 101 and (tmp_path / "t.csv").read_text() == "rows"
+    assert (tmp_path / "t.json").read_text() == "mine" and tmp.read_bytes() == b"another write's"
+
+
+# a write of argv[1] by argv[3] that pauses half written (touching argv[4], until argv[5] exists); "noop": its flock
+# sees no other process's lock (two NFS clients of one share mounted local_lock=flock)
+HALF = """
+import fcntl, os, sys, time
+from pathlib import Path
+if sys.argv[2] == "noop":
+    fcntl.flock = lambda fd, operation: None
+from cellguard.errors import OutputError
+from cellguard.output import atomic_file
+try:
+    with atomic_file(Path(sys.argv[1]), "-o") as f:
+        f.write(sys.argv[3].encode() * 1000)
+        f.flush()
+        Path(sys.argv[4]).touch()
+        while not Path(sys.argv[5]).exists():
+            time.sleep(0.01)
+        f.write(sys.argv[3].encode() * 1000)
+except OutputError as exc:
+    print(exc)
+"""
+
+
+def test_a_write_whose_locks_see_nothing_never_publishes_another_writes_half(tmp_path):
+    """Writer B, whose flock sees no lock, took live writer A's temporary file for a killed one's, removed it and made
+    its own under the same fixed name (.t.json.0.tmp): A's rename then published B's half-written file."""
+    target = tmp_path / "out" / "t.json"
+
+    def start(who: str, locks: str) -> subprocess.Popen:
+        proc = subprocess.Popen([sys.executable, "-c", HALF, str(target), locks, who, str(tmp_path / f"{who}_half"),
+                                 str(tmp_path / f"{who}_go")], stdout=subprocess.PIPE, text=True)
+        while not (tmp_path / f"{who}_half").exists():
+            assert proc.poll() is None, proc.communicate()
+            time.sleep(0.01)
+        return proc
+
+    a = start("A", "real")
+    b = start("B", "noop")
+    (tmp_path / "A_go").touch()
+    a.communicate(timeout=60)
+    assert not target.exists() or target.read_text() == "A" * 2000
+    (tmp_path / "B_go").touch()
+    b.communicate(timeout=60)
+    assert target.read_text() == "B" * 2000 and _names(target.parent) == ["t.json"]
 
 
 def test_many_writes_of_one_file_at_once_all_succeed(tmp_path):

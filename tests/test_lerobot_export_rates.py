@@ -100,6 +100,21 @@ def test_the_servo_rates_named_are_exactly_the_whole_millisecond_ones_that_expor
         assert len(named) == 6
 
 
+
+def test_where_no_whole_millisecond_servo_rate_exports_the_error_claims_no_more():
+    """At record.decimated_hz 7 a 700 Hz servo exports at 7 fps, but the refusal of a 333 Hz record said no record at
+    7 Hz does "(a whole fps is 1 Hz at least)": it speaks of the whole-millisecond periods only, and gives the 1 Hz
+    reason only under 1 Hz."""
+    assert _stride({"servo_period_ns": 1_428_571, "record": {"decimated_hz": 7.0}}, None) == (1, 7)
+    for dt_ns, hz, says in [(3_000_000, 7.0, "6.94444 Hz (1 in 48 ticks of its 333.333 Hz servo)"),
+                            (1_000_000, 0.5, "0.5 Hz (1 in 2000 ticks of its 1000 Hz servo)")]:
+        with pytest.raises(RecordError) as err:
+            _stride({"servo_period_ns": dt_ns, "record": {"decimated_hz": hz}}, None)
+        assert str(err.value) == (f"--fps: no whole frame rate divides the record's continuous tick rate {says}; a "
+                                  "LeRobotDataset's fps is a whole number. None of the whole-millisecond servo periods "
+                                  f"up to 20 ms exports at record.decimated_hz {hz:g}"
+                                  + (" (a whole fps is 1 Hz at least)" if hz < 1 else ""))
+
 def test_a_625_hz_record_is_refused_in_one_line_naming_both_rates(tmp_path):
     hz625 = _record(tmp_path / "rec", 16_000_000)
     result = runner.invoke(app, ["record", "to-lerobot", str(hz625), "-o", str(tmp_path / "ds")])

@@ -12,6 +12,7 @@ import errno
 import fcntl
 import hashlib
 import os
+import re
 import stat
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -20,11 +21,8 @@ from typing import BinaryIO
 from cellguard.errors import OutputError
 
 NAME_MAX = 255  # the longest file name, in bytes, on ext4, XFS, btrfs and APFS
+PID_MAX = 4194304  # the highest pid Linux gives (2**22), for the longest temporary name
 TEMPORARY_SUFFIX = ".tmp"
-# temporary names per output, .NAME.0.tmp to .NAME.31.tmp: as many writes of one file at once, and all that a write
-# looks at for a killed one's (a listing of the folder cost 8 ms a write beside 20,000 files, and a name of the pid
-# could not be looked up otherwise)
-TEMPORARY_SLOTS = 32
 TEMPORARY_TRIES = 100  # a temporary file taken from under a write is made again at most this often
 UNLOCKABLE = (errno.ENOLCK, errno.EOPNOTSUPP, errno.ENOTSUP, errno.EINVAL)  # flock is not offered there
 # what an output never replaces, by the bytes it starts with (a link followed to one destroyed another run's record)
@@ -79,9 +77,9 @@ def atomic_file(path: Path, what: str, replace: bool = True, mode: int = 0o666) 
     make_folder(path.parent, what)
     target = _final_target(path, what)
     _clear_stale_temporaries(target)
+    tmp = target.with_name(_temporary_name(target.name))
     try:
-        tmp, f = _locked_temporary(target, mode)
-        with f:  # locked until closed, after the rename or the removal: no other write takes it for a killed one's
+        with _locked_temporary(tmp, mode) as f:  # locked until closed: no other write takes it for a killed one's
             try:
                 yield f
                 f.flush()
@@ -93,7 +91,7 @@ def atomic_file(path: Path, what: str, replace: bool = True, mode: int = 0o666) 
                 else:
                     _rename_new(tmp, target)
             except BaseException:
-                _remove(tmp)  # while locked: once let go, its name may be another write's temporary file
+                _remove_own(tmp, f.fileno())  # while still open and locked
                 raise
     except FileExistsError:
         raise OutputError(f"{what} {path}: something was put there while it was being made; it is kept "
@@ -122,7 +120,7 @@ def _final_target(path: Path, what: str) -> Path:
         # only a link can reach an unnamed file: a plain name replaced by another write of it between samefile's two
         # looks read as one (1 in 170 writes of one file by 8 processes at once failed)
         unnamed = kind is None and path.is_symlink() and not (target.exists() and os.path.samefile(path, target))
-        points_to = os.readlink(path) if unnamed and path.is_symlink() else target
+        points_to = os.readlink(path) if unnamed else None
     except OSError as exc:  # a name too long, a link loop, no access: one line, not a traceback
         raise OutputError(f"{what} {path}: cannot write ({_why(exc)}); nothing written") from None
     if kind is not None:
@@ -158,23 +156,17 @@ def _new_target(path: Path, what: str) -> Path:
     return target
 
 
-def _temporary_name(name: str, slot: int) -> str:
-    """The hidden temporary name ``slot`` beside ``name`` (``.NAME.SLOT.tmp``)."""
-    return f"{_temporary_prefix(name)}{slot}{TEMPORARY_SUFFIX}"
+def _temporary_name(name: str) -> str:
+    """A hidden temporary name beside ``name`` (``.NAME.PID.tmp``) that stays within the 255 bytes a file name may
+    have."""
+    return f"{_temporary_prefix(name)}{os.getpid()}{TEMPORARY_SUFFIX}"
 
 
 def _temporary_prefix(name: str) -> str:
-    """What the temporary names beside ``name`` start with: within the 255 bytes a file name may have (a long
-    ``NAME`` is hashed, for every slot alike)."""
-    if len(os.fsencode(f".{name}.{TEMPORARY_SLOTS - 1}{TEMPORARY_SUFFIX}")) > NAME_MAX:
+    """What every temporary name beside ``name`` starts with, whatever the pid: the same hashed or not."""
+    if len(os.fsencode(f".{name}.{PID_MAX}{TEMPORARY_SUFFIX}")) > NAME_MAX:
         name = hashlib.sha256(os.fsencode(name)).hexdigest()[:32]
     return f".{name}."
-
-
-def _temporaries(target: Path) -> list[str]:
-    """The paths of ``target``'s temporary names, slot by slot (text: a Path each cost 4 times the lookups)."""
-    prefix = os.path.join(target.parent, _temporary_prefix(target.name))
-    return [f"{prefix}{slot}{TEMPORARY_SUFFIX}" for slot in range(TEMPORARY_SLOTS)]
 
 
 @contextlib.contextmanager
@@ -197,46 +189,45 @@ def folder_locked(folder: Path, error: Callable[[str, OSError], Exception], ungu
         os.close(fd)  # releases the lock
 
 
-def _locked_temporary(target: Path, mode: int) -> tuple[Path, BinaryIO]:
-    """A new temporary file beside ``target`` in the first free slot, open for writing and ``flock``ed until it is
-    closed: a lock not held marks the temporary file of a killed write (``_clear_stale_temporaries``). A name taken
-    (a live write's file, one kept where there are no locks, or anything else put there: never followed) is passed
-    over. Without locks there, it is written unlocked: made new (``O_EXCL``), it is no other write's."""
+@contextlib.contextmanager
+def _locked_temporary(tmp: Path, mode: int) -> Iterator[BinaryIO]:
+    """``tmp`` created (or emptied), open for writing and ``flock``ed until the block ends: a lock not held marks the
+    temporary file of a killed write (``_clear_stale_temporaries``). Without locks there, it is written unlocked."""
     for _ in range(TEMPORARY_TRIES):
-        for tmp in _temporaries(target):
-            try:
-                fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, mode)  # a link there is not followed: EEXIST
-            except FileExistsError:
-                continue
-            try:
-                fcntl.flock(fd, fcntl.LOCK_EX)  # a clearing write holds it a moment
-                mine = _same_file(os.fstat(fd), os.lstat(tmp))
-            except FileNotFoundError:  # a clearing write took it for a killed one's before it was locked
-                mine = False
-            except OSError as exc:
-                mine = exc.errno in UNLOCKABLE
-                if not mine:
-                    os.close(fd)
-                    raise
-            if mine:
-                return Path(tmp), os.fdopen(fd, "wb")
-            os.close(fd)
-            break  # made again, from the first slot
-        else:
-            first, last = _temporary_name(target.name, 0), _temporary_name(target.name, TEMPORARY_SLOTS - 1)
-            raise OSError(errno.EBUSY, f"its temporary names beside it, {first} to {last}, are all taken")
-    raise FileExistsError(target)  # taken from under it again and again: no file of its own to write
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_NOFOLLOW, mode)  # a link there: ELOOP, never followed
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX)  # a clearing write holds it a moment
+            if _same_file(os.fstat(fd), os.lstat(tmp)):
+                break
+        except FileNotFoundError:  # a clearing write took it for a killed one's before it was locked: made again
+            pass
+        except OSError as exc:
+            if exc.errno not in UNLOCKABLE:
+                os.close(fd)
+                raise
+            break
+        os.close(fd)
+    else:  # replaced under it again and again: no file of its own to write (it spun at full CPU on a link)
+        raise FileExistsError(tmp)
+    os.ftruncate(fd, 0)  # once locked: a killed write's file of the same name may be there
+    with os.fdopen(fd, "wb") as f:
+        yield f
 
 
 def _clear_stale_temporaries(target: Path) -> None:
     """Remove the temporary files beside ``target`` of writes killed before their clean-up (SIGKILL: each stayed for
     good, as large as its output): those whose lock is free. One a live write holds, or one that cannot be locked
-    (a filesystem without locks), is kept. Only the names of ``target``'s slots are looked up: no folder listing."""
-    for tmp in _temporaries(target):
-        _remove_if_stale(tmp)
+    (a filesystem without locks), is kept."""
+    mine = re.compile(re.escape(_temporary_prefix(target.name)) + r"\d+" + re.escape(TEMPORARY_SUFFIX))
+    try:
+        names = [name for name in os.listdir(target.parent) if mine.fullmatch(name)]
+    except OSError:  # the write itself says why the folder cannot be used
+        return
+    for name in names:
+        _remove_if_stale(target.parent / name)
 
 
-def _remove_if_stale(tmp: str) -> None:
+def _remove_if_stale(tmp: Path) -> None:
     """Remove the regular file ``tmp`` if no process holds its lock, still under this name once locked here."""
     try:
         if not stat.S_ISREG(os.lstat(tmp).st_mode):  # a folder, link or device of that name is not even opened
@@ -314,6 +305,14 @@ def _rename_new(tmp: Path, path: Path) -> None:
 def _remove(path: Path) -> None:
     with contextlib.suppress(OSError):
         path.unlink()
+
+
+def _remove_own(tmp: Path, fd: int) -> None:
+    """Remove ``tmp`` only while it is still the file open on ``fd``: after the rename (a signal may stop the write
+    right after it) the name is free, and whatever is there now belongs to another write."""
+    with contextlib.suppress(OSError):
+        if _same_file(os.fstat(fd), os.lstat(tmp)):
+            os.unlink(tmp)
 
 
 def _why(exc: OSError) -> str:

@@ -199,9 +199,11 @@ def _no_whole_rate(dt_ns: int, stride: int, decimated_hz: float) -> RecordError:
     """The refusal of a record whose continuous stream no whole fps divides: its rate, and the servo rates that do."""
     servo = "its servo rate" if stride == 1 else f"1 in {stride} ticks of its {1e9 / dt_ns:g} Hz servo"
     working = ", ".join(f"{r:g}" for r in _exporting_servo_rates(decimated_hz))
+    # other servo rates may export where none of these does (at 7 Hz, a 700 Hz servo at 7 fps): said of these only
     remedy = (f"Records at servo rates of {working} Hz export (of those whose period is whole milliseconds, up to "
               f"{SUGGESTED_PERIODS_MS[-1]} ms)" if working else
-              f"No record at record.decimated_hz {decimated_hz:g} does (a whole fps is 1 Hz at least)")
+              f"None of the whole-millisecond servo periods up to {SUGGESTED_PERIODS_MS[-1]} ms exports at "
+              f"record.decimated_hz {decimated_hz:g}" + (" (a whole fps is 1 Hz at least)" if decimated_hz < 1 else ""))
     return RecordError(f"--fps: no whole frame rate divides the record's continuous tick rate "
                        f"{1e9 / (stride * dt_ns):g} Hz ({servo}); a LeRobotDataset's fps is a whole number. {remedy}")
 
@@ -296,7 +298,8 @@ def _staging_prefix(output: Path) -> str:
 def _clear_stale_staging(output: Path) -> None:
     """Remove the staging folders beside ``output`` of exports killed before their clean-up (SIGKILL: nothing holds
     their lock; each stayed for good), and the parts of the dataset one had moved into ``output`` before it was
-    killed (the rerun was refused as "not empty"); RecordError if an export into ``output`` is still writing."""
+    killed where it holds nothing else (``staged``; the rerun was refused as "not empty"); RecordError if an export
+    into ``output`` is still writing."""
     prefix = _staging_prefix(output)
     mine = re.compile(re.escape(prefix) + r"[a-z0-9_]{8}" + re.escape(STAGING_SUFFIX))  # mkdtemp's 8 characters
     try:

@@ -67,7 +67,7 @@ def recover(source: Path, target: Path) -> Health:
             _move_into(staging, target, staged.note_files(staging))  # a rerun after a kill takes out what it moved
         except BaseException as exc:
             if staging is not None:
-                staged.take_back(staging, target)  # cut short in its moves: none of the copy is left
+                staged.take_back(staging, target, _staging)  # cut short in its moves: none of the copy is left
             if isinstance(exc, OSError):
                 raise RecordError(f"{target}: cannot write the recovered record ({exc.strerror or exc})") from None
             raise
@@ -94,13 +94,13 @@ def _staging(path: Path) -> bool:
 
 def _clear_stale_staging(target: Path) -> None:
     """Remove the staging folders of recoveries killed in ``target`` (nothing holds their lock), and the files one had
-    moved into ``target`` before it was killed; RecordError if a recovery is still writing there. A rerun after
-    ``kill -9`` was refused as "not empty", saying nothing of why."""
+    moved into ``target`` before it was killed where it holds nothing else (``staged``); RecordError if a recovery is
+    still writing there. A rerun after ``kill -9`` was refused as "not empty", saying nothing of why."""
     try:
         leftovers = [p for p in target.iterdir() if _staging(p)] if target.is_dir() else []
     except OSError:
         return  # refuse_filled_folder says why the folder cannot be read
-    staged.clear_killed(leftovers, target, f"-o {target}: another recovery is writing there")
+    staged.clear_killed(leftovers, target, f"-o {target}: another recovery is writing there", _staging)
 
 
 def _text(path: Path) -> str:
