@@ -21,7 +21,8 @@ from cellguard.scenario import parse_scenario
 # as test_recovery_advice: no slip in the 5 acceptance cycles, slips in production cycles 5, 8 and 9
 SCENARIO = {"cell": "arm-pick-place", "seed": 4, "acceptance_cycles": 5, "production_cycles": 6,
             "faults": [{"kind": "intermittent_slip", "rate": 0.4, "dx_mm": -5.0, "seed": 27}],
-            "recovery": {"behaviours": [{"do": "retry_grasp", "trigger": "grasp_missed", "attempts": 2}]}}
+            "recovery": {"behaviours": [{"do": "retry_grasp", "trigger": "grasp_missed", "attempts": 2,
+                                         "speed_scale": 0.7}]}}  # the gripper shuts at 1.8 s / 0.7 = 2.5714... s
 
 
 @pytest.fixture(scope="module")
@@ -56,6 +57,25 @@ def test_an_event_reason_stays_the_words_of_its_logged_attempt(recorded):
     assert [e.reason for e in events if e.kind == "recovery_end"] == [done.reason() for done in logged]
 
 
+def test_an_attempt_is_logged_and_carried_by_its_event_with_its_times_to_the_millisecond(recorded):
+    """As its words have them: the log held the plan's raw close time (2.5714285714285716 s), so ``diagnose --json``
+    of a record read from the log no longer said what it said when read from the words (2.571)."""
+    summary = recorded[0]
+    logged = [r for c in summary["cycles"] for r in c.get("recovery_log", [])]
+    carried = [e["recovery"] for e in summary["events"] if e["kind"] == "recovery_end"]
+    assert [r["close_s"] for r in logged] == [c["close_s"] for c in carried] == [2.571] * 6
+    assert all(v == round(v, 3) for r in logged + carried for k, v in r.items() if k.endswith("_s") and v is not None)
+
+
+@pytest.mark.parametrize("raw", [1.8 / 0.7, 1.8 / 0.3, 0.0005, 2.0004999, 12.3456789])
+def test_the_times_of_an_older_records_log_read_as_its_words_gave_them(raw):
+    """A record written before the log held its times to the millisecond reads as it did from the words."""
+    entry = RecoveryOutcome("retry_grasp", "grasp_missed", 1, "failed", raw * 2, raw / 2, raw).to_dict()
+    read = RecoveryOutcome.from_dict(entry)
+    assert (read.duration_s, read.arrival_s, read.close_s) == tuple(float(f"{t:.3f}") for t in (raw * 2, raw / 2, raw))
+    assert read == RecoveryOutcome.parse(RecoveryOutcome(**entry).reason())  # the words its run wrote
+
+
 @pytest.mark.parametrize("entry", [None, "retry_grasp: attempt 1", {"behaviour": "retry_grasp"},
                                    {"behaviour": "b", "trigger": "t", "attempt": True, "outcome": "failed",
                                     "duration_s": 1.0},
@@ -63,7 +83,11 @@ def test_an_event_reason_stays_the_words_of_its_logged_attempt(recorded):
                                     "duration_s": float("nan")},
                                    {"behaviour": "b", "trigger": "t", "attempt": 1, "outcome": 3, "duration_s": 1.0},
                                    {"behaviour": "b", "trigger": "t", "attempt": 1, "outcome": "failed",
-                                    "duration_s": 1.0, "close_s": "1.8"}])
+                                    "duration_s": 1.0, "close_s": "1.8"},
+                                   {"behaviour": "b", "trigger": "t", "attempt": 1, "outcome": "failed",
+                                    "duration_s": 10**400},  # no float holds it: OverflowError in the reader
+                                   {"behaviour": "b", "trigger": "t", "attempt": 1, "outcome": "failed",
+                                    "duration_s": 1.0, "close_s": -10**400}])
 def test_a_log_entry_that_is_not_a_whole_attempt_is_left_out(entry):
     """A damaged or crafted record: the entry is left out, as the reader leaves out a malformed message; the
     whole attempt beside it still reads."""

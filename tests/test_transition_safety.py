@@ -10,6 +10,7 @@ from collections.abc import Callable
 
 import mujoco
 import numpy as np
+import pytest
 
 from cellguard.control.settings import build_guard
 from cellguard.robot.protocol import RobotLinkError, SafetyInputs
@@ -245,20 +246,25 @@ def test_a_category_1_input_during_a_category_2_brake_removes_power_at_rest_and_
     assert not run.guard.power and run.stopped.startswith("power removed by a category 1 stop")
 
 
-def test_a_link_lost_during_the_retreat_with_category_1_removes_power_at_once_naming_it():
-    """The brake went to the dead link, then the guard waited out the stopping time on the last state read and
-    removed power 'still moving ... anyway' a second later."""
-    watched = Watched({**ONE_CYCLE, "realtime": {"stop_category": 1}}, lambda t: SafetyInputs(), lost=2.7)
-    run = watched.run
-    failed, aborted, removed = (watched.event(k) for k in ("robot_read_failed", "retreat_aborted", "power_removed"))
+@pytest.mark.parametrize("category", [1, 2])
+@pytest.mark.parametrize("transition, away, lost", [("retreat", None, 2.7),
+                                                    ("approach", np.array([0.6, 0.3, -0.4, 0.0, 0.0, 0.0]), 0.3)])
+def test_a_link_lost_during_a_transition_under_category_1_or_2_removes_power_at_once_naming_it(category, transition,
+                                                                                                away, lost):
+    """A controlled stop needs the link: its brake went to the dead link, then under category 1 the guard waited out
+    the stopping time on the last state read and removed power 'still moving ... anyway' a second later; under
+    category 2 the run said the robot was "held where it braked, power on" of a robot whose link was gone."""
+    watched = Watched({**ONE_CYCLE, "realtime": {"stop_category": category}}, lambda t: SafetyInputs(), away=away,
+                      lost=lost)
+    failed, aborted, removed = (watched.event(k) for k in ("robot_read_failed", f"{transition}_aborted",
+                                                           "power_removed"))
+    assert failed.category == category  # the scenario's category, as the link asked it
     assert aborted.t_ns == removed.t_ns == failed.t_ns  # on the tick that found the link lost
-    assert removed.category == aborted.category == 0 and "robot link lost" in removed.reason
-    assert watched.power == [(removed.t_ns * 1e-9, False)]
-    assert len(watched.after("retreat_aborted")) == 1  # nothing written to the dead link after it
-    assert run.stopped.startswith("robot link: robot_read_failed")
-
-
-def test_a_link_fault_that_aborts_the_retreat_as_category_2_is_named_as_the_cause():
-    """The run said the robot was "held where it braked, power on" of a robot whose link was gone."""
-    watched = Watched({**ONE_CYCLE, "realtime": {"stop_category": 2}}, lambda t: SafetyInputs(), lost=2.7)
+    assert removed.category == aborted.category == 0
+    assert (f"robot link lost, robot_read_failed: bus gone; the category {category} stop cannot be commanded "
+            "without it") in removed.reason
+    assert watched.power == [(removed.t_ns * 1e-9, False)] and not watched.run.guard.power
+    held = watched.after(f"{transition}_aborted")  # the setpoint before it, then any written after it
+    assert (held == held[0]).all()  # nothing moves after it; the approach writes its last setpoint once more on the
+    assert len(held) == {"retreat": 1, "approach": 2}[transition]  # tick, to the dead link (the retreat: nothing)
     assert watched.run.stopped == "robot link: robot_read_failed: bus gone"

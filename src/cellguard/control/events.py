@@ -9,7 +9,7 @@ kind compares equal to its string and serialises as it.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from enum import StrEnum
 
 
@@ -66,7 +66,8 @@ class EventKind(StrEnum):
     RETREAT_DONE = "retreat_done", True
     RETREAT_ABORTED = "retreat_aborted"
     # recoveries: a behaviour run in place of the policy after a failed check (reason: behaviour, trigger,
-    # attempt; at the end also duration, arrival at contact and outcome: resumed, failed, escalated, gave_up)
+    # attempt; at the end also duration, arrival at contact and outcome: resumed, failed, escalated,
+    # gave_up, cut_off; as words and as the event's recovery)
     RECOVERY_START = "recovery_start", True
     RECOVERY_END = "recovery_end", True
     # the robot link (category: the scenario's realtime.stop_category)
@@ -86,7 +87,9 @@ NO_INTERVENTION = ROUTINE_EVENTS | {EventKind.CHUNK_RAN_OUT.value}
 
 @dataclass(frozen=True)
 class Event:
-    """One intervention or incident. ``category`` is the IEC 60204-1 stop category, if a stop."""
+    """One intervention or incident. ``category`` is the IEC 60204-1 stop category, if a stop. ``recovery``: a
+    ``recovery_end``'s attempt as fields (``RecoveryOutcome.to_dict``, None values left out), recorded with the
+    event when the attempt ends, so a record its run was killed in still holds the attempts of its last cycle."""
 
     t_ns: int
     kind: str  # an EventKind (a str); a reader may meet kinds this version does not know
@@ -95,6 +98,7 @@ class Event:
     asked: float | None = None
     sent: float | None = None
     category: int | None = None
+    recovery: dict | None = field(default=None, hash=False)  # a dict: an event stays hashable
 
     def to_dict(self) -> dict:
         return {k: (str(v) if k == "kind" else v) for k, v in self.__dict__.items() if v is not None}

@@ -109,7 +109,7 @@ def diagnose(rows: Iterable[object], events: Iterable[object] = (), context: Map
         findings = _fold_compensation(findings, asym, symmetry)
         if not any(set(f.joints) & set(asym.joints) for f in findings):
             findings = _with_asymmetry(findings, asym, asymmetry_onset(cycles, asym, symmetry, watched[0].index))
-    attempts = attempts_of(rows)
+    attempts = attempts_of(rows, evs)  # evs: for the cycle a killed run left with no row
     late = recovery_finding(cycles, attempts)
     findings += [late] if late is not None else []
     findings = sorted(_carried_by_the_others(_on_legs(findings, symmetry)), key=lambda f: (f.cycle, f.cause))

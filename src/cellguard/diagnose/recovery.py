@@ -1,7 +1,8 @@
 """Recoveries in a diagnosis: the ``recovery`` cause, what got the cell running again, and advice.
 
-Read from each cycle's ``recovery_log`` (one entry per attempt, see ``RecoveryOutcome``), never from the words
-of the ``recovery_end`` events: rewording an event changes no diagnosis.
+Read from each cycle's ``recovery_log`` (one entry per attempt, see ``RecoveryOutcome``), and for the cycle a run
+was killed in (no row) from the fields of its ``recovery_end`` events; never from their words (rewording an event
+changes no diagnosis) but in a record written before events carried the fields.
 
 - a recovery that made things worse is a finding of its own, cause ``recovery``: attempts that
   arrived at their contact pose later than the acceptance recoveries did (or after the gripper
@@ -21,6 +22,7 @@ from types import MappingProxyType
 
 import numpy as np
 
+from cellguard.control.events import EventKind
 from cellguard.diagnose.cause import Finding
 from cellguard.diagnose.cycles import Cycle, as_cycle
 from cellguard.diagnose.feature_kinds import kind_of
@@ -65,18 +67,41 @@ def without_recovery_motion(names: Sequence[str], cycles: Sequence[Cycle], z: np
     return z
 
 
-def attempts_of(rows: Iterable[object]) -> list[tuple[int, RecoveryOutcome]]:
+def attempts_of(rows: Iterable[object], events: Iterable[object] = ()) -> list[tuple[int, RecoveryOutcome]]:
     """(cycle, attempt) for every recovery attempt, in cycle order, from the cycle rows' ``recovery_log`` (at the top
     of a run's outcome, inside ``outcome`` of a record's cycle); an entry that is not a whole attempt is left out.
-    Every record with recoveries has the log: it came with the recovery events themselves."""
-    out = []
+    A row is written at its cycle's end, so the cycle a run was killed in has none: its attempts are read from its
+    ``recovery_end`` events (``events``, each with its ``cycle``), as ``_unlogged`` says."""
+    out, logged = [], set()
     for row in rows:
-        get = row.get if isinstance(row, Mapping) else lambda k, r=row: getattr(r, k, None)
+        get = _getter(row)
         outcome = get("outcome")
         log = outcome.get("recovery_log") if isinstance(outcome, Mapping) else get("recovery_log")
         attempts = [RecoveryOutcome.from_dict(entry) for entry in (log if isinstance(log, list) else ())]
-        out += [(as_cycle(row).index, done) for done in attempts if done is not None]
+        index = as_cycle(row).index
+        logged.add(index)
+        out += [(index, done) for done in attempts if done is not None]
+    out += _unlogged(events, logged)
     return sorted(out, key=lambda a: a[0])  # stable: a cycle's attempts stay in their order
+
+
+def _unlogged(events: Iterable[object], logged: set[int]) -> list[tuple[int, RecoveryOutcome]]:
+    """The attempts of cycles with no row in ``logged``, from the fields their ``recovery_end`` events carry; their
+    words only in a record none of whose events carries the fields (written before they did)."""
+    ends = [(get("cycle"), get("recovery"), get("reason")) for get in map(_getter, events)
+            if get("kind") == EventKind.RECOVERY_END]
+    worded = all(fields is None for _, fields, _ in ends)
+    out = []
+    for cycle, fields, reason in ends:
+        if type(cycle) is int and cycle not in logged:
+            done = RecoveryOutcome.parse(str(reason)) if worded else RecoveryOutcome.from_dict(fields)
+            out += [(cycle, done)] if done is not None else []
+    return out
+
+
+def _getter(item: object):
+    """``item``'s fields by name: a mapping's keys or an object's attributes (None: absent)."""
+    return item.get if isinstance(item, Mapping) else lambda k, i=item: getattr(i, k, None)
 
 
 def recovery_finding(cycles: Sequence[Cycle], attempts: Sequence[tuple[int, RecoveryOutcome]]) -> Finding | None:

@@ -99,6 +99,7 @@ class EventRecord:
     asked: float | None = None
     sent: float | None = None
     cycle: int | None = None
+    recovery: dict | None = None  # a recovery_end's attempt as fields (a record before them: None)
 
 
 @dataclass(frozen=True)
@@ -770,5 +771,6 @@ def _event_record(d: dict) -> EventRecord:
             and (cycle is None or _is_count(cycle)))
     if not fits:
         raise TypeError("event")
+    recovery = d.get("recovery")
     return EventRecord(d["t_ns"], d["kind"], str(d["reason"]), d.get("category"), d.get("joint"),
-                       d.get("asked"), d.get("sent"), d.get("cycle"))
+                       d.get("asked"), d.get("sent"), d.get("cycle"), recovery if isinstance(recovery, dict) else None)

@@ -81,6 +81,11 @@ EVENT_SCHEMA = _json_schema("cellguard.Event", {
     "asked": {"type": "number", "description": "absent: none, or not finite"},
     "sent": {"type": "number", "description": "absent: none, or not finite"},
     "category": {"type": "integer", "enum": [0, 1, 2], "description": "stop category; absent: no stop"},
+    "recovery": {"type": "object", "description": "a recovery_end's attempt, as its cycle's recovery_log entry "
+                 "(recorded at once: a killed run's last cycle has no log); absent: not an attempt's end",
+                 "properties": {"behaviour": _STR, "trigger": _STR, "attempt": _INT, "outcome": _STR,
+                                "duration_s": _NUM, "arrival_s": {**_NUM, "description": "absent: never arrived"},
+                                "close_s": {**_NUM, "description": "absent: a plan without contact"}}},
 }, ["t_ns", "kind", "reason"])
 CYCLE_SCHEMA = _json_schema("cellguard.CycleMarker", {
     "marker": {"type": "string", "enum": ["begin", "end"]}, "cycle": _INT,

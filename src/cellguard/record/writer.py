@@ -469,7 +469,8 @@ def _log_text(fields: dict, cycle: int | None) -> str:
 
 def _event_fields(event: Event) -> dict:
     return {"t_ns": event.t_ns, "kind": event.kind, "reason": event.reason, "joint": event.joint,
-            "asked": _finite(event.asked), "sent": _finite(event.sent), "category": event.category}
+            "asked": _finite(event.asked), "sent": _finite(event.sent), "category": event.category,
+            "recovery": event.recovery}
 
 
 def _finite(value):

@@ -1,12 +1,12 @@
 """Recoveries in the loop: when the cell reports a failed check, the scenario's recovery behaviour
 drives the cell in place of the policy, through the same guard (chunks in, envelope on every tick).
 
-Each attempt is a ``recovery_start`` / ``recovery_end`` event pair; the end says how long it took,
-when the arm arrived at its contact pose (measured) against when the gripper was told to shut, and
-the outcome: ``resumed`` (its plan ran out with no failed check: the cell carries on), ``failed``
-(another attempt follows), ``escalated`` (its ``then`` follows), ``gave_up`` (nothing left, or the
-per-cycle limit: the cell goes home), ``cut_off`` (the cell's task ended the cycle first, or a category 0 or 1
-stop removed the power mid-plan: no attempt starts after it in that cycle). Once a
+Each attempt is a ``recovery_start`` / ``recovery_end`` event pair; the end says (in words, and as fields in
+``Event.recovery``, as the cycle's ``recovery_log``) how long it took, when the arm arrived at its contact pose
+(measured) against when the gripper was told to shut, and the outcome: ``resumed`` (its plan ran out with no
+failed check: the cell carries on), ``failed`` (another attempt follows), ``escalated`` (its ``then`` follows),
+``gave_up`` (nothing left, or the per-cycle limit: the cell goes home), ``cut_off`` (the cell's task ended the cycle
+first, or a category 0 or 1 stop removed the power mid-plan: no attempt starts after it in that cycle). Once a
 recovery has started it drives the cell to the end of the cycle, and the cycle's time-out waits for
 the attempt in progress (``attempting``): an operator hand-over holds for its whole ``hold_s`` and
 ends in its reset, and no attempt is left mid-move for the next cycle's policy to start from (an
@@ -241,8 +241,11 @@ class RecoveryRunner:
 
     def _end(self, a: _Attempt, t: int, outcome: str) -> None:
         arrival = a.arrived_ns * 1e-9 if a.arrived_ns is not None and a.plan.close_t is not None else None
+        close = a.plan.close_t
         done = RecoveryOutcome(a.behaviour.do, a.trigger, a.attempt, outcome, round((t - a.start) * 1e-9, 3),
-                               None if arrival is None else round(arrival, 3), a.plan.close_t)
-        self._log.append(done.to_dict())
-        self.events.append(Event(t, EventKind.RECOVERY_END, done.reason()))
+                               *(None if v is None else round(v, 3) for v in (arrival, close)))
+        entry = done.to_dict()
+        self._log.append(entry)  # in the cycle's row, at its end; the event is recorded now
+        self.events.append(Event(t, EventKind.RECOVERY_END, done.reason(),
+                                 recovery={k: v for k, v in entry.items() if v is not None}))
         self._active = None

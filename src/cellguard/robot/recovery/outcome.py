@@ -1,15 +1,24 @@
-"""How one recovery attempt ended, written twice: as words in the ``recovery_end`` event's reason, for a
-technician, and as fields in the cycle's ``recovery_log``, which the diagnosis reads. It never parses the words,
-so rewording them changes no diagnosis.
+"""How one recovery attempt ended, written three times: as words in the ``recovery_end`` event's reason, for a
+technician; as the same event's fields (``Event.recovery``), recorded when the attempt ends; and as an entry of
+the cycle's ``recovery_log``, with the cycle's row at its end. The diagnosis reads the fields, never the words, so
+rewording them changes no diagnosis; only a record written before events carried the fields has its words parsed,
+for the cycle its run was killed in (no row, so no log).
 """
 
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass
 
 OUTCOMES = ("resumed", "failed", "escalated", "gave_up", "cut_off")
+# the words of ``reason`` (the behaviour: any name up to its attempt, as regrasp2 or ReGrasp); numbers of at most 15
+# digits a side, so that a crafted one is no int() refuses (over 4,300 digits) and no float() reads as inf
+_NUMBER = r"\d{1,15}(?:\.\d{1,15})?"
+_PATTERN = re.compile(rf"^(?P<behaviour>.+?): attempt (?P<attempt>\d{{1,15}}) after (?P<trigger>[^,]+), "
+                      rf"(?P<duration>{_NUMBER}) s(?:; arrived at contact at (?:(?P<arrival>{_NUMBER}) s|never), "
+                      rf"gripper shut at (?P<close>{_NUMBER}) s)?; outcome (?P<outcome>[a-z_]+)$")
 
 
 @dataclass(frozen=True)
@@ -37,8 +46,9 @@ class RecoveryOutcome:
 
     @classmethod
     def from_dict(cls, entry: object) -> RecoveryOutcome | None:
-        """The attempt a ``recovery_log`` entry holds (``to_dict``'s fields, read back from JSON); None for one
-        that is not a whole attempt (a damaged or crafted record), which a reader leaves out."""
+        """The attempt a ``recovery_log`` entry or an event's ``recovery`` holds (``to_dict``'s fields, read back
+        from JSON; one absent is None), its times to the millisecond as its words have them; None for one that is
+        not a whole attempt (a damaged or crafted record), which a reader leaves out."""
         if not isinstance(entry, Mapping):
             return None
         text = [entry.get(k) for k in ("behaviour", "trigger", "outcome")]
@@ -47,8 +57,25 @@ class RecoveryOutcome:
         if (not all(isinstance(v, str) for v in text) or type(attempt) is not int or times[0] is None
                 or not all(v is None or _finite(v) for v in times)):
             return None
-        return cls(text[0], text[1], attempt, text[2], *(None if v is None else float(v) for v in times))
+        return cls(text[0], text[1], attempt, text[2], *(None if v is None else round(float(v), 3) for v in times))
+
+    @classmethod
+    def parse(cls, reason: str) -> RecoveryOutcome | None:
+        """The attempt the words of a ``recovery_end`` event describe; None for words that are not an attempt's end.
+        Only for a record written before events carried the attempt's fields (see the module's docstring)."""
+        m = _PATTERN.match(reason)
+        if m is None:
+            return None
+        number = {k: None if m[k] is None else float(m[k]) for k in ("duration", "arrival", "close")}
+        return cls(m["behaviour"], m["trigger"], int(m["attempt"]), m["outcome"], number["duration"],
+                   number["arrival"], number["close"])
 
 
 def _finite(value: object) -> bool:
-    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+    """A number a float holds: an int too large for one (10**400, from a crafted record) is not."""
+    if not isinstance(value, int | float) or isinstance(value, bool):
+        return False
+    try:
+        return math.isfinite(value)
+    except OverflowError:
+        return False
