@@ -141,7 +141,8 @@ def test_two_modules_claiming_one_kind_are_named(tmp_path, monkeypatch):
     monkeypatch.syspath_prepend(str(tmp_path))
     with pytest.raises(PluginError, match=f"^{re.escape(str(package / 'second.py'))}: "
                                           r"fault kind 'fixture_nudge' is defined twice: twice_kinds\.first\."
-                                          r"FixtureNudge and twice_kinds\.second\.FixtureNudge$"):
+                                          rf"FixtureNudge \({re.escape(str(package / 'first.py'))}\) and "
+                                          r"twice_kinds\.second\.FixtureNudge$"):
         discover("twice_kinds", [str(package)], Fault, "fault kind")
 
 

@@ -17,6 +17,7 @@ from pathlib import Path
 import pytest
 
 import cellguard.robot.faults
+import cellguard.robot.faults.friction_step
 from cellguard.plugins import PluginError, discover
 
 # python -c CLI PACKAGE FOLDER ARGS...: the console script (cellguard.entry:main) with PACKAGE's path extended
@@ -74,7 +75,8 @@ def test_copies_helpers_and_sub_packages_beside_the_kinds_are_not_imported(tmp_p
     done = _cellguard("cellguard.robot.faults", tmp_path, "--help")
     assert (done.returncode, done.stderr) == (2, (
         f"error: {tmp_path / 'friction_step_old.py'}: fault kind 'friction_step' is defined twice: "
-        f"cellguard.robot.faults.friction_step.FrictionStep and cellguard.robot.faults.friction_step_old."
+        f"cellguard.robot.faults.friction_step.FrictionStep ({cellguard.robot.faults.friction_step.__file__}) and "
+        f"cellguard.robot.faults.friction_step_old."
         f"FrictionStep\n"))
 
 
@@ -115,3 +117,26 @@ def test_a_process_change_whose_diagnosis_is_no_way_of_conditioning_is_refused_n
     # the drift gate metric imports it too: the error is the process change's, not "drift.py cannot be imported"
     done = _cellguard("cellguard.robot.process", tmp_path, "release", "status", "--site", "no-site")
     assert (done.returncode, done.stderr) == (2, refused)
+
+
+def test_a_kind_pydantic_cannot_build_and_a_message_with_escapes_are_one_printable_line(tmp_path):
+    """A field naming a type that does not exist imported fine, then failed every scenario in a traceback (used
+    or not); a plugin's message is the plugin's text: its escape codes are shown, never sent to the terminal."""
+    (tmp_path / "nudge.py").write_text(textwrap.dedent('''
+        from typing import Literal
+
+        from cellguard.robot.faults.base import Fault
+
+
+        class Nudge(Fault):
+            kind: Literal["nudge"]
+            how: "NudgeShape | None" = None
+    '''))
+    done = _cellguard("cellguard.robot.faults", tmp_path, "--help")
+    assert done.returncode == 2 and done.stderr.startswith(
+        f"error: {tmp_path / 'nudge.py'}: fault kind cellguard.robot.faults.nudge.Nudge: ") and \
+        "NudgeShape" in done.stderr and done.stderr.count("\n") == 1, done.stderr
+    (tmp_path / "nudge.py").write_text("raise RuntimeError('bad \\x1b[31mred\\x07')\n")
+    done = _cellguard("cellguard.robot.faults", tmp_path, "--help")
+    assert (done.returncode, done.stderr) == (
+        2, f"error: {tmp_path / 'nudge.py'}: cannot be imported: RuntimeError: bad \\x1b[31mred\\x07\n")

@@ -14,7 +14,7 @@ import sys
 
 import pytest
 
-from cellguard.robot.recovery import RECOVERIES
+from cellguard.robot.recovery import RECOVERIES, back_off
 
 BEHAVIOUR = '''
 """Go straight home after a missed grasp, at a share of the taught speed."""
@@ -98,8 +98,8 @@ def test_the_built_in_behaviours_keep_their_names_and_order():
 
 @pytest.mark.parametrize(("do", "error"), [
     ('Literal["back_off"]', "recovery behaviour 'back_off' is defined twice: "
-                            "cellguard.robot.recovery.back_off.BackOff and cellguard.robot.recovery.straight_home."
-                            "StraightHome"),
+                            f"cellguard.robot.recovery.back_off.BackOff ({back_off.__file__}) and "
+                            "cellguard.robot.recovery.straight_home.StraightHome"),
     ("str", "recovery behaviour cellguard.robot.recovery.straight_home.StraightHome: do must be "
             "Literal['a_name']"),
 ])

@@ -7,6 +7,7 @@ from __future__ import annotations
 import sys
 
 from cellguard.plugins import PluginError
+from cellguard.printable import printable
 
 
 def main() -> None:
@@ -16,5 +17,5 @@ def main() -> None:
 
         app()
     except PluginError as exc:
-        sys.stderr.write(f"error: {exc}\n")
+        sys.stderr.write(f"error: {printable(exc)}\n")
         sys.exit(2)

@@ -36,16 +36,17 @@ def discover(package: str, path: Iterable[str], take: Callable[[ModuleType], Ite
     the modules' names, each module's in the order ``take`` gives them. ``take(module)`` gives ``(name, where,
     plugin)`` (``where`` names the plugin in an error) and raises ``refused`` for a module it cannot take. A name
     two plugins take is refused naming both (``what``: "fault kind")."""
-    found: dict[str, tuple[str, T]] = {}
+    found: dict[str, tuple[str, str, T]] = {}
     for info in sorted(pkgutil.iter_modules(path), key=lambda m: m.name):
         if info.ispkg or not info.name.isidentifier() or info.name.startswith("_"):
             continue
         module = _load(package, info)
         for name, where, plugin in take(module):
-            if name in found:
-                raise refused(module, f"{what} {name!r} is defined twice: {found[name][0]} and {where}")
-            found[name] = (where, plugin)
-    return {name: plugin for name, (_, plugin) in found.items()}
+            if name in found:  # both files named: the one sorted first may be the stray copy
+                raise refused(module, f"{what} {name!r} is defined twice: {found[name][0]} ({found[name][1]}) and "
+                                      f"{where}")
+            found[name] = (where, module.__file__, plugin)
+    return {name: plugin for name, (_, _, plugin) in found.items()}
 
 
 def _load(package: str, info: pkgutil.ModuleInfo) -> ModuleType:

@@ -45,7 +45,7 @@ from scipy import stats
 from threadpoolctl import threadpool_limits
 
 from cellguard.calibrate.torque_model import MIN_SPEED, hinge_joints, inverse_torques, rigid_model
-from cellguard.dates import utc_today
+from cellguard.dates import utc_day, utc_today
 from cellguard.errors import ConfigError
 
 PARAMS = ("friction", "armature", "damping", "kp", "delay", "payload")
@@ -244,7 +244,7 @@ def measured_on(paths: list[Path]) -> str:
             starts.append(rec.start_wall_ns)
     if min(starts) <= 0:  # a record without a wall-clock epoch: the day it is read on, in UTC
         return utc_today().isoformat()
-    return datetime.datetime.fromtimestamp(max(starts) / 1e9, datetime.timezone.utc).date().isoformat()
+    return utc_day(max(starts)).isoformat()
 
 
 def refuse_ahead(day: str, what: str, fix: str) -> None:

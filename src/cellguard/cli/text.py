@@ -9,21 +9,8 @@ characters are shown as escapes (``\\x1b``, ``\\n``), the rest is unchanged.
 from __future__ import annotations
 
 import sys
-import unicodedata
 
-
-def printable(text: object) -> str:
-    """``text`` as a string with every control or format character written as its escape."""
-    text = str(text)
-    if text.isprintable():
-        return text
-    return "".join(ch if ch.isprintable() or (ch == " ") else _escape(ch) for ch in text)
-
-
-def _escape(ch: str) -> str:
-    if unicodedata.category(ch) == "Zs":  # a space of another width: harmless, keep it
-        return ch
-    return ch.encode("unicode_escape").decode("ascii")
+from cellguard.printable import printable
 
 
 def printable_tree(value):

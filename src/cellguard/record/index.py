@@ -24,6 +24,7 @@ import pyarrow.dataset as ds
 import pyarrow.fs as pafs
 import pyarrow.parquet as pq
 
+from cellguard.dates import utc_day
 from cellguard.errors import RecordError
 
 TABLES = ("cycles", "events")
@@ -81,7 +82,7 @@ class IndexWriter:
         self._parts = {t: 0 for t in TABLES}
 
     def day_of(self, t_ns: int) -> str:
-        return dt.datetime.fromtimestamp((self.epoch_wall_ns + t_ns) * 1e-9, dt.timezone.utc).date().isoformat()
+        return utc_day(self.epoch_wall_ns + t_ns).isoformat()
 
     def add(self, table: str, row: dict) -> None:
         """Append a row (time-ordered); raises OSError if a part cannot be written."""

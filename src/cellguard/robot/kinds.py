@@ -28,6 +28,10 @@ def discover(package: str, path: Iterable[str], base: type, what: str, tag: str 
             if get_origin(cls.model_fields[tag].annotation) is not Literal or len(names) != 1 \
                     or not isinstance(names[0], str):
                 raise plugins.refused(module, f"{what} {where}: {tag} must be Literal['a_name']")
+            try:  # a field pydantic cannot build failed every scenario later, in a traceback, used or not
+                cls.model_rebuild()
+            except Exception as exc:  # noqa: BLE001 (pydantic's errors have no one base)
+                raise plugins.refused(module, f"{what} {where}: {' '.join(str(exc).split())}") from exc
             yield names[0], where, cls
 
     found = plugins.discover(package, path, kinds_in, what)
