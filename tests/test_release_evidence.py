@@ -13,6 +13,7 @@ from release_helpers import CELL, KNOCKED, log_pass, sim_and_production_plan, st
 from cellguard.release import Store, evaluate_stage, log, promote, run_stage
 from cellguard.release.errors import StageError
 from cellguard.release.evidence import record_id
+from cellguard.release.promotion import runs_key
 
 
 def _to_production(store, release: str) -> None:
@@ -23,10 +24,12 @@ def _to_production(store, release: str) -> None:
         promote(store, release, CELL, stage)
 
 
-def _lost_run(store, release: str, stage: str) -> None:
-    """A counted run whose folder is not there (as a run counted from another working directory was)."""
+def _lost_run(store, release: str, stage: str, made_under: str) -> None:
+    """A counted run whose folder is not there (as a run counted from another working directory was), made under
+    ``made_under`` (``runs_key``)."""
     moved = log.last_pointer_move(store, CELL, stage)
-    store.add_run("0" * 16, CELL, stage, release, "lost", store.site / "runs" / CELL / stage / "0099-lost", moved.seq)
+    store.add_run("0" * 16, CELL, stage, release, "lost", store.site / "runs" / CELL / stage / "0099-lost", moved.seq,
+                  made_under)
 
 
 def test_a_site_reads_its_own_runs_from_any_working_directory_and_when_copied(tmp_path, monkeypatch):
@@ -52,11 +55,11 @@ def test_a_run_that_cannot_be_read_is_never_a_pass_and_a_failing_production_rele
     first, second = stored_release(store, "v1"), stored_release(store, "v2")
     _to_production(store, first)
     assert run_stage(store, plan["production"], CELL, "production").verdict == "pass"
-    _lost_run(store, first, "production")
+    _lost_run(store, first, "production", runs_key(plan["production"]))
     again = evaluate_stage(store, plan["production"], CELL, "production")
     assert again.verdict == "inconclusive" and "0099-lost" in again.refused[0]  # its real run passed: not enough
     _to_production(store, second)
-    _lost_run(store, second, "production")
+    _lost_run(store, second, "production", runs_key(plan["production"], [KNOCKED]))  # among the runs given
     result = run_stage(store, plan["production"], CELL, "production", runs=[KNOCKED])
     assert result.verdict == "fail" and result.rolled_back_to == first
     assert any("0099-lost" in why for why in result.refused)
@@ -69,19 +72,21 @@ def test_a_record_put_in_a_failed_runs_place_is_refused_naming_the_folder(tmp_pa
     """The passing record of release A copied over release B's failed run made B's gates pass, with the failed
     record's id logged as the evidence."""
     plan, store = sim_and_production_plan(tmp_path), Store(tmp_path / "site")
+    (tmp_path / "knocked").mkdir()
+    knocked = sim_and_production_plan(tmp_path / "knocked", KNOCKED)["sim"]  # a plan whose run fails
     first, second = stored_release(store, "v1"), stored_release(store, "v2")
     promote(store, first, CELL, "sim")
     passed = run_stage(store, plan["sim"], CELL, "sim")
     promote(store, second, CELL, "sim")
-    failed = run_stage(store, plan["sim"], CELL, "sim", runs=[KNOCKED])
+    failed = run_stage(store, knocked, CELL, "sim")
     assert passed.verdict == "pass" and failed.verdict == "fail"
     good, bad = Path(passed.folders[0]), Path(failed.folders[0])
     shutil.copyfile(good / "record.mcap", bad / "record.mcap")
-    swapped = evaluate_stage(store, plan["sim"], CELL, "sim")
+    swapped = evaluate_stage(store, knocked, CELL, "sim")
     assert swapped.verdict == "inconclusive" and swapped.evidence == ()
     assert str(bad) in swapped.refused[0] and f"not {failed.evidence[0]} that was counted" in swapped.refused[0]
     store.db.execute("UPDATE runs SET record_id=? WHERE release=?", (record_id(bad), second))  # the row too
-    forged = evaluate_stage(store, plan["sim"], CELL, "sim")
+    forged = evaluate_stage(store, knocked, CELL, "sim")
     assert forged.verdict == "inconclusive" and f"a run of release {first} at sim" in forged.refused[0]
     with pytest.raises(StageError, match=r"ended inconclusive .*, runs not read as evidence; log entry"):
         promote(store, second, CELL, "bench")

@@ -45,7 +45,9 @@ def _through_every_stage(site, plan, note: str, last_run: str = "production") ->
 
 
 def test_a_production_failure_rolls_back_to_last_good_and_the_next_run_records_it(tmp_path):
-    site, plan = tmp_path / "site", write_plan(tmp_path / "plan.yaml", STAGES)
+    site = tmp_path / "site"
+    site.mkdir()
+    plan = write_plan(site / "release-plan.yaml", STAGES)  # the plan in force: last_good is taken under it
     first = _through_every_stage(site, plan, "v1")
     # a second release passes sim, bench and the pilot (in shadow beside the first, which drives)
     second = _through_every_stage(site, plan, "v2", last_run="pilot")

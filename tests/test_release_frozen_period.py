@@ -1,13 +1,18 @@
 """A release frozen from a policy that states no step period is refused with what can be done: a new release.
 
 Made before the period was required, such a release was refused naming it, but the line went on with the policy's
-own `give ?dt=SECONDS`, which a frozen release cannot take."""
+own `give ?dt=SECONDS`, which a frozen release cannot take; then with `release create --policy '...?dt=SECONDS'`
+alone, which `create` refused for a missing --profile, and without the release's action map or envelope."""
 
 from __future__ import annotations
+
+import json
+import shlex
 
 import pytest
 from cli_util import one_error
 from release_helpers import CELL, cli
+from test_release_calibration import calibrated
 
 from cellguard.release import Store, create_bundle
 from cellguard.release.bundle import Bundle, policy_hash, release_id
@@ -16,11 +21,42 @@ from cellguard.release.errors import ReleaseError
 JOINTS = ["shoulder_pan", "shoulder_lift", "elbow", "wrist_flex", "wrist_roll", "gripper"]
 
 
-def _frozen_without_dt(spec: str) -> Bundle:
-    """The release ``create`` made of ``spec?dt=0.05``, as an older cellguard froze it: without the ``?dt=``."""
-    made = create_bundle(f"{spec}{'&' if '?' in spec else '?'}dt=0.05", None, CELL, None)
+def _frozen_without_dt(spec: str, action_map=None, profile: str = CELL, envelope=None) -> tuple[Bundle, Bundle]:
+    """The release ``create`` made of ``spec?dt=0.05``, and the same as an older cellguard froze it: without the
+    ``?dt=``."""
+    made = create_bundle(f"{spec}{'&' if '?' in spec else '?'}dt=0.05", action_map, profile, envelope)
     manifest = {**made.manifest, "policy": {**made.manifest["policy"], "spec": spec}}
-    return Bundle(release_id(manifest), manifest)
+    return made, Bundle(release_id(manifest), manifest)
+
+
+def test_the_suggested_command_makes_the_release_again_with_its_map_profile_and_envelope(tmp_path):
+    pytest.importorskip("onnx")
+    from hostile.test_tracebacks import small_onnx
+
+    model = small_onnx(tmp_path / "dp.onnx")
+    amap = tmp_path / "map.yaml"
+    amap.write_text(f"robot: {CELL}\nactions:\n" + "".join(
+        f"  - {{name: {j}, joint: {j}, unit: {'m' if j == 'gripper' else 'rad'}}}\n" for j in JOINTS))
+    guard = tmp_path / "guard.yaml"
+    guard.write_text("watchdog_s: 0.5\ntool_speed_max: 1.0\n")
+    made, old = _frozen_without_dt(f"onnx:{model}", amap, str(calibrated(tmp_path)), guard)
+    site = tmp_path / "site"
+    Store(site).add_bundle(old)
+    line = one_error(cli("promote", old.id, "--cell", CELL, "--to", "sim", "--site", str(site)))
+    assert f"release {old.id}: its policy" in line and "the step period is not stated" in line
+    assert "give ?dt" not in line and line.count("create a new release") == 1
+    assert "a frozen release cannot take ?dt=" in line
+    command, _, notes = line.partition("cellguard release create ")[2].partition(" (SECONDS: ")
+    args = shlex.split(command)
+    assert args[:2] == ["--policy", f"onnx:{model}?dt=SECONDS"]
+    envelope = notes.partition("FILE: a YAML file holding this release's envelope, ")[2].removesuffix(")")
+    assert json.loads(envelope) == {"watchdog_s": 0.5, "tool_speed_max": 1.0}
+    (tmp_path / "envelope.yaml").write_text(envelope)
+    args = [a.replace("SECONDS", "0.05") if a.startswith("onnx:") else a for a in args]
+    args = [str(tmp_path / "envelope.yaml") if a == "FILE" else a for a in args]
+    again = cli("create", *args, "--site", str(site), "--json")
+    assert again.exit_code == 0, again.output
+    assert json.loads(again.stdout)["id"] == made.id  # as it was made with ?dt=: the same release
 
 
 def test_promoting_an_onnx_release_without_a_period_says_to_create_a_new_one(tmp_path):
@@ -29,12 +65,11 @@ def test_promoting_an_onnx_release_without_a_period_says_to_create_a_new_one(tmp
 
     model = small_onnx(tmp_path / "dp.onnx")
     site = tmp_path / "site"
-    old = _frozen_without_dt(f"onnx:{model}")
+    _, old = _frozen_without_dt(f"onnx:{model}")
     Store(site).add_bundle(old)
     line = one_error(cli("promote", old.id, "--cell", CELL, "--to", "sim", "--site", str(site)))
-    assert f"release {old.id}: its policy" in line and "the step period is not stated" in line
-    assert "give ?dt" not in line
-    assert f"create a new release whose policy gives it, e.g. release create --policy 'onnx:{model}?dt=SECONDS'" in line
+    assert f"cellguard release create --policy 'onnx:{model}?dt=SECONDS' --profile {CELL} (SECONDS: " in line
+    assert "--map" not in line and "--envelope" not in line  # the release had neither
 
 
 def test_a_frozen_spec_with_options_is_shown_with_dt_among_them():
@@ -45,7 +80,7 @@ def test_a_frozen_spec_with_options_is_shown_with_dt_among_them():
     from cellguard.policy.wire import packb
 
     with serve_bytes(packb({"action_names": JOINTS})) as uri:
-        old = _frozen_without_dt(f"openpi:{uri}?timeout=1")
+        _, old = _frozen_without_dt(f"openpi:{uri}?timeout=1")
         with pytest.raises(ReleaseError) as refused:
             policy_hash(old)
     assert f"--policy 'openpi:{uri}?timeout=1&dt=SECONDS'" in str(refused.value)

@@ -1,50 +1,62 @@
-"""A pass makes its release last_good only under the stage's part of the plan in force, as it promotes only so.
+"""The plan in force (the site's release-plan.yaml, else the packaged plan) decides last_good, for `run` and `promote`
+alike, and a verdict rests only on runs of the plan it evaluates.
 
 Under `release run --stage production --plan weak.yaml` (one cycle, `success_rate min: 0`) a release passed and became
-last_good: at the next promotion there, or at once as the first to pass the stage, and `release rollback` went to it.
+last_good: at the next promotion there, or at once as the first to pass the stage, and `release rollback` went to it;
+`promote --plan weak.yaml` did the same. Three one-cycle runs under another plan, or with `--scenario`, were counted
+in the next verdict under the plan in force and turned its fail into a pass. A pass under a stricter extra plan took
+the rollback target away; a pass an older cellguard logged without its plan stopped making its release last_good,
+and nothing said so; `release status` showed such passes as plain passes.
 """
 
 from __future__ import annotations
 
 import yaml
-from release_helpers import CELL, ONE, cli, log_pass, pointers, stored_release, write_plan
+from release_helpers import CELL, KNOCKED, ONE, cli, edit_store, log_pass, pointers, stored_release, write_plan
 
-from cellguard.release import Store, load_plan, promote
+from cellguard.release import Store, load_plan, log, promote
 from cellguard.release.plan import PICK_PLACE_PLAN
+from cellguard.release.promotion import plan_hash
 
 PRODUCTION = {"runs": [ONE], "gates": [{"metric": "success_rate", "min": 1.0}]}
 WEAK = {"production": {"runs": [ONE], "gates": [{"metric": "success_rate", "min": 0}]}}
+STRICT = {"production": {"runs": [ONE, {**ONE, "name": "two"}], "gates": [{"metric": "success_rate", "min": 1.0}]}}
 
 
-def _site(tmp_path, notes):
-    """A site whose plan is the packaged one with a one-cycle production stage, and a release per note, each with
-    the earlier stages passed on that plan: (site, its plan file, release ids)."""
+def _site(tmp_path, notes, production=PRODUCTION):
+    """A site whose plan is the packaged one with ``production`` as its production stage, and a release per note,
+    each with the earlier stages passed on that plan: (site, its plan file, release ids)."""
     site = tmp_path / "site"
     site.mkdir()
     stages = yaml.safe_load(PICK_PLACE_PLAN.read_text())["stages"]
-    plan = write_plan(site / "release-plan.yaml", {**stages, "production": PRODUCTION})
+    plan = write_plan(site / "release-plan.yaml", {**stages, "production": production})
     return site, plan, [stored_release(Store(site), note) for note in notes]
 
 
-def _to_production(site, plan, rid) -> None:
+def _to_production(site, plan, rid, *options) -> str:
     """``rid`` through sim, bench and pilot on the site's plan (their gates logged as passed), then promoted to
-    production by the CLI."""
+    production by the CLI with ``options``: its output, on one line."""
     store, plans = Store(site), load_plan(plan)
     for stage in ("sim", "bench", "pilot"):
         promote(store, rid, CELL, stage, plans)
         log_pass(store, stage, rid)
     store.close()
-    result = cli("promote", rid, "--cell", CELL, "--to", "production", "--site", str(site))
+    result = cli("promote", rid, "--cell", CELL, "--to", "production", *options, "--site", str(site))
     assert result.exit_code == 0, result.output
+    return " ".join(result.stdout.split())
 
 
 def _production(site) -> tuple:
     return next((p["current"], p["last_good"]) for p in pointers(site) if p["stage"] == "production")
 
 
-def _run(site, *plan) -> None:
-    result = cli("run", "--cell", CELL, "--stage", "production", *plan, "--site", str(site))
-    assert result.exit_code == 0, result.output
+def _run(site, *options, verdict: str = "pass") -> dict:
+    """``release run`` at production with ``options``, ending ``verdict``: its gates entry."""
+    result = cli("run", "--cell", CELL, "--stage", "production", *options, "--site", str(site))
+    assert result.exit_code == (0 if verdict == "pass" else 1), result.output
+    entry = log.entries(Store(site))[-1].body
+    assert entry["kind"] == "gates" and entry["verdict"] == verdict, entry
+    return entry
 
 
 def test_a_pass_on_an_ad_hoc_plan_is_no_rollback_target(tmp_path):
@@ -75,3 +87,131 @@ def test_the_first_pass_makes_its_release_last_good_only_on_the_plan_in_force(tm
     _run(site, "--plan", str(same))
     assert _production(site) == (a, a)
     assert cli("verify", "--site", str(site)).exit_code == 0
+
+
+def test_promote_with_a_weak_plan_takes_last_good_under_the_plan_in_force(tmp_path):
+    """`promote --plan weakfull.yaml` (the site's stages, production weakened) made b's weak pass the target."""
+    site, plan, (a, b, c) = _site(tmp_path, ("a", "b", "c"))
+    stages = yaml.safe_load(plan.read_text())["stages"]
+    weak = write_plan(tmp_path / "weakfull.yaml", {**stages, **WEAK})
+    _to_production(site, plan, a)
+    _run(site)
+    _to_production(site, plan, b)
+    _run(site, "--plan", str(weak))
+    said = _to_production(site, plan, c, "--plan", str(weak))
+    assert _production(site) == (c, a)
+    assert f"last_good {a}, not {b}: its pass there ran another plan" in said
+    entry = log.entries(Store(site))[-1].body
+    assert entry["kind"] == "promote" and entry[log.IN_FORCE] == plan_hash(load_plan(plan)["production"])
+    assert cli("verify", "--site", str(site)).exit_code == 0  # the replay sets the same
+
+
+def test_a_pass_under_a_stricter_extra_plan_keeps_the_release_a_rollback_target(tmp_path):
+    site, plan, (a, b, c) = _site(tmp_path, ("a", "b", "c"))
+    _to_production(site, plan, a)
+    _run(site)
+    _to_production(site, plan, b)
+    _run(site)
+    _run(site, "--plan", str(write_plan(tmp_path / "strict.yaml", STRICT)))  # b's latest gates, another plan
+    said = _to_production(site, plan, c)
+    assert _production(site) == (c, b) and f"last_good {b};" in said
+    assert cli("verify", "--site", str(site)).exit_code == 0
+
+
+def test_promote_says_why_a_pass_logged_without_its_plan_makes_no_rollback_target(tmp_path):
+    """After an upgrade, a production pass an older cellguard logged (no plan hash) left last_good where it was,
+    silently."""
+    site, plan, (a, b, c, d) = _site(tmp_path, ("a", "b", "c", "d"))
+    _to_production(site, plan, a)
+    _run(site)
+    _to_production(site, plan, b)
+    store = Store(site)
+    with store.transaction():  # as an older cellguard logged b's pass
+        older = log.append(store, {"kind": "gates", "cell": CELL, "stage": "production", "release": b,
+                                   "verdict": "pass", "gates": [], "evidence": []})
+    said = _to_production(site, plan, c)
+    assert _production(site) == (c, a)
+    assert f"last_good {a}, not {b}: its pass there logged no plan (an older cellguard; log entry {older.seq})" in said
+    said = _to_production(site, plan, d)  # c never ran there
+    assert f"last_good {a}, not {c}: it has no gates entry there on a plan's own runs" in said
+    assert cli("verify", "--site", str(site)).exit_code == 0
+
+
+def test_a_verdict_rests_only_on_runs_of_the_plan_it_evaluates(tmp_path):
+    """Under a plan in force that one knocked cycle in two fails (success_rate min 0.75), the runs of an ad-hoc plan
+    and of --scenario are counted by no other plan's verdict, nor its runs by theirs: runs of all of them padded
+    each other's evidence."""
+    in_force = {"runs": [ONE, KNOCKED], "gates": [{"metric": "success_rate", "min": 0.75}]}
+    site, plan, (a,) = _site(tmp_path, ("a",), in_force)
+    pad = {"production": {"runs": [{**ONE, "name": f"pad{i}"} for i in range(3)],
+                          "gates": [{"metric": "success_rate", "min": 0}]}}
+    _to_production(site, plan, a)
+    padded = _run(site, "--plan", str(write_plan(tmp_path / "pad.yaml", pad)))
+    assert len(padded["evidence"]) == 3
+    alone = _run(site, verdict="fail")  # 1 of 2 cycles; with the three padding runs, 4 of 5 passed
+    assert len(alone["evidence"]) == 2 and _production(site) == (a, None)
+    _run(site, "--plan", str(write_plan(tmp_path / "pad.yaml", pad)))  # its own runs only: 3
+    strict = _run(site, "--plan", str(write_plan(tmp_path / "strict.yaml", STRICT)))  # none of the knocked runs
+    assert len(strict["evidence"]) == 2
+    (tmp_path / "one.yaml").write_text(yaml.safe_dump(ONE))
+    given = _run(site, "--scenario", str(tmp_path / "one.yaml"))  # the run given, alone
+    assert len(given["evidence"]) == 1 and given["scenario"] == ["one"]
+    edit_store(site, f"UPDATE runs SET plan_sha256 = '{plan_hash(load_plan(plan)['production'])}'")  # the log decides
+    again = _run(site, verdict="fail")  # its own four runs, none of the other plans' or the scenario's
+    assert len(again["evidence"]) == 4 and set(alone["evidence"]) < set(again["evidence"])
+    assert _production(site) == (a, None)
+    assert cli("verify", "--site", str(site)).exit_code == 0
+
+
+def test_status_shows_a_pass_that_counts_for_nothing_as_such(tmp_path):
+    site, plan, (a,) = _site(tmp_path, ("a",))
+    _to_production(site, plan, a)
+    _run(site, "--plan", str(write_plan(tmp_path / "weak.yaml", WEAK)))
+    shown = cli("status", "--site", str(site))
+    assert shown.exit_code == 0 and "pass (other plan)" in shown.stdout
+    _run(site)
+    assert "pass (" not in cli("status", "--site", str(site)).stdout
+    (tmp_path / "one.yaml").write_text(yaml.safe_dump(ONE))
+    _run(site, "--scenario", str(tmp_path / "one.yaml"))
+    assert "pass (scenario)" in cli("status", "--site", str(site)).stdout
+
+
+def test_a_store_of_an_older_cellguard_reads_its_runs_as_its_log_counted_them(tmp_path):
+    """Its runs table has no plan column: a command that only reads leaves it so; the first run adds it, and the
+    runs counted before are taken under the plan their gates entry logged."""
+    site, plan, (a,) = _site(tmp_path, ("a",))
+    _to_production(site, plan, a)
+    first = _run(site)
+    edit_store(site, "ALTER TABLE runs DROP COLUMN plan_sha256")  # as an older cellguard made it
+    assert cli("status", "--site", str(site)).exit_code == 0
+    assert "plan_sha256" not in _run_columns(site)
+    again = _run(site)
+    assert "plan_sha256" in _run_columns(site)
+    assert len(again["evidence"]) == 2 and first["evidence"][0] in again["evidence"]
+
+
+def _run_columns(site) -> list[str]:
+    return [r[1] for r in Store(site).db.execute("PRAGMA table_info(runs)")]
+
+
+def test_a_promotion_an_older_cellguard_logged_replays_as_it_was_decided(tmp_path):
+    """Its outgoing release's latest gates of any plan decided last_good: b's pass under a stricter extra plan left
+    a there. Replayed by the rule that now keeps b, `verify` called the pointers edited and every command refused."""
+    site, plan, (a, b, c) = _site(tmp_path, ("a", "b", "c"))
+    _to_production(site, plan, a)
+    _run(site)
+    _to_production(site, plan, b)
+    _run(site)
+    _run(site, "--plan", str(write_plan(tmp_path / "strict.yaml", STRICT)))
+    store, plans = Store(site), load_plan(plan)
+    for stage in ("sim", "bench", "pilot"):
+        promote(store, c, CELL, stage, plans)
+        log_pass(store, stage, c)
+    with store.transaction():  # as the cellguard before promoted c: no outgoing_gates, a stays last_good
+        store.set_pointers(CELL, "production", c, a)
+        log.append(store, {"kind": "promote", "cell": CELL, "stage": "production", "release": c, "from": b, "to": c,
+                           log.IN_FORCE: plan_hash(plans["production"]), "gates": [], "evidence": [],
+                           "gates_entry": None})
+    assert cli("verify", "--site", str(site)).exit_code == 0
+    _run(site)
+    assert _production(site) == (c, a)

@@ -58,6 +58,14 @@ def _plan(site: Path, plan: Path | None, cell: str):
     return load_plan(plan)
 
 
+def _plans(site: Path, plan: Path | None, cell: str) -> tuple:
+    """(the plan the command takes, the plan in force): ``--plan``, else the plan in force; the site's
+    release-plan.yaml, else the packaged plan for the cell's kind. ``run`` and ``promote`` both take last_good under
+    the plan in force, whatever --plan: under ``promote --plan`` a weak plan's pass became the rollback target."""
+    given = _plan(site, plan, cell)
+    return given, given if plan is None else _plan(site, None, cell)
+
+
 @release_app.command()
 def create(
     policy: str = typer.Option(..., "--policy", help="Policy spec: scripted, onnx:FILE, lerobot:DIR, openpi:ws://..."),
@@ -97,16 +105,20 @@ def promote(
     site: Path = SITE,
 ) -> None:
     """Make a release current at a stage, from the stage before it with its gates passed, and its plan there one the
-    cell can run."""
+    cell can run. --plan: the plan that pass must have run, and the stage's runs; last_good is the plan in force's
+    (the site's plan, else the packaged one), as for `release run`."""
     from cellguard.release import promote as do
+    from cellguard.release.promotion import last_good_note
 
     try:
-        entry = do(_store(site), release, cell, to, _plan(site, plan, cell))
+        store = _store(site)
+        entry = do(store, release, cell, to, *_plans(site, plan, cell))
         stdout.written(f"log entry {entry.seq} ({entry.body['release']} current at {to} on {cell})")
+        note = last_good_note(store, entry)
     except CellguardError as exc:
         fail(exc)
     before = f"was {entry.body['from']}" if entry.body["from"] else "the first here"
-    out.print(f"{entry.body['release']} is current at {to} on {cell} ({before}); log entry {entry.seq}")
+    out.print(f"{entry.body['release']} is current at {to} on {cell} ({before}); {note}; log entry {entry.seq}")
 
 
 @release_app.command("run")
@@ -129,8 +141,7 @@ def run_stage(
     from cellguard.yaml_file import read_yaml
 
     try:
-        plans = _plan(site, plan, cell)
-        in_force = plans if plan is None else _plan(site, None, cell)
+        plans, in_force = _plans(site, plan, cell)
         runs = None
         if scenario is not None:
             runs = [read_yaml(scenario, "run", GateError)]
@@ -167,8 +178,8 @@ def run_stage(
             out.print(f"  {scenario} ran in place of the plan's runs: logged, not evidence a promotion accepts")
         elif result.verdict == "pass" and not result.counted:
             out.print(f"  --plan {plan}: not the plan in force at {stage} (the site's release-plan.yaml, else the "
-                      f"packaged plan): this pass is logged; a promotion, and last_good, take it only under the same "
-                      f"--plan")
+                      f"packaged plan): this pass is logged and makes no release last_good; a promotion takes it "
+                      f"only under the same --plan")
     if result.verdict != "pass":
         raise typer.Exit(1)
 
@@ -193,7 +204,7 @@ def rollback(
 
 @release_app.command()
 def status(site: Path = SITE, as_json: bool = typer.Option(False, "--json")) -> None:
-    """Every cell's stages: current, last_good and the latest verdict."""
+    """Every cell's stages: current, last_good and the latest verdict (a pass that lets nothing on says why)."""
     from cellguard.release import status as do
 
     try:
@@ -206,8 +217,9 @@ def status(site: Path = SITE, as_json: bool = typer.Option(False, "--json")) -> 
     if not rows:
         out.print("no release promoted yet")
     for r in rows:
+        verdict = f"{r['verdict']} ({r['not_counted']})" if r["not_counted"] else r["verdict"] or ""
         out.print(f"{r['cell']:<18} {r['stage']:<11} current {r['current'] or '-':<17} "
-                  f"last_good {r['last_good'] or '-':<17} {r['verdict'] or ''}")
+                  f"last_good {r['last_good'] or '-':<17} {verdict}")
 
 
 @release_app.command()

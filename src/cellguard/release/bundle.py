@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import shlex
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -167,14 +168,27 @@ def policy_hash(bundle: Bundle, cell=None) -> str:
 def _frozen(bundle: Bundle, exc: CellguardError) -> str:
     """Why the release's policy does not load, as what can be done: a source that states no step period
     (``adapter.step_period``'s refusal) needs a new release whose policy gives it, as its own refusal's ``give
-    ?dt=SECONDS`` cannot be done to a frozen release."""
+    ?dt=SECONDS`` cannot be done to a frozen release: the ``release create`` that makes it, with this release's
+    other inputs as its manifest holds them (the calibrated profile's path, else its cell; the action map's path;
+    the envelope's settings that are not the defaults, as it holds no envelope file). Without them the command
+    suggested was refused for a missing --profile."""
     from cellguard.policy.adapter import StepPeriodUnstated
 
     if not isinstance(exc, StepPeriodUnstated):
         return str(exc)
-    spec = bundle.manifest["policy"]["spec"]
-    return (f"policy: {spec}: the step period is not stated: create a new release whose policy gives it, e.g. release create --policy "
-            f"'{spec}{'&' if '?' in spec else '?'}dt=SECONDS' (the policy's control period, e.g. 0.0667 for 15 Hz)")
+    m = bundle.manifest
+    spec = m["policy"]["spec"]
+    timed = spec + ("&" if "?" in spec else "?") + "dt=SECONDS"
+    args = ["--policy", timed, "--profile", bundle.calibration or bundle.cell]
+    args += ["--map", m["action_map"]["path"]] if m.get("action_map") else []
+    notes = ["SECONDS: the policy's control period, e.g. 0.0667 for 15 Hz"]
+    defaults = GuardConfig().model_dump(mode="json")
+    envelope = {k: v for k, v in (m.get("envelope") or {}).items() if defaults.get(k) != v}
+    if envelope:
+        args += ["--envelope", "FILE"]
+        notes.append(f"FILE: a YAML file holding this release's envelope, {json.dumps(envelope)}")
+    return (f"policy: {spec}: the step period is not stated and a frozen release cannot take ?dt=: cellguard release "
+            f"create {shlex.join(args)} ({'; '.join(notes)})")
 
 
 def calibration_version(profile) -> str:

@@ -24,6 +24,8 @@ from cellguard.release.errors import ReleaseError, StageError
 GENESIS = "0" * 64
 MOVES = ("promote", "rollback")  # the entries that move a stage's current
 IN_FORCE = "plan_in_force_sha256"  # a gates or promote entry's key: the stage's part of the plan in force then
+SCENARIO = "scenario"  # what runs given with ``release run --scenario`` were made under (``counted_under``)
+OUTGOING = "outgoing_gates"  # a promote entry's key: the gates entry its last_good rests on; it took ``Judged``'s rule
 
 
 @dataclass(frozen=True)
@@ -131,6 +133,84 @@ def ran_plan(body: dict, in_force: str | None) -> bool:
     return in_force is None or body.get("plan_sha256") == in_force
 
 
+def not_counted(body: dict) -> str | None:
+    """Why a gates entry's pass lets nothing on, as logged, in a few words (None: it counted under the plan in force
+    it logged, or it is no pass): ``release status`` shows it beside the verdict, which alone read as a pass that
+    counted."""
+    if body.get("verdict") != "pass":
+        return None
+    if body.get("scenario"):
+        return "scenario"
+    if not body.get("plan_sha256"):
+        return "no plan logged"
+    return "other plan" if body.get(IN_FORCE, body["plan_sha256"]) != body["plan_sha256"] else None
+
+
+class Judged:
+    """Per (cell, stage, release), its latest gates entry on a plan's own runs (not ``--scenario``'s), by the plan
+    it ran: what says whether a release passed a stage under a plan in force. A promotion's last_good and the
+    replay of it (``pointers_by_log``) both ask it, entry by entry as the log grew: the latest entry of any plan or
+    kind decided, and a pass under a stricter ad-hoc ``--plan`` since took the rollback target away. Promotions
+    logged so (without ``OUTGOING``) replay as they were decided (``last``)."""
+
+    ANY = "*"  # the key of the latest entry whatever its plan: for no plan in force (nothing checked)
+
+    def __init__(self, log_entries: list[LogEntry] = ()):
+        self._latest: dict[tuple, LogEntry] = {}
+        self._last: dict[tuple, dict] = {}
+        for entry in log_entries:
+            self.add(entry)
+
+    def add(self, entry: LogEntry) -> None:
+        b = entry.body
+        if b.get("kind") != "gates":
+            return
+        key = (b.get("cell"), b.get("stage"), b.get("release"))
+        self._last[key] = b
+        if not b.get("scenario"):
+            self._latest[(*key, b.get("plan_sha256"))] = self._latest[(*key, self.ANY)] = entry
+
+    def last(self, cell: str, stage: str, release: str | None) -> dict:
+        """The body of ``release``'s latest gates entry at (cell, stage) of any plan or kind ({}: none)."""
+        return self._last.get((cell, stage, release), {})
+
+    def under(self, cell: str, stage: str, release: str | None, in_force: str | None) -> LogEntry | None:
+        """The latest gates entry of ``release`` at (cell, stage) that ran ``in_force`` (None: any plan)."""
+        return self._latest.get((cell, stage, release, self.ANY if in_force is None else in_force))
+
+    def why_not(self, cell: str, stage: str, release: str | None, in_force: str | None) -> str | None:
+        """None when ``release``'s latest gates at (cell, stage) under ``in_force`` passed (it may be last_good
+        there), else why not, in words."""
+        entry = self.under(cell, stage, release, in_force)
+        if entry is not None:
+            if passed(entry.body, in_force):
+                return None
+            return f"its gates there under the plan in force ended {entry.body['verdict']} (log entry {entry.seq})"
+        latest = self.under(cell, stage, release, None)
+        if latest is None:
+            return "it has no gates entry there on a plan's own runs"
+        b = latest.body
+        what = "its pass" if b.get("verdict") == "pass" else f"its gates ({b.get('verdict')})"
+        if not b.get("plan_sha256"):
+            return f"{what} there logged no plan (an older cellguard; log entry {latest.seq})"
+        return (f"{what} there ran another plan ({b['plan_sha256'][:12]}, log entry {latest.seq}; the plan in force "
+                f"has {in_force[:12]})")
+
+
+def counted_under(log_entries: list[LogEntry]) -> dict[int, str | None]:
+    """Each run a gates entry counted (its ``runs``) -> the plan it was counted under, by the first entry that
+    counted it: that entry's ``plan_sha256`` (None: it logged none), ``SCENARIO`` for runs given with
+    ``--scenario``. The log decides over the run's own row, which an edit could relabel."""
+    out: dict[int, str | None] = {}
+    for e in log_entries:
+        b = e.body
+        if b.get("kind") == "gates":
+            under = SCENARIO if b.get("scenario") else b.get("plan_sha256")
+            for seq, _ in b.get("runs") or []:
+                out.setdefault(seq, under)
+    return out
+
+
 def check_pointers(store, cell: str, stage: str) -> tuple:
     """(current, last_good) of (cell, stage) as stored; ReleaseError unless the log's entries set them so (a
     pointer edited outside cellguard would run, promote or roll back a release no gate let there)."""
@@ -182,22 +262,26 @@ def last_pointer_move(store, cell: str, stage: str) -> LogEntry | None:
 
 def pointers_by_log(log_entries: list[LogEntry]) -> dict[tuple, tuple]:
     """(cell, stage) -> (current, last_good) as the entries set them, by promotion.py's rules: a promotion
-    makes the outgoing release last_good if its latest gates there ``passed`` under the plan in force the promotion
-    logged, the first release to pass a stage under the plan in force its gates entry logged is its own last_good,
-    a rollback makes last_good current. Each entry names the plan in force when it acted (``IN_FORCE``), so the
-    replay needs no plan file, and a plan edited since leaves the pointers as they were set."""
-    state, latest = {}, {}
+    makes the outgoing release last_good if its latest gates there under the plan in force the promotion logged
+    passed (``Judged``), the first release to pass a stage under the plan in force its gates entry logged is its
+    own last_good, a rollback makes last_good current. Each entry names the plan in force when it acted
+    (``IN_FORCE``), so the replay needs no plan file, and a plan edited since leaves the pointers as they were set."""
+    state, judged = {}, Judged()
     for e in log_entries:
         b = e.body
         key = (b.get("cell"), b.get("stage"))
         current, last_good = state.get(key, (None, None))
         if b.get("kind") == "gates":
-            latest[(*key, b.get("release"))] = b
+            judged.add(e)
             if last_good is None and passed(b, b.get(IN_FORCE)):
                 state[key] = (current, current)
         elif b.get("kind") == "promote":
-            outgoing = latest.get((*key, b.get("from")), {})
-            state[key] = (b.get("to"), b.get("from") if passed(outgoing, b.get(IN_FORCE)) else last_good)
+            outgoing = b.get("from")
+            if OUTGOING in b:
+                kept = outgoing is not None and judged.why_not(*key, outgoing, b.get(IN_FORCE)) is None
+            else:  # logged by an older cellguard, which took the outgoing release's latest gates there
+                kept = passed(judged.last(*key, outgoing), b.get(IN_FORCE))
+            state[key] = (b.get("to"), outgoing if kept else last_good)
         elif b.get("kind") == "rollback":
             state[key] = (b.get("to"), b.get("to"))
     return state

@@ -8,7 +8,9 @@ rolls ``current`` back to ``last_good`` on a fail. ``last_good`` is the release 
 before the current one: a promotion moves it to the outgoing release when that one had passed
 (the first release to pass a stage is its own last_good). A pass counts, for a promotion and for
 ``last_good`` alike, only on the stage's part of the plan in force (``log.passed``): a weak ad-hoc
-plan's pass made its release a rollback target.
+plan's pass made its release a rollback target. A verdict rests only on runs of the plan it
+evaluates (``runs_key``): three one-cycle runs of an ad-hoc plan, counted in the next evaluation
+under the plan in force, turned its failing production verdict into a pass.
 """
 
 from __future__ import annotations
@@ -66,12 +68,14 @@ def last_evaluation(store: Store, cell: str, stage: str, release: str) -> log.Lo
     return None
 
 
-def promote(store: Store, release: str, cell: str, to: str, plans: dict[str, StagePlan] | None = None) -> log.LogEntry:
+def promote(store: Store, release: str, cell: str, to: str, plans: dict[str, StagePlan] | None = None,
+            in_force: dict[str, StagePlan] | None = None) -> log.LogEntry:
     """Make ``release`` current at (cell, to); StageError (nothing moved) when out of order, when its pass at the
-    stage before ran another plan there than ``plans`` (the plan in force, every stage's) holds, or when ``plans``
-    has no runs at ``to``; GateError when ``to``'s plan holds a run or gate the cell cannot carry out
-    (``check_cell``). The outgoing release becomes last_good only if its latest gates at ``to`` passed under
-    ``plans``' part there. ``plans`` None: no plan is checked."""
+    stage before ran another plan there than ``plans`` (every stage's) holds, or when ``plans`` has no runs at
+    ``to``; GateError when ``to``'s plan holds a run or gate the cell cannot carry out (``check_cell``). The
+    outgoing release becomes last_good only if its latest gates at ``to`` under ``in_force``'s part there (the plan
+    in force, as ``run_stage`` takes it; default ``plans``) passed (``log.Judged``): ``promote --plan`` with a weak
+    plan made a weak pass the rollback target. ``plans`` None: no plan is checked."""
     check_stage(to)
     bundle = store.bundle(release)
     if bundle.cell != cell:
@@ -99,7 +103,8 @@ def promote(store: Store, release: str, cell: str, to: str, plans: dict[str, Sta
         unbound = log.run_problems(store, [evaluation])
         if unbound:
             raise ReleaseError(f"--to {to}: {unbound[0]}; nothing moved")
-    in_force = None if plans is None else plan_hash(plans[to])
+    in_force = plans if in_force is None else in_force
+    in_force = None if in_force is None else plan_hash(in_force[to])
     if plans is not None:
         plan = plans[to]
         if not plan.runs:  # a dead end: ``release run`` refuses the stage, so nothing could pass it
@@ -110,11 +115,14 @@ def promote(store: Store, release: str, cell: str, to: str, plans: dict[str, Sta
         current, last_good = log.check_pointers(store, cell, to)
         if current == bundle.id:
             raise StageError(f"--to {to}: release {bundle.id} is already current at {to} on {cell}")
-        outgoing = last_evaluation(store, cell, to, current) if current else None
-        last_good = current if outgoing is not None and log.passed(outgoing.body, in_force) else last_good
+        judged = log.Judged(log.entries(store))
+        if current is not None and judged.why_not(cell, to, current, in_force) is None:
+            last_good = current
+        outgoing = judged.under(cell, to, current, in_force) if current is not None else None
         store.set_pointers(cell, to, bundle.id, last_good)
         return log.append(store, {"kind": "promote", "cell": cell, "stage": to, "release": bundle.id,
                                   "from": current, "to": bundle.id, log.IN_FORCE: in_force,
+                                  log.OUTGOING: outgoing.seq if outgoing else None,
                                   "gates": evaluation.body["gates"] if evaluation else [],
                                   "evidence": evaluation.body["evidence"] if evaluation else [],
                                   "gates_entry": evaluation.seq if evaluation else None})
@@ -208,7 +216,8 @@ def run_stage(store: Store, plan: StagePlan, cell: str, stage: str, runs: list[d
         if plan.shadow:
             run.write_shadow(folder)
         try:
-            store.add_run(record_id(folder), cell, stage, bundle.id, name, folder, start.move_seq)
+            store.add_run(record_id(folder), cell, stage, bundle.id, name, folder, start.move_seq,
+                          runs_key(plan, runs))
         except ReleaseError as exc:
             raise ReleaseError(f"{stage} run {name!r} on {cell}: its record in {folder} is kept but could not be "
                                f"counted ({exc}); the stage's gates were not evaluated") from None
@@ -217,8 +226,7 @@ def run_stage(store: Store, plan: StagePlan, cell: str, stage: str, runs: list[d
             raise OperatorStopped(f"{run.operator.reason} during {stage} run {name!r} on {cell}, after it stopped "
                                   f"({run.stopped}); its record in {folder} is counted; no further run was started "
                                   f"and the stage's gates were not evaluated")
-    scenario_runs = [e.get("name", "run") for e in runs] if runs is not None else []
-    return evaluate_stage(store, plan, cell, stage, folders, start, scenario_runs, in_force)
+    return evaluate_stage(store, plan, cell, stage, folders, start, runs, in_force)
 
 
 def _calibration(bundle: Bundle) -> str | None:
@@ -291,33 +299,36 @@ def _evidence(store: Store, rows: list[RunRow]) -> tuple[list[RunEvidence], list
 
 
 def evaluate_stage(store: Store, plan: StagePlan, cell: str, stage: str, folders: list[str] = (),
-                   start: Start | None = None, scenario: list[str] = (),
+                   start: Start | None = None, runs: list[dict] | None = None,
                    in_force: StagePlan | None = None) -> StageResult:
-    """Evaluate the gates of (cell, stage) on its current release's runs since it became current.
+    """Evaluate the gates of (cell, stage) on its current release's runs of ``plan`` since it became current
+    (``runs_key``; against last_good's runs of ``plan`` there).
 
     A counted run that cannot be read as the record counted (gone, damaged, replaced), or that an earlier gates
     entry counted and the runs table no longer holds so, is left out and named in ``refused``: the verdict is
     then never pass, yet it is decided and logged (a failing production release still rolls back), and the
     stage's next evaluation is not blocked by it. ``start``: what the runs started on (default: the stage now);
-    StageError, nothing logged or moved, when the stage moved since. ``scenario``: the runs given in place of the
-    plan's, logged; such a pass lets nothing on (``log.passed``). ``in_force``: the stage's part of the plan in
-    force (default ``plan``), logged beside ``plan``'s hash: a pass on another plan is logged and lets nothing on,
-    nor makes its release last_good."""
+    StageError, nothing logged or moved, when the stage moved since. ``runs``: the runs given in place of the
+    plan's (``--scenario``), logged by name; such a pass lets nothing on (``log.passed``). ``in_force``: the stage's
+    part of the plan in force (default ``plan``), logged beside ``plan``'s hash: a pass on another plan is logged
+    and lets nothing on, nor makes its release last_good."""
     if start is None:
         moved = log.last_pointer_move(store, cell, stage)
         start = Start(*log.check_pointers(store, cell, stage), moved.seq if moved else 0)
-    rows = store.runs(cell, stage, start.current, start.move_seq)
-    runs, refused = _evidence(store, rows)
-    refused += _dropped(store, cell, stage, start, rows)
+    key, under = runs_key(plan, runs), log.counted_under(log.entries(store))
+    every = store.runs(cell, stage, start.current, start.move_seq)
+    rows = [r for r in every if under.get(r.seq, r.plan) == key]
+    taken, refused = _evidence(store, rows)
+    refused += _dropped(store, cell, stage, start, every)
     good, good_rows = [], []
     if start.last_good and start.last_good != start.current:
-        good_rows = store.runs(cell, stage, start.last_good)
+        good_rows = [r for r in store.runs(cell, stage, start.last_good) if under.get(r.seq, r.plan) == key]
         good, refused_good = _evidence(store, good_rows)
         refused += refused_good
-    results = tuple(evaluate(g, runs, good) for g in plan.gates)
+    results = tuple(evaluate(g, taken, good) for g in plan.gates)
     outcome = verdict(results)
     outcome = INCONCLUSIVE if refused and outcome == PASS else outcome
-    evidence = [r.record_id for r in runs]
+    evidence = [r.record_id for r in taken]
     rolled = None
     with store.transaction():
         _still(store, cell, stage, start, folders)
@@ -327,7 +338,8 @@ def evaluate_stage(store: Store, plan: StagePlan, cell: str, stage: str, folders
                                    "refused": refused, "last_good": start.last_good,
                                    "runs": [[r.seq, r.record_id] for r in rows],
                                    "last_good_runs": [[r.seq, r.record_id] for r in good_rows],
-                                   "scenario": list(scenario), "plan_sha256": plan_hash(plan),
+                                   "scenario": [e.get("name", "run") for e in runs or ()],
+                                   "plan_sha256": plan_hash(plan),
                                    log.IN_FORCE: plan_hash(plan if in_force is None else in_force)})
         counted = log.passed(entry.body, entry.body[log.IN_FORCE])
         if counted and start.last_good is None:  # the first release to pass here
@@ -344,6 +356,17 @@ def evaluate_stage(store: Store, plan: StagePlan, cell: str, stage: str, folders
 def plan_hash(plan: StagePlan) -> str:
     """The stage's plan (its runs and gates: the gate's definition) as logged beside its results."""
     return hashlib.sha256(canonical_json(plan.model_dump(mode="json"))).hexdigest()
+
+
+def runs_key(plan: StagePlan, runs: list[dict] | None = None) -> str:
+    """What a stage's run is made under, noted on its row, and the runs an evaluation counts: ``plan``'s hash, or
+    for ``runs`` given in place of its runs (``--scenario``) ``log.SCENARIO`` and the hash of the plan with those
+    runs. Never one for runs of another plan or a scenario: runs of an ad-hoc plan padded the next verdict under
+    the plan in force. An evaluation takes a run as the log's first gates entry counting it says
+    (``log.counted_under``), else as its row."""
+    if runs is None:
+        return plan_hash(plan)
+    return f"{log.SCENARIO}:{plan_hash(plan.model_copy(update={'runs': runs}))}"
 
 
 def _dropped(store: Store, cell: str, stage: str, start: Start, rows: list[RunRow]) -> list[str]:
@@ -406,6 +429,20 @@ def status(store: Store) -> list[dict]:
             p = store.pointers(cell, stage)
             ev = last_evaluation(store, cell, stage, p.current) if p.current else None
             out.append({"cell": cell, "stage": stage, "current": p.current, "last_good": p.last_good,
-                        "verdict": ev.body["verdict"] if ev else None})
+                        "verdict": ev.body["verdict"] if ev else None,
+                        "not_counted": log.not_counted(ev.body) if ev else None})
     return out
+
+
+def last_good_note(store: Store, entry: log.LogEntry) -> str:
+    """Who is last_good at a promotion's stage after ``entry`` and, where the outgoing release was not made so,
+    why (``log.Judged``): a pass an older cellguard logged without its plan stopped making its release last_good
+    after an upgrade, and nothing said so."""
+    b = entry.body
+    last_good = store.pointers(b["cell"], b["stage"]).last_good
+    outgoing = b.get("from")
+    if outgoing is None or outgoing == last_good:
+        return f"last_good {last_good or 'none'}"
+    why = log.Judged(log.entries(store)).why_not(b["cell"], b["stage"], outgoing, b.get(log.IN_FORCE))
+    return f"last_good {last_good or 'none'}, not {outgoing}: {why}"
 
