@@ -43,6 +43,19 @@ def test_last_goods_figure_that_is_no_number_passes_no_relative_gate(monkeypatch
     assert evaluate(Gate(metric="rate", max_vs_last_good=1.05), [0.5], [0.5]).status == "pass"
 
 
+def test_a_relative_gate_says_truly_why_it_has_no_last_good_figure(monkeypatch):
+    """It said "no last_good on this stage" whatever the reason: where last_good had only runs made otherwise, or
+    runs with no figure."""
+    _metric(monkeypatch, "rate", _value)
+    gate = Gate(metric="rate", max=1.0, max_vs_last_good=1.05)
+    assert evaluate(gate, [0.5]).detail == "0.5  (no last_good on this stage: absolute limit only)"
+    why = "last_good abc has no runs of this stage's runs"
+    assert evaluate(gate, [0.5], [], why).detail == f"0.5  ({why}: absolute limit only)"
+    assert evaluate(gate, [0.5], [None], why).detail == "0.5  (no figure in last_good's runs: absolute limit only)"
+    alone = evaluate(Gate(metric="rate", max_vs_last_good=1.05), [0.5], [], why)
+    assert (alone.status, alone.detail) == ("inconclusive", f"{why}: nothing to compare with")
+
+
 def _raises(runs):
     raise RuntimeError("the plugin's own bug")
 

@@ -11,12 +11,15 @@ and nothing said so; `release status` showed such passes as plain passes.
 
 from __future__ import annotations
 
+import json
+import shutil
+
 import yaml
 from release_helpers import CELL, KNOCKED, ONE, cli, edit_store, log_pass, pointers, stored_release, write_plan
 
 from cellguard.release import Store, load_plan, log, promote
 from cellguard.release.plan import PICK_PLACE_PLAN
-from cellguard.release.promotion import plan_hash
+from cellguard.release.promotion import plan_hash, runs_key
 
 PRODUCTION = {"runs": [ONE], "gates": [{"metric": "success_rate", "min": 1.0}]}
 WEAK = {"production": {"runs": [ONE], "gates": [{"metric": "success_rate", "min": 0}]}}
@@ -54,8 +57,8 @@ def _run(site, *options, verdict: str = "pass") -> dict:
     """``release run`` at production with ``options``, ending ``verdict``: its gates entry."""
     result = cli("run", "--cell", CELL, "--stage", "production", *options, "--site", str(site))
     assert result.exit_code == (0 if verdict == "pass" else 1), result.output
-    entry = log.entries(Store(site))[-1].body
-    assert entry["kind"] == "gates" and entry["verdict"] == verdict, entry
+    entry = next(e.body for e in reversed(log.entries(Store(site))) if e.body["kind"] == "gates")  # or a rollback's
+    assert entry["verdict"] == verdict, entry
     return entry
 
 
@@ -156,24 +159,117 @@ def test_a_verdict_rests_only_on_runs_of_the_plan_it_evaluates(tmp_path):
     (tmp_path / "one.yaml").write_text(yaml.safe_dump(ONE))
     given = _run(site, "--scenario", str(tmp_path / "one.yaml"))  # the run given, alone
     assert len(given["evidence"]) == 1 and given["scenario"] == ["one"]
-    edit_store(site, f"UPDATE runs SET plan_sha256 = '{plan_hash(load_plan(plan)['production'])}'")  # the log decides
+    edit_store(site, f"UPDATE runs SET runs_sha256 = '{runs_key(load_plan(plan)['production'])}'")  # the log decides
     again = _run(site, verdict="fail")  # its own four runs, none of the other plans' or the scenario's
     assert len(again["evidence"]) == 4 and set(alone["evidence"]) < set(again["evidence"])
     assert _production(site) == (a, None)
     assert cli("verify", "--site", str(site)).exit_code == 0
 
 
-def test_status_shows_a_pass_that_counts_for_nothing_as_such(tmp_path):
+def _shown(site, rid) -> tuple[str, str]:
+    """(`release status`'s production line, `release report`'s production verdict) for ``rid``, current there."""
+    shown = cli("status", "--site", str(site))
+    assert shown.exit_code == 0, shown.output
+    page = site.parent / "page.html"
+    assert cli("report", rid, "-o", str(page), "--site", str(site)).exit_code == 0
+    text = page.read_text()
+    head = text[text.index("<h2>production</h2>"):]
+    line = " ".join(shown.stdout.split()).split(" production ")[-1].split(f" {CELL}: ")[0]  # as wrapped or not
+    return line, head[:head.index("(log entry")]
+
+
+def test_status_and_report_show_a_pass_that_counts_for_nothing_as_such(tmp_path):
+    """`release report` showed every such pass as a plain pass."""
     site, plan, (a,) = _site(tmp_path, ("a",))
     _to_production(site, plan, a)
     _run(site, "--plan", str(write_plan(tmp_path / "weak.yaml", WEAK)))
-    shown = cli("status", "--site", str(site))
-    assert shown.exit_code == 0 and "pass (other plan)" in shown.stdout
+    line, page = _shown(site, a)
+    assert line.endswith("pass (other plan)") and "<b>pass</b> (other plan: counts for nothing)" in page
     _run(site)
-    assert "pass (" not in cli("status", "--site", str(site)).stdout
+    line, page = _shown(site, a)
+    assert line.endswith(" pass") and "<div class=ok><b>pass</b> " in page
     (tmp_path / "one.yaml").write_text(yaml.safe_dump(ONE))
     _run(site, "--scenario", str(tmp_path / "one.yaml"))
-    assert "pass (scenario)" in cli("status", "--site", str(site)).stdout
+    line, page = _shown(site, a)
+    assert line.endswith("pass (scenario)") and "<b>pass</b> (scenario: counts for nothing)" in page
+
+
+def test_status_and_report_judge_a_pass_by_the_plan_in_force_now(tmp_path):
+    """They judged it by the plan in force its entry logged: a pass under a plan edited since, or one an older
+    cellguard logged under another plan (no plan in force logged), showed as a plain pass that promote then refused.
+    A plan in force that does not load is said, and the read-only commands still answer."""
+    site, plan, (a,) = _site(tmp_path, ("a",))
+    _to_production(site, plan, a)
+    _run(site)
+    write_plan(plan, {**yaml.safe_load(plan.read_text())["stages"],
+                      "production": {**PRODUCTION, "gates": [{"metric": "success_rate", "min": 0.5}]}})
+    line, page = _shown(site, a)
+    assert line.endswith("pass (plan edited since)") and "(plan edited since: counts for nothing)" in page
+    rows = json.loads(cli("status", "--json", "--site", str(site)).stdout)["stages"]
+    assert [r["not_counted"] for r in rows if r["stage"] == "production"] == ["plan edited since"]
+    store = Store(site)
+    with store.transaction():  # as 80ed4fe logged a pass under --plan weak.yaml: its plan, none in force
+        log.append(store, {"kind": "gates", "cell": CELL, "stage": "production", "release": a, "verdict": "pass",
+                           "gates": [], "evidence": [], "plan_sha256": plan_hash(load_plan(
+                               write_plan(tmp_path / "weak.yaml", WEAK))["production"])})
+    line, page = _shown(site, a)
+    assert line.endswith("pass (other plan)") and "(other plan: counts for nothing)" in page
+    plan.write_text("stages: [unclosed\n")
+    line, page = _shown(site, a)
+    assert line.endswith("pass (plan in force does not load)")
+    said = " ".join(cli("status", "--site", str(site)).stdout.split())
+    assert f"{CELL}: the plan in force does not load, so nothing moves there until it does: {plan}" in said
+    whole = (site.parent / "page.html").read_text()
+    assert "<p class=finding>the plan in force does not load, so no pass counts: " in whole
+
+
+def test_a_gate_added_to_the_plan_in_force_keeps_last_goods_runs_compared(tmp_path):
+    """Runs were taken by the whole plan's hash: a gate added dropped all of last_good's runs, the relative gate fell
+    back to its absolute limit saying 'no last_good on this stage', and the release that failed it stayed in
+    production. Only runs made otherwise (the runs edited) are left out of the comparison, and it says so."""
+    relative = {"runs": [ONE], "gates": [{"metric": "success_rate", "min": 0},
+                                         {"metric": "cycle_time_p95_s", "max": 60.0, "max_vs_last_good": 0.5}]}
+    site, plan, (a, b) = _site(tmp_path, ("a", "b"), relative)
+    _to_production(site, plan, a)
+    first = _run(site)
+    stages = yaml.safe_load(plan.read_text())["stages"]
+    added = {**relative, "gates": [*relative["gates"], {"metric": "protective_stops", "max": 0}]}
+    write_plan(plan, {**stages, "production": added})
+    _to_production(site, plan, b)
+    failed = _run(site, verdict="fail")
+    gate = next(g for g in failed["gates"] if g["metric"] == "cycle_time_p95_s")
+    assert "x last_good" in gate["detail"] and failed["last_good_evidence"] == first["evidence"]
+    assert _production(site) == (a, a)  # rolled back
+    write_plan(plan, {**stages, "production": {**added, "runs": [{**ONE, "seed": 6}]}})  # the runs edited
+    result = cli("promote", b, "--cell", CELL, "--to", "production", "--site", str(site))
+    assert result.exit_code == 0, result.output
+    passed = _run(site)
+    gate = next(g for g in passed["gates"] if g["metric"] == "cycle_time_p95_s")
+    assert gate["detail"].endswith(f"(last_good {a} has no runs of this stage's runs: absolute limit only)")
+    assert passed["last_good_evidence"] == [] and cli("verify", "--site", str(site)).exit_code == 0
+
+
+def test_runs_an_older_cellguard_counted_under_its_whole_plan_are_counted_under_that_plan(tmp_path):
+    """A gates entry of 80ed4fe logged the whole plan's hash, not its runs': its runs stay comparable under that
+    same plan (after an upgrade, last_good's runs were otherwise never compared again), and under no other."""
+    site, plan, (a,) = _site(tmp_path, ("a",))
+    _to_production(site, plan, a)
+    first = _run(site)
+    store = Store(site)
+    row = store.runs(CELL, "production", a)[0]
+    copy = store.site / "runs" / CELL / "production" / "0099-older"
+    shutil.copytree(store.run_folder(row), copy)
+    store.add_run(row.record_id, CELL, "production", a, "older", copy,
+                  log.last_pointer_move(store, CELL, "production").seq, None)  # as an older cellguard counted it
+    older = [store.runs(CELL, "production", a)[-1].seq, row.record_id]
+    with store.transaction():  # nor has its gates entry a runs hash
+        log.append(store, {"kind": "gates", "cell": CELL, "stage": "production", "release": a, "verdict": "pass",
+                           "gates": [], "evidence": [row.record_id], "runs": [older],
+                           "plan_sha256": plan_hash(load_plan(plan)["production"])})
+    assert first["runs"][0] in _run(site)["runs"] and older in log.entries(store)[-1].body["runs"]
+    other = _run(site, "--plan", str(write_plan(tmp_path / "same-runs.yaml", WEAK)))  # the same runs, other gates
+    assert first["runs"][0] in other["runs"] and older not in other["runs"]
+    assert cli("verify", "--site", str(site)).exit_code == 0
 
 
 def test_a_store_of_an_older_cellguard_reads_its_runs_as_its_log_counted_them(tmp_path):
@@ -182,11 +278,11 @@ def test_a_store_of_an_older_cellguard_reads_its_runs_as_its_log_counted_them(tm
     site, plan, (a,) = _site(tmp_path, ("a",))
     _to_production(site, plan, a)
     first = _run(site)
-    edit_store(site, "ALTER TABLE runs DROP COLUMN plan_sha256")  # as an older cellguard made it
+    edit_store(site, "ALTER TABLE runs DROP COLUMN runs_sha256")  # as an older cellguard made it
     assert cli("status", "--site", str(site)).exit_code == 0
-    assert "plan_sha256" not in _run_columns(site)
+    assert "runs_sha256" not in _run_columns(site)
     again = _run(site)
-    assert "plan_sha256" in _run_columns(site)
+    assert "runs_sha256" in _run_columns(site)
     assert len(again["evidence"]) == 2 and first["evidence"][0] in again["evidence"]
 
 

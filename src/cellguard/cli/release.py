@@ -50,12 +50,10 @@ def _store(site: Path, create: bool = True):
 
 
 def _plan(site: Path, plan: Path | None, cell: str):
-    """``--plan``, else the site's plan, else the packaged plan for the cell's kind."""
-    from cellguard.release.plan import default_plan, load_plan
+    """``--plan``, else the plan in force: the site's plan, else the packaged plan for the cell's kind."""
+    from cellguard.release.plan import load_plan, plan_in_force
 
-    if plan is None:
-        plan = site / "release-plan.yaml" if (site / "release-plan.yaml").is_file() else default_plan(cell)
-    return load_plan(plan)
+    return plan_in_force(site, cell) if plan is None else load_plan(plan)
 
 
 def _plans(site: Path, plan: Path | None, cell: str) -> tuple:
@@ -204,7 +202,8 @@ def rollback(
 
 @release_app.command()
 def status(site: Path = SITE, as_json: bool = typer.Option(False, "--json")) -> None:
-    """Every cell's stages: current, last_good and the latest verdict (a pass that lets nothing on says why)."""
+    """Every cell's stages: current, last_good and the latest verdict (a pass that lets nothing on under the plan in
+    force now says why; a plan in force that does not load is named, not refused: status only reads)."""
     from cellguard.release import status as do
 
     try:
@@ -220,6 +219,9 @@ def status(site: Path = SITE, as_json: bool = typer.Option(False, "--json")) -> 
         verdict = f"{r['verdict']} ({r['not_counted']})" if r["not_counted"] else r["verdict"] or ""
         out.print(f"{r['cell']:<18} {r['stage']:<11} current {r['current'] or '-':<17} "
                   f"last_good {r['last_good'] or '-':<17} {verdict}")
+    for cell, error in dict.fromkeys((r["cell"], r["plan_error"]) for r in rows if r["plan_error"]):
+        out.print(f"{cell}: the plan in force does not load, so nothing moves there until it does: {error}",
+                  markup=False, soft_wrap=True)
 
 
 @release_app.command()

@@ -169,9 +169,10 @@ def _frozen(bundle: Bundle, exc: CellguardError) -> str:
     """Why the release's policy does not load, as what can be done: a source that states no step period
     (``adapter.step_period``'s refusal) needs a new release whose policy gives it, as its own refusal's ``give
     ?dt=SECONDS`` cannot be done to a frozen release: the ``release create`` that makes it, with this release's
-    other inputs as its manifest holds them (the calibrated profile's path, else its cell; the action map's path;
-    the envelope's settings that are not the defaults, as it holds no envelope file). Without them the command
-    suggested was refused for a missing --profile."""
+    other inputs as its manifest holds them (the file holding the calibration it runs on, ``calibration_file``: a
+    copy kept after an in-place recalibration, else its cell; the action map's path; the envelope's settings that
+    are not the defaults, as it holds no envelope file; its note). Without them the command suggested was refused
+    for a missing --profile; without the note it made another id, and after a recalibration it bound the new one."""
     from cellguard.policy.adapter import StepPeriodUnstated
 
     if not isinstance(exc, StepPeriodUnstated):
@@ -179,9 +180,15 @@ def _frozen(bundle: Bundle, exc: CellguardError) -> str:
     m = bundle.manifest
     spec = m["policy"]["spec"]
     timed = spec + ("&" if "?" in spec else "?") + "dt=SECONDS"
-    args = ["--policy", timed, "--profile", bundle.calibration or bundle.cell]
-    args += ["--map", m["action_map"]["path"]] if m.get("action_map") else []
     notes = ["SECONDS: the policy's control period, e.g. 0.0667 for 15 Hz"]
+    try:
+        profile = calibration_file(bundle)
+    except BundleMismatch as gone:
+        profile = Path(bundle.calibration)
+        notes.append(str(gone).partition(": ")[2])
+    args = ["--policy", timed, "--profile", bundle.cell if profile is None else str(profile)]
+    args += ["--map", m["action_map"]["path"]] if m.get("action_map") else []
+    args += ["--note", m["note"]] if m.get("note") else []
     defaults = GuardConfig().model_dump(mode="json")
     envelope = {k: v for k, v in (m.get("envelope") or {}).items() if defaults.get(k) != v}
     if envelope:

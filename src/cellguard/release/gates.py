@@ -85,8 +85,11 @@ class GateResult:
         return {**self.__dict__, "evidence": list(self.evidence)}
 
 
-def evaluate(gate: Gate, runs: Sequence[RunEvidence], last_good_runs: Sequence[RunEvidence] = ()) -> GateResult:
-    """The gate's result on ``runs``; ``last_good_runs`` are last_good's runs on the same stage."""
+def evaluate(gate: Gate, runs: Sequence[RunEvidence], last_good_runs: Sequence[RunEvidence] = (),
+             no_last_good: str = "no last_good on this stage") -> GateResult:
+    """The gate's result on ``runs``; ``last_good_runs`` are last_good's runs on the same stage, ``no_last_good``
+    why there are none, in words: a relative gate's detail says it (it said "no last_good on this stage" where a
+    last_good had only runs of another plan's runs)."""
     metric = METRICS[gate.metric]
     m, wrong = _measured(metric, runs)
     lg_measure, lg_wrong = _measured(metric, last_good_runs) if last_good_runs else (NO_DATA, None)
@@ -119,9 +122,10 @@ def evaluate(gate: Gate, runs: Sequence[RunEvidence], last_good_runs: Sequence[R
         return result(FAIL, "; ".join(broken))
     if relative and lg_wrong:
         return result(INCONCLUSIVE, f"last_good's runs: {lg_wrong}")
+    why = "no figure in last_good's runs" if last_good_runs else no_last_good
     if relative and lg is None and gate.min is None and gate.max is None:
-        return result(INCONCLUSIVE, "no last_good figure on this stage to compare with")
-    note = " (no last_good on this stage: absolute limit only)" if relative and lg is None else ""
+        return result(INCONCLUSIVE, f"{why}: nothing to compare with")
+    note = f" ({why}: absolute limit only)" if relative and lg is None else ""
     return result(PASS, f"{m.value:.4g} {metric.unit}{note}")
 
 

@@ -24,8 +24,13 @@ from cellguard.release.errors import ReleaseError, StageError
 GENESIS = "0" * 64
 MOVES = ("promote", "rollback")  # the entries that move a stage's current
 IN_FORCE = "plan_in_force_sha256"  # a gates or promote entry's key: the stage's part of the plan in force then
+RUNS = "runs_sha256"  # a gates entry's key: what made the runs it counted (``promotion.runs_key``), not its gates
 SCENARIO = "scenario"  # what runs given with ``release run --scenario`` were made under (``counted_under``)
-OUTGOING = "outgoing_gates"  # a promote entry's key: the gates entry its last_good rests on; it took ``Judged``'s rule
+WHOLE_PLAN = "plan:"  # ``counted_under``'s prefix for runs an entry without ``RUNS`` counted: its whole plan's hash
+# a promote entry's key: the outgoing release's latest gates entry there under the plan in force (``Judged.under``),
+# passed or not (None: it has none), which decided whether it became last_good; present, the entry took ``Judged``'s
+# rule, absent, an older cellguard's (``pointers_by_log``)
+OUTGOING = "outgoing_gates"
 
 
 @dataclass(frozen=True)
@@ -133,17 +138,22 @@ def ran_plan(body: dict, in_force: str | None) -> bool:
     return in_force is None or body.get("plan_sha256") == in_force
 
 
-def not_counted(body: dict) -> str | None:
-    """Why a gates entry's pass lets nothing on, as logged, in a few words (None: it counted under the plan in force
-    it logged, or it is no pass): ``release status`` shows it beside the verdict, which alone read as a pass that
-    counted."""
+def not_counted(body: dict, in_force: str | None) -> str | None:
+    """Why a gates entry's pass lets nothing on under ``in_force`` (the sha256 of the stage's part of the plan in
+    force now; None: that plan does not load, so nothing moves), in a few words; None: it counts (``passed``), or it
+    is no pass. ``release status`` and ``release report`` show it beside the verdict, which alone read as a pass
+    that counted; judged by the plan in force the entry logged, a pass under a plan edited since read as one."""
     if body.get("verdict") != "pass":
         return None
     if body.get("scenario"):
         return "scenario"
+    if in_force is None:
+        return "plan in force does not load"
+    if passed(body, in_force):
+        return None
     if not body.get("plan_sha256"):
         return "no plan logged"
-    return "other plan" if body.get(IN_FORCE, body["plan_sha256"]) != body["plan_sha256"] else None
+    return "plan edited since" if body.get(IN_FORCE) == body["plan_sha256"] else "other plan"
 
 
 class Judged:
@@ -198,14 +208,16 @@ class Judged:
 
 
 def counted_under(log_entries: list[LogEntry]) -> dict[int, str | None]:
-    """Each run a gates entry counted (its ``runs``) -> the plan it was counted under, by the first entry that
-    counted it: that entry's ``plan_sha256`` (None: it logged none), ``SCENARIO`` for runs given with
-    ``--scenario``. The log decides over the run's own row, which an edit could relabel."""
+    """Each run a gates entry counted (its ``runs``) -> what made it, by the first entry that counted it: that
+    entry's ``RUNS``, ``SCENARIO`` for runs given with ``--scenario``; for an entry that logged only its whole plan
+    (``plan_sha256``: an older cellguard) ``WHOLE_PLAN`` and that hash, None where it logged neither. The log decides
+    over the run's own row, which an edit could relabel."""
     out: dict[int, str | None] = {}
     for e in log_entries:
         b = e.body
         if b.get("kind") == "gates":
-            under = SCENARIO if b.get("scenario") else b.get("plan_sha256")
+            whole = WHOLE_PLAN + b["plan_sha256"] if b.get("plan_sha256") else None
+            under = SCENARIO if b.get("scenario") else b.get(RUNS, whole)
             for seq, _ in b.get("runs") or []:
                 out.setdefault(seq, under)
     return out

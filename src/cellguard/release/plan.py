@@ -63,6 +63,13 @@ def default_plan(cell: str) -> Path:
     return PICK_PLACE_PLAN if PICK_PLACE.met_by(make_cell(cell)) else ANY_CELL_PLAN
 
 
+def plan_in_force(site: Path, cell: str) -> dict[str, StagePlan]:
+    """The plan in force at ``site`` for ``cell``: the site's release-plan.yaml, else the packaged plan for the
+    cell's kind. What every command judges a pass by, whatever ``--plan`` it was given."""
+    path = Path(site) / "release-plan.yaml"
+    return load_plan(path if path.is_file() else default_plan(cell))
+
+
 def load_plan(path: Path) -> dict[str, StagePlan]:
     """Every stage's plan from ``path``; a stage left out has no runs."""
     path = Path(path)

@@ -8,9 +8,12 @@ rolls ``current`` back to ``last_good`` on a fail. ``last_good`` is the release 
 before the current one: a promotion moves it to the outgoing release when that one had passed
 (the first release to pass a stage is its own last_good). A pass counts, for a promotion and for
 ``last_good`` alike, only on the stage's part of the plan in force (``log.passed``): a weak ad-hoc
-plan's pass made its release a rollback target. A verdict rests only on runs of the plan it
-evaluates (``runs_key``): three one-cycle runs of an ad-hoc plan, counted in the next evaluation
-under the plan in force, turned its failing production verdict into a pass.
+plan's pass made its release a rollback target. A verdict rests only on runs made as the plan it
+evaluates makes them, its own release's and last_good's alike (``runs_key``: the plan but its
+gates): three one-cycle runs of an ad-hoc plan, counted in the next evaluation under the plan in
+force, turned its failing production verdict into a pass; a gate added to the plan in force keeps
+every run comparable (keyed by the whole plan, it dropped last_good's runs and production no
+longer rolled back).
 """
 
 from __future__ import annotations
@@ -20,7 +23,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from cellguard.errors import OperatorStopped, OutputError, RecordError
+from cellguard.errors import CellguardError, OperatorStopped, OutputError, RecordError
 from cellguard.output import make_folder
 from cellguard.release import log
 from cellguard.release.bundle import Bundle, calibration_file, canonical_json, verify_bundle
@@ -28,7 +31,7 @@ from cellguard.release.errors import BundleMismatch, ReleaseError, StageError
 from cellguard.release.evidence import RunEvidence, counted_run, record_id
 from cellguard.release.gates import FAIL, INCONCLUSIVE, PASS, GateResult, evaluate, verdict
 from cellguard.release.loops import CLOCKS
-from cellguard.release.plan import StagePlan, check_cell, scenario_for
+from cellguard.release.plan import StagePlan, check_cell, plan_in_force, scenario_for
 from cellguard.release.store import STAGES, RunRow, Store, check_stage
 
 INCUMBENT_FALLBACK = "scripted"  # the cell's taught program: what a cell runs before any release
@@ -301,8 +304,8 @@ def _evidence(store: Store, rows: list[RunRow]) -> tuple[list[RunEvidence], list
 def evaluate_stage(store: Store, plan: StagePlan, cell: str, stage: str, folders: list[str] = (),
                    start: Start | None = None, runs: list[dict] | None = None,
                    in_force: StagePlan | None = None) -> StageResult:
-    """Evaluate the gates of (cell, stage) on its current release's runs of ``plan`` since it became current
-    (``runs_key``; against last_good's runs of ``plan`` there).
+    """Evaluate the gates of (cell, stage) on its current release's runs made as ``plan`` makes them since it
+    became current (``runs_key``), against last_good's runs there made so.
 
     A counted run that cannot be read as the record counted (gone, damaged, replaced), or that an earlier gates
     entry counted and the runs table no longer holds so, is left out and named in ``refused``: the verdict is
@@ -316,16 +319,18 @@ def evaluate_stage(store: Store, plan: StagePlan, cell: str, stage: str, folders
         moved = log.last_pointer_move(store, cell, stage)
         start = Start(*log.check_pointers(store, cell, stage), moved.seq if moved else 0)
     key, under = runs_key(plan, runs), log.counted_under(log.entries(store))
+    same = {key} if runs is not None else {key, log.WHOLE_PLAN + plan_hash(plan)}  # counted by an older cellguard
     every = store.runs(cell, stage, start.current, start.move_seq)
-    rows = [r for r in every if under.get(r.seq, r.plan) == key]
+    rows = [r for r in every if under.get(r.seq, r.runs) in same]
     taken, refused = _evidence(store, rows)
     refused += _dropped(store, cell, stage, start, every)
-    good, good_rows = [], []
+    good, good_rows, baseline = [], [], "no last_good on this stage"
     if start.last_good and start.last_good != start.current:
-        good_rows = [r for r in store.runs(cell, stage, start.last_good) if under.get(r.seq, r.plan) == key]
+        good_rows = [r for r in store.runs(cell, stage, start.last_good) if under.get(r.seq, r.runs) in same]
         good, refused_good = _evidence(store, good_rows)
         refused += refused_good
-    results = tuple(evaluate(g, taken, good) for g in plan.gates)
+        baseline = f"last_good {start.last_good} has no {'readable ' if good_rows else ''}runs of this stage's runs"
+    results = tuple(evaluate(g, taken, good, baseline) for g in plan.gates)
     outcome = verdict(results)
     outcome = INCONCLUSIVE if refused and outcome == PASS else outcome
     evidence = [r.record_id for r in taken]
@@ -339,7 +344,7 @@ def evaluate_stage(store: Store, plan: StagePlan, cell: str, stage: str, folders
                                    "runs": [[r.seq, r.record_id] for r in rows],
                                    "last_good_runs": [[r.seq, r.record_id] for r in good_rows],
                                    "scenario": [e.get("name", "run") for e in runs or ()],
-                                   "plan_sha256": plan_hash(plan),
+                                   "plan_sha256": plan_hash(plan), log.RUNS: key,
                                    log.IN_FORCE: plan_hash(plan if in_force is None else in_force)})
         counted = log.passed(entry.body, entry.body[log.IN_FORCE])
         if counted and start.last_good is None:  # the first release to pass here
@@ -359,14 +364,15 @@ def plan_hash(plan: StagePlan) -> str:
 
 
 def runs_key(plan: StagePlan, runs: list[dict] | None = None) -> str:
-    """What a stage's run is made under, noted on its row, and the runs an evaluation counts: ``plan``'s hash, or
-    for ``runs`` given in place of its runs (``--scenario``) ``log.SCENARIO`` and the hash of the plan with those
-    runs. Never one for runs of another plan or a scenario: runs of an ad-hoc plan padded the next verdict under
-    the plan in force. An evaluation takes a run as the log's first gates entry counting it says
-    (``log.counted_under``), else as its row."""
-    if runs is None:
-        return plan_hash(plan)
-    return f"{log.SCENARIO}:{plan_hash(plan.model_copy(update={'runs': runs}))}"
+    """What makes a stage's runs, noted on each run's row and logged with its gates (``log.RUNS``), and so the runs
+    an evaluation counts: the sha256 of ``plan`` but its gates (its runs, clock, shadow: all that decides how they
+    run), or for ``runs`` given in place of its runs (``--scenario``) ``log.SCENARIO`` and that of the plan with
+    those runs. Runs of an ad-hoc plan padded the next verdict under the plan in force; keyed by the whole plan, a
+    gate added dropped every run of last_good, and with them the rollback. An evaluation takes a run as the log's
+    first gates entry counting it says (``log.counted_under``), else as its row."""
+    made = plan if runs is None else plan.model_copy(update={"runs": runs})
+    digest = hashlib.sha256(canonical_json(made.model_dump(mode="json", exclude={"gates"}))).hexdigest()
+    return digest if runs is None else f"{log.SCENARIO}:{digest}"
 
 
 def _dropped(store: Store, cell: str, stage: str, start: Start, rows: list[RunRow]) -> list[str]:
@@ -422,16 +428,29 @@ def _maker(plan: StagePlan, bundle: Bundle, incumbent: Bundle | None, context: d
 
 
 def status(store: Store) -> list[dict]:
-    """Per cell and stage: current, last_good and the latest verdict of current there."""
+    """Per cell and stage: current, last_good, the latest verdict of current there and, for a pass, why it counts
+    for nothing under the plan in force now (``log.not_counted``; ``plan_error``: why that plan does not load)."""
     out = []
     for cell in store.cells():
+        in_force, error = in_force_hashes(store, cell)
         for stage in STAGES:
             p = store.pointers(cell, stage)
             ev = last_evaluation(store, cell, stage, p.current) if p.current else None
             out.append({"cell": cell, "stage": stage, "current": p.current, "last_good": p.last_good,
                         "verdict": ev.body["verdict"] if ev else None,
-                        "not_counted": log.not_counted(ev.body) if ev else None})
+                        "not_counted": log.not_counted(ev.body, in_force.get(stage)) if ev else None,
+                        "plan_error": error})
     return out
+
+
+def in_force_hashes(store: Store, cell: str) -> tuple[dict[str, str], str | None]:
+    """(stage -> the hash of its part of the plan in force now at ``store``'s site for ``cell``, None), or ({},
+    why it does not load): what a pass is judged by, as ``run`` and ``promote`` judge it. A command that only reads
+    (status, report) still answers when it does not load."""
+    try:
+        return {stage: plan_hash(plan) for stage, plan in plan_in_force(store.site, cell).items()}, None
+    except CellguardError as exc:
+        return {}, str(exc)
 
 
 def last_good_note(store: Store, entry: log.LogEntry) -> str:

@@ -11,6 +11,7 @@ from pathlib import Path
 from cellguard.output import write_output
 from cellguard.record.outputs import refuse_output
 from cellguard.release import log
+from cellguard.release.promotion import in_force_hashes
 from cellguard.release.store import STAGES, STORE_FILE
 from cellguard.report import plots
 from cellguard.report.html import _CSS, _context, _e, _figure
@@ -22,14 +23,17 @@ def render_release_page(store, release: str) -> str:
     bundle = store.bundle(release)
     entries = [e for e in log.entries(store) if bundle.id in (e.body.get("release"), e.body.get("from"),
                                                               e.body.get("to"))]
+    in_force, error = in_force_hashes(store, bundle.cell)
     parts = [f"<h1>cellguard release {_e(bundle.id)}</h1>",
              f"<p class=muted>{_e(bundle.manifest['policy']['spec'])} on {_e(bundle.cell)}; "
              f"{_e(bundle.manifest.get('note', ''))}</p>", "<h2>Stages</h2>", _pointers(store, bundle)]
+    if error:
+        parts.append(f"<p class=finding>the plan in force does not load, so no pass counts: {_e(error)}</p>")
     for stage in STAGES:
         evaluations = [e for e in entries if e.body.get("kind") == "gates" and e.body.get("stage") == stage
                        and e.body.get("release") == bundle.id]
         if evaluations:
-            parts += [f"<h2>{_e(stage)}</h2>", _stage(evaluations[-1])]
+            parts += [f"<h2>{_e(stage)}</h2>", _stage(evaluations[-1], in_force.get(stage))]
     parts += ["<h2>Log</h2>", _log(entries), "<h2>Manifest</h2>", _context(bundle.manifest)]
     return ("<!doctype html><html lang=en><head><meta charset=utf-8><title>cellguard release</title>"
             f"<style>{_CSS}</style></head><body>{''.join(parts)}</body></html>")
@@ -52,10 +56,13 @@ def _pointers(store, bundle) -> str:
     return f"<table><tr><th>stage</th><th>current</th><th>last_good</th><th>this release</th></tr>{rows}</table>"
 
 
-def _stage(entry) -> str:
+def _stage(entry, in_force: str | None) -> str:
+    """The stage's latest gates of the release; a pass that counts for nothing under ``in_force`` (the stage's part
+    of the plan in force now) is labelled as ``release status`` labels it (it showed as a plain pass)."""
     b = entry.body
-    verdict = b["verdict"]
-    head = (f"<div class={_MARK[verdict]}><b>{_e(verdict)}</b> (log entry {entry.seq}, {_e(b['at'])}); "
+    verdict, uncounted = b["verdict"], log.not_counted(b, in_force)
+    shown = f"<b>{_e(verdict)}</b> ({_e(uncounted)}: counts for nothing)" if uncounted else f"<b>{_e(verdict)}</b>"
+    head = (f"<div class={'finding' if uncounted else _MARK[verdict]}>{shown} (log entry {entry.seq}, {_e(b['at'])}); "
             f"evidence: records {_e(', '.join(b['evidence']) or 'none')}"
             + (f"; last_good's records {_e(', '.join(b.get('last_good_evidence', [])))}"
                if b.get("last_good_evidence") else "")
