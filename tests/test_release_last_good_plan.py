@@ -213,12 +213,13 @@ def test_status_and_report_judge_a_pass_by_the_plan_in_force_now(tmp_path):
                            "gates": [], "evidence": [], "plan_sha256": plan_hash(load_plan(
                                write_plan(tmp_path / "weak.yaml", WEAK))["production"])})
     line, page = _shown(site, a)
-    assert line.endswith("pass (other plan)") and "(other plan: counts for nothing)" in page
+    assert line.endswith("pass (plan differs from the one in force)") and \
+        "(plan differs from the one in force: counts for nothing)" in page
     plan.write_text("stages: [unclosed\n")
     line, page = _shown(site, a)
     assert line.endswith("pass (plan in force does not load)")
     said = " ".join(cli("status", "--site", str(site)).stdout.split())
-    assert f"{CELL}: the plan in force does not load, so nothing moves there until it does: {plan}" in said
+    assert f"{CELL}: the plan in force does not load, so nothing is promoted or run there until it does: {plan}" in said
     whole = (site.parent / "page.html").read_text()
     assert "<p class=finding>the plan in force does not load, so no pass counts: " in whole
 

@@ -220,7 +220,7 @@ def status(site: Path = SITE, as_json: bool = typer.Option(False, "--json")) -> 
         out.print(f"{r['cell']:<18} {r['stage']:<11} current {r['current'] or '-':<17} "
                   f"last_good {r['last_good'] or '-':<17} {verdict}")
     for cell, error in dict.fromkeys((r["cell"], r["plan_error"]) for r in rows if r["plan_error"]):
-        out.print(f"{cell}: the plan in force does not load, so nothing moves there until it does: {error}",
+        out.print(f"{cell}: the plan in force does not load, so nothing is promoted or run there until it does: {error}",
                   markup=False, soft_wrap=True)
 
 

@@ -153,7 +153,9 @@ def not_counted(body: dict, in_force: str | None) -> str | None:
         return None
     if not body.get("plan_sha256"):
         return "no plan logged"
-    return "plan edited since" if body.get(IN_FORCE) == body["plan_sha256"] else "other plan"
+    if IN_FORCE not in body:  # an older cellguard logged no plan in force: an ad-hoc plan or an edit since
+        return "plan differs from the one in force"
+    return "plan edited since" if body[IN_FORCE] == body["plan_sha256"] else "other plan"
 
 
 class Judged:

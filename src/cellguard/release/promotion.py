@@ -326,10 +326,15 @@ def evaluate_stage(store: Store, plan: StagePlan, cell: str, stage: str, folders
     refused += _dropped(store, cell, stage, start, every)
     good, good_rows, baseline = [], [], "no last_good on this stage"
     if start.last_good and start.last_good != start.current:
-        good_rows = [r for r in store.runs(cell, stage, start.last_good) if under.get(r.seq, r.runs) in same]
+        made = [(r, under.get(r.seq, r.runs)) for r in store.runs(cell, stage, start.last_good)]
+        good_rows = [r for r, k in made if k in same]
         good, refused_good = _evidence(store, good_rows)
         refused += refused_good
         baseline = f"last_good {start.last_good} has no {'readable ' if good_rows else ''}runs of this stage's runs"
+        older = sorted(k[len(log.WHOLE_PLAN):] for _, k in made if k and k.startswith(log.WHOLE_PLAN))
+        if older and not good_rows:  # an older cellguard keyed them by the whole plan, gates included
+            baseline = (f"last_good {start.last_good}'s runs here were counted by an older cellguard under plan "
+                        f"{older[-1][:12]}, comparable only under that whole plan")
     results = tuple(evaluate(g, taken, good, baseline) for g in plan.gates)
     outcome = verdict(results)
     outcome = INCONCLUSIVE if refused and outcome == PASS else outcome
