@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 
@@ -57,7 +58,7 @@ def test_bad_only_is_one_line(production, only, words):
     assert result.exit_code == 2 and words in result.output and len(result.output.strip().splitlines()) == 1
 
 
-def test_an_unwritable_profile_is_left_as_it_was(production, tmp_path):
+def test_an_unwritable_profile_is_left_as_it_was(production, tmp_path, monkeypatch):
     profile = tmp_path / "arm_profile.yaml"
     profile.write_bytes((ASSETS / "arm_profile.yaml").read_bytes())
     before = profile.read_bytes()
@@ -68,8 +69,15 @@ def test_an_unwritable_profile_is_left_as_it_was(production, tmp_path):
     assert profile.read_bytes() == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["arm_profile.2026-11-01.yaml", "arm_profile.yaml"]
     (tmp_path / "arm_profile.2026-11-01.yaml").rmdir()
-    (tmp_path / f".arm_profile.yaml.{os.getpid()}.tmp").mkdir()  # the new profile cannot be written beside
+    replace = os.replace
+
+    def full(source, destination):  # the new profile cannot be written: its rename fails, as on a full disk
+        if os.path.basename(destination) == profile.name:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return replace(source, destination)
+
+    monkeypatch.setattr(os, "replace", full)
     result = runner.invoke(app, ["identify", str(production), "--only", "elbow,friction", "--write", str(profile)])
     assert result.exit_code == 2 and "any earlier file there is unchanged" in result.output
     assert profile.read_bytes() == before
-    assert sorted(p.name for p in tmp_path.iterdir()) == [f".arm_profile.yaml.{os.getpid()}.tmp", "arm_profile.yaml"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["arm_profile.yaml"]  # the copies it made, taken out

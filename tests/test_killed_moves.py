@@ -120,8 +120,9 @@ def test_a_target_holding_anything_more_is_refused_and_nothing_touched_until_it_
     (ds / "notes.txt").write_text("mine")
     (ds / "data" / "mine.csv").write_text("also mine")
     before, lr = _files(ds), _files(tmp_path / "lr")
+    [staging] = (tmp_path / "lr").glob(".ds.*.partial")
     code, out = _cli("record", "to-lerobot", run, "-o", ds)
-    assert (code, out) == (2, f"error: -o {ds}: exists and is not empty; give a new folder\n")
+    assert (code, out) == (2, _left(ds, staging))  # named: the user knows what it left, and where its files are told
     assert _files(ds) == before and _files(tmp_path / "lr") == lr and len(os.listdir(tmp_path / "lr")) == 2
     (ds / "notes.txt").unlink()
     (ds / "data" / "mine.csv").unlink()
@@ -129,6 +130,39 @@ def test_a_target_holding_anything_more_is_refused_and_nothing_touched_until_it_
     assert code == 0, out
     assert os.listdir(tmp_path / "lr") == ["ds"]
     assert json.loads((ds / "meta/info.json").read_text())["total_episodes"] == 6
+
+
+def test_an_export_stopped_while_a_file_appeared_in_its_target_keeps_its_note_for_the_rerun(run, tmp_path):
+    """SIGTERM after data/ moved, a file of the user's in the target meanwhile: the take-back was refused and the
+    staging folder removed all the same, so the moved data/ stayed for good and the rerun was refused."""
+    ds, flag = tmp_path / "lr" / "ds", tmp_path / "paused"
+    proc = _held("rename", "data", flag, "record", "to-lerobot", run, "-o", ds)
+    (ds / "notes.txt").write_text("mine")
+    proc.send_signal(signal.SIGTERM)
+    assert proc.wait(timeout=120) == 128 + signal.SIGTERM, proc.communicate()
+    [staging] = (tmp_path / "lr").glob(".ds.*.partial")
+    assert (staging / ".moved-files.json").is_file() and sorted(os.listdir(ds)) == ["data", "notes.txt"]
+    (ds / "notes.txt").unlink()
+    code, out = _cli("record", "to-lerobot", run, "-o", ds)
+    assert code == 0, out
+    assert os.listdir(tmp_path / "lr") == ["ds"] and sorted(os.listdir(ds)) == ["data", "meta"]
+    assert json.loads((ds / "meta/info.json").read_text())["total_episodes"] == 6
+
+
+def test_a_recovery_stopped_while_a_file_appeared_in_its_target_keeps_its_note_for_the_rerun(run, tmp_path):
+    target, flag = tmp_path / "T", tmp_path / "paused"
+    proc = _held("link", "*", flag, "record", "recover", run, "-o", target)
+    (target / "notes.txt").write_text("mine")
+    proc.send_signal(signal.SIGTERM)
+    assert proc.wait(timeout=120) == 128 + signal.SIGTERM, proc.communicate()
+    [staging] = target.glob(".recover-*.partial")
+    assert (staging / ".moved-files.json").is_file() and sorted(os.listdir(target)) == [staging.name, "index",
+                                                                                         "notes.txt"]
+    (target / "notes.txt").unlink()
+    code, out = _cli("record", "recover", run, "-o", target)
+    assert code == 0, out
+    assert sorted(os.listdir(target)) == ["index", "record.mcap"]
+    assert sorted(_files(target / "index")) == sorted(_files(run / "index"))
 
 
 def test_a_live_export_between_its_moves_is_never_taken_over(run, tmp_path):
@@ -176,6 +210,13 @@ def test_a_recovery_that_fails_in_its_moves_leaves_none_of_its_files(run, tmp_pa
 NOT_EMPTY = "error: -o {}: exists and is not empty; give a new folder\n"
 
 
+def _left(target: Path, staging: Path) -> str:
+    """The refusal of ``target`` naming the ``staging`` folder a stopped run left, kept for its note."""
+    return (f"error: -o {target}: exists and is not empty; give a new folder or empty it: a run stopped while moving "
+            f"its files into it left {staging} (.moved-files.json there lists the files it moved); that folder goes "
+            f"with the next run once the target is empty\n")
+
+
 def _note(staging: Path, files: dict[str, Path], fields: int = 5) -> None:
     """A staging folder noting ``files`` (name in the target: the file whose identity is noted), as a run does;
     ``fields`` 3: the note of 55da705 (name, device, inode)."""
@@ -203,6 +244,23 @@ def test_a_dataset_of_the_users_where_the_killed_one_was_is_never_touched(run, t
     before = _files(ds)
     code, out = _cli("record", "to-lerobot", run, "-o", ds)
     assert (code, out) == (2, NOT_EMPTY.format(ds)) and _files(ds) == before
+
+
+def test_a_note_of_the_previous_format_names_its_folder_and_goes_once_the_target_is_empty(run, tmp_path):
+    """A run killed under the code before the note held size and mtime noted [name, device, inode]: never read (an
+    inode alone is reused), so the target was refused for good without a word of what was left, or where."""
+    ds = tmp_path / "lr" / "ds"
+    _killed("rename", "data", "record", "to-lerobot", run, "-o", ds)
+    [staging] = (tmp_path / "lr").glob(".ds.*.partial")
+    note = staging / ".moved-files.json"
+    note.write_text(json.dumps([entry[:3] for entry in json.loads(note.read_text())]))
+    before = _files(ds)
+    for _ in range(2):
+        assert _cli("record", "to-lerobot", run, "-o", ds) == (2, _left(ds, staging)) and _files(ds) == before
+    shutil.rmtree(ds / "data")  # as the refusal says
+    code, out = _cli("record", "to-lerobot", run, "-o", ds)
+    assert code == 0 and os.listdir(tmp_path / "lr") == ["ds"], out
+    assert json.loads((ds / "meta/info.json").read_text())["total_episodes"] == 6
 
 
 @pytest.mark.parametrize("change", ["edited", "removed"])
@@ -238,7 +296,7 @@ def test_a_note_naming_files_through_a_link_never_reaches_them(run, tmp_path, fi
     (staging / "record.mcap").write_bytes(b"copy")  # not yet moved: cut short
     _note(staging, {"l/record.mcap": run / "record.mcap", "record.mcap": staging / "record.mcap"}, fields)
     code, out = _cli("record", "recover", run, "-o", target)
-    assert (code, out) == (2, NOT_EMPTY.format(target)) and _files(run) == record
+    assert (code, out) == (2, _left(target, staging)) and _files(run) == record
     assert (target / "l").is_symlink() and sorted(os.listdir(target)) == [staging.name, "l"]
 
     outside = tmp_path / "outside"
@@ -254,7 +312,7 @@ def test_a_note_naming_files_through_a_link_never_reaches_them(run, tmp_path, fi
     _note(staging, {"keep/precious.txt": outside / "precious.txt", "keep/sub/notes.txt": outside / "sub/notes.txt",
                     "meta/info.json": staging / "meta/info.json"}, fields)
     code, out = _cli("record", "to-lerobot", run, "-o", ds)
-    assert (code, out) == (2, NOT_EMPTY.format(ds))
+    assert (code, out) == (2, _left(ds, staging))
     assert _files(outside) == {"precious.txt": b"mine", "sub/notes.txt": b"mine"} and (ds / "keep").is_symlink()
 
 
@@ -262,7 +320,7 @@ def test_a_note_naming_files_through_a_link_never_reaches_them(run, tmp_path, fi
                                   b'[["\\ud800", 1, 2, 3, 4]]', b'[["a", true, 2, 3, 4]]', b'[["../x", 1, 2, 3, 4]]',
                                   b'[["/x", 1, 2, 3, 4]]', b'[["", 1, 2, 3, 4]]', b'[["a", -1, 2, 3, 4]]',
                                   b'{"a": 1}', b"[" * 100_000, b"\xff\xfe", b'[["a", 1, 2]]'])
-def test_a_damaged_note_is_the_plain_refusal_and_cleared_once_the_target_is_empty(run, tmp_path, note):
+def test_a_damaged_note_is_refused_naming_its_folder_and_cleared_once_the_target_is_empty(run, tmp_path, note):
     """A NUL byte, 1e400 or a lone surrogate in the note were tracebacks."""
     ds = tmp_path / "lr" / "ds"
     ds.mkdir(parents=True)
@@ -272,7 +330,7 @@ def test_a_damaged_note_is_the_plain_refusal_and_cleared_once_the_target_is_empt
     (staging / "meta" / "info.json").write_text("{}")
     (staging / ".moved-files.json").write_bytes(note)
     code, out = _cli("record", "to-lerobot", run, "-o", ds)
-    assert (code, out) == (2, NOT_EMPTY.format(ds)) and _files(ds) == {"mine.txt": b"mine"}
+    assert (code, out) == (2, _left(ds, staging)) and _files(ds) == {"mine.txt": b"mine"}
     assert sorted(os.listdir(tmp_path / "lr")) == [staging.name, "ds"]
     (ds / "mine.txt").unlink()  # nothing there for the note to tell: the killed run's folder goes, the export is made
     code, out = _cli("record", "to-lerobot", run, "-o", ds)
@@ -293,4 +351,4 @@ def test_a_staging_folder_of_another_user_takes_nothing_back(run, tmp_path):
     for path in (staging, staging / ".moved-files.json"):
         os.chown(path, 1, 1)
     code, out = _cli("record", "to-lerobot", run, "-o", ds)
-    assert (code, out) == (2, NOT_EMPTY.format(ds)) and _files(ds) == {"data/mine.parquet": b"mine"}
+    assert (code, out) == (2, _left(ds, staging)) and _files(ds) == {"data/mine.parquet": b"mine"}

@@ -1,10 +1,11 @@
 """A command killed outright (SIGKILL, the OOM killer, a power switch) runs no clean-up: every killed write of an
-output file left its hidden temporary file (``.NAME.PID.tmp``, as large as the output) beside it for good. The next
-write of the same file takes out exactly what a killed one left, and nothing that a live one or anyone else put
+output file left its hidden temporary file (``.NAME.PID.TOKEN.tmp``, as large as the output) beside it for good. The
+next write of the same file takes out exactly what a killed one left, and nothing that a live one or anyone else put
 there."""
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import fcntl
 import os
@@ -137,74 +138,113 @@ def test_only_a_regular_temporary_file_of_the_same_output_is_removed(tmp_path, n
     assert _names(tmp_path) == sorted([kept.name, "t.csv"])
 
 
-def test_a_link_at_the_temporary_name_is_one_error_not_a_spin(tmp_path):
+def _first_token(monkeypatch, token: bytes) -> None:
+    """The first temporary name drawn has ``token``; the next ones are random again."""
+    urandom, drawn = os.urandom, []
+
+    def first(n: int) -> bytes:
+        drawn.append(n)
+        return token if len(drawn) == 1 else urandom(n)
+
+    monkeypatch.setattr(os, "urandom", first)
+
+
+def test_a_link_at_a_temporary_name_is_never_followed_and_another_name_is_drawn(tmp_path, monkeypatch):
     """A dangling link under the write's own temporary name: the write followed it (making its target) and spun at
     full CPU for ever, its check that the file it locked is the one under that name failing every time."""
-    tmp = tmp_path / f".t.csv.{os.getpid()}.tmp"
-    tmp.symlink_to(tmp_path / "elsewhere")
-    began = time.monotonic()
-    with pytest.raises(output.OutputError, match=r"t\.csv: cannot write"):
-        write_output(tmp_path / "t.csv", "a,b\n", "--out")
-    assert time.monotonic() - began < 5 and not (tmp_path / "elsewhere").exists() and not (tmp_path / "t.csv").exists()
-    assert tmp.is_symlink()  # not the write's own file: left as it is
+    links = [tmp_path / f".t.csv.{os.getpid()}.tmp", tmp_path / f".t.csv.{os.getpid()}.00000000.tmp"]
+    for link in links:  # the name before the token, and the first one drawn
+        link.symlink_to(tmp_path / "elsewhere")
+    _first_token(monkeypatch, bytes(4))
+    write_output(tmp_path / "t.csv", "a,b\n", "--out")
+    assert (tmp_path / "t.csv").read_text() == "a,b\n" and not (tmp_path / "elsewhere").exists()
+    assert all(link.is_symlink() for link in links)  # not the write's own files: left as they are
 
 
-def test_a_killed_writes_file_under_any_pid_is_removed(tmp_path):
+# a write of argv[1] with a FIFO at its temporary name: the one before the token, and the first one drawn
+FIFO = """
+import os, sys
+from pathlib import Path
+from cellguard.output import write_output
+drawn = []
+def first_zero(n, urandom=os.urandom):
+    drawn.append(n)
+    return bytes(n) if len(drawn) == 1 else urandom(n)
+os.urandom = first_zero
+target = Path(sys.argv[1])
+for name in (f".{target.name}.{os.getpid()}.tmp", f".{target.name}.{os.getpid()}.00000000.tmp"):
+    os.mkfifo(target.with_name(name))
+write_output(target, "rows", "-o")
+"""
+
+
+def test_a_fifo_at_a_temporary_name_never_hangs_the_write(tmp_path):
+    """The temporary file was opened for writing whatever was there: a FIFO under its name (no reader) hung it."""
+    proc = subprocess.run([sys.executable, "-c", FIFO, str(tmp_path / "t.csv")], capture_output=True, text=True,
+                          timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    assert (tmp_path / "t.csv").read_text() == "rows" and len(_temporaries(tmp_path)) == 2  # the FIFOs, kept
+
+
+@pytest.mark.parametrize("name", [".t.csv.4000001.tmp", ".t.csv.4000001.0123abcd.tmp"],
+                         ids=["before the token", "with it"])
+def test_a_killed_writes_file_under_any_pid_is_removed(tmp_path, name):
     """Temporary names of 32 fixed slots left the ``.NAME.PID.tmp`` of writes killed before them for good."""
-    (tmp_path / ".t.csv.4000001.tmp").write_bytes(b"killed")
+    (tmp_path / name).write_bytes(b"killed")
     write_output(tmp_path / "t.csv", "rows", "-o")
     assert _names(tmp_path) == ["t.csv"]
 
 
-def test_without_locks_the_files_of_many_killed_writes_never_block_a_write(tmp_path, monkeypatch):
-    """Where there are no locks every killed write's file is kept; under 32 fixed temporary names, 32 killed writes
-    blocked the file for good ("its temporary names ... are all taken" on every later write)."""
-    killed = [tmp_path / f".t.csv.{pid}.tmp" for pid in range(40) if pid != os.getpid()]
-    for stale in killed:
-        stale.write_bytes(b"killed")
+def test_a_killed_writes_file_from_before_the_token_is_removed_where_its_name_is_now_hashed(tmp_path):
+    """A 240-byte name: ``.NAME.PID.tmp`` fits 255 bytes, ``.NAME.PID.TOKEN.tmp`` does not (hashed)."""
+    target = tmp_path / ("a" * 236 + ".csv")
+    (tmp_path / f".{target.name}.4000001.tmp").write_bytes(b"killed")
+    write_output(target, "rows", "-o")
+    assert _names(tmp_path) == [target.name]
 
+
+@pytest.mark.parametrize("locks", ["none", "blind"])
+def test_two_writes_of_one_pid_never_publish_a_mix(tmp_path, monkeypatch, locks):
+    """Two writers of one pid (the first process of two containers) where flock is absent (none) or sees no other
+    process's lock (blind) shared ``.NAME.PID.tmp``: B emptied A's file and wrote over it, and A published B's data
+    then its own (none), or B's half (blind). Here both are in one process, A ending while B is half written."""
     def no_locks(fd, operation):
         raise OSError(errno.ENOLCK, "No locks available")
 
-    monkeypatch.setattr(output.fcntl, "flock", no_locks)
-    write_output(tmp_path / "t.csv", "rows", "-o")
-    assert _names(tmp_path) == sorted([*(p.name for p in killed), "t.csv"])
-    assert (tmp_path / "t.csv").read_text() == "rows"
-
-
-def test_forty_live_writes_of_one_file_do_not_stop_another(tmp_path):
-    """Each write has a temporary name of its own: under 32 fixed names the 33rd of 40 writes of one file at once
-    failed."""
-    live = [tmp_path / f".t.json.{pid}.tmp" for pid in range(40) if pid != os.getpid()]
-    fds = []
-    try:
-        for tmp in live:  # written and locked, as by writes in other processes
-            tmp.write_bytes(b"being written")
-            fds.append(os.open(tmp, os.O_WRONLY))
-            fcntl.flock(fds[-1], fcntl.LOCK_EX)
-        write_output(tmp_path / "t.json", "rows", "-o")
-    finally:
-        for fd in fds:
-            os.close(fd)
-    assert _names(tmp_path) == sorted([*(p.name for p in live), "t.json"])
-    assert (tmp_path / "t.json").read_text() == "rows"
+    monkeypatch.setattr(output.fcntl, "flock", no_locks if locks == "none" else lambda fd, operation: None)
+    target = tmp_path / "t.json"
+    writes = [output.atomic_file(target, "-o"), output.atomic_file(target, "-o")]
+    a = writes[0].__enter__()
+    a.write(b"A" * 1000)
+    a.flush()
+    b = writes[1].__enter__()  # blind: takes A's file for a killed one's and removes it
+    b.write(b"B" * 1000)
+    b.flush()
+    a.write(b"A" * 1000)
+    with pytest.raises(output.OutputError) if locks == "blind" else contextlib.nullcontext():
+        writes[0].__exit__(None, None, None)
+    assert target.read_bytes() == b"A" * 2000 if locks == "none" else not target.exists()
+    b.write(b"B" * 1000)
+    writes[1].__exit__(None, None, None)
+    assert target.read_bytes() == b"B" * 2000 and _names(tmp_path) == ["t.json"]
 
 
 def test_a_write_stopped_right_after_its_rename_removes_no_other_file(tmp_path, monkeypatch):
     """SIGTERM right after the rename (the CLI's handler raises SystemExit there): the clean-up removed whatever then
     had the temporary name, free since the rename: another write's file. It removes only its own."""
-    tmp, replace = tmp_path / output._temporary_name("t.json"), os.replace
+    replace, taken = os.replace, []
 
     def renamed_then_stopped(source, destination):
         replace(source, destination)
-        tmp.write_bytes(b"another write's")  # the free name taken meanwhile
+        taken.append(Path(source))
+        taken[0].write_bytes(b"another write's")  # the free name taken meanwhile
         raise SystemExit(143)
 
     monkeypatch.setattr(os, "replace", renamed_then_stopped)
     with pytest.raises(SystemExit):
         write_output(tmp_path / "t.json", "mine", "-o")
     monkeypatch.undo()
-    assert (tmp_path / "t.json").read_text() == "mine" and tmp.read_bytes() == b"another write's"
+    assert (tmp_path / "t.json").read_text() == "mine" and taken[0].read_bytes() == b"another write's"
 
 
 # a write of argv[1] by argv[3] that pauses half written (touching argv[4], until argv[5] exists); "noop": its flock

@@ -18,14 +18,17 @@ import time
 import pytest
 import yaml
 
+from cellguard.diagnose.cycles import Cycle
 from cellguard.diagnose.diagnosis import diagnose
 from cellguard.diagnose.from_record import diagnose_record
+from cellguard.diagnose.recovery import recovery_finding
 from cellguard.errors import CellguardError
 from cellguard.record.reader import open_record
 from cellguard.robot.recovery.outcome import RecoveryOutcome
 
-# as test_recovery_log_read: slips, each recovered by a second grasp, in production cycles 5, 8 and 9
-SCENARIO = {"cell": "arm-pick-place", "seed": 4, "acceptance_cycles": 5, "production_cycles": 6,
+# as test_recovery_log_read, 4 cycles longer: slips, each recovered by a second grasp, in production cycles 5, 8, 9,
+# 12 and 14 (a tool_slip finding from cycle 5 on)
+SCENARIO = {"cell": "arm-pick-place", "seed": 4, "acceptance_cycles": 5, "production_cycles": 10,
             "faults": [{"kind": "intermittent_slip", "rate": 0.4, "dx_mm": -5.0, "seed": 27}],
             "recovery": {"behaviours": [{"do": "retry_grasp", "trigger": "grasp_missed", "attempts": 2}]}}
 
@@ -42,8 +45,8 @@ def _unlogged(out) -> list[int]:
 
 @pytest.fixture(scope="module")
 def killed(tmp_path_factory):
-    """The record of a run killed (the loop and its recorder, SIGKILL) once a production cycle after the first has
-    ended an attempt and not yet its row: the group is stopped, the record read again, and killed while so."""
+    """The record of a run killed (the loop and its recorder, SIGKILL) once a cycle from 12 on has ended an attempt
+    and not yet its row: the group is stopped, the record read again, and killed while so."""
     folder = tmp_path_factory.mktemp("killed")
     scenario, out = folder / "scenario.yaml", folder / "run"
     scenario.write_text(yaml.safe_dump(SCENARIO))
@@ -53,9 +56,9 @@ def killed(tmp_path_factory):
     try:
         deadline = time.monotonic() + 120
         while proc.poll() is None and time.monotonic() < deadline:
-            if [c for c in _unlogged(out) if c >= 6]:
+            if [c for c in _unlogged(out) if c >= 12]:
                 os.killpg(proc.pid, signal.SIGSTOP)
-                if [c for c in _unlogged(out) if c >= 6]:  # still: nothing more is written
+                if [c for c in _unlogged(out) if c >= 12]:  # still: nothing more is written
                     break
                 os.killpg(proc.pid, signal.SIGCONT)  # its row came meanwhile: the next recovery
             time.sleep(0.02)
@@ -102,6 +105,46 @@ def test_a_record_from_before_events_carried_the_fields_has_the_killed_cycles_wo
     # words are read for no cycle that has its row: reworded there, nothing changes
     reworded = [dataclasses.replace(e, reason="done") if e.cycle != cycle else e for e in older]
     assert diagnose(cycles, reworded, context).recoveries == diagnose(cycles, events, context).recoveries
+
+
+def test_the_cycle_a_run_was_killed_in_counts_in_no_fix(killed):
+    """Its outcome is unknown: counted as tried and not fixed, a killed record said retry_grasp fixed 3 of 4 cycles
+    where the whole run fixed all of them, and ``fixes`` reaches later records' advice and the fleet."""
+    out, cycle, cycles, events, context = killed
+    diagnosis = diagnose_record(out)
+    assert any(r["cycle"] == cycle for r in diagnosis.recoveries)  # its attempts are still read
+    without = diagnose(cycles, [e for e in events if e.cycle != cycle], context)
+    assert diagnosis.fixes and diagnosis.fixes == without.fixes
+    assert all(f["fixed"] == f["tried"] for f in diagnosis.fixes), diagnosis.fixes  # each slip: a second grasp
+
+
+def _attempt(outcome, arrival_s=0.5):
+    return RecoveryOutcome("retry_grasp", "grasp_missed", 1, outcome, 2.0, arrival_s, 1.0)
+
+
+def _cycles(production):
+    """Acceptance cycles 0-2, then the production cycles ``production`` (index: success)."""
+    return ([Cycle(i, "acceptance", True, {}) for i in range(3)]
+            + [Cycle(i, "production", ok, {}) for i, ok in production.items()])
+
+
+def test_the_cycle_a_run_was_killed_in_is_not_a_recovery_repeated_without_effect():
+    """Two failed attempts in it and no row: its next attempt might have resumed the cell."""
+    attempts = ([(i, _attempt("resumed")) for i in range(3)] + [(3, _attempt("failed")), (3, _attempt("failed")),
+                                                                (4, _attempt("resumed"))]
+                + [(5, _attempt("failed")), (5, _attempt("failed"))])
+    assert recovery_finding(_cycles({3: False, 4: True}), attempts) is None
+    ended = recovery_finding(_cycles({3: False, 4: True, 5: False}), attempts)  # the same cycle with its row
+    assert ended is not None and "repeated without effect in 2 of 3 production cycles" in ended.evidence[0]
+
+
+def test_the_cycle_a_run_was_killed_in_is_no_late_cycle_that_failed_to_pick():
+    """Its late attempts still count as late; whether the part was picked again in it is unknown."""
+    attempts = ([(i, _attempt("resumed")) for i in range(3)]
+                + [(3, _attempt("resumed", 2.0)), (4, _attempt("failed", 2.0)), (5, _attempt("failed", 2.0))])
+    found = recovery_finding(_cycles({3: True, 4: False}), attempts)
+    assert found is not None and found.evidence[0].startswith("3 recovery attempts from cycle 3 on")
+    assert "they picked the part again in 1 of 2 cycles vs 3 of 3 at acceptance" in found.evidence
 
 
 @pytest.mark.parametrize("attempt, duration", [("9" * 5000, "1.000"), ("1", "1.2.3"), ("1", "9" * 400 + ".000")],

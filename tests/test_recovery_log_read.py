@@ -95,3 +95,13 @@ def test_a_log_entry_that_is_not_a_whole_attempt_is_left_out(entry):
     rows = [{"cycle": 7, "features": {}, "outcome": {"recovery_log": [entry, whole.to_dict()]}},
             {"cycle": 3, "features": {}, "outcome": {"recovery_log": entry}}]
     assert attempts_of(rows) == [(7, whole)]
+
+
+def test_a_records_events_stay_hashable_with_their_recovery_fields(recorded):
+    """``recovery`` is a dict: as a hashed field it made every event of a new record unhashable (``set`` raised)."""
+    events = recorded[2]
+    ended = [e for e in events if e.kind == "recovery_end"]
+    assert ended and all(isinstance(e.recovery, dict) for e in ended)
+    assert len(set(events)) == len(events)
+    other = dataclasses.replace(ended[0], recovery={**ended[0].recovery, "outcome": "other"})
+    assert other != ended[0] and other not in set(events)  # still told apart by the fields

@@ -1,6 +1,6 @@
 """SIGTERM or SIGHUP (``timeout``, ``kill``, a service's stop, a closed terminal) while an output is being written ends
 the command as Ctrl-C does: its clean-up runs, exit 128 + the signal. Killed outright, an export left its hidden
-temporary file (``.t.csv.PID.tmp``) or staging folder (``.ds.XXXXXXXX.partial``) beside the target for good, and
+temporary file (``.t.csv.PID.TOKEN.tmp``) or staging folder (``.ds.XXXXXXXX.partial``) beside the target for good, and
 to-lerobot the -o folder it had made; the staging folder of one killed by SIGKILL is cleared by the next export."""
 
 from __future__ import annotations

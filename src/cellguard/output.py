@@ -22,6 +22,7 @@ from cellguard.errors import OutputError
 
 NAME_MAX = 255  # the longest file name, in bytes, on ext4, XFS, btrfs and APFS
 PID_MAX = 4194304  # the highest pid Linux gives (2**22), for the longest temporary name
+TOKEN_BYTES = 4  # random bytes (hex) after the pid: two writers of one pid (two containers' first process) differ
 TEMPORARY_SUFFIX = ".tmp"
 TEMPORARY_TRIES = 100  # a temporary file taken from under a write is made again at most this often
 UNLOCKABLE = (errno.ENOLCK, errno.EOPNOTSUPP, errno.ENOTSUP, errno.EINVAL)  # flock is not offered there
@@ -43,16 +44,17 @@ def make_folder(path: Path, what: str) -> Path:
     return path
 
 
-def refuse_filled_folder(path: Path, what: str) -> None:
+def refuse_filled_folder(path: Path, what: str, left: str = "") -> None:
     """OutputError if ``path`` is a folder that holds anything: a dataset or a recovered record goes only into a new
     or empty folder, so that nothing of another run's (a record's index parts, a dataset's files) is mixed in,
-    replaced or removed."""
+    replaced or removed. ``left``: what a stopped run left there, said after it (``staged.clear_killed``)."""
     try:
         filled = path.is_dir() and any(path.iterdir())
     except OSError as exc:
         raise OutputError(f"{what} {path}: cannot be read ({_why(exc)})") from None
     if filled:
-        raise OutputError(f"{what} {path}: exists and is not empty; give a new folder")
+        hint = f" or empty it: {left}" if left else ""
+        raise OutputError(f"{what} {path}: exists and is not empty; give a new folder{hint}")
 
 
 @contextlib.contextmanager
@@ -77,9 +79,8 @@ def atomic_file(path: Path, what: str, replace: bool = True, mode: int = 0o666) 
     make_folder(path.parent, what)
     target = _final_target(path, what)
     _clear_stale_temporaries(target)
-    tmp = target.with_name(_temporary_name(target.name))
     try:
-        with _locked_temporary(tmp, mode) as f:  # locked until closed: no other write takes it for a killed one's
+        with _locked_temporary(target, mode) as (tmp, f):  # locked until closed: no write takes it for a killed one's
             try:
                 yield f
                 f.flush()
@@ -157,14 +158,15 @@ def _new_target(path: Path, what: str) -> Path:
 
 
 def _temporary_name(name: str) -> str:
-    """A hidden temporary name beside ``name`` (``.NAME.PID.tmp``) that stays within the 255 bytes a file name may
-    have."""
-    return f"{_temporary_prefix(name)}{os.getpid()}{TEMPORARY_SUFFIX}"
+    """A hidden temporary name beside ``name`` (``.NAME.PID.TOKEN.tmp``, TOKEN random) that stays within the 255 bytes
+    a file name may have."""
+    return f"{_temporary_prefix(name)}{os.getpid()}.{os.urandom(TOKEN_BYTES).hex()}{TEMPORARY_SUFFIX}"
 
 
-def _temporary_prefix(name: str) -> str:
-    """What every temporary name beside ``name`` starts with, whatever the pid: the same hashed or not."""
-    if len(os.fsencode(f".{name}.{PID_MAX}{TEMPORARY_SUFFIX}")) > NAME_MAX:
+def _temporary_prefix(name: str, longest: str = f"{PID_MAX}.{'0' * 2 * TOKEN_BYTES}") -> str:
+    """What every temporary name beside ``name`` starts with, whatever its pid and token: the same hashed or not.
+    ``longest``: the longest part after it (``str(PID_MAX)``: the names before the token, ``.NAME.PID.tmp``)."""
+    if len(os.fsencode(f".{name}.{longest}{TEMPORARY_SUFFIX}")) > NAME_MAX:
         name = hashlib.sha256(os.fsencode(name)).hexdigest()[:32]
     return f".{name}."
 
@@ -190,11 +192,18 @@ def folder_locked(folder: Path, error: Callable[[str, OSError], Exception], ungu
 
 
 @contextlib.contextmanager
-def _locked_temporary(tmp: Path, mode: int) -> Iterator[BinaryIO]:
-    """``tmp`` created (or emptied), open for writing and ``flock``ed until the block ends: a lock not held marks the
-    temporary file of a killed write (``_clear_stale_temporaries``). Without locks there, it is written unlocked."""
+def _locked_temporary(target: Path, mode: int) -> Iterator[tuple[Path, BinaryIO]]:
+    """A new temporary file beside ``target`` (its path and the file), open for writing and ``flock``ed until the
+    block ends: a lock not held marks the temporary file of a killed write (``_clear_stale_temporaries``). Without
+    locks there, it is written unlocked. Made new (``O_EXCL``) under a name no other write has: two writers of one
+    pid (in two pid namespaces) shared ``.NAME.PID.tmp`` and, unlocked, published a mix of both; nothing already
+    there is opened (a FIFO there hung the write), it is a name taken, and another is drawn."""
     for _ in range(TEMPORARY_TRIES):
-        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_NOFOLLOW, mode)  # a link there: ELOOP, never followed
+        tmp = target.with_name(_temporary_name(target.name))
+        try:
+            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, mode)
+        except FileExistsError:
+            continue
         try:
             fcntl.flock(fd, fcntl.LOCK_EX)  # a clearing write holds it a moment
             if _same_file(os.fstat(fd), os.lstat(tmp)):
@@ -207,18 +216,19 @@ def _locked_temporary(tmp: Path, mode: int) -> Iterator[BinaryIO]:
                 raise
             break
         os.close(fd)
-    else:  # replaced under it again and again: no file of its own to write (it spun at full CPU on a link)
-        raise FileExistsError(tmp)
-    os.ftruncate(fd, 0)  # once locked: a killed write's file of the same name may be there
+    else:  # taken from under it again and again: no file of its own to write
+        raise FileExistsError(target)
     with os.fdopen(fd, "wb") as f:
-        yield f
+        yield tmp, f
 
 
 def _clear_stale_temporaries(target: Path) -> None:
     """Remove the temporary files beside ``target`` of writes killed before their clean-up (SIGKILL: each stayed for
     good, as large as its output): those whose lock is free. One a live write holds, or one that cannot be locked
     (a filesystem without locks), is kept."""
-    mine = re.compile(re.escape(_temporary_prefix(target.name)) + r"\d+" + re.escape(TEMPORARY_SUFFIX))
+    prefixes = {_temporary_prefix(target.name), _temporary_prefix(target.name, str(PID_MAX))}  # and before the token
+    mine = re.compile(f"(?:{'|'.join(map(re.escape, prefixes))})" + r"\d+(?:\.[0-9a-f]+)?"
+                      + re.escape(TEMPORARY_SUFFIX))
     try:
         names = [name for name in os.listdir(target.parent) if mine.fullmatch(name)]
     except OSError:  # the write itself says why the folder cannot be used

@@ -110,6 +110,7 @@ def recovery_finding(cycles: Sequence[Cycle], attempts: Sequence[tuple[int, Reco
     phase = {c.index: c.phase for c in cycles}
     acc = [o for c, o in attempts if phase.get(c) == "acceptance"]
     prod = [(c, o) for c, o in attempts if phase.get(c) != "acceptance"]
+    ended = [(c, o) for c, o in prod if c in phase]  # no row: killed in it, whether it resumed the cell is unknown
     evidence, starts, shares = [], [], []
     ref = [o.arrival_s for o in acc if o.arrival_s is not None]
     ref_s = float(np.median(ref)) if ref else None
@@ -126,7 +127,7 @@ def recovery_finding(cycles: Sequence[Cycle], attempts: Sequence[tuple[int, Reco
         if not arrived or np.median(arrived) > close:
             lead = f", {np.median(arrived) - close:.2f} s before the arm arrived" if arrived else ""
             evidence.append(f"their gripper was told to shut at {close:.2f} s{lead}: the fingers closed above the part")
-        late_cycles = {c for c, _ in late}
+        late_cycles = {c for c, _ in late if c in phase}
         resumed = {c for c, o in prod if c in late_cycles and o.outcome == "resumed" and o.close_s is not None}
         acc_cycles = {c for c, o in attempts if phase.get(c) == "acceptance"}
         acc_resumed = {c for c, o in attempts if c in acc_cycles and o.outcome == "resumed"}
@@ -136,7 +137,7 @@ def recovery_finding(cycles: Sequence[Cycle], attempts: Sequence[tuple[int, Reco
                         "scaling of the recovery, not the part, the tool or the fixture")
         starts.append(start)
         shares.append(len(late) / max(len(since), 1))
-    useless = _without_effect(acc, prod)
+    useless = _without_effect(acc, ended)
     if useless is not None:
         evidence.append(useless[1])
         starts.append(useless[0])
@@ -193,7 +194,8 @@ def _next_cycle(cycles: Sequence[Cycle]) -> tuple[int, str] | None:
 def fixes(findings: Sequence[Finding], cycles: Sequence[Cycle],
           attempts: Sequence[tuple[int, RecoveryOutcome]]) -> list[dict]:
     """Per finding and behaviour: cycles it ran in (``tried``) and those it resumed and that then
-    succeeded (``fixed``). A cycle belongs to the latest finding that started by then."""
+    succeeded (``fixed``). A cycle belongs to the latest finding that started by then. A cycle with no row (the one a
+    run was killed in) is left out: whether it succeeded is unknown, and a guess would reach later records' advice."""
     success = {c.index: c.success for c in cycles}
     onsets = sorted({f.cycle for f in findings})
     out = []
@@ -202,9 +204,9 @@ def fixes(findings: Sequence[Finding], cycles: Sequence[Cycle],
         end = later[0] if later else None
         ran: dict[str, dict[int, bool]] = {}
         for c, o in attempts:
-            if c < f.cycle or (end is not None and c >= end):
+            if c < f.cycle or (end is not None and c >= end) or c not in success:
                 continue
-            ok = o.outcome == "resumed" and success.get(c, False)
+            ok = o.outcome == "resumed" and success[c]
             ran.setdefault(o.behaviour, {})[c] = ran.get(o.behaviour, {}).get(c, False) or ok
         for behaviour, by_cycle in sorted(ran.items()):
             out.append({"cause": f.cause, "cycle": f.cycle, "recovery": behaviour, "tried": len(by_cycle),

@@ -108,7 +108,7 @@ def export_lerobot(rec: Record, output: Path, fps: int | None = None, task: str 
     made = not output.exists()
     staging = _prepare(output)
     robot_type = robot_type or (context.get("embodiment") or {}).get("robot")
-    lock = None
+    lock, refused = None, False
     try:
         lock = folder_lock.hold(staging, "-o")  # while this run lives: the next export clears it once it was killed
         _write_dataset(staging, data, features, episodes, kept, task, robot_type, fps)
@@ -118,15 +118,16 @@ def export_lerobot(rec: Record, output: Path, fps: int | None = None, task: str 
         for part in DATASET_PARTS:
             (staging / part).rename(output / part)
     except BaseException as exc:  # a full disk, Ctrl-C, SIGTERM: nothing of this run's is left in -o
-        staged.take_back(staging, output)
+        refused = not staged.take_back(staging, output)  # a file not its own appeared there: its note must stay
         if made:
             with contextlib.suppress(OSError):
                 output.rmdir()  # only if empty
-        if isinstance(exc, OSError):  # named as given: the staging folder is this run's own, and gone after it
+        if isinstance(exc, OSError):  # named as given: the staging folder is this run's own (kept: the rerun names it)
             raise RecordError(f"-o {output}: cannot write ({exc.strerror or exc})") from None
         raise
     finally:
-        shutil.rmtree(staging, ignore_errors=True)  # this run's own folder; empty once its parts moved
+        if not refused:  # this run's own folder; empty once its parts moved
+            shutil.rmtree(staging, ignore_errors=True)
         folder_lock.release(lock)
     return LeRobotExport(str(output), fps, tuple(kept), len(data["index"]), tuple(skipped))
 
@@ -280,8 +281,7 @@ def _stats(values: np.ndarray) -> dict[str, list]:
 def _prepare(output: Path) -> Path:
     """Check or make the empty folder ``output`` (``output.resolve()``), once what a killed export had moved into it is
     taken out; a new folder beside it, unique to this run, to write into."""
-    _clear_stale_staging(output)
-    refuse_filled_folder(output, "-o")
+    refuse_filled_folder(output, "-o", _clear_stale_staging(output))
     try:
         output.mkdir(parents=True, exist_ok=True)
         staging = Path(tempfile.mkdtemp(prefix=_staging_prefix(output), suffix=STAGING_SUFFIX, dir=output.parent))
@@ -295,19 +295,19 @@ def _staging_prefix(output: Path) -> str:
     return f".{output.name}."
 
 
-def _clear_stale_staging(output: Path) -> None:
+def _clear_stale_staging(output: Path) -> str:
     """Remove the staging folders beside ``output`` of exports killed before their clean-up (SIGKILL: nothing holds
     their lock; each stayed for good), and the parts of the dataset one had moved into ``output`` before it was
     killed where it holds nothing else (``staged``; the rerun was refused as "not empty"); RecordError if an export
-    into ``output`` is still writing."""
+    into ``output`` is still writing. Returns what to say of the ones kept (``staged.clear_killed``)."""
     prefix = _staging_prefix(output)
     mine = re.compile(re.escape(prefix) + r"[a-z0-9_]{8}" + re.escape(STAGING_SUFFIX))  # mkdtemp's 8 characters
     try:
         leftovers = [p for p in output.parent.iterdir()
                      if mine.fullmatch(p.name) and p.is_dir() and not p.is_symlink()]
     except OSError:
-        return  # the folder's own write says why it cannot be read
-    staged.clear_killed(leftovers, output, f"-o {output}: another export is writing there")
+        return ""  # the folder's own write says why it cannot be read
+    return staged.clear_killed(leftovers, output, f"-o {output}: another export is writing there")
 
 
 def _write_parquet(path: Path, table: pa.Table) -> None:

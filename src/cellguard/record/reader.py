@@ -99,7 +99,7 @@ class EventRecord:
     asked: float | None = None
     sent: float | None = None
     cycle: int | None = None
-    recovery: dict | None = None  # a recovery_end's attempt as fields (a record before them: None)
+    recovery: dict | None = field(default=None, hash=False)  # a recovery_end's attempt as fields (older: None)
 
 
 @dataclass(frozen=True)

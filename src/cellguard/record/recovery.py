@@ -50,10 +50,10 @@ def recover(source: Path, target: Path) -> Health:
                               f"to end, it finishes the record itself (recover it then only if it is left truncated)")
         if target.resolve() in (record.file.parent.resolve(), record.file.resolve()):
             raise RecordError(f"-o {target}: would overwrite the record being recovered; choose another folder")
-        _clear_stale_staging(target)
-        refuse_filled_folder(target, "-o")  # another run's index parts there were cleared, its other files mixed in
+        # another run's index parts there were cleared, its other files mixed in
+        refuse_filled_folder(target, "-o", _clear_stale_staging(target))
         health = record.health()
-        made, staging, lock = False, None, None
+        made, staging, lock, refused = False, None, None, False
         try:
             made = not target.exists()
             target.mkdir(parents=True, exist_ok=True)
@@ -67,12 +67,13 @@ def recover(source: Path, target: Path) -> Health:
             _move_into(staging, target, staged.note_files(staging))  # a rerun after a kill takes out what it moved
         except BaseException as exc:
             if staging is not None:
-                staged.take_back(staging, target, _staging)  # cut short in its moves: none of the copy is left
+                # cut short in its moves: none of the copy is left, or (a file not its own there) its note stays
+                refused = not staged.take_back(staging, target, _staging)
             if isinstance(exc, OSError):
                 raise RecordError(f"{target}: cannot write the recovered record ({exc.strerror or exc})") from None
             raise
         finally:  # this run's own folders: the staging one is empty once its files moved
-            if staging is not None:
+            if staging is not None and not refused:
                 shutil.rmtree(staging, ignore_errors=True)
             folder_lock.release(lock)
             if made and not (target / RECORD_FILE).exists():
@@ -92,15 +93,16 @@ def _staging(path: Path) -> bool:
         and not path.is_symlink()
 
 
-def _clear_stale_staging(target: Path) -> None:
+def _clear_stale_staging(target: Path) -> str:
     """Remove the staging folders of recoveries killed in ``target`` (nothing holds their lock), and the files one had
     moved into ``target`` before it was killed where it holds nothing else (``staged``); RecordError if a recovery is
-    still writing there. A rerun after ``kill -9`` was refused as "not empty", saying nothing of why."""
+    still writing there. A rerun after ``kill -9`` was refused as "not empty", saying nothing of why. Returns what to
+    say of the ones kept (``staged.clear_killed``)."""
     try:
         leftovers = [p for p in target.iterdir() if _staging(p)] if target.is_dir() else []
     except OSError:
-        return  # refuse_filled_folder says why the folder cannot be read
-    staged.clear_killed(leftovers, target, f"-o {target}: another recovery is writing there", _staging)
+        return ""  # refuse_filled_folder says why the folder cannot be read
+    return staged.clear_killed(leftovers, target, f"-o {target}: another recovery is writing there", _staging)
 
 
 def _text(path: Path) -> str:

@@ -55,8 +55,8 @@ def take_back(staging: Path, target: Path, beside: Callable[[Path], bool] = _not
     noted = _read_note(staging)
     if noted is None:
         return False
-    if not _cut_short(staging, target, noted):
-        return True
+    if not _cut_short(staging, target, noted) or not _moved(target, noted):
+        return True  # a finished output, or nothing of the run's there (stopped before its first move)
     if not _holds_only(target, noted, beside):
         return False
     for name, identity in noted.items():
@@ -66,11 +66,13 @@ def take_back(staging: Path, target: Path, beside: Callable[[Path], bool] = _not
 
 
 def clear_killed(leftovers: Iterable[Path], target: Path, busy: str,
-                 beside: Callable[[Path], bool] = _nothing) -> None:
+                 beside: Callable[[Path], bool] = _nothing) -> str:
     """Remove the staging folders of runs into ``target`` killed before their clean-up (no process holds their lock),
     once what they had moved into ``target`` is taken back (``take_back``); one whose take-back is refused is kept, so
     that its note still tells its files once the target holds nothing else. RecordError ``busy`` (naming the folder) if
-    one is still held by a live run, whose folder and files are left as they are."""
+    one is still held by a live run, whose folder and files are left as they are. Returns what the target's refusal as
+    not empty says of the folders kept ("" for none): without it the user was not told what to remove."""
+    kept = []
     for old in leftovers:
         try:
             lock = folder_lock.hold(old, "-o")
@@ -79,8 +81,12 @@ def clear_killed(leftovers: Iterable[Path], target: Path, busy: str,
         try:
             if take_back(old, target, beside):
                 shutil.rmtree(old, ignore_errors=True)
+            else:
+                kept.append(str(old))
         finally:
             folder_lock.release(lock)
+    return (f"a run stopped while moving its files into it left {', '.join(kept)} ({NOTED} there lists the files it "
+            f"moved); that folder goes with the next run once the target is empty") if kept else ""
 
 
 def _identity(st: os.stat_result) -> Identity:
@@ -119,6 +125,11 @@ def _read_note(staging: Path) -> dict[PurePosixPath, Identity] | None:
 def _cut_short(staging: Path, target: Path, noted: dict[PurePosixPath, Identity]) -> bool:
     """Whether a noted file is still in ``staging`` and not in ``target`` (a hard-linked move has it in both)."""
     return any(_at(staging / name) == identity and _at(target / name) != identity for name, identity in noted.items())
+
+
+def _moved(target: Path, noted: dict[PurePosixPath, Identity]) -> bool:
+    """Whether a noted file is in ``target`` with its identity."""
+    return any(_at(target / name) == identity for name, identity in noted.items())
 
 
 def _at(path: Path) -> Identity | None:
