@@ -16,7 +16,6 @@ import contextlib
 import datetime as dt
 import json
 import os
-import signal
 import socket
 import subprocess
 import sys
@@ -295,8 +294,8 @@ push([Signature("ta", "sk-hang", day, "friction", 0.8, "arm5", "c", {"x": 1.0}, 
 
 
 def test_a_push_interrupted_while_the_store_never_answers_leaves_its_batch_queued_and_logged(tmp_path):
-    """The store was asked for its date before the batch was queued: Ctrl-C while it did not answer left no
-    outbox and no audit line."""
+    """The store was asked for its date before the batch was queued: a push stopped while it did not answer left
+    no outbox and no audit line."""
     pytest.importorskip("psycopg")
     with socket.socket() as silent:  # takes the connection, never answers
         silent.bind(("127.0.0.1", 0))
@@ -313,8 +312,8 @@ def test_a_push_interrupted_while_the_store_never_answers_leaves_its_batch_queue
                 except TimeoutError:
                     continue
             assert child.poll() is None, child.stderr.read()  # the push is waiting on the store
-            child.send_signal(signal.SIGINT)
-            assert "KeyboardInterrupt" in child.communicate(timeout=60)[1]
+            child.kill()  # as Ctrl-C or a power cut while it waits (libpq's wait need not see a SIGINT at once)
+            child.wait(timeout=60)
             asking.close()
         finally:
             child.kill()
