@@ -33,11 +33,17 @@ class Cycle:
         return self.labels.get("direction")
 
 
+def getter(item: object):
+    """``item``'s fields by name, ``get(name, default=None)``: a mapping's keys or an object's attributes (a run's
+    rows are mappings, a record's cycles and events objects)."""
+    return item.get if isinstance(item, Mapping) else (lambda k, d=None: getattr(item, k, d))
+
+
 def as_cycle(row: object) -> Cycle:
     """A Cycle from a mapping or an object with the same names (``cycle`` or ``index``)."""
     if isinstance(row, Cycle):
         return row
-    get = row.get if isinstance(row, Mapping) else (lambda k, d=None: getattr(row, k, d))
+    get = getter(row)
     index = get("cycle", get("index"))
     features = get("features")
     if index is None or not isinstance(features, Mapping):

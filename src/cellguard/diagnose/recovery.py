@@ -24,7 +24,7 @@ import numpy as np
 
 from cellguard.control.events import EventKind
 from cellguard.diagnose.cause import Finding
-from cellguard.diagnose.cycles import Cycle, as_cycle
+from cellguard.diagnose.cycles import Cycle, as_cycle, getter
 from cellguard.diagnose.feature_kinds import kind_of
 from cellguard.robot.recovery.outcome import RecoveryOutcome
 
@@ -74,7 +74,7 @@ def attempts_of(rows: Iterable[object], events: Iterable[object] = ()) -> list[t
     ``recovery_end`` events (``events``, each with its ``cycle``), as ``_unlogged`` says."""
     out, logged = [], set()
     for row in rows:
-        get = _getter(row)
+        get = getter(row)
         outcome = get("outcome")
         log = outcome.get("recovery_log") if isinstance(outcome, Mapping) else get("recovery_log")
         attempts = [RecoveryOutcome.from_dict(entry) for entry in (log if isinstance(log, list) else ())]
@@ -88,7 +88,7 @@ def attempts_of(rows: Iterable[object], events: Iterable[object] = ()) -> list[t
 def _unlogged(events: Iterable[object], logged: set[int]) -> list[tuple[int, RecoveryOutcome]]:
     """The attempts of cycles with no row in ``logged``, from the fields their ``recovery_end`` events carry; their
     words only in a record none of whose events carries the fields (written before they did)."""
-    ends = [(get("cycle"), get("recovery"), get("reason")) for get in map(_getter, events)
+    ends = [(get("cycle"), get("recovery"), get("reason")) for get in map(getter, events)
             if get("kind") == EventKind.RECOVERY_END]
     worded = all(fields is None for _, fields, _ in ends)
     out = []
@@ -97,11 +97,6 @@ def _unlogged(events: Iterable[object], logged: set[int]) -> list[tuple[int, Rec
             done = RecoveryOutcome.parse(str(reason)) if worded else RecoveryOutcome.from_dict(fields)
             out += [(cycle, done)] if done is not None else []
     return out
-
-
-def _getter(item: object):
-    """``item``'s fields by name: a mapping's keys or an object's attributes (None: absent)."""
-    return item.get if isinstance(item, Mapping) else lambda k, i=item: getattr(i, k, None)
 
 
 def recovery_finding(cycles: Sequence[Cycle], attempts: Sequence[tuple[int, RecoveryOutcome]]) -> Finding | None:

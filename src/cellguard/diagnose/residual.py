@@ -19,7 +19,7 @@ from collections.abc import Iterable, Mapping
 from dataclasses import replace
 
 from cellguard.diagnose.cause import CONCURRENT, Finding, told
-from cellguard.diagnose.cycles import as_cycles
+from cellguard.diagnose.cycles import as_cycles, getter
 from cellguard.diagnose.feature_kinds import kind_of
 
 # A weaker servo moves its joint otherwise (it lags, accelerates later): the residual of the model over that
@@ -50,7 +50,7 @@ def residual_alarms(rows: Iterable[object]) -> list[dict]:
     lag = 2 * len({c.label for c in as_cycles(rows)})
     out = []
     for row in rows:
-        get = row.get if isinstance(row, Mapping) else (lambda k: getattr(row, k, None))
+        get = getter(row)
         outcome = get("outcome")
         residual = outcome.get("residual") if isinstance(outcome, Mapping) else None
         if isinstance(residual, Mapping):
