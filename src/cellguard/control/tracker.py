@@ -38,7 +38,6 @@ never an exception on the servo path.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 
 import numpy as np

@@ -220,7 +220,6 @@ def _profile(model: mujoco.MjModel, raw: object, sha256: str) -> Profile:
     if not isinstance(raw["joints"], dict) or not raw["joints"]:
         raise ProfileError("joints: expected a mapping of joint name to limits")
     joints = tuple(_joint(model, name, spec) for name, spec in raw["joints"].items())
-    names = {j.name for j in joints}
     by_name = {j.name: j for j in joints}
     measured = tuple(_measured(i, m, by_name) for i, m in enumerate(_list(raw, "measured")))
     first: dict[tuple[str, str], int] = {}

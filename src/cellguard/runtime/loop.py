@@ -30,7 +30,6 @@ from cellguard.control.reach import max_reach
 from cellguard.control.settings import build_guard
 from cellguard.diagnose.cycle_buffer import CycleBuffer
 from cellguard.diagnose.features import cycle_features
-from cellguard.errors import RecordError
 from cellguard.output import make_folder, write_output
 from cellguard.policy.chunk import ActionChunk
 from cellguard.policy.registry import make_policy
