@@ -14,6 +14,7 @@ from __future__ import annotations
 import json
 import shutil
 
+import pytest
 import yaml
 from release_helpers import CELL, KNOCKED, ONE, cli, edit_store, log_pass, pointers, stored_release, write_plan
 
@@ -312,3 +313,22 @@ def test_a_promotion_an_older_cellguard_logged_replays_as_it_was_decided(tmp_pat
     assert cli("verify", "--site", str(site)).exit_code == 0
     _run(site)
     assert _production(site) == (c, a)
+
+
+@pytest.mark.parametrize("broken", ["folder", "dangling link"])
+def test_a_site_plan_that_is_no_file_is_an_error_not_the_packaged_plan(tmp_path, broken):
+    """A release-plan.yaml that is a folder or a link to nothing was passed over: the packaged plan's gates judged
+    and promoted the site's releases without a word. Every command that takes the plan in force names it, exit 2,
+    and nothing moves."""
+    site = tmp_path / "site"
+    site.mkdir()
+    rid = stored_release(Store(site), "a")
+    before = len(log.entries(Store(site)))
+    plan = site / "release-plan.yaml"
+    plan.mkdir() if broken == "folder" else plan.symlink_to(tmp_path / "moved-away.yaml")
+    for args in (("promote", rid, "--cell", CELL, "--to", "sim"), ("run", "--cell", CELL, "--stage", "sim")):
+        result = cli(*args, "--site", str(site))
+        assert result.exit_code == 2, result.output
+        assert "release-plan.yaml" in result.output and broken.split()[-1] in result.output, result.output
+    assert len(log.entries(Store(site))) == before
+    assert all(p["current"] is None for p in pointers(site))

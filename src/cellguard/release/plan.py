@@ -65,9 +65,11 @@ def default_plan(cell: str) -> Path:
 
 def plan_in_force(site: Path, cell: str) -> dict[str, StagePlan]:
     """The plan in force at ``site`` for ``cell``: the site's release-plan.yaml, else the packaged plan for the
-    cell's kind. What every command judges a pass by, whatever ``--plan`` it was given."""
+    cell's kind. What every command judges a pass by, whatever ``--plan`` it was given. Anything at the name is
+    the site's plan: a folder or a dangling link there is an error (passed over, it put the packaged gates in force
+    without a word)."""
     path = Path(site) / "release-plan.yaml"
-    return load_plan(path if path.is_file() else default_plan(cell))
+    return load_plan(path if path.exists() or path.is_symlink() else default_plan(cell))
 
 
 def load_plan(path: Path) -> dict[str, StagePlan]:
