@@ -87,7 +87,16 @@ def test_the_times_of_an_older_records_log_read_as_its_words_gave_them(raw):
                                    {"behaviour": "b", "trigger": "t", "attempt": 1, "outcome": "failed",
                                     "duration_s": 10**400},  # no float holds it: OverflowError in the reader
                                    {"behaviour": "b", "trigger": "t", "attempt": 1, "outcome": "failed",
-                                    "duration_s": 1.0, "close_s": -10**400}])
+                                    "duration_s": 1.0, "close_s": -10**400},
+                                   # an attempt no run writes: it read as one that fixed nothing
+                                   {"behaviour": "b", "trigger": "t", "attempt": 1, "outcome": "fixed",
+                                    "duration_s": 1.0},
+                                   {"behaviour": "b", "trigger": "t", "attempt": 0, "outcome": "failed",
+                                    "duration_s": 1.0},
+                                   {"behaviour": "b", "trigger": "t", "attempt": 1, "outcome": "failed",
+                                    "duration_s": -1.0},
+                                   {"behaviour": "b", "trigger": "t", "attempt": 1, "outcome": "failed",
+                                    "duration_s": 1.0, "arrival_s": -0.5, "close_s": 0.5}])
 def test_a_log_entry_that_is_not_a_whole_attempt_is_left_out(entry):
     """A damaged or crafted record: the entry is left out, as the reader leaves out a malformed message; the
     whole attempt beside it still reads."""
@@ -95,6 +104,13 @@ def test_a_log_entry_that_is_not_a_whole_attempt_is_left_out(entry):
     rows = [{"cycle": 7, "features": {}, "outcome": {"recovery_log": [entry, whole.to_dict()]}},
             {"cycle": 3, "features": {}, "outcome": {"recovery_log": entry}}]
     assert attempts_of(rows) == [(7, whole)]
+
+
+@pytest.mark.parametrize("words", ["b: attempt 0 after t, 1.000 s; outcome failed",
+                                   "b: attempt 1 after t, 1.000 s; outcome fixed"])
+def test_an_older_records_words_of_no_attempt_a_run_writes_are_left_out(words):
+    assert RecoveryOutcome.parse(words) is None
+    assert RecoveryOutcome.parse(words.replace("attempt 0", "attempt 1").replace("fixed", "failed")) is not None
 
 
 def test_a_records_events_stay_hashable_with_their_recovery_fields(recorded):

@@ -57,7 +57,8 @@ class RecoveryOutcome:
         if (not all(isinstance(v, str) for v in text) or type(attempt) is not int or times[0] is None
                 or not all(v is None or _finite(v) for v in times)):
             return None
-        return cls(text[0], text[1], attempt, text[2], *(None if v is None else round(float(v), 3) for v in times))
+        return cls(text[0], text[1], attempt, text[2],
+                   *(None if v is None else round(float(v), 3) for v in times))._whole()
 
     @classmethod
     def parse(cls, reason: str) -> RecoveryOutcome | None:
@@ -68,7 +69,13 @@ class RecoveryOutcome:
             return None
         number = {k: None if m[k] is None else float(m[k]) for k in ("duration", "arrival", "close")}
         return cls(m["behaviour"], m["trigger"], int(m["attempt"]), m["outcome"], number["duration"],
-                   number["arrival"], number["close"])
+                   number["arrival"], number["close"])._whole()
+
+    def _whole(self) -> RecoveryOutcome | None:
+        """Self, or None for an attempt no run writes: an outcome word not in ``OUTCOMES`` (it read as an attempt
+        that fixed nothing), an attempt number below 1, a time below zero."""
+        times_ok = self.duration_s >= 0 and all(v is None or 0 <= v for v in (self.arrival_s, self.close_s))
+        return self if self.outcome in OUTCOMES and self.attempt >= 1 and times_ok else None
 
 
 def _finite(value: object) -> bool:
