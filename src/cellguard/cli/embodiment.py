@@ -47,18 +47,13 @@ def embodiment_show(
     print_profile(profile)
 
 
-_UNITS = {"hinge": {"position": "rad", "velocity": "rad/s", "acceleration": "rad/s^2", "jerk": "rad/s^3",
-                    "effort": "N*m", "torque_constant": "N*m/A"},
-          "slide": {"position": "m", "velocity": "m/s", "acceleration": "m/s^2", "jerk": "m/s^3", "effort": "N",
-                    "torque_constant": "N/A"}}
-
-
 def print_profile(profile) -> None:
     """The profile as tables, SI with units: joints and limits, measured parameters (as written, with when and
     how), symmetry pairs, and the calibration. Text from the profile file is printed as it is (no markup)."""
     from rich.text import Text
 
     from cellguard.cli.text import printable
+    from cellguard.embodiment.profile import SI_UNITS
 
     def cell(value: object) -> Text:
         return Text(printable(value))
@@ -69,7 +64,7 @@ def print_profile(profile) -> None:
         joints = [j for j in profile.joints if j.kind == kind]
         if not joints:
             continue
-        u = _UNITS[kind]
+        u = SI_UNITS[kind]
         table = _table(f"{kind} joints")
         table.add_column("joint", no_wrap=True)
         for key, label in (("position", "position"), ("velocity", "velocity"), ("acceleration", "accel."),
@@ -77,8 +72,8 @@ def print_profile(profile) -> None:
             table.add_column(Text(f"{label}\n[{u[key]}]"), justify="right", no_wrap=True)  # Text: no markup
         for j in joints:
             position = f"{_inward(j.position[0], up=True)}..{_inward(j.position[1], up=False)}"
-            table.add_row(*map(cell, (j.name, position, f"{j.velocity:g}", f"{j.acceleration:g}", f"{j.jerk:g}",
-                                      f"{j.effort:g}", f"{j.torque_constant:g}")))
+            maxima = (_inward(x, up=False) for x in (j.velocity, j.acceleration, j.jerk, j.effort))
+            table.add_row(*map(cell, (j.name, position, *maxima, f"{j.torque_constant:g}")))
         console.print(table)
     measured = _table("measured")
     for col in ("joint", "parameter", "value", "measured", "method"):

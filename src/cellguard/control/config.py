@@ -34,8 +34,10 @@ class GuardConfig(BaseModel):
                                    description="measured |effort| above this fraction of the limit ...")
     effort_hold_s: float = Field(default=0.05, gt=0.0, le=1.0, description="... for at least this long, in whole "
                                  "servo samples (at least 2): category 2 stop [s]")
-    scale_rate: float = Field(default=2.0, gt=0.0, description="largest rate of change of the speed scale [1/s]")
-    scale_accel: float = Field(default=40.0, gt=0.0, description="[1/s²]")
+    # at the least of both, the slow-down crosses the scale's whole range (1 to 0) in 11 s; scale_rate 1e-300 was
+    # taken, and the playback clock stayed at the speed it had whatever cap was asked for
+    scale_rate: float = Field(default=2.0, ge=0.1, description="largest rate of change of the speed scale [1/s]")
+    scale_accel: float = Field(default=40.0, ge=0.1, description="[1/s²]")
 
     @field_validator("box")
     @classmethod

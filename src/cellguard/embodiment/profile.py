@@ -1,9 +1,10 @@
 """The embodiment profile: what this robot may do, and what was measured on it.
 
 A profile is a YAML file next to the robot's MJCF. Loading checks it against the model: a
-joint the model does not have, a limit outside the model's range, or a number without its
-unit is refused with an error that names the field. So is a measured parameter cellguard does not
-know (``Friction`` was taken with any unit and sign), and a measured value that cannot be one of
+joint the model does not have, a limit outside the model's range or beyond what any robot has
+(``_PLAUSIBLE``), or a number without its unit is refused with an error that names the field. So
+is a measured parameter cellguard does not know (``Friction`` was taken with any unit and sign),
+and a measured value that cannot be one of
 its parameter (friction, damping, armature, actuator_time_constant, backlash): in another dimension
 (friction is a torque on a hinge, a force on a slide; armature an inertia or a mass), below zero,
 or beyond its range (friction above the joint's effort); a second entry for the same joint and
@@ -33,6 +34,17 @@ _LINEAR = {"position": ("length",), "velocity": ("length/s",), "acceleration": (
            "jerk": ("length/s^3",), "effort": ("force",), "torque_constant": ("force/A",)}
 _ANGULAR = {"position": ("angle",), "velocity": ("angle/s",), "acceleration": ("angle/s^2",),
             "jerk": ("angle/s^3",), "effort": ("torque",), "torque_constant": ("torque/A",)}
+# the SI unit each limit is held (and shown) in
+SI_UNITS = {"hinge": {"position": "rad", "velocity": "rad/s", "acceleration": "rad/s^2", "jerk": "rad/s^3",
+                      "effort": "N*m", "torque_constant": "N*m/A"},
+            "slide": {"position": "m", "velocity": "m/s", "acceleration": "m/s^2", "jerk": "m/s^3", "effort": "N",
+                      "torque_constant": "N/A"}}
+# the plausible range of each limit, SI, a hinge's or a slide's: the fastest joints turn at tens of rad/s (linear
+# motors a few m/s), reach 1e4 rad/s^2 and 1e7 rad/s^3, the strongest hold 1e5 N*m, a geared drive gives at most
+# some 1e3 N*m/A; a limit orders of magnitude beyond, or under 1e-6 (a joint that cannot move), is a typing or unit
+# error that turns the guard off (1e308 let a 2 rad step through in one tick, or overflowed at the guard's start)
+_PLAUSIBLE = {"velocity": (1e-6, 1e3), "acceleration": (1e-6, 1e6), "jerk": (1e-6, 1e9), "effort": (1e-6, 1e7),
+              "torque_constant": (1e-6, 1e6)}
 _PARAMETER_DIMENSIONS = ("torque", "force", "time", "angle", "length", "mass", "inertia", "damping")
 # the dimension of a measured parameter on a hinge or a slide joint (None: no unit cellguard reads yet); each is
 # at least zero. A parameter not listed is refused: a misspelt one would be taken with any unit and sign.
@@ -336,6 +348,10 @@ def _joint(model: mujoco.MjModel, name: object, spec: object) -> JointLimits:
         values[key] = _quantity(spec[key], f"joints.{name}.{key}", dims[key])
         if values[key] <= 0:
             raise ProfileError(f"joints.{name}.{key}: must be positive, got {values[key]:g}")
+        low, high = _PLAUSIBLE[key]
+        if not low <= values[key] <= high:
+            raise ProfileError(f"joints.{name}.{key}: {spec[key]} is outside the plausible {low:g}..{high:g} "
+                               f"{SI_UNITS[kind][key]}; no robot has it: check the value and its unit")
     return JointLimits(name=name, kind=kind, position=(lo, hi), **values)
 
 
