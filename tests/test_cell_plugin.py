@@ -140,7 +140,8 @@ class LazyFaults(ArmPickPlace):
 
 
 @pytest.mark.parametrize("value, error", [
-    ("armcopy:NoBus", r"cell 'armcopy-pick-place': its plugin armcopy failed: OSError: cannot open /dev/ttyUSB0"),
+    ("armcopy:NoBus", r"cell 'armcopy-pick-place': its plugin armcopy \(\S+armcopy\.py\) failed: OSError: cannot open "
+                      r"/dev/ttyUSB0"),
     ("armcopy:NotACell", r"returned a NotACell, not a SimCell: it has no begin_cycle, .*profile"),
 ])
 def test_a_plugin_cell_that_cannot_be_built_is_one_line_naming_it(plug, value, error):

@@ -56,21 +56,30 @@ GRIPPER = '''
 '''
 # run in a fresh interpreter: the scenario's schema is built from the kinds found when cellguard is imported
 SCRIPT = '''
-    import importlib.util, json, sys
+    import importlib.machinery, json, sys
 
-    for package, folder in (("cellguard.robot.faults", sys.argv[1]), ("cellguard.robot.process", sys.argv[2])):
-        spec = importlib.util.find_spec(package)  # the package found on one folder more, as if the file were in it
-        spec.submodule_search_locations.append(folder)
-        module = sys.modules[package] = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(module)
+    FOLDERS = {"cellguard.robot.faults": sys.argv[1], "cellguard.robot.process": sys.argv[2]}
+
+
+    class OneFolderMore:
+        """Finds each package of FOLDERS on one folder more, as if the file were in it, from its first import on (the
+        built-in cells, imported first, take every fault kind found then)."""
+
+        def find_spec(self, name, path, target=None):
+            if name not in FOLDERS:
+                return None
+            spec = importlib.machinery.PathFinder.find_spec(name, path)
+            spec.submodule_search_locations.append(FOLDERS[name])
+            return spec
+
+
+    sys.meta_path.insert(0, OneFolderMore())
 
     from cellguard.diagnose import diagnose
     from cellguard.errors import ScenarioError
-    from cellguard.robot.pick_place import FAULT_KINDS, PickPlaceCell
     from cellguard.runtime import Run
     from cellguard.scenario import parse_scenario
 
-    PickPlaceCell.supported_faults = FAULT_KINDS | {"fixture_nudge"}  # which faults it simulates: the cell's choice
     scenario = parse_scenario({"cell": "arm-pick-place", "acceptance_cycles": 1, "production_cycles": 0,
                                "faults": [{"kind": "fixture_nudge", "dx_mm": 3.0}],
                                "process_changes": [{"kind": "new_gripper", "at_cycle": 0, "grams": 40.0}]})

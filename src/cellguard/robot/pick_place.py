@@ -9,7 +9,8 @@ weld constraint until the fingers open.
 A cell model provides, by name: bodies ``part`` (free joint ``part``), ``tool`` (rigid on the
 last wrist link, carrying site ``tcp``), mocap bodies ``fixture`` and ``camera_mount``; sites
 ``fixture_datum`` and ``drop_zone``; a weld equality ``grasp`` (tool to part, inactive); one
-position actuator per profiled joint, named as the joint; the gripper is the last joint.
+position actuator per profiled joint, named as the joint; the gripper is the last joint (checked, with the home pose
+against the profile's limits, when the cell is built: ``_misfit``).
 """
 
 from __future__ import annotations
@@ -22,17 +23,15 @@ import numpy as np
 
 from cellguard.embodiment import Kinematics, Profile
 from cellguard.embodiment.kinematics import span
+from cellguard.errors import ProfileError
 from cellguard.robot.drives import DrivenCell, PositionDrives
+from cellguard.robot.faults import FAULTS
 from cellguard.robot.kinematics import solve_tool_down
 from cellguard.robot.protocol import SafetyInputs
 from cellguard.robot.state import Observation
 
 # Camera frame: x along world x, z looking down.
 CAMERA_ROTATION = np.diag([1.0, -1.0, -1.0])
-FAULT_KINDS = frozenset(
-    {"fixture_shift", "friction_growth", "servo_gain", "camera_shift", "tool_slip", "policy_latency", "policy_nan",
-     "friction_step", "intermittent_slip", "part_misplaced", "late_recovery"}
-)
 
 
 @dataclass(frozen=True)
@@ -58,14 +57,52 @@ class Layout:
     ik_joints: tuple[str, ...] = ()  # joints a recovery's IK moves (the rest stay as at home); () = all but the gripper
 
 
+def _misfit(model: mujoco.MjModel, profile: Profile, layout: Layout) -> str | None:
+    """Why ``profile`` does not fit the cell's model and ``layout``, or None. Unchecked, a joint missing or extra was
+    a numpy traceback, reordered joints took each other's home values (every chunk refused), and a home pose outside
+    the profile's position limits ran, its retreats to home braked at the limit."""
+    names = profile.joint_names
+    if len(layout.q_home) != len(names):
+        return (f"{len(names)} joints ({', '.join(names)}) for a home pose of {len(layout.q_home)} (q_home: one value "
+                f"per joint, in profile order, the gripper last)")
+    body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "tool")
+    if body < 0:
+        return "its model has no body 'tool'"
+    carry = set()  # the tool body and the bodies that carry it: a joint of one of them moves the tool point
+    while body > 0:
+        carry.add(body)
+        body = int(model.body_parentid[body])
+    moves = [int(model.jnt_bodyid[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, n)]) in carry for n in names]
+    if moves[-1]:
+        return f"its last joint {names[-1]!r} moves the tool; the gripper must be the last joint"
+    if not all(moves[:-1]):
+        still = names[moves.index(False)]
+        return f"its joint {still!r} does not move the tool; only the last one, the gripper, may not"
+    stray = [j for j in layout.ik_joints if j not in names[:-1]]
+    if stray:
+        return f"the layout's ik_joints {stray} are not among its arm joints ({', '.join(names[:-1])})"
+    for joint, q in zip(profile.joints, layout.q_home):
+        lo, hi = joint.position
+        if not lo <= q <= hi:
+            unit = "rad" if joint.kind == "hinge" else "m"
+            return (f"the home pose puts {joint.name} at {q:g} {unit}, outside its position limits "
+                    f"[{lo:g}, {hi:g}] {unit}")
+    return None
+
+
 class PickPlaceCell(DrivenCell):
     """A simulated pick-place cell at the model's servo period; joint order is the profile's."""
 
     name: str
-    supported_faults = FAULT_KINDS
+    # every fault kind found, a new file's too: a fault acts only through the policy channel and the world-change
+    # setters (``world_changes.ADDED``, ``MULTIPLIED``), and a pick-place cell has every one of them
+    supported_faults = frozenset(FAULTS)
     failure_checks = ("grasp_missed", "place_missed")  # what ``failed_check`` may report
 
     def __init__(self, model: mujoco.MjModel, profile: Profile, layout: Layout, seed: int = 0):
+        misfit = _misfit(model, profile, layout)
+        if misfit is not None:
+            raise ProfileError(f"profile {profile.robot!r} version {profile.version}: {misfit}")
         self.model, self.profile, self.layout = model, profile, layout
         self.data = mujoco.MjData(model)
         self._taught = copy.deepcopy(model)  # as commissioned: recoveries plan on it, faults never touch it

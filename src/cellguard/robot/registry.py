@@ -9,6 +9,7 @@ find it in any process, with no edit to cellguard. A plugin is imported only whe
 from __future__ import annotations
 
 import inspect
+import sys
 from collections.abc import Callable
 from importlib.metadata import EntryPoint, entry_points
 
@@ -39,7 +40,9 @@ def make_cell(name: str, seed: int = 0):
     if getattr(cls, "name", None) != name:
         raise ConfigError(f"cell {name!r}: its plugin's class {cls.__module__}.{cls.__qualname__} is named "
                           f"{getattr(cls, 'name', None)!r}; the entry point's name must be the cell's name")
-    return from_plugin(lambda: cls(seed=seed), SimCell, f"cell {name!r}: its plugin {cls.__module__}")
+    file = getattr(sys.modules.get(cls.__module__), "__file__", None)  # the file to fix, where there is one
+    where = f"{cls.__module__} ({file})" if file else cls.__module__
+    return from_plugin(lambda: cls(seed=seed), SimCell, f"cell {name!r}: its plugin {where}")
 
 
 def from_plugin(make: Callable[[], object], protocol: type, what: str):
@@ -47,6 +50,8 @@ def from_plugin(make: Callable[[], object], protocol: type, what: str):
     ``what`` when it raises or returns something else (a plugin's traceback, or an AttributeError deep in a run)."""
     try:
         made = make()
+    except ConfigError as exc:  # cellguard's own check of what the plugin gave it (a profile that does not fit)
+        raise ConfigError(f"{what}: {exc}") from None
     except Exception as exc:  # any error of a plugin's own code is the plugin's, named here
         raise ConfigError(f"{what} failed: {type(exc).__name__}: {exc}") from None
     members = {n for n in dir(protocol) if not n.startswith("_")}
