@@ -101,7 +101,8 @@ def test_a_model_whose_state_input_has_another_width_is_refused_at_load(tmp_path
     mlp = Mlp(inputs=(("state", 3), ("time_s", 1)), weights=(rng.normal(size=(4, 8)), rng.normal(size=(8, 12))),
               biases=(np.zeros(8), np.zeros(12)), x_mean=np.zeros(4), x_std=np.ones(4), y_mean=np.zeros(12),
               y_std=np.ones(12), horizon=2)
-    path = save_mlp_onnx(mlp, tmp_path / "narrow.onnx", {})
+    names = ",".join(ArmPickPlace().profile.joint_names)  # named, so that the map is no reason to refuse it
+    path = save_mlp_onnx(mlp, tmp_path / "narrow.onnx", {"cellguard.action_names": names})
     with pytest.raises(ConfigError, match=r"model input 'state' has shape \[1, 3\]; the cell feeds it \(1, 6\)"):
         make_policy(f"onnx:{path}?dt=0.02", ArmPickPlace())
 

@@ -53,6 +53,7 @@ from cellguard.embodiment import Profile
 from cellguard.policy.chunk import MAX_HORIZON, ActionChunk
 
 MIN_STEP_NS, MAX_STEP_NS = 1_000_000, 1_000_000_000  # a chunk's step: 1 ms to 1 s
+MAX_STAMP_NS = 2**62  # a chunk's stamp, either sign: 146 years, and the curve's int64 clock arithmetic still fits
 HISTORY_TICKS = 8192  # playback clock remembered for mapping late chunks [ticks]
 MAX_BLENDED = 64  # curves in one blend at most, a bound on the tick's cost (50 Hz chunks in a 1 s blend: 51)
 HOLD_SAMPLES = 65  # samples of a blend that decide, per joint, how a hold fades out when a chunk comes from rest
@@ -294,8 +295,10 @@ class Executor:
                     f"lies a whole range beyond the limits [{self.profile.q_min[j]:g}, {self.profile.q_max[j]:g}]")
         if not isinstance(chunk.dt_ns, (int, np.integer)) or not MIN_STEP_NS <= chunk.dt_ns <= MAX_STEP_NS:
             return f"dt_ns must be an integer in [{MIN_STEP_NS}, {MAX_STEP_NS}] ns, got {chunk.dt_ns!r}"
-        if not isinstance(chunk.t_obs_ns, (int, np.integer)):
-            return f"t_obs_ns must be an integer [ns], got {chunk.t_obs_ns!r}"
+        stamp = chunk.t_obs_ns
+        if (not isinstance(stamp, (int, np.integer)) or isinstance(stamp, bool)  # True read as 1 ns
+                or not -MAX_STAMP_NS <= int(stamp) <= MAX_STAMP_NS):
+            return f"t_obs_ns must be an integer in [-2**62, 2**62] ns, got {chunk.t_obs_ns!r}"
         unc = chunk.uncertainty
         if unc is not None:
             unc = np.asarray(unc)

@@ -93,7 +93,8 @@ def step_period(backend: Backend, options: dict[str, str], source: str) -> float
 
 
 def resolve_map(backend: Backend, cell, map_path: str | None, source: str) -> ActionMap:
-    """The action map for ``backend`` on ``cell``: a file, else the model's own, else by joint name."""
+    """The action map for ``backend`` on ``cell``: a file, else the model's own, else by joint name. Unnamed
+    actions with no map are refused: taken as the joints in order, in SI, a policy in degrees ran as radians."""
     profile = cell.profile
     if map_path:
         amap = load_action_map(Path(map_path), profile)
@@ -102,14 +103,16 @@ def resolve_map(backend: Backend, cell, map_path: str | None, source: str) -> Ac
                                 origin=f"{source} (embedded map)")
     else:
         names = backend.action_names
-        joints = tuple(n.removesuffix(".pos") for n in names) if names else profile.joint_names
+        if not names:
+            raise ConfigError(f"policy: {source} names none of its {backend.action_dim} actions and carries no "
+                              f"action map: give one, ?map=FILE (which joint each action drives, in which unit)")
+        joints = tuple(n.removesuffix(".pos") for n in names)
         if sorted(joints) != sorted(profile.joint_names) or backend.action_dim != profile.dof:
-            raise ConfigError(f"policy: {source} outputs {backend.action_dim} actions "
-                              f"({', '.join(names) if names else 'unnamed'}), which are not the joints of "
-                              f"{profile.robot!r}; give an action map: ?map=FILE")
+            raise ConfigError(f"policy: {source} outputs {backend.action_dim} actions ({', '.join(names)}), which "
+                              f"are not the joints of {profile.robot!r}; give an action map: ?map=FILE")
         order = {j: i for i, j in enumerate(joints)}
-        entries = [{"name": names[order[j.name]] if names else j.name, "joint": j.name,
-                    "unit": "rad" if j.kind == "hinge" else "m"} for j in profile.joints]
+        entries = [{"name": names[order[j.name]], "joint": j.name, "unit": "rad" if j.kind == "hinge" else "m"}
+                   for j in profile.joints]
         entries.sort(key=lambda e: order[e["joint"]])
         amap = parse_action_map({"robot": profile.robot, "actions": entries}, profile, origin=source)
     amap.check_policy(backend.action_dim, backend.action_names, source)
