@@ -32,6 +32,7 @@ BOX_RANDOM = f"{WORKSPACE}::test_random_chunks_never_take_the_tool_out_of_the_bo
 REAL_TIME_CAP = f"{ENV}::test_a_speed_cap_holds_the_sent_setpoints_of_a_policy_that_answers_in_real_time"
 SOFT_5MS = f"{LIM}::test_a_joint_stops_inside_its_soft_limits_at_a_5_ms_servo_period"
 SPEEDS_UP = f"{LIM}::test_a_reference_that_speeds_up_past_the_velocity_limit_is_held_at_it"
+INWARD = "tests/test_tracker_inward.py"
 
 
 @dataclass(frozen=True)
@@ -51,6 +52,14 @@ MUTATIONS = (
              "                fit = self._stop_fits(j, qj, v_end, a)",
              "            if False:\n                fit = self._stop_fits(j, qj, v_end, a)",
              (POSITION, LIMITS, SOFT_5MS)),
+    Mutation("outside_frozen", "position: a joint past its soft limit comes back inward", TRACKER,
+             "<= max(self._hi_f[j], min(q, p))", "<= self._hi_f[j]",
+             (f"{INWARD}::test_a_joint_reset_past_its_soft_limit_follows_a_reference_back_inside",),
+             also=((TRACKER, ">= min(self._lo_f[j], max(q, p))", ">= self._lo_f[j]"),)),
+    Mutation("outside_moves_out", "position: a joint past its soft limit never goes further out", TRACKER,
+             "<= max(self._hi_f[j], min(q, p))", "<= max(self._hi_f[j], q + 1.0)",
+             (f"{INWARD}::test_a_joint_past_its_soft_limit_never_moves_further_out",),
+             also=((TRACKER, ">= min(self._lo_f[j], max(q, p))", ">= min(self._lo_f[j], q - 1.0)"),)),
     Mutation("soft_margin_zero", "position: soft limits inside the hard limits", ENVELOPE,
              "margin = c.soft_margin * (hi - lo)", "margin = 0.0 * (hi - lo)", (POSITION,)),
     Mutation("recovery_ignores_position", "position: the recovery brakes and aims inside the soft limits", TRACKER,

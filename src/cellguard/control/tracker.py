@@ -30,7 +30,9 @@ the lowered limit: that would be a velocity step).
 
 Position limits are never clamped: a sample is refused when the stopping distance from its
 velocity and acceleration no longer fits before the soft limit (a jerk-limited bound, more
-than v²/2a), and the refusal hands over to ruckig while a stop still fits. This edition of
+than v²/2a), and the refusal hands over to ruckig while a stop still fits. A joint the setpoint
+already has past a soft limit (a reset at the measured pose, a robot pushed by hand, past the hard
+limit even) may come back inward, never go further out (``_stop_fits``). This edition of
 ruckig ignores position limits and raises on NaN, so it only ever sees finite, clipped inputs,
 and an error it raises brakes every joint for that tick (the envelope reports it as an event),
 never an exception on the servo path.
@@ -135,9 +137,15 @@ class Tracker:
         return _travel(v, a, *self._stop_consts[j])
 
     def _stop_fits(self, j: int, q: float, v: float, a: float) -> bool:
-        """Would a jerk-limited stop of joint ``j`` from (q, v, a) end inside its soft limits?"""
-        return (q + self._stop_distance(j, v, a) <= self._hi_f[j]
-                and q - self._stop_distance(j, -v, -a) >= self._lo_f[j])
+        """Would a jerk-limited stop of joint ``j`` from (q, v, a) end inside its soft limits?
+
+        Past one already (``p``, the setpoint now: a reset at the measured pose, a robot pushed by hand),
+        ``q`` fits if it is no further out than ``p`` and a stop from it ends no further out than ``q``,
+        so the joint may come back inward and never go out. Held to the limit alone, it was frozen there.
+        """
+        p = self.samples[0][j]
+        return (q + self._stop_distance(j, v, a) <= max(self._hi_f[j], min(q, p))
+                and q - self._stop_distance(j, -v, -a) >= min(self._lo_f[j], max(q, p)))
 
     def _fits(self, q: list[float], v_limit: list[float] | None = None
               ) -> tuple[list[bool], list[float], list[float]]:
@@ -471,14 +479,16 @@ def _travel(v: float, a: float, amax: float, jmax: float, v3: float, v3sq: float
     direction: jerk down to -amax, hold it, jerk back to zero as velocity reaches zero (``v3``: the
     velocity that last phase removes, ``tail``: its distance). Exact for that profile; where the
     velocity runs out before -amax is reached it falls back to a looser bound, so it is never shorter
-    than ruckig's time-optimal stop. Plain floats: for a handful of joints this is several times
-    cheaper than array arithmetic on the servo tick.
+    than ruckig's time-optimal stop. Zero where the velocity stays <= 0 with the acceleration brought to
+    zero at full jerk: a joint braking a motion in - never turns back (a joint heading back inward from
+    past a limit brakes that way; the looser bound would refuse every such tick). Plain floats: for a
+    handful of joints this is several times cheaper than array arithmetic on the servo tick.
     """
     t1 = (max(a, -amax) + amax) / jmax
     v1 = v + t1 * (a - 0.5 * jmax * t1)
     if v1 >= v3:
         return t1 * (v + t1 * (0.5 * a - jmax * t1 / 6.0)) + (v1 * v1 - v3sq) * inv_2a + tail
-    if v > 0.0 or a > 0.0:
+    if v > 0.0 or (a > 0.0 and v + 0.5 * a * a / jmax > 0.0):  # else the stop never turns to +
         return max(v, 0.0) * t1 + 0.5 * max(a, 0.0) * t1 * t1 + tail
     return 0.0
 
