@@ -322,17 +322,26 @@ def fake_server(metadata, state):
     (lambda m: b"{not json", "metadata must be a JSON object, got b'{not json'"),
     (lambda m: [1, 2, 3], "metadata must be a JSON object"),
     (lambda m: {k: v for k, v in m.items() if k != "cell"}, "cell must be a cell name, got nothing"),
-    (lambda m: {**m, "dt_ns": 0}, "dt_ns must be the servo period, an integer 1 to 10^9 [ns], got 0"),
+    (lambda m: {**m, "dt_ns": 0}, "dt_ns must be the servo period, an integer 10^6 to 10^9 [ns] (1 kHz to 1 Hz), "
+                                  "got 0"),
+    (lambda m: {**m, "dt_ns": 1}, "dt_ns must be the servo period, an integer 10^6 to 10^9 [ns] (1 kHz to 1 Hz), "
+                                  "got 1"),
+    (lambda m: {**m, "dt_ns": 999_999}, "dt_ns must be the servo period, an integer 10^6 to 10^9 [ns]"),
     (lambda m: {**m, "dt_ns": "fast"}, "dt_ns must be"),
     (lambda m: {**m, "measurements": "abc"}, "measurements must be {name: size}"),
     (lambda m: {**m, "measurements": {"part_in_camera": -9}}, "measurements must be {name: size}"),
     (lambda m: {**m, "q_home": [0.0, 0.1]}, "q_home must be 6 finite joint positions, got [0.0, 0.1]"),
     (lambda m: {**m, "q_home": [*HOME[:2], float("nan"), *HOME[3:]]}, "q_home must be 6 finite joint positions"),
-], ids=["not-json", "a-list", "no-cell", "dt-zero", "dt-text", "measurements-text", "measurement-negative",
-        "home-short", "home-nan"])
+    (lambda m: {**m, "q_home": [*HOME[:2], 9.0, *HOME[3:]]},
+     "q_home must be within the joint limits, elbow within [-2.5, 2.5], got 9.0"),
+    (lambda m: {**m, "q_home": [*HOME[:5], 0.0059]}, "q_home must be within the joint limits, gripper within "
+                                                     "[0.006, 0.029], got 0.0059"),
+], ids=["not-json", "a-list", "no-cell", "dt-zero", "dt-one", "dt-under-1ms", "dt-text", "measurements-text",
+        "measurement-negative", "home-short", "home-nan", "home-beyond-a-limit", "home-under-a-limit"])
 def test_metadata_of_another_shape_is_one_error_naming_the_field(metadata, edit, says):
-    """Tracebacks before (KeyError, ZeroDivisionError later in the tracker); a short home pose crashed the retreat
-    at the end of the run and lost summary.json, a NaN one skipped it."""
+    """Tracebacks before (KeyError, ZeroDivisionError later in the tracker; a period of 1 ns a MemoryError sizing
+    the loop's cycle buffer); a short home pose crashed the retreat at the end of the run and lost summary.json, a
+    NaN one skipped it, one beyond a joint's limits was clamped without a word."""
     with fake_server(edit(metadata), lambda seq: state_packet(metadata, seq)) as served:
         with pytest.raises(RobotLinkError) as refused:
             SimServerRobot(served.address).close()
@@ -367,19 +376,24 @@ def test_a_state_packet_of_another_shape_is_a_read_fault(metadata, bad, says):
         assert refused.value.kind == "robot_read_failed" and says in str(refused.value)
 
 
-def test_bad_metadata_is_one_line_and_exit_2(metadata, tmp_path):
+@pytest.mark.parametrize("edit, says", [({"dt_ns": 0}, "dt_ns must be"), ({"dt_ns": 1}, "dt_ns must be"),
+                                         ({"q_home": [*HOME[:2], 9.0, *HOME[3:]]}, "q_home must be within")],
+                         ids=["dt-zero", "dt-one", "home-beyond-a-limit"])
+def test_bad_metadata_is_one_line_and_exit_2(metadata, edit, says, tmp_path):
+    """A period of 1 ns was a MemoryError traceback (exit 1); a home pose beyond a limit ran, its retreat clamped."""
     from typer.testing import CliRunner
 
     from cellguard.cli import app
 
-    with fake_server({**metadata, "dt_ns": 0}, lambda seq: state_packet(metadata, seq)) as served:
+    with fake_server({**metadata, **edit}, lambda seq: state_packet(metadata, seq)) as served:
         path = tmp_path / "s.yaml"
         path.write_text(f"cell: arm-pick-place\nrobot: sim-server:udp://127.0.0.1:{served.address[1]}\n"
                         "cycle: {source: time, seconds: 1}\n")
         result = CliRunner().invoke(app, ["run", str(path), "--out", str(tmp_path / "out")])
     assert result.exit_code == 2, result.output
-    assert result.stderr.startswith("error: sim-server at 127.0.0.1:") and "dt_ns must be" in result.stderr
+    assert result.stderr.startswith("error: sim-server at 127.0.0.1:") and says in result.stderr
     assert result.stderr.count("\n") == 1
+    assert not (tmp_path / "out").exists()  # refused before anything ran or was recorded
 
 
 def test_a_run_refused_after_it_connected_lets_the_next_one_in_at_once(server, tmp_path):

@@ -17,7 +17,8 @@ that is not the client, malformed; hellos refused).
     command b"C" seq:u64 t_ns:i64 power:u8     then float64: setpoint (dof)
 
 The profile, forward kinematics and home pose come from the registered cell's own model (a
-robot's kinematic model is known to its controller); the state comes only over the wire.
+robot's kinematic model is known to its controller); the state comes only over the wire. The
+served cell must be the one the scenario names.
 """
 
 from __future__ import annotations
@@ -41,6 +42,9 @@ COMMAND_HEAD = struct.Struct("<cQqB")
 HELLO_TIMEOUT_S = 2.0
 FLAG_VALUES, STOP_VALUES = (0.0, 1.0), (-1.0, 0.0, 1.0, 2.0)  # what a state packet's last three fields may be
 LOOPBACK = ("127.0.0.1", "localhost")
+# the servo periods a run drives a robot at (a LeRobot robot's hz: 1 to 1000; a chunk's step: 1 ms to 1 s): a
+# period of 1 ns sized the loop's cycle buffer at 89 GiB (a MemoryError traceback)
+PERIOD_NS = (10**6, 10**9)
 
 
 def parse_address(argument: str) -> tuple[str, int]:
@@ -127,18 +131,21 @@ class SimServerRobot:
     timeout raises ``RobotLinkError``. ``write`` refuses a non-finite setpoint before packing it.
     """
 
-    def __init__(self, address: tuple[str, int], read_timeout_s: float = 0.05):
+    def __init__(self, address: tuple[str, int], read_timeout_s: float = 0.05, cell: str | None = None):
+        """``cell``: the cell the scenario names, which the server must serve (None: whichever it serves)."""
         self.address, self.read_timeout_ns = address, round(read_timeout_s * 1e9)
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.connect(address)
         try:
-            self._connect()
+            self._connect(cell)
         except BaseException:  # said hello: say goodbye, or the server holds the session for this dead client
             self.close()
             raise
 
-    def _connect(self) -> None:
+    def _connect(self, cell: str | None) -> None:
         self.meta = self._hello()
+        if cell is not None and self.meta["cell"] != cell:
+            raise self._other_cell(cell)
         from cellguard.robot.registry import make_cell
 
         self._model = make_cell(self.meta["cell"], seed=self.meta["seed"])  # kinematics and profile only
@@ -183,6 +190,13 @@ class SimServerRobot:
                               f"{client} (heard {silent:.0f} ms ago); it takes a new client once its client has "
                               f"been silent for {live * 1e-3:.0f} s", lost=True)
 
+    def _other_cell(self, cell: str) -> ScenarioError:
+        """The server serves another cell than the scenario names: the run drove and guarded the served robot
+        while its summary named the scenario's cell, registered or not."""
+        served = repr(self.meta["cell"])[:60]
+        return ScenarioError(f"cell: the scenario names {cell!r} but the sim-server at {self.address[0]}:"
+                             f"{self.address[1]} serves {served}; name the served cell, or serve the scenario's")
+
     def _metadata(self, text: bytes) -> dict:
         """The hello's answer, each field the bridge reads checked before it is used (a period of 0 divided by
         zero later, a missing cell raised KeyError): metadata of another shape is one line naming the field."""
@@ -194,7 +208,8 @@ class SimServerRobot:
             raise self._bad_metadata("metadata", "a JSON object", repr(text[:60]))
         checks = {"cell": ("a cell name", lambda v: isinstance(v, str)),
                   "seed": ("an integer 0 to 2^32-1", lambda v: _is_int(v, 0, 2**32 - 1)),
-                  "dt_ns": ("the servo period, an integer 1 to 10^9 [ns]", lambda v: _is_int(v, 1, 10**9)),
+                  "dt_ns": ("the servo period, an integer 10^6 to 10^9 [ns] (1 kHz to 1 Hz)",
+                            lambda v: _is_int(v, *PERIOD_NS)),
                   "measurements": ("{name: size}, each size an integer 0 to 65536", lambda v: isinstance(v, dict)
                                    and all(isinstance(k, str) and _is_int(n, 0, 2**16) for k, n in v.items()))}
         for field, (expected, valid) in checks.items():
@@ -204,13 +219,20 @@ class SimServerRobot:
 
     def _home(self, value) -> np.ndarray:
         """The metadata's home pose: one finite position per joint (a short one crashed the retreat at the end
-        of the run, a NaN one skipped it)."""
+        of the run, a NaN one skipped it), each within its joint's limits (one beyond was clamped without a word:
+        the retreat went elsewhere)."""
         try:
             home = np.asarray(value, dtype=np.float64)
         except (TypeError, ValueError):
             home = np.full(0, np.nan)
         if home.shape != (self.profile.dof,) or not np.isfinite(home).all():
             raise self._bad_metadata("q_home", f"{self.profile.dof} finite joint positions", repr(value)[:60])
+        p = self.profile
+        out = np.flatnonzero((home < p.q_min) | (home > p.q_max))
+        if out.size:
+            j = out[0]
+            raise self._bad_metadata("q_home", f"within the joint limits, {p.joint_names[j]} within "
+                                     f"[{float(p.q_min[j])!r}, {float(p.q_max[j])!r}]", repr(float(home[j])))
         return home
 
     def _bad_metadata(self, field: str, expected: str, got: str) -> RobotLinkError:
@@ -325,4 +347,5 @@ def _is_int(value, low: int, high: int) -> bool:
 
 
 def connect_sim_server(spec, scenario) -> SimServerRobot:
-    return SimServerRobot(parse_address(spec.argument), read_timeout_s=scenario.realtime.read_timeout_s)
+    return SimServerRobot(parse_address(spec.argument), read_timeout_s=scenario.realtime.read_timeout_s,
+                          cell=scenario.cell)
