@@ -93,6 +93,9 @@ class Envelope:
         self._active: dict[EventKind, str] = {}  # lasting conditions already reported, with their reason
         self.tool_speed = 0.0  # [m/s] of the last setpoint
         self._last_intervention = [-(2**62)] * profile.dof  # per joint [ns]
+        # per joint: the last tick it was braked [ns], and before which soft limit (the upper: True)
+        self._last_brake = [(-(2**62), False)] * profile.dof
+        self._mid = (0.5 * (lo + hi)).tolist()  # a braked joint's setpoint above this brakes before the upper limit
         self._names = profile.joint_names
 
     # -- the tick ------------------------------------------------------------------------
@@ -313,15 +316,21 @@ class Envelope:
         self._active = now
 
     def _report_tracking(self, t_ns, reference, setpoint, before, events) -> None:
-        """One event per joint when the tracker takes it over after a stretch of pass-through."""
-        mode, last = self.tracker.mode, self._last_intervention
+        """One event per joint when the tracker takes it over after a stretch of pass-through, and one when it
+        brakes the joint before a soft limit after a stretch unbraked or before the other limit. A joint held at
+        its soft limit by a reference beyond it may switch between braking and recovery every few ticks (the
+        recovery's plan carries the others' motion): that is one brake, not one event per switch."""
+        mode, last, braked, mid = self.tracker.mode, self._last_intervention, self._last_brake, self._mid
         brakes = []
         for j, (now, was) in enumerate(zip(mode, before)):
             if now == PASS:
                 continue
             if now == STOP:
-                if was != STOP:
+                upper = setpoint[j] > mid[j]
+                t_was, upper_was = braked[j]
+                if was != STOP and (t_ns - t_was >= INTERVENTION_QUIET_NS or upper != upper_was):
                     brakes.append(j)
+                braked[j] = (t_ns, upper)
             elif was == PASS and t_ns - last[j] >= INTERVENTION_QUIET_NS:
                 events.append(Event(t_ns, EventKind.LIMIT_INTERVENTION, "reference outside the velocity, acceleration, "
                                     "jerk or position envelope; ruckig takes over", joint=self._names[j],

@@ -5,6 +5,8 @@ joints as flat arrays. CDR with a ``ros2msg`` schema is what the MCAP tooling al
 (Foxglove, ``mcap_ros2``), so the schema declared in the file is the real one and other tools read
 the ticks without cellguard. Only the field types cellguard uses are supported; arrays go through
 numpy in one copy each, so encoding a batch costs microseconds, not a Python loop per value.
+A float32 field stores a value beyond its range (a rejected chunk of 1e308, recorded as the policy sent
+it) as an infinity of that sign, which is what a reader gets back; the cast does not warn about it.
 """
 
 from __future__ import annotations
@@ -58,7 +60,8 @@ class CdrLayout:
                     _pad(out, 4)
                     out += _U32.pack(len(raw)) + raw
             else:
-                array = np.ascontiguousarray(value, dtype=_ARRAYS[kind]).reshape(-1)
+                with np.errstate(over="ignore"):
+                    array = np.ascontiguousarray(value, dtype=_ARRAYS[kind]).reshape(-1)
                 _pad(out, 4)
                 out += _U32.pack(array.size)
                 _pad(out, array.itemsize)

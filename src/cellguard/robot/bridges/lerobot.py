@@ -50,6 +50,9 @@ OPTIONS = {"units": "units map YAML (default: the embodiment's LeRobot units map
            "home": "home pose, comma-separated in the units map's order and units (the retreat at the end goes "
                    "there; cycle source home needs it); without it the robot stays where the run ends"}
 READ_TIMEOUT_S = 0.05  # the scenario's realtime.read_timeout_s default
+# A home this close past a limit (a share of the joint's range) is at the limit: a profile's limits are written to a
+# few digits (the SO-101 gripper's 0 and 100, its end stops -10 and 100 deg, lie 3e-5 rad past -0.1745 and 1.7453 rad)
+HOME_SLACK = 1e-4
 _AXES = ("x", "y", "z")
 
 if TYPE_CHECKING:
@@ -300,7 +303,8 @@ def make_lerobot_robot(arg: str, read_timeout_s: float = READ_TIMEOUT_S) -> LeRo
 
 
 def _home(text: str, profile: Profile, units: ActionMap) -> np.ndarray:
-    """``?home=v1,v2,...`` in the units map's order and units, as a joint pose (dof,) SI inside the limits."""
+    """``?home=v1,v2,...`` in the units map's order and units, as a joint pose (dof,) SI inside the limits (one
+    within ``HOME_SLACK`` past a limit is put at the limit)."""
     try:
         values = np.array([float(v) for v in text.split(",")])
     except ValueError:
@@ -309,12 +313,15 @@ def _home(text: str, profile: Profile, units: ActionMap) -> np.ndarray:
         raise ConfigError(f"robot: lerobot: option home={text[:80]!r} must be {len(units.names)} finite numbers, "
                           f"comma-separated, for {', '.join(units.names)}")
     q = units.to_robot(values[None], np.zeros(profile.dof))[0]
-    out = np.flatnonzero((q < profile.q_min) | (q > profile.q_max))
+    lo, hi = profile.q_min, profile.q_max
+    slack = HOME_SLACK * (hi - lo)
+    out = np.flatnonzero((q < lo - slack) | (q > hi + slack))
     if out.size:
         j = int(out[0])
-        raise ConfigError(f"robot: lerobot: option home puts {profile.joint_names[j]} at {q[j]:.4g}, outside its "
-                          f"limits [{profile.q_min[j]:.4g}, {profile.q_max[j]:.4g}]")
-    return q
+        given = {a.joint: f" ({a.name} {values[a.column]:g})" for a in units.joint_actions}.get(j, "")
+        raise ConfigError(f"robot: lerobot: option home puts {profile.joint_names[j]} at {q[j]:.6g}{given}, "
+                          f"outside its limits [{lo[j]:.6g}, {hi[j]:.6g}]")
+    return np.clip(q, lo, hi)
 
 
 def lerobot_robot(robot_type: str, options: dict[str, str]):
