@@ -48,7 +48,7 @@ class EventKind(StrEnum):
     # the loop
     RESET = "reset"
     INFERENCE_FAILED = "inference_failed"
-    POLICY_LOST = "policy_lost"  # its process ended or a call hung: the watchdog's category, and the run ends
+    POLICY_LOST = "policy_lost"  # its process ended, a call hung or every answer before a chunk refused: run ends
     STARTUP_REFUSED = "startup_refused"  # a start-up check refused to move (or the warm-up never answered)
     RECORD_FAILED = "record_failed", False, 2
     RECORD_QUEUE_FULL = "record_queue_full"

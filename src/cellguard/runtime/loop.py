@@ -116,6 +116,9 @@ class Run:
         self._clock_started = False
         self._hang_floor_ns = 0  # wall time: how long a call may run before the policy is lost (set at warm-up) [ns]
         self._armed_at = 0
+        # the answers not taken since the watchdog was armed, by how each was refused ("failed", "rejected" for what
+        # its chunk says, "held" for a stop in force): the last reason of each (``_never_answered``)
+        self._answers: dict[str, str] = {}
         self._first_observation = None
         # the cycle in progress: its start [ns], chunk latencies [ns], wall time per call [ns], a pending NaN fault
         self._cycle_start, self._latencies, self._wall_ns, self._corrupt = 0, [], [], False
@@ -164,12 +167,12 @@ class Run:
             cell.set_power(True)
             self.guard.reset(link.read(start).q)
             events.append(Event(start, EventKind.RESET, "simulated operator reset after a stop with power removed"))
-            self._armed_at = start  # the no-first-chunk watchdog runs again from the reset
+            self._arm(start)  # the no-first-chunk watchdog runs again from the reset
         state = link.read(start)
         if not self._clock_started:
             self._clock_started = True
             clock.start()
-            self._armed_at = start  # the watchdog runs from the start, not from the first chunk
+            self._arm(start)  # the watchdog runs from the start, not from the first chunk
         # The ticks: what runs every servo period is inline; what runs at the policy's cadence is a call.
         now, advance, timing, finished, operator = clock.now, clock.advance, clock.timing, self.source.finished, self.operator
         slow = timing.recorder_slow  # wall time: why a slow recorder call was slow
@@ -267,15 +270,19 @@ class Run:
                 self._lose_policy(t_ns, arrival.error)
                 return False
             self.events.append(Event(t_ns, EventKind.INFERENCE_FAILED, arrival.error))
+            self._answers["failed"] = arrival.error
             self._wall_ns.append(arrival.wall_ns)
             return False
         if not self._started:
             if arrival.prepared is None:  # simulated time: checked here, as the worker would have
                 arrival = dataclasses.replace(arrival, prepared=self.guard.executor.prepare(arrival.chunk))
             if arrival.prepared.problem is None:
-                why = self._not_startable(arrival.chunk)
+                held = self._held()
+                why = held or self._outside(arrival.chunk)
                 if why is not None:  # refused as a malformed chunk is: the next one is the first
                     arrival = dataclasses.replace(arrival, prepared=PreparedChunk(0, 0, problem=why))
+                if held is not None:  # refused for the moment, not for what it says: the policy answered
+                    self._answers["held"] = held
             if arrival.prepared.problem is None:  # a refused chunk is an event below; the next one starts the run
                 arrival = self._start(arrival)
                 if arrival is None:  # an approach was played; a fresh request follows
@@ -285,7 +292,10 @@ class Run:
         if self.clock.realtime:  # a policy with long chunks may take long: see HUNG_CALLS
             chunk = arrival.chunk
             self.inference.hang_ns = max(self._hang_floor_ns, HUNG_CALLS * chunk.horizon * chunk.dt_ns)
-        self.events.extend(self.guard.push(arrival.prepared or arrival.chunk, t_ns))
+        pushed = self.guard.push(arrival.prepared or arrival.chunk, t_ns)
+        self.events.extend(pushed)
+        if pushed and pushed[0].kind == EventKind.CHUNK_REJECTED:
+            self._answers["rejected"] = pushed[0].reason
         self._latencies.append(arrival.latency_ns)
         self._wall_ns.append(arrival.wall_ns)
         return False
@@ -296,6 +306,7 @@ class Run:
         failed = self.inference.submit(t_ns, observation)
         if failed is not None:
             self.events.append(Event(t_ns, EventKind.INFERENCE_FAILED, failed.error))
+            self._answers["failed"] = failed.error
             self._wall_ns.append(failed.wall_ns)
             return
         self._first_observation = self._first_observation or observation
@@ -356,7 +367,7 @@ class Run:
         held = self._play(approach, "approach", self.clock.now())
         if self.guard.power:  # else a category 0/1 stop aborted it: the guard holds there, power removed
             self.guard = build_guard(self.cell, self.scenario.guard, q0=held)  # where the commands left the robot
-        self._armed_at = self.clock.now()
+        self._arm(self.clock.now())
         self.source.begin(self.cycles.total, self._armed_at)  # the cycle (and episode) starts at the approached pose
         self.inference.begin_cycle(self._armed_at)  # and resets the policy
         return None
@@ -366,15 +377,19 @@ class Run:
         self.events.append(Event(self.clock.now(), EventKind.STARTUP_REFUSED, why))
         raise StartupRefused(why) from None
 
-    def _not_startable(self, chunk: ActionChunk) -> str | None:
-        """Why the run's first chunk may not start it now: its target outside the box, or a stop in force (an
-        approach played through a category 0 stop drove unpowered drives, and its new guard forgot the stop).
-        A category 2 stop that has brought the command to rest lets it start: the approach checks the inputs."""
+    def _held(self) -> str | None:
+        """Why no first chunk may start the run now: a stop in force (an approach played through a category 0
+        stop drove unpowered drives, and its new guard forgot the stop). A category 2 stop that has brought the
+        command to rest lets it start: the approach checks the inputs."""
         envelope = self.guard.envelope
         if envelope.stop_category is not None and (envelope.stop_category < 2 or not envelope.tracker.stopped):
             return f"first chunk while a category {envelope.stop_category} stop is in force ({envelope.stop_reason}); " \
                    "nothing approached"
-        outside = envelope.target_problem(self._first_target(chunk))
+        return None
+
+    def _outside(self, chunk: ActionChunk) -> str | None:
+        """Why the run's first chunk may not start it: its target outside the workspace box."""
+        outside = self.guard.envelope.target_problem(self._first_target(chunk))
         return None if outside is None else f"first target: {outside}; nothing approached"
 
     def _first_target(self, chunk: ActionChunk) -> np.ndarray:
@@ -584,6 +599,7 @@ class Run:
                     self.events.append(Event(t_ns, EventKind.WATCHDOG_NO_FIRST_CHUNK, f"no chunk within "
                                              f"{watchdog.watchdog_s * 1e3:.0f} ms of the start",
                                              category=watchdog.watchdog_category))
+                if self._answers and not self.policy_lost:
                     self._never_answered(t_ns)
                 asked.append((watchdog.watchdog_category, EventKind.WATCHDOG_NO_FIRST_CHUNK.value))
         return self._without_link(min(asked, key=lambda a: a[0], default=None)) or (None, None)
@@ -595,14 +611,29 @@ class Run:
             self.events.append(Event(t_ns, EventKind.OPERATOR_STOP, f"{self.operator.signal}: the operator asked a "
                                      f"stop{during}", category=EventKind.OPERATOR_STOP.category))
 
+    def _arm(self, t_ns: int) -> None:
+        """(Re)start the no-first-chunk watchdog at ``t_ns``: it weighs the answers from then on."""
+        self._armed_at, self._answers = t_ns, {}
+
     def _never_answered(self, t_ns: int) -> None:
-        """No chunk within the watchdog of the start and every call failed: the policy is lost (a server that
-        answers only errors, a model that raises on every observation). The run went on asking it, one
-        ``inference_failed`` per request, every cycle failed and it ended clean, exit 0, never having moved; a
-        cold one that answers within the watchdog is not. A rejected chunk is an answer: the guard's business."""
-        failed = [e for e in self.events if e.kind == EventKind.INFERENCE_FAILED]
-        if failed and not self.events.has(EventKind.CHUNK_REJECTED) and not self.policy_lost:
-            self._lose_policy(t_ns, f"every call failed before the first chunk (the last: {failed[-1].reason})")
+        """No chunk within the watchdog (of its arming) and every answer since refused: every call failed (a
+        server that answers only errors, a model that raises on every observation), or the guard rejected its
+        chunk (not finite, beyond the limits, the wrong shape, its first target outside the box). The policy is
+        lost: the run went on asking it, one event per request, every cycle waited out its time-out, failed, and
+        it ended clean, exit 0, never having moved. A cold one that answers within the watchdog is not, nor one
+        whose chunks a stop in force held back (the moment's refusal, not the policy's)."""
+        answers = self._answers
+        if "held" in answers:
+            return
+        failed, rejected = answers.get("failed"), answers.get("rejected")
+        if rejected is None:
+            why = f"every call failed before the first chunk (the last: {failed})"
+        elif failed is None:
+            why = f"the guard rejected every chunk, none taken (the last: {rejected})"
+        else:
+            why = (f"every call failed or its chunk was rejected, none taken (the last failure: {failed}; the last "
+                   f"rejection: {rejected})")
+        self._lose_policy(t_ns, why)
 
     def _lose_policy(self, t_ns: int, why: str) -> None:
         """The policy answers no more (its process ended, or a call hung ``HUNG_WATCHDOGS`` watchdog times): one
