@@ -154,7 +154,8 @@ def to_lerobot(
     output: Path = typer.Option(..., "-o", "--output", help="New folder for the dataset."),
     fps: int | None = typer.Option(None, "--fps", help="Frames per second; must divide the record's decimated rate "
                                    "(default: that rate, 50 Hz at most servo rates)."),
-    task: str | None = typer.Option(None, "--task", help="Task string of every episode (default: the cell's name)."),
+    task: str | None = typer.Option(None, "--task", help="Task string of every episode: one line, not blank "
+                                    "(default: the cell's name)."),
     success_only: bool = typer.Option(False, "--success-only", help="Only cycles that succeeded."),
 ) -> None:
     """Cycles as a LeRobotDataset v3 (one episode per cycle): state, action sent, camera readings, task."""

@@ -229,15 +229,15 @@ def with_running_again(findings: Sequence[Finding], own: Sequence[dict]) -> list
 def advice(findings: Sequence[Finding], history: Sequence[Mapping]) -> list[dict]:
     """For each finding, the behaviours that fixed the same cause in ``history``, this site's first,
     best success rate first. A row is one of this site's other records (``fixes``, with its
-    ``record``) or, with ``scope: fleet``, the fleet store's k-anonymous count over other sites
-    (``customers``)."""
+    ``record``; a ``scope`` it carries is not its to claim) or, with ``scope: fleet`` and no ``record``, the
+    fleet store's k-anonymous count over other sites (``customers``)."""
     out = []
     for f in findings:
         pooled: dict[tuple[str, str], dict] = {}
         for row in history:
             if row.get("cause") != f.cause:
                 continue
-            scope = row.get("scope", "site")
+            scope = "site" if "record" in row else row.get("scope", "site")
             p = pooled.setdefault((scope, row["recovery"]), {"recovery": row["recovery"], "fixed": 0, "tried": 0,
                                                                "records": set(), "scope": scope})
             p["fixed"] += int(row["fixed"])

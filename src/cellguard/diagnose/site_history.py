@@ -4,6 +4,11 @@ A site keeps its run folders side by side (``site/run-0001/record.mcap`` ...). D
 writes ``fixes.json`` beside its record: per finding and recovery behaviour, the cycles it ran in
 and those it fixed. The advice for a record is read from its siblings' files of the same site
 (records never diagnosed add nothing: the site learns from the incidents it looked at).
+
+A sibling's file is another run's, not this record's business: one that cannot be read, or whose
+``record_id`` is not text, is skipped, and so is each row that is not one cellguard writes (a
+``scope`` other than this site's, counts that are not 0 <= fixed <= tried < 2**63): a crafted
+file neither ends the diagnosis nor speaks for the fleet.
 """
 
 from __future__ import annotations
@@ -15,6 +20,7 @@ from pathlib import Path
 from cellguard.output import keep_output
 
 FIXES_FILE = "fixes.json"
+MAX_COUNT = 2**63  # counts are cycles of one record: anything near this is not one cellguard wrote
 
 
 def save_fixes(folder: Path, context: Mapping, fixes) -> None:
@@ -24,8 +30,7 @@ def save_fixes(folder: Path, context: Mapping, fixes) -> None:
 
 
 def site_history(folder: Path, site: str | None) -> list[dict]:
-    """Rows of ``fixes`` from the other records of ``site`` beside ``folder``, each with its ``record``.
-    A sibling file that cannot be read is skipped (it is not this record's business)."""
+    """Rows of ``fixes`` from the other records of ``site`` beside ``folder``, each with its ``record``."""
     folder = Path(folder).resolve()
     rows: list[dict] = []
     if site is None or not folder.parent.is_dir():
@@ -35,13 +40,31 @@ def site_history(folder: Path, site: str | None) -> list[dict]:
             continue
         try:
             body = json.loads((other / FIXES_FILE).read_text())
-        except (OSError, ValueError):
+        except (OSError, ValueError, RecursionError):  # RecursionError: nested deeper than json can read
             continue
-        if isinstance(body, dict) and body.get("site") == site and isinstance(body.get("fixes"), list):
-            rows += [{**r, "record": body.get("record_id") or other.name} for r in body["fixes"] if _row(r)]
+        rows += site_rows(body, site, other.name)
     return rows
 
 
-def _row(r) -> bool:
-    return (isinstance(r, dict) and isinstance(r.get("cause"), str) and isinstance(r.get("recovery"), str)
-            and isinstance(r.get("tried"), int) and isinstance(r.get("fixed"), int))
+def site_rows(body: object, site: str, name: str) -> list[dict]:
+    """The rows of one sibling's parsed ``fixes.json`` (``body``, any JSON value) for ``site``, each with its
+    ``record`` (its ``record_id``, else the folder ``name``); none where it is not a file of that site."""
+    if not isinstance(body, dict) or body.get("site") != site or not isinstance(body.get("fixes"), list):
+        return []
+    record = body.get("record_id")
+    if record is not None and not isinstance(record, str):
+        return []
+    rows = [_row(r) for r in body["fixes"]]
+    return [{**r, "record": record or name} for r in rows if r is not None]
+
+
+def _row(r: object) -> dict | None:
+    """The fields advice reads from a row cellguard wrote, or None for any other."""
+    if not isinstance(r, dict) or r.get("scope", "site") != "site":
+        return None
+    cause, recovery, tried, fixed = (r.get(k) for k in ("cause", "recovery", "tried", "fixed"))
+    if not (isinstance(cause, str) and isinstance(recovery, str) and type(tried) is int and type(fixed) is int):
+        return None
+    if not 0 <= fixed <= tried < MAX_COUNT:
+        return None
+    return {"cause": cause, "recovery": recovery, "tried": tried, "fixed": fixed}

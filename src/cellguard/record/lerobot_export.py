@@ -69,6 +69,8 @@ def export_lerobot(rec: Record, output: Path, fps: int | None = None, task: str 
     (default: the record's decimated rate, 50 Hz at most servo rates, 30 Hz for a 30 Hz robot)."""
     if task is not None and not task.isprintable():  # one line in tasks.parquet, as every other text cellguard takes
         raise RecordError(f"--task: {task!r} holds control characters; give the task as one line of text")
+    if task is not None and not task.strip():  # "" became the default unasked, "  " an empty instruction
+        raise RecordError(f"--task: {task!r} is blank; give the task as one line of text, or leave --task out")
     output = Path(output).resolve()  # "." and ".." have no name to put the staging folder beside
     context = rec.context
     stride, fps = _stride(context, fps)
