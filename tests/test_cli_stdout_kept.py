@@ -139,7 +139,9 @@ def _fleet_withdraw(tmp_path, recorded):
     write_signatures(tmp_path / "lake", rows, "batch-1")
     policy = tmp_path / "policy.yaml"
     policy.write_text(f"tenant: {rows[0]['tenant_id']}\nsite: {rows[0]['site_id']}\nexport: signatures\n")
-    return (["fleet", "withdraw", "--policy", str(policy), "--lake", str(tmp_path / "lake")],
+    (tmp_path / "fleet").mkdir()  # the site's folder: the withdrawal is logged in its audit log
+    return (["fleet", "withdraw", "--policy", str(policy), "--lake", str(tmp_path / "lake"), "--site-dir",
+             str(tmp_path / "fleet")],
             f"the withdrawal of site {rows[0]['site_id']} (0 row(s) from the store, 3 signature(s) from the lake)")
 
 

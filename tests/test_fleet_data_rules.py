@@ -74,7 +74,7 @@ def warning_lines(result) -> list[str]:
 def test_a_truncated_record_is_not_pooled_and_its_finished_record_is_pooled_once(env, tmp_path):
     root, store, tenants = env
     policy = tmp_path / "p.yaml"
-    policy.write_text("tenant: ta\nsite: s-cut\n")
+    policy.write_text("tenant: ta\nsite: s-cut\nexport: signatures\n")
     runs = tmp_path / "runs"
     cut = cut_copy(root / "run", runs / "run-7")
     args = ("push", runs, "--policy", policy, "--site-dir", tmp_path / "site", "--json")
@@ -93,7 +93,7 @@ def test_a_truncated_record_is_not_pooled_and_its_finished_record_is_pooled_once
 def test_a_record_still_being_written_is_not_pooled(env, tmp_path):
     root, store, tenants = env
     policy = tmp_path / "p.yaml"
-    policy.write_text("tenant: ta\nsite: s-live\n")
+    policy.write_text("tenant: ta\nsite: s-live\nexport: signatures\n")
     live = cut_copy(root / "run", tmp_path / "runs" / "live")
     whole = tmp_path / "runs" / "whole"
     whole.mkdir()
@@ -117,7 +117,7 @@ def test_a_record_that_cannot_even_be_opened_is_left_out_and_the_others_go(env, 
     nothing sent."""
     root, store, tenants = env
     policy = tmp_path / "p.yaml"
-    policy.write_text("tenant: ta\nsite: s-start\n")
+    policy.write_text("tenant: ta\nsite: s-start\nexport: signatures\n")
     cut = cut_copy(root / "run", tmp_path / "runs" / "start", fraction=0.001)
     whole = tmp_path / "runs" / "whole"
     whole.mkdir()

@@ -60,7 +60,7 @@ def test_another_site_or_a_queued_batch_in_the_folder_is_no_reason_to_refuse(tmp
 
 def test_cli_push_is_refused_before_the_diagnosis_in_one_line(tmp_path):
     policy = tmp_path / "p.yaml"
-    policy.write_text("tenant: t-a\nsite: s-1\n")
+    policy.write_text("tenant: t-a\nsite: s-1\nexport: signatures\n")
     sent_before_the_key(tmp_path / "site", DataPolicy("t-a", "s-1"))
     result = CliRunner().invoke(app, ["fleet", "push", str(tmp_path / "no-runs"), "--policy", str(policy),
                                       "--site-dir", str(tmp_path / "site")])
@@ -79,7 +79,7 @@ def test_withdraw_then_push_stores_each_finding_once(tmp_path):
     with pytest.raises(ConfigError, match="fleet withdraw"):
         push(sigs("ta", "s-up"), policy, site, TenantStore(dsn), today=TODAY)
     assert _rows(store, "s-up") == 2
-    (tmp_path / "p.yaml").write_text("tenant: ta\nsite: s-up\n")
+    (tmp_path / "p.yaml").write_text("tenant: ta\nsite: s-up\nexport: signatures\n")
     withdrawn = CliRunner().invoke(app, ["fleet", "withdraw", "--policy", str(tmp_path / "p.yaml"), "--store", dsn,
                                          "--site-dir", str(site)])
     assert withdrawn.exit_code == 0, withdrawn.output

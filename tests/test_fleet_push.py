@@ -299,7 +299,7 @@ def test_cli_withdraw_deletes_what_the_site_pooled_from_the_store_and_the_lake(f
     policy = tmp_path / "p.yaml"
     policy.write_text("tenant: ta\nsite: s9-x\nexport: nothing\n")
     result = CliRunner().invoke(app, ["fleet", "withdraw", "--policy", str(policy), "--store", dsns["ta"],
-                                      "--lake", str(lake), "--json"])
+                                      "--lake", str(lake), "--site-dir", str(tmp_path / "site"), "--json"])
     assert result.exit_code == 0, result.output
     assert json.loads(result.stdout) == {"tenant": "ta", "site": "s9-x", "store_rows": 2, "lake_signatures": 2}
     assert (rows_of_site(store, "s9-x"), rows_of_site(store, "s9-y")) == (0, 2)
@@ -315,7 +315,7 @@ def test_cli_withdraw_with_an_unreadable_lake_deletes_nothing_anywhere(fleet, tm
     policy = tmp_path / "p.yaml"
     policy.write_text("tenant: ta\nsite: s9-u\nexport: nothing\n")
     result = CliRunner().invoke(app, ["fleet", "withdraw", "--policy", str(policy), "--store", dsns["ta"],
-                                      "--lake", str(lake)])
+                                      "--lake", str(lake), "--site-dir", str(tmp_path / "site")])
     assert result.exit_code == 2 and result.stderr.count("\n") == 1 and "cannot read it" in result.stderr
     assert rows_of_site(store, "s9-u") == 2  # the store's rows stay until the lake's can go too
 

@@ -122,12 +122,15 @@ def test_policy_unknown_key_names_it(tmp_path):
 
 
 @pytest.mark.parametrize("raw, match", [
-    ({"tenant": "Acme Corp", "site": "s-1"}, "policy.tenant: expected an opaque id"),
+    ({"tenant": "Acme Corp", "site": "s-1", "export": "nothing"}, "policy.tenant: expected an opaque id"),
     ({"tenant": "t-a", "site": "s-1", "export": "everything"}, "policy.export: 'everything'; allowed"),
-    ({"tenant": "t-a", "site": "s-1", "min_group_size": 1}, r"min_group_size: expected an integer 2\.\.1000000"),
-    ({"tenant": "t-a", "site": "s-1", "withheld": ["cause"]}, "'cause' cannot be withheld"),
-    ({"tenant": "t-a", "site": "s-1", "retention_days": 0}, r"retention_days: expected an integer 1\.\.36500"),
+    ({"tenant": "t-a", "site": "s-1", "export": "nothing", "min_group_size": 1},
+     r"min_group_size: expected an integer 2\.\.1000000"),
+    ({"tenant": "t-a", "site": "s-1", "export": "nothing", "withheld": ["cause"]}, "'cause' cannot be withheld"),
+    ({"tenant": "t-a", "site": "s-1", "export": "nothing", "retention_days": 0},
+     r"retention_days: expected an integer 1\.\.36500"),
     ({"tenant": "t-a"}, "site: required"),
+    ({"tenant": "t-a", "site": "s-1"}, r"^policy: export: required, .*: signatures \| aggregates_only \| nothing$"),
 ])
 def test_policy_bad_values_name_the_key(raw, match):
     with pytest.raises(PolicyError, match=match):
@@ -147,13 +150,14 @@ def test_policy_parser_accepts_or_names_the_problem(raw):
         assert policy.export in ("signatures", "aggregates_only", "nothing") and len(policy.version) == 12
 
 
-@pytest.mark.parametrize("raw", [{"tenant": "t-acme\n", "site": "s-1"}, {"tenant": "t-acme", "site": "s-1\n"}],
+@pytest.mark.parametrize("raw", [{"tenant": "t-acme\n", "site": "s-1", "export": "nothing"},
+                                 {"tenant": "t-acme", "site": "s-1\n", "export": "nothing"}],
                          ids=["tenant", "site"])
 def test_an_id_ending_in_a_newline_is_refused(tmp_path, raw):
     with pytest.raises(PolicyError, match="expected an opaque id"):
         parse_policy(raw)
     path = tmp_path / "p.yaml"
-    path.write_text(f"tenant: {json.dumps(raw['tenant'])}\nsite: {json.dumps(raw['site'])}\n")
+    path.write_text(f"tenant: {json.dumps(raw['tenant'])}\nsite: {json.dumps(raw['site'])}\nexport: nothing\n")
     result = CliRunner().invoke(app, ["fleet", "push", str(tmp_path), "--policy", str(path),
                                       "--site-dir", str(tmp_path / "site")])
     assert result.exit_code == 2 and result.stderr.count("\n") == 1 and "expected an opaque id" in result.stderr

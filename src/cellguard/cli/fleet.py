@@ -54,14 +54,15 @@ def push(
     from cellguard.fleet.from_record import site_signatures
     from cellguard.fleet.lake import check_lake
     from cellguard.fleet.policy import load_policy
-    from cellguard.fleet.push import check_key_history
+    from cellguard.fleet.push import check_key_history, check_site
     from cellguard.fleet.push import push as do_push
 
     try:
         pol = load_policy(policy)
-        tenant_store = _store(store)  # a malformed DSN, a --lake that is a file, a site that must withdraw first:
-        if lake is not None:  # refused before the diagnosis
+        tenant_store = _store(store)  # a malformed DSN, a --lake that is a file, a --site-dir that is a file or
+        if lake is not None:  # holds a link, a site that must withdraw first: refused before the diagnosis
             check_lake(lake)
+        check_site(site_dir)
         check_key_history(site_dir, pol)
         unkept: list[str] = []
         skipped: list[str] = []
@@ -243,46 +244,61 @@ def withdraw(
     a customer withdrawing its consent. What waits in the outbox stays at the site (set ``export: nothing``
     to keep it there). The lake goes first: it reads every file of the tenant's before it changes one, so
     a lake it cannot read leaves both as they were; a store that then fails is named with what the lake
-    gave up. Once the store holds nothing of the site, an existing --site-dir with no site key gets one:
-    a push from there (refused while batches sent without the key were in the store) stores nothing twice."""
+    gave up. Each deletion is logged in the audit log of --site-dir (status withdrawn, its rows and where), so
+    --site-dir must be the site's folder: one that is not a folder is refused before anything is deleted. Once
+    the store holds nothing of the site, a --site-dir with no site key gets one: a push from there (refused while
+    batches sent without the key were in the store) stores nothing twice."""
     from cellguard.errors import ConfigError
+    from cellguard.fleet.audit import append_withdrawal
     from cellguard.fleet.lake import check_lake, forget
     from cellguard.fleet.policy import load_policy
+    from cellguard.fleet.push import check_site
 
-    in_lake = None
+    in_lake = in_store = None
     try:
         pol = load_policy(policy)
         tenant_store = _store(store)
         if tenant_store is None and lake is None:
             raise ConfigError("--store: no fleet store DSN (or CELLGUARD_FLEET_DSN); or give --lake")
+        check_site(site_dir, must_exist=True)
         if lake is not None:
             in_lake = forget(check_lake(lake), pol.tenant, pol.site)
-        in_store = tenant_store.forget(pol.site) if tenant_store is not None else 0
-        if in_store or in_lake:
-            stdout.written(f"the withdrawal of site {pol.site} ({in_store} row(s) from the store, {in_lake or 0} "
-                           f"signature(s) from the lake)")
+            append_withdrawal(site_dir, pol, in_lake, str(lake))
+        if tenant_store is not None:
+            in_store = tenant_store.forget(pol.site)
+            append_withdrawal(site_dir, pol, in_store, tenant_store.where)
+        stdout.written(f"the withdrawal of site {pol.site} ({in_store or 0} row(s) from the store, {in_lake or 0} "
+                       f"signature(s) from the lake) in the audit log of {site_dir}")
     except CellguardError as exc:
-        if in_lake is not None:
-            exc = CellguardError(f"{exc}; {in_lake} signature(s) of site {pol.site} were taken out of the lake, the "
-                            f"store's were not: run fleet withdraw again")
+        if in_lake is not None or in_store is not None:
+            exc = _withdrawn_so_far(exc, pol.site, in_lake, in_store, tenant_store is not None)
         fail(exc)
     if tenant_store is not None:
         _key_after_withdrawal(site_dir)
     if as_json:
-        sys.stdout.write(json.dumps({"tenant": pol.tenant, "site": pol.site, "store_rows": in_store,
+        sys.stdout.write(json.dumps({"tenant": pol.tenant, "site": pol.site, "store_rows": in_store or 0,
                                      "lake_signatures": in_lake or 0}) + "\n")
     else:
-        say(f"fleet withdraw: site {pol.site} of {pol.tenant}: {in_store} row(s) deleted from the store, "
+        say(f"fleet withdraw: site {pol.site} of {pol.tenant}: {in_store or 0} row(s) deleted from the store, "
             f"{in_lake or 0} signature(s) from the lake", err=False)
 
 
+def _withdrawn_so_far(exc: CellguardError, site: str, in_lake: int | None, in_store: int | None,
+                      to_store: bool) -> CellguardError:
+    """``exc``, saying what the withdrawal deleted before it (a deletion cannot be undone) and what it did not."""
+    gone = " and ".join(f"{n} {what}" for n, what in ((in_lake, "signature(s) from the lake"),
+                                                      (in_store, "row(s) from the store")) if n is not None)
+    left = "; not the store's: run fleet withdraw again" if to_store and in_store is None else ""
+    return CellguardError(f"{exc}; deleted already: {gone} of site {site}{left}")
+
+
 def _key_after_withdrawal(site_dir: Path) -> None:
-    """Make the site key of an existing ``site_dir`` that has none (noted): the site's rows are gone from the store,
-    so ids keyed from now on repeat nothing there (``push.check_key_history``)."""
+    """Make the site key of ``site_dir`` if it has none (noted): the site's rows are gone from the store, so ids
+    keyed from now on repeat nothing there (``push.check_key_history``)."""
     from cellguard.fleet.site_key import KEY_FILE, site_key
 
     path = Path(site_dir) / KEY_FILE
-    if not Path(site_dir).is_dir() or os.path.lexists(path):
+    if os.path.lexists(path):
         return
     try:
         site_key(site_dir)

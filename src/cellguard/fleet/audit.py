@@ -10,7 +10,11 @@ push's export (``queued`` or ``nothing``) is logged with ``retention_counted_on`
 counted from (rows older by ``retention_days`` stayed at the site), which ``when_utc`` need not be. A
 batch that leaves is logged with ``policy_in_force``, the version of the policy it left under.
 ``retention``: the push's retention deleted ``rows`` of the site's rows from ``destination`` (rows
-older than ``before``), or, with ``reason``, did not run there; it names no batch.
+older than ``before``), or, with ``reason``, did not run there; it names no batch. ``withdrawn``: ``fleet withdraw``
+deleted ``rows`` (every one of the site's) from ``destination``; it names no batch.
+
+The log is written only as a file in the site folder: a link there is refused, never followed (a link to
+nothing, followed, put the site's log wherever it pointed, outside the site).
 
 A damaged log is read as far as it goes: ``scan_audit`` returns the entries and names each line
 it cannot read; ``read_audit`` refuses a damaged log in one line.
@@ -18,6 +22,7 @@ it cannot read; ``read_audit`` refuses a damaged log in one line.
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 from pathlib import Path
@@ -29,10 +34,12 @@ from cellguard.fleet.policy import DataPolicy
 from cellguard.yaml_file import read_bounded
 
 AUDIT_FILE = "audit.jsonl"
-STATUSES = ("queued", "sent", "duplicate", "nothing", "held", "refused", "probed", "retention")
+STATUSES = ("queued", "sent", "duplicate", "nothing", "held", "refused", "probed", "retention", "withdrawn")
 FIELDS = {"when_utc": str, "what": str, "rows": int, "withheld_rows": int, "policy_version": str, "batch_id": str,
           "status": str}  # in every entry, of these types
 MAX_AUDIT_BYTES = 1 << 30  # [bytes] about 3 million entries
+NO_LINKS = "the site's files are written only in its folder, never through a link: move what it names there, or " \
+           "remove the link"
 
 
 class AuditError(ConfigError):
@@ -51,10 +58,20 @@ def append_audit(site_dir: Path, batch: Batch, status: str, destination: str, **
 def append_retention(site_dir: Path, policy: DataPolicy, removed: int, destination: str, **more: str) -> dict:
     """Append what ``policy``'s retention deleted from ``destination`` (``more``: ``before``, or ``reason`` where
     it did not run): a deletion cannot be undone, so the site's log says what went, though no batch did."""
+    return _append_deletion(site_dir, policy, "retention", removed, destination,
+                            retention_days=policy.retention_days, **more)
+
+
+def append_withdrawal(site_dir: Path, policy: DataPolicy, removed: int, destination: str) -> dict:
+    """Append that ``fleet withdraw`` deleted ``removed`` rows, all the site's, from ``destination``."""
+    return _append_deletion(site_dir, policy, "withdrawn", removed, destination)
+
+
+def _append_deletion(site_dir: Path, policy: DataPolicy, status: str, removed: int, destination: str,
+                     **more) -> dict:
     return _append(site_dir, {"what": policy.export, "rows": removed, "withheld_rows": 0,
                               "policy_version": policy.version, "batch_id": "", "tenant_id": policy.tenant,
-                              "site_id": policy.site, "status": "retention", "destination": destination,
-                              "retention_days": policy.retention_days, **more})
+                              "site_id": policy.site, "status": status, "destination": destination, **more})
 
 
 def _append(site_dir: Path, fields: dict) -> dict:
@@ -63,15 +80,24 @@ def _append(site_dir: Path, fields: dict) -> dict:
     path = Path(site_dir) / AUDIT_FILE
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o640)
+        fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT | os.O_NOFOLLOW, 0o640)
         try:
             os.write(fd, (json.dumps(entry, sort_keys=True) + "\n").encode())
             os.fsync(fd)
         finally:
             os.close(fd)
     except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            raise OutputError(f"audit log {path}: a link; {NO_LINKS}") from None
         raise OutputError(f"audit log {path}: cannot append ({exc.strerror or exc.__class__.__name__})") from None
     return entry
+
+
+def check_site_dir(site_dir: Path, missing_ok: bool = False) -> None:
+    """AuditError unless ``site_dir`` is a folder (or, ``missing_ok``, nothing yet: a push makes it)."""
+    site_dir = Path(site_dir)
+    if not site_dir.is_dir() and not (missing_ok and not os.path.lexists(site_dir)):
+        raise AuditError(f"--site-dir {site_dir}: " + ("not a folder" if site_dir.exists() else "no such folder"))
 
 
 def read_audit(site_dir: Path) -> list[dict]:
@@ -86,10 +112,8 @@ def read_audit(site_dir: Path) -> list[dict]:
 def scan_audit(site_dir: Path) -> tuple[list[dict], list[str]]:
     """(the entries that can be read, one line per line that cannot). No log yet: no entries.
     AuditError when ``site_dir`` is not a folder or the log is not a file that can be read."""
-    site_dir = Path(site_dir)
-    if not site_dir.is_dir():
-        raise AuditError(f"--site-dir {site_dir}: " + ("not a folder" if site_dir.exists() else "no such folder"))
-    path = site_dir / AUDIT_FILE
+    check_site_dir(site_dir)
+    path = Path(site_dir) / AUDIT_FILE
     if not path.exists() and not path.is_symlink():
         return [], []
     data = read_bounded(path, "audit log", AuditError, MAX_AUDIT_BYTES)

@@ -3,14 +3,16 @@
 ```yaml
 tenant: t-acme01             # opaque ids the fleet operator assigned
 site: s-0042
-export: signatures           # signatures | aggregates_only | nothing
+export: signatures           # required: signatures | aggregates_only | nothing
 min_group_size: 5            # aggregates_only: a count over fewer signatures is not sent
 withheld: [policy_version]   # signature fields never sent (see signature.WITHHOLDABLE)
 retention_days: 365          # rows older than this are not sent and are deleted from the store
 ```
 
-Validated at load (an unknown key, a wrong type or an impossible value raises PolicyError naming
-the key) and enforced at export (``export.py``). The policy version is the hash of its content.
+Validated at load (an unknown key, a missing ``tenant``, ``site`` or ``export``, a wrong type or an impossible
+value raises PolicyError naming the key) and enforced at export (``export.py``). ``export`` has no default in a
+file: a policy that left it out exported every signature, a customer's silence taken as consent to the most that
+leaves. The policy version is the hash of its content.
 """
 
 from __future__ import annotations
@@ -70,6 +72,8 @@ def parse_policy(raw: object, origin: str = "policy") -> DataPolicy:
     for key in ("tenant", "site"):
         if key not in raw:
             raise PolicyError(f"{origin}: {key}: required")
+    if "export" not in raw:
+        raise PolicyError(f"{origin}: export: required, what may leave the site: {' | '.join(EXPORTS)}")
     withheld = raw.get("withheld", [])
     if not isinstance(withheld, list):
         raise PolicyError(f"{origin}: withheld: expected a list of field names, got {withheld!r}")

@@ -53,11 +53,15 @@ def fingerprint(key: bytes) -> str:
 
 
 def _create(path: Path) -> None:
-    """A fresh key at ``path``; one made meanwhile by another push is kept (linking never overwrites)."""
+    """A fresh key at ``path``; one made meanwhile by another push is kept (linking never overwrites). The
+    temporary file is removed only once made: removing it from a folder that could not be made raised past the
+    error that names the key."""
     tmp = path.with_name(f"{KEY_FILE}.{secrets.token_hex(4)}.tmp")
+    made = False
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         with os.fdopen(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600), "w") as f:
+            made = True
             f.write(secrets.token_hex(32) + "\n")
             f.flush()
             os.fsync(f.fileno())
@@ -68,4 +72,5 @@ def _create(path: Path) -> None:
     except OSError as exc:
         raise OutputError(f"site key {path}: cannot write ({exc.strerror or exc.__class__.__name__})") from None
     finally:
-        tmp.unlink(missing_ok=True)
+        if made:
+            tmp.unlink(missing_ok=True)
