@@ -199,9 +199,9 @@ def test_production_failing_with_no_last_good_says_it_stays_current(tmp_path):
     rid = stored_release(store, "first")
     log_pass(store, "pilot", rid)
     promote(store, rid, CELL, "production")
-    plan = write_plan(tmp_path / "plan.yaml", {"production": {"runs": [KNOCKED],
-                                                              "gates": [{"metric": "success_rate", "min": 1.0}]}})
-    result = cli("run", "--cell", CELL, "--stage", "production", "--plan", str(plan), "--site", str(store.site))
+    write_plan(store.site / "release-plan.yaml", {"production": {"runs": [KNOCKED],  # in force: its fail acts
+                                                                 "gates": [{"metric": "success_rate", "min": 1.0}]}})
+    result = cli("run", "--cell", CELL, "--stage", "production", "--site", str(store.site))
     assert result.exit_code == 1, result.output
     assert (f"nothing to roll back to: {rid} stays current at production on {CELL} (no other release is last_good "
             f"there)") in " ".join(result.stdout.split())  # as rich wraps it

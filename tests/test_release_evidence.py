@@ -8,20 +8,12 @@ import shutil
 from pathlib import Path
 
 import pytest
-from release_helpers import CELL, KNOCKED, log_pass, sim_and_production_plan, stored_release
+from release_helpers import CELL, KNOCKED, sim_and_production_plan, stored_release, to_production
 
 from cellguard.release import Store, evaluate_stage, log, promote, run_stage
 from cellguard.release.errors import StageError
 from cellguard.release.evidence import record_id
 from cellguard.release.promotion import runs_key
-
-
-def _to_production(store, release: str) -> None:
-    """Promote through every stage, the earlier stages' gates logged as passed (their runs are not the point)."""
-    for stage, before in (("sim", None), ("bench", "sim"), ("pilot", "bench"), ("production", "pilot")):
-        if before:
-            log_pass(store, before, release)
-        promote(store, release, CELL, stage)
 
 
 def _lost_run(store, release: str, stage: str, made_under: str) -> None:
@@ -53,14 +45,16 @@ def test_a_site_reads_its_own_runs_from_any_working_directory_and_when_copied(tm
 def test_a_run_that_cannot_be_read_is_never_a_pass_and_a_failing_production_release_still_rolls_back(tmp_path):
     plan, store = sim_and_production_plan(tmp_path), Store(tmp_path / "site")
     first, second = stored_release(store, "v1"), stored_release(store, "v2")
-    _to_production(store, first)
+    to_production(store, first)
     assert run_stage(store, plan["production"], CELL, "production").verdict == "pass"
     _lost_run(store, first, "production", runs_key(plan["production"]))
     again = evaluate_stage(store, plan["production"], CELL, "production")
     assert again.verdict == "inconclusive" and "0099-lost" in again.refused[0]  # its real run passed: not enough
-    _to_production(store, second)
-    _lost_run(store, second, "production", runs_key(plan["production"], [KNOCKED]))  # among the runs given
-    result = run_stage(store, plan["production"], CELL, "production", runs=[KNOCKED])
+    to_production(store, second)
+    (tmp_path / "knocked").mkdir()
+    knocked = sim_and_production_plan(tmp_path / "knocked", KNOCKED)["production"]  # the plan in force, failing
+    _lost_run(store, second, "production", runs_key(knocked))  # among its runs
+    result = run_stage(store, knocked, CELL, "production")
     assert result.verdict == "fail" and result.rolled_back_to == first
     assert any("0099-lost" in why for why in result.refused)
     assert store.pointers(CELL, "production").current == first

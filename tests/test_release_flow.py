@@ -59,12 +59,12 @@ def test_a_production_failure_rolls_back_to_last_good_and_the_next_run_records_i
     production = next(s for s in status if s["stage"] == "production")
     assert production["current"] == second and production["last_good"] == first
 
-    # a fault breaks production: back to the first release automatically
-    fault = tmp_path / "fault.yaml"
-    fault.write_text("{name: knocked-fixture, seed: 11, acceptance_cycles: 2, "
-                     "faults: [{kind: fixture_shift, at_cycle: 0, dx_mm: 6.0}]}\n")
-    result = cli("run", "--cell", CELL, "--stage", "production", "--scenario", str(fault), "--site", str(site),
-                 "--plan", str(plan), "--json")
+    # a fault breaks production under the plan in force: back to the first release automatically
+    knocked = {"name": "knocked-fixture", "seed": 11, "acceptance_cycles": 2,
+               "faults": [{"kind": "fixture_shift", "at_cycle": 0, "dx_mm": 6.0}]}
+    write_plan(plan, {**STAGES, "production": {**STAGES["production"], "runs": [knocked]}})
+    result = cli("run", "--cell", CELL, "--stage", "production", "--site", str(site), "--json")
+    write_plan(plan, STAGES)  # the fixture put back
     assert result.exit_code == 1
     report = json.loads(result.stdout)
     assert report["verdict"] == "fail" and report["rolled_back_to"] == first
@@ -86,6 +86,7 @@ def test_a_production_failure_rolls_back_to_last_good_and_the_next_run_records_i
 
 
 def test_a_rollback_by_hand_and_nothing_to_roll_back_to(tmp_path):
-    site, plan = tmp_path / "site", write_plan(tmp_path / "plan.yaml", {**STAGES, "production": STAGES["production"]})
+    site = tmp_path / "site"
+    assert cli("create", "--policy", "scripted", "--profile", CELL, "--site", str(site)).exit_code == 0  # a store
     result = cli("rollback", "--cell", CELL, "--stage", "production", "--site", str(site))
     assert result.exit_code == 2 and "nothing to roll back to" in result.stderr

@@ -42,8 +42,9 @@ out = Console()
 err = Console(stderr=True)
 
 
-def _store(site: Path, create: bool = True):
-    """The site's store; ``create=False`` for a command that only reads (a mistyped --site is refused)."""
+def _store(site: Path, create: bool = False):
+    """The site's store; ``create=True`` for ``release create`` alone: every other command refuses a site with none
+    (a mistyped --site became an empty store, and ``rollback`` there said only "nothing to roll back to")."""
     from cellguard.release import Store
 
     return Store(site, create)
@@ -80,7 +81,7 @@ def create(
 
     try:
         bundle = create_bundle(policy, action_map, profile, envelope, note)
-        store = _store(site)
+        store = _store(site, create=True)
         new = store.add_bundle(bundle)
         if new:
             stdout.written(f"release {bundle.id} in {site}")
@@ -125,13 +126,14 @@ def run_stage(
     stage: str = typer.Option(..., "--stage"),
     plan: Path = PLAN,
     scenario: Path = typer.Option(None, "--scenario", help="One run (scenario keys without cell, policy, guard) "
-                                                          "instead of the plan's runs, e.g. with a fault."),
+                                                          "instead of the plan's runs, e.g. with a fault: its "
+                                                          "verdict is logged and moves nothing (no rollback)."),
     site: Path = SITE,
     as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),
 ) -> None:
-    """Run a stage's plan with its current release and evaluate its gates (production: roll back on fail). A pass
-    under --plan makes its release last_good here only where that stage's part is the plan in force's (the site's
-    plan, else the packaged one)."""
+    """Run a stage's plan with its current release and evaluate its gates (production: roll back on fail). A verdict
+    under --plan acts (a pass makes its release last_good, a fail rolls back) only where that stage's part is the
+    plan in force's (the site's plan, else the packaged one); one on --scenario's run never does."""
     from cellguard.release import run_stage as do
     from cellguard.release.errors import GateError
     from cellguard.release.plan import check_run
@@ -156,7 +158,7 @@ def run_stage(
                                      "verdict": result.verdict, "gates": [g.to_dict() for g in result.gates],
                                      "evidence": list(result.evidence), "refused": list(result.refused),
                                      "rolled_back_to": result.rolled_back_to, "log_seq": result.log_seq,
-                                     "counted": result.counted}) + "\n")
+                                     "counted": result.counted, "acts": result.acts}) + "\n")
     else:
         for g in result.gates:
             value = "-" if g.value is None else f"{g.value:.4g}"
@@ -169,17 +171,33 @@ def run_stage(
                   f"records {', '.join(result.evidence)})")
         if result.rolled_back_to:
             out.print(f"rolled back: production on {cell} is {result.rolled_back_to} again (last_good)")
-        elif stage == "production" and result.verdict == "fail":
+        elif stage == "production" and result.verdict == "fail" and result.acts:
             out.print(f"nothing to roll back to: {result.release} stays current at production on {cell} (no other "
                       f"release is last_good there)")
-        if scenario is not None:
-            out.print(f"  {scenario} ran in place of the plan's runs: logged, not evidence a promotion accepts")
-        elif result.verdict == "pass" and not result.counted:
-            out.print(f"  --plan {plan}: not the plan in force at {stage} (the site's release-plan.yaml, else the "
-                      f"packaged plan): this pass is logged and makes no release last_good; a promotion takes it "
-                      f"only under the same --plan")
+        if not result.acts:
+            out.print(_moves_nothing(result, scenario, plan))
     if result.verdict != "pass":
         raise typer.Exit(1)
+
+
+def _moves_nothing(result, scenario: Path | None, plan: Path | None) -> str:
+    """The line saying that ``result``'s verdict was logged and moved nothing (``promotion.acts``): its runs were
+    ``--scenario``'s, or ``--plan`` is not the stage's part of the plan in force. A production fail there rolled
+    back with nothing said."""
+    stage = result.stage
+    if scenario is not None:
+        why = f"{scenario} ran in place of the plan's runs"
+    else:
+        why = f"--plan {plan}: not the plan in force at {stage} (the site's release-plan.yaml, else the packaged plan)"
+    if result.verdict == "pass":
+        then = ("this pass is logged, not evidence a promotion accepts" if scenario is not None else
+                "this pass is logged and makes no release last_good; a promotion takes it only under the same --plan")
+    elif stage == "production" and result.verdict == "fail":
+        then = (f"this fail is logged and rolls nothing back: {result.release} stays current at production "
+                f"(`release rollback` rolls back by hand)")
+    else:
+        then = f"this {result.verdict} verdict is logged and moves nothing"
+    return f"  {why}: {then}"
 
 
 @release_app.command()
@@ -207,7 +225,7 @@ def status(site: Path = SITE, as_json: bool = typer.Option(False, "--json")) -> 
     from cellguard.release import status as do
 
     try:
-        rows = do(_store(site, create=False))
+        rows = do(_store(site))
     except CellguardError as exc:
         fail(exc)
     if as_json:
@@ -236,7 +254,7 @@ def verify(
     from cellguard.release.log import head, size
 
     try:
-        store = _store(site, create=False)
+        store = _store(site)
         problems, n, last = verify_log(store, expect_head), size(store), head(store)
     except CellguardError as exc:
         fail(exc)
@@ -261,7 +279,7 @@ def report(
     from cellguard.report.release import write_release_page
 
     try:
-        path = write_release_page(_store(site, create=False), release, output)
+        path = write_release_page(_store(site), release, output)
         stdout.written(f"the release page {path}")
     except CellguardError as exc:
         fail(exc)

@@ -44,6 +44,9 @@ class Gate(BaseModel):
         if self.metric not in METRICS:
             raise ValueError(f"unknown metric {self.metric!r}; known: {', '.join(sorted(METRICS))}")
         if self.is_hard and (self.max != 0 or self.min is not None):
+            if not METRICS[self.metric].hard:  # the plan's hard: true, not the metric (it said the metric was hard)
+                raise ValueError(f"hard: true makes {self.metric} a hard gate, which fails on any value above 0: "
+                                 f"its only limit is max: 0; for another limit leave out hard: true")
             raise ValueError(f"{self.metric} is a hard gate: its failure limit is 0, write max: 0")
         if all(v is None for v in (self.min, self.max, self.min_vs_last_good, self.max_vs_last_good)):
             raise ValueError("no condition: give min, max, min_vs_last_good or max_vs_last_good")

@@ -4,7 +4,8 @@ As Kargo's stages: a release enters a stage only from the stage before it, and o
 last gate evaluation there passed (``sim`` is entered from nothing). ``run_stage`` runs the
 stage's plan with the stage's ``current`` release, evaluates the gates on those runs (against
 ``last_good``'s runs on the same stage), logs the result with the record ids, and in production
-rolls ``current`` back to ``last_good`` on a fail. ``last_good`` is the release that passed there
+rolls ``current`` back to ``last_good`` on a fail that counts (``acts``: a fail under an ad-hoc
+``--plan`` or on ``--scenario`` runs rolled production back). ``last_good`` is the release that passed there
 before the current one: a promotion moves it to the outgoing release when that one had passed
 (the first release to pass a stage is its own last_good). A pass counts, for a promotion and for
 ``last_good`` alike, only on the stage's part of the plan in force (``log.passed``): a weak ad-hoc
@@ -61,6 +62,7 @@ class StageResult:
     rolled_back_to: str | None
     log_seq: int
     counted: bool  # a pass a promotion and last_good take (``log.passed``)
+    acts: bool  # a verdict that may move a pointer (``acts``): else logged and acted on by nothing
 
 
 def last_evaluation(store: Store, cell: str, stage: str, release: str) -> log.LogEntry | None:
@@ -309,12 +311,12 @@ def evaluate_stage(store: Store, plan: StagePlan, cell: str, stage: str, folders
 
     A counted run that cannot be read as the record counted (gone, damaged, replaced), or that an earlier gates
     entry counted and the runs table no longer holds so, is left out and named in ``refused``: the verdict is
-    then never pass, yet it is decided and logged (a failing production release still rolls back), and the
-    stage's next evaluation is not blocked by it. ``start``: what the runs started on (default: the stage now);
-    StageError, nothing logged or moved, when the stage moved since. ``runs``: the runs given in place of the
-    plan's (``--scenario``), logged by name; such a pass lets nothing on (``log.passed``). ``in_force``: the stage's
-    part of the plan in force (default ``plan``), logged beside ``plan``'s hash: a pass on another plan is logged
-    and lets nothing on, nor makes its release last_good."""
+    then never pass, yet it is decided and logged (a failing production release still rolls back, under the plan
+    in force), and the stage's next evaluation is not blocked by it. ``start``: what the runs started on (default:
+    the stage now); StageError, nothing logged or moved, when the stage moved since. ``runs``: the runs given in
+    place of the plan's (``--scenario``), logged by name; such a verdict moves nothing (``acts``). ``in_force``: the
+    stage's part of the plan in force (default ``plan``), logged beside ``plan``'s hash: a verdict on another plan
+    is logged and moves nothing, a pass there makes no release last_good and a fail rolls nothing back."""
     if start is None:
         moved = log.last_pointer_move(store, cell, stage)
         start = Start(*log.check_pointers(store, cell, stage), moved.seq if moved else 0)
@@ -351,16 +353,24 @@ def evaluate_stage(store: Store, plan: StagePlan, cell: str, stage: str, folders
                                    "scenario": [e.get("name", "run") for e in runs or ()],
                                    "plan_sha256": plan_hash(plan), log.RUNS: key,
                                    log.IN_FORCE: plan_hash(plan if in_force is None else in_force)})
-        counted = log.passed(entry.body, entry.body[log.IN_FORCE])
+        counted, judged = log.passed(entry.body, entry.body[log.IN_FORCE]), acts(entry.body)
         if counted and start.last_good is None:  # the first release to pass here
             store.set_pointers(cell, stage, start.current, start.current)
-        elif outcome == FAIL and stage == "production" and start.last_good and start.last_good != start.current:
+        elif judged and outcome == FAIL and stage == "production" and start.last_good not in (None, start.current):
             failing = [r.metric for r in results if r.status == FAIL]
             rolled = rollback(store, cell, stage, reason=f"production gates failed: {', '.join(failing)} (log "
                               f"entry {entry.seq})", automatic=True, gates=[r.to_dict() for r in results],
                               evidence=evidence).body["to"]
     return StageResult(cell, stage, start.current, outcome, results, tuple(evidence), tuple(refused),
-                       tuple(folders), rolled, entry.seq, counted)
+                       tuple(folders), rolled, entry.seq, counted, judged)
+
+
+def acts(body: dict) -> bool:
+    """Whether a gates entry's verdict may move a pointer (a pass let its release on, a production fail roll it
+    back): only one on the plan's own runs, that plan the stage's part of the plan in force it logged. A pass
+    elsewhere never let a release on (``log.passed``), yet a fail under an ad-hoc ``--plan`` (one cycle against a
+    1 s cycle time) or on ``--scenario`` runs (a fault) rolled production back."""
+    return not body.get("scenario") and log.ran_plan(body, body.get(log.IN_FORCE))
 
 
 def plan_hash(plan: StagePlan) -> str:

@@ -8,6 +8,7 @@ and its log entry) are one transaction: a refused or failed command leaves the s
 from __future__ import annotations
 
 import json
+import os
 import re
 import sqlite3
 from contextlib import contextmanager
@@ -66,11 +67,17 @@ def check_stage(stage: str) -> str:
 class Store:
     """The site's release state; ``site`` is its folder (created on first use).
 
-    ``create=False`` for a command that only reads: a mistyped ``--site`` is refused instead of
-    becoming an empty store that looks like a whole one."""
+    ``create=False`` for every command but ``release create``: a mistyped ``--site`` is refused instead of
+    becoming an empty store that looks like a whole one (a rollback there said "nothing to roll back to"
+    and left it). A store file that is a link to nothing (a share not mounted) is refused either way:
+    followed, an empty store was made at its target, and every command after read it as the site's."""
 
     def __init__(self, site: Path, create: bool = True):
-        if not create and not (Path(site) / STORE_FILE).is_file():
+        path = Path(site) / STORE_FILE
+        if path.is_symlink() and not path.exists():
+            raise ReleaseError(f"--site {site}: {STORE_FILE} is a link to {os.readlink(path)}, which is not there "
+                               f"(a share not mounted?); nothing read or created")
+        if not create and not path.is_file():
             raise ReleaseError(f"--site {site}: no release store there ({STORE_FILE}); release create makes one")
         self.site = make_folder(Path(site), "--site")
         try:

@@ -1,0 +1,45 @@
+"""Every release command but `create` refuses a site with no store, and every one refuses a store that is a link to
+nothing. rollback, promote and run made an empty store at a mistyped --site (rollback then said only "nothing to roll
+back to"), and at a dangling link's target (a share not mounted): status and verify then read it as the site's."""
+
+from __future__ import annotations
+
+import pytest
+from release_helpers import CELL, cli
+
+from cellguard.release.store import STORE_FILE
+
+COMMANDS = {"rollback": ("rollback", "--cell", CELL), "promote": ("promote", "0123", "--cell", CELL, "--to", "sim"),
+            "run": ("run", "--cell", CELL, "--stage", "sim"), "status": ("status",), "verify": ("verify",),
+            "report": ("report", "0123")}
+CREATE = ("create", "--policy", "scripted", "--profile", CELL)
+
+
+@pytest.mark.parametrize("command", COMMANDS)
+def test_a_site_with_no_store_is_refused_and_nothing_made(tmp_path, command):
+    site, page = tmp_path / "typo-site", tmp_path / "page.html"
+    result = cli(*COMMANDS[command], "--site", str(site), *(("-o", str(page)) if command == "report" else ()))
+    assert result.exit_code == 2, result.output
+    assert result.stderr.strip() == f"error: --site {site}: no release store there ({STORE_FILE}); release create " \
+                                    f"makes one"
+    assert not site.exists() and not page.exists()
+
+
+@pytest.mark.parametrize("command", [*COMMANDS, "create"])
+def test_a_store_that_is_a_link_to_nothing_is_refused_by_every_command(tmp_path, command):
+    site, share = tmp_path / "site", tmp_path / "share"
+    site.mkdir()
+    share.mkdir()  # the link's folder is there, the store in it is not (an unmounted share's mount point)
+    (site / STORE_FILE).symlink_to(share / STORE_FILE)
+    result = cli(*(CREATE if command == "create" else COMMANDS[command]), "--site", str(site))
+    assert result.exit_code == 2, result.output
+    said = " ".join(result.stderr.split())
+    assert said == f"error: --site {site}: {STORE_FILE} is a link to {share / STORE_FILE}, which is not there (a " \
+                   f"share not mounted?); nothing read or created"
+    assert list(share.iterdir()) == [] and sorted(p.name for p in site.iterdir()) == [STORE_FILE]
+
+
+def test_create_makes_the_store_a_new_site_needs(tmp_path):
+    site = tmp_path / "new-site"
+    assert cli(*CREATE, "--site", str(site)).exit_code == 0
+    assert (site / STORE_FILE).is_file() and cli("status", "--site", str(site)).exit_code == 0
