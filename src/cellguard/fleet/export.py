@@ -4,10 +4,10 @@
 secret (``site_key.py``); ``aggregates_only``: counts per (cause, robot model, cell type, month), a
 withheld robot model or cell type left out of the grouping (null), a count over fewer than
 ``min_group_size`` signatures not sent;
-``nothing``: an empty batch. Signatures past the retention period are never sent. The batch is
-all that leaves the site: it holds no record, no tick and no raw feature value. A batch that
-waited in the outbox is checked again against the policy in force when it is to leave
-(``refusal``; ``push.py`` says what happens to one it no longer allows).
+``nothing``: an empty batch. Signatures past the retention period are never sent, nor those dated after
+tomorrow (``newest_kept``). The batch is all that leaves the site: it holds no record, no tick and no raw
+feature value. A batch that waited in the outbox is checked again against the policy in force when it is to
+leave (``refusal``; ``push.py`` says what happens to one it no longer allows).
 """
 
 from __future__ import annotations
@@ -36,7 +36,7 @@ class Batch:
     export: str
     signatures: tuple[dict, ...] = ()
     aggregates: tuple[dict, ...] = ()
-    withheld_rows: int = 0  # signatures kept at the site by the policy (too few, too old, or nothing)
+    withheld_rows: int = 0  # signatures kept at the site (too few, too old, dated ahead, or the policy's nothing)
     key_id: str | None = None  # the site key its signature ids were made with (``site_key.fingerprint``)
 
     def __post_init__(self):
@@ -114,8 +114,8 @@ def refusal(batch: Batch, policy: DataPolicy, today: dt.date | None = None) -> s
     A batch waits in the outbox under the policy it was built with; the customer may have changed
     the policy since. What leaves is decided when it leaves: the batch goes only if it shows
     nothing the policy in force keeps at the site (another tenant or site, a form of export it
-    no longer allows, a field it withholds, a row past its retention, a count under its group
-    size). Aggregates may go under a policy that allows signatures (they say less).
+    no longer allows, a field it withholds, a row past its retention or dated after tomorrow, a count
+    under its group size). Aggregates may go under a policy that allows signatures (they say less).
     """
     if (batch.tenant_id, batch.site_id) != (policy.tenant, policy.site):
         return f"it is {batch.tenant_id}/{batch.site_id}'s, the policy is {policy.tenant}/{policy.site}'s"
@@ -129,11 +129,15 @@ def refusal(batch: Batch, policy: DataPolicy, today: dt.date | None = None) -> s
     shown = sorted({n for r in rows for n in policy.withheld if r.get(n) not in (None, {})})
     if shown:
         return f"it holds {', '.join(shown)}, which the policy withholds"
-    oldest = oldest_kept(policy, today)
-    old = sum(dt.date.fromisoformat(s["created_date"]) < oldest for s in batch.signatures) + \
-        sum(r["month"] < oldest.isoformat()[:7] for r in batch.aggregates)
+    today = today or utc_today()
+    oldest, newest = oldest_kept(policy, today).isoformat(), newest_kept(today).isoformat()
+    dates = [(s["created_date"], 10) for s in batch.signatures] + [(r["month"], 7) for r in batch.aggregates]
+    old = sum(d < oldest[:n] for d, n in dates)  # ISO dates and months: in order as text
     if old:
         return f"{old} row(s) older than the policy's retention_days ({policy.retention_days})"
+    ahead = sum(d > newest[:n] for d, n in dates)
+    if ahead:
+        return f"{ahead} row(s) dated after tomorrow ({newest}) by a clock that ran ahead: {AHEAD}"
     if policy.export == "aggregates_only":
         small = sum(r["signatures"] < policy.min_group_size for r in batch.aggregates)
         if small:
@@ -146,13 +150,24 @@ def oldest_kept(policy: DataPolicy, today: dt.date | None = None) -> dt.date:
     return (today or utc_today()) - dt.timedelta(days=policy.retention_days)
 
 
+AHEAD = "the retention counts from that date, so it would keep them past it"
+
+
+def newest_kept(today: dt.date | None = None) -> dt.date:
+    """The last day a row may be dated and leave the site: tomorrow by ``today`` (default: this host's UTC date),
+    the day the host's and the store's dates may differ by. A record dated later was stamped by a clock that ran
+    ahead: sent, its row outlived the retention (dated a year ahead, it stayed a year past it)."""
+    return (today or utc_today()) + dt.timedelta(days=1)
+
+
 def export_batch(signatures: Sequence[Signature], policy: DataPolicy, today: dt.date | None = None, *,
                  key: bytes) -> Batch:
     """The batch ``policy`` lets leave the site, from the site's ``signatures``; ``key`` is the site's
-    secret the signature ids are keyed with; ``today``: the date retention counts from (default: this
-    host's UTC date)."""
-    oldest = oldest_kept(policy, today)
-    live = [s for s in signatures if dt.date.fromisoformat(s.created_date) >= oldest]
+    secret the signature ids are keyed with; ``today``: the date retention counts from, whose tomorrow is the
+    latest a signature sent may be dated (default: this host's UTC date)."""
+    today = today or utc_today()
+    oldest, newest = oldest_kept(policy, today), newest_kept(today)
+    live = [s for s in signatures if oldest <= dt.date.fromisoformat(s.created_date) <= newest]
     base = dict(tenant_id=policy.tenant, site_id=policy.site, policy_version=policy.version, export=policy.export)
     if policy.export == "nothing":
         return Batch(**base, withheld_rows=len(signatures))

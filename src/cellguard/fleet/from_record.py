@@ -8,10 +8,12 @@ production runs diagnosed against it).
 
 from __future__ import annotations
 
+import datetime as dt
 from pathlib import Path
 
 from cellguard.dates import utc_day, utc_today
 from cellguard.errors import RecordError
+from cellguard.fleet.export import AHEAD, newest_kept
 from cellguard.fleet.policy import DataPolicy
 from cellguard.fleet.signature import Signature, signatures_of
 
@@ -35,18 +37,20 @@ def site_signatures(folder: Path, policy: DataPolicy, acceptance: Path | None = 
     ``diagnose_record``'s (a run on read-only storage is pushed, the files its diagnosis keeps beside it named).
     A run whose record is not whole (truncated, damaged, or still being written) is not diagnosed: its findings
     would differ from the whole record's (another onset, another confidence: other signature ids), so pooled now
-    they would be pooled again once it is whole. It is named in ``skipped``, one line each; with no list to name
-    it in, RecordError."""
+    they would be pooled again once it is whole. Nor is a run that started after tomorrow by this host's date
+    (``export.newest_kept``): no export may send its findings with that date. Each is named in ``skipped``, one
+    line each; with no list to name it in, RecordError."""
     from cellguard.diagnose.from_record import diagnose_record
     from cellguard.record.reader import open_record
 
-    out = []
+    out, newest = [], newest_kept()
     for run in run_folders(folder):
         try:
             with open_record(run) as rec:
                 epoch_ns = rec.start_wall_ns if rec.epoch_wall_ns else 0  # stated in the context messages too
                 health = rec.health()
-            problem = None if health.ok else _not_whole(run, health)
+            day = utc_day(epoch_ns) if epoch_ns > 0 else utc_today()  # no epoch stated: the day of export
+            problem = _not_whole(run, health) if not health.ok else _ahead(run, day, newest) if day > newest else None
         except RecordError as exc:  # not even opened: cut inside its first chunk, or a run only just begun
             problem = f"{exc}; its findings were left out"
         if problem is not None:
@@ -55,7 +59,6 @@ def site_signatures(folder: Path, policy: DataPolicy, acceptance: Path | None = 
             skipped.append(problem)
             continue
         diagnosis = diagnose_record(run, acceptance=acceptance, unkept=unkept)
-        day = utc_day(epoch_ns) if epoch_ns > 0 else utc_today()  # no epoch stated: the day of export
         out.extend(signatures_of(diagnosis.to_dict(), diagnosis.context, policy.tenant, policy.site, day))
     return out
 
@@ -66,3 +69,9 @@ def _not_whole(run: Path, health) -> str:
             else f"`cellguard record recover {run} -o NEW_DIR` writes a finished copy" if health.recoverable
             else "only a whole record's findings are pooled")
     return f"{run}: {health.describe()}; its findings were left out: {then}"
+
+
+def _ahead(run: Path, day: dt.date, newest: dt.date) -> str:
+    """One line naming a run left out because it started after tomorrow (``newest``), and why."""
+    return (f"{run}: its record started on {day}, after tomorrow ({newest}) by this host's UTC date (the clock that "
+            f"recorded it ran ahead, or this host's is behind); its findings were left out: {AHEAD}")

@@ -79,6 +79,32 @@ REVOKE ALL ON pg_catalog.pg_class, pg_catalog.pg_roles, pg_catalog.pg_user, pg_c
 """
 
 
+# a row dated after the store's tomorrow (a site's record stamped by a clock that ran ahead) would outlive the
+# retention counted from its date: refused, whoever sends it (sites hold such rows back; a client may not)
+_DATED_AHEAD_SQL = """
+CREATE OR REPLACE FUNCTION fleet.not_dated_ahead() RETURNS trigger LANGUAGE plpgsql
+  SET search_path = pg_catalog, pg_temp AS $$
+DECLARE tomorrow date := (now() AT TIME ZONE 'UTC')::date + 1;
+BEGIN
+  IF TG_TABLE_NAME = 'signatures' THEN
+    IF NEW.created_date > tomorrow THEN
+      RAISE EXCEPTION 'created_date % is after the store''s tomorrow (%): a clock that ran ahead dated it',
+        NEW.created_date, tomorrow USING ERRCODE = 'check_violation';
+    END IF;
+  ELSIF NEW.month > to_char(tomorrow, 'YYYY-MM') THEN
+    RAISE EXCEPTION 'month % is after the month of the store''s tomorrow (%): a clock that ran ahead dated it',
+      NEW.month, tomorrow USING ERRCODE = 'check_violation';
+  END IF;
+  RETURN NEW;
+END $$;
+REVOKE ALL ON FUNCTION fleet.not_dated_ahead() FROM PUBLIC;
+DROP TRIGGER IF EXISTS not_dated_ahead ON fleet.signatures;
+CREATE TRIGGER not_dated_ahead BEFORE INSERT ON fleet.signatures FOR EACH ROW EXECUTE FUNCTION fleet.not_dated_ahead();
+DROP TRIGGER IF EXISTS not_dated_ahead ON fleet.aggregates;
+CREATE TRIGGER not_dated_ahead BEFORE INSERT ON fleet.aggregates FOR EACH ROW EXECUTE FUNCTION fleet.not_dated_ahead();
+"""
+
+
 class StoreError(CellguardError):
     """The fleet store refused or failed an operation (not a connection problem)."""
 
@@ -188,6 +214,7 @@ class FleetStore:
             with con.transaction():
                 con.execute(self._schema_sql() if reset or not exists else self._session_tenant_sql())
                 con.execute(self._tenant_rights_sql())
+                con.execute(_DATED_AHEAD_SQL)
                 for q in QUERIES.values():
                     if q.cross_customer:
                         con.execute(self._function_sql(q))
