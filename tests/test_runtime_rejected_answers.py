@@ -109,6 +109,16 @@ def test_a_policy_that_answers_late_then_only_rejected_chunks_is_lost(tmp_path):
     assert summary["stopped"].startswith(REJECTED)
 
 
+def test_a_slow_policys_one_late_rejected_answer_is_no_loss(tmp_path):
+    """Its first answer, after the watchdog, rejected; the next one good: the run goes on (one refused answer
+    after the watchdog stopped it as lost)."""
+    _, summary = _run(tmp_path, lambda call, chunk: _nan(call, chunk) if call == 1 else None,
+                      guard={"watchdog_s": 0.1}, faults=[{"kind": "policy_latency", "at_cycle": 0, "ms": 150}])
+    kinds = [e["kind"] for e in summary["events"]]
+    assert kinds.index("watchdog_no_first_chunk") < kinds.index("chunk_rejected")
+    assert "policy_lost" not in kinds and "stopped" not in summary and len(summary["cycles"]) == 3
+
+
 def test_a_policy_that_answered_its_first_chunk_then_only_rejected_ones_is_lost(tmp_path):
     """The first chunk was approached; no chunk since was taken: the watchdog runs again from the approach."""
     away = make_cell(ARM).read().q + [0.3, 0, 0, 0, 0, 0]

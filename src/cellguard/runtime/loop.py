@@ -117,8 +117,10 @@ class Run:
         self._hang_floor_ns = 0  # wall time: how long a call may run before the policy is lost (set at warm-up) [ns]
         self._armed_at = 0
         # the answers not taken since the watchdog was armed, by how each was refused ("failed", "rejected" for what
-        # its chunk says, "held" for a stop in force): the last reason of each (``_never_answered``)
+        # its chunk says, "held" for a stop in force): the last reason of each, and how many failed or were rejected
+        # (``_never_answered``)
         self._answers: dict[str, str] = {}
+        self._refused = 0
         self._first_observation = None
         # the cycle in progress: its start [ns], chunk latencies [ns], wall time per call [ns], a pending NaN fault
         self._cycle_start, self._latencies, self._wall_ns, self._corrupt = 0, [], [], False
@@ -271,6 +273,7 @@ class Run:
                 return False
             self.events.append(Event(t_ns, EventKind.INFERENCE_FAILED, arrival.error))
             self._answers["failed"] = arrival.error
+            self._refused += 1
             self._wall_ns.append(arrival.wall_ns)
             return False
         if not self._started:
@@ -296,6 +299,7 @@ class Run:
         self.events.extend(pushed)
         if pushed and pushed[0].kind == EventKind.CHUNK_REJECTED:
             self._answers["rejected"] = pushed[0].reason
+            self._refused += 1
         self._latencies.append(arrival.latency_ns)
         self._wall_ns.append(arrival.wall_ns)
         return False
@@ -307,6 +311,7 @@ class Run:
         if failed is not None:
             self.events.append(Event(t_ns, EventKind.INFERENCE_FAILED, failed.error))
             self._answers["failed"] = failed.error
+            self._refused += 1
             self._wall_ns.append(failed.wall_ns)
             return
         self._first_observation = self._first_observation or observation
@@ -599,7 +604,7 @@ class Run:
                     self.events.append(Event(t_ns, EventKind.WATCHDOG_NO_FIRST_CHUNK, f"no chunk within "
                                              f"{watchdog.watchdog_s * 1e3:.0f} ms of the start",
                                              category=watchdog.watchdog_category))
-                if self._answers and not self.policy_lost:
+                if self._refused > 1 and not self.policy_lost:
                     self._never_answered(t_ns)
                 asked.append((watchdog.watchdog_category, EventKind.WATCHDOG_NO_FIRST_CHUNK.value))
         return self._without_link(min(asked, key=lambda a: a[0], default=None)) or (None, None)
@@ -613,10 +618,11 @@ class Run:
 
     def _arm(self, t_ns: int) -> None:
         """(Re)start the no-first-chunk watchdog at ``t_ns``: it weighs the answers from then on."""
-        self._armed_at, self._answers = t_ns, {}
+        self._armed_at, self._answers, self._refused = t_ns, {}, 0
 
     def _never_answered(self, t_ns: int) -> None:
-        """No chunk within the watchdog (of its arming) and every answer since refused: every call failed (a
+        """No chunk within the watchdog (of its arming) and every answer since refused, two at least (one late bad
+        answer of a slow policy whose next is good is no loss): every call failed (a
         server that answers only errors, a model that raises on every observation), or the guard rejected its
         chunk (not finite, beyond the limits, the wrong shape, its first target outside the box). The policy is
         lost: the run went on asking it, one event per request, every cycle waited out its time-out, failed, and
