@@ -135,6 +135,18 @@ def test_withdraw_logs_each_deletion_in_the_site_audit_log(tmp_path):
     assert again.exit_code == 0 and [e["rows"] for e in read_audit(site)] == [2, 0]
 
 
+def test_a_policy_written_before_export_was_required_still_withdraws(tmp_path):
+    """Pooled under a file with no export (it exported signatures), taken back with that same file."""
+    lake, site = pooled_lake(tmp_path), tmp_path / "site"
+    site.mkdir()
+    old = tmp_path / "old.yaml"
+    old.write_text("tenant: ta\nsite: s1\n")
+    result = CliRunner().invoke(app, ["fleet", "withdraw", "--policy", str(old), "--lake", str(lake),
+                                      "--site-dir", str(site)])
+    assert result.exit_code == 0, result.output
+    assert in_lake(lake) == 0 and [e["status"] for e in read_audit(site)] == ["withdrawn"]
+
+
 @pytest.mark.parametrize("what", ["file", "missing", "linked-log"])
 def test_withdraw_into_a_site_dir_it_cannot_log_in_deletes_nothing(tmp_path, what):
     lake, site = pooled_lake(tmp_path), tmp_path / "site"

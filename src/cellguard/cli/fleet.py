@@ -256,7 +256,7 @@ def withdraw(
 
     in_lake = in_store = None
     try:
-        pol = load_policy(policy)
+        pol = load_policy(policy, sends=False)
         tenant_store = _store(store)
         if tenant_store is None and lake is None:
             raise ConfigError("--store: no fleet store DSN (or CELLGUARD_FLEET_DSN); or give --lake")

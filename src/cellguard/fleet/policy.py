@@ -65,14 +65,16 @@ class DataPolicy:
         return hashlib.sha256(json.dumps(asdict(self), sort_keys=True).encode()).hexdigest()[:12]
 
 
-def parse_policy(raw: object, origin: str = "policy") -> DataPolicy:
+def parse_policy(raw: object, origin: str = "policy", sends: bool = True) -> DataPolicy:
+    """The policy ``raw`` states; ``sends`` False for a command that sends nothing (``fleet withdraw``), which
+    takes a file written before ``export`` was required, so a site can take back what it pooled under it."""
     if not isinstance(raw, dict):
         raise PolicyError(f"{origin}: expected a mapping of keys, got {type(raw).__name__}")
     reject_unknown_keys(raw, KEYS, f"{origin}: ", PolicyError)
     for key in ("tenant", "site"):
         if key not in raw:
             raise PolicyError(f"{origin}: {key}: required")
-    if "export" not in raw:
+    if sends and "export" not in raw:
         raise PolicyError(f"{origin}: export: required, what may leave the site: {' | '.join(EXPORTS)}")
     withheld = raw.get("withheld", [])
     if not isinstance(withheld, list):
@@ -83,8 +85,8 @@ def parse_policy(raw: object, origin: str = "policy") -> DataPolicy:
         raise PolicyError(f"{origin}: {exc}") from None
 
 
-def load_policy(path: Path) -> DataPolicy:
-    return parse_policy(read_yaml(path, "data policy", PolicyError), origin=str(path))
+def load_policy(path: Path, sends: bool = True) -> DataPolicy:
+    return parse_policy(read_yaml(path, "data policy", PolicyError), origin=str(path), sends=sends)
 
 
 def _int(value, key: str, lo: int, hi: int) -> None:
