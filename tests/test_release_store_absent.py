@@ -43,3 +43,14 @@ def test_create_makes_the_store_a_new_site_needs(tmp_path):
     site = tmp_path / "new-site"
     assert cli(*CREATE, "--site", str(site)).exit_code == 0
     assert (site / STORE_FILE).is_file() and cli("status", "--site", str(site)).exit_code == 0
+
+
+@pytest.mark.parametrize("command", [*COMMANDS, "create"])
+def test_a_store_that_is_a_folder_is_named_so_by_every_command(tmp_path, command):
+    """It read as 'no release store there ... release create makes one', and create failed there."""
+    site = tmp_path / "site"
+    (site / STORE_FILE).mkdir(parents=True)
+    result = cli(*(CREATE if command == "create" else COMMANDS[command]), "--site", str(site))
+    assert result.exit_code == 2, result.output
+    assert " ".join(result.stderr.split()) == f"error: --site {site}: {STORE_FILE} is not a file (a folder?); " \
+                                              f"nothing read or created"

@@ -77,7 +77,9 @@ class Store:
         if path.is_symlink() and not path.exists():
             raise ReleaseError(f"--site {site}: {STORE_FILE} is a link to {os.readlink(path)}, which is not there "
                                f"(a share not mounted?); nothing read or created")
-        if not create and not path.is_file():
+        if path.exists() and not path.is_file():
+            raise ReleaseError(f"--site {site}: {STORE_FILE} is not a file (a folder?); nothing read or created")
+        if not create and not path.exists():
             raise ReleaseError(f"--site {site}: no release store there ({STORE_FILE}); release create makes one")
         self.site = make_folder(Path(site), "--site")
         try:
