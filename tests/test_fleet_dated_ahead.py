@@ -117,6 +117,8 @@ def test_a_run_that_started_after_this_hosts_tomorrow_is_named_and_left_out(righ
     assert str(right) in line and f"after tomorrow ({slow.date() + dt.timedelta(days=1)})" in line, line
     with pytest.raises(RecordError, match="after tomorrow"):  # no list to name it in
         site_signatures(right, DataPolicy("ta", "s-slow"))
+    probes = site_signatures(right, DataPolicy("ta", "s-slow"), skipped=skipped, stored=False)
+    assert probes and skipped == [line]  # fleet similar's probes, stored nowhere, still go
     monkeypatch.undo()
     assert site_signatures(right, DataPolicy("ta", "s-slow"))  # by a right clock its findings go
 

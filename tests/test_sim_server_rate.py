@@ -45,3 +45,27 @@ def test_the_client_is_told_the_served_period_and_a_rate_not_served_is_refused()
     assert (server.substeps, server.meta["dt_ns"]) == (3, 3_000_000)  # the bridge's period is the hello's dt_ns
     with pytest.raises(ConfigError, match="nearest rates served: 333.3 and 500 Hz"):
         SimServer("arm-pick-place", 0, rate_hz=400)
+
+
+def test_a_cell_whose_physics_step_is_under_1_ms_is_refused_unless_served_at_a_rate(monkeypatch):
+    """Served at its 0.5 ms step by default, every client refused its period after the server had started."""
+    from cellguard.robot import registry
+    from cellguard.robot.arm_cell import ArmPickPlace
+    from cellguard.runtime.sim_server import SimServer
+
+    class Fine(ArmPickPlace):
+        name = "arm-fine"
+
+        def __init__(self, seed=0):
+            super().__init__(seed=seed)
+            self.model.opt.timestep, self.dt_ns = 0.0005, 500_000
+
+    monkeypatch.setitem(registry.CELLS, "arm-fine", Fine)
+    with pytest.raises(ConfigError, match=r"^arm-fine: a servo period of 0\.5 ms is not one a run drives \(1 ms to "
+                                          r"1 s\): serve it with --rate-hz, 50 to 1000 Hz$"):
+        SimServer("arm-fine", free_port())
+    server = SimServer("arm-fine", free_port(), rate_hz=500)
+    try:
+        assert server.dt_ns == 2_000_000
+    finally:
+        server.sock.close()

@@ -184,8 +184,8 @@ def similar(
                 raise ConfigError("--policy: needed with a run folder (it names this site)")
             site_policy = load_policy(policy)
             sim.check_policy(site_policy)
-            probes = [sim.as_sent(p, site_policy.withheld) for p in site_signatures(Path(target), site_policy,
-                                                                                       acceptance, unkept, skipped)]
+            probes = [sim.as_sent(p, site_policy.withheld)
+                      for p in site_signatures(Path(target), site_policy, acceptance, unkept, skipped, stored=False)]
             sim.log_probes(site_dir, probes, site_policy, st.where)
         else:
             probes = [sim.probe_of(st, target)]

@@ -31,15 +31,17 @@ def run_folders(folder: Path) -> list[Path]:
 
 
 def site_signatures(folder: Path, policy: DataPolicy, acceptance: Path | None = None,
-                    unkept: list[str] | None = None, skipped: list[str] | None = None) -> list[Signature]:
+                    unkept: list[str] | None = None, skipped: list[str] | None = None,
+                    stored: bool = True) -> list[Signature]:
     """Every finding of every whole run under ``folder``, as signatures of the policy's tenant and site;
     ``acceptance``: the record folder whose acceptance cycles are the baseline of every run; ``unkept``: as
     ``diagnose_record``'s (a run on read-only storage is pushed, the files its diagnosis keeps beside it named).
     A run whose record is not whole (truncated, damaged, or still being written) is not diagnosed: its findings
     would differ from the whole record's (another onset, another confidence: other signature ids), so pooled now
-    they would be pooled again once it is whole. Nor is a run that started after tomorrow by this host's date
-    (``export.newest_kept``): no export may send its findings with that date. Each is named in ``skipped``, one
-    line each; with no list to name it in, RecordError."""
+    they would be pooled again once it is whole. Nor, when the signatures are to be ``stored`` (a push; not the
+    probes of ``fleet similar``, which the store keeps nowhere), is a run that started after tomorrow by this
+    host's date (``export.newest_kept``): no export may send its findings with that date. Each is named in
+    ``skipped``, one line each; with no list to name it in, RecordError."""
     from cellguard.diagnose.from_record import diagnose_record
     from cellguard.record.reader import open_record
 
@@ -50,7 +52,8 @@ def site_signatures(folder: Path, policy: DataPolicy, acceptance: Path | None = 
                 epoch_ns = rec.start_wall_ns if rec.epoch_wall_ns else 0  # stated in the context messages too
                 health = rec.health()
             day = utc_day(epoch_ns) if epoch_ns > 0 else utc_today()  # no epoch stated: the day of export
-            problem = _not_whole(run, health) if not health.ok else _ahead(run, day, newest) if day > newest else None
+            problem = (_not_whole(run, health) if not health.ok
+                       else _ahead(run, day, newest) if stored and day > newest else None)
         except RecordError as exc:  # not even opened: cut inside its first chunk, or a run only just begun
             problem = f"{exc}; its findings were left out"
         if problem is not None:

@@ -38,7 +38,7 @@ from collections import deque
 import numpy as np
 
 from cellguard.errors import ConfigError
-from cellguard.robot.bridges.sim_server import Layout, command_size, unpack_command
+from cellguard.robot.bridges.sim_server import PERIOD_NS, Layout, command_size, unpack_command
 from cellguard.robot.own_task import OwnTask
 from cellguard.robot.registry import make_cell
 from cellguard.runtime.clock import WallClock
@@ -60,6 +60,9 @@ class SimServer:
         cell = self.cell
         self.substeps = 1 if rate_hz is None else served_substeps(rate_hz, cell.dt_ns)
         self.dt_ns = self.substeps * cell.dt_ns
+        if not PERIOD_NS[0] <= self.dt_ns <= PERIOD_NS[1]:  # every client would refuse it, after the start
+            raise ConfigError(f"{cell_name}: a servo period of {self.dt_ns * 1e-6:g} ms is not one a run drives "
+                              f"(1 ms to 1 s): serve it with --rate-hz, 50 to 1000 Hz")
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.bind(("127.0.0.1", port))
         self.sock.setblocking(False)
