@@ -32,7 +32,9 @@ candidate finding, classified from the size and sign of its changes over the fau
   or, on an arm, more than its current under a friction lead (friction keeps the lead's motion), or, on
   an arm, its own friction torque rose (its drive does more work over its own travel).
   Where the camera saw the part move and the grasp pose followed it, the arm moves to another pick
-  point: a joint change under ``PATH`` that began with it is its new path's, told in the geometry finding.
+  point: a joint change under ``PATH_PER_MM`` of each millimetre the grasp pose moved, begun with it, is its
+  new path's, told in the geometry finding; a larger one is its drive's, named at a confidence lowered for
+  the share the new path may hold.
 - policy timing (latency, stale chunks) and policy output (rejected chunks) speak for
   themselves; joint changes, and the gait of legs, that start with a latency change are its
   consequence (a joint change that comes on some cycles only is dated by the first of them).
@@ -61,8 +63,10 @@ QUIET = 0.02  # current and tracking error both moved less: the friction torque 
 STEP_CLIP = 8.0  # [scales] residuals clipped this far when a step is fitted (one odd cycle does not move it)
 COUPLED = 0.2  # a joint's change under this share of an earlier joint's change follows from it
 CARRY_ONLY = 0.5  # current while carrying rose, while not less than this share of it: the load changed
-PATH = 0.02  # a joint's change under this, from a moved pick point on, is the new path's: a 4 mm fixture shift
-# (grasp pose 3 mm) moved the arm's elbow 1.1 to 1.3 %; with servo gain x0.85 or friction x1.08 there too, 3.5 to 3.9 %
+PATH_PER_MM = 0.005  # a joint's change under this per mm the grasp pose moved, from a moved pick point on, is the
+# new path's: fixture and camera shifts of 2 to 4 mm in x, y and both (grasp pose 1.8 to 3.2 mm, 9 seeds) moved the
+# arm's joints at most 0.45 % per mm (the elbow; 1.1 to 1.3 % for a 4 mm fixture shift), servo gain x0.85 on a joint
+# 0.55 % per mm or more (shoulder_pan, tracking error +1.7 % beside a 3 mm move)
 
 
 @dataclass(frozen=True)
@@ -238,12 +242,15 @@ def name_causes(baseline: Baseline, cycles: Sequence[Cycle], z: np.ndarray, alar
     geometry = groups.pop("geometry", [])
     grasps = [(_geometry(ew, g, o), ew, g) for ew, g, o in (_episodes(w, geometry, outcome) if geometry else [])]
     outcome = [] if geometry else outcome
-    new_paths = [f.cycle for f, ew, g in grasps if _pick_moved(ew, g, f.cycle)]
-    joints, on_path = _joints(w, joint_groups, grounded=_grounded(baseline), new_paths=new_paths)
+    moves = [(f.cycle, _pick_move(ew, g, f.cycle)) for f, ew, g in grasps]
+    joints, on_path = _joints(w, joint_groups, grounded=_grounded(baseline), new_paths=[m for m in moves if m[1]])
     findings.extend(joints)
     findings.extend(_feet(w, groups.pop("gait", [])))
     for grasp, ew, g in grasps:
         path = [r for r in on_path if abs(r[0] - grasp.cycle) <= CONCURRENT]
+        named = any(abs(f.cycle - grasp.cycle) <= CONCURRENT for f in joints)
+        if named or any(abs(r[8]) >= MATERIAL for r in path):  # a drive that changed with it: its figures are told
+            grasp = replace(grasp, evidence=tuple(e for e in grasp.evidence if e != UNCHANGED_CURRENT))
         findings = _with_grasp(ew, _with_path(grasp, path), g, findings)
     other = _distinct([a for k, v in groups.items() if not k.startswith("joint:") for a in v] + outcome)
     if other and not findings:
@@ -452,12 +459,13 @@ def _with_grasp(w: _Window, grasp: Finding, alarms: list[DriftAlarm], findings: 
     return [told(f, note, grasp.signals) if f is host else f for f in findings]
 
 
-def _pick_moved(w: _Window, alarms: Sequence[DriftAlarm], start: int) -> bool:
-    """Whether the arm goes to another pick point from ``start`` on: the camera saw the part move and the
-    grasp pose followed it by ``SIGNIFICANT_MM`` or more."""
+def _pick_move(w: _Window, alarms: Sequence[DriftAlarm], start: int) -> float:
+    """How far [mm] the arm's pick point moved from ``start`` on: the grasp pose's move where the camera saw the
+    part move and the grasp pose followed it by ``SIGNIFICANT_MM`` or more; else 0."""
     tcp = w.xy("grasp_tcp", start)
-    return (any(a.signal.startswith(("part_seen_", "fixture_seen_")) for a in alarms) and tcp is not None
-            and float(np.linalg.norm(tcp)) >= SIGNIFICANT_MM)
+    mm = float(np.linalg.norm(tcp)) if tcp is not None else 0.0
+    return mm if any(a.signal.startswith(("part_seen_", "fixture_seen_")) for a in alarms) and mm >= SIGNIFICANT_MM \
+        else 0.0
 
 
 def _with_path(grasp: Finding, on_path: Sequence[tuple]) -> Finding:
@@ -475,9 +483,10 @@ def _grounded(baseline: Baseline) -> bool:
 
 
 def _joints(w: _Window, groups: dict[str, list[DriftAlarm]], grounded: bool = False,
-            new_paths: Sequence[int] = ()) -> tuple[list[Finding], list[tuple]]:
+            new_paths: Sequence[tuple[int, float]] = ()) -> tuple[list[Finding], list[tuple]]:
     """One finding per cause and episode: joints of the same kind of change that start together; and,
-    apart, the rated joints whose change is the arm's new path from a cycle of ``new_paths`` on (``_on_path``).
+    apart, the rated joints whose change is the arm's new path from a (cycle, grasp pose move [mm]) of
+    ``new_paths`` on (``_on_path``).
 
     The torque a joint needs is read from its current and, where it alarmed (on a robot off the
     ground) or where current and tracking error stayed under ``QUIET``, from its friction torque."""
@@ -508,6 +517,7 @@ def _joints(w: _Window, groups: dict[str, list[DriftAlarm]], grounded: bool = Fa
     rated.sort()
     rated, follows = _coupled(rated, grounded)
     rated, on_path = _on_path(rated, new_paths)
+    allowance = {r[2]: _path_allowance(r, new_paths) for r in rated}
     findings: list[Finding] = []
     while rated:
         start, cause = rated[0][0], rated[0][1]
@@ -537,6 +547,13 @@ def _joints(w: _Window, groups: dict[str, list[DriftAlarm]], grounded: bool = Fa
                             "error, so the servo gain dropped")
         elif cause != "load_change":
             conf = 0.3
+        path = max(allowance[j] for j in joints)
+        if path and cause in ("servo", "friction"):  # its change against what the new path can make
+            size = min(_size(r) for r in same)
+            conf = min(conf, _squash(size / (size + path)))
+            evidence.append(f"the arm also moves to another pick point, which moves a joint's current and tracking "
+                            f"error by up to {path * 100:.1f} %: this change is more, its drive's (the confidence "
+                            "allows for the path's share)")
         findings.append(Finding(cause, start, conf, tuple(evidence),
                                 tuple(sorted({a.signal for r in same + [r for r, _ in coupled] for a in r[6]})),
                                 joints))
@@ -579,14 +596,22 @@ def _size(r: tuple) -> float:
     return max(abs(r[3]), abs(r[4]))
 
 
-def _on_path(rated: list[tuple], new_paths: Sequence[int]) -> tuple[list[tuple], list[tuple]]:
+def _on_path(rated: list[tuple], new_paths: Sequence[tuple[int, float]]) -> tuple[list[tuple], list[tuple]]:
     """Split the rated joints into those that carry a cause and those whose change is the arm's new path:
-    under ``PATH``, begun within ``CONCURRENT`` of a cycle of ``new_paths``, where the arm goes to another pick point
-    (its joints move through other angles, at other speeds, so their errors and currents shift a little; a
-    drive that changed with it changes more). A load change reads carrying against not carrying: its own."""
-    moved = [r for r in rated if r[1] != "load_change" and _size(r) < PATH
-             and any(abs(r[0] - p) <= CONCURRENT for p in new_paths)]
+    under its allowance (``_path_allowance``), where the arm goes to another pick point (its joints move through
+    other angles, at other speeds, so their errors and currents shift a little; a drive that changed with it
+    changes more)."""
+    moved = [r for r in rated if _size(r) < _path_allowance(r, new_paths)]
     return [r for r in rated if r not in moved], moved
+
+
+def _path_allowance(r: tuple, new_paths: Sequence[tuple[int, float]]) -> float:
+    """How much of rated joint ``r``'s change a new path that began within ``CONCURRENT`` of it can make:
+    ``PATH_PER_MM`` of each mm the grasp pose moved (the larger move if two), 0 where none did. The angles the
+    path changes grow with the move: a fixed 2 % told a servo gain loss that came with a 2 mm camera shift
+    (shoulder_lift error +2.0 %) as the new path's. A load change reads carrying against not carrying: its own."""
+    mm = [m for cycle, m in new_paths if abs(r[0] - cycle) <= CONCURRENT]
+    return PATH_PER_MM * max(mm) if mm and r[1] != "load_change" else 0.0
 
 
 def _own_drive(r: tuple, lead: tuple, grounded: bool) -> bool:
@@ -687,10 +712,16 @@ def intermittent_findings(baseline: Baseline, cycles: Sequence[Cycle], z: np.nda
     return out
 
 
+UNCHANGED_CURRENT = "current unchanged"
+
+
 def _unchanged_currents(w: _Window, start: int) -> str:
+    """``UNCHANGED_CURRENT`` where every joint's current RMS stayed within ``UNCHANGED_Z`` scales (a geometry
+    finding says so; it drops the line beside a joint finding that began with it, or a joint told in it as the new
+    path's whose current moved ``MATERIAL`` or more)."""
     zs = [abs(w.zmed(n, start)) for n in w.baseline.names if n.startswith("current_rms.")]
     zs = [z for z in zs if np.isfinite(z)]
-    return "current unchanged" if zs and max(zs) < UNCHANGED_Z else ""
+    return UNCHANGED_CURRENT if zs and max(zs) < UNCHANGED_Z else ""
 
 
 def _largest(*values: float) -> float:
