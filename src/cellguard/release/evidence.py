@@ -3,16 +3,19 @@
 A run folder holds ``record.mcap`` (read with ``cellguard.record.reader``) and, for a pilot run in
 shadow mode, ``shadow.json`` (per chunk: distance to the incumbent, would-clamp, would-stop). A
 counted run is read only as the record that was counted: hashed again, its context naming the
-release, cell and stage that counted it. Its chunks and ticks are kept reduced (``reductions``).
+release, cell and stage that counted it, and its shadow rows only as the file counted with it
+(hashed again; a row an older cellguard counted holds no hash: its file is read as found). Its
+chunks and ticks are kept reduced (``reductions``).
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 from dataclasses import dataclass
 from pathlib import Path
 
-from cellguard.errors import CellguardError
+from cellguard.errors import CellguardError, RecordError
 from cellguard.record.reader import CycleRecord, EventRecord, open_record
 from cellguard.record.writer import RECORD_FILE
 from cellguard.release.bundle import sha256_file
@@ -37,6 +40,7 @@ class RunEvidence:
     chunks: Chunks
     limits: LimitTicks  # its recorded (decimated) ticks outside the profile's limits
     shadow: tuple[dict, ...] | None  # per candidate chunk, or None when the run had no shadow
+    shadow_sha256: str | None = None  # the sha256 of the shadow file read
 
     def label(self, cycle: int | None = None) -> str:
         return f"record {self.record_id} ({self.name})" + (f" cycle {cycle}" if cycle is not None else "")
@@ -48,22 +52,40 @@ def record_id(folder: Path) -> str:
 
 
 def load_run(folder: Path, name: str) -> RunEvidence:
-    """The run in ``folder``, its id hashed from the record file read (never taken from elsewhere)."""
+    """The run in ``folder``, its id hashed from the record file read, and its shadow's from the bytes parsed (never
+    taken from elsewhere)."""
     folder = Path(folder)
     with open_record(folder) as rec:
         context = rec.context
         cycles, events, chunks = tuple(rec.cycles()), tuple(rec.events()), reduce_chunks(rec.chunks())
         ticks = rec.ticks(rate="decimated")
         limits = limit_ticks(ticks, make_cell(str(context.get("cell"))).profile) if len(ticks) else LimitTicks()
-    shadow_path = folder / SHADOW_FILE
-    shadow = tuple(json.loads(shadow_path.read_text())["chunks"]) if shadow_path.is_file() else None
-    return RunEvidence(record_id(folder), name, str(folder), context, cycles, events, chunks, limits, shadow)
+    shadow, digest = _shadow(folder / SHADOW_FILE)
+    return RunEvidence(record_id(folder), name, str(folder), context, cycles, events, chunks, limits, shadow, digest)
+
+
+def _shadow(path: Path) -> tuple[tuple[dict, ...] | None, str | None]:
+    """(its chunks, the sha256 of the bytes read), or (None, None) when there is no such file; RecordError when it
+    cannot be read or holds no list of chunks (a damaged file was a traceback)."""
+    if not path.is_file():
+        return None, None
+    try:
+        data = path.read_bytes()
+        chunks = json.loads(data)["chunks"]
+    except OSError as exc:
+        raise RecordError(f"{path}: cannot read ({exc.strerror or exc.__class__.__name__})") from None
+    except (ValueError, TypeError, KeyError):
+        chunks = None
+    if not isinstance(chunks, list) or not all(isinstance(c, dict) for c in chunks):
+        raise RecordError(f"{path}: not a shadow record (a JSON object with a list of chunks)")
+    return tuple(chunks), hashlib.sha256(data).hexdigest()
 
 
 def counted_run(store: Store, row: RunRow) -> RunEvidence:
     """``row``'s run as evidence; ReleaseError naming its folder unless it is the record that was counted (same
-    hash) and its context names the row's release, cell and stage: a record put in its place, even one that
-    passed for another release, is never read as this run."""
+    hash) and its context names the row's release, cell and stage, nor with other shadow rows than those counted
+    with it (``row.shadow``): a record put in its place, even one that passed for another release, is never read as
+    this run, and an edited shadow file never turns its candidate's verdict."""
     folder = store.run_folder(row)
     try:
         run = load_run(folder, row.name)
@@ -72,6 +94,10 @@ def counted_run(store: Store, row: RunRow) -> RunEvidence:
     if run.record_id != row.record_id:
         raise ReleaseError(f"{folder}: holds record {run.record_id}, not {row.record_id} that was counted as run "
                            f"{row.name!r} (replaced since)")
+    if row.shadow is not None and run.shadow_sha256 != row.shadow:
+        now = f"hashes to {run.shadow_sha256[:16]}" if run.shadow_sha256 else "is gone"
+        raise ReleaseError(f"{folder}: its {SHADOW_FILE} {now}, not {row.shadow[:16]} as counted with run "
+                           f"{row.name!r} (edited since)")
     bound = run.context.get("release") if isinstance(run.context, dict) else None
     got = tuple(bound.get(k) for k in ("id", "cell", "stage")) if isinstance(bound, dict) else (None,) * 3
     if got != (row.release, row.cell, row.stage):

@@ -218,11 +218,10 @@ def run_stage(store: Store, plan: StagePlan, cell: str, stage: str, runs: list[d
             raise RecordError(f"the record of {stage} run {name!r} on {cell} could not be written "
                               f"({run.recording.failed}); the run is not counted and the stage's gates were not "
                               f"evaluated; {folder / 'summary.json'} says what ran")
-        if plan.shadow:
-            run.write_shadow(folder)
+        shadow = run.write_shadow(folder) if plan.shadow else None
         try:
             store.add_run(record_id(folder), cell, stage, bundle.id, name, folder, start.move_seq,
-                          runs_key(plan, runs))
+                          runs_key(plan, runs), shadow)
         except ReleaseError as exc:
             raise ReleaseError(f"{stage} run {name!r} on {cell}: its record in {folder} is kept but could not be "
                                f"counted ({exc}); the stage's gates were not evaluated") from None

@@ -13,6 +13,7 @@ Written to ``shadow.json`` beside the record.
 
 from __future__ import annotations
 
+import hashlib
 import json
 from pathlib import Path
 
@@ -129,17 +130,19 @@ class ShadowRun(Run):
             raise ConfigError("shadow mode runs the candidate beside the incumbent in the loop's process: "
                               "realtime.inference must be 'thread'")
         super().__init__(scenario)
-        try:
-            shadow_guard = build_guard(self.cell, candidate_guard)
+        try:  # at rest where the live guard is: measured again, a draw of the cell's noise changed the live run
+            shadow_guard = build_guard(self.cell, candidate_guard, q0=self.guard.reference)
             self.policy = ShadowedPolicy(self.policy, make_policy(candidate, self.cell), shadow_guard,
                                          self.cell.dt_ns, lambda: self.cycles.total, candidate_guard.watchdog_s)
         except BaseException:  # the incumbent's policy and a bridge are open: close them
             self.close()
             raise
 
-    def write_shadow(self, folder: Path) -> Path:
-        """``shadow.json`` beside the record, written to a temporary name and renamed (atomic)."""
+    def write_shadow(self, folder: Path) -> str:
+        """``shadow.json`` beside the record, written to a temporary name and renamed (atomic); the sha256 of what
+        was written, which the run's row keeps (``evidence.counted_run`` reads only that file as its shadow)."""
         rows = [{**r, "distance_rad": r["distance_rad"] if r["distance_rad"] is None or np.isfinite(r["distance_rad"])
                  else 1e9} for r in self.policy.rows]
-        return write_output(Path(folder) / SHADOW_FILE, json.dumps({"candidate": self.policy.candidate.source,
-                                                                     "chunks": rows}), "shadow record")
+        data = json.dumps({"candidate": self.policy.candidate.source, "chunks": rows}).encode()
+        write_output(Path(folder) / SHADOW_FILE, data, "shadow record")
+        return hashlib.sha256(data).hexdigest()

@@ -22,12 +22,13 @@ from cellguard.release.errors import ReleaseError
 STORE_FILE = "release.sqlite"
 LOCK_WAIT_S = 5.0  # how long a command waits for another's write lock before it is refused
 STAGES = ("sim", "bench", "pilot", "production")
+ADDED_RUN_COLUMNS = ("runs_sha256", "shadow_sha256")  # the runs columns an older cellguard's store lacks
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS bundles (id TEXT PRIMARY KEY, manifest TEXT NOT NULL);
 CREATE TABLE IF NOT EXISTS pointers (cell TEXT, stage TEXT, current TEXT, last_good TEXT, PRIMARY KEY (cell, stage));
 CREATE TABLE IF NOT EXISTS runs (seq INTEGER PRIMARY KEY AUTOINCREMENT, record_id TEXT NOT NULL, cell TEXT,
-    stage TEXT, release TEXT, name TEXT, folder TEXT, since_log INTEGER, runs_sha256 TEXT);
+    stage TEXT, release TEXT, name TEXT, folder TEXT, since_log INTEGER, runs_sha256 TEXT, shadow_sha256 TEXT);
 CREATE TABLE IF NOT EXISTS log (seq INTEGER PRIMARY KEY, body TEXT NOT NULL, prev_hash TEXT NOT NULL,
     hash TEXT NOT NULL);
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT);
@@ -46,7 +47,9 @@ class Pointers:
 class RunRow:
     """One run of a release at a stage: ``record_id`` is the sha256 of its record file (first 16 hex); ``folder``
     is its run folder relative to the site (``runs/<cell>/<stage>/<number>-<name>``); ``runs`` what made it: the
-    stage's runs part of its plan (``promotion.runs_key``; None: made by an older cellguard, which noted none)."""
+    stage's runs part of its plan (``promotion.runs_key``; None: made by an older cellguard, which noted none);
+    ``shadow`` the sha256 of its ``shadow.json`` (None: no shadow run, or one an older cellguard counted without
+    it, whose shadow rows are read as found)."""
 
     seq: int
     record_id: str
@@ -56,6 +59,7 @@ class RunRow:
     name: str
     folder: str
     runs: str | None
+    shadow: str | None
 
 
 def check_stage(stage: str) -> str:
@@ -186,18 +190,19 @@ class Store:
 
     # runs
     def add_run(self, record_id: str, cell: str, stage: str, release: str, name: str, folder: Path,
-                since_log: int, runs: str) -> None:
-        """Count the run in ``folder`` (under the site), made by ``runs`` (``promotion.runs_key``): kept relative
-        to the site, so the site is read the same from any working directory, and a copied site reads its own
-        records. A store an older cellguard made takes the column here, at its first run, not as a command only
-        reads it."""
+                since_log: int, runs: str, shadow: str | None = None) -> None:
+        """Count the run in ``folder`` (under the site), made by ``runs`` (``promotion.runs_key``), its shadow rows
+        the file hashing to ``shadow`` (a pilot run's): kept relative to the site, so the site is read the same from
+        any working directory, and a copied site reads its own records. A store an older cellguard made takes the
+        columns here, at its first run, not as a command only reads it."""
         with self.transaction():
-            if not self._notes_runs():
-                self.db.execute("ALTER TABLE runs ADD COLUMN runs_sha256 TEXT")
-            self.db.execute("INSERT INTO runs (record_id, cell, stage, release, name, folder, since_log, runs_sha256) "
-                            "VALUES (?, ?, ?, ?, ?, ?, ?, ?)", (record_id, cell, stage, release, name,
-                                                                Path(folder).relative_to(self.site).as_posix(),
-                                                                since_log, runs))
+            have = self._run_table()
+            for column in (c for c in ADDED_RUN_COLUMNS if c not in have):
+                self.db.execute(f"ALTER TABLE runs ADD COLUMN {column} TEXT")
+            self.db.execute("INSERT INTO runs (record_id, cell, stage, release, name, folder, since_log, runs_sha256, "
+                            "shadow_sha256) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                            (record_id, cell, stage, release, name, Path(folder).relative_to(self.site).as_posix(),
+                             since_log, runs, shadow))
 
     def run_folder(self, row: RunRow) -> Path:
         """Where ``row``'s run is in this site: ``runs/<cell>/<stage>/`` and the folder's own name (older stores
@@ -215,14 +220,16 @@ class Store:
         rows = self.db.execute(f"SELECT {self._run_columns()} FROM runs")
         return {r[0]: RunRow(*r) for r in rows}
 
-    def _notes_runs(self) -> bool:
-        """Whether the runs table has the column of what made each run (a store an older cellguard made has not,
-        until a run)."""
-        return any(r[1] == "runs_sha256" for r in self.db.execute("PRAGMA table_info(runs)"))
+    def _run_table(self) -> set[str]:
+        """The runs table's columns (a store an older cellguard made lacks some of ``ADDED_RUN_COLUMNS``, until a
+        run)."""
+        return {r[1] for r in self.db.execute("PRAGMA table_info(runs)")}
 
     def _run_columns(self) -> str:
-        """A ``RunRow``'s columns, what made the run NULL where the table has no such column yet."""
-        return f"seq, record_id, cell, stage, release, name, folder, {'runs_sha256' if self._notes_runs() else 'NULL'}"
+        """A ``RunRow``'s columns, NULL for each the table has no column for yet."""
+        have = self._run_table()
+        return ", ".join(["seq, record_id, cell, stage, release, name, folder"] +
+                         [c if c in have else "NULL" for c in ADDED_RUN_COLUMNS])
 
     def next_run_number(self) -> int:
         return (self.db.execute("SELECT COALESCE(MAX(seq), 0) FROM runs").fetchone()[0]) + 1
