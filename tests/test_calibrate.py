@@ -161,10 +161,10 @@ def test_bad_input_is_one_line_and_exit_2(nominal_record, tmp_path):
 
 
 def test_excite_cli_records(tmp_path):
-    result = runner.invoke(app, ["excite", ARM, "--seconds", "2", "--out", str(tmp_path / "ex")])
+    result = runner.invoke(app, ["excite", ARM, "--seconds", "7", "--out", str(tmp_path / "ex")])
     assert result.exit_code == 0, result.output
     assert "0 guard events" in result.output
-    again = runner.invoke(app, ["excite", ARM, "--seconds", "2", "--out", str(tmp_path / "ex")])
+    again = runner.invoke(app, ["excite", ARM, "--seconds", "7", "--out", str(tmp_path / "ex")])
     assert again.exit_code == 2  # a record already there is never overwritten
 
 

@@ -16,7 +16,7 @@ def test_help_keeps_the_unit():
 
 def test_the_record_path_prints_as_given(tmp_path):
     out = tmp_path / "ex\x1b[31mRED"
-    result = runner.invoke(app, ["excite", "arm-pick-place", "--seconds", "1", "--out", str(out)])
+    result = runner.invoke(app, ["excite", "arm-pick-place", "--seconds", "7", "--out", str(out)])
     assert result.exit_code == 0, result.output
     assert "\x1b" not in result.output
-    assert result.stdout.startswith(str(out).replace("\x1b", "\\x1b") + ": 1 s of excitation recorded")
+    assert result.stdout.startswith(str(out).replace("\x1b", "\\x1b") + ": 7 s of excitation recorded")

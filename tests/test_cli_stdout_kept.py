@@ -112,7 +112,7 @@ def _diagnose(tmp_path, recorded):
 
 
 def _excite(tmp_path, recorded):
-    return ["excite", CELL, "--seconds", "1", "--out", str(tmp_path / "ex")], f"the record in {tmp_path / 'ex'}"
+    return ["excite", CELL, "--seconds", "7", "--out", str(tmp_path / "ex")], f"the record in {tmp_path / 'ex'}"
 
 
 def _train_demo_policy(tmp_path, recorded):

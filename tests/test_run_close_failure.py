@@ -82,6 +82,6 @@ def test_an_excitation_whose_index_cannot_be_written_at_close_is_one_line_and_ex
     """`excite` ended 0 with its usual line, and `identify` then read a record without its index."""
     monkeypatch.setattr(index.IndexWriter, "flush", _denied)
     out = tmp_path / "excite"
-    result = runner.invoke(app, ["excite", "arm-pick-place", "--seconds", "1", "--out", str(out)])
+    result = runner.invoke(app, ["excite", "arm-pick-place", "--seconds", "7", "--out", str(out)])
     assert result.exit_code == 1, result.output
     assert _error_line(result).startswith(f"error: the record in {out} failed at its close: {out / 'index'}")

@@ -23,6 +23,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -65,11 +66,12 @@ def refuse_dropped_payload(path: Path, cell, wanted: tuple[str, ...]) -> None:
 
 
 def check_write_target(path: Path, cell) -> None:
-    """Before any record is read: ``path`` (a link: its target) is not a kept copy (``_refuse_kept_copy``), and the
-    files a write adds beside it have names a file system takes, at most NAME_MAX bytes: the old profile kept as
-    NAME.VERSION.yaml and the calibrated MJCF as NAME.DATE-cal-HASH.xml (a 300-character version failed only after
-    the fit, in a traceback)."""
+    """Before any record is read: ``path`` (a link: its target) is not a cell's installed profile
+    (``_refuse_packaged``) nor a kept copy (``_refuse_kept_copy``), and the files a write adds beside it have names a
+    file system takes, at most NAME_MAX bytes: the old profile kept as NAME.VERSION.yaml and the calibrated MJCF as
+    NAME.DATE-cal-HASH.xml (a 300-character version failed only after the fit, in a traceback)."""
     path = _target(path)
+    _refuse_packaged(path, cell)
     version = _checked(path, cell, read_bounded(path, "profile", ProfileError))["version"]
     _refuse_kept_copy(path, str(version))
     kept = f"the old profile's copy {path.stem}.VERSION{path.suffix} (its version is {_bytes(version)} bytes)"
@@ -109,6 +111,20 @@ def _refuse_kept_copy(path: Path, version: str) -> None:
         raise ProfileError(f"--write: {path} is the copy of version {version} kept when its profile was recalibrated "
                            f"(releases and records of that version read it); write the profile it was kept from, or "
                            f"copy it to another name first (nothing written)")
+
+
+def _refuse_packaged(path: Path, cell) -> None:
+    """A profile inside an installed package (cellguard's, or the package of a plugin's cell) is a cell's stock one,
+    which every run of that cell on this install reads: calibrated in place, each ran the calibration without any
+    scenario naming it. Refused (its real path: a link or a folder link is followed): write a copy of it."""
+    real = Path(os.path.realpath(path))
+    for package in dict.fromkeys(("cellguard", type(cell).__module__.partition(".")[0])):
+        for folder in getattr(sys.modules.get(package), "__path__", ()):
+            if real.is_relative_to(os.path.realpath(folder)):
+                raise ProfileError(f"--write: {path} is in the installed package {package} ({folder}): a cell's "
+                                   f"own profile, which every run of the cell here reads; copy it to another "
+                                   f"folder and write the copy (a scenario's calibration: COPY runs with it; "
+                                   f"nothing written)")
 
 
 def _target(path: Path) -> Path:

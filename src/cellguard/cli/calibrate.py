@@ -25,14 +25,18 @@ def excite(
                                "cell is mounted; the record says so, and identify then fits its joints)."),
 ) -> None:
     """Run a persistently exciting trajectory inside the profile's limits through the guard, and record it."""
-    from cellguard.calibrate.excitation import excitation_scenario
+    from cellguard.calibrate.excitation import BASE_HZ, FADE_S, excitation_scenario
     from cellguard.calibrate.excitation import excite as run_excitation
     from cellguard.errors import ScenarioError
     from cellguard.scenario import load_scenario
 
+    # past the fade-in, half a base period turns even the slowest harmonic, so every joint's velocity takes both signs
+    # at full swing (friction told from damping): at 1 s, in the fade-in, damping came out 6.7 standard errors off
+    shortest = FADE_S + 0.5 / BASE_HZ
     try:
-        if not 1.0 <= seconds <= 3600.0:
-            raise ScenarioError(f"--seconds: {seconds} is outside 1..3600 s")
+        if not shortest <= seconds <= 3600.0:
+            raise ScenarioError(f"--seconds: {seconds:g} is outside {shortest:g}..3600 s (the fade-in, then half the "
+                                "slowest harmonic's period: a shorter record fits friction and damping wrong)")
         base = load_scenario(Path(target)) if target.endswith((".yaml", ".yml")) else target
         from cellguard.calibrate.stand import Stand
 
@@ -157,6 +161,10 @@ def _whole_for_write(write: Path | None, healths: list) -> None:
                                    "only from whole records (identify without --write reports the fit)")
 
 
+# how every page report/replay.py renders begins (since the first): the one kind of file replay replaces
+REPLAY_PAGE = b"<!doctype html><html lang=en><head><meta charset=utf-8><title>cellguard replay</title>"
+
+
 @app.command()
 def replay(
     record: Path = typer.Argument(..., help="A record folder or its .mcap file."),
@@ -170,7 +178,8 @@ def replay(
     vary: str | None = typer.Option(None, "--vary", help="PARAM:JOINT=LOW..HIGH, e.g. friction:elbow=0.8..1.6: "
                                     "search the factor that best reproduces the recorded cycle."),
     out: Path | None = typer.Option(None, "-o", "--out", help="HTML page (default: replay-cycle-N.html in the "
-                                   "record's folder); never the record, a file of its run folder or --profile."),
+                                   "record's folder); a file there is replaced only if it is a replay page (or "
+                                   "empty): never the record, a profile, an MJCF or any other file."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),
 ) -> None:
     """Re-run a recorded cycle's chunks in the simulator from its recorded start; overlay simulated and recorded.
@@ -190,6 +199,7 @@ def replay(
         page = out or record_file(record).parent / f"replay-cycle-{cycle}.html"
         # before the simulation: never over the record, its run folder's files or the --profile read
         refuse_output(page, record, inputs=[("--profile file", profile)], own=("replay-cycle-*.html",))
+        _refuse_other_file(page)
         result = run_replay(record, cycle, model=model, profile=profile, vary=vary)
         write_replay(result, page)
         stdout.written(f"the replay page {page}")
@@ -211,3 +221,22 @@ def replay(
             err=False)
     say(f"  {page}", err=False)
     raise typer.Exit(damaged)
+
+
+def _refuse_other_file(page: Path) -> None:
+    """The page replaces only an earlier replay page (or an empty file): the profile a replay reads is found by its
+    sha256 wherever the record's run read it, so no list of inputs covers every name (a profile, its calibrated
+    MJCF and a kept copy were replaced by the page, and the next run failed on it)."""
+    from cellguard.errors import RecordError
+
+    try:
+        with open(page, "rb") as f:
+            head = f.read(len(REPLAY_PAGE))
+    except FileNotFoundError:
+        return
+    except OSError as exc:
+        raise RecordError(f"-o {page}: cannot be read to tell whether it is a replay page ({exc.strerror}); "
+                          "choose another path") from None
+    if head and head != REPLAY_PAGE:
+        raise RecordError(f"-o {page}: exists and is not a page cellguard replay wrote; replay replaces only its "
+                          "own pages: choose another path, or remove the file first")
