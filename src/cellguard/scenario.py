@@ -12,7 +12,7 @@ from pathlib import Path
 
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationError, model_validator
 
 from cellguard.control.config import GuardConfig
 from cellguard.errors import ScenarioError
@@ -110,6 +110,7 @@ class Scenario(BaseModel):
     residual_monitor: bool = Field(default=False, description="watch each cycle's measured torque against the "
                                    "model's (the calibration's, else the profile's measured values): the point where "
                                    "the robot has drifted beyond its simulator, in the record and the diagnosis")
+    _path: str | None = PrivateAttr(default=None)  # the file ``load_scenario`` read it from
 
     @property
     def total_cycles(self) -> int:
@@ -120,7 +121,16 @@ class Scenario(BaseModel):
         return declared_changes(self.process_changes, cycle)
 
     def check_against(self, cell) -> None:
-        """Refuse faults the cell cannot simulate and joints its profile does not have."""
+        """Refuse faults the cell cannot simulate, joints its profile does not have and recoveries it cannot run;
+        naming the scenario's file, as a refusal while it is read does (without, the user had a key and no file)."""
+        try:
+            self._check_cell(cell)
+        except ScenarioError as exc:
+            if self._path is None:
+                raise
+            raise ScenarioError(f"{self._path}: {exc}") from None
+
+    def _check_cell(self, cell) -> None:
         for i, fault in enumerate(self.faults):
             if fault.kind not in cell.supported_faults:
                 raise ScenarioError(
@@ -233,7 +243,9 @@ def _check_values(value: object, loc: tuple, origin: str) -> None:
 
 def load_scenario(path: Path) -> Scenario:
     """Read and validate a scenario file."""
-    return parse_scenario(read_yaml(path, "scenario", ScenarioError), origin=str(path))
+    scenario = parse_scenario(read_yaml(path, "scenario", ScenarioError), origin=str(path))
+    scenario._path = str(path)
+    return scenario
 
 
 def _format_loc(loc: tuple) -> str:

@@ -22,7 +22,7 @@ def train_demo_policy(
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing ONNX file at --out."),
     cycles: int = typer.Option(10, min=2, max=500, help="Scripted demonstration cycles to record."),
     random_features: int = typer.Option(64, min=0, max=4096, help="Random tanh units beside the time basis."),
-    seed: int = typer.Option(0, help="Seed of the demonstrations and the initial weights."),
+    seed: int = typer.Option(0, min=0, help="Seed of the demonstrations and the initial weights."),
     fixture_dx_mm: float = typer.Option(0.0, "--fixture-dx-mm", min=-5.0, max=5.0,
                                         help="Record the demonstrations with the fixture moved this far in x \\[mm]."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),

@@ -123,9 +123,9 @@ def recovery_finding(cycles: Sequence[Cycle], attempts: Sequence[tuple[int, Reco
             lead = f", {np.median(arrived) - close:.2f} s before the arm arrived" if arrived else ""
             evidence.append(f"their gripper was told to shut at {close:.2f} s{lead}: the fingers closed above the part")
         late_cycles = {c for c, _ in late if c in phase}
-        resumed = {c for c, o in prod if c in late_cycles and o.outcome == "resumed" and o.close_s is not None}
+        resumed = {c for c, o in prod if c in late_cycles and o.resumed_cell()}
         acc_cycles = {c for c, o in attempts if phase.get(c) == "acceptance"}
-        acc_resumed = {c for c, o in attempts if c in acc_cycles and o.outcome == "resumed"}
+        acc_resumed = {c for c, o in attempts if c in acc_cycles and o.resumed_cell()}
         evidence.append(f"they picked the part again in {len(resumed)} of {len(late_cycles)} cycles vs "
                         f"{len(acc_resumed)} of {len(acc_cycles)} at acceptance")
         evidence.append("the arm ran slower than the recovery's plan while the gripper kept its timing: a speed "
@@ -157,11 +157,12 @@ def _late(o: RecoveryOutcome, ref_s: float | None) -> bool:
 
 
 def _without_effect(acc, prod) -> tuple[int, str] | None:
-    """Production cycles whose recoveries never resumed the cell, where acceptance ones did."""
+    """Production cycles whose recoveries never resumed the cell (``RecoveryOutcome.resumed_cell``: an operator
+    hand-over or a rehome that ran out does not), where acceptance ones did."""
     cycles: dict[int, list[RecoveryOutcome]] = {}
     for c, o in prod:
         cycles.setdefault(c, []).append(o)
-    stuck = sorted(c for c, os in cycles.items() if len(os) > 1 and not any(o.outcome == "resumed" for o in os))
+    stuck = sorted(c for c, os in cycles.items() if len(os) > 1 and not any(o.resumed_cell() for o in os))
     acc_ok = not acc or np.mean([o.outcome in ("resumed", "failed") for o in acc]) >= 0.8
     if len(stuck) < MIN_LATE or not acc_ok or len(stuck) < 0.5 * len(cycles):
         return None

@@ -4,12 +4,13 @@ drives the cell in place of the policy, through the same guard (chunks in, envel
 Each attempt is a ``recovery_start`` / ``recovery_end`` event pair; the end says (in words, and as fields in
 ``Event.recovery``, as the cycle's ``recovery_log``) how long it took, when the arm arrived at its contact pose
 (measured) against when the gripper was told to shut, and the outcome: ``resumed`` (its plan ran out with no
-failed check: the cell carries on), ``failed`` (another attempt follows), ``escalated`` (its ``then`` follows),
-``gave_up`` (nothing left, or the per-cycle limit: the cell goes home), ``cut_off`` (the cell's task ended the cycle
-first, or a category 0 or 1 stop removed the power mid-plan: no attempt starts after it in that cycle). Once a
-recovery has started it drives the cell to the end of the cycle, and the cycle's time-out waits for
-the attempt in progress (``attempting``): an operator hand-over holds for its whole ``hold_s`` and
-ends in its reset, and no attempt is left mid-move for the next cycle's policy to start from (an
+failed check: the cell carries on; after a plan with no contact, a rehome or an operator hand-over, with the next
+cycle, this one failed, so the cycle's ``recovery_resumed`` leaves it out), ``failed`` (another attempt follows),
+``escalated`` (its ``then`` follows), ``gave_up`` (nothing left, or the per-cycle limit: the cell goes home),
+``cut_off`` (the cell's task ended the cycle first, or a category 0 or 1 stop removed the power mid-plan: no attempt
+starts after it in that cycle). Once a recovery has started it drives the cell to the end of the cycle, and the
+cycle's time-out waits for the attempt in progress (``attempting``): an operator hand-over holds for its whole
+``hold_s`` and ends in its reset, and no attempt is left mid-move for the next cycle's policy to start from (an
 operator hold of 30 s was cut off after 6 s and the cell moved again with no reset). Attempts are
 bounded by ``attempts``, acyclic escalation or ``max_per_cycle``. A failed check during an attempt ends it once
 the arm has reached its contact pose (or the plan has passed it): a controller finishes the move in
@@ -62,7 +63,7 @@ class RecoveryRunner:
         self.policy, self.cell, self.events = policy, cell, events
         self._failed_check = getattr(cell, "failed_check", lambda: None)  # a robot without checks never triggers
         self.arm_speed = 1.0
-        self._log: list[dict] = []
+        self._log: list[RecoveryOutcome] = []
         self.begin_cycle()
 
     def begin_cycle(self) -> None:
@@ -71,7 +72,7 @@ class RecoveryRunner:
         self._tail: tuple[Plan, int] | None = None  # after a recovery: its plan's end, or home, held
         self._home_by = 0  # after the last attempt gave up: when the move home ends [ns]
         self._next_chunk = 0
-        self._log: list[dict] = []
+        self._log: list[RecoveryOutcome] = []
         self._origin: np.ndarray | None = None  # the reference when the cycle's first check failed
         self._now = 0
         self._held = False  # a category 2 stop holds the arm (see _follow)
@@ -152,17 +153,17 @@ class RecoveryRunner:
             self._end(a, self._now, "cut_off" if cut else "resumed")
             self._active = None
         log = self._log
-        arrivals = [r["arrival_s"] for r in log if r.get("arrival_s") is not None]
-        closes = [r["close_s"] for r in log if r.get("close_s") is not None]
-        out = {"recoveries": len(log), "recoveries_failed": sum(r["outcome"] != "resumed" for r in log),
-               "recovery_resumed": float(any(r["outcome"] == "resumed" for r in log)),
-               "recovery_s": float(sum(r["duration_s"] for r in log)), "after_recovery": float(self._previous > 0)}
+        arrivals = [o.arrival_s for o in log if o.arrival_s is not None]
+        closes = [o.close_s for o in log if o.close_s is not None]
+        out = {"recoveries": len(log), "recoveries_failed": sum(o.outcome != "resumed" for o in log),
+               "recovery_resumed": float(any(o.resumed_cell() for o in log)),
+               "recovery_s": float(sum(o.duration_s for o in log)), "after_recovery": float(self._previous > 0)}
         if arrivals:
             out["recovery_arrival_s"] = float(np.max(arrivals))
         if closes:
             out["recovery_close_s"] = float(np.min(closes))
         if log:
-            out["recovery_log"] = log
+            out["recovery_log"] = [o.to_dict() for o in log]
         return out
 
     def _follow(self, stop: tuple[int, str] | None) -> bool:
@@ -244,8 +245,7 @@ class RecoveryRunner:
         close = a.plan.close_t
         done = RecoveryOutcome(a.behaviour.do, a.trigger, a.attempt, outcome, round((t - a.start) * 1e-9, 3),
                                *(None if v is None else round(v, 3) for v in (arrival, close)))
-        entry = done.to_dict()
-        self._log.append(entry)  # in the cycle's row, at its end; the event is recorded now
+        self._log.append(done)  # in the cycle's row, at its end; the event is recorded now
         self.events.append(Event(t, EventKind.RECOVERY_END, done.reason(),
-                                 recovery={k: v for k, v in entry.items() if v is not None}))
+                                 recovery={k: v for k, v in done.to_dict().items() if v is not None}))
         self._active = None

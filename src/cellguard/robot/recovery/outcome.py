@@ -41,6 +41,12 @@ class RecoveryOutcome:
             words += f"; arrived at contact at {arrived}, gripper shut at {self.close_s:.3f} s"
         return f"{words}; outcome {self.outcome}"
 
+    def resumed_cell(self) -> bool:
+        """Whether the attempt got the cell's task going again: ``resumed`` after a contact. A plan with no contact
+        (``rehome``, an ``operator`` hand-over) goes home and its cycle fails by design, though it too ends
+        ``resumed`` (its plan ran out with no failed check); counted, it hid recoveries repeated without effect."""
+        return self.outcome == "resumed" and self.close_s is not None
+
     def to_dict(self) -> dict:
         return dict(self.__dict__)
 
