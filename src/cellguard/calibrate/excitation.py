@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from cellguard.errors import ScenarioError
 from cellguard.policy.chunk import ActionChunk
 from cellguard.policy.protocol import Policy, behaviour_hash
 from cellguard.robot.state import Observation
@@ -87,10 +88,16 @@ class ExcitationPolicy(Policy):
 
 def excitation_scenario(cell_or_scenario: str | Scenario, seconds: float, seed: int = 0) -> Scenario:
     """One episode of ``seconds``, its end by time, on a registered cell (by name) or on a scenario's
-    robot (its guard settings and seed kept; its policy, cycles and faults dropped)."""
+    robot (its guard settings and seed kept; its policy and cycles dropped). A scenario with faults or process
+    changes is refused: they are set for its cycles, not for the excitation's one, and dropped silently the fit
+    would report the robot without them while the user thinks it has them."""
     base = Scenario(cell=cell_or_scenario, seed=seed) if isinstance(cell_or_scenario, str) else cell_or_scenario
-    return base.model_copy(update={"policy": "excite", "acceptance_cycles": 1, "production_cycles": 0, "faults": [],
-                                   "process_changes": [], "cycle": CycleSettings(source="time", seconds=seconds)})
+    given = [key for key in ("faults", "process_changes") if getattr(base, key)]
+    if given:
+        raise ScenarioError(f"{', '.join(given)}: an excitation injects none (they are set for the scenario's "
+                            "cycles) and would record the robot without them; give a scenario without them")
+    return base.model_copy(update={"policy": "excite", "acceptance_cycles": 1, "production_cycles": 0,
+                                   "cycle": CycleSettings(source="time", seconds=seconds)})
 
 
 def excite(scenario: Scenario, out: Path, physics=None, overwrite: bool = False, stand=None) -> dict:

@@ -22,7 +22,8 @@ misses one parameter in twenty by design. The standard errors are heteroskedasti
 correlated in time by an effective sample size (``_ess_factor``: a model mismatch that follows the
 motion makes neighbouring residuals alike, and the textbook error, which assumes they are not,
 would understate the spread). A column that the data does not excite (near-zero norm or in the near-null space) is
-"not identifiable". The delay's interval is the search's resolution (one servo period either side).
+"not identifiable"; so are a joint's friction and damping unless it moved both ways (``moves_both_ways``). The
+delay's interval is the search's resolution (one servo period either side).
 
 The method has a small bias of its own (the fit's finite-difference torque model against the
 integrator's step, dry friction near velocity reversals): noise explains the spread, not the offset
@@ -57,6 +58,7 @@ SATURATED = 0.95  # samples with effort beyond this fraction of the force range 
 LEVEL = 0.95  # joint coverage of all reported intervals of one fit
 ESS_LAGS = 100  # lags over which residual correlation is counted in the effective sample size [ticks]
 NULL_EIG = 1e-10  # relative eigenvalue of the scaled normal matrix below which a direction is unexcited
+BOTH_WAYS_TICKS = ESS_LAGS  # ticks a joint must move in each direction to identify its friction and damping
 
 
 class CalibrationError(ConfigError):
@@ -89,7 +91,8 @@ class Estimate:
 
 @dataclass(frozen=True)
 class Segment:
-    """Ticks of one record: (n, dof) arrays in profile joint order; ``tau`` the measured torque [N*m]."""
+    """Ticks of one record: (n, dof) arrays in profile joint order; ``tau`` the measured torque [N*m] (NaN on a
+    joint not fitted whose drive reports no current)."""
 
     q: np.ndarray
     qd: np.ndarray
@@ -143,6 +146,18 @@ def parse_only(items: list[str], cell) -> list[tuple[str, str]]:
     return pairs
 
 
+def moves_both_ways(qd: np.ndarray) -> np.ndarray:
+    """Per column of ``qd`` (n, joints): whether the joint moved faster than ``MIN_SPEED`` each way on at least
+    ``BOTH_WAYS_TICKS`` ticks, which its friction and damping need. Dry friction is ``F sign(qd)``: what tells it
+    from a torque the model misses that keeps its sign whichever way the joint turns (a gravity or payload error,
+    a current offset) is its jump where the velocity changes sign. Moving one way only, ``sign(qd)`` is a constant,
+    friction is the intercept of torque against speed extrapolated to zero and damping its slope, both taking up
+    any such error (a 1 s record: shoulder_lift damping 0.38 [0.33, 0.43], truth 0.5). Each way at least one
+    correlation length of the residuals (``ESS_LAGS``): fewer ticks are one correlated look at that direction,
+    whose error the interval cannot bound."""
+    return np.minimum((qd > MIN_SPEED).sum(axis=0), (qd < -MIN_SPEED).sum(axis=0)) >= BOTH_WAYS_TICKS
+
+
 def refit(segments: list[Segment], cell, pairs: list[tuple[str, str]], terms) -> dict:
     """Re-fit just ``pairs`` (joint, parameter), every other term held at ``terms`` (a ``JointTerms``): the
     residual of that model regressed on the parameter's own column. One column is excited by far less
@@ -175,7 +190,8 @@ def _refit(segments, cell, pairs, model, terms) -> dict:
         beta, cov = _ols(x, y)
         value = float(current[param][k] + beta[0])
         nominal = float(_nominal(cell.model, param, cell.drives.dadr[i]))
-        estimates.append(Fitted(param, joint, value, float(np.sqrt(cov[0, 0])), nominal))
+        one_way = param != "armature" and not moves_both_ways(np.concatenate([s.qd[:-1, i] for s in segments]))
+        estimates.append(Fitted(param, joint, value, np.inf if one_way else float(np.sqrt(cov[0, 0])), nominal))
     rows = [e.to_dict() for e in with_intervals(estimates)]
     return {"robot": cell.name, "records": sorted({s.record_id for s in segments}),
             "samples": int(sum(len(s.q) for s in segments)),
@@ -265,10 +281,10 @@ def load_segments(paths: list[Path], cell, cycle: int | None = None) -> list[Seg
 
 def load_records(paths: list[Path], cell, cycle: int | None = None) -> tuple[list[Segment], list[tuple[Path, object]]]:
     """Each record's full-rate ticks (of ``cycle`` only, if given), checked to be of ``cell``'s robot and
-    to carry motor current, split where a tick is missing; and each record's ``Health`` (what a full read
-    found), for the caller to warn about a record that is not whole. A record given twice (its id, or for
-    a record without one its file, under any spelling) is refused: it would count its ticks twice and
-    shrink every interval. So is one that started after tomorrow (``refuse_ahead``)."""
+    to carry motor current on every joint fitted (a gripper's may be missing), split where a tick is missing; and
+    each record's ``Health`` (what a full read found), for the caller to warn about a record that is not whole.
+    A record given twice (its id, or for a record without one its file, under any spelling) is refused: it would
+    count its ticks twice and shrink every interval. So is one that started after tomorrow (``refuse_ahead``)."""
     from cellguard.record.reader import open_record, record_file
 
     segments, healths, seen = [], [], {}
@@ -294,11 +310,13 @@ def load_records(paths: list[Path], cell, cycle: int | None = None) -> tuple[lis
         if tuple(ticks.joints) != tuple(cell.profile.joint_names):
             raise CalibrationError(f"{path}: joints {list(ticks.joints)}; the model has "
                                    f"{list(cell.profile.joint_names)}")
-        current = ticks.current
-        if not np.isfinite(current).any():
-            raise CalibrationError(f"{path}: the record has no motor current; identification needs current")
-        tau = current * cell.profile.array("torque_constant")
-        keep = np.isfinite(tau).all(1) & np.isfinite(ticks.q_meas).all(1) & np.isfinite(ticks.q_cmd).all(1)
+        joints = hinge_joints(cell)  # the joints fitted: a gripper's current is not needed
+        tau = ticks.current * cell.profile.array("torque_constant")
+        missing = [cell.profile.joint_names[i] for i in joints if not np.isfinite(tau[:, i]).any()]
+        if missing:
+            raise CalibrationError(f"{path}: the record has no motor current on {', '.join(missing)}; identification "
+                                   "needs the current of every joint it fits")
+        keep = np.isfinite(tau[:, joints]).all(1) & np.isfinite(ticks.q_meas).all(1) & np.isfinite(ticks.q_cmd).all(1)
         t_ns = ticks.t_ns
         # contiguous runs of servo-rate ticks (a decimated stream or a gap splits them)
         step = np.concatenate([[False], (np.diff(t_ns) == cell.dt_ns) & keep[1:] & keep[:-1]])
@@ -480,6 +498,7 @@ def _joint_fit(segments, cell, joints, names, dadr, kv_nom, payload, dt,
         raise CalibrationError(f"the records move too little to identify the joint parameters ({len(y)} samples faster "
                                f"than {MIN_SPEED} rad/s); record an excitation with `cellguard excite`")
     beta, cov = _ols(x, y, errors)
+    both_ways = moves_both_ways(np.concatenate([s.qd[:-1][:, joints] for s in segments]))
     out = []
     damping = beta[nj:2 * nj]
     for p, b in blocks.items():
@@ -490,6 +509,8 @@ def _joint_fit(segments, cell, joints, names, dadr, kv_nom, payload, dt,
                 d = nj + k
                 value = value - dt * (kv_nom[k] + damping[k])
                 var = var + dt * dt * cov[d, d] - 2.0 * dt * cov[a, d]
+            elif not both_ways[k]:  # fitted (each term absorbs the others) but not reported
+                var = np.inf
             out.append(Fitted(p, name, float(value), float(np.sqrt(var)), float(_nominal(model, p, dadr[k]))))
     if loaded is not None:
         out.append(Fitted("payload", None, float(beta[-1]), float(np.sqrt(cov[-1, -1])), 0.0))
