@@ -43,5 +43,5 @@ def test_the_cli_refuses_in_one_line_and_records_nothing(tmp_path):
     path.write_text(yaml.safe_dump({"cell": "arm-pick-place", "faults": [FAULT], "process_changes": [PAYLOAD]}))
     out = tmp_path / "ex"
     line = one_error(runner.invoke(app, ["excite", str(path), "--seconds", "7", "--out", str(out)]))
-    assert line.startswith("error: faults, process_changes: an excitation injects none"), line
+    assert line.startswith(f"error: {path}: faults, process_changes: an excitation injects none"), line
     assert not out.exists()

@@ -11,7 +11,7 @@ import pytest
 from cli_util import one_error
 from typer.testing import CliRunner
 
-from cellguard.calibrate.write import check_write_target
+from cellguard.calibrate.write import check_write_target, write_profile
 from cellguard.cli import app
 from cellguard.errors import ProfileError
 from cellguard.robot.arm_cell import ASSETS
@@ -41,8 +41,17 @@ def test_a_link_to_it_is_refused_too(tmp_path, how):
     else:
         os.symlink(ASSETS, tmp_path / "assets")
         named = tmp_path / "assets" / "arm_profile.yaml"
-    with pytest.raises(ProfileError, match="is in the installed package cellguard"):
+    with pytest.raises(ProfileError, match=rf"^--write: {named} \(a link to {STOCK.resolve()}\) is in the installed "
+                                           "package cellguard"):
         check_write_target(named, make_cell(ARM))
+
+
+def test_a_script_writing_it_is_refused_as_the_command_is():
+    """write_profile is what the command calls once it has checked; a script calling it checked nothing."""
+    before = STOCK.read_bytes()
+    with pytest.raises(ProfileError, match="is in the installed package cellguard"):
+        write_profile(STOCK, make_cell(ARM), {"parameters": []}, "2026-11-27")
+    assert STOCK.read_bytes() == before
 
 
 def test_a_copy_of_it_is_taken(tmp_path):

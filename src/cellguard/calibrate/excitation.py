@@ -94,7 +94,8 @@ def excitation_scenario(cell_or_scenario: str | Scenario, seconds: float, seed: 
     base = Scenario(cell=cell_or_scenario, seed=seed) if isinstance(cell_or_scenario, str) else cell_or_scenario
     given = [key for key in ("faults", "process_changes") if getattr(base, key)]
     if given:
-        raise ScenarioError(f"{', '.join(given)}: an excitation injects none (they are set for the scenario's "
+        where = f"{base._path}: " if base._path else ""  # the file it was read from, as a scenario refusal names
+        raise ScenarioError(f"{where}{', '.join(given)}: an excitation injects none (they are set for the scenario's "
                             "cycles) and would record the robot without them; give a scenario without them")
     return base.model_copy(update={"policy": "excite", "acceptance_cycles": 1, "production_cycles": 0,
                                    "cycle": CycleSettings(source="time", seconds=seconds)})

@@ -70,8 +70,8 @@ def check_write_target(path: Path, cell) -> None:
     (``_refuse_packaged``) nor a kept copy (``_refuse_kept_copy``), and the files a write adds beside it have names a
     file system takes, at most NAME_MAX bytes: the old profile kept as NAME.VERSION.yaml and the calibrated MJCF as
     NAME.DATE-cal-HASH.xml (a 300-character version failed only after the fit, in a traceback)."""
+    _refuse_packaged(path, cell)  # naming the path given (a link's target is where it resolves)
     path = _target(path)
-    _refuse_packaged(path, cell)
     version = _checked(path, cell, read_bounded(path, "profile", ProfileError))["version"]
     _refuse_kept_copy(path, str(version))
     kept = f"the old profile's copy {path.stem}.VERSION{path.suffix} (its version is {_bytes(version)} bytes)"
@@ -97,6 +97,7 @@ def write_profile(path: Path, cell, result: dict, date: str, basis: bytes | None
     here that a date from a clock that ran ahead is kept out."""
     refuse_ahead(date, "--write: the measured date", f"the records' clock ran ahead (or this host's is behind); {path} "
                  "not written")
+    _refuse_packaged(path, cell)  # here too: a script's write, not only the command's
     path = _target(path)
     with _folder_locked(path.parent):
         return _write(path, cell, result, date, basis)
@@ -104,8 +105,8 @@ def write_profile(path: Path, cell, result: dict, date: str, basis: bytes | None
 
 def _refuse_kept_copy(path: Path, version: str) -> None:
     """A kept copy (``NAME.VERSION.yaml`` of version VERSION, beside the ``NAME.yaml`` it was kept from) is what
-    releases and records of that version are read from: rewritten in place, every release bound to it could no longer run (its bytes went to a name no one
-    looks for). Refused: calibrate the profile it was kept from, or a copy of it under another name."""
+    releases and records of that version are read from: rewritten in place, every release bound to it could no
+    longer run (its bytes went to a name no one looks for). Refused: calibrate the profile it was kept from, or a copy of it under another name."""
     kept_from = path.with_name(path.name.removesuffix(f".{version}{path.suffix}") + path.suffix)
     if path.name.endswith(f".{version}{path.suffix}") and kept_from != path and kept_from.is_file():
         raise ProfileError(f"--write: {path} is the copy of version {version} kept when its profile was recalibrated "
@@ -121,7 +122,8 @@ def _refuse_packaged(path: Path, cell) -> None:
     for package in dict.fromkeys(("cellguard", type(cell).__module__.partition(".")[0])):
         for folder in getattr(sys.modules.get(package), "__path__", ()):
             if real.is_relative_to(os.path.realpath(folder)):
-                raise ProfileError(f"--write: {path} is in the installed package {package} ({folder}): a cell's "
+                shown = f"{path} (a link to {real})" if Path(path).absolute() != real else str(path)
+                raise ProfileError(f"--write: {shown} is in the installed package {package} ({folder}): a cell's "
                                    f"own profile, which every run of the cell here reads; copy it to another "
                                    f"folder and write the copy (a scenario's calibration: COPY runs with it; "
                                    f"nothing written)")
