@@ -91,7 +91,12 @@ def test_an_unknown_parameter_is_refused_listing_the_known(arm, tmp_path):
     ("[{left: elbow, right: elbow, sign: -1}]", "symmetry[0]: elbow cannot mirror itself"),
     ("[{left: elbow, right: gripper, sign: 1}]", "symmetry[0]: elbow is a hinge and gripper a slide"),
     ("[{left: elbow, right: wrist_flex, sign: 1}, {left: wrist_flex, right: elbow, sign: -1}]",
-     "symmetry[1]: wrist_flex and elbow are already paired in symmetry[0]"),
+     "symmetry[1].left: wrist_flex is already paired in symmetry[0]; a joint mirrors one joint"),
+    # a joint in two pairs: the mirror map was no permutation, and nothing said so
+    ("[{left: elbow, right: wrist_flex, sign: 1}, {left: elbow, right: wrist_roll, sign: 1}]",
+     "symmetry[1].left: elbow is already paired in symmetry[0]; a joint mirrors one joint"),
+    ("[{left: elbow, right: wrist_flex, sign: 1}, {left: wrist_roll, right: wrist_flex, sign: 1}]",
+     "symmetry[1].right: wrist_flex is already paired in symmetry[0]; a joint mirrors one joint"),
 ])
 def test_a_symmetry_pair_that_mirrors_nothing_is_refused(arm, tmp_path, pairs, says):
     with pytest.raises(ProfileError) as info:

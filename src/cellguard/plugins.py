@@ -4,8 +4,9 @@ gate metrics) is imported and what it defines is taken by name, so a new plugin 
 Only a module that can be a plugin is imported: one whose name is an identifier not starting with ``_``, not a
 sub-package. An editor's or a file manager's copy (``friction_step copy.py``, ``friction_step-old.py``) would define
 its kind a second time, and a helper (``_shared.py``) is no plugin. A module that cannot be imported, or that takes
-a name another module took, is one ``PluginError`` naming its file: discovery runs when cellguard is imported, so
-it ends every command, and ``cellguard.entry`` prints it in one line (exit 2) instead of a traceback.
+a name another module took, is one ``PluginError`` naming its file: discovery runs when its package is imported
+(faults, process changes and recoveries with cellguard, so every command; gate metrics with the release commands),
+and ``cellguard.entry`` prints it in one line (exit 2) instead of a traceback.
 """
 
 from __future__ import annotations

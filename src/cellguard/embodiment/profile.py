@@ -241,11 +241,13 @@ def _profile(model: mujoco.MjModel, raw: object, sha256: str) -> Profile:
             raise ProfileError(f"measured[{i}]: {m.parameter} of {m.joint} is already measured[{j}]; keep one entry "
                                "per joint and parameter (the one to use)")
     symmetry = tuple(_symmetry(i, s, by_name) for i, s in enumerate(_list(raw, "symmetry")))
-    pairs: dict[frozenset, int] = {}
+    paired: dict[str, int] = {}  # a joint in two pairs made the mirror map no permutation, and no check saw it
     for i, pair in enumerate(symmetry):
-        j = pairs.setdefault(frozenset((pair.left, pair.right)), i)
-        if j != i:
-            raise ProfileError(f"symmetry[{i}]: {pair.left} and {pair.right} are already paired in symmetry[{j}]")
+        for side, joint in (("left", pair.left), ("right", pair.right)):
+            j = paired.setdefault(joint, i)
+            if j != i:
+                raise ProfileError(f"symmetry[{i}].{side}: {joint} is already paired in symmetry[{j}]; a joint "
+                                   "mirrors one joint")
     if "model" in raw:
         text_field(raw["model"], "model")
     return Profile(
