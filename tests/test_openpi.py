@@ -228,3 +228,10 @@ def test_a_reply_over_the_message_limit_names_the_limit_and_close_code_1009(map_
                                                  r"\(message too big\)"):
             policy.infer(cell.observe())
         policy.close()
+
+
+@pytest.mark.parametrize("dt", ["0", "nan", "2", "abc"])
+def test_a_bad_dt_is_named_before_connecting(dt):
+    """With the server down, ?dt=0 said 'cannot connect (ConnectionRefusedError)': the period's own fault hidden."""
+    with pytest.raises(ConfigError, match=r"^policy: openpi: option dt"):
+        make_openpi_policy(f"openpi:ws://127.0.0.1:{_free_port()}?dt={dt}", ArmPickPlace())

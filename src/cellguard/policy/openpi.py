@@ -22,8 +22,8 @@ from urllib.parse import urlsplit
 import numpy as np
 
 from cellguard.errors import ConfigError
-from cellguard.policy.adapter import (TIMEOUT_RANGE_S, InferenceError, MappedPolicy, PolicyInputs, option_float,
-                                      resolve_map, split_options, stated_dt, step_period)
+from cellguard.policy.adapter import (DT_RANGE_S, TIMEOUT_RANGE_S, InferenceError, MappedPolicy, PolicyInputs,
+                                      option_float, resolve_map, split_options, stated_dt, step_period)
 from cellguard.policy.wire import WireError, packb, unpackb
 
 OPTIONS = {"map": "action map YAML file", "dt": "step period [s]", "timeout": "receive timeout [s]",
@@ -185,6 +185,8 @@ def make_openpi_policy(arg: str, cell) -> MappedPolicy:
         raise ConfigError(f"policy: openpi: option retries={options['retries']!r} is not an integer") from None
     if not 0 <= retries <= 5:
         raise ConfigError(f"policy: openpi: option retries must be in [0, 5], got {retries}")
+    if "dt" in options:  # checked before connecting: with the server down, a bad ?dt= read as its absence
+        option_float(options, "dt", 0.0, "openpi", DT_RANGE_S)
     backend = OpenpiBackend(target, key, option_float(options, "timeout", 2.0, "openpi", TIMEOUT_RANGE_S), retries)
     source = f"openpi:{target}"
     amap = resolve_map(backend, cell, options.get("map"), source)
