@@ -12,12 +12,17 @@ from cellguard.robot.arm_cell import ASSETS
 ARM = "arm-pick-place"
 
 
+def arm_excitation(tmp_path_factory, seconds: float) -> Path:
+    """A record of ``seconds`` of the arm's excitation (every tick, with motor current)."""
+    out = tmp_path_factory.mktemp("identify") / "ex"
+    excite(excitation_scenario(ARM, seconds), out)
+    return out
+
+
 @pytest.fixture(scope="module")
 def excited(tmp_path_factory):
-    """A 3 s arm excitation (every tick, with motor current)."""
-    out = tmp_path_factory.mktemp("identify") / "ex"
-    excite(excitation_scenario(ARM, 3.0), out)
-    return out
+    """A 3 s arm excitation."""
+    return arm_excitation(tmp_path_factory, 3.0)
 
 
 @pytest.fixture

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from arm_limits import A, A_TOL, DT, HI, J, J_TOL, LO, MARGIN, MID, PROFILE, V, V_TOL
 
 from cellguard.control.config import GuardConfig
 from cellguard.control.envelope import Envelope
@@ -20,13 +21,7 @@ from cellguard.control.tracker import failure_text
 from cellguard.robot.protocol import SafetyInputs
 from cellguard.robot.registry import make_cell
 
-PROFILE = make_cell("arm-pick-place").profile
-DT = 1e-3
-LO, HI = PROFILE.q_min, PROFILE.q_max
-V, A, J = PROFILE.array("velocity"), PROFILE.array("acceleration"), PROFILE.array("jerk")
-MARGIN = GuardConfig().soft_margin * (HI - LO)
-MID = 0.5 * (LO + HI)
-V_TOL, A_TOL, J_TOL, P_TOL = 2e-3, 2e-2, 0.2, 1e-9
+P_TOL = 1e-9
 
 
 def _sinusoid(which: str) -> tuple[np.ndarray, np.ndarray]:

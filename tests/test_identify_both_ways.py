@@ -11,10 +11,9 @@ import json
 import numpy as np
 import pytest
 import yaml
-from arm_excitation import ARM, profile  # noqa: F401 (fixture)
+from arm_excitation import ARM, arm_excitation, profile  # noqa: F401 (fixture)
 from typer.testing import CliRunner
 
-from cellguard.calibrate.excitation import excitation_scenario, excite
 from cellguard.calibrate.identify import identify, load_segments, parse_params
 from cellguard.calibrate.torque_model import MIN_SPEED
 from cellguard.cli import app
@@ -27,9 +26,7 @@ LIFT = "shoulder_lift"
 @pytest.fixture(scope="module")
 def one_way(tmp_path_factory):
     """1 s of the arm's excitation: shoulder_lift moves faster than MIN_SPEED downwards only."""
-    out = tmp_path_factory.mktemp("one_way") / "ex"
-    excite(excitation_scenario(ARM, 1.0), out)
-    return out
+    return arm_excitation(tmp_path_factory, 1.0)
 
 
 def speeds(segments, cell, joint: str) -> np.ndarray:

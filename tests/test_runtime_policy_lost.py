@@ -9,10 +9,9 @@ import threading
 from functools import partial
 
 import pytest
+from wrapped_policy import WrappedScripted
 
-from cellguard.policy.registry import make_policy
 from cellguard.record.reader import open_record
-from cellguard.robot.registry import make_cell
 from cellguard.runtime import Run, loop, run_scenario
 from cellguard.runtime.startup import StartupRefused
 from cellguard.scenario import parse_scenario
@@ -20,20 +19,16 @@ from cellguard.scenario import parse_scenario
 ARM = "arm-pick-place"
 
 
-class _Stalls:
+class _Stalls(WrappedScripted):
     """The scripted arm policy, whose call number ``at`` (the warm-up is the first) ends its process (``die``)
     or waits to be released (5 s at most: a test never hangs), after sending SIGTERM if ``signals``."""
 
+    source = "test:stalls"
+
     def __init__(self, at: int, die: bool = False, signals: bool = False):
-        self.inner = make_policy("scripted", make_cell(ARM))
-        self.at, self.die, self.signals, self.source = at, die, signals, "test:stalls"
-        self.calls, self.answered, self.release = 0, False, threading.Event()
-
-    def content_hash(self) -> str:
-        return self.inner.content_hash()
-
-    def reset(self) -> None:
-        self.inner.reset()
+        super().__init__()
+        self.at, self.die, self.signals = at, die, signals
+        self.answered, self.release = False, threading.Event()
 
     def infer(self, observation):
         self.calls += 1

@@ -8,10 +8,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from typer.testing import CliRunner
+from wrapped_policy import WrappedScripted
 
 from cellguard.cli import app
 from cellguard.policy.chunk import ActionChunk
-from cellguard.policy.registry import make_policy
 from cellguard.robot.registry import make_cell
 from cellguard.runtime import Run, run_scenario
 from cellguard.scenario import parse_scenario
@@ -21,20 +21,15 @@ MS = 1_000_000
 REJECTED = "policy lost: the guard rejected every chunk, none taken (the last: "
 
 
-class _Answers:
+class _Answers(WrappedScripted):
     """The scripted arm policy, whose answers ``bad(call, chunk)`` (calls counted from 1) replaces: a chunk, or an
     exception to raise (a failed call), or None for the scripted chunk itself."""
 
     source = "test:answers"
 
     def __init__(self, bad):
-        self.inner, self.bad, self.calls = make_policy("scripted", make_cell(ARM)), bad, 0
-
-    def content_hash(self) -> str:
-        return self.inner.content_hash()
-
-    def reset(self) -> None:
-        self.inner.reset()
+        super().__init__()
+        self.bad = bad
 
     def infer(self, observation):
         self.calls += 1

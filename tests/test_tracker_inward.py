@@ -11,19 +11,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import ruckig
+from arm_limits import A, A_TOL, DT, HI, J, J_TOL, LO, MARGIN, MID, PROFILE, V, V_TOL
 
-from cellguard.control.config import GuardConfig
 from cellguard.control.envelope import Envelope
 from cellguard.control.tracker import STOP, Tracker
-from cellguard.robot.registry import make_cell
 
-PROFILE = make_cell("arm-pick-place").profile
-DT = 1e-3
-LO, HI = PROFILE.q_min, PROFILE.q_max
-V, A, J = PROFILE.array("velocity"), PROFILE.array("acceleration"), PROFILE.array("jerk")
-MARGIN = GuardConfig().soft_margin * (HI - LO)
-MID = 0.5 * (LO + HI)
-V_TOL, A_TOL, J_TOL = 2e-3, 2e-2, 0.2
 # (joint, side, how far out): the elbow and the gripper, above and below, half-way into the margin or 10 % of
 # the range past the hard limit
 STARTS = [(j, side, out) for j in (2, 5) for side in (1, -1)

@@ -516,8 +516,8 @@ def _joints(w: _Window, groups: dict[str, list[DriftAlarm]], grounded: bool = Fa
         rated.append((start, cause, joint, cur, trk, share, alarms, ft, current))
     rated.sort()
     rated, follows = _coupled(rated, grounded)
-    rated, on_path = _on_path(rated, new_paths)
     allowance = {r[2]: _path_allowance(r, new_paths) for r in rated}
+    rated, on_path = _on_path(rated, allowance)
     findings: list[Finding] = []
     while rated:
         start, cause = rated[0][0], rated[0][1]
@@ -596,12 +596,12 @@ def _size(r: tuple) -> float:
     return max(abs(r[3]), abs(r[4]))
 
 
-def _on_path(rated: list[tuple], new_paths: Sequence[tuple[int, float]]) -> tuple[list[tuple], list[tuple]]:
+def _on_path(rated: list[tuple], allowance: dict[str, float]) -> tuple[list[tuple], list[tuple]]:
     """Split the rated joints into those that carry a cause and those whose change is the arm's new path:
-    under its allowance (``_path_allowance``), where the arm goes to another pick point (its joints move through
+    under its ``allowance`` (by joint, ``_path_allowance``), where the arm goes to another pick point (its joints move through
     other angles, at other speeds, so their errors and currents shift a little; a drive that changed with it
     changes more)."""
-    moved = [r for r in rated if _size(r) < _path_allowance(r, new_paths)]
+    moved = [r for r in rated if _size(r) < allowance[r[2]]]
     return [r for r in rated if r not in moved], moved
 
 

@@ -164,6 +164,13 @@ class Profile:
     def q_max(self) -> np.ndarray:
         return self.array_pos(1)
 
+    def first_outside(self, q, slack: float = 0.0) -> int | None:
+        """The first joint pose ``q`` puts outside its position limits, widened by ``slack`` of its range; None."""
+        lo, hi = self.q_min, self.q_max
+        margin = slack * (hi - lo)
+        out = np.flatnonzero((np.asarray(q) < lo - margin) | (np.asarray(q) > hi + margin))
+        return int(out[0]) if out.size else None
+
     def array_pos(self, side: int) -> np.ndarray:
         values = np.array([j.position[side] for j in self.joints], dtype=np.float64)
         values.setflags(write=False)

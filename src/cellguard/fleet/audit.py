@@ -93,6 +93,14 @@ def _append(site_dir: Path, fields: dict) -> dict:
     return entry
 
 
+def refuse_links(site_dir: Path, *names: str) -> None:
+    """ConfigError naming the first of ``names`` (paths in ``site_dir``) that is a link, to anything or nothing."""
+    for name in names:
+        if (Path(site_dir) / name).is_symlink():
+            raise ConfigError(f"--site-dir {site_dir}: {name} is a link to {os.readlink(Path(site_dir) / name)}; "
+                              f"{NO_LINKS}")
+
+
 def check_site_dir(site_dir: Path, missing_ok: bool = False) -> None:
     """AuditError unless ``site_dir`` is a folder (or, ``missing_ok``, nothing yet: a push makes it)."""
     site_dir = Path(site_dir)

@@ -19,6 +19,7 @@ import json
 from pathlib import Path
 
 from cellguard.errors import OutputError
+from cellguard.fleet.audit import refuse_links
 from cellguard.fleet.export import Batch
 from cellguard.fleet.signature import SignatureError
 from cellguard.output import atomic_file, folder_locked, make_folder
@@ -35,8 +36,11 @@ class Outbox:
         self.folder = Path(site_dir) / OUTBOX
 
     def put(self, batch: Batch) -> Path:
-        """Queue ``batch`` last: one place after every batch queued (the same batch queued again moves there)."""
-        path = self.folder / f"{batch.batch_id}.json"
+        """Queue ``batch`` last: one place after every batch queued (the same batch queued again moves there). A link
+        at its name is refused: ``atomic_file`` writes through a link, and the site's files stay in its folder."""
+        name = f"{OUTBOX}/{batch.batch_id}.json"
+        refuse_links(self.folder.parent, name)
+        path = self.folder.parent / name
         # a second push waits, so two never take the same place; a filesystem without locks goes unguarded
         with folder_locked(make_folder(self.folder, "outbox"), _refused, unguarded=True):
             place = 1 + max((n for n, _, _ in self._queue()[0]), default=0)

@@ -47,21 +47,20 @@ under a key since lost) is refused before anything is made: a new key gave the s
 second time. ``fleet withdraw`` deletes what the site pooled and makes the key; then the site pushes again.
 So is a ``site_dir`` that is not a folder (a file there ended the push in a traceback, after the diagnosis), or
 whose audit log, site key or outbox is a link (``check_site``), and a link in the outbox where the batch is to be
-queued: the site's files are written only in its folder, never through a link (a link to nothing took the audit log
+queued (``Outbox.put``): the site's files are written only in its folder, never through a link (a link to nothing took the audit log
 outside the site).
 """
 
 from __future__ import annotations
 
 import datetime as dt
-import os
 from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
 
 from cellguard.dates import utc_today
 from cellguard.errors import ConfigError, OutputError
-from cellguard.fleet.audit import AUDIT_FILE, NO_LINKS, append_audit, append_retention, check_site_dir, scan_audit
+from cellguard.fleet.audit import AUDIT_FILE, append_audit, append_retention, check_site_dir, refuse_links, scan_audit
 from cellguard.fleet.export import Batch, export_batch, oldest_kept, refusal
 from cellguard.fleet.lake import check_lake, forget, newest, write_signatures
 from cellguard.fleet.outbox import OUTBOX, Outbox
@@ -162,15 +161,7 @@ def check_site(site_dir: Path, must_exist: bool = False) -> None:
     """ConfigError, before anything is made, sent or deleted, for a ``site_dir`` that is not a folder (nor, unless
     ``must_exist``, missing: a push makes it) or whose audit log, site key or outbox is a link."""
     check_site_dir(site_dir, missing_ok=not must_exist)
-    _no_link(site_dir, AUDIT_FILE, KEY_FILE, OUTBOX)
-
-
-def _no_link(site_dir: Path, *names: str) -> None:
-    """ConfigError naming the first of ``names`` (paths in ``site_dir``) that is a link, to anything or nothing."""
-    for name in names:
-        if (Path(site_dir) / name).is_symlink():
-            raise ConfigError(f"--site-dir {site_dir}: {name} is a link to {os.readlink(Path(site_dir) / name)}; "
-                              f"{NO_LINKS}")
+    refuse_links(site_dir, AUDIT_FILE, KEY_FILE, OUTBOX)
 
 
 def check_key_history(site_dir: Path, policy: DataPolicy) -> None:
@@ -206,7 +197,6 @@ def _queue(batch: Batch, outbox: Outbox, site_dir: Path, destination: str, count
     if batch.export == "nothing" or batch.rows == 0:
         append_audit(site_dir, batch, "nothing", destination, **counted)
         return None
-    _no_link(site_dir, f"{OUTBOX}/{batch.batch_id}.json")  # ``Outbox.put`` would write through it (``atomic_file``)
     path = outbox.put(batch)
     append_audit(site_dir, batch, "queued", destination, **counted)
     return path

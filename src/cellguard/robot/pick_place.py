@@ -81,13 +81,12 @@ def _misfit(model: mujoco.MjModel, profile: Profile, layout: Layout) -> str | No
     stray = [j for j in layout.ik_joints if j not in names[:-1]]
     if stray:
         return f"the layout's ik_joints {stray} are not among its arm joints ({', '.join(names[:-1])})"
-    for joint, q in zip(profile.joints, layout.q_home):
-        lo, hi = joint.position
-        if not lo <= q <= hi:
-            unit = "rad" if joint.kind == "hinge" else "m"
-            return (f"the home pose puts {joint.name} at {q:g} {unit}, outside its position limits "
-                    f"[{lo:g}, {hi:g}] {unit}")
-    return None
+    j = profile.first_outside(layout.q_home)
+    if j is None:
+        return None
+    joint, q = profile.joints[j], layout.q_home[j]
+    (lo, hi), unit = joint.position, "rad" if joint.kind == "hinge" else "m"
+    return f"the home pose puts {joint.name} at {q:g} {unit}, outside its position limits [{lo:g}, {hi:g}] {unit}"
 
 
 class PickPlaceCell(DrivenCell):

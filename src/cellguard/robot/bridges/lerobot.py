@@ -314,10 +314,8 @@ def _home(text: str, profile: Profile, units: ActionMap) -> np.ndarray:
                           f"comma-separated, for {', '.join(units.names)}")
     q = units.to_robot(values[None], np.zeros(profile.dof))[0]
     lo, hi = profile.q_min, profile.q_max
-    slack = HOME_SLACK * (hi - lo)
-    out = np.flatnonzero((q < lo - slack) | (q > hi + slack))
-    if out.size:
-        j = int(out[0])
+    j = profile.first_outside(q, HOME_SLACK)
+    if j is not None:
         given = {a.joint: f" ({a.name} {values[a.column]:g})" for a in units.joint_actions}.get(j, "")
         raise ConfigError(f"robot: lerobot: option home puts {profile.joint_names[j]} at {q[j]:.6g}{given}, "
                           f"outside its limits [{lo[j]:.6g}, {hi[j]:.6g}]")

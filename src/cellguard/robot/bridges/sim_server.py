@@ -228,9 +228,8 @@ class SimServerRobot:
         if home.shape != (self.profile.dof,) or not np.isfinite(home).all():
             raise self._bad_metadata("q_home", f"{self.profile.dof} finite joint positions", repr(value)[:60])
         p = self.profile
-        out = np.flatnonzero((home < p.q_min) | (home > p.q_max))
-        if out.size:
-            j = out[0]
+        j = p.first_outside(home)
+        if j is not None:
             raise self._bad_metadata("q_home", f"within the joint limits, {p.joint_names[j]} within "
                                      f"[{float(p.q_min[j])!r}, {float(p.q_max[j])!r}]", repr(float(home[j])))
         return home
