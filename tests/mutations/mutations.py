@@ -48,10 +48,11 @@ class Mutation:
 
 MUTATIONS = (
     Mutation("position_lookahead_off", "position soft limit: stopping-distance look-ahead", TRACKER,
-             "            if fit and (qj - far < lo or qj + far > hi):\n"
-             "                fit = self._stop_fits(j, qj, v_end, a)",
-             "            if False:\n                fit = self._stop_fits(j, qj, v_end, a)",
+             "fit = self._stop_fits(j, qj, v_end, a, qj + far > hi, qj - far < lo)", "fit = fit",
              (POSITION, LIMITS, SOFT_5MS)),
+    Mutation("position_lookahead_wrong_side", "position soft limit: the look-ahead checks the limit it nears",
+             TRACKER, "fit = self._stop_fits(j, qj, v_end, a, qj + far > hi, qj - far < lo)",
+             "fit = self._stop_fits(j, qj, v_end, a, qj - far < lo, qj + far > hi)", (POSITION, LIMITS, SOFT_5MS)),
     Mutation("outside_frozen", "position: a joint past its soft limit comes back inward", TRACKER,
              "<= max(self._hi_f[j], min(q, p))", "<= self._hi_f[j]",
              (f"{INWARD}::test_a_joint_reset_past_its_soft_limit_follows_a_reference_back_inside",),

@@ -94,6 +94,7 @@ class Executor:
         self._span = profile.q_max - profile.q_min
         self._curve = ChunkCurve(0, 1, np.array(q0, dtype=np.float64)[None])  # a hold
         self._older: list[tuple[ChunkCurve, int, int]] = []  # curves fading out: (curve, switched, blend) [ns]
+        self._stack: tuple[list[int], np.ndarray | None] = ([], None)  # the blend's segments and their coefficients
         self._chunk: PreparedChunk | None = None
         self._t_ns: int | None = None
         self.tau_ns = 0  # playback clock
@@ -149,7 +150,7 @@ class Executor:
         self._older.append((old, now, self._blend_for(old, now)))
         if len(self._older) > MAX_BLENDED:  # chunks far faster than the blend: the oldest curve goes (a step of
             del self._older[0]              # its weight, the price of a bounded tick)
-        self._curve = placed
+        self._curve, self._stack = placed, ([], None)
         self._chunk = PreparedChunk(chunk.t_obs_ns, chunk.dt_ns, placed, chunk.uncertainty, chunk.tool_speed)
         self.last_chunk_ns = t_ns
         dropped = int(min(max((now - first) // h + 1, 0), horizon))
@@ -188,13 +189,17 @@ class Executor:
         if not older:
             return self._curve.at(tau)
         # reference = c_n + w_n (c_n-1 + w_n-1 (... - c_n-1) - c_n): each curve's weight as one float,
-        # then one dot over the curves' segment coefficients
-        powers, rows = [], []
+        # then one dot over the curves' segment coefficients, stacked anew only when a curve enters a segment
+        powers, segments = [], []
         for curve, weight in self._weights(tau):
             k, u = curve.segment(tau)
-            rows.append(curve.coefficients[k])
+            segments.append(k)
             powers.extend((weight, weight * u, weight * u * u, weight * u * u * u))
-        return np.dot(powers, np.concatenate(rows))
+        stack = self._stack
+        if stack[0] != segments:
+            curves = [self._curve] + [c for c, _, _ in reversed(older)]
+            stack = self._stack = (segments, np.concatenate([c.coefficients[k] for c, k in zip(curves, segments)]))
+        return np.dot(powers, stack[1])
 
     def _resting(self, now: int) -> bool:
         """Is the reference at rest at playback time ``now``: its curve ended (or a hold) and no blend running?"""

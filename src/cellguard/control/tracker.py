@@ -136,16 +136,17 @@ class Tracker:
         covers in the + direction (``_travel``)."""
         return _travel(v, a, *self._stop_consts[j])
 
-    def _stop_fits(self, j: int, q: float, v: float, a: float) -> bool:
-        """Would a jerk-limited stop of joint ``j`` from (q, v, a) end inside its soft limits?
+    def _stop_fits(self, j: int, q: float, v: float, a: float, upper: bool = True, lower: bool = True) -> bool:
+        """Would a jerk-limited stop of joint ``j`` from (q, v, a) end inside its soft limits (the ``upper``
+        and ``lower`` one: a limit the loose bound already clears needs no exact check)?
 
         Past one already (``p``, the setpoint now: a reset at the measured pose, a robot pushed by hand),
         ``q`` fits if it is no further out than ``p`` and a stop from it ends no further out than ``q``,
         so the joint may come back inward and never go out. Held to the limit alone, it was frozen there.
         """
         p = self.samples[0][j]
-        return (q + self._stop_distance(j, v, a) <= max(self._hi_f[j], min(q, p))
-                and q - self._stop_distance(j, -v, -a) >= min(self._lo_f[j], max(q, p)))
+        return ((not upper or q + self._stop_distance(j, v, a) <= max(self._hi_f[j], min(q, p)))
+                and (not lower or q - self._stop_distance(j, -v, -a) >= min(self._lo_f[j], max(q, p))))
 
     def _fits(self, q: list[float], v_limit: list[float] | None = None
               ) -> tuple[list[bool], list[float], list[float]]:
@@ -172,8 +173,8 @@ class Tracker:
             fit = (speed <= v_max and abs(a) <= a_max and abs((a - aj) * inv_dt) <= j_max
                    and abs(v_end + a * abs(a) * half_inv_j) <= v_max)
             far = far0 + abs(v_end) * (far1 + abs(v_end) * inv_2a)  # a loose bound of the stopping distance
-            if fit and (qj - far < lo or qj + far > hi):
-                fit = self._stop_fits(j, qj, v_end, a)
+            if fit and (qj - far < lo or qj + far > hi):  # (a gripper's short range: on half the ticks, one side)
+                fit = self._stop_fits(j, qj, v_end, a, qj + far > hi, qj - far < lo)
             ok.append(fit)
             vs.append(v)
             accs.append(a)
