@@ -237,9 +237,13 @@ def status(site: Path = SITE, as_json: bool = typer.Option(False, "--json")) -> 
         verdict = f"{r['verdict']} ({r['not_counted']})" if r["not_counted"] else r["verdict"] or ""
         out.print(f"{r['cell']:<18} {r['stage']:<11} current {r['current'] or '-':<17} "
                   f"last_good {r['last_good'] or '-':<17} {verdict}")
-    for cell, error in dict.fromkeys((r["cell"], r["plan_error"]) for r in rows if r["plan_error"]):
-        out.print(f"{cell}: the plan in force does not load, so nothing is promoted or run there until it does: {error}",
-                  markup=False, soft_wrap=True)
+    broken: dict[str, dict] = {}  # error -> the cells it stops, in order: a site's plan stops every cell alike
+    for r in rows:
+        if r["plan_error"]:
+            broken.setdefault(r["plan_error"], {})[r["cell"]] = None
+    for error, cells in broken.items():
+        out.print(f"{', '.join(cells)}: the plan in force does not load, so nothing is promoted or run there until it "
+                  f"does: {error}", markup=False, soft_wrap=True)
 
 
 @release_app.command()

@@ -85,7 +85,8 @@ def counted_run(store: Store, row: RunRow) -> RunEvidence:
     """``row``'s run as evidence; ReleaseError naming its folder unless it is the record that was counted (same
     hash) and its context names the row's release, cell and stage, nor with other shadow rows than those counted
     with it (``row.shadow``): a record put in its place, even one that passed for another release, is never read as
-    this run, and an edited shadow file never turns its candidate's verdict."""
+    this run, and an edited shadow file never turns its candidate's verdict (an evaluation gives ``row.shadow`` the
+    hash the log signed, ``log.counted_shadows``: a file edited with its row is refused too)."""
     folder = store.run_folder(row)
     try:
         run = load_run(folder, row.name)

@@ -31,6 +31,11 @@ WHOLE_PLAN = "plan:"  # ``counted_under``'s prefix for runs an entry without ``R
 # passed or not (None: it has none), which decided whether it became last_good; present, the entry took ``Judged``'s
 # rule, absent, an older cellguard's (``pointers_by_log``)
 OUTGOING = "outgoing_gates"
+# a gates entry's key: [seq, sha256] of each run it counted (``runs``, ``last_good_runs``) with a shadow.json, so the
+# chain signs its shadow rows as it signs its record (kept in the runs table alone, the table and the file edited
+# together passed ``release verify``); absent in an older cellguard's entries, which bind it by the run's row alone.
+# A key of its own, not a third element of ``runs``: an older cellguard reads these entries without a traceback
+SHADOWS = "shadows_sha256"
 
 
 @dataclass(frozen=True)
@@ -225,6 +230,22 @@ def counted_under(log_entries: list[LogEntry]) -> dict[int, str | None]:
     return out
 
 
+def shadow_refs(rows) -> list[list]:
+    """``SHADOWS`` of a gates entry counting ``rows`` (``store.RunRow``): [seq, sha256] of each that has one."""
+    return [[r.seq, r.shadow] for r in rows if r.shadow]
+
+
+def counted_shadows(log_entries: list[LogEntry]) -> dict[int, str]:
+    """Each run a gates entry logged a shadow hash for -> that hash, by the first entry that did: the shadow rows
+    the run is evidence with, whatever its row says now (an edit could set it to an edited file's hash)."""
+    out: dict[int, str] = {}
+    for e in log_entries:
+        if e.body.get("kind") == "gates":
+            for seq, shadow in e.body.get(SHADOWS) or []:
+                out.setdefault(seq, shadow)
+    return out
+
+
 def check_pointers(store, cell: str, stage: str) -> tuple:
     """(current, last_good) of (cell, stage) as stored; ReleaseError unless the log's entries set them so (a
     pointer edited outside cellguard would run, promote or roll back a release no gate let there)."""
@@ -243,20 +264,27 @@ def _pointer_break(cell: str, stage: str, have: tuple, want: tuple) -> str:
 
 
 def run_problems(store, log_entries: list[LogEntry]) -> list[str]:
-    """Each run a gates entry counted (``runs``, ``last_good_runs``: [seq, record id]) that the store's runs no
-    longer hold as counted (deleted, its record or release relabelled), in words; empty when all are there."""
+    """Each run a gates entry counted (``runs``, ``last_good_runs``: [seq, record id]; ``SHADOWS``) that the store's
+    runs no longer hold as counted (deleted, its record, release or shadow file's hash relabelled), in words; empty
+    when all are there."""
     rows, problems = store.run_rows(), []
     for e in log_entries:
         b = e.body
+        shadows = dict(b.get(SHADOWS) or [])
         for key, release in (("runs", b.get("release")), ("last_good_runs", b.get("last_good"))):
             for seq, rid in b.get(key) or []:
-                row = rows.get(seq)
+                row, shadow = rows.get(seq), shadows.get(seq)
                 have = (row.record_id, row.cell, row.stage, row.release) if row else None
                 if have != (rid, b.get("cell"), b.get("stage"), release):
                     now = "is gone" if row is None else (f"now holds record {row.record_id} of release {row.release} "
                                                          f"at {row.stage} on {row.cell}")
-                    problems.append(f"run {seq} (record {rid} of release {release}), counted by log entry {e.seq}, "
-                                    f"{now} (the runs table edited outside cellguard)")
+                elif shadow is not None and row.shadow != shadow:
+                    now = (f"now holds shadow file hash {(row.shadow or 'none')[:16]}, not {shadow[:16]} counted "
+                           f"with it")
+                else:
+                    continue
+                problems.append(f"run {seq} (record {rid} of release {release}), counted by log entry {e.seq}, "
+                                f"{now} (the runs table edited outside cellguard)")
     return problems
 
 

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import hashlib
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from cellguard.errors import CellguardError, OperatorStopped, OutputError, RecordError
@@ -319,15 +319,16 @@ def evaluate_stage(store: Store, plan: StagePlan, cell: str, stage: str, folders
     if start is None:
         moved = log.last_pointer_move(store, cell, stage)
         start = Start(*log.check_pointers(store, cell, stage), moved.seq if moved else 0)
-    key, under = runs_key(plan, runs), log.counted_under(log.entries(store))
+    logged = log.entries(store)
+    key, under, shadows = runs_key(plan, runs), log.counted_under(logged), log.counted_shadows(logged)
     same = {key} if runs is not None else {key, log.WHOLE_PLAN + plan_hash(plan)}  # counted by an older cellguard
-    every = store.runs(cell, stage, start.current, start.move_seq)
+    every = _bound(store.runs(cell, stage, start.current, start.move_seq), shadows)
     rows = [r for r in every if under.get(r.seq, r.runs) in same]
     taken, refused = _evidence(store, rows)
     refused += _dropped(store, cell, stage, start, every)
     good, good_rows, baseline = [], [], "no last_good on this stage"
     if start.last_good and start.last_good != start.current:
-        made = [(r, under.get(r.seq, r.runs)) for r in store.runs(cell, stage, start.last_good)]
+        made = [(r, under.get(r.seq, r.runs)) for r in _bound(store.runs(cell, stage, start.last_good), shadows)]
         good_rows = [r for r, k in made if k in same]
         good, refused_good = _evidence(store, good_rows)
         refused += refused_good
@@ -349,6 +350,7 @@ def evaluate_stage(store: Store, plan: StagePlan, cell: str, stage: str, folders
                                    "refused": refused, "last_good": start.last_good,
                                    "runs": [[r.seq, r.record_id] for r in rows],
                                    "last_good_runs": [[r.seq, r.record_id] for r in good_rows],
+                                   log.SHADOWS: log.shadow_refs(rows + good_rows),
                                    "scenario": [e.get("name", "run") for e in runs or ()],
                                    "plan_sha256": plan_hash(plan), log.RUNS: key,
                                    log.IN_FORCE: plan_hash(plan if in_force is None else in_force)})
@@ -387,6 +389,12 @@ def runs_key(plan: StagePlan, runs: list[dict] | None = None) -> str:
     made = plan if runs is None else plan.model_copy(update={"runs": runs})
     digest = hashlib.sha256(canonical_json(made.model_dump(mode="json", exclude={"gates"}))).hexdigest()
     return digest if runs is None else f"{log.SCENARIO}:{digest}"
+
+
+def _bound(rows: list[RunRow], shadows: dict[int, str]) -> list[RunRow]:
+    """``rows`` each with the shadow hash the log counted it with (``log.counted_shadows``), else its own: a row
+    set to the hash of an edited shadow.json reads that file as edited, and the next entry logs the counted hash."""
+    return [replace(r, shadow=shadows.get(r.seq, r.shadow)) for r in rows]
 
 
 def _dropped(store: Store, cell: str, stage: str, start: Start, rows: list[RunRow]) -> list[str]:
