@@ -87,9 +87,9 @@ def push(
         _new_key_note(result.new_key)
     for line in result.held:
         sys.stderr.write(f"note: {printable(line)}\n")
-    for line in result.failed:
+    for line in filter(None, (*result.failed, result.dated_ahead)):
         sys.stderr.write(f"warning: {printable(line)}\n")
-    if max(warn_if_unkept(unkept), _warn_if_skipped(skipped)) or result.failed:
+    if max(warn_if_unkept(unkept), _warn_if_skipped(skipped)) or result.failed or result.dated_ahead:
         raise typer.Exit(1)
 
 
@@ -208,8 +208,8 @@ def similar(
 
 @fleet_app.command()
 def audit(site_dir: Path = SITE_DIR, as_json: bool = JSON) -> None:
-    """This site's audit log: every export, when, how many rows, under which policy version. A damaged line
-    is named on stderr and the others shown (exit 1)."""
+    """This site's audit log: every export, when, how many rows, under which policy version, where to. A damaged
+    line is named on stderr and the others shown (exit 1); a log that is a link is refused (exit 2)."""
     from cellguard.fleet.audit import scan_audit
 
     try:
@@ -225,11 +225,28 @@ def audit(site_dir: Path = SITE_DIR, as_json: bool = JSON) -> None:
             if e.get("policy_in_force") not in (None, e["policy_version"]):
                 why = f" in_force={e['policy_in_force']}{why}"
             say(f"  {e['when_utc']} {e['status']:<9} {e['what']:<15} rows={e['rows']} kept={e['withheld_rows']} "
-                f"policy={e['policy_version']} batch={e['batch_id'][:12]}{why}", err=False)
+                f"policy={e['policy_version']} batch={e['batch_id'][:12]}{_where(e)}{why}", err=False)
     for line in damaged:
         sys.stderr.write(f"warning: {printable(Path(site_dir) / 'audit.jsonl')}: {printable(line)}; not shown\n")
     if damaged:
         raise typer.Exit(1)
+
+
+STAYS = ("queued", "held", "refused")  # the statuses of a batch that is in the outbox
+DELETED = ("retention", "withdrawn")  # the statuses of rows deleted, not sent
+
+
+def _where(entry: dict) -> str:
+    """`` to=``/`` from=`` the place an audit entry's rows went to or were deleted from (a batch that waits: the
+    outbox, for the store it waits for); nothing for an entry logged without it or for an export of nothing."""
+    from cellguard.fleet.audit import destination_of
+
+    where = destination_of(entry)
+    if where is None or entry["status"] == "nothing":
+        return ""
+    if entry["status"] in STAYS:
+        return " to=outbox" + ("" if where == "nowhere" else f" for {where}")
+    return f" {'from' if entry['status'] in DELETED else 'to'}={where}"
 
 
 @fleet_app.command()

@@ -13,8 +13,10 @@ batch that leaves is logged with ``policy_in_force``, the version of the policy 
 older than ``before``), or, with ``reason``, did not run there; it names no batch. ``withdrawn``: ``fleet withdraw``
 deleted ``rows`` (every one of the site's) from ``destination``; it names no batch.
 
-The log is written only as a file in the site folder: a link there is refused, never followed (a link to
-nothing, followed, put the site's log wherever it pointed, outside the site).
+The log is written and read only as a file of the site folder's own: a link there is refused, never followed (a
+link to nothing, followed, put the site's log wherever it pointed, outside the site; read, another site's log was
+shown as this one's), and so is a hard link, a second name elsewhere of the same file (every entry appended here
+appeared there too).
 
 A damaged log is read as far as it goes: ``scan_audit`` returns the entries and names each line
 it cannot read; ``read_audit`` refuses a damaged log in one line.
@@ -25,6 +27,7 @@ from __future__ import annotations
 import errno
 import json
 import os
+import stat
 from pathlib import Path
 
 from cellguard.dates import utc_now
@@ -40,6 +43,8 @@ FIELDS = {"when_utc": str, "what": str, "rows": int, "withheld_rows": int, "poli
 MAX_AUDIT_BYTES = 1 << 30  # [bytes] about 3 million entries
 NO_LINKS = "the site's files are written only in its folder, never through a link: move what it names there, or " \
            "remove the link"
+HARD_LINKED = "another name of the same file lies elsewhere, where every entry appended here appears too: give the " \
+              f"site a copy of its own (cp {AUDIT_FILE} {AUDIT_FILE}.own && mv {AUDIT_FILE}.own {AUDIT_FILE})"
 
 
 class AuditError(ConfigError):
@@ -82,6 +87,9 @@ def _append(site_dir: Path, fields: dict) -> dict:
         path.parent.mkdir(parents=True, exist_ok=True)
         fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT | os.O_NOFOLLOW, 0o640)
         try:
+            names = os.fstat(fd).st_nlink  # of the file opened: a link made after the push's check is seen too
+            if names > 1:
+                raise OutputError(f"audit log {path}: a hard link ({names} names of one file); {HARD_LINKED}")
             os.write(fd, (json.dumps(entry, sort_keys=True) + "\n").encode())
             os.fsync(fd)
         finally:
@@ -93,12 +101,33 @@ def _append(site_dir: Path, fields: dict) -> dict:
     return entry
 
 
+def destination_of(entry: dict) -> str | None:
+    """Where ``entry``'s rows went or were deleted from (a store's ``host:port/database``, never its password; a
+    lake's path; ``nowhere``: no store given); None for an entry logged without one."""
+    where = entry.get("destination")
+    return where if isinstance(where, str) else None
+
+
 def refuse_links(site_dir: Path, *names: str) -> None:
     """ConfigError naming the first of ``names`` (paths in ``site_dir``) that is a link, to anything or nothing."""
     for name in names:
         if (Path(site_dir) / name).is_symlink():
             raise ConfigError(f"--site-dir {site_dir}: {name} is a link to {os.readlink(Path(site_dir) / name)}; "
                               f"{NO_LINKS}")
+
+
+def check_log(site_dir: Path) -> None:
+    """ConfigError naming the site's audit log if it is a link: symbolic (``refuse_links``) or hard, a second name
+    elsewhere of the same file, where every entry appended here appears too (and another site's appear here)."""
+    refuse_links(site_dir, AUDIT_FILE)
+    path = Path(site_dir) / AUDIT_FILE
+    try:
+        st = os.lstat(path)
+    except OSError:  # none yet, or one that cannot be looked at: the read or the append names why
+        return
+    if stat.S_ISREG(st.st_mode) and st.st_nlink > 1:
+        raise ConfigError(f"--site-dir {site_dir}: {AUDIT_FILE} is a hard link ({st.st_nlink} names of one file); "
+                          f"{HARD_LINKED}")
 
 
 def check_site_dir(site_dir: Path, missing_ok: bool = False) -> None:
@@ -119,10 +148,12 @@ def read_audit(site_dir: Path) -> list[dict]:
 
 def scan_audit(site_dir: Path) -> tuple[list[dict], list[str]]:
     """(the entries that can be read, one line per line that cannot). No log yet: no entries.
-    AuditError when ``site_dir`` is not a folder or the log is not a file that can be read."""
+    AuditError when ``site_dir`` is not a folder or the log is not a file that can be read; ConfigError when it is
+    a link (``check_log``): it is read as the writes would take it, never followed."""
     check_site_dir(site_dir)
+    check_log(site_dir)
     path = Path(site_dir) / AUDIT_FILE
-    if not path.exists() and not path.is_symlink():
+    if not path.exists():
         return [], []
     data = read_bounded(path, "audit log", AuditError, MAX_AUDIT_BYTES)
     entries, damaged = [], []

@@ -160,6 +160,13 @@ def newest_kept(today: dt.date | None = None) -> dt.date:
     return (today or utc_today()) + dt.timedelta(days=1)
 
 
+def dated_ahead(signatures: Sequence[Signature], today: dt.date) -> list[str]:
+    """The dates, in order, of the ``signatures`` that ``export_batch`` keeps at the site as dated after tomorrow by
+    ``today`` (``newest_kept``)."""
+    newest = newest_kept(today)
+    return sorted(s.created_date for s in signatures if dt.date.fromisoformat(s.created_date) > newest)
+
+
 def export_batch(signatures: Sequence[Signature], policy: DataPolicy, today: dt.date | None = None, *,
                  key: bytes) -> Batch:
     """The batch ``policy`` lets leave the site, from the site's ``signatures``; ``key`` is the site's

@@ -32,7 +32,9 @@ the two dates are more than a day apart (``_distrust``) one of the clocks is wro
 push sends nothing (every batch stays queued) and its retention deletes nothing, in one warning line naming both
 dates: a store a year slow let a 400-day-old signature past a 365-day retention leave; a store, or a host, a year
 fast kept every fresh signature at the site and held batches queued with a right clock. The next push with the
-clocks agreeing sends what is queued.
+clocks agreeing sends what is queued. The signatures the export keeps at the site as dated after tomorrow, by the
+date it counted on, are named in one line (``_kept_ahead``): with a host a day ahead of the store, one dated the
+host's tomorrow passed the run's check (``from_record``, by the host's date) and was kept back unsaid.
 
 Every push applies the policy's retention to the store (when it can be reached) and to ``lake``:
 the site's signatures older than ``retention_days`` and its aggregates of the months before are
@@ -42,13 +44,13 @@ checked before anything goes: more than a day off the store's (then nothing is s
 store to ask, more than the retention after the site's newest signature (it would delete them all: a clock a year
 fast), retention deletes nothing this push and says so in one line naming the dates.
 
-A site folder with no site key whose audit log says the store took batches of the site (sent before the key, or
-under a key since lost) is refused before anything is made: a new key gave the same findings new ids, stored a
-second time. ``fleet withdraw`` deletes what the site pooled and makes the key; then the site pushes again.
-So is a ``site_dir`` that is not a folder (a file there ended the push in a traceback, after the diagnosis), or
-whose audit log, site key or outbox is a link (``check_site``), and a link in the outbox where the batch is to be
-queued (``Outbox.put``): the site's files are written only in its folder, never through a link (a link to nothing took the audit log
-outside the site).
+A site folder with no site key whose audit log says a store took batches of the site (sent before the key, or
+under a key since lost) since the site last withdrew from it is refused before anything is made: a new key gave the
+same findings new ids, stored a second time. ``fleet withdraw`` deletes what the site pooled and makes the key; then
+the site pushes again. So is a ``site_dir`` that is not a folder (a file there ended the push in a traceback, after
+the diagnosis), or whose audit log (a hard link too), site key or outbox is a link (``check_site``), and a link in
+the outbox where the batch is to be queued (``Outbox.put``): the site's files are written only in its folder, never
+through a link (a link to nothing took the audit log outside the site).
 """
 
 from __future__ import annotations
@@ -60,8 +62,9 @@ from pathlib import Path
 
 from cellguard.dates import utc_today
 from cellguard.errors import ConfigError, OutputError
-from cellguard.fleet.audit import AUDIT_FILE, append_audit, append_retention, check_site_dir, refuse_links, scan_audit
-from cellguard.fleet.export import Batch, export_batch, oldest_kept, refusal
+from cellguard.fleet.audit import (append_audit, append_retention, check_log, check_site_dir, destination_of,
+                                   refuse_links, scan_audit)
+from cellguard.fleet.export import AHEAD, Batch, dated_ahead, export_batch, newest_kept, oldest_kept, refusal
 from cellguard.fleet.lake import check_lake, forget, newest, write_signatures
 from cellguard.fleet.outbox import OUTBOX, Outbox
 from cellguard.fleet.policy import DataPolicy
@@ -82,13 +85,15 @@ class PushResult:
     failed: tuple[str, ...] = ()  # one line per queued file that cannot be read or that the store refused
     new_key: str | None = None  # the site key this push made (ids of this site's earlier pushes differ)
     retention_removed: int = 0  # rows the policy's retention deleted from the store and the lake
+    dated_ahead: str | None = None  # one line: the signatures the export kept at the site as dated after tomorrow
 
     def to_dict(self) -> dict:
         return {"batch_id": self.batch.batch_id, "export": self.batch.export, "rows": self.batch.rows,
                 "withheld_rows": self.batch.withheld_rows, "policy_version": self.batch.policy_version,
                 "sent_batches": self.sent_batches, "new_rows": self.new_rows, "duplicate_rows": self.duplicate_rows,
                 "queued": self.queued, "unavailable": self.unavailable, "held": list(self.held),
-                "failed": list(self.failed), "new_key": self.new_key, "retention_removed": self.retention_removed}
+                "failed": list(self.failed), "new_key": self.new_key, "retention_removed": self.retention_removed,
+                "dated_ahead": self.dated_ahead}
 
 
 def push(signatures: list[Signature], policy: DataPolicy, site_dir: Path, store: TenantStore | None,
@@ -116,6 +121,7 @@ def push(signatures: list[Signature], policy: DataPolicy, site_dir: Path, store:
             _queue(again, outbox, site_dir, destination, local, reason=f"recounted on the store's date: replaces "
                                                                           f"batch {batch.batch_id}")
             batch = again
+    ahead = _kept_ahead(signatures, policy, local, "the fleet store" if local == server else "this host")
     queued, unreadable = outbox.read()
     failed = [f"{path}: {why}; it stays queued" for path, why in unreadable]
     held: list[str] = []
@@ -154,31 +160,55 @@ def push(signatures: list[Signature], policy: DataPolicy, site_dir: Path, store:
         outbox.done(path)
         append_audit(site_dir, waiting, "sent" if n else "duplicate", destination, policy_in_force=policy.version)
         sent, new, dup = sent + 1, new + n, dup + d
-    return PushResult(batch, sent, new, dup, outbox.count(), unavailable, tuple(held), tuple(failed), made, removed)
+    return PushResult(batch, sent, new, dup, outbox.count(), unavailable, tuple(held), tuple(failed), made, removed,
+                      ahead)
 
 
 def check_site(site_dir: Path, must_exist: bool = False) -> None:
     """ConfigError, before anything is made, sent or deleted, for a ``site_dir`` that is not a folder (nor, unless
-    ``must_exist``, missing: a push makes it) or whose audit log, site key or outbox is a link."""
+    ``must_exist``, missing: a push makes it) or whose audit log (``check_log``: a hard link too), site key or outbox
+    is a link."""
     check_site_dir(site_dir, missing_ok=not must_exist)
-    refuse_links(site_dir, AUDIT_FILE, KEY_FILE, OUTBOX)
+    check_log(site_dir)
+    refuse_links(site_dir, KEY_FILE, OUTBOX)
 
 
 def check_key_history(site_dir: Path, policy: DataPolicy) -> None:
-    """ConfigError if ``site_dir`` has no site key but its audit log says the store took batches of this site: sent
+    """ConfigError if ``site_dir`` has no site key but its audit log says a store holds batches of this site: sent
     by a version before the key, or under a key since lost. A new key gives their findings new ids, so the push
     stored each of them a second time (and ids made before the key keep withheld fields recoverable); withdrawing
-    the site first deletes them, and makes the key (``fleet withdraw``)."""
+    the site first deletes them, and makes the key (``fleet withdraw``). A batch a store took before the site's
+    last withdrawal from that store (its log entry ``withdrawn`` there) is no longer in it: with the key lost after
+    a withdrawal, the push was refused though nothing of the site was left to store twice."""
     site_dir = Path(site_dir)
     if (site_dir / KEY_FILE).exists() or not site_dir.is_dir():
         return
-    taken = {e["batch_id"] for e in scan_audit(site_dir)[0] if e["status"] in ("sent", "duplicate")
-             and (e.get("tenant_id"), e.get("site_id")) == (policy.tenant, policy.site)}
+    in_store: dict[str | None, set[str]] = {}  # per store (the destination logged): batches taken since a withdrawal
+    for e in scan_audit(site_dir)[0]:
+        if (e.get("tenant_id"), e.get("site_id")) != (policy.tenant, policy.site):
+            continue
+        if e["status"] in ("sent", "duplicate"):
+            in_store.setdefault(destination_of(e), set()).add(e["batch_id"])
+        elif e["status"] == "withdrawn":  # every row of the site deleted there (a lake's path names no store)
+            in_store.pop(destination_of(e), None)
+    taken = set().union(*in_store.values())
     if taken:
         raise ConfigError(f"--site-dir {site_dir}: no site key ({KEY_FILE}), but {len(taken)} batch(es) of site "
                           f"{policy.site} went to the store from here without it; a push would store their findings "
                           f"again under new ids: run `cellguard fleet withdraw --policy POLICY --site-dir {site_dir}` "
                           f"once (with --lake if they landed in one), then push again")
+
+
+def _kept_ahead(signatures: list[Signature], policy: DataPolicy, counted_on: dt.date, clock: str) -> str | None:
+    """One line naming the signatures the export kept at the site as dated after tomorrow by ``counted_on`` (the
+    UTC date of ``clock``), or None. Counted on the store's date, a record dated by a host a day ahead of it passed
+    that host's own check (``from_record``), and the push said only "kept at the site"."""
+    days = dated_ahead(signatures, counted_on) if policy.export != "nothing" else []
+    if not days:
+        return None
+    span = days[0] if days[0] == days[-1] else f"{days[0]} to {days[-1]}"
+    return (f"{len(days)} signature(s) dated {span} kept at the site: after tomorrow ({newest_kept(counted_on)}) by "
+            f"{clock}'s UTC date (the clock that recorded them ran ahead, or {clock}'s clock is behind): {AHEAD}")
 
 
 def _unkeyed(batch: Batch, key: bytes) -> str | None:
