@@ -56,13 +56,42 @@ def _one_select(sql: str, parse: Callable[[str], list] = duckdb.extract_statemen
         raise RecordError("sql: the query is empty; write one SELECT over the tables cycles and events")
     if len(statements) > 1:
         raise RecordError(f"sql: {len(statements)} statements given; write one SELECT over cycles and events")
-    kind = statements[0].type
+    kind = _kind(statements[0])
     if kind not in ALLOWED_STATEMENTS:
-        raise RecordError(f"sql: {kind.name} statements are refused; the query is read-only: one SELECT over "
+        why = ": extensions are not available in a query" if kind == duckdb.StatementType.LOAD else ""
+        raise RecordError(f"sql: {_written(statements[0])} is refused{why}; the query is read-only: one SELECT over "
                           f"the tables cycles and events")
     if kind == duckdb.StatementType.EXPLAIN:
         _explains_a_select(statements[0].query, parse)
     return sql
+
+
+def _kind(statement) -> duckdb.StatementType | None:
+    """DuckDB's type of ``statement``; None for one its Python enum has no member for (UPDATE EXTENSIONS raised
+    ValueError, and the refusal was "ValueError: 29 is not a valid StatementType")."""
+    try:
+        return statement.type
+    except ValueError:
+        return None
+
+
+def _written(statement) -> str:
+    """What a refusal names: the statement's leading keywords as written (at most four), and DuckDB's type where it
+    is none of them. The type alone misled: INSTALL is a LOAD statement, TRUNCATE a DELETE, CHECKPOINT a CALL."""
+    raw = statement.query.encode()  # token positions are byte offsets
+    words = []
+    for pos, kind in duckdb.tokenize(statement.query):
+        if kind == duckdb.token_type.comment:
+            continue
+        if kind != duckdb.token_type.keyword or len(words) == 4:
+            break
+        words.append(re.match(rb"\w*", raw[pos:])[0].decode().upper())
+    kind = _kind(statement)
+    name = "UNKNOWN" if kind is None else kind.name.replace("_", " ")
+    written = " ".join(words)
+    if not written or kind in (None, duckdb.StatementType.LOAD) or name in written:
+        return written or name
+    return f"{written} (read as {name})"
 
 
 def _explains_a_select(sql: str, parse: Callable[[str], list]) -> None:
@@ -90,9 +119,13 @@ def _explains_a_select(sql: str, parse: Callable[[str], list]) -> None:
             inner = parse(raw[cut:].decode(errors="replace"))
         except duckdb.Error:
             continue
-        if len(inner) == 1 and inner[0].type == duckdb.StatementType.SELECT:
+        if len(inner) != 1:
+            found = f"{len(inner)} statements"
+        elif _kind(inner[0]) == duckdb.StatementType.SELECT:
             return
-        found = f"a {inner[0].type.name} statement" if len(inner) == 1 else f"{len(inner)} statements"
+        else:
+            written = _written(inner[0])
+            found = f"{'an' if written[0] in 'AEIOU' else 'a'} {written} statement"
     raise RecordError(f"sql: EXPLAIN of {found} is refused (EXPLAIN ANALYZE runs it); only EXPLAIN of one SELECT "
                       f"over the tables cycles and events")
 

@@ -45,7 +45,6 @@ from __future__ import annotations
 import bisect
 import datetime as dt
 import itertools
-import json
 import math
 import os
 from collections.abc import Callable, Iterable, Iterator
@@ -60,6 +59,7 @@ from mcap.records import Message
 from cellguard.errors import RecordError
 from cellguard.record import folder_lock
 from cellguard.record.index import foreign_run
+from cellguard.record.json_values import loads
 from cellguard.record.scan import ChunkRef, Layout, open_buffer, read_chunk, scan
 from cellguard.record.schemas import BY_TOPIC, CHUNK, TICK_FIELDS, TICKS
 from cellguard.record.writer import INDEX_DIR, RECORD_FILE, RECORD_VERSION
@@ -369,7 +369,7 @@ class Record:
 
     def _json(self, messages: Iterable[Message], topic: str, build: Callable[[dict], object]) -> Iterator[tuple]:
         """(message, ``build(decoded JSON)``) per message, as ``_decoded``."""
-        return self._decoded(messages, topic, lambda data: build(json.loads(data)))
+        return self._decoded(messages, topic, lambda data: build(loads(data)))
 
     def _decoded(self, messages: Iterable[Message], topic: str, decode: Callable[[bytes], object]) -> Iterator[tuple]:
         """(message, ``decode(data)``) per message; one that does not decode or fit its schema is skipped and
@@ -580,7 +580,7 @@ def _saved_context(saved: dict[str, str]) -> tuple[ContextChange, dict] | None:
     from cellguard.record.context import versions
 
     try:
-        context = _context_types(json.loads(saved["context"]))
+        context = _context_types(loads(saved["context"]))
     except (KeyError, ValueError, TypeError):
         return None
     t_ns = _natural(saved.get("t_ns", "0"))
