@@ -30,6 +30,7 @@ from cellguard.diagnose.feature_kinds import NOT_MONITORED, kind_of, scale_floor
 from cellguard.diagnose import steady
 from cellguard.errors import RecordError
 from cellguard.output import keep_output
+from cellguard.record.json_values import loads
 
 MAD_TO_SIGMA = 1.4826
 LOAD_FEATURE = "grasped"
@@ -218,8 +219,8 @@ class Baseline:
     @classmethod
     def load(cls, path: Path) -> Baseline:
         try:
-            raw = json.loads(Path(path).read_text())
-        except (OSError, json.JSONDecodeError) as exc:
+            raw = loads(Path(path).read_text())
+        except (OSError, ValueError) as exc:  # ValueError: not JSON, or nested past json_values.MAX_DEPTH
             raise RecordError(f"{path}: cannot read the baseline ({exc.__class__.__name__})") from None
         try:
             return cls.from_dict(raw)

@@ -11,11 +11,11 @@ chunks and ticks are kept reduced (``reductions``).
 from __future__ import annotations
 
 import hashlib
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
 from cellguard.errors import CellguardError, RecordError
+from cellguard.record.json_values import loads
 from cellguard.record.reader import CycleRecord, EventRecord, open_record
 from cellguard.record.writer import RECORD_FILE
 from cellguard.release.bundle import sha256_file
@@ -71,7 +71,7 @@ def _shadow(path: Path) -> tuple[tuple[dict, ...] | None, str | None]:
         return None, None
     try:
         data = path.read_bytes()
-        chunks = json.loads(data)["chunks"]
+        chunks = loads(data)["chunks"]
     except OSError as exc:
         raise RecordError(f"{path}: cannot read ({exc.strerror or exc.__class__.__name__})") from None
     except (ValueError, TypeError, KeyError):

@@ -13,11 +13,11 @@ act only on entries that match their hashes, and append only after the store's h
 from __future__ import annotations
 
 import hashlib
-import json
 import re
 from dataclasses import dataclass
 from datetime import datetime, timezone
 
+from cellguard.record.json_values import loads
 from cellguard.release.bundle import canonical_json
 from cellguard.release.errors import ReleaseError, StageError
 
@@ -100,7 +100,7 @@ def _rows(store) -> list[tuple]:
 def _body(text: str) -> dict | None:
     """The entry's body, or None when it is not a JSON object (edited outside cellguard)."""
     try:
-        body = json.loads(text)
+        body = loads(text)
     except ValueError:
         return None
     return body if isinstance(body, dict) else None

@@ -7,7 +7,6 @@ and its log entry) are one transaction: a refused or failed command leaves the s
 
 from __future__ import annotations
 
-import json
 import os
 import re
 import sqlite3
@@ -16,6 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from cellguard.output import make_folder
+from cellguard.record.json_values import loads
 from cellguard.release.bundle import Bundle, canonical_json, release_id
 from cellguard.release.errors import ReleaseError
 
@@ -253,7 +253,7 @@ def _stored_bundle(rid: str, text: str) -> Bundle:
     """The bundle as stored; ReleaseError when its manifest is not a JSON object or no longer hashes to its id
     (edited outside cellguard: never acted on, nor read into a traceback)."""
     try:
-        manifest = json.loads(text)
+        manifest = loads(text)
     except ValueError:
         manifest = None
     if not isinstance(manifest, dict):
