@@ -35,10 +35,30 @@ def test_a_stamp_beyond_2_62_is_a_rejected_chunk_and_the_next_is_taken(stamp):
     (-(2**62), True, ["chunk_rejected"]),  # out of order: older than the chunk in use
 ])
 def test_a_stamp_at_2_62_is_taken_without_an_exception(stamp, in_use, kinds):
-    """The bound's edge goes through placing, the blend from rest or from a curve, and the ticks after it."""
-    ex = Executor(PROFILE, Q0, MS)
+    """The bound's edge goes through placing, the blend from rest or from a curve, and the ticks after it (on a
+    clock that has reached the stamp: one ahead of the tick is refused, below)."""
+    ex, now = Executor(PROFILE, Q0, MS), max(stamp, 0) + MS
     if in_use:
-        ex.push(_chunk(0, 0.01), 0)
-        ex.reference(0)
-    assert [e.kind for e in ex.push(_chunk(stamp), MS)] == kinds
-    assert all(np.isfinite(ex.reference(t * MS)).all() for t in range(2, 300))
+        ex.push(_chunk(now - 2 * MS, 0.01), now - 2 * MS)
+        ex.reference(now - 2 * MS)
+    assert [e.kind for e in ex.push(_chunk(stamp), now)] == kinds
+    assert all(np.isfinite(ex.reference(now + t * MS)).all() for t in range(1, 300))
+
+
+@pytest.mark.parametrize("ahead_ns", [MS + 1, 20 * MS, 100 * 10**9, 2**62 - 5 * MS])
+def test_a_chunk_stamped_after_its_tick_is_refused_and_the_next_on_time_is_taken(ahead_ns):
+    """A policy or bridge on another clock: taken, a chunk answering a future observation blocked every later
+    chunk as out of order, until the watchdog stopped the run."""
+    ex = Executor(PROFILE, Q0, MS)
+    ex.push(_chunk(0, 0.01), 0)
+    events = ex.push(_chunk(5 * MS + ahead_ns, 0.03), 5 * MS)
+    assert [e.kind for e in events] == ["chunk_rejected"] and "after this tick" in events[0].reason
+    assert ex.push(_chunk(6 * MS, 0.02), 7 * MS) == []
+    q = [ex.reference(t * MS) for t in range(7, 600)][-1]
+    assert np.allclose(q[:5], Q0[:5] + 0.02)
+
+
+def test_a_chunk_stamped_up_to_one_period_after_its_tick_is_taken():
+    """A bridge's read stamped within the tick it is used on."""
+    ex = Executor(PROFILE, Q0, MS)
+    assert ex.push(_chunk(2 * MS, 0.01), MS) == []

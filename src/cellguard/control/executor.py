@@ -28,7 +28,8 @@ back within the limits.
 Time: chunks are stamped in the policy's (real) time; the reference is read on a playback
 clock that runs at ``scale`` (1 = real time). Speed scaling slows the clock, so the path keeps
 its geometry and only time stretches. A chunk's steps are placed on the playback clock from the
-time of the observation they answer; steps already behind the clock when the chunk arrives are
+time of the observation they answer (a chunk stamped more than a servo period after the tick it
+arrives on answers no observation yet made: refused); steps already behind the clock when the chunk arrives are
 dropped (the curve is never read before now), never replayed; except the first chunk's: the robot waited at rest
 (the start, or an approach) while the policy thought, so it starts when it is taken, as if observed then (cut, its
 first steps' motion was made up in the blend from rest, 0.63 rad in 200 ms for a 1 s chunk 450 ms late, and the
@@ -126,6 +127,10 @@ class Executor:
             chunk = self.prepare(chunk)
         if chunk.problem is not None:
             return [Event(t_ns, EventKind.CHUNK_REJECTED, chunk.problem)]
+        if chunk.t_obs_ns - t_ns > self.dt_ns:  # taken, it would block every later chunk as out of order
+            return [Event(t_ns, EventKind.CHUNK_REJECTED, f"stamped {(chunk.t_obs_ns - t_ns) * 1e-9:.3f} s after "
+                                                          "this tick: it answers an observation not yet made (a "
+                                                          "policy or robot stamping on another clock)")]
         if self._chunk is not None and chunk.t_obs_ns == self._chunk.t_obs_ns:
             return []  # the same answer again (a policy with nothing new): no new information
         if self._chunk is not None and chunk.t_obs_ns < self._chunk.t_obs_ns:
