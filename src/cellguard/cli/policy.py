@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import json
+import os
 import sys
+import tempfile
 from pathlib import Path
 
 import typer
@@ -12,7 +14,9 @@ from cellguard.cli import stdout
 from cellguard.cli.app import app
 from cellguard.cli.errors import fail
 from cellguard.cli.text import say
-from cellguard.errors import CellguardError
+from cellguard.errors import CellguardError, ConfigError, OutputError
+
+SEED_MAX = 2**32 - 1  # the seed seeds numpy; the range of sim-server's --seed
 
 
 @app.command("train-demo-policy")
@@ -22,7 +26,7 @@ def train_demo_policy(
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing ONNX file at --out."),
     cycles: int = typer.Option(10, min=2, max=500, help="Scripted demonstration cycles to record."),
     random_features: int = typer.Option(64, min=0, max=4096, help="Random tanh units beside the time basis."),
-    seed: int = typer.Option(0, min=0, help="Seed of the demonstrations and the initial weights."),
+    seed: int = typer.Option(0, min=0, help="Seed of the demonstrations and the initial weights (0 to 2^32-1)."),
     fixture_dx_mm: float = typer.Option(0.0, "--fixture-dx-mm", min=-5.0, max=5.0,
                                         help="Record the demonstrations with the fixture moved this far in x \\[mm]."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),
@@ -36,7 +40,10 @@ def train_demo_policy(
     try:
         # before the demonstrations are recorded: never over a record, into a run folder, or over a model
         # (one a release may have hashed) unless --overwrite
+        if seed > SEED_MAX:
+            raise ConfigError(f"--seed: must be in 0..{SEED_MAX}, got {seed}")
         refuse_output(out, None, replace=overwrite)
+        _refuse_unwritable(out)
         report = train(out, cycles=cycles, random_features=random_features, seed=seed, fixture_dx_mm=fixture_dx_mm,
                        overwrite=overwrite)
         stdout.written(f"the policy {report.path}")
@@ -49,3 +56,16 @@ def train_demo_policy(
         f"({report.hidden} hidden units, joint error rms {report.rms_error_mrad:.2f} mrad, "
         f"worst {report.max_error_mrad:.2f} mrad); "
         f"written to {report.path}; run it with policy: onnx:{report.path}", err=False)
+
+
+def _refuse_unwritable(out: Path) -> None:
+    """OutputError unless a file can be made in the folder that will hold ``out`` (or the nearest one there is): a
+    read-only folder failed only at the save, after minutes of training."""
+    target = Path(os.path.realpath(out))
+    folder = next(d for d in target.parents if d.is_dir())
+    try:
+        with tempfile.TemporaryFile(dir=folder):  # anonymous, or removed at once: nothing is left there
+            pass
+    except OSError as exc:
+        raise OutputError(f"-o {out}: cannot write in {folder} ({exc.strerror or type(exc).__name__}); "
+                          f"choose another path (nothing trained or written)") from None
