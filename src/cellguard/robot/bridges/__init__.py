@@ -34,7 +34,7 @@ def _lerobot(spec: BridgeSpec, scenario):
 
     if scenario is None:  # a bridge built on its own, as LeRobot's tools and the tests build one
         return make_lerobot_robot(spec.argument)
-    return make_lerobot_robot(spec.argument, scenario.realtime.read_timeout_s)
+    return make_lerobot_robot(spec.argument, scenario.realtime.read_timeout_s, cell=scenario.cell)
 
 
 BRIDGES: dict[str, Callable[[BridgeSpec, object], object]] = {"sim-server": _sim_server, "lerobot": _lerobot}

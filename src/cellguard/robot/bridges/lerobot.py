@@ -38,7 +38,7 @@ import numpy as np
 from typing import TYPE_CHECKING
 
 from cellguard.embodiment import Profile, load_profile
-from cellguard.errors import CellguardError, ConfigError
+from cellguard.errors import CellguardError, ConfigError, ScenarioError
 from cellguard.options import bounded_float, split_options
 from cellguard.robot.protocol import RobotLinkError, SafetyInputs
 from cellguard.robot.state import Observation, State
@@ -278,8 +278,10 @@ class LeRobotBridge:
         return out
 
 
-def make_lerobot_robot(arg: str, read_timeout_s: float = READ_TIMEOUT_S) -> LeRobotBridge:
-    """``TYPE?opt=value&...``: LeRobot's robot ``TYPE`` with its config options, plus ``units``/``embodiment``/``hz``."""
+def make_lerobot_robot(arg: str, read_timeout_s: float = READ_TIMEOUT_S,
+                       cell: str | None = None) -> LeRobotBridge:
+    """``TYPE?opt=value&...``: LeRobot's robot ``TYPE`` with its config options, plus ``units``/``embodiment``/``hz``.
+    ``cell``: the cell the scenario names, which must be one of the robot this bridge drives (None: not checked)."""
     where = f"robot: lerobot:{arg.partition('?')[0]}".rstrip(":")  # no type: "robot: lerobot: missing target"
     robot_type, options = split_options(arg, None, where, "lerobot:TYPE?port=...&id=...")  # the rest go to TYPE's config
     ours = {k: options.pop(k) for k in list(options) if k in OPTIONS}
@@ -292,6 +294,8 @@ def make_lerobot_robot(arg: str, read_timeout_s: float = READ_TIMEOUT_S) -> LeRo
 
     embodiment = EMBODIMENTS[name]()
     profile = load_profile(embodiment.load_model(), embodiment.profile)
+    if cell is not None:
+        _refuse_other_robot(cell, profile, where)
     units = load_action_map(Path(ours.get("units", embodiment.units)), profile)
     hz = bounded_float(ours.get("hz", 50.0), f"{where}: option hz", 1.0, 1000.0)
     lockstep = ours.get("lockstep", "0")
@@ -300,6 +304,18 @@ def make_lerobot_robot(arg: str, read_timeout_s: float = READ_TIMEOUT_S) -> LeRo
     home = _home(ours["home"], profile, units) if "home" in ours else None
     return LeRobotBridge(lerobot_robot(robot_type, options), profile, units, round(1e9 / hz), lockstep=lockstep == "1",
                          timeout_s=read_timeout_s, home=home)
+
+
+def _refuse_other_robot(cell: str, profile: Profile, where: str) -> None:
+    """ScenarioError unless the scenario's ``cell`` is a cell of the robot ``profile`` guards, before LeRobot's robot is
+    built or connected: the run drove and guarded this robot while its summary named the scenario's cell (an SO-101
+    run filed as the arm cell's), as a sim-server serving another cell is refused."""
+    from cellguard.robot.registry import make_cell
+
+    named = make_cell(cell).profile.robot
+    if named != profile.robot:
+        raise ScenarioError(f"cell: the scenario names {cell!r}, a cell of robot {named!r}, but {where} drives robot "
+                            f"{profile.robot!r}; name a cell of {profile.robot!r}, or a bridge to the scenario's robot")
 
 
 def _home(text: str, profile: Profile, units: ActionMap) -> np.ndarray:
