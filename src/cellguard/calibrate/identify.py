@@ -316,6 +316,7 @@ def load_records(paths: list[Path], cell, cycle: int | None = None) -> tuple[lis
         if missing:
             raise CalibrationError(f"{path}: the record has no motor current on {', '.join(missing)}; identification "
                                    "needs the current of every joint it fits")
+        refuse_nonfinite_velocity(path, record_id, ticks)
         keep = np.isfinite(tau[:, joints]).all(1) & np.isfinite(ticks.q_meas).all(1) & np.isfinite(ticks.q_cmd).all(1)
         t_ns = ticks.t_ns
         # contiguous runs of servo-rate ticks (a decimated stream or a gap splits them)
@@ -329,6 +330,20 @@ def load_records(paths: list[Path], cell, cycle: int | None = None) -> tuple[lis
             raise CalibrationError(f"{path}: no stretch of {MIN_TICKS} ticks at the servo rate; record at full rate "
                                    "(`cellguard excite` does)")
     return segments, healths
+
+
+def refuse_nonfinite_velocity(path: Path, record_id: str, ticks) -> None:
+    """CalibrationError naming the first tick (time, joint, value) whose measured velocity is NaN or infinite, and how
+    many are. Every joint's velocity enters the inverse dynamics of every joint (a gripper's too), so one NaN made the
+    least-squares solve fail in a traceback ("SVD did not converge"). A NaN current is a drive that senses none (its
+    ticks are left out where the joint is fitted); a velocity has no such reading: it is a bus or writer fault."""
+    bad = ~np.isfinite(ticks.qd_meas)
+    if bad.any():
+        k, j = np.argwhere(bad)[0]
+        raise CalibrationError(f"{path}: run {record_id}'s measured velocity (qd_meas) of {ticks.joints[j]} is "
+                               f"{ticks.qd_meas[k, j]} at tick t_ns {ticks.t_ns[k]} ({int(bad.sum())} of "
+                               f"{bad.size} values not finite); identification needs a number on every tick: check "
+                               "the drive's bus or the program that wrote the record, and record again")
 
 
 def identify(segments: list[Segment], cell, params: tuple[str, ...]) -> dict:
