@@ -6,11 +6,16 @@ Each hinge joint's ``armature`` [kg*m^2], ``damping`` [N*m*s/rad] and ``friction
 1 mm sphere that collides with nothing), as ``identify`` models
 it. The text is compiled before it is returned, so a file written from it loads. The profile keeps no
 payload entry (a measured entry belongs to a joint): the MJCF is where a calibration's payload is
-stored, and ``calibrated_payload`` reads it back for a re-fit that holds it.
+stored, and ``calibrated_payload`` reads it back for a re-fit that holds it. Both ends check what a
+calibration puts in against the ranges a real arm could have (``refuse_implausible``): the file sits
+beside the profile and is edited by hand (a 1e30 kg payload was held by a re-fit that then wrote
+friction 8e70 N*m; a NaN one was read as 4 mg, a 0 kg one as none, each written on as a new calibration).
 """
 
 from __future__ import annotations
 
+import math
+import xml.etree.ElementTree as ElementTree
 from pathlib import Path
 
 import mujoco
@@ -18,9 +23,15 @@ import numpy as np
 
 from cellguard.calibrate.identify import CalibrationError
 from cellguard.calibrate.torque_model import JointTerms, hinge_joints
+from cellguard.embodiment.profile import MEASURED_MAX
 
 PAYLOAD_BODY = "calibrated_payload"
 POINT_RADIUS = 1e-3  # the payload's sphere: small enough to be a point mass [m]
+# the plausible range of a calibrated payload, generous: the largest rated payload of a serial arm built is 2300 kg
+# (FANUC M-2000iA/2300); its inertia about its centre that of 2500 kg spread 2 m around it. A payload body is written
+# only for a fitted mass above zero, so 0 kg (or a mass MuJoCo took from a density instead) is none identify wrote.
+PAYLOAD_KG = 2500.0
+PAYLOAD_INERTIA = 1e4  # [kg*m^2], each principal moment
 
 
 def calibrated_mjcf(cell, terms: JointTerms) -> str:
@@ -47,24 +58,100 @@ def calibrated_mjcf(cell, terms: JointTerms) -> str:
         spec.compile()  # refuses what would not load
     except ValueError as exc:
         raise CalibrationError(f"--write: the calibrated MJCF of {cell.name} would not load: {exc}") from None
+    refuse_implausible(spec, cell.profile, f"--write: the calibrated MJCF of {cell.name}")  # none a read refuses
     return spec.to_xml()
+
+
+def refuse_implausible(spec: mujoco.MjSpec, profile, where: str) -> None:
+    """CalibrationError naming the first term of a calibrated MJCF (``spec``, named ``where``) outside the range a
+    real arm could have: per hinge joint of ``profile``, armature and damping at least zero and at most what a
+    profile's measured entry may be (``MEASURED_MAX``), dry friction at most the joint's effort (more would hold it
+    still); the payload body's mass above zero and at most ``PAYLOAD_KG``, an inertia written for it at most
+    ``PAYLOAD_INERTIA``. NaN fails every comparison, so it is refused too. Checked on the spec: a file read is checked
+    before it is compiled (compiling a 1e30 kg payload printed MuJoCo's "inertia matrix is too close to singular")."""
+    for joint in profile.joints:
+        if joint.kind != "hinge":  # a calibration writes the hinges' terms only
+            continue
+        terms = spec.joint(joint.name)
+        if terms is None:
+            raise CalibrationError(f"{where}: has no joint {joint.name}, a joint of the profile; check the file "
+                                   "(was it edited?)")
+        damping = np.array(terms.damping, dtype=np.float64, ndmin=1)[0]  # MuJoCo 4: [linear, higher orders]
+        _within(where, f"joint {joint.name} armature", terms.armature, MEASURED_MAX["armature"], "kg*m^2")
+        _within(where, f"joint {joint.name} damping", damping, MEASURED_MAX["damping"], "N*m*s/rad")
+        _within(where, f"joint {joint.name} frictionloss", terms.frictionloss, joint.effort, "N*m")
+    body = spec.body(PAYLOAD_BODY)
+    if body is None:
+        return
+    if body.explicitinertial:  # an <inertial> edited in: MuJoCo takes it over the geoms
+        _within(where, f"body {PAYLOAD_BODY} inertial mass", body.mass, PAYLOAD_KG, "kg", above_zero=True)
+        for i, moment in enumerate(body.inertia):
+            _within(where, f"body {PAYLOAD_BODY} inertial diaginertia[{i}]", moment, PAYLOAD_INERTIA, "kg*m^2")
+    else:  # a geom without a mass (NaN in the spec) would weigh its volume at the default density
+        _within(where, f"body {PAYLOAD_BODY} geom mass", sum(g.mass for g in body.geoms), PAYLOAD_KG, "kg",
+                above_zero=True)
+
+
+def _within(where: str, field: str, value: float, high: float, unit: str, above_zero: bool = False) -> None:
+    """CalibrationError naming ``field`` unless ``value`` lies in 0..``high`` (``above_zero``: excluding 0)."""
+    if not (0.0 < value if above_zero else 0.0 <= value) or not value <= high:
+        span = f"{'(' if above_zero else '['}0, {high:g}] {unit}"
+        raise CalibrationError(f"{where}: {field} {float(value):g} {unit} is outside the plausible {span}; no real "
+                               "arm has it: check the file (was it edited?)")
+
+
+def _refuse_not_a_number(path: Path, where: str) -> None:
+    """CalibrationError naming the first attribute of the MJCF at ``path`` that holds a NaN: MuJoCo loads it with a
+    warning, and a NaN mass as no mass (the payload's 1 mm sphere then weighed 4 mg by the default density)."""
+    try:
+        root = ElementTree.parse(path).getroot()
+    except (ElementTree.ParseError, OSError):
+        return  # MuJoCo's loader names what is wrong
+    parents = {child: parent for parent in root.iter() for child in parent}
+    for element in root.iter():
+        for attribute, text in element.attrib.items():
+            if any(_is_nan(token) for token in text.split()):
+                name, owner = element.get("name"), parents.get(element)  # an unnamed geom: named by its body
+                shown = (f"{element.tag} {name}" if name else f"{element.tag} of {owner.tag} {owner.get('name')}"
+                         if owner is not None else element.tag)
+                raise CalibrationError(f"{where}: {shown} {attribute} {text!r} is not a number; check the file "
+                                       "(was it edited?)")
+
+
+def _is_nan(token: str) -> bool:
+    try:
+        return math.isnan(float(token))
+    except ValueError:
+        return False
 
 
 def calibrated_payload(path: Path, profile, option: str = "--profile") -> float:
     """The payload [kg] the calibration of ``profile`` (read from ``path``, given as ``option``) put into its
     calibrated MJCF, beside the profile (a link's target); 0 without a calibration or a payload body. A
-    calibration whose MJCF is missing or does not load is refused: holding the payload at zero instead
-    biased every term a re-fit estimated (elbow armature 20 % high with 0.2 kg at the tool)."""
+    calibration whose MJCF is missing, does not load or holds a term no arm has (``refuse_implausible``) is refused:
+    holding the payload at zero instead biased every term a re-fit estimated (elbow armature 20 % high with 0.2 kg
+    at the tool)."""
     if profile.calibration is None:
         return 0.0
     mjcf = Path(path).resolve().with_name(profile.calibration.mjcf)
     refused = f"{option}: {path}'s calibration {profile.calibration.version} names the MJCF {mjcf}, which"
     if not mjcf.is_file():  # a FIFO would block the reader
         raise CalibrationError(f"{refused} is not a file there; its payload is read from it")
+    where = f"{option}: {mjcf} ({path}'s calibrated MJCF)"
+    _refuse_not_a_number(mjcf, where)
     try:
-        model = mujoco.MjModel.from_xml_path(str(mjcf))
+        spec = mujoco.MjSpec.from_file(str(mjcf))
     except ValueError as exc:
-        first = (str(exc).strip().splitlines() or [exc.__class__.__name__])[0]
-        raise CalibrationError(f"{refused} does not load ({first}); its payload is read from it") from None
+        raise _unloadable(refused, exc) from None
+    refuse_implausible(spec, profile, where)
+    try:
+        model = spec.compile()
+    except ValueError as exc:
+        raise _unloadable(refused, exc) from None
     body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, PAYLOAD_BODY)
     return float(model.body_mass[body]) if body >= 0 else 0.0
+
+
+def _unloadable(refused: str, exc: ValueError) -> CalibrationError:
+    first = (str(exc).strip().splitlines() or [exc.__class__.__name__])[0]
+    return CalibrationError(f"{refused} does not load ({first}); its payload is read from it")

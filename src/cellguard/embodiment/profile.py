@@ -57,7 +57,7 @@ _MEASURED = {
 }
 # the largest value a known parameter may have, SI, beyond which it is a typing error, not a robot
 # (friction is bounded by the joint's effort instead: friction above it would hold the joint still)
-_MEASURED_MAX = {"damping": 1e4, "armature": 1e3, "actuator_time_constant": 10.0, "backlash": 1.0}
+MEASURED_MAX = {"damping": 1e4, "armature": 1e3, "actuator_time_constant": 10.0, "backlash": 1.0}
 _SI = {"torque": "N*m", "force": "N", "damping": "N*m*s/rad", "inertia": "kg*m^2", "mass": "kg", "time": "s",
        "angle": "rad", "length": "m"}
 
@@ -400,7 +400,7 @@ def _measured_value(text: object, field: str, parameter: str, joint: JointLimits
     value = _quantity(text, field, dims)
     if value < 0.0:
         raise ProfileError(f"{field}: {parameter} of {joint.name} must be at least zero, got {text}")
-    limit = joint.effort if parameter == "friction" else _MEASURED_MAX[parameter]
+    limit = joint.effort if parameter == "friction" else MEASURED_MAX[parameter]
     if value > limit:
         what = "the joint's effort " if parameter == "friction" else "the most it can be, "
         raise ProfileError(f"{field}: {parameter} of {joint.name} {text} is above {what}{limit:g} {_SI[dims[0]]}; "
