@@ -2,8 +2,10 @@
 
 Per joint, ``friction``, ``damping`` and ``armature`` replace the profile's ``measured`` entries of
 the same joint and parameter (value, unit, date, method naming the records and the interval). The
-calibration gets a version id ``DATE-cal-HASH`` (a hash of the measured values, the calibrated MJCF
-and the version it replaces, so a second calibration is always a new version). Beside the profile:
+calibration gets a version id ``DATE-cal-HASH`` (a hash of the whole profile it writes, the calibrated MJCF
+and the version it replaces, so a second calibration is always a new version, and two profiles that differ never
+share one: a write whose id's MJCF or kept copy exists with other contents is refused, and so is a profile edited
+by hand that kept the version of a copy kept beside it). Beside the profile:
 
     NAME.VERSION.xml      the calibrated MJCF (the commissioned model with the profile's measured joint
                           terms and the identified payload); the profile's ``model`` names it
@@ -69,10 +71,12 @@ def check_write_target(path: Path, cell) -> None:
     """Before any record is read: ``path`` (a link: its target) is not a cell's installed profile
     (``_refuse_packaged``) nor a kept copy (``_refuse_kept_copy``), and the files a write adds beside it have names a
     file system takes, at most NAME_MAX bytes: the old profile kept as NAME.VERSION.yaml and the calibrated MJCF as
-    NAME.DATE-cal-HASH.xml (a 300-character version failed only after the fit, in a traceback)."""
+    NAME.DATE-cal-HASH.xml (a 300-character version failed only after the fit, in a traceback); nor a profile
+    edited by hand that kept its version (``_refuse_edited_version``)."""
     _refuse_packaged(path, cell)  # naming the path given (a link's target is where it resolves)
     path = _target(path)
-    version = _checked(path, cell, read_bounded(path, "profile", ProfileError))["version"]
+    data = read_bounded(path, "profile", ProfileError)
+    version = _checked(path, cell, data)["version"]
     _refuse_kept_copy(path, str(version))
     kept = f"the old profile's copy {path.stem}.VERSION{path.suffix} (its version is {_bytes(version)} bytes)"
     for name, what, fix in ((kept_copy(path, version).name, kept, "give the profile a shorter version"),
@@ -81,6 +85,7 @@ def check_write_target(path: Path, cell) -> None:
         if _bytes(name) > NAME_MAX:
             raise ProfileError(f"--write: {path}: the name of {what} would be {_bytes(name)} bytes, over the "
                                f"{NAME_MAX} a file name may have; {fix} (nothing written)")
+    _refuse_edited_version(path, str(version), data)
 
 
 def write_profile(path: Path, cell, result: dict, date: str, basis: bytes | None = None) -> Written:
@@ -112,6 +117,25 @@ def _refuse_kept_copy(path: Path, version: str) -> None:
         raise ProfileError(f"--write: {path} is the copy of version {version} kept when its profile was recalibrated "
                            f"(releases and records of that version read it); write the profile it was kept from, or "
                            f"copy it to another name first (nothing written)")
+
+
+def _refuse_edited_version(path: Path, version: str, data: bytes) -> None:
+    """The copy of ``version`` kept beside ``path`` (whose bytes are ``data``) differs from it: the profile was edited
+    and kept its version string. Written on, the edit would go unkept (the copy is never overwritten) and the new
+    calibration's ``previous`` would name the other document. Refused: give the edited profile a version of its own."""
+    kept = kept_copy(path, version)
+    if _is_file(kept, "kept profile") and read_bounded(kept, "profile", ProfileError) != data:
+        raise ProfileError(f"--write: {path} is version {version}, but the copy of version {version} kept beside it "
+                           f"({kept.name}) differs: the profile was edited and kept its version; give it a version "
+                           "of its own (nothing written)")
+
+
+def _refuse_other_version(target: Path, data: bytes, what: str, version: str) -> None:
+    """A ``what`` of the new ``version`` already at ``target`` with other bytes (edited by hand, or the id's eight hex
+    digits met another document's): reusing the id would name two different calibrations. Refused, naming it."""
+    if _is_file(target, what) and read_bounded(target, what, ProfileError) != data:
+        raise ProfileError(f"--write: the {what} {target} of version {version} exists with other contents; that "
+                           "version names another calibration: move it away or restore it (nothing written)")
 
 
 def _refuse_packaged(path: Path, cell) -> None:
@@ -157,6 +181,7 @@ def _write(path: Path, cell, result: dict, date: str, basis: bytes | None) -> Wr
                                "the terms it held are no longer the profile's: run identify --only again")
     raw = _checked(path, cell, old_bytes)
     _refuse_kept_copy(path, str(raw.get("version", "unversioned")))
+    _refuse_edited_version(path, str(raw.get("version", "unversioned")), old_bytes)
     new = [e for e in result["estimates"] if e["parameter"] in WRITTEN and e["interval"] is not None]
     if not new:
         raise CalibrationError(f"--write: nothing identified to write (of {', '.join(WRITTEN)})")
@@ -177,7 +202,10 @@ def _write(path: Path, cell, result: dict, date: str, basis: bytes | None) -> Wr
     raw["measured"] = measured
     draft = parse_profile(cell.model, yaml.safe_dump(raw, sort_keys=False).encode(), str(path))
     mjcf = calibrated_mjcf(cell, JointTerms.of_profile(cell, draft, _payload(result)))
-    digest = hashlib.sha256(json.dumps([measured, old_version, mjcf], sort_keys=True).encode()).hexdigest()[:8]
+    # the whole document it records (limits too: a hand-edited limit under a kept version made the same id twice)
+    recorded = {key: value for key, value in raw.items() if key not in ("version", "model", "calibration")}
+    digest = hashlib.sha256(json.dumps([recorded, date, records, old_version, mjcf], sort_keys=True,
+                                       default=str).encode()).hexdigest()[:8]
     version = f"{date}-cal-{digest}"
     mjcf_path = _mjcf(path, version)
     raw["version"] = version
@@ -187,6 +215,8 @@ def _write(path: Path, cell, result: dict, date: str, basis: bytes | None) -> Wr
     text = yaml.safe_dump(raw, sort_keys=False, allow_unicode=True)
     parse_profile(mujoco.MjModel.from_xml_string(mjcf), text.encode(), str(path))  # loads on its own model
     kept = kept_copy(path, old_version)
+    _refuse_other_version(mjcf_path, mjcf.encode(), "calibrated MJCF", version)
+    _refuse_other_version(kept_copy(path, version), text.encode(), "kept profile", version)
     added = []
     try:
         # an older version already kept there is never overwritten; a folder there fails here, before the profile
