@@ -47,7 +47,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from cellguard.diagnose.baseline import Baseline, feature_matrix
+from cellguard.diagnose.baseline import MIN_CYCLES, Baseline, feature_matrix
 from cellguard.diagnose.cycles import Cycle
 from cellguard.diagnose.drift import DriftAlarm
 from cellguard.diagnose.feature_kinds import kind_of, member_of
@@ -660,7 +660,9 @@ def intermittent_finding(baseline: Baseline, cycles: Sequence[Cycle], z: np.ndar
     watched = len(cycles) - next(i for i, c in enumerate(cycles) if c.index == found.first)
     head = (f"intermittent: {len(found.cycles)} of {watched} cycles from cycle {found.first} on ({found.rate:.0%}), "
             f"{_hit_cycles(found)}",)
-    return Finding(named.cause, found.first, named.confidence, head + named.evidence, named.signals, rate=found.rate)
+    # the drives are watched on the cycles between its hits: a hit that dropped the part says nothing of them
+    evidence = tuple(e for e in named.evidence if not e.startswith(DRIVES_UNWATCHED))
+    return Finding(named.cause, found.first, named.confidence, head + evidence, named.signals, rate=found.rate)
 
 
 def _on_hits(baseline: Baseline, cycles: Sequence[Cycle], z: np.ndarray, found) -> tuple[_Window, list[DriftAlarm]]:
@@ -713,12 +715,23 @@ def intermittent_findings(baseline: Baseline, cycles: Sequence[Cycle], z: np.nda
 
 
 UNCHANGED_CURRENT = "current unchanged"
+DRIVES_UNWATCHED = "drives not watched"
 
 
 def _unchanged_currents(w: _Window, start: int) -> str:
     """``UNCHANGED_CURRENT`` where every joint's current RMS stayed within ``UNCHANGED_Z`` scales (a geometry
     finding says so; it drops the line beside a joint finding that began with it, or a joint told in it as the new
-    path's whose current moved ``MATERIAL`` or more)."""
+    path's whose current moved ``MATERIAL`` or more). Where the currents were watched on fewer cycles from ``start``
+    on than a baseline needs (``MIN_CYCLES``) while more were there (the others at another load), it says the drives
+    went unwatched instead: a 4 mm camera shift fails most grasps, and one grasped cycle's "unchanged" ruled out the
+    servo fault that came with it."""
+    cols = [j for j, n in enumerate(w.baseline.names) if n.startswith("current_rms.")]
+    rows = [i for i, c in enumerate(w.cycles) if c.index >= start]
+    watched = int(np.sum(~np.all(np.isnan(w.z[np.ix_(rows, cols)]), axis=1))) if cols else 0
+    if cols and watched < min(MIN_CYCLES, len(rows)):
+        return (f"{DRIVES_UNWATCHED}: joint currents watched on {watched} of its {len(rows)} cycles, too few to rule "
+                "out a drive fault (a cycle at another load than the acceptance, no part grasped, or settling after a "
+                "declared change is not watched)")
     zs = [abs(w.zmed(n, start)) for n in w.baseline.names if n.startswith("current_rms.")]
     zs = [z for z in zs if np.isfinite(z)]
     return UNCHANGED_CURRENT if zs and max(zs) < UNCHANGED_Z else ""
