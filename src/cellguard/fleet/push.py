@@ -45,7 +45,7 @@ store to ask, more than the retention after the site's newest signature (it woul
 fast), retention deletes nothing this push and says so in one line naming the dates.
 
 A site folder with no site key whose audit log says a store took batches of the site (sent before the key, or
-under a key since lost) since the site last withdrew from it is refused before anything is made: a new key gave the
+under a key since lost) is refused before anything is made: a new key gave the
 same findings new ids, stored a second time. ``fleet withdraw`` deletes what the site pooled and makes the key; then
 the site pushes again. So is a ``site_dir`` that is not a folder (a file there ended the push in a traceback, after
 the diagnosis), or whose audit log (a hard link too), site key or outbox is a link (``check_site``), and a link in
@@ -62,7 +62,7 @@ from pathlib import Path
 
 from cellguard.dates import utc_today
 from cellguard.errors import ConfigError, OutputError
-from cellguard.fleet.audit import (append_audit, append_retention, check_log, check_site_dir, destination_of,
+from cellguard.fleet.audit import (append_audit, append_retention, check_log, check_site_dir,
                                    refuse_links, scan_audit)
 from cellguard.fleet.export import AHEAD, Batch, dated_ahead, export_batch, newest_kept, oldest_kept, refusal
 from cellguard.fleet.lake import check_lake, forget, newest, write_signatures
@@ -174,24 +174,17 @@ def check_site(site_dir: Path, must_exist: bool = False) -> None:
 
 
 def check_key_history(site_dir: Path, policy: DataPolicy) -> None:
-    """ConfigError if ``site_dir`` has no site key but its audit log says a store holds batches of this site: sent
+    """ConfigError if ``site_dir`` has no site key but its audit log says a store took batches of this site: sent
     by a version before the key, or under a key since lost. A new key gives their findings new ids, so the push
     stored each of them a second time (and ids made before the key keep withheld fields recoverable); withdrawing
-    the site first deletes them, and makes the key (``fleet withdraw``). A batch a store took before the site's
-    last withdrawal from that store (its log entry ``withdrawn`` there) is no longer in it: with the key lost after
-    a withdrawal, the push was refused though nothing of the site was left to store twice."""
+    the site first deletes them, and makes the key (``fleet withdraw``). An earlier withdrawal clears nothing: the
+    log names a store by host, port and database, which two stores can share (a ``service=`` DSN, defaults from the
+    environment), so a withdrawal from one let the other's batches be stored twice."""
     site_dir = Path(site_dir)
     if (site_dir / KEY_FILE).exists() or not site_dir.is_dir():
         return
-    in_store: dict[str | None, set[str]] = {}  # per store (the destination logged): batches taken since a withdrawal
-    for e in scan_audit(site_dir)[0]:
-        if (e.get("tenant_id"), e.get("site_id")) != (policy.tenant, policy.site):
-            continue
-        if e["status"] in ("sent", "duplicate"):
-            in_store.setdefault(destination_of(e), set()).add(e["batch_id"])
-        elif e["status"] == "withdrawn":  # every row of the site deleted there (a lake's path names no store)
-            in_store.pop(destination_of(e), None)
-    taken = set().union(*in_store.values())
+    taken = {e["batch_id"] for e in scan_audit(site_dir)[0] if e["status"] in ("sent", "duplicate")
+             and (e.get("tenant_id"), e.get("site_id")) == (policy.tenant, policy.site)}
     if taken:
         raise ConfigError(f"--site-dir {site_dir}: no site key ({KEY_FILE}), but {len(taken)} batch(es) of site "
                           f"{policy.site} went to the store from here without it; a push would store their findings "

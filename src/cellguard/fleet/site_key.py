@@ -3,11 +3,10 @@
 ``SITE_DIR/site.key``, 32 random bytes as 64 hex digits, owner-only (0600), made at the site's
 first push and never sent anywhere. The same site keeps the same key, so a finding pushed again
 keeps its id (re-pushes add nothing); anyone without the key (the operator, other tenants) cannot
-test a guess of a withheld field against an id. A folder whose audit log says batches went to a store
-without its key (a version before the key, or a key since lost), and the site has not withdrawn from that
-store since, gets none from a push, which is refused (``push.check_key_history``: a new key stored every
-finding again under new ids); ``fleet withdraw`` deletes what the site pooled and makes it, then the site
-pushes again.
+test a guess of a withheld field against an id. A folder whose audit log says batches went to the store
+without its key (a version before the key, or a key since lost) gets none from a push, which is
+refused (``push.check_key_history``: a new key stored every finding again under new ids);
+``fleet withdraw`` deletes what the site pooled and makes it, then the site pushes again.
 """
 
 from __future__ import annotations
