@@ -43,8 +43,13 @@ FIELDS = {"when_utc": str, "what": str, "rows": int, "withheld_rows": int, "poli
 MAX_AUDIT_BYTES = 1 << 30  # [bytes] about 3 million entries
 NO_LINKS = "the site's files are written only in its folder, never through a link: move what it names there, or " \
            "remove the link"
-HARD_LINKED = "another name of the same file lies elsewhere, where every entry appended here appears too: give the " \
-              f"site a copy of its own (cp {AUDIT_FILE} {AUDIT_FILE}.own && mv {AUDIT_FILE}.own {AUDIT_FILE})"
+
+
+def _hard_linked(path: Path, names: int) -> str:
+    """Why an audit log with ``names`` names is not appended to, and the copy that makes it the site's own."""
+    return (f"audit log {path}: a hard link ({names} names of one file, as a backup by hard links makes), where every "
+            f"entry appended here appears too: give the site a copy of its own (cp '{path}' '{path}.own' && mv "
+            f"'{path}.own' '{path}'), then run the command again")
 
 
 class AuditError(ConfigError):
@@ -89,7 +94,7 @@ def _append(site_dir: Path, fields: dict) -> dict:
         try:
             names = os.fstat(fd).st_nlink  # of the file opened: a link made after the push's check is seen too
             if names > 1:
-                raise OutputError(f"audit log {path}: a hard link ({names} names of one file); {HARD_LINKED}")
+                raise OutputError(_hard_linked(path, names))
             os.write(fd, (json.dumps(entry, sort_keys=True) + "\n").encode())
             os.fsync(fd)
         finally:
@@ -117,8 +122,9 @@ def refuse_links(site_dir: Path, *names: str) -> None:
 
 
 def check_log(site_dir: Path) -> None:
-    """ConfigError naming the site's audit log if it is a link: symbolic (``refuse_links``) or hard, a second name
-    elsewhere of the same file, where every entry appended here appears too (and another site's appear here)."""
+    """ConfigError naming the site's audit log, before a command that appends to it, if it is a link: symbolic
+    (``refuse_links``) or hard, a second name elsewhere of the same file, where every entry appended here appears too
+    (and another site's appear here). Reading one is harmless (``scan_audit`` refuses only a symbolic link)."""
     refuse_links(site_dir, AUDIT_FILE)
     path = Path(site_dir) / AUDIT_FILE
     try:
@@ -126,8 +132,7 @@ def check_log(site_dir: Path) -> None:
     except OSError:  # none yet, or one that cannot be looked at: the read or the append names why
         return
     if stat.S_ISREG(st.st_mode) and st.st_nlink > 1:
-        raise ConfigError(f"--site-dir {site_dir}: {AUDIT_FILE} is a hard link ({st.st_nlink} names of one file); "
-                          f"{HARD_LINKED}")
+        raise ConfigError(f"--site-dir {site_dir}: {_hard_linked(path, st.st_nlink)}")
 
 
 def check_site_dir(site_dir: Path, missing_ok: bool = False) -> None:
@@ -149,9 +154,10 @@ def read_audit(site_dir: Path) -> list[dict]:
 def scan_audit(site_dir: Path) -> tuple[list[dict], list[str]]:
     """(the entries that can be read, one line per line that cannot). No log yet: no entries.
     AuditError when ``site_dir`` is not a folder or the log is not a file that can be read; ConfigError when it is
-    a link (``check_log``): it is read as the writes would take it, never followed."""
+    a symbolic link: it is read as the writes would take it, never followed (a hard link, a backup's second name of
+    the site's own file, reads as it is)."""
     check_site_dir(site_dir)
-    check_log(site_dir)
+    refuse_links(site_dir, AUDIT_FILE)
     path = Path(site_dir) / AUDIT_FILE
     if not path.exists():
         return [], []
