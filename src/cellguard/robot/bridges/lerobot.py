@@ -307,15 +307,17 @@ def make_lerobot_robot(arg: str, read_timeout_s: float = READ_TIMEOUT_S,
 
 
 def _refuse_other_robot(cell: str, profile: Profile, where: str) -> None:
-    """ScenarioError unless the scenario's ``cell`` is a cell of the robot ``profile`` guards, before LeRobot's robot is
-    built or connected: the run drove and guarded this robot while its summary named the scenario's cell (an SO-101
-    run filed as the arm cell's), as a sim-server serving another cell is refused."""
+    """ScenarioError unless the scenario's ``cell`` guards the joints ``profile`` does, in its order, before LeRobot's
+    robot is built or connected: the run drove and guarded this robot while its summary named the scenario's cell
+    (an SO-101 run filed as the arm cell's), as a sim-server serving another cell is refused. Compared by joints,
+    not by the profile's ``robot`` name: a plugin cell of the same robot gives its own profile its own name."""
     from cellguard.robot.registry import make_cell
 
-    named = make_cell(cell).profile.robot
-    if named != profile.robot:
-        raise ScenarioError(f"cell: the scenario names {cell!r}, a cell of robot {named!r}, but {where} drives robot "
-                            f"{profile.robot!r}; name a cell of {profile.robot!r}, or a bridge to the scenario's robot")
+    named = make_cell(cell).profile
+    if named.joint_names != profile.joint_names:
+        raise ScenarioError(f"cell: the scenario names {cell!r}, whose joints are {', '.join(named.joint_names)}, but "
+                            f"{where} drives robot {profile.robot!r}, whose joints are {', '.join(profile.joint_names)}; "
+                            "name a cell of that robot, or a bridge to the scenario's robot")
 
 
 def _home(text: str, profile: Profile, units: ActionMap) -> np.ndarray:
