@@ -65,10 +65,12 @@ def record(folder: Path, cycles: int, ticks_per_cycle: int, events: dict[int, st
 
 
 def rewrite(source: Path, target: Path, metadata: dict[str, dict[str, str]] | None = None,
-            edit: Callable[[str, dict], dict] | None = None, sequence: int | None = None) -> None:
+            edit: Callable[[str, dict], dict] | None = None, sequence: int | None = None,
+            edit_bytes: Callable[[str, bytes], bytes] | None = None) -> None:
     """Copy the record of folder ``source`` into folder ``target`` (without its index) through the mcap Writer, as
     a tampered or foreign file: ``metadata`` updates the metadata records it names, ``edit(topic, payload)``
-    returns each JSON message's payload, ``sequence`` numbers every message alike."""
+    returns each JSON message's payload, ``edit_bytes(topic, data)`` each message's bytes (a binary one's),
+    ``sequence`` numbers every message alike."""
     target.mkdir(parents=True, exist_ok=True)
     with open(source / "record.mcap", "rb") as f, open(target / "record.mcap", "wb") as out:
         reader = make_reader(f)
@@ -86,6 +88,8 @@ def rewrite(source: Path, target: Path, metadata: dict[str, dict[str, str]] | No
             data = m.data
             if edit is not None and channel.message_encoding == "json":
                 data = json.dumps(edit(channel.topic, json.loads(data))).encode()
+            if edit_bytes is not None:
+                data = edit_bytes(channel.topic, data)
             writer.add_message(m.channel_id, m.log_time, data, m.publish_time,
                                m.sequence if sequence is None else sequence)
         writer.finish()

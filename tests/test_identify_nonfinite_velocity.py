@@ -10,8 +10,7 @@ import numpy as np
 import pytest
 from arm_excitation import excited, profile  # noqa: F401 (fixtures)
 from cli_util import one_error
-from mcap.reader import make_reader
-from mcap.writer import CompressionType, Writer
+from record_synth import rewrite
 from typer.testing import CliRunner
 
 from cellguard.cli import app
@@ -24,31 +23,21 @@ T_NS = 1_501_000_000  # the tick made bad: inside the 3 s excitation, past its f
 def with_velocity(source: Path, target: Path, joint: str, value: float) -> Path:
     """A copy of the record in folder ``source`` whose ``joint``'s measured velocity at ``T_NS`` is ``value``, in
     every tick stream that carries that tick, written through the mcap Writer (a record from another writer)."""
-    target.mkdir(parents=True)
-    with open(source / "record.mcap", "rb") as f, open(target / "record.mcap", "wb") as out:
-        reader = make_reader(f)
-        summary = reader.get_summary()
-        writer = Writer(out, compression=CompressionType.ZSTD)
-        writer.start(profile="cellguard", library="test")
-        for record in reader.iter_metadata():
-            writer.add_metadata(record.name, record.metadata)
-        for schema in summary.schemas.values():
-            writer.register_schema(schema.name, schema.encoding, schema.data)
-        for _, channel in sorted(summary.channels.items()):
-            writer.register_channel(channel.topic, channel.message_encoding, channel.schema_id, channel.metadata)
-        edited = 0
-        for _, channel, m in reader.iter_messages(log_time_order=False):
-            data = m.data
-            if channel.topic.startswith("/ticks"):
-                batch = TICKS.decode(data)
-                hit = np.flatnonzero(np.asarray(batch["t_ns"]) == T_NS)
-                if len(hit):
-                    qd = np.array(batch["qd_meas"], dtype=np.float32).reshape(len(batch["t_ns"]), -1)
-                    qd[hit[0], list(batch["joints"]).index(joint)] = value
-                    data = TICKS.encode(batch | {"qd_meas": qd.ravel()})
-                    edited += 1
-            writer.add_message(m.channel_id, m.log_time, data, m.publish_time, m.sequence)
-        writer.finish()
+    edited = []
+
+    def velocity(topic: str, data: bytes) -> bytes:
+        if not topic.startswith("/ticks"):
+            return data
+        batch = TICKS.decode(data)
+        hit = np.flatnonzero(np.asarray(batch["t_ns"]) == T_NS)
+        if not len(hit):
+            return data
+        qd = np.array(batch["qd_meas"], dtype=np.float32).reshape(len(batch["t_ns"]), -1)
+        qd[hit[0], list(batch["joints"]).index(joint)] = value
+        edited.append(topic)
+        return TICKS.encode(batch | {"qd_meas": qd.ravel()})
+
+    rewrite(source, target, edit_bytes=velocity)
     assert edited, "no tick stream carries the tick"
     return target
 
