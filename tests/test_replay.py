@@ -77,6 +77,20 @@ def test_records_are_handed_out_in_order_once_due(tmp_path):
     assert second.t_obs_ns - obs.t_ns == 100_000_000 and third.t_obs_ns - obs.t_ns == 50_000_000
 
 
+def test_a_file_cut_from_a_longer_record_plays_from_its_first_chunk(tmp_path):
+    """``t`` starting at 0.3 s: the first chunk, handed out at once, was stamped 0.3 s after the observation it
+    answers, the executor refused it as from the future and the run ended "policy lost"."""
+    n, h = 60, 10
+    actions = CELL.q_home + np.linspace(0.0, 0.2, n * h).reshape(n, h, 1) * (np.arange(6) < 5)
+    path = _write(tmp_path / "cut.npz", t=0.3 + np.arange(n) * 0.05, actions=actions, dt=DT)
+    obs = CELL.observe()
+    assert make_policy(f"replay:{path}", CELL).infer(obs).t_obs_ns == obs.t_ns
+    run = Run(parse_scenario({"cell": "arm-pick-place", "policy": f"replay:{path}", "acceptance_cycles": 1,
+                              "production_cycles": 0, "cycle": {"source": "time", "seconds": 3.0}}))
+    run.cycle()
+    assert not run.policy_lost and "chunk_rejected" not in {e.kind for e in run.events}
+
+
 def test_an_adversarial_replay_runs_through_the_arm_cell_inside_the_limits(tmp_path):
     rng = np.random.default_rng(4)
     n, h = 40, 10

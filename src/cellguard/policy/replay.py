@@ -6,7 +6,8 @@ of the cycle; ``actions`` (N, H, D) in the cell's joint order and SI units; opti
 played at an assumed 20 ms, as the other sources once were).
 Each cycle replays the file from its start. Records are handed out in file order once their
 time has come, stamped with that time, so late, out-of-order and silent streams replay as
-recorded; the values are not checked here (NaN and wrong sizes are what such streams are for):
+recorded; the first is handed out at once, stamped no later than the observation it answers (a file whose
+``t`` starts after 0 was stamped ahead of it: the executor refuses such a chunk); the values are not checked here (NaN and wrong sizes are what such streams are for):
 the executor refuses bad chunks with events. A malformed *file* is refused at load, naming what
 is wrong.
 """
@@ -62,7 +63,8 @@ class ReplayPolicy:
             i = self._next
             self._next += 1
             unc = None if self.uncertainty is None else self.uncertainty[i]
-            self._last = ActionChunk(self.actions[i], self._t0_ns + int(self._t_ns[i]), self.dt_ns, unc)
+            stamp = min(self._t0_ns + int(self._t_ns[i]), observation.t_ns)
+            self._last = ActionChunk(self.actions[i], stamp, self.dt_ns, unc)
         return self._last
 
 
