@@ -23,7 +23,7 @@ def loads(data: bytes | str):
     try:
         value = json.loads(data)
         # no more brackets than MAX_DEPTH cannot nest deeper (most messages): walked only where there are more
-        deep = sum(map(data.count, opens)) > MAX_DEPTH and _deeper(value, MAX_DEPTH)
+        deep = sum(map(data.count, opens)) > MAX_DEPTH and deeper(value, MAX_DEPTH)
     except RecursionError:  # deeper than the interpreter's stack
         deep = True
     if deep:
@@ -31,7 +31,7 @@ def loads(data: bytes | str):
     return value
 
 
-def _deeper(value, limit: int) -> bool:
+def deeper(value, limit: int) -> bool:
     """Whether ``value`` nests more than ``limit`` lists and maps, found a level at a time (no recursion)."""
     level, depth = ([value] if isinstance(value, (dict, list)) else []), 0
     while level and depth < limit:

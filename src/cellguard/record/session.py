@@ -60,6 +60,7 @@ from cellguard.errors import RecordError
 from cellguard.record import folder_lock
 from cellguard.record.context import build_context, software_versions
 from cellguard.record.index import default_opener
+from cellguard.record.json_values import MAX_DEPTH, deeper, plain
 from cellguard.record.shared_pages import copy_shared_pages
 from cellguard.record.urdf import describe
 from cellguard.record.writer import RECORD_FILE, RecordConfig, Recorder, refuse_existing
@@ -143,6 +144,7 @@ class RunRecording:
             refuse_existing(folder, replace)  # again under the lock: a run that just finished there has a record
             cycles = getattr(run.scenario, "total_cycles", 100)
             context = cls._context(run, config, software_versions())
+            _refuse_deep(context, folder)
             profile = run.cell.profile
             model = getattr(run.cell, "model", None)
             description = None if model is None else describe(model, profile)
@@ -431,3 +433,15 @@ def _release(path: Path | None) -> None:
             path.unlink()
         except OSError:
             pass
+
+
+def _refuse_deep(context: dict, folder: Path) -> None:
+    """RecordError, before anything runs, naming the first key of ``context`` whose value nests past what a reader
+    takes (``json_values.MAX_DEPTH``: a cell's or plugin's own description 150 deep was written, and the run's own
+    record then read as damaged, its context lost)."""
+    # the context message holds the context, which holds the value: two levels above it
+    deep = next((key for key, value in context.items() if deeper(plain(value), MAX_DEPTH - 2)), None)
+    if deep is not None:
+        raise RecordError(f"{folder / RECORD_FILE}: the run's context nests {deep!r} deeper than {MAX_DEPTH} levels, "
+                          f"which no reader of the record takes (a cell's or plugin's own description?); nothing was "
+                          f"run")
