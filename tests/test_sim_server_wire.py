@@ -321,6 +321,7 @@ def fake_server(metadata, state):
 @pytest.mark.parametrize("edit, says", [
     (lambda m: b"{not json", "metadata must be a JSON object, got b'{not json'"),
     (lambda m: [1, 2, 3], "metadata must be a JSON object"),
+    (lambda m: b"[" * 30000 + b"]" * 30000, "metadata must be a JSON object"),  # a RecursionError traceback
     (lambda m: {k: v for k, v in m.items() if k != "cell"}, "cell must be a cell name, got nothing"),
     (lambda m: {**m, "dt_ns": 0}, "dt_ns must be the servo period, an integer 10^6 to 10^9 [ns] (1 kHz to 1 Hz), "
                                   "got 0"),
@@ -336,7 +337,7 @@ def fake_server(metadata, state):
      "q_home must be within the joint limits, elbow within [-2.5, 2.5], got 9.0"),
     (lambda m: {**m, "q_home": [*HOME[:5], 0.0059]}, "q_home must be within the joint limits, gripper within "
                                                      "[0.006, 0.029], got 0.0059"),
-], ids=["not-json", "a-list", "no-cell", "dt-zero", "dt-one", "dt-under-1ms", "dt-text", "measurements-text",
+], ids=["not-json", "a-list", "nested-30000-deep", "no-cell", "dt-zero", "dt-one", "dt-under-1ms", "dt-text", "measurements-text",
         "measurement-negative", "home-short", "home-nan", "home-beyond-a-limit", "home-under-a-limit"])
 def test_metadata_of_another_shape_is_one_error_naming_the_field(metadata, edit, says):
     """Tracebacks before (KeyError, ZeroDivisionError later in the tracker; a period of 1 ns a MemoryError sizing

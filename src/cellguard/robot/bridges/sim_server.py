@@ -184,7 +184,7 @@ class SimServerRobot:
         try:
             busy = json.loads(text)
             client, silent, live = str(busy["client"])[:60], float(busy["silent_ms"]), float(busy["live_ms"])
-        except (ValueError, TypeError, KeyError):
+        except (ValueError, TypeError, KeyError, RecursionError):  # RecursionError: JSON nested thousands deep
             client, silent, live = "another client", float("nan"), float("nan")
         return RobotLinkError("robot_read_failed", f"sim-server at {self.address[0]}:{self.address[1]} is serving "
                               f"{client} (heard {silent:.0f} ms ago); it takes a new client once its client has "
@@ -202,7 +202,7 @@ class SimServerRobot:
         zero later, a missing cell raised KeyError): metadata of another shape is one line naming the field."""
         try:
             meta = json.loads(text)
-        except ValueError:  # not JSON, or not UTF-8
+        except (ValueError, RecursionError):  # not JSON, not UTF-8, or nested thousands deep
             meta = None
         if not isinstance(meta, dict):
             raise self._bad_metadata("metadata", "a JSON object", repr(text[:60]))
