@@ -80,9 +80,12 @@ class Tracker:
         self._tail = self.a_max**3 / (6.0 * self.j_max**2)  # distance of the final jerk-up phase
         self._v3 = 0.5 * self.a_max**2 / self.j_max  # the velocity the final jerk-up phase removes
         self._v3sq, self._inv_2a = self._v3**2, 0.5 / self.a_max
-        # a bound of the stopping distance at speed |v| for any |a| <= a_max: c0 + c1 |v| + v²/2a
-        t1 = 2.0 * self.a_max / self.j_max
-        self._far0, self._far1 = 0.5 * self.a_max * t1 * t1 + self._tail, t1
+        # a bound of the stopping distance at speed |v| for any |a| <= a_max: c0 + c1 |v| + v²/2a, padded by a
+        # millionth for the acceleration the fit tolerates (a_max (1 + 1e-9) + 1e-12: the exact stop went 1e-11
+        # past the bound, and a joint the bound cleared on one side went unchecked there)
+        t1, pad = 2.0 * self.a_max / self.j_max, 1.0 + 1e-6
+        self._far0 = (0.5 * self.a_max * t1 * t1 + self._tail) * pad + 1e-12
+        self._far1, self._far2 = t1 * pad, self._inv_2a * pad
         # the same constants as plain floats: each tick runs joint by joint on Python floats, several times
         # cheaper than the dozens of numpy calls on (D,) arrays it would take for a handful of joints
         self._vmax_f, self._amax_f, self._jmax_f, self._lo_f, self._hi_f = (
@@ -90,10 +93,10 @@ class Tracker:
         self._half_inv_j_f = self._half_inv_j.tolist()
         self._stop_consts = tuple(zip(*(x.tolist() for x in (self.a_max, self.j_max, self._v3, self._v3sq,
                                                               self._inv_2a, self._tail))))  # what _travel reads
-        self._far_f = tuple(zip(*(x.tolist() for x in (self._far0, self._far1, self._inv_2a, self.a_max))))
+        self._far_f = tuple(zip(*(x.tolist() for x in (self._far0, self._far1, self._far2, self.a_max))))
         self._jerk_tick = (self.j_max * dt).tolist()  # the acceleration one tick of full jerk removes
         self._joints = tuple(zip(*(x.tolist() for x in (*self._limits, self._half_inv_j, self._far0, self._far1,
-                                                          self._inv_2a, self.lo, self.hi))))  # what _fits reads
+                                                          self._far2, self.lo, self.hi))))  # what _fits reads
         dof = len(self.v_max)
         self._absolute_in, self._offset_in, self._stop_in = (
             self._input(dof, ruckig.ControlInterface.Velocity), self._input(dof, ruckig.ControlInterface.Position),
