@@ -23,6 +23,7 @@ import json
 import re
 import shutil
 import tempfile
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -87,10 +88,17 @@ def export_lerobot(rec: Record, output: Path, fps: int | None = None, task: str 
         if len(t) < 2 or not evenly_spaced(t, fps):
             skipped.append(f"cycle {cycle.cycle}: " + ("no ticks" if len(t) < 2 else "gap in the decimated ticks"))
             continue
-        joints = ticks.joints
         frames = {name: getattr(ticks, field)[::stride] for name, field in _TICK_FEATURES.items()}
         if measurements:
-            frames["observation.environment_state"] = _held(measurements, cycle.cycle, t)
+            if cycle.cycle not in measurements:  # lost (a damaged record): its frames were NaN, and so its stats
+                skipped.append(f"cycle {cycle.cycle}: no camera or fixture readings recorded in it")
+                continue
+            frames["observation.environment_state"] = _held(measurements[cycle.cycle], t)
+        unfit = _not_float32(frames)
+        if unfit:
+            skipped.append(f"cycle {cycle.cycle}: {unfit}")
+            continue
+        joints = ticks.joints
         n, start = len(t), sum(len(c) for c in columns.get("index", []))
         frames |= {"timestamp": np.arange(n) / fps, "frame_index": np.arange(n), "episode_index": np.full(n, len(kept)),
                    "index": start + np.arange(n), "task_index": np.zeros(n, np.int64)}
@@ -120,7 +128,8 @@ def export_lerobot(rec: Record, output: Path, fps: int | None = None, task: str 
         for part in DATASET_PARTS:
             (staging / part).rename(output / part)
     except BaseException as exc:  # a full disk, Ctrl-C, SIGTERM: nothing of this run's is left in -o
-        refused = not staged.take_back(staging, output)  # a file not its own appeared there: its note must stay
+        # a file not its own appeared there: its note must stay
+        refused = not staged.take_back(staging, output, _is_staging(output))
         if made:
             with contextlib.suppress(OSError):
                 output.rmdir()  # only if empty
@@ -227,13 +236,22 @@ def _measurements(rec: Record) -> dict[int, tuple[np.ndarray, np.ndarray, tuple[
             for cycle, items in rows.items()}
 
 
-def _held(measurements: dict, cycle: int, t: np.ndarray) -> np.ndarray:
-    """The latest reading at or before each frame time (the first one before any was taken)."""
-    times, values, _ = measurements.get(cycle, (None, None, None))
-    if times is None:
-        width = len(next(iter(measurements.values()))[2])
-        return np.full((len(t), width), np.nan)
+def _held(readings: tuple[np.ndarray, np.ndarray, tuple[str, ...]], t: np.ndarray) -> np.ndarray:
+    """The latest of a cycle's ``readings`` at or before each frame time (the first one before any was taken)."""
+    times, values, _ = readings
     return values[np.clip(np.searchsorted(times, t, side="right") - 1, 0, len(times) - 1)]
+
+
+def _not_float32(frames: dict[str, np.ndarray]) -> str:
+    """What of a cycle's ``frames`` the dataset cannot hold ("" for none): a feature with NaN, an infinity or a value
+    beyond float32 (the data's type, inf once cast); LeRobot normalises with stats over them, and NaN made
+    meta/stats.json invalid JSON."""
+    for name, values in frames.items():
+        with np.errstate(over="ignore"):
+            bad = ~np.isfinite(np.asarray(values, dtype=np.float32)).reshape(len(values), -1).all(axis=1)
+        if bad.any():
+            return f"{name} is NaN, infinite or beyond float32 in {int(bad.sum())} of its {len(values)} frames"
+    return ""
 
 
 def _features(data: dict, joints: tuple[str, ...], measurements: dict) -> dict:
@@ -282,39 +300,62 @@ def _stats(values: np.ndarray) -> dict[str, list]:
 
 def _prepare(output: Path) -> Path:
     """Check or make the empty folder ``output`` (``output.resolve()``), once what a killed export had moved into it is
-    taken out; a new folder beside it, unique to this run, to write into."""
+    taken out; a new folder in ``_staging_home``, unique to this run, to write into."""
     refuse_filled_folder(output, "-o", _clear_stale_staging(output))
     try:
         output.mkdir(parents=True, exist_ok=True)
-        staging = Path(tempfile.mkdtemp(prefix=_staging_prefix(output), suffix=STAGING_SUFFIX, dir=output.parent))
-        staging.chmod(output.stat().st_mode & 0o7777)  # mkdtemp's 0700 would hide the dataset from other users
-        return staging
+        return Path(tempfile.mkdtemp(prefix=_staging_prefix(output), suffix=STAGING_SUFFIX, dir=_staging_home(output)))
     except OSError as exc:
         raise RecordError(f"-o {output}: cannot write ({exc.strerror})") from None
+
+
+def _staging_home(output: Path) -> Path:
+    """Where the staging folder of an export into ``output`` goes: beside it, or in it where ``output`` is a mount point
+    (a folder on another filesystem than its parent's), so that its parts are renamed into place on one filesystem
+    (from beside a mount point the moves failed: "Invalid cross-device link")."""
+    try:
+        if output.is_dir() and output.stat().st_dev != output.parent.stat().st_dev:
+            return output
+    except OSError:
+        pass  # _prepare's write says why
+    return output.parent
 
 
 def _staging_prefix(output: Path) -> str:
     return f".{output.name}."
 
 
+def _is_staging(output: Path) -> Callable[[Path], bool]:
+    """Whether a path is the staging folder of an export into ``output`` (``mkdtemp``'s name, a real folder)."""
+    mine = re.compile(re.escape(_staging_prefix(output)) + r"[a-z0-9_]{8}" + re.escape(STAGING_SUFFIX))
+    return lambda path: bool(mine.fullmatch(path.name)) and path.is_dir() and not path.is_symlink()
+
+
 def _clear_stale_staging(output: Path) -> str:
-    """Remove the staging folders beside ``output`` of exports killed before their clean-up (SIGKILL: nothing holds
+    """Remove the staging folders of exports into ``output`` killed before their clean-up (SIGKILL: nothing holds
     their lock; each stayed for good), and the parts of the dataset one had moved into ``output`` before it was
     killed where it holds nothing else (``staged``; the rerun was refused as "not empty"); RecordError if an export
     into ``output`` is still writing. Returns what to say of the ones kept (``staged.clear_killed``)."""
-    prefix = _staging_prefix(output)
-    mine = re.compile(re.escape(prefix) + r"[a-z0-9_]{8}" + re.escape(STAGING_SUFFIX))  # mkdtemp's 8 characters
+    staging = _is_staging(output)
     try:
-        leftovers = [p for p in output.parent.iterdir()
-                     if mine.fullmatch(p.name) and p.is_dir() and not p.is_symlink()]
+        leftovers = [p for p in _staging_home(output).iterdir() if staging(p)]
     except OSError:
         return ""  # the folder's own write says why it cannot be read
-    return staged.clear_killed(leftovers, output, f"-o {output}: another export is writing there")
+    return staged.clear_killed(leftovers, output, f"-o {output}: another export is writing there", staging)
 
 
 def _write_parquet(path: Path, table: pa.Table) -> None:
-    pq.write_table(table, str(path))  # OSError: the caller names -o as given
+    """Through a Python file: pyarrow's own path handling takes UTF-8 only (a folder name that is not UTF-8 ended
+    in a UnicodeEncodeError traceback). OSError: the caller names -o as given."""
+    with open(path, "wb") as f:
+        pq.write_table(table, f)
 
 
 def _write_json(path: Path, doc: dict) -> None:
-    path.write_text(json.dumps(doc, indent=4))
+    """Strict JSON: a number that is not finite (none once ``_not_float32`` kept its cycle out) is refused, never a file
+    LeRobot reads as NaN."""
+    try:
+        text = json.dumps(doc, indent=4, allow_nan=False)
+    except ValueError as exc:
+        raise RecordError(f"meta/{path.name}: {exc}; nothing written") from None
+    path.write_text(text)
