@@ -83,8 +83,8 @@ def describe(model: mujoco.MjModel, profile: Profile) -> tuple[str, JointFrames]
     """The URDF text of ``model`` and the frames of the ``profile``'s joints (the recorded ones, in its order).
 
     A moving joint's URDF limit states the profile's position range, effort [N·m or N] and velocity [rad/s or
-    m/s], the limits the guard enforced: the model's range may be wider (a viewer showed limits not in force),
-    and a URDF reader (MoveIt, a planner) takes 0 effort or velocity as a joint that cannot move or push.
+    m/s] to the last digit, the limits the guard enforced: the model's range may be wider (a viewer showed limits not
+    in force), and a URDF reader (MoveIt, a planner) takes 0 effort or velocity as a joint that cannot move or push.
     """
     column = {name: i for i, name in enumerate(profile.joint_names)}
     limits = {j.name: j for j in profile.joints}
@@ -107,8 +107,8 @@ def describe(model: mujoco.MjModel, profile: Profile) -> tuple[str, JointFrames]
             kind = "prismatic" if prismatic else "revolute"
             axis = model.jnt_axis[joint] / np.linalg.norm(model.jnt_axis[joint])
             lo, hi = limits[jname].position
-            extra = (f'<axis xyz="{_v(axis)}"/><limit lower="{lo:.6g}" upper="{hi:.6g}" '
-                     f'effort="{limits[jname].effort:.6g}" velocity="{limits[jname].velocity:.6g}"/>')
+            extra = (f'<axis xyz="{_v(axis)}"/><limit lower="{_exact(lo)}" upper="{_exact(hi)}" '
+                     f'effort="{_exact(limits[jname].effort)}" velocity="{_exact(limits[jname].velocity)}"/>')
             moving.append((column[jname], MovingJoint(jname, parent, link, xyz, quat, axis, bool(prismatic))))
         else:
             fixed.append((parent, link, xyz, np.array([quat[1], quat[2], quat[3], quat[0]])))
@@ -146,6 +146,12 @@ def _name(model, kind, i: int) -> str:
 
 def _v(values) -> str:
     return " ".join(f"{float(x):.6g}" for x in values)
+
+
+def _exact(value: float) -> str:
+    """A limit as the number the guard enforced (the shortest text that reads back as it): 6 digits rounded outward,
+    SO-101's ±105° read ±1.8326 rad against the guard's ±1.8325957."""
+    return repr(float(value))
 
 
 def _rpy(quat: np.ndarray) -> tuple[float, float, float]:
