@@ -25,8 +25,6 @@ from cellguard.errors import CellguardError, RecordError
 
 record_app = typer.Typer(no_args_is_help=True, help="Read, export, recover and query fault records.")
 app.add_typer(record_app, name="record")
-FORMATS = ("csv", "parquet")
-
 
 
 def warn_if_damaged(health, folder: Path) -> int:
@@ -129,16 +127,17 @@ def export(
     cycle: int | None = typer.Option(None, "--cycle", help="Only this cycle."),
 ) -> None:
     """Ticks as rows: t_ns, cycle, joint, q_ref, q_cmd, q_meas, qd_meas, effort, current."""
-    from cellguard.record.export import write_ticks
+    from cellguard.record.export import check_format, write_ticks
     from cellguard.record.outputs import refuse_output
-    from cellguard.record.reader import open_record
+    from cellguard.record.reader import RATES, open_record
 
     try:
-        if fmt not in FORMATS:
-            raise RecordError(f"--format: {fmt!r} is not one of {', '.join(FORMATS)}")
+        if rate not in RATES:  # the reader's own refusal names its parameter, "rate:"
+            raise RecordError(f"--rate: {rate!r} is not one of {', '.join(RATES)}")
         if cycle is not None and not 0 <= cycle < 2**63:
             raise RecordError(f"--cycle: {cycle} is outside [0, 2^63); cycles are numbered from 0")
-        refuse_output(output, folder)
+        refuse_output(output, folder)  # first: a record or a run's file there is the graver mistake
+        check_format(output, fmt)
         with open_record(folder) as rec:
             rows = write_ticks(rec.ticks(cycle=cycle, rate=rate), output, fmt)
             health = rec.health()

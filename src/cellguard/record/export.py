@@ -14,6 +14,20 @@ from cellguard.output import atomic_file
 from cellguard.record.reader import Ticks
 from cellguard.record.schemas import TICK_FIELDS
 
+SUFFIXES = {"csv": (".csv",), "parquet": (".parquet", ".pq")}  # the formats written, and the file names that say them
+
+
+def check_format(output: Path, fmt: str) -> None:
+    """RecordError unless ``fmt`` is a format written here and the name ``output`` says no other: ``-o t.parquet``
+    without ``--format parquet`` wrote CSV into it, which every Parquet reader then refused."""
+    if fmt not in SUFFIXES:
+        raise RecordError(f"--format: {fmt!r} is not one of {', '.join(SUFFIXES)}")
+    suffix = Path(output).suffix.lower()
+    named = next((other for other, suffixes in SUFFIXES.items() if suffix in suffixes), fmt)
+    if named != fmt:
+        raise RecordError(f"-o {output}: a {suffix} file is {named}, but --format is {fmt}; give --format {named}, "
+                          f"or a name ending in {SUFFIXES[fmt][0]}")
+
 
 def ticks_table(ticks: Ticks) -> pa.Table:
     """Columns t_ns, cycle, joint, q_ref, q_cmd, q_meas, qd_meas, effort, current; SI units."""
@@ -31,7 +45,7 @@ def ticks_table(ticks: Ticks) -> pa.Table:
 def write_ticks(ticks: Ticks, output: Path, fmt: str) -> int:
     """Write the table as csv or parquet (beside the target, then renamed); the number of rows written.
 
-    The caller checks ``output`` first with ``refuse_output``, before the ticks are read.
+    The caller checks ``output`` first with ``refuse_output`` and ``check_format``, before the ticks are read.
     """
     output = Path(output)
     table = ticks_table(ticks)
