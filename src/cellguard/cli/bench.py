@@ -55,6 +55,9 @@ def bench(
             except OSError as exc:  # a temporary file written outside the recorder (index parts, ...)
                 where = f"{exc.filename}: " if exc.filename else ""
                 fail(CellguardError(f"benchmark {name}: {where}{exc.strerror or exc}"))
+            except KeyboardInterrupt:  # Ctrl-C: the recording's writer finishes at exit (RunRecording), then this
+                sys.stderr.write(f"error: benchmark {name}: stopped by the operator (SIGINT); no figures\n")
+                raise typer.Exit(130) from None
     if as_json:
         sys.stdout.write(json.dumps(results, indent=1) + "\n")
         return

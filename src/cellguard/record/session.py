@@ -42,6 +42,7 @@ with the writer before the first tick (``shared_pages``), so no tick takes a cop
 
 from __future__ import annotations
 
+import atexit
 import collections
 import errno
 import gc
@@ -112,6 +113,10 @@ class RunRecording:
         self._process.start()
         op_reader.close()
         reply_writer.close()
+        # a process ending without close (Ctrl-C in a caller with no stop handler: bench) joins its daemon children
+        # at exit, and the writer, deaf to SIGTERM, waits for the end of this pipe: ended first, it finishes the
+        # file as a lost loop's and ends (else the process hung until the writer was killed)
+        atexit.register(self._op_writer.close)
         self._feeder = None
         # wall time: the writes that would copy the pages now shared with the writer, done now, not mid-tick
         self.pages_copied = copy_shared_pages() if self._realtime else None
@@ -224,6 +229,7 @@ class RunRecording:
         """Let the writer take what is queued and finish the file (after a failure only the handle is
         closed); free the reserve; let go of the folder unless ``keep_folder`` (``release_folder`` does, once the
         summary is beside the record: written after, it could land in the folder of a run started in between)."""
+        atexit.unregister(self._op_writer.close)
         self.events()
         self._send(None)
         if self._feeder is not None:
