@@ -6,18 +6,24 @@ is asked about. Every site's cell is the same model, commissioned once: one acce
 the baseline every run is diagnosed against (``diagnose_record(run, acceptance=...)``), as a
 fleet operator would ship one commissioning baseline with a standard cell. A production run is
 one clean cycle, then two with the fault. Runs are made and diagnosed two at a time (2 cores);
-a run folder is named by its scenario's hash, so a changed plan never reads a stale run.
+a run folder is named by its scenario's hash, so a changed plan never reads a stale run. SIGTERM or
+Ctrl-C cancels the queued jobs and waits for the running ones (a run they stopped is not kept): a
+worker left behind waited on its queue for good.
 
     python benchmarks/fleet_runs.py [DIR]     # makes the missing runs, prints what it did as JSON
 """
 
 from __future__ import annotations
 
+import argparse
+import contextlib
 import hashlib
 import json
 import os
 import shutil
+import signal
 import sys
+import threading
 import time
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
@@ -101,13 +107,18 @@ def plan() -> tuple[PlannedRun, list[PlannedRun], list[PlannedRun]]:
 
 def _make(folder: Path, scenario: dict) -> tuple[float, float]:
     """Run the scenario into ``folder`` (beside it, then renamed): (wall, CPU) seconds."""
+    from cellguard.errors import OperatorStopped
     from cellguard.runtime import run_scenario
+    from cellguard.runtime.operator_stop import by_operator
     from cellguard.scenario import parse_scenario
 
     t, c = time.perf_counter(), time.process_time()
     tmp = folder.with_name(folder.name + ".partial")
     shutil.rmtree(tmp, ignore_errors=True)
-    run_scenario(parse_scenario(scenario), tmp)
+    stopped = run_scenario(parse_scenario(scenario), tmp).get("stopped")
+    if by_operator(stopped):  # a signal cut it short: once renamed, it was read as the site's whole run
+        shutil.rmtree(tmp)
+        raise OperatorStopped(f"{folder.name}: {stopped}")
     os.replace(tmp, folder)
     return time.perf_counter() - t, time.process_time() - c
 
@@ -131,22 +142,58 @@ def make_fleet(root: Path = DEFAULT_DIR, workers: int = 2) -> dict:
     todo = [r for r in (acceptance, *sites, *held) if not (root / r.name / "summary.json").is_file()]
     t0 = time.perf_counter()
     out: dict = {"site": {}, "held": {}}
-    with ProcessPoolExecutor(workers) as pool:
-        made = list(pool.map(_make, [root / r.name for r in todo], [r.scenario for r in todo]))
-        t_made = time.perf_counter() - t0
-        groups = [("site", r) for r in sites] + [("held", r) for r in held]
-        found = pool.map(_signatures, [root / r.name for _, r in groups], [acc] * len(groups),
-                         [r.tenant for _, r in groups], [r.site for _, r in groups])
-        for (group, r), (sigs, _) in zip(groups, found):
-            out[group][r.name] = (r, sigs)
+    # a worker is a forked copy: SIGTERM ends it as before, the parent's handler raising there would not
+    pool = ProcessPoolExecutor(workers, initializer=signal.signal, initargs=(signal.SIGTERM, signal.SIG_DFL))
+    with _ended_by_sigterm():
+        try:
+            made = list(pool.map(_make, [root / r.name for r in todo], [r.scenario for r in todo]))
+            t_made = time.perf_counter() - t0
+            groups = [("site", r) for r in sites] + [("held", r) for r in held]
+            found = pool.map(_signatures, [root / r.name for _, r in groups], [acc] * len(groups),
+                             [r.tenant for _, r in groups], [r.site for _, r in groups])
+            for (group, r), (sigs, _) in zip(groups, found):
+                out[group][r.name] = (r, sigs)
+        finally:  # on a signal or an error too: the queued jobs cancelled, no worker outlives the script
+            pool.shutdown(cancel_futures=True)
     out.update(made=len(todo), runs=1 + len(sites) + len(held), acceptance=str(acc),
                make_cpu_s=sum(c for _, c in made), make_wall_s=t_made, wall_s=time.perf_counter() - t0)
     return out
 
 
-if __name__ == "__main__":
-    fleet = make_fleet(Path(sys.argv[1]) if len(sys.argv) > 1 else DEFAULT_DIR)
+@contextlib.contextmanager
+def _ended_by_sigterm():
+    """SIGTERM raises SystemExit(143) in the main thread while the pool works, as Ctrl-C raises
+    KeyboardInterrupt, so the pool is shut down on the way out (killed outright, the parent left its
+    workers waiting on their queue)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def end(signum, frame):
+        raise SystemExit(128 + signum)
+
+    previous = signal.signal(signal.SIGTERM, end)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("dir", nargs="?", type=Path, default=DEFAULT_DIR,
+                    help=f"folder of the cached runs (default {DEFAULT_DIR})")
+    args = ap.parse_args()
+    try:
+        fleet = make_fleet(args.dir)
+    except KeyboardInterrupt:
+        print("fleet_runs: stopped by Ctrl-C; the runs made so far are kept", file=sys.stderr)
+        sys.exit(130)
     read = {g: sum(r.cause in [s.cause for s in sigs] for r, sigs in fleet[g].values()) for g in ("site", "held")}
     print(json.dumps({k: v for k, v in fleet.items() if k not in ("site", "held")}
                      | {"read_as_injected": read, "site_runs": len(fleet["site"]), "held_runs": len(fleet["held"])},
                      default=str))
+
+
+if __name__ == "__main__":
+    main()

@@ -44,17 +44,21 @@ from pathlib import Path
 
 import numpy as np
 
-from cellguard.errors import CellguardError
+from cellguard.errors import CellguardError, ConfigError
 from cellguard.policy.chunk import ActionChunk
 from cellguard.record.ring import TickRing
+from cellguard.robot.registry import make_cell
 from cellguard.runtime import Run, run_scenario
 from cellguard.runtime.clock import WallClock
 from cellguard.runtime.servo_thread import PRIORITY, ServoThread
+from cellguard.runtime.sim_server import served_substeps
 from cellguard.scenario import parse_scenario
 
 HOME = np.array([0.0, -0.3, 1.9, 1.55, 0.0, 0.025])
 JOINTS = "shoulder_pan,shoulder_lift,elbow,wrist_flex,wrist_roll,gripper"
 HORIZON, DT_S = 50, 0.02  # a 1 s chunk, like ACT / pi0 chunks of 50
+CELL = "arm-pick-place"
+WEEK_S = 7 * 24 * 3600  # the longest --seconds (the sim-server's own bound on --duration-s)
 
 
 def sway(t_s: np.ndarray) -> np.ndarray:
@@ -180,12 +184,14 @@ def one_run(rate_hz: float, policy: str, worker: str, seconds: float, onnx_path:
             recording: bool = True) -> dict:
     port = free_port()
     server = subprocess.Popen([sys.executable, "-c", "from cellguard.cli import app; app()", "sim-server",
-                               "arm-pick-place", "--port", str(port), "--rate-hz", str(rate_hz)],
+                               CELL, "--port", str(port), "--rate-hz", str(rate_hz)],
                               stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                               env={**os.environ, "PYTHONUNBUFFERED": "1"})
     try:
-        server.stdout.readline()
-        spec = {"cell": "arm-pick-place", "robot": f"sim-server:udp://127.0.0.1:{port}",
+        ended = server_ended(server)
+        if ended:
+            return {"rate_hz": rate_hz, "policy": policy, "worker": worker, "refused": ended}
+        spec = {"cell": CELL, "robot": f"sim-server:udp://127.0.0.1:{port}",
                 "policy": f"onnx:{onnx_path}" if policy == "onnx100" else "scripted",
                 "acceptance_cycles": 1, "production_cycles": 0, "cycle": {"source": "time", "seconds": seconds},
                 # a new chunk is asked for at half the 1 s horizon: chunks come every ~0.5 s + latency
@@ -207,6 +213,17 @@ def one_run(rate_hz: float, policy: str, worker: str, seconds: float, onnx_path:
     return {"rate_hz": rate_hz, "policy": policy, "worker": worker, "recording": recording, "seconds": seconds,
             **summary["timing"], "inference_ms": cycle.get("inference"), "events": dict(events),
             "stopped": summary.get("stopped"), "host_steal_ms": stolen(steal_before)}
+
+
+def server_ended(server: subprocess.Popen) -> str | None:
+    """None once the sim-server says it serves; else the last line it wrote before it ended (its refusal:
+    read as the run's, the client's "does not answer" hid why)."""
+    said = ""
+    for line in server.stdout:
+        if line.startswith("sim-server "):
+            return None
+        said = line.strip() or said
+    return f"sim-server ended (exit code {server.wait()}): {said or 'nothing said'}"
 
 
 def _unrecorded(scenario, factory) -> dict:
@@ -245,9 +262,8 @@ def reference_costs() -> dict:
     import mujoco
 
     from cellguard.bench.guard import RuckigProbe
-    from cellguard.robot.registry import make_cell
 
-    cell = make_cell("arm-pick-place")
+    cell = make_cell(CELL)
     t = time.perf_counter()
     for _ in range(2000):
         mujoco.mj_step(cell.model, cell.data)
@@ -267,8 +283,9 @@ def main() -> None:
     parser.add_argument("--floor-seconds", type=float, default=60.0,
                         help="wall time of the machine-floor run per rate (at most --seconds)")
     args = parser.parse_args()
-    if not (args.seconds > 0 and args.floor_seconds > 0):  # NaN included
-        parser.error(f"--seconds and --floor-seconds must be positive, got {args.seconds} and {args.floor_seconds}")
+    for option, value in (("--seconds", args.seconds), ("--floor-seconds", args.floor_seconds)):
+        if not 0 < value <= WEEK_S:  # NaN and infinity included (inf ran for ever, 1e308 overflowed)
+            parser.error(f"{option}: more than 0 and at most {WEEK_S} s (a week), got {value:g}")
     try:
         rates = [float(r) for r in args.rates.split(",")]
     except ValueError:
@@ -276,6 +293,12 @@ def main() -> None:
     policies, workers, recording = args.policies.split(","), args.workers.split(","), args.recording.split(",")
     if not all(50 <= r <= 1000 for r in rates):
         parser.error(f"--rates: each from 50 to 1000 Hz (a profile's range), got {args.rates!r}")
+    step_ns = make_cell(CELL).dt_ns
+    for rate in rates:  # as the sim-server checks it: its refusal came back as a server that did not answer
+        try:
+            served_substeps(rate, step_ns)
+        except ConfigError as exc:
+            parser.error("--rates" + str(exc).removeprefix("--rate-hz"))
     if not set(policies) <= {"onnx100", "python", "sway"} or not set(workers) <= {"thread", "process"}:
         parser.error(f"--policies from onnx100,python,sway and --workers from thread,process; "
                      f"got {args.policies!r} and {args.workers!r}")

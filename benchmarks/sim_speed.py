@@ -5,12 +5,14 @@ ratio to one ``mj_step`` of the same cell measured in the same run (CPU time, be
 steps from the cell's start pose, before and after the loop; the loop's own steps see contacts
 and cost more). Prints one JSON document: {cell: {"cycles", "sim_s", "wall_s", "sim_s_per_wall_s",
 "us_per_tick", "cpu_us_per_tick", "mj_step_us", "tick_in_mj_steps"}}.
+
+    python benchmarks/sim_speed.py [CYCLES]     # cycles per cell, default 5
 """
 
 from __future__ import annotations
 
+import argparse
 import json
-import sys
 import time
 
 import mujoco
@@ -48,6 +50,14 @@ def measure(cell: str, cycles: int) -> dict:
             "tick_in_mj_steps": round(cpu / ticks * 1e6 / step, 2)}
 
 
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("cycles", nargs="?", type=int, default=5, help="acceptance cycles per cell (default 5)")
+    args = ap.parse_args()
+    if args.cycles < 1:  # no tick to divide by
+        ap.error(f"cycles: at least 1, got {args.cycles}")
+    print(json.dumps({name: measure(name, args.cycles) for name in CELLS}, indent=1))
+
+
 if __name__ == "__main__":
-    cycles = int(sys.argv[1]) if len(sys.argv) > 1 else 5
-    print(json.dumps({name: measure(name, cycles) for name in CELLS}, indent=1))
+    main()

@@ -1,0 +1,120 @@
+"""The benchmark scripts' command lines: ``--help`` prints usage and runs nothing, bad input is one line and exit 2
+before any work, and a SIGTERM leaves no pool worker behind. Only the refusal and help paths run here (each script
+runs in its own session, killed whole if it outlives its time, so a regression cannot leave a benchmark running)."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+BENCH = Path(__file__).resolve().parents[1] / "benchmarks"
+
+
+def start(script: str, *args: str, cwd: Path) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, str(BENCH / script), *args], cwd=cwd, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+
+
+def finish(proc: subprocess.Popen, timeout: float) -> tuple[int, str, str]:
+    """(exit code, stdout, stderr); the whole session killed and the test failed if it takes longer."""
+    try:
+        out, err = proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.communicate()
+        pytest.fail(f"{proc.args[1:]} still running after {timeout} s")
+    return proc.returncode, out, err
+
+
+def bench(script: str, *args: str, cwd: Path, timeout: float = 60) -> tuple[int, str, str]:
+    return finish(start(script, *args, cwd=cwd), timeout)
+
+
+def descendants(pid: int) -> list[int]:
+    children = [int(c) for c in subprocess.run(["pgrep", "-P", str(pid)], capture_output=True, text=True).stdout.split()]
+    return children + [d for c in children for d in descendants(c)]
+
+
+def alive(pid: int) -> bool:
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except (OSError, IndexError):
+        return False
+
+
+@pytest.mark.parametrize("script", ["fleet_runs.py", "sim_speed.py", "guard.py", "realtime.py"])
+def test_help_prints_usage_and_runs_nothing(tmp_path, script):
+    code, out, err = bench(script, "--help", cwd=tmp_path, timeout=30)
+    assert (code, err) == (0, "") and out.startswith("usage: ")
+    assert list(tmp_path.iterdir()) == []  # fleet_runs.py made its fleet in a folder named --help
+
+
+@pytest.mark.parametrize("script, args, says", [
+    ("sim_speed.py", ["0"], "cycles: at least 1, got 0"),
+    ("sim_speed.py", ["x"], "argument cycles: invalid int value: 'x'"),
+    ("fleet_runs.py", ["a", "b"], "unrecognized arguments: b"),
+    # the sim-server serves whole 1 ms steps only: 400 Hz ran, each run "does not answer (ConnectionRefusedError)"
+    ("realtime.py", ["--rates", "1000,400"], "--rates: 400 Hz is not served: a servo period is a whole number of the "
+                                             "cell's 1 ms physics steps; nearest rates served: 333.3 and 500 Hz"),
+    ("realtime.py", ["--seconds", "1e308"], "--seconds: more than 0 and at most 604800 s (a week), got 1e+308"),
+    ("realtime.py", ["--seconds", "inf"], "--seconds: more than 0 and at most 604800 s (a week), got inf"),
+    ("realtime.py", ["--floor-seconds", "inf"], "--floor-seconds: more than 0 and at most 604800 s (a week), got inf"),
+    ("realtime.py", ["--floor-seconds", "1e308"], "--floor-seconds: more than 0 and at most 604800 s (a week), "
+                                                  "got 1e+308"),
+])
+def test_bad_input_is_one_line_and_exit_2(tmp_path, script, args, says):
+    # the smallest run there is, should the refusal be missed: one second, one policy, one worker
+    quick = ["--seconds", "1", "--floor-seconds", "1", "--policies", "sway", "--workers", "thread"]
+    code, out, err = bench(script, *(quick if script == "realtime.py" else []), *args, cwd=tmp_path)
+    assert (code, out) == (2, "")
+    assert err.splitlines()[-1] == f"{script}: error: {says}" and "Traceback" not in err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_sim_server_that_ends_is_reported_in_its_own_words(tmp_path):
+    """A server that refuses its rate (past main's check) is the run's ``refused``, not "does not answer"."""
+    spec = importlib.util.spec_from_file_location("bench_realtime", BENCH / "realtime.py")
+    realtime = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(realtime)
+    run = realtime.one_run(400.0, "sway", "thread", 1.0, tmp_path / "unused.onnx", 0, tmp_path / "run")
+    assert run["refused"] == ("sim-server ended (exit code 2): error: --rate-hz: 400 Hz is not served: a servo period "
+                              "is a whole number of the cell's 1 ms physics steps; nearest rates served: 333.3 and "
+                              "500 Hz")
+
+
+@pytest.mark.parametrize("to_group", [True, False], ids=["group", "main-only"])
+def test_sigterm_ends_fleet_runs_with_its_workers_and_keeps_no_stopped_run(tmp_path, to_group):
+    """``timeout`` signals the whole group (each worker's run took it as an operator stop, and the stopped run was
+    kept as the site's); ``kill PID`` the script alone (its workers then waited on their queue for good)."""
+    runs = tmp_path / "runs"
+    proc = start("fleet_runs.py", str(runs), cwd=tmp_path)
+    try:
+        deadline = time.monotonic() + 60
+        while not list(runs.glob("*.partial")) and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.05)  # a worker is inside a run
+        assert proc.poll() is None and list(runs.glob("*.partial")), "no run started: nothing tested"
+        workers = descendants(proc.pid)
+        assert workers
+        (os.killpg if to_group else os.kill)(proc.pid, signal.SIGTERM)
+        code, out, _ = finish(proc, 60)
+        deadline = time.monotonic() + 10
+        while any(map(alive, workers)) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert [w for w in workers if alive(w)] == []
+    finally:  # whatever a failure left of the session
+        try:
+            os.killpg(proc.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+    assert (code, out) == (128 + signal.SIGTERM, "")
+    kept = [json.loads((d / "summary.json").read_text()) for d in runs.iterdir() if (d / "summary.json").is_file()]
+    assert [s["stopped"] for s in kept if s.get("stopped")] == []
+    assert list(runs.glob("*.partial")) == []
