@@ -13,7 +13,8 @@ import pytest
 from cellguard.record.reader import open_record
 
 SCRIPT = """
-import sys, time
+import signal, sys, time
+signal.signal(signal.SIGINT, signal.default_int_handler)  # as at a terminal: a shell's background job ignores it
 from pathlib import Path
 from cellguard.record.session import RunRecording
 from cellguard.runtime import Run
