@@ -103,3 +103,44 @@ def test_random_chunks_never_take_the_tool_out_of_the_box(stream):
     lo, hi = (np.array(corner) for corner in box)
     tips = np.array(tips)
     assert ((tips >= lo) & (tips <= hi)).all(), np.maximum(np.maximum(lo - tips, tips - hi), 0.0).max()
+
+
+def _fine_rule(look, tip, tracker) -> bool:
+    """The stop's path checked at every sample, each inside by half its larger neighbouring gap (the rule the
+    look-ahead applied on every tick it sampled, before it asked for a sample's tool point only where a
+    span needed it)."""
+    duration, at = tracker.stop_plan()
+    q0, end, reach = tracker.samples[0], at(duration), look._reach
+    travel = sum(k * abs(e - q) for k, e, q in zip(reach, end, q0))
+    n = min(10, max(4, int(np.ceil(travel / 0.005))))
+    qs = [q0] + [at(duration * (1.0 - np.sqrt(1.0 - k / n))) for k in range(1, n)] + [end]
+    gaps = [0.0] + [sum(r * abs(b - a) for r, a, b in zip(reach, x, y)) for x, y in zip(qs, qs[1:])] + [0.0]
+    lo, hi = look._lo, look._hi
+    return all(all(a + m <= p <= b - m for p, a, b in zip(x, lo, hi))
+               for x, m in zip([tip] + [TOOL(np.asarray(q)).tolist() for q in qs[1:]],
+                               [0.5 * max(gaps[k], gaps[k + 1]) for k in range(n + 1)]))
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(st.floats(0.05, 0.95), min_size=6, max_size=6), st.lists(st.floats(-0.9, 0.9), min_size=6,
+       max_size=6), st.lists(st.floats(-0.5, 0.5), min_size=6, max_size=6),
+       st.lists(st.floats(0.001, 0.12), min_size=6, max_size=6))
+def test_the_stop_path_is_checked_where_it_nears_a_wall_and_never_passed_outside(where, speed, accel, room):
+    """Near a wall (a box drawn 1 mm to 12 cm about the tool point), the look-ahead passes every stop the
+    sample-by-sample rule passes, and no stop whose path, sampled at 2000 instants, leaves the box."""
+    q = PROFILE.q_min + np.array(where) * (PROFILE.q_max - PROFILE.q_min)
+    tip = TOOL(q)
+    box = (tuple(tip - room[:3]), tuple(tip + room[3:]))
+    guard = Guard(PROFILE, q, MS, GuardConfig(box=box), tool=TOOL)
+    tracker, look = guard.envelope.tracker, guard.envelope._after[0]
+    tracker.samples = (q.tolist(), (np.array(speed) * PROFILE.array("velocity")).tolist(),
+                       (np.array(accel) * PROFILE.array("acceleration")).tolist())
+    passed = look._path_fits(tip.tolist(), tracker)
+    if tracker.stop_plan() is None:
+        return
+    if _fine_rule(look, tip.tolist(), tracker):
+        assert passed
+    if passed:
+        duration, at = tracker.stop_plan()
+        path = np.array([TOOL(np.asarray(at(t))) for t in np.linspace(0.0, duration, 2000)])
+        assert ((path >= np.array(box[0])) & (path <= np.array(box[1]))).all()

@@ -94,7 +94,7 @@ MUTATIONS = (
              "        return _inside(tip, lo, hi, 0.0)\n        plan = tracker.stop_plan()\n        if plan is None:",
              (f"{ENV}::test_workspace_box_stops_before_the_tool_leaves_it", BOX_INSIDE, BOX_LEAVES)),
     Mutation("box_path_margin_off", "tool box: the path between the stop's samples", f"{CHECKS}/workspace.py",
-             "0.5 * max(gaps[k], gaps[k + 1])", "0.0", (BOX_INSIDE, BOX_LEAVES, BOX_RANDOM)),
+             "margin = 0.5 * sum(gaps[i:j])", "margin = 0.0", (BOX_INSIDE, BOX_LEAVES, BOX_RANDOM)),
     Mutation("box_excursion_refused", "tool box: a tool found outside may come back in", f"{CHECKS}/workspace.py",
              "return None if self._grown and self._end_fits(tracker) else STOP", "return STOP", (BOX_BACK_IN,)),
     Mutation("box_resume_flood", "tool box: no stop flood where the way on leads out", f"{CHECKS}/workspace.py",

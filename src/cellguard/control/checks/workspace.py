@@ -5,8 +5,10 @@ tool point could leave the box on its way, that setpoint is not sent and the sto
 last one instead, which was checked the same way a tick before. The stop brakes each joint on its
 own, so the tool does not coast along a line: the stop is planned whole (``Tracker.stop_plan``)
 and the tool point checked at samples along it, each inside the box by a margin that bounds the
-path between samples by the joints' travel and their reach (``reach.max_reach``). Cheap bounds
-of every joint's stopping distance skip all that while the tool is far from the walls.
+path between samples by the joints' travel and their reach (``reach.max_reach``); a span of
+samples whose ends clear the walls by half its whole travel needs none of the tool points between
+(forward kinematics was most of a sampled tick). Cheap bounds of every joint's stopping distance
+skip all that while the tool is far from the walls.
 
 Outside the box (a reset at a pose outside it, a stop that ended outside), motion that brings the
 tool back is allowed and motion further out is not: on the first tick of motion the box is grown
@@ -19,6 +21,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from operator import mul, sub
 
 import numpy as np
 
@@ -98,16 +101,29 @@ class WorkspaceLookahead(Check):
         end = at(duration)
         travel = sum(k * abs(e - q) for k, e, q in zip(reach, end, q0))  # a bound of the tool's, along a line
         n = min(SAMPLES, max(MIN_SAMPLES, math.ceil(travel / SPACING)))
-        # the tool path between two samples stays within half the joints' travel between them, times their
-        # reach, of one of the two: each sample is checked with that margin toward both its segments
-        points, gaps, previous = [tip], [0.0], q0
-        for k in range(1, n + 1):
-            q = end if k == n else at(duration * (1.0 - math.sqrt(1.0 - k / n)))  # even steps of a braking joint
-            points.append(self._tool(np.asarray(q)).tolist())
-            gaps.append(sum(r * abs(a - b) for r, a, b in zip(reach, q, previous)))
-            previous = q
-        gaps.append(0.0)
-        return all(_inside(x, lo, hi, 0.5 * max(gaps[k], gaps[k + 1])) for k, x in enumerate(points))
+        qs = [q0] + [at(duration * (1.0 - math.sqrt(1.0 - k / n))) for k in range(1, n)] + [end]  # even steps
+        # of a braking joint; between two, the tool path stays within half the joints' travel between them,
+        # times their reach, of one of the two
+        gaps = [sum(map(mul, reach, map(abs, map(sub, b, a)))) for a, b in zip(qs, qs[1:])]
+        points = [tip] + [None] * n  # the tool point at a sample, found only where a span needs it
+        return self._span_fits(0, n, qs, gaps, points)
+
+    def _span_fits(self, i: int, j: int, qs: list, gaps: list[float], points: list) -> bool:
+        """Does the tool path between samples ``i`` and ``j`` stay inside the box? Yes where both ends lie inside
+        by half the travel between them (the sum of the gaps: a path between two samples stays within half of
+        it of one of them); else each half is asked, down to single gaps. Most stops keep well inside, and their
+        end alone shows it: the tool point at every sample is needed only near a wall."""
+        margin = 0.5 * sum(gaps[i:j])
+        for k in (i, j):
+            if points[k] is None:
+                points[k] = self._tool(np.asarray(qs[k])).tolist()
+        lo, hi = self._lo, self._hi
+        if _inside(points[i], lo, hi, margin) and _inside(points[j], lo, hi, margin):
+            return True
+        if j - i == 1:
+            return False
+        m = (i + j) // 2
+        return self._span_fits(i, m, qs, gaps, points) and self._span_fits(m, j, qs, gaps, points)
 
     def _far_from_walls(self, tip, travel: list[float]) -> bool:
         """Does the tool point stay inside the box, axis by axis, while each joint that moves it travels
