@@ -151,9 +151,10 @@ class Tracker:
         return ((not upper or q + self._stop_distance(j, v, a) <= max(self._hi_f[j], min(q, p)))
                 and (not lower or q - self._stop_distance(j, -v, -a) >= min(self._lo_f[j], max(q, p))))
 
-    def _fits(self, q: list[float], v_limit: list[float] | None = None
+    def _fits(self, q: list[float], v_limit: list[float] | None = None, only: list[int] | None = None
               ) -> tuple[list[bool], list[float], list[float]]:
-        """Per joint: can ``q[j]`` be the next setpoint? And the finite-difference v, a it implies.
+        """Per joint (of ``only`` where given, in its order): can ``q[j]`` be the next setpoint? And the
+        finite-difference v, a it implies.
 
         Yes when its finite-difference v, a, j are inside the limits (``v_limit``, D plain floats,
         in place of the velocity limits where given), its acceleration can be brought to zero before
@@ -163,9 +164,13 @@ class Tracker:
         """
         inv_dt, half_dt = self._inv_dt, 0.5 * self.dt
         joints = self._joints if v_limit is None else [(w, *rest) for w, (_, *rest) in zip(v_limit, self._joints)]
+        columns = (q, *self.samples, joints)
+        index = range(len(q)) if only is None else only
+        if only is not None:  # the few joints a recovery plan moved
+            columns = [[column[j] for j in only] for column in columns]
         ok, vs, accs = [], [], []
-        for j, (qj, pj, vj, aj, (v_max, a_max, j_max, half_inv_j, far0, far1, inv_2a, lo, hi)) in enumerate(
-                zip(q, *self.samples, joints)):
+        for j, qj, pj, vj, aj, (v_max, a_max, j_max, half_inv_j, far0, far1, inv_2a, lo, hi) in zip(
+                index, *columns):
             v = (qj - pj) * inv_dt
             a = (v - vj) * inv_dt
             speed = abs(v)
@@ -214,12 +219,12 @@ class Tracker:
         if recovering and self._offset(recovering, rv, ra, previous, v_limit):
             out = self._out
             cand = [x + e for x, e in zip(samples, out.new_position)]
-            fits, ev, ea = self._fits(cand, v_limit)[0], out.new_velocity, out.new_acceleration
+            fits, ev, ea = self._fits(cand, v_limit, recovering)[0], out.new_velocity, out.new_acceleration
             end = _at_end(rv, ra, self.dt)
-            for j in recovering:
+            for j, fit in zip(recovering, fits):
                 if self._finished and ok[j]:  # landed: the sample itself, passed through again
                     continue
-                if fits[j]:
+                if fit:
                     q[j], mode[j], tv[j], ta[j] = cand[j], OFFSET, ev[j] + end[j], ea[j] + ra[j]
         rest = [j for j, m in enumerate(mode) if m == ABSOLUTE]
         if rest:
