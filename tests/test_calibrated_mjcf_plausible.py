@@ -70,14 +70,14 @@ def payload_inertia(root):
 
 
 CASES = [
-    (payload_mass("1e30"), "body calibrated_payload geom mass 1e+30 kg is outside the plausible (0, 2500] kg"),
-    (payload_mass("1e4"), "body calibrated_payload geom mass 10000 kg is outside the plausible (0, 2500] kg"),
-    (payload_mass("-1"), "body calibrated_payload geom mass -1 kg is outside the plausible (0, 2500] kg"),
-    (payload_mass("0"), "body calibrated_payload geom mass 0 kg is outside the plausible (0, 2500] kg"),
-    (payload_mass("inf"), "body calibrated_payload geom mass inf kg is outside the plausible (0, 2500] kg"),
+    (payload_mass("1e30"), "body calibrated_payload geom mass 1e+30 kg is outside the plausible (0, 19.4] kg"),
+    (payload_mass("1e4"), "body calibrated_payload geom mass 10000 kg is outside the plausible (0, 19.4] kg"),
+    (payload_mass("-1"), "body calibrated_payload geom mass -1 kg is outside the plausible (0, 19.4] kg"),
+    (payload_mass("0"), "body calibrated_payload geom mass 0 kg is outside the plausible (0, 19.4] kg"),
+    (payload_mass("inf"), "body calibrated_payload geom mass inf kg is outside the plausible (0, 19.4] kg"),
     (payload_mass("nan"), "geom of body calibrated_payload mass 'nan' is not a number"),
     (payload_inertia, "body calibrated_payload inertial diaginertia[0] 1e+09 kg*m^2 is outside the plausible "
-                      "[0, 10000] kg*m^2"),
+                      "[0, 77.6] kg*m^2"),
     (joint("elbow", "damping", "1e30"), "joint elbow damping 1e+30 N*m*s/rad is outside the plausible [0, 10000] "
                                         "N*m*s/rad"),
     (joint("elbow", "frictionloss", "1e30"), "joint elbow frictionloss 1e+30 N*m is outside the plausible [0, 20] N*m"),

@@ -279,15 +279,18 @@ def load_segments(paths: list[Path], cell, cycle: int | None = None) -> list[Seg
     return load_records(paths, cell, cycle)[0]
 
 
-def load_records(paths: list[Path], cell, cycle: int | None = None) -> tuple[list[Segment], list[tuple[Path, object]]]:
+def load_records(paths: list[Path], cell, cycle: int | None = None) -> tuple[list[Segment], list[tuple[Path, object]],
+                                                                         list[str]]:
     """Each record's full-rate ticks (of ``cycle`` only, if given), checked to be of ``cell``'s robot and
-    to carry motor current on every joint fitted (a gripper's may be missing), split where a tick is missing; and
-    each record's ``Health`` (what a full read found), for the caller to warn about a record that is not whole.
+    to carry motor current on every joint fitted (a gripper's may be missing), split where a tick is missing; each
+    record's ``Health`` (what a full read found), for the caller to warn about a record that is not whole; and one
+    warning per record whose ticks were left out for a fitted joint's current it did not report (``left_out``).
     A record given twice (its id, or for a record without one its file, under any spelling) is refused: it would
-    count its ticks twice and shrink every interval. So is one that started after tomorrow (``refuse_ahead``)."""
+    count its ticks twice and shrink every interval. So is one that started after tomorrow (``refuse_ahead``), and
+    one holding a value no measurement gives (``refuse_unmeasured``)."""
     from cellguard.record.reader import open_record, record_file
 
-    segments, healths, seen = [], [], {}
+    segments, healths, warnings, seen = [], [], [], {}
     for n, path in enumerate(paths, start=1):
         with open_record(path) as rec:
             record_id = rec.record_id or str(path)
@@ -316,8 +319,9 @@ def load_records(paths: list[Path], cell, cycle: int | None = None) -> tuple[lis
         if missing:
             raise CalibrationError(f"{path}: the record has no motor current on {', '.join(missing)}; identification "
                                    "needs the current of every joint it fits")
-        refuse_nonfinite_velocity(path, record_id, ticks)
-        keep = np.isfinite(tau[:, joints]).all(1) & np.isfinite(ticks.q_meas).all(1) & np.isfinite(ticks.q_cmd).all(1)
+        refuse_unmeasured(path, record_id, ticks, cell.profile)
+        keep = ~np.isnan(tau[:, joints]).any(1)
+        warnings += left_out(path, record_id, ticks, joints, keep)
         t_ns = ticks.t_ns
         # contiguous runs of servo-rate ticks (a decimated stream or a gap splits them)
         step = np.concatenate([[False], (np.diff(t_ns) == cell.dt_ns) & keep[1:] & keep[:-1]])
@@ -329,21 +333,49 @@ def load_records(paths: list[Path], cell, cycle: int | None = None) -> tuple[lis
         if not any(s.record_id == record_id for s in segments):
             raise CalibrationError(f"{path}: no stretch of {MIN_TICKS} ticks at the servo rate; record at full rate "
                                    "(`cellguard excite` does)")
-    return segments, healths
+    return segments, healths, warnings
 
 
-def refuse_nonfinite_velocity(path: Path, record_id: str, ticks) -> None:
-    """CalibrationError naming the first tick (time, joint, value) whose measured velocity is NaN or infinite, and how
-    many are. Every joint's velocity enters the inverse dynamics of every joint (a gripper's too), so one NaN made the
-    least-squares solve fail in a traceback ("SVD did not converge"). A NaN current is a drive that senses none (its
-    ticks are left out where the joint is fitted); a velocity has no such reading: it is a bus or writer fault."""
-    bad = ~np.isfinite(ticks.qd_meas)
-    if bad.any():
-        k, j = np.argwhere(bad)[0]
+# the tick fields the fit reads, in words (position, velocity and setpoint enter every joint's inverse dynamics)
+FITTED_FIELDS = {"q_meas": "measured position", "qd_meas": "measured velocity", "q_cmd": "setpoint sent",
+               "current": "motor current"}
+SPEED_BOUND = 100.0  # a measured velocity beyond this many times its joint's limit is no measurement
+
+
+def refuse_unmeasured(path: Path, record_id: str, ticks, profile) -> None:
+    """CalibrationError naming the first tick (time, field, joint, value) of a value no sensor measured, and how many
+    of that field's values are such: a position, velocity, setpoint or current that is infinite, or NaN except a
+    current (a drive that did not report one: ``left_out``); a velocity beyond ``SPEED_BOUND`` times the joint's
+    limit. Each is a bus or writer fault: one NaN velocity made the least-squares solve fail in a traceback ("SVD did
+    not converge"), and 3e38 rad/s on one tick of elbow was fitted as a measurement (armature -1.9e69 kg*m^2)."""
+    fix = "check the drive's bus or the program that wrote the record, and record again"
+    for field, words in FITTED_FIELDS.items():
+        values = getattr(ticks, field)
+        bad = np.isinf(values) if field == "current" else ~np.isfinite(values)
+        if bad.any():
+            k, j = np.argwhere(bad)[0]
+            raise CalibrationError(f"{path}: run {record_id}'s {words} ({field}) of {ticks.joints[j]} is "
+                                   f"{values[k, j]} at tick t_ns {ticks.t_ns[k]} ({int(bad.sum())} of {bad.size} "
+                                   f"values not finite); identification needs a number on every tick: {fix}")
+    limit = profile.array("velocity")
+    fast = np.abs(ticks.qd_meas) > SPEED_BOUND * limit
+    if fast.any():
+        k, j = np.argwhere(fast)[0]
+        unit = "rad/s" if profile.joints[j].kind == "hinge" else "m/s"
         raise CalibrationError(f"{path}: run {record_id}'s measured velocity (qd_meas) of {ticks.joints[j]} is "
-                               f"{ticks.qd_meas[k, j]} at tick t_ns {ticks.t_ns[k]} ({int(bad.sum())} of "
-                               f"{bad.size} values not finite); identification needs a number on every tick: check "
-                               "the drive's bus or the program that wrote the record, and record again")
+                               f"{ticks.qd_meas[k, j]:g} {unit} at tick t_ns {ticks.t_ns[k]}, beyond {SPEED_BOUND:g} "
+                               f"times its limit of {limit[j]:g} {unit} ({int(fast.sum())} of {fast.size} values); no "
+                               f"joint of the profile moves so fast: {fix}")
+
+
+def left_out(path: Path, record_id: str, ticks, joints: list[int], keep: np.ndarray) -> list[str]:
+    """A warning saying how many ticks of a record are left out (not ``keep``) and why: a fitted joint (of ``joints``)
+    whose drive reported no current on them (NaN). The fit goes on without them; before, it did so unsaid."""
+    if keep.all():
+        return []
+    names = [ticks.joints[i] for i in joints if np.isnan(ticks.current[:, i]).any()]
+    return [f"{path}: {int((~keep).sum())} of {len(keep)} ticks of run {record_id} left out: no motor current (NaN) "
+            f"on {', '.join(names)} from tick t_ns {ticks.t_ns[np.argmin(keep)]}; a drive that did not report it"]
 
 
 def identify(segments: list[Segment], cell, params: tuple[str, ...]) -> dict:

@@ -27,11 +27,15 @@ from cellguard.embodiment.profile import MEASURED_MAX
 
 PAYLOAD_BODY = "calibrated_payload"
 POINT_RADIUS = 1e-3  # the payload's sphere: small enough to be a point mass [m]
-# the plausible range of a calibrated payload, generous: the largest rated payload of a serial arm built is 2300 kg
-# (FANUC M-2000iA/2300); its inertia about its centre that of 2500 kg spread 2 m around it. A payload body is written
-# only for a fitted mass above zero, so 0 kg (or a mass MuJoCo took from a density instead) is none identify wrote.
+# the plausible range of a calibrated payload, generous: at most PAYLOAD_PER_KG times the mass the robot's joints move
+# (a serial arm's rated payload is 0.1 to 0.5 of its own mass, a lightweight design's about 1: DLR's LWR III carries its
+# own 14 kg), and never above PAYLOAD_KG, as the largest rated payload of a serial arm built is 2300 kg (FANUC
+# M-2000iA/2300). A fixed range let 1000 kg through on the 1.94 kg arm. Its inertia about its centre at most that mass
+# spread PAYLOAD_RADIUS around it. A payload body is written only for a fitted mass above zero, so 0 kg (or a mass
+# MuJoCo took from a density instead) is none identify wrote.
+PAYLOAD_PER_KG = 10.0
 PAYLOAD_KG = 2500.0
-PAYLOAD_INERTIA = 1e4  # [kg*m^2], each principal moment
+PAYLOAD_RADIUS = 2.0  # [m]
 
 
 def calibrated_mjcf(cell, terms: JointTerms) -> str:
@@ -58,17 +62,19 @@ def calibrated_mjcf(cell, terms: JointTerms) -> str:
         spec.compile()  # refuses what would not load
     except ValueError as exc:
         raise CalibrationError(f"--write: the calibrated MJCF of {cell.name} would not load: {exc}") from None
-    refuse_implausible(spec, cell.profile, f"--write: the calibrated MJCF of {cell.name}")  # none a read refuses
+    # none a read refuses
+    refuse_implausible(spec, cell.profile, cell.model, f"--write: the calibrated MJCF of {cell.name}")
     return spec.to_xml()
 
 
-def refuse_implausible(spec: mujoco.MjSpec, profile, where: str) -> None:
-    """CalibrationError naming the first term of a calibrated MJCF (``spec``, named ``where``) outside the range a
-    real arm could have: per hinge joint of ``profile``, armature and damping at least zero and at most what a
-    profile's measured entry may be (``MEASURED_MAX``), dry friction at most the joint's effort (more would hold it
-    still); the payload body's mass above zero and at most ``PAYLOAD_KG``, an inertia written for it at most
-    ``PAYLOAD_INERTIA``. NaN fails every comparison, so it is refused too. Checked on the spec: a file read is checked
-    before it is compiled (compiling a 1e30 kg payload printed MuJoCo's "inertia matrix is too close to singular")."""
+def refuse_implausible(spec: mujoco.MjSpec, profile, model: mujoco.MjModel, where: str) -> None:
+    """CalibrationError naming the first term of a calibrated MJCF (``spec``, named ``where``) of ``profile``'s robot
+    (``model`` its commissioned model) outside the range a real arm could have: per hinge joint of ``profile``,
+    armature and damping at least zero and at most what a profile's measured entry may be (``MEASURED_MAX``), dry
+    friction at most the joint's effort (more would hold it still); the payload body's mass above zero and at most
+    ``payload_max`` of the robot, an inertia written for it at most that mass at ``PAYLOAD_RADIUS``. NaN fails every
+    comparison, so it is refused too. Checked on the spec: a file read is checked before it is compiled (compiling a
+    1e30 kg payload printed MuJoCo's "inertia matrix is too close to singular")."""
     for joint in profile.joints:
         if joint.kind != "hinge":  # a calibration writes the hinges' terms only
             continue
@@ -83,19 +89,43 @@ def refuse_implausible(spec: mujoco.MjSpec, profile, where: str) -> None:
     body = spec.body(PAYLOAD_BODY)
     if body is None:
         return
+    high, why = payload_max(model, profile)
     if body.explicitinertial:  # an <inertial> edited in: MuJoCo takes it over the geoms
-        _within(where, f"body {PAYLOAD_BODY} inertial mass", body.mass, PAYLOAD_KG, "kg", above_zero=True)
+        _within(where, f"body {PAYLOAD_BODY} inertial mass", body.mass, high, "kg", above_zero=True, why=why)
         for i, moment in enumerate(body.inertia):
-            _within(where, f"body {PAYLOAD_BODY} inertial diaginertia[{i}]", moment, PAYLOAD_INERTIA, "kg*m^2")
+            _within(where, f"body {PAYLOAD_BODY} inertial diaginertia[{i}]", moment, high * PAYLOAD_RADIUS ** 2,
+                    "kg*m^2", why=f"{high:g} kg at {PAYLOAD_RADIUS:g} m")
     else:  # a geom without a mass (NaN in the spec) would weigh its volume at the default density
-        _within(where, f"body {PAYLOAD_BODY} geom mass", sum(g.mass for g in body.geoms), PAYLOAD_KG, "kg",
-                above_zero=True)
+        _within(where, f"body {PAYLOAD_BODY} geom mass", sum(g.mass for g in body.geoms), high, "kg",
+                above_zero=True, why=why)
 
 
-def _within(where: str, field: str, value: float, high: float, unit: str, above_zero: bool = False) -> None:
-    """CalibrationError naming ``field`` unless ``value`` lies in 0..``high`` (``above_zero``: excluding 0)."""
+def payload_max(model: mujoco.MjModel, profile) -> tuple[float, str]:
+    """The heaviest plausible payload [kg] of ``profile``'s robot, and why in words: ``PAYLOAD_PER_KG`` times the mass
+    of the bodies its joints move in ``model``, its commissioned model (links, tool, fingers; not a base, a part or a
+    payload body), at most ``PAYLOAD_KG``."""
+    movers = {int(model.jnt_bodyid[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, name)])
+              for name in profile.joint_names}
+    payload = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, PAYLOAD_BODY)
+    own = 0.0
+    for body in range(1, model.nbody):
+        chain = [body]
+        while chain[-1] > 0:
+            chain.append(int(model.body_parentid[chain[-1]]))
+        if movers.intersection(chain) and payload not in chain:
+            own += float(model.body_mass[body])
+    own = float(f"{own:.3g}")  # the bound as its message states it
+    high = min(PAYLOAD_PER_KG * own, PAYLOAD_KG)
+    return high, (f"{PAYLOAD_PER_KG:g} times the {own:.3g} kg that {profile.robot}'s joints move, never above "
+                  f"{PAYLOAD_KG:g} kg")
+
+
+def _within(where: str, field: str, value: float, high: float, unit: str, above_zero: bool = False,
+            why: str = "") -> None:
+    """CalibrationError naming ``field`` unless ``value`` lies in 0..``high`` (``above_zero``: excluding 0); ``why``
+    says where ``high`` comes from."""
     if not (0.0 < value if above_zero else 0.0 <= value) or not value <= high:
-        span = f"{'(' if above_zero else '['}0, {high:g}] {unit}"
+        span = f"{'(' if above_zero else '['}0, {high:g}] {unit}" + (f" ({why})" if why else "")
         raise CalibrationError(f"{where}: {field} {float(value):g} {unit} is outside the plausible {span}; no real "
                                "arm has it: check the file (was it edited?)")
 
@@ -125,10 +155,11 @@ def _is_nan(token: str) -> bool:
         return False
 
 
-def calibrated_payload(path: Path, profile, option: str = "--profile") -> float:
-    """The payload [kg] the calibration of ``profile`` (read from ``path``, given as ``option``) put into its
-    calibrated MJCF, beside the profile (a link's target); 0 without a calibration or a payload body. A
-    calibration whose MJCF is missing, does not load or holds a term no arm has (``refuse_implausible``) is refused:
+def calibrated_payload(path: Path, profile, model: mujoco.MjModel, option: str = "--profile") -> float:
+    """The payload [kg] the calibration of ``profile`` (read from ``path``, given as ``option``; ``model`` its robot's
+    commissioned model) put into its calibrated MJCF, beside the profile (a link's target); 0 without a calibration or
+    a payload body. A calibration whose MJCF is missing, does not load or holds a term no arm has
+    (``refuse_implausible``) is refused:
     holding the payload at zero instead biased every term a re-fit estimated (elbow armature 20 % high with 0.2 kg
     at the tool)."""
     if profile.calibration is None:
@@ -143,7 +174,7 @@ def calibrated_payload(path: Path, profile, option: str = "--profile") -> float:
         spec = mujoco.MjSpec.from_file(str(mjcf))
     except ValueError as exc:
         raise _unloadable(refused, exc) from None
-    refuse_implausible(spec, profile, where)
+    refuse_implausible(spec, profile, model, where)
     try:
         model = spec.compile()
     except ValueError as exc:

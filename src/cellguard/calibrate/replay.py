@@ -258,12 +258,12 @@ def model_terms(rc: RecordedCycle, cell, model: str, profile: Path | None) -> tu
         profile, looked = _record_profile(rc, cell)
         if profile is not None:  # the record's own file: its payload as the document's, a missing MJCF noted
             found = load_profile(cell.model, profile)
-            payload, note = _payload([profile], found, "the record's profile file was found")
+            payload, note = _payload([profile], found, cell, "the record's profile file was found")
             return JointTerms.of_profile(cell, found, payload), replace(UsedProfile.of(found, str(profile), recorded),
                                                                        note=note)
         document = _record_document(rc, cell)
         if document is not None:
-            payload, note = _payload(_places(rc), document, "the record's profile file was not found; its own "
+            payload, note = _payload(_places(rc), document, cell, "the record's profile file was not found; its own "
                                      "document gave the measured terms")
             return (JointTerms.of_profile(cell, document, payload),
                     replace(UsedProfile.of(document, DOCUMENT, recorded), note=note))
@@ -338,17 +338,17 @@ def _record_document(rc: RecordedCycle, cell):
                                f"{exc}; name the profile with --profile") from None
 
 
-def _payload(places: list[Path], prof, why: str) -> tuple[float, str | None]:
-    """The payload [kg] ``prof``'s calibration put into its calibrated MJCF (a profile and its document keep none:
-    the MJCF stores it), read beside the first of ``places`` that has it; 0 and a note saying so (``why`` the note
-    begins) when none has."""
+def _payload(places: list[Path], prof, cell, why: str) -> tuple[float, str | None]:
+    """The payload [kg] ``prof``'s calibration (of ``cell``'s robot) put into its calibrated MJCF (a profile and its
+    document keep none: the MJCF stores it), read beside the first of ``places`` that has it; 0 and a note saying so
+    (``why`` the note begins) when none has."""
     from cellguard.calibrate.mjcf import calibrated_payload
 
     if prof.calibration is None:
         return 0.0, None
     for place in places:
         try:
-            return calibrated_payload(place, prof, "the record's profile"), None
+            return calibrated_payload(place, prof, cell.model, "the record's profile"), None
         except CalibrationError:
             continue
     mjcf = " or ".join(str(p.with_name(prof.calibration.mjcf)) for p in places) or prof.calibration.mjcf

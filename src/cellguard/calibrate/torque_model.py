@@ -108,7 +108,7 @@ class JointTerms:
         if profile.robot != cell.profile.robot:
             raise CalibrationError(f"{option}: {path} is a profile of robot {profile.robot!r}; the model is of "
                                    f"{cell.profile.robot!r}")
-        return cls.of_profile(cell, profile, calibrated_payload(path, profile, option))
+        return cls.of_profile(cell, profile, calibrated_payload(path, profile, cell.model, option))
 
     @classmethod
     def of_profile(cls, cell, profile, payload_kg: float = 0.0) -> JointTerms:

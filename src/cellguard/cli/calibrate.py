@@ -98,18 +98,20 @@ def identify(
             pairs = parse_only(only, cell)
             basis = read_bounded(write, "profile", ProfileError) if write is not None else None
             terms = JointTerms.from_profile(cell, write, "--write")
-            segments, healths = load_records(records, cell)
+            segments, healths, left_out = load_records(records, cell)
             _whole_for_write(write, healths)
             result = refit(segments, cell, pairs, terms)
+            result["warnings"][:0] = left_out  # ticks the fit went on without, and why
         else:
             wanted = parse_params(params, cell)  # before any record is read
             if write is not None:
                 from cellguard.calibrate.write import refuse_dropped_payload
 
                 refuse_dropped_payload(write, cell, wanted)
-            segments, healths = load_records(records, cell)
+            segments, healths, left_out = load_records(records, cell)
             _whole_for_write(write, healths)
             result = fit(segments, cell, wanted)
+            result["warnings"][:0] = left_out
         refused = write is not None and bool(negative_values(result["estimates"]))
         if refused:  # reported (the warning names the values), never stored
             result["warnings"].append(f"--write: {write} not written: a friction, damping or armature below zero "
