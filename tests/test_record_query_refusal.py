@@ -18,7 +18,7 @@ EXTENSIONS = "is refused: extensions are not available in a query; the query is 
 
 @pytest.mark.parametrize(("sql", "line"), [
     ("INSTALL httpfs", f"sql: INSTALL {EXTENSIONS}"),
-    ("force install httpfs FROM community", f"sql: FORCE INSTALL {EXTENSIONS}"),
+    ("force install httpfs FROM community", f"sql: force install {EXTENSIONS}"),  # as written
     ("/* ( */ LOAD '/tmp/x.duckdb_extension'", f"sql: LOAD {EXTENSIONS}"),
     ("TRUNCATE events", "sql: TRUNCATE (read as DELETE) is refused; the query is read-only"),
     ("CHECKPOINT", "sql: CHECKPOINT (read as CALL) is refused; the query is read-only"),

@@ -76,8 +76,9 @@ def _kind(statement) -> duckdb.StatementType | None:
 
 
 def _written(statement) -> str:
-    """What a refusal names: the statement's leading keywords as written (at most four), and DuckDB's type where it
-    is none of them. The type alone misled: INSTALL is a LOAD statement, TRUNCATE a DELETE, CHECKPOINT a CALL."""
+    """What a refusal names: the statement's leading keywords as written (at most four, in the user's letter case:
+    ``pragma version`` read back as PRAGMA VERSION was not what was written), and DuckDB's type where it is none of
+    them. The type alone misled: INSTALL is a LOAD statement, TRUNCATE a DELETE, CHECKPOINT a CALL."""
     raw = statement.query.encode()  # token positions are byte offsets
     words = []
     for pos, kind in duckdb.tokenize(statement.query):
@@ -85,11 +86,11 @@ def _written(statement) -> str:
             continue
         if kind != duckdb.token_type.keyword or len(words) == 4:
             break
-        words.append(re.match(rb"\w*", raw[pos:])[0].decode().upper())
+        words.append(re.match(rb"\w*", raw[pos:])[0].decode())
     kind = _kind(statement)
     name = "UNKNOWN" if kind is None else kind.name.replace("_", " ")
     written = " ".join(words)
-    if not written or kind in (None, duckdb.StatementType.LOAD) or name in written:
+    if not written or kind in (None, duckdb.StatementType.LOAD) or name in written.upper():
         return written or name
     return f"{written} (read as {name})"
 
@@ -125,9 +126,9 @@ def _explains_a_select(sql: str, parse: Callable[[str], list]) -> None:
             return
         else:
             written = _written(inner[0])
-            found = f"{'an' if written[0] in 'AEIOU' else 'a'} {written} statement"
-    raise RecordError(f"sql: EXPLAIN of {found} is refused (EXPLAIN ANALYZE runs it); only EXPLAIN of one SELECT "
-                      f"over the tables cycles and events")
+            found = f"{'an' if written[0] in 'AEIOUaeiou' else 'a'} {written} statement"
+    raise RecordError(f"sql: {words[0][0]} of {found} is refused (EXPLAIN ANALYZE runs it); only EXPLAIN of one "
+                      f"SELECT over the tables cycles and events")
 
 
 def index_folder(path: Path) -> Path:
@@ -153,7 +154,7 @@ def run_query(folder: Path, sql: str, timeout_s: float = DEFAULT_TIMEOUT_S) -> t
     (rows streamed until then stay printed).
     """
     if not 0 < timeout_s <= 86_400:
-        raise RecordError(f"--timeout: {timeout_s} s is outside (0, 86400]")
+        raise RecordError(f"--timeout: {_seconds(timeout_s)} s is outside (0, 86400]")
     index = index_folder(folder)
     deadline = time.monotonic() + timeout_s
     ctx = multiprocessing.get_context(_START)
@@ -174,6 +175,12 @@ def run_query(folder: Path, sql: str, timeout_s: float = DEFAULT_TIMEOUT_S) -> t
     return names, _rows(child, receiver, deadline, timeout_s)
 
 
+def _seconds(value: float) -> str:
+    """``--timeout``'s value as it is written: the shortest text that reads back as it, without a trailing ``.0``
+    (0 was refused as "0.0 s", and 0.1234567 s stopped at "the time limit of 0.123457 s")."""
+    return repr(value).removesuffix(".0")
+
+
 def _rows(child, receiver, deadline: float, timeout_s: float) -> Iterator[tuple]:
     try:
         while True:
@@ -190,7 +197,7 @@ def _receive(child, receiver, deadline: float, timeout_s: float) -> tuple[str, o
     is checked before the pipe: a child streaming rows always has one waiting (poll(0) is then True)."""
     left = deadline - time.monotonic()
     if left <= 0 or not receiver.poll(left):
-        raise RecordError(f"sql: stopped after the time limit of {timeout_s:g} s (--timeout)")
+        raise RecordError(f"sql: stopped after the time limit of {_seconds(timeout_s)} s (--timeout)")
     try:
         kind, value = pickle.loads(receiver.recv_bytes(_MESSAGE_BYTES))
     except EOFError:
