@@ -21,9 +21,9 @@ late, the recorder's cost on the servo thread per tick [us] (calls over 200 us, 
 waited, preempted, unexplained; the floor times a 1 us row copy the same way), the scheduler the servo thread got
 (``fifo:N`` where SCHED_FIFO is permitted, else ``other``), inference latency [ms], packets
 lost, link events, the recorder queue high-water mark [ticks; it includes up to one batch, 100 ticks
-at 1 kHz] and the writer's lag beyond it, and the CPU time a hypervisor
+at 1 kHz] and the writer's lag beyond it, the CPU time a hypervisor
 took for other guests meanwhile (``host_steal_ms``, Linux guests; a real-time thread cannot
-win that back).
+win that back), and, where the sim-server ended during the run, its last line (``server_ended``).
 
 Usage: ``python benchmarks/realtime.py --seconds 300`` (the figure), ``--seconds 20`` (CI).
 """
@@ -37,6 +37,7 @@ import socket
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from collections import Counter
 from functools import partial
@@ -59,6 +60,7 @@ JOINTS = "shoulder_pan,shoulder_lift,elbow,wrist_flex,wrist_roll,gripper"
 HORIZON, DT_S = 50, 0.02  # a 1 s chunk, like ACT / pi0 chunks of 50
 CELL = "arm-pick-place"
 WEEK_S = 7 * 24 * 3600  # the longest --seconds (the sim-server's own bound on --duration-s)
+READ_AFTER_END_S = 5.0  # how long its output is read once it has ended (a child of its own could hold the pipe)
 
 
 def sway(t_s: np.ndarray) -> np.ndarray:
@@ -183,14 +185,11 @@ def free_port() -> int:
 def one_run(rate_hz: float, policy: str, worker: str, seconds: float, onnx_path: Path, work: int, out: Path,
             recording: bool = True) -> dict:
     port = free_port()
-    server = subprocess.Popen([sys.executable, "-c", "from cellguard.cli import app; app()", "sim-server",
-                               CELL, "--port", str(port), "--rate-hz", str(rate_hz)],
-                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                              env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    server = SimServerProcess(rate_hz, port)
     try:
-        ended = server_ended(server)
-        if ended:
-            return {"rate_hz": rate_hz, "policy": policy, "worker": worker, "refused": ended}
+        refused = server.serving()
+        if refused:
+            return {"rate_hz": rate_hz, "policy": policy, "worker": worker, "refused": refused}
         spec = {"cell": CELL, "robot": f"sim-server:udp://127.0.0.1:{port}",
                 "policy": f"onnx:{onnx_path}" if policy == "onnx100" else "scripted",
                 "acceptance_cycles": 1, "production_cycles": 0, "cycle": {"source": "time", "seconds": seconds},
@@ -204,26 +203,64 @@ def one_run(rate_hz: float, policy: str, worker: str, seconds: float, onnx_path:
             summary = (run_scenario(parse_scenario(spec), out, policy_factory=factory) if recording
                        else _unrecorded(parse_scenario(spec), factory))
         except CellguardError as exc:  # e.g. a start-up check refused: reported, the other runs go on
-            return {"rate_hz": rate_hz, "policy": policy, "worker": worker, "refused": str(exc)}
+            return {"rate_hz": rate_hz, "policy": policy, "worker": worker, "refused": str(exc),
+                    **server.ended_during_run()}
+        ended = server.ended_during_run()
     finally:
-        server.kill()
-        server.wait()
+        server.stop()
     cycle = summary["cycles"][0] if summary["cycles"] else {}
     events = Counter(e["kind"] for e in summary["events"])
     return {"rate_hz": rate_hz, "policy": policy, "worker": worker, "recording": recording, "seconds": seconds,
             **summary["timing"], "inference_ms": cycle.get("inference"), "events": dict(events),
-            "stopped": summary.get("stopped"), "host_steal_ms": stolen(steal_before)}
+            "stopped": summary.get("stopped"), **ended, "host_steal_ms": stolen(steal_before)}
 
 
-def server_ended(server: subprocess.Popen) -> str | None:
-    """None once the sim-server says it serves; else the last line it wrote before it ended (its refusal:
-    read as the run's, the client's "does not answer" hid why)."""
-    said = ""
-    for line in server.stdout:
-        if line.startswith("sim-server "):
-            return None
-        said = line.strip() or said
-    return f"sim-server ended (exit code {server.wait()}): {said or 'nothing said'}"
+class SimServerProcess:
+    """``cellguard sim-server`` at ``rate_hz`` on ``port``, in its own process. Its output (stdout and stderr as one
+    stream) is read to its end on a thread, its last line kept: read only up to the start line, the pipe filled
+    (64 KiB, about three minutes of its once-a-second notes of stray packets) and the server blocked mid-tick on its
+    next note, a stalled robot that the run's figures blamed on the loop."""
+
+    def __init__(self, rate_hz: float, port: int):
+        self.process = subprocess.Popen([sys.executable, "-c", "from cellguard.cli import app; app()", "sim-server",
+                                         CELL, "--port", str(port), "--rate-hz", str(rate_hz)],
+                                        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, errors="replace",
+                                        env={**os.environ, "PYTHONUNBUFFERED": "1"})
+        self._said = ""  # its last line (not blank) other than the start line
+        self._serving, self._settled = threading.Event(), threading.Event()  # settled: serving, or its output ended
+        self._reader = threading.Thread(target=self._read, name="sim-server output", daemon=True)
+        self._reader.start()
+
+    def _read(self) -> None:
+        with self.process.stdout as output:
+            for line in output:
+                if not self._serving.is_set() and line.startswith("sim-server "):
+                    self._serving.set()
+                    self._settled.set()
+                elif line.strip():
+                    self._said = line.strip()
+        self._settled.set()
+
+    def serving(self) -> str | None:
+        """None once the server says it serves; else why it ended in its own last line (its refusal: read as the
+        run's, the client's "does not answer" hid why)."""
+        self._settled.wait()
+        return None if self._serving.is_set() else self._ended(self.process.wait())
+
+    def ended_during_run(self) -> dict:
+        """``{"server_ended": why}`` if the server has ended (in its own last line; the client saw only a silent
+        robot), else {}."""
+        code = self.process.poll()
+        return {} if code is None else {"server_ended": self._ended(code)}
+
+    def _ended(self, code: int) -> str:
+        self._reader.join(READ_AFTER_END_S)  # its last line, once the pipe is read to its end
+        return f"sim-server ended (exit code {code}): {self._said or 'nothing said'}"
+
+    def stop(self) -> None:
+        self.process.kill()
+        self.process.wait()
+        self._reader.join(READ_AFTER_END_S)
 
 
 def _unrecorded(scenario, factory) -> dict:
