@@ -8,7 +8,8 @@ fleet operator would ship one commissioning baseline with a standard cell. A pro
 one clean cycle, then two with the fault. Runs are made and diagnosed two at a time (2 cores);
 a run folder is named by its scenario's hash, so a changed plan never reads a stale run. SIGTERM or
 Ctrl-C cancels the queued jobs and waits for the running ones (a run they stopped is not kept): a
-worker left behind waited on its queue for good.
+worker left behind waited on its queue for good. On Linux a worker is killed when the script dies
+(SIGKILL, which no shutdown follows): its run's ``.partial`` folder is removed when the run is made again.
 
     python benchmarks/fleet_runs.py [DIR]     # makes the missing runs, prints what it did as JSON
 """
@@ -17,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import ctypes
 import hashlib
 import json
 import os
@@ -35,6 +37,7 @@ PRODUCTION, AT = 3, 1  # cycles of a site's run; the fault from this cycle on
 TENANTS = ("t-alpha", "t-beta", "t-gamma", "t-delta")
 SITES_PER_TENANT, RUNS_PER_SITE = 6, 2
 DEFAULT_DIR = Path("out/fleet-runs")
+PR_SET_PDEATHSIG = 1  # Linux prctl: the signal a process gets when the thread that forked it ends
 
 # fault kind -> (cause it should read as, magnitudes a site draws from, joints it may hit)
 KINDS = {
@@ -142,8 +145,7 @@ def make_fleet(root: Path = DEFAULT_DIR, workers: int = 2) -> dict:
     todo = [r for r in (acceptance, *sites, *held) if not (root / r.name / "summary.json").is_file()]
     t0 = time.perf_counter()
     out: dict = {"site": {}, "held": {}}
-    # a worker is a forked copy: SIGTERM ends it as before, the parent's handler raising there would not
-    pool = ProcessPoolExecutor(workers, initializer=signal.signal, initargs=(signal.SIGTERM, signal.SIG_DFL))
+    pool = ProcessPoolExecutor(workers, initializer=_worker_start, initargs=(os.getpid(),))
     with _ended_by_sigterm():
         try:
             made = list(pool.map(_make, [root / r.name for r in todo], [r.scenario for r in todo]))
@@ -158,6 +160,21 @@ def make_fleet(root: Path = DEFAULT_DIR, workers: int = 2) -> dict:
     out.update(made=len(todo), runs=1 + len(sites) + len(held), acceptance=str(acc),
                make_cpu_s=sum(c for _, c in made), make_wall_s=t_made, wall_s=time.perf_counter() - t0)
     return out
+
+
+def _worker_start(parent: int) -> None:
+    """A pool worker's set-up. It is a forked copy: SIGTERM ends it as before (the parent's handler raising there
+    would not). On Linux it is killed when the parent dies (strictly, when the thread that forked it ends: pool.map's
+    caller, which waits for the pool): a SIGKILLed script shuts no pool down, and its workers made runs for minutes,
+    orphaned, then waited on their queue for good."""
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    if not sys.platform.startswith("linux"):
+        return
+    arg = ctypes.c_ulong
+    if ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, arg(signal.SIGKILL), arg(0), arg(0), arg(0)) != 0:
+        raise OSError(ctypes.get_errno(), "prctl(PR_SET_PDEATHSIG) failed")
+    if os.getppid() != parent:  # the parent died before the death signal was set
+        os._exit(1)
 
 
 @contextlib.contextmanager
