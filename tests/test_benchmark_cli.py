@@ -1,6 +1,7 @@
 """The benchmark scripts' command lines: ``--help`` prints usage and runs nothing, bad input is one line and exit 2
-before any work, and a SIGTERM leaves no pool worker behind. Only the refusal and help paths run here (each script
-runs in its own session, killed whole if it outlives its time, so a regression cannot leave a benchmark running)."""
+before any work, and a SIGTERM or SIGKILL leaves no pool worker behind. Only the refusal and help paths run here
+(each script runs in its own session, killed whole if it outlives its time, so a regression cannot leave a benchmark
+running)."""
 
 from __future__ import annotations
 
@@ -118,3 +119,29 @@ def test_sigterm_ends_fleet_runs_with_its_workers_and_keeps_no_stopped_run(tmp_p
     kept = [json.loads((d / "summary.json").read_text()) for d in runs.iterdir() if (d / "summary.json").is_file()]
     assert [s["stopped"] for s in kept if s.get("stopped")] == []
     assert list(runs.glob("*.partial")) == []
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the death signal is Linux's (prctl)")
+def test_sigkill_of_fleet_runs_ends_its_workers(tmp_path):
+    """SIGKILL runs no handler and shuts no pool down: the workers made their runs for minutes, orphaned, then
+    waited on their queue for good. They get the death signal now."""
+    runs = tmp_path / "runs"
+    proc = start("fleet_runs.py", str(runs), cwd=tmp_path)
+    try:
+        deadline = time.monotonic() + 60
+        while not list(runs.glob("*.partial")) and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.05)  # a worker is inside a run
+        assert proc.poll() is None and list(runs.glob("*.partial")), "no run started: nothing tested"
+        workers = descendants(proc.pid)
+        assert workers
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait()
+        deadline = time.monotonic() + 5
+        while any(map(alive, workers)) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert [w for w in workers if alive(w)] == []
+    finally:  # whatever is left of its session
+        try:
+            os.killpg(proc.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
