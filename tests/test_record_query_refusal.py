@@ -27,6 +27,15 @@ EXTENSIONS = "is refused: extensions are not available in a query; the query is 
     ("UPDATE EXTENSIONS", "sql: UPDATE EXTENSIONS is refused; the query is read-only"),
     ("EXPLAIN ANALYZE INSTALL httpfs", "sql: EXPLAIN of an INSTALL statement is refused"),
     ("EXPLAIN ANALYZE UPDATE EXTENSIONS", "sql: EXPLAIN of an UPDATE EXTENSIONS statement is refused"),
+    # in the user's letter case (``pragma version`` was refused as "PRAGMA VERSION")
+    ("pragma version", "sql: pragma version is refused; the query is read-only"),
+    ("Pragma database_list", "sql: Pragma is refused; the query is read-only"),
+    ("/* x */ drop   TABLE cycles", "sql: drop TABLE is refused; the query is read-only"),  # not "(read as DROP)"
+    ("checkpoint", "sql: checkpoint (read as CALL) is refused; the query is read-only"),
+    ("force install httpfs", "sql: force install is refused: extensions are not available in a query"),
+    ("explain analyze install httpfs", "sql: explain of an install statement is refused (EXPLAIN ANALYZE runs it)"),
+    ("Explain Analyze Update Extensions", "sql: Explain of an Update Extensions statement is refused"),
+    ("explain (format json) pragma version", "sql: explain of a pragma version statement is refused"),
 ])
 def test_a_refused_statement_is_named_as_written(sql, line):
     with pytest.raises(RecordError) as refused:
