@@ -220,12 +220,12 @@ class Tracker:
             out = self._out
             cand = [x + e for x, e in zip(samples, out.new_position)]
             fits, ev, ea = self._fits(cand, v_limit, recovering)[0], out.new_velocity, out.new_acceleration
-            end = _at_end(rv, ra, self.dt)
+            half_dt = 0.5 * self.dt
             for j, fit in zip(recovering, fits):
                 if self._finished and ok[j]:  # landed: the sample itself, passed through again
                     continue
                 if fit:
-                    q[j], mode[j], tv[j], ta[j] = cand[j], OFFSET, ev[j] + end[j], ea[j] + ra[j]
+                    q[j], mode[j], tv[j], ta[j] = cand[j], OFFSET, ev[j] + _at_end(rv[j], ra[j], half_dt), ea[j] + ra[j]
         rest = [j for j, m in enumerate(mode) if m == ABSOLUTE]
         if rest:
             if not self._absolute(samples, rv, v_limit):
@@ -432,18 +432,17 @@ class Tracker:
         v, a = self._handover(offset=True)
         inp = self._offset_in
         r0, rv0, ra0 = previous
-        end = _at_end(rv0, ra0, self.dt)
+        half_dt, inv_dt, p = 0.5 * self.dt, self._inv_dt, self.samples[0]
         dof = len(v)
         e, ev, ea = [0.0] * dof, [0.0] * dof, [0.0] * dof
         for j in joints:
-            e[j], ev[j], ea[j] = self.samples[0][j] - r0[j], v[j] - end[j], a[j] - ra0[j]
+            e[j], ev[j], ea[j] = p[j] - r0[j], v[j] - _at_end(rv0[j], ra0[j], half_dt), a[j] - ra0[j]
         inp.current_position, inp.current_velocity, inp.current_acceleration = e, ev, ea
         inp.synchronization = _SYNC if v_limit is None else ruckig.Synchronization.No
         v_floor, a_floor, j_floor = self._floors
         limit = self._vmax_f if v_limit is None else v_limit
         inp.max_velocity = [max(m - abs(x), f) for m, x, f in zip(limit, rv, v_floor)]
         inp.max_acceleration = [max(m - abs(x), f) for m, x, f in zip(self._amax_f, ra, a_floor)]
-        inv_dt = self._inv_dt
         inp.max_jerk = [max(m - abs(x - x0) * inv_dt, f) for m, x, x0, f in zip(self._jmax_f, ra, ra0, j_floor)]
         return self._step(inp)
 
@@ -473,13 +472,12 @@ class Tracker:
         return q
 
 
-def _at_end(v: list[float], a: list[float], dt: float) -> list[float]:
+def _at_end(v: float, a: float, half_dt: float) -> float:
     """The velocity at the end of a tick from its finite-difference velocity ``v`` (the mean over the
     tick) and acceleration ``a``, as ``_handover`` reads the samples: the offset plan's error is the
     setpoint's state less the reference's at the same instant. Taken at mid-tick, the reference's
     velocity was half a tick of its acceleration short, a step at every hand-over between the plans."""
-    half_dt = 0.5 * dt
-    return [x + y * half_dt for x, y in zip(v, a)]
+    return v + a * half_dt
 
 
 def _travel(v: float, a: float, amax: float, jmax: float, v3: float, v3sq: float, inv_2a: float,
