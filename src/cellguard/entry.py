@@ -1,21 +1,38 @@
 """The ``cellguard`` console script. Plugins are discovered while cellguard is imported (the scenario schema is
 built from the kinds found), before any command can catch an error: a broken plugin module ended every command,
-``--help`` included, in a traceback. Here it ends in one line naming the file, exit 2, as bad input does."""
+``--help`` included, in a traceback. Here it ends in one line naming the file, exit 2, as bad input does. So does a
+usage error (an option's value of the wrong type or out of its range, an unknown option, a missing argument): the
+command line's own parser drew it in a box of four to six lines."""
 
 from __future__ import annotations
 
 import sys
 
+import typer
+
 from cellguard.plugins import PluginError
 from cellguard.printable import printable
 
+# the parser's error class: click's, or typer's own copy of click (typer 0.2x bundles one), both BadParameter's base
+USAGE_ERROR = next(c for c in typer.BadParameter.__mro__ if c.__name__ == "ClickException")
+
 
 def main() -> None:
-    """Run the command line; a PluginError, on import or from a command importing plugins later: one line, exit 2."""
+    """Run the command line; a PluginError, on import or from a command importing plugins later, and a usage error:
+    one line, exit 2."""
     try:
         from cellguard.cli import app
 
-        app()
+        code = app(standalone_mode=False)  # a command's typer.Exit comes back as its code
     except PluginError as exc:
         sys.stderr.write(f"error: {printable(exc)}\n")
         sys.exit(2)
+    except USAGE_ERROR as exc:
+        context = getattr(exc, "ctx", None)
+        usage = f" (`{context.command_path} --help` says how)" if context is not None else ""
+        sys.stderr.write(f"error: {printable(exc.format_message())}{usage}\n")
+        sys.exit(exc.exit_code)
+    except typer.Abort:  # end of input at a prompt
+        sys.stderr.write("error: aborted\n")
+        sys.exit(1)
+    sys.exit(code if isinstance(code, int) and not isinstance(code, bool) else 0)
