@@ -60,3 +60,17 @@ def test_position_limits_are_never_shown_wider_than_they_are():
         assert joint.position[0] <= lo < hi <= joint.position[1], (joint.name, shown[joint.name])
         assert hi - lo > 0.999 * (joint.position[1] - joint.position[0])
     assert shown["shoulder_lift"] == "-1.658..1.658"
+
+
+def test_a_profile_without_one_of_the_cells_joints_is_refused(tmp_path):
+    """The packaged arm profile less its wrist_roll line was shown as a five-joint table, exit 0; only a run refused
+    it. Now one line naming the missing joint, exit 2."""
+    from cli_util import one_error
+
+    from cellguard.robot.arm_cell import ASSETS
+
+    lines = (ASSETS / "arm_profile.yaml").read_text().splitlines(keepends=True)
+    path = tmp_path / "missing.yaml"
+    path.write_text("".join(line for line in lines if not line.lstrip().startswith("wrist_roll:")))
+    line = one_error(runner.invoke(app, ["embodiment", "show", "arm-pick-place", "--profile", str(path)]))
+    assert line.startswith(f"error: --profile: {path} has joints [") and line.endswith("(wrist_roll missing)"), line
