@@ -171,7 +171,12 @@ def export_batch(signatures: Sequence[Signature], policy: DataPolicy, today: dt.
                  key: bytes) -> Batch:
     """The batch ``policy`` lets leave the site, from the site's ``signatures``; ``key`` is the site's
     secret the signature ids are keyed with; ``today``: the date retention counts from, whose tomorrow is the
-    latest a signature sent may be dated (default: this host's UTC date)."""
+    latest a signature sent may be dated (default: this host's UTC date). A signature of another tenant or site,
+    whatever its date, is refused (PolicyError): it is not this site's to send, to count, or to say it kept."""
+    for s in signatures:
+        if (s.tenant_id, s.site_id) != (policy.tenant, policy.site):
+            raise PolicyError(f"signature.tenant_id/site_id: {s.tenant_id}/{s.site_id} is not the policy's "
+                              f"{policy.tenant}/{policy.site}")
     today = today or utc_today()
     oldest, newest = oldest_kept(policy, today), newest_kept(today)
     live = [s for s in signatures if oldest <= dt.date.fromisoformat(s.created_date) <= newest]
@@ -186,9 +191,5 @@ def export_batch(signatures: Sequence[Signature], policy: DataPolicy, today: dt.
                      for (c, m, t, mo), n in sorted(counts.items(), key=str) if n >= policy.min_group_size)
         sent = sum(r["signatures"] for r in rows)
         return Batch(**base, aggregates=rows, withheld_rows=len(signatures) - sent)
-    for s in live:  # a signature from another tenant or site is not this site's to send
-        if (s.tenant_id, s.site_id) != (policy.tenant, policy.site):
-            raise PolicyError(f"signature.tenant_id/site_id: {s.tenant_id}/{s.site_id} is not the policy's "
-                              f"{policy.tenant}/{policy.site}")
     rows = tuple(withhold(s, policy.withheld, key) for s in live)
     return Batch(**base, signatures=rows, withheld_rows=len(signatures) - len(rows), key_id=fingerprint(key))
