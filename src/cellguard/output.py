@@ -290,6 +290,11 @@ def not_regular(path: Path) -> str | None:
         return None
     if stat.S_ISREG(mode) or stat.S_ISDIR(mode):
         return None
+    return special_kind(mode)
+
+
+def special_kind(mode: int) -> str:
+    """What a file of ``mode`` that is neither a regular file nor a folder is, in words ("a FIFO", ...)."""
     kinds = ((stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"), (stat.S_ISFIFO, "a FIFO"),
              (stat.S_ISSOCK, "a socket"))
     return next((name for test, name in kinds if test(mode)), "a special file")

@@ -137,6 +137,14 @@ def read_bounded(path: Path, what: str, error: type[ConfigError] = ConfigError, 
         raise error(f"{path}: is a folder, not a {what} file") from None
     except OSError as exc:
         raise error(f"{path}: cannot read the {what} file ({exc.strerror or exc.__class__.__name__})") from None
+    return read_opened(fd, path, what, error, limit)
+
+
+def read_opened(fd: int, path: Path, what: str, error: type[ConfigError] = ConfigError, limit: int = MAX_BYTES
+                ) -> bytes:
+    """The bytes of the file open as ``fd`` (opened without blocking; named ``path``, a ``what`` file), at most
+    ``limit``: a folder, a FIFO or a socket refused, larger refused; ``fd`` is closed. For a caller that opens the
+    file its own way (without following a link: a check of the path before the open can be raced)."""
     try:
         mode = os.fstat(fd).st_mode
         if stat.S_ISDIR(mode):

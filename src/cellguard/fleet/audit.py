@@ -16,7 +16,8 @@ deleted ``rows`` (every one of the site's) from ``destination``; it names no bat
 The log is written and read only as a file of the site folder's own: a link there is refused, never followed (a
 link to nothing, followed, put the site's log wherever it pointed, outside the site; read, another site's log was
 shown as this one's), and so is a hard link, a second name elsewhere of the same file (every entry appended here
-appeared there too).
+appeared there too). Each rule is checked on the file opened (``_open``), not on the path before it is opened: a
+link swapped in between a check and the open was followed (another site's log shown as this one's).
 
 A damaged log is read as far as it goes: ``scan_audit`` returns the entries and names each line
 it cannot read; ``read_audit`` refuses a damaged log in one line.
@@ -34,7 +35,8 @@ from cellguard.dates import utc_now
 from cellguard.errors import ConfigError, OutputError
 from cellguard.fleet.export import Batch
 from cellguard.fleet.policy import DataPolicy
-from cellguard.yaml_file import read_bounded
+from cellguard.output import special_kind
+from cellguard.yaml_file import read_opened
 
 AUDIT_FILE = "audit.jsonl"
 STATUSES = ("queued", "sent", "duplicate", "nothing", "held", "refused", "probed", "retention", "withdrawn")
@@ -90,11 +92,12 @@ def _append(site_dir: Path, fields: dict) -> dict:
     path = Path(site_dir) / AUDIT_FILE
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT | os.O_NOFOLLOW, 0o640)
+        fd, st = _open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT)
         try:
-            names = os.fstat(fd).st_nlink  # of the file opened: a link made after the push's check is seen too
-            if names > 1:
-                raise OutputError(_hard_linked(path, names))
+            if not stat.S_ISREG(st.st_mode):
+                raise OutputError(_not_regular(path, st.st_mode))
+            if st.st_nlink > 1:  # of the file opened: a link made after the push's check is seen too
+                raise OutputError(_hard_linked(path, st.st_nlink))
             os.write(fd, (json.dumps(entry, sort_keys=True) + "\n").encode())
             os.fsync(fd)
         finally:
@@ -102,8 +105,36 @@ def _append(site_dir: Path, fields: dict) -> dict:
     except OSError as exc:
         if exc.errno == errno.ELOOP:
             raise OutputError(f"audit log {path}: a link; {NO_LINKS}") from None
+        if exc.errno == errno.ENXIO:  # a FIFO no one reads (or a socket): opened to wait, the push hung for good
+            raise OutputError(_not_regular(path, _mode_of(path))) from None
         raise OutputError(f"audit log {path}: cannot append ({exc.strerror or exc.__class__.__name__})") from None
     return entry
+
+
+def _open(path: Path, flags: int) -> tuple[int, os.stat_result]:
+    """(``path`` opened with ``flags``, the opened file's status): never through a link (``O_NOFOLLOW``: ELOOP) and
+    never waiting (``O_NONBLOCK``: a FIFO waits for its other end), so what the caller checks is the file it then
+    reads or writes, whatever the path was made to name meanwhile."""
+    fd = os.open(path, flags | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC, 0o640)
+    try:
+        return fd, os.fstat(fd)
+    except OSError:
+        os.close(fd)
+        raise
+
+
+def _not_regular(path: Path, mode: int | None) -> str:
+    """What the audit log at ``path`` (of ``mode``, None: not known) is instead of a regular file."""
+    what = "a folder" if mode is not None and stat.S_ISDIR(mode) else special_kind(mode or 0)
+    return f"{path}: is {what}, not a regular audit log file"
+
+
+def _mode_of(path: Path) -> int | None:
+    """``path``'s mode, to name what it is, or None if it cannot be looked at."""
+    try:
+        return os.lstat(path).st_mode
+    except OSError:
+        return None
 
 
 def destination_of(entry: dict) -> str | None:
@@ -117,20 +148,30 @@ def refuse_links(site_dir: Path, *names: str) -> None:
     """ConfigError naming the first of ``names`` (paths in ``site_dir``) that is a link, to anything or nothing."""
     for name in names:
         if (Path(site_dir) / name).is_symlink():
-            raise ConfigError(f"--site-dir {site_dir}: {name} is a link to {os.readlink(Path(site_dir) / name)}; "
-                              f"{NO_LINKS}")
+            raise _a_link(site_dir, name)
+
+
+def _a_link(site_dir: Path, name: str) -> ConfigError:
+    """The error naming ``name`` in ``site_dir`` as a link, and where it points (if it still does)."""
+    try:
+        to = f" to {os.readlink(Path(site_dir) / name)}"
+    except OSError:  # swapped back since
+        to = ""
+    return ConfigError(f"--site-dir {site_dir}: {name} is a link{to}; {NO_LINKS}")
 
 
 def check_log(site_dir: Path) -> None:
-    """ConfigError naming the site's audit log, before a command that appends to it, if it is a link: symbolic
-    (``refuse_links``) or hard, a second name elsewhere of the same file, where every entry appended here appears too
-    (and another site's appear here). Reading one is harmless (``scan_audit`` refuses only a symbolic link)."""
-    refuse_links(site_dir, AUDIT_FILE)
+    """ConfigError naming the site's audit log, before a command that appends to it, if it is a link: symbolic or
+    hard, a second name elsewhere of the same file, where every entry appended here appears too (and another site's
+    appear here). Reading one is harmless (``scan_audit`` refuses only a symbolic link)."""
     path = Path(site_dir) / AUDIT_FILE
     try:
-        st = os.lstat(path)
-    except OSError:  # none yet, or one that cannot be looked at: the read or the append names why
+        fd, st = _open(path, os.O_RDONLY)
+    except OSError as exc:  # none yet, or one that cannot be opened: the read or the append names why
+        if exc.errno == errno.ELOOP:
+            raise _a_link(site_dir, AUDIT_FILE) from None
         return
+    os.close(fd)
     if stat.S_ISREG(st.st_mode) and st.st_nlink > 1:
         raise ConfigError(f"--site-dir {site_dir}: {_hard_linked(path, st.st_nlink)}")
 
@@ -157,11 +198,7 @@ def scan_audit(site_dir: Path) -> tuple[list[dict], list[str]]:
     a symbolic link: it is read as the writes would take it, never followed (a hard link, a backup's second name of
     the site's own file, reads as it is)."""
     check_site_dir(site_dir)
-    refuse_links(site_dir, AUDIT_FILE)
-    path = Path(site_dir) / AUDIT_FILE
-    if not path.exists():
-        return [], []
-    data = read_bounded(path, "audit log", AuditError, MAX_AUDIT_BYTES)
+    data = _read(site_dir)
     entries, damaged = [], []
     for number, raw in enumerate(data.split(b"\n"), 1):
         if not raw.strip():
@@ -181,3 +218,21 @@ def scan_audit(site_dir: Path) -> tuple[list[dict], list[str]]:
             continue
         entries.append(entry)
     return entries, damaged
+
+
+def _read(site_dir: Path) -> bytes:
+    """The bytes of the site's log (none yet: empty), read from the file opened (``_open``): AuditError for one that
+    is not a regular file, cannot be read or is larger than ``MAX_AUDIT_BYTES``, ConfigError for a symbolic link."""
+    path = Path(site_dir) / AUDIT_FILE
+    try:
+        fd, st = _open(path, os.O_RDONLY)
+    except FileNotFoundError:
+        return b""
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            raise _a_link(site_dir, AUDIT_FILE) from None
+        raise AuditError(f"{path}: cannot read the audit log file ({exc.strerror or exc.__class__.__name__})") from None
+    if not stat.S_ISREG(st.st_mode):
+        os.close(fd)
+        raise AuditError(_not_regular(path, st.st_mode))
+    return read_opened(fd, path, "audit log", AuditError, MAX_AUDIT_BYTES)
