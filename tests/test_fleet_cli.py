@@ -146,3 +146,18 @@ def test_text_a_store_holds_is_printed_with_control_characters_escaped(env):
     finally:
         with store.admin() as con:
             con.execute("DELETE FROM fleet.signatures WHERE signature_id LIKE 'esc-%'")
+
+
+def test_a_push_with_a_lake_and_no_store_says_nothing_landed(env):
+    """The lake takes what the store took: with no store (or one that is down) a push queued its batch and said
+    nothing of the lake given, read as "the lake gets them"."""
+    root, _ = env
+    lake = root / "lake-alone"
+    for dsn, site in ((None, "alone"), (DOWN, "alone-down")):
+        out = CliRunner().invoke(app, ["fleet", "push", str(root / "run"), "--policy", str(root / "ta-s1.yaml"),
+                                       "--site-dir", str(root / site), "--lake", str(lake)],
+                                 env={"CELLGUARD_FLEET_DSN": dsn})  # None: no store, whatever this shell has
+        assert out.exit_code == 0, out.output
+        assert f"kept in {root / site / 'outbox'}" in out.stderr and \
+            f"nothing landed in {lake}: it takes what the store took" in out.stderr, out.stderr
+        assert not lake.exists()

@@ -78,11 +78,13 @@ def push(
         say(f"fleet push: {b.export}, {b.rows} row(s) exported, {b.withheld_rows} kept at the site "
             f"(policy {b.policy_version}); {result.new_rows} new, {result.duplicate_rows} already in the store; "
             f"{result.retention_removed} row(s) deleted by retention; {result.queued} batch(es) queued", err=False)
+    # the lake takes what the store took: a user with a lake and no store read the README's line as "the lake gets them"
+    landed = f"; nothing landed in {lake}: it takes what the store took" if lake is not None else ""
     if result.unavailable:
         sys.stderr.write(f"{result.unavailable}; {result.queued} batch(es) kept in {Path(site_dir) / 'outbox'}, "
-                         f"sent on the next push\n")
+                         f"sent on the next push{landed}\n")
     elif store is None and result.queued:
-        sys.stderr.write(f"no --store given: {result.queued} batch(es) kept in {Path(site_dir) / 'outbox'}\n")
+        sys.stderr.write(f"no --store given: {result.queued} batch(es) kept in {Path(site_dir) / 'outbox'}{landed}\n")
     if result.new_key:
         _new_key_note(result.new_key)
     for line in result.held:
