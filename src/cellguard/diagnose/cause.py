@@ -42,7 +42,7 @@ candidate finding, classified from the size and sign of its changes over the fau
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -208,8 +208,9 @@ class _Window:
         seen = ~np.all(np.isnan(z), axis=1)
         return np.array([c.index for c in self.cycles])[seen], np.nanmean(z[seen], axis=1)
 
-    def xy(self, stem: str, start: int) -> np.ndarray | None:
-        v = np.array([self.delta(f"{stem}_x_mm", start), self.delta(f"{stem}_y_mm", start)])
+    def xy(self, stem: str, start: int, axes: str = "xy") -> np.ndarray | None:
+        """Median change of position ``stem`` along ``axes`` [mm]; None where one of them is never read."""
+        v = np.array([self.delta(f"{stem}_{axis}_mm", start) for axis in axes])
         return v if np.all(np.isfinite(v)) else None
 
 
@@ -266,6 +267,13 @@ def name_causes(baseline: Baseline, cycles: Sequence[Cycle], z: np.ndarray, alar
     return sorted(findings, key=lambda f: (f.cycle, f.cause))
 
 
+def step_dates(baseline: Baseline, cycles: Sequence[Cycle], z: np.ndarray) -> Callable[[DriftAlarm], int]:
+    """The cycle an alarmed feature stepped over ``cycles`` (residuals ``z``): its own least-squares step
+    (``_Window.step_onset``), not its CUSUM's change point, which a noise dip before the step dates early."""
+    w = _Window(baseline, cycles, z)
+    return lambda a: w.step_onset([a])
+
+
 def _onset(alarms: Sequence[DriftAlarm]) -> int:
     """The episode's start: the median change point of its alarms (robust to one early CUSUM)."""
     return int(np.median([a.onset for a in alarms]))
@@ -305,14 +313,31 @@ def _with_late_joints(w: _Window, late: Finding, groups: dict[str, list[DriftAla
                       ) -> tuple[Finding, dict[str, list[DriftAlarm]]]:
     """The joints whose change began with the latency (``_began_with``) follow the stale plan: told in the
     latency finding, not as joint findings. Returns the finding and the other joints' alarm groups."""
-    with_it = sorted(j for j, alarms in groups.items() if _began_with(w, alarms, late.cycle))
+    later = {j: _rearmed(alarms, late.cycle + CONCURRENT) for j, alarms in groups.items()}
+    earlier = {j: [a for a in alarms if a not in later[j]] for j, alarms in groups.items()}
+    with_it = sorted(j for j, alarms in earlier.items() if alarms and _began_with(w, alarms, late.cycle))
     if not with_it:
         return late, groups
-    signals = sorted({a.signal for j in with_it for a in groups[j]})
+    signals = sorted({a.signal for j in with_it for a in earlier[j]})
     note = (f"also joint {', '.join(with_it)} from cycle {late.cycle} ({', '.join(signals[:4])}"
             f"{' ...' if len(signals) > 4 else ''}): they change with the stale plan (a drive that changed at the same "
             "cycle would read the same: check these joints once the latency is fixed)",)
-    return told(late, note, signals, before_last=True), {j: v for j, v in groups.items() if j not in with_it}
+    rest = {j: v if j not in with_it else later[j] for j, v in groups.items()}
+    return told(late, note, signals, before_last=True), {j: v for j, v in rest.items() if v}
+
+
+def _rearmed(alarms: Sequence[DriftAlarm], after: int) -> list[DriftAlarm]:
+    """The alarms of a change that began after ``after``, once the change before it on the same features had ended:
+    from the first alarm again of a signal (its monitor re-arms only once its change ended) that began after
+    ``after``, those again and the first alarms of other signals that began with it or later."""
+    first: dict[tuple[str, int], DriftAlarm] = {}
+    again = [a for a in sorted(alarms, key=lambda a: (a.cycle, a.onset))
+             if first.setdefault((a.signal, a.direction), a) is not a and a.onset > after]
+    if not again:
+        return []
+    start = min(a.onset for a in again) - CONCURRENT
+    again_of = {(a.signal, a.direction) for a in again}
+    return [a for a in alarms if a in again or ((a.signal, a.direction) not in again_of and a.onset >= start)]
 
 
 def _began_with(w: _Window, alarms: list[DriftAlarm], at: int) -> bool:
@@ -402,21 +427,23 @@ def _geometry(w: _Window, alarms: list[DriftAlarm], outcome: list[DriftAlarm]) -
         if moved:
             why = f"the part really sat {_vec(real)} from {place}, as the camera saw: the fixture moved"
             return Finding("fixture_shift", start, conf, words + (why,) + tuple(tail), signals)
-        why = (f"the part really sat only {_vec(real)} from {place}: the camera moved "
-               "(its calibration no longer holds)")
+        why = (f"the part really sat only {_vec(real)} from {place}: the camera moved, about {_vec(real - seen)} "
+               "(the opposite of what it saw the part do; its calibration no longer holds)")
         return Finding("camera_shift", start, conf, words + (why,) + tuple(tail), signals)
     q = [w.zmed(n, start) for n in w.baseline.names if n.startswith("grasp_q.")]
     q_still = not q or np.linalg.norm(np.nan_to_num(q)) < UNCHANGED_Z
     stayed = _part_stayed(w, alarms, start)
-    if np.linalg.norm(off) >= SIGNIFICANT_MM and (q_still or not stayed):  # else the joints closed the tool elsewhere
-        conf = _squash(np.linalg.norm(off) / (np.linalg.norm(off) + np.linalg.norm(seen))) if q_still else 0.4
-        words = (f"part-to-tool offset at grasp changed {_vec(off)}",
+    slip = w.xy("grasp_offset", start, "xyz")  # a tool that slipped along its axis moved the offset in z alone
+    slip = off if slip is None else slip
+    if np.linalg.norm(slip) >= SIGNIFICANT_MM and (q_still or not stayed):  # else the joints closed it elsewhere
+        conf = _squash(np.linalg.norm(slip) / (np.linalg.norm(slip) + np.linalg.norm(seen))) if q_still else 0.4
+        words = (f"part-to-tool offset at grasp changed {_vec(slip)}",
                  f"camera-seen part unchanged ({_vec(seen)})",
                  "joint grasp pose unchanged" if q_still else "joint grasp pose also changed",
                  "the tool point moved on the flange: the tool slipped")
         return Finding("tool_slip", start, conf, words + tuple(tail), signals)
     words = (f"geometry changed in no pattern of a known cause: {_moved(w, alarms, start)}",)
-    if stayed:
+    if stayed and not (q and q_still):  # the joints' grasp pose moved (or is not read): they closed it elsewhere
         words += ("the part really sat where it did (grasp pose plus offset within "
                   f"{SIGNIFICANT_MM} mm of the camera's reading on every axis): the tool closed on it at another point",)
     return Finding("unknown", start, 0.3, words + tuple(tail), signals)
@@ -748,7 +775,7 @@ def _squash(share: float) -> float:
 
 
 def _vec(v: np.ndarray) -> str:
-    return f"{v[0]:+.1f} mm in x, {v[1]:+.1f} mm in y"
+    return ", ".join(f"{d:+.1f} mm in {axis}" for d, axis in zip(v, "xyz"))
 
 
 def _pct(r: float) -> str:

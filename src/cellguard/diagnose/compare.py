@@ -6,7 +6,7 @@ was not, and list what differs, in the order the changes began.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -44,15 +44,17 @@ def last_good_and_faulted(cycles: Sequence[Cycle], first_faulted: int | None) ->
 
 
 def changes(baseline: Baseline, alarms: Sequence[DriftAlarm], good: Cycle | None,
-            faulted: Cycle | None, later: Sequence[Cycle]) -> list[FeatureChange]:
-    """Every alarmed feature, earliest change first; a feature missing in a cycle reads NaN.
+            faulted: Cycle | None, later: Sequence[Cycle],
+            dated: Callable[[DriftAlarm], int] = lambda a: a.onset) -> list[FeatureChange]:
+    """Every alarmed feature, earliest change first, each dated by ``dated`` (its step, where the caller
+    fits one: a CUSUM's change point wanders early with the noise); a feature missing in a cycle reads NaN.
 
     The change is read at the alarm's cycle (in ``later``): a ramp has barely moved in the first
     faulted cycle, and the technician wants to know how far it went.
     """
     out = []
     seen = set()
-    for a in sorted(alarms, key=lambda a: (a.onset, a.cycle, a.signal)):
+    for onset, a in sorted(((dated(a), a) for a in alarms), key=lambda t: (t[0], t[1].cycle, t[1].signal)):
         if a.signal == "multivariate" or a.signal in seen or a.signal not in baseline.names:
             continue
         seen.add(a.signal)
@@ -65,6 +67,6 @@ def changes(baseline: Baseline, alarms: Sequence[DriftAlarm], good: Cycle | None
         f = faulted.features.get(a.signal, np.nan) if faulted else np.nan
         v = at_alarm.features.get(a.signal, np.nan) if at_alarm else np.nan
         change = v - median
-        out.append(FeatureChange(a.signal, a.onset, a.cycle, median, float(g), float(f), float(v),
+        out.append(FeatureChange(a.signal, onset, a.cycle, median, float(g), float(f), float(v),
                                  float(change), float(change / scale)))
     return out

@@ -11,8 +11,8 @@ from dataclasses import dataclass, field, replace
 
 from cellguard.control.events import ROUTINE_EVENTS, EventKind
 from cellguard.diagnose.asymmetry import Asymmetry, asymmetry_onset, mirror_map, mirrored_asymmetry
-from cellguard.diagnose.baseline import Baseline
-from cellguard.diagnose.cause import CONCURRENT, Finding, intermittent_findings, name_causes, told
+from cellguard.diagnose.baseline import OWN_SOURCE, Baseline
+from cellguard.diagnose.cause import CONCURRENT, Finding, intermittent_findings, name_causes, step_dates, told
 from cellguard.diagnose.compare import FeatureChange, changes, last_good_and_faulted
 from cellguard.diagnose.cycles import Cycle, as_cycles
 from cellguard.diagnose.drift import DriftConfig, DriftResult, detect_drift
@@ -78,8 +78,10 @@ def diagnose(rows: Iterable[object], events: Iterable[object] = (), context: Map
     """Diagnose a run from its cycles (any source, see ``as_cycle``), events and context.
 
     ``baseline`` defaults to the acceptance cycles of the same run; pass one to compare with a
-    separate acceptance record. ``symmetry`` enables the mirrored-motion comparison. ``history``:
-    what fixed each cause in this site's other records (rows of ``recovery.fixes``), for advice.
+    separate acceptance record (its ``source`` not ``OWN_SOURCE``): then every cycle of this run is
+    watched, its acceptance cycles too (a fault that began in them was dated at its first production
+    cycle). ``symmetry`` enables the mirrored-motion comparison. ``history``: what fixed each cause
+    in this site's other records (rows of ``recovery.fixes``), for advice.
     """
     rows = list(rows)
     cycles = as_cycles(rows)
@@ -87,6 +89,8 @@ def diagnose(rows: Iterable[object], events: Iterable[object] = (), context: Map
         acceptance = [c for c in cycles if c.phase == "acceptance"]
         baseline = Baseline.from_cycles(policy_cycles(acceptance))
         watched = [c for c in cycles if c.phase != "acceptance"]
+    elif baseline.source != OWN_SOURCE:  # from another record: this one's acceptance cycles are watched too
+        watched = list(cycles)
     else:
         watched = [c for c in cycles if c.phase != "acceptance"] or list(cycles)
     if not watched:
@@ -123,7 +127,8 @@ def diagnose(rows: Iterable[object], events: Iterable[object] = (), context: Map
     good, faulted = last_good_and_faulted(cycles, first)
     return Diagnosis(
         cycles=tuple(cycles), baseline=baseline, drift=drift, findings=tuple(findings),
-        changes=tuple(changes(baseline, drift.alarms, good, faulted, watched)),
+        changes=tuple(changes(baseline, drift.alarms, good, faulted, watched,
+                              step_dates(baseline, watched, drift.z))),
         last_good_cycle=good.index if good else None, first_faulted_cycle=faulted.index if faulted else None,
         safety_events=tuple(_safety(e) for e in evs if e.get("kind") not in ROUTINE_EVENTS),
         asymmetry=asym, context=dict(context or {}), process=notes,

@@ -17,6 +17,10 @@ add false alarms.
 Residuals are clipped before they enter a CUSUM so that one odd cycle (a single bad grasp, a
 sensor spike) cannot raise a drift alarm by itself; a change that persists alarms on its
 second cycle. One-off incidents are the events' business (and the intermittent monitor's), not drift's.
+
+A monitor that alarmed re-arms once its change has ended (``REARM`` cycles in a row back under its
+reference value), its sum restarted: a change after an episode that ended is an alarm of its own
+(a latency on four cycles had spent the alarm of the servo loss that came three cycles after it).
 """
 
 from __future__ import annotations
@@ -33,6 +37,7 @@ from cellguard.diagnose.cycles import Cycle
 from cellguard.diagnose.feature_kinds import kind_of, member_of
 
 SIEGMUND_OFFSET = 1.166
+REARM = 3  # [cycles] in a row back under the reference value (the T^2 limit): the change that alarmed has ended
 
 
 @dataclass(frozen=True)
@@ -121,9 +126,8 @@ def detect_drift(baseline: Baseline, cycles: Sequence[Cycle], config: DriftConfi
                                    np.r_[np.full(p, config.k), np.full(q, config.pooled_k)],
                                    np.r_[np.full(p, h), np.full(q, hp)], baseline.names + names, index)
     upper, lower = upper[:, :p], lower[:, :p]
-    mewma, limit, mv_alarm = _mewma(baseline, z, index, config)
-    if mv_alarm is not None:
-        alarms.append(mv_alarm)
+    mewma, limit, mv_alarms = _mewma(baseline, z, index, config)
+    alarms += mv_alarms
     alarms.sort(key=lambda a: (a.cycle, a.onset, a.signal))
     return DriftResult(baseline.names, tuple(index), config.k, z, upper, lower, h, mewma, limit, tuple(alarms),
                        config.set_arl, config.pooled_k, hp)
@@ -152,47 +156,51 @@ def pooled_channels(baseline: Baseline, zc: np.ndarray) -> tuple[tuple[str, ...]
 
 def _cusums(zc: np.ndarray, k: np.ndarray, h: np.ndarray, names: Sequence[str], index: list[int]):
     """Two-sided CUSUMs of the columns of ``zc`` with per-column reference value ``k`` and threshold ``h``
-    (NaN: no reading, the sum holds); first alarm per side."""
+    (NaN: no reading, the sum holds); an alarm per side and episode: a side that alarmed re-arms, its sum
+    restarted, after ``REARM`` readings in a row under ``k`` on its side."""
     n, p = zc.shape
     upper, lower = np.zeros((n, p)), np.zeros((n, p))
-    s_up, s_lo = np.zeros(p), np.zeros(p)
-    start_up, start_lo = np.zeros(p, dtype=int), np.zeros(p, dtype=int)
-    fired_up, fired_lo = np.zeros(p, dtype=bool), np.zeros(p, dtype=bool)
+    sums, starts = [np.zeros(p), np.zeros(p)], [np.zeros(p, dtype=int), np.zeros(p, dtype=int)]
+    fired, back = [np.zeros(p, dtype=bool), np.zeros(p, dtype=bool)], [np.zeros(p, dtype=int), np.zeros(p, dtype=int)]
     alarms: list[DriftAlarm] = []
     for i in range(n):
-        row = zc[i]
-        seen = ~np.isnan(row)
-        r = np.where(seen, row, 0.0)
-        new_up = np.where(seen, np.maximum(0.0, s_up + r - k), s_up)
-        new_lo = np.where(seen, np.maximum(0.0, s_lo - r - k), s_lo)
-        start_up = np.where((s_up == 0) & (new_up > 0), i, start_up)
-        start_lo = np.where((s_lo == 0) & (new_lo > 0), i, start_lo)
-        s_up, s_lo = new_up, new_lo
-        upper[i], lower[i] = s_up, s_lo
-        for j in np.flatnonzero((s_up > h) & ~fired_up):
-            alarms.append(DriftAlarm(names[j], index[i], float(s_up[j]), index[start_up[j]], +1))
-        for j in np.flatnonzero((s_lo > h) & ~fired_lo):
-            alarms.append(DriftAlarm(names[j], index[i], float(s_lo[j]), index[start_lo[j]], -1))
-        fired_up |= s_up > h
-        fired_lo |= s_lo > h
+        seen = ~np.isnan(zc[i])
+        r = np.where(seen, zc[i], 0.0)
+        for side, sign in ((0, 1.0), (1, -1.0)):
+            s, step = sums[side], sign * r - k
+            back[side] = np.where(seen, np.where(step <= 0.0, back[side] + 1, 0), back[side])
+            rearm = fired[side] & (back[side] >= REARM)
+            s = np.where(rearm, 0.0, s)
+            fired[side] &= ~rearm
+            new = np.where(seen, np.maximum(0.0, s + step), s)
+            starts[side] = np.where((s == 0) & (new > 0), i, starts[side])
+            sums[side] = new
+            for j in np.flatnonzero((new > h) & ~fired[side]):
+                alarms.append(DriftAlarm(names[j], index[i], float(new[j]), index[starts[side][j]], int(sign)))
+            fired[side] |= new > h
+        upper[i], lower[i] = sums
     return upper, lower, alarms
 
 
 def _mewma(baseline: Baseline, z: np.ndarray, index: list[int], config: DriftConfig):
-    """Multivariate EWMA of the clipped residuals with a shrunk correlation; first alarm only."""
+    """Multivariate EWMA of the clipped residuals with a shrunk correlation; an alarm per episode (re-armed
+    after ``REARM`` cycles in a row under its limit)."""
     inv = np.linalg.inv(baseline.correlation())
     lam = config.ewma_lambda
     limit = config.mewma_threshold(z.shape[1])
     e = np.zeros(z.shape[1])
     out = np.zeros(len(z))
-    alarm = None
+    alarms, armed, under = [], True, 0
     for i, row in enumerate(np.clip(z, -config.ewma_clip, config.ewma_clip)):
         r = np.where(np.isnan(row), 0.0, row)
         e = lam * r + (1.0 - lam) * e
         out[i] = float(e @ inv @ e) * (2.0 - lam) / lam
-        if alarm is None and out[i] > limit:
-            alarm = DriftAlarm("multivariate", index[i], float(out[i]), index[i], 0)
-    return out, limit, alarm
+        under = under + 1 if out[i] <= limit else 0
+        armed = armed or under >= REARM
+        if armed and out[i] > limit:
+            alarms.append(DriftAlarm("multivariate", index[i], float(out[i]), index[i], 0))
+            armed = False
+    return out, limit, alarms
 
 
 def siegmund_threshold(arl: float, k: float) -> float:

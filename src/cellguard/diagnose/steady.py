@@ -7,6 +7,12 @@ at a level shared by all the features together (``LEVEL``, Bonferroni), and a fi
 acceptance (Theil-Sen slope times its span) of at least ``MATERIAL`` of the feature's scale floor:
 a trend far under the smallest change that matters says nothing about the cell. Five cycles cannot
 show one at this level (their smallest p is 1/60).
+
+Beside it, a step: the best least-squares split of the readings into two levels (at least ``SIDE``
+cycles each), its t statistic against the spread within the levels, at the same shared level
+(Bonferroni over the splits too). A rank test cannot see a step in few cycles: ten cycles whose
+elbow error stepped 3 % (40 noise sigmas) half way read p = 0.004 at best, against 0.01 shared by 70
+features. The step is named where it is ``MATERIAL`` too, its change the difference of the levels.
 """
 
 from __future__ import annotations
@@ -14,28 +20,49 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
-from scipy.stats import kendalltau, theilslopes
+from scipy.stats import kendalltau, t as student, theilslopes
 
 from cellguard.diagnose.feature_kinds import scale_floor
 
 LEVEL = 0.01  # chance that a steady acceptance reads as trending, all features together
 MATERIAL = 2.0  # [scale floors] a smaller change over the acceptance is not a trend worth naming
+SIDE = 3  # [cycles] the fewest on either side of a step: two cycles that share an odd condition are no level
 
 
 def trends(names: Sequence[str], x: np.ndarray) -> dict[str, float]:
-    """Features of ``x`` (Shape (cycles, names), in cycle order) that trend over the cycles, with the
+    """Features of ``x`` (Shape (cycles, names), in cycle order) that trend, or step, over the cycles, with the
     fitted change from the first cycle to the last [their unit]."""
     found = {}
     order = np.arange(len(x), dtype=float)
+    level = LEVEL / max(len(names), 1)
     for j, name in enumerate(names):
         col = x[:, j]
         seen = ~np.isnan(col)
         if seen.sum() < 3 or np.ptp(col[seen]) == 0.0:
             continue
+        floor = MATERIAL * scale_floor(name, float(np.median(col[seen])))
         tau, p = kendalltau(order[seen], col[seen])
-        if not p < LEVEL / len(names):
-            continue
-        change = float(theilslopes(col[seen], order[seen])[0] * np.ptp(order[seen]))
-        if abs(change) >= MATERIAL * scale_floor(name, float(np.median(col[seen]))):
+        change = float(theilslopes(col[seen], order[seen])[0] * np.ptp(order[seen])) if p < level else 0.0
+        step = _step(col[seen], level)
+        change = max(change, step, key=abs)
+        if abs(change) >= floor:
             found[name] = change
     return found
+
+
+def _step(col: np.ndarray, level: float) -> float:
+    """The change of the best least-squares split of ``col`` into two levels where its t statistic is
+    significant at ``level`` over all the splits tried (Bonferroni), else 0."""
+    n = len(col)
+    splits = range(SIDE, n - SIDE + 1)
+    if not len(splits):
+        return 0.0
+    sse = [(float(np.sum((col[:k] - col[:k].mean()) ** 2) + np.sum((col[k:] - col[k:].mean()) ** 2)), k)
+           for k in splits]
+    best, k = min(sse)
+    change = float(col[k:].mean() - col[:k].mean())
+    spread = np.sqrt(best / (n - 2)) * np.sqrt(1.0 / k + 1.0 / (n - k))
+    if spread == 0.0:
+        return change
+    p = 2.0 * student.sf(abs(change) / spread, n - 2) * len(splits)
+    return change if p < level else 0.0
