@@ -28,9 +28,12 @@ def main() -> None:
         sys.stderr.write(f"error: {printable(exc)}\n")
         sys.exit(2)
     except USAGE_ERROR as exc:
+        said = exc.format_message()
+        if not said:  # a group called bare: its help is on stdout already
+            sys.exit(exc.exit_code)
         context = getattr(exc, "ctx", None)
-        usage = f" (`{context.command_path} --help` says how)" if context is not None else ""
-        sys.stderr.write(f"error: {printable(exc.format_message())}{usage}\n")
+        usage = context.command_path if context is not None else "cellguard"  # an option's missing value has none
+        sys.stderr.write(f"error: {printable(said)} (`{usage} --help` says how)\n")
         sys.exit(exc.exit_code)
     except typer.Abort:  # end of input at a prompt
         sys.stderr.write("error: aborted\n")
