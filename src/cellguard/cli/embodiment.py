@@ -41,9 +41,9 @@ def embodiment_show(
                                f"is {robot.profile.robot!r}")
         if profile.joint_names != robot.profile.joint_names:  # shown as if whole, refused only by a run
             missing = [j for j in robot.profile.joint_names if j not in profile.joint_names]
+            why = f"{', '.join(missing)} missing" if missing else "in another order: every array is in joint order"
             raise ProfileError(f"--profile: {profile_path} has joints {list(profile.joint_names)}; the {cell} cell's "
-                               f"are {list(robot.profile.joint_names)}" + (f" ({', '.join(missing)} missing)"
-                                                                           if missing else ""))
+                               f"are {list(robot.profile.joint_names)} ({why})")
     except CellguardError as exc:
         fail(exc)
     if as_json:
