@@ -24,9 +24,11 @@ runner = CliRunner()
 T_NS = 1_501_000_000  # the tick made bad: inside the 3 s excitation, past its fade-in
 
 
-def with_value(source: Path, target: Path, field: str, joint: str, value: float, ticks: int = 1) -> Path:
-    """A copy of the record in ``source`` whose ``joint``'s ``field`` is ``value`` on ``ticks`` ticks from ``T_NS``,
-    in every tick stream that carries them, written through the mcap Writer (a record from another writer)."""
+def with_value(source: Path, target: Path, field: str, joint: str, value: float, ticks: int = 1, every: int = 1,
+               start: int = T_NS) -> Path:
+    """A copy of the record in ``source`` whose ``joint``'s ``field`` is ``value`` on ``ticks`` ticks from ``start``
+    [ns], one in ``every`` (1 ms apart), in every tick stream that carries them, written through the mcap Writer (a
+    record from another writer)."""
     edited = []
 
     def edit(topic: str, data: bytes) -> bytes:
@@ -34,7 +36,8 @@ def with_value(source: Path, target: Path, field: str, joint: str, value: float,
             return data
         batch = TICKS.decode(data)
         t_ns = np.asarray(batch["t_ns"])
-        hit = np.flatnonzero((t_ns >= T_NS) & (t_ns < T_NS + ticks * 1_000_000))
+        hit = np.flatnonzero((t_ns >= start) & (t_ns < start + ticks * every * 1_000_000)
+                             & ((t_ns - start) // 1_000_000 % every == 0))
         if not len(hit):
             return data
         column = np.array(batch[field], dtype=np.float32).reshape(len(t_ns), -1)
@@ -97,7 +100,8 @@ def test_the_ticks_a_fitted_joints_current_is_missing_on_are_left_out_and_counte
     out = json.loads(result.stdout)
     said = [w for w in out["warnings"] if "left out" in w]
     assert said == [f"{gaps}: 25 of {whole['samples']} ticks of run {out['records'][0]} left out: no motor current "
-                    f"(NaN) on elbow from tick t_ns {T_NS}; a drive that did not report it"], out["warnings"]
+                    f"(NaN) on elbow on 25 ticks from t_ns {T_NS} (a drive that did not report it), and the stretches "
+                    "between them shorter than 200 ticks"], out["warnings"]
     assert out["samples"] == whole["samples"] - 25
     text = runner.invoke(app, ["identify", str(gaps), "--params", "kp"])
     assert text.exit_code == 0 and f"warning: {said[0]}" in text.output.splitlines(), text.output
@@ -121,4 +125,43 @@ def test_a_finite_copy_of_the_record_is_identified(excited, tmp_path):
     """The copy itself is a record identify reads: only the bad value is refused."""
     same = with_value(excited, tmp_path / "same", "qd_meas", "elbow", 0.125)
     result = runner.invoke(app, ["identify", str(same), "--params", "kp"])
+    assert result.exit_code == 0, result.output
+
+
+def test_the_stretches_too_short_between_missing_currents_are_counted_too(excited, tmp_path):
+    """One tick in 150 without elbow's current, over 1.5 s: the warning said 10 ticks left out, the fit went without
+    every tick between them (no stretch of 200). Over the whole record, nothing is left to fit: the refusal says why
+    (it said "record at full rate", of a record at full rate)."""
+    whole = json.loads(runner.invoke(app, ["identify", str(excited), "--params", "kp", "--json"]).stdout)
+    sparse = with_value(excited, tmp_path / "sparse", "current", "elbow", np.nan, ticks=10, every=150)
+    out = json.loads(runner.invoke(app, ["identify", str(sparse), "--params", "kp", "--json"]).stdout)
+    said = [w for w in out["warnings"] if "left out" in w]
+    dropped = whole["samples"] - out["samples"]
+    assert dropped > 1300 and said and said[0].startswith(f"{sparse}: {dropped} of {whole['samples']} ticks"), said
+    assert "on 10 ticks from t_ns" in said[0]
+    everywhere = with_value(excited, tmp_path / "everywhere", "current", "elbow", np.nan, ticks=100, every=150, start=0)
+    line = one_error(runner.invoke(app, ["identify", str(everywhere), "--params", "kp"]))
+    assert "no stretch of 200 ticks at the servo rate; " in line and "no motor current (NaN) on elbow" in line, line
+
+
+@pytest.mark.parametrize(("field", "joint", "value", "says"), [
+    ("q_meas", "elbow", 3e38, "beyond its range [-2.5, 2.5] rad by 10 times its width"),
+    ("q_cmd", "elbow", -1000.0, "beyond its range [-2.5, 2.5] rad by 10 times its width"),
+    ("current", "elbow", 1e6, "a torque beyond 100 times its effort limit of"),
+])
+def test_a_position_setpoint_or_current_beyond_any_the_joint_reads_is_refused(excited, profile, tmp_path, field,
+                                                                              joint, value, says):
+    """A position of 3e38 rad was fitted (kp -4.7e-41, written, exit 0); a current of 1e6 A flooded the terminal
+    with a million lines of MuJoCo warnings before a false "the records move too little"."""
+    bad = with_value(excited, tmp_path / "bad", field, joint, value)
+    before = files(profile.parent)
+    line = one_error(runner.invoke(app, ["identify", str(bad), "--write", str(profile)]))
+    assert f"({field}) of {joint} is {np.float32(value):g} " in line and f" at tick t_ns {T_NS}, {says}" in line, line
+    assert files(profile.parent) == before
+
+
+def test_a_current_the_fit_does_not_read_is_not_refused(excited, tmp_path):
+    """The gripper is not fitted: its current at +inf on one tick refused the whole record."""
+    odd = with_value(excited, tmp_path / "odd", "current", "gripper", np.inf)
+    result = runner.invoke(app, ["identify", str(odd), "--params", "kp"])
     assert result.exit_code == 0, result.output

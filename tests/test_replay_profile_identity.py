@@ -265,3 +265,19 @@ def test_a_site_folder_copied_whole_replays_from_its_own_profile_file(site, tmp_
     result, d = replay_json()
     assert d["profile"] == str((moved / PROFILE).resolve()) and d["profile_note"] is None
     assert result.stderr == ""
+
+
+def test_a_calibrated_mjcf_refused_for_its_payload_says_why_in_the_note(site):
+    """A record's calibrated MJCF edited to a 25 kg payload (the arm's bound is 19.4 kg) was read and refused, and the
+    note said only "cannot be read": the refusal's own words are in it now."""
+    import mujoco
+
+    mjcf = (site / "cal").resolve() / recorded(site)["calibration"]["mjcf"]
+    spec = mujoco.MjSpec.from_file(str(mjcf))
+    spec.body("tool").add_body(name="calibrated_payload").add_geom(type=mujoco.mjtGeom.mjGEOM_SPHERE,
+                                                                    size=[1e-3, 0, 0], mass=25.0)
+    mjcf.write_text(spec.to_xml())
+    result, d = replay_json()
+    assert f"cannot be read at {mjcf} (" in d["profile_note"] and "mass 25 kg is outside the plausible (0, 19.4] kg" \
+        in d["profile_note"] and d["profile_note"].endswith(": replayed without a payload (name the profile with "
+                                                            "--profile)"), d["profile_note"]

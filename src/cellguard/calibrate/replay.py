@@ -346,14 +346,17 @@ def _payload(places: list[Path], prof, cell, why: str) -> tuple[float, str | Non
 
     if prof.calibration is None:
         return 0.0, None
+    refused = []
     for place in places:
         try:
             return calibrated_payload(place, prof, cell.model, "the record's profile"), None
-        except CalibrationError:
-            continue
+        except CalibrationError as exc:  # a file read and refused (a payload over the bound) says why in the note
+            if place.with_name(prof.calibration.mjcf).is_file():
+                refused.append(str(exc))
     mjcf = " or ".join(str(p.with_name(prof.calibration.mjcf)) for p in places) or prof.calibration.mjcf
-    return 0.0, (f"{why}, but the calibrated MJCF that holds the payload cannot be read at {mjcf}: replayed "
-                 "without a payload (name the profile with --profile)")
+    return 0.0, (f"{why}, but the calibrated MJCF that holds the payload cannot be read at {mjcf}"
+                 + (f" ({'; '.join(refused)})" if refused else "") + ": replayed without a payload (name the profile "
+                 "with --profile)")
 
 
 def _sha256(path: Path) -> str | None:
