@@ -21,6 +21,7 @@ import contextlib
 import ctypes
 import hashlib
 import json
+import multiprocessing
 import os
 import shutil
 import signal
@@ -145,7 +146,7 @@ def make_fleet(root: Path = DEFAULT_DIR, workers: int = 2) -> dict:
     todo = [r for r in (acceptance, *sites, *held) if not (root / r.name / "summary.json").is_file()]
     t0 = time.perf_counter()
     out: dict = {"site": {}, "held": {}}
-    pool = ProcessPoolExecutor(workers, initializer=_worker_start, initargs=(os.getpid(),))
+    pool = _pool(workers)
     with _ended_by_sigterm():
         try:
             made = list(pool.map(_make, [root / r.name for r in todo], [r.scenario for r in todo]))
@@ -160,6 +161,13 @@ def make_fleet(root: Path = DEFAULT_DIR, workers: int = 2) -> dict:
     out.update(made=len(todo), runs=1 + len(sites) + len(held), acceptance=str(acc),
                make_cpu_s=sum(c for _, c in made), make_wall_s=t_made, wall_s=time.perf_counter() - t0)
     return out
+
+
+def _pool(workers: int) -> ProcessPoolExecutor:
+    """The pool the runs are made in: forked from this process whatever the default start method (forkserver from
+    Python 3.14 on Linux made the workers' parent the server, and each ended at once in ``_worker_start``)."""
+    context = multiprocessing.get_context("fork" if sys.platform.startswith("linux") else None)
+    return ProcessPoolExecutor(workers, mp_context=context, initializer=_worker_start, initargs=(os.getpid(),))
 
 
 def _worker_start(parent: int) -> None:

@@ -145,3 +145,14 @@ def test_sigkill_of_fleet_runs_ends_its_workers(tmp_path):
             os.killpg(proc.pid, signal.SIGKILL)
         except ProcessLookupError:
             pass
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the death signal is Linux's (prctl)")
+def test_fleet_runs_workers_run_whatever_the_default_start_method():
+    """Under forkserver (Linux's default from Python 3.14) a worker's parent is the server: each ended at once in its
+    set-up, and the pool broke before a run was made."""
+    script = ("import multiprocessing, sys; multiprocessing.set_start_method('forkserver'); "
+              f"sys.path.insert(0, {str(BENCH)!r}); import fleet_runs\n"
+              "with fleet_runs._pool(2) as pool:\n    print(list(pool.map(abs, [-1, -2, -3])))")
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert (done.returncode, done.stdout) == (0, "[1, 2, 3]\n"), done.stderr[-2000:]
