@@ -150,6 +150,10 @@ class _Window:
         w._d, w.level = self._d[keep].copy(), self.level
         return w
 
+    def tracking(self, joint: str, start: int) -> float:
+        """Relative change of ``joint``'s tracking error from cycle ``start`` on: its RMS's or peak's, the larger."""
+        return _largest(self.relative(f"tracking_rms.{joint}", start), self.relative(f"tracking_max.{joint}", start))
+
     def zmed(self, name: str, start: int) -> float:
         d = self.delta(name, start)
         return d / self.baseline.scale(name) if np.isfinite(d) else float("nan")
@@ -272,6 +276,12 @@ def step_dates(baseline: Baseline, cycles: Sequence[Cycle], z: np.ndarray) -> Ca
     (``_Window.step_onset``), not its CUSUM's change point, which a noise dip before the step dates early."""
     w = _Window(baseline, cycles, z)
     return lambda a: w.step_onset([a])
+
+
+def tracking_rises(baseline: Baseline, cycles: Sequence[Cycle], z: np.ndarray) -> Callable[[str, int], float]:
+    """How much a joint's tracking error rose over ``cycles`` (residuals ``z``) from a cycle on, as the joint rules
+    read it (``_Window.tracking``): the diagnosis weighs a joint of a weak side against the weak joints by it."""
+    return _Window(baseline, cycles, z).tracking
 
 
 def _onset(alarms: Sequence[DriftAlarm]) -> int:
@@ -521,7 +531,7 @@ def _joints(w: _Window, groups: dict[str, list[DriftAlarm]], grounded: bool = Fa
     for joint, alarms in groups.items():
         start = _onset(alarms)
         cur = _largest(w.relative(f"current_rms.{joint}", start), w.relative(f"current_peak.{joint}", start))
-        trk = _largest(w.relative(f"tracking_rms.{joint}", start), w.relative(f"tracking_max.{joint}", start))
+        trk = w.tracking(joint, start)
         alarmed = any(a.signal == f"friction_torque.{joint}" for a in alarms)
         speaks = max(abs(cur), abs(trk)) < QUIET or (alarmed and not grounded)
         ft = _friction(w, joint, start) if speaks else 0.0

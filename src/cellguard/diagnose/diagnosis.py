@@ -6,16 +6,18 @@ gives the same answer from a run in memory and from a record read back months la
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 
 from cellguard.control.events import ROUTINE_EVENTS, EventKind
 from cellguard.diagnose.asymmetry import Asymmetry, asymmetry_onset, mirror_map, mirrored_asymmetry
 from cellguard.diagnose.baseline import OWN_SOURCE, Baseline
-from cellguard.diagnose.cause import CONCURRENT, Finding, intermittent_findings, name_causes, step_dates, told
+from cellguard.diagnose.cause import (CONCURRENT, MATERIAL, Finding, intermittent_findings, name_causes, step_dates,
+                                     told, tracking_rises)
 from cellguard.diagnose.compare import FeatureChange, changes, last_good_and_faulted
 from cellguard.diagnose.cycles import Cycle, as_cycles
 from cellguard.diagnose.drift import DriftConfig, DriftResult, detect_drift
+from cellguard.diagnose.feature_kinds import member_of
 from cellguard.diagnose.intermittent import find_intermittent, without_outliers
 from cellguard.diagnose.process import ProcessNote, condition, declared
 from cellguard.diagnose.recovery import (advice, advice_lines, attempts_of, fixes, policy_cycles, recovery_finding,
@@ -116,6 +118,7 @@ def diagnose(rows: Iterable[object], events: Iterable[object] = (), context: Map
     attempts = attempts_of(rows, evs)  # evs: for the cycle a killed run left with no row
     late = recovery_finding(cycles, attempts)
     findings += [late] if late is not None else []
+    findings = _weak_side_joints(findings, symmetry, tracking_rises(baseline, watched, drift.z))
     findings = sorted(_carried_by_the_others(_on_legs(findings, symmetry)), key=lambda f: (f.cycle, f.cause))
     own = fixes(findings, cycles, attempts)
     advised = advice(findings, history)
@@ -171,11 +174,16 @@ def _on_a_trend(findings: list[Finding], baseline: Baseline) -> list[Finding]:
     return out
 
 
+def _legs(pairs: Sequence[SymmetryPair]) -> list[str]:
+    """The legs a symmetry map implies (``fl_hip``/``fr_hip`` -> ``fl``, ``fr``); none on a robot without legs."""
+    return sorted({leg for left, right in mirror_map(pairs).items() if left not in {p.left for p in pairs}
+                   for leg in (left, right)})
+
+
 def _on_legs(findings: list[Finding], pairs: Sequence[SymmetryPair]) -> list[Finding]:
     """On a legged robot (its symmetry map implies legs), say which legs a joint finding is on, and
     drop a foot contact finding on a leg whose joints already explain it."""
-    legs = sorted({leg for left, right in mirror_map(pairs).items() if left not in {p.left for p in pairs}
-                   for leg in (left, right)})
+    legs = _legs(pairs)
     if not legs:
         return findings
     out = []
@@ -184,6 +192,52 @@ def _on_legs(findings: list[Finding], pairs: Sequence[SymmetryPair]) -> list[Fin
         out.append(replace(f, legs=on, evidence=(f"on leg {', '.join(on)}",) + f.evidence) if on else f)
     explained = {leg for f in out if f.joints for leg in f.legs}
     return [f for f in out if not (f.cause == "foot_contact" and set(f.legs) <= explained)]
+
+
+def _weak_side_joints(findings: list[Finding], pairs: Sequence[SymmetryPair],
+                      rise: Callable[[str, int], float]) -> list[Finding]:
+    """On a legged robot, a joint of a friction finding begun with a servo finding (within ``CONCURRENT``), on that
+    finding's side of the symmetry map, whose tracking error rose (``rise``) at least as much as the least of its
+    joints' did, is weak too and moves into it: a weak drive on the side that now carries more of the body raises its
+    current with its error, and equal rises read as friction, then as compensation (the quadruped scenario's
+    fl_abduction, +36 % each, the largest change of the six weakened joints)."""
+    if not _legs(pairs):
+        return findings
+    sides = ({p.left for p in pairs}, {p.right for p in pairs})
+    out: list[Finding | None] = list(findings)
+    for i, head in enumerate(findings):
+        side = next((s for s in sides if head.cause == "servo" and head.joints and set(head.joints) <= s), set())
+        least = min((rise(j, head.cycle) for j in head.joints), default=float("nan"))
+        if not side or not least >= MATERIAL:
+            continue
+        for k, f in enumerate(out):
+            if f is None or f.cause != "friction" or abs(f.cycle - head.cycle) > CONCURRENT:
+                continue
+            weak = [j for j in f.joints if j in side and rise(j, f.cycle) >= least]
+            if weak:
+                out[i], out[k] = _moved_in(out[i], f, weak, least), _moved_out(f, weak)
+    return [f for f in out if f is not None]
+
+
+def _moved_in(head: Finding, f: Finding, weak: list[str], least: float) -> Finding:
+    """Servo finding ``head`` with joints ``weak`` of ``f``: their lines beside its own joints', and why."""
+    joints = tuple(sorted(set(head.joints) | set(weak)))
+    lines = {j: e for e in head.evidence + f.evidence for j in joints if e.startswith(f"{j}: ")}
+    rest = tuple(e for e in head.evidence if e not in lines.values())
+    why = (f"{', '.join(weak)} on the same side: tracking error rose at least as much as the weak joints' "
+           f"(+{least * 100:.1f} %), so the drive weakened too; the current rose with it, which read as friction")
+    return replace(head, joints=joints, evidence=tuple(lines[j] for j in joints if j in lines) + (why,) + rest,
+                   signals=tuple(sorted(set(head.signals) | {s for s in f.signals if member_of(s) in weak})))
+
+
+def _moved_out(f: Finding, weak: list[str]) -> Finding | None:
+    """Finding ``f`` without joints ``weak`` (their lines and signals); None where it had no other joint."""
+    joints = tuple(j for j in f.joints if j not in weak)
+    if not joints:
+        return None
+    own = tuple(f"{j}: " for j in weak)
+    return replace(f, joints=joints, evidence=tuple(e for e in f.evidence if not e.startswith(own)),
+                   signals=tuple(s for s in f.signals if member_of(s) not in weak))
 
 
 def _carried_by_the_others(findings: list[Finding]) -> list[Finding]:
