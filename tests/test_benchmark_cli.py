@@ -91,6 +91,17 @@ def test_a_sim_server_that_ends_is_reported_in_its_own_words(tmp_path):
                               "500 Hz")
 
 
+def in_a_run(proc: subprocess.Popen, runs: Path) -> list[int]:
+    """The pool workers of fleet_runs.py (``proc``, making its runs in ``runs``) once one of them is inside a run."""
+    deadline = time.monotonic() + 60
+    while not list(runs.glob("*.partial")) and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert proc.poll() is None and list(runs.glob("*.partial")), "no run started: nothing tested"
+    workers = descendants(proc.pid)
+    assert workers
+    return workers
+
+
 @pytest.mark.parametrize("to_group", [True, False], ids=["group", "main-only"])
 def test_sigterm_ends_fleet_runs_with_its_workers_and_keeps_no_stopped_run(tmp_path, to_group):
     """``timeout`` signals the whole group (each worker's run took it as an operator stop, and the stopped run was
@@ -98,12 +109,7 @@ def test_sigterm_ends_fleet_runs_with_its_workers_and_keeps_no_stopped_run(tmp_p
     runs = tmp_path / "runs"
     proc = start("fleet_runs.py", str(runs), cwd=tmp_path)
     try:
-        deadline = time.monotonic() + 60
-        while not list(runs.glob("*.partial")) and proc.poll() is None and time.monotonic() < deadline:
-            time.sleep(0.05)  # a worker is inside a run
-        assert proc.poll() is None and list(runs.glob("*.partial")), "no run started: nothing tested"
-        workers = descendants(proc.pid)
-        assert workers
+        workers = in_a_run(proc, runs)
         (os.killpg if to_group else os.kill)(proc.pid, signal.SIGTERM)
         code, out, _ = finish(proc, 60)
         deadline = time.monotonic() + 10
@@ -128,12 +134,7 @@ def test_sigkill_of_fleet_runs_ends_its_workers(tmp_path):
     runs = tmp_path / "runs"
     proc = start("fleet_runs.py", str(runs), cwd=tmp_path)
     try:
-        deadline = time.monotonic() + 60
-        while not list(runs.glob("*.partial")) and proc.poll() is None and time.monotonic() < deadline:
-            time.sleep(0.05)  # a worker is inside a run
-        assert proc.poll() is None and list(runs.glob("*.partial")), "no run started: nothing tested"
-        workers = descendants(proc.pid)
-        assert workers
+        workers = in_a_run(proc, runs)
         os.kill(proc.pid, signal.SIGKILL)
         proc.wait()
         deadline = time.monotonic() + 5

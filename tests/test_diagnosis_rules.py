@@ -232,6 +232,9 @@ def test_a_fixture_shift_is_dated_at_its_step_not_at_an_early_change_point_of_a_
     d = diagnose(rows, [], {})
     assert [(f.cause, f.cycle) for f in d.findings] == [("fixture_shift", 32)], [f.to_dict() for f in d.findings]
     assert {a.onset for a in d.drift.alarms if a.signal == "part_seen_y_mm"} == {30}  # what the median read
+    # and the report's "What changed, in the order it began" dates the feature by its step too (it read 30)
+    assert {c.signal: c.onset for c in d.changes}["part_seen_y_mm"] == 32
+    assert min(c.onset for c in d.changes) == 32
 
 
 def test_an_inertia_like_residual_on_a_weaker_servo_s_joint_is_that_servo_s_evidence():
