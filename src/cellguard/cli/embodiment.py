@@ -39,11 +39,10 @@ def embodiment_show(
         if profile.robot != robot.profile.robot:
             raise ProfileError(f"--profile: {profile_path} is a profile of robot {profile.robot!r}; the {cell} cell "
                                f"is {robot.profile.robot!r}")
-        if profile.joint_names != robot.profile.joint_names:  # shown as if whole, refused only by a run
-            missing = [j for j in robot.profile.joint_names if j not in profile.joint_names]
-            why = f"{', '.join(missing)} missing" if missing else "in another order: every array is in joint order"
+        missing = [j for j in robot.profile.joint_names if j not in profile.joint_names]
+        if missing:  # shown as if whole, refused only by a run (joints in another order are the same joints)
             raise ProfileError(f"--profile: {profile_path} has joints {list(profile.joint_names)}; the {cell} cell's "
-                               f"are {list(robot.profile.joint_names)} ({why})")
+                               f"are {list(robot.profile.joint_names)} ({', '.join(missing)} missing)")
     except CellguardError as exc:
         fail(exc)
     if as_json:
