@@ -271,13 +271,6 @@ def name_causes(baseline: Baseline, cycles: Sequence[Cycle], z: np.ndarray, alar
     return sorted(findings, key=lambda f: (f.cycle, f.cause))
 
 
-def step_dates(baseline: Baseline, cycles: Sequence[Cycle], z: np.ndarray) -> Callable[[DriftAlarm], int]:
-    """The cycle an alarmed feature stepped over ``cycles`` (residuals ``z``): its own least-squares step
-    (``_Window.step_onset``), not its CUSUM's change point, which a noise dip before the step dates early."""
-    w = _Window(baseline, cycles, z)
-    return lambda a: w.step_onset([a])
-
-
 def tracking_rises(baseline: Baseline, cycles: Sequence[Cycle], z: np.ndarray) -> Callable[[str, int], float]:
     """How much a joint's tracking error rose over ``cycles`` (residuals ``z``) from a cycle on, as the joint rules
     read it (``_Window.tracking``): the diagnosis weighs a joint of a weak side against the weak joints by it."""
@@ -285,8 +278,12 @@ def tracking_rises(baseline: Baseline, cycles: Sequence[Cycle], z: np.ndarray) -
 
 
 def _onset(alarms: Sequence[DriftAlarm]) -> int:
-    """The episode's start: the median change point of its alarms (robust to one early CUSUM)."""
-    return int(np.median([a.onset for a in alarms]))
+    """The episode's start: the median change point of its alarms (robust to one early CUSUM), each monitor's first
+    (one that re-armed and alarmed again on a lasting, noisy change dated a friction from 15 at 27)."""
+    first: dict[tuple[str, int], DriftAlarm] = {}
+    for a in sorted(alarms, key=lambda a: (a.onset, a.cycle)):
+        first.setdefault((a.signal, a.direction), a)
+    return int(np.median([a.onset for a in first.values()]))
 
 
 def _latency(w: _Window, alarms: list[DriftAlarm]) -> Finding:

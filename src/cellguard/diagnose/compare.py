@@ -46,8 +46,9 @@ def last_good_and_faulted(cycles: Sequence[Cycle], first_faulted: int | None) ->
 def changes(baseline: Baseline, alarms: Sequence[DriftAlarm], good: Cycle | None,
             faulted: Cycle | None, later: Sequence[Cycle],
             dated: Callable[[DriftAlarm], int] = lambda a: a.onset) -> list[FeatureChange]:
-    """Every alarmed feature, earliest change first, each dated by ``dated`` (its step, where the caller
-    fits one: a CUSUM's change point wanders early with the noise); a feature missing in a cycle reads NaN.
+    """Every alarmed feature, earliest change first, each dated by ``dated`` (never before its finding, where the
+    caller knows the findings: a CUSUM's change point wanders early with the noise); a feature missing in a cycle
+    reads NaN.
 
     The change is read at the alarm's cycle (in ``later``): a ramp has barely moved in the first
     faulted cycle, and the technician wants to know how far it went.

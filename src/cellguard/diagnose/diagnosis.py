@@ -12,11 +12,11 @@ from dataclasses import dataclass, field, replace
 from cellguard.control.events import ROUTINE_EVENTS, EventKind
 from cellguard.diagnose.asymmetry import Asymmetry, asymmetry_onset, mirror_map, mirrored_asymmetry
 from cellguard.diagnose.baseline import OWN_SOURCE, Baseline
-from cellguard.diagnose.cause import (CONCURRENT, MATERIAL, Finding, intermittent_findings, name_causes, step_dates,
-                                     told, tracking_rises)
+from cellguard.diagnose.cause import (CONCURRENT, MATERIAL, Finding, intermittent_findings, name_causes, told,
+                                     tracking_rises)
 from cellguard.diagnose.compare import FeatureChange, changes, last_good_and_faulted
 from cellguard.diagnose.cycles import Cycle, as_cycles
-from cellguard.diagnose.drift import DriftConfig, DriftResult, detect_drift
+from cellguard.diagnose.drift import DriftAlarm, DriftConfig, DriftResult, detect_drift
 from cellguard.diagnose.feature_kinds import member_of
 from cellguard.diagnose.intermittent import find_intermittent, without_outliers
 from cellguard.diagnose.process import ProcessNote, condition, declared
@@ -130,8 +130,7 @@ def diagnose(rows: Iterable[object], events: Iterable[object] = (), context: Map
     good, faulted = last_good_and_faulted(cycles, first)
     return Diagnosis(
         cycles=tuple(cycles), baseline=baseline, drift=drift, findings=tuple(findings),
-        changes=tuple(changes(baseline, drift.alarms, good, faulted, watched,
-                              step_dates(baseline, watched, drift.z))),
+        changes=tuple(changes(baseline, drift.alarms, good, faulted, watched, _not_before(findings, first))),
         last_good_cycle=good.index if good else None, first_faulted_cycle=faulted.index if faulted else None,
         safety_events=tuple(_safety(e) for e in evs if e.get("kind") not in ROUTINE_EVENTS),
         asymmetry=asym, context=dict(context or {}), process=notes,
@@ -172,6 +171,18 @@ def _on_a_trend(findings: list[Finding], baseline: Baseline) -> list[Finding]:
         out.append(told(f, (f"the acceptance cycles were not steady ({trend_words(baseline, moved)}): the baseline "
                             "holds part of this change, which may have begun before production",)) if moved else f)
     return out
+
+
+def _not_before(findings: Sequence[Finding], first: int | None) -> Callable[[DriftAlarm], int]:
+    """When an alarmed feature began to change, as the change list dates it: its CUSUM's change point, never before
+    the onset of the finding that names it (the first faulted cycle where none does). A noise dip before a step
+    starts a CUSUM early: a fixture shift at 14 listed its fiducial from 11, a cycle the page calls good; a fit of
+    each feature's own step dated a ramp at its alarm, after the finding."""
+    since: dict[str, int] = {}
+    for f in findings:
+        for signal in f.signals:
+            since[signal] = min(since.get(signal, f.cycle), f.cycle)
+    return lambda a: max(a.onset, since.get(a.signal, a.onset if first is None else first))
 
 
 def _legs(pairs: Sequence[SymmetryPair]) -> list[str]:
