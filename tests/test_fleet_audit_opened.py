@@ -19,7 +19,7 @@ from typer.testing import CliRunner
 
 from cellguard.cli import app
 from cellguard.errors import ConfigError, OutputError
-from cellguard.fleet.audit import AUDIT_FILE, append_audit, read_audit, scan_audit
+from cellguard.fleet.audit import AUDIT_FILE, AuditError, append_audit, read_audit, scan_audit
 from cellguard.fleet.export import export_batch
 from cellguard.fleet.policy import DataPolicy
 from cellguard.fleet.signature import Signature
@@ -97,3 +97,15 @@ def test_a_push_into_a_site_whose_log_is_a_fifo_is_one_line_exit_2_not_a_hang(tm
         assert os.read(reader, 1 << 16) == b""  # nothing written into it
     finally:
         os.close(reader)
+
+
+def test_a_socket_in_the_logs_place_is_named_as_one(tmp_path):
+    """It read "cannot read the audit log file (No such device or address)"."""
+    import socket
+
+    site = tmp_path / "site"
+    site.mkdir()
+    with socket.socket(socket.AF_UNIX) as sock:
+        sock.bind(str(site / AUDIT_FILE))
+        with pytest.raises(AuditError, match=f"^{site / AUDIT_FILE}: is a socket, not a regular audit log file$"):
+            scan_audit(site)

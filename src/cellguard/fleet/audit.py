@@ -231,6 +231,8 @@ def _read(site_dir: Path) -> bytes:
     except OSError as exc:
         if exc.errno == errno.ELOOP:
             raise _a_link(site_dir, AUDIT_FILE) from None
+        if exc.errno == errno.ENXIO:  # a socket (it cannot be opened): named as the append names it
+            raise AuditError(_not_regular(path, _mode_of(path))) from None
         raise AuditError(f"{path}: cannot read the audit log file ({exc.strerror or exc.__class__.__name__})") from None
     if not stat.S_ISREG(st.st_mode):
         os.close(fd)
