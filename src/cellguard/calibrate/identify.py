@@ -357,6 +357,7 @@ def refuse_unmeasured(path: Path, record_id: str, ticks, profile, fitted: list[i
     far = RANGE_BOUND * (hi - lo)
     effort = profile.array("effort") * EFFORT_BOUND
     units = ["rad" if joint.kind == "hinge" else "m" for joint in profile.joints]
+    speed = profile.array("velocity")
     torque = np.abs(ticks.current * profile.array("torque_constant"))
     for field, words in FITTED_FIELDS.items():
         values = getattr(ticks, field)
@@ -365,9 +366,8 @@ def refuse_unmeasured(path: Path, record_id: str, ticks, profile, fitted: list[i
             bad[:, fitted], beyond[:, fitted] = np.isinf(values[:, fitted]), torque[:, fitted] > effort[fitted]
             bound = lambda j: f"a torque beyond {EFFORT_BOUND:g} times its effort limit of {effort[j] / EFFORT_BOUND:g}"
         elif field == "qd_meas":
-            bad, beyond = ~np.isfinite(values), np.abs(values) > SPEED_BOUND * profile.array("velocity")
-            bound = lambda j: (f"beyond {SPEED_BOUND:g} times its limit of {profile.array('velocity')[j]:g} "
-                               f"{units[j]}/s")
+            bad, beyond = ~np.isfinite(values), np.abs(values) > SPEED_BOUND * speed
+            bound = lambda j: f"beyond {SPEED_BOUND:g} times its limit of {speed[j]:g} {units[j]}/s"
         else:
             bad, beyond = ~np.isfinite(values), (values < lo - far) | (values > hi + far)
             bound = lambda j: f"beyond its range [{lo[j]:g}, {hi[j]:g}] {units[j]} by {RANGE_BOUND:g} times its width"

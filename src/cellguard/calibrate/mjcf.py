@@ -107,13 +107,12 @@ def payload_max(model: mujoco.MjModel, profile) -> tuple[float, str]:
     movers = {int(model.jnt_bodyid[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, name)])
               for name in profile.joint_names}
     payload = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, PAYLOAD_BODY)
-    own = 0.0
+    moved, carried = [False] * model.nbody, [False] * model.nbody  # MuJoCo numbers a body after its parent
     for body in range(1, model.nbody):
-        chain = [body]
-        while chain[-1] > 0:
-            chain.append(int(model.body_parentid[chain[-1]]))
-        if movers.intersection(chain) and payload not in chain:
-            own += float(model.body_mass[body])
+        parent = int(model.body_parentid[body])
+        moved[body] = body in movers or moved[parent]
+        carried[body] = body == payload or carried[parent]
+    own = float(sum(model.body_mass[b] for b in range(model.nbody) if moved[b] and not carried[b]))
     own = float(f"{own:.3g}")  # the bound as its message states it
     high = min(PAYLOAD_PER_KG * own, PAYLOAD_KG)
     return high, (f"{PAYLOAD_PER_KG:g} times the {own:.3g} kg that {profile.robot}'s joints move, never above "

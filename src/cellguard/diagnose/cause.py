@@ -280,10 +280,15 @@ def tracking_rises(baseline: Baseline, cycles: Sequence[Cycle], z: np.ndarray) -
 def _onset(alarms: Sequence[DriftAlarm]) -> int:
     """The episode's start: the median change point of its alarms (robust to one early CUSUM), each monitor's first
     (one that re-armed and alarmed again on a lasting, noisy change dated a friction from 15 at 27)."""
+    return int(np.median([a.onset for a in _firsts(alarms).values()]))
+
+
+def _firsts(alarms: Sequence[DriftAlarm]) -> dict[tuple[str, int], DriftAlarm]:
+    """Each monitor's (signal and side) first alarm: one that re-armed and alarmed again has a later change point."""
     first: dict[tuple[str, int], DriftAlarm] = {}
     for a in sorted(alarms, key=lambda a: (a.onset, a.cycle)):
         first.setdefault((a.signal, a.direction), a)
-    return int(np.median([a.onset for a in first.values()]))
+    return first
 
 
 def _latency(w: _Window, alarms: list[DriftAlarm]) -> Finding:
@@ -337,9 +342,8 @@ def _rearmed(alarms: Sequence[DriftAlarm], after: int) -> list[DriftAlarm]:
     """The alarms of a change that began after ``after``, once the change before it on the same features had ended:
     from the first alarm again of a signal (its monitor re-arms only once its change ended) that began after
     ``after``, those again and the first alarms of other signals that began with it or later."""
-    first: dict[tuple[str, int], DriftAlarm] = {}
-    again = [a for a in sorted(alarms, key=lambda a: (a.cycle, a.onset))
-             if first.setdefault((a.signal, a.direction), a) is not a and a.onset > after]
+    first = _firsts(alarms)
+    again = [a for a in alarms if first[a.signal, a.direction] is not a and a.onset > after]
     if not again:
         return []
     start = min(a.onset for a in again) - CONCURRENT
