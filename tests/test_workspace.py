@@ -109,7 +109,7 @@ def _fine_rule(look, tip, tracker) -> bool:
     """The stop's path checked at every sample, each inside by half its larger neighbouring gap (the rule the
     look-ahead applied on every tick it sampled, before it asked for a sample's tool point only where a
     span needed it)."""
-    duration, at = tracker.stop_plan()
+    duration, at, _ = tracker.stop_plan()
     q0, end, reach = tracker.samples[0], at(duration), look._reach
     travel = sum(k * abs(e - q) for k, e, q in zip(reach, end, q0))
     n = min(10, max(4, int(np.ceil(travel / 0.005))))
@@ -141,6 +141,62 @@ def test_the_stop_path_is_checked_where_it_nears_a_wall_and_never_passed_outside
     if _fine_rule(look, tip.tolist(), tracker):
         assert passed
     if passed:
-        duration, at = tracker.stop_plan()
+        duration, at, _ = tracker.stop_plan()
         path = np.array([TOOL(np.asarray(at(t))) for t in np.linspace(0.0, duration, 2000)])
         assert ((path >= np.array(box[0])) & (path <= np.array(box[1]))).all()
+
+
+def _stop_state(where, speed, accel, turn):
+    """A tracker at a pose of the arm with ruckig's own velocity and acceleration (what a stop starts from):
+    ``turn`` puts each joint's velocity near where its stop turns back (v ~ -a|a|/2j)."""
+    q = PROFILE.q_min + np.array(where) * (PROFILE.q_max - PROFILE.q_min)
+    guard = Guard(PROFILE, q, MS, GuardConfig(box=(tuple(TOOL(q) - 0.05), tuple(TOOL(q) + 0.05))), tool=TOOL)
+    tracker = guard.envelope.tracker
+    a = np.array(accel) * PROFILE.array("acceleration")
+    v = np.array(speed) * PROFILE.array("velocity")
+    v = np.where(turn, -a * np.abs(a) / (2.0 * PROFILE.array("jerk")) * (1.0 + np.array(speed) * 0.1), v)
+    tracker.mode = [2] * PROFILE.dof  # ABSOLUTE: the stop starts from ruckig's own state
+    tracker._tv, tracker._ta = v.tolist(), a.tolist()
+    return guard.envelope._after[0], tracker, TOOL(q).tolist()
+
+
+STATE = (st.lists(st.floats(0.05, 0.95), min_size=6, max_size=6), st.lists(st.floats(-1.1, 1.1), min_size=6,
+         max_size=6), st.lists(st.floats(-1.2, 1.2), min_size=6, max_size=6), st.lists(st.booleans(), min_size=6,
+         max_size=6))
+
+
+@settings(max_examples=300, deadline=None)
+@given(*STATE)
+def test_a_joint_whose_stop_is_said_not_to_turn_back_moves_one_way(where, speed, accel, turn):
+    """``StopPlan.turning`` names every joint whose planned stop moves it both ways (sampled at 3000 instants):
+    the look-ahead reads any other joint's travel between two samples from those two alone."""
+    _, tracker, _ = _stop_state(where, speed, accel, turn)
+    plan = tracker.stop_plan()
+    if plan is None:
+        return
+    steps = np.diff([plan.at(t) for t in np.linspace(0.0, plan.duration, 3000)], axis=0)
+    both_ways = (steps.max(axis=0) > 1e-12) & (steps.min(axis=0) < -1e-12)
+    assert not [j for j in np.flatnonzero(both_ways) if j not in plan.turning]
+
+
+@settings(max_examples=300, deadline=None)
+@given(*STATE)
+def test_the_travel_between_two_samples_is_never_less_than_their_gaps(where, speed, accel, turn):
+    """The margin between two samples of the stop, read from the two where the joints move one way, is at least
+    half the reach-weighted steps between every sample of the span (the per-gap rule it replaces), and within
+    rounding of it."""
+    from cellguard.control.checks.workspace import _StopPath
+
+    look, tracker, tip = _stop_state(where, speed, accel, turn)
+    plan = tracker.stop_plan()
+    if plan is None:
+        return
+    path = _StopPath(plan, tracker.samples[0], tip, look._reach, TOOL)
+    for k in range(path.n + 1):
+        path.point(k)
+    qs = np.array(path._qs)
+    gaps = (np.abs(np.diff(qs, axis=0)) * np.array(look._reach)).sum(axis=1)
+    for i in range(path.n):
+        for j in range(i + 1, path.n + 1):
+            steps = 0.5 * gaps[i:j].sum()
+            assert path.margin(i, j) >= steps - 1e-12 and path.margin(i, j) <= steps + 1e-9

@@ -29,6 +29,8 @@ BOX_INSIDE = f"{WORKSPACE}::test_a_reference_inside_the_box_is_followed_without_
 BOX_LEAVES = f"{WORKSPACE}::test_a_stop_for_a_reference_that_leaves_the_box_ends_inside_it"
 BOX_BACK_IN = f"{WORKSPACE}::test_a_tool_found_outside_the_box_comes_back_in_without_a_stop"
 BOX_RANDOM = f"{WORKSPACE}::test_random_chunks_never_take_the_tool_out_of_the_box"
+BOX_TURNING = f"{WORKSPACE}::test_a_joint_whose_stop_is_said_not_to_turn_back_moves_one_way"
+BOX_MARGIN = f"{WORKSPACE}::test_the_travel_between_two_samples_is_never_less_than_their_gaps"
 REAL_TIME_CAP = f"{ENV}::test_a_speed_cap_holds_the_sent_setpoints_of_a_policy_that_answers_in_real_time"
 SOFT_5MS = f"{LIM}::test_a_joint_stops_inside_its_soft_limits_at_a_5_ms_servo_period"
 SPEEDS_UP = f"{LIM}::test_a_reference_that_speeds_up_past_the_velocity_limit_is_held_at_it"
@@ -94,7 +96,14 @@ MUTATIONS = (
              "        return _inside(tip, lo, hi, 0.0)\n        plan = tracker.stop_plan()\n        if plan is None:",
              (f"{ENV}::test_workspace_box_stops_before_the_tool_leaves_it", BOX_INSIDE, BOX_LEAVES)),
     Mutation("box_path_margin_off", "tool box: the path between the stop's samples", f"{CHECKS}/workspace.py",
-             "margin = 0.5 * sum(gaps[i:j])", "margin = 0.0", (BOX_INSIDE, BOX_LEAVES, BOX_RANDOM)),
+             "return 0.5 * (sum(w * abs(y - x) for w, x, y in zip(self._weight, a, b)) + self._turned[j] - self._turned[i])",
+             "return 0.0", (BOX_INSIDE, BOX_LEAVES, BOX_RANDOM)),
+    Mutation("box_turning_off", "tool box: a joint whose stop turns back", TRACKER,
+             "return StopPlan(plan.duration, lambda t: plan.at_time(t)[0], turning)",
+             "return StopPlan(plan.duration, lambda t: plan.at_time(t)[0], ())", (BOX_TURNING, BOX_MARGIN)),
+    Mutation("limit_screen_off", "soft limits: the loose screen of a recovered joint's stop", TRACKER,
+             "if -a_max <= a <= a_max and self._lo_f[j] <= q - far and q + far <= self._hi_f[j]:", "if True:",
+             (POSITION, SOFT_5MS, LIMITS)),
     Mutation("box_excursion_refused", "tool box: a tool found outside may come back in", f"{CHECKS}/workspace.py",
              "return None if self._grown and self._end_fits(tracker) else STOP", "return STOP", (BOX_BACK_IN,)),
     Mutation("box_resume_flood", "tool box: no stop flood where the way on leads out", f"{CHECKS}/workspace.py",

@@ -41,6 +41,7 @@ never an exception on the servo path.
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import NamedTuple
 
 import numpy as np
 import ruckig
@@ -58,6 +59,14 @@ _SYNC = ruckig.Synchronization.Phase
 # result codes of ruckig's result.hpp that this binding's enum does not name (it raises ValueError on them)
 _UNNAMED = {"-101": "ErrorTrajectoryDuration: the trajectory duration exceeds its numerical limits",
             "-104": "ErrorZeroLimits: the trajectory conflicts with a limit of zero"}
+
+
+class StopPlan(NamedTuple):
+    """A stop of every joint planned whole (``Tracker.stop_plan``)."""
+
+    duration: float  # [s]
+    at: Callable[[float], list[float]]  # the positions (D plain floats) at a time into the stop [s]
+    turning: tuple[int, ...]  # the joints whose stop may turn back; every other one moves one way only
 
 
 class Tracker:
@@ -95,6 +104,7 @@ class Tracker:
                                                               self._inv_2a, self._tail))))  # what _travel reads
         self._far_f = tuple(zip(*(x.tolist() for x in (self._far0, self._far1, self._far2, self.a_max))))
         self._jerk_tick = (self.j_max * dt).tolist()  # the acceleration one tick of full jerk removes
+        self._vmax99_f = [0.99 * w for w in self._vmax_f]
         self._joints = tuple(zip(*(x.tolist() for x in (*self._limits, self._half_inv_j, self._far0, self._far1,
                                                           self._far2, self.lo, self.hi))))  # what _fits reads
         dof = len(self.v_max)
@@ -151,6 +161,16 @@ class Tracker:
         return ((not upper or q + self._stop_distance(j, v, a) <= max(self._hi_f[j], min(q, p)))
                 and (not lower or q - self._stop_distance(j, -v, -a) >= min(self._lo_f[j], max(q, p))))
 
+    def _stop_clears(self, j: int, q: float, v: float, a: float) -> bool:
+        """``_stop_fits`` for a state inside the acceleration limit that a loose bound of its stopping distance
+        (the one ``_fits`` screens with) puts clear of both soft limits: no exact check there."""
+        far0, far1, far2, a_max = self._far_f[j]
+        speed = abs(v)
+        far = far0 + speed * (far1 + speed * far2)
+        if -a_max <= a <= a_max and self._lo_f[j] <= q - far and q + far <= self._hi_f[j]:
+            return True
+        return self._stop_fits(j, q, v, a)
+
     def _fits(self, q: list[float], v_limit: list[float] | None = None, only: list[int] | None = None
               ) -> tuple[list[bool], list[float], list[float]]:
         """Per joint (of ``only`` where given, in its order): can ``q[j]`` be the next setpoint? And the
@@ -164,23 +184,23 @@ class Tracker:
         """
         inv_dt, half_dt = self._inv_dt, 0.5 * self.dt
         joints = self._joints if v_limit is None else [(w, *rest) for w, (_, *rest) in zip(v_limit, self._joints)]
-        columns = (q, *self.samples, joints)
-        index = range(len(q)) if only is None else only
-        if only is not None:  # the few joints a recovery plan moved
-            columns = [[column[j] for j in only] for column in columns]
+        if only is None:
+            rows = zip(range(len(q)), q, *self.samples, joints)
+        else:  # the few joints a recovery plan moved
+            p, sv, sa = self.samples
+            rows = ((j, q[j], p[j], sv[j], sa[j], joints[j]) for j in only)
         ok, vs, accs = [], [], []
-        for j, qj, pj, vj, aj, (v_max, a_max, j_max, half_inv_j, far0, far1, inv_2a, lo, hi) in zip(
-                index, *columns):
+        for j, qj, pj, vj, aj, (v_max, a_max, j_max, half_inv_j, far0, far1, inv_2a, lo, hi) in rows:
             v = (qj - pj) * inv_dt
             a = (v - vj) * inv_dt
-            speed = abs(v)
             # inside v, a, j; and the acceleration can still be brought to zero (jerk-limited) before v_max,
             # and a stop still fits, both from the velocity at the end of the tick (v is its mean over the
             # tick): what ruckig would start from (at a 5 ms period the mean read 10 mm/s slow on the gripper)
             v_end = v + a * half_dt
-            fit = (speed <= v_max and abs(a) <= a_max and abs((a - aj) * inv_dt) <= j_max
-                   and abs(v_end + a * abs(a) * half_inv_j) <= v_max)
-            far = far0 + abs(v_end) * (far1 + abs(v_end) * inv_2a)  # a loose bound of the stopping distance
+            fit = (-v_max <= v <= v_max and -a_max <= a <= a_max and -j_max <= (a - aj) * inv_dt <= j_max
+                   and -v_max <= v_end + a * abs(a) * half_inv_j <= v_max)
+            speed = v_end if v_end >= 0.0 else -v_end
+            far = far0 + speed * (far1 + speed * inv_2a)  # a loose bound of the stopping distance
             if fit and (qj - far < lo or qj + far > hi):  # (a gripper's short range: on half the ticks, one side)
                 fit = self._stop_fits(j, qj, v_end, a, qj + far > hi, qj - far < lo)
             ok.append(fit)
@@ -202,10 +222,12 @@ class Tracker:
             # has just computed its finite differences
             self.samples, self.p, self._ref = (samples, v, a), r, None
             return r
-        previous = self.samples if self._ref is None else self._ref
-        inv_dt = self._inv_dt
-        rv = [(x - x0) * inv_dt for x, x0 in zip(samples, previous[0])]
-        ra = [(x - x0) * inv_dt for x, x0 in zip(rv, previous[1])]
+        if self._ref is None:  # the setpoint passed through: the reference's derivatives are _fits()'s
+            previous, rv, ra = self.samples, v, a
+        else:
+            previous, inv_dt = self._ref, self._inv_dt
+            rv = [(x - x0) * inv_dt for x, x0 in zip(samples, previous[0])]
+            ra = [(x - x0) * inv_dt for x, x0 in zip(rv, previous[1])]
         self._ref = (samples, rv, ra)
         v_limit = None
         if cap is not None:
@@ -236,7 +258,7 @@ class Tracker:
             brake = []
             for j in rest:
                 q[j], tv[j], ta[j] = nq[j], nv[j], na[j]
-                if not self._stop_fits(j, nq[j], nv[j], na[j]):  # heading past a soft limit: brake this joint
+                if not self._stop_clears(j, nq[j], nv[j], na[j]):  # heading past a soft limit: brake this joint
                     brake.append(j)
             if brake and self._brake():
                 out = self._out
@@ -263,39 +285,54 @@ class Tracker:
         q = out.new_position
         return self._commit(np.array(q), q, v, a, STOP)
 
-    def stop_travel_bound(self, joints: tuple[int, ...]) -> list[float]:
-        """For each of ``joints``, a looser bound of ``stop_travel`` that holds whatever the acceleration within
+    def stop_travel_bound(self, joints: tuple[int, ...], weights: list[tuple[float, float, float]]
+                          ) -> tuple[float, float, float]:
+        """Sum over ``joints`` of their ``weights`` (x, y, z per joint: how far the tool point may move per unit of
+        the joint's travel) times a looser bound of ``stop_travel`` that holds whatever the acceleration within
         the limit (the one ``_fits`` screens with): a few multiplications, where ``stop_travel`` costs a call."""
-        half_dt, v_all, far, out = 0.5 * self.dt, self.samples[1], self._far_f, []
-        for j in joints:
+        half_dt, v_all, far = 0.5 * self.dt, self.samples[1], self._far_f
+        rx = ry = rz = 0.0
+        for j, (kx, ky, kz) in zip(joints, weights):
             c0, c1, c2, a_max = far[j]
-            speed = abs(v_all[j]) + a_max * half_dt
-            out.append(c0 + speed * (c1 + speed * c2))
-        return out
+            v = v_all[j]
+            speed = (v if v >= 0.0 else -v) + a_max * half_dt
+            d = c0 + speed * (c1 + speed * c2)
+            rx, ry, rz = rx + kx * d, ry + ky * d, rz + kz * d
+        return rx, ry, rz
 
-    def stop_travel(self, joints: tuple[int, ...]) -> list[float]:
-        """For each of ``joints``, how far a stop from the setpoint state could take it either way
-        (``_travel``), from the state at the end of the tick (plain floats). A way its velocity and
-        acceleration both lead away from is not computed: nothing there (the box asks on every tick)."""
-        half_dt, (_, v_all, a_all), consts, out = 0.5 * self.dt, self.samples, self._stop_consts, []
-        for j in joints:
+    def stop_travel(self, joints: tuple[int, ...], weights: list[tuple[float, float, float]]
+                    ) -> tuple[float, float, float]:
+        """Sum over ``joints`` of their ``weights`` (as in ``stop_travel_bound``) times how far a stop from the
+        setpoint state could take the joint either way (``_travel``), from the state at the end of the tick. A
+        way its velocity and acceleration both lead away from is not computed: nothing there (the box asks on
+        every tick)."""
+        half_dt, (_, v_all, a_all), consts = 0.5 * self.dt, self.samples, self._stop_consts
+        rx = ry = rz = 0.0
+        for j, (kx, ky, kz) in zip(joints, weights):
             a = a_all[j]
             v = v_all[j] + a * half_dt
-            ahead = _travel(v, a, *consts[j]) if v > 0.0 or a > 0.0 else 0.0
-            out.append(max(ahead, _travel(-v, -a, *consts[j])) if v < 0.0 or a < 0.0 else ahead)
-        return out
+            d = _travel(v, a, *consts[j]) if v > 0.0 or a > 0.0 else 0.0
+            if v < 0.0 or a < 0.0:
+                d = max(d, _travel(-v, -a, *consts[j]))
+            rx, ry, rz = rx + kx * d, ry + ky * d, rz + kz * d
+        return rx, ry, rz
 
-    def stop_plan(self) -> tuple[float, Callable[[float], list[float]]] | None:
-        """The stop ``stop`` would run from the setpoint state, planned whole: its duration [s] and the
-        positions at a time into it (t -> D plain floats). None where ruckig refuses the state (then ``stop``
-        holds)."""
+    def stop_plan(self) -> StopPlan | None:
+        """The stop ``stop`` would run from the setpoint state, planned whole (``StopPlan``). None where ruckig
+        refuses the state (then ``stop`` holds)."""
+        inp = self._stop_input()
         try:
-            if self._planner.calculate(self._stop_input(), self._plan) not in _PLANNED:
+            if self._planner.calculate(inp, self._plan) not in _PLANNED:
                 return None
         except (ruckig.RuckigError, ValueError):
             return None
         plan = self._plan
-        return plan.duration, lambda t: plan.at_time(t)[0]
+        # a joint turns back where its velocity, with the acceleration brought to zero at full jerk, changes
+        # sign: a stop from there moves it both ways (``_travel`` is zero one way for every other joint)
+        turning = tuple(j for j, (v, a, h) in enumerate(zip(inp.current_velocity, inp.current_acceleration,
+                                                            self._half_inv_j_f))
+                        if (v < 0.0 or (a < 0.0 and v < a * a * h)) and (v > 0.0 or (a > 0.0 and v > -a * a * h)))
+        return StopPlan(plan.duration, lambda t: plan.at_time(t)[0], turning)
 
     def snapshot(self) -> tuple:
         """The setpoint state, to ``restore`` if the setpoint just computed may not be sent after all."""
@@ -323,19 +360,16 @@ class Tracker:
         return not (any(self.samples[1]) or any(self.samples[2]))
 
     # -- ruckig ------------------------------------------------------------------------------
-    def _handover(self, offset: bool = False) -> tuple[list[float], list[float]]:
-        """ruckig's start state: its own where the same kind of plan drove the joint last tick,
-        else what the samples imply (velocity at the end of the last tick). A replanning tracker
-        must start from its own state: restarting from a lagging estimate each tick makes it
-        overshoot. An offset state rides on the reference's estimated derivatives, so a plan on
-        absolute positions starts from the samples instead.
+    def _handover(self) -> tuple[list[float], list[float]]:
+        """ruckig's start state for a plan on absolute positions: its own where such a plan drove the joint last
+        tick, else what the samples imply (velocity at the end of the last tick). A replanning tracker must
+        start from its own state: restarting from a lagging estimate each tick makes it overshoot. An offset
+        plan's state rides on the reference's estimated derivatives, so a joint it drove starts from the
+        samples here.
         """
-        half_dt, v, a = 0.5 * self.dt, [], []
-        for m, own_v, own_a, sv, sa in zip(self.mode, self._tv, self._ta, *self.samples[1:]):
-            vj, aj = (own_v, own_a) if (m != PASS if offset else m >= ABSOLUTE) else (sv + sa * half_dt, sa)
-            v.append(vj)
-            a.append(aj)
-        return v, a
+        half_dt, mode, (_, sv, sa) = 0.5 * self.dt, self.mode, self.samples
+        return ([own if m >= ABSOLUTE else x + y * half_dt for m, own, x, y in zip(mode, self._tv, sv, sa)],
+                [own if m >= ABSOLUTE else y for m, own, y in zip(mode, self._ta, sa)])
 
     def _brake(self) -> bool:
         return self._step(self._stop_input())
@@ -350,11 +384,8 @@ class Tracker:
     def _closing(self, r: list[float], rv: list[float]) -> list[float]:
         """The velocity that closes on the reference sample ``r``: the sample's velocity plus ``GAIN``
         times the position error (the sample clipped to the soft limits)."""
-        closing = []
-        for x, x_v, pj, lo, hi in zip(r, rv, self.samples[0], self._lo_f, self._hi_f):
-            t = min(max(x, lo), hi)
-            closing.append((x_v if t == x else 0.0) + GAIN * (t - pj))
-        return closing
+        return [x_v + GAIN * (x - pj) if lo <= x <= hi else 0.0 + GAIN * ((lo if x < lo else hi) - pj)
+                for x, x_v, pj, lo, hi in zip(r, rv, self.samples[0], self._lo_f, self._hi_f)]
 
     def _share(self, r: list[float], rv: list[float], cap: ToolCap) -> list[float]:
         """Per-joint velocity limits w with sum_j reach_j w_j <= the cap: the closing velocity scaled as a
@@ -398,14 +429,16 @@ class Tracker:
         v, a = self._handover()
         inp.current_position, inp.current_velocity, inp.current_acceleration = self.samples[0], v, a
         inp.synchronization = _SYNC if v_limit is None else ruckig.Synchronization.No
-        limit = self._vmax_f if v_limit is None else v_limit
+        limit = self._vmax99_f if v_limit is None else [0.99 * w for w in v_limit]  # 1 % under the limits
         closing = self._closing(r, rv)
-        scale = min([1.0] + [0.99 * w / abs(c) for c, w in zip(closing, limit) if abs(c) > 0.99 * w])
-        target = []
-        for c, w, vj, aj, half_inv_j, j_tick in zip(closing, limit, v, a, self._half_inv_j_f, self._jerk_tick):
-            peak = vj + aj * abs(aj) * half_inv_j
-            target.append(peak if abs(peak) > 0.99 * w and peak * aj > 0.0 and abs(aj) > j_tick else c * scale)
-        inp.target_velocity = target
+        scale = 1.0
+        for c, w in zip(closing, limit):
+            if c > w or c < -w:
+                scale = min(scale, w / abs(c))
+        peaks = [vj + aj * abs(aj) * h for vj, aj, h in zip(v, a, self._half_inv_j_f)]  # a to zero at full jerk
+        inp.target_velocity = [
+            peak if (peak > w or peak < -w) and peak * aj > 0.0 and (aj > j_tick or aj < -j_tick) else c * scale
+            for c, w, aj, j_tick, peak in zip(closing, limit, a, self._jerk_tick, peaks)]
         return self._step(inp)
 
     def _landable(self, r: list[float], rv: list[float], ra: list[float], previous: tuple,
@@ -418,32 +451,34 @@ class Tracker:
         the plan would run the joint at full speed toward a point it may not reach, into a state from
         which the absolute recovery overshoots the velocity limit; and an error state built on such
         derivatives (a jump read as 100 rad/s) makes ruckig refuse the whole plan, every joint's."""
-        limit = self._vmax_f if v_limit is None else v_limit
-        return [j for j, (m, x, x_v, x_a, p_v, p_a, w, a_max, lo, hi) in enumerate(
-                    zip(self.mode, r, rv, ra, previous[1], previous[2], limit, self._amax_f, self._lo_f,
-                        self._hi_f))
-                if m in (OFFSET, ABSOLUTE) and lo <= x <= hi and abs(x_v) <= w and abs(p_v) <= w
-                and abs(x_a) <= a_max and abs(p_a) <= a_max]
+        limit, a_max, lo, hi, (_, p_v, p_a) = (self._vmax_f if v_limit is None else v_limit, self._amax_f,
+                                               self._lo_f, self._hi_f, previous)
+        return [j for j, m in enumerate(self.mode)
+                if (m == OFFSET or m == ABSOLUTE) and lo[j] <= r[j] <= hi[j] and -limit[j] <= rv[j] <= limit[j]
+                and -limit[j] <= p_v[j] <= limit[j] and -a_max[j] <= ra[j] <= a_max[j]
+                and -a_max[j] <= p_a[j] <= a_max[j]]
 
     def _offset(self, joints: list[int], rv: list[float], ra: list[float], previous: tuple,
                 v_limit: list[float] | None = None) -> bool:
-        """ruckig on the error e = setpoint - reference of ``joints``, from its state now to zero (the other
-        joints' error is planned from zero: nothing to do)."""
-        v, a = self._handover(offset=True)
+        """ruckig on the error e = setpoint - reference of ``joints``, from its state now to zero, within the
+        headroom the reference leaves them (the other joints' error is planned from zero at the full limits:
+        nothing to do). ruckig drove ``joints`` last tick (``_landable``): their state is its own."""
         inp = self._offset_in
         r0, rv0, ra0 = previous
-        half_dt, inv_dt, p = 0.5 * self.dt, self._inv_dt, self.samples[0]
-        dof = len(v)
+        half_dt, inv_dt, p, tv, ta = 0.5 * self.dt, self._inv_dt, self.samples[0], self._tv, self._ta
+        dof = len(p)
         e, ev, ea = [0.0] * dof, [0.0] * dof, [0.0] * dof
+        limit = self._vmax_f if v_limit is None else v_limit
+        v_max, a_max, j_max = list(limit), list(self._amax_f), list(self._jmax_f)
+        v_floor, a_floor, j_floor = self._floors
         for j in joints:
-            e[j], ev[j], ea[j] = p[j] - r0[j], v[j] - _at_end(rv0[j], ra0[j], half_dt), a[j] - ra0[j]
+            e[j], ev[j], ea[j] = p[j] - r0[j], tv[j] - _at_end(rv0[j], ra0[j], half_dt), ta[j] - ra0[j]
+            v_max[j] = max(v_max[j] - abs(rv[j]), v_floor[j])
+            a_max[j] = max(a_max[j] - abs(ra[j]), a_floor[j])
+            j_max[j] = max(j_max[j] - abs(ra[j] - ra0[j]) * inv_dt, j_floor[j])
         inp.current_position, inp.current_velocity, inp.current_acceleration = e, ev, ea
         inp.synchronization = _SYNC if v_limit is None else ruckig.Synchronization.No
-        v_floor, a_floor, j_floor = self._floors
-        limit = self._vmax_f if v_limit is None else v_limit
-        inp.max_velocity = [max(m - abs(x), f) for m, x, f in zip(limit, rv, v_floor)]
-        inp.max_acceleration = [max(m - abs(x), f) for m, x, f in zip(self._amax_f, ra, a_floor)]
-        inp.max_jerk = [max(m - abs(x - x0) * inv_dt, f) for m, x, x0, f in zip(self._jmax_f, ra, ra0, j_floor)]
+        inp.max_velocity, inp.max_acceleration, inp.max_jerk = v_max, a_max, j_max
         return self._step(inp)
 
     def _step(self, inp) -> bool:

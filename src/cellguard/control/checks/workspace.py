@@ -7,8 +7,10 @@ own, so the tool does not coast along a line: the stop is planned whole (``Track
 and the tool point checked at samples along it, each inside the box by a margin that bounds the
 path between samples by the joints' travel and their reach (``reach.max_reach``); a span of
 samples whose ends clear the walls by half its whole travel needs none of the tool points between
-(forward kinematics was most of a sampled tick). Cheap bounds of every joint's stopping distance
-skip all that while the tool is far from the walls.
+(forward kinematics was most of a sampled tick), nor the samples themselves where every joint's stop
+moves it one way only (its travel between two samples is then the difference of its positions there;
+evaluating all ten samples and their gaps was most of what was left). Cheap bounds of every joint's
+stopping distance skip all that while the tool is far from the walls.
 
 Outside the box (a reset at a pose outside it, a stop that ended outside), motion that brings the
 tool back is allowed and motion further out is not: on the first tick of motion the box is grown
@@ -21,7 +23,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from operator import mul, sub
 
 import numpy as np
 
@@ -29,7 +30,7 @@ from cellguard.control.checks.check import Check, Stop, Tick
 from cellguard.control.config import Box
 from cellguard.control.events import EventKind
 from cellguard.control.reach import max_reach
-from cellguard.control.tracker import Tracker
+from cellguard.control.tracker import StopPlan, Tracker
 from cellguard.embodiment import Profile
 
 STOP = Stop(2, EventKind.WORKSPACE_STOP, "workspace box")
@@ -37,6 +38,8 @@ SLACK = 0.002  # [m] the grown box holds a tool point found outside by this much
 SAMPLES = 10  # most samples along a stop's path, closer together in time at its start where the joints are fastest
 SPACING = 0.005  # [m] about this much of the travel bound between two samples
 MIN_SAMPLES = 4  # the first segment short enough that the tool point itself needs no margin to speak of
+# each sample's time as a fraction of the stop's, for each number of samples: even steps of a braking joint
+_FRACTIONS = {n: [0.0] + [1.0 - math.sqrt(1.0 - k / n) for k in range(1, n)] + [1.0] for n in range(1, SAMPLES + 1)}
 RESUME_INSIDE = 0.01  # [m] a workspace stop holds until the reference's tool point is this far inside the box
 PROBE_STEP = 1e-3  # [rad or m] the step toward the reference that shows where the recovery leads the tool
 
@@ -88,57 +91,42 @@ class WorkspaceLookahead(Check):
         """Does a stop from the setpoint keep the tool point inside the box all the way? Two bounds from the
         joints' travel first (a loose one, a few multiplications; then the stop profile's), then the planned
         stop itself."""
-        moving = self._moving
-        if self._far_from_walls(tip, tracker.stop_travel_bound(moving)) or self._far_from_walls(
-                tip, tracker.stop_travel(moving)):
+        moving, axis_reach = self._moving, self._axis_reach
+        if self._far_from_walls(tip, tracker.stop_travel_bound(moving, axis_reach)) or self._far_from_walls(
+                tip, tracker.stop_travel(moving, axis_reach)):
             return True
         lo, hi, reach = self._lo, self._hi, self._reach
         plan = tracker.stop_plan()
         if plan is None:  # ruckig refuses the state: the stop holds the setpoint where it is
             return _inside(tip, lo, hi, 0.0)
-        duration, at = plan
-        q0 = tracker.samples[0]
-        end = at(duration)
-        travel = sum(k * abs(e - q) for k, e, q in zip(reach, end, q0))  # a bound of the tool's, along a line
-        n = min(SAMPLES, max(MIN_SAMPLES, math.ceil(travel / SPACING)))
-        qs = [q0] + [at(duration * (1.0 - math.sqrt(1.0 - k / n))) for k in range(1, n)] + [end]  # even steps
-        # of a braking joint; between two, the tool path stays within half the joints' travel between them,
-        # times their reach, of one of the two
-        gaps = [sum(map(mul, reach, map(abs, map(sub, b, a)))) for a, b in zip(qs, qs[1:])]
-        points = [tip] + [None] * n  # the tool point at a sample, found only where a span needs it
-        return self._span_fits(0, n, qs, gaps, points)
+        path = _StopPath(plan, tracker.samples[0], tip, reach, self._tool)
+        return self._span_fits(0, path.n, path)
 
-    def _span_fits(self, i: int, j: int, qs: list, gaps: list[float], points: list) -> bool:
+    def _span_fits(self, i: int, j: int, path: _StopPath) -> bool:
         """Does the tool path between samples ``i`` and ``j`` stay inside the box? Yes where both ends lie inside
-        by half the travel between them (the sum of the gaps: a path between two samples stays within half of
-        it of one of them); else each half is asked, down to single gaps. Most stops keep well inside, and their
-        end alone shows it: the tool point at every sample is needed only near a wall."""
-        margin = 0.5 * sum(gaps[i:j])
-        for k in (i, j):
-            if points[k] is None:
-                points[k] = self._tool(np.asarray(qs[k])).tolist()
+        by half the travel between them (a path between two samples stays within half of it of one of them);
+        else each half is asked, down to single gaps. Most stops keep well inside, and their end alone shows
+        it: the tool point at every sample is needed only near a wall."""
+        a, b = path.point(i), path.point(j)
+        margin = path.margin(i, j)
         lo, hi = self._lo, self._hi
-        if _inside(points[i], lo, hi, margin) and _inside(points[j], lo, hi, margin):
+        if _inside(a, lo, hi, margin) and _inside(b, lo, hi, margin):
             return True
         if j - i == 1:
             return False
         m = (i + j) // 2
-        return self._span_fits(i, m, qs, gaps, points) and self._span_fits(m, j, qs, gaps, points)
+        return self._span_fits(i, m, path) and self._span_fits(m, j, path)
 
-    def _far_from_walls(self, tip, travel: list[float]) -> bool:
-        """Does the tool point stay inside the box, axis by axis, while each joint that moves it travels
-        ``travel``?"""
-        rx = ry = rz = 0.0
-        for d, (kx, ky, kz) in zip(travel, self._axis_reach):
-            rx, ry, rz = rx + kx * d, ry + ky * d, rz + kz * d
-        (x, y, z), (x0, y0, z0), (x1, y1, z1) = tip, self._lo, self._hi
+    def _far_from_walls(self, tip, reach: tuple[float, float, float]) -> bool:
+        """Does the tool point stay inside the box, axis by axis, while it moves up to ``reach`` along each?"""
+        (x, y, z), (x0, y0, z0), (x1, y1, z1), (rx, ry, rz) = tip, self._lo, self._hi, reach
         return x0 + rx <= x <= x1 - rx and y0 + ry <= y <= y1 - ry and z0 + rz <= z <= z1 - rz
 
     def _end_fits(self, tracker: Tracker) -> bool:
         """Outside the box: does a stop from the setpoint end inside the grown box (no further out than the
         tool point was, ``SLACK`` allowed for the path between)?"""
         plan = tracker.stop_plan()
-        end = tracker.samples[0] if plan is None else plan[1](plan[0])
+        end = tracker.samples[0] if plan is None else plan.at(plan.duration)
         grown = self._grown
         return _inside(self._tool(np.asarray(end)).tolist(), tuple(x - grown for x in self._lo),
                        tuple(x + grown for x in self._hi), 0.0)
@@ -170,3 +158,48 @@ class WorkspaceHold(Check):
         way = tick.reference - q
         step = q + way * min(1.0, PROBE_STEP / float(np.abs(way).max()))
         return None if _depth(tool(step).tolist(), lo, hi) > depth else STOP
+
+
+class _StopPath:
+    """A planned stop's samples, even steps of a braking joint in time (closer together at its start, where the
+    joints are fastest), each evaluated (its positions, then its tool point) only where a span asks for it.
+
+    The travel between two samples, a bound of the tool's path between them, is the sum over the joints of
+    reach times the joint's travel: for a joint that moves one way only, the difference of its positions at the
+    two (its samples in between add up to no more); for one whose stop turns back (``StopPlan.turning``), the
+    sum of its steps between every sample of the span, all evaluated at once.
+    """
+
+    def __init__(self, plan: StopPlan, q0: list[float], tip, reach: list[float], tool: Callable):
+        self._at, self._tool = plan.at, tool
+        duration, end = plan.duration, plan.at(plan.duration)
+        travel = sum(k * abs(e - q) for k, e, q in zip(reach, end, q0))  # a bound of the tool's, along a line
+        self.n = n = min(SAMPLES, max(MIN_SAMPLES, math.ceil(travel / SPACING)))
+        self._times = [duration * f for f in _FRACTIONS[n]]
+        self._qs = [q0] + [None] * (n - 1) + [end]
+        self._points = [tip] + [None] * n
+        turning = [j for j in plan.turning if reach[j]]
+        self._weight, self._turned = reach, [0.0] * (n + 1)  # per joint; the turning joints' travel up to a sample
+        if turning:
+            qs = self._qs
+            for k in range(1, n):
+                qs[k] = plan.at(self._times[k])
+            self._weight = [0.0 if j in turning else k for j, k in enumerate(reach)]
+            turned = self._turned
+            for k in range(n):
+                turned[k + 1] = turned[k] + sum(reach[j] * abs(qs[k + 1][j] - qs[k][j]) for j in turning)
+
+    def point(self, k: int) -> list[float]:
+        """The tool point at sample ``k``."""
+        point = self._points[k]
+        if point is None:
+            q = self._qs[k]
+            if q is None:
+                q = self._qs[k] = self._at(self._times[k])
+            point = self._points[k] = self._tool(np.asarray(q)).tolist()
+        return point
+
+    def margin(self, i: int, j: int) -> float:
+        """Half the travel between samples ``i`` and ``j`` (both evaluated) [m]."""
+        a, b = self._qs[i], self._qs[j]
+        return 0.5 * (sum(w * abs(y - x) for w, x, y in zip(self._weight, a, b)) + self._turned[j] - self._turned[i])
