@@ -94,13 +94,15 @@ def _print_summary(summary: dict, out: Path, as_json: bool) -> None:
     say(f"events: {len(summary['events'])}; written to {out}", err=False)  # as given: "[/]" is a folder name here
 
 
-def _warn_short_acceptance(scenario: Scenario) -> None:
-    """Say so when the run cannot serve as its own baseline: diagnose and report need MIN_CYCLES per motion."""
-    from cellguard.diagnose.baseline import MIN_CYCLES
+def _warn_short_acceptance(summary: dict) -> None:
+    """Say so when the run cannot serve as its own baseline: what diagnose and report would refuse (too few
+    acceptance cycles in all, or of one motion of a cell that alternates them), in their words."""
+    from cellguard.diagnose.baseline import too_few
+    from cellguard.diagnose.cycles import as_cycles
 
-    if scenario.acceptance_cycles < MIN_CYCLES:
-        sys.stderr.write(f"warning: acceptance_cycles: {scenario.acceptance_cycles} is below the {MIN_CYCLES} (per "
-                         f"motion) that diagnose and report need for a baseline; give them --acceptance OTHER_RUN\n")
+    why = too_few(as_cycles(c for c in summary["cycles"] if c.get("phase") == "acceptance"))
+    if why is not None:
+        sys.stderr.write(f"warning: baseline: {why}; give diagnose and report --acceptance OTHER_RUN\n")
 
 
 @app.command()
@@ -118,7 +120,7 @@ def run(
     except CellguardError as exc:
         fail(exc)
     _print_summary(summary, out, as_json)
-    _warn_short_acceptance(sc)
+    _warn_short_acceptance(summary)
     exit_if_stopped(summary, out)
 
 

@@ -71,6 +71,7 @@ class Baseline:
     source: str = OWN_SOURCE
     bound_to: Mapping[str, str | None] = field(default_factory=dict)  # robot, profile_sha256, record_id
     trends: Mapping[str, float] = field(default_factory=dict)  # features not steady in acceptance: their change
+    steps: Mapping[str, int] = field(default_factory=dict)  # those of the trends that stepped: the cycle it began
     method: int = METHOD  # how the scales were taken (a file without one: 1, before the small-sample bound)
 
     def bind(self, context: Mapping) -> Baseline:
@@ -121,22 +122,27 @@ class Baseline:
     @classmethod
     def from_cycles(cls, cycles: Sequence[Cycle], source: str = OWN_SOURCE) -> Baseline:
         """Baseline of ``cycles`` (the acceptance phase); at least MIN_CYCLES per motion."""
-        if len(cycles) < MIN_CYCLES:
-            raise RecordError(f"baseline: needs at least {MIN_CYCLES} acceptance cycles, got {len(cycles)}")
+        why = too_few(cycles)
+        if why is not None:
+            raise RecordError(f"baseline: {why}")
         names = sorted({k for c in cycles for k in c.features} - NOT_MONITORED)
-        motions, moved = {}, {}
+        motions, moved, stepped, at = {}, {}, set(), {}
         for label in sorted({c.label or "" for c in cycles}):
             group = [c for c in cycles if (c.label or "") == label]
-            if len(group) < MIN_CYCLES:
-                raise RecordError(f"baseline: needs at least {MIN_CYCLES} acceptance cycles of motion "
-                                  f"{label!r}, got {len(group)}")
             motions[label] = _stats(names, feature_matrix(group, names))
-            moved.update({k: v for k, v in steady.trends(names, feature_matrix(group, names)).items()
-                          if abs(v) > abs(moved.get(k, 0.0))})
+            for k, v in steady.trends(names, feature_matrix(group, names)).items():
+                if v.step_at is not None:  # each motion's first cycle at the new level: it began by the earliest
+                    at[k] = min(at.get(k, group[v.step_at].index), group[v.step_at].index)
+                if abs(v.change) > abs(moved.get(k, 0.0)):  # the motion that moved it most tells how it moved
+                    moved[k] = v.change
+                    stepped.discard(k)
+                    if v.step_at is not None:
+                        stepped.add(k)
+        steps = {k: at[k] for k in sorted(stepped)}
         x = feature_matrix(cycles, names)
         load = float(np.nanmedian(x[:, names.index(LOAD_FEATURE)])) if LOAD_FEATURE in names else None
         return cls(tuple(names), motions, (cycles[0].index, cycles[-1].index), len(cycles), load, source,
-                   trends=moved)
+                   trends=moved, steps=steps)
 
     def centre_and_scale(self, cycles: Sequence[Cycle]) -> tuple[np.ndarray, np.ndarray]:
         """Each cycle's baseline median and scale (its own motion's), Shape (cycles, features)."""
@@ -183,7 +189,7 @@ class Baseline:
     def to_dict(self) -> dict:
         return {"source": self.source, "cycles": list(self.cycles), "n": self.n, "load": self.load,
                 "bound_to": dict(self.bound_to), "names": list(self.names), "motions": {k: m.to_dict(self.names) for k, m in self.motions.items()},
-                "trends": dict(self.trends), "method": self.method}
+                "trends": dict(self.trends), "steps": dict(self.steps), "method": self.method}
 
     @classmethod
     def from_dict(cls, raw: object) -> Baseline:
@@ -193,6 +199,9 @@ class Baseline:
             if not isinstance(raw, Mapping):
                 raise RecordError(f"baseline: malformed: the file holds {type(raw).__name__}, not an object")
             _require(raw, ("names", "motions", "cycles", "n"), "the file")
+            if "source" not in raw:  # every cellguard wrote it; whose acceptance it is decides which cycles are watched
+                raise RecordError("baseline: malformed: the file has no source (whose acceptance cycles it holds; "
+                                  "edited or hand-made): delete it to rebuild it from the record's acceptance cycles")
             names = _names(raw["names"])
             if not isinstance(raw["motions"], Mapping):
                 raise RecordError("baseline: malformed: motions must be an object of each motion's statistics")
@@ -207,9 +216,10 @@ class Baseline:
             method = raw.get("method", 1)
             if isinstance(method, bool) or not isinstance(method, int) or not 1 <= method <= METHOD:
                 raise RecordError(f"baseline: malformed: method must be an integer from 1 to {METHOD}, got {method!r}")
+            trends = _trends(raw.get("trends") or {}, names)
             return cls(names, motions, cycles, n, _load(raw.get("load"), names),
-                       str(raw.get("source", "stored baseline")), bound, _trends(raw.get("trends") or {}, names),
-                       method)
+                       _text(raw["source"], "source"), bound, trends,
+                       _steps(raw.get("steps") or {}, trends, cycles), method)
         except (KeyError, TypeError, ValueError, AttributeError) as exc:
             raise RecordError(f"baseline: malformed ({exc.__class__.__name__}: {exc})") from None
 
@@ -319,6 +329,36 @@ def _trends(raw: object, names: tuple[str, ...]) -> dict[str, float]:
     if not isinstance(raw, Mapping) or not set(raw) <= set(names):
         raise RecordError("baseline: malformed: trends must be an object of the names' changes over the acceptance")
     return {k: _number(v, f"trends.{k}") for k, v in raw.items()}
+
+
+def _steps(raw: object, trends: Mapping[str, float], cycles: tuple[int, int]) -> dict[str, int]:
+    """The stored steps of the trends, each at an acceptance cycle (absent in baselines written before they were
+    told from a trend: those read as trends)."""
+    if not isinstance(raw, Mapping) or not set(raw) <= set(trends):
+        raise RecordError("baseline: malformed: steps must be an object of the trends' features and the cycle each "
+                          "stepped at")
+    at = {k: _count(v, f"steps.{k}", cycles[0]) for k, v in raw.items()}
+    late = sorted(k for k, v in at.items() if v > cycles[1])
+    if late:
+        raise RecordError(f"baseline: malformed: steps.{late[0]} is past the last acceptance cycle ({cycles[1]})")
+    return at
+
+
+def too_few(cycles: Sequence[Cycle]) -> str | None:
+    """Why the acceptance ``cycles`` give no baseline, None if they give one: MIN_CYCLES of each motion, so a cell
+    that alternates its motions needs that many times its motions in all (the count to give a run)."""
+    if len(cycles) < MIN_CYCLES:
+        return f"needs at least {MIN_CYCLES} acceptance cycles, got {len(cycles)}"
+    counts: dict[str, int] = {}
+    for c in cycles:
+        counts[c.label or ""] = counts.get(c.label or "", 0) + 1
+    short = sorted(k for k, n in counts.items() if n < MIN_CYCLES)
+    if not short:
+        return None
+    split = ", ".join(f"{k or '(none)'} {n}" for k, n in sorted(counts.items()))
+    return (f"needs at least {MIN_CYCLES} acceptance cycles of motion {short[0]!r}, got {counts[short[0]]} (of the "
+            f"{len(cycles)}: {split}); each of the {len(counts)} motions needs {MIN_CYCLES}: at least "
+            f"{MIN_CYCLES * len(counts)} acceptance cycles where they alternate")
 
 
 def _load(value: object, names: tuple[str, ...]) -> float | None:

@@ -12,12 +12,14 @@ Beside it, a step: the best least-squares split of the readings into two levels 
 cycles each), its t statistic against the spread within the levels, at the same shared level
 (Bonferroni over the splits too). A rank test cannot see a step in few cycles: ten cycles whose
 elbow error stepped 3 % (40 noise sigmas) half way read p = 0.004 at best, against 0.01 shared by 70
-features. The step is named where it is ``MATERIAL`` too, its change the difference of the levels.
+features. The step is named where it is ``MATERIAL`` too, its change the difference of the levels, with the
+cycle its second level began (a technician looks there: a step is an event, a trend a wear).
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import NamedTuple
 
 import numpy as np
 from scipy.stats import kendalltau, t as student, theilslopes
@@ -29,9 +31,17 @@ MATERIAL = 2.0  # [scale floors] a smaller change over the acceptance is not a t
 SIDE = 3  # [cycles] the fewest on either side of a step: two cycles that share an odd condition are no level
 
 
-def trends(names: Sequence[str], x: np.ndarray) -> dict[str, float]:
+class Unsteady(NamedTuple):
+    """How a feature moved over the acceptance: its change [its unit] and, for a step, the row of the cycles where
+    the second level began (None for a trend)."""
+
+    change: float
+    step_at: int | None = None
+
+
+def trends(names: Sequence[str], x: np.ndarray) -> dict[str, Unsteady]:
     """Features of ``x`` (Shape (cycles, names), in cycle order) that trend, or step, over the cycles, with the
-    fitted change from the first cycle to the last [their unit]."""
+    fitted change from the first cycle to the last [their unit] and where a step began (a row of ``x``)."""
     found = {}
     order = np.arange(len(x), dtype=float)
     level = LEVEL / max(len(names), 1)
@@ -43,26 +53,26 @@ def trends(names: Sequence[str], x: np.ndarray) -> dict[str, float]:
         floor = MATERIAL * scale_floor(name, float(np.median(col[seen])))
         tau, p = kendalltau(order[seen], col[seen])
         change = float(theilslopes(col[seen], order[seen])[0] * np.ptp(order[seen])) if p < level else 0.0
-        step = _step(col[seen], level)
-        change = max(change, step, key=abs)
-        if abs(change) >= floor:
-            found[name] = change
+        step, k = _step(col[seen], level)
+        moved = Unsteady(step, int(np.flatnonzero(seen)[k])) if abs(step) > abs(change) else Unsteady(change)
+        if abs(moved.change) >= floor:
+            found[name] = moved
     return found
 
 
-def _step(col: np.ndarray, level: float) -> float:
+def _step(col: np.ndarray, level: float) -> tuple[float, int]:
     """The change of the best least-squares split of ``col`` into two levels where its t statistic is
-    significant at ``level`` over all the splits tried (Bonferroni), else 0."""
+    significant at ``level`` over all the splits tried (Bonferroni), else 0; and where its second level begins."""
     n = len(col)
     splits = range(SIDE, n - SIDE + 1)
     if not len(splits):
-        return 0.0
+        return 0.0, 0
     sse = [(float(np.sum((col[:k] - col[:k].mean()) ** 2) + np.sum((col[k:] - col[k:].mean()) ** 2)), k)
            for k in splits]
     best, k = min(sse)
     change = float(col[k:].mean() - col[:k].mean())
     spread = np.sqrt(best / (n - 2)) * np.sqrt(1.0 / k + 1.0 / (n - k))
     if spread == 0.0:
-        return change
+        return change, k
     p = 2.0 * student.sf(abs(change) / spread, n - 2) * len(splits)
-    return change if p < level else 0.0
+    return (change if p < level else 0.0), k
