@@ -24,7 +24,7 @@ def run_dir(tmp_path_factory):
 
 def test_pragma_is_refused_as_written_in_one_line(run_dir):
     result = CliRunner().invoke(app, ["record", "query", str(run_dir), "pragma version"])
-    assert one_error(result) == f"error: sql: pragma version is refused{READ_ONLY}"
+    assert one_error(result) == f'error: sql: "pragma version" is refused{READ_ONLY}'
 
 
 @pytest.mark.parametrize(("given", "said"), [("0", "0"), ("-1", "-1"), ("100000", "100000"), ("86400.5", "86400.5"),

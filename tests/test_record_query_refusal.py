@@ -17,25 +17,26 @@ EXTENSIONS = "is refused: extensions are not available in a query; the query is 
 
 
 @pytest.mark.parametrize(("sql", "line"), [
-    ("INSTALL httpfs", f"sql: INSTALL {EXTENSIONS}"),
-    ("force install httpfs FROM community", f"sql: force install {EXTENSIONS}"),  # as written
-    ("/* ( */ LOAD '/tmp/x.duckdb_extension'", f"sql: LOAD {EXTENSIONS}"),
-    ("TRUNCATE events", "sql: TRUNCATE (read as DELETE) is refused; the query is read-only"),
-    ("CHECKPOINT", "sql: CHECKPOINT (read as CALL) is refused; the query is read-only"),
-    ("WITH a AS (SELECT 1) DELETE FROM cycles", "sql: WITH (read as DELETE) is refused; the query is read-only"),
-    ("DROP TABLE cycles", "sql: DROP TABLE is refused; the query is read-only"),
-    ("UPDATE EXTENSIONS", "sql: UPDATE EXTENSIONS is refused; the query is read-only"),
-    ("EXPLAIN ANALYZE INSTALL httpfs", "sql: EXPLAIN of an INSTALL statement is refused"),
-    ("EXPLAIN ANALYZE UPDATE EXTENSIONS", "sql: EXPLAIN of an UPDATE EXTENSIONS statement is refused"),
+    ("INSTALL httpfs", f'sql: "INSTALL httpfs" {EXTENSIONS}'),
+    ("force install httpfs FROM community", f'sql: "force install httpfs FROM community" {EXTENSIONS}'),  # as written
+    ("/* ( */ LOAD '/tmp/x.duckdb_extension'", f"""sql: "LOAD '/tmp/x.duckdb_extension'" {EXTENSIONS}"""),
+    ("TRUNCATE events", 'sql: "TRUNCATE events" (read as DELETE) is refused; the query is read-only'),
+    ("CHECKPOINT", 'sql: "CHECKPOINT" (read as CALL) is refused; the query is read-only'),
+    ("WITH a AS (SELECT 1) DELETE FROM cycles",
+     'sql: "WITH a AS (SELECT 1) DELETE FROM cycles" (read as DELETE) is refused; the query is read-only'),
+    ("DROP TABLE cycles", 'sql: "DROP TABLE cycles" is refused; the query is read-only'),
+    ("UPDATE EXTENSIONS", 'sql: "UPDATE EXTENSIONS" is refused; the query is read-only'),
+    ("EXPLAIN ANALYZE INSTALL httpfs", 'sql: EXPLAIN of "INSTALL httpfs" is refused'),
+    ("EXPLAIN ANALYZE UPDATE EXTENSIONS", 'sql: EXPLAIN of "UPDATE EXTENSIONS" is refused'),
     # in the user's letter case (``pragma version`` was refused as "PRAGMA VERSION")
-    ("pragma version", "sql: pragma version is refused; the query is read-only"),
-    ("Pragma database_list", "sql: Pragma is refused; the query is read-only"),
-    ("/* x */ drop   TABLE cycles", "sql: drop TABLE is refused; the query is read-only"),  # not "(read as DROP)"
-    ("checkpoint", "sql: checkpoint (read as CALL) is refused; the query is read-only"),
-    ("force install httpfs", "sql: force install is refused: extensions are not available in a query"),
-    ("explain analyze install httpfs", "sql: explain of an install statement is refused (EXPLAIN ANALYZE runs it)"),
-    ("Explain Analyze Update Extensions", "sql: Explain of an Update Extensions statement is refused"),
-    ("explain (format json) pragma version", "sql: explain of a pragma version statement is refused"),
+    ("pragma version", 'sql: "pragma version" is refused; the query is read-only'),
+    ("Pragma database_list", 'sql: "Pragma database_list" is refused; the query is read-only'),
+    ("/* x */ drop   TABLE cycles", 'sql: "drop   TABLE cycles" is refused; the query is read-only'),  # no read-as
+    ("checkpoint", 'sql: "checkpoint" (read as CALL) is refused; the query is read-only'),
+    ("force install httpfs", 'sql: "force install httpfs" is refused: extensions are not available in a query'),
+    ("explain analyze install httpfs", 'sql: explain of "install httpfs" is refused (EXPLAIN ANALYZE runs it)'),
+    ("Explain Analyze Update Extensions", 'sql: Explain of "Update Extensions" is refused'),
+    ("explain (format json) pragma version", 'sql: explain of "pragma version" is refused'),
 ])
 def test_a_refused_statement_is_named_as_written(sql, line):
     with pytest.raises(RecordError) as refused:
@@ -46,4 +47,4 @@ def test_a_refused_statement_is_named_as_written(sql, line):
 def test_install_is_refused_in_one_line(tmp_path):
     record(tmp_path / "run", 2, 100)
     result = CliRunner().invoke(app, ["record", "query", str(tmp_path / "run"), "INSTALL httpfs"])
-    assert one_error(result).startswith(f"error: sql: INSTALL {EXTENSIONS}")
+    assert one_error(result).startswith(f'error: sql: "INSTALL httpfs" {EXTENSIONS}')

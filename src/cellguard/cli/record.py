@@ -195,7 +195,8 @@ def recover(
 @record_app.command()
 def query(
     folder: Path = typer.Argument(..., help="Run folder holding index/ (or its record.mcap, or the index folder)."),
-    sql: str = typer.Argument(..., help="One read-only DuckDB SELECT over the tables `cycles` and `events`."),
+    sql: str = typer.Argument(..., help="One read-only DuckDB SELECT over the tables `cycles` and `events`; SQL "
+                              "that starts with '-' (a -- comment) goes after '--': record query FOLDER -- SQL."),
     timeout_s: float = typer.Option(60.0, "--timeout", help="Stop a query still running after this many seconds."),
 ) -> None:
     """Run one SELECT on the per-cycle index, read-only and confined to it; one JSON object per row on stdout."""

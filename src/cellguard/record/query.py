@@ -36,6 +36,7 @@ from cellguard.record.writer import INDEX_DIR, RECORD_FILE
 ALLOWED_STATEMENTS = (duckdb.StatementType.SELECT, duckdb.StatementType.EXPLAIN)
 MEMORY_LIMIT = "1GB"  # what a query's process may allocate once DuckDB is started (Linux); a query needing more fails
 DEFAULT_TIMEOUT_S = 60.0
+EXCERPT_CHARS = 60  # the most of a refused statement its refusal quotes
 _DUCKDB_SHARE = 0.75  # DuckDB's buffers stay under the process cap, so a big sort or join fails with DuckDB's own error
 _THREADS = 2
 _UNITS = {"": 1, "K": 1000, "M": 1000**2, "G": 1000**3, "T": 1000**4, "KI": 1 << 10, "MI": 1 << 20, "GI": 1 << 30,
@@ -76,23 +77,30 @@ def _kind(statement) -> duckdb.StatementType | None:
 
 
 def _written(statement) -> str:
-    """What a refusal names: the statement's leading keywords as written (at most four, in the user's letter case:
-    ``pragma version`` read back as PRAGMA VERSION was not what was written), and DuckDB's type where it is none of
-    them. The type alone misled: INSTALL is a LOAD statement, TRUNCATE a DELETE, CHECKPOINT a CALL."""
+    """What a refusal names: the statement as written from its first word (comments before it left out), quoted,
+    and DuckDB's type where none of its leading keywords (at most four) is it: INSTALL is a LOAD statement,
+    TRUNCATE a DELETE, CHECKPOINT a CALL, so the type alone misled. Its keywords alone, unquoted, ran into the
+    sentence ("sql: explain of an insert into statement is refused") and left out the rest of it."""
     raw = statement.query.encode()  # token positions are byte offsets
-    words = []
+    words, start = [], None
     for pos, kind in duckdb.tokenize(statement.query):
         if kind == duckdb.token_type.comment:
             continue
+        start = pos if start is None else start
         if kind != duckdb.token_type.keyword or len(words) == 4:
             break
-        words.append(re.match(rb"\w*", raw[pos:])[0].decode())
+        words.append(re.match(rb"\w*", raw[pos:])[0].decode().upper())
+    said = _quoted(raw[start or 0:].decode(errors="replace").strip())
     kind = _kind(statement)
-    name = "UNKNOWN" if kind is None else kind.name.replace("_", " ")
-    written = " ".join(words)
-    if not written or kind in (None, duckdb.StatementType.LOAD) or name in written.upper():
-        return written or name
-    return f"{written} (read as {name})"
+    name = None if kind in (None, duckdb.StatementType.LOAD) else kind.name.replace("_", " ")
+    return said if name is None or name in " ".join(words) else f"{said} (read as {name})"
+
+
+def _quoted(text: str) -> str:
+    """``text`` in double quotes with JSON's escapes (its quotes, backslashes and line breaks too), so that it reads
+    unambiguously on one line; at most EXCERPT_CHARS characters of it, ``...`` after the quote saying there is
+    more."""
+    return json.dumps(text[:EXCERPT_CHARS], ensure_ascii=False) + ("..." if len(text) > EXCERPT_CHARS else "")
 
 
 def _explains_a_select(sql: str, parse: Callable[[str], list]) -> None:
@@ -125,8 +133,7 @@ def _explains_a_select(sql: str, parse: Callable[[str], list]) -> None:
         elif _kind(inner[0]) == duckdb.StatementType.SELECT:
             return
         else:
-            written = _written(inner[0])
-            found = f"{'an' if written[0] in 'AEIOUaeiou' else 'a'} {written} statement"
+            found = _written(inner[0])
     raise RecordError(f"sql: {words[0][0]} of {found} is refused (EXPLAIN ANALYZE runs it); only EXPLAIN of one "
                       f"SELECT over the tables cycles and events")
 
