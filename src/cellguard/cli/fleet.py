@@ -87,7 +87,7 @@ def push(
         sys.stderr.write(f"no --store given: {result.queued} batch(es) kept in {Path(site_dir) / 'outbox'}{landed}\n")
     if result.new_key:
         _new_key_note(result.new_key)
-    for line in result.held:
+    for line in (*result.held, *result.trimmed):
         sys.stderr.write(f"note: {printable(line)}\n")
     for line in filter(None, (*result.failed, result.dated_ahead)):
         sys.stderr.write(f"warning: {printable(line)}\n")
@@ -172,6 +172,7 @@ def similar(
     from cellguard.cli.diagnose import warn_if_unkept
     from cellguard.errors import ConfigError
     from cellguard.fleet import similar as sim
+    from cellguard.fleet.audit import check_log, check_site_dir
 
     unkept: list[str] = []  # a run folder on read-only storage: its diagnosis's files not kept beside it
     skipped: list[str] = []  # a run whose record is not whole
@@ -186,6 +187,8 @@ def similar(
                 raise ConfigError("--policy: needed with a run folder (it names this site)")
             site_policy = load_policy(policy)
             sim.check_policy(site_policy)
+            check_site_dir(site_dir, missing_ok=True)  # the probes are logged there: refused before the diagnosis
+            check_log(site_dir)
             probes = [sim.as_sent(p, site_policy.withheld)
                       for p in site_signatures(Path(target), site_policy, acceptance, unkept, skipped, stored=False)]
             sim.log_probes(site_dir, probes, site_policy, st.where)

@@ -43,6 +43,7 @@ STATUSES = ("queued", "sent", "duplicate", "nothing", "held", "refused", "probed
 FIELDS = {"when_utc": str, "what": str, "rows": int, "withheld_rows": int, "policy_version": str, "batch_id": str,
           "status": str}  # in every entry, of these types
 MAX_AUDIT_BYTES = 1 << 30  # [bytes] about 3 million entries
+APPEND = os.O_WRONLY | os.O_APPEND  # how the log is opened to be appended to (and checked before, creating nothing)
 NO_LINKS = "the site's files are written only in its folder, never through a link: move what it names there, or " \
            "remove the link"
 
@@ -92,7 +93,7 @@ def _append(site_dir: Path, fields: dict) -> dict:
     path = Path(site_dir) / AUDIT_FILE
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        fd, st = _open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT)
+        fd, st = _open(path, APPEND | os.O_CREAT)
         try:
             if not stat.S_ISREG(st.st_mode):
                 raise OutputError(_not_regular(path, st.st_mode))
@@ -103,12 +104,17 @@ def _append(site_dir: Path, fields: dict) -> dict:
         finally:
             os.close(fd)
     except OSError as exc:
-        if exc.errno == errno.ELOOP:
-            raise OutputError(f"audit log {path}: a link; {NO_LINKS}") from None
-        if exc.errno == errno.ENXIO:  # a FIFO no one reads (or a socket): opened to wait, the push hung for good
-            raise OutputError(_not_regular(path, _mode_of(path))) from None
-        raise OutputError(f"audit log {path}: cannot append ({exc.strerror or exc.__class__.__name__})") from None
+        raise _cannot_append(path, exc) from None
     return entry
+
+
+def _cannot_append(path: Path, exc: OSError) -> OutputError:
+    """Why the log at ``path`` could not be opened to append (``exc``), in one line."""
+    if exc.errno == errno.ELOOP:
+        return OutputError(f"audit log {path}: a link; {NO_LINKS}")
+    if exc.errno in (errno.ENXIO, errno.EISDIR):  # a FIFO no one reads or a socket (opened to wait, a push hung
+        return OutputError(_not_regular(path, _mode_of(path)))  # for good), a folder
+    return OutputError(f"audit log {path}: cannot append ({exc.strerror or exc.__class__.__name__})")
 
 
 def _open(path: Path, flags: int) -> tuple[int, os.stat_result]:
@@ -161,18 +167,26 @@ def _a_link(site_dir: Path, name: str) -> ConfigError:
 
 
 def check_log(site_dir: Path) -> None:
-    """ConfigError naming the site's audit log, before a command that appends to it, if it is a link: symbolic or
-    hard, a second name elsewhere of the same file, where every entry appended here appears too (and another site's
-    appear here). Reading one is harmless (``scan_audit`` refuses only a symbolic link)."""
+    """CellguardError naming the site's audit log, before a command that appends to it writes anything (a site key,
+    a queued batch, a deletion), if the append would be refused: a link, symbolic or hard (a second name elsewhere
+    of the same file, where every entry appended here appears too, and another site's appear here), something
+    other than a regular file (a FIFO, a folder, a socket), or a file it cannot append to. It is opened as the
+    append opens it, creating nothing: refused only at the append, a push had made the site's key and queued its
+    batch, a withdrawal deleted what the log then never said. Reading one is harmless (``scan_audit`` refuses only a
+    symbolic link)."""
     path = Path(site_dir) / AUDIT_FILE
     try:
-        fd, st = _open(path, os.O_RDONLY)
-    except OSError as exc:  # none yet, or one that cannot be opened: the read or the append names why
+        fd, st = _open(path, APPEND)
+    except FileNotFoundError:  # none yet: the append makes it
+        return
+    except OSError as exc:
         if exc.errno == errno.ELOOP:
             raise _a_link(site_dir, AUDIT_FILE) from None
-        return
+        raise _cannot_append(path, exc) from None
     os.close(fd)
-    if stat.S_ISREG(st.st_mode) and st.st_nlink > 1:
+    if not stat.S_ISREG(st.st_mode):
+        raise OutputError(_not_regular(path, st.st_mode))
+    if st.st_nlink > 1:
         raise ConfigError(f"--site-dir {site_dir}: {_hard_linked(path, st.st_nlink)}")
 
 

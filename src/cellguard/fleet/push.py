@@ -19,6 +19,12 @@ the same policy and reason, not again at every push). Held, not rebuilt under th
 - deleting it could lose the only copy of what the site recorded (its runs may be gone); held,
   it goes if the customer restores a policy that allows it, or a person deletes the file.
 
+Rows of a queued batch that have passed the retention of the policy in force since it was queued (a store down
+for days, a batch at the retention's edge) are dropped, never sent, and the rest of the batch is sent
+(``export.within_retention``): logged ``sent`` with the count dropped and ``trimmed_from`` the queued batch, said
+in one line. Held whole for them, its rows within the retention were held with it for good, as time only makes more
+rows old. A batch with every row past the retention is held whole (a policy that keeps rows longer lets it go).
+
 A queued batch the store refuses (another tenant's, say) or a file that cannot be read stays
 queued too, named in one line; the other batches go on. With ``lake``, a batch lands in the lake
 before the store commits it: a lake that cannot take it leaves the store as it was, and the batch
@@ -64,7 +70,8 @@ from cellguard.dates import utc_today
 from cellguard.errors import ConfigError, OutputError
 from cellguard.fleet.audit import (append_audit, append_retention, check_log, check_site_dir,
                                    refuse_links, scan_audit)
-from cellguard.fleet.export import AHEAD, Batch, dated_ahead, export_batch, newest_kept, oldest_kept, refusal
+from cellguard.fleet.export import (AHEAD, Batch, dated_ahead, export_batch, newest_kept, oldest_kept, refusal,
+                                    within_retention)
 from cellguard.fleet.lake import check_lake, forget, newest, write_signatures
 from cellguard.fleet.outbox import OUTBOX, Outbox
 from cellguard.fleet.policy import DataPolicy
@@ -86,6 +93,7 @@ class PushResult:
     new_key: str | None = None  # the site key this push made (ids of this site's earlier pushes differ)
     retention_removed: int = 0  # rows the policy's retention deleted from the store and the lake
     dated_ahead: str | None = None  # one line: the signatures the export kept at the site as dated after tomorrow
+    trimmed: tuple[str, ...] = ()  # one line per queued batch sent without its rows past the retention
 
     def to_dict(self) -> dict:
         return {"batch_id": self.batch.batch_id, "export": self.batch.export, "rows": self.batch.rows,
@@ -93,7 +101,7 @@ class PushResult:
                 "sent_batches": self.sent_batches, "new_rows": self.new_rows, "duplicate_rows": self.duplicate_rows,
                 "queued": self.queued, "unavailable": self.unavailable, "held": list(self.held),
                 "failed": list(self.failed), "new_key": self.new_key, "retention_removed": self.retention_removed,
-                "dated_ahead": self.dated_ahead}
+                "dated_ahead": self.dated_ahead, "trimmed": list(self.trimmed)}
 
 
 def push(signatures: list[Signature], policy: DataPolicy, site_dir: Path, store: TenantStore | None,
@@ -125,6 +133,7 @@ def push(signatures: list[Signature], policy: DataPolicy, site_dir: Path, store:
     queued, unreadable = outbox.read()
     failed = [f"{path}: {why}; it stays queued" for path, why in unreadable]
     held: list[str] = []
+    trimmed: list[str] = []
     sent = new = dup = 0
     removed, lost, doubt = _apply_retention(policy, site_dir, store, lake, local, server, failed)
     unavailable = unavailable or lost
@@ -134,8 +143,9 @@ def push(signatures: list[Signature], policy: DataPolicy, site_dir: Path, store:
     sending = server is not None and not doubt and unavailable is None
     last = _last_entries(site_dir) if queued and sending else {}
     for path, waiting in queued if sending else ():
-        why = refusal(waiting, policy, local)
-        unkeyed = _unkeyed(waiting, key) if why is None else None
+        going, past = within_retention(waiting, policy, local)
+        why = refusal(going, policy, local)
+        unkeyed = _unkeyed(going, key) if why is None else None
         if why is not None or unkeyed is not None:
             said = last.get(waiting.batch_id, {})
             reason = why or unkeyed
@@ -144,9 +154,9 @@ def push(signatures: list[Signature], policy: DataPolicy, site_dir: Path, store:
             held.append(f"{path}: held at the site, " + (f"the policy in force ({policy.version}) does not allow it: "
                                                          f"{why}" if why else unkeyed))
             continue
-        land = partial(write_signatures, lake, waiting.signatures, waiting.batch_id) if lake is not None else None
+        land = partial(write_signatures, lake, going.signatures, going.batch_id) if lake is not None else None
         try:
-            n, d = store.push(waiting, then=land)
+            n, d = store.push(going, then=land)
         except StoreUnavailable as exc:
             unavailable = str(exc)
             break
@@ -158,10 +168,15 @@ def push(signatures: list[Signature], policy: DataPolicy, site_dir: Path, store:
             failed.append(f"{path}: {exc}; it stays queued")
             continue
         outbox.done(path)
-        append_audit(site_dir, waiting, "sent" if n else "duplicate", destination, policy_in_force=policy.version)
+        left = {"reason": f"the rest of batch {waiting.batch_id}: {past} row(s) older than the policy's "
+                          f"retention_days ({policy.retention_days}) not sent, dropped",
+                "trimmed_from": waiting.batch_id} if past else {}
+        append_audit(site_dir, going, "sent" if n else "duplicate", destination, policy_in_force=policy.version, **left)
+        if past:
+            trimmed.append(f"{path}: {left['reason']}")
         sent, new, dup = sent + 1, new + n, dup + d
     return PushResult(batch, sent, new, dup, outbox.count(), unavailable, tuple(held), tuple(failed), made, removed,
-                      ahead)
+                      ahead, tuple(trimmed))
 
 
 def check_site(site_dir: Path, must_exist: bool = False) -> None:
