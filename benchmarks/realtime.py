@@ -33,6 +33,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shlex
 import socket
 import subprocess
 import sys
@@ -61,6 +62,7 @@ HORIZON, DT_S = 50, 0.02  # a 1 s chunk, like ACT / pi0 chunks of 50
 CELL = "arm-pick-place"
 WEEK_S = 7 * 24 * 3600  # the longest --seconds (the sim-server's own bound on --duration-s)
 READ_AFTER_END_S = 5.0  # how long its output is read once it has ended (a child of its own could hold the pipe)
+START_S = 20.0  # [s] for its start line: 1.1 s measured on a quiet 2-core host, 9.2 s with six busy processes
 
 
 def sway(t_s: np.ndarray) -> np.ndarray:
@@ -185,7 +187,8 @@ def free_port() -> int:
 def one_run(rate_hz: float, policy: str, worker: str, seconds: float, onnx_path: Path, work: int, out: Path,
             recording: bool = True) -> dict:
     port = free_port()
-    server = SimServerProcess(rate_hz, port)
+    server = SimServerProcess([sys.executable, "-c", "from cellguard.cli import app; app()", "sim-server", CELL,
+                               "--port", str(port), "--rate-hz", str(rate_hz)])
     try:
         refused = server.serving()
         if refused:
@@ -216,16 +219,15 @@ def one_run(rate_hz: float, policy: str, worker: str, seconds: float, onnx_path:
 
 
 class SimServerProcess:
-    """``cellguard sim-server`` at ``rate_hz`` on ``port``, in its own process. Its output (stdout and stderr as one
-    stream) is read to its end on a thread, its last line kept: read only up to the start line, the pipe filled
+    """A sim-server ``command`` (``cellguard sim-server ...``) in its own process. Its output (stdout and stderr as
+    one stream) is read to its end on a thread, its last line kept: read only up to the start line, the pipe filled
     (64 KiB, about three minutes of its once-a-second notes of stray packets) and the server blocked mid-tick on its
     next note, a stalled robot that the run's figures blamed on the loop."""
 
-    def __init__(self, rate_hz: float, port: int):
-        self.process = subprocess.Popen([sys.executable, "-c", "from cellguard.cli import app; app()", "sim-server",
-                                         CELL, "--port", str(port), "--rate-hz", str(rate_hz)],
-                                        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, errors="replace",
-                                        env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    def __init__(self, command: list[str]):
+        self.command = command
+        self.process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                                        errors="replace", env={**os.environ, "PYTHONUNBUFFERED": "1"})
         self._said = ""  # its last line (not blank) other than the start line
         self._serving, self._settled = threading.Event(), threading.Event()  # settled: serving, or its output ended
         self._reader = threading.Thread(target=self._read, name="sim-server output", daemon=True)
@@ -241,10 +243,13 @@ class SimServerProcess:
                     self._said = line.strip()
         self._settled.set()
 
-    def serving(self) -> str | None:
+    def serving(self, within_s: float = START_S) -> str | None:
         """None once the server says it serves; else why it ended in its own last line (its refusal: read as the
-        run's, the client's "does not answer" hid why)."""
-        self._settled.wait()
+        run's, the client's "does not answer" hid why), or, killed then, that it said nothing of serving within
+        ``within_s`` (waited on for ever, a server hung before its start line hung the benchmark)."""
+        if not self._settled.wait(within_s):
+            self.stop()
+            return f"sim-server did not say it serves within {within_s:g} s, killed: {shlex.join(self.command)}"
         return None if self._serving.is_set() else self._ended(self.process.wait())
 
     def ended_during_run(self) -> dict:
