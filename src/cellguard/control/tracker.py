@@ -367,9 +367,12 @@ class Tracker:
         plan's state rides on the reference's estimated derivatives, so a joint it drove starts from the
         samples here.
         """
-        half_dt, mode, (_, sv, sa) = 0.5 * self.dt, self.mode, self.samples
-        return ([own if m >= ABSOLUTE else x + y * half_dt for m, own, x, y in zip(mode, self._tv, sv, sa)],
-                [own if m >= ABSOLUTE else y for m, own, y in zip(mode, self._ta, sa)])
+        half_dt, v, a = 0.5 * self.dt, [], []
+        for m, own_v, own_a, sv, sa in zip(self.mode, self._tv, self._ta, *self.samples[1:]):
+            vj, aj = (own_v, own_a) if m >= ABSOLUTE else (sv + sa * half_dt, sa)
+            v.append(vj)
+            a.append(aj)
+        return v, a
 
     def _brake(self) -> bool:
         return self._step(self._stop_input())
@@ -435,10 +438,12 @@ class Tracker:
         for c, w in zip(closing, limit):
             if c > w or c < -w:
                 scale = min(scale, w / abs(c))
-        peaks = [vj + aj * abs(aj) * h for vj, aj, h in zip(v, a, self._half_inv_j_f)]  # a to zero at full jerk
-        inp.target_velocity = [
-            peak if (peak > w or peak < -w) and peak * aj > 0.0 and (aj > j_tick or aj < -j_tick) else c * scale
-            for c, w, aj, j_tick, peak in zip(closing, limit, a, self._jerk_tick, peaks)]
+        target = []
+        for c, w, vj, aj, half_inv_j, j_tick in zip(closing, limit, v, a, self._half_inv_j_f, self._jerk_tick):
+            peak = vj + aj * abs(aj) * half_inv_j  # where the acceleration brought to zero at full jerk leaves it
+            target.append(peak if (peak > w or peak < -w) and peak * aj > 0.0 and (aj > j_tick or aj < -j_tick)
+                          else c * scale)
+        inp.target_velocity = target
         return self._step(inp)
 
     def _landable(self, r: list[float], rv: list[float], ra: list[float], previous: tuple,
