@@ -320,7 +320,7 @@ class Tracker:
     def stop_plan(self) -> StopPlan | None:
         """The stop ``stop`` would run from the setpoint state, planned whole (``StopPlan``). None where ruckig
         refuses the state (then ``stop`` holds)."""
-        inp = self._stop_input()
+        inp, v_all, a_all = self._stop_input()
         try:
             if self._planner.calculate(inp, self._plan) not in _PLANNED:
                 return None
@@ -329,8 +329,7 @@ class Tracker:
         plan = self._plan
         # a joint turns back where its velocity, with the acceleration brought to zero at full jerk, changes
         # sign: a stop from there moves it both ways (``_travel`` is zero one way for every other joint)
-        turning = tuple(j for j, (v, a, h) in enumerate(zip(inp.current_velocity, inp.current_acceleration,
-                                                            self._half_inv_j_f))
+        turning = tuple(j for j, (v, a, h) in enumerate(zip(v_all, a_all, self._half_inv_j_f))
                         if (v < 0.0 or (a < 0.0 and v < a * a * h)) and (v > 0.0 or (a > 0.0 and v > -a * a * h)))
         return StopPlan(plan.duration, lambda t: plan.at_time(t)[0], turning)
 
@@ -375,14 +374,14 @@ class Tracker:
         return v, a
 
     def _brake(self) -> bool:
-        return self._step(self._stop_input())
+        return self._step(self._stop_input()[0])
 
-    def _stop_input(self) -> ruckig.InputParameter:
-        """ruckig's input for a stop of every joint from the hand-over state."""
+    def _stop_input(self) -> tuple[ruckig.InputParameter, list[float], list[float]]:
+        """ruckig's input for a stop of every joint from the hand-over state, and that state's v and a."""
         inp = self._stop_in
         v, a = self._handover()
         inp.current_position, inp.current_velocity, inp.current_acceleration = self.samples[0], v, a
-        return inp
+        return inp, v, a
 
     def _closing(self, r: list[float], rv: list[float]) -> list[float]:
         """The velocity that closes on the reference sample ``r``: the sample's velocity plus ``GAIN``

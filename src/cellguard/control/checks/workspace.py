@@ -55,8 +55,10 @@ def _depth(point, lo, hi) -> float:
 
 
 def _inside(point, lo, hi, margin: float) -> bool:
-    """Is the ball of radius ``margin`` about ``point`` inside the box?"""
-    return all(a + margin <= p <= b - margin for p, a, b in zip(point, lo, hi))
+    """Is the ball of radius ``margin`` about ``point`` inside the box? (Axis by axis, unrolled: a few times cheaper
+    than a generator over them, and the look-ahead asks it several times a tick near a wall.)"""
+    (x, y, z), (x0, y0, z0), (x1, y1, z1) = point, lo, hi
+    return x0 + margin <= x <= x1 - margin and y0 + margin <= y <= y1 - margin and z0 + margin <= z <= z1 - margin
 
 
 class WorkspaceLookahead(Check):
