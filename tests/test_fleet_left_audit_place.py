@@ -7,7 +7,9 @@ from __future__ import annotations
 
 import datetime as dt
 import os
+import shutil
 import socket
+import subprocess
 import sys
 
 import pytest
@@ -112,3 +114,23 @@ def test_similar_checks_the_log_before_it_reads_the_runs(tmp_path):
                                                str(tmp_path / "p.yaml"), "--site-dir", str(site), "--store",
                                                "host=127.0.0.1 port=1 dbname=x user=x password=x"]))
     assert error == f"error: {site / AUDIT_FILE}: is a FIFO, not a regular audit log file"
+
+
+def test_a_withdrawal_into_a_site_folder_it_cannot_write_deletes_nothing(tmp_path):
+    """No log yet and a site folder it cannot write: the log could never say what went, yet the lake was emptied
+    first ("cannot append (Permission denied); deleted already: 1 signature(s)")."""
+    lake = _pooled_lake(tmp_path)
+    site = tmp_path / "s"
+    site.mkdir()
+    site.chmod(0o555)
+    (tmp_path / "p.yaml").write_text("tenant: ta\nsite: s1\n")
+    command = [sys.executable, "-c", "from cellguard.entry import main; main()", "fleet", "withdraw", "--policy",
+               str(tmp_path / "p.yaml"), "--lake", str(lake), "--site-dir", str(site)]
+    if os.geteuid() == 0:  # root writes anywhere: run it without the capabilities that let it
+        if shutil.which("setpriv") is None:
+            pytest.skip("running as root without setpriv: no folder it cannot write")
+        command = ["setpriv", "--bounding-set", "-dac_override,-dac_read_search", *command]
+    done = subprocess.run(command, capture_output=True, text=True, timeout=120)
+    assert (done.returncode, done.stderr) == (
+        2, f"error: audit log {site / AUDIT_FILE}: cannot create it (its folder is not writable)\n")
+    assert _in_lake(lake) == 1

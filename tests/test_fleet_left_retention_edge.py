@@ -1,13 +1,14 @@
 """A batch queued while the store was down reaches the retention's edge row by row. Held whole for one row past
-the retention, its rows within were held with it for good (time only makes more of them old): the part within the
-retention is sent, the rows past it are dropped, counted in the audit log and in one line. A batch with every row
-past the retention is held whole, as before. Against a real PostgreSQL server (``.ci/fleet.sh`` starts one); the
+the retention, its rows within were held with it for good (time only makes more of them old): the signatures within
+the retention are sent, those past it are dropped, counted in the audit log and in one line. A batch with every row
+past the retention, or of counts (aggregates), is held whole, as before. Against a real PostgreSQL server (``.ci/fleet.sh`` starts one); the
 store's date is the one the retention counts on, so the batches are queued under a host date days before it."""
 
 from __future__ import annotations
 
 import datetime as dt
 
+import pyarrow.parquet as pq
 import pytest
 
 psycopg = pytest.importorskip("psycopg", reason="the fleet store tests need psycopg: pip install 'cellguard[fleet]'")
@@ -54,20 +55,26 @@ def test_a_queued_batch_at_the_retention_edge_sends_the_rows_within(fleet, tmp_p
     store, dsn, today = fleet
     policy = DataPolicy("ta", "s-edge", retention_days=DAYS)
     edge, fresh = today - dt.timedelta(days=DAYS + 2), today - dt.timedelta(days=2)
-    queued = queued_on(tmp_path, policy, [sig("s-edge", edge, "friction"), sig("s-edge", fresh, "servo")],
+    queued = queued_on(tmp_path / "site", policy, [sig("s-edge", edge, "friction"), sig("s-edge", fresh, "servo")],
                        today - dt.timedelta(days=2))  # two days ago: the edge row was inside the retention then
-    result = push([], policy, tmp_path, TenantStore(dsn))
+    lake = tmp_path / "lake"
+    result = push([], policy, tmp_path / "site", TenantStore(dsn), lake=lake)
     assert (result.sent_batches, result.new_rows, result.queued, result.held) == (1, 1, 0, ())
     assert stored(store, "s-edge")["signatures"] == [fresh.isoformat()]  # never the row past the retention
-    sent = read_audit(tmp_path)[-1]
+    dates = sorted(p.parent.name for p in lake.rglob("signatures/date=*/*.parquet") if pq.read_table(p).num_rows)
+    assert dates == [f"date={fresh.isoformat()}"]  # the lake holds what the store holds
+    sent = read_audit(tmp_path / "site")[-1]
     assert (sent["status"], sent["rows"], sent["trimmed_from"]) == ("sent", 1, queued)
     assert sent["withheld_rows"] == 1 and "1 row(s) older than the policy's retention_days (30) not sent" in \
         sent["reason"], sent
     (line,) = result.trimmed
-    assert queued in line and "\n" not in line and not Outbox(tmp_path).count()
+    assert queued in line and "\n" not in line and not Outbox(tmp_path / "site").count()
 
 
-def test_a_queued_aggregate_batch_sends_the_months_within(fleet, tmp_path):
+def test_a_queued_batch_of_counts_at_the_retention_edge_is_held_whole(fleet, tmp_path):
+    """Counts are never trimmed: a month's count replaces the store's, and an older batch's counts sent after a newer
+    one's put back the older figures (trimmed and sent late, one friction count fell from 3 to 2 and the month's
+    servo count was deleted)."""
     store, dsn, today = fleet
     policy = DataPolicy("ta", "s-agg", export="aggregates_only", min_group_size=2, retention_days=DAYS)
     first_kept = (today - dt.timedelta(days=DAYS)).replace(day=1)  # the first day of the oldest month kept now
@@ -75,9 +82,8 @@ def test_a_queued_aggregate_batch_sends_the_months_within(fleet, tmp_path):
     old, fresh = first_kept - dt.timedelta(days=1), today - dt.timedelta(days=DAYS)
     queued_on(tmp_path, policy, [sig("s-agg", d, "friction") for d in (old, old, fresh, fresh)], then)
     result = push([], policy, tmp_path, TenantStore(dsn))
-    assert (result.sent_batches, result.queued, result.held) == (1, 0, ())
-    assert stored(store, "s-agg")["aggregates"] == [(fresh.isoformat()[:7], 2)] and len(result.trimmed) == 1
-    assert read_audit(tmp_path)[-1]["withheld_rows"] == 2  # the old month's count stayed at the site
+    assert (result.sent_batches, result.queued, len(result.held), result.trimmed) == (0, 1, 1, ())
+    assert stored(store, "s-agg") == {"signatures": [], "aggregates": []}
 
 
 def test_a_queued_batch_wholly_past_the_retention_is_held_whole(fleet, tmp_path):

@@ -170,14 +170,16 @@ def check_log(site_dir: Path) -> None:
     """CellguardError naming the site's audit log, before a command that appends to it writes anything (a site key,
     a queued batch, a deletion), if the append would be refused: a link, symbolic or hard (a second name elsewhere
     of the same file, where every entry appended here appears too, and another site's appear here), something
-    other than a regular file (a FIFO, a folder, a socket), or a file it cannot append to. It is opened as the
-    append opens it, creating nothing: refused only at the append, a push had made the site's key and queued its
-    batch, a withdrawal deleted what the log then never said. Reading one is harmless (``scan_audit`` refuses only a
-    symbolic link)."""
+    other than a regular file (a FIFO, a folder, a socket), a file it cannot append to, or none in a folder it
+    cannot write. It is opened as the append opens it, creating nothing: refused only at the append, a push had
+    made the site's key and queued its batch, a withdrawal deleted what the log then never said. Reading one is
+    harmless (``scan_audit`` refuses only a symbolic link)."""
     path = Path(site_dir) / AUDIT_FILE
     try:
         fd, st = _open(path, APPEND)
-    except FileNotFoundError:  # none yet: the append makes it
+    except FileNotFoundError:  # none yet: the append makes it, in a folder it may write (a withdrawal deleted first)
+        if path.parent.is_dir() and not os.access(path.parent, os.W_OK | os.X_OK):
+            raise OutputError(f"audit log {path}: cannot create it (its folder is not writable)") from None
         return
     except OSError as exc:
         if exc.errno == errno.ELOOP:

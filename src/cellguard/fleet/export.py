@@ -146,20 +146,19 @@ def refusal(batch: Batch, policy: DataPolicy, today: dt.date | None = None) -> s
 
 
 def within_retention(batch: Batch, policy: DataPolicy, today: dt.date) -> tuple[Batch, int]:
-    """(``batch`` without its rows past ``policy``'s retention by ``today``, how many rows that leaves out). A batch
+    """(``batch`` without its signatures past ``policy``'s retention by ``today``, how many that leaves out). A batch
     queued while the store was down reaches the retention's edge row by row: held whole for one row past it, its
     rows within were held with it for good (time only makes more of them old). Each row left is as the export
-    wrote it, and the store's retention deletes the ones left out at this push anyway. A batch with every row past
-    the retention is returned whole (``refusal`` holds it: a policy that keeps rows longer lets it go)."""
+    wrote it, and the store's retention deletes the ones left out at this push anyway. Counts (aggregates) are never
+    trimmed: a month's count replaces the store's, so an older batch's counts sent after a newer one's (held for
+    another reason meanwhile) would put back the older figures; such a batch, like one with every signature past
+    the retention, is returned whole (``refusal`` holds it, and a policy that keeps rows longer lets it go)."""
     oldest = oldest_kept(policy, today).isoformat()
-    signatures = tuple(s for s in batch.signatures if s["created_date"] >= oldest)
-    aggregates = tuple(r for r in batch.aggregates if r["month"] >= oldest[:7])  # ISO dates and months: text order
-    out = batch.rows - len(signatures) - len(aggregates)
-    if out == 0 or not (signatures or aggregates):
+    signatures = tuple(s for s in batch.signatures if s["created_date"] >= oldest)  # ISO dates: text order
+    out = len(batch.signatures) - len(signatures)
+    if out == 0 or not signatures or batch.aggregates:
         return batch, 0
-    counted = sum(r["signatures"] for r in batch.aggregates) - sum(r["signatures"] for r in aggregates)
-    kept_back = batch.withheld_rows + len(batch.signatures) - len(signatures) + counted
-    return replace(batch, signatures=signatures, aggregates=aggregates, withheld_rows=kept_back), out
+    return replace(batch, signatures=signatures, withheld_rows=batch.withheld_rows + out), out
 
 
 def oldest_kept(policy: DataPolicy, today: dt.date | None = None) -> dt.date:

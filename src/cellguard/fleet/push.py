@@ -19,11 +19,12 @@ the same policy and reason, not again at every push). Held, not rebuilt under th
 - deleting it could lose the only copy of what the site recorded (its runs may be gone); held,
   it goes if the customer restores a policy that allows it, or a person deletes the file.
 
-Rows of a queued batch that have passed the retention of the policy in force since it was queued (a store down
-for days, a batch at the retention's edge) are dropped, never sent, and the rest of the batch is sent
+Signatures of a queued batch that have passed the retention of the policy in force since it was queued (a store
+down for days, a retention shortened) are dropped, never sent, and the rest of the batch is sent
 (``export.within_retention``): logged ``sent`` with the count dropped and ``trimmed_from`` the queued batch, said
 in one line. Held whole for them, its rows within the retention were held with it for good, as time only makes more
-rows old. A batch with every row past the retention is held whole (a policy that keeps rows longer lets it go).
+rows old. A batch with every signature past the retention, or a batch of counts (sent late, a month's older count
+would replace a newer one), is held whole (a policy that keeps rows longer lets it go).
 
 A queued batch the store refuses (another tenant's, say) or a file that cannot be read stays
 queued too, named in one line; the other batches go on. With ``lake``, a batch lands in the lake
