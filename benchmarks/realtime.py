@@ -62,7 +62,7 @@ HORIZON, DT_S = 50, 0.02  # a 1 s chunk, like ACT / pi0 chunks of 50
 CELL = "arm-pick-place"
 WEEK_S = 7 * 24 * 3600  # the longest --seconds (the sim-server's own bound on --duration-s)
 READ_AFTER_END_S = 5.0  # how long its output is read once it has ended (a child of its own could hold the pipe)
-START_S = 20.0  # [s] for its start line: 1.1 s measured on a quiet 2-core host, 9.2 s with six busy processes
+START_S = 60.0  # [s] for its start line: 1.1 s measured on a quiet 2-core host, up to 24 s with six busy processes
 
 
 def sway(t_s: np.ndarray) -> np.ndarray:
@@ -249,7 +249,8 @@ class SimServerProcess:
         ``within_s`` (waited on for ever, a server hung before its start line hung the benchmark)."""
         if not self._settled.wait(within_s):
             self.stop()
-            return f"sim-server did not say it serves within {within_s:g} s, killed: {shlex.join(self.command)}"
+            said = f" (its last line: {self._said})" if self._said else ""
+            return f"sim-server did not say it serves within {within_s:g} s, killed: {shlex.join(self.command)}{said}"
         return None if self._serving.is_set() else self._ended(self.process.wait())
 
     def ended_during_run(self) -> dict:

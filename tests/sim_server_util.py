@@ -22,8 +22,8 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-# [s] for the start line: 1.1 s measured on a quiet 2-core host, up to 9.2 s with six busy processes beside it
-START_S = 20.0
+# [s] for the start line: 1.1 s measured on a quiet 2-core host, up to 24 s with six busy processes beside it
+START_S = 60.0
 
 
 def start_server(*args: str, cell: str = "arm-pick-place", timeout_s: float = START_S) -> tuple[subprocess.Popen, int]:
@@ -35,9 +35,10 @@ def start_server(*args: str, cell: str = "arm-pick-place", timeout_s: float = ST
 
 
 def started(command: list[str], timeout_s: float = START_S) -> subprocess.Popen:
-    """``command`` in its own process, once it has printed its start line (``udp://127.0.0.1``); RuntimeError naming
-    it, the process killed, if it ends first, prints another line or prints none within ``timeout_s`` (waited on
-    for ever, a server that hung before its start line hung the test)."""
+    """``command`` in its own process, once it has printed its start line (``sim-server CELL on udp://127.0.0.1:...``;
+    its refusal names that address too); RuntimeError naming it, the process killed, if it ends first, prints
+    another line or prints none within ``timeout_s`` (waited on for ever, a server that hung before its start line
+    hung the test)."""
     proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                             env={**os.environ, "PYTHONUNBUFFERED": "1"})
     said: list[str] = []
@@ -45,12 +46,14 @@ def started(command: list[str], timeout_s: float = START_S) -> subprocess.Popen:
     reader.start()
     reader.join(timeout_s)
     line = said[0] if said else None  # None: nothing yet
-    if line is not None and "udp://127.0.0.1" in line:
+    if line is not None and line.startswith("sim-server ") and "udp://127.0.0.1" in line:
         return proc
     proc.kill()  # its pipe then ends, and so does the reader
     reader.join()
-    why = f"printed no start line within {timeout_s:g} s" if line is None else f"said {line + proc.stdout.read()!r}"
-    proc.wait()
+    said = None if line is None else line + proc.stdout.read()
+    code = proc.wait()
+    why = (f"printed no start line within {timeout_s:g} s" if said is None
+           else f"said {said!r} ({'killed' if code < 0 else f'exit code {code}'})")
     raise RuntimeError(f"sim-server did not start ({shlex.join(command)}): {why}")
 
 

@@ -73,3 +73,13 @@ def test_the_benchmark_gives_up_on_a_server_that_never_says_it_serves(tmp_path):
     assert said == f"sim-server did not say it serves within 1 s, killed: {shlex.join(command)}"
     assert _gone(tmp_path)
 
+
+
+def test_a_server_refusing_its_port_is_not_taken_for_started():
+    """The sim-server's refusal names the address too ("cannot listen on udp://127.0.0.1:PORT"): read as its start
+    line, a server that had already ended was handed to the test as serving."""
+    refusal = "error: --port: cannot listen on udp://127.0.0.1:5 (Address already in use)"
+    command = [sys.executable, "-c", f"import sys; print({refusal!r}); sys.exit(2)"]
+    error = _bounded(lambda: sim_server_util.started(command, timeout_s=30.0))
+    assert isinstance(error, RuntimeError), error
+    assert f"said {refusal + chr(10)!r} (" in str(error)  # exit code 2, or killed as it ended
