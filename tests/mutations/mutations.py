@@ -68,7 +68,7 @@ MUTATIONS = (
     Mutation("recovery_ignores_position", "position: the recovery brakes and aims inside the soft limits", TRACKER,
              "t = min(max(x, lo), hi)", "t = x",
              (POSITION, LIMITS),
-             also=((TRACKER, "if not self._stop_fits(j, nq[j], nv[j], na[j]):", "if False:"),)),
+             also=((TRACKER, "if not self._stop_clears(j, nq[j], nv[j], na[j]):", "if False:"),)),
     Mutation("velocity_limit_x10", "velocity limit", TRACKER,
              "np.stack([self.v_max, self.a_max, self.j_max])", "np.stack([self.v_max * 10, self.a_max, self.j_max])",
              (f"{OVER}[velocity]", LIMITS, SPEEDS_UP)),

@@ -386,8 +386,11 @@ class Tracker:
     def _closing(self, r: list[float], rv: list[float]) -> list[float]:
         """The velocity that closes on the reference sample ``r``: the sample's velocity plus ``GAIN``
         times the position error (the sample clipped to the soft limits)."""
-        return [x_v + GAIN * (x - pj) if lo <= x <= hi else 0.0 + GAIN * ((lo if x < lo else hi) - pj)
-                for x, x_v, pj, lo, hi in zip(r, rv, self.samples[0], self._lo_f, self._hi_f)]
+        closing = []
+        for x, x_v, pj, lo, hi in zip(r, rv, self.samples[0], self._lo_f, self._hi_f):
+            t = min(max(x, lo), hi)
+            closing.append((x_v if t == x else 0.0) + GAIN * (t - pj))
+        return closing
 
     def _share(self, r: list[float], rv: list[float], cap: ToolCap) -> list[float]:
         """Per-joint velocity limits w with sum_j reach_j w_j <= the cap: the closing velocity scaled as a

@@ -191,17 +191,21 @@ class _StopPath:
             for k in range(n):
                 turned[k + 1] = turned[k] + sum(reach[j] * abs(qs[k + 1][j] - qs[k][j]) for j in turning)
 
+    def _q(self, k: int) -> list[float]:
+        """The joint positions at sample ``k``."""
+        q = self._qs[k]
+        if q is None:
+            q = self._qs[k] = self._at(self._times[k])
+        return q
+
     def point(self, k: int) -> list[float]:
         """The tool point at sample ``k``."""
         point = self._points[k]
         if point is None:
-            q = self._qs[k]
-            if q is None:
-                q = self._qs[k] = self._at(self._times[k])
-            point = self._points[k] = self._tool(np.asarray(q)).tolist()
+            point = self._points[k] = self._tool(np.asarray(self._q(k))).tolist()
         return point
 
     def margin(self, i: int, j: int) -> float:
-        """Half the travel between samples ``i`` and ``j`` (both evaluated) [m]."""
-        a, b = self._qs[i], self._qs[j]
+        """Half the travel between samples ``i`` and ``j`` [m]."""
+        a, b = self._q(i), self._q(j)
         return 0.5 * (sum(w * abs(y - x) for w, x, y in zip(self._weight, a, b)) + self._turned[j] - self._turned[i])
