@@ -104,3 +104,56 @@ def test_a_run_short_of_one_motion_warns_at_its_end(tmp_path):
     assert last.startswith("warning: baseline: needs at least 5 acceptance cycles of motion 'left', got 3 (of the 5: "
                            "left 3, right 2)")
     assert "at least 10 acceptance cycles" in last and last.endswith("--acceptance OTHER_RUN")
+
+
+def test_a_clean_step_half_way_is_told_as_a_step_not_a_steeper_trend():
+    """A 5 % step at any split of 10 or 20 cycles (0.1 % noise) is a step at its cycle: told by size, a step half way
+    read as a trend of +5.5 % (the line through it is steeper than the step), with no cycle."""
+    from cellguard.diagnose import steady
+
+    for n in (10, 20):
+        for at in range(steady.SIDE, n - steady.SIDE + 1):
+            rng = np.random.default_rng(at)
+            x = (1.2 * (1 + 1e-3 * rng.standard_normal(n)) * np.where(np.arange(n) >= at, 1.05, 1.0))[:, None]
+            moved = steady.trends(["current_rms.elbow"], x)["current_rms.elbow"]
+            assert moved.step_at == at and abs(moved.change / 0.06 - 1.0) < 0.05, (n, at, moved)
+
+
+def test_a_ramp_is_still_told_as_a_trend():
+    from cellguard.diagnose import steady
+
+    rng = np.random.default_rng(3)
+    x = (1.2 * (1 + 1e-3 * rng.standard_normal(20)) * (1 + 0.003 * np.arange(20)))[:, None]
+    assert steady.trends(["current_rms.elbow"], x)["current_rms.elbow"].step_at is None
+
+
+def test_a_baseline_json_written_before_steps_tells_neither_step_nor_trend(tmp_path, capsys):
+    """Such a file cannot say whether its acceptance stepped: "trended" claimed what it does not know."""
+    d = diagnose(stepped_rows(5, seed=2), [], {})
+    d.baseline.save(tmp_path / "baseline.json")
+    stored = json.loads((tmp_path / "baseline.json").read_text())
+    del stored["steps"]
+    (tmp_path / "baseline.json").write_text(json.dumps(stored))
+    old = Baseline.load(tmp_path / "baseline.json")
+    assert old.steps is None
+    warn_if_unsteady(old)
+    said = " ".join(capsys.readouterr().err.split())
+    assert "tracking_rms.elbow_flex +3.0 % over" in said and "trended" not in said and "stepped" not in said
+
+
+@pytest.mark.parametrize("steps, why", [
+    (0, "steps must be an object"), ([], "steps must be an object"), (False, "steps must be an object"),
+    ({"current_rms.nowhere": 5}, "steps.current_rms.nowhere is not among the trends"),
+    ({"tracking_rms.elbow_flex": 0}, "steps.tracking_rms.elbow_flex must be a whole number of at least 3"),
+    ({"tracking_rms.elbow_flex": 9}, "steps.tracking_rms.elbow_flex must be at most 7")])
+def test_a_baseline_json_with_impossible_steps_is_refused_naming_them(tmp_path, steps, why):
+    """A step needs 3 acceptance cycles on either side; anything but an object of the trends' features was read as
+    no steps."""
+    d = diagnose(stepped_rows(5, seed=2), [], {})
+    d.baseline.save(tmp_path / "baseline.json")
+    stored = json.loads((tmp_path / "baseline.json").read_text())
+    stored["steps"] = steps
+    (tmp_path / "baseline.json").write_text(json.dumps(stored))
+    with pytest.raises(RecordError) as caught:
+        Baseline.load(tmp_path / "baseline.json")
+    assert why in str(caught.value)

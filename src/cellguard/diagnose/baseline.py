@@ -71,7 +71,8 @@ class Baseline:
     source: str = OWN_SOURCE
     bound_to: Mapping[str, str | None] = field(default_factory=dict)  # robot, profile_sha256, record_id
     trends: Mapping[str, float] = field(default_factory=dict)  # features not steady in acceptance: their change
-    steps: Mapping[str, int] = field(default_factory=dict)  # those of the trends that stepped: the cycle it began
+    # those of the trends that stepped, and the cycle it began; None: not told (a file written before steps were)
+    steps: Mapping[str, int] | None = field(default_factory=dict)
     method: int = METHOD  # how the scales were taken (a file without one: 1, before the small-sample bound)
 
     def bind(self, context: Mapping) -> Baseline:
@@ -189,7 +190,8 @@ class Baseline:
     def to_dict(self) -> dict:
         return {"source": self.source, "cycles": list(self.cycles), "n": self.n, "load": self.load,
                 "bound_to": dict(self.bound_to), "names": list(self.names), "motions": {k: m.to_dict(self.names) for k, m in self.motions.items()},
-                "trends": dict(self.trends), "steps": dict(self.steps), "method": self.method}
+                "trends": dict(self.trends), "steps": None if self.steps is None else dict(self.steps),
+                "method": self.method}
 
     @classmethod
     def from_dict(cls, raw: object) -> Baseline:
@@ -219,7 +221,7 @@ class Baseline:
             trends = _trends(raw.get("trends") or {}, names)
             return cls(names, motions, cycles, n, _load(raw.get("load"), names),
                        _text(raw["source"], "source"), bound, trends,
-                       _steps(raw.get("steps") or {}, trends, cycles), method)
+                       _steps(raw.get("steps"), trends, cycles), method)
         except (KeyError, TypeError, ValueError, AttributeError) as exc:
             raise RecordError(f"baseline: malformed ({exc.__class__.__name__}: {exc})") from None
 
@@ -331,16 +333,24 @@ def _trends(raw: object, names: tuple[str, ...]) -> dict[str, float]:
     return {k: _number(v, f"trends.{k}") for k, v in raw.items()}
 
 
-def _steps(raw: object, trends: Mapping[str, float], cycles: tuple[int, int]) -> dict[str, int]:
-    """The stored steps of the trends, each at an acceptance cycle (absent in baselines written before they were
-    told from a trend: those read as trends)."""
-    if not isinstance(raw, Mapping) or not set(raw) <= set(trends):
-        raise RecordError("baseline: malformed: steps must be an object of the trends' features and the cycle each "
-                          "stepped at")
-    at = {k: _count(v, f"steps.{k}", cycles[0]) for k, v in raw.items()}
-    late = sorted(k for k, v in at.items() if v > cycles[1])
+def _steps(raw: object, trends: Mapping[str, float], cycles: tuple[int, int]) -> dict[str, int] | None:
+    """The stored steps of the trends, each at a cycle a step can begin at (``steady.SIDE`` acceptance cycles on
+    either side); None where the file has none (written before steps were told from trends: its trends are told
+    neither way)."""
+    if raw is None:
+        return None
+    if not isinstance(raw, Mapping):
+        raise RecordError(f"baseline: malformed: steps must be an object of the trends' features and the cycle each "
+                          f"stepped at, got {raw!r:.40}")
+    stray = sorted(set(raw) - set(trends))
+    if stray:
+        raise RecordError(f"baseline: malformed: steps.{stray[0]:.60} is not among the trends")
+    first, last = cycles[0] + steady.SIDE, cycles[1] - steady.SIDE + 1
+    at = {k: _count(v, f"steps.{k}", first) for k, v in raw.items()}
+    late = sorted(k for k, v in at.items() if v > last)
     if late:
-        raise RecordError(f"baseline: malformed: steps.{late[0]} is past the last acceptance cycle ({cycles[1]})")
+        raise RecordError(f"baseline: malformed: steps.{late[0]} must be at most {last} ({steady.SIDE} acceptance "
+                          f"cycles after a step), got {at[late[0]]}")
     return at
 
 

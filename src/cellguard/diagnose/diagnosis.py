@@ -58,7 +58,7 @@ class Diagnosis:
             "drift_alarms": [a.to_dict() for a in self.drift.alarms],
             "findings": [f.to_dict() for f in self.findings],
             "baseline_trends": dict(self.baseline.trends),
-            "baseline_steps": dict(self.baseline.steps),
+            "baseline_steps": None if self.baseline.steps is None else dict(self.baseline.steps),
             "load_features_unwatched_cycles": list(self.unwatched),
             "safety_events": list(self.safety_events),
             "changes": [c.to_dict() for c in self.changes],
@@ -156,11 +156,16 @@ def unwatched_words(cycles: Sequence[int]) -> str:
 
 def trend_words(baseline: Baseline, names: Sequence[str]) -> str:
     """How ``names`` (features not steady in acceptance) moved over the acceptance cycles, in words: a step with
-    the cycle it began at (an event to look for there), else a trend."""
+    the cycle it began at (an event to look for there), else a trend; neither where the baseline does not tell
+    (one written before steps were)."""
+    steps = baseline.steps
+
     def change(n: str) -> str:
         m, d = baseline.median(n), baseline.trends[n]
         by = f"{d / abs(m) * 100:+.1f} %" if m else f"{d:+.3g}"
-        return f"{n} stepped {by} at cycle {baseline.steps[n]}" if n in baseline.steps else f"{n} trended {by}"
+        if steps is None:
+            return f"{n} {by}"
+        return f"{n} stepped {by} at cycle {steps[n]}" if n in steps else f"{n} trended {by}"
     return (f"{', '.join(change(n) for n in names[:4])}{' ...' if len(names) > 4 else ''} over acceptance "
             f"cycles {baseline.cycles[0]} to {baseline.cycles[1]}")
 

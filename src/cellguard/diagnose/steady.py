@@ -52,27 +52,32 @@ def trends(names: Sequence[str], x: np.ndarray) -> dict[str, Unsteady]:
             continue
         floor = MATERIAL * scale_floor(name, float(np.median(col[seen])))
         tau, p = kendalltau(order[seen], col[seen])
-        change = float(theilslopes(col[seen], order[seen])[0] * np.ptp(order[seen])) if p < level else 0.0
-        step, k = _step(col[seen], level)
-        moved = Unsteady(step, int(np.flatnonzero(seen)[k])) if abs(step) > abs(change) else Unsteady(change)
-        if abs(moved.change) >= floor:
-            found[name] = moved
+        line = theilslopes(col[seen], order[seen]) if p < level else None
+        change = 0.0 if line is None else float(line[0] * np.ptp(order[seen]))
+        step, k, levels = _step(col[seen], level)
+        if max(abs(step), abs(change)) < floor:
+            continue
+        # told as the model that fits the readings better: a clean step half way reads as a steeper line too
+        off = None if line is None else col[seen] - (line[1] + line[0] * order[seen])
+        stepped = step != 0.0 and (off is None or levels <= float(np.sum(off * off)))
+        found[name] = Unsteady(step, int(np.flatnonzero(seen)[k])) if stepped else Unsteady(change)
     return found
 
 
-def _step(col: np.ndarray, level: float) -> tuple[float, int]:
+def _step(col: np.ndarray, level: float) -> tuple[float, int, float]:
     """The change of the best least-squares split of ``col`` into two levels where its t statistic is
-    significant at ``level`` over all the splits tried (Bonferroni), else 0; and where its second level begins."""
+    significant at ``level`` over all the splits tried (Bonferroni), else 0; where its second level begins; and
+    the split's sum of squared residuals."""
     n = len(col)
     splits = range(SIDE, n - SIDE + 1)
     if not len(splits):
-        return 0.0, 0
+        return 0.0, 0, float("inf")
     sse = [(float(np.sum((col[:k] - col[:k].mean()) ** 2) + np.sum((col[k:] - col[k:].mean()) ** 2)), k)
            for k in splits]
     best, k = min(sse)
     change = float(col[k:].mean() - col[:k].mean())
     spread = np.sqrt(best / (n - 2)) * np.sqrt(1.0 / k + 1.0 / (n - k))
     if spread == 0.0:
-        return change, k
+        return change, k, best
     p = 2.0 * student.sf(abs(change) / spread, n - 2) * len(splits)
-    return (change if p < level else 0.0), k
+    return (change if p < level else 0.0), k, best
