@@ -48,3 +48,25 @@ def test_sql_starting_with_a_comment_after_dashes_is_run_with_its_options_before
 def test_an_unknown_option_that_could_be_one_is_named_as_before(run_dir, option, said):
     done = cellguard("record", "query", str(run_dir), "SELECT 1", option)
     assert done.returncode == 2 and done.stderr.startswith(said) and len(done.stderr.splitlines()) == 1, done.stderr
+
+
+@pytest.mark.parametrize("typed", ["-my run", "-x y", "--x=1 comment\nselect 1"])
+def test_an_argument_the_parser_cut_to_a_short_option_still_gets_the_hint(typed):
+    """Cut after one letter (``-m``) or at "=" (``--x``), what was typed could be no option: it said "No such option:
+    -m"."""
+    done = cellguard("diagnose", typed)
+    assert done.returncode == 2 and len(done.stderr.splitlines()) == 1
+    assert done.stderr.startswith(f"error: {json.dumps(typed)} {AFTER_DASHES}"), done.stderr
+
+
+def test_the_hint_quotes_the_argument_not_an_option_value_before_it(tmp_path):
+    """``run --out "- out" "- x.yaml"``: "- out" is the value of --out, read as such; the argument read as an option
+    is "- x.yaml" (the hint quoted "- out")."""
+    done = cellguard("run", "--out", "- out", "- x.yaml")
+    assert done.returncode == 2 and done.stderr.startswith(f'error: "- x.yaml" {AFTER_DASHES}'), done.stderr
+
+
+def test_a_mistyped_option_with_a_value_is_still_named_by_the_parser():
+    done = cellguard("record", "query", "R", "--timout=5", "select 1")
+    assert done.returncode == 2
+    assert done.stderr.startswith("error: No such option: --timout (Possible options: --timeout) (`"), done.stderr

@@ -49,11 +49,25 @@ def main() -> None:
 
 
 def _not_an_option(exc) -> str | None:
-    """For an unknown option that no option could be called (a space, a line break, a quote in it: not OPTION_NAME):
-    it is an argument starting with ``-``, and what to do with it; None for any other usage error (``--bogus``)."""
+    """For an unknown option that no option could be called (a space, a line break or a quote in what was typed, or
+    a name that is not OPTION_NAME): it is an argument starting with ``-``, and what to do with it; None for any
+    other usage error (``--bogus``, ``--timout=5``: click's own line, with its suggestion)."""
     name = getattr(exc, "option_name", None) if type(exc).__name__ == "NoSuchOption" else None
-    if name is None or OPTION_NAME.fullmatch(name):
+    if name is None:
         return None
-    given = next((arg for arg in sys.argv[1:] if arg.startswith(name)), name)  # the parser cut it at "=" or a letter
+    given = _typed(name, getattr(exc, "ctx", None))
+    if OPTION_NAME.fullmatch(given.split("=", 1)[0]) and not re.search(r"[\s'\"]", given):
+        return None
     return (f"{json.dumps(given, ensure_ascii=False)} is read as an option (it starts with '-'); give an argument "
             f"that starts with '-' after '--', every option before that")
+
+
+def _typed(name: str, context) -> str:
+    """The argument as typed that the parser read as the unknown option ``name`` (it cuts one at "=" or after a
+    letter): the first that starts with it and is not the value of an option before it (``--out "- out"``)."""
+    command = getattr(context, "command", None)
+    valued = {opt for param in getattr(command, "params", ()) if not getattr(param, "is_flag", True)
+              and getattr(param, "param_type_name", "") == "option" for opt in param.opts}
+    args = sys.argv[1:]
+    return next((arg for i, arg in enumerate(args) if arg.startswith(name) and not (i and args[i - 1] in valued)),
+                name)
