@@ -94,15 +94,19 @@ def _print_summary(summary: dict, out: Path, as_json: bool) -> None:
     say(f"events: {len(summary['events'])}; written to {out}", err=False)  # as given: "[/]" is a folder name here
 
 
-def _warn_short_acceptance(summary: dict) -> None:
-    """Say so when the run cannot serve as its own baseline: what diagnose and report would refuse (too few
-    acceptance cycles in all, or of one motion of a cell that alternates them), in their words."""
+def _warn_short_acceptance(scenario: Scenario, summary: dict) -> None:
+    """Say so when a run that ran its course cannot serve as its own baseline: what diagnose and report would
+    refuse (too few acceptance cycles in all, or of one motion of a cell that alternates them), in their words,
+    with the scenario's count. A stopped run says why it stopped, in its own line (its record is partial anyway)."""
     from cellguard.diagnose.baseline import too_few
     from cellguard.diagnose.cycles import as_cycles
 
+    if summary.get("stopped"):
+        return
     why = too_few(as_cycles(c for c in summary["cycles"] if c.get("phase") == "acceptance"))
     if why is not None:
-        sys.stderr.write(f"warning: baseline: {why}; give diagnose and report --acceptance OTHER_RUN\n")
+        sys.stderr.write(f"warning: baseline: {why} (the scenario's acceptance_cycles: {scenario.acceptance_cycles}); "
+                         f"give diagnose and report --acceptance OTHER_RUN\n")
 
 
 @app.command()
@@ -120,7 +124,7 @@ def run(
     except CellguardError as exc:
         fail(exc)
     _print_summary(summary, out, as_json)
-    _warn_short_acceptance(summary)
+    _warn_short_acceptance(sc, summary)
     exit_if_stopped(summary, out)
 
 
