@@ -54,3 +54,36 @@ def test_a_store_that_is_a_folder_is_named_so_by_every_command(tmp_path, command
     assert result.exit_code == 2, result.output
     assert " ".join(result.stderr.split()) == f"error: --site {site}: {STORE_FILE} is not a file (a folder?); " \
                                               f"nothing read or created"
+
+
+@pytest.mark.parametrize("command", COMMANDS)
+def test_a_store_cut_to_nothing_is_refused_and_left_as_it_is(tmp_path, command):
+    """A store file cut to 0 bytes (a failed copy, a full disk) read as an empty store: verify said "log whole: 0
+    entries, chain verified" (exit 0), status and verify wrote a fresh schema into it, and the next promotion began
+    a new chain beside the old runs."""
+    site = tmp_path / "site"
+    assert cli(*CREATE, "--site", str(site)).exit_code == 0
+    (site / STORE_FILE).write_bytes(b"")
+    result = cli(*COMMANDS[command], "--site", str(site), *(("-o", str(tmp_path / "p.html")) if command == "report"
+                                                              else ()))
+    assert result.exit_code == 2, result.output
+    assert " ".join(result.stderr.split()) == f"error: --site {site}: {STORE_FILE} holds no release log (0 bytes: " \
+                                              f"cut short by a failed copy or a full disk?); nothing read or " \
+                                              f"created: restore it from a backup"
+    assert (site / STORE_FILE).stat().st_size == 0
+
+
+def test_an_ambiguous_release_prefix_lists_the_releases_it_matches_only(tmp_path):
+    """It listed every release on the site, those that do not start with it too."""
+    from cellguard.release.store import Store
+
+    site = tmp_path / "site"
+    for note in range(17):  # 17 ids: two share a first hex digit
+        assert cli(*CREATE, "--note", str(note), "--site", str(site)).exit_code == 0
+    ids = sorted(Store(site).bundle_ids())
+    first = next(i[0] for i in ids if sum(j.startswith(i[0]) for j in ids) > 1)
+    matching = [i for i in ids if i.startswith(first)]
+    result = cli("promote", first, "--cell", CELL, "--to", "sim", "--site", str(site))
+    assert result.exit_code == 2
+    said = " ".join(result.stderr.split())
+    assert said == f"error: release {first!r}: ambiguous, {len(matching)} releases start with it: {', '.join(matching)}"

@@ -24,6 +24,7 @@ LOCK_WAIT_S = 5.0  # how long a command waits for another's write lock before it
 STAGES = ("sim", "bench", "pilot", "production")
 ADDED_RUN_COLUMNS = ("runs_sha256", "shadow_sha256")  # the runs columns an older cellguard's store lacks
 
+KNOWN_SHOWN = 10  # release ids a refusal lists at most (a site keeps hundreds)
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS bundles (id TEXT PRIMARY KEY, manifest TEXT NOT NULL);
 CREATE TABLE IF NOT EXISTS pointers (cell TEXT, stage TEXT, current TEXT, last_good TEXT, PRIMARY KEY (cell, stage));
@@ -89,9 +90,22 @@ class Store:
         try:
             self.db = sqlite3.connect(self.site / STORE_FILE, isolation_level=None, timeout=LOCK_WAIT_S)
             self.db.text_factory = _text
+            if not create:
+                self._check_whole(site, path)
             self.db.executescript(_SCHEMA)
         except sqlite3.Error as exc:
             raise ReleaseError(f"--site {site}: cannot open the release store ({exc})") from None
+
+    def _check_whole(self, site: Path, path: Path) -> None:
+        """A store file without the log and the bundles (one cut to 0 bytes by a failed copy or a full disk reads as
+        an empty database) is refused, not given a fresh schema: read as a store, it was a whole log of 0 entries
+        ("chain verified"), and the next promotion began a new chain beside the old runs."""
+        tables = {row[0] for row in self.db.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
+        if not {"log", "bundles"} <= tables:
+            self.db.close()
+            raise ReleaseError(f"--site {site}: {STORE_FILE} holds no release log ({path.stat().st_size} bytes: cut "
+                               f"short by a failed copy or a full disk?); nothing read or created: restore it from "
+                               f"a backup")
 
     def close(self) -> None:
         self.db.close()
@@ -141,12 +155,16 @@ class Store:
         """The one release whose id starts with ``release``, compared literally (no wildcards)."""
         if not re.fullmatch(r"[0-9a-f]+", release):
             raise ReleaseError(f"release {release!r}: not a release id (lowercase hex; a unique prefix is enough)")
-        rows = self.db.execute("SELECT id, manifest FROM bundles WHERE substr(id, 1, ?) = ?",
+        rows = self.db.execute("SELECT id, manifest FROM bundles WHERE substr(id, 1, ?) = ? ORDER BY id",
                                (len(release), release)).fetchall()
-        if len(rows) != 1:
-            known = [r[0] for r in self.db.execute("SELECT id FROM bundles")]
-            why = "ambiguous" if rows else "unknown"
-            raise ReleaseError(f"release {release!r}: {why}; releases: {', '.join(known) or 'none (release create)'}")
+        if len(rows) > 1:
+            raise ReleaseError(f"release {release!r}: ambiguous, {len(rows)} releases start with it: "
+                               f"{', '.join(r[0] for r in rows[:KNOWN_SHOWN])}{' ...' if len(rows) > KNOWN_SHOWN else ''}")
+        if not rows:
+            known = [r[0] for r in self.db.execute("SELECT id FROM bundles ORDER BY id LIMIT ?", (KNOWN_SHOWN + 1,))]
+            more = " ..." if len(known) > KNOWN_SHOWN else ""
+            raise ReleaseError(f"release {release!r}: unknown; releases: "
+                               f"{', '.join(known[:KNOWN_SHOWN]) + more or 'none (release create)'}")
         return _stored_bundle(*rows[0])
 
     def edited_bundles(self) -> list[str]:
