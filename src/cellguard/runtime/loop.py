@@ -101,7 +101,8 @@ class Run:
         self.link = RobotLink(self.cell, self.events, rt.stop_category,
                               stale_ns=round(rt.stale_s * 1e9) if self.clock.realtime else None,
                               drop_budget=rt.drop_budget)
-        self.recovery = RecoveryRunner(scenario.recovery, self.cell, self.events) if scenario.recovery else None
+        self.recovery = (RecoveryRunner(scenario.recovery, self.cell, self.events, scenario.robot) if scenario.recovery
+                         else None)
         self.ticks = CycleBuffer(self.cell.profile.dof, round(CYCLE_TIMEOUT_S * 1e9 / self.cell.dt_ns) + 1)
         self.recording: RunRecording | None = None  # set by run_scenario, fed every tick
         # called at each cycle end with the cycle's ticks and its outcome, before it is recorded; may add keys
@@ -252,7 +253,7 @@ class Run:
         outcome = {"cycle": index, "phase": self._phase(index), **self.source.end(t_end, stopped)}
         outcome["timed_out"] = timed_out  # the time-out ended it (not the task, a stop or the link)
         if recovery is not None:
-            outcome.update(recovery.end_cycle(stopped=self.stopped is not None))
+            outcome.update(recovery.end_cycle(t_end, stopped=self.stopped is not None))
         outcome["inference"] = _wall_latency(self._wall_ns)
         outcome["features"] = cycle_features(cell.profile, ticks, outcome, self._latencies, events.since(first_event))
         for monitor in self.cycle_monitors:

@@ -7,23 +7,26 @@ Each attempt is a ``recovery_start`` / ``recovery_end`` event pair; the end says
 failed check: the cell carries on; after a plan with no contact, a rehome or an operator hand-over, with the next
 cycle, this one failed, so the cycle's ``recovery_resumed`` leaves it out), ``failed`` (another attempt follows),
 ``escalated`` (its ``then`` follows), ``gave_up`` (nothing left, or the per-cycle limit: the cell goes home),
-``cut_off`` (the cell's task ended the cycle first, or a category 0 or 1 stop removed the power mid-plan: no attempt
-starts after it in that cycle). Once a recovery has started it drives the cell to the end of the cycle, and the
-cycle's time-out waits for the attempt in progress (``attempting``): an operator hand-over holds for its whole
-``hold_s`` and ends in its reset, and no attempt is left mid-move for the next cycle's policy to start from (an
-operator hold of 30 s was cut off after 6 s and the cell moved again with no reset). Attempts are
-bounded by ``attempts``, acyclic escalation or ``max_per_cycle``. A failed check during an attempt ends it once
-the arm has reached its contact pose (or the plan has passed it): a controller finishes the move in
-progress before it reacts. A category 2 stop (power kept) holds the arm and pauses the attempt's plan
-until it clears, as a controller pauses its program: the plan's clock running on under the stop shut the
-gripper before the held arm arrived, the very signature the diagnosis reads as a late recovery. Arrival and
-close times are plan times; the duration is the time the attempt took. The cycle's time-out does not wait
-for a held attempt (a stop that never clears, such as a workspace stop waiting for a reference that no longer
-moves, would hold the cycle for ever): the time-out ends it ``cut_off``.
+``cut_off`` (the cycle ended while the attempt waited for its arm after a failed check or was held by a stop, a stop
+of the run ended it, or a category 0 or 1 stop removed the power mid-plan: no attempt starts after it in that
+cycle). The cell's task ending the cycle before the plan ran out, with no failed check, is ``resumed``: the task
+judged the cycle done (the arm home and still, 75 ms before an operator hand-over's plan ended). Once a recovery has
+started it drives the cell to the end of the cycle, and the cycle's time-out waits for the attempt in progress
+(``attempting``): an operator hand-over holds for its whole ``hold_s`` and ends in its reset, and no attempt is left
+mid-move for the next cycle's policy to start from (an operator hold of 30 s was cut off after 6 s and the cell
+moved again with no reset). Attempts are bounded by ``attempts``, acyclic escalation or ``max_per_cycle``. A failed
+check during an attempt ends it once the arm has reached its contact pose (or the plan has passed it): a controller
+finishes the move in progress before it reacts. A category 2 stop (power kept) holds the arm and pauses the
+attempt's plan until it clears, as a controller pauses its program: the plan's clock running on under the stop shut
+the gripper before the held arm arrived, the very signature the diagnosis reads as a late recovery. Arrival and
+close times are plan times; the duration is the time the attempt took. The cycle's time-out does not wait for a held
+attempt (a stop that never clears, such as a workspace stop waiting for a reference that no longer moves, would hold
+the cycle for ever): the time-out ends it ``cut_off``.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -56,10 +59,11 @@ class _Attempt:
 
 
 class RecoveryRunner:
-    """Starts, watches and ends recoveries for one run; ``arm_speed`` is set per cycle (a fault's override)."""
+    """Starts, watches and ends recoveries for one run; ``arm_speed`` is set per cycle (a fault's override).
+    ``robot``: the scenario's ``robot:`` (``sim``, or a bridge's spec, refused by name)."""
 
-    def __init__(self, policy: RecoveryPolicy, cell, events):
-        policy.check_against(cell)
+    def __init__(self, policy: RecoveryPolicy, cell, events, robot: str):
+        policy.check_against(cell, robot)
         self.policy, self.cell, self.events = policy, cell, events
         self._failed_check = getattr(cell, "failed_check", lambda: None)  # a robot without checks never triggers
         self.arm_speed = 1.0
@@ -142,26 +146,28 @@ class RecoveryRunner:
         times = (t - t0 + (np.arange(STEPS) + 1) * STEP_NS) * 1e-9
         return ActionChunk(plan.sample(times, self.arm_speed), t, STEP_NS)
 
-    def end_cycle(self, stopped: bool = False) -> dict:
-        """The cycle's recovery outcome fields (flat, SI) and its log. An attempt still running when the
-        cell's task ended the cycle with no failed check resumed the cell; one with a failed check, held by a
-        stop, or ended by a stop of the run (``stopped``: the operator, the robot link), was cut off."""
+    def end_cycle(self, t: int, stopped: bool = False) -> dict:
+        """The cycle's recovery outcome fields (flat, SI) and its log; ``t``: when the cycle ended (an attempt it
+        ended is stamped then, not at the tick before: its end read before the operator stop that cut it). An
+        attempt still running when the cell's task ended the cycle with no failed check resumed the cell (the task
+        judged the cycle done before the plan's last moves ran out); one with a failed check, held by a stop, or
+        ended by a stop of the run (``stopped``: the operator, the robot link), was cut off."""
         a = self._active
         self.held_at_end = self.stop is not None
         if a is not None:
             cut = a.failed_ns is not None or self.held_at_end or stopped or self._held
-            self._end(a, self._now, "cut_off" if cut else "resumed")
+            self._end(a, t, "cut_off" if cut else "resumed")
             self._active = None
         log = self._log
-        arrivals = [o.arrival_s for o in log if o.arrival_s is not None]
-        closes = [o.close_s for o in log if o.close_s is not None]
         out = {"recoveries": len(log), "recoveries_failed": sum(o.outcome != "resumed" for o in log),
                "recovery_resumed": float(any(o.resumed_cell() for o in log)),
                "recovery_s": float(sum(o.duration_s for o in log)), "after_recovery": float(self._previous > 0)}
-        if arrivals:
-            out["recovery_arrival_s"] = float(np.max(arrivals))
-        if closes:
-            out["recovery_close_s"] = float(np.min(closes))
+        contact = [o for o in log if o.close_s is not None]
+        if contact:  # both of one attempt: one's arrival against another's close read as a shut no attempt made
+            latest = max(reversed(contact), key=_arrival_after_close)  # a tie: the later attempt
+            out["recovery_close_s"] = float(latest.close_s)
+            if latest.arrival_s is not None:
+                out["recovery_arrival_s"] = float(latest.arrival_s)
         if log:
             out["recovery_log"] = [o.to_dict() for o in log]
         return out
@@ -249,3 +255,9 @@ class RecoveryRunner:
         self.events.append(Event(t, EventKind.RECOVERY_END, done.reason(),
                                  recovery={k: v for k, v in done.to_dict().items() if v is not None}))
         self._active = None
+
+
+def _arrival_after_close(o: RecoveryOutcome) -> float:
+    """How long after its gripper was told to shut an attempt arrived at contact [s] (negative: before; never: the
+    latest of all): the cycle's ``recovery_arrival_s`` and ``recovery_close_s`` are the latest such attempt's."""
+    return math.inf if o.arrival_s is None else o.arrival_s - o.close_s
