@@ -148,8 +148,9 @@ def print_diagnosis(d) -> None:
 
     console = Console(highlight=False)
     data = printable_tree(d.to_dict())  # joint and signal names come from the record
-    faulted = ("" if data["first_faulted_cycle"] is None else
-               f", last good cycle {data['last_good_cycle']}, first faulted cycle {data['first_faulted_cycle']}")
+    good, bad = data["last_good_cycle"], data["first_faulted_cycle"]
+    faulted = ("" if bad is None else f", first faulted cycle {bad} (no good cycle before it)" if good is None
+               else f", last good cycle {good}, first faulted cycle {bad}")
     console.print(f"diagnosis: {data['cycles']} cycles, baseline {data['baseline_cycles']}, "
                   f"{len(data['drift_alarms'])} drift alarm(s){faulted}", markup=False)
     if not data["findings"]:

@@ -1,4 +1,4 @@
-"""Last good versus faulted: the cycle before the first finding against the first faulted one.
+"""Last good versus faulted: the last cycle that did its task before the first finding against the first faulted one.
 
 A technician's first check: put the last cycle that was still right next to the first one that
 was not, and list what differs, in the order the changes began.
@@ -35,10 +35,12 @@ class FeatureChange:
 
 
 def last_good_and_faulted(cycles: Sequence[Cycle], first_faulted: int | None) -> tuple[Cycle | None, Cycle | None]:
-    """The last cycle before ``first_faulted`` and the first at or after it."""
+    """The last cycle before ``first_faulted`` that did its task, and the first at or after it. One that failed its
+    task is not good, whatever the monitors made of it: a cell that missed every pick had its last failed cycle
+    before the finding called last good; None where no earlier cycle succeeded."""
     if first_faulted is None:
         return None, None
-    before = [c for c in cycles if c.index < first_faulted]
+    before = [c for c in cycles if c.index < first_faulted and c.success]
     after = [c for c in cycles if c.index >= first_faulted]
     return (before[-1] if before else None), (after[0] if after else None)
 

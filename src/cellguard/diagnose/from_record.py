@@ -49,6 +49,7 @@ def diagnose_record(path: Path, acceptance: Path | None = None, fleet: list[dict
         check_same_robot(acc_context, context, f"--acceptance {acceptance}", path)
         baseline = Baseline.from_cycles(policy_cycles(rows), source=f"acceptance cycles of {acceptance}"
                                         ).bind(acc_context)  # as the record's own baseline sees them
+        _has_cycles(cycles, path)
         baseline.check_fits(as_cycles(cycles), f"--acceptance {acceptance}")
     elif folder is not None and (folder / BASELINE_FILE).is_file():
         baseline = Baseline.load(folder / BASELINE_FILE)
@@ -70,6 +71,14 @@ def diagnose_record(path: Path, acceptance: Path | None = None, fleet: list[dict
     if folder is not None and not writing:
         _keep(lambda: save_fixes(folder, context, result.fixes), folder, unkept)
     return result
+
+
+def _has_cycles(cycles: list, path: Path) -> None:
+    """RecordError where the record has no finished cycle (its run ended in its first), said before another record's
+    baseline is judged against it: every feature of the baseline is missing from a record of none, which read as a
+    baseline of another cell."""
+    if not cycles:
+        raise RecordError(f"{path}: the record has no finished cycle to diagnose")
 
 
 def _keep(save: Callable[[], object], folder: Path, unkept: list[str] | None) -> None:

@@ -5,9 +5,9 @@ was killed in (no row) from the fields of its ``recovery_end`` events; never fro
 changes no diagnosis) but in a record written before events carried the fields.
 
 - a recovery that made things worse is a finding of its own, cause ``recovery``: attempts that
-  arrived at their contact pose later than the acceptance recoveries did (or after the gripper
-  was told to shut), attempts repeated without effect, or a cycle after a recovery that failed
-  where others did not;
+  arrived at their contact pose later than the acceptance attempts of the same behaviour and trigger did (a
+  ``back_off`` at half speed is no late ``retry_grasp``), or after the gripper was told to shut, attempts
+  repeated without effect, or a cycle after a recovery that failed where others did not;
 - every finding gains what got the cell running again in its cycles (the behaviours that resumed
   it, with counts);
 - advice: for each finding, the behaviours that fixed the same cause in this site's other records,
@@ -107,16 +107,19 @@ def recovery_finding(cycles: Sequence[Cycle], attempts: Sequence[tuple[int, Reco
     prod = [(c, o) for c, o in attempts if phase.get(c) != "acceptance"]
     ended = [(c, o) for c, o in prod if c in phase]  # no row: killed in it, whether it resumed the cell is unknown
     evidence, starts, shares = [], [], []
-    ref = [o.arrival_s for o in acc if o.arrival_s is not None]
-    ref_s = float(np.median(ref)) if ref else None
-    late = [(c, o) for c, o in prod if o.close_s is not None and _late(o, ref_s)]
+    refs = _arrivals(acc)
+    judged = [(c, o) for c, o in prod if _judged(o)]
+    late = [(c, o) for c, o in judged if _late(o, refs.get(_key(o)))]
     if len(late) >= MIN_LATE:
         start = late[0][0]
-        since = [o for c, o in prod if c >= start and o.close_s is not None]
+        since = [o for c, o in judged if c >= start]
         arrived = [o.arrival_s for _, o in late if o.arrival_s is not None]
         when = f"{np.median(arrived):.2f} s after they started (median)" if arrived else "never"
-        base = (f"vs {ref_s:.2f} s for the {len(ref)} acceptance recoveries" if ref_s is not None
-                else "(no acceptance recoveries to compare)")
+        keys = sorted({_key(o) for _, o in late})
+        base = "; ".join(f"{np.median(refs[k]):.2f} s for the {len(refs[k])} acceptance recoveries ({k[0]} after "
+                         f"{k[1]})" for k in keys if k in refs)
+        base = (f"vs {base}" if base else
+                f"(no acceptance recoveries of {', '.join(f'{b} after {t}' for b, t in keys)} to compare)")
         evidence.append(f"{len(late)} recovery attempts from cycle {start} on arrived at contact {when} {base}")
         close = float(np.median([o.close_s for _, o in late]))
         if not arrived or np.median(arrived) > close:
@@ -148,11 +151,33 @@ def recovery_finding(cycles: Sequence[Cycle], attempts: Sequence[tuple[int, Reco
     return Finding("recovery", min(starts), conf, tuple(evidence), ("recovery_arrival_s", "recoveries_failed"))
 
 
-def _late(o: RecoveryOutcome, ref_s: float | None) -> bool:
-    if o.arrival_s is None:
+def _key(o: RecoveryOutcome) -> tuple[str, str]:
+    return o.behaviour, o.trigger
+
+
+def _arrivals(acc: Sequence[RecoveryOutcome]) -> dict[tuple[str, str], list[float]]:
+    """The acceptance arrivals per (behaviour, trigger): each behaviour's plan has its own pace (``back_off`` runs
+    at its ``speed_scale``), so an attempt is compared only with its own kind; pooled, a cell that escalated
+    ``retry_grasp`` (1.6 s) to ``back_off`` (3.2 s) every cycle read every production ``back_off`` as late."""
+    out: dict[tuple[str, str], list[float]] = {}
+    for o in acc:
+        if o.arrival_s is not None:
+            out.setdefault(_key(o), []).append(o.arrival_s)
+    return out
+
+
+def _judged(o: RecoveryOutcome) -> bool:
+    """Whether the attempt's arrival says anything: it had a contact (``close_s``), and it arrived or ran its plan
+    out; one ``cut_off`` before it arrived (a stop, the cycle's end) was never given the time to."""
+    return o.close_s is not None and (o.arrival_s is not None or o.outcome != "cut_off")
+
+
+def _late(o: RecoveryOutcome, ref: Sequence[float] | None) -> bool:
+    """Never arrived, arrived after the gripper was told to shut, or later than ``ref`` (the acceptance arrivals of
+    its behaviour and trigger; None: none to compare, only the gripper's timing judges it)."""
+    if o.arrival_s is None or o.arrival_s > o.close_s:
         return True
-    if o.arrival_s > o.close_s:
-        return True
+    ref_s = float(np.median(ref)) if ref else None
     return ref_s is not None and o.arrival_s > max(ref_s * LATE, ref_s + LATE_MIN_S)
 
 

@@ -80,8 +80,9 @@ def _last_good(d: Diagnosis, trace: Callable[[int], Trace | None] | None) -> str
     if d.first_faulted_cycle is None:
         return "<p>No faulted cycle.</p>"
     good, bad = d.last_good_cycle, d.first_faulted_cycle
-    head = f"<p>Last good cycle <b>{good}</b>, first faulted cycle <b>{bad}</b>.</p>"
-    labels = (f"cycle {good} (last good)", f"cycle {bad} (first faulted)")
+    head = (f"<p>First faulted cycle <b>{bad}</b> (no good cycle before it).</p>" if good is None else
+            f"<p>Last good cycle <b>{good}</b>, first faulted cycle <b>{bad}</b>.</p>")
+    labels = ("no good cycle" if good is None else f"cycle {good} (last good)", f"cycle {bad} (first faulted)")
     joints = sorted({k.split(".", 1)[1] for c in d.cycles[:1] for k in c.features if k.startswith("current_rms.")},
                     key=lambda j: [k for k in d.cycles[0].features].index(f"current_rms.{j}"))
     latest = d.cycles[-1].index
