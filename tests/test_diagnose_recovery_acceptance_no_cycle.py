@@ -19,3 +19,13 @@ def test_a_record_with_no_finished_cycle_is_named_so_against_another_acceptance(
         assert result.output.strip() == f"error: {tmp_path / 'run'}: the record has no finished cycle to diagnose"
     assert sorted(p.name for p in (tmp_path / "run").iterdir()) == ["record.mcap"]  # nothing written beside it
     assert not (tmp_path / "page.html").exists()
+
+
+def test_an_acceptance_record_with_too_few_cycles_is_named(tmp_path):
+    """It said only "baseline: needs at least 5 acceptance cycles, got 0", not of which record."""
+    record(tmp_path / "run", 10, 3)
+    record(tmp_path / "empty", 0, 3)
+    result = CliRunner().invoke(app, ["diagnose", str(tmp_path / "run"), "--acceptance", str(tmp_path / "empty")])
+    assert result.exit_code == 2, result.output
+    assert " ".join(result.output.split()) == (f"error: --acceptance {tmp_path / 'empty'}: baseline: needs at least "
+                                               f"5 acceptance cycles, got 0")

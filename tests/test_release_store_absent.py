@@ -87,3 +87,19 @@ def test_an_ambiguous_release_prefix_lists_the_releases_it_matches_only(tmp_path
     assert result.exit_code == 2
     said = " ".join(result.stderr.split())
     assert said == f"error: release {first!r}: ambiguous, {len(matching)} releases start with it: {', '.join(matching)}"
+
+
+@pytest.mark.parametrize("table", ["bundles", "pointers", "runs", "log", "meta"])
+def test_a_store_missing_a_table_is_refused_naming_it(tmp_path, table):
+    """A dropped pointers table was made again empty: status read "no release promoted yet" (exit 0)."""
+    import sqlite3
+
+    site = tmp_path / "site"
+    assert cli(*CREATE, "--site", str(site)).exit_code == 0
+    with sqlite3.connect(site / STORE_FILE) as db:
+        db.execute(f"DROP TABLE {table}")
+    result = cli("status", "--site", str(site))
+    assert result.exit_code == 2, result.output
+    assert " ".join(result.stderr.split()) == f"error: --site {site}: {STORE_FILE} lacks its table(s) {table} " \
+                                              f"(edited outside cellguard?); nothing read or created: restore it " \
+                                              f"from a backup"

@@ -196,14 +196,19 @@ def parse_scenario(raw: object, origin: str = "scenario") -> Scenario:
 
 def _check_bridge(scenario: Scenario, origin: str) -> None:
     """Refuse faults and process changes on a robot behind a bridge: it would never see them, and the record would
-    list them as what happened. Here, not as the run starts: a release plan's check refuses the stage before its
-    first run (a later run refused after the earlier ones had run)."""
+    list them as what happened; and recoveries: a bridge reports no failed check to start one (refused by what the
+    robot lacks as the run started, a sim-server read "cannot run on 'arm-pick-place' ... (pick-place cells can)",
+    after the bridge had connected). Here, not as the run starts: a release plan's check refuses the stage before
+    its first run (a later run refused after the earlier ones had run)."""
     if scenario.robot == "sim":
         return
     for key in ("faults", "process_changes"):
         if getattr(scenario, key):
             raise ScenarioError(f"{origin}: {key}: applied to simulated cells only; robot {scenario.robot!r} is a "
                                 "bridge")
+    if scenario.recovery:
+        raise ScenarioError(f"{origin}: recovery: runs on simulated cells only (a bridge reports no failed check to "
+                            f"start one); robot {scenario.robot!r} is a bridge")
 
 
 def _check_cycles(scenario: Scenario, origin: str) -> None:

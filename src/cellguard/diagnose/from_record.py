@@ -47,9 +47,12 @@ def diagnose_record(path: Path, acceptance: Path | None = None, fleet: list[dict
             rows = [c for c in as_cycles(acc.cycles()) if c.phase == "acceptance"]
             acc_context = {**acc.context, "record_id": acc.record_id}
         check_same_robot(acc_context, context, f"--acceptance {acceptance}", path)
-        baseline = Baseline.from_cycles(policy_cycles(rows), source=f"acceptance cycles of {acceptance}"
-                                        ).bind(acc_context)  # as the record's own baseline sees them
         _has_cycles(cycles, path)
+        try:
+            baseline = Baseline.from_cycles(policy_cycles(rows), source=f"acceptance cycles of {acceptance}"
+                                            ).bind(acc_context)  # as the record's own baseline sees them
+        except RecordError as exc:  # too few acceptance cycles there: say which record
+            raise RecordError(f"--acceptance {acceptance}: {exc}") from None
         baseline.check_fits(as_cycles(cycles), f"--acceptance {acceptance}")
     elif folder is not None and (folder / BASELINE_FILE).is_file():
         baseline = Baseline.load(folder / BASELINE_FILE)

@@ -113,18 +113,17 @@ def recovery_finding(cycles: Sequence[Cycle], attempts: Sequence[tuple[int, Reco
     if len(late) >= MIN_LATE:
         start = late[0][0]
         since = [o for c, o in judged if c >= start]
-        arrived = [o.arrival_s for _, o in late if o.arrival_s is not None]
-        when = f"{np.median(arrived):.2f} s after they started (median)" if arrived else "never"
-        keys = sorted({_key(o) for _, o in late})
-        base = "; ".join(f"{np.median(refs[k]):.2f} s for the {len(refs[k])} acceptance recoveries ({k[0]} after "
-                         f"{k[1]})" for k in keys if k in refs)
-        base = (f"vs {base}" if base else
-                f"(no acceptance recoveries of {', '.join(f'{b} after {t}' for b, t in keys)} to compare)")
-        evidence.append(f"{len(late)} recovery attempts from cycle {start} on arrived at contact {when} {base}")
-        close = float(np.median([o.close_s for _, o in late]))
-        if not arrived or np.median(arrived) > close:
-            lead = f", {np.median(arrived) - close:.2f} s before the arm arrived" if arrived else ""
-            evidence.append(f"their gripper was told to shut at {close:.2f} s{lead}: the fingers closed above the part")
+        groups: dict[tuple[str, str], list[RecoveryOutcome]] = {}
+        for _, o in late:  # each kind told on its own: pooled, the medians were times no attempt had
+            groups.setdefault(_key(o), []).append(o)
+        paces = {k: _pace(k, group, refs) for k, group in sorted(groups.items())}
+        said = next(iter(paces.values())) if len(paces) == 1 else \
+            ": " + "; ".join(f"{len(groups[k])} of {k[0]}{pace}" for k, pace in paces.items())
+        evidence.append(f"{len(late)} recovery attempts from cycle {start} on arrived at contact{said}")
+        shut = [_shut(group) + (f" ({k[0]})" if len(groups) > 1 else "") for k, group in sorted(groups.items())
+                if _shut(group)]
+        if shut:
+            evidence.append(f"their gripper was told to shut at {'; '.join(shut)}: the fingers closed above the part")
         late_cycles = {c for c, _ in late if c in phase}
         resumed = {c for c, o in prod if c in late_cycles and o.resumed_cell()}
         acc_cycles = {c for c, o in attempts if phase.get(c) == "acceptance"}
@@ -149,6 +148,26 @@ def recovery_finding(cycles: Sequence[Cycle], attempts: Sequence[tuple[int, Reco
         return None
     conf = float(np.clip(0.5 + 0.45 * max(shares), 0.5, 0.95))
     return Finding("recovery", min(starts), conf, tuple(evidence), ("recovery_arrival_s", "recoveries_failed"))
+
+
+def _pace(key: tuple[str, str], group: Sequence[RecoveryOutcome], refs: dict[tuple[str, str], list[float]]) -> str:
+    """When the late attempts of one kind arrived at contact, against that kind's acceptance attempts."""
+    arrived = [o.arrival_s for o in group if o.arrival_s is not None]
+    when = f"{np.median(arrived):.2f} s after they started (median)" if arrived else "never"
+    if key not in refs:
+        return f" {when} (no acceptance recoveries of {key[0]} after {key[1]} to compare)"
+    return (f" {when} vs {np.median(refs[key]):.2f} s for the {len(refs[key])} acceptance recoveries ({key[0]} after "
+            f"{key[1]})")
+
+
+def _shut(group: Sequence[RecoveryOutcome]) -> str:
+    """When the late attempts of one kind told the gripper to shut, where that was before the arm arrived (median
+    of the kind's own); empty otherwise."""
+    arrived = [o.arrival_s for o in group if o.arrival_s is not None]
+    close = float(np.median([o.close_s for o in group]))
+    if arrived and np.median(arrived) <= close:
+        return ""
+    return f"{close:.2f} s" + (f", {np.median(arrived) - close:.2f} s before the arm arrived" if arrived else "")
 
 
 def _key(o: RecoveryOutcome) -> tuple[str, str]:

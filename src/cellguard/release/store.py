@@ -25,6 +25,7 @@ STAGES = ("sim", "bench", "pilot", "production")
 ADDED_RUN_COLUMNS = ("runs_sha256", "shadow_sha256")  # the runs columns an older cellguard's store lacks
 
 KNOWN_SHOWN = 10  # release ids a refusal lists at most (a site keeps hundreds)
+TABLES = ("bundles", "pointers", "runs", "log", "meta")  # every store since the first has held them all
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS bundles (id TEXT PRIMARY KEY, manifest TEXT NOT NULL);
 CREATE TABLE IF NOT EXISTS pointers (cell TEXT, stage TEXT, current TEXT, last_good TEXT, PRIMARY KEY (cell, stage));
@@ -97,15 +98,17 @@ class Store:
             raise ReleaseError(f"--site {site}: cannot open the release store ({exc})") from None
 
     def _check_whole(self, site: Path, path: Path) -> None:
-        """A store file without the log and the bundles (one cut to 0 bytes by a failed copy or a full disk reads as
-        an empty database) is refused, not given a fresh schema: read as a store, it was a whole log of 0 entries
-        ("chain verified"), and the next promotion began a new chain beside the old runs."""
+        """A store file without its tables (one cut to 0 bytes by a failed copy or a full disk reads as an empty
+        database; one a table was dropped from) is refused, not given a fresh schema: read as a store, it was a whole
+        log of 0 entries ("chain verified"), and the next promotion began a new chain beside the old runs; a pointers
+        table made again read "no release promoted yet"."""
         tables = {row[0] for row in self.db.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
-        if not {"log", "bundles"} <= tables:
+        missing = sorted(set(TABLES) - tables)
+        if missing:
             self.db.close()
-            raise ReleaseError(f"--site {site}: {STORE_FILE} holds no release log ({path.stat().st_size} bytes: cut "
-                               f"short by a failed copy or a full disk?); nothing read or created: restore it from "
-                               f"a backup")
+            why = (f"holds no release log ({path.stat().st_size} bytes: cut short by a failed copy or a full disk?)"
+                   if not tables else f"lacks its table(s) {', '.join(missing)} (edited outside cellguard?)")
+            raise ReleaseError(f"--site {site}: {STORE_FILE} {why}; nothing read or created: restore it from a backup")
 
     def close(self) -> None:
         self.db.close()

@@ -101,8 +101,7 @@ class Run:
         self.link = RobotLink(self.cell, self.events, rt.stop_category,
                               stale_ns=round(rt.stale_s * 1e9) if self.clock.realtime else None,
                               drop_budget=rt.drop_budget)
-        self.recovery = (RecoveryRunner(scenario.recovery, self.cell, self.events, scenario.robot) if scenario.recovery
-                         else None)
+        self.recovery = RecoveryRunner(scenario.recovery, self.cell, self.events) if scenario.recovery else None
         self.ticks = CycleBuffer(self.cell.profile.dof, round(CYCLE_TIMEOUT_S * 1e9 / self.cell.dt_ns) + 1)
         self.recording: RunRecording | None = None  # set by run_scenario, fed every tick
         # called at each cycle end with the cycle's ticks and its outcome, before it is recorded; may add keys

@@ -59,11 +59,10 @@ class _Attempt:
 
 
 class RecoveryRunner:
-    """Starts, watches and ends recoveries for one run; ``arm_speed`` is set per cycle (a fault's override).
-    ``robot``: the scenario's ``robot:`` (``sim``, or a bridge's spec, refused by name)."""
+    """Starts, watches and ends recoveries for one run; ``arm_speed`` is set per cycle (a fault's override)."""
 
-    def __init__(self, policy: RecoveryPolicy, cell, events, robot: str):
-        policy.check_against(cell, robot)
+    def __init__(self, policy: RecoveryPolicy, cell, events):
+        policy.check_against(cell)
         self.policy, self.cell, self.events = policy, cell, events
         self._failed_check = getattr(cell, "failed_check", lambda: None)  # a robot without checks never triggers
         self.arm_speed = 1.0
@@ -147,16 +146,17 @@ class RecoveryRunner:
         return ActionChunk(plan.sample(times, self.arm_speed), t, STEP_NS)
 
     def end_cycle(self, t: int, stopped: bool = False) -> dict:
-        """The cycle's recovery outcome fields (flat, SI) and its log; ``t``: when the cycle ended (an attempt it
-        ended is stamped then, not at the tick before: its end read before the operator stop that cut it). An
-        attempt still running when the cell's task ended the cycle with no failed check resumed the cell (the task
-        judged the cycle done before the plan's last moves ran out); one with a failed check, held by a stop, or
-        ended by a stop of the run (``stopped``: the operator, the robot link), was cut off."""
+        """The cycle's recovery outcome fields (flat, SI) and its log; ``t``: when the cycle ended. An attempt still
+        running when the cell's task ended the cycle with no failed check resumed the cell (the task judged the
+        cycle done before the plan's last moves ran out); one with a failed check, held by a stop, or ended by a
+        stop of the run (``stopped``: the operator, the robot link), was cut off, and one a stop of the run ended is
+        stamped at ``t`` (at the last tick it read before the operator stop that cut it; any other at its last
+        tick, as before)."""
         a = self._active
         self.held_at_end = self.stop is not None
         if a is not None:
             cut = a.failed_ns is not None or self.held_at_end or stopped or self._held
-            self._end(a, t, "cut_off" if cut else "resumed")
+            self._end(a, t if stopped else self._now, "cut_off" if cut else "resumed")
             self._active = None
         log = self._log
         out = {"recoveries": len(log), "recoveries_failed": sum(o.outcome != "resumed" for o in log),

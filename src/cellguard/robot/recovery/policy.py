@@ -66,13 +66,9 @@ class RecoveryPolicy(BaseModel):
         """The behaviour the failed check ``trigger`` starts, or None."""
         return next((b for b in self.behaviours if b.trigger == trigger), None)
 
-    def check_against(self, cell, robot: str = "sim") -> None:
-        """Refuse a robot behind a bridge (``robot``: the scenario's ``robot:``), behaviours the cell cannot run and
-        triggers it does not report. A bridge reports no failed check and has no taught poses to plan from; refused by
-        what it lacks, a sim-server read "cannot run on 'arm-pick-place' ... (pick-place cells can)"."""
-        if robot != "sim":
-            raise ScenarioError(f"recovery: runs on simulated cells only (a bridge reports no failed checks to start "
-                                f"one); robot {robot!r} is a bridge")
+    def check_against(self, cell) -> None:
+        """Refuse behaviours the cell cannot run and triggers it does not report (a robot behind a bridge is refused
+        with the scenario: ``scenario._check_bridge``)."""
         checks = getattr(cell, "failure_checks", ())
         for i, b in enumerate(self.behaviours):
             missing = [n for n in b.needs if not callable(getattr(cell, n, None))]
