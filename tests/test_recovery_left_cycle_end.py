@@ -10,9 +10,8 @@ cut off was stamped at the tick before the cycle's end: its ``recovery_end`` (5.
 
 from __future__ import annotations
 
-import signal
-
 import pytest
+from test_runtime_operator_stop import _run_pressing
 
 from cellguard.control.events import EventKind
 from cellguard.robot.recovery.outcome import RecoveryOutcome
@@ -58,22 +57,6 @@ def test_an_attempt_that_shut_before_it_arrived_is_the_one_the_cycle_shows():
     assert _pair(outcome) == (worst.arrival_s, worst.close_s)
 
 
-def _press_when(run: Run, ready) -> None:
-    """Run the cycles and raise SIGINT at the first setpoint written once ``ready()`` says so."""
-    write = run.cell.write
-
-    def write_and_press(setpoint):
-        if ready() and not run.events.has("operator_stop"):
-            signal.raise_signal(signal.SIGINT)
-        return write(setpoint)
-
-    run.cell.write = write_and_press
-    try:
-        run.run_cycles()
-    finally:
-        run.close()
-
-
 @pytest.mark.parametrize("held", [True, False], ids=["arm held still for an operator", "mid retry_grasp"])
 def test_an_attempt_a_stop_of_the_run_cut_off_ends_when_the_stop_came(held):
     """Held still, the stop ends the cycle on the tick it comes (the cut-off attempt's end was stamped a tick before
@@ -88,7 +71,7 @@ def test_an_attempt_a_stop_of_the_run_cut_off_ends_when_the_stop_came(held):
         hold = next((e.t_ns for e in run.events if e.kind == "protective_stop"), None)
         return hold is not None and run.clock.now() - hold >= 1e9  # a second into the hold: the arm is still
 
-    _press_when(run, ready)
+    _run_pressing(run, lambda writes: ready() and not run.events.has("operator_stop"))
     assert run.stopped == "operator stop (SIGINT)"
     stop = next(e for e in run.events if e.kind == "operator_stop")
     end = [e for e in run.events if e.kind == "recovery_end"][-1]
