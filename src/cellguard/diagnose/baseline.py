@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections import Counter
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -127,19 +128,18 @@ class Baseline:
         if why is not None:
             raise RecordError(f"baseline: {why}")
         names = sorted({k for c in cycles for k in c.features} - NOT_MONITORED)
-        motions, moved, stepped, at = {}, {}, set(), {}
+        motions, most, at = {}, {}, {}
         for label in sorted({c.label or "" for c in cycles}):
             group = [c for c in cycles if (c.label or "") == label]
-            motions[label] = _stats(names, feature_matrix(group, names))
-            for k, v in steady.trends(names, feature_matrix(group, names)).items():
+            x = feature_matrix(group, names)
+            motions[label] = _stats(names, x)
+            for k, v in steady.trends(names, x).items():
                 if v.step_at is not None:  # each motion's first cycle at the new level: it began by the earliest
                     at[k] = min(at.get(k, group[v.step_at].index), group[v.step_at].index)
-                if abs(v.change) > abs(moved.get(k, 0.0)):  # the motion that moved it most tells how it moved
-                    moved[k] = v.change
-                    stepped.discard(k)
-                    if v.step_at is not None:
-                        stepped.add(k)
-        steps = {k: at[k] for k in sorted(stepped)}
+                if abs(v.change) > abs(most[k].change if k in most else 0.0):  # the motion that moved it most
+                    most[k] = v  # tells how it moved
+        moved = {k: v.change for k, v in most.items()}
+        steps = {k: at[k] for k, v in sorted(most.items()) if v.step_at is not None}
         x = feature_matrix(cycles, names)
         load = float(np.nanmedian(x[:, names.index(LOAD_FEATURE)])) if LOAD_FEATURE in names else None
         return cls(tuple(names), motions, (cycles[0].index, cycles[-1].index), len(cycles), load, source,
@@ -359,9 +359,7 @@ def too_few(cycles: Sequence[Cycle]) -> str | None:
     that alternates its motions needs that many times its motions in all (the count to give a run)."""
     if len(cycles) < MIN_CYCLES:
         return f"needs at least {MIN_CYCLES} acceptance cycles, got {len(cycles)}"
-    counts: dict[str, int] = {}
-    for c in cycles:
-        counts[c.label or ""] = counts.get(c.label or "", 0) + 1
+    counts = Counter(c.label or "" for c in cycles)
     short = sorted(k for k, n in counts.items() if n < MIN_CYCLES)
     if not short:
         return None

@@ -120,8 +120,8 @@ def recovery_finding(cycles: Sequence[Cycle], attempts: Sequence[tuple[int, Reco
         said = next(iter(paces.values())) if len(paces) == 1 else \
             ": " + "; ".join(f"{len(groups[k])} of {k[0]}{pace}" for k, pace in paces.items())
         evidence.append(f"{len(late)} recovery attempts from cycle {start} on arrived at contact{said}")
-        shut = [_shut(group) + (f" ({k[0]})" if len(groups) > 1 else "") for k, group in sorted(groups.items())
-                if _shut(group)]
+        shut = [closed + (f" ({k[0]})" if len(groups) > 1 else "") for k, group in sorted(groups.items())
+                if (closed := _shut(group))]
         if shut:
             evidence.append(f"their gripper was told to shut at {'; '.join(shut)}: the fingers closed above the part")
         late_cycles = {c for c, _ in late if c in phase}

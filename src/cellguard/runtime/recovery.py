@@ -149,9 +149,9 @@ class RecoveryRunner:
         """The cycle's recovery outcome fields (flat, SI) and its log; ``t``: when the cycle ended. An attempt still
         running when the cell's task ended the cycle with no failed check resumed the cell (the task judged the
         cycle done before the plan's last moves ran out); one with a failed check, held by a stop, or ended by a
-        stop of the run (``stopped``: the operator, the robot link), was cut off, and one a stop of the run ended is
-        stamped at ``t`` (at the last tick it read before the operator stop that cut it; any other at its last
-        tick, as before)."""
+        stop of the run (``stopped``: the operator, the robot link), was cut off. One a stop of the run ended is
+        stamped at ``t`` (stamped at the cycle's last tick, it read before the stop that cut it); any other at the
+        cycle's last tick."""
         a = self._active
         self.held_at_end = self.stop is not None
         if a is not None:
