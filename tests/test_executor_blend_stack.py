@@ -8,7 +8,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from cellguard.control.executor import MAX_BLENDED, Executor
+from cellguard.control.executor import MAX_BLENDED, Executor, _fade
 from cellguard.policy.chunk import ActionChunk
 from cellguard.robot.registry import make_cell
 
@@ -18,8 +18,13 @@ MS = 1_000_000
 
 
 def _one_by_one(ex: Executor, tau: int) -> np.ndarray:
-    """The blended reference as the sum of each curve's own value times its weight (no stacking)."""
-    return sum(weight * curve.at(tau) for curve, weight in ex._weights(tau))
+    """The blended reference read curve by curve (no stacking): from the oldest curve, each newer one takes over
+    as its switch fades the blend before it out, ``c_n + w_n (c_n-1 + w_n-1 (... - c_n-1) - c_n)``."""
+    curves = [c for c, _, _ in ex._older] + [ex._curve]  # oldest first
+    reference = curves[0].at(tau)
+    for (_, switched, blend), curve in zip(ex._older, curves[1:]):
+        reference = curve.at(tau) + _fade((tau - switched) / blend) * (reference - curve.at(tau))
+    return reference
 
 
 def _run(every_ms: int, ticks: int, steps_ms: int, seed: int) -> float:
@@ -35,6 +40,7 @@ def _run(every_ms: int, ticks: int, steps_ms: int, seed: int) -> float:
         q = ex.reference(t)
         if ex._older:
             worst = max(worst, float(np.abs(q - _one_by_one(ex, ex.tau_ns)).max()))
+            assert len(ex._stack[1]) == len(ex._older) + 1  # a curve whose blend is over leaves the stack too
     return worst
 
 
