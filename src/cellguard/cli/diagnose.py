@@ -161,7 +161,7 @@ def print_diagnosis(d) -> None:
         for line in f["evidence"]:
             console.print(f"    - {line}", markup=False)
     if d.unwatched:
-        console.print(f"  note: {unwatched_words(d.unwatched)}", markup=False)
+        console.print(f"  note: {unwatched_words(d.unwatched, d.cycles)}", markup=False)
     if data.get("recoveries"):
         tally: dict[tuple[str, str], int] = {}
         for r in data["recoveries"]:

@@ -6,6 +6,7 @@ gives the same answer from a run in memory and from a record read back months la
 
 from __future__ import annotations
 
+from collections import Counter
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 
@@ -25,6 +26,7 @@ from cellguard.diagnose.recovery import (advice, advice_lines, attempts_of, fixe
 from cellguard.diagnose.residual import residual_alarms, with_residual
 from cellguard.embodiment.profile import SymmetryPair
 from cellguard.errors import RecordError
+from cellguard.robot.recovery.outcome import RecoveryOutcome
 
 
 
@@ -46,7 +48,7 @@ class Diagnosis:
     recoveries: tuple[dict, ...] = ()  # every recovery attempt, with its cycle and outcome
     fixes: tuple[dict, ...] = ()  # per finding and behaviour: cycles it ran in and fixed (for the site's history)
     advice: tuple[dict, ...] = ()  # per finding: what fixed the same cause before at this site
-    unwatched: tuple[int, ...] = ()  # production cycles of another load: their joint currents and tracking unwatched
+    unwatched: tuple[int, ...] = ()  # watched cycles of another load: their joint currents and tracking unwatched
 
     def to_dict(self) -> dict:
         """The JSON of DESIGN.md (``cycles`` ... ``safety_events``) plus detail fields."""
@@ -77,23 +79,27 @@ class Diagnosis:
 
 def diagnose(rows: Iterable[object], events: Iterable[object] = (), context: Mapping | None = None,
              baseline: Baseline | None = None, symmetry: Sequence[SymmetryPair] = (),
-             config: DriftConfig = DriftConfig(), history: Sequence[Mapping] = ()) -> Diagnosis:
+             config: DriftConfig = DriftConfig(), history: Sequence[Mapping] = (),
+             reference: Sequence[tuple[int, RecoveryOutcome]] = ()) -> Diagnosis:
     """Diagnose a run from its cycles (any source, see ``as_cycle``), events and context.
 
     ``baseline`` defaults to the acceptance cycles of the same run; pass one to compare with a
     separate acceptance record (its ``source`` not ``OWN_SOURCE``): then every cycle of this run is
     watched, its acceptance cycles too (a fault that began in them was dated at its first production
-    cycle). ``symmetry`` enables the mirrored-motion comparison. ``history``: what fixed each cause
+    cycle), and its recoveries are judged against ``reference``, that record's acceptance attempts
+    (``recovery.acceptance_attempts``; this run's own were another acceptance than the baseline's).
+    ``symmetry`` enables the mirrored-motion comparison. ``history``: what fixed each cause
     in this site's other records (rows of ``recovery.fixes``), for advice.
     """
     rows = list(rows)
     cycles = as_cycles(rows)
+    other = None  # the recovery attempts of the baseline's acceptance where that is another record's
     if baseline is None:
         acceptance = [c for c in cycles if c.phase == "acceptance"]
         baseline = Baseline.from_cycles(policy_cycles(acceptance))
         watched = [c for c in cycles if c.phase != "acceptance"]
     elif baseline.source != OWN_SOURCE:  # from another record: this one's acceptance cycles are watched too
-        watched = list(cycles)
+        watched, other = list(cycles), list(reference)
     else:
         watched = [c for c in cycles if c.phase != "acceptance"] or list(cycles)
     if not watched:
@@ -117,7 +123,7 @@ def diagnose(rows: Iterable[object], events: Iterable[object] = (), context: Map
         if not any(set(f.joints) & set(asym.joints) for f in findings):
             findings = _with_asymmetry(findings, asym, asymmetry_onset(cycles, asym, symmetry, watched[0].index))
     attempts = attempts_of(rows, evs)  # evs: for the cycle a killed run left with no row
-    late = recovery_finding(cycles, attempts)
+    late = recovery_finding(cycles, attempts, other)
     findings += [late] if late is not None else []
     findings = _weak_side_joints(findings, symmetry, tracking_rises(baseline, watched, drift.z))
     findings = sorted(_carried_by_the_others(_on_legs(findings, symmetry)), key=lambda f: (f.cycle, f.cause))
@@ -147,11 +153,16 @@ def record_facts(context: Mapping) -> dict:
             "profile_version": emb.get("version") if isinstance(emb, Mapping) else None}
 
 
-def unwatched_words(cycles: Sequence[int]) -> str:
-    """The notice for production cycles whose load-dependent features went unwatched, in one line."""
-    shown = ", ".join(str(c) for c in cycles[:8]) + (" ..." if len(cycles) > 8 else "")
-    return (f"joint currents and tracking unwatched on {len(cycles)} production cycle(s) that carried another load "
-            f"than the acceptance (no part grasped): a joint fault there is not seen (cycles {shown})")
+def unwatched_words(unwatched: Sequence[int], cycles: Sequence[Cycle] = ()) -> str:
+    """The notice for watched cycles whose load-dependent features went unwatched, in one line. Each is named by its
+    phase among ``cycles`` (the diagnosed ones): against another record's acceptance this record's acceptance cycles
+    are watched too, and one was called a production cycle."""
+    acceptance = {c.index for c in cycles if c.phase == "acceptance"}
+    count = Counter("acceptance" if c in acceptance else "production" for c in unwatched)
+    which = " and ".join(f"{n} {phase}" for phase, n in sorted(count.items()))
+    shown = ", ".join(str(c) for c in unwatched[:8]) + (" ..." if len(unwatched) > 8 else "")
+    return (f"joint currents and tracking unwatched on {which} cycle(s) that carried another load than the "
+            f"baseline's acceptance (no part grasped): a joint fault there is not seen (cycles {shown})")
 
 
 def trend_words(baseline: Baseline, names: Sequence[str]) -> str:

@@ -13,7 +13,7 @@ from pathlib import Path
 from cellguard.diagnose.baseline import METHOD, OWN_SOURCE, Baseline, check_same_robot
 from cellguard.diagnose.cycles import as_cycles
 from cellguard.diagnose.diagnosis import Diagnosis, diagnose
-from cellguard.diagnose.recovery import policy_cycles
+from cellguard.diagnose.recovery import acceptance_attempts, policy_cycles
 from cellguard.diagnose.site_history import save_fixes, site_history
 from cellguard.embodiment.profile import SymmetryPair
 from cellguard.errors import CellguardError, OutputError, RecordError
@@ -41,10 +41,12 @@ def diagnose_record(path: Path, acceptance: Path | None = None, fleet: list[dict
         context = {**rec.context, "record_id": rec.record_id, "start_utc": rec.start_utc, "start_ns": rec.start_ns}
         writing = rec.writing  # a run still writes it: nothing is kept beside it, it would describe a part
         declared = rec.contexts[-1].context.get("process", [])  # process changes declared up to the end
-    baseline = None
+    baseline, reference = None, ()
     if acceptance is not None:
         with open_record(acceptance) as acc:
-            rows = [c for c in as_cycles(acc.cycles()) if c.phase == "acceptance"]
+            accepted = list(acc.cycles())
+            rows = [c for c in as_cycles(accepted) if c.phase == "acceptance"]
+            reference = acceptance_attempts(accepted)  # its recoveries' arrivals: the recovery reference
             acc_context = {**acc.context, "record_id": acc.record_id}
         check_same_robot(acc_context, context, f"--acceptance {acceptance}", path)
         _has_cycles(cycles, path)
@@ -64,7 +66,7 @@ def diagnose_record(path: Path, acceptance: Path | None = None, fleet: list[dict
     past = site_history(folder, context.get("site")) if folder is not None else []
     try:
         result = diagnose(cycles, events, {**context, "process": declared}, baseline=baseline,
-                          symmetry=symmetry_of(context), history=[*past, *fleet])
+                          symmetry=symmetry_of(context), history=[*past, *fleet], reference=reference)
     except RecordError as exc:  # too few acceptance cycles, no production: say which record
         raise RecordError(f"{path}: {exc}") from None
     if baseline is None:  # as a stored baseline is judged when read again, so the first diagnosis agrees

@@ -24,7 +24,7 @@ import numpy as np
 
 from cellguard.control.events import EventKind
 from cellguard.diagnose.cause import Finding
-from cellguard.diagnose.cycles import Cycle, as_cycle, getter
+from cellguard.diagnose.cycles import Cycle, as_cycle, as_cycles, getter
 from cellguard.diagnose.feature_kinds import kind_of
 from cellguard.robot.recovery.outcome import RecoveryOutcome
 
@@ -99,16 +99,32 @@ def _unlogged(events: Iterable[object], logged: set[int]) -> list[tuple[int, Rec
     return out
 
 
-def recovery_finding(cycles: Sequence[Cycle], attempts: Sequence[tuple[int, RecoveryOutcome]]) -> Finding | None:
-    """The ``recovery`` cause, if recoveries in production arrived late, repeated without effect, or
-    left a failing next cycle; None otherwise."""
+def acceptance_attempts(rows: Iterable[object]) -> list[tuple[int, RecoveryOutcome]]:
+    """(cycle, attempt) for the attempts of the acceptance cycles among a record's cycle ``rows``: the reference its
+    recoveries, or those of a record diagnosed against its acceptance, are judged against."""
+    rows = list(rows)
+    accepted = {c.index for c in as_cycles(rows) if c.phase == "acceptance"}
+    return [(c, o) for c, o in attempts_of(rows) if c in accepted]
+
+
+def recovery_finding(cycles: Sequence[Cycle], attempts: Sequence[tuple[int, RecoveryOutcome]],
+                     reference: Sequence[tuple[int, RecoveryOutcome]] | None = None) -> Finding | None:
+    """The ``recovery`` cause, if recoveries in the watched cycles arrived late, repeated without effect, or left a
+    failing next cycle; None otherwise. ``reference``: the acceptance attempts of another record whose acceptance is
+    the baseline (``acceptance_attempts``); every cycle is watched then, as the drift monitors watch them. None: this
+    record's own acceptance attempts, and its production cycles watched."""
     phase = {c.index: c.phase for c in cycles}
-    acc = [o for c, o in attempts if phase.get(c) == "acceptance"]
-    prod = [(c, o) for c, o in attempts if phase.get(c) != "acceptance"]
-    ended = [(c, o) for c, o in prod if c in phase]  # no row: killed in it, whether it resumed the cell is unknown
+    which = "cycles"
+    if reference is None:
+        which = "production cycles"
+        reference = [(c, o) for c, o in attempts if phase.get(c) == "acceptance"]
+        attempts = [(c, o) for c, o in attempts if phase.get(c) != "acceptance"]
+        cycles = [c for c in cycles if c.phase != "acceptance"]
+    acc = [o for _, o in reference]
+    ended = [(c, o) for c, o in attempts if c in phase]  # no row: killed in it, its outcome unknown, none judged
     evidence, starts, shares = [], [], []
     refs = _arrivals(acc)
-    judged = [(c, o) for c, o in prod if _judged(o)]
+    judged = [(c, o) for c, o in ended if _judged(o)]
     late = [(c, o) for c, o in judged if _late(o, refs.get(_key(o)))]
     if len(late) >= MIN_LATE:
         start = late[0][0]
@@ -124,17 +140,17 @@ def recovery_finding(cycles: Sequence[Cycle], attempts: Sequence[tuple[int, Reco
                 if (closed := _shut(group))]
         if shut:
             evidence.append(f"their gripper was told to shut at {'; '.join(shut)}: the fingers closed above the part")
-        late_cycles = {c for c, _ in late if c in phase}
-        resumed = {c for c, o in prod if c in late_cycles and o.resumed_cell()}
-        acc_cycles = {c for c, o in attempts if phase.get(c) == "acceptance"}
-        acc_resumed = {c for c, o in attempts if c in acc_cycles and o.resumed_cell()}
+        late_cycles = {c for c, _ in late}
+        resumed = {c for c, o in ended if c in late_cycles and o.resumed_cell()}
+        acc_cycles = {c for c, _ in reference}
+        acc_resumed = {c for c, o in reference if o.resumed_cell()}
         evidence.append(f"they picked the part again in {len(resumed)} of {len(late_cycles)} cycles vs "
                         f"{len(acc_resumed)} of {len(acc_cycles)} at acceptance")
         evidence.append("the arm ran slower than the recovery's plan while the gripper kept its timing: a speed "
                         "scaling of the recovery, not the part, the tool or the fixture")
         starts.append(start)
         shares.append(len(late) / max(len(since), 1))
-    useless = _without_effect(acc, ended)
+    useless = _without_effect(acc, ended, which)
     if useless is not None:
         evidence.append(useless[1])
         starts.append(useless[0])
@@ -200,26 +216,25 @@ def _late(o: RecoveryOutcome, ref: Sequence[float] | None) -> bool:
     return ref_s is not None and o.arrival_s > max(ref_s * LATE, ref_s + LATE_MIN_S)
 
 
-def _without_effect(acc, prod) -> tuple[int, str] | None:
-    """Production cycles whose recoveries never resumed the cell (``RecoveryOutcome.resumed_cell``: an operator
-    hand-over or a rehome that ran out does not), where acceptance ones did."""
+def _without_effect(acc, watched, which: str) -> tuple[int, str] | None:
+    """Watched cycles (``which``, in words) whose recoveries never resumed the cell (``RecoveryOutcome.resumed_cell``:
+    an operator hand-over or a rehome that ran out does not), where acceptance ones did."""
     cycles: dict[int, list[RecoveryOutcome]] = {}
-    for c, o in prod:
+    for c, o in watched:
         cycles.setdefault(c, []).append(o)
     stuck = sorted(c for c, os in cycles.items() if len(os) > 1 and not any(o.resumed_cell() for o in os))
     acc_ok = not acc or np.mean([o.outcome in ("resumed", "failed") for o in acc]) >= 0.8
     if len(stuck) < MIN_LATE or not acc_ok or len(stuck) < 0.5 * len(cycles):
         return None
     tries = sum(len(cycles[c]) for c in stuck)
-    return stuck[0], (f"recoveries repeated without effect in {len(stuck)} of {len(cycles)} production cycles "
+    return stuck[0], (f"recoveries repeated without effect in {len(stuck)} of {len(cycles)} {which} "
                       f"with a recovery ({tries} attempts, none resumed the cell)")
 
 
 def _next_cycle(cycles: Sequence[Cycle]) -> tuple[int, str] | None:
-    """Production cycles right after a recovery fail more often than the others."""
-    prod = [c for c in cycles if c.phase != "acceptance"]
-    after = [c for c in prod if c.features.get("after_recovery", 0.0) > 0]
-    other = [c for c in prod if c.features.get("after_recovery", 0.0) == 0 and not c.features.get("recoveries")]
+    """Watched ``cycles`` right after a recovery fail more often than the others."""
+    after = [c for c in cycles if c.features.get("after_recovery", 0.0) > 0]
+    other = [c for c in cycles if c.features.get("after_recovery", 0.0) == 0 and not c.features.get("recoveries")]
     if len(after) < MIN_LATE or not other:
         return None
     bad_after = sum(not c.success for c in after) / len(after)

@@ -64,7 +64,7 @@ def _figure(name: str, svg: str) -> str:
 def _findings(d: Diagnosis) -> str:
     notes = "".join(f"<div class=ok>{_e(n.text)}</div>" for n in d.process)  # declared process changes
     if d.unwatched:
-        notes += f"<div class=ok>{_e(unwatched_words(d.unwatched))}</div>"
+        notes += f"<div class=ok>{_e(unwatched_words(d.unwatched, d.cycles))}</div>"
     if not d.findings:
         return notes + "<div class=ok>No drift, fault or asymmetry found against the baseline.</div>"
     out = [notes]
