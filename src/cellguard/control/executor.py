@@ -330,6 +330,11 @@ class Executor:
         unc = chunk.uncertainty
         if unc is not None:
             unc = np.asarray(unc)
-            if unc.shape != (actions.shape[0],) or not np.isfinite(unc).all() or (unc < 0).any():
-                return f"uncertainty must be ({actions.shape[0]},) finite and >= 0, got shape {unc.shape}"
+            if (unc.shape != (actions.shape[0],) or not np.issubdtype(unc.dtype, np.number)
+                    or np.issubdtype(unc.dtype, np.complexfloating)):
+                return f"uncertainty must be ({actions.shape[0]},) numbers, got shape {unc.shape}, dtype {unc.dtype}"
+            bad = ~np.isfinite(unc) | (unc < 0)
+            if bad.any():
+                step = int(np.argmax(bad))
+                return f"uncertainty must be finite and >= 0, got {float(unc[step]):g} at step {step}"
         return None
