@@ -1,13 +1,14 @@
 """Differential IK with mink for end-effector actions: a target pose per chunk step -> joint targets.
 
-Runs off the servo path, once per chunk: each step starts from the previous step's solution, so
-a chunk of H poses costs H short solves. Joints outside ``IkSpec.joints`` (the gripper, a free
-part) are frozen; the model's joint ranges bound the solution. A step the site does not reach within
-``REACH_TOLERANCE`` refuses the whole chunk: the solver's best effort for an unreachable target
-flipped between two joint solutions step after step and moved the tool away from it. The solver is
-local (it follows on from the current pose, so a chunk stays continuous): a miss says the target was
-not reached from there, not that no joint pose reaches it (one far behind the base can need the base
-turned further than a local solve finds; re-seeding it would give a jump the guard refuses anyway).
+Runs off the servo path, once per chunk: each step starts from the previous step's solution, so a chunk of H
+poses costs H short solves. Joints outside ``IkSpec.joints`` (the gripper, a free part) are frozen; the guard's
+soft limits bound the solution (bounded by the model's wider ranges, a target past them was "reached" and the
+guard held the joint at its soft limit: the tool missed, no failure named). A step the site does not reach
+within ``REACH_TOLERANCE`` refuses the whole chunk: the solver's best effort for an unreachable target flipped
+between two joint solutions step after step and moved the tool away from it. The solver is local (it follows on
+from the current pose, so a chunk stays continuous): a miss says the target was not reached from there, not that
+no joint pose reaches it (one far behind the base can need the base turned further than a local solve finds;
+re-seeding it would give a jump the guard refuses anyway).
 """
 
 from __future__ import annotations
@@ -23,6 +24,10 @@ from cellguard.policy.adapter import InferenceError
 POSITION_TOLERANCE = 1e-4  # [m] a step's solve stops when the site is this close to its target
 REACH_TOLERANCE = 1e-3  # [m] a step whose site ends further than this from its target was not reached
 MAX_ITERATIONS = 30  # per chunk step
+# the guard's default soft_margin (cellguard.control.config.GuardConfig; this layer is below control): the IK
+# joints stay this fraction of each joint's range inside the profile's limits, where the guard keeps them
+SOFT_MARGIN = 0.02
+LIMIT_REACHED = 1e-3  # [rad or m] an IK joint this close to a soft limit is named as held there by a refusal
 
 
 def _mink():
@@ -57,7 +62,12 @@ class IkSolver:
         cost = spec.orientation_cost * (np.ones(3) if spec.full_orientation else np.array([1.0, 1.0, 0.0]))
         self._task = mink.FrameTask(spec.site, "site", position_cost=1.0, orientation_cost=cost)
         self._posture = mink.PostureTask(model, cost=1e-3)
-        self._limits = [mink.ConfigurationLimit(model)]
+        lo, hi = profile.q_min[self.joint_index], profile.q_max[self.joint_index]
+        margin = SOFT_MARGIN * (hi - lo)
+        self._box = _JointBox(mink, model.nv, [int(model.jnt_dofadr[jids[i]]) for i in self.joint_index],
+                              self._qadr[self.joint_index], lo + margin, hi - margin)
+        self._limits = [self._box]
+        self._units = ["rad" if profile.joints[i].kind == "hinge" else "m" for i in self.joint_index]
         self._constraints = [mink.DofFreezingTask(model, dof_indices=self._frozen)] if self._frozen else []
 
     def pose(self, q: np.ndarray) -> np.ndarray:
@@ -105,7 +115,15 @@ class IkSolver:
             raise InferenceError(f"IK: step {step}: target ({where}) mm for site {self.spec.site!r} not reached "
                                  f"from the current pose: the solve ends {miss * 1e3:.1f} mm away (tolerance "
                                  f"{REACH_TOLERANCE * 1e3:g} mm; out of reach, or only reached from another joint "
-                                 f"configuration); chunk refused")
+                                 f"configuration){self._held()}; chunk refused")
+
+    def _held(self) -> str:
+        """The IK joints the solve left at a soft limit, as a clause: the target may lie past one."""
+        box, q = self._box, self._configuration.q[self._box.qadr]
+        held = [f"{self.spec.joints[i]} at {bound:.3f} {unit}"
+                for i, (v, lo, hi, unit) in enumerate(zip(q, box.lower, box.upper, self._units))
+                for bound in (lo, hi) if abs(v - bound) < LIMIT_REACHED]
+        return f"; held at the guard's soft limit: {', '.join(held)}" if held else ""
 
     def _set(self, q: np.ndarray) -> None:
         full = self._configuration.q.copy()
@@ -117,3 +135,19 @@ class IkSolver:
         transform = self._configuration.get_transform_frame_to_world(self.spec.site, "site")
         rpy = transform.rotation().as_rpy_radians()
         return np.concatenate([transform.translation(), [rpy.roll, rpy.pitch, rpy.yaw]])
+
+
+class _JointBox:
+    """A mink limit: the IK joints (hinges and slides, one dof each) inside [lower, upper], approached at ``gain``
+    of the distance left per step as mink's own ConfigurationLimit does (which reads only the model's ranges)."""
+
+    def __init__(self, mink, nv: int, dofs: list[int], qadr: np.ndarray, lower: np.ndarray, upper: np.ndarray,
+                 gain: float = 0.95):
+        rows = np.zeros((len(dofs), nv))
+        rows[np.arange(len(dofs)), dofs] = 1.0
+        self._G, self._constraint = np.vstack([rows, -rows]), mink.Constraint
+        self.qadr, self.lower, self.upper, self._gain = qadr, lower, upper, gain
+
+    def compute_qp_inequalities(self, configuration, dt: float):
+        q = configuration.q[self.qadr]
+        return self._constraint(G=self._G, h=self._gain * np.concatenate([self.upper - q, q - self.lower]))
