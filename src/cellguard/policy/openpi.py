@@ -165,8 +165,11 @@ def decode_reply(reply: bytes | str, uri: str) -> np.ndarray:
     except WireError as exc:
         raise InferenceError(f"policy: openpi:{uri}: bad reply ({exc})") from None
     actions = decoded.get("actions") if isinstance(decoded, dict) else None
-    if not isinstance(actions, np.ndarray) or actions.dtype.kind not in "iuf" or actions.ndim not in (1, 2):
+    if not isinstance(actions, np.ndarray) or actions.ndim not in (1, 2):
         raise InferenceError(f"policy: openpi:{uri}: reply has no 'actions' array of numbers, shape (H, A)")
+    if actions.dtype.kind != "f":  # an int64 chunk (truncated degrees and mm) ran, clamped, with nothing said
+        raise InferenceError(f"policy: openpi:{uri}: reply's 'actions' are {actions.dtype}; a chunk is joint "
+                             f"targets, floats (float16, float32 or float64)")
     return actions
 
 
