@@ -13,6 +13,8 @@ Metadata properties the model may carry: ``cellguard.action_names`` (comma-separ
 from __future__ import annotations
 
 import hashlib
+import os
+import stat
 from pathlib import Path
 
 import numpy as np
@@ -38,9 +40,7 @@ class OnnxBackend:
         except ImportError:  # pragma: no cover - depends on the environment
             raise ConfigError("policy: onnx: needs onnxruntime; install it with pip install 'cellguard[onnx]'") from None
         path = Path(path)
-        if not path.is_file():
-            raise ConfigError(f"policy: onnx:{path}: no such file")
-        size = path.stat().st_size
+        size = _model_file(path).st_size
         if size > MAX_MODEL_BYTES:  # refused by its size: reading it whole to hash it took 3.3 GB for a 3 GB file
             raise ConfigError(f"policy: onnx:{path}: {size} bytes; protobuf reads no model file of 2 GiB or more, "
                               f"so a model this large keeps its weights as ONNX external data beside it")
@@ -116,6 +116,24 @@ class OnnxBackend:
 
     def content_hash(self) -> str:
         return self._bytes_hash
+
+
+def _model_file(path: Path) -> os.stat_result:
+    """The stat of ``path``, a regular file; else a ConfigError saying what it is (a folder or a link loop read
+    'no such file')."""
+    where = f"policy: onnx:{path}"
+    try:
+        found = path.stat()
+    except FileNotFoundError:
+        raise ConfigError(f"{where}: {'is a link to nothing' if path.is_symlink() else 'no such file'}") from None
+    except OSError as exc:  # a link loop, a folder not searchable
+        raise ConfigError(f"{where}: cannot read the model file ({exc.strerror or type(exc).__name__})") from None
+    if stat.S_ISDIR(found.st_mode):
+        raise ConfigError(f"{where}: is a folder, not a model file")
+    if not stat.S_ISREG(found.st_mode):
+        kind = "FIFO" if stat.S_ISFIFO(found.st_mode) else "socket" if stat.S_ISSOCK(found.st_mode) else "device"
+        raise ConfigError(f"{where}: is a {kind}, not a model file")
+    return found
 
 
 def _content_hash(path: Path) -> str:
