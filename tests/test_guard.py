@@ -107,7 +107,7 @@ def test_a_late_tick_lags_the_reference_instead_of_jumping_it():
     assert guard.executor.tau_ns == t - 1_400_000  # the time lost is lag of the playback clock
 
 
-@pytest.mark.parametrize("setting", [{"box": ((10.0, 10.0, 10.0), (11.0, 11.0, 11.0))}, {"tool_speed_max": 1e-4}])
+@pytest.mark.parametrize("setting", [{"box": ((-1.0, -1.0, 0.0), (1.0, 1.0, 1.0))}, {"tool_speed_max": 1e-4}])
 def test_a_tool_setting_on_a_cell_without_a_tool_model_is_refused(setting):
     """On the quadruped both were accepted, recorded as in force and never checked."""
     from cellguard.errors import ConfigError

@@ -11,6 +11,9 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 Box = tuple[tuple[float, float, float], tuple[float, float, float]]
+# [m] no robot cell's tool point lies this far from its world origin (arms reach under 5 m): a box coordinate beyond
+# is in another unit, and a box that wide turns the workspace check off (``build_guard`` checks the cell's own reach)
+BOX_LIMIT_M = 100.0
 
 
 class GuardConfig(BaseModel):
@@ -44,4 +47,7 @@ class GuardConfig(BaseModel):
     def _min_below_max(cls, box):
         if box is not None and not all(lo < hi for lo, hi in zip(*box)):
             raise ValueError(f"each minimum must be below its maximum, got {box}")
+        if box is not None and max(abs(c) for corner in box for c in corner) > BOX_LIMIT_M:
+            raise ValueError(f"{[list(corner) for corner in box]} reaches beyond {BOX_LIMIT_M:g} m, farther than any "
+                             "robot cell; the box is in metres, not millimetres or centimetres")
         return box

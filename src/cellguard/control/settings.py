@@ -8,13 +8,18 @@ from cellguard.control.config import GuardConfig
 from cellguard.control.guard import Guard
 from cellguard.errors import ConfigError
 
+REACH_FACTOR = 10  # a box coordinate this many times farther out than the tool reaches is in another unit
+REACH_SAMPLES = 256  # poses sampled over the joint ranges to find the reach (about 2 ms on the arm)
+
+
 def build_guard(cell, settings: GuardConfig | None = None, q0: np.ndarray | None = None) -> Guard:
     """The guard layer for ``cell``, with its kinematics and workspace box if it has them, at rest at ``q0``
     (default: the measured pose).
 
     The tool model is the cell's ``kinematics`` (an ``embodiment.Kinematics`` of its nominal MJCF)
     where it offers one, else its ``tool_point``. The box is the scenario's if it sets one, else the
-    cell's; it is checked only where there is a tool model.
+    cell's; it is checked only where there is a tool model, and a box of the scenario's must not reach far beyond
+    the tool (``check_box_reach``).
     """
     config = settings or GuardConfig()
     kinematics = getattr(cell, "kinematics", None)
@@ -23,6 +28,23 @@ def build_guard(cell, settings: GuardConfig | None = None, q0: np.ndarray | None
     if unchecked:  # accepted, recorded as in force and never checked
         raise ConfigError(f"guard.{unchecked[0]}: cell {cell.profile.robot} has no tool model to check it against; "
                           "remove it")
+    if tool is not None and config.box is not None:
+        check_box_reach(config.box, cell, tool)
     box = config.box if config.box is not None else getattr(cell, "workspace_box", None)
     config = config.model_copy(update={"box": box if tool is not None else None})
     return Guard(cell.profile, cell.read().q if q0 is None else q0, cell.dt_ns, config, tool=tool)
+
+
+def check_box_reach(box, cell, tool) -> None:
+    """Refuse a box reaching over ``REACH_FACTOR`` times farther from the world origin than the cell's tool does (over
+    its joint ranges, or its own workspace box): a box written in millimetres or centimetres was read as metres, and
+    the workspace check was off with no word (``[[-45, -45, 0.5], [45, 45, 55]]``, centimetres, on a 0.69 m arm)."""
+    profile = cell.profile
+    poses = np.random.default_rng(0).uniform(profile.q_min, profile.q_max, (REACH_SAMPLES, profile.dof))
+    reach = max(np.abs([tool(q) for q in poses]).max(), np.abs(getattr(cell, "workspace_box", None) or 0.0).max())
+    farthest = float(np.abs(box).max())
+    if farthest <= REACH_FACTOR * reach:
+        return
+    raise ConfigError(f"guard.box: {[list(corner) for corner in box]} reaches {farthest:g} m, over {REACH_FACTOR} "
+                      f"times as far as the tool of {profile.robot} (about {reach:.2f} m); the box is in metres, not "
+                      "millimetres or centimetres")
