@@ -12,6 +12,9 @@ the file and what is wrong. A date is text, as it was written (``measured: 2026-
 date (``2026-02-30``) a ValueError in every reader; a field that must hold a date checks the text.
 A number in exponent form without a dot (``5e-1``, ``1e300``) is a number, as in YAML 1.2: PyYAML's
 YAML 1.1 read it as the text "5e-1", which a number field then refused with a puzzling message.
+A whole number is YAML 1.2's too: ``020`` is 20 (YAML 1.1 read it as octal 16, so ``production_cycles: 010`` ran 8
+cycles), ``0o20`` is octal, ``0x1F`` hex, and ``1:05`` is text (YAML 1.1 read base 60, 65); ``_`` between digits is
+kept as a separator (``1_000``: it cannot be read as another number).
 """
 
 from __future__ import annotations
@@ -37,20 +40,23 @@ class _Refused(yaml.YAMLError):
 
 _TIMESTAMP = "tag:yaml.org,2002:timestamp"
 _FLOAT = "tag:yaml.org,2002:float"
-# YAML 1.1's floats, plus YAML 1.2's exponent form without a dot (``1e-3``); an integer stays an integer
+_INT = "tag:yaml.org,2002:int"
+# YAML 1.1's floats less base 60, plus YAML 1.2's exponent form without a dot (``1e-3``); an integer stays an integer
 _FLOAT_FORM = re.compile(r"""^(?:[-+]?(?:[0-9][0-9_]*)\.[0-9_]*(?:[eE][-+]?[0-9]+)?
                     |[-+]?[0-9][0-9_]*[eE][-+]?[0-9]+
                     |\.[0-9][0-9_]*(?:[eE][-+]?[0-9]+)?
-                    |[-+]?[0-9][0-9_]*(?::[0-5]?[0-9])+\.[0-9_]*
                     |[-+]?\.(?:inf|Inf|INF)
                     |\.(?:nan|NaN|NAN))$""", re.X)
+# YAML 1.2's integers (decimal with leading zeros, 0o octal, 0x hex), with YAML 1.1's ``_`` separators
+_INT_FORM = re.compile(r"^[-+]?(?:[0-9][0-9_]*|0o[0-7_]+|0x[0-9a-fA-F_]+)$")
 
 
 class _StrictLoader(yaml.SafeLoader):
-    """SafeLoader that refuses duplicate keys and deep nesting while it composes, and reads dates as text."""
+    """SafeLoader that refuses duplicate keys and deep nesting while it composes, reads dates as text and numbers as
+    YAML 1.2 does."""
 
-    yaml_implicit_resolvers = {first: [(tag, _FLOAT_FORM if tag == _FLOAT else regexp) for tag, regexp in resolvers
-                                       if tag != _TIMESTAMP]
+    yaml_implicit_resolvers = {first: [(tag, {_FLOAT: _FLOAT_FORM, _INT: _INT_FORM}.get(tag, regexp))
+                                       for tag, regexp in resolvers if tag != _TIMESTAMP]
                                for first, resolvers in yaml.SafeLoader.yaml_implicit_resolvers.items()}
 
     def compose_node(self, parent, index):
@@ -77,8 +83,25 @@ class _StrictLoader(yaml.SafeLoader):
         return super().construct_mapping(node, deep=deep)
 
 
+def _construct_int(loader, node) -> int:
+    """An integer read as YAML 1.2 reads it (``!!int 010`` included): decimal unless ``0o`` or ``0x`` says otherwise;
+    anything else (``!!int 1:05``, ``!!int 0b11``) is a ValueError, which ``parse_yaml`` names."""
+    text = loader.construct_scalar(node).replace("_", "")
+    return int(text, {"0o": 8, "0x": 16}.get(text.lstrip("+-")[:2].lower(), 10))
+
+
+def _construct_float(loader, node) -> float:
+    """A float as YAML 1.1 reads it, less base 60 (``!!float 1:30`` was 90.0)."""
+    text = loader.construct_scalar(node)
+    if ":" in text:
+        raise ValueError(f"{text!r} is not a number (base 60 is YAML 1.1's)")
+    return loader.construct_yaml_float(node)
+
+
 # an explicit ``!!timestamp`` is text too
 _StrictLoader.add_constructor(_TIMESTAMP, lambda loader, node: loader.construct_scalar(node))
+_StrictLoader.add_constructor(_INT, _construct_int)
+_StrictLoader.add_constructor(_FLOAT, _construct_float)
 
 
 def parse_yaml(data: bytes | str, where: str, error: type[ConfigError] = ConfigError) -> object:
