@@ -9,13 +9,14 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
+from urllib.parse import parse_qsl, urlencode
 
 from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationError, model_validator
 
 from cellguard.control.config import GuardConfig
-from cellguard.errors import ScenarioError
+from cellguard.errors import CellguardError, ScenarioError
 from cellguard.robot.faults import FAULTS, AnyFault
 from cellguard.robot.process import PROCESS_CHANGES, AnyProcessChange, declared_changes
 from cellguard.robot.recovery import RECOVERIES, RecoveryPolicy
@@ -247,10 +248,50 @@ def _check_values(value: object, loc: tuple, origin: str) -> None:
 
 
 def load_scenario(path: Path) -> Scenario:
-    """Read and validate a scenario file."""
-    scenario = parse_scenario(read_yaml(path, "scenario", ScenarioError), origin=str(path))
+    """Read and validate a scenario file; a file it names by a relative path is beside it (``files_beside``)."""
+    scenario = files_beside(parse_scenario(read_yaml(path, "scenario", ScenarioError), origin=str(path)),
+                            Path(path).absolute().parent)
     scenario._path = str(path)
     return scenario
+
+
+# a bridge's options that name a file (its other options are the robot's own, passed on as written)
+BRIDGE_FILE_OPTIONS = {"lerobot": ("units",)}
+
+
+def files_beside(scenario: Scenario, folder: Path) -> Scenario:
+    """``scenario`` with every file it names by a relative path taken from ``folder`` (its file's), as compose files
+    and manifests do: ``calibration``, the policy's file or folder (a source that ``TAKES_FILE``: ``replay:``,
+    ``onnx:``, ``lerobot:``) and its ``?map=``, a bridge's ``?units=``. From the working folder, one scenario ran
+    another calibrated profile when started from another folder. An absolute path stays as written."""
+    from cellguard.policy.registry import source
+
+    try:
+        module = source(scenario.policy.partition(":")[0])
+    except CellguardError:  # an unknown source, or its extra missing: refused as the run builds it, as before
+        module = None
+    update = {"policy": _spec_beside(scenario.policy, folder, module is not None and module.TAKES_FILE,
+                                     ("map",) if module is not None and "map" in module.OPTIONS else ()),
+              "robot": _spec_beside(scenario.robot, folder, False,
+                                    BRIDGE_FILE_OPTIONS.get(scenario.robot.partition(":")[0], ()))}
+    if scenario.calibration is not None:
+        update["calibration"] = folder / scenario.calibration  # an absolute path stays itself
+    return scenario.model_copy(update=update)
+
+
+def _spec_beside(spec: str, folder: Path, takes_file: bool, file_options: tuple[str, ...]) -> str:
+    """``SCHEME:TARGET?k=v`` with TARGET (when ``takes_file``) and the ``file_options`` taken from ``folder``; the
+    rest as written (a malformed spec is left for its own parser to refuse)."""
+    scheme, sep, arg = spec.partition(":")
+    if not sep:
+        return spec
+    target, q, query = arg.partition("?")
+    if takes_file and target:
+        target = str(folder / target)
+    pairs = parse_qsl(query, keep_blank_values=True)
+    if any(key in file_options for key, _ in pairs):
+        query = urlencode([(k, str(folder / v) if k in file_options and v else v) for k, v in pairs], safe="/")
+    return f"{scheme}:{target}{q}{query}"
 
 
 def _format_loc(loc: tuple) -> str:
