@@ -8,7 +8,8 @@ simulated cell's concern only: it is applied when the robot is a simulated cell.
 
 Start-up (the first request of the run): the checks of ``startup`` may refuse to move; a first
 target far from the measured pose is approached with a limit-respecting trajectory first. A policy
-that answers no more (its process ended, a call hung) stops the run.
+that answers no more (its process ended, a call hung), or whose every answer was refused (failed, rejected,
+stale) while the watchdog held the robot for want of a chunk, stops the run.
 """
 
 from __future__ import annotations
@@ -62,6 +63,10 @@ HUNG_CALLS = 2
 # on a cold cache takes minutes). Nothing moves while it runs and Ctrl-C or SIGTERM ends the wait at once, so the
 # bound is generous: it only keeps an unattended service from waiting forever on a policy hung in that call.
 WARM_UP_TIMEOUT_S = 300.0
+# the guard's refusals of an answer, by how the policy-lost rule names them (``_refusal``)
+_REFUSED_BY = {EventKind.CHUNK_REJECTED: "rejected", EventKind.CHUNK_STALE: "stale"}
+# each refusal's last one, as the policy-lost reason names it among others
+_REFUSALS = {"failed": "failure", "rejected": "rejection", "stale": "stale chunk"}
 
 
 class Run:
@@ -116,9 +121,9 @@ class Run:
         self._clock_started = False
         self._hang_floor_ns = 0  # wall time: how long a call may run before the policy is lost (set at warm-up) [ns]
         self._armed_at = 0
-        # the answers not taken since the watchdog was armed, by how each was refused ("failed", "rejected" for what
-        # its chunk says, "held" for a stop in force): the last reason of each, and how many failed or were rejected
-        # (``_never_answered``)
+        # the answers not taken since the watchdog was armed or the guard last took a chunk, by how each was refused
+        # ("failed", "rejected" for what its chunk says, "stale" for a chunk whose steps had all passed, "held" for a
+        # stop in force): the last reason of each, and how many failed or were rejected or stale (``_refusal``)
         self._answers: dict[str, str] = {}
         self._refused = 0
         self._first_observation = None
@@ -272,9 +277,8 @@ class Run:
                 self._lose_policy(t_ns, arrival.error)
                 return False
             self.events.append(Event(t_ns, EventKind.INFERENCE_FAILED, arrival.error))
-            self._answers["failed"] = arrival.error
-            self._refused += 1
             self._wall_ns.append(arrival.wall_ns)
+            self._refusal(t_ns, "failed", arrival.error)
             return False
         if not self._started:
             if arrival.prepared is None:  # simulated time: checked here, as the worker would have
@@ -297,11 +301,10 @@ class Run:
             self.inference.hang_ns = max(self._hang_floor_ns, HUNG_CALLS * chunk.horizon * chunk.dt_ns)
         pushed = self.guard.push(arrival.prepared or arrival.chunk, t_ns)
         self.events.extend(pushed)
-        if pushed and pushed[0].kind == EventKind.CHUNK_REJECTED:
-            self._answers["rejected"] = pushed[0].reason
-            self._refused += 1
         self._latencies.append(arrival.latency_ns)
         self._wall_ns.append(arrival.wall_ns)
+        if pushed and pushed[0].kind in _REFUSED_BY:  # a stale chunk can never move the robot: refused as well
+            self._refusal(t_ns, _REFUSED_BY[pushed[0].kind], pushed[0].reason)
         return False
 
     def _request(self, t_ns: int) -> None:
@@ -310,9 +313,8 @@ class Run:
         failed = self.inference.submit(t_ns, observation)
         if failed is not None:
             self.events.append(Event(t_ns, EventKind.INFERENCE_FAILED, failed.error))
-            self._answers["failed"] = failed.error
-            self._refused += 1
             self._wall_ns.append(failed.wall_ns)
+            self._refusal(t_ns, "failed", failed.error)
             return
         self._first_observation = self._first_observation or observation
         if self.recording is not None:
@@ -617,29 +619,55 @@ class Run:
                                      f"stop{during}", category=EventKind.OPERATOR_STOP.category))
 
     def _arm(self, t_ns: int) -> None:
-        """(Re)start the no-first-chunk watchdog at ``t_ns``: it weighs the answers from then on."""
+        """(Re)start the weighing of answers at ``t_ns`` (the start, a reset, the approach, a chunk taken): the
+        no-first-chunk watchdog runs from then, and the answers refused count from then on (``_refusal``)."""
         self._armed_at, self._answers, self._refused = t_ns, {}, 0
 
+    def _refusal(self, t_ns: int, kind: str, why: str) -> None:
+        """An answer not taken (``kind``: "failed", "rejected" or "stale"), weighed with those since the arming or
+        the last chunk the guard took, whichever came later (the policy's or a recovery's). Once a chunk has been
+        taken, the guard's watchdog holds the robot after ``watchdog_s`` without one, and a refused answer then,
+        every one since refused, loses the policy (``_never_answered``): a policy that turned bad after it started
+        (a NaN in every chunk, every answer later than its own horizon) was asked on, every cycle waited out its
+        time-out and the run exited 0. Before the first chunk ``_stop_input`` weighs them at the watchdog."""
+        last = self.guard.executor.last_chunk_ns
+        if last is not None and last > self._armed_at:  # taken since: the count starts again from it
+            self._arm(last)
+        self._answers[kind] = why
+        self._refused += 1
+        if (last is not None and self._refused > 1 and not self.policy_lost
+                and t_ns - self._armed_at > self.scenario.guard.watchdog_s * 1e9):
+            self._never_answered(t_ns)
+
     def _never_answered(self, t_ns: int) -> None:
-        """No chunk within the watchdog (of its arming) and every answer since refused, two at least (one late bad
-        answer of a slow policy whose next is good is no loss): every call failed (a
+        """No chunk within the watchdog (of its arming or the last chunk taken) and every answer since refused, two
+        at least (one late bad answer of a slow policy whose next is good is no loss): every call failed (a
         server that answers only errors, a model that raises on every observation), or the guard rejected its
-        chunk (not finite, beyond the limits, the wrong shape, its first target outside the box). The policy is
+        chunk (not finite, beyond the limits, the wrong shape, its first target outside the box) or it came stale
+        (all its steps past: it can never move the robot). The policy is
         lost: the run went on asking it, one event per request, every cycle waited out its time-out, failed, and
-        it ended clean, exit 0, never having moved. A cold one that answers within the watchdog is not, nor one
+        it ended clean, exit 0. A cold one that answers within the watchdog is not, nor one
         whose chunks a stop in force held back (the moment's refusal, not the policy's)."""
         answers = self._answers
         if "held" in answers:
             return
-        failed, rejected = answers.get("failed"), answers.get("rejected")
-        if rejected is None:
-            why = f"every call failed before the first chunk (the last: {failed})"
-        elif failed is None:
-            why = f"the guard rejected every chunk, none taken (the last: {rejected})"
+        last = self.guard.executor.last_chunk_ns
+        none = "none taken" if last is None else f"none taken since t = {self._armed_at * 1e-9:.3f} s"
+        kinds = [kind for kind in _REFUSALS if kind in answers]
+        chunks = " or ".join(kind for kind in kinds if kind != "failed")
+        if kinds == ["failed"]:
+            lead = "every call failed before the first chunk" if last is None else f"every call failed, {none}"
+        elif kinds == ["rejected"]:
+            lead = f"the guard rejected every chunk, {none}"
+        elif "failed" in kinds:
+            lead = f"every call failed or its chunk was {chunks}, {none}"
         else:
-            why = (f"every call failed or its chunk was rejected, none taken (the last failure: {failed}; the last "
-                   f"rejection: {rejected})")
-        self._lose_policy(t_ns, why)
+            lead = f"every chunk was {chunks}, {none}"
+        if len(kinds) == 1:
+            the_last = f"the last: {answers[kinds[0]]}"
+        else:
+            the_last = "; ".join(f"the last {_REFUSALS[kind]}: {answers[kind]}" for kind in kinds)
+        self._lose_policy(t_ns, f"{lead} ({the_last})")
 
     def _lose_policy(self, t_ns: int, why: str) -> None:
         """The policy answers no more (its process ended, or a call hung ``HUNG_WATCHDOGS`` watchdog times): one
