@@ -18,6 +18,7 @@ from cellguard.policy.onnx_export import Mlp, save_mlp_onnx, trajectory_mlp  # n
 from cellguard.policy.registry import make_policy  # noqa: E402
 from cellguard.robot.arm_cell import ArmPickPlace  # noqa: E402
 from cellguard.runtime import Run  # noqa: E402
+from cellguard.runtime.startup import StartupRefused  # noqa: E402
 from cellguard.scenario import parse_scenario  # noqa: E402
 
 
@@ -63,19 +64,19 @@ def test_the_same_model_without_its_map_is_refused(foreign_model):
         make_policy(f"onnx:{model}", ArmPickPlace())
 
 
-def test_a_map_that_ignores_the_flipped_elbow_fails_the_task(foreign_model, tmp_path):
-    """The mapping matters: drop the elbow's sign and the same model no longer picks the part."""
+def test_a_map_that_ignores_the_flipped_elbow_is_refused_before_anything_moves(foreign_model, tmp_path):
+    """The mapping matters: drop the elbow's sign and the same model's first target lies where the way to it, under
+    the limits, takes the tool over the workspace box's ceiling: the start is refused, nothing moves (it was
+    approached, and the cycle failed)."""
     model, _, _ = foreign_model
     wrong = {**MAP, "actions": [{**a, "sign": 1} if a["joint"] == "elbow" else a for a in MAP["actions"]]}
     path = tmp_path / "wrong.yaml"
     path.write_text(yaml.safe_dump(wrong))
     run = Run(parse_scenario({"cell": "arm-pick-place", "acceptance_cycles": 1, "production_cycles": 0,
                               "policy": f"onnx:{model}?map={path}"}))
-    outcome = run.cycle()
-    assert not outcome["success"]
-    # a first target that far from the measured pose is approached under the limits, never jumped to,
-    # or the guard holds the wrong targets
-    assert any(e.kind in ("limit_intervention", "limit_brake", "approach_begin") for e in run.events)
+    with pytest.raises(StartupRefused, match="the approach to the first target .* leaves the workspace box"):
+        run.cycle()
+    assert not any(e.kind == "approach_begin" for e in run.events)
 
 
 def test_bad_models_and_options_are_named(tmp_path, foreign_model):

@@ -46,7 +46,7 @@ from cellguard.runtime.link import RobotLink
 from cellguard.runtime.operator_stop import OperatorStop
 from cellguard.runtime.recovery import RecoveryRunner
 from cellguard.runtime.startup import StartupRefused, check_startup
-from cellguard.runtime.transitions import Transition, speed_cap
+from cellguard.runtime.transitions import Transition, longest_brake_s, speed_cap
 from cellguard.scenario import Scenario
 
 CYCLE_TIMEOUT_S = 12.0  # a cycle that has not finished by then is ended as failed, once no recovery attempt runs [s]
@@ -114,7 +114,8 @@ class Run:
         self.cycle_monitors: list[Callable[[CycleBuffer, dict], None]] = []
         self.stopped: str | None = None  # why the run stopped early, if it did
         self.policy_lost: str | None = None  # why the policy answers no more (its process ended, a call hung)
-        self.operator = OperatorStop()  # Ctrl-C / SIGTERM / SIGHUP while the cycles run: a stop
+        # Ctrl-C / SIGTERM / SIGHUP while the cycles run: a stop; a third signal waits while a brake may run
+        self.operator = OperatorStop(longest_brake_s(self.cell.profile, self.cell.dt_ns))
         self.inference = None  # built at the first cycle (the policy may be swapped before)
         self.source = None
         self._started = False  # the first chunk has come and the start-up checks passed
@@ -371,6 +372,10 @@ class Run:
                                    self.clock.period_ns, **self._commanded_motion(), **self._cap(self.cell.safety()))
         if approach is None:
             return arrival
+        outside = self._leaves_box(approach)
+        if outside is not None:  # planned in joint space: no path inside the box to the first target is sought
+            self._refuse(f"start-up: the approach to the first target {np.round(approach.target, 3).tolist()}: "
+                         f"{outside}; not moving")
         held = self._play(approach, "approach", self.clock.now())
         if self.guard.power:  # else a category 0/1 stop aborted it: the guard holds there, power removed
             self.guard = build_guard(self.cell, self.scenario.guard, q0=held)  # where the commands left the robot
@@ -406,10 +411,14 @@ class Run:
         return np.clip(np.asarray(chunk.actions[0], dtype=np.float64), tracker.lo, tracker.hi)
 
     def retreat(self) -> None:
-        """At the end of the run (or after a stop with power kept): back to the home pose."""
+        """At the end of the run (or after a stop with power kept): back to the home pose, unless its path would take
+        the tool out of the workspace box: then the robot holds where it stopped and the run ends stopped."""
+        if not self.guard.power:  # a category 0/1 stop in the last cycle: no reset follows, the run ends stopped
+            self.stopped = self.stopped or self._power_removed(self.guard.envelope)  # (it ended clean, exit 0)
+            return
         home = getattr(self.cell, "q_home", None)
         unrecorded = self.recording is not None and self.recording.failed  # no motion the record would not hold
-        if home is None or not self.guard.power or self.link.stop is not None or unrecorded:  # a link fault too
+        if home is None or self.link.stop is not None or unrecorded:  # a link fault too
             return
         if self.recovery is not None and self.recovery.held_at_end:  # someone may be in the cell: no motion
             self.events.append(Event(self.clock.now(), EventKind.RETREAT_ABORTED, "retreat not played: the run "
@@ -419,6 +428,15 @@ class Run:
                                **self._commanded_motion(), **self._cap(self.cell.safety()))
         if plan is None:
             return
+        outside = self._leaves_box(plan)
+        if outside is not None:  # not played; a command still moving is braked to rest all the same
+            self.events.append(Event(self.clock.now(), EventKind.RETREAT_ABORTED, f"retreat not played: {outside}; "
+                                     "the robot holds where it stopped"))
+            self.stopped = self.stopped or (f"the retreat home was not played: {outside}; the robot is held where it "
+                                            "stopped, power on: bring it home before the next run")
+            plan = plan.braking()
+            if plan is None:
+                return
         first, signals = self.events.total, min(self.operator.count, 1)  # the operator's first signal stopped the
         # run (or ends it now); a second aborts this
         self._play(plan, "retreat", self.clock.now(), signals=signals)
@@ -426,6 +444,10 @@ class Run:
             self.stopped = self.stopped or self._power_removed(self.guard.envelope)
         elif any(e.kind == EventKind.RETREAT_ABORTED for e in self.events.since(first)):  # a category 2 pulse ended
             self.stopped = self.stopped or self._retreat_aborted(signals)  # the run clean, away from home
+
+    def _leaves_box(self, plan: Transition) -> str | None:
+        """Where ``plan`` would take the tool out of the guard's workspace box (``Transition.leaves_box``), or None."""
+        return plan.leaves_box(self.cell.profile, self.guard.tool, self.guard.config.box, self._reach)
 
     def _retreat_aborted(self, signals: int) -> str:
         """Why the run ended with its retreat aborted by a category 2 stop: the operator's signal (its own words,
@@ -489,7 +511,18 @@ class Run:
                 self._remove_power(stop, signals)
         if stop is None and not plan.settles:
             self.events.append(Event(self.clock.now(), EventKind(f"{name}_done"), f"{name} complete"))
+        self._at_rest()
         return held
+
+    def _at_rest(self) -> None:
+        """The command is at rest (a transition played or braked, the run's end): a stop signal that insisted during
+        the brake raises KeyboardInterrupt now (``OperatorStop.at_rest``), the record saying so first."""
+        operator = self.operator
+        if operator.waiting:
+            self.events.append(Event(self.clock.now(), EventKind.OPERATOR_STOP, f"{operator.signal}: {operator.count} "
+                                     f"stop signals, {operator.waiting} of them during the brake: KeyboardInterrupt, "
+                                     "held until the command came to rest"))
+        operator.at_rest()
 
     def _ticks(self, plan: Transition, name: str, signals: int) -> tuple[np.ndarray, tuple[int, str | None] | None]:
         """The transition's setpoints, one per servo period; return the last one sent and the stop that aborted
@@ -723,6 +756,7 @@ class Run:
                 if self.stopped:
                     break
             self.retreat()
+            self._at_rest()
         if self.operator.count:  # a signal during the last retreat stops the run too
             self.stopped = self.stopped or self.operator.reason
         if self.link.stop is not None:  # so does a link fault during it (the robot is left where it failed)

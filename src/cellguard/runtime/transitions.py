@@ -8,6 +8,10 @@ rest there stopped the command dead (156 times the acceleration limit in one tic
 ``tolerance`` of the target needs no transition. One that is aborted brakes to a standstill under
 the same limits (``brake``) from where it is.
 
+A transition keeps the tool point inside the guard's workspace box (``leaves_box``: every setpoint it would send is
+checked before it is played; one that leaves the box is not played at all). Planned in joint space, the approach to
+a first target 18 mm above the table dived 145 mm under it on the way, with no event.
+
 A transition obeys the guard's tool-speed cap (``speed_cap``: the reduced-speed input's, the guard's
 ``tool_speed_max``) through its joint velocity limits (``velocity_limits``), lowered so that no motion
 within them moves the tool faster; a cap that comes on mid-way replans the rest (``slowed``). The
@@ -31,6 +35,8 @@ from cellguard.robot.protocol import SafetyInputs
 
 TOLERANCE = 0.01  # [rad] or [m]: closer than this, no transition is played
 AT_REST = 1e-9  # [unit/s], [unit/s²]: slower than this, a transition is at rest
+SLACK = 0.002  # [m] a transition that starts outside the box may go no further out than its start, plus this
+BRAKE_SLACK_S = 1.0  # [s] wall time a brake may take beyond its own (a simulated cell's runs on a busy host's CPU)
 
 
 def speed_cap(config: GuardConfig, safety: SafetyInputs) -> SpeedCap | None:
@@ -63,6 +69,14 @@ def velocity_limits(profile: Profile, travel: np.ndarray, cap: SpeedCap | None,
     return np.minimum(limits, cap.cap * travel / along) if along > 0.0 else limits
 
 
+def longest_brake_s(profile: Profile, period_ns: int) -> float:
+    """The longest a brake to a standstill takes under the profile's limits (each joint from its velocity and
+    acceleration limits), plus ``BRAKE_SLACK_S``: how long a stop signal's brake may run [s]."""
+    stop = Transition._stop(profile, np.zeros(profile.dof), profile.array("velocity"), profile.array("acceleration"),
+                            period_ns)
+    return (0.0 if stop is None else stop.duration_s) + BRAKE_SLACK_S
+
+
 @dataclass(frozen=True)
 class Transition:
     """Planned trajectories played one after the other; ``setpoints()`` yields one position (dof,) per servo period."""
@@ -72,6 +86,7 @@ class Transition:
     period_ns: int
     settles: bool = False  # only brakes a command to rest, within tolerance of the target: no transition to tell
     cap: float = math.inf  # the tool-speed cap it goes to the target under [m/s]
+    brakes: bool = False  # its first trajectory brakes a moving command to rest (``braking``)
 
     @property
     def duration_s(self) -> float:
@@ -99,7 +114,7 @@ class Transition:
                 return None
             first, start = stop.trajectories, stop.target
         if float(np.abs(target - start).max()) < tolerance:
-            return cls(first, start, int(period_ns), settles=True) if first else None
+            return cls(first, start, int(period_ns), settles=True, brakes=True) if first else None
         dof = profile.dof
         otg, inp, traj = ruckig.Ruckig(dof), ruckig.InputParameter(dof), ruckig.Trajectory(dof)
         inp.current_position, inp.target_position = start.tolist(), target.tolist()
@@ -107,7 +122,49 @@ class Transition:
         inp.target_velocity = inp.target_acceleration = [0.0] * dof
         rest = cls._solve(profile, otg, inp, traj, period_ns, velocity_limits(profile, target - start, cap, reach))
         return None if rest is None else cls(first + rest.trajectories, rest.target, int(period_ns),
-                                             cap=math.inf if cap is None else cap.cap)
+                                             cap=math.inf if cap is None else cap.cap, brakes=bool(first))
+
+    def braking(self) -> Transition | None:
+        """Only the brake this transition starts with (a moving command brought to rest), or None if it starts at
+        rest: what is played of a transition that may not be, so the command never stops dead."""
+        if not self.brakes:
+            return None
+        first = self.trajectories[0]
+        end = np.asarray(first.at_time(first.duration)[0], dtype=np.float64)
+        return Transition((first,), end, self.period_ns, settles=True, brakes=True)
+
+    def leaves_box(self, profile: Profile, tool, box, reach: list[float] | None) -> str | None:
+        """Where this transition's tool point leaves ``box`` [m] on the way (why it may not be played), or None.
+        Every setpoint is checked, one servo period apart (the tool moves at most sum_j reach_j v_j dt between two,
+        ``reach``: ``max_reach``'s); those the tool cannot reach a wall by from a checked one are skipped. One that
+        starts outside the box may go no further out than it starts (it brings the tool back, as the guard lets a
+        motion do), and once inside it stays inside. None without a box or a tool model."""
+        if box is None or tool is None or reach is None:
+            return None
+        lo, hi = np.asarray(box[0], dtype=np.float64), np.asarray(box[1], dtype=np.float64)
+        dt = self.period_ns * 1e-9
+        per_step = float(np.dot(reach, profile.array("velocity"))) * dt  # [m] the tool's most in one period
+        steps, k, allowed, left, worst = math.ceil(self.duration_s / dt), 0, None, None, 0.0
+        while k <= steps:
+            t = min(k * dt, self.duration_s)
+            tip = np.asarray(tool(np.asarray(self.state_at(t)[0], dtype=np.float64)), dtype=np.float64)
+            out = np.maximum(lo - tip, tip - hi)  # per axis: > 0 outside
+            excess = float(out.max())  # < 0 inside: minus the distance to the nearest wall
+            if allowed is None:  # the start
+                allowed = excess + SLACK if excess > 0.0 else 0.0
+            elif left is not None:
+                worst = max(worst, excess)
+            elif excess > allowed:
+                axis = int(np.argmax(out))
+                left, worst = (t, f"{'xyz'[axis]} {'min' if lo[axis] > tip[axis] else 'max'}", tip), excess
+            else:
+                allowed = min(allowed, excess + SLACK) if excess > 0.0 else 0.0
+            k += max(1, int(-excess / per_step)) if excess < 0.0 and per_step > 0.0 else 1
+        if left is None:
+            return None
+        t, wall, tip = left
+        return (f"its tool point leaves the workspace box {[list(map(float, corner)) for corner in box]} past its "
+                f"{wall} {t:.2f} s in (at {np.round(tip, 3).tolist()} m), {worst * 1e3:.0f} mm outside at worst")
 
     def slowed(self, profile: Profile, steps: int, cap: SpeedCap | None,
                reach: list[float] | None) -> Transition | None:
