@@ -9,8 +9,9 @@ weld constraint until the fingers open.
 A cell model provides, by name: bodies ``part`` (free joint ``part``), ``tool`` (rigid on the
 last wrist link, carrying site ``tcp``), mocap bodies ``fixture`` and ``camera_mount``; sites
 ``fixture_datum`` and ``drop_zone``; a weld equality ``grasp`` (tool to part, inactive); one
-position actuator per profiled joint, named as the joint; the gripper is the last joint (checked, with the home pose
-against the profile's limits, when the cell is built: ``_misfit``).
+position actuator per profiled joint, named as the joint; the profile lists its joints in the model's order, the
+gripper last (checked, with the home pose against the profile's limits and the layout's workspace box, when the cell
+is built: ``_misfit``).
 """
 
 from __future__ import annotations
@@ -48,7 +49,7 @@ class Layout:
     drop_tolerance: float  # [m] a placed part must rest this close to the drop zone centre
     gripper_closed: float  # opening below which the pads touch a centred part
     gripper_released: float  # opening above which a held part is let go
-    q_home: tuple[float, ...]  # (dof,) profile order
+    q_home: tuple[float, ...]  # (dof,) profile order, which is the model's
     workspace_box: tuple[tuple[float, float, float], tuple[float, float, float]]  # tool-point box [m]
     camera_noise: float = 1e-4  # [m] 1-sigma noise of each camera coordinate
     current_noise: float = 0.01  # [A] 1-sigma noise of each motor current reading
@@ -60,7 +61,8 @@ class Layout:
 def _misfit(model: mujoco.MjModel, profile: Profile, layout: Layout) -> str | None:
     """Why ``profile`` does not fit the cell's model and ``layout``, or None. Unchecked, a joint missing or extra was
     a numpy traceback, reordered joints took each other's home values (every chunk refused), and a home pose outside
-    the profile's position limits ran, its retreats to home braked at the limit."""
+    the profile's position limits ran, its retreats to home braked at the limit; one whose tool point lay outside the
+    workspace box stopped the run at its first chunk, as if the policy were lost."""
     names = profile.joint_names
     if len(layout.q_home) != len(names):
         return (f"{len(names)} joints ({', '.join(names)}) for a home pose of {len(layout.q_home)} (q_home: one value "
@@ -68,25 +70,39 @@ def _misfit(model: mujoco.MjModel, profile: Profile, layout: Layout) -> str | No
     body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "tool")
     if body < 0:
         return "its model has no body 'tool'"
+    if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, "tcp") < 0:
+        return "its model has no site 'tcp' (the tool point)"
     carry = set()  # the tool body and the bodies that carry it: a joint of one of them moves the tool point
     while body > 0:
         carry.add(body)
         body = int(model.body_parentid[body])
-    moves = [int(model.jnt_bodyid[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, n)]) in carry for n in names]
+    joints = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, n) for n in names]
+    moves = [int(model.jnt_bodyid[j]) in carry for j in joints]
     if moves[-1]:
         return f"its last joint {names[-1]!r} moves the tool; the gripper must be the last joint"
     if not all(moves[:-1]):
         still = names[moves.index(False)]
         return f"its joint {still!r} does not move the tool; only the last one, the gripper, may not"
+    # the profile's order is the model's: the same joints listed in another order took each other's home values
+    # (shoulder_pan at the elbow's 1.9 rad), and nothing said so
+    model_order = [n for _, n in sorted(zip(model.jnt_qposadr[joints].tolist(), names))]
+    if list(names) != model_order:
+        return (f"its joints ({', '.join(names)}) are not in the model's order ({', '.join(model_order)}); q_home "
+                "and every action follow the profile's order: list the joints as the model does")
     stray = [j for j in layout.ik_joints if j not in names[:-1]]
     if stray:
         return f"the layout's ik_joints {stray} are not among its arm joints ({', '.join(names[:-1])})"
     j = profile.first_outside(layout.q_home)
-    if j is None:
-        return None
-    joint, q = profile.joints[j], layout.q_home[j]
-    (lo, hi), unit = joint.position, "rad" if joint.kind == "hinge" else "m"
-    return f"the home pose puts {joint.name} at {q:g} {unit}, outside its position limits [{lo:g}, {hi:g}] {unit}"
+    if j is not None:
+        joint, q = profile.joints[j], layout.q_home[j]
+        (lo, hi), unit = joint.position, "rad" if joint.kind == "hinge" else "m"
+        return f"the home pose puts {joint.name} at {q:g} {unit}, outside its position limits [{lo:g}, {hi:g}] {unit}"
+    tip = Kinematics(model, "tcp", names).tool_point(np.asarray(layout.q_home, dtype=np.float64))
+    low, high = (np.asarray(corner, dtype=np.float64) for corner in layout.workspace_box)
+    if not ((low <= tip) & (tip <= high)).all():  # as the guard's box check reads it
+        return (f"the home pose puts the tool point at {np.round(tip, 3).tolist()} m, outside the layout's "
+                f"workspace_box {[list(map(float, corner)) for corner in layout.workspace_box]} m")
+    return None
 
 
 class PickPlaceCell(DrivenCell):
