@@ -22,27 +22,27 @@ app.add_typer(embodiment_app, name="embodiment")
 def embodiment_show(
     cell: str = typer.Argument(..., help="A registered cell, e.g. arm-pick-place."),
     profile_path: Path | None = typer.Option(None, "--profile", help="A profile file of this cell's robot (e.g. "
-                                             "one identify --write calibrated), checked against its model; "
-                                             "default: the cell's own."),
+                                             "one identify --write calibrated), checked against its model and "
+                                             "its profile: the same joints and symmetry (order and limits may "
+                                             "differ). Default: the cell's own."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),
 ) -> None:
     """Print a cell's embodiment profile: joints and limits with their units, measured parameters (as written, when
     and how), symmetry pairs and the calibration. Limits are SI, shown rounded inward; with --json the limits are
     SI and each measured value is in the unit it names (as written in the profile)."""
     from cellguard.embodiment import load_profile
+    from cellguard.embodiment.profile import mismatch
     from cellguard.errors import ProfileError
     from cellguard.robot.registry import make_cell
 
     try:
         robot = make_cell(cell)
         profile = robot.profile if profile_path is None else load_profile(robot.model, profile_path)
-        if profile.robot != robot.profile.robot:
-            raise ProfileError(f"--profile: {profile_path} is a profile of robot {profile.robot!r}; the {cell} cell "
-                               f"is {robot.profile.robot!r}")
-        missing = [j for j in robot.profile.joint_names if j not in profile.joint_names]
-        if missing:  # shown as if whole, refused only by a run (joints in another order are the same joints)
-            raise ProfileError(f"--profile: {profile_path} has joints {list(profile.joint_names)}; the {cell} cell's "
-                               f"are {list(robot.profile.joint_names)} ({', '.join(missing)} missing)")
+        # a run's check but for order and limits (a profile of this robot, shown as replay runs one): an extra
+        # joint or another symmetry was shown, exit 0, and refused by a run only
+        why = mismatch(profile, robot.profile, exact=False)
+        if why is not None:
+            raise ProfileError(f"--profile: {profile_path} {why}")
     except CellguardError as exc:
         fail(exc)
     if as_json:

@@ -2,16 +2,16 @@
 
 A profile is a YAML file next to the robot's MJCF. Loading checks it against the model: a
 joint the model does not have, a limit outside the model's range or beyond what any robot has
-(``_PLAUSIBLE``), or a number without its unit is refused with an error that names the field. So
-is a measured parameter cellguard does not know (``Friction`` was taken with any unit and sign),
-and a measured value that cannot be one of
+(``_PLAUSIBLE``, ``POSITION_MAX``), or a number without its unit is refused with an error that names
+the field. So is a measured parameter cellguard does not know (``Friction`` was taken with any unit
+and sign), and a measured value that cannot be one of
 its parameter (friction, damping, armature, actuator_time_constant, backlash): in another dimension
 (friction is a torque on a hinge, a force on a slide; armature an inertia or a mass), below zero,
 or beyond its range (friction above the joint's effort); a second entry for the same joint and
 parameter (one of them would silently win); a date that is not an ISO date (YYYY-MM-DD), never compared
 with today (``iso_date``); a symmetry pair of a joint with itself, of two joints of different kinds,
-or named twice; text with control characters; and a version that cannot name a file
-(``identify --write`` keeps ``NAME.VERSION.yaml`` beside the profile).
+named twice, or whose mirror lies outside the other joint's range; text with control characters; and a
+version that cannot name a file (``identify --write`` keeps ``NAME.VERSION.yaml`` beside the profile).
 """
 
 from __future__ import annotations
@@ -45,6 +45,10 @@ SI_UNITS = {"hinge": {"position": "rad", "velocity": "rad/s", "acceleration": "r
 # error that turns the guard off (1e308 let a 2 rad step through in one tick, or overflowed at the guard's start)
 _PLAUSIBLE = {"velocity": (1e-6, 1e3), "acceleration": (1e-6, 1e6), "jerk": (1e-6, 1e9), "effort": (1e-6, 1e7),
               "torque_constant": (1e-6, 1e6)}
+# the farthest a position limit may lie from zero, SI: some 1600 turns of a hinge, 10 km of a slide. The model bounds
+# a limited joint; one it leaves unlimited took +-1e308 rad, whose range overflowed to inf and made the guard's soft
+# limits [inf, -inf] (every tick tracker_failed)
+POSITION_MAX = 1e4
 _PARAMETER_DIMENSIONS = ("torque", "force", "time", "angle", "length", "mass", "inertia", "damping")
 # the dimension of a measured parameter on a hinge or a slide joint (None: no unit cellguard reads yet); each is
 # at least zero. A parameter not listed is refused: a misspelt one would be taken with any unit and sign.
@@ -205,17 +209,49 @@ def kept_copy(path: Path, version: str) -> Path:
 
 def calibrated_profile(model: mujoco.MjModel, current: Profile, path: Path) -> Profile:
     """The profile at ``path`` (one ``identify --write`` wrote) in place of ``current``: it must be of the same
-    robot with the same joints and limits; only what was measured (and the calibration) may differ."""
+    robot with the same joints, order, limits and symmetry; only what was measured (and the calibration) may differ.
+    The refusal names the first difference (it said "other joints or limits", for joints in another order too)."""
     try:
         new = load_profile(model, Path(path))
     except ProfileError as exc:
         raise ProfileError(f"calibration: {exc}") from None
-    if new.robot != current.robot:
-        raise ProfileError(f"calibration: {path} is a profile of robot {new.robot!r}; the robot is {current.robot!r}")
-    if new.joints != current.joints:
-        raise ProfileError(f"calibration: {path} has other joints or limits than {current.robot}'s profile "
-                           f"(version {current.version}); a calibration changes only measured values")
+    why = mismatch(new, current)
+    if why is not None:
+        raise ProfileError(f"calibration: {path} {why}; a calibration changes only measured values")
     return new
+
+
+def mismatch(new: Profile, current: Profile, exact: bool = True) -> str | None:
+    """The first way ``new`` differs from ``current`` in what the cell is built on, or None: the robot, the joints,
+    the symmetry pairs, and when ``exact`` the joints' order (every action and array follows it) and limits. Not
+    exact, it is what ``embodiment show`` asks: a profile of this robot, whatever its order and limits."""
+    theirs = f"{current.robot}'s profile (version {current.version})"
+    if new.robot != current.robot:
+        return f"is a profile of robot {new.robot!r}; the robot is {current.robot!r}"
+    if set(new.joint_names) != set(current.joint_names):
+        missing = [j for j in current.joint_names if j not in new.joint_names]
+        extra = [j for j in new.joint_names if j not in current.joint_names]
+        what = "; ".join(f"{', '.join(js)} {word}" for js, word in ((extra, "extra"), (missing, "missing")) if js)
+        return f"has joints {list(new.joint_names)}; {theirs} has {list(current.joint_names)} ({what})"
+    if exact and new.joint_names != current.joint_names:
+        return (f"has the same joints in another order ({', '.join(new.joint_names)}; {theirs}: "
+                f"{', '.join(current.joint_names)}); actions and limits follow the profile's order")
+    for ours, its in zip(new.joints, current.joints) if exact else ():
+        key = next((k for k in SI_UNITS[its.kind] if getattr(ours, k) != getattr(its, k)), None)
+        if key is not None:
+            unit = SI_UNITS[its.kind][key]
+            return (f"has joints.{its.name}.{key} {_si(getattr(ours, key), unit)} where {theirs} has "
+                    f"{_si(getattr(its, key), unit)}")
+    if set(new.symmetry) != set(current.symmetry):
+        ours = [_pair(s) for s in new.symmetry if s not in current.symmetry] or ["no other pair"]
+        its = [_pair(s) for s in current.symmetry if s not in new.symmetry] or ["no other pair"]
+        return f"has symmetry {', '.join(ours)} where {theirs} has {', '.join(its)}"
+    return None
+
+
+def _si(value: float | tuple[float, float], unit: str) -> str:
+    """A limit as held, every digit (2.9999999 rad/s shown as 3 would hide the difference)."""
+    return f"[{value[0]!r}, {value[1]!r}] {unit}" if isinstance(value, tuple) else f"{value!r} {unit}"
 
 
 def parse_profile(model: mujoco.MjModel, raw_bytes: bytes, path: str = "profile") -> Profile:
@@ -269,7 +305,11 @@ def _profile(model: mujoco.MjModel, raw: object, sha256: str) -> Profile:
 
 
 def _list(raw: dict, key: str) -> list:
-    value = raw.get(key) or []
+    """The list at ``key``; left out or written empty (``symmetry:``) is none. ``false``, ``0``, ``""`` or ``{}``
+    are mistakes, not "none" (they were taken as empty)."""
+    value = raw.get(key)
+    if value is None:
+        return []
     if not isinstance(value, list):
         raise ProfileError(f"{key}: expected a list, got {type(value).__name__}")
     return value
@@ -346,6 +386,10 @@ def _joint(model: mujoco.MjModel, name: object, spec: object) -> JointLimits:
     hi = _quantity(pos[1], f"joints.{name}.position[1]", dims["position"])
     if not lo < hi:
         raise ProfileError(f"joints.{name}.position: min {lo:g} must be below max {hi:g}")
+    if not -POSITION_MAX <= lo < hi <= POSITION_MAX:
+        raise ProfileError(f"joints.{name}.position: [{pos[0]}, {pos[1]}] reaches beyond the plausible "
+                           f"+-{POSITION_MAX:g} {SI_UNITS[kind]['position']}; no joint travels that far: give the "
+                           "range it has, in its unit")
     if model.jnt_limited[jid]:
         mlo, mhi = model.jnt_range[jid]
         if lo < mlo - 1e-9 or hi > mhi + 1e-9:
@@ -424,7 +468,17 @@ def _symmetry(i: int, spec: object, joints: dict[str, JointLimits]) -> SymmetryP
                            "one of its own kind")
     if isinstance(spec["sign"], bool) or spec["sign"] not in (1, -1):
         raise ProfileError(f"{field}.sign: must be 1 or -1, got {spec['sign']!r}")
-    return SymmetryPair(left=spec["left"], right=spec["right"], sign=float(spec["sign"]))
+    pair = SymmetryPair(left=spec["left"], right=spec["right"], sign=float(spec["sign"]))
+    lo, hi = sorted(pair.sign * q for q in left.position)  # where the mirror puts the right joint
+    if max(lo, right.position[0]) >= min(hi, right.position[1]):  # a mirrored motion was refused chunk by chunk
+        raise ProfileError(f"{field}: {_pair(pair)} puts {right.name} in [{lo:g}, {hi:g}], outside its range "
+                           f"[{right.position[0]:g}, {right.position[1]:g}] for every position of {left.name}; "
+                           "check the sign")
+    return pair
+
+
+def _pair(pair: SymmetryPair) -> str:
+    return f"{pair.right} = {pair.sign:+g} * {pair.left}"
 
 
 def _calibration(spec: object) -> Calibration:
