@@ -138,13 +138,14 @@ class Executor:
         if self._chunk is not None and chunk.t_obs_ns < self._chunk.t_obs_ns:
             return [Event(t_ns, EventKind.CHUNK_REJECTED, f"out of order: answers t={chunk.t_obs_ns * 1e-9:.3f} s, "
                                                   f"not newer than the chunk in use ({self._chunk.t_obs_ns * 1e-9:.3f} s)")]
+        stale = self.stale(chunk, t_ns)
+        if stale is not None:
+            return [Event(t_ns, EventKind.CHUNK_STALE, stale)]
         now = t_ns if self._t_ns is None else self.tau_ns + self._elapsed(t_ns)  # playback time at t_ns
         shift = self._offset_at(chunk.t_obs_ns)
         curve = chunk.curve
         first, h = curve.t0_ns - shift, curve.h_ns
         horizon = len(curve.points)
-        if first + (horizon - 1) * h <= now:
-            return [Event(t_ns, EventKind.CHUNK_STALE, f"all {horizon} steps lie before now")]
         if first <= now and self._chunk is None:  # the first: the robot waited at rest while the policy thought, so
             first += now - (chunk.t_obs_ns - shift)  # its plan starts now, not cut (450 ms cut 0.63 rad off a 1 s chunk)
         placed = curve.shifted(first) if first != curve.t0_ns else curve
@@ -164,6 +165,17 @@ class Executor:
         if dropped:
             events.append(Event(t_ns, EventKind.CHUNK_STEPS_DROPPED, f"{dropped} steps already past"))
         return events
+
+    def stale(self, chunk: PreparedChunk, t_ns: int) -> str | None:
+        """Why a checked ``chunk`` taken at servo tick ``t_ns`` would play nothing (all its steps lie before the
+        playback time then), or None. The loop asks it of a first chunk too: a stale one started the run, and the
+        next chunk, far from the pose, was played with no approach."""
+        now = t_ns if self._t_ns is None else self.tau_ns + self._elapsed(t_ns)
+        curve = chunk.curve
+        horizon = len(curve.points)
+        if curve.t0_ns - self._offset_at(chunk.t_obs_ns) + (horizon - 1) * curve.h_ns <= now:
+            return f"all {horizon} steps lie before now"
+        return None
 
     def _ran_out(self, old: ChunkCurve, now: int, t_ns: int) -> list[Event]:
         """The event for a chunk in use that ended before the one arriving at ``now`` (playback time): the reference

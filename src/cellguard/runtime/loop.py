@@ -291,7 +291,8 @@ class Run:
                     arrival = dataclasses.replace(arrival, prepared=PreparedChunk(0, 0, problem=why))
                 if held is not None:  # refused for the moment, not for what it says: the policy answered
                     self._answers["held"] = held
-            if arrival.prepared.problem is None:  # a refused chunk is an event below; the next one starts the run
+            # a refused or stale chunk is an event below; the next one starts the run
+            if arrival.prepared.problem is None and self.guard.executor.stale(arrival.prepared, t_ns) is None:
                 arrival = self._start(arrival)
                 if arrival is None:  # an approach was played; a fresh request follows
                     return True
