@@ -10,6 +10,8 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
+from cellguard.embodiment.profile import SOFT_MARGIN
+
 Box = tuple[tuple[float, float, float], tuple[float, float, float]]
 # [m] no robot cell's tool point lies this far from its world origin (arms reach under 5 m): a box coordinate beyond
 # is in another unit, and a box that wide turns the workspace check off (``build_guard`` checks the cell's own reach)
@@ -31,7 +33,7 @@ class GuardConfig(BaseModel):
     blend_s: float = Field(default=0.2, gt=0.0, le=1.0, description="chunk stitching blend [s]")
     box: Box | None = Field(
         default=None, description="tool-point box [[xmin, ymin, zmin], [xmax, ymax, zmax]] [m]; default: the cell's")
-    soft_margin: float = Field(default=0.02, ge=0.0, lt=0.5,
+    soft_margin: float = Field(default=SOFT_MARGIN, ge=0.0, lt=0.5,
                                description="soft limits this fraction of each joint's range inside the hard limits")
     effort_fraction: float = Field(default=0.98, gt=0.0, le=1.0,
                                    description="measured |effort| above this fraction of the limit ...")

@@ -73,9 +73,8 @@ class Envelope:
         self.profile, self.config, self.dt_ns, self._tool = profile, config or GuardConfig(), int(dt_ns), tool
         c = self.config
         lo, hi = profile.q_min, profile.q_max
-        margin = c.soft_margin * (hi - lo)
         self.tracker = Tracker(q0, profile.array("velocity"), profile.array("acceleration"), profile.array("jerk"),
-                               lo + margin, hi - margin, dt_ns * 1e-9)
+                               *profile.soft_limits(c.soft_margin), dt_ns * 1e-9)
         checks = build_checks(profile, c, self.dt_ns, tool, self.tracker)
         self._stops, self._speeds, self._after, self._all = (
             checks.stops, checks.speeds, checks.after, checks.stops + checks.speeds + checks.after)

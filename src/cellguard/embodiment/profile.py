@@ -49,6 +49,7 @@ _PLAUSIBLE = {"velocity": (1e-6, 1e3), "acceleration": (1e-6, 1e6), "jerk": (1e-
 # a limited joint; one it leaves unlimited took +-1e308 rad, whose range overflowed to inf and made the guard's soft
 # limits [inf, -inf] (every tick tracker_failed)
 POSITION_MAX = 1e4
+SOFT_MARGIN = 0.02  # the guard's soft limits by default: this fraction of each joint's range inside its limits
 _PARAMETER_DIMENSIONS = ("torque", "force", "time", "angle", "length", "mass", "inertia", "damping")
 # the dimension of a measured parameter on a hinge or a slide joint (None: no unit cellguard reads yet); each is
 # at least zero. A parameter not listed is refused: a misspelt one would be taken with any unit and sign.
@@ -167,6 +168,13 @@ class Profile:
     @property
     def q_max(self) -> np.ndarray:
         return self.array_pos(1)
+
+    def soft_limits(self, margin: float = SOFT_MARGIN) -> tuple[np.ndarray, np.ndarray]:
+        """Lower and upper soft limits (D,), ``margin`` of each joint's range inside its position limits: where the
+        guard brakes (``GuardConfig.soft_margin``), and so where the IK keeps its solutions."""
+        lo, hi = self.q_min, self.q_max
+        inside = margin * (hi - lo)
+        return lo + inside, hi - inside
 
     def first_outside(self, q, slack: float = 0.0) -> int | None:
         """The first joint pose ``q`` puts outside its position limits, widened by ``slack`` of its range; None."""

@@ -24,9 +24,6 @@ from cellguard.policy.adapter import InferenceError
 POSITION_TOLERANCE = 1e-4  # [m] a step's solve stops when the site is this close to its target
 REACH_TOLERANCE = 1e-3  # [m] a step whose site ends further than this from its target was not reached
 MAX_ITERATIONS = 30  # per chunk step
-# the guard's default soft_margin (cellguard.control.config.GuardConfig; this layer is below control): the IK
-# joints stay this fraction of each joint's range inside the profile's limits, where the guard keeps them
-SOFT_MARGIN = 0.02
 LIMIT_REACHED = 1e-3  # [rad or m] an IK joint this close to a soft limit is named as held there by a refusal
 
 
@@ -62,10 +59,9 @@ class IkSolver:
         cost = spec.orientation_cost * (np.ones(3) if spec.full_orientation else np.array([1.0, 1.0, 0.0]))
         self._task = mink.FrameTask(spec.site, "site", position_cost=1.0, orientation_cost=cost)
         self._posture = mink.PostureTask(model, cost=1e-3)
-        lo, hi = profile.q_min[self.joint_index], profile.q_max[self.joint_index]
-        margin = SOFT_MARGIN * (hi - lo)
+        lo, hi = (limit[self.joint_index] for limit in profile.soft_limits())  # the guard's default soft limits
         self._box = _JointBox(mink, model.nv, [int(model.jnt_dofadr[jids[i]]) for i in self.joint_index],
-                              self._qadr[self.joint_index], lo + margin, hi - margin)
+                              self._qadr[self.joint_index], lo, hi)
         self._limits = [self._box]
         self._units = ["rad" if profile.joints[i].kind == "hinge" else "m" for i in self.joint_index]
         self._constraints = [mink.DofFreezingTask(model, dof_indices=self._frozen)] if self._frozen else []
