@@ -38,7 +38,9 @@ _UNITS: dict[str, tuple[str, float]] = {
     "kg*m^2": ("inertia", 1.0),
 }
 
-_GLUED = re.compile(r"([-+]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][-+]?[0-9]+)?)(\S+)")  # a number, then its unit
+_NUMBER = r"[-+]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][-+]?[0-9]+)?"  # ASCII digits, as written in a file
+_GLUED = re.compile(f"({_NUMBER})(\\S+)")  # a number, then its unit
+_PLAIN = re.compile(_NUMBER)
 
 
 def parse_quantity(text: object, field: str, dimensions: tuple[str, ...]) -> float:
@@ -60,6 +62,8 @@ def parse_quantity(text: object, field: str, dimensions: tuple[str, ...]) -> flo
         raise ConfigError(f"{field}: {number!r} is not a number") from None
     if not math.isfinite(value):
         raise ConfigError(f"{field}: {value} is not finite")
+    if not _PLAIN.fullmatch(number):  # float() reads "3_0" as 30, and digits of other scripts
+        raise ConfigError(f"{field}: {number!r} is not a number (digits 0-9, a dot, an exponent)")
     if unit not in _UNITS or _UNITS[unit][0] not in dimensions:
         allowed = [u for u, (d, _) in _UNITS.items() if d in dimensions]
         raise ConfigError(f"{field}: unit {unit!r} does not fit; allowed: {', '.join(allowed)}")
