@@ -64,7 +64,7 @@ MUTATIONS = (
              (f"{INWARD}::test_a_joint_past_its_soft_limit_never_moves_further_out",),
              also=((TRACKER, ">= min(self._lo_f[j], max(q, p))", ">= min(self._lo_f[j], q - 1.0)"),)),
     Mutation("soft_margin_zero", "position: soft limits inside the hard limits", ENVELOPE,
-             "margin = c.soft_margin * (hi - lo)", "margin = 0.0 * (hi - lo)", (POSITION,)),
+             "*profile.soft_limits(c.soft_margin)", "*profile.soft_limits(0.0)", (POSITION,)),
     Mutation("recovery_ignores_position", "position: the recovery brakes and aims inside the soft limits", TRACKER,
              "t = min(max(x, lo), hi)", "t = x",
              (POSITION, LIMITS),
