@@ -32,7 +32,30 @@ def build_guard(cell, settings: GuardConfig | None = None, q0: np.ndarray | None
         check_box_reach(config.box, cell, tool)
     box = config.box if config.box is not None else getattr(cell, "workspace_box", None)
     config = config.model_copy(update={"box": box if tool is not None else None})
+    check_home(cell, config, tool)
     return Guard(cell.profile, cell.read().q if q0 is None else q0, cell.dt_ns, config, tool=tool)
+
+
+def check_home(cell, config: GuardConfig, tool) -> None:
+    """Refuse settings that leave the cell's home pose (``q_home``, where each run starts and retreats to) outside
+    the soft limits or its tool point outside the box: the approach stopped short at a soft limit and the retreat
+    went past it (cycles of 12 s for 4.4 with ``soft_margin: 0.2`` on the arm), or the retreat home was refused at
+    the end of a whole run."""
+    home = getattr(cell, "q_home", None)
+    if home is None:
+        return
+    profile, home = cell.profile, np.asarray(home, dtype=np.float64)
+    j = profile.first_outside(home, slack=-config.soft_margin)  # widened by minus the margin: the soft limits
+    if j is not None:
+        joint, (lo, hi) = profile.joints[j], (limit[j] for limit in profile.soft_limits(config.soft_margin))
+        unit = "rad" if joint.kind == "hinge" else "m"
+        raise ConfigError(f"guard.soft_margin: {config.soft_margin:g} puts the soft limits of {joint.name} at "
+                          f"[{lo:.4g}, {hi:.4g}] {unit}, leaving out its home pose {home[j]:.4g} {unit}; lower it")
+    if tool is not None and config.box is not None:
+        tip = np.asarray(tool(home), dtype=np.float64)
+        if not ((np.asarray(config.box[0]) <= tip) & (tip <= np.asarray(config.box[1]))).all():
+            raise ConfigError(f"guard.box: {[list(map(float, corner)) for corner in config.box]} m leaves out the "
+                              f"home pose's tool point {np.round(tip, 3).tolist()} m")
 
 
 def check_box_reach(box, cell, tool) -> None:
