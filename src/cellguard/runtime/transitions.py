@@ -182,7 +182,7 @@ class Transition:
         under the profile's limits, or None if it is at rest there. Stopping the setpoints dead at full speed
         stepped the command 63 mrad in one 1 ms tick."""
         position, velocity, acceleration = self.state_at(steps * self.period_ns * 1e-9)
-        if steps <= 0 or max(map(abs, [*velocity, *acceleration])) < AT_REST:
+        if max(map(abs, [*velocity, *acceleration])) < AT_REST:  # the first tick too: the command may be moving
             return None
         return self._stop(profile, position, velocity, acceleration, self.period_ns)
 
