@@ -88,24 +88,33 @@ from cellguard.robot.arm_cell import LAYOUT, load_model
 from cellguard.robot.pick_place import PickPlaceCell
 
 
-class MyArm(PickPlaceCell):
-    """The arm with a site's commissioning limits: wrist_flex within +-1.5 rad, and the arm's home pose at 1.55."""
-    name = "myarm-pick-place"
+class Plugged(PickPlaceCell):
+    """The arm with a site's own profile, beside this file."""
+    name = "{dist}-pick-place"
 
     def __init__(self, seed=0):
         model = load_model()
-        super().__init__(model, load_profile(model, Path(__file__).with_name("narrow.yaml")), LAYOUT, seed)
+        super().__init__(model, load_profile(model, Path(__file__).with_name("profile.yaml")), LAYOUT, seed)
 '''
 
 
-def test_a_plugin_cell_whose_home_is_outside_its_limits_is_one_line_naming_its_file_and_nothing_runs(tmp_path):
-    folder = install(tmp_path / "myarm", "[cellguard.cells]\nmyarm-pick-place = myarm:MyArm\n", PLUGIN, "myarm")
-    (folder / "narrow.yaml").write_text(NARROW.replace("robot: arm-pick-place", "robot: myarm-pick-place"))
+def run_arm_plugin(tmp_path: Path, dist: str, profile: str) -> tuple[Path, subprocess.CompletedProcess]:
+    """``cellguard run`` of one cycle of plugin cell ``{dist}-pick-place``: the arm with the arm profile text
+    ``profile`` as its own. Returns the plugin's folder and the finished command."""
+    name = f"{dist}-pick-place"
+    folder = install(tmp_path / dist, f"[cellguard.cells]\n{name} = {dist}:Plugged\n", PLUGIN.format(dist=dist), dist)
+    (folder / "profile.yaml").write_text(profile.replace("robot: arm-pick-place", f"robot: {name}"))
     scenario = tmp_path / "s.yaml"
-    scenario.write_text("cell: myarm-pick-place\nacceptance_cycles: 1\nproduction_cycles: 0\n")
+    scenario.write_text(f"cell: {name}\nacceptance_cycles: 1\nproduction_cycles: 0\n")
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(folder), os.environ.get("PYTHONPATH", "")])}
-    ran = subprocess.run([sys.executable, "-c", "from cellguard.cli import app; app()", "run", str(scenario), "--out",
-                          str(tmp_path / "out")], env=env, capture_output=True, text=True, timeout=300)
+    return folder, subprocess.run([sys.executable, "-c", "from cellguard.cli import app; app()", "run", str(scenario),
+                                   "--out", str(tmp_path / "out")], env=env, capture_output=True, text=True,
+                                  timeout=300)
+
+
+def test_a_plugin_cell_whose_home_is_outside_its_limits_is_one_line_naming_its_file_and_nothing_runs(tmp_path):
+    """The arm with a site's commissioning limits: wrist_flex within +-1.5 rad, and the arm's home pose at 1.55."""
+    folder, ran = run_arm_plugin(tmp_path, "myarm", NARROW)
     assert ran.returncode == 2, ran.stderr
     assert ran.stderr.strip().splitlines() == [
         f"error: cell 'myarm-pick-place': its plugin myarm ({folder / 'myarm.py'}): profile 'myarm-pick-place' version "

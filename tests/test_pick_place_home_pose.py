@@ -6,13 +6,9 @@ lies outside the workspace box'; a layout box that left out the home tool point 
 from __future__ import annotations
 
 import dataclasses
-import os
-import subprocess
-import sys
 
 import pytest
-from test_cell_plugin import install
-from test_pick_place_fit import ARM, ARM_JOINTS, _cell, _joints
+from test_pick_place_fit import ARM, ARM_JOINTS, _cell, _joints, run_arm_plugin
 
 from cellguard.errors import ProfileError
 from cellguard.robot.arm_cell import LAYOUT
@@ -38,33 +34,8 @@ def test_a_layout_whose_box_leaves_out_the_home_tool_point_is_refused(tmp_path):
         (-0.45, -0.45, 0.005), (0.45, 0.45, 0.2)))).layout.workspace_box[1][2] == 0.2  # the tip within: built
 
 
-PLUGIN = '''
-from pathlib import Path
-
-from cellguard.embodiment import load_profile
-from cellguard.robot.arm_cell import LAYOUT, load_model
-from cellguard.robot.pick_place import PickPlaceCell
-
-
-class Swapped(PickPlaceCell):
-    name = "swapped-pick-place"
-
-    def __init__(self, seed=0):
-        model = load_model()
-        super().__init__(model, load_profile(model, Path(__file__).with_name("swapped.yaml")), LAYOUT, seed)
-'''
-
-
 def test_a_plugin_cell_with_reordered_joints_is_one_line_naming_its_file_and_nothing_runs(tmp_path):
-    folder = install(tmp_path / "swapped", "[cellguard.cells]\nswapped-pick-place = swapped:Swapped\n", PLUGIN,
-                     "swapped")
-    (folder / "swapped.yaml").write_text(_joints(ARM, SWAPPED).replace("robot: arm-pick-place",
-                                                                       "robot: swapped-pick-place"))
-    scenario = tmp_path / "s.yaml"
-    scenario.write_text("cell: swapped-pick-place\nacceptance_cycles: 1\nproduction_cycles: 0\n")
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(folder), os.environ.get("PYTHONPATH", "")])}
-    ran = subprocess.run([sys.executable, "-c", "from cellguard.cli import app; app()", "run", str(scenario), "--out",
-                          str(tmp_path / "out")], env=env, capture_output=True, text=True, timeout=300)
+    folder, ran = run_arm_plugin(tmp_path, "swapped", _joints(ARM, SWAPPED))
     assert ran.returncode == 2, ran.stderr
     [line] = ran.stderr.strip().splitlines()
     assert line.startswith(f"error: cell 'swapped-pick-place': its plugin swapped ({folder / 'swapped.py'}): profile "
