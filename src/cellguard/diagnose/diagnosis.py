@@ -80,14 +80,15 @@ class Diagnosis:
 def diagnose(rows: Iterable[object], events: Iterable[object] = (), context: Mapping | None = None,
              baseline: Baseline | None = None, symmetry: Sequence[SymmetryPair] = (),
              config: DriftConfig = DriftConfig(), history: Sequence[Mapping] = (),
-             reference: Sequence[tuple[int, RecoveryOutcome]] = ()) -> Diagnosis:
+             reference: Sequence[tuple[int, RecoveryOutcome]] | None = None) -> Diagnosis:
     """Diagnose a run from its cycles (any source, see ``as_cycle``), events and context.
 
     ``baseline`` defaults to the acceptance cycles of the same run; pass one to compare with a
     separate acceptance record (its ``source`` not ``OWN_SOURCE``): then every cycle of this run is
     watched, its acceptance cycles too (a fault that began in them was dated at its first production
     cycle), and its recoveries are judged against ``reference``, that record's acceptance attempts
-    (``recovery.acceptance_attempts``; this run's own were another acceptance than the baseline's).
+    (``recovery.acceptance_attempts``; this run's own were another acceptance than the baseline's; None: this run's
+    own, its production cycles judged, as without a baseline given).
     ``symmetry`` enables the mirrored-motion comparison. ``history``: what fixed each cause
     in this site's other records (rows of ``recovery.fixes``), for advice.
     """
@@ -99,7 +100,7 @@ def diagnose(rows: Iterable[object], events: Iterable[object] = (), context: Map
         baseline = Baseline.from_cycles(policy_cycles(acceptance))
         watched = [c for c in cycles if c.phase != "acceptance"]
     elif baseline.source != OWN_SOURCE:  # from another record: this one's acceptance cycles are watched too
-        watched, other = list(cycles), list(reference)
+        watched, other = list(cycles), reference
     else:
         watched = [c for c in cycles if c.phase != "acceptance"] or list(cycles)
     if not watched:
