@@ -149,7 +149,7 @@ def simulate(rc: RecordedCycle, terms: JointTerms, vary: Vary | None = None, fac
     d.qvel[drives.dadr] = rc.qd0
     drives.write(rc.ticks.q_cmd[0])
     mujoco.mj_forward(cell.model, d)
-    guard = build_guard(cell, GuardConfig.model_validate(rc.guard))
+    guard = build_guard(cell, GuardConfig.model_validate(rc.guard))  # checked by ``_check_guard``
     guard.reset(rc.ticks.q[0])
     dt_ns = cell.dt_ns
     n = int((rc.t_ns[-1] - rc.t_start_ns) // dt_ns) + 1
@@ -169,6 +169,24 @@ def simulate(rc: RecordedCycle, terms: JointTerms, vary: Vary | None = None, fac
         q[k], cur[k] = state.q, state.current
     at = np.clip((rc.t_ns - rc.t_start_ns) // dt_ns, 0, n - 1).astype(int)
     return Trajectory(rc.ticks.t, q[at], cur[at], cmd[at])
+
+
+def _check_guard(rc: RecordedCycle, cell, path: Path) -> None:
+    """CalibrationError, one line naming the record and the setting, when this cellguard refuses the guard settings
+    the record's run had (a check added since: a box beyond 100 m or over 10 times the tool's reach, a soft_margin or
+    a box leaving out the home pose), as a scenario's ``guard:`` is refused: replay cannot build the guard that ran.
+    A box in millimetres recorded before the reach checks ended in pydantic's traceback, exit 1."""
+    from cellguard.control.settings import build_guard
+    from cellguard.errors import ConfigError, ScenarioError
+    from cellguard.scenario import parse_scenario
+
+    origin = f"{path}: the record's guard settings, refused by this cellguard (replay cannot build the guard that ran)"
+    try:
+        build_guard(cell, parse_scenario({"cell": rc.cell, "guard": rc.guard}, origin=origin).guard)
+    except ScenarioError as exc:
+        raise CalibrationError(str(exc)) from None
+    except ConfigError as exc:
+        raise CalibrationError(f"{origin}: {exc}") from None
 
 
 def _chunk(recorded):
@@ -407,6 +425,7 @@ def replay(path: Path, cycle: int, model: str = "calibrated", profile: Path | No
     if tuple(cell.profile.joint_names) != rc.joints:
         raise CalibrationError(f"{path}: joints {list(rc.joints)}; the {rc.cell} model has "
                                f"{list(cell.profile.joint_names)}")
+    _check_guard(rc, cell, path)
     terms, used = model_terms(rc, cell, model, profile)
     joints = hinge_joints(cell)
     v = parse_vary(vary, cell) if vary is not None else None
