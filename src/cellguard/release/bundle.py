@@ -19,8 +19,9 @@ from pathlib import Path
 
 from cellguard import __version__
 from cellguard.control.config import GuardConfig
+from cellguard.control.settings import build_guard
 from cellguard.embodiment.profile import calibrated_profile, kept_copy
-from cellguard.errors import CellguardError, ProfileError, ScenarioError
+from cellguard.errors import CellguardError, ConfigError, ProfileError, ScenarioError
 from cellguard.output import not_regular
 from cellguard.release.errors import BundleMismatch, ReleaseError
 from cellguard.robot.registry import cell_names, make_cell
@@ -94,7 +95,7 @@ def create_bundle(policy: str, action_map: Path | None, profile: str, envelope: 
     cell_name, profile_path = _resolve_profile(profile)
     cell = make_cell(cell_name)
     prof, calibrated = cell.profile, _calibration(cell, profile_path)  # the cell's own, and a calibration of it
-    settings = _envelope(envelope, cell_name)
+    settings = _envelope(envelope, cell)
     amap = None
     if action_map is not None:
         _check_takes_map(policy)
@@ -279,16 +280,22 @@ def _resolve_profile(profile: str) -> tuple[str, Path | None]:
     raise ReleaseError(f"--profile {profile}: neither a profile file nor a cell; cells: {', '.join(cells)}")
 
 
-def _envelope(path: Path | None, cell: str) -> GuardConfig:
-    """The envelope file read as a scenario's ``guard:`` section, by the scenario's own checks: every stage's run
-    validates it so, and a rule of create's own let ``.inf`` or a document ``[]`` through to fail only there."""
+def _envelope(path: Path | None, cell) -> GuardConfig:
+    """The envelope file read as a scenario's ``guard:`` section, by the scenario's own checks, and the guard built
+    on ``cell`` as every stage's run builds it (``build_guard``: a box in another unit, settings leaving out the home
+    pose): a rule of create's own let ``.inf`` or a document ``[]`` through, and a box in centimetres was released
+    and promoted to fail only at each run."""
     if path is None:
         return GuardConfig()
     raw = read_yaml(Path(path), "envelope", ReleaseError)
     try:
-        return parse_scenario({"cell": cell, "guard": raw}, origin=f"--envelope {path}").guard
+        settings = parse_scenario({"cell": cell.name, "guard": raw}, origin=f"--envelope {path}").guard
+        build_guard(cell, settings)
     except ScenarioError as exc:
         raise ReleaseError(str(exc)) from None
+    except ConfigError as exc:
+        raise ReleaseError(f"--envelope {path}: {exc}") from None
+    return settings
 
 
 def _absolute_spec(spec: str) -> str:
