@@ -45,7 +45,7 @@ def test_an_impossible_date_in_a_scenario_is_text_not_a_crash(tmp_path):
 
 
 def test_a_tagged_value_that_cannot_be_read_is_one_error():
-    with pytest.raises(ConfigError, match=r"x: not valid YAML \(invalid literal"):
+    with pytest.raises(ConfigError, match=r"^x: line 1: !!int 'abc' is not a whole number"):
         parse_yaml("a: !!int abc\n", "x")
 
 

@@ -13,8 +13,10 @@ date (``2026-02-30``) a ValueError in every reader; a field that must hold a dat
 A number in exponent form without a dot (``5e-1``, ``1e300``) is a number, as in YAML 1.2: PyYAML's
 YAML 1.1 read it as the text "5e-1", which a number field then refused with a puzzling message.
 A whole number is YAML 1.2's too: ``020`` is 20 (YAML 1.1 read it as octal 16, so ``production_cycles: 010`` ran 8
-cycles), ``0o20`` is octal, ``0x1F`` hex, and ``1:05`` is text (YAML 1.1 read base 60, 65); ``_`` between digits is
-kept as a separator (``1_000``: it cannot be read as another number).
+cycles), ``0o20`` is octal, ``0x1F`` hex, and ``1:05`` is text (YAML 1.1 read base 60, 65); ``_`` between two digits
+is kept as a separator (``1_000``: it cannot be read as another number), anywhere else it makes text (``1_``,
+``0x_1``). Digits are ASCII (``!!int ٣`` is refused, not 3). ``dump_yaml`` writes what this loader reads back as
+written: a text that it (or YAML 1.1) would read as something else is quoted (``version: '09'``).
 """
 
 from __future__ import annotations
@@ -41,14 +43,18 @@ class _Refused(yaml.YAMLError):
 _TIMESTAMP = "tag:yaml.org,2002:timestamp"
 _FLOAT = "tag:yaml.org,2002:float"
 _INT = "tag:yaml.org,2002:int"
-# YAML 1.1's floats less base 60, plus YAML 1.2's exponent form without a dot (``1e-3``); an integer stays an integer
-_FLOAT_FORM = re.compile(r"""^(?:[-+]?(?:[0-9][0-9_]*)\.[0-9_]*(?:[eE][-+]?[0-9]+)?
-                    |[-+]?[0-9][0-9_]*[eE][-+]?[0-9]+
-                    |\.[0-9][0-9_]*(?:[eE][-+]?[0-9]+)?
+_DIGITS = "[0-9]+(?:_[0-9]+)*"  # ASCII digits, ``_`` only between two of them
+# YAML 1.1's floats less base 60, plus YAML 1.2's exponent form without a dot (``1e-3``) and sign before a leading dot
+# (``-.5``: YAML 1.1 read text, and ``!!float -.5`` was -0.5); an integer stays an integer
+_FLOAT_FORM = re.compile(rf"""^(?:[-+]?{_DIGITS}\.(?:{_DIGITS})?(?:[eE][-+]?[0-9]+)?
+                    |[-+]?{_DIGITS}[eE][-+]?[0-9]+
+                    |[-+]?\.{_DIGITS}(?:[eE][-+]?[0-9]+)?
                     |[-+]?\.(?:inf|Inf|INF)
-                    |\.(?:nan|NaN|NAN))$""", re.X)
-# YAML 1.2's integers (decimal with leading zeros, 0o octal, 0x hex), with YAML 1.1's ``_`` separators
-_INT_FORM = re.compile(r"^[-+]?(?:[0-9][0-9_]*|0o[0-7_]+|0x[0-9a-fA-F_]+)$")
+                    |\.(?:nan|NaN|NAN))\Z""", re.X)
+# YAML 1.2's integers (decimal with leading zeros, 0o octal, 0x hex), with ``_`` separators between digits
+_INT_FORM = re.compile(rf"^[-+]?(?:{_DIGITS}|0o[0-7]+(?:_[0-7]+)*|0x[0-9a-fA-F]+(?:_[0-9a-fA-F]+)*)\Z")
+_DECIMAL_FORM = re.compile(rf"[-+]?{_DIGITS}\Z")  # what ``!!float`` takes besides a float's form (``!!float 5``)
+_BOOL_FORM = re.compile(r"(?:yes|no|true|false|on|off)\Z", re.I)  # what ``!!bool`` takes: SafeLoader's bool_values
 
 
 class _StrictLoader(yaml.SafeLoader):
@@ -70,6 +76,8 @@ class _StrictLoader(yaml.SafeLoader):
             self._depth -= 1
 
     def construct_mapping(self, node, deep=False):
+        if not isinstance(node, yaml.MappingNode):  # ``!!set [1]``: PyYAML's own error, not a TypeError below
+            return super().construct_mapping(node, deep=deep)
         seen: set = set()
         for key_node, _ in node.value:
             key = self.construct_object(key_node, deep=True)
@@ -84,24 +92,62 @@ class _StrictLoader(yaml.SafeLoader):
 
 
 def _construct_int(loader, node) -> int:
-    """An integer read as YAML 1.2 reads it (``!!int 010`` included): decimal unless ``0o`` or ``0x`` says otherwise;
-    anything else (``!!int 1:05``, ``!!int 0b11``) is a ValueError, which ``parse_yaml`` names."""
-    text = loader.construct_scalar(node).replace("_", "")
-    return int(text, {"0o": 8, "0x": 16}.get(text.lstrip("+-")[:2].lower(), 10))
+    """An integer read as YAML 1.2 reads it (``!!int 010`` included): decimal unless ``0o`` or ``0x`` says otherwise."""
+    text = _explicit(loader, node, "a whole number (digits, 0o octal or 0x hex)", _INT_FORM).replace("_", "")
+    return int(text, {"0o": 8, "0x": 16}.get(text.lstrip("+-")[:2], 10))
 
 
 def _construct_float(loader, node) -> float:
-    """A float as YAML 1.1 reads it, less base 60 (``!!float 1:30`` was 90.0)."""
-    text = loader.construct_scalar(node)
-    if ":" in text:
-        raise ValueError(f"{text!r} is not a number (base 60 is YAML 1.1's)")
+    """A float as YAML 1.1 reads it, less base 60 (``!!float 1:30`` was 90.0); a decimal whole number too."""
+    _explicit(loader, node, "a number", _FLOAT_FORM, _DECIMAL_FORM)
     return loader.construct_yaml_float(node)
+
+
+def _explicit(loader, node, what: str, *forms: re.Pattern) -> str:
+    """The text of ``node``, which one of ``forms`` matches: a value only YAML 1.1 read (``!!int 0b11``, ``!!float
+    1:30``) or none (``!!int 1e3``) is refused in one line naming it, not with Python's ``int()`` message."""
+    text = loader.construct_scalar(node)
+    if not any(form.match(text) for form in forms):
+        raise _Refused(f"line {node.start_mark.line + 1}: !!{node.tag.rpartition(':')[2]} {text!r} is not {what}")
+    return text
+
+
+def _construct_bool(loader, node) -> bool:
+    """A bool as YAML 1.1 reads it (``!!bool yes``); ``!!bool abc`` is refused naming it (PyYAML's KeyError was a
+    traceback)."""
+    _explicit(loader, node, "true or false", _BOOL_FORM)
+    return loader.construct_yaml_bool(node)
 
 
 # an explicit ``!!timestamp`` is text too
 _StrictLoader.add_constructor(_TIMESTAMP, lambda loader, node: loader.construct_scalar(node))
 _StrictLoader.add_constructor(_INT, _construct_int)
 _StrictLoader.add_constructor(_FLOAT, _construct_float)
+_StrictLoader.add_constructor("tag:yaml.org,2002:bool", _construct_bool)
+
+
+class _Dumper(yaml.SafeDumper):
+    """SafeDumper that quotes a text that the loader or YAML 1.1 reads as something else (``'09'``, ``'0o17'``,
+    ``'1e3'``, ``'2026-11-01'``): YAML 1.1's rules alone left ``09`` plain, which the loader reads as the number 9."""
+
+    yaml_implicit_resolvers = {first: _StrictLoader.yaml_implicit_resolvers.get(first, [])
+                               + yaml.SafeDumper.yaml_implicit_resolvers.get(first, [])
+                               for first in {**_StrictLoader.yaml_implicit_resolvers,
+                                             **yaml.SafeDumper.yaml_implicit_resolvers}}
+
+
+def _represent_str(dumper, text: str):
+    """A text with a NEL (U+0085) double-quoted, where it is written escaped: PyYAML wrote it raw in a quoted or plain
+    text, which reads it back as a line break folded to a space."""
+    return dumper.represent_scalar("tag:yaml.org,2002:str", text, style='"' if "\x85" in text else None)
+
+
+_Dumper.add_representer(str, _represent_str)
+
+
+def dump_yaml(document: object) -> str:
+    """``document`` as YAML text that ``parse_yaml`` reads back equal (keys in their order, Unicode as written)."""
+    return yaml.dump(document, Dumper=_Dumper, sort_keys=False, allow_unicode=True)
 
 
 def parse_yaml(data: bytes | str, where: str, error: type[ConfigError] = ConfigError) -> object:
@@ -120,7 +166,7 @@ def parse_yaml(data: bytes | str, where: str, error: type[ConfigError] = ConfigE
         raise error(f"{where}: not valid YAML{line} ({exc.problem or exc.__class__.__name__})") from None
     except (yaml.YAMLError, UnicodeDecodeError) as exc:
         raise error(f"{where}: not valid YAML ({exc.__class__.__name__})") from None
-    except ValueError as exc:  # an explicit tag on a value it cannot read: ``!!int abc``, ``!!float x``
+    except ValueError as exc:  # a whole number over the digits Python converts (4300)
         raise error(f"{where}: not valid YAML ({exc})") from None
     except RecursionError:
         raise error(f"{where}: nested too deeply to read") from None

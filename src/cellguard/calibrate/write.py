@@ -30,7 +30,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import mujoco
-import yaml
 
 from cellguard.calibrate.identify import CalibrationError, describe_value, negative_values, refuse_ahead
 from cellguard.calibrate.mjcf import calibrated_mjcf
@@ -38,7 +37,7 @@ from cellguard.calibrate.torque_model import JointTerms
 from cellguard.embodiment.profile import kept_copy, parse_profile
 from cellguard.errors import OutputError, ProfileError
 from cellguard.output import NAME_MAX, folder_locked, write_output
-from cellguard.yaml_file import parse_yaml, read_bounded
+from cellguard.yaml_file import dump_yaml, parse_yaml, read_bounded
 
 WRITTEN = ("friction", "damping", "armature")  # per-joint parameters the profile's units express
 NEW_VERSION = "YYYY-MM-DD-cal-HASHHASH"  # the form of the version a write makes (``DATE-cal-HASH``): its length
@@ -200,7 +199,7 @@ def _write(path: Path, cell, result: dict, date: str, basis: bytes | None) -> Wr
                                                      f"{e['unit']}"})
     old_version = str(raw.get("version", "unversioned"))
     raw["measured"] = measured
-    draft = parse_profile(cell.model, yaml.safe_dump(raw, sort_keys=False).encode(), str(path))
+    draft = parse_profile(cell.model, dump_yaml(raw).encode(), str(path))
     mjcf = calibrated_mjcf(cell, JointTerms.of_profile(cell, draft, _payload(result)))
     # the whole document it records (limits too: a hand-edited limit under a kept version made the same id twice)
     recorded = {key: value for key, value in raw.items() if key not in ("version", "model", "calibration")}
@@ -212,7 +211,7 @@ def _write(path: Path, cell, result: dict, date: str, basis: bytes | None) -> Wr
     raw["model"] = mjcf_path.name
     raw["calibration"] = {"version": version, "mjcf": mjcf_path.name, "date": date, "records": records,
                           "previous": old_version}
-    text = yaml.safe_dump(raw, sort_keys=False, allow_unicode=True)
+    text = dump_yaml(raw)
     parse_profile(mujoco.MjModel.from_xml_string(mjcf), text.encode(), str(path))  # loads on its own model
     kept = kept_copy(path, old_version)
     _refuse_other_version(mjcf_path, mjcf.encode(), "calibrated MJCF", version)
