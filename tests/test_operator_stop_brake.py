@@ -67,3 +67,15 @@ def test_a_signal_after_the_longest_brake_raises_at_once_and_at_rest_raises_one_
         time.sleep(0.25)
         with pytest.raises(KeyboardInterrupt):
             signal.raise_signal(signal.SIGINT)
+
+
+def test_a_third_signal_held_for_a_brake_that_never_comes_is_raised_when_the_handlers_go():
+    """Signals while a run closes (its record and summary written, no motion left) opened the brake's window, and
+    the third was held for an ``at_rest`` that never came: swallowed, exit 0 where it raised before."""
+    stop = OperatorStop(brake_s=60.0)
+    with pytest.raises(KeyboardInterrupt):
+        with stop:
+            for _ in range(3):
+                signal.raise_signal(signal.SIGINT)
+            assert stop.waiting == 1  # held: a brake may still run
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # the handlers were put back first

@@ -62,6 +62,9 @@ class OperatorStop:
         for signum, handler in self._previous.items():
             signal.signal(signum, handler)
         self._previous.clear()
+        if self.waiting and exc[0] is None:  # held for a brake that never came (the run was closing): raised now,
+            self.waiting = 0                  # the record finished (it was swallowed, exit 0)
+            raise KeyboardInterrupt
 
     @property
     def reason(self) -> str:
@@ -85,6 +88,7 @@ class OperatorStop:
             self.waiting += 1
             if self.waiting == 1:
                 sys.stderr.write(f"{signal.Signals(signum).name} again during the brake: KeyboardInterrupt once the "
-                                 f"robot is at rest (a signal {self.brake_s:.1f} s after the stop raises it at once)\n")
+                                 f"robot is at rest (a signal {self.brake_s:.1f} s after the one before raises it at "
+                                 "once)\n")
         else:
             raise KeyboardInterrupt
