@@ -144,27 +144,30 @@ class Transition:
         lo, hi = np.asarray(box[0], dtype=np.float64), np.asarray(box[1], dtype=np.float64)
         dt = self.period_ns * 1e-9
         per_step = float(np.dot(reach, profile.array("velocity"))) * dt  # [m] the tool's most in one period
-        steps, k, allowed, left, worst = math.ceil(self.duration_s / dt), 0, None, None, 0.0
+        steps, k, allowed, left, worst = math.ceil(self.duration_s / dt), 0, None, None, None
         while k <= steps:
             t = min(k * dt, self.duration_s)
             tip = np.asarray(tool(np.asarray(self.state_at(t)[0], dtype=np.float64)), dtype=np.float64)
             out = np.maximum(lo - tip, tip - hi)  # per axis: > 0 outside
             excess = float(out.max())  # < 0 inside: minus the distance to the nearest wall
+            axis = int(np.argmax(out))
+            here = (excess, t, f"{'xyz'[axis]} {'min' if lo[axis] > tip[axis] else 'max'}", tip)
             if allowed is None:  # the start
                 allowed = excess + SLACK if excess > 0.0 else 0.0
             elif left is not None:
-                worst = max(worst, excess)
+                worst = max(worst, here, key=lambda w: w[0])
             elif excess > allowed:
-                axis = int(np.argmax(out))
-                left, worst = (t, f"{'xyz'[axis]} {'min' if lo[axis] > tip[axis] else 'max'}", tip), excess
+                left = worst = here
             else:
                 allowed = min(allowed, excess + SLACK) if excess > 0.0 else 0.0
             k += max(1, int(-excess / per_step)) if excess < 0.0 and per_step > 0.0 else 1
         if left is None:
             return None
-        t, wall, tip = left
-        return (f"its tool point leaves the workspace box {[list(map(float, corner)) for corner in box]} past its "
-                f"{wall} {t:.2f} s in (at {np.round(tip, 3).tolist()} m), {worst * 1e3:.0f} mm outside at worst")
+        said = (f"its tool point leaves the workspace box {[list(map(float, corner)) for corner in box]} past its "
+                f"{left[2]} {left[1]:.2f} s in (at {np.round(left[3], 3).tolist()} m)")
+        if worst is left:
+            return f"{said}, {left[0] * 1e3:.0f} mm outside at worst"
+        return f"{said}; {worst[0] * 1e3:.0f} mm outside at worst, past its {worst[2]} {worst[1]:.2f} s in"
 
     def slowed(self, profile: Profile, steps: int, cap: SpeedCap | None,
                reach: list[float] | None) -> Transition | None:
