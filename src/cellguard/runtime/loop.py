@@ -113,7 +113,8 @@ class Run:
         # to the outcome (the calibration's residual monitor adds ``residual``)
         self.cycle_monitors: list[Callable[[CycleBuffer, dict], None]] = []
         self.stopped: str | None = None  # why the run stopped early, if it did
-        self.policy_lost: str | None = None  # why the policy answers no more (its process ended, a call hung)
+        # why the policy answers no more (its process ended, a call hung, every answer refused: ``_never_answered``)
+        self.policy_lost: str | None = None
         # Ctrl-C / SIGTERM / SIGHUP while the cycles run: a stop; a third signal waits while a brake may run
         self.operator = OperatorStop(longest_brake_s(self.cell.profile, self.cell.dt_ns))
         self.inference = None  # built at the first cycle (the policy may be swapped before)
@@ -415,7 +416,7 @@ class Run:
         """At the end of the run (or after a stop with power kept): back to the home pose, unless its path would take
         the tool out of the workspace box: then the robot holds where it stopped and the run ends stopped."""
         if not self.guard.power:  # a category 0/1 stop in the last cycle: no reset follows, the run ends stopped
-            self.stopped = self.stopped or self._power_removed(self.guard.envelope)  # (it ended clean, exit 0)
+            self.stopped = self.stopped or self._power_removed(self.guard.envelope)  # (it ended clean, exit 0: no more)
             return
         home = getattr(self.cell, "q_home", None)
         unrecorded = self.recording is not None and self.recording.failed  # no motion the record would not hold
@@ -462,7 +463,8 @@ class Run:
                 "on; bring it home before the next run")
 
     def _power_removed(self, envelope) -> str:
-        """Why a robot behind a bridge stopped for good: the link fault that asked it, else the guard's stop."""
+        """Why the run stopped for good with power off (a robot behind a bridge, or a stop in the last cycle or the
+        retreat): the link fault that asked it, else the guard's stop."""
         if self.link.stop is not None:
             return f"robot link: {self.link.reason}"
         return (f"power removed by a category {envelope.stop_category} stop ({envelope.stop_reason}); reset the cell "
@@ -704,7 +706,8 @@ class Run:
         self._lose_policy(t_ns, f"{lead} ({the_last})")
 
     def _lose_policy(self, t_ns: int, why: str) -> None:
-        """The policy answers no more (its process ended, or a call hung ``HUNG_WATCHDOGS`` watchdog times): one
+        """The policy answers no more (its process ended, a call hung ``HUNG_WATCHDOGS`` watchdog times, or every
+        answer was refused past the watchdog: ``_never_answered``): one
         event and the watchdog's stop category (silence for good is what it configures), the run ends once the
         command is at rest and the retreat follows. Each cycle waited out its time-out before, a dead process
         failing every request (an event each 50 ms), and the run ended with nothing stopped."""
