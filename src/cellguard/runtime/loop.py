@@ -426,26 +426,48 @@ class Run:
             self.events.append(Event(self.clock.now(), EventKind.RETREAT_ABORTED, "retreat not played: the run "
                                      "stopped during an operator's hand-over hold; the robot stays where it is held"))
             return
-        plan = Transition.plan(self.cell.profile, self.link.last_sent, np.asarray(home), self.clock.period_ns,
-                               **self._commanded_motion(), **self._cap(self.cell.safety()))
+        plan = self._way_home(home, self._commanded_motion())
+        first, signals = self.events.total, min(self.operator.count, 1)  # the operator's first signal stopped the
+        # run (or ends it now); a second aborts this
+        begun = plan is not None and plan.brakes and not plan.settles
+        if plan is not None and plan.brakes:  # the command still moves (a time cycle ended mid-motion): to rest
+            # first, then the way home checked from there (checked first, the moving command held its setpoint the
+            # 15 to 100 ms the check took: a dead stop)
+            if begun:
+                self._begin(plan, "retreat", self.clock.now())
+            self._play(plan.braking(), "retreat", self.clock.now(), signals=signals)
+            if self._retreat_ended(first, signals):
+                return
+            plan = self._way_home(home, {})  # at rest where the brake left it (the guard's state is from before)
         if plan is None:
             return
         outside = self._leaves_box(plan)
-        if outside is not None:  # not played; a command still moving is braked to rest all the same
-            self.events.append(Event(self.clock.now(), EventKind.RETREAT_ABORTED, f"retreat not played: {outside}; "
-                                     "the robot holds where it stopped"))
+        if outside is not None:  # not played: the robot holds where it stopped, at rest
+            played = " beyond its brake" if begun else ""
+            self.events.append(Event(self.clock.now(), EventKind.RETREAT_ABORTED, f"retreat not played{played}: "
+                                     f"{outside}; the robot holds where it stopped"))
             self.stopped = self.stopped or (f"the retreat home was not played: {outside}; the robot is held where it "
                                             "stopped, power on: bring it home before the next run")
-            plan = plan.braking()
-            if plan is None:
-                return
-        first, signals = self.events.total, min(self.operator.count, 1)  # the operator's first signal stopped the
-        # run (or ends it now); a second aborts this
-        self._play(plan, "retreat", self.clock.now(), signals=signals)
-        if not self.guard.power:  # a category 0/1 stop aborted it: no reset follows, the run ends stopped
+            return
+        self._play(plan, "retreat", self.clock.now(), signals=signals, begun=begun)
+        self._retreat_ended(first, signals)
+
+    def _way_home(self, home, motion: dict) -> Transition | None:
+        """The retreat's plan from the command, moving as ``motion`` says (``_commanded_motion``; {}: at rest), to
+        ``home``, or None where it is there at rest."""
+        return Transition.plan(self.cell.profile, self.link.last_sent, np.asarray(home), self.clock.period_ns,
+                               **motion, **self._cap(self.cell.safety()))
+
+    def _retreat_ended(self, first: int, signals: int) -> bool:
+        """Did a stop end the retreat played since event ``first``: the run then ends stopped (a category 0/1 stop:
+        no reset follows; a category 2 pulse: away from home, where the run ended clean before)."""
+        if not self.guard.power:
             self.stopped = self.stopped or self._power_removed(self.guard.envelope)
-        elif any(e.kind == EventKind.RETREAT_ABORTED for e in self.events.since(first)):  # a category 2 pulse ended
-            self.stopped = self.stopped or self._retreat_aborted(signals)  # the run clean, away from home
+        elif any(e.kind == EventKind.RETREAT_ABORTED for e in self.events.since(first)):
+            self.stopped = self.stopped or self._retreat_aborted(signals)
+        else:
+            return False
+        return True
 
     def _leaves_box(self, plan: Transition) -> str | None:
         """Where ``plan`` would take the tool out of the guard's workspace box (``Transition.leaves_box``), or None."""
@@ -497,16 +519,17 @@ class Run:
         what a transition goes under."""
         return {"cap": speed_cap(self.guard.config, safety), "reach": self._reach}
 
-    def _play(self, plan: Transition, name: str, t0: int, signals: int | None = None) -> np.ndarray:
+    def _play(self, plan: Transition, name: str, t0: int, signals: int | None = None, begun: bool = False
+              ) -> np.ndarray:
         """Play a transition tick by tick; return the pose it left the robot at. A stop input, a link fault or
         an operator's signal past ``signals`` (default: those so far) aborts it as the stop's category asks
         (``_ticks``); a category 0 or 1 stop then removes power through the guard, where the brake left the robot.
         A plan that only settles the command is not told as a transition (every run's last cycle ended with its
-        command a few ms from rest)."""
+        command a few ms from rest). ``begun``: its begin was told already (``_begin``: a retreat from motion, told with
+        its brake)."""
         signals = self.operator.count if signals is None else signals
-        if not plan.settles:
-            self.events.append(Event(t0, EventKind(f"{name}_begin"),
-                                     f"{name}: {plan.duration_s:.2f} s to {np.round(plan.target, 3).tolist()}"))
+        if not plan.settles and not begun:
+            self._begin(plan, name, t0)
         with self.clock.ticking():
             held, stop = self._ticks(plan, name, signals)
             if stop is not None and stop[0] < 2:
@@ -516,6 +539,11 @@ class Run:
             self.events.append(Event(self.clock.now(), EventKind(f"{name}_done"), f"{name} complete"))
         self._at_rest()
         return held
+
+    def _begin(self, plan: Transition, name: str, t_ns: int) -> None:
+        """The transition's ``*_begin`` event: how long it takes, and where to."""
+        self.events.append(Event(t_ns, EventKind(f"{name}_begin"),
+                                 f"{name}: {plan.duration_s:.2f} s to {np.round(plan.target, 3).tolist()}"))
 
     def _at_rest(self) -> None:
         """The command is at rest (a transition played or braked, the run's end): a stop signal that insisted during

@@ -126,7 +126,7 @@ class Transition:
 
     def braking(self) -> Transition | None:
         """Only the brake this transition starts with (a moving command brought to rest), or None if it starts at
-        rest: what is played of a transition that may not be, so the command never stops dead."""
+        rest: played before the rest of a retreat is checked, so the check never holds a moving command."""
         if not self.brakes:
             return None
         first = self.trajectories[0]
