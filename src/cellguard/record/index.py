@@ -93,17 +93,20 @@ class IndexWriter:
         self._rows[table].append(row)
 
     def flush(self) -> None:
+        """Write the rows still buffered. A table that had none at all gets one part of its columns and no rows, dated
+        the run's start: an index without parts reads as none, and `record recover` of a run killed before its first
+        cycle ended, with no event, wrote one that `record query` refused, pointing back at `record recover`."""
         for table in TABLES:
-            self._write(table)
+            self._write(table, empty=not self._parts[table])
 
-    def _write(self, table: str) -> None:
+    def _write(self, table: str, empty: bool = False) -> None:
         rows = self._rows[table]
-        if not rows:
+        if not rows and not empty:
             return
-        folder = self.folder / table / f"day={self._day[table]}"
+        folder = self.folder / table / f"day={self._day[table] or self.day_of(0)}"
         folder.mkdir(parents=True, exist_ok=True)
         path = folder / f"part-{self._parts[table]:08d}.parquet"
-        part = rows_to_table(rows)
+        part = rows_to_table(rows) if rows else _fixed(table).empty_table()
         if self.record_id:
             part = part.replace_schema_metadata({RECORD_ID_KEY: self.record_id.encode()})
         with self._opener(path) as f:

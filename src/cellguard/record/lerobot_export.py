@@ -1,7 +1,8 @@
 """A record's cycles as a LeRobotDataset v3, for fine-tuning a policy on this robot's own data.
 
-One completed cycle is one episode. Frames come from the record's continuous decimated tick
-stream (every ``round(servo rate / decimated_hz)``-th servo tick, at least every one: 50 Hz at 1 kHz,
+One completed cycle is one episode: a cycle the run's stop cut short, or whose start or end the record lost (its
+begin or end marker, or the ticks at either edge), is left out and named. Frames come from the record's continuous
+decimated tick stream (every ``round(servo rate / decimated_hz)``-th servo tick, at least every one: 50 Hz at 1 kHz,
 30 Hz at 30 Hz), every ``k``-th tick of it for a whole ``fps`` (LeRobot's fps is an integer);
 the full-rate windows around events are not used, so every episode has the same frame period.
 Per frame: ``observation.state`` the measured joint positions, ``observation.velocity`` and
@@ -31,10 +32,12 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from cellguard.control.events import EventKind
 from cellguard.errors import RecordError
 from cellguard.output import refuse_filled_folder
 from cellguard.record import folder_lock, staged
-from cellguard.record.reader import Record
+from cellguard.record.json_values import loads
+from cellguard.record.reader import CycleRecord, Record, _cycle_marker
 from cellguard.record.writer import decimation_stride
 
 CODEBASE_VERSION = "v3.0"
@@ -49,6 +52,12 @@ SUGGESTED_PERIODS_MS = range(1, 21)
 STAGING_SUFFIX = ".partial"  # of the folder beside -o that a run writes into: .NAME.XXXXXXXX.partial
 DATASET_PARTS = ("data", "meta")  # moved into -o in this order
 INDEX_FEATURES = ("timestamp", "frame_index", "episode_index", "index", "task_index")
+# the events after which the run stops (an operator's signal, the policy or the robot link lost, the record failing,
+# the run's process killed): a cycle one falls in was cut short, not completed
+RUN_STOPS = frozenset({EventKind.OPERATOR_STOP, EventKind.POLICY_LOST, EventKind.RECORD_FAILED,
+                       EventKind.RUN_PROCESS_LOST, EventKind.ROBOT_READ_FAILED, EventKind.ROBOT_READ_TIMEOUT,
+                       EventKind.ROBOT_STATE_STALE, EventKind.ROBOT_PACKETS_DROPPED, EventKind.ROBOT_WRITE_FAILED,
+                       EventKind.ROBOT_SERVER_GONE})
 _TICK_FEATURES = {"observation.state": "q_meas", "observation.velocity": "qd_meas",
                   "observation.effort": "effort", "action": "q_cmd"}
 
@@ -78,25 +87,28 @@ def export_lerobot(rec: Record, output: Path, fps: int | None = None, task: str 
     task = task or (context.get("cell") or "cycle").replace("-", " ")
     measurements = _measurements(rec)
     columns: dict[str, list[np.ndarray]] = {}
-    episodes, kept, skipped = [], [], []
+    episodes, kept = [], []
+    cycles, stops = list(rec.cycles()), [(e.t_ns, e.kind) for e in rec.events() if e.kind in RUN_STOPS]
+    skipped = [(n, "its end was lost") for n in _unfinished(rec, {c.cycle for c in cycles})]
     joints: tuple[str, ...] = ()
-    for cycle in rec.cycles():
+    for cycle in cycles:
         if success_only and not cycle.success:
             continue
         ticks = rec.ticks(cycle=cycle.cycle, rate="decimated")
         t = ticks.t_ns[::stride]
-        if len(t) < 2 or not evenly_spaced(t, fps):
-            skipped.append(f"cycle {cycle.cycle}: " + ("no ticks" if len(t) < 2 else "gap in the decimated ticks"))
+        why = _cut_short(cycle, stops) or _incomplete(cycle, ticks.t_ns, t, fps, stride)
+        if why:
+            skipped.append((cycle.cycle, why))
             continue
         frames = {name: getattr(ticks, field)[::stride] for name, field in _TICK_FEATURES.items()}
         if measurements:
             if cycle.cycle not in measurements:  # lost (a damaged record): its frames were NaN, and so its stats
-                skipped.append(f"cycle {cycle.cycle}: no camera or fixture readings recorded in it")
+                skipped.append((cycle.cycle, "no camera or fixture readings recorded in it"))
                 continue
             frames["observation.environment_state"] = _held(measurements[cycle.cycle], t)
         unfit = _not_float32(frames)
         if unfit:
-            skipped.append(f"cycle {cycle.cycle}: {unfit}")
+            skipped.append((cycle.cycle, unfit))
             continue
         joints = ticks.joints
         n, start = len(t), sum(len(c) for c in columns.get("index", []))
@@ -111,6 +123,7 @@ def export_lerobot(rec: Record, output: Path, fps: int | None = None, task: str 
                          "cellguard/cycle": cycle.cycle, "cellguard/phase": cycle.phase,
                          "cellguard/success": cycle.success, "cellguard/t_start_ns": cycle.t_start_ns})
         kept.append(cycle.cycle)
+    skipped = [f"cycle {n}: {why}" for n, why in sorted(skipped, key=lambda item: item[0])]
     if not kept:
         raise RecordError(f"{rec.file}: no cycle to export" + (f" ({'; '.join(skipped)})" if skipped else ""))
     data = {k: np.concatenate(v) for k, v in columns.items()}
@@ -165,6 +178,42 @@ def evenly_spaced(t_ns: np.ndarray, fps: float) -> bool:
     ``STEP_TOLERANCE_NS`` of the period (the clock's steps round to the nanosecond: an exact test dropped 3 of
     the demo's 80 cycles as "gaps" for steps of 20,000,001 ns)."""
     return bool(np.all(_is_period(np.diff(t_ns), fps)))
+
+
+def _incomplete(cycle: CycleRecord, ticks_ns: np.ndarray, t_ns: np.ndarray, fps: int, stride: int) -> str:
+    """Why a cycle's decimated ``ticks_ns`` and its frames ``t_ns`` (every ``stride``-th of them) are not the whole
+    cycle ("" if they are): a gap inside, or more than one tick missing between its start or end and its first or last
+    tick (a damaged chunk at a cycle's edge cut the episode short unnamed, or started it 120 ms late at timestamp 0)."""
+    tick_ns = 1e9 / (fps * stride)
+    if len(t_ns) < 2:
+        return "no ticks"
+    if not evenly_spaced(t_ns, fps):
+        return "gap in the decimated ticks"
+    if ticks_ns[0] - cycle.t_start_ns > tick_ns + STEP_TOLERANCE_NS:
+        return "ticks lost at its start"
+    if cycle.t_end_ns - ticks_ns[-1] > tick_ns + STEP_TOLERANCE_NS:
+        return "ticks lost at its end"
+    return ""
+
+
+def _unfinished(rec: Record, finished: set[int]) -> list[int]:
+    """The cycles whose begin marker is recorded but not their end marker (lost in a damaged chunk, or the run was
+    killed in them): no outcome, no end, so no episode; named, not dropped unsaid. A marker the reader takes as
+    malformed is skipped here too (its health counts it)."""
+    begun = set()
+    for m in rec.messages(["/cycles"]):
+        with contextlib.suppress(ValueError, KeyError, TypeError, AttributeError):
+            d = _cycle_marker(loads(m.data))
+            if d["marker"] == "begin":
+                begun.add(d["cycle"])
+    return sorted(begun - finished)
+
+
+def _cut_short(cycle: CycleRecord, stops: list[tuple[int, str]]) -> str:
+    """Why ``cycle`` is not a completed one ("" if it is): the run's stop came while it ran, so it ended at standstill
+    after braking, not at its task's end (a failed task is data and stays; ``--success-only`` leaves it out)."""
+    kinds = [kind for t, kind in stops if cycle.t_start_ns <= t <= cycle.t_end_ns]
+    return f"cut short by {kinds[0]}" if kinds else ""
 
 
 def _is_period(step_ns, fps: float) -> np.ndarray:
