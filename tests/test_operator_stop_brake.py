@@ -69,13 +69,18 @@ def test_a_signal_after_the_longest_brake_raises_at_once_and_at_rest_raises_one_
             signal.raise_signal(signal.SIGINT)
 
 
-def test_a_third_signal_held_for_a_brake_that_never_comes_is_raised_when_the_handlers_go():
-    """Signals while a run closes (its record and summary written, no motion left) opened the brake's window, and
-    the third was held for an ``at_rest`` that never came: swallowed, exit 0 where it raised before."""
-    stop = OperatorStop(brake_s=60.0)
-    with pytest.raises(KeyboardInterrupt):
-        with stop:
-            for _ in range(3):
+def test_once_the_run_moves_no_more_a_third_signal_raises_at_once():
+    """Signals while a run closes its record (no motion left) opened the brake's window, and the third was held for a
+    rest that never came: swallowed. Once the cycles and the retreat are over, the third raises at once."""
+    run = Run(parse_scenario({"cell": "arm-pick-place", "acceptance_cycles": 1, "production_cycles": 0,
+                              "cycle": {"source": "time", "seconds": 0.5}}))
+    try:
+        with run.operator:
+            run.run_cycles()
+            signal.raise_signal(signal.SIGINT)
+            signal.raise_signal(signal.SIGINT)
+            with pytest.raises(KeyboardInterrupt):
                 signal.raise_signal(signal.SIGINT)
-            assert stop.waiting == 1  # held: a brake may still run
-    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # the handlers were put back first
+            assert run.operator.waiting == 0
+    finally:
+        run.close()

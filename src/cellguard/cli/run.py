@@ -74,7 +74,10 @@ def _run(scenario: Scenario, out: Path, quiet: bool, realtime: bool = False, ove
 
 def _record_left(rec, out: Path) -> str:
     """What a run that raised left in ``out``, by how its record closed (a start-up refusal mid-tick closes it
-    whole, and was called partial): never a summary.json."""
+    whole, and was called partial), and whether its summary.json was written (a third Ctrl-C as the run closed
+    raised after it: the line said it had none)."""
+    if rec.finished and (out / "summary.json").is_file():
+        return f"the record in {out} is finished and whole, its summary.json written"
     if rec.finished:
         return f"the record in {out} is finished and whole; it has no summary.json"
     if rec.failed:

@@ -789,6 +789,7 @@ class Run:
                     break
             self.retreat()
             self._at_rest()
+            self.operator.motion_over()
         if self.operator.count:  # a signal during the last retreat stops the run too
             self.stopped = self.stopped or self.operator.reason
         if self.link.stop is not None:  # so does a link fault during it (the robot is left where it failed)

@@ -45,6 +45,7 @@ class OperatorStop:
         self.brake_s = brake_s
         self.waiting = 0  # the signals that insisted during a brake, raised at ``at_rest``
         self._braking_until = 0.0  # [s] time.monotonic(): a brake may still run until then
+        self._moving = True  # motion may follow (cycles, transitions): a signal starts a brake; False: ``motion_over``
         self._previous: dict[int, object] = {}
         self._depth = 0  # nested ``with`` blocks: the outermost installs and restores
 
@@ -62,9 +63,6 @@ class OperatorStop:
         for signum, handler in self._previous.items():
             signal.signal(signum, handler)
         self._previous.clear()
-        if self.waiting and exc[0] is None:  # held for a brake that never came (the run was closing): raised now,
-            self.waiting = 0                  # the record finished (it was swallowed, exit 0)
-            raise KeyboardInterrupt
 
     @property
     def reason(self) -> str:
@@ -78,12 +76,18 @@ class OperatorStop:
             self.waiting = 0
             raise KeyboardInterrupt
 
+    def motion_over(self) -> None:
+        """No motion follows (the run closes its record): a signal starts no brake, so the third raises at once. It
+        opened the brake's window still, and a third signal then waited for a rest that never came: swallowed."""
+        self._moving = False
+        self._braking_until = 0.0
+
     def _received(self, signum: int, frame) -> None:
         self.count += 1
         self.signal = self.signal or signal.Signals(signum).name
         now = time.monotonic()
         if self.count < INSIST:  # a stop, or the retreat's abort: a brake starts
-            self._braking_until = now + self.brake_s
+            self._braking_until = now + self.brake_s if self._moving else 0.0
         elif now < self._braking_until:
             self.waiting += 1
             if self.waiting == 1:
