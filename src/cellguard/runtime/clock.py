@@ -45,6 +45,9 @@ class SimClock:
         """Simulated time asks nothing of the OS."""
         return nullcontext()
 
+    def regrid(self) -> None:
+        """Simulated time has no grid to miss."""
+
 
 class LockStepClock(SimClock):
     """A bridge's simulated robot that moves one period per command: ``now`` is the bridge's
@@ -101,12 +104,19 @@ class WallClock:
         Inside a stretch already (a transition played by the cycle's first chunk), nothing changes."""
         if self._servo is not None and self._servo.active:
             return nullcontext(self._servo)
-        now = time.monotonic_ns()
-        if now > self._deadline:  # after a pause: counted apart, not as a late tick
-            self.timing.pause(now - self._deadline)
-        self._began, self._deadline = now, now + self.period_ns  # a new period grid from now
+        self.regrid()
         self._servo = ServoThread(self.priority, self.idle)
         return self._servo
+
+    def regrid(self) -> None:
+        """A new period grid from now, the time past the last deadline counted as a pause, not as a late tick: at a
+        stretch's start, and inside one after work that is no tick (the guard built anew where an approach left the
+        robot, at rest: the cycle's next tick was 5 to 23 ms late, an overrun, and ``overrun_budget: 0`` stopped
+        every run that needed an approach)."""
+        now = time.monotonic_ns()
+        if now > self._deadline:
+            self.timing.pause(now - self._deadline)
+        self._began, self._deadline = now, now + self.period_ns
 
     def _scheduled(self) -> int:
         """Inside a stretch: the time the tick in progress is scheduled for; outside: monotonic ns."""

@@ -381,6 +381,7 @@ class Run:
         held = self._play(approach, "approach", self.clock.now())
         if self.guard.power:  # else a category 0/1 stop aborted it: the guard holds there, power removed
             self.guard = build_guard(self.cell, self.scenario.guard, q0=held)  # where the commands left the robot
+        self.clock.regrid()  # that work, the robot at rest, is no late tick
         self._arm(self.clock.now())
         self.source.begin(self.cycles.total, self._armed_at)  # the cycle (and episode) starts at the approached pose
         self.inference.begin_cycle(self._armed_at)  # and resets the policy
