@@ -88,9 +88,16 @@ def test_on_wall_time_too(tmp_path):
     assert len(summary["cycles"]) == 1 and moved < 0.01
 
 
+def _straight_up(call, chunk):
+    """Every step the arm straight up: the tool at z 0.69 m, over the box's 0.55 m ceiling."""
+    up = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.025])
+    return ActionChunk(np.tile(up, (len(chunk.actions), 1)), chunk.t_obs_ns, chunk.dt_ns)
+
+
 def test_a_first_target_outside_the_box_every_time_is_lost_too(tmp_path):
-    """A workspace box the task's poses lie outside: every first chunk refused, every cycle to its time-out."""
-    _, summary = _run(tmp_path, lambda call, chunk: None, guard={"box": [[0, 0, 0], [0.001, 0.001, 0.001]]})
+    """A policy whose poses lie outside the workspace box: every first chunk refused, every cycle to its time-out
+    before. (A box that leaves out the home pose itself is refused before the run: ``check_home``.)"""
+    _, summary = _run(tmp_path, _straight_up)
     assert summary["stopped"].startswith(REJECTED) and "outside the workspace box" in summary["stopped"]
     assert len(summary["cycles"]) == 1
 

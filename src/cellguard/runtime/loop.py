@@ -292,9 +292,12 @@ class Run:
                     arrival = dataclasses.replace(arrival, prepared=PreparedChunk(0, 0, problem=why))
                 if held is not None:  # refused for the moment, not for what it says: the policy answered
                     self._answers["held"] = held
-            # a refused or stale chunk is an event below; the next one starts the run
-            if arrival.prepared.problem is None and self.guard.executor.stale(arrival.prepared, t_ns) is None:
-                arrival = self._start(arrival)
+            # a refused or stale chunk is an event below; the next one starts the run (a stale one is checked all the
+            # same: a chunk the latency can never fit is refused for that, not waited on as stale till the watchdog)
+            if arrival.prepared.problem is None:
+                self._check_startup(arrival)
+                if self.guard.executor.stale(arrival.prepared, t_ns) is None:
+                    arrival = self._start(arrival)
                 if arrival is None:  # an approach was played; a fresh request follows
                     return True
         if self.recording is not None:
@@ -353,22 +356,13 @@ class Run:
                 self.link.lost = self.link.lost or exc.lost
 
     def _start(self, arrival):
-        """The run's first chunk: start-up checks (may refuse to move), then the approach if needed.
+        """The run's first chunk, its start-up checks passed (``_check_startup``): the approach if needed.
 
         Returns the arrival to push, or None when an approach was played (the chunk answered the
         pose before it; a fresh request follows).
         """
         self._started = True
         chunk = arrival.chunk
-        # Simulated time: the healthy latency; an injected latency fault is an incident to diagnose, not a refusal.
-        latency = arrival.latency_ns if self.clock.realtime else round(NOMINAL_INFERENCE_S * 1e9)
-        period = self.clock.period_ns
-        try:
-            check_startup(self.policy, self._first_observation, chunk, latency, period,
-                          self.inference.spacing_ns(latency + period, chunk),
-                          round(self.scenario.guard.watchdog_s * 1e9))
-        except StartupRefused as exc:
-            self._refuse(str(exc))
         # from where the robot was commanded to be (the measured pose lags it: planning from there stepped the command)
         approach = Transition.plan(self.cell.profile, self.link.last_sent, self._first_target(chunk),
                                    self.clock.period_ns, **self._commanded_motion(), **self._cap(self.cell.safety()))
@@ -386,6 +380,19 @@ class Run:
         self.source.begin(self.cycles.total, self._armed_at)  # the cycle (and episode) starts at the approached pose
         self.inference.begin_cycle(self._armed_at)  # and resets the policy
         return None
+
+    def _check_startup(self, arrival) -> None:
+        """The start-up checks on a first chunk (``startup``): refuse to move, or return."""
+        chunk = arrival.chunk
+        # Simulated time: the healthy latency; an injected latency fault is an incident to diagnose, not a refusal.
+        latency = arrival.latency_ns if self.clock.realtime else round(NOMINAL_INFERENCE_S * 1e9)
+        period = self.clock.period_ns
+        try:
+            check_startup(self.policy, self._first_observation, chunk, latency, period,
+                          self.inference.spacing_ns(latency + period, chunk),
+                          round(self.scenario.guard.watchdog_s * 1e9))
+        except StartupRefused as exc:
+            self._refuse(str(exc))
 
     def _refuse(self, why: str) -> NoReturn:
         """Refuse to start: the refusal in the record (it held only the watchdog's stop), then StartupRefused."""
