@@ -86,23 +86,24 @@ class RobotLink:
         return sent
 
     def power_off(self, t_ns: int) -> None:
-        """Drive power off after a category 0/1 stop; a robot that cannot be switched off (a hung bus) is a
-        write fault, never an exception on the servo path (the cell's safety controller must then do it)."""
+        """Drive power off after a category 0/1 stop; a robot that cannot be switched off (a hung bus, a server
+        that cannot be sent to) is a write fault, never an exception on the servo path (the cell's safety
+        controller must then do it), and always its own event: a write fault before it hid it."""
         try:
             self.robot.set_power(False)
         except Exception as exc:  # noqa: BLE001
-            self.fault(t_ns, EventKind.ROBOT_WRITE_FAILED, f"drive power could not be switched off: "
-                       f"{type(exc).__name__}: {exc}")
+            self.fault(t_ns, EventKind.ROBOT_WRITE_FAILED, f"drive power-off not confirmed: {type(exc).__name__}: "
+                       f"{exc}", once=False)
 
-    def fault(self, t_ns: int, kind: str, reason: str) -> None:
-        """A link fault: one event of its kind, and the stop category asked from the guard from now on."""
-        if self._event(t_ns, kind, reason, self.category):
+    def fault(self, t_ns: int, kind: str, reason: str, once: bool = True) -> None:
+        """A link fault: one event of its kind (``once``), and the stop category asked from the guard from now on."""
+        if self._event(t_ns, kind, reason, self.category, once):
             self.reason = self.reason or f"{kind}: {reason}"
             self.stop = self.category if self.stop is None else min(self.stop, self.category)
 
-    def _event(self, t_ns: int, kind: str, reason: str, category: int | None = None) -> bool:
-        """One event per kind and run (a lasting condition is not repeated every tick)."""
-        if kind in self._raised:
+    def _event(self, t_ns: int, kind: str, reason: str, category: int | None = None, once: bool = True) -> bool:
+        """One event per kind and run (a lasting condition is not repeated every tick), unless not ``once``."""
+        if once and kind in self._raised:
             return False
         self._raised.add(kind)
         self.events.append(Event(t_ns, kind, reason, category=category))

@@ -26,10 +26,10 @@ from __future__ import annotations
 import contextlib
 import functools
 import json
+import re
 import socket
 import struct
 import time
-from urllib.parse import urlsplit
 
 import numpy as np
 
@@ -41,22 +41,20 @@ STATE_HEAD = struct.Struct("<cQqQ")
 COMMAND_HEAD = struct.Struct("<cQqB")
 HELLO_TIMEOUT_S = 2.0
 FLAG_VALUES, STOP_VALUES = (0.0, 1.0), (-1.0, 0.0, 1.0, 2.0)  # what a state packet's last three fields may be
-LOOPBACK = ("127.0.0.1", "localhost")
+ADDRESS = re.compile(r"(?:udp://)?(?:127\.0\.0\.1|localhost):([0-9]{1,5})", re.IGNORECASE)
 # the servo periods a run drives a robot at (a LeRobot robot's hz: 1 to 1000; a chunk's step: 1 ms to 1 s): a
 # period of 1 ns sized the loop's cycle buffer at 89 GiB (a MemoryError traceback)
 PERIOD_NS = (10**6, 10**9)
 
 
 def parse_address(argument: str) -> tuple[str, int]:
-    """``udp://127.0.0.1:PORT`` (loopback only) -> (host, port)."""
-    try:
-        url = urlsplit(argument if "://" in argument else f"udp://{argument}")
-        scheme, host, port = url.scheme, url.hostname, url.port
-    except ValueError:
-        scheme = host = port = None
-    if scheme != "udp" or host not in LOOPBACK or not port:
-        raise ScenarioError(f"robot: sim-server address must be udp://127.0.0.1:PORT (loopback, port 1-65535), "
-                            f"got {argument!r}")
+    """``udp://127.0.0.1:PORT`` (loopback only) -> (host, port); nothing else in it (a path, query, fragment, user
+    or whitespace was dropped without a word, and the run went to the port)."""
+    match = ADDRESS.fullmatch(argument)
+    port = int(match[1]) if match else 0
+    if not 1 <= port <= 65535:
+        raise ScenarioError(f"robot: sim-server address must be udp://127.0.0.1:PORT (loopback, port 1-65535, "
+                            f"nothing else), got {argument!r}")
     return "127.0.0.1", port
 
 
@@ -161,6 +159,7 @@ class SimServerRobot:
         self._last_packet_ns = time.monotonic_ns()
         self.sock.setblocking(False)
         self._wait_first()
+        self._setpoint = self._latest[0].q.copy()  # the last setpoint sent (before any: the measured pose)
 
     # -- connection -------------------------------------------------------------------------
     def _hello(self) -> dict:
@@ -302,7 +301,8 @@ class SimServerRobot:
                                  lost=True) from None
         except OSError as exc:
             raise RobotLinkError("robot_write_failed", f"send failed: {exc.strerror}") from None
-        return setpoint.copy()
+        self._setpoint = sent = setpoint.copy()  # what a power-off goes out with
+        return sent
 
     def safety(self) -> SafetyInputs:
         return self._latest[3]
@@ -315,7 +315,11 @@ class SimServerRobot:
         return self._latest[2]
 
     def set_power(self, on: bool) -> None:
+        """Off goes out at once, in a command with the last setpoint (the server takes a power-off with any): a loop
+        that writes nothing more after it (a lost link) left the robot powered. On goes out with the next write."""
         self._power = bool(on)
+        if not on:
+            self.write(self._setpoint)
 
     def context(self) -> dict:
         return {**self._model.context(), "robot": f"sim-server:udp://{self.address[0]}:{self.address[1]}"}
