@@ -13,11 +13,12 @@ from cellguard.cli import app
 def test_a_record_with_no_finished_cycle_is_named_so_against_another_acceptance(tmp_path):
     record(tmp_path / "accepted", 10, 3)  # 5 acceptance cycles, the same robot and profile
     record(tmp_path / "run", 0, 3)
+    kept = sorted(p.name for p in (tmp_path / "run").iterdir())  # the record and its (empty) index
     for command in (["diagnose"], ["report", "-o", str(tmp_path / "page.html")]):
         result = CliRunner().invoke(app, [*command, str(tmp_path / "run"), "--acceptance", str(tmp_path / "accepted")])
         assert result.exit_code == 2, result.output
         assert result.output.strip() == f"error: {tmp_path / 'run'}: the record has no finished cycle to diagnose"
-    assert sorted(p.name for p in (tmp_path / "run").iterdir()) == ["record.mcap"]  # nothing written beside it
+    assert sorted(p.name for p in (tmp_path / "run").iterdir()) == kept  # nothing written beside them
     assert not (tmp_path / "page.html").exists()
 
 
