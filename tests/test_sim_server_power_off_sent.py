@@ -77,7 +77,8 @@ def test_a_server_whose_states_stop_mid_cycle_gets_the_power_off_the_record_stat
     summary = run_scenario(run.scenario, tmp_path / "out", run=run)
     assert stopped.is_set()
     removed = [e for e in summary["events"] if e["kind"] == "power_removed"]
-    assert removed and "robot link lost" in removed[0]["reason"], summary["events"]
+    # the link lost (category 0 at once) or, on a loaded host, its read time-out's category 1 stop completed first
+    assert removed and "robot link" in removed[0]["reason"], summary["events"]
     assert not [e for e in summary["events"] if "power-off not confirmed" in e["reason"]]  # it was sent
     effort = drive_effort(port)
     assert np.all(effort == 0.0), f"the served drives are still powered: effort {effort}"
