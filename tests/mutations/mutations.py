@@ -176,7 +176,7 @@ MUTATIONS = (
              "if first <= now and self._chunk is None:", "if first <= now:",
              ("tests/test_executor_from_rest.py::test_after_a_chunk_ran_out_a_late_chunk_drops_its_past_steps",)),
     Mutation("stale_chunk_accepted", "stale-step dropping: a wholly stale chunk is refused", EXECUTOR,
-             "if curve.t0_ns - self._offset_at(chunk.t_obs_ns) + (horizon - 1) * curve.h_ns <= now:", "if False:",
+             "if first + (horizon - 1) * curve.h_ns <= now else None", "if False else None",
              (f"{EXE}::test_a_fully_stale_chunk_is_refused",)),
     Mutation("out_of_order_accepted", "stale-step dropping: an older chunk never replaces a newer one", EXECUTOR,
              "chunk.t_obs_ns < self._chunk.t_obs_ns", "chunk.t_obs_ns < -(2**62)",

@@ -83,6 +83,12 @@ def _fade(x: float) -> float:
     return 1.0 - x * x * x * (10.0 + x * (6.0 * x - 15.0))
 
 
+def _past(curve: ChunkCurve, first: int, now: int) -> str | None:
+    """Why ``curve``, its first step at ``first``, plays nothing at playback time ``now`` (all its steps before it)."""
+    horizon = len(curve.points)
+    return f"all {horizon} steps lie before now" if first + (horizon - 1) * curve.h_ns <= now else None
+
+
 class Executor:
     """Holds the chunk being played and answers ``reference(t_ns)``; refuses bad chunks with events.
 
@@ -138,13 +144,12 @@ class Executor:
         if self._chunk is not None and chunk.t_obs_ns < self._chunk.t_obs_ns:
             return [Event(t_ns, EventKind.CHUNK_REJECTED, f"out of order: answers t={chunk.t_obs_ns * 1e-9:.3f} s, "
                                                   f"not newer than the chunk in use ({self._chunk.t_obs_ns * 1e-9:.3f} s)")]
-        stale = self.stale(chunk, t_ns)
-        if stale is not None:
-            return [Event(t_ns, EventKind.CHUNK_STALE, stale)]
-        now = t_ns if self._t_ns is None else self.tau_ns + self._elapsed(t_ns)  # playback time at t_ns
-        shift = self._offset_at(chunk.t_obs_ns)
+        now, shift = self._when(chunk, t_ns)
         curve = chunk.curve
         first, h = curve.t0_ns - shift, curve.h_ns
+        stale = _past(curve, first, now)
+        if stale is not None:
+            return [Event(t_ns, EventKind.CHUNK_STALE, stale)]
         horizon = len(curve.points)
         if first <= now and self._chunk is None:  # the first: the robot waited at rest while the policy thought, so
             first += now - (chunk.t_obs_ns - shift)  # its plan starts now, not cut (450 ms cut 0.63 rad off a 1 s chunk)
@@ -170,12 +175,14 @@ class Executor:
         """Why a checked ``chunk`` taken at servo tick ``t_ns`` would play nothing (all its steps lie before the
         playback time then), or None. The loop asks it of a first chunk too: a stale one started the run, and the
         next chunk, far from the pose, was played with no approach."""
+        now, shift = self._when(chunk, t_ns)
+        return _past(chunk.curve, chunk.curve.t0_ns - shift, now)
+
+    def _when(self, chunk: PreparedChunk, t_ns: int) -> tuple[int, int]:
+        """The playback time at servo tick ``t_ns``, and how far the playback clock lagged real time when ``chunk``'s
+        observation was made [ns]."""
         now = t_ns if self._t_ns is None else self.tau_ns + self._elapsed(t_ns)
-        curve = chunk.curve
-        horizon = len(curve.points)
-        if curve.t0_ns - self._offset_at(chunk.t_obs_ns) + (horizon - 1) * curve.h_ns <= now:
-            return f"all {horizon} steps lie before now"
-        return None
+        return now, self._offset_at(chunk.t_obs_ns)
 
     def _ran_out(self, old: ChunkCurve, now: int, t_ns: int) -> list[Event]:
         """The event for a chunk in use that ended before the one arriving at ``now`` (playback time): the reference
