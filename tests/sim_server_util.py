@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shlex
@@ -32,6 +33,17 @@ def start_server(*args: str, cell: str = "arm-pick-place", timeout_s: float = ST
     command = [sys.executable, "-c", "from cellguard.cli import app; app()", "sim-server", cell, "--port", str(port),
                *args]
     return started(command, timeout_s), port
+
+
+@contextlib.contextmanager
+def served(*args: str, cell: str = "arm-pick-place"):
+    """``start_server`` for a block: its port, the server killed after."""
+    proc, port = start_server(*args, cell=cell)
+    try:
+        yield port
+    finally:
+        proc.kill()
+        proc.wait()
 
 
 def started(command: list[str], timeout_s: float = START_S) -> subprocess.Popen:

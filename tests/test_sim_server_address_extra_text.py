@@ -9,7 +9,7 @@ from __future__ import annotations
 import json
 
 import pytest
-from sim_server_util import server_counters, start_server
+from sim_server_util import server_counters, served
 from typer.testing import CliRunner
 
 from cellguard.cli import app
@@ -19,10 +19,8 @@ from cellguard.robot.bridges.sim_server import parse_address
 
 @pytest.fixture(scope="module")
 def served_port():
-    proc, port = start_server()
-    yield port
-    proc.kill()
-    proc.wait()
+    with served() as port:
+        yield port
 
 
 @pytest.mark.parametrize("extra", ["/x?y=1", "/", "?", "#f", "?y=1", " "])

@@ -7,7 +7,7 @@ guarded the served arm, and its summary named the scenario's cell beside a conte
 from __future__ import annotations
 
 import pytest
-from sim_server_util import server_counters, start_server
+from sim_server_util import server_counters, served
 from typer.testing import CliRunner
 
 from cellguard.cli import app
@@ -16,10 +16,8 @@ from cellguard.robot.bridges.sim_server import SimServerRobot
 
 @pytest.fixture(scope="module")
 def arm_server():
-    proc, port = start_server()
-    yield port
-    proc.kill()
-    proc.wait()
+    with served() as port:
+        yield port
 
 
 @pytest.mark.parametrize("cell", ["quadruped-turns", "nope-cell"])
