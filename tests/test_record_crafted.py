@@ -233,3 +233,17 @@ def test_an_index_copied_from_another_run_is_not_read_as_this_ones(original, tmp
     assert "an index copied from another run" in one_error(result)
     with open_record(tmp_path / "run") as rec:  # the cycle's span from the record's own markers
         assert rec.ticks(cycle=1).t_ns[0] == 1000 * 10**6
+
+
+@pytest.mark.parametrize("command", [["record", "info"], ["diagnose"], ["record", "recover"]])
+def test_a_context_stating_a_newer_format_is_refused_as_its_metadata_would_be(original, tmp_path, command):
+    """The context is what the reader falls back on where the metadata record is lost: one stating a newer format was
+    read with this version's rules (a full diagnosis), and recovered into a copy this version then refused."""
+    def edit(topic, d):
+        return {**d, "record_version": 99} if topic == "/context" else d
+
+    rewrite(original, tmp_path / "run", edit=edit, metadata={"cellguard.context": {"record_version": "99"}})
+    out = ["-o", str(tmp_path / "copy")] if command[-1] == "recover" else []
+    line = one_error(runner.invoke(app, [*command, str(tmp_path / "run"), *out]))
+    assert "record format version 99 is newer than this cellguard reads" in line
+    assert not (tmp_path / "copy").exists()

@@ -254,9 +254,8 @@ class Record:
         self.record_id: str | None = facts.get("record_id")
         self.epoch_wall_ns = _natural(facts.get("epoch_wall_ns")) or 0
         self.start_ns = _natural(facts.get("start_ns")) or 0
-        if facts and self.version > RECORD_VERSION:
-            raise RecordError(f"{file}: record format version {self.version} is newer than this cellguard reads "
-                              f"(1 to {RECORD_VERSION}); update cellguard")
+        if facts:
+            self._readable()
         self._offset = self.epoch_wall_ns if self.version >= 2 else 0  # log time = record time + offset
         if stated is None and any(c.topic == "/joint_states" for c in layout.channels.values()):
             self._offset, self.version = None, 2  # version 2 (format 1 has no ROS 2 channels), its metadata lost
@@ -306,6 +305,8 @@ class Record:
         for key in _NUMBERS:
             if key in stated:
                 setattr(self, "version" if key == "record_version" else key, stated[key])
+        self._readable()  # a context of a newer format was read with this version's rules, and recovered into a
+        # copy this version refused
         if self.version < 2:
             self._offset = 0
         elif "epoch_wall_ns" in stated:
@@ -317,6 +318,12 @@ class Record:
                  if key in stated and written != found[key]]
         if wrong:
             self._facts_note = f"the metadata record states {', '.join(wrong)}; the context's values are used"
+
+    def _readable(self) -> None:
+        """Refuse a record of a format newer than this cellguard reads, stated by its metadata or its context."""
+        if self.version > RECORD_VERSION:
+            raise RecordError(f"{self.file}: record format version {self.version} is newer than this cellguard reads "
+                              f"(1 to {RECORD_VERSION}); update cellguard")
 
     def facts(self) -> dict[str, str]:
         """The record's format, epoch and start as read, as metadata text (what a recovered copy states)."""
