@@ -4,10 +4,12 @@ parameters as written, symmetry pairs and the calibration."""
 from __future__ import annotations
 
 import importlib.util
+from pathlib import Path
 
 import pytest
 from typer.testing import CliRunner
 
+import cellguard
 from cellguard.cli import app
 
 runner = CliRunner()
@@ -75,3 +77,20 @@ def test_a_profile_without_one_of_the_cells_joints_is_refused(tmp_path):
     line = one_error(runner.invoke(app, ["embodiment", "show", "arm-pick-place", "--profile", str(path)]))
     assert line.startswith(f"error: --profile: {path} has joints [") and line.endswith("(wrist_roll missing)"), line
 
+
+
+def test_a_profile_an_older_identify_wrote_is_not_said_to_be_typed_in(tmp_path):
+    """An older identify --write named its records in each value's method but wrote no calibration block: such a
+    profile read as "the measured values were typed in"."""
+    import yaml
+
+    from cellguard.calibrate.write import IDENTIFIED
+
+    raw = yaml.safe_load((Path(cellguard.__file__).parent / "robot" / "assets" / "arm_profile.yaml").read_text())
+    raw["measured"][0]["method"] = f"{IDENTIFIED}excite.mcap (regression on mj_inverse)"
+    (tmp_path / "arm.yaml").write_text(yaml.safe_dump(raw))
+    result = runner.invoke(app, ["embodiment", "show", "arm-pick-place", "--profile", str(tmp_path / "arm.yaml")],
+                           env={"COLUMNS": "200"})
+    assert result.exit_code == 0, result.output
+    assert "typed in" not in result.output and "calibration: none stated" in result.output
+    assert "an older identify --write" in result.output

@@ -40,6 +40,7 @@ from cellguard.output import NAME_MAX, folder_locked, write_output
 from cellguard.yaml_file import dump_yaml, parse_yaml, read_bounded
 
 WRITTEN = ("friction", "damping", "armature")  # per-joint parameters the profile's units express
+IDENTIFIED = "sysid: "  # how a measured value's method starts where identify --write wrote it
 NEW_VERSION = "YYYY-MM-DD-cal-HASHHASH"  # the form of the version a write makes (``DATE-cal-HASH``): its length
 
 
@@ -189,7 +190,7 @@ def _write(path: Path, cell, result: dict, date: str, basis: bytes | None) -> Wr
         raise CalibrationError(f"--write: {'; '.join(describe_value(e) for e in negative)}: below zero, which no "
                                f"joint has; not written to {path}")
     records = list(result["records"])
-    method = f"sysid: {', '.join(records)} (regression on mj_inverse)"
+    method = f"{IDENTIFIED}{', '.join(records)} (regression on mj_inverse)"
     replaced = {(e["joint"], e["parameter"]) for e in new}
     measured = [m for m in raw.get("measured") or [] if (m.get("joint"), m.get("parameter")) not in replaced]
     for e in new:

@@ -10,6 +10,7 @@ from pathlib import Path
 import typer
 from rich.console import Console
 
+from cellguard.calibrate.write import IDENTIFIED
 from cellguard.cli.app import app
 from cellguard.cli.errors import fail
 from cellguard.errors import CellguardError
@@ -94,10 +95,19 @@ def print_profile(profile) -> None:
         console.print(pairs)
     else:
         console.print(cell("symmetry: none"))
+    console.print(cell(_calibration(profile)))
+
+
+def _calibration(profile) -> str:
+    """Where the profile's measured values come from: its calibration, else typed in, or identified by an older
+    identify --write (it wrote no calibration block: such a profile read as typed in)."""
     c = profile.calibration
-    console.print(cell("calibration: none (the measured values were typed in)" if c is None else
-                       f"calibration: {c.version} of {c.date} from {', '.join(c.records)} (MJCF {c.mjcf}, "
-                       f"replaced {c.previous})"))
+    if c is not None:
+        return f"calibration: {c.version} of {c.date} from {', '.join(c.records)} (MJCF {c.mjcf}, replaced {c.previous})"
+    if any(m.method.startswith(IDENTIFIED) for m in profile.measured):
+        return ("calibration: none stated (measured values name an identification: an older identify --write, "
+                "which wrote no calibration block)")
+    return "calibration: none (the measured values were typed in)"
 
 
 def _inward(value: float, up: bool, digits: int = 4) -> str:
