@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import hashlib
 import re
+from collections.abc import Iterator
 from dataclasses import dataclass
 from datetime import datetime, timezone
 
@@ -303,11 +304,17 @@ def last_pointer_move(store, cell: str, stage: str) -> LogEntry | None:
 
 
 def pointers_by_log(log_entries: list[LogEntry]) -> dict[tuple, tuple]:
-    """(cell, stage) -> (current, last_good) as the entries set them, by promotion.py's rules: a promotion
-    makes the outgoing release last_good if its latest gates there under the plan in force the promotion logged
-    passed (``Judged``), the first release to pass a stage under the plan in force its gates entry logged is its
-    own last_good, a rollback makes last_good current. Each entry names the plan in force when it acted
-    (``IN_FORCE``), so the replay needs no plan file, and a plan edited since leaves the pointers as they were set."""
+    """(cell, stage) -> (current, last_good) as the entries set them (``pointer_changes``)."""
+    return {key: after for _, key, after in pointer_changes(log_entries)}
+
+
+def pointer_changes(log_entries: list[LogEntry]) -> Iterator[tuple[LogEntry, tuple, tuple]]:
+    """Each entry that set a stage's pointers, as (entry, (cell, stage), (current, last_good) it set), by
+    promotion.py's rules: a promotion makes the outgoing release last_good if its latest gates there under the plan
+    in force the promotion logged passed (``Judged``), the first release to pass a stage under the plan in force its
+    gates entry logged is its own last_good, a rollback makes last_good current. Each entry names the plan in force
+    when it acted (``IN_FORCE``), so the replay needs no plan file, and a plan edited since leaves the pointers as
+    they were set."""
     state, judged = {}, Judged()
     for e in log_entries:
         b = e.body
@@ -315,18 +322,29 @@ def pointers_by_log(log_entries: list[LogEntry]) -> dict[tuple, tuple]:
         current, last_good = state.get(key, (None, None))
         if b.get("kind") == "gates":
             judged.add(e)
-            if last_good is None and passed(b, b.get(IN_FORCE)):
-                state[key] = (current, current)
+            if last_good is not None or not passed(b, b.get(IN_FORCE)):
+                continue
+            after = (current, current)
         elif b.get("kind") == "promote":
             outgoing = b.get("from")
             if OUTGOING in b:
                 kept = outgoing is not None and judged.why_not(*key, outgoing, b.get(IN_FORCE)) is None
             else:  # logged by an older cellguard, which took the outgoing release's latest gates there
                 kept = passed(judged.last(*key, outgoing), b.get(IN_FORCE))
-            state[key] = (b.get("to"), outgoing if kept else last_good)
+            after = (b.get("to"), outgoing if kept else last_good)
         elif b.get("kind") == "rollback":
-            state[key] = (b.get("to"), b.get("to"))
-    return state
+            after = (b.get("to"), b.get("to"))
+        else:
+            continue
+        state[key] = after
+        yield e, key, after
+
+
+def last_pointer_change(store, cell: str, stage: str) -> LogEntry | None:
+    """The latest entry that set (cell, stage)'s pointers (``pointer_changes``), moving ``current`` or not: a run's
+    gates that made their release last_good changed the stage for a run going there as a promotion does."""
+    changes = [e for e, key, _ in pointer_changes(entries(store)) if key == (cell, stage)]
+    return changes[-1] if changes else None
 
 
 def _last(store) -> tuple[int, str]:

@@ -409,15 +409,34 @@ def _dropped(store: Store, cell: str, stage: str, start: Start, rows: list[RunRo
 
 
 def _still(store: Store, cell: str, stage: str, start: Start, folders) -> None:
-    """StageError unless (cell, stage) is, under the write lock, as its runs started (a racing promotion,
-    rollback or evaluation moved it: these gates would act on a release they did not evaluate)."""
+    """StageError unless (cell, stage) is, under the write lock, as its runs started (a racing promotion or
+    rollback moved it, or another run's first pass set last_good: these gates would act on pointers they did not
+    evaluate against)."""
     moved = log.last_pointer_move(store, cell, stage)
     now = Start(*log.check_pointers(store, cell, stage), moved.seq if moved else 0)
     if now != start:
         kept = f"; the records stay in {', '.join(folders)}" if folders else ""
-        raise StageError(f"{stage} on {cell}: current {now.current}, last_good {now.last_good} (log entry "
-                         f"{now.move_seq}), moved by another command while the runs of {start.current} were going "
-                         f"or evaluated: their gates were not logged and nothing moved{kept}; run the stage again")
+        raise StageError(f"{stage} on {cell}: {_change(store, cell, stage, start, now)} by another command while the "
+                         f"runs of {start.current} were going or evaluated: their gates were not logged and nothing "
+                         f"moved{kept}; run the stage again")
+
+
+def _change(store: Store, cell: str, stage: str, start: Start, now: Start) -> str:
+    """How (cell, stage) differs from ``start``: the pointers now, which changed from what, and the latest log entry
+    that set them. Named as the stage's last move, another run's first pass that made its release last_good read as
+    a move of current by the promotion made before either run."""
+    was = [f"current was {start.current}" if now.current != start.current else
+           f"current left {start.current} and came back" if now.move_seq != start.move_seq else None,
+           f"last_good was {start.last_good or 'none'}" if now.last_good != start.last_good else None]
+    entry = log.last_pointer_change(store, cell, stage)
+    by = "no log entry sets them"  # the log's last entries deleted with its head meanwhile
+    if entry is not None:
+        b = entry.body
+        what = {"promote": "a promotion of", "rollback": "a rollback to"}.get(b["kind"])
+        what = f"{what} {b['to']}" if what else f"a pass of {b['release']}'s gates"
+        by = f"log entry {entry.seq}, {what}"
+    return (f"current {now.current or 'none'}, last_good {now.last_good or 'none'} ({', '.join(filter(None, was))}; "
+            f"{by}), {'moved' if now.move_seq != start.move_seq else 'changed'}")
 
 
 def _driver(plan: StagePlan, bundle: Bundle, incumbent: Bundle | None) -> tuple[str, dict]:
