@@ -145,6 +145,7 @@ class RunRecording:
         held = lock if lock is not None else folder_lock.hold(folder)
         owned = None if lock is not None else held
         reserve = None
+        made: list = []  # the record file this start creates: what a failure below removes, nothing else
         try:
             refuse_existing(folder, replace)  # again under the lock: a run that just finished there has a record
             cycles = getattr(run.scenario, "total_cycles", 100)
@@ -155,12 +156,17 @@ class RunRecording:
             description = None if model is None else describe(model, profile)
             reserve = _reserve(folder / RESERVE_FILE, RESERVE_BYTES[0] + RESERVE_BYTES[1] * cycles)  # else nothing runs
             recorder = Recorder.create(folder, joints=profile.joint_names, dt_ns=run.cell.dt_ns, context=context,
-                                       config=config, opener=opener, description=description, replace=replace,
-                                       start_ns=run.clock.now())  # wall time: the monotonic clock, from boot
+                                       config=config, opener=_noting(opener, made), description=description,
+                                       replace=replace, start_ns=run.clock.now())  # wall time: the monotonic clock
             return cls(recorder, run, queue_s=queue_s, reserve=reserve, lock=owned)
-        except BaseException:
+        except BaseException as exc:
+            _discard(made)
             _release(reserve)
             folder_lock.release(owned)
+            if isinstance(exc, (MemoryError, OSError)):  # the ring or the writer process could not be made
+                why = getattr(exc, "strerror", None) or str(exc) or "out of memory"
+                raise RecordError(f"{folder / RECORD_FILE}: cannot start the record ({type(exc).__name__}: {why}); "
+                                  f"nothing was run") from None
             raise
 
     @staticmethod
@@ -398,6 +404,28 @@ def _serve(recorder: Recorder, ctl, ops, op_writer, replies, reserve: Path | Non
                 return
             if name:
                 apply(getattr(recorder, name), *args)
+
+
+def _noting(opener, made: list):
+    """``opener``, noting in ``made`` the record file it creates, with its stream."""
+    def open_noted(path: Path):
+        stream = opener(path)
+        if Path(path).name == RECORD_FILE:
+            made.append((Path(path), stream))
+        return stream
+    return open_noted
+
+
+def _discard(made: list) -> None:
+    """Close and remove the record file a failed start created: an empty or header-only record.mcap blocked the
+    folder ("already holds a record") and read as an empty or truncated run. A record that was there before is
+    never in ``made``."""
+    for path, stream in made:
+        for step in (stream.close, path.unlink):
+            try:
+                step()
+            except OSError:
+                pass
 
 
 def _reserve(path: Path, size: int) -> Path:

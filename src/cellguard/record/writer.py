@@ -38,6 +38,7 @@ import contextlib
 import errno
 import json
 import math
+import numbers
 import os
 import time
 import uuid
@@ -69,12 +70,26 @@ DESCRIPTION_FILE = "robot_description.urdf"
 RUN_OUTPUTS = ("summary.json", "baseline.json", "fixes.json", "report.html", "shadow.json")
 _LOG_LEVEL = {0: ros2.FATAL, 1: ros2.ERROR, 2: ros2.WARN}  # stop category -> log level; else INFO (routine: DEBUG)
 CHUNK_BYTES = 1 << 20  # [bytes] a long backlog is split into chunks of about this many bytes (messages)
+# The pre-trigger ring is allocated before the first tick and holds, at the servo rate, the pre-trigger window, four
+# chunks and one decimated period: at 1 kHz (the fastest servo rate a run drives) and these limits, at most 350 s of
+# ticks, 55 MB for the arm's 6 joints (a pre_trigger_s of 1e5 s asked 13.4 GiB; inf overflowed)
+MAX_WINDOW_S = 300.0  # [s] the longest full-rate window, before or after an event
+MAX_CHUNK_NS = 10_000_000_000  # [ns] the longest chunk: what a crash may lose
+MIN_DECIMATED_HZ = 0.1  # [Hz] the slowest continuous stream
 
 
 def decimation_stride(dt_ns: int, decimated_hz: float) -> int:
     """Every how many servo ticks the decimated stream takes one: the rate nearest ``decimated_hz``, at least every
     tick (the readers work the stream's period out of the context with the same rule)."""
     return max(1, round(1e9 / dt_ns / decimated_hz))
+
+
+def _whole(value) -> bool:
+    return isinstance(value, numbers.Integral) and not isinstance(value, bool)
+
+
+def _number(value) -> bool:
+    return isinstance(value, numbers.Real) and not isinstance(value, bool) and math.isfinite(value)
 
 
 @dataclass(frozen=True)
@@ -91,14 +106,23 @@ class RecordConfig:
     context_every_s: float = 60.0  # repeat the unchanged context at a cycle start at least this often [s]
 
     def __post_init__(self):
-        checks = {"chunk_ns": self.chunk_ns > 0, "fsync_ns": self.fsync_ns >= self.chunk_ns,
-                  "decimated_hz": self.decimated_hz > 0, "pre_trigger_s": self.pre_trigger_s >= 0,
-                  "post_trigger_s": self.post_trigger_s >= 0, "index_part_rows": self.index_part_rows >= 1,
-                  "context_every_s": self.context_every_s > 0}
-        for name, ok in checks.items():
-            if not ok:
-                raise RecordError(f"record config {name}: {getattr(self, name)!r} is not allowed "
-                                  f"(chunk_ns > 0, fsync_ns >= chunk_ns, rates and windows >= 0)")
+        """RecordError naming the first field that is not a number in its range, before anything is created."""
+        window = f"a finite number of seconds from 0 to MAX_WINDOW_S ({MAX_WINDOW_S:g} s)"
+        checks = (  # in order: fsync_ns is compared with a chunk_ns checked already
+            ("chunk_ns", lambda v: _whole(v) and 0 < v <= MAX_CHUNK_NS,
+             f"an integer of ns from 1 to MAX_CHUNK_NS ({MAX_CHUNK_NS})"),
+            ("fsync_ns", lambda v: _whole(v) and v >= self.chunk_ns, "an integer of ns, at least chunk_ns"),
+            ("decimated_hz", lambda v: _number(v) and v >= MIN_DECIMATED_HZ,
+             f"a finite rate of at least MIN_DECIMATED_HZ ({MIN_DECIMATED_HZ:g} Hz)"),
+            ("pre_trigger_s", lambda v: _number(v) and 0 <= v <= MAX_WINDOW_S,
+             f"{window}: the pre-trigger ring keeps that much at the servo rate in memory"),
+            ("post_trigger_s", lambda v: _number(v) and 0 <= v <= MAX_WINDOW_S,
+             f"{window}; to keep every tick, set decimated_hz to the servo rate"),
+            ("index_part_rows", lambda v: _whole(v) and v >= 1, "an integer of at least 1"),
+            ("context_every_s", lambda v: _number(v) and v > 0, "a finite number of seconds above 0"))
+        for name, ok, rule in checks:
+            if not ok(getattr(self, name)):
+                raise RecordError(f"record config {name}: {getattr(self, name)!r} is not allowed: give {rule}")
 
     def to_dict(self) -> dict:
         return {"chunk_ns": self.chunk_ns, "fsync_ns": self.fsync_ns, "decimated_hz": self.decimated_hz,
