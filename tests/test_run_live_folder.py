@@ -53,8 +53,8 @@ def test_overwrite_into_a_folder_a_run_is_writing_is_refused_and_touches_nothing
     finally:
         folder_lock.release(lock)
     assert result.exit_code == 2, result.output
-    assert result.stderr == (f"error: --out {out}: another run is still writing its record there; nothing was "
-                             f"touched: wait for it to end or choose another folder\n")
+    assert result.stderr == (f"error: --out {out}: another run is still writing its record there (pid "
+                             f"{os.getpid()}); nothing was touched: wait for it to end or choose another folder\n")
     assert _digests(out) == before
 
 

@@ -64,22 +64,25 @@ def report(
 ) -> None:
     """Write a self-contained HTML report: timeline, last good versus faulted, drift, asymmetry, context."""
     from cellguard.diagnose.from_record import diagnose_record
+    from cellguard.record.beside import pinned
     from cellguard.record.outputs import refuse_output
     from cellguard.report.from_record import report_path, write_report
 
     try:
-        health = record_health(folder)
-        if out is not None:  # the default, FOLDER/report.html, is the one file a report writes in a run folder
-            refuse_output(out, folder)
-        elif health.writing:  # left beside the finished record, it said "still being written" of it
-            raise RecordError(f"{folder}: still being written by {health.writing}; a report beside it would describe "
-                              "a part of it: give -o FILE, or report once the run has ended")
-        else:
-            out = report_path(folder)
-        baseline_health = record_health(acceptance) if acceptance is not None else None
-        unkept: list[str] = []
-        diagnosis = diagnose_record(folder, acceptance=acceptance, fleet=fleet_advice(fleet), unkept=unkept)
-        path = write_report(folder, out, diagnosis=diagnosis, health=health)
+        with pinned(folder, "reported") as pin:  # before the first read: nothing goes beside a record replaced since
+            health = record_health(folder)
+            if out is not None:  # the default, FOLDER/report.html, is the one file a report writes in a run folder
+                refuse_output(out, folder)
+            elif health.writing:  # left beside the finished record, it said "still being written" of it
+                raise RecordError(f"{folder}: still being written by {health.writing}; a report beside it would "
+                                  "describe a part of it: give -o FILE, or report once the run has ended")
+            else:
+                out = report_path(folder)
+            baseline_health = record_health(acceptance) if acceptance is not None else None
+            unkept: list[str] = []
+            diagnosis = diagnose_record(folder, acceptance=acceptance, fleet=fleet_advice(fleet), unkept=unkept,
+                                        pin=pin)
+            path = write_report(folder, out, diagnosis=diagnosis, health=health, pin=pin)
         stdout.written(path)
     except CellguardError as exc:
         fail(exc)

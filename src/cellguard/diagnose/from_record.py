@@ -14,15 +14,16 @@ from cellguard.diagnose.baseline import METHOD, OWN_SOURCE, Baseline, check_same
 from cellguard.diagnose.cycles import as_cycles
 from cellguard.diagnose.diagnosis import Diagnosis, diagnose
 from cellguard.diagnose.recovery import acceptance_attempts, policy_cycles
-from cellguard.diagnose.site_history import save_fixes, site_history
+from cellguard.diagnose.site_history import FIXES_FILE, save_fixes, site_history
 from cellguard.embodiment.profile import SymmetryPair
 from cellguard.errors import CellguardError, OutputError, RecordError
+from cellguard.record.beside import Pin, guarded, pinned
 
 BASELINE_FILE = "baseline.json"
 
 
 def diagnose_record(path: Path, acceptance: Path | None = None, fleet: list[dict] | tuple = (),
-                    unkept: list[str] | None = None) -> Diagnosis:
+                    unkept: list[str] | None = None, pin: Pin | None = None) -> Diagnosis:
     """Diagnose the record at ``path`` (a run folder, or its record.mcap); the baseline comes from
     ``acceptance`` (another record of the same robot and profile) if given, else from
     ``folder/baseline.json``, else from the record's acceptance cycles, and is then written to
@@ -32,7 +33,14 @@ def diagnose_record(path: Path, acceptance: Path | None = None, fleet: list[dict
     what fixed each cause here is written to ``folder/fixes.json``. Neither is rewritten unchanged; where ``folder``
     cannot be written (a record on read-only storage), each that fails adds its line to ``unkept`` and the diagnosis
     stands (OutputError where no list is given). A loose .mcap file outside a run folder is diagnosed against its own
-    acceptance cycles and nothing is written beside it; nor beside a record its run is still writing."""
+    acceptance cycles and nothing is written beside it; nor beside a record its run is still writing, nor beside a
+    record that replaced it meanwhile (RecordError, ``record.beside``; ``pin``: the caller's, taken before it read)."""
+    with pinned(path, "diagnosed", pin) as held:
+        return _diagnosed(path, acceptance, fleet, unkept, held)
+
+
+def _diagnosed(path: Path, acceptance: Path | None, fleet: list[dict] | tuple, unkept: list[str] | None,
+               pin: Pin) -> Diagnosis:
     from cellguard.record.reader import open_record
 
     folder = run_folder(path)
@@ -72,9 +80,9 @@ def diagnose_record(path: Path, acceptance: Path | None = None, fleet: list[dict
     if baseline is None:  # as a stored baseline is judged when read again, so the first diagnosis agrees
         result.baseline.check_fits(as_cycles(cycles), f"{path} (its own acceptance cycles)")
     if baseline is None and folder is not None and not writing:  # first: a baseline.json refused (a FIFO there) leaves nothing
-        _keep(lambda: result.baseline.bind(context).save(folder / BASELINE_FILE), folder, unkept)
+        _keep(lambda: result.baseline.bind(context).save(folder / BASELINE_FILE), folder / BASELINE_FILE, pin, unkept)
     if folder is not None and not writing:
-        _keep(lambda: save_fixes(folder, context, result.fixes), folder, unkept)
+        _keep(lambda: save_fixes(folder, context, result.fixes), folder / FIXES_FILE, pin, unkept)
     return result
 
 
@@ -86,14 +94,16 @@ def _has_cycles(cycles: list, path: Path) -> None:
         raise RecordError(f"{path}: the record has no finished cycle to diagnose")
 
 
-def _keep(save: Callable[[], object], folder: Path, unkept: list[str] | None) -> None:
-    """Run ``save``, which writes a file beside the record in ``folder`` (made again from the record when missing).
-    Where ``folder`` cannot be written (read-only storage: an archive), its OutputError goes to ``unkept`` if a list
-    is given: the diagnosis is whole without the file. Any other refusal (a FIFO or a record where it goes) ends it."""
+def _keep(save: Callable[[], object], target: Path, pin: Pin, unkept: list[str] | None) -> None:
+    """Run ``save``, which writes ``target`` beside the record (made again from the record when missing), only while
+    the folder still holds the record read (``record.beside``). Where the folder cannot be written (read-only storage:
+    an archive), its OutputError goes to ``unkept`` if a list is given: the diagnosis is whole without the file. Any
+    other refusal (a FIFO or a record where it goes) ends it."""
     try:
-        save()
+        with guarded(pin, target, "diagnosed"):
+            save()
     except OutputError as exc:
-        if unkept is None or os.access(folder, os.W_OK):
+        if unkept is None or os.access(target.parent, os.W_OK):
             raise
         unkept.append(str(exc))
 

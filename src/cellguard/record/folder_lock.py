@@ -5,7 +5,9 @@ beside its writer: both runs ended 0 and neither record was readable. The lock i
 itself (no file is added to it), taken before anything is written there and shared with the forked writer
 process, so it holds until the last of them ends, the writer finishing a file after the loop's process died
 included, and the kernel lets go of it when they are gone (no stale lock after a crash). Readers look at it
-(``holder``) to tell a record still being written from a truncated one.
+(``holder``) to tell a record still being written from a truncated one, and a file made from a record is written
+beside it under the lock, held a moment (``record.beside``), so every ``hold`` waits that long (``BRIEF_S``) before it
+refuses.
 """
 
 from __future__ import annotations
@@ -19,11 +21,24 @@ from cellguard.errors import RecordError
 from cellguard.output import UNLOCKABLE
 
 
-def hold(folder: Path, what: str = "--out", wait_s: float = 0.0) -> int | None:
+BRIEF_S = 1.0  # how long a hold waits for another: a write beside a record holds the folder for a moment only
+_HELD: dict[int, tuple[int, int]] = {}  # this process's holds: descriptor -> the folder's (st_dev, st_ino)
+
+
+class Busy(RecordError):
+    """Another process holds the folder; ``by``: who, as " (pid N)" where the kernel says, else ""."""
+
+    def __init__(self, message: str, by: str):
+        super().__init__(message)
+        self.by = by
+
+
+def hold(folder: Path, what: str = "--out", wait_s: float = BRIEF_S) -> int | None:
     """Lock ``folder`` (it must exist) for this process and the processes it forks; the descriptor that holds it
-    (``release`` lets go), None on a filesystem that offers no locks. RecordError naming the folder if another
-    process holds it for more than ``wait_s`` (a recovery's short move waits; a run's whole life is not waited on:
-    a recovery blocked silently for as long as a run that had started in its target)."""
+    (``release`` lets go), None on a filesystem that offers no locks. ``Busy`` naming the folder and its holder's pid
+    if another process holds it for more than ``wait_s``: a reader's write beside a record is waited on (a run starting
+    then is not refused for it), a recovery's short move too (``MOVE_WAIT_S``), a run's whole life is not (a recovery
+    blocked silently for as long as a run that had started in its target)."""
     try:
         fd = os.open(folder, os.O_RDONLY | os.O_DIRECTORY)
     except OSError as exc:
@@ -32,19 +47,29 @@ def hold(folder: Path, what: str = "--out", wait_s: float = 0.0) -> int | None:
     while True:
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            _HELD[fd] = _key(os.fstat(fd))
             return fd
         except BlockingIOError:
             if time.monotonic() < deadline:
                 time.sleep(0.05)
                 continue
+            by = _pid_words(_locker(os.fstat(fd)) or 0)
             os.close(fd)
-            raise RecordError(f"{what} {folder}: another run is still writing its record there; nothing was touched: "
-                              f"wait for it to end or choose another folder") from None
+            raise Busy(f"{what} {folder}: another run is still writing its record there{by}; nothing was touched: "
+                       f"wait for it to end or choose another folder", by) from None
         except OSError as exc:
             os.close(fd)
             if exc.errno in UNLOCKABLE:  # a filesystem without locks (some network mounts): goes on unguarded
                 return None
             raise RecordError(f"{what} {folder}: cannot be locked ({exc.strerror or exc})") from None
+
+
+def held_here(folder: Path) -> bool:
+    """Whether this process holds ``folder``'s lock already (``hold``): the demo writes its report under its own."""
+    try:
+        return _key(os.stat(folder)) in _HELD.values()
+    except OSError:
+        return False
 
 
 def holder(folder: Path) -> str | None:
@@ -58,7 +83,7 @@ def holder(folder: Path) -> str | None:
     except OSError:
         return None
     if listed is not False:
-        return listed
+        return None if listed is None else f"a running process{_pid_words(listed)}"
     try:
         fd = os.open(folder, os.O_RDONLY | os.O_DIRECTORY)
     except OSError:
@@ -74,9 +99,9 @@ def holder(folder: Path) -> str | None:
         os.close(fd)  # and with it a shared lock taken
 
 
-def _locker(stat: os.stat_result) -> str | None | bool:
-    """Who holds the exclusive flock on the file of ``stat`` as ``/proc/locks`` lists it ("a running process (pid
-    N)"; the pid is 0 there for a process in another pid namespace), None if no one; False where there is no list."""
+def _locker(stat: os.stat_result) -> int | None | bool:
+    """The pid of who holds the exclusive flock on the file of ``stat`` as ``/proc/locks`` lists it (0 there for a
+    process in another pid namespace), None if no one; False where there is no list."""
     where = f"{os.major(stat.st_dev):02x}:{os.minor(stat.st_dev):02x}:{stat.st_ino}"
     try:
         with open("/proc/locks") as f:
@@ -86,13 +111,22 @@ def _locker(stat: os.stat_result) -> str | None | bool:
     for line in lines:  # "1: FLOCK  ADVISORY  WRITE 14908 fe:00:3171386 0 EOF"; a waiter's line has "->" second
         fields = line.split()
         if fields[1:4] == ["FLOCK", "ADVISORY", "WRITE"] and fields[5:6] == [where] and fields[4].isdigit():
-            pid = int(fields[4])
-            return f"a running process{f' (pid {pid})' if pid else ''}"
+            return int(fields[4])
     return None
+
+
+def _pid_words(pid: int) -> str:
+    """" (pid N)", or "" for pid 0 (a process in another pid namespace, or none known)."""
+    return f" (pid {pid})" if pid else ""
+
+
+def _key(stat: os.stat_result) -> tuple[int, int]:
+    return stat.st_dev, stat.st_ino
 
 
 def release(fd: int | None) -> None:
     if fd is not None:
+        _HELD.pop(fd, None)
         try:
             os.close(fd)
         except OSError:
