@@ -139,7 +139,7 @@ def export(
         refuse_output(output, folder)  # first: a record or a run's file there is the graver mistake
         check_format(output, fmt)
         with open_record(folder) as rec:
-            rows = write_ticks(rec.ticks(cycle=cycle, rate=rate), output, fmt)
+            rows = write_ticks(rec, output, fmt, rate=rate, cycle=cycle)
             health = rec.health()
     except CellguardError as exc:
         fail(exc)
