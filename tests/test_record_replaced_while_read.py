@@ -181,3 +181,24 @@ def test_the_refusal_of_a_folder_a_run_holds_names_its_process(tmp_path):
     assert result.exit_code == 2, result.output
     assert result.stderr == (f"error: --out {out}: another run is still writing its record there (pid "
                              f"{holder.pid}); nothing was touched: wait for it to end or choose another folder\n")
+
+
+def test_replay_of_a_record_replaced_before_its_page_is_written_writes_no_page(run, monkeypatch):
+    """A replay page, replay-cycle-N.html in the run folder, is made from the record as a report is."""
+    before = os.stat(run / RECORD_FILE).st_ino
+    _replacing_after(monkeypatch, "cellguard.calibrate.replay.replay", run)
+    result = runner.invoke(app, ["replay", str(run), "--cycle", "1"])
+    assert result.exit_code == 2, result.output
+    assert result.stderr == (f"error: {run}: its record was replaced while it was being replayed; "
+                             "replay-cycle-1.html not written\n")
+    assert os.stat(run / RECORD_FILE).st_ino != before and not (run / "replay-cycle-1.html").exists()
+
+
+def test_overwrite_removes_the_old_records_replay_pages_and_keeps_other_files(run):
+    """A replacing run left the old record's replay pages beside its own record: cycle 1's page read as the new
+    record's cycle 1."""
+    assert runner.invoke(app, ["replay", str(run), "--cycle", "1"]).exit_code == 0
+    (run / "replay-cycle-notes.html").write_text("a technician's own page")
+    _overwrite(run)
+    assert not (run / "replay-cycle-1.html").exists()
+    assert (run / "replay-cycle-notes.html").read_text() == "a technician's own page"

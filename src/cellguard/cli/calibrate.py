@@ -191,8 +191,10 @@ def replay(
     from cellguard.calibrate.identify import CalibrationError
     from cellguard.calibrate.replay import replay as run_replay
     from cellguard.cli.record import warn_if_damaged
+    from cellguard.record.beside import guarded, pinned
     from cellguard.record.outputs import refuse_output
     from cellguard.record.reader import record_file
+    from cellguard.record.writer import REPLAY_PAGES
     from cellguard.report.replay import write_replay
 
     try:
@@ -200,10 +202,12 @@ def replay(
             raise CalibrationError(f"--profile: only with --model calibrated; the {model} model reads no profile")
         page = out or record_file(record).parent / f"replay-cycle-{cycle}.html"
         # before the simulation: never over the record, its run folder's files or the --profile read
-        refuse_output(page, record, inputs=[("--profile file", profile)], own=("replay-cycle-*.html",))
+        refuse_output(page, record, inputs=[("--profile file", profile)], own=(REPLAY_PAGES,))
         _refuse_other_file(page)
-        result = run_replay(record, cycle, model=model, profile=profile, vary=vary)
-        write_replay(result, page)
+        with pinned(record, "replayed") as pin:  # nothing beside a record replaced meanwhile (``record.beside``)
+            result = run_replay(record, cycle, model=model, profile=profile, vary=vary)
+            with guarded(pin, page, "replayed"):
+                write_replay(result, page)
         stdout.written(f"the replay page {page}")
     except CellguardError as exc:
         fail(exc)

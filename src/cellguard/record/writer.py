@@ -40,6 +40,7 @@ import json
 import math
 import numbers
 import os
+import re
 import time
 import uuid
 from collections.abc import Callable
@@ -68,6 +69,7 @@ DESCRIPTION_FILE = "robot_description.urdf"
 # what a run writes in its --out folder besides the record and index: summary (runtime), baseline and fixes
 # (diagnose), report (report), shadow (release); named here, below those layers
 RUN_OUTPUTS = ("summary.json", "baseline.json", "fixes.json", "report.html", "shadow.json")
+REPLAY_PAGES = "replay-cycle-*.html"  # ``cellguard replay``'s pages in a run folder: made from its record too
 _LOG_LEVEL = {0: ros2.FATAL, 1: ros2.ERROR, 2: ros2.WARN}  # stop category -> log level; else INFO (routine: DEBUG)
 CHUNK_BYTES = 1 << 20  # [bytes] a long backlog is split into chunks of about this many bytes (messages)
 # The pre-trigger ring is allocated before the first tick and holds, at the servo rate, the pre-trigger window, four
@@ -177,8 +179,8 @@ class Recorder:
         A record already in ``folder`` is refused unless ``replace``; then its file is unlinked, never
         truncated (a reader or a hard link keeps the old bytes), and only the index parts cellguard wrote are
         removed (other files under ``index/`` stay), with the files derived from the old record
-        (``RUN_OUTPUTS``): its baseline, bound to the old record, made the new run's diagnosis refuse it
-        (``demo --overwrite`` ended in exit 2). The new file is created only where nothing is (``default_opener``).
+        (``RUN_OUTPUTS``, replay pages): its baseline, bound to the old record, made the new run's diagnosis refuse
+        it (``demo --overwrite`` ended in exit 2), and a replay of the old record's cycle N read as the new one's. The new file is created only where nothing is (``default_opener``).
         """
         folder = Path(folder)
         refuse_existing(folder, replace)
@@ -187,6 +189,9 @@ class Recorder:
             clear_index(folder / INDEX_DIR)
             for name in (*RUN_OUTPUTS, RECORD_FILE) if replace else ():
                 (folder / name).unlink(missing_ok=True)
+            for page in folder.glob(REPLAY_PAGES) if replace else ():
+                if re.fullmatch(r"replay-cycle-\d+\.html", page.name) and not page.is_dir():  # as replay names them
+                    page.unlink(missing_ok=True)
             stream = opener(folder / RECORD_FILE)
         except OSError as exc:
             raise RecordError(f"{folder / RECORD_FILE}: cannot start the record ({_why(exc)}); "
