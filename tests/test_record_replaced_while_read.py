@@ -7,6 +7,7 @@ exit 2. The replacing run is a real ``cellguard run --overwrite`` in another pro
 from __future__ import annotations
 
 import importlib
+import json
 import os
 import shutil
 import subprocess
@@ -127,9 +128,63 @@ def test_a_page_is_not_written_while_a_run_holds_the_folder(run, monkeypatch):
     finally:
         holder.communicate("")
     assert result.exit_code == 2, result.output
-    assert result.stderr == (f"error: {run}: another process is writing there now (pid {holder.pid}); baseline.json "
+    assert result.stderr == (f"error: {run}: another process is writing there now (pid {holder.pid}); report.html "
                              "not written: run it again once it has ended\n")
     assert not [name for name in BESIDE if (run / name).exists()]
+
+
+def test_a_diagnosis_stands_while_another_process_holds_the_folder(run, monkeypatch):
+    """The record is the one read: the diagnosis is printed and the files not kept are named (exit 1). It ended in
+    exit 2 with no diagnosis, and a fleet push stopped at the first such run folder, pushing nothing."""
+    monkeypatch.setattr(folder_lock, "BRIEF_S", 0.2, raising=False)
+    holder = subprocess.Popen([sys.executable, "-c", HOLDER, str(run)], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                              text=True)
+    try:
+        assert holder.stdout.readline() == "held\n"
+        result = runner.invoke(app, ["diagnose", str(run), "--no-fleet", "--json"])
+    finally:
+        holder.communicate("")
+    assert result.exit_code == 1, result.output
+    assert json.loads(result.stdout)["cycles"]
+    assert f"another process is writing there now (pid {holder.pid}); baseline.json not written" in result.stderr
+    assert not [name for name in BESIDE if (run / name).exists()]
+
+
+def test_a_fleet_signature_of_a_record_replaced_while_diagnosed_is_left_out_by_name(run, monkeypatch):
+    from cellguard.fleet.from_record import site_signatures
+    from cellguard.fleet.policy import DataPolicy
+
+    _replacing_after(monkeypatch, "cellguard.diagnose.from_record.diagnose", run)
+    skipped: list[str] = []
+    assert site_signatures(run.parent, DataPolicy("ta", "s1"), skipped=skipped) == []
+    assert skipped == [f"{run}: its record was replaced while it was being diagnosed; baseline.json not written; its "
+                       "findings were left out"]
+
+
+def test_a_report_elsewhere_of_a_record_replaced_while_read_is_not_written(run, monkeypatch, tmp_path):
+    """-o FILE outside the run folder: the page's text came from the old record and its charts from the new one
+    (a mixed page, exit 0)."""
+    _replacing_after(monkeypatch, "cellguard.report.from_record.render_report", run)
+    result = runner.invoke(app, ["report", str(run), "--no-fleet", "-o", str(tmp_path / "page.html")])
+    assert result.exit_code == 2, result.output
+    assert "its record was replaced while it was being reported; page.html not written" in result.stderr
+    assert not (tmp_path / "page.html").exists()
+
+
+def test_a_fifo_given_as_the_record_is_never_opened(tmp_path):
+    """Opening a FIFO releases a writer blocked on it (scan's rule: neither a FIFO nor a device is opened)."""
+    (tmp_path / "d").mkdir()
+    fifo = tmp_path / "d" / RECORD_FILE
+    os.mkfifo(fifo)
+    writer = threading.Thread(target=lambda: open(fifo, "wb").close(), daemon=True)
+    writer.start()
+    try:
+        assert runner.invoke(app, ["diagnose", str(tmp_path / "d"), "--no-fleet"]).exit_code == 2
+        writer.join(0.5)
+        assert writer.is_alive()  # still waiting for a reader
+    finally:
+        os.close(os.open(fifo, os.O_RDONLY | os.O_NONBLOCK))  # lets it go
+        writer.join(5)
 
 
 def test_nothing_replaced_report_and_diagnose_write_as_before(run):

@@ -18,6 +18,7 @@ from cellguard.diagnose.site_history import FIXES_FILE, save_fixes, site_history
 from cellguard.embodiment.profile import SymmetryPair
 from cellguard.errors import CellguardError, OutputError, RecordError
 from cellguard.record.beside import Pin, guarded, pinned
+from cellguard.record.folder_lock import Busy
 
 BASELINE_FILE = "baseline.json"
 
@@ -98,12 +99,14 @@ def _keep(save: Callable[[], object], target: Path, pin: Pin, unkept: list[str] 
     """Run ``save``, which writes ``target`` beside the record (made again from the record when missing), only while
     the folder still holds the record read (``record.beside``). Where the folder cannot be written (read-only storage:
     an archive), its OutputError goes to ``unkept`` if a list is given: the diagnosis is whole without the file. Any
-    other refusal (a FIFO or a record where it goes) ends it."""
+    other refusal (a FIFO or a record where it goes) ends it; so does another process holding the folder where no
+    list is given."""
     try:
         with guarded(pin, target, "diagnosed"):
             save()
-    except OutputError as exc:
-        if unkept is None or os.access(target.parent, os.W_OK):
+    except (OutputError, Busy) as exc:  # Busy: another process writes there now (the demo its report); the
+        # diagnosis of the record pinned stands (a fleet push stopped at the first such run folder)
+        if unkept is None or (isinstance(exc, OutputError) and os.access(target.parent, os.W_OK)):
             raise
         unkept.append(str(exc))
 

@@ -40,9 +40,11 @@ def site_signatures(folder: Path, policy: DataPolicy, acceptance: Path | None = 
     would differ from the whole record's (another onset, another confidence: other signature ids), so pooled now
     they would be pooled again once it is whole. Nor, when the signatures are to be ``stored`` (a push; not the
     probes of ``fleet similar``, which the store keeps nowhere), is a run that started after tomorrow by this
-    host's date (``export.newest_kept``): no export may send its findings with that date. Each is named in
+    host's date (``export.newest_kept``): no export may send its findings with that date, nor one whose record was
+    replaced while it was diagnosed (``record.beside``). Each is named in
     ``skipped``, one line each; with no list to name it in, RecordError."""
     from cellguard.diagnose.from_record import diagnose_record
+    from cellguard.record.beside import Replaced
     from cellguard.record.reader import open_record
 
     out, newest = [], newest_kept()
@@ -61,7 +63,13 @@ def site_signatures(folder: Path, policy: DataPolicy, acceptance: Path | None = 
                 raise RecordError(problem)
             skipped.append(problem)
             continue
-        diagnosis = diagnose_record(run, acceptance=acceptance, unkept=unkept)
+        try:
+            diagnosis = diagnose_record(run, acceptance=acceptance, unkept=unkept)
+        except Replaced as exc:  # a run --overwrite replaced it meanwhile: the next push takes the new one
+            if skipped is None:
+                raise
+            skipped.append(f"{exc}; its findings were left out")
+            continue
         out.extend(signatures_of(diagnosis.to_dict(), diagnosis.context, policy.tenant, policy.site, day))
     return out
 

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import stat
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -46,8 +47,8 @@ def pinned(path: Path, doing: str, pin: Pin | None = None) -> Iterator[Pin]:
         yield pin
         return
     file = record_file(path)
-    try:  # O_NONBLOCK: a FIFO there does not hang the pin (the read refuses it)
-        fd = os.open(file, os.O_RDONLY | os.O_NONBLOCK)
+    try:  # a regular file only: opening a FIFO releases a writer blocked on it, a device may act on an open
+        fd = os.open(file, os.O_RDONLY | os.O_NONBLOCK) if stat.S_ISREG(os.stat(file).st_mode) else None
     except OSError:  # the read says why; nothing is written beside it
         fd = None
     pin = Pin(fd, file.parent if file.name == RECORD_FILE else None)
@@ -69,10 +70,15 @@ def guarded(pin: Pin, target: Path, doing: str) -> Iterator[None]:
     """While the block writes ``target``, made from the record of ``pin``: if ``target`` goes into that record's run
     folder, hold the folder's lock (waiting ``folder_lock.BRIEF_S`` for another reader's write), and only if
     record.mcap there is still the pinned file; RecordError naming the folder and what was not written otherwise
-    (``doing``: what was done with the record, "reported"). A target elsewhere (``report -o FILE``) is left to the
-    block. Where the folder cannot be locked at all, no run can hold it either: the file is checked, unlocked."""
+    (``doing``: what was done with the record, "reported"; ``folder_lock.Busy`` where another process holds the
+    folder). A target elsewhere (``report -o FILE``) is written unlocked, once the record is found not replaced.
+    Where the folder cannot be locked at all, no run can hold it either: the file is checked, unlocked."""
     target = Path(target)
-    if pin.home is None or not _same_folder(target.parent, pin.home):
+    if pin.home is None:
+        yield
+        return
+    if not _same_folder(target.parent, pin.home):  # elsewhere: no lock, but never a page of a record replaced
+        _refuse_if_replaced(pin, target, doing)  # (its charts were read from the new one, its text from the old)
         yield
         return
     lock = None
@@ -81,9 +87,9 @@ def guarded(pin: Pin, target: Path, doing: str) -> Iterator[None]:
             lock = folder_lock.hold(pin.home, wait_s=folder_lock.BRIEF_S)
         except folder_lock.Busy as exc:
             _refuse_if_replaced(pin, target, doing)
-            raise RecordError(f"{pin.home}: another process is writing there now{exc.by}; {target.name} not "
-                              f"written: run it again once it has ended") from None
-        except RecordError:  # no locks there (a run's start is refused there): checked below all the same
+            raise folder_lock.Busy(f"{pin.home}: another process is writing there now{exc.by}; {target.name} not "
+                                   f"written: run it again once it has ended", exc.by) from None
+        except RecordError:  # the folder cannot be locked (no access): checked below all the same
             pass
     try:
         _refuse_if_replaced(pin, target, doing)

@@ -78,6 +78,8 @@ CHUNK_BYTES = 1 << 20  # [bytes] a long backlog is split into chunks of about th
 MAX_WINDOW_S = 300.0  # [s] the longest full-rate window, before or after an event
 MAX_CHUNK_NS = 10_000_000_000  # [ns] the longest chunk: what a crash may lose
 MIN_DECIMATED_HZ = 0.1  # [Hz] the slowest continuous stream
+MAX_DECIMATED_HZ = 1e6  # [Hz] faster than any servo (the reader takes a context's amounts below 1e9 only: a record
+# written at 1e9 Hz read as damaged, its context lost)
 
 
 def decimation_stride(dt_ns: int, decimated_hz: float) -> int:
@@ -114,8 +116,8 @@ class RecordConfig:
             ("chunk_ns", lambda v: _whole(v) and 0 < v <= MAX_CHUNK_NS,
              f"an integer of ns from 1 to MAX_CHUNK_NS ({MAX_CHUNK_NS})"),
             ("fsync_ns", lambda v: _whole(v) and v >= self.chunk_ns, "an integer of ns, at least chunk_ns"),
-            ("decimated_hz", lambda v: _number(v) and v >= MIN_DECIMATED_HZ,
-             f"a finite rate of at least MIN_DECIMATED_HZ ({MIN_DECIMATED_HZ:g} Hz)"),
+            ("decimated_hz", lambda v: _number(v) and MIN_DECIMATED_HZ <= v <= MAX_DECIMATED_HZ,
+             f"a rate from MIN_DECIMATED_HZ ({MIN_DECIMATED_HZ:g} Hz) to MAX_DECIMATED_HZ ({MAX_DECIMATED_HZ:g} Hz)"),
             ("pre_trigger_s", lambda v: _number(v) and 0 <= v <= MAX_WINDOW_S,
              f"{window}: the pre-trigger ring keeps that much at the servo rate in memory"),
             ("post_trigger_s", lambda v: _number(v) and 0 <= v <= MAX_WINDOW_S,
