@@ -247,3 +247,19 @@ def test_a_context_stating_a_newer_format_is_refused_as_its_metadata_would_be(or
     line = one_error(runner.invoke(app, [*command, str(tmp_path / "run"), *out]))
     assert "record format version 99 is newer than this cellguard reads" in line
     assert not (tmp_path / "copy").exists()
+
+
+def test_a_context_stating_a_newer_format_is_refused_at_every_read(original, tmp_path):
+    """Refused once, the next read of the same Record found its contexts read (none) and went on: ticks and cycles
+    of a format this version does not know."""
+    def edit(topic, d):
+        return {**d, "record_version": 99} if topic == "/context" else d
+
+    rewrite(original, tmp_path / "run", edit=edit, metadata={"cellguard.context": {"record_version": "99"}})
+    rec = reader_module.Record(tmp_path / "run" / "record.mcap", scan.scan(tmp_path / "run" / "record.mcap"))
+    try:
+        for read in (lambda: rec.contexts, lambda: rec.contexts, rec.ticks):
+            with pytest.raises(reader_module.RecordError, match="record format version 99 is newer"):
+                read()
+    finally:
+        rec.close()

@@ -167,3 +167,44 @@ def test_a_record_that_cannot_be_read_leaves_nothing(recorded, tmp_path):
     result = runner.invoke(app, ["record", "export", str(tmp_path / "run"), "-o", str(tmp_path / "new" / "t.csv")])
     assert "newer than this cellguard reads" in one_error(result)
     assert not (tmp_path / "new").exists()
+
+
+def test_of_ticks_at_one_time_the_decimated_then_the_first_read_is_kept(recorded, tmp_path, parts):
+    """The recorder writes the same values to both streams, so which copy of a tick was kept showed nowhere. Here
+    each full-rate batch's q_ref is raised by 1000 times its number, and batch 5 reaches half a batch back over
+    batch 4: the decimated copy wins, then the one read first, as in the whole table."""
+    seen = {"n": 0, "overlap": None}
+
+    def edit(topic: str, data: bytes) -> bytes:
+        if topic != "/ticks/full":
+            return data
+        d = TICKS.decode(data)
+        seen["n"] += 1
+        d = {**d, "q_ref": d["q_ref"] + 1000.0 * seen["n"]}
+        if seen["n"] == 5:
+            t = d["t_ns"]
+            d["t_ns"] = t - (len(t) // 2) * (t[1] - t[0])  # on the servo grid, over batch 4's last half
+            seen["overlap"] = d["t_ns"][:len(t) // 2]
+        return TICKS.encode(d)
+
+    rewrite(recorded, tmp_path / "run", edit_bytes=edit)
+    whole = _whole(tmp_path / "run", "all")
+    assert _export(tmp_path / "run", tmp_path / "t.csv") == whole.num_rows
+    assert (tmp_path / "t.csv").read_bytes() == _csv(whole)
+    table = pacsv.read_csv(tmp_path / "t.csv")
+    t, q_ref = table["t_ns"].to_numpy(), table["q_ref"].to_numpy()
+    with open_record(tmp_path / "run") as rec:
+        decimated = rec.ticks(rate="decimated").t_ns
+    assert np.all(np.abs(q_ref[np.isin(t, decimated)]) < 500)  # the decimated copies
+    overlap = np.isin(t, seen["overlap"]) & ~np.isin(t, decimated)
+    assert overlap.any() and np.all((q_ref[overlap] > 3500) & (q_ref[overlap] < 4500))  # batch 4's, read first
+
+
+@pytest.mark.parametrize("rate, fmt", [("bogus", "csv"), ("all", "xlsx")])
+def test_an_unknown_rate_or_format_is_refused_before_anything_is_written(recorded, tmp_path, rate, fmt):
+    """Called from Python: an unknown rate wrote a header-only csv (no stream matched), an unknown format a csv."""
+    from cellguard.errors import RecordError
+
+    with open_record(recorded) as rec, pytest.raises(RecordError, match="the rates are decimated, full, all"):
+        export.write_ticks(rec, tmp_path / "t.out", fmt, rate=rate)
+    assert not (tmp_path / "t.out").exists()

@@ -78,6 +78,12 @@ def _promote_v2_and_roll_back(store, v1, v2):
     return rollback(store, CELL, "sim").seq
 
 
+def _promote_v2_then_pass_it(store, v1, v2):
+    promote(store, v2, CELL, "sim")
+    log_pass(store, "sim", v2)
+    return log.entries(store)[-1].seq
+
+
 def _wipe_the_log_and_pointers(store, v1, v2):
     """A hand edit that leaves a whole, empty log: every entry, the head and the pointers deleted together."""
     with sqlite3.connect(store.site / STORE_FILE) as db:
@@ -94,8 +100,12 @@ def _wipe_the_log_and_pointers(store, v1, v2):
      "moved"),
     (["pass v1"], _promote_v2_and_roll_back,
      "current {v1}, last_good {v1} (current left {v1} and came back; log entry {seq}, a rollback to {v1}), moved"),
+    ([], _promote_v2_then_pass_it,  # the promotion moved current, the pass set last_good: both named (only the pass was)
+     "current {v2}, last_good {v2} (current was {v1}, last_good was none; log entry {prev}, a promotion of {v2}; "
+     "log entry {seq}, a pass of {v2}'s gates), moved"),
     ([], _wipe_the_log_and_pointers, "current none, last_good none (current was {v1}; no log entry sets them), moved"),
-], ids=["current-by-promotion", "current-by-rollback", "both", "current-away-and-back", "log-wiped"])
+], ids=["current-by-promotion", "current-by-rollback", "both", "current-away-and-back", "moved-then-passed",
+        "log-wiped"])
 def test_a_stage_moved_while_its_runs_went_names_the_pointers_changed_and_the_entry(site, monkeypatch, before, act,
                                                                                       said):
     store, v1, v2 = site
@@ -112,7 +122,7 @@ def test_a_stage_moved_while_its_runs_went_names_the_pointers_changed_and_the_en
         run_stage(store, plan, CELL, "sim")
     seq = landed[0]
     assert seq == (log.entries(store)[-1].seq if seq else log.size(store))  # no gates logged after the other's entry
-    want = said.format(v1=v1, v2=v2, seq=seq)
+    want = said.format(v1=v1, v2=v2, seq=seq, prev=seq - 1)
     assert re.search(rf"^sim on {CELL}: {re.escape(want)} by another command while the runs of {runs_of} were going "
                      rf"or evaluated: their gates were not logged and nothing moved; ", str(refused.value)), \
         str(refused.value)

@@ -17,7 +17,7 @@ import pyarrow.parquet as pq
 
 from cellguard.errors import RecordError
 from cellguard.output import atomic_file
-from cellguard.record.reader import _TICK_TOPICS, Record, Ticks, _tick_batch
+from cellguard.record.reader import _TICK_TOPICS, RATES, Record, Ticks, _tick_batch
 from cellguard.record.schemas import TICK_FIELDS
 
 SUFFIXES = {"csv": (".csv",), "parquet": (".parquet", ".pq")}  # the formats written, and the file names that say them
@@ -56,6 +56,9 @@ def write_ticks(rec: Record, output: Path, fmt: str, rate: str = "all", cycle: i
     The caller checks ``output`` first with ``refuse_output`` and ``check_format``, before the ticks are read.
     """
     output = Path(output)
+    if rate not in RATES or fmt not in SUFFIXES:  # as rec.ticks refuses a rate (a part-wise read found no stream)
+        raise RecordError(f"rate {rate!r}, format {fmt!r}: the rates are {', '.join(RATES)}, the formats "
+                          f"{', '.join(SUFFIXES)}")
     if cycle is not None:  # a cycle's ticks: one part
         return _write(iter([rec.ticks(cycle=cycle, rate=rate)]), output, fmt)
     try:

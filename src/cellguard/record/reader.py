@@ -274,26 +274,34 @@ class Record:
     def contexts(self) -> list[ContextChange]:
         """One entry per context change; a periodic repeat stands in for a change whose chunk was lost."""
         if self._contexts is None:
-            self._contexts = []
-            for m, d in self._json(self._raw(["/context"]), "/context", _context_fits):
-                if not self._contexts:
-                    self._settle(d, m.log_time - d["t_ns"])
-                if self._contexts and self._contexts[-1].version == d["version"]:
-                    continue  # a repeat of the context in force
-                self._contexts.append(ContextChange(d["t_ns"], d["version"], tuple(d.get("changed", ())),
-                                                    d.get("versions", {}), d["context"]))
-            saved = _saved_context(self.layout.metadata.get("cellguard.context", {}))
-            if not self._contexts and saved:
-                self._contexts.append(saved[0])
-                self._settle(saved[1], self.epoch_wall_ns)
-                self.context_loss = ("the context message is lost or malformed; the context was taken from the "
-                                     "copy at the end of the file")
-            elif self._contexts and self._contexts[0].t_ns > self.start_ns:
-                self.context_loss = (f"the first context chunk is lost; the context was taken from its repeat at "
-                                     f"t={self._contexts[0].t_ns * 1e-9:.3f} s")
-            elif not self._contexts:
-                self.context_loss = "the context is lost (no readable copy)"
+            try:
+                self._read_contexts()
+            except RecordError:  # a newer format refused: refused again at the next read, not read as no context
+                self._contexts = None
+                raise
         return self._contexts
+
+    def _read_contexts(self) -> None:
+        """The context changes (``contexts``), the record's facts settled by the first (``_settle``)."""
+        self._contexts = []
+        for m, d in self._json(self._raw(["/context"]), "/context", _context_fits):
+            if not self._contexts:
+                self._settle(d, m.log_time - d["t_ns"])
+            if self._contexts and self._contexts[-1].version == d["version"]:
+                continue  # a repeat of the context in force
+            self._contexts.append(ContextChange(d["t_ns"], d["version"], tuple(d.get("changed", ())),
+                                                d.get("versions", {}), d["context"]))
+        saved = _saved_context(self.layout.metadata.get("cellguard.context", {}))
+        if not self._contexts and saved:
+            self._contexts.append(saved[0])
+            self._settle(saved[1], self.epoch_wall_ns)
+            self.context_loss = ("the context message is lost or malformed; the context was taken from the "
+                                 "copy at the end of the file")
+        elif self._contexts and self._contexts[0].t_ns > self.start_ns:
+            self.context_loss = (f"the first context chunk is lost; the context was taken from its repeat at "
+                                 f"t={self._contexts[0].t_ns * 1e-9:.3f} s")
+        elif not self._contexts:
+            self.context_loss = "the context is lost (no readable copy)"
 
     def _settle(self, stated: dict, log_offset: int) -> None:
         """What the first readable context states about the record (its id, format, epoch and start) and so the

@@ -428,15 +428,21 @@ def _change(store: Store, cell: str, stage: str, start: Start, now: Start) -> st
     was = [f"current was {start.current}" if now.current != start.current else
            f"current left {start.current} and came back" if now.move_seq != start.move_seq else None,
            f"last_good was {start.last_good or 'none'}" if now.last_good != start.last_good else None]
-    entry = log.last_pointer_change(store, cell, stage)
-    by = "no log entry sets them"  # the log's last entries deleted with its head meanwhile
-    if entry is not None:
-        b = entry.body
-        what = {"promote": "a promotion of", "rollback": "a rollback to"}.get(b["kind"])
-        what = f"{what} {b['to']}" if what else f"a pass of {b['release']}'s gates"
-        by = f"log entry {entry.seq}, {what}"
+    moved = now.move_seq != start.move_seq
+    named = [log.last_pointer_move(store, cell, stage) if moved else None]  # what moved current, and what set the
+    latest = log.last_pointer_change(store, cell, stage)  # pointers last if later (a pass after a promotion)
+    named.append(latest if latest is not None and all(latest.seq != e.seq for e in named if e is not None) else None)
+    by = "; ".join(_entry_words(e) for e in named if e is not None) or "no log entry sets them"  # the log's last
+    # entries deleted with its head meanwhile
     return (f"current {now.current or 'none'}, last_good {now.last_good or 'none'} ({', '.join(filter(None, was))}; "
-            f"{by}), {'moved' if now.move_seq != start.move_seq else 'changed'}")
+            f"{by}), {'moved' if moved else 'changed'}")
+
+
+def _entry_words(entry) -> str:
+    """A log entry that set a stage's pointers, as a refusal names it."""
+    b = entry.body
+    what = {"promote": "a promotion of", "rollback": "a rollback to"}.get(b["kind"])
+    return f"log entry {entry.seq}, {what} {b['to']}" if what else f"log entry {entry.seq}, a pass of {b['release']}'s gates"
 
 
 def _driver(plan: StagePlan, bundle: Bundle, incumbent: Bundle | None) -> tuple[str, dict]:
