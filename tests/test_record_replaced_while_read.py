@@ -83,26 +83,26 @@ def _new_run_only(folder: Path, before: int) -> None:
     assert not [p.name for p in folder.iterdir() if p.name.startswith(".")]  # no temporary file left
 
 
-def test_report_of_a_record_replaced_before_its_page_is_written_writes_no_page(run, monkeypatch):
+def _replaced_during(monkeypatch, run: Path, step: str, command: str, doing: str, page: str) -> None:
+    """``command`` on ``run``, whose record is replaced once ``step`` has run: one line, exit 2, nothing of the old
+    record's beside the new one."""
     before = os.stat(run / RECORD_FILE).st_ino
-    _replacing_after(monkeypatch, "cellguard.report.from_record.render_report", run)
-    result = runner.invoke(app, ["report", str(run), "--no-fleet"])
+    _replacing_after(monkeypatch, step, run)
+    result = runner.invoke(app, [command, str(run), "--no-fleet"])
     assert result.exit_code == 2, result.output
-    assert result.stderr == (f"error: {run}: its record was replaced while it was being reported; report.html not "
-                             "written\n")
+    assert result.stderr == f"error: {run}: its record was replaced while it was being {doing}; {page} not written\n"
     assert result.stdout == ""
-    _new_run_only(run, before)  # the baseline and fixes written before the replacement went with the old record
+    _new_run_only(run, before)
+
+
+def test_report_of_a_record_replaced_before_its_page_is_written_writes_no_page(run, monkeypatch):
+    # the baseline and fixes written before the replacement went with the old record
+    _replaced_during(monkeypatch, run, "cellguard.report.from_record.render_report", "report", "reported", "report.html")
 
 
 def test_diagnosis_of_a_record_replaced_before_its_baseline_is_written_writes_nothing(run, monkeypatch):
-    before = os.stat(run / RECORD_FILE).st_ino
-    _replacing_after(monkeypatch, "cellguard.diagnose.from_record.diagnose", run)
-    result = runner.invoke(app, ["diagnose", str(run), "--no-fleet"])
-    assert result.exit_code == 2, result.output
-    assert result.stderr == (f"error: {run}: its record was replaced while it was being diagnosed; baseline.json not "
-                             "written\n")
-    assert result.stdout == ""
-    _new_run_only(run, before)
+    _replaced_during(monkeypatch, run, "cellguard.diagnose.from_record.diagnose", "diagnose", "diagnosed",
+                     "baseline.json")
     again = runner.invoke(app, ["diagnose", str(run), "--no-fleet"])  # the new record's own: no stale baseline refused
     assert "bound to record_id" not in again.stderr and "needs at least 5 acceptance cycles" in again.stderr
 
