@@ -103,7 +103,8 @@ def _calibration(profile) -> str:
     identify --write (it wrote no calibration block: such a profile read as typed in)."""
     c = profile.calibration
     if c is not None:
-        return f"calibration: {c.version} of {c.date} from {', '.join(c.records)} (MJCF {c.mjcf}, replaced {c.previous})"
+        return (f"calibration: {c.version} of {c.date} from {', '.join(c.records)} (MJCF {c.mjcf}, "
+                f"replaced {c.previous})")
     if any(m.method.startswith(IDENTIFIED) for m in profile.measured):
         return ("calibration: none stated (measured values name an identification: an older identify --write, "
                 "which wrote no calibration block)")

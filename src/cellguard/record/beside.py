@@ -106,13 +106,9 @@ def _refuse_if_replaced(pin: Pin, target: Path, doing: str) -> None:
 def _replaced(pin: Pin) -> bool:
     """Whether the run folder of ``pin`` holds a record file other than the pinned one now, or none."""
     try:
-        return _identity(os.stat(pin.home / RECORD_FILE)) != _identity(os.fstat(pin.fd))
+        return folder_lock.identity(os.stat(pin.home / RECORD_FILE)) != folder_lock.identity(os.fstat(pin.fd))
     except OSError:  # removed meanwhile
         return True
-
-
-def _identity(st: os.stat_result) -> tuple[int, int]:
-    return st.st_dev, st.st_ino
 
 
 def _same_folder(a: Path, b: Path) -> bool:

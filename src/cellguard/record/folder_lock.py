@@ -47,7 +47,7 @@ def hold(folder: Path, what: str = "--out", wait_s: float = BRIEF_S) -> int | No
     while True:
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            _HELD[fd] = _key(os.fstat(fd))
+            _HELD[fd] = identity(os.fstat(fd))
             return fd
         except BlockingIOError:
             if time.monotonic() < deadline:
@@ -67,7 +67,7 @@ def hold(folder: Path, what: str = "--out", wait_s: float = BRIEF_S) -> int | No
 def held_here(folder: Path) -> bool:
     """Whether this process holds ``folder``'s lock already (``hold``): the demo writes its report under its own."""
     try:
-        return _key(os.stat(folder)) in _HELD.values()
+        return identity(os.stat(folder)) in _HELD.values()
     except OSError:
         return False
 
@@ -120,7 +120,8 @@ def _pid_words(pid: int) -> str:
     return f" (pid {pid})" if pid else ""
 
 
-def _key(stat: os.stat_result) -> tuple[int, int]:
+def identity(stat: os.stat_result) -> tuple[int, int]:
+    """A file's identity: (device, inode)."""
     return stat.st_dev, stat.st_ino
 
 

@@ -182,7 +182,8 @@ class Recorder:
         truncated (a reader or a hard link keeps the old bytes), and only the index parts cellguard wrote are
         removed (other files under ``index/`` stay), with the files derived from the old record
         (``RUN_OUTPUTS``, replay pages): its baseline, bound to the old record, made the new run's diagnosis refuse
-        it (``demo --overwrite`` ended in exit 2), and a replay of the old record's cycle N read as the new one's. The new file is created only where nothing is (``default_opener``).
+        it (``demo --overwrite`` ended in exit 2), and a replay of the old record's cycle N read as the new one's.
+        The new file is created only where nothing is (``default_opener``).
         """
         folder = Path(folder)
         refuse_existing(folder, replace)

@@ -429,11 +429,12 @@ def _change(store: Store, cell: str, stage: str, start: Start, now: Start) -> st
            f"current left {start.current} and came back" if now.move_seq != start.move_seq else None,
            f"last_good was {start.last_good or 'none'}" if now.last_good != start.last_good else None]
     moved = now.move_seq != start.move_seq
-    named = [log.last_pointer_move(store, cell, stage) if moved else None]  # what moved current, and what set the
-    latest = log.last_pointer_change(store, cell, stage)  # pointers last if later (a pass after a promotion)
-    named.append(latest if latest is not None and all(latest.seq != e.seq for e in named if e is not None) else None)
-    by = "; ".join(_entry_words(e) for e in named if e is not None) or "no log entry sets them"  # the log's last
-    # entries deleted with its head meanwhile
+    move = log.last_pointer_move(store, cell, stage) if moved else None  # what moved current, and what set the
+    latest = log.last_pointer_change(store, cell, stage)  # pointers last if that is later (a pass after a promotion)
+    named = [e for e in (move, latest) if e is not None]
+    if len(named) == 2 and move.seq == latest.seq:
+        named.pop()
+    by = "; ".join(map(_entry_words, named)) or "no log entry sets them"  # the log's last entries deleted meanwhile
     return (f"current {now.current or 'none'}, last_good {now.last_good or 'none'} ({', '.join(filter(None, was))}; "
             f"{by}), {'moved' if moved else 'changed'}")
 
@@ -442,7 +443,7 @@ def _entry_words(entry) -> str:
     """A log entry that set a stage's pointers, as a refusal names it."""
     b = entry.body
     what = {"promote": "a promotion of", "rollback": "a rollback to"}.get(b["kind"])
-    return f"log entry {entry.seq}, {what} {b['to']}" if what else f"log entry {entry.seq}, a pass of {b['release']}'s gates"
+    return f"log entry {entry.seq}, " + (f"{what} {b['to']}" if what else f"a pass of {b['release']}'s gates")
 
 
 def _driver(plan: StagePlan, bundle: Bundle, incumbent: Bundle | None) -> tuple[str, dict]:
