@@ -28,9 +28,8 @@ def _config(field: str, value) -> RecordConfig:
 
 def _ring_bytes(config: RecordConfig) -> int:
     """The shared ring a run's recording makes for ``config`` on the arm at 1 kHz (a 2 s queue)."""
-    recorder = Recorder(io.BytesIO(), joints=JOINTS, dt_ns=DT_NS, context=context(record=config.to_dict()),
-                        config=config)
-    ring = recorder.share_ring(round(2e9 / DT_NS))
+    ring = Recorder(io.BytesIO(), joints=JOINTS, dt_ns=DT_NS, context=context(record=config.to_dict()),
+                    config=config, slack=round(2e9 / DT_NS)).ring
     return ring.t_ns.nbytes + ring.cycle.nbytes + ring.values.nbytes
 
 

@@ -32,7 +32,9 @@ class TickRing:
         else:  # anonymous shared memory: a forked child sees the same pages
             sizes = (8 * self.capacity, 4 * self.capacity, 4 * int(np.prod(shape)))
             self._memory = memory = mmap.mmap(-1, sum(sizes))
-            memory.write(bytes(sum(sizes)))  # every page mapped now: a first touch per 4 KB on the servo thread cost µs
+            # every page mapped now (a first touch per 4 KB on the servo thread cost µs), in place: zeros written from
+            # a buffer of the ring's size took that much memory again at the start
+            np.frombuffer(memory, np.uint8).fill(0)
             self.t_ns = np.frombuffer(memory, np.int64, self.capacity, 0)
             self.cycle = np.frombuffer(memory, np.int32, self.capacity, sizes[0])
             self.values = np.frombuffer(memory, np.float32, int(np.prod(shape)), sizes[0] + sizes[1]).reshape(shape)

@@ -79,8 +79,7 @@ HEAD, TAIL, FAILED = 0, 1, 2  # shared counters: ticks added by the loop, ticks 
 class RunRecording:
     """One run's record: context per cycle, measurements, chunks, ticks, events, cycle ends."""
 
-    def __init__(self, recorder: Recorder, run, queue_s: float = 2.0, reserve: Path | None = None,
-                 lock: int | None = None):
+    def __init__(self, recorder: Recorder, run, reserve: Path | None = None, lock: int | None = None):
         self.run, self.name = run, recorder.name
         self._lock = lock  # the folder's lock (``folder_lock``), shared with the writer process, let go at close
         self.failed: str | None = None
@@ -94,35 +93,45 @@ class RunRecording:
         self._software = software_versions()
         self._config = recorder.config
         self._cycle = 0
-        self._slack = max(1, round(queue_s * 1e9 / recorder.dt_ns))
+        self._ring = ring = recorder.ring  # made shared (``Recorder``'s ``slack``) by ``start``
+        self._slack = ring.capacity - ring.keep
         # ticks between "take the ticks" messages: a chunk's worth, and often enough that the writer hears of a
         # tick well before the loop could run a queue ahead of it
         self._every = max(1, min(recorder.config.chunk_ns // recorder.dt_ns, self._slack // 2))
-        self._ring = recorder.share_ring(self._slack)
         self._ctl = memoryview(mmap.mmap(-1, 3 * 8)).cast("q")
         self._full = False
         self._reserve = reserve
         self._realtime = run.clock.realtime
         self._outbox: collections.deque = collections.deque()  # appended by the loop, emptied by the sender
-        gc.freeze()  # until close, which hands it all back to the collector (garbage frozen now included)
+        self._feeder = None
         context = multiprocessing.get_context("fork")
         op_reader, self._op_writer = context.Pipe(duplex=False)
         self._replies, reply_writer = context.Pipe(duplex=False)
         self._process = context.Process(target=_serve, name="cellguard-recorder", daemon=True,
                                         args=(recorder, self._ctl, op_reader, self._op_writer, reply_writer, reserve))
-        self._process.start()
+        gc.freeze()  # until close, which hands it all back to the collector (garbage frozen now included)
+        try:
+            self._process.start()
+        except BaseException:  # no process forked (EAGAIN, ENOMEM)
+            gc.unfreeze()
+            raise
         op_reader.close()
         reply_writer.close()
         # a process ending without close (Ctrl-C in a caller with no stop handler: bench) joins its daemon children
         # at exit, and the writer, deaf to SIGTERM, waits for the end of this pipe: ended first, it finishes the
         # file as a lost loop's and ends (else the process hung until the writer was killed)
         atexit.register(self._op_writer.close)
-        self._feeder = None
-        # wall time: the writes that would copy the pages now shared with the writer, done now, not mid-tick
-        self.pages_copied = copy_shared_pages() if self._realtime else None
-        if self._realtime:
-            self._feeder = threading.Thread(target=self._feed, name="cellguard-record-feeder", daemon=True)
-            self._feeder.start()
+        try:
+            # wall time: the writes that would copy the pages now shared with the writer, done now, not mid-tick
+            self.pages_copied = copy_shared_pages() if self._realtime else None
+            if self._realtime:
+                feeder = threading.Thread(target=self._feed, name="cellguard-record-feeder", daemon=True)
+                feeder.start()
+                self._feeder = feeder  # started: ``close`` sends through it and joins it
+            recorder.place()  # the old record, if any, stays whole until now
+        except BaseException:  # the writer, told to end, discards the record never placed; the lock is start's
+            self.close(keep_folder=True)
+            raise
 
     @classmethod
     def start(cls, folder: Path, run, config: RecordConfig = RecordConfig(), opener=default_opener,
@@ -130,10 +139,11 @@ class RunRecording:
         """Open the record of ``run`` in ``folder``; RecordError (nothing runs) if it cannot be written.
 
         Refused if ``folder`` holds a record already, unless ``replace``, and if another run is writing there
-        (``folder_lock``), even with ``replace``. A small reserve file keeps room for ``summary.json`` on a disk
-        that fills up during the run; a disk without room for it is refused here, since a run without one could
-        end with a record and no summary. ``lock``: the folder's lock, held already by a caller that writes more
-        beside the record (the demo's report); it is the caller's to let go.
+        (``folder_lock``), even with ``replace``. A record replaced stays whole until the new one has started, its
+        writer process included (``Recorder.place``): a start that fails before leaves it as it was. A small reserve
+        file keeps room for ``summary.json`` on a disk that fills up during the run; a disk without room for it is
+        refused here, since a run without one could end with a record and no summary. ``lock``: the folder's lock,
+        held already by a caller that writes more beside the record (the demo's report); it is the caller's to let go.
         """
         folder = Path(folder)
         refuse_existing(folder, replace)  # before anything is written there
@@ -144,8 +154,7 @@ class RunRecording:
                               f"was run") from None
         held = lock if lock is not None else folder_lock.hold(folder)
         owned = None if lock is not None else held
-        reserve = None
-        made: list = []  # the record file this start creates: what a failure below removes, nothing else
+        reserve = recorder = None
         try:
             refuse_existing(folder, replace)  # again under the lock: a run that just finished there has a record
             cycles = getattr(run.scenario, "total_cycles", 100)
@@ -155,12 +164,15 @@ class RunRecording:
             model = getattr(run.cell, "model", None)
             description = None if model is None else describe(model, profile)
             reserve = _reserve(folder / RESERVE_FILE, RESERVE_BYTES[0] + RESERVE_BYTES[1] * cycles)  # else nothing runs
+            # the ring made once, in memory shared with the writer process, ``queue_s`` of ticks ahead of it
             recorder = Recorder.create(folder, joints=profile.joint_names, dt_ns=run.cell.dt_ns, context=context,
-                                       config=config, opener=_noting(opener, made), description=description,
-                                       replace=replace, start_ns=run.clock.now())  # wall time: the monotonic clock
-            return cls(recorder, run, queue_s=queue_s, reserve=reserve, lock=owned)
+                                       config=config, opener=opener, description=description, replace=replace,
+                                       start_ns=run.clock.now(),  # wall time: the monotonic clock
+                                       slack=max(1, round(queue_s * 1e9 / run.cell.dt_ns)), place=False)
+            return cls(recorder, run, reserve=reserve, lock=owned)  # places the record once its writer runs
         except BaseException as exc:
-            _discard(made)
+            if recorder is not None:
+                recorder.discard()
             _release(reserve)
             folder_lock.release(owned)
             if isinstance(exc, (MemoryError, OSError)):  # the ring or the writer process could not be made
@@ -386,15 +398,17 @@ def _serve(recorder: Recorder, ctl, ops, op_writer, replies, reserve: Path | Non
         else:
             continue
         if lost:
-            batch = [(ctl[HEAD], "run_lost", ("the run's process ended without finishing the run (killed, or out "
-                                              "of memory); the ticks it had handed over are recorded",)),
-                     (ctl[HEAD], None, ())]
+            batch = [(ctl[HEAD], None, ())]
+            if recorder.placed:  # else the start was killed: no run, so nothing to say
+                batch.insert(0, (ctl[HEAD], "run_lost", ("the run's process ended without finishing the run (killed, "
+                                                         "or out of memory); the ticks it had handed over are "
+                                                         "recorded",)))
         for n, name, args in batch:
             apply(recorder.advance, n)
             ctl[TAIL] = n
             if name is None:
-                try:
-                    recorder.close()
+                try:  # a record never placed (the start failed after the fork): removed, the one it replaces whole
+                    recorder.close() if recorder.placed else recorder.discard()
                 except Exception as exc:  # noqa: BLE001 (a RecordError, or a fault: the handle is closed either way)
                     failed.append(str(exc) if isinstance(exc, RecordError) else
                                   f"{recorder.name}: recorder fault ({type(exc).__name__}: {exc})")
@@ -404,28 +418,6 @@ def _serve(recorder: Recorder, ctl, ops, op_writer, replies, reserve: Path | Non
                 return
             if name:
                 apply(getattr(recorder, name), *args)
-
-
-def _noting(opener, made: list):
-    """``opener``, noting in ``made`` the record file it creates, with its stream."""
-    def open_noted(path: Path):
-        stream = opener(path)
-        if Path(path).name == RECORD_FILE:
-            made.append((Path(path), stream))
-        return stream
-    return open_noted
-
-
-def _discard(made: list) -> None:
-    """Close and remove the record file a failed start created: an empty or header-only record.mcap blocked the
-    folder ("already holds a record") and read as an empty or truncated run. A record that was there before is
-    never in ``made``."""
-    for path, stream in made:
-        for step in (stream.close, path.unlink):
-            try:
-                step()
-            except OSError:
-                pass
 
 
 def _reserve(path: Path, size: int) -> Path:

@@ -62,6 +62,8 @@ from cellguard.record.schemas import CHANNELS, CHUNK, TICKS
 from cellguard.record.urdf import JointFrames
 
 RECORD_FILE = "record.mcap"
+# a record being started: renamed to RECORD_FILE once started (the old record stays whole until then)
+STARTING_FILE = ".record.mcap.starting"
 INDEX_DIR = "index"
 PROFILE = "cellguard"
 RECORD_VERSION = 2  # 1: log time = t_ns, cellguard channels only
@@ -140,7 +142,7 @@ class Recorder:
     def __init__(self, stream: BinaryIO, *, joints: tuple[str, ...], dt_ns: int, context: dict,
                  config: RecordConfig = RecordConfig(), index: IndexWriter | None = None, name: str = RECORD_FILE,
                  epoch_wall_ns: int | None = None, description: tuple[str, JointFrames] | None = None,
-                 record_id: str | None = None, start_ns: int = 0):
+                 record_id: str | None = None, start_ns: int = 0, slack: int | None = None):
         self.config, self.joints, self.dt_ns, self.name = config, tuple(joints), int(dt_ns), name
         self.start_ns = int(start_ns)  # the run clock when the record starts [ns]
         self.epoch_wall_ns = time.time_ns() - self.start_ns if epoch_wall_ns is None else int(epoch_wall_ns)
@@ -150,7 +152,10 @@ class Recorder:
         self._stride = decimation_stride(dt_ns, config.decimated_hz)
         self._batch = max(1, config.chunk_ns // dt_ns)
         self._back = math.ceil(config.pre_trigger_s * 1e9 / dt_ns)
-        self._ring = TickRing(len(self.joints), self._back + 4 * self._batch + self._stride)
+        # ``slack``: the ring is made in memory shared with a writer process forked next (``RunRecording``), once
+        self._ring = TickRing(len(self.joints), self._back + 4 * self._batch + self._stride, slack)
+        self._starting: Path | None = None  # where ``create`` started the record, until ``place`` renames it
+        self._replace = False
         self._seq = {c.id: 0 for c in CHANNELS}
         self._pending: list[tuple[int, int, int, bytes, int]] = []  # (wall ns, order, channel, data, sequence)
         self._floor = 0  # log time of the last message written [ns since 1970]
@@ -175,27 +180,23 @@ class Recorder:
     def create(cls, folder: Path, *, joints, dt_ns: int, context: dict, config: RecordConfig = RecordConfig(),
                opener: Callable[[Path], BinaryIO] = default_opener, epoch_wall_ns: int | None = None,
                description: tuple[str, JointFrames] | None = None, replace: bool = False,
-               start_ns: int = 0) -> Recorder:
+               start_ns: int = 0, slack: int | None = None, place: bool = True) -> Recorder:
         """Start a record in ``folder``; RecordError if it cannot be written or one is there already.
 
-        A record already in ``folder`` is refused unless ``replace``; then its file is unlinked, never
-        truncated (a reader or a hard link keeps the old bytes), and only the index parts cellguard wrote are
-        removed (other files under ``index/`` stay), with the files derived from the old record
-        (``RUN_OUTPUTS``, replay pages): its baseline, bound to the old record, made the new run's diagnosis refuse
-        it (``demo --overwrite`` ended in exit 2), and a replay of the old record's cycle N read as the new one's.
-        The new file is created only where nothing is (``default_opener``).
+        The record starts as ``STARTING_FILE`` (header written, ring built) and only ``place`` renames it to
+        ``RECORD_FILE``; ``place=False`` leaves that to the caller, once the rest of its start has worked (a
+        ``RunRecording``'s writer process). A record already in ``folder`` is refused unless ``replace``; then it
+        stays whole until ``place``: a start that failed after it was unlinked (no room for the header, no memory
+        for the ring, no process forked) lost it and said "nothing was run". A start that fails leaves no file of
+        its own behind; one killed leaves at most ``STARTING_FILE``, never read, removed by the next start.
         """
         folder = Path(folder)
         refuse_existing(folder, replace)
+        starting = folder / STARTING_FILE
         try:
             folder.mkdir(parents=True, exist_ok=True)
-            clear_index(folder / INDEX_DIR)
-            for name in (*RUN_OUTPUTS, RECORD_FILE) if replace else ():
-                (folder / name).unlink(missing_ok=True)
-            for page in folder.glob(REPLAY_PAGES) if replace else ():
-                if re.fullmatch(r"replay-cycle-\d+\.html", page.name) and not page.is_dir():  # as replay names them
-                    page.unlink(missing_ok=True)
-            stream = opener(folder / RECORD_FILE)
+            starting.unlink(missing_ok=True)  # a start killed before ``place``: its writer, if any, holds the lock
+            stream = opener(starting)
         except OSError as exc:
             raise RecordError(f"{folder / RECORD_FILE}: cannot start the record ({_why(exc)}); "
                               f"nothing was run") from None
@@ -203,16 +204,61 @@ class Recorder:
         record_id = uuid.uuid4().hex
         index = IndexWriter(folder / INDEX_DIR, epoch, config.index_part_rows, opener, record_id)
         try:
-            return cls(stream, joints=joints, dt_ns=dt_ns, context=context, config=config, index=index,
-                       name=str(folder / RECORD_FILE), epoch_wall_ns=epoch, description=description,
-                       record_id=record_id, start_ns=start_ns)
-        except RecordError:  # not even the start fitted: leave no empty record behind
-            with contextlib.suppress(OSError):
-                stream.close()
-            with contextlib.suppress(OSError):
-                (folder / RECORD_FILE).unlink()
-            raise RecordError(f"{folder / RECORD_FILE}: cannot start the record (no space or no access); "
-                              f"nothing was run") from None
+            recorder = cls(stream, joints=joints, dt_ns=dt_ns, context=context, config=config, index=index,
+                           name=str(folder / RECORD_FILE), epoch_wall_ns=epoch, description=description,
+                           record_id=record_id, start_ns=start_ns, slack=slack)
+        except BaseException as exc:  # not even the start fitted: leave no record of its own behind
+            _discard(stream, starting)
+            if isinstance(exc, RecordError):
+                raise RecordError(f"{folder / RECORD_FILE}: cannot start the record (no space or no access); "
+                                  f"nothing was run") from None
+            raise
+        recorder._starting, recorder._replace = starting, replace
+        if place:
+            try:
+                recorder.place()
+            except BaseException:
+                recorder.discard()
+                raise
+        return recorder
+
+    def place(self) -> None:
+        """Put the started record in place: with ``replace``, the old record's index parts and the files made from
+        it (``RUN_OUTPUTS``, replay pages) removed first (its baseline, bound to the old record, made the new run's
+        diagnosis refuse it; a replay of its cycle N read as the new one's), then ``STARTING_FILE`` renamed over
+        ``RECORD_FILE`` (a reader or a hard link keeps the old bytes). RecordError if that fails: the old record is
+        whole (the files made from it may be gone), the new one is still to be discarded (by the writer process
+        first, if any: see ``placed``). A SIGKILL at any point leaves the old record whole or the new one in place."""
+        folder = self._starting.parent
+        try:
+            if self._replace:
+                clear_index(folder / INDEX_DIR)
+                for name in RUN_OUTPUTS:
+                    (folder / name).unlink(missing_ok=True)
+                for page in folder.glob(REPLAY_PAGES):  # as replay names them
+                    if re.fullmatch(r"replay-cycle-\d+\.html", page.name) and not page.is_dir():
+                        page.unlink(missing_ok=True)
+            os.replace(self._starting, self.name)
+        except OSError as exc:
+            raise RecordError(f"{self.name}: cannot start the record ({_why(exc)}); nothing was run") from None
+        self._starting = None
+
+    @property
+    def placed(self) -> bool:
+        """Whether the record is at ``RECORD_FILE`` (``place``); read from the folder, so that a process forked before
+        the record was placed (the writer) sees it too."""
+        return self._starting is None or not os.path.lexists(self._starting)
+
+    def discard(self) -> None:
+        """Close and remove the record of a start that failed, if not placed: nothing of that start stays (an empty
+        or header-only record.mcap blocked the folder, "already holds a record", and read as an empty run)."""
+        if self._starting is not None:
+            _discard(self._stream, self._starting)
+
+    @property
+    def ring(self) -> TickRing:
+        """The pre-trigger ring: a ``RunRecording``'s loop adds the ticks to it (made shared, ``slack``)."""
+        return self._ring
 
     # -- servo path ------------------------------------------------------------------------
     def tick(self, cycle: int, reference: np.ndarray, sent: np.ndarray, state) -> None:
@@ -220,12 +266,6 @@ class Recorder:
         self._ring.add(state.t_ns, cycle, reference, sent, state.q, state.qd, state.effort, state.current)
         if state.t_ns >= self._next_flush_ns:
             self._guard(self._flush, state.t_ns)
-
-    def share_ring(self, slack: int) -> TickRing:
-        """Move the pre-trigger ring into memory shared with a process forked next, ``slack`` rows ahead of
-        what the recorder took; before the first tick. That process feeds it, the recorder takes it (``advance``)."""
-        self._ring = TickRing(len(self.joints), self._ring.keep, slack)
-        return self._ring
 
     def advance(self, n: int) -> None:
         """Take the ticks up to number ``n`` that another process put in the shared ring, as ``tick`` would."""
@@ -511,6 +551,14 @@ def _finite(value):
         return None
     value = float(value)
     return value if math.isfinite(value) else None
+
+
+def _discard(stream, path: Path) -> None:
+    """Close ``stream`` and remove ``path``, its file, whatever fails."""
+    with contextlib.suppress(OSError):
+        stream.close()
+    with contextlib.suppress(OSError):
+        path.unlink()
 
 
 def _fsync(stream) -> None:
