@@ -11,14 +11,15 @@ chunks and ticks are kept reduced (``reductions``).
 from __future__ import annotations
 
 import hashlib
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from cellguard.errors import CellguardError, RecordError
 from cellguard.record.json_values import loads
 from cellguard.record.reader import CycleRecord, EventRecord, open_record
 from cellguard.record.writer import RECORD_FILE
-from cellguard.release.bundle import sha256_file
+from cellguard.release.bundle import canonical_json, sha256_file
 from cellguard.release.errors import ReleaseError
 from cellguard.release.reductions import Chunks, LimitTicks, limit_ticks, reduce_chunks
 from cellguard.release.store import RunRow, Store
@@ -41,9 +42,20 @@ class RunEvidence:
     limits: LimitTicks  # its recorded (decimated) ticks outside the profile's limits
     shadow: tuple[dict, ...] | None  # per candidate chunk, or None when the run had no shadow
     shadow_sha256: str | None = None  # the sha256 of the shadow file read
+    record_sha256: str | None = None  # the whole sha256 of the record file read (``record_id`` is its start)
+    # ``once``'s figures by name; not an argument: a copy with other cycles (``dataclasses.replace``) derives its own
+    derived: dict = field(default_factory=dict, init=False, compare=False, repr=False)
 
     def label(self, cycle: int | None = None) -> str:
         return f"record {self.record_id} ({self.name})" + (f" cycle {cycle}" if cycle is not None else "")
+
+    def once(self, name: str, compute: Callable[[RunEvidence], object]):
+        """``compute(self)`` as JSON values, computed once per record: kept with the run's evidence (``kept``), a
+        figure a metric derives from this run alone (its diagnosis) is not derived again at every evaluation that
+        counts the run. Read back through JSON the first time too, so it is the same value every time."""
+        if name not in self.derived:
+            self.derived[name] = loads(canonical_json(compute(self)))
+        return self.derived[name]
 
 
 def record_id(folder: Path) -> str:
@@ -61,7 +73,8 @@ def load_run(folder: Path, name: str) -> RunEvidence:
         ticks = rec.ticks(rate="decimated")
         limits = limit_ticks(ticks, make_cell(str(context.get("cell"))).profile) if len(ticks) else LimitTicks()
     shadow, digest = _shadow(folder / SHADOW_FILE)
-    return RunEvidence(record_id(folder), name, str(folder), context, cycles, events, chunks, limits, shadow, digest)
+    whole = sha256_file(folder / RECORD_FILE, "record")
+    return RunEvidence(whole[:16], name, str(folder), context, cycles, events, chunks, limits, shadow, digest, whole)
 
 
 def _shadow(path: Path) -> tuple[tuple[dict, ...] | None, str | None]:
@@ -81,15 +94,16 @@ def _shadow(path: Path) -> tuple[tuple[dict, ...] | None, str | None]:
     return tuple(chunks), hashlib.sha256(data).hexdigest()
 
 
-def counted_run(store: Store, row: RunRow) -> RunEvidence:
+def counted_run(store: Store, row: RunRow, read: Callable[[Path, str], RunEvidence] = load_run) -> RunEvidence:
     """``row``'s run as evidence; ReleaseError naming its folder unless it is the record that was counted (same
     hash) and its context names the row's release, cell and stage, nor with other shadow rows than those counted
     with it (``row.shadow``): a record put in its place, even one that passed for another release, is never read as
     this run, and an edited shadow file never turns its candidate's verdict (an evaluation gives ``row.shadow`` the
-    hash the log signed, ``log.counted_shadows``: a file edited with its row is refused too)."""
+    hash the log signed, ``log.counted_shadows``: a file edited with its row is refused too). ``read``: how the run
+    is read (``load_run``, or ``kept.Kept.read``: its evidence as kept when read before)."""
     folder = store.run_folder(row)
     try:
-        run = load_run(folder, row.name)
+        run = read(folder, row.name)
     except CellguardError as exc:
         raise ReleaseError(f"run {row.name!r} ({row.record_id}): {exc}") from None
     if run.record_id != row.record_id:

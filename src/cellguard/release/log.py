@@ -37,6 +37,10 @@ OUTGOING = "outgoing_gates"
 # together passed ``release verify``); absent in an older cellguard's entries, which bind it by the run's row alone.
 # A key of its own, not a third element of ``runs``: an older cellguard reads these entries without a traceback
 SHADOWS = "shadows_sha256"
+# a gates entry's key: the sha256 of each run's evidence body it kept (``kept``), so a body is read in place of its
+# record only as a gates entry signed it (kept in the store alone, an edited body, a failed cycle turned success, would
+# have turned verdicts unseen); absent in an older cellguard's entries, which kept none
+KEPT = "kept_sha256"
 
 
 @dataclass(frozen=True)
@@ -247,6 +251,25 @@ def counted_shadows(log_entries: list[LogEntry]) -> dict[int, str]:
     return out
 
 
+def kept_sha256(body_text: str) -> str:
+    """The sha256 a gates entry signs a kept evidence body by (``KEPT``)."""
+    return hashlib.sha256(body_text.encode()).hexdigest()
+
+
+def kept_signed(log_entries: list[LogEntry]) -> set[str]:
+    """The sha256 of every evidence body a gates entry kept (``KEPT``): the only bodies read in place of records."""
+    return {h for e in log_entries if e.body.get("kind") == "gates" for h in e.body.get(KEPT) or []}
+
+
+def kept_problems(store, log_entries: list[LogEntry]) -> list[str]:
+    """Each evidence body kept in the store that no gates entry signed (edited outside cellguard: never read, its
+    record is read instead), in words."""
+    signed = kept_signed(log_entries)
+    return [f"the evidence kept for record {str(digest)[:16]} is not the one a gates entry kept (edited outside "
+            f"cellguard; its record is read instead)"
+            for digest, text in store.kept_bodies() if kept_sha256(str(text)) not in signed]
+
+
 def check_pointers(store, cell: str, stage: str) -> tuple:
     """(current, last_good) of (cell, stage) as stored; ReleaseError unless the log's entries set them so (a
     pointer edited outside cellguard would run, promote or roll back a release no gate let there)."""
@@ -394,7 +417,8 @@ def verify_log(store, expect_head: str | None = None) -> list[str]:
         if have != want:
             problems.append(f"{_pointer_break(cell, stage, have, want)} (edited outside cellguard)")
     whole = [e for e in readable if entry_hash(e.prev_hash, e.body) == e.hash]  # an edited one is named above
-    return problems + run_problems(store, whole) + store.edited_bundles() + missing_bundles(store, whole)
+    return (problems + run_problems(store, whole) + kept_problems(store, whole) + store.edited_bundles()
+            + missing_bundles(store, whole))
 
 
 def missing_bundles(store, log_entries: list[LogEntry]) -> list[str]:

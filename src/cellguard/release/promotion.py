@@ -31,6 +31,7 @@ from cellguard.release.bundle import Bundle, calibration_file, canonical_json, v
 from cellguard.release.errors import BundleMismatch, ReleaseError, StageError
 from cellguard.release.evidence import RunEvidence, counted_run, record_id
 from cellguard.release.gates import FAIL, INCONCLUSIVE, PASS, GateResult, evaluate, verdict
+from cellguard.release.kept import Kept
 from cellguard.release.loops import CLOCKS
 from cellguard.release.plan import StagePlan, check_cell, plan_in_force, scenario_for
 from cellguard.release.store import STAGES, RunRow, Store, check_stage
@@ -291,12 +292,13 @@ def _next_number(store: Store) -> int:
     return max(store.next_run_number(), 1 + max(on_disk, default=0))
 
 
-def _evidence(store: Store, rows: list[RunRow]) -> tuple[list[RunEvidence], list[str]]:
-    """The runs of ``rows`` that read as the records counted, and why each other one does not."""
+def _evidence(store: Store, rows: list[RunRow], kept: Kept) -> tuple[list[RunEvidence], list[str]]:
+    """The runs of ``rows`` that read as the records counted (as kept once read, ``kept``), and why each other one
+    does not."""
     runs, refused = [], []
     for row in rows:
         try:
-            runs.append(counted_run(store, row))
+            runs.append(counted_run(store, row, kept.read))
         except ReleaseError as exc:
             refused.append(str(exc))
     return runs, refused
@@ -306,7 +308,8 @@ def evaluate_stage(store: Store, plan: StagePlan, cell: str, stage: str, folders
                    start: Start | None = None, runs: list[dict] | None = None,
                    in_force: StagePlan | None = None) -> StageResult:
     """Evaluate the gates of (cell, stage) on its current release's runs made as ``plan`` makes them since it
-    became current (``runs_key``), against last_good's runs there made so.
+    became current (``runs_key``), against last_good's runs there made so. Each run is read from its record once:
+    later evaluations take its evidence as kept then (``kept``), so a run costs the same however long the history.
 
     A counted run that cannot be read as the record counted (gone, damaged, replaced), or that an earlier gates
     entry counted and the runs table no longer holds so, is left out and named in ``refused``: the verdict is
@@ -321,16 +324,17 @@ def evaluate_stage(store: Store, plan: StagePlan, cell: str, stage: str, folders
         start = Start(*log.check_pointers(store, cell, stage), moved.seq if moved else 0)
     logged = log.entries(store)
     key, under, shadows = runs_key(plan, runs), log.counted_under(logged), log.counted_shadows(logged)
+    kept = Kept(store, logged)
     same = {key} if runs is not None else {key, log.WHOLE_PLAN + plan_hash(plan)}  # counted by an older cellguard
     every = _bound(store.runs(cell, stage, start.current, start.move_seq), shadows)
     rows = [r for r in every if under.get(r.seq, r.runs) in same]
-    taken, refused = _evidence(store, rows)
+    taken, refused = _evidence(store, rows, kept)
     refused += _dropped(store, cell, stage, start, every)
     good, good_rows, baseline = [], [], "no last_good on this stage"
     if start.last_good and start.last_good != start.current:
         made = [(r, under.get(r.seq, r.runs)) for r in _bound(store.runs(cell, stage, start.last_good), shadows)]
         good_rows = [r for r, k in made if k in same]
-        good, refused_good = _evidence(store, good_rows)
+        good, refused_good = _evidence(store, good_rows, kept)
         refused += refused_good
         baseline = f"last_good {start.last_good} has no {'readable ' if good_rows else ''}runs of this stage's runs"
         older = sorted(k[len(log.WHOLE_PLAN):] for _, k in made if k and k.startswith(log.WHOLE_PLAN))
@@ -344,13 +348,14 @@ def evaluate_stage(store: Store, plan: StagePlan, cell: str, stage: str, folders
     rolled = None
     with store.transaction():
         _still(store, cell, stage, start, folders)
+        signed = kept.keep(taken + good)
         entry = log.append(store, {"kind": "gates", "cell": cell, "stage": stage, "release": start.current,
                                    "verdict": outcome, "gates": [r.to_dict() for r in results],
                                    "evidence": evidence, "last_good_evidence": [r.record_id for r in good],
                                    "refused": refused, "last_good": start.last_good,
                                    "runs": [[r.seq, r.record_id] for r in rows],
                                    "last_good_runs": [[r.seq, r.record_id] for r in good_rows],
-                                   log.SHADOWS: log.shadow_refs(rows + good_rows),
+                                   log.SHADOWS: log.shadow_refs(rows + good_rows), log.KEPT: signed,
                                    "scenario": [e.get("name", "run") for e in runs or ()],
                                    "plan_sha256": plan_hash(plan), log.RUNS: key,
                                    log.IN_FORCE: plan_hash(plan if in_force is None else in_force)})

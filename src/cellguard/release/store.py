@@ -24,6 +24,7 @@ LOCK_WAIT_S = 5.0  # how long a command waits for another's write lock before it
 STAGES = ("sim", "bench", "pilot", "production")
 ADDED_RUN_COLUMNS = ("runs_sha256", "shadow_sha256")  # the runs columns an older cellguard's store lacks
 
+KEPT_TABLE = "kept_evidence"  # each counted run's evidence as read from its record once (``kept``); not in TABLES
 KNOWN_SHOWN = 10  # release ids a refusal lists at most (a site keeps hundreds)
 TABLES = ("bundles", "pointers", "runs", "log", "meta")  # every store since the first has held them all
 _SCHEMA = """
@@ -251,6 +252,30 @@ class Store:
         have = self._run_table()
         return ", ".join(["seq, record_id, cell, stage, release, name, folder"] +
                          [c if c in have else "NULL" for c in ADDED_RUN_COLUMNS])
+
+    # kept evidence (``kept``): made at a run's first evaluation, so a store an older cellguard made has no such table
+    def kept_body(self, record_sha256: str) -> str | None:
+        """The evidence kept for the record hashing to ``record_sha256``, as stored (None: none kept)."""
+        rows = self._kept("SELECT CAST(body AS TEXT) FROM {} WHERE record_sha256=?", (record_sha256,))
+        return rows[0][0] if rows else None
+
+    def kept_bodies(self) -> list[tuple[str, str]]:
+        """Every (record sha256, body) kept, as stored: what ``release verify`` checks against the log."""
+        return self._kept("SELECT CAST(record_sha256 AS TEXT), CAST(body AS TEXT) FROM {}")
+
+    def keep(self, bodies: dict[str, str]) -> None:
+        """Keep each record sha256's evidence body (inside the caller's transaction, with the entry signing them)."""
+        self.write(f"CREATE TABLE IF NOT EXISTS {KEPT_TABLE} (record_sha256 TEXT PRIMARY KEY, body TEXT NOT NULL)")
+        for digest, body in bodies.items():
+            self.write(f"INSERT OR REPLACE INTO {KEPT_TABLE} VALUES (?, ?)", (digest, body))
+
+    def _kept(self, sql: str, args: tuple = ()) -> list[tuple]:
+        """``sql`` on the kept evidence; none where there is no such table, or one edited out of shape (the runs'
+        records are read instead)."""
+        try:
+            return self.db.execute(sql.format(KEPT_TABLE), args).fetchall()
+        except sqlite3.Error:
+            return []
 
     def next_run_number(self) -> int:
         return (self.db.execute("SELECT COALESCE(MAX(seq), 0) FROM runs").fetchone()[0]) + 1
