@@ -49,14 +49,19 @@ class TransitionPlay:
             return
         outside = self._leaves_box(plan)
         if outside is not None:  # not played: the robot holds where it stopped, at rest
-            played = " beyond its brake" if begun else ""
-            self.events.append(Event(self.clock.now(), EventKind.RETREAT_ABORTED, f"retreat not played{played}: "
-                                     f"{outside}; the robot holds where it stopped"))
-            self.stopped = self.stopped or (f"the retreat home was not played: {outside}; the robot is held where it "
-                                            "stopped, power on: bring it home before the next run")
+            self._retreat_not_played(outside, begun)
             return
         self._play(plan, "retreat", self.clock.now(), signals=signals, begun=begun)
         self._retreat_ended(first, signals)
+
+    def _retreat_not_played(self, outside: str, braked: bool) -> None:
+        """The way home (beyond the brake that brought the command to rest: ``braked``) would take the tool out of the
+        box (``outside``): not played, the robot holds where it stopped and the run ends stopped."""
+        played = " beyond its brake" if braked else ""
+        self.events.append(Event(self.clock.now(), EventKind.RETREAT_ABORTED, f"retreat not played{played}: "
+                                 f"{outside}; the robot holds where it stopped"))
+        self.stopped = self.stopped or (f"the retreat home was not played{played}: {outside}; the robot is held where "
+                                        "it stopped, power on: bring it home before the next run")
 
     def _way_home(self, home, motion: dict) -> Transition | None:
         """The retreat's plan from the command, moving as ``motion`` says (``_commanded_motion``; {}: at rest), to
@@ -144,7 +149,7 @@ class TransitionPlay:
         it, (category, who asked: None for the safety controller), if one did. A category 0 stop sends nothing
         more (power goes at once); 1 and 2 brake to a standstill under the profile's limits (stopping the
         setpoints dead at full speed stepped the command 63 mrad in one 1 ms tick). A reduced-speed input that
-        comes on replans the rest under its cap (``Transition.slowed``)."""
+        comes on replans the rest under its cap (``_slow_down``)."""
         profile, rec, held = self.cell.profile, self.recording, plan.start
         for steps, setpoint in enumerate(plan.setpoints()):
             t = self.clock.now()
@@ -159,9 +164,33 @@ class TransitionPlay:
                 if slower is not None:
                     self.events.append(Event(t, EventKind.REDUCED_SPEED_INPUT, f"safety controller reduced-speed "
                                              f"input: the {name} slows down, {slower.duration_s:.2f} s to go"))
-                    return self._ticks(slower, name, signals)
+                    return self._slow_down(slower, name, signals)
             held = self._send([setpoint], rec)
         return held, None
+
+    def _slow_down(self, slower: Transition, name: str, signals: int
+                   ) -> tuple[np.ndarray, tuple[int, str | None] | None]:
+        """The rest of a transition a reduced-speed input slowed (``Transition.slowed``), as ``_ticks``: its brake,
+        then its new way on from rest there, checked against the box first (played unchecked, it took the tool up to
+        9 mm out; checked before the brake, the moving command would hold its setpoint the 5 to 150 ms the check
+        takes). A way on that leaves the box is not played, as a transition's that does from the start: the approach
+        refuses the start, the retreat ends the run stopped, the robot held where it braked (returned as a category 2
+        stop)."""
+        brake = slower.braking()
+        held, stop = (slower.start, None) if brake is None else self._ticks(brake, name, signals)
+        rest = None if stop is not None else slower.after_braking()
+        if rest is None:
+            return held, stop
+        outside = self._leaves_box(rest)
+        self.clock.regrid()  # that check, at rest, is no late tick
+        if outside is None:
+            return self._ticks(rest, name, signals)
+        if name == "approach":
+            self._refuse(f"start-up: the approach to the first target {np.round(rest.target, 3).tolist()}, slowed "
+                         f"down by the reduced-speed input: {outside}; " + ("not moving" if brake is None else
+                                                                           "held where it braked"))
+        self._retreat_not_played(outside, braked=brake is not None)
+        return held, (2, "the workspace box")
 
     def _brake(self, brake: Transition | None, name: str, held: np.ndarray, stop: tuple[int, str | None],
                signals: int) -> tuple[np.ndarray, tuple[int, str | None]]:
