@@ -3,8 +3,7 @@
 inside it, approach_done, no event. Now the way on is checked from rest where the brake left the robot, and one that
 leaves the box is not played, as a transition's that leaves it from the start: the approach refuses the start, the
 retreat ends the run stopped, the robot held where it braked. A brake itself is never checked (the shortest stop:
-nothing safer is left); it keeps the joints' direction, which kept an aborted approach inside the box (each joint
-stopping on its own, the tool went 18 mm out)."""
+nothing shorter is left), and it may leave the box (each joint stopping on its own)."""
 
 from __future__ import annotations
 
@@ -33,7 +32,7 @@ LONGEST_STOP_S = longest_brake_s(PROFILE, CELL.dt_ns) - BRAKE_SLACK_S  # the lon
 # an approach inside the default box whose way on, slowed 0.09 s in, went 2 mm past its y max
 START, FIRST = (np.array([-1.0444, 0.7696, -0.6019, -1.7699, -1.6269, 0.025]),
                 np.array([-0.9661, -1.5909, -0.2227, -0.152, -0.6529, 0.025]))
-# an approach inside the default box whose brake 0.4 s in, each joint on its own, went 18 mm past it
+# an approach inside the default box whose brake 0.4 s in (each joint stopping on its own) goes 18 mm past it
 BRAKED_FROM, BRAKED_TO = (np.array([0.2709, -0.3851, -1.1154, 1.4486, 2.0708, 0.025]),
                           np.array([0.9084, -1.628, 1.9883, -1.1936, 1.3336, 0.025]))
 APPROACH = ("approach_begin", ("approach_done", "startup_refused"))  # its setpoints: ``Played.between(*APPROACH)``
@@ -129,22 +128,16 @@ def test_a_retreat_whose_slowed_way_home_leaves_the_box_is_not_played_beyond_its
     assert np.abs(retreat[-1] - retreat[-2]).max() < 1e-6 and np.abs(retreat[-1] - HOME).max() > 0.5
 
 
-def test_a_slowed_way_on_inside_the_box_is_played_to_the_target_under_the_cap(tmp_path):
+def test_a_slowed_way_on_that_keeps_to_the_box_is_played_to_the_target_under_the_cap(tmp_path):
+    """Its brake takes the tool 18 mm out (not checked); the way on from there comes back in by the box's rule."""
     played = Played(tmp_path, BRAKED_FROM, BRAKED_TO, _reduced_from(0.4))
     kinds = played.kinds()
     assert played.refused is None and "approach_done" in kinds
-    approach = [q for _, q in played.between(*APPROACH)]
-    assert played.excess(approach).max() < 0.0  # 18 mm out, the brake's joints each stopping on their own
-    assert np.abs(approach[-1] - BRAKED_TO).max() < 1e-6
-
-
-@pytest.mark.parametrize("category", [1, 2])
-def test_a_stop_during_an_approach_brakes_it_inside_the_box(tmp_path, category):
-    played = Played(tmp_path, BRAKED_FROM, BRAKED_TO, lambda s: SafetyInputs(stop=category if s and s >= 0.4 else None))
-    assert played.run.events.has("approach_aborted")
-    held = [q for _, q in played.between("approach_begin", ("retreat_begin",))]  # the approach, its brake, then held
-    assert np.abs(held[-1] - held[-2]).max() < 1e-6 and np.abs(held[-1] - BRAKED_TO).max() > 0.5  # braked to rest
-    assert played.excess(held).max() < 0.0  # 18 mm past the box, each joint stopping on its own
+    approach = played.between(*APPROACH)
+    slowed = next(e.t_ns * 1e-9 for e in played.run.events if e.kind == "reduced_speed_input")
+    way_on = [q for t, q in approach if t > slowed + LONGEST_STOP_S + 0.002]  # after its brake, played to the target
+    assert len(way_on) > 100 and _keeps_to_the_box(played.excess(way_on)) and played.excess(way_on[-1:])[0] < 0.0
+    assert np.abs(way_on[-1] - BRAKED_TO).max() < 1e-6
 
 
 def _tight_box(start: np.ndarray, target: np.ndarray, margin: float) -> list[list[float]] | None:

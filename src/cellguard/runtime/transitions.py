@@ -197,7 +197,8 @@ class Transition:
         under the profile's limits, or None if it is at rest there. Stopping the setpoints dead at full speed
         stepped the command 63 mrad in one 1 ms tick. Not checked against the box: it is the shortest stop, and
         checked while the command moves it would hold its setpoint for the check (a dead stop), or leave it moving
-        on; where it takes the tool out of the box (``_stop``: rarely, a millimetre or two) nothing safer is left."""
+        on; where it takes the tool out of the box (``_stop``: 22 of 2,988 sampled brakes, up to 18 mm) nothing
+        shorter is left."""
         position, velocity, acceleration = self.state_at(steps * self.period_ns * 1e-9)
         if max(map(abs, [*velocity, *acceleration])) < AT_REST:  # the first tick too: the command may be moving
             return None
@@ -205,23 +206,18 @@ class Transition:
 
     @classmethod
     def _stop(cls, profile: Profile, position, velocity, acceleration, period_ns: int) -> Transition | None:
-        """The joints to a standstill together, in the time the slowest one needs, keeping their direction where they
-        can (ruckig's phase synchronisation, else time): each on its own as soon as it can, the tool left the path it
-        was on, out of the box by up to 18 mm (22 of 2,988 brakes of sampled transitions inside it, against 3 by at
-        most 1.5 mm, no brake longer). Each on its own where synchronising fails (it raised in the last ms of some
-        transitions)."""
+        """Each joint to a standstill as soon as it can: the shortest stop in every joint (time synchronisation
+        raised for some brakes). Stopping the joints together (phase synchronisation) kept the tool on its path, out
+        of the box in 3 of 2,988 sampled brakes instead of 22, but let a joint run on up to 222 ms and 157 mrad
+        further, the tool up to 72 mm (the worst of 1,000 stops 294 mm against 245)."""
         dof = profile.dof
-        for sync in (ruckig.Synchronization.Phase, ruckig.Synchronization.No):
-            otg, inp, traj = ruckig.Ruckig(dof), ruckig.InputParameter(dof), ruckig.Trajectory(dof)
-            inp.control_interface = ruckig.ControlInterface.Velocity
-            inp.synchronization = sync
-            inp.current_position, inp.current_velocity, inp.current_acceleration = (
-                np.asarray(x, dtype=np.float64).tolist() for x in (position, velocity, acceleration))
-            inp.target_velocity = inp.target_acceleration = [0.0] * dof
-            stop = cls._solve(profile, otg, inp, traj, period_ns)
-            if stop is not None:
-                return stop
-        return None
+        otg, inp, traj = ruckig.Ruckig(dof), ruckig.InputParameter(dof), ruckig.Trajectory(dof)
+        inp.control_interface = ruckig.ControlInterface.Velocity
+        inp.synchronization = ruckig.Synchronization.No
+        inp.current_position, inp.current_velocity, inp.current_acceleration = (
+            np.asarray(x, dtype=np.float64).tolist() for x in (position, velocity, acceleration))
+        inp.target_velocity = inp.target_acceleration = [0.0] * dof
+        return cls._solve(profile, otg, inp, traj, period_ns)
 
     @classmethod
     def _solve(cls, profile: Profile, otg, inp, traj, period_ns: int, max_velocity=None) -> Transition | None:
