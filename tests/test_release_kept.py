@@ -110,3 +110,31 @@ def test_a_kept_body_edited_in_the_store_is_never_read_and_verify_names_it(tmp_p
     again = evaluate_stage(store, plan, CELL, "sim")
     assert len(reads) == 1 and again.verdict == "fail" and _gates(again) == _gates(failed)
     assert cli("verify", "--site", str(store.site)).exit_code == 0  # kept again as read from its record
+
+
+def test_a_kept_table_of_another_shape_keeps_nothing_and_verify_names_it(tmp_path, monkeypatch):
+    """Every `release run` failed on it (nothing logged: a failing production release would not roll back), and
+    verify said the store was clean."""
+    plan, store = _site(tmp_path, ONE, SAFETY)
+    run_stage(store, plan, CELL, "sim")
+    edit_store(store.site, f"DROP TABLE {KEPT_TABLE}")
+    edit_store(store.site, f"CREATE TABLE {KEPT_TABLE} (x TEXT)")
+    reads = _calls(monkeypatch, evidence, "open_record")
+    again = run_stage(store, plan, CELL, "sim")
+    assert again.verdict == "pass" and len(reads) == 2 and _signed(store, again) == []  # read from the records
+    verify = cli("verify", "--site", str(store.site))
+    said = " ".join(verify.stdout.split())
+    assert verify.exit_code == 1 and "the kept evidence table is not one cellguard made (columns x;" in said
+
+
+def test_a_signed_body_put_under_another_records_key_is_named(tmp_path):
+    plan, store = _site(tmp_path, ONE, SAFETY)
+    for _ in range(2):
+        run_stage(store, plan, CELL, "sim")
+    (a, _), (b, _) = store.kept_bodies()
+    edit_store(store.site, f"UPDATE {KEPT_TABLE} SET record_sha256 = 'x' || record_sha256 WHERE record_sha256 = '{a}'")
+    edit_store(store.site, f"UPDATE {KEPT_TABLE} SET record_sha256 = '{a}' WHERE record_sha256 = '{b}'")
+    edit_store(store.site, f"UPDATE {KEPT_TABLE} SET record_sha256 = '{b}' WHERE record_sha256 = 'x{a}'")
+    verify = cli("verify", "--site", str(store.site))
+    said = " ".join(verify.stdout.split())
+    assert verify.exit_code == 1 and f"the evidence kept for record {a[:16]}" in said and f"record {b[:16]}" in said

@@ -19,6 +19,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+import scipy
 
 import cellguard
 from cellguard import __version__
@@ -77,8 +78,8 @@ class Kept:
                 bodies[whole] = _body(run, self._limits_sha256(run.context.get("cell")))
             except CellguardError:  # a cell no longer installed: its record is read each time, as before
                 continue
-        if bodies:
-            self.store.keep(bodies)
+        if not bodies or not self.store.keep(bodies):
+            return []
         return sorted(log.kept_sha256(t) for t in bodies.values())
 
     def _limits_sha256(self, cell) -> str:
@@ -94,14 +95,15 @@ class Kept:
 
 @functools.cache
 def _code() -> str:
-    """This cellguard: its version and the sha256 of its source, with numpy's version (the reductions and the
-    diagnosis are its arithmetic). A version number alone is the same across every change made before a release
-    is cut: a body kept by a cellguard that read or judged records differently would be taken as this one's."""
+    """This cellguard: its version and the sha256 of its source, with numpy's and scipy's versions (the reductions'
+    and the diagnosis's arithmetic, its statistics). A version number alone is the same across every change made
+    before a release is cut: a body kept by a cellguard that read or judged records differently would be taken as
+    this one's."""
     digest = hashlib.sha256()
     root = Path(cellguard.__file__).parent
     for path in sorted(root.rglob("*.py")):
         digest.update(str(path.relative_to(root)).encode() + b"\0" + path.read_bytes() + b"\0")
-    return f"{__version__}+{digest.hexdigest()[:16]} numpy {np.__version__}"
+    return f"{__version__}+{digest.hexdigest()[:16]} numpy {np.__version__} scipy {scipy.__version__}"
 
 
 def _body(run: RunEvidence, limits_of: str) -> str:

@@ -13,6 +13,7 @@ act only on entries that match their hashes, and append only after the store's h
 from __future__ import annotations
 
 import hashlib
+import json
 import re
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -264,10 +265,23 @@ def kept_signed(log_entries: list[LogEntry]) -> set[str]:
 def kept_problems(store, log_entries: list[LogEntry]) -> list[str]:
     """Each evidence body kept in the store that no gates entry signed (edited outside cellguard: never read, its
     record is read instead), in words."""
+    misshapen = store.kept_misshapen()
+    if misshapen is not None:
+        return [f"the kept evidence table is not one cellguard made ({misshapen}; edited outside cellguard): nothing is "
+                f"kept in it or read from it, the runs' records are read"]
     signed = kept_signed(log_entries)
     return [f"the evidence kept for record {str(digest)[:16]} is not the one a gates entry kept (edited outside "
             f"cellguard; its record is read instead)"
-            for digest, text in store.kept_bodies() if kept_sha256(str(text)) not in signed]
+            for digest, text in store.kept_bodies()
+            if kept_sha256(str(text)) not in signed or _kept_for(str(text)) != digest]
+
+
+def _kept_for(body_text: str):
+    """The record sha256 a kept body says it was read from (a signed body put under another record's key is named)."""
+    try:
+        return json.loads(body_text).get("record_sha256")
+    except (ValueError, AttributeError):
+        return None
 
 
 def check_pointers(store, cell: str, stage: str) -> tuple:

@@ -25,6 +25,7 @@ STAGES = ("sim", "bench", "pilot", "production")
 ADDED_RUN_COLUMNS = ("runs_sha256", "shadow_sha256")  # the runs columns an older cellguard's store lacks
 
 KEPT_TABLE = "kept_evidence"  # each counted run's evidence as read from its record once (``kept``); not in TABLES
+KEPT_COLUMNS = ("record_sha256", "body")
 KNOWN_SHOWN = 10  # release ids a refusal lists at most (a site keeps hundreds)
 TABLES = ("bundles", "pointers", "runs", "log", "meta")  # every store since the first has held them all
 _SCHEMA = """
@@ -263,17 +264,28 @@ class Store:
         """Every (record sha256, body) kept, as stored: what ``release verify`` checks against the log."""
         return self._kept("SELECT CAST(record_sha256 AS TEXT), CAST(body AS TEXT) FROM {}")
 
-    def keep(self, bodies: dict[str, str]) -> None:
-        """Keep each record sha256's evidence body (inside the caller's transaction, with the entry signing them)."""
-        self.write(f"CREATE TABLE IF NOT EXISTS {KEPT_TABLE} (record_sha256 TEXT PRIMARY KEY, body TEXT NOT NULL)")
+    def kept_misshapen(self) -> str | None:
+        """Why the kept evidence table is not one cellguard made (its columns), or None (it is, or there is none):
+        nothing is kept in it or read from it then (the runs' records are read), and ``release verify`` names it."""
+        columns = [row[1] for row in self.db.execute(f"PRAGMA table_info({KEPT_TABLE})")]
+        return None if columns in ([], list(KEPT_COLUMNS)) else f"columns {', '.join(map(str, columns))}"
+
+    def keep(self, bodies: dict[str, str]) -> bool:
+        """Keep each record sha256's evidence body (inside the caller's transaction, with the entry signing them);
+        False, keeping none, where the table is misshapen (``kept_misshapen``: every ``release run`` failed on it)."""
+        if self.kept_misshapen() is not None:
+            return False
+        self.write(f"CREATE TABLE IF NOT EXISTS {KEPT_TABLE} ({KEPT_COLUMNS[0]} TEXT PRIMARY KEY, "
+                   f"{KEPT_COLUMNS[1]} TEXT NOT NULL)")
         for digest, body in bodies.items():
             self.write(f"INSERT OR REPLACE INTO {KEPT_TABLE} VALUES (?, ?)", (digest, body))
+        return True
 
     def _kept(self, sql: str, args: tuple = ()) -> list[tuple]:
         """``sql`` on the kept evidence; none where there is no such table, or one edited out of shape (the runs'
         records are read instead)."""
         try:
-            return self.db.execute(sql.format(KEPT_TABLE), args).fetchall()
+            return [] if self.kept_misshapen() else self.db.execute(sql.format(KEPT_TABLE), args).fetchall()
         except sqlite3.Error:
             return []
 
