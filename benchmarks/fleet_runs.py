@@ -8,8 +8,10 @@ fleet operator would ship one commissioning baseline with a standard cell. A pro
 one clean cycle, then two with the fault. Runs are made and diagnosed two at a time (2 cores);
 a run folder is named by its scenario's hash, so a changed plan never reads a stale run. SIGTERM or
 Ctrl-C cancels the queued jobs and waits for the running ones (a run they stopped is not kept): a
-worker left behind waited on its queue for good. On Linux a worker is killed when the script dies
-(SIGKILL, which no shutdown follows): its run's ``.partial`` folder is removed when the run is made again.
+worker left behind waited on its queue for good. No job starts once any process of the pool was signalled
+(``_stopping``): the jobs already in the pool's queue, up to three whole runs, were made after the signal. On
+Linux a worker is killed when the script dies (SIGKILL, which no shutdown follows): its run's ``.partial``
+folder is removed when the run is made again.
 
     python benchmarks/fleet_runs.py [DIR]     # makes the missing runs, prints what it did as JSON
 """
@@ -110,17 +112,24 @@ def plan() -> tuple[PlannedRun, list[PlannedRun], list[PlannedRun]]:
 
 
 def _make(folder: Path, scenario: dict) -> tuple[float, float]:
-    """Run the scenario into ``folder`` (beside it, then renamed): (wall, CPU) seconds."""
+    """Run the scenario into ``folder`` (beside it, then renamed): (wall, CPU) seconds; OperatorStopped if a signal
+    stopped it, or came before it started (nothing is made then)."""
     from cellguard.errors import OperatorStopped
-    from cellguard.runtime import run_scenario
+    from cellguard.runtime import Run, run_scenario
     from cellguard.runtime.operator_stop import by_operator
     from cellguard.scenario import parse_scenario
 
     t, c = time.perf_counter(), time.process_time()
     tmp = folder.with_name(folder.name + ".partial")
     shutil.rmtree(tmp, ignore_errors=True)
-    stopped = run_scenario(parse_scenario(scenario), tmp).get("stopped")
+    run = Run(parse_scenario(scenario))
+    with run.operator:  # a signal from here on stops the run; one before (``_stopping``) keeps it from starting
+        if _stopping.value:
+            run.close()
+            raise OperatorStopped(f"{folder.name}: not started, the pool is stopping")
+        stopped = run_scenario(run.scenario, tmp, run=run).get("stopped")
     if by_operator(stopped):  # a signal cut it short: once renamed, it was read as the site's whole run
+        _stopping.value = True  # no job starts after it in any worker (the signal went to the run, not ``_stop``)
         shutil.rmtree(tmp)
         raise OperatorStopped(f"{folder.name}: {stopped}")
     os.replace(tmp, folder)
@@ -129,9 +138,12 @@ def _make(folder: Path, scenario: dict) -> tuple[float, float]:
 
 def _signatures(folder: Path, acceptance: Path, tenant: str, site: str):
     """The run's signatures as ``tenant``/``site``, diagnosed against the shared acceptance run."""
+    from cellguard.errors import OperatorStopped
     from cellguard.fleet.from_record import site_signatures
     from cellguard.fleet.policy import DataPolicy
 
+    if _stopping.value:
+        raise OperatorStopped(f"{folder.name}: not diagnosed, the pool is stopping")
     c = time.process_time()
     return site_signatures(folder, DataPolicy(tenant or "t-probe", site or "s-new"), acceptance=acceptance), \
         time.process_time() - c
@@ -157,25 +169,37 @@ def make_fleet(root: Path = DEFAULT_DIR, workers: int = 2) -> dict:
             for (group, r), (sigs, _) in zip(groups, found):
                 out[group][r.name] = (r, sigs)
         finally:  # on a signal or an error too: the queued jobs cancelled, no worker outlives the script
+            _stopping.value = True  # the jobs already queued in the pool: cancel_futures does not reach them
             pool.shutdown(cancel_futures=True)
     out.update(made=len(todo), runs=1 + len(sites) + len(held), acceptance=str(acc),
                make_cpu_s=sum(c for _, c in made), make_wall_s=t_made, wall_s=time.perf_counter() - t0)
     return out
 
 
+_stopping = None  # shared by the pool's processes (``_pool``): true once one was signalled; no job starts then
+
+
 def _pool(workers: int) -> ProcessPoolExecutor:
     """The pool the runs are made in: forked from this process whatever the default start method (forkserver from
     Python 3.14 on Linux made the workers' parent the server, and each ended at once in ``_worker_start``)."""
+    global _stopping
     context = multiprocessing.get_context("fork" if sys.platform.startswith("linux") else None)
-    return ProcessPoolExecutor(workers, mp_context=context, initializer=_worker_start, initargs=(os.getpid(),))
+    _stopping = context.RawValue(ctypes.c_bool, False)
+    return ProcessPoolExecutor(workers, mp_context=context, initializer=_worker_start,
+                               initargs=(os.getpid(), _stopping))
 
 
-def _worker_start(parent: int) -> None:
-    """A pool worker's set-up. It is a forked copy: SIGTERM ends it as before (the parent's handler raising there
-    would not). On Linux it is killed when the parent dies (strictly, when the thread that forked it ends: pool.map's
-    caller, which waits for the pool): a SIGKILLed script shuts no pool down, and its workers made runs for minutes,
-    orphaned, then waited on their queue for good."""
-    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+def _worker_start(parent: int, stopping) -> None:
+    """A pool worker's set-up. SIGTERM and SIGINT outside a run (which takes them as an operator stop) only stop
+    its jobs (``_stop``): a worker they ended between two jobs broke the pool, whose clean-up (CPython 3.11) then
+    made every job still queued in the surviving worker, a few whole runs, or waited for good on the queue's lock that
+    the dead worker held while it waited for a job. On Linux it is killed when the parent dies (strictly, when the
+    thread that forked it ends: pool.map's caller, which waits for the pool): a SIGKILLed script shuts no pool down,
+    and its workers made runs for minutes, orphaned, then waited on their queue for good."""
+    global _stopping
+    _stopping = stopping
+    signal.signal(signal.SIGTERM, _stop)
+    signal.signal(signal.SIGINT, _stop)
     if not sys.platform.startswith("linux"):
         return
     arg = ctypes.c_ulong
@@ -183,6 +207,11 @@ def _worker_start(parent: int) -> None:
         raise OSError(ctypes.get_errno(), "prctl(PR_SET_PDEATHSIG) failed")
     if os.getppid() != parent:  # the parent died before the death signal was set
         os._exit(1)
+
+
+def _stop(signum, frame) -> None:
+    """A pool worker's SIGTERM or SIGINT: no job starts from now on, in any process of the pool."""
+    _stopping.value = True
 
 
 @contextlib.contextmanager
