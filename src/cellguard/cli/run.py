@@ -142,7 +142,7 @@ def _held(out: Path, overwrite: bool) -> Iterator[int | None]:
     created = not out.exists()
     folder = make_folder(out, "--out")
     try:
-        lock = folder_lock.hold(folder)
+        lock = folder_lock.hold(folder, wait_s=folder_lock.BRIEF_S)  # a report writing beside a record is waited on
     except BaseException:
         _remove_if_empty(folder, created)
         raise

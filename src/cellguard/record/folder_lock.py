@@ -6,8 +6,9 @@ itself (no file is added to it), taken before anything is written there and shar
 process, so it holds until the last of them ends, the writer finishing a file after the loop's process died
 included, and the kernel lets go of it when they are gone (no stale lock after a crash). Readers look at it
 (``holder``) to tell a record still being written from a truncated one, and a file made from a record is written
-beside it under the lock, held a moment (``record.beside``), so every ``hold`` waits that long (``BRIEF_S``) before it
-refuses.
+beside it under the lock, held a moment (``record.beside``), so a run's start waits that long (``BRIEF_S``) before it
+refuses. Each caller says how long it waits: a staging folder held is a live export's or recovery's, held for its
+whole life, and is refused at once (waiting ``BRIEF_S`` there only delayed the refusal by a second).
 """
 
 from __future__ import annotations
@@ -33,12 +34,13 @@ class Busy(RecordError):
         self.by = by
 
 
-def hold(folder: Path, what: str = "--out", wait_s: float = BRIEF_S) -> int | None:
+def hold(folder: Path, what: str = "--out", *, wait_s: float = BRIEF_S) -> int | None:
     """Lock ``folder`` (it must exist) for this process and the processes it forks; the descriptor that holds it
     (``release`` lets go), None on a filesystem that offers no locks. ``Busy`` naming the folder and its holder's pid
-    if another process holds it for more than ``wait_s``: a reader's write beside a record is waited on (a run starting
-    then is not refused for it), a recovery's short move too (``MOVE_WAIT_S``), a run's whole life is not (a recovery
-    blocked silently for as long as a run that had started in its target)."""
+    if another process holds it for more than ``wait_s``: a reader's write beside a record is waited on (``BRIEF_S``:
+    a run starting then is not refused for it), a recovery's short move too (``MOVE_WAIT_S``), a run's whole life is
+    not (a recovery blocked silently for as long as a run that had started in its target), nor a staging folder's
+    (``wait_s=0``)."""
     try:
         fd = os.open(folder, os.O_RDONLY | os.O_DIRECTORY)
     except OSError as exc:

@@ -133,7 +133,8 @@ def export_lerobot(rec: Record, output: Path, fps: int | None = None, task: str 
     robot_type = robot_type or (context.get("embodiment") or {}).get("robot")
     lock, refused = None, False
     try:
-        lock = folder_lock.hold(staging, "-o")  # while this run lives: the next export clears it once it was killed
+        # while this run lives (the next export clears it once it was killed); made just now: no hold to wait out
+        lock = folder_lock.hold(staging, "-o", wait_s=0)
         _write_dataset(staging, data, features, episodes, kept, task, robot_type, fps)
         staged.note_files(staging)  # a rerun after a kill between the moves takes out what they moved
         # into the empty folder _prepare checked or made, which stays the same folder (it may be a shell's

@@ -60,7 +60,7 @@ def recover(source: Path, target: Path) -> Health:
             # inside the target: its files are renamed into place on the target's own filesystem (beside it, a
             # target that is a mount point failed with EXDEV, and a parent may not be writable)
             staging = Path(tempfile.mkdtemp(prefix=STAGING[0], suffix=STAGING[1], dir=target))
-            lock = folder_lock.hold(staging, "-o")
+            lock = folder_lock.hold(staging, "-o", wait_s=0)  # made just now: no hold to wait out
             with open(staging / RECORD_FILE, "wb") as f:
                 _copy_messages(record, f, {"source": _text(record.file), "source_health": health.describe()})
             _rebuild_index(record, staging / INDEX_DIR)

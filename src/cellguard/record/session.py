@@ -152,7 +152,8 @@ class RunRecording:
         except OSError as exc:
             raise RecordError(f"{folder / RECORD_FILE}: cannot start the record ({exc.strerror or exc}); nothing "
                               f"was run") from None
-        held = lock if lock is not None else folder_lock.hold(folder)
+        # a report writing beside a record holds the folder a moment: waited on
+        held = lock if lock is not None else folder_lock.hold(folder, wait_s=folder_lock.BRIEF_S)
         owned = None if lock is not None else held
         reserve = recorder = None
         try:

@@ -75,7 +75,7 @@ def clear_killed(leftovers: Iterable[Path], target: Path, busy: str,
     kept = []
     for old in leftovers:
         try:
-            lock = folder_lock.hold(old, "-o")
+            lock = folder_lock.hold(old, "-o", wait_s=0)  # a live run holds it for its whole life: refused at once
         except RecordError:
             raise RecordError(f"{busy} ({old.name}); wait for it to end or give another folder") from None
         try:
