@@ -53,7 +53,7 @@ from mcap.writer import CompressionType, Writer
 
 from cellguard.control.events import ROUTINE_EVENTS, Event, EventKind
 from cellguard.errors import RecordError
-from cellguard.record import ros2
+from cellguard.record import replaced, ros2
 from cellguard.record.context import changed_keys, versions
 from cellguard.record.index import PART_GLOB, TABLES, IndexWriter, clear_index, cycle_row, default_opener, event_row
 from cellguard.record.json_values import plain
@@ -188,10 +188,13 @@ class Recorder:
         ``RunRecording``'s writer process). A record already in ``folder`` is refused unless ``replace``; then it
         stays whole until ``place``: a start that failed after it was unlinked (no room for the header, no memory
         for the ring, no process forked) lost it and said "nothing was run". A start that fails leaves no file of
-        its own behind; one killed leaves at most ``STARTING_FILE``, never read, removed by the next start.
+        its own behind; one killed leaves at most ``STARTING_FILE``, never read, removed by the next start, and
+        (killed in ``place``) the files it set aside, which the next start puts back or removes (``replaced``).
         """
         folder = Path(folder)
         refuse_existing(folder, replace)
+        if replaced.settle(folder, folder / RECORD_FILE):  # a start killed in ``place``: its old files are back
+            refuse_existing(folder, replace)
         starting = folder / STARTING_FILE
         try:
             folder.mkdir(parents=True, exist_ok=True)
@@ -223,24 +226,26 @@ class Recorder:
         return recorder
 
     def place(self) -> None:
-        """Put the started record in place: with ``replace``, the old record's index parts and the files made from
-        it (``RUN_OUTPUTS``, replay pages) removed first (its baseline, bound to the old record, made the new run's
-        diagnosis refuse it; a replay of its cycle N read as the new one's), then ``STARTING_FILE`` renamed over
-        ``RECORD_FILE`` (a reader or a hard link keeps the old bytes). RecordError if that fails: the old record is
-        whole (the files made from it may be gone), the new one is still to be discarded (by the writer process
-        first, if any: see ``placed``). A SIGKILL at any point leaves the old record whole or the new one in place."""
+        """Put the started record in place: with ``replace``, the old record's index parts and the files made from it
+        (``RUN_OUTPUTS``, replay pages) set aside (``replaced``: its baseline, bound to the old record, made the new
+        run's diagnosis refuse it; a replay of its cycle N read as the new one's), ``STARTING_FILE`` renamed over
+        ``RECORD_FILE`` (a reader or a hard link keeps the old bytes), then the files set aside removed. RecordError if
+        that fails before the rename: the old record and its files are as they were, the new one is still to be
+        discarded (by the writer process first, if any: see ``placed``). A SIGKILL at any point leaves the old record
+        whole with its files (in place, or set aside until the next start puts them back) or the new one in place."""
         folder = self._starting.parent
         try:
             if self._replace:
-                clear_index(folder / INDEX_DIR)
-                for name in RUN_OUTPUTS:
-                    (folder / name).unlink(missing_ok=True)
-                for page in folder.glob(REPLAY_PAGES):  # as replay names them
-                    if re.fullmatch(r"replay-cycle-\d+\.html", page.name) and not page.is_dir():
-                        page.unlink(missing_ok=True)
-            os.replace(self._starting, self.name)
+                with replaced.aside(folder, Path(self.name), _made_from(folder)):
+                    clear_index(folder / INDEX_DIR)  # the folders its parts, set aside, left empty
+                    os.replace(self._starting, self.name)
+            else:
+                os.replace(self._starting, self.name)
         except OSError as exc:
-            raise RecordError(f"{self.name}: cannot start the record ({_why(exc)}); nothing was run") from None
+            left = os.path.isdir(folder / replaced.ASIDE)  # not put back (a move failed too): the next start does
+            raise RecordError(f"{self.name}: cannot start the record ({_why(exc)}); nothing was run"
+                              + (f" (the old record's files wait in {folder / replaced.ASIDE}; the next start puts "
+                                 f"them back)" if left else "")) from None
         self._starting = None
 
     @property
@@ -516,6 +521,19 @@ def refuse_existing(folder: Path, replace: bool = False) -> None:
         what = f"a record ({RECORD_FILE})" if there[0] == RECORD_FILE else f"{there[0]}, which a run writes"
         raise RecordError(f"--out {folder}: already holds {what}; a run never overwrites one: "
                           f"choose another --out folder (or pass --overwrite to replace it)")
+
+
+def _made_from(folder: Path) -> list[str]:
+    """The old record's index parts and the files made from it in ``folder`` (relative paths): what ``place`` replaces.
+    IsADirectoryError for a folder at a run output's name (it is not one, and is not removed)."""
+    parts = [p for table in TABLES for p in (folder / INDEX_DIR / table).glob(PART_GLOB)]
+    outputs = [folder / name for name in RUN_OUTPUTS if os.path.lexists(folder / name)]
+    for path in outputs:
+        if path.is_dir() and not path.is_symlink():
+            raise IsADirectoryError(errno.EISDIR, os.strerror(errno.EISDIR), str(path))
+    pages = [p for p in folder.glob(REPLAY_PAGES)  # as replay names them
+             if re.fullmatch(r"replay-cycle-\d+\.html", p.name) and not p.is_dir()]
+    return [p.relative_to(folder).as_posix() for p in (*parts, *outputs, *pages)]
 
 
 def _index_parts(folder: Path) -> bool:
