@@ -18,7 +18,7 @@ from typer.testing import CliRunner
 
 from cellguard.cli import app
 from cellguard.record import export
-from cellguard.record.reader import open_record
+from cellguard.record.reader import UnorderedTicks, open_record
 from cellguard.record.schemas import TICK_FIELDS, TICKS
 
 runner = CliRunner()
@@ -121,8 +121,8 @@ def test_a_batch_reaching_back_in_time_is_sorted_in_as_before(recorded, tmp_path
         return {**batch, "t_ns": batch["t_ns"] - 4_000_000_000 + 7}
 
     rewrite(recorded, tmp_path / "run", edit_bytes=_batch_edit("/ticks/decimated", 50, back))
-    with open_record(tmp_path / "run") as rec, pytest.raises(export._Unordered):
-        list(export.tick_parts(rec))
+    with open_record(tmp_path / "run") as rec, pytest.raises(UnorderedTicks):
+        list(rec.tick_parts("all", export.PART_ROWS))
     whole = _whole(tmp_path / "run", "all")
     assert _export(tmp_path / "run", tmp_path / "t.csv") == whole.num_rows
     assert (tmp_path / "t.csv").read_bytes() == _csv(whole)

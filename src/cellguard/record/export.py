@@ -17,7 +17,7 @@ import pyarrow.parquet as pq
 
 from cellguard.errors import RecordError
 from cellguard.output import atomic_file
-from cellguard.record.reader import _TICK_TOPICS, RATES, Record, Ticks, _tick_batch
+from cellguard.record.reader import RATES, Record, Ticks, UnorderedTicks
 from cellguard.record.schemas import TICK_FIELDS
 
 SUFFIXES = {"csv": (".csv",), "parquet": (".parquet", ".pq")}  # the formats written, and the file names that say them
@@ -56,87 +56,15 @@ def write_ticks(rec: Record, output: Path, fmt: str, rate: str = "all", cycle: i
     The caller checks ``output`` first with ``refuse_output`` and ``check_format``, before the ticks are read.
     """
     output = Path(output)
-    if rate not in RATES or fmt not in SUFFIXES:  # as rec.ticks refuses a rate (a part-wise read found no stream)
+    if rate not in RATES or fmt not in SUFFIXES:  # both in one refusal, before anything is read
         raise RecordError(f"rate {rate!r}, format {fmt!r}: the rates are {', '.join(RATES)}, the formats "
                           f"{', '.join(SUFFIXES)}")
     if cycle is not None:  # a cycle's ticks: one part
         return _write(iter([rec.ticks(cycle=cycle, rate=rate)]), output, fmt)
     try:
-        return _write(tick_parts(rec, rate), output, fmt)
-    except _Unordered:  # not as the recorder writes (a crafted file): read whole and sorted, as rec.ticks does
+        return _write(rec.tick_parts(rate, PART_ROWS), output, fmt)
+    except UnorderedTicks:  # not as the recorder writes (a crafted file): read whole and sorted, as rec.ticks does
         return _write(iter([rec.ticks(rate=rate)]), output, fmt)
-
-
-class _Unordered(Exception):
-    """A tick batch reaches back before ticks already handed on."""
-
-
-def tick_parts(rec: Record, rate: str = "all") -> Iterator[Ticks]:
-    """The ticks of ``rec.ticks(rate=rate)``, in its order, about ``PART_ROWS`` rows at a time (one empty part for a
-    record without ticks); ``_Unordered`` where that order cannot be kept.
-
-    The streams are merged by their batches' first times (the recorder writes each stream in time order): a tick is
-    handed on once no batch still to come starts at or before it, so only a part and a batch or two are held. As in
-    ``rec.ticks``, the first batch (decimated before full-rate) names the joints, a batch naming others is skipped,
-    and of ticks at one time the decimated stream's, then the earliest read, is kept."""
-    topics = [topic for name, topic in _TICK_TOPICS.items() if rate in (name, "all")]
-    decoded = [rec._decoded(rec.messages([topic]), topic, _tick_batch) for topic in topics]
-    firsts = [next(batches, None) for batches in decoded]
-    named = next((first[1]["joints"] for first in firsts if first is not None), ())
-    streams = [_matching(rec, topic, itertools.chain([first] if first else [], batches), named)
-               for topic, first, batches in zip(topics, firsts, decoded)]
-    joints, heads = tuple(named), [next(stream, None) for stream in streams]
-    taken = [0] * len(streams)  # ticks taken from each stream: with its rank, their order at equal times
-    pending: list[tuple[np.ndarray, ...]] = []  # (t, order, cycle, values (n, fields, dof)) of ticks not handed on
-    held, handed, given = 0, None, False  # handed: every tick before it was handed on
-    while True:
-        live = [(int(head["t_ns"].min()), i) for i, head in enumerate(heads) if head is not None]
-        horizon = min(live, default=(None, None))[0]  # no batch still to come starts before it
-        if pending and (horizon is None or held >= PART_ROWS / max(1, len(joints))):
-            part, pending = _hand_on(pending, horizon, joints)
-            held, handed = sum(len(p[0]) for p in pending), horizon
-            if len(part):
-                given = True
-                yield part
-        if horizon is None:
-            break
-        i = min(live)[1]
-        batch, heads[i] = heads[i], next(streams[i], None)
-        t = batch["t_ns"]
-        if handed is not None and t.min() < handed:
-            raise _Unordered
-        values = np.stack([batch[f].reshape(len(t), len(joints)) for f in TICK_FIELDS], axis=1)
-        pending.append((t, (i << 62) + np.arange(taken[i], taken[i] + len(t)), batch["cycle"],
-                        values.astype(np.float64)))
-        taken[i] += len(t)
-        held += len(t)
-    if not given:
-        yield Ticks(joints, np.zeros(0, np.int64), np.zeros(0, np.int64),
-                    **{f: np.zeros((0, len(joints))) for f in TICK_FIELDS})
-
-
-def _matching(rec: Record, topic: str, decoded: Iterator[tuple], joints) -> Iterator[dict]:
-    """The batches that name ``joints`` and hold a tick; one naming others is noted as ``rec.ticks`` notes it."""
-    for message, batch in decoded:
-        if batch["joints"] != joints:
-            rec._note(topic, message)
-        elif len(batch["t_ns"]):
-            yield batch
-
-
-def _hand_on(pending: list[tuple[np.ndarray, ...]], before: int | None, joints: tuple[str, ...]
-             ) -> tuple[Ticks, list[tuple[np.ndarray, ...]]]:
-    """The pending ticks before ``before`` (all for None) by time, one per time, and those still pending."""
-    t, order, cycle, values = (np.concatenate(column) for column in zip(*pending))
-    by_time = np.lexsort((order, t))
-    due = by_time if before is None else by_time[t[by_time] < before]
-    first = np.ones(len(due), dtype=bool)
-    first[1:] = t[due][1:] != t[due][:-1]
-    due = due[first]
-    part = Ticks(joints, t[due], cycle[due].astype(np.int64),
-                 **{f: values[due, k] for k, f in enumerate(TICK_FIELDS)})
-    rest = np.zeros(0, np.int64) if before is None else by_time[t[by_time] >= before]
-    return part, [tuple(column[rest] for column in (t, order, cycle, values))] if len(rest) else []
 
 
 def _write(parts: Iterator[Ticks], output: Path, fmt: str) -> int:

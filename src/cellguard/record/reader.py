@@ -24,6 +24,7 @@ Contract (fields may be added, not renamed)::
         ...                          #   joint, asked, sent, reason, cycle
     rec.ticks(cycle=12)              # Ticks: t_ns (n,), cycle (n,), joints, q_ref, q_cmd, q_meas, qd_meas,
                                      #   effort, current (n, dof) float64; rate="decimated" | "full" | "all"
+    rec.tick_parts("all", rows)      # the same ticks of the whole record, about `rows` values a field at a time
     rec.chunks()                     # RecordedChunk: the policy's chunks as received
     rec.measurements()               # Measurement: t_ns, cycle, names, values (n,) of the readings the policy saw
     rec.health()                     # Health: finished, truncated, chunks ok/damaged, sequence gaps, writing
@@ -44,6 +45,7 @@ from __future__ import annotations
 
 import bisect
 import datetime as dt
+import hashlib
 import itertools
 import math
 import os
@@ -138,6 +140,11 @@ class Ticks:
 
     def __len__(self) -> int:
         return len(self.t_ns)
+
+
+class UnorderedTicks(RecordError):
+    """A tick batch reaches back before ticks ``tick_parts`` handed on already: not as the recorder writes (a crafted
+    file); ``ticks()`` reads such a record whole."""
 
 
 @dataclass(frozen=True)
@@ -408,27 +415,68 @@ class Record:
     # -- ticks ----------------------------------------------------------------------------
     def ticks(self, cycle: int | None = None, rate: str = "all", start_ns: int | None = None,
               end_ns: int | None = None) -> Ticks:
-        """Ticks of one cycle or a time span; ``all`` merges the full-rate windows into the decimated stream."""
-        if rate not in RATES:
-            raise RecordError(f"rate: {rate!r} is not one of {', '.join(RATES)}")
+        """Ticks of one cycle or a time span; ``all`` merges the full-rate windows into the decimated stream
+        (``_TickMerge``), held whole: a batch may reach back before any tick."""
+        topics = _tick_topics(rate)
         if cycle is not None:
             start_ns, end_ns = self._cycle_span(cycle)
         lo = None if start_ns is None else start_ns - self._batch_span_ns()
-        hi = {"decimated": end_ns,  # a pre-trigger backlog is logged up to one window after its ticks
-              "full": None if end_ns is None else end_ns + self._backlog_ns()}
-        streams = {topic: self.messages([topic], lo, hi[name]) for name, topic in _TICK_TOPICS.items()
-                   if rate in (name, "all")}
-        return _merge(list(self._tick_batches(streams)), cycle, start_ns, end_ns)
+        hi = {"/ticks/decimated": end_ns,  # a pre-trigger backlog is logged up to one window after its ticks
+              "/ticks/full": None if end_ns is None else end_ns + self._backlog_ns()}
+        joints, streams = self._named_streams({topic: self.messages([topic], lo, hi[topic]) for topic in topics})
+        merge = _TickMerge(joints, cycle, start_ns, end_ns)
+        for rank, batches in enumerate(streams):  # each read through before the next: malformed ones noted in order
+            for batch in batches:
+                merge.add(rank, batch)
+        return merge.hand_on(None)
 
-    def _tick_batches(self, streams: dict[str, Iterable[Message]]) -> Iterator[dict]:
-        """Decoded tick batches; one that is malformed, or names other joints than the first, is skipped."""
-        joints = None
+    def tick_parts(self, rate: str, rows: int) -> Iterator[Ticks]:
+        """The ticks of ``ticks(rate=rate)``, in its order, about ``rows`` values of each field (ticks times joints)
+        at a time, one empty part for a record without ticks; ``UnorderedTicks`` where that order cannot be kept.
+
+        The streams are merged by their batches' first times (the recorder writes each stream in time order): a tick
+        is handed on once no batch still to come starts at or before it, so only a part and a batch or two are
+        held."""
+        topics = _tick_topics(rate)
+        joints, streams = self._named_streams({topic: self.messages([topic]) for topic in topics})
+        merge, heads = _TickMerge(joints), [next(stream, None) for stream in streams]
+        handed, given = None, False  # handed: every tick before it was handed on
+        while True:
+            live = [(int(head["t_ns"].min()), i) for i, head in enumerate(heads) if head is not None]
+            horizon = min(live, default=(None, None))[0]  # no batch still to come starts before it
+            if merge.held and (horizon is None or merge.held >= rows / max(1, len(joints))):
+                part, handed = merge.hand_on(horizon), horizon
+                if len(part):
+                    given = True
+                    yield part
+            if horizon is None:
+                break
+            i = min(live)[1]
+            batch, heads[i] = heads[i], next(streams[i], None)
+            if handed is not None and batch["t_ns"].min() < handed:
+                raise UnorderedTicks(f"{self.file}: a {topics[i]} batch reaches back before ticks handed on")
+            merge.add(i, batch)
+        if not given:
+            yield merge.hand_on(None)
+
+    def _named_streams(self, streams: dict[str, Iterable[Message]]) -> tuple[tuple[str, ...], list[Iterator[dict]]]:
+        """The joints the first decoded batch names (the decimated stream's, else the full-rate one's) and each
+        stream's batches that name them and hold a tick; a malformed batch, or one naming other joints, is skipped
+        and noted. A stream is read ahead only until a batch names the joints."""
+        joints, named = None, []
         for topic, messages in streams.items():
-            for m, batch in self._decoded(messages, topic, _tick_batch):
-                joints = batch["joints"] if joints is None else joints
-                if batch["joints"] != joints:
-                    self._note(topic, m)
-                    continue
+            batches = self._decoded(messages, topic, _tick_batch)
+            if joints is None and (first := next(batches, None)) is not None:
+                joints, batches = tuple(first[1]["joints"]), itertools.chain([first], batches)
+            named.append(self._naming(topic, batches, joints))
+        return joints or (), named
+
+    def _naming(self, topic: str, batches: Iterator[tuple], joints: tuple[str, ...] | None) -> Iterator[dict]:
+        """The batches that name ``joints`` and hold a tick; one naming others is noted."""
+        for m, batch in batches:
+            if tuple(batch["joints"]) != joints:
+                self._note(topic, m)
+            elif len(batch["t_ns"]):
                 yield batch
 
     def _cycle_span(self, cycle: int) -> tuple[int, int | None]:
@@ -456,6 +504,11 @@ class Record:
         context = self.contexts[0].context if self.contexts else {}
         return round(_field(context, "record.pre_trigger_s", 10.0) * 1e9) + self._batch_span_ns()
 
+    def sha256(self) -> str:
+        """The sha256 of the bytes this record is read from (the file as it was when opened): a hash of its path
+        taken after the read could be another file's, one put in its place meanwhile and taken away."""
+        return hashlib.sha256(self._buf).hexdigest()
+
     def attachment(self, name: str) -> bytes | None:
         """The data of attachment ``name`` (e.g. ``robot_description.urdf``), or None if absent or unreadable."""
         from mcap.records import Attachment
@@ -468,40 +521,45 @@ class Record:
 
     # -- health ---------------------------------------------------------------------------
     def health(self) -> Health:
-        """Read every chunk: CRCs, sequence gaps per channel, message counts.
+        """Read every chunk once: CRCs, sequence gaps per channel, message counts, and each message checked as its
+        reader takes it (``_Checks``).
 
         In file order, a chunk at a time: none of it needs time order, and a merge by time holds every chunk that
-        overlaps another (a record whose chunks were written twice held all of them)."""
+        overlaps another (a record whose chunks were written twice held all of them). Only the messages checked are
+        taken out of a chunk; the others are counted by their heads."""
         names = {i: t for t, i in self._ids.items()}
         last: dict[int, int] = {}
         gaps: dict[str, list[tuple[int, int]]] = {t: [] for t in self._ids}
         counts = dict.fromkeys(self._ids, 0)
         repeats: dict[str, int] = {}
-        first_t = last_t = None
+        first_t, last_t = 1 << 64, -1  # log times are u64
         self.contexts  # noqa: B018 - read first, so that a lost context is known
         offset = self._offset or 0
-        for m in self._file_order(list(self._ids)):
-            topic = names.get(m.channel_id)
-            if topic is None:
+        checks, every = _Checks(self._ids), set(names)
+        for ref in self.layout.chunks:
+            if not _overlaps(ref, every, None, None):
                 continue
-            counts[topic] += 1
-            previous = last.get(m.channel_id, 0)
-            if m.sequence > previous + 1:
-                gaps[topic].append((previous + 1, m.sequence - 1))
-            elif m.sequence <= previous:  # the writer numbers each channel's messages 1, 2, 3, ... in file order
-                repeats[topic] = repeats.get(topic, 0) + 1
-            last[m.channel_id] = max(previous, m.sequence)
-            first_t = m.log_time if first_t is None else min(first_t, m.log_time)
-            last_t = m.log_time if last_t is None else max(last_t, m.log_time)
-        # decoded in a second read, so that malformed messages are noted (held from the first, a long record's
-        # every message would be in memory at once)
-        every = self._file_order
-        for _ in itertools.chain(self._json(every(["/cycles"]), "/cycles", _cycle_record),
-                                 self._json(every(["/events"]), "/events", _event_record),
-                                 self._measurements(every(["/measurements"])),
-                                 self._decoded(every(["/chunks"]), "/chunks", _recorded_chunk),
-                                 self._tick_batches({t: every([t]) for t in _TICK_TOPICS.values()})):
-            pass
+            heads: list[tuple[int, int, int, int]] = []
+            for m in self._chunk_messages(ref, checks.channels, heads):
+                checks.check(m)
+            for channel, sequence, log_time, _ in heads:
+                topic = names.get(channel)
+                if topic is None:
+                    continue
+                counts[topic] += 1
+                previous = last.get(channel, 0)
+                if sequence <= previous:  # the writer numbers each channel's messages 1, 2, 3, ... in file order
+                    repeats[topic] = repeats.get(topic, 0) + 1
+                else:
+                    if sequence > previous + 1:
+                        gaps[topic].append((previous + 1, sequence - 1))
+                    last[channel] = sequence
+                if log_time < first_t:
+                    first_t = log_time
+                if log_time > last_t:
+                    last_t = log_time
+        for topic, keys in checks.malformed().items():  # noted once, however often read
+            self._off_schema.setdefault(topic, set()).update(keys)
         damage = ([d.why for d in self.layout.damage if not (self.writing and d.at_end)]  # its end, not written yet
                   + list(self._late_damage.values())
                   + [f"{len(bad)} {topic} message(s) off their schema, skipped"
@@ -510,7 +568,7 @@ class Record:
         damaged = len(self._late_damage) + sum("chunk at byte" in d.why for d in self.layout.damage)
         return Health(self.layout.finished, self.layout.truncated, len(self.layout.chunks) - len(self._late_damage),
                       damaged, tuple(damage), {t: tuple(g) for t, g in gaps.items()}, counts,
-                      None if first_t is None else (first_t - offset, last_t - offset), self.context_loss,
+                      None if last_t < 0 else (first_t - offset, last_t - offset), self.context_loss,
                       {topic: len(bad) for topic, bad in self._off_schema.items()},
                       self.layout.metadata.get("cellguard.recovered", {}).get("source_health"), self._facts_note,
                       repeats, self.writing)
@@ -548,22 +606,69 @@ class Record:
             pending.sort(key=_log_time)
         yield from pending
 
-    def _file_order(self, topics: list[str]) -> Iterator[Message]:
-        """The messages of ``topics`` as the file holds them, one chunk at a time."""
-        wanted = {self._ids[t] for t in topics}
-        for ref in self.layout.chunks:
-            if _overlaps(ref, wanted, None, None):
-                yield from self._chunk_messages(ref, wanted)
-
-    def _chunk_messages(self, ref: ChunkRef, wanted: set[int]) -> list[Message]:
-        """The messages of ``wanted`` channels in one chunk; none if it is damaged (noted for ``health()``)."""
+    def _chunk_messages(self, ref: ChunkRef, wanted: set[int], heads: list | None = None) -> list[Message]:
+        """The messages of ``wanted`` channels in one chunk (and into ``heads`` every message's, as ``read_chunk``);
+        none if it is damaged (noted for ``health()``)."""
         if ref.offset in self._late_damage:
             return []
         try:
-            return read_chunk(self._buf, ref, wanted)
+            return read_chunk(self._buf, ref, wanted, heads)
         except RecordError as exc:
             self._late_damage[ref.offset] = str(exc)
             return []
+
+
+class _Checks:
+    """The messages ``cycles()``, ``events()``, ``measurements()``, ``chunks()`` and ``ticks()`` skip as malformed,
+    found in one read of the file in file order (``health``): each message decoded as its reader decodes it, a
+    reading whose names differ from the first reading's and a tick batch naming other joints than the first
+    decimated batch (else the first full-rate one: ``_named_streams``, which reads each stream by time) included."""
+
+    _TOPICS = ("/cycles", "/events", "/measurements", "/chunks", *_TICK_TOPICS.values())  # the order readers note in
+
+    def __init__(self, ids: dict[str, int]):
+        decoders = (lambda data: _cycle_record(loads(data)), lambda data: _event_record(loads(data)),
+                    lambda data: _measurement(loads(data)), _recorded_chunk, _tick_batch, _tick_batch)
+        self._by_id: dict[int, list[tuple[str, Callable[[bytes], object]]]] = {}
+        for topic, decode in zip(self._TOPICS, decoders):
+            self._by_id.setdefault(ids[topic], []).append((topic, decode))
+        self.channels = set(self._by_id)  # the channel ids of the messages to check
+        self._bad: dict[str, list[tuple[int, int]]] = {topic: [] for topic in self._TOPICS}  # (log time, sequence)
+        self._names: tuple[str, ...] | None = None  # the first reading's
+        self._joints: tuple[str, ...] | None = None  # the first decimated batch's: what every tick batch must name
+        self._waiting: dict[tuple[str, ...], list[tuple[int, int]]] | None = {}  # full-rate batches read before
+        # any decimated one, by the joints they name (None once one is read; the recorder writes it first)
+
+    def check(self, m: Message) -> None:
+        for topic, decode in self._by_id.get(m.channel_id, ()):
+            try:
+                value = decode(m.data)
+            except (RecordError, ValueError, KeyError, TypeError, AttributeError, IndexError, OverflowError):
+                self._bad[topic].append((m.log_time, m.sequence))  # as ``_decoded`` skips it
+                continue
+            if topic == "/measurements":
+                self._names = value.names if self._names is None else self._names
+                if value.names != self._names:
+                    self._bad[topic].append((m.log_time, m.sequence))
+            elif topic in _TICK_TOPICS.values():
+                self._batch(topic, tuple(value["joints"]), (m.log_time, m.sequence))
+
+    def _batch(self, topic: str, joints: tuple[str, ...], key: tuple[int, int]) -> None:
+        if topic == _TICK_TOPICS["full"] and self._waiting is not None:
+            self._waiting.setdefault(joints, []).append(key)
+            return
+        if self._waiting is not None:  # the first decimated batch: it names the joints
+            self._joints, waiting, self._waiting = joints, self._waiting, None
+            self._bad[_TICK_TOPICS["full"]] += [k for named, keys in waiting.items() if named != joints for k in keys]
+        elif joints != self._joints:
+            self._bad[topic].append(key)
+
+    def malformed(self) -> dict[str, list[tuple[int, int]]]:
+        """Topic -> (log time, sequence) of each malformed message, topics in the order the readers note them."""
+        if self._waiting:  # no decimated batch: the first full-rate one names the joints
+            first, waiting, self._waiting = next(iter(self._waiting)), self._waiting, None
+            self._bad[_TICK_TOPICS["full"]] += [k for named, keys in waiting.items() if named != first for k in keys]
+        return {topic: keys for topic, keys in self._bad.items() if keys}
 
 
 def _log_time(m: Message) -> int:
@@ -631,28 +736,63 @@ def _overlaps(ref: ChunkRef, wanted: set[int], start_ns: int | None, end_ns: int
     return end_ns is None or ref.start_ns <= end_ns
 
 
-def _merge(parts: list[dict], cycle: int | None, start_ns: int | None, end_ns: int | None) -> Ticks:
-    joints = tuple(parts[0]["joints"]) if parts else ()
-    dof = len(joints)
-    t = np.concatenate([p["t_ns"] for p in parts]) if parts else np.zeros(0, np.int64)
-    cyc = np.concatenate([p["cycle"] for p in parts]) if parts else np.zeros(0, np.int32)
-    values = {f: (np.concatenate([p[f] for p in parts]).astype(np.float64).reshape(-1, dof) if parts
-                  else np.zeros((0, dof))) for f in TICK_FIELDS}
-    keep = np.ones(len(t), dtype=bool)
-    if cycle is not None:
-        keep &= cyc == cycle
-    if start_ns is not None and cycle is None:
-        keep &= t >= start_ns
-    if end_ns is not None and cycle is None:
-        keep &= t <= end_ns
-    t, cyc = t[keep], cyc[keep]
-    order = np.argsort(t, kind="stable")
-    t_sorted = t[order]
-    unique = np.ones(len(order), dtype=bool)
-    unique[1:] = t_sorted[1:] != t_sorted[:-1]
-    order = order[unique]
-    picked = {f: v[keep][order] for f, v in values.items()}
-    return Ticks(joints, t[order], cyc[order].astype(np.int64), **picked)
+def _tick_topics(rate: str) -> list[str]:
+    """The tick streams ``rate`` reads, the decimated first; RecordError for another rate."""
+    if rate not in RATES:
+        raise RecordError(f"rate: {rate!r} is not one of {', '.join(RATES)}")
+    return [topic for name, topic in _TICK_TOPICS.items() if rate in (name, "all")]
+
+
+class _TickMerge:
+    """Tick batches merged into one series by time, held until handed on. Of ticks at one time the decimated
+    stream's (rank 0), then the one added first, is kept; ticks outside ``cycle`` (or else the span) are left out
+    before that, so a copy of a tick in another cycle does not hide the one in it."""
+
+    def __init__(self, joints: tuple[str, ...], cycle: int | None = None, start_ns: int | None = None,
+                 end_ns: int | None = None):
+        self.joints, self._cycle, self._span = joints, cycle, (start_ns, end_ns)
+        self._pending: list[tuple[np.ndarray, ...]] = []  # (t, order, cycle, *fields (n, dof) as written)
+        self._added = [0] * len(_TICK_TOPICS)  # ticks added of each rank: with the rank, their order at equal times
+        self.held = 0  # ticks held
+
+    def add(self, rank: int, batch: dict) -> None:
+        """Hold the ticks of a decoded batch naming ``joints``."""
+        n = len(batch["t_ns"])
+        order = (rank << 62) + np.arange(self._added[rank], self._added[rank] + n)
+        self._added[rank] += n
+        dof = len(self.joints)
+        self._pending.append((batch["t_ns"], order, batch["cycle"], *(batch[f].reshape(n, dof) for f in TICK_FIELDS)))
+        self.held += n
+
+    def hand_on(self, before: int | None) -> Ticks:
+        """The held ticks before ``before`` (all for None) by time, one per time; the others stay held."""
+        dof = len(self.joints)
+        if not self._pending:
+            return Ticks(self.joints, np.zeros(0, np.int64), np.zeros(0, np.int64),
+                         **{f: np.zeros((0, dof)) for f in TICK_FIELDS})
+        t, order, cycle, *values = (np.concatenate(column) for column in zip(*self._pending))
+        keep = self._keep(t, cycle)
+        if keep is not None:
+            t, order, cycle, values = t[keep], order[keep], cycle[keep], [v[keep] for v in values]
+        by_time = np.lexsort((order, t))
+        due = by_time if before is None else by_time[t[by_time] < before]
+        first = np.ones(len(due), dtype=bool)
+        first[1:] = t[due][1:] != t[due][:-1]
+        due = due[first]
+        rest = np.zeros(0, np.int64) if before is None else by_time[t[by_time] >= before]
+        self._pending = [tuple(c[rest] for c in (t, order, cycle, *values))] if len(rest) else []
+        self.held = len(rest)
+        return Ticks(self.joints, t[due], cycle[due].astype(np.int64),
+                     **{f: v[due].astype(np.float64) for f, v in zip(TICK_FIELDS, values)})
+
+    def _keep(self, t: np.ndarray, cycle: np.ndarray) -> np.ndarray | None:
+        """Which ticks are of the cycle, else of the span; None: all."""
+        if self._cycle is not None:
+            return cycle == self._cycle
+        start, end = self._span
+        if start is None and end is None:
+            return None
+        return (t >= (-_INT64 if start is None else start)) & (t <= (_INT64 - 1 if end is None else end))
 
 
 def _tick_batch(data: bytes) -> dict:

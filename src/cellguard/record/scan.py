@@ -131,10 +131,12 @@ def require_regular(path: Path, what: str) -> None:
                           f"nothing was read from it")
 
 
-def read_chunk(buf, ref: ChunkRef, channels: set[int] | None = None) -> list:
+def read_chunk(buf, ref: ChunkRef, channels: set[int] | None = None, heads: list | None = None) -> list:
     """The records inside one chunk (schemas, channels, messages); RecordError if it is damaged.
     ``channels``: only the messages of these channel ids, read without decoding the others (a
-    chunk of an arm record holds some 30 tick and state messages besides one cycle's)."""
+    chunk of an arm record holds some 30 tick and state messages besides one cycle's); ``heads``, with
+    ``channels``: a list that gets (channel id, sequence, log time, publish time) of every message in the chunk,
+    if it is not damaged (a count of all messages needs no more)."""
     raw = buf[ref.offset:ref.offset + ref.length]
     if len(raw) < ref.length or raw[0] != Opcode.CHUNK:
         raise RecordError(f"chunk at byte {ref.offset}: not a chunk record")
@@ -150,7 +152,10 @@ def read_chunk(buf, ref: ChunkRef, channels: set[int] | None = None) -> list:
         if channels is None:
             return breakup_chunk(chunk, validate_crc=True)
         stream, size = get_chunk_data_stream(chunk, validate_crc=True)
-        return _messages(stream.read(size), channels)
+        messages, every = _messages(stream.read(size), channels)
+        if heads is not None:
+            heads += every
+        return messages
     except RecordError:
         raise
     except Exception as exc:  # the mcap package raises many kinds on a corrupt chunk (zstd, CRC, struct)
@@ -185,22 +190,23 @@ def _release(buf, offset: int, length: int) -> None:
         buf.madvise(mmap.MADV_DONTNEED, start, end - start)
 
 
-def _messages(data: bytes, channels: set[int]) -> list[Message]:
-    """The messages of ``channels`` in a chunk's uncompressed records, in file order; ValueError if a
-    record runs past the end."""
-    out, at, end = [], 0, len(data)
+def _messages(data: bytes, channels: set[int]) -> tuple[list[Message], list[tuple[int, int, int, int]]]:
+    """The messages of ``channels`` in a chunk's uncompressed records, and the heads (channel id, sequence, log time,
+    publish time) of all messages, in file order; ValueError if a record runs past the end."""
+    out, heads, at, end = [], [], 0, len(data)
     while at < end:
         op, length = _RECORD.unpack_from(data, at)
         body = at + _RECORD.size
         if body + length > end:
             raise ValueError(f"a record of {length} bytes runs past the chunk's end")
         if op == Opcode.MESSAGE:
-            channel, sequence, log_time, publish_time = _MESSAGE.unpack_from(data, body)
+            head = channel, sequence, log_time, publish_time = _MESSAGE.unpack_from(data, body)
+            heads.append(head)
             if channel in channels:
                 out.append(Message(channel_id=channel, log_time=log_time, data=data[body + _MESSAGE.size:body + length],
                                    publish_time=publish_time, sequence=sequence))
         at = body + length
-    return out
+    return out, heads
 
 
 def read_attachment(buf, offset: int, length: int):
