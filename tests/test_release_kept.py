@@ -138,3 +138,21 @@ def test_a_signed_body_put_under_another_records_key_is_named(tmp_path):
     verify = cli("verify", "--site", str(store.site))
     said = " ".join(verify.stdout.split())
     assert verify.exit_code == 1 and f"the evidence kept for record {a[:16]}" in said and f"record {b[:16]}" in said
+
+
+def test_a_record_swapped_while_it_is_read_is_never_kept_as_the_record_counted(tmp_path, monkeypatch):
+    """Read while another run's record stood in its place (put back before the file was hashed by its path), the
+    other record's evidence was kept under the counted record's hash, and every later evaluation read it."""
+    plan, store = _site(tmp_path, KNOCKED, [{"metric": "success_rate", "min": 1.0}])
+    first = run_stage(store, plan, CELL, "sim")
+    clean = load_plan(write_plan(tmp_path / "clean.yaml", {"sim": {"runs": [ONE], "gates": SAFETY}}))["sim"]
+    run_stage(store, clean, CELL, "sim")
+    knocked, other = (store.run_folder(r) for r in store.runs(CELL, "sim", first.release))
+    edit_store(store.site, f"DROP TABLE {KEPT_TABLE}")  # nothing kept: the records are read
+    real = evidence.open_record
+    monkeypatch.setattr(evidence, "open_record", lambda folder: real(other if folder == knocked else folder))
+    swapped = evaluate_stage(store, plan, CELL, "sim")
+    assert len(swapped.refused) == 1 and str(knocked) in swapped.refused[0]
+    monkeypatch.setattr(evidence, "open_record", real)
+    again = evaluate_stage(store, plan, CELL, "sim")
+    assert again.refused == () and _gates(again) == _gates(first) and again.verdict == "fail"  # its own, as read
