@@ -28,7 +28,6 @@ from cellguard.calibrate.excitation import excitation_scenario, excite
 from cellguard.calibrate.identify import identify, load_segments, model_params
 from cellguard.calibrate.stand import Stand
 from cellguard.calibrate.torque_model import SMOOTH_TICKS, JointTerms, TorqueModel, current_nrmse
-from cellguard.record.reader import open_record
 from cellguard.record.writer import RecordConfig
 from cellguard.robot.physics import Physics
 from cellguard.robot.registry import make_cell

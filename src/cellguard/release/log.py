@@ -267,8 +267,8 @@ def kept_problems(store, log_entries: list[LogEntry]) -> list[str]:
     record is read instead), in words."""
     misshapen = store.kept_misshapen()
     if misshapen is not None:
-        return [f"the kept evidence table is not one cellguard made ({misshapen}; edited outside cellguard): nothing is "
-                f"kept in it or read from it, the runs' records are read"]
+        return [f"the kept evidence table is not one cellguard made ({misshapen}; edited outside cellguard): "
+                f"nothing is kept in it or read from it, the runs' records are read"]
     signed = kept_signed(log_entries)
     return [f"the evidence kept for record {str(digest)[:16]} is not the one a gates entry kept (edited outside "
             f"cellguard; its record is read instead)"
