@@ -95,6 +95,33 @@ def rewrite(source: Path, target: Path, metadata: dict[str, dict[str, str]] | No
         writer.finish()
 
 
+class FullRateAltered:
+    """An ``edit_bytes`` for ``rewrite`` that shows which copy of a tick a reader keeps (the recorder writes the same
+    values to both streams): each full-rate batch's q_ref raised by 1000 times its number, batch ``overlap_at``
+    moved half a batch back over the one before, on the servo grid (``overlap``: the times it moved over), batch
+    ``other_joints_at`` naming other joints."""
+
+    def __init__(self, overlap_at: int = 5, other_joints_at: int | None = None):
+        self.overlap_at, self.other_joints_at = overlap_at, other_joints_at
+        self.n, self.overlap = 0, None
+
+    def __call__(self, topic: str, data: bytes) -> bytes:
+        from cellguard.record.schemas import TICKS
+
+        if topic != "/ticks/full":
+            return data
+        d = TICKS.decode(data)
+        self.n += 1
+        d = {**d, "q_ref": d["q_ref"] + 1000.0 * self.n}
+        if self.n == self.overlap_at:
+            t = d["t_ns"]
+            d["t_ns"] = t - (len(t) // 2) * (t[1] - t[0])
+            self.overlap = d["t_ns"][:len(t) // 2]
+        if self.n == self.other_joints_at:
+            d["joints"] = [*d["joints"][:-1], "other"]
+        return TICKS.encode(d)
+
+
 class _File:
     """A real file behind a test's own ``write``."""
 

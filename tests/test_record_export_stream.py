@@ -13,7 +13,7 @@ import pyarrow.csv as pacsv
 import pyarrow.parquet as pq
 import pytest
 from cli_util import one_error
-from record_synth import JOINTS, record, rewrite
+from record_synth import JOINTS, FullRateAltered, record, rewrite
 from typer.testing import CliRunner
 
 from cellguard.cli import app
@@ -173,20 +173,7 @@ def test_of_ticks_at_one_time_the_decimated_then_the_first_read_is_kept(recorded
     """The recorder writes the same values to both streams, so which copy of a tick was kept showed nowhere. Here
     each full-rate batch's q_ref is raised by 1000 times its number, and batch 5 reaches half a batch back over
     batch 4: the decimated copy wins, then the one read first, as in the whole table."""
-    seen = {"n": 0, "overlap": None}
-
-    def edit(topic: str, data: bytes) -> bytes:
-        if topic != "/ticks/full":
-            return data
-        d = TICKS.decode(data)
-        seen["n"] += 1
-        d = {**d, "q_ref": d["q_ref"] + 1000.0 * seen["n"]}
-        if seen["n"] == 5:
-            t = d["t_ns"]
-            d["t_ns"] = t - (len(t) // 2) * (t[1] - t[0])  # on the servo grid, over batch 4's last half
-            seen["overlap"] = d["t_ns"][:len(t) // 2]
-        return TICKS.encode(d)
-
+    edit = FullRateAltered(overlap_at=5)
     rewrite(recorded, tmp_path / "run", edit_bytes=edit)
     whole = _whole(tmp_path / "run", "all")
     assert _export(tmp_path / "run", tmp_path / "t.csv") == whole.num_rows
@@ -196,7 +183,7 @@ def test_of_ticks_at_one_time_the_decimated_then_the_first_read_is_kept(recorded
     with open_record(tmp_path / "run") as rec:
         decimated = rec.ticks(rate="decimated").t_ns
     assert np.all(np.abs(q_ref[np.isin(t, decimated)]) < 500)  # the decimated copies
-    overlap = np.isin(t, seen["overlap"]) & ~np.isin(t, decimated)
+    overlap = np.isin(t, edit.overlap) & ~np.isin(t, decimated)
     assert overlap.any() and np.all((q_ref[overlap] > 3500) & (q_ref[overlap] < 4500))  # batch 4's, read first
 
 

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from record_synth import JOINTS, record, rewrite
+from record_synth import JOINTS, FullRateAltered, record, rewrite
 
 from cellguard.errors import RecordError
 from cellguard.record.reader import RATES, UnorderedTicks, open_record
@@ -25,23 +25,9 @@ def overlapping(tmp_path_factory) -> Path:
     naming other joints."""
     out = tmp_path_factory.mktemp("rec")
     record(out / "source", 6, 1000, events={2500: "position_clamp"})
-    seen = {"n": 0}
-
-    def edit(topic: str, data: bytes) -> bytes:
-        if topic != "/ticks/full":
-            return data
-        d = TICKS.decode(data)
-        seen["n"] += 1
-        d = {**d, "q_ref": d["q_ref"] + 1000.0 * seen["n"]}
-        if seen["n"] == 5:
-            t = d["t_ns"]
-            d["t_ns"] = t - (len(t) // 2) * (t[1] - t[0])
-            np.save(out / "overlap.npy", d["t_ns"][:len(t) // 2])
-        if seen["n"] == 7:
-            d["joints"] = [*d["joints"][:-1], "other"]
-        return TICKS.encode(d)
-
+    edit = FullRateAltered(overlap_at=5, other_joints_at=7)
     rewrite(out / "source", out / "run", edit_bytes=edit)
+    np.save(out / "overlap.npy", edit.overlap)
     return out / "run"
 
 
