@@ -34,7 +34,6 @@ from cellguard.record import folder_lock
 from cellguard.record.index import connect
 from cellguard.record.reader import open_record
 from cellguard.record.session import RESERVE_BYTES, RunRecording
-from cellguard.record.replaced import ASIDE, NOTE
 from cellguard.record.writer import INDEX_DIR, RECORD_FILE, STARTING_FILE
 from cellguard.runtime.loop import Run
 from cellguard.scenario import load_scenario
@@ -247,86 +246,47 @@ def test_a_start_killed_at_any_point_leaves_the_old_record_or_the_new_one(old, w
 # SIGKILL inside ``Recorder.place``: the old record's index parts and the files made from it were removed before the
 # rename, so a kill there left the old record with an empty index/ and no summary, report or baseline
 KILLED_PLACE = """
-import os, shutil, signal, sys
+import os, sys
 from pathlib import Path
 from cellguard.cli import app
-from cellguard.record import replaced
 
 where, scenario, out = sys.argv[1:]
-rename, replace, rmtree = os.rename, os.replace, shutil.rmtree
-moved = []
+replace = os.replace
 
-def kill(*args, **kwargs):
-    os.kill(os.getpid(), signal.SIGKILL)
+def killed(source, target, **kwargs):  # before the record's rename, or just after it
+    if Path(target).name == "record.mcap":
+        if where == "after the record's rename":
+            replace(source, target, **kwargs)
+        os.kill(os.getpid(), 9)
+    return replace(source, target, **kwargs)
 
-def counted(source, target):  # killed before the first move aside, or after the first
-    if replaced.ASIDE in Path(target).parts:
-        if len(moved) == (0 if where == "before the first move" else 1):
-            kill()
-        moved.append(target)
-    return rename(source, target)
-
-def removing(path, *args, **kwargs):  # killed before the removal of the files set aside, or partway through it
-    if Path(path).name == replaced.ASIDE:
-        if where == "partway through the removal":
-            for name in (replaced.NOTE, "summary.json"):
-                (Path(path) / name).unlink()
-        kill()
-    return rmtree(path, *args, **kwargs)
-
-if where == "before the files are set aside":
-    replaced.aside = kill
-elif where in ("before the first move", "after the first move"):
-    os.rename = counted
-elif where == "before the record's rename":
-    os.replace = lambda source, target, **k: (kill() if Path(target).name == "record.mcap"
-                                              else replace(source, target, **k))
-else:
-    shutil.rmtree = removing
+os.replace = killed
 app(["run", scenario, "--out", out, "--overwrite"])
 """
 
 
-def in_place_or_aside(folder: Path) -> dict[str, str]:
-    """``digests`` with the files set aside (``ASIDE``) counted at their places; its note left out."""
-    found = digests(folder)
-    aside = {name.removeprefix(ASIDE + "/"): digest for name, digest in found.items()
-             if name.startswith(ASIDE + "/") and name != f"{ASIDE}/{NOTE}"}
-    kept = {name: digest for name, digest in found.items() if not name.startswith(ASIDE + "/")}
-    assert not set(aside) & set(kept)
-    return {**kept, **aside}
-
-
-@pytest.mark.parametrize("where", ["before the files are set aside", "before the first move", "after the first move",
-                                   "before the record's rename", "before the removal", "partway through the removal"])
-def test_a_start_killed_while_placing_its_record_loses_nothing(old, monkeypatch, where):
-    """Killed before the record's rename: the old record stays with every file made from it, in place or set aside
-    (the next start puts them back); after it: the new record, and nothing of the old (the next start removes what is
-    set aside)."""
+@pytest.mark.parametrize("where", ["before the record's rename", "after the record's rename"])
+def test_a_start_killed_while_placing_its_record_loses_nothing(old, where):
+    """Killed before the record's rename: the old record with every file made from it; after it: the new record,
+    the old files beside it telling they are not its own (the index and the baseline name their record) until the
+    next --overwrite."""
     out, scenario = old
     before, kept = digests(out), record_id(out)
     done = subprocess.run([sys.executable, "-c", KILLED_PLACE, where, str(scenario), str(out)], capture_output=True,
                           text=True, timeout=600)
     assert done.returncode == -signal.SIGKILL, done.stderr
     wait_for_release(out)
-    renamed = where in ("before the removal", "partway through the removal")
-    if renamed:
-        new = record_id(out)
-        assert new != kept and not any((out / name).exists() for name in [*MADE_FROM_IT, "summary.json"])
-        assert_whole(out, new, index=False)  # a lost run: the writer finished it alone
-    else:
-        assert in_place_or_aside(out) == before
-        assert record_id(out) == kept
-    assert (out / ASIDE).is_dir() == (where != "before the files are set aside")
-    # the next start fails (no process forked): it has put the old files back, or removed them (not this record's)
-    failing_start(monkeypatch, "fork")
-    line = one_error(runner.invoke(app, ["run", str(scenario), "--out", str(out), "--overwrite"]))
-    assert line.endswith("nothing was run")
-    monkeypatch.undo()
-    assert not (out / ASIDE).exists()
-    if not renamed:
-        assert digests(out) == before
+    after = digests(out)
+    if where == "before the record's rename":
+        assert {name: after.get(name) for name in before} == before
         assert_whole(out, kept)
+    else:
+        new = record_id(out)
+        assert new != kept and {name: after.get(name) for name in before if name != RECORD_FILE} == {
+            name: digest for name, digest in before.items() if name != RECORD_FILE}  # nothing lost, none taken as its
+        assert_whole(out, new, index=False)  # a lost run: the writer finished it alone
+        query = runner.invoke(app, ["record", "query", str(out), "select count(*) from cycles"])
+        assert query.exit_code == 2 and f"not this record's {new}" in " ".join(query.output.split())
     assert runner.invoke(app, ["run", str(scenario), "--out", str(out), "--overwrite"]).exit_code == 0
     assert sorted(p.name for p in out.iterdir()) == [INDEX_DIR, RECORD_FILE, "summary.json"]
 
@@ -355,75 +315,6 @@ def test_a_record_that_cannot_be_renamed_keeps_every_file_made_from_the_old_one(
     assert line == (f"error: {out / RECORD_FILE}: cannot start the record (EPERM: Operation not permitted); nothing "
                     f"was run")
     assert digests(out) == before
-
-
-def test_files_that_cannot_be_moved_back_wait_for_the_next_start(old, monkeypatch):
-    """The rename fails and so does the move back: the line says where the old files are, and the next start puts
-    them back."""
-    out, scenario = old
-    before, kept = digests(out), record_id(out)
-    failing_start(monkeypatch, "placing")
-    rename = os.rename
-
-    def not_back(source, target):
-        if ASIDE in Path(source).parts:
-            raise OSError(errno.EIO, os.strerror(errno.EIO))
-        return rename(source, target)
-    monkeypatch.setattr(os, "rename", not_back)
-    line = one_error(runner.invoke(app, ["run", str(scenario), "--out", str(out), "--overwrite"]))
-    assert line == (f"error: {out / RECORD_FILE}: cannot start the record (EIO: Input/output error); nothing was run "
-                    f"(the old record's files wait in {out / ASIDE}; the next start puts them back)")
-    assert in_place_or_aside(out) == before
-    monkeypatch.undo()
-    failing_start(monkeypatch, "fork")
-    one_error(runner.invoke(app, ["run", str(scenario), "--out", str(out), "--overwrite"]))
-    assert digests(out) == before
-    assert_whole(out, kept)
-
-
-def test_files_set_aside_without_their_record_are_put_back_and_refuse_a_run(old):
-    """A folder holding only files made from a record moved away, killed while ``--overwrite`` set them aside: a run
-    without --overwrite there puts them back and is refused for them, as it was before."""
-    out, scenario = old
-    (out / RECORD_FILE).unlink()
-    before = digests(out)
-    done = subprocess.run([sys.executable, "-c", KILLED_PLACE, "before the record's rename", str(scenario), str(out)],
-                          capture_output=True, text=True, timeout=600)
-    assert done.returncode == -signal.SIGKILL, done.stderr
-    wait_for_release(out)
-    assert in_place_or_aside(out) == before and not (out / "summary.json").exists()
-    line = one_error(runner.invoke(app, ["run", str(scenario), "--out", str(out)]))
-    assert line.startswith(f"error: --out {out}: already holds summary.json, which a run writes")
-    assert digests(out) == before
-
-
-def test_a_note_naming_files_outside_the_folder_moves_nothing(old):
-    """A damaged or crafted note is no one's: the folder set aside goes, and nothing named in it is moved (here, a
-    file of the run folder would have been moved out of it)."""
-    out, scenario = old
-    (out / "notes.txt").write_text("a technician's notes")
-    (out / ASIDE).mkdir()
-    (out / ASIDE / NOTE).write_text('{"record": null, "files": ["../notes.txt"]}')
-    (out / RECORD_FILE).unlink()  # the note's record: none
-    assert runner.invoke(app, ["run", str(scenario), "--out", str(out), "--overwrite"]).exit_code == 0
-    assert not (out / ASIDE).exists() and not (out.parent / "notes.txt").exists()
-    assert (out / "notes.txt").read_text() == "a technician's notes"
-
-
-@pytest.mark.parametrize("what", ["file", "link"])
-def test_a_file_or_link_at_the_name_of_the_folder_set_aside_is_taken_away(old, what):
-    """The name is cellguard's: a file there is removed, a link unlinked without following it (else every
-    --overwrite start there failed, "File exists")."""
-    out, scenario = old
-    (out.parent / "elsewhere").mkdir()
-    (out.parent / "elsewhere" / NOTE).write_text('{"record": null, "files": []}')
-    if what == "file":
-        (out / ASIDE).write_text("not a folder")
-    else:
-        (out / ASIDE).symlink_to(out.parent / "elsewhere")
-    assert runner.invoke(app, ["run", str(scenario), "--out", str(out), "--overwrite"]).exit_code == 0
-    assert sorted(p.name for p in out.iterdir()) == [INDEX_DIR, RECORD_FILE, "summary.json"]
-    assert (out.parent / "elsewhere" / NOTE).exists()
 
 
 # a recording's start with the longest pre-trigger window (a 47 MB ring) under an address-space limit of the

@@ -53,7 +53,7 @@ from mcap.writer import CompressionType, Writer
 
 from cellguard.control.events import ROUTINE_EVENTS, Event, EventKind
 from cellguard.errors import RecordError
-from cellguard.record import replaced, ros2
+from cellguard.record import ros2
 from cellguard.record.context import changed_keys, versions
 from cellguard.record.index import PART_GLOB, TABLES, IndexWriter, clear_index, cycle_row, default_opener, event_row
 from cellguard.record.json_values import plain
@@ -188,13 +188,10 @@ class Recorder:
         ``RunRecording``'s writer process). A record already in ``folder`` is refused unless ``replace``; then it
         stays whole until ``place``: a start that failed after it was unlinked (no room for the header, no memory
         for the ring, no process forked) lost it and said "nothing was run". A start that fails leaves no file of
-        its own behind; one killed leaves at most ``STARTING_FILE``, never read, removed by the next start, and
-        (killed in ``place``) the files it set aside, which the next start puts back or removes (``replaced``).
+        its own behind; one killed leaves at most ``STARTING_FILE``, never read, removed by the next start.
         """
         folder = Path(folder)
         refuse_existing(folder, replace)
-        if replaced.settle(folder, folder / RECORD_FILE):  # a start killed in ``place``: its old files are back
-            refuse_existing(folder, replace)
         starting = folder / STARTING_FILE
         try:
             folder.mkdir(parents=True, exist_ok=True)
@@ -226,27 +223,27 @@ class Recorder:
         return recorder
 
     def place(self) -> None:
-        """Put the started record in place: with ``replace``, the old record's index parts and the files made from it
-        (``RUN_OUTPUTS``, replay pages) set aside (``replaced``: its baseline, bound to the old record, made the new
-        run's diagnosis refuse it; a replay of its cycle N read as the new one's), ``STARTING_FILE`` renamed over
-        ``RECORD_FILE`` (a reader or a hard link keeps the old bytes), then the files set aside removed. RecordError if
-        that fails before the rename: the old record and its files are as they were, the new one is still to be
-        discarded (by the writer process first, if any: see ``placed``). A SIGKILL at any point leaves the old record
-        whole with its files (in place, or set aside until the next start puts them back) or the new one in place."""
+        """Put the started record in place: ``STARTING_FILE`` renamed over ``RECORD_FILE`` (a reader or a hard link
+        keeps the old bytes), then, with ``replace``, the old record's index parts and the files made from it
+        (``RUN_OUTPUTS``, replay pages) removed (its baseline, bound to the old record, made the new run's diagnosis
+        refuse it; a replay of its cycle N read as the new one's). RecordError if the rename fails: the old record
+        and every file made from it are as they were (removed before the rename, they were lost while the record
+        stayed, and a SIGKILL there left it without its index and summary); the new one is still to be discarded (by
+        the writer process first, if any: see ``placed``). A SIGKILL between the rename and the removal leaves the
+        old files beside the new record until the next ``--overwrite``: its index and baseline name the record they
+        were made from (``query`` and ``diagnose`` refuse them), its summary and report are the old run's."""
         folder = self._starting.parent
         try:
-            if self._replace:
-                with replaced.aside(folder, Path(self.name), _made_from(folder)):
-                    clear_index(folder / INDEX_DIR)  # the folders its parts, set aside, left empty
-                    os.replace(self._starting, self.name)
-            else:
-                os.replace(self._starting, self.name)
+            old = _made_from(folder) if self._replace else []
+            os.replace(self._starting, self.name)
         except OSError as exc:
-            left = os.path.isdir(folder / replaced.ASIDE)  # not put back (a move failed too): the next start does
-            raise RecordError(f"{self.name}: cannot start the record ({_why(exc)}); nothing was run"
-                              + (f" (the old record's files wait in {folder / replaced.ASIDE}; the next start puts "
-                                 f"them back)" if left else "")) from None
+            raise RecordError(f"{self.name}: cannot start the record ({_why(exc)}); nothing was run") from None
         self._starting = None
+        with contextlib.suppress(OSError):  # placed: a file left is one the new record's readers tell from its own
+            clear_index(folder / INDEX_DIR)
+        for path in old:
+            with contextlib.suppress(OSError):
+                path.unlink(missing_ok=True)
 
     @property
     def placed(self) -> bool:
@@ -523,17 +520,16 @@ def refuse_existing(folder: Path, replace: bool = False) -> None:
                           f"choose another --out folder (or pass --overwrite to replace it)")
 
 
-def _made_from(folder: Path) -> list[str]:
-    """The old record's index parts and the files made from it in ``folder`` (relative paths): what ``place`` replaces.
-    IsADirectoryError for a folder at a run output's name (it is not one, and is not removed)."""
-    parts = [p for table in TABLES for p in (folder / INDEX_DIR / table).glob(PART_GLOB)]
+def _made_from(folder: Path) -> list[Path]:
+    """The files made from the old record in ``folder`` that ``place`` removes (its index parts: ``clear_index``).
+    IsADirectoryError for a folder at a run output's name, before anything is renamed (it is not one, and stays)."""
     outputs = [folder / name for name in RUN_OUTPUTS if os.path.lexists(folder / name)]
     for path in outputs:
         if path.is_dir() and not path.is_symlink():
             raise IsADirectoryError(errno.EISDIR, os.strerror(errno.EISDIR), str(path))
     pages = [p for p in folder.glob(REPLAY_PAGES)  # as replay names them
              if re.fullmatch(r"replay-cycle-\d+\.html", p.name) and not p.is_dir()]
-    return [p.relative_to(folder).as_posix() for p in (*parts, *outputs, *pages)]
+    return [*outputs, *pages]
 
 
 def _index_parts(folder: Path) -> bool:
