@@ -540,7 +540,9 @@ class Record:
             if not _overlaps(ref, every, None, None):
                 continue
             heads: list[tuple[int, int, int, int]] = []
-            for m in self._chunk_messages(ref, checks.channels, heads):
+            # decoded where a reader reads them: a channel the chunk's index leaves out, no reader takes from it
+            listed = checks.channels if ref.channels is None else checks.channels & ref.channels
+            for m in self._chunk_messages(ref, listed, heads):
                 checks.check(m)
             for channel, sequence, log_time, _ in heads:
                 topic = names.get(channel)
