@@ -142,6 +142,10 @@ class Ticks:
         return len(self.t_ns)
 
 
+# what decoding a malformed message raises: it is skipped and noted, never a traceback
+MALFORMED = (RecordError, ValueError, KeyError, TypeError, AttributeError, IndexError, OverflowError)
+
+
 class UnorderedTicks(RecordError):
     """A tick batch reaches back before ticks ``tick_parts`` handed on already: not as the recorder writes (a crafted
     file); ``ticks()`` reads such a record whole."""
@@ -399,7 +403,7 @@ class Record:
         for m in messages:
             try:
                 value = decode(m.data)
-            except (RecordError, ValueError, KeyError, TypeError, AttributeError, IndexError, OverflowError):
+            except MALFORMED:
                 self._note(topic, m)
                 continue
             yield m, value
@@ -645,7 +649,7 @@ class _Checks:
         for topic, decode in self._by_id.get(m.channel_id, ()):
             try:
                 value = decode(m.data)
-            except (RecordError, ValueError, KeyError, TypeError, AttributeError, IndexError, OverflowError):
+            except MALFORMED:
                 self._bad[topic].append((m.log_time, m.sequence))  # as ``_decoded`` skips it
                 continue
             if topic == "/measurements":
