@@ -66,16 +66,16 @@ def record(folder: Path, cycles: int, ticks_per_cycle: int, events: dict[int, st
 
 def rewrite(source: Path, target: Path, metadata: dict[str, dict[str, str]] | None = None,
             edit: Callable[[str, dict], dict] | None = None, sequence: int | None = None,
-            edit_bytes: Callable[[str, bytes], bytes] | None = None) -> None:
+            edit_bytes: Callable[[str, bytes], bytes] | None = None, chunk_size: int = 1 << 20) -> None:
     """Copy the record of folder ``source`` into folder ``target`` (without its index) through the mcap Writer, as
     a tampered or foreign file: ``metadata`` updates the metadata records it names, ``edit(topic, payload)``
     returns each JSON message's payload, ``edit_bytes(topic, data)`` each message's bytes (a binary one's),
-    ``sequence`` numbers every message alike."""
+    ``sequence`` numbers every message alike; chunks of about ``chunk_size`` bytes (the mcap Writer's default)."""
     target.mkdir(parents=True, exist_ok=True)
     with open(source / "record.mcap", "rb") as f, open(target / "record.mcap", "wb") as out:
         reader = make_reader(f)
         summary = reader.get_summary()
-        writer = Writer(out, compression=CompressionType.ZSTD)
+        writer = Writer(out, chunk_size=chunk_size, compression=CompressionType.ZSTD)
         writer.start(profile="cellguard", library="test")
         for record in reader.iter_metadata():
             writer.add_metadata(record.name, {**record.metadata, **(metadata or {}).get(record.name, {})})
