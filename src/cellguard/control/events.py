@@ -1,10 +1,11 @@
 """Events: every intervention of the guard layer, with what was asked, what was sent and why.
 
 ``EventKind`` is the one list of event kinds, each with whether it is routine (normal
-bookkeeping: no full-rate record window, not a safety event in a diagnosis) and the stop
-category it carries, if it is a stop. The values are the strings written into records and the
-``diagnose --json`` contract: add kinds, never rename them. ``EventKind`` is a ``str``, so a
-kind compares equal to its string and serialises as it.
+bookkeeping: no full-rate record window, not a safety event in a diagnosis), the stop
+category it carries, if it is a stop, and whether the run stops after it (``ends_run``).
+The values are the strings written into records and the ``diagnose --json`` contract: add
+kinds, never rename them. ``EventKind`` is a ``str``, so a kind compares equal to its string
+and serialises as it.
 """
 
 from __future__ import annotations
@@ -14,12 +15,13 @@ from enum import StrEnum
 
 
 class EventKind(StrEnum):
-    """What happened; ``routine`` and ``category`` (IEC 60204-1, None: not a stop of its own) per kind."""
+    """What happened; ``routine``, ``category`` (IEC 60204-1, None: not a stop of its own) and ``ends_run`` (the run
+    stops after it: a cycle it falls in was cut short, not completed) per kind."""
 
-    def __new__(cls, value: str, routine: bool = False, category: int | None = None):
+    def __new__(cls, value: str, routine: bool = False, category: int | None = None, ends_run: bool = False):
         member = str.__new__(cls, value)
         member._value_ = value
-        member.routine, member.category = routine, category
+        member.routine, member.category, member.ends_run = routine, category, ends_run
         return member
 
     # executor: chunks in
@@ -48,13 +50,15 @@ class EventKind(StrEnum):
     # the loop
     RESET = "reset"
     INFERENCE_FAILED = "inference_failed"
-    POLICY_LOST = "policy_lost"  # its process ended, a call hung or every answer before a chunk refused: run ends
+    # its process ended, a call hung or every answer before a chunk refused: the run ends
+    POLICY_LOST = "policy_lost", False, None, True
     STARTUP_REFUSED = "startup_refused"  # a start-up check refused to move (or the warm-up never answered)
-    RECORD_FAILED = "record_failed", False, 2
+    RECORD_FAILED = "record_failed", False, 2, True
     RECORD_QUEUE_FULL = "record_queue_full"
     WATCHDOG_NO_FIRST_CHUNK = "watchdog_no_first_chunk"
-    OPERATOR_STOP = "operator_stop", False, 2  # Ctrl-C, SIGTERM or SIGHUP while the cycles run
-    RUN_PROCESS_LOST = "run_process_lost"  # written by the recorder alone: the run's process died (SIGKILL, OOM)
+    OPERATOR_STOP = "operator_stop", False, 2, True  # Ctrl-C, SIGTERM or SIGHUP while the cycles run
+    # written by the recorder alone: the run's process died (SIGKILL, OOM)
+    RUN_PROCESS_LOST = "run_process_lost", False, None, True
     # the real-time loop: ticks later than one period, and the budget that stops the cell
     OVERRUN = "overrun"
     OVERRUN_BUDGET = "overrun_budget"
@@ -70,13 +74,13 @@ class EventKind(StrEnum):
     # gave_up, cut_off; as words and as the event's recovery)
     RECOVERY_START = "recovery_start", True
     RECOVERY_END = "recovery_end", True
-    # the robot link (category: the scenario's realtime.stop_category)
-    ROBOT_READ_FAILED = "robot_read_failed"
-    ROBOT_READ_TIMEOUT = "robot_read_timeout"
-    ROBOT_STATE_STALE = "robot_state_stale"
-    ROBOT_PACKETS_DROPPED = "robot_packets_dropped"
-    ROBOT_WRITE_FAILED = "robot_write_failed"
-    ROBOT_SERVER_GONE = "robot_server_gone"
+    # the robot link (category: the scenario's realtime.stop_category); each ends the run
+    ROBOT_READ_FAILED = "robot_read_failed", False, None, True
+    ROBOT_READ_TIMEOUT = "robot_read_timeout", False, None, True
+    ROBOT_STATE_STALE = "robot_state_stale", False, None, True
+    ROBOT_PACKETS_DROPPED = "robot_packets_dropped", False, None, True
+    ROBOT_WRITE_FAILED = "robot_write_failed", False, None, True
+    ROBOT_SERVER_GONE = "robot_server_gone", False, None, True
 
 
 ROUTINE_EVENTS = frozenset(k.value for k in EventKind if k.routine)  # kinds that are normal bookkeeping

@@ -17,7 +17,7 @@ import pyarrow.parquet as pq
 
 from cellguard.errors import RecordError
 from cellguard.output import atomic_file
-from cellguard.record.reader import RATES, Record, Ticks, UnorderedTicks
+from cellguard.record.reader import NO_CYCLE, RATES, Record, Ticks, UnorderedTicks
 from cellguard.record.schemas import TICK_FIELDS
 
 SUFFIXES = {"csv": (".csv",), "parquet": (".parquet", ".pq")}  # the formats written, and the file names that say them
@@ -37,11 +37,13 @@ def check_format(output: Path, fmt: str) -> None:
 
 
 def ticks_table(ticks: Ticks) -> pa.Table:
-    """Columns t_ns, cycle, joint, q_ref, q_cmd, q_meas, qd_meas, effort, current; SI units."""
+    """Columns t_ns, cycle, joint, q_ref, q_cmd, q_meas, qd_meas, effort, current; SI units. ``cycle`` is null for a
+    tick between cycles (``NO_CYCLE``: a retreat, a stop's settling)."""
     n, dof = len(ticks), len(ticks.joints)
+    cycle = np.repeat(ticks.cycle, dof)
     columns = {
         "t_ns": pa.array(np.repeat(ticks.t_ns, dof)),
-        "cycle": pa.array(np.repeat(ticks.cycle, dof)),
+        "cycle": pa.array(cycle, mask=cycle == NO_CYCLE),
         "joint": pa.DictionaryArray.from_arrays(np.tile(np.arange(dof, dtype=np.int32), n), list(ticks.joints)),
     }
     for name in TICK_FIELDS:

@@ -36,8 +36,7 @@ from cellguard.control.events import EventKind
 from cellguard.errors import RecordError
 from cellguard.output import refuse_filled_folder
 from cellguard.record import folder_lock, staged
-from cellguard.record.json_values import loads
-from cellguard.record.reader import CycleRecord, Record, _cycle_marker
+from cellguard.record.reader import CycleRecord, Record
 from cellguard.record.writer import decimation_stride
 
 CODEBASE_VERSION = "v3.0"
@@ -52,12 +51,8 @@ SUGGESTED_PERIODS_MS = range(1, 21)
 STAGING_SUFFIX = ".partial"  # of the folder beside -o that a run writes into: .NAME.XXXXXXXX.partial
 DATASET_PARTS = ("data", "meta")  # moved into -o in this order
 INDEX_FEATURES = ("timestamp", "frame_index", "episode_index", "index", "task_index")
-# the events after which the run stops (an operator's signal, the policy or the robot link lost, the record failing,
-# the run's process killed): a cycle one falls in was cut short, not completed
-RUN_STOPS = frozenset({EventKind.OPERATOR_STOP, EventKind.POLICY_LOST, EventKind.RECORD_FAILED,
-                       EventKind.RUN_PROCESS_LOST, EventKind.ROBOT_READ_FAILED, EventKind.ROBOT_READ_TIMEOUT,
-                       EventKind.ROBOT_STATE_STALE, EventKind.ROBOT_PACKETS_DROPPED, EventKind.ROBOT_WRITE_FAILED,
-                       EventKind.ROBOT_SERVER_GONE})
+# the events after which the run stops (EventKind.ends_run): a cycle one falls in was cut short, not completed
+RUN_STOPS = frozenset(kind for kind in EventKind if kind.ends_run)
 _TICK_FEATURES = {"observation.state": "q_meas", "observation.velocity": "qd_meas",
                   "observation.effort": "effort", "action": "q_cmd"}
 
@@ -89,7 +84,9 @@ def export_lerobot(rec: Record, output: Path, fps: int | None = None, task: str 
     columns: dict[str, list[np.ndarray]] = {}
     episodes, kept = [], []
     cycles, stops = list(rec.cycles()), [(e.t_ns, e.kind) for e in rec.events() if e.kind in RUN_STOPS]
-    skipped = [(n, "its end was lost") for n in _unfinished(rec, {c.cycle for c in cycles})]
+    # marked but not ended (its end marker lost in a damaged chunk or malformed, or the run was killed in it): no
+    # outcome, no end, so no episode; named, not dropped unsaid
+    skipped = [(n, "its end was lost") for n in sorted(set(rec.cycle_spans()) - {c.cycle for c in cycles})]
     joints: tuple[str, ...] = ()
     for cycle in cycles:
         if success_only and not cycle.success:
@@ -195,19 +192,6 @@ def _incomplete(cycle: CycleRecord, ticks_ns: np.ndarray, t_ns: np.ndarray, fps:
     if cycle.t_end_ns - ticks_ns[-1] > tick_ns + STEP_TOLERANCE_NS:
         return "ticks lost at its end"
     return ""
-
-
-def _unfinished(rec: Record, finished: set[int]) -> list[int]:
-    """The cycles whose begin marker is recorded but not their end marker (lost in a damaged chunk, or the run was
-    killed in them): no outcome, no end, so no episode; named, not dropped unsaid. A marker the reader takes as
-    malformed is skipped here too (its health counts it)."""
-    begun = set()
-    for m in rec.messages(["/cycles"]):
-        with contextlib.suppress(ValueError, KeyError, TypeError, AttributeError):
-            d = _cycle_marker(loads(m.data))
-            if d["marker"] == "begin":
-                begun.add(d["cycle"])
-    return sorted(begun - finished)
 
 
 def _cut_short(cycle: CycleRecord, stops: list[tuple[int, str]]) -> str:

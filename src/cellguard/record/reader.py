@@ -23,8 +23,10 @@ Contract (fields may be added, not renamed)::
     for e in rec.events():           # EventRecord, in time order: t_ns, kind, category (0/1/2 or None),
         ...                          #   joint, asked, sent, reason, cycle
     rec.ticks(cycle=12)              # Ticks: t_ns (n,), cycle (n,), joints, q_ref, q_cmd, q_meas, qd_meas,
-                                     #   effort, current (n, dof) float64; rate="decimated" | "full" | "all"
+                                     #   effort, current (n, dof) float64; rate="decimated" | "full" | "all";
+                                     #   cycle is NO_CYCLE (-1) for a tick between cycles (a retreat, a settling)
     rec.tick_parts("all", rows)      # the same ticks of the whole record, about `rows` values a field at a time
+    rec.cycle_spans()                # {cycle: (t_start_ns, t_end_ns or None: its end not recorded)}, as marked
     rec.chunks()                     # RecordedChunk: the policy's chunks as received
     rec.measurements()               # Measurement: t_ns, cycle, names, values (n,) of the readings the policy saw
     rec.health()                     # Health: finished, truncated, chunks ok/damaged, sequence gaps, writing
@@ -67,6 +69,7 @@ from cellguard.record.schemas import BY_TOPIC, CHUNK, TICK_FIELDS, TICKS
 from cellguard.record.writer import INDEX_DIR, RECORD_FILE, RECORD_VERSION
 
 RATES = ("decimated", "full", "all")
+NO_CYCLE = -1  # the cycle of a tick that lies in none: between a cycle's end and the next one's start
 _TICK_TOPICS = {"decimated": "/ticks/decimated", "full": "/ticks/full"}
 
 
@@ -126,7 +129,9 @@ class Measurement:
 
 @dataclass(frozen=True)
 class Ticks:
-    """Ticks in time order; arrays (n,) and (n, dof), SI, float64."""
+    """Ticks in time order; arrays (n,) and (n, dof), SI, float64. ``cycle``: the cycle each tick lies in, by its
+    markers' times, else ``NO_CYCLE`` (the recorder stamps a tick with the cycle begun last, so the retreat or a
+    stop's settling after a cycle's end carried that cycle's number)."""
 
     joints: tuple[str, ...]
     t_ns: np.ndarray
@@ -256,6 +261,7 @@ class Record:
         topics = {c.topic: c.id for c in layout.channels.values()}
         self._ids = {topic: topics.get(topic, spec.id) for topic, spec in BY_TOPIC.items()}
         self._contexts: list[ContextChange] | None = None
+        self._spans: dict[int, tuple[int, int | None]] | None = None  # cycle_spans(), read once
         self.context_loss: str | None = None
         self._facts_note: str | None = None  # the metadata record disagrees with the context (which is used)
         facts = layout.metadata.get("cellguard", {})
@@ -379,6 +385,15 @@ class Record:
         for _, event in self._json(self.messages(["/events"]), "/events", _event_record):
             yield event
 
+    def cycle_spans(self) -> dict[int, tuple[int, int | None]]:
+        """Each cycle the record marks: (t_start_ns, t_end_ns) on the record's clock, t_end_ns None where no end marker
+        is read (the run was killed in it, or its chunk was lost). From the markers, a malformed one skipped; of a
+        cycle marked twice, the last marker read."""
+        if self._spans is None:
+            self._spans = {d["cycle"]: (d["t_start_ns"], d.get("t_end_ns"))
+                           for _, d in self._json(self.messages(["/cycles"]), "/cycles", _cycle_marker)}
+        return dict(self._spans)
+
     def measurements(self) -> Iterator[Measurement]:
         """The readings in time order; one whose names or sizes differ from the first one's is skipped as
         malformed (the readings of one cell have one layout, and a dataset needs it)."""
@@ -424,11 +439,12 @@ class Record:
         topics = _tick_topics(rate)
         if cycle is not None:
             start_ns, end_ns = self._cycle_span(cycle)
+        spans = self.cycle_spans() if cycle is None else {cycle: (start_ns, end_ns)}
         lo = None if start_ns is None else start_ns - self._batch_span_ns()
         hi = {"/ticks/decimated": end_ns,  # a pre-trigger backlog is logged up to one window after its ticks
               "/ticks/full": None if end_ns is None else end_ns + self._backlog_ns()}
         joints, streams = self._named_streams({topic: self.messages([topic], lo, hi[topic]) for topic in topics})
-        merge = _TickMerge(joints, cycle, start_ns, end_ns)
+        merge = _TickMerge(joints, spans, cycle, start_ns, end_ns)
         for rank, batches in enumerate(streams):  # each read through before the next: malformed ones noted in order
             for batch in batches:
                 merge.add(rank, batch)
@@ -443,7 +459,7 @@ class Record:
         held."""
         topics = _tick_topics(rate)
         joints, streams = self._named_streams({topic: self.messages([topic]) for topic in topics})
-        merge, heads = _TickMerge(joints), [next(stream, None) for stream in streams]
+        merge, heads = _TickMerge(joints, self.cycle_spans()), [next(stream, None) for stream in streams]
         handed, given = None, False  # handed: every tick before it was handed on
         while True:
             live = [(int(head["t_ns"].min()), i) for i, head in enumerate(heads) if head is not None]
@@ -490,13 +506,10 @@ class Record:
             for part in sorted(index.glob("day=*/*.parquet")):
                 if (span := _index_span(part, cycle, self.record_id)) is not None:
                     return span
-        start = end = None
-        for _, d in self._json(self.messages(["/cycles"]), "/cycles", _cycle_marker):
-            if d["cycle"] == cycle:
-                start, end = d["t_start_ns"], d.get("t_end_ns")
-        if start is None:
+        span = self.cycle_spans().get(cycle)
+        if span is None:
             raise RecordError(f"cycle: {cycle} is not in {self.file}")
-        return start, end
+        return span
 
     def _batch_span_ns(self) -> int:
         """How far before its log time a tick batch may reach: one chunk of ticks."""
@@ -752,11 +765,12 @@ def _tick_topics(rate: str) -> list[str]:
 class _TickMerge:
     """Tick batches merged into one series by time, held until handed on. Of ticks at one time the decimated
     stream's (rank 0), then the one added first, is kept; ticks outside ``cycle`` (or else the span) are left out
-    before that, so a copy of a tick in another cycle does not hide the one in it."""
+    before that, so a copy of a tick in another cycle does not hide the one in it. A tick's cycle is its stamp where
+    it lies in that cycle's span (``spans``: ``cycle_spans``), else ``NO_CYCLE``."""
 
-    def __init__(self, joints: tuple[str, ...], cycle: int | None = None, start_ns: int | None = None,
-                 end_ns: int | None = None):
-        self.joints, self._cycle, self._span = joints, cycle, (start_ns, end_ns)
+    def __init__(self, joints: tuple[str, ...], spans: dict[int, tuple[int, int | None]], cycle: int | None = None,
+                 start_ns: int | None = None, end_ns: int | None = None):
+        self.joints, self._spans, self._cycle, self._span = joints, spans, cycle, (start_ns, end_ns)
         self._pending: list[tuple[np.ndarray, ...]] = []  # (t, order, cycle, *fields (n, dof) as written)
         self._added = [0] * len(_TICK_TOPICS)  # ticks added of each rank: with the rank, their order at equal times
         self.held = 0  # ticks held
@@ -777,6 +791,7 @@ class _TickMerge:
             return Ticks(self.joints, np.zeros(0, np.int64), np.zeros(0, np.int64),
                          **{f: np.zeros((0, dof)) for f in TICK_FIELDS})
         t, order, cycle, *values = (np.concatenate(column) for column in zip(*self._pending))
+        cycle = _placed(t, cycle, self._spans)
         keep = self._keep(t, cycle)
         if keep is not None:
             t, order, cycle, values = t[keep], order[keep], cycle[keep], [v[keep] for v in values]
@@ -788,7 +803,7 @@ class _TickMerge:
         rest = np.zeros(0, np.int64) if before is None else by_time[t[by_time] >= before]
         self._pending = [tuple(c[rest] for c in (t, order, cycle, *values))] if len(rest) else []
         self.held = len(rest)
-        return Ticks(self.joints, t[due], cycle[due].astype(np.int64),
+        return Ticks(self.joints, t[due], cycle[due],
                      **{f: v[due].astype(np.float64) for f, v in zip(TICK_FIELDS, values)})
 
     def _keep(self, t: np.ndarray, cycle: np.ndarray) -> np.ndarray | None:
@@ -799,6 +814,19 @@ class _TickMerge:
         if start is None and end is None:
             return None
         return (t >= (-_INT64 if start is None else start)) & (t <= (_INT64 - 1 if end is None else end))
+
+
+def _placed(t: np.ndarray, stamps: np.ndarray, spans: dict[int, tuple[int, int | None]]) -> np.ndarray:
+    """Each tick's cycle (int64): its stamp, or ``NO_CYCLE`` where it lies outside the span of the cycle it is stamped
+    with (a stamp with no span, its markers lost, is kept: nothing says otherwise)."""
+    placed = stamps.astype(np.int64)
+    for stamp in np.unique(placed):
+        span = spans.get(int(stamp))
+        if span is not None:
+            start, end = span
+            outside = t < start if end is None else (t < start) | (t > end)
+            placed[(placed == stamp) & outside] = NO_CYCLE
+    return placed
 
 
 def _tick_batch(data: bytes) -> dict:

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cellguard.record.reader import RecordedChunk, Ticks
+from cellguard.record.reader import NO_CYCLE, RecordedChunk, Ticks
 
 VELOCITY_MARGIN = 1.05  # a measured speed this far over the profile's limit counts as a violation (noise)
 
@@ -32,7 +32,7 @@ class Chunks:
 @dataclass(frozen=True)
 class LimitTicks:
     """A run's recorded ticks outside the profile's position range or over its velocity limit: how many, and the
-    first one's cycle and joint."""
+    first one's cycle (None: between cycles, e.g. in the retreat) and joint."""
 
     count: int = 0
     first_cycle: int | None = None
@@ -78,5 +78,5 @@ def limit_ticks(ticks: Ticks, profile) -> LimitTicks:
     rows = np.flatnonzero(bad.any(axis=1))
     if not len(rows):
         return LimitTicks()
-    joint = int(np.flatnonzero(bad[rows[0]])[0])
-    return LimitTicks(len(rows), int(ticks.cycle[rows[0]]), profile.joint_names[joint])
+    joint, cycle = int(np.flatnonzero(bad[rows[0]])[0]), int(ticks.cycle[rows[0]])
+    return LimitTicks(len(rows), None if cycle == NO_CYCLE else cycle, profile.joint_names[joint])
