@@ -2,12 +2,18 @@
 
 Validated before anything runs: an unknown key, a wrong type or an impossible value raises
 ScenarioError naming the key (``faults[1].dx_mm: ...``).
+
+A file a scenario names (``calibration``, the policy's file and its ``?map=``, a bridge's ``?units=``) is one rule,
+for every reader: relative to the scenario file's real location (a linked scenario's target's folder), normalised to
+the real file (``..`` and links resolved; an absolute path resolved alike), so the run, its messages and its record
+name the file that is read (``beside``).
 """
 
 from __future__ import annotations
 
 import json
 import math
+import os
 from pathlib import Path
 from urllib.parse import parse_qsl, urlencode
 
@@ -21,7 +27,7 @@ from cellguard.robot.faults import FAULTS, AnyFault
 from cellguard.robot.process import PROCESS_CHANGES, AnyProcessChange, declared_changes
 from cellguard.robot.recovery import RECOVERIES, RecoveryPolicy
 from cellguard.robot.world_changes import first_refused
-from cellguard.yaml_file import read_yaml
+from cellguard.yaml_file import read_yaml, yaml_bool_text
 
 
 class CycleSettings(BaseModel):
@@ -189,6 +195,8 @@ def parse_scenario(raw: object, origin: str = "scenario") -> Scenario:
             msg = f"unknown {known}; known: {err['ctx']['expected_tags']}"
         elif err["type"].endswith("_type") or err["type"].endswith("_parsing"):
             msg = f"{msg}, got {err['input']!r}"
+            if err["type"] == "bool_type" and yaml_bool_text(err["input"]):
+                msg += ": text to YAML 1.2; write true or false, unquoted"
         raise ScenarioError(f"{origin}: {loc}: {msg}") from None
     _check_cycles(scenario, origin)
     _check_bridge(scenario, origin)
@@ -249,10 +257,28 @@ def _check_values(value: object, loc: tuple, origin: str) -> None:
 
 def load_scenario(path: Path) -> Scenario:
     """Read and validate a scenario file; a file it names by a relative path is beside it (``files_beside``)."""
-    scenario = files_beside(parse_scenario(read_yaml(path, "scenario", ScenarioError), origin=str(path)),
-                            Path(path).absolute().parent)
+    scenario = parse_scenario(read_yaml(path, "scenario", ScenarioError), origin=str(path))
+    try:
+        scenario = files_beside(scenario, scenario_folder(path))
+    except ScenarioError as exc:
+        raise ScenarioError(f"{path}: {exc}") from None
     scenario._path = str(path)
     return scenario
+
+
+def scenario_folder(path: Path) -> Path:
+    """The folder the files a scenario file names are taken from: the real folder of the file, a link's target's (the
+    folder beside a link, while ``identify --write`` and ``replay`` took the target's, gave them other files)."""
+    return Path(os.path.realpath(path)).parent
+
+
+def beside(folder: Path, name: str | Path, key: str) -> Path:
+    """The real file ``name`` (a scenario's ``key``) names from ``folder``: relative to it, ``..`` and links resolved,
+    so what runs, its messages and its record name the file read (``cal/../../run1/x`` named a path that was none of
+    them); an absolute ``name`` is resolved alike."""
+    if "\0" in str(name):  # realpath's ValueError: no file has the name
+        raise ScenarioError(f"{key}: {str(name)!r} holds a NUL, which no file name has")
+    return Path(os.path.realpath(Path(folder) / name))
 
 
 # a bridge's options that name a file (its other options are the robot's own, passed on as written)
@@ -260,10 +286,10 @@ BRIDGE_FILE_OPTIONS = {"lerobot": ("units",)}
 
 
 def files_beside(scenario: Scenario, folder: Path) -> Scenario:
-    """``scenario`` with every file it names by a relative path taken from ``folder`` (its file's), as compose files
-    and manifests do: ``calibration``, the policy's file or folder (a source that ``TAKES_FILE``: ``replay:``,
-    ``onnx:``, ``lerobot:``) and its ``?map=``, a bridge's ``?units=``. From the working folder, one scenario ran
-    another calibrated profile when started from another folder. An absolute path stays as written."""
+    """``scenario`` with every file it names taken from ``folder`` (its file's real one, ``scenario_folder``) as the
+    real file (``beside``), as compose files and manifests do: ``calibration``, the policy's file or folder (a source
+    that ``TAKES_FILE``: ``replay:``, ``onnx:``, ``lerobot:``) and its ``?map=``, a bridge's ``?units=``. From the
+    working folder, one scenario ran another calibrated profile when started from another folder."""
     from cellguard.policy.registry import source
 
     try:
@@ -271,26 +297,32 @@ def files_beside(scenario: Scenario, folder: Path) -> Scenario:
     except CellguardError:  # an unknown source, or its extra missing: refused as the run builds it, as before
         module = None
     update = {"policy": _spec_beside(scenario.policy, folder, module is not None and module.TAKES_FILE,
-                                     ("map",) if module is not None and "map" in module.OPTIONS else ()),
-              "robot": _spec_beside(scenario.robot, folder, False,
-                                    BRIDGE_FILE_OPTIONS.get(scenario.robot.partition(":")[0], ()))}
+                                     ("map",) if module is not None and "map" in module.OPTIONS else (), "policy"),
+              "robot": robot_beside(scenario.robot, folder)}
     if scenario.calibration is not None:
-        update["calibration"] = folder / scenario.calibration  # an absolute path stays itself
+        update["calibration"] = beside(folder, scenario.calibration, "calibration")
     return scenario.model_copy(update=update)
 
 
-def _spec_beside(spec: str, folder: Path, takes_file: bool, file_options: tuple[str, ...]) -> str:
-    """``SCHEME:TARGET?k=v`` with TARGET (when ``takes_file``) and the ``file_options`` taken from ``folder``; the
-    rest as written (a malformed spec is left for its own parser to refuse)."""
+def robot_beside(spec: str, folder: Path) -> str:
+    """The robot spec ``spec`` with the files its bridge's options name taken from ``folder`` (``beside``): a
+    scenario's ``robot:``, and a release run's (``release run --scenario FILE``: from ``scenario_folder(FILE)``)."""
+    return _spec_beside(spec, folder, False, BRIDGE_FILE_OPTIONS.get(spec.partition(":")[0], ()), "robot")
+
+
+def _spec_beside(spec: str, folder: Path, takes_file: bool, file_options: tuple[str, ...], key: str) -> str:
+    """``SCHEME:TARGET?k=v`` (a scenario's ``key``) with TARGET (when ``takes_file``) and the ``file_options`` taken
+    from ``folder`` (``beside``); the rest as written (a malformed spec is left for its own parser to refuse)."""
     scheme, sep, arg = spec.partition(":")
     if not sep:
         return spec
     target, q, query = arg.partition("?")
     if takes_file and target:
-        target = str(folder / target)
+        target = str(beside(folder, target, key))
     pairs = parse_qsl(query, keep_blank_values=True)
-    if any(key in file_options for key, _ in pairs):
-        query = urlencode([(k, str(folder / v) if k in file_options and v else v) for k, v in pairs], safe="/")
+    if any(k in file_options for k, _ in pairs):
+        query = urlencode([(k, str(beside(folder, v, f"{key} option {k}")) if k in file_options and v else v)
+                           for k, v in pairs], safe="/")
     return f"{scheme}:{target}{q}{query}"
 
 

@@ -15,8 +15,12 @@ YAML 1.1 read it as the text "5e-1", which a number field then refused with a pu
 A whole number is YAML 1.2's too: ``020`` is 20 (YAML 1.1 read it as octal 16, so ``production_cycles: 010`` ran 8
 cycles), ``0o20`` is octal, ``0x1F`` hex, and ``1:05`` is text (YAML 1.1 read base 60, 65); ``_`` between two digits
 is kept as a separator (``1_000``: it cannot be read as another number), anywhere else it makes text (``1_``,
-``0x_1``). Digits are ASCII (``!!int ٣`` is refused, not 3). ``dump_yaml`` writes what this loader reads back as
-written: a text that it (or YAML 1.1) would read as something else is quoted (``version: '09'``).
+``0x_1``). Digits are ASCII (``!!int ٣`` is refused, not 3). A boolean is YAML 1.2's too: only ``true`` and ``false``
+(``True``, ``TRUE``, ``False``, ``FALSE``); YAML 1.1's ``yes``, ``no``, ``on``, ``off`` are text (``site: no`` was
+False, a joint named ``on`` the key True); an explicit ``!!bool yes`` says what it means and is still true. A field
+that wants a boolean and gets such a text says to write true or false (``yaml_bool_text``). ``dump_yaml`` writes what
+this loader reads back as written: a text that it (or YAML 1.1) would read as something else is quoted
+(``version: '09'``, ``name: 'no'``).
 """
 
 from __future__ import annotations
@@ -54,15 +58,21 @@ _FLOAT_FORM = re.compile(rf"""^(?:[-+]?{_DIGITS}\.(?:{_DIGITS})?(?:[eE][-+]?[0-9
 # YAML 1.2's integers (decimal with leading zeros, 0o octal, 0x hex), with ``_`` separators between digits
 _INT_FORM = re.compile(rf"^[-+]?(?:{_DIGITS}|0o[0-7]+(?:_[0-7]+)*|0x[0-9a-fA-F]+(?:_[0-9a-fA-F]+)*)\Z")
 _DECIMAL_FORM = re.compile(rf"[-+]?{_DIGITS}\Z")  # what ``!!float`` takes besides a float's form (``!!float 5``)
-_BOOL_FORM = re.compile(r"(?:yes|no|true|false|on|off)\Z", re.I)  # what ``!!bool`` takes: SafeLoader's bool_values
+_BOOL = "tag:yaml.org,2002:bool"
+# YAML 1.1's booleans, any case (``y`` and ``n`` too: PyYAML left them text, other YAML 1.1 readers do not): what
+# ``!!bool`` takes, what ``dump_yaml`` quotes, what a boolean field written as text is told to write as true or false
+_BOOL_FORM = re.compile(r"(?:y|n|yes|no|true|false|on|off)\Z", re.I)
+_TRUE_TEXTS = ("y", "yes", "true", "on")
+_CORE_BOOL_FORM = re.compile(r"^(?:true|True|TRUE|false|False|FALSE)\Z")  # YAML 1.2 core schema's booleans
+_YAML12_FORMS = {_FLOAT: _FLOAT_FORM, _INT: _INT_FORM, _BOOL: _CORE_BOOL_FORM}  # what a plain scalar must be to be one
 
 
 class _StrictLoader(yaml.SafeLoader):
-    """SafeLoader that refuses duplicate keys and deep nesting while it composes, reads dates as text and numbers as
-    YAML 1.2 does."""
+    """SafeLoader that refuses duplicate keys and deep nesting while it composes, reads dates as text and numbers and
+    booleans as YAML 1.2 does."""
 
-    yaml_implicit_resolvers = {first: [(tag, {_FLOAT: _FLOAT_FORM, _INT: _INT_FORM}.get(tag, regexp))
-                                       for tag, regexp in resolvers if tag != _TIMESTAMP]
+    yaml_implicit_resolvers = {first: [(tag, _YAML12_FORMS.get(tag, regexp)) for tag, regexp in resolvers
+                                       if tag != _TIMESTAMP]
                                for first, resolvers in yaml.SafeLoader.yaml_implicit_resolvers.items()}
 
     def compose_node(self, parent, index):
@@ -115,23 +125,30 @@ def _explicit(loader, node, what: str, *forms: re.Pattern) -> str:
 def _construct_bool(loader, node) -> bool:
     """A bool as YAML 1.1 reads it (``!!bool yes``); ``!!bool abc`` is refused naming it (PyYAML's KeyError was a
     traceback)."""
-    _explicit(loader, node, "true or false", _BOOL_FORM)
-    return loader.construct_yaml_bool(node)
+    return _explicit(loader, node, "true or false", _BOOL_FORM).lower() in _TRUE_TEXTS
 
 
 # an explicit ``!!timestamp`` is text too
 _StrictLoader.add_constructor(_TIMESTAMP, lambda loader, node: loader.construct_scalar(node))
 _StrictLoader.add_constructor(_INT, _construct_int)
 _StrictLoader.add_constructor(_FLOAT, _construct_float)
-_StrictLoader.add_constructor("tag:yaml.org,2002:bool", _construct_bool)
+_StrictLoader.add_constructor(_BOOL, _construct_bool)
+
+
+def yaml_bool_text(value: object) -> bool:
+    """``value`` is a text that YAML 1.1 read as a boolean (``yes``, ``off``) or a quoted ``"true"``: what a field
+    wanting a boolean then got, so its error can say to write true or false."""
+    return isinstance(value, str) and _BOOL_FORM.match(value) is not None
 
 
 class _Dumper(yaml.SafeDumper):
     """SafeDumper that quotes a text that the loader or YAML 1.1 reads as something else (``'09'``, ``'0o17'``,
-    ``'1e3'``, ``'2026-11-01'``): YAML 1.1's rules alone left ``09`` plain, which the loader reads as the number 9."""
+    ``'1e3'``, ``'2026-11-01'``, ``'no'``, ``'y'``): YAML 1.1's rules alone left ``09`` plain, which the loader reads
+    as the number 9."""
 
     yaml_implicit_resolvers = {first: _StrictLoader.yaml_implicit_resolvers.get(first, [])
                                + yaml.SafeDumper.yaml_implicit_resolvers.get(first, [])
+                               + ([(_BOOL, _BOOL_FORM)] if first in set("yYnNtTfFoO") else [])
                                for first in {**_StrictLoader.yaml_implicit_resolvers,
                                              **yaml.SafeDumper.yaml_implicit_resolvers}}
 

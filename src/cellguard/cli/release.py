@@ -144,7 +144,12 @@ def run_stage(
         plans, in_force = _plans(site, plan, cell)
         runs = None
         if scenario is not None:
-            runs = [read_yaml(scenario, "run", GateError)]
+            from cellguard.scenario import robot_beside, scenario_folder
+
+            run = read_yaml(scenario, "run", GateError)
+            if isinstance(run, dict) and isinstance(run.get("robot"), str):  # its files beside the run's file
+                run = {**run, "robot": robot_beside(run["robot"], scenario_folder(scenario))}
+            runs = [run]
             check_run(runs[0], str(scenario))
         result = do(_store(site), plans[check_stage(stage)], cell, stage, runs,
                     on_run=None if as_json else err.print, in_force=in_force[stage])
