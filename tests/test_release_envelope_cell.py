@@ -19,7 +19,7 @@ def _create(tmp_path, text: str, cell: str = CELL):
 
 @pytest.mark.parametrize(("text", "cell", "says"), [
     ("box: [[-45, -45, 0.5], [45, 45, 55]]", CELL,
-     "guard.box: [[-45.0, -45.0, 0.5], [45.0, 45.0, 55.0]] reaches 55 m, over 10 times as far as the tool of "
+     "guard.box: [[-45.0, -45.0, 0.5], [45.0, 45.0, 55.0]] m: z up to 55 m lies 54.33 m beyond the tool of "
      "arm-pick-place"),
     ("soft_margin: 0.2", CELL, "guard.soft_margin: 0.2 puts the soft limits of elbow at [-1.5, 1.5] rad, leaving out "
      "its home pose 1.9 rad"),

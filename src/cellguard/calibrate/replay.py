@@ -173,8 +173,9 @@ def simulate(rc: RecordedCycle, terms: JointTerms, vary: Vary | None = None, fac
 
 def _check_guard(rc: RecordedCycle, cell, path: Path) -> None:
     """CalibrationError, one line naming the record and the setting, when this cellguard refuses the guard settings
-    the record's run had (a check added since: a box beyond 100 m or over 10 times the tool's reach, a soft_margin or
-    a box leaving out the home pose), as a scenario's ``guard:`` is refused: replay cannot build the guard that ran.
+    the record's run had (a check added since: a box beyond 100 m or with a wall over the tool's reach beyond where
+    the tool gets, a soft_margin or a box leaving out the home pose), as a scenario's ``guard:`` is refused: replay
+    cannot build the guard that ran.
     A box in millimetres recorded before the reach checks ended in pydantic's traceback, exit 1."""
     from cellguard.control.settings import build_guard
     from cellguard.errors import ConfigError, ScenarioError

@@ -6,9 +6,9 @@ import numpy as np
 
 from cellguard.control.config import GuardConfig
 from cellguard.control.guard import Guard
+from cellguard.control.reach import MARGIN
 from cellguard.errors import ConfigError
 
-REACH_FACTOR = 10  # a box coordinate this many times farther out than the tool reaches is in another unit
 REACH_SAMPLES = 256  # poses sampled over the joint ranges to find the reach (about 2 ms on the arm)
 
 
@@ -19,7 +19,7 @@ def build_guard(cell, settings: GuardConfig | None = None, q0: np.ndarray | None
     The tool model is the cell's ``kinematics`` (an ``embodiment.Kinematics`` of its nominal MJCF)
     where it offers one, else its ``tool_point``. The box is the scenario's if it sets one, else the
     cell's; it is checked only where there is a tool model, and a box of the scenario's must not reach far beyond
-    the tool (``check_box_reach``).
+    where the tool gets (``check_box_reach``).
     """
     config = settings or GuardConfig()
     kinematics = getattr(cell, "kinematics", None)
@@ -59,15 +59,26 @@ def check_home(cell, config: GuardConfig, tool) -> None:
 
 
 def check_box_reach(box, cell, tool) -> None:
-    """Refuse a box reaching over ``REACH_FACTOR`` times farther from the world origin than the cell's tool does (over
-    its joint ranges, or its own workspace box): a box written in millimetres or centimetres was read as metres, and
-    the workspace check was off with no word (``[[-45, -45, 0.5], [45, 45, 55]]``, centimetres, on a 0.69 m arm)."""
+    """Refuse a box with a wall more than the tool's reach beyond the farthest the tool gets along that axis: a wall
+    the tool never comes near guards nothing, and the workspace check was off with no word. Such a box is mostly one
+    written in millimetres or centimetres and read as metres (``[[-45, -45, 0.5], [45, 45, 55]]``, centimetres, on a
+    0.69 m arm); ten times the tool's distance from the origin, the bound before, took a box in decimetres, and a
+    10 m box on a decimetre-scale arm. Where the tool gets: ``REACH_SAMPLES`` poses over the joint ranges, and the
+    cell's own box; its reach: half the widest span of those, raised by ``reach.MARGIN`` (no sample lands on the
+    farthest pose). A box up to about twice the tool's reach from its base in each axis (a fence drawn round the
+    cell) passes."""
     profile = cell.profile
     poses = np.random.default_rng(0).uniform(profile.q_min, profile.q_max, (REACH_SAMPLES, profile.dof))
-    reach = max(np.abs([tool(q) for q in poses]).max(), np.abs(getattr(cell, "workspace_box", None) or 0.0).max())
-    farthest = float(np.abs(box).max())
-    if farthest <= REACH_FACTOR * reach:
+    points = np.array([tool(q) for q in poses] + list(getattr(cell, "workspace_box", None) or ()), dtype=np.float64)
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    reach = MARGIN * float((hi - lo).max()) / 2
+    walls = np.asarray(box, dtype=np.float64)
+    beyond = np.concatenate([lo - walls[0], walls[1] - hi])  # how far each wall lies out from where the tool gets
+    worst = int(np.argmax(beyond))
+    if beyond[worst] <= reach:
         return
-    raise ConfigError(f"guard.box: {[list(corner) for corner in box]} reaches {farthest:g} m, over {REACH_FACTOR} "
-                      f"times as far as the tool of {profile.robot} (about {reach:.2f} m); the box is in metres, not "
-                      "millimetres or centimetres")
+    axis, side = "xyz"[worst % 3], ("down", "up")[worst // 3]
+    raise ConfigError(f"guard.box: {walls.tolist()} m: {axis} {side} to {walls[worst // 3][worst % 3]:g} m lies "
+                      f"{beyond[worst]:.2f} m beyond the tool of {profile.robot} ({axis} from {lo[worst % 3]:.2f} to "
+                      f"{hi[worst % 3]:.2f} m), over its reach of {reach:.2f} m; the box is in metres, not millimetres "
+                      "or centimetres")
