@@ -15,7 +15,7 @@ from cellguard.scenario import parse_scenario
 psycopg = pytest.importorskip("psycopg", reason="the fleet CLI tests need psycopg: pip install 'cellguard[fleet]'")
 
 from cellguard.fleet.store import FleetStore  # noqa: E402
-from fleet_server import admin_dsn_or_skip  # noqa: E402
+from fleet_server import admin_dsn_or_skip, store_name  # noqa: E402
 
 DOWN = "host=127.0.0.1 port=1 dbname=x user=x password=x"
 
@@ -27,7 +27,7 @@ def env(tmp_path_factory):
     run_scenario(parse_scenario({"cell": "arm-pick-place", "seed": 11, "acceptance_cycles": 5, "production_cycles": 4,
                                  "faults": [{"kind": "fixture_shift", "at_cycle": 6, "dx_mm": 5.0, "dy_mm": 1.0}]}),
                  root / "run")
-    store = FleetStore(dsn, "cgtest_cli")
+    store = FleetStore(dsn, store_name("cli"))
     store.install(reset=True)
     tenants = {t: store.add_tenant(t) for t in ("ta", "tb")}
     for tenant, site in (("ta", "s1"), ("ta", "s2"), ("tb", "s9")):
@@ -132,7 +132,7 @@ def test_a_malformed_dsn_is_one_line_exit_2_that_never_shows_it(env, dsn):
 
 def test_text_a_store_holds_is_printed_with_control_characters_escaped(env):
     _, tenants = env
-    store = FleetStore(admin_dsn_or_skip(), "cgtest_cli")
+    store = FleetStore(admin_dsn_or_skip(), store_name("cli"))
     with store.admin() as con:  # rows written before text was checked: a cause that clears the screen
         con.execute("INSERT INTO fleet.signatures (signature_id, tenant_id, site_id, created_date, cause, robot_model, "
                     "schema_version) VALUES ('esc-probe', 'ta', 's7', current_date, 'probe', 'arm5', 1), "

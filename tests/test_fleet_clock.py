@@ -35,7 +35,7 @@ from cellguard.fleet.policy import DataPolicy
 from cellguard.fleet.push import push
 from cellguard.fleet.signature import Signature, withhold
 from cellguard.fleet.store import FleetStore, TenantStore
-from fleet_server import admin_dsn_or_skip
+from fleet_server import admin_dsn_or_skip, store_name
 
 KEY = b"site-secret-of-the-tests"  # the site key signature ids are keyed with (site_key.py)
 HOST_TODAY = dt.datetime.now(dt.timezone.utc).date()
@@ -56,7 +56,7 @@ def lake_rows(lake) -> int:
 
 @pytest.fixture(scope="module")
 def fleet():
-    store = FleetStore(admin_dsn_or_skip(), "cgtest_clock")
+    store = FleetStore(admin_dsn_or_skip(), store_name("clock"))
     store.install(reset=True)
     with store.admin() as con:  # the server's date: the tests' "today" wherever the host's differs
         today = con.execute("SELECT (now() AT TIME ZONE 'UTC')::date").fetchone()[0]

@@ -24,7 +24,7 @@ psycopg = pytest.importorskip("psycopg", reason="the fleet store tests need psyc
 from cellguard.fleet.duckdb_engine import DuckDBEngine  # noqa: E402
 from cellguard.fleet.lake import write_signatures  # noqa: E402
 from cellguard.fleet.store import FleetStore, RefusedAggregate, TenantStore  # noqa: E402
-from fleet_server import admin_dsn_or_skip  # noqa: E402
+from fleet_server import admin_dsn_or_skip, store_name  # noqa: E402
 
 KEY = b"site-secret-of-the-tests"
 TODAY = dt.datetime.now(dt.timezone.utc).date()
@@ -37,7 +37,7 @@ def env(tmp_path_factory):
     run_scenario(parse_scenario({"cell": "arm-pick-place", "seed": 11, "acceptance_cycles": 5, "production_cycles": 4,
                                  "faults": [{"kind": "fixture_shift", "at_cycle": 6, "dx_mm": 5.0, "dy_mm": 1.0}]}),
                  root / "run")
-    store = FleetStore(dsn, "cgtest_rules")
+    store = FleetStore(dsn, store_name("rules"))
     store.install(reset=True)
     tenants = {t: store.add_tenant(t) for t in ("ta", "tb", "tc")}
     for tenant, export in (("ta", "signatures"), ("tb", "aggregates_only"), ("tc", "nothing")):
@@ -167,7 +167,7 @@ def found(tenant: str, n: int, cause: str = "secret_cause", model: str = "arm-x"
 def crafted(tmp_path_factory):
     """Four victims hold ``secret_cause``; six customers (the victims too) hold ``other``; t-evil crafts one
     ``secret_cause`` row of its own (in the store and in its lake folder). Every tenant's site is ``s-1``."""
-    store = FleetStore(admin_dsn_or_skip(), "cgtest_rules_k")
+    store = FleetStore(admin_dsn_or_skip(), store_name("rules_k"))
     store.install(reset=True)
     lake = tmp_path_factory.mktemp("lake")
     held = {"t-a": 3, "t-b": 3, "t-c": 3, "t-d": 3, "t-e": 0, "t-f": 0}

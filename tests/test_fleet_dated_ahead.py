@@ -32,7 +32,7 @@ from cellguard.fleet.policy import DataPolicy  # noqa: E402
 from cellguard.fleet.push import push  # noqa: E402
 from cellguard.fleet.signature import Signature  # noqa: E402
 from cellguard.fleet.store import FleetStore, StoreError, TenantStore  # noqa: E402
-from fleet_server import admin_dsn_or_skip  # noqa: E402
+from fleet_server import admin_dsn_or_skip, store_name  # noqa: E402
 
 KEY = b"site-secret-of-the-tests"  # the site key signature ids are keyed with (site_key.py)
 FAKETIME = Path("/usr/lib/x86_64-linux-gnu/faketime/libfaketime.so.1")
@@ -53,7 +53,7 @@ def sig(day: dt.date, site: str, n: int = 0) -> Signature:
 
 @pytest.fixture(scope="module")
 def fleet():
-    store = FleetStore(admin_dsn_or_skip(), "cgtest_ahead")
+    store = FleetStore(admin_dsn_or_skip(), store_name("ahead"))
     store.install(reset=True)
     with store.admin() as con:  # the server's date: the tests' "today" wherever the host's differs
         today = con.execute("SELECT (now() AT TIME ZONE 'UTC')::date").fetchone()[0]

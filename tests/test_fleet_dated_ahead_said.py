@@ -42,11 +42,11 @@ def sig(day: dt.date, n: int = 0) -> Signature:
 
 @pytest.fixture(scope="module")
 def fleet():
-    from fleet_server import admin_dsn_or_skip
+    from fleet_server import admin_dsn_or_skip, store_name
 
     from cellguard.fleet.store import FleetStore, TenantStore
 
-    store = FleetStore(admin_dsn_or_skip(), "cgtest_ahead_said")
+    store = FleetStore(admin_dsn_or_skip(), store_name("aheadsaid"))
     store.install(reset=True)
     dsn = store.add_tenant("ta")
     return dsn, TenantStore(dsn).today()

@@ -140,7 +140,7 @@ def test_a_tenant_gets_cross_customer_rows_only_over_k_customers(lake):
 
 
 def test_duckdb_and_postgresql_agree_within_one_tenants_rights(lake, tmp_path):
-    from fleet_server import admin_dsn_or_skip
+    from fleet_server import admin_dsn_or_skip, store_name
 
     from cellguard.fleet.export import Batch
     from cellguard.fleet.store import FleetStore, TenantStore
@@ -148,7 +148,7 @@ def test_duckdb_and_postgresql_agree_within_one_tenants_rights(lake, tmp_path):
     dsn = admin_dsn_or_skip()
     _, sig, eff = lake
     rows = [r for r in rows_of(sig, eff) if r["tenant_id"] == "t0"]
-    store = FleetStore(dsn, "cgtest_engines")
+    store = FleetStore(dsn, store_name("engines"))
     store.install(reset=True)
     tenant = TenantStore(store.add_tenant("t0"))
     for site in sorted({r["site_id"] for r in rows}):

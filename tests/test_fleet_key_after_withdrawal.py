@@ -55,12 +55,12 @@ def test_another_sites_batches_are_no_reason_to_refuse(tmp_path):
 
 
 def test_a_key_lost_after_a_withdrawal_is_made_by_withdrawing_again_and_each_finding_goes_once(tmp_path):
-    from fleet_server import admin_dsn_or_skip
+    from fleet_server import admin_dsn_or_skip, store_name
     from psycopg.conninfo import conninfo_to_dict
 
     from cellguard.fleet.store import FleetStore, TenantStore
 
-    store = FleetStore(admin_dsn_or_skip(), "cgtest_keywithdrawn")
+    store = FleetStore(admin_dsn_or_skip(), store_name("keywdrawn"))
     store.install(reset=True)
     dsn = store.add_tenant("ta")
     site, policy = tmp_path / "site", tmp_path / "p.yaml"

@@ -68,9 +68,9 @@ def test_cli_push_is_refused_before_the_diagnosis_in_one_line(tmp_path):
 
 
 def test_withdraw_then_push_stores_each_finding_once(tmp_path):
-    from fleet_server import admin_dsn_or_skip
+    from fleet_server import admin_dsn_or_skip, store_name
 
-    store = FleetStore(admin_dsn_or_skip(), "cgtest_keyhist")
+    store = FleetStore(admin_dsn_or_skip(), store_name("keyhist"))
     store.install(reset=True)
     dsn = store.add_tenant("ta")
     policy, site = DataPolicy("ta", "s-up"), tmp_path / "site"

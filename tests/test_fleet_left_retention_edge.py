@@ -19,14 +19,14 @@ from cellguard.fleet.policy import DataPolicy  # noqa: E402
 from cellguard.fleet.push import push  # noqa: E402
 from cellguard.fleet.signature import Signature  # noqa: E402
 from cellguard.fleet.store import FleetStore, TenantStore  # noqa: E402
-from fleet_server import admin_dsn_or_skip  # noqa: E402
+from fleet_server import admin_dsn_or_skip, store_name  # noqa: E402
 
 DAYS = 30
 
 
 @pytest.fixture(scope="module")
 def fleet():
-    store = FleetStore(admin_dsn_or_skip(), "cgtest_ret_edge")
+    store = FleetStore(admin_dsn_or_skip(), store_name("ret_edge"))
     store.install(reset=True)
     dsn = store.add_tenant("ta")
     return store, dsn, TenantStore(dsn).today()

@@ -24,7 +24,7 @@ from cellguard.fleet.policy import DataPolicy  # noqa: E402
 from cellguard.fleet.push import push  # noqa: E402
 from cellguard.fleet.signature import SCHEMA_VERSION, Signature  # noqa: E402
 from cellguard.fleet.store import FleetStore, TenantStore  # noqa: E402
-from fleet_server import admin_dsn_or_skip  # noqa: E402
+from fleet_server import admin_dsn_or_skip, store_name  # noqa: E402
 
 TODAY = dt.datetime.now(dt.timezone.utc).date()
 DOWN = "host=127.0.0.1 port=1 dbname=x user=x password=x"  # nothing listens on port 1
@@ -44,7 +44,7 @@ def sigs(tenant: str, site: str, n: int = 2) -> list[Signature]:
 @pytest.fixture(scope="module")
 def fleet():
     dsn = admin_dsn_or_skip()
-    store = FleetStore(dsn, "cgtest_push")
+    store = FleetStore(dsn, store_name("push"))
     store.install(reset=True)
     return store, {t: store.add_tenant(t) for t in ("ta", "tb")}
 

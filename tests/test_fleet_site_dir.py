@@ -161,11 +161,11 @@ def test_withdraw_into_a_site_dir_it_cannot_log_in_deletes_nothing(tmp_path, wha
 
 
 def test_withdraw_from_the_store_is_logged_and_a_site_dir_file_deletes_nothing_there(tmp_path):
-    from fleet_server import admin_dsn_or_skip
+    from fleet_server import admin_dsn_or_skip, store_name
 
     from cellguard.fleet.store import FleetStore, TenantStore
 
-    store = FleetStore(admin_dsn_or_skip(), "cgtest_sitedir")
+    store = FleetStore(admin_dsn_or_skip(), store_name("sitedir"))
     store.install(reset=True)
     dsn = store.add_tenant("ta")
     site = tmp_path / "site"

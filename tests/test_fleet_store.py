@@ -20,7 +20,7 @@ from cellguard.fleet.push import push  # noqa: E402
 from cellguard.fleet.signature import Signature  # noqa: E402
 from cellguard.fleet.store import (FleetStore, RefusedAggregate, StoreError, StoreUnavailable,  # noqa: E402
                                    TenantStore)
-from fleet_server import admin_dsn_or_skip  # noqa: E402
+from fleet_server import admin_dsn_or_skip, store_name  # noqa: E402
 
 TODAY = dt.datetime.now(dt.timezone.utc).date()
 DOWN = "host=127.0.0.1 port=1 dbname=x user=x password=x"  # nothing listens on port 1
@@ -44,7 +44,7 @@ def site_sigs(tenant: str, site: str) -> list[Signature]:
 
 @pytest.fixture(scope="module")
 def fleet(tmp_path_factory):
-    store = FleetStore(_server(), "cgtest_fleet")
+    store = FleetStore(_server(), store_name("fleet"))
     store.install(reset=True)
     dsns = {t: store.add_tenant(t) for t in ("ta", "tb", "tc", "td")}
     for tenant, sites in (("ta", ("sa1", "sa2")), ("tb", ("sb1",)), ("tc", ("sc1",))):
@@ -90,36 +90,37 @@ def test_crafted_where_clauses_read_only_own_rows(fleet, sql):
 @pytest.mark.parametrize("sql", [
     "SET app.tenant_id = 'tb'",
     "SELECT set_config('app.tenant_id', 'tb', false)",
-    "SET ROLE cgtest_fleet_t_tb",
-    "SET ROLE cgtest_fleet_owner",
-    "SET ROLE cgtest_fleet_agg",
-    "SET ROLE cgtest_fleet_app",
-    "SET SESSION AUTHORIZATION cgtest_fleet_t_tb",
+    "SET ROLE {db}_t_tb",
+    "SET ROLE {db}_owner",
+    "SET ROLE {db}_agg",
+    "SET ROLE {db}_app",
+    "SET SESSION AUTHORIZATION {db}_t_tb",
     "ALTER TABLE fleet.signatures DISABLE ROW LEVEL SECURITY",
     "ALTER TABLE fleet.signatures NO FORCE ROW LEVEL SECURITY",
     "DROP POLICY own_rows ON fleet.signatures",
     "CREATE POLICY mine ON fleet.signatures USING (true)",
-    "ALTER ROLE cgtest_fleet_t_ta BYPASSRLS",
-    "GRANT cgtest_fleet_agg TO cgtest_fleet_t_ta",
+    "ALTER ROLE {db}_t_ta BYPASSRLS",
+    "GRANT {db}_agg TO {db}_t_ta",
     "CREATE OR REPLACE FUNCTION fleet.session_tenant() RETURNS text LANGUAGE sql AS $$ SELECT 'tb' $$",
     "CREATE FUNCTION public.peek() RETURNS text LANGUAGE sql AS $$ SELECT 'tb' $$",
-    "UPDATE fleet.tenants SET role_name = 'cgtest_fleet_t_ta' WHERE tenant_id = 'tb'",
-    "INSERT INTO fleet.tenants VALUES ('tb2', 'cgtest_fleet_t_ta')",
+    "UPDATE fleet.tenants SET role_name = '{db}_t_ta' WHERE tenant_id = 'tb'",
+    "INSERT INTO fleet.tenants VALUES ('tb2', '{db}_t_ta')",
     "SELECT * FROM fleet.tenants",
     "UPDATE fleet.settings SET min_customers = 1",
     "SELECT * FROM fleet.q_frequency(1)",
 ])
 def test_set_and_ddl_attempts_do_not_widen_what_a_tenant_sees(fleet, sql):
     store, dsns = fleet
+    sql = sql.format(db=store.database)
     result, seen = as_tenant(dsns["ta"], sql)
     assert seen == {"ta"}
-    if sql.startswith(("SET app.", "SELECT set_config", "SET ROLE cgtest_fleet_app")):
+    if sql.startswith(("SET app.", "SELECT set_config", f"SET ROLE {store.app}")):
         return  # accepted, and harmless: no policy reads a setting or current_user
     assert isinstance(result, psycopg.Error), f"{sql!r} was accepted: {result!r}"
     with store.admin() as con:
         assert con.execute("SELECT min_customers FROM fleet.settings").fetchone()[0] >= 2
         assert con.execute("SELECT role_name FROM fleet.tenants WHERE tenant_id = 'tb'").fetchone()[0] \
-            == "cgtest_fleet_t_tb"
+            == store.tenant_role("tb")
 
 
 def test_row_security_off_makes_reads_fail_not_bypass(fleet):
@@ -266,7 +267,7 @@ def test_similar_finds_own_other_sites_only(fleet):
 def test_fleet_advice_counts_what_fixed_a_cause_over_k_customers_only():
     from cellguard.fleet.advice import fleet_fixes
 
-    store = FleetStore(_server(), "cgtest_advice")
+    store = FleetStore(_server(), store_name("advice"))
     store.install(reset=True)
     dsns = {t: store.add_tenant(t) for t in ("ta", "tb", "tc", "td")}
     for tenant, fixed in (("ta", True), ("tb", True), ("tc", False)):
@@ -307,7 +308,7 @@ CREATE TEMP VIEW signatures WITH (security_invoker = true) AS
          s.detection_delay_cycles, s.policy_version, s.calibration_version, s.cellguard_version, s.recovery,
          s.recovery_outcome, s.schema_version
   FROM fleet.signatures s CROSS JOIN generate_series(1, 5) g;
-GRANT SELECT ON signatures TO cgtest_fleet_agg;
+GRANT SELECT ON signatures TO {agg};
 """
 
 
@@ -316,32 +317,34 @@ def test_a_temporary_view_cannot_stand_in_for_the_table_of_a_cross_customer_func
     store.set_min_customers(2)  # the 2 customers besides ta pass k, so the function body runs
     try:
         honest = TenantStore(dsns["ta"]).run("frequency", {"k": 2})
-        made, _ = as_tenant(dsns["ta"], HIJACK)
+        hijack = HIJACK.format(agg=store.agg)
+        made, _ = as_tenant(dsns["ta"], hijack)
         assert isinstance(made, psycopg.errors.InsufficientPrivilege)  # tenants create no temporary object
         with store.admin() as con:  # and were one made, the function still reads fleet.signatures
-            con.execute("GRANT TEMPORARY ON DATABASE cgtest_fleet TO cgtest_fleet_app")
+            con.execute(f"GRANT TEMPORARY ON DATABASE {store.database} TO {store.app}")
             con.commit()
         with psycopg.connect(dsns["ta"], autocommit=True) as con:
-            con.execute(HIJACK)
+            con.execute(hijack)
             rows = con.execute("SELECT cause, customers FROM fleet.q_frequency(2)").fetchall()
         assert sorted(rows) == sorted((r["cause"], r["customers"]) for r in honest)
         assert not any("|" in cause for cause, _ in rows)
         store.install()  # an existing store brought up to date: the grant is gone again
         with store.admin() as con:
-            assert not con.execute("SELECT has_database_privilege('cgtest_fleet_t_ta', 'cgtest_fleet', "
-                                   "'TEMPORARY')").fetchone()[0]
+            assert not con.execute("SELECT has_database_privilege(%s, %s, 'TEMPORARY')",
+                                   (store.tenant_role("ta"), store.database)).fetchone()[0]
     finally:
         store.set_min_customers(5)
 
 
 def test_resetting_a_store_drops_its_own_roles_only():
-    other = FleetStore(_server(), "cgtest_reset_x")  # its name starts with the reset store's
+    other = FleetStore(_server(), store_name("reset_x"))  # its name starts with the reset store's
     other.install(reset=True)
     other.add_tenant("ta")
-    FleetStore(_server(), "cgtest_reset").install(reset=True)
+    FleetStore(_server(), store_name("reset")).install(reset=True)
     with other.admin() as con:
-        roles = {r[0] for r in con.execute("SELECT rolname FROM pg_roles WHERE rolname LIKE 'cgtest_reset_x%'")}
-    assert roles == {"cgtest_reset_x_owner", "cgtest_reset_x_agg", "cgtest_reset_x_app", "cgtest_reset_x_t_ta"}
+        roles = {r[0] for r in con.execute("SELECT rolname FROM pg_roles WHERE starts_with(rolname, %s)",
+                                           (other.database,))}
+    assert roles == {other.owner, other.agg, other.app, other.tenant_role("ta")}
 
 
 def test_similar_leaves_out_a_non_finite_effect_already_in_the_store(fleet):
