@@ -42,6 +42,7 @@ import datetime as dt
 import hashlib
 import json
 import os
+import re
 import secrets
 from collections.abc import Callable, Mapping, Sequence
 from contextlib import contextmanager
@@ -49,6 +50,7 @@ from pathlib import Path
 
 from cellguard.errors import CellguardError, ConfigError
 from cellguard.fleet.export import Batch
+from cellguard.fleet.signature import ID_PATTERN
 from cellguard.fleet.queries import (MIN_CUSTOMERS, QUERIES, RefusedAggregate, checked, first_line, named, plain,
                                      render)
 
@@ -189,6 +191,11 @@ class FleetStore:
         self.owner, self.agg, self.app = f"{database}_owner", f"{database}_agg", f"{database}_app"
 
     def tenant_role(self, tenant_id: str) -> str:
+        """The tenant's login role. Its id is checked as every other reader of a tenant id checks it (``ID_PATTERN``,
+        at most 40): a longer one made a role name past PostgreSQL's 63 bytes, which it cut short without a word, so
+        two tenants whose ids share their first 40 characters got one role, and each other's rows."""
+        if not isinstance(tenant_id, str) or not re.fullmatch(ID_PATTERN, tenant_id):
+            raise ConfigError(f"tenant: expected an opaque id matching {ID_PATTERN}, got {tenant_id!r}")
         return f"{self.database}_t_{tenant_id}"
 
     def install(self, reset: bool = False) -> None:
