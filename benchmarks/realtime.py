@@ -25,7 +25,13 @@ at 1 kHz] and the writer's lag beyond it, the CPU time a hypervisor
 took for other guests meanwhile (``host_steal_ms``, Linux guests; a real-time thread cannot
 win that back), and, where the sim-server ended during the run, its last line (``server_ended``).
 
-Usage: ``python benchmarks/realtime.py --seconds 300`` (the figure), ``--seconds 20`` (CI).
+``--cycle-seconds S`` splits each run into time cycles of S seconds (default: one cycle of the whole run), so the
+figure includes cycle ends: the cycles run in one stretch of ticks, a cycle's end is work inside the period grid
+(``between_cycles_ms``: its wall time; a longer one shows as compute time, late ticks and overruns), and the
+retreat's start after the last cycle is a pause (``pauses_between_stretches``).
+
+Usage: ``python benchmarks/realtime.py --seconds 300`` (the figure), ``--seconds 20`` (CI),
+``--seconds 300 --cycle-seconds 10`` (30 cycle ends among the ticks).
 """
 
 from __future__ import annotations
@@ -185,7 +191,9 @@ def free_port() -> int:
 
 
 def one_run(rate_hz: float, policy: str, worker: str, seconds: float, onnx_path: Path, work: int, out: Path,
-            recording: bool = True) -> dict:
+            recording: bool = True, cycle_seconds: float | None = None) -> dict:
+    """One scenario of ``seconds`` against a sim-server at ``rate_hz``: cycles of ``cycle_seconds`` (None: one)."""
+    cycle_s = seconds if cycle_seconds is None else cycle_seconds
     port = free_port()
     server = SimServerProcess([sys.executable, "-c", "from cellguard.cli import app; app()", "sim-server", CELL,
                                "--port", str(port), "--rate-hz", str(rate_hz)])
@@ -195,7 +203,8 @@ def one_run(rate_hz: float, policy: str, worker: str, seconds: float, onnx_path:
             return {"rate_hz": rate_hz, "policy": policy, "worker": worker, "refused": refused}
         spec = {"cell": CELL, "robot": f"sim-server:udp://127.0.0.1:{port}",
                 "policy": f"onnx:{onnx_path}" if policy == "onnx100" else "scripted",
-                "acceptance_cycles": 1, "production_cycles": 0, "cycle": {"source": "time", "seconds": seconds},
+                "acceptance_cycles": max(1, round(seconds / cycle_s)), "production_cycles": 0,
+                "cycle": {"source": "time", "seconds": cycle_s},
                 # a new chunk is asked for at half the 1 s horizon: chunks come every ~0.5 s + latency
                 "guard": {"watchdog_s": 1.0},
                 "realtime": {"inference": worker, "overrun_budget": 1_000_000, "stale_s": 1.0, "read_timeout_s": 0.5,
@@ -214,7 +223,8 @@ def one_run(rate_hz: float, policy: str, worker: str, seconds: float, onnx_path:
     cycle = summary["cycles"][0] if summary["cycles"] else {}
     events = Counter(e["kind"] for e in summary["events"])
     return {"rate_hz": rate_hz, "policy": policy, "worker": worker, "recording": recording, "seconds": seconds,
-            **summary["timing"], "inference_ms": cycle.get("inference"), "events": dict(events),
+            "cycles": len(summary["cycles"]), "cycle_seconds": cycle_s, **summary["timing"],
+            "inference_ms": cycle.get("inference"), "events": dict(events),
             "stopped": summary.get("stopped"), **ended, "host_steal_ms": stolen(steal_before)}
 
 
@@ -323,12 +333,17 @@ def main() -> None:
     parser.add_argument("--policies", default="onnx100,python")
     parser.add_argument("--workers", default="thread,process")
     parser.add_argument("--recording", default="on", help="on, off or on,off: the loop with and without a record")
+    parser.add_argument("--cycle-seconds", type=float, default=None,
+                        help="time cycles of this length in each run (default: one cycle of --seconds)")
     parser.add_argument("--floor-seconds", type=float, default=60.0,
                         help="wall time of the machine-floor run per rate (at most --seconds)")
     args = parser.parse_args()
     for option, value in (("--seconds", args.seconds), ("--floor-seconds", args.floor_seconds)):
         if not 0 < value <= WEEK_S:  # NaN and infinity included (inf ran for ever, 1e308 overflowed)
             parser.error(f"{option}: more than 0 and at most {WEEK_S} s (a week), got {value:g}")
+    if args.cycle_seconds is not None and not 0 < args.cycle_seconds <= args.seconds:
+        parser.error(f"--cycle-seconds: more than 0 and at most --seconds ({args.seconds:g}), "
+                     f"got {args.cycle_seconds:g}")
     try:
         rates = [float(r) for r in args.rates.split(",")]
     except ValueError:
@@ -359,7 +374,8 @@ def main() -> None:
                 for worker in workers:
                     for record in recording:
                         runs.append(one_run(rate, policy, worker, args.seconds, onnx_path, work,
-                                            tmp / f"{rate:.0f}-{policy}-{worker}-{record}", record == "on"))
+                                            tmp / f"{rate:.0f}-{policy}-{worker}-{record}", record == "on",
+                                            args.cycle_seconds))
     load = os.getloadavg()
     print(json.dumps({"host": {"cpus": os.cpu_count(), "load_avg_1_5_15": [round(x, 2) for x in load],
                                "load_avg_at_start": [round(x, 2) for x in load_before]},

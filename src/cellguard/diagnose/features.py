@@ -1,7 +1,8 @@
 """Per-cycle features: the numbers a technician compares between a good and a faulted cycle.
 
-Computed once, when the cycle ends, from the cycle's ticks, its chunks' latencies, its events
-and the cell's own outcome (grasp pose, camera readings). Names are flat and stable
+Computed once, when the cycle ends, from the cycle's ticks (their per-block sums: ``CycleBuffer``; the end
+reads the rows themselves only in the last block and in the two blocks a carry window's edges cut), its
+chunks' latencies, its events and the cell's own outcome (grasp pose, camera readings). Names are flat and stable
 (``current_peak.elbow``, ``grasp_offset_x_mm``) so that they become Parquet columns as they are.
 """
 
@@ -10,7 +11,8 @@ from __future__ import annotations
 import numpy as np
 
 from cellguard.control.events import NO_INTERVENTION, Event, EventKind
-from cellguard.diagnose.cycle_buffer import CycleBuffer
+from cellguard.diagnose.cycle_buffer import (BLOCK, CURRENT_PEAK, CURRENT_SQ, ERROR_MAX, ERROR_SQ, TRAVEL, WORK,
+                                             CycleBuffer)
 from cellguard.embodiment import Profile
 
 _XYZ = ("x", "y", "z")
@@ -25,14 +27,19 @@ def cycle_features(
 ) -> dict[str, float]:
     """Flat name -> value features of one cycle (SI unless the name says ``_mm`` or ``_ms``)."""
     n = ticks.n
+    ticks.fold_rest()
+    sums = ticks.sums[:ticks.blocks]
     f: dict[str, float] = {}
-    current, error = ticks.current[:n], ticks.setpoint[:n] - ticks.q[:n]
+    if n:
+        peak, tracking_max = sums[:, CURRENT_PEAK].max(axis=0), sums[:, ERROR_MAX].max(axis=0)
+        current_rms = np.sqrt(sums[:, CURRENT_SQ].sum(axis=0) / n)
+        tracking_rms = np.sqrt(sums[:, ERROR_SQ].sum(axis=0) / n)
     for j, name in enumerate(profile.joint_names):
-        f[f"current_peak.{name}"] = float(np.abs(current[:, j]).max()) if n else 0.0
-        f[f"current_rms.{name}"] = float(np.sqrt(np.mean(current[:, j] ** 2))) if n else 0.0
-        f[f"tracking_rms.{name}"] = float(np.sqrt(np.mean(error[:, j] ** 2))) if n else 0.0
-        f[f"tracking_max.{name}"] = float(np.abs(error[:, j]).max()) if n else 0.0
-    _friction_torques(f, profile, ticks)
+        f[f"current_peak.{name}"] = float(peak[j]) if n else 0.0
+        f[f"current_rms.{name}"] = float(current_rms[j]) if n else 0.0
+        f[f"tracking_rms.{name}"] = float(tracking_rms[j]) if n else 0.0
+        f[f"tracking_max.{name}"] = float(tracking_max[j]) if n else 0.0
+    _friction_torques(f, profile, ticks, sums)
     f["latency_mean_ms"] = float(np.mean(latencies_ns)) * 1e-6 if latencies_ns else 0.0
     f["latency_max_ms"] = float(np.max(latencies_ns)) * 1e-6 if latencies_ns else 0.0
     f["interventions"] = float(sum(e.kind not in NO_INTERVENTION for e in events))
@@ -47,7 +54,7 @@ def cycle_features(
 MIN_TRAVEL = 0.05  # [rad] a joint that moved less than this in a cycle has no friction estimate
 
 
-def _friction_torques(f: dict[str, float], profile: Profile, ticks: CycleBuffer) -> None:
+def _friction_torques(f: dict[str, float], profile: Profile, ticks: CycleBuffer, sums: np.ndarray) -> None:
     """Per joint, the torque that opposed its motion over the cycle [N·m]: the work its drive did
     (sum of effort x velocity) over the distance it travelled (sum of |velocity|). Over a cycle that
     returns to its start, gravity and inertia give back what they took, so this is dry friction
@@ -56,8 +63,7 @@ def _friction_torques(f: dict[str, float], profile: Profile, ticks: CycleBuffer)
     n = ticks.n
     if not n:
         return
-    travel = np.abs(ticks.qd[:n]).sum(axis=0)
-    work = (ticks.effort[:n] * ticks.qd[:n]).sum(axis=0)
+    travel, work = sums[:, TRAVEL].sum(axis=0), sums[:, WORK].sum(axis=0)
     dt = (ticks.t_ns[n - 1] - ticks.t_ns[0]) * 1e-9 / max(n - 1, 1)
     for j, name in enumerate(profile.joint_names):
         if travel[j] * dt >= MIN_TRAVEL:
@@ -71,14 +77,33 @@ def _carry_currents(f: dict[str, float], profile: Profile, ticks: CycleBuffer, o
     grasp, release = outcome.get("grasp_time_s"), outcome.get("release_time_s")
     if not n or not outcome.get("grasped") or grasp is None or release is None:
         return
-    t = (ticks.t_ns[:n] - ticks.t_ns[0]) * 1e-9
-    carry = (t >= grasp) & (t < release)
-    if carry.sum() < 2 or (~carry).sum() < 2:
+    (carry_sq, carried), (free_sq, free) = _split_current_sq(ticks, grasp, release)
+    if carried < 2 or free < 2:
         return
-    current = ticks.current[:n]
+    carry_rms, free_rms = np.sqrt(carry_sq / carried), np.sqrt(free_sq / free)
     for j, name in enumerate(profile.joint_names):
-        f[f"current_carry_rms.{name}"] = float(np.sqrt(np.mean(current[carry, j] ** 2)))
-        f[f"current_free_rms.{name}"] = float(np.sqrt(np.mean(current[~carry, j] ** 2)))
+        f[f"current_carry_rms.{name}"] = float(carry_rms[j])
+        f[f"current_free_rms.{name}"] = float(free_rms[j])
+
+
+def _split_current_sq(ticks: CycleBuffer, grasp: float, release: float) -> tuple[tuple, tuple]:
+    """(sum of current² [A²] per joint, ticks) inside ``grasp <= t < release`` [s from the first tick] and outside:
+    a block wholly on one side by its sums, a block the window's edges cut (two, the stamps in order) by its rows.
+    ``fold_rest`` has run."""
+    n, t0, nb = ticks.n, ticks.t_ns[0], ticks.blocks
+    sums, (lo, hi) = ticks.sums[:nb, CURRENT_SQ], ((ticks.t_range[:nb] - t0) * 1e-9).T
+    rows = np.minimum(BLOCK, n - np.arange(nb) * BLOCK)
+    inside, outside = (lo >= grasp) & (hi < release), (hi < grasp) | (lo >= release)
+    carry_sq, free_sq = sums[inside].sum(axis=0), sums[outside].sum(axis=0)
+    carried, free = int(rows[inside].sum()), int(rows[outside].sum())
+    for k in np.flatnonzero(~inside & ~outside):
+        a, b = k * BLOCK, k * BLOCK + rows[k]
+        t = (ticks.t_ns[a:b] - t0) * 1e-9
+        carry = (t >= grasp) & (t < release)
+        square = ticks.current[a:b] ** 2
+        carry_sq, free_sq = carry_sq + square[carry].sum(axis=0), free_sq + square[~carry].sum(axis=0)
+        carried, free = carried + int(carry.sum()), free + int((~carry).sum())
+    return (carry_sq, carried), (free_sq, free)
 
 
 def _flatten(f: dict[str, float], key: str, value, profile: Profile) -> None:

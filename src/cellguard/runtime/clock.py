@@ -6,9 +6,11 @@ never waits. ``WallClock`` sleeps until shortly before the next deadline, then s
 stepped once per period too. Each period's lateness and compute time go to ``TickTiming``.
 ``ticking()`` wraps a stretch of ticks (a cycle, a transition): on wall time the servo thread is a
 real-time thread then, with the garbage collector run in idle time (``servo_thread``). Between
-stretches (a cycle's end: its features, the record's cycle row) the loop sends nothing and the
-robot holds its last setpoint; a stretch that starts after its deadline starts a new period grid,
-and the pause is counted as such (``TickTiming.pause``), not as a late tick.
+stretches (before a transition) the loop sends nothing and the robot holds its last setpoint; a
+stretch that starts after its deadline starts a new period grid, and the pause is counted as such
+(``TickTiming.pause``), not as a late tick. ``one_stretch()`` joins the stretches inside it (a run's
+cycles): a cycle's end is then ticks on the same grid, its work counted in the next tick's compute
+time, and a late tick or an overrun where that is over a period.
 """
 
 from __future__ import annotations
@@ -16,7 +18,7 @@ from __future__ import annotations
 import sys
 import time
 from collections.abc import Callable
-from contextlib import nullcontext
+from contextlib import contextmanager, nullcontext
 
 from cellguard.runtime.idle_window import IdleWindow
 from cellguard.runtime.servo_thread import PRIORITY, ServoThread
@@ -43,6 +45,10 @@ class SimClock:
 
     def ticking(self):
         """Simulated time asks nothing of the OS."""
+        return nullcontext()
+
+    def one_stretch(self):
+        """Simulated time has no stretches to join."""
         return nullcontext()
 
     def regrid(self) -> None:
@@ -83,6 +89,7 @@ class WallClock:
         self.scheduler = "other"  # what the servo thread got the last time it ticked
         self.idle = IdleWindow()  # open while the servo thread sleeps: the recorder's feeder works then
         self._servo: ServoThread | None = None
+        self._joined = False  # inside ``one_stretch``: a stretch once begun lasts to its end
         self._deadline = 0
         self._began = 0
 
@@ -106,7 +113,22 @@ class WallClock:
             return nullcontext(self._servo)
         self.regrid()
         self._servo = ServoThread(self.priority, self.idle)
+        if self._joined:  # ended by ``one_stretch``
+            return nullcontext(self._servo.__enter__())
         return self._servo
+
+    @contextmanager
+    def one_stretch(self):
+        """The stretches of ticks begun inside this are one, from the first one's start to this one's end: the
+        servo thread stays real-time, and the work between them (a cycle's end, about 0.5 ms at 1 kHz here) is no
+        pause but part of the next tick on the same grid: a late tick or an overrun where it takes too long."""
+        self._joined = True
+        try:
+            yield
+        finally:
+            self._joined = False
+            if self._servo is not None and self._servo.active:
+                self._servo.__exit__(None, None, None)
 
     def regrid(self) -> None:
         """A new period grid from now, the time past the last deadline counted as a pause, not as a late tick: at a

@@ -12,8 +12,10 @@
   otherwise runs in whichever thread allocates, mid-tick.
 - The clock's ``IdleWindow`` closed: other Python work waits for the servo thread's sleep.
 
-Both are undone when the ticks stop (``ServoThread.__exit__``), so a test process, a CLI or a
-cycle boundary runs as an ordinary thread again.
+Both are undone when the ticks stop (``ServoThread.__exit__``), so a test process or a CLI runs as
+an ordinary thread again. A stretch may last a whole run (``WallClock.one_stretch``): a thread started
+meanwhile (a CLI's progress display, started at the first cycle's end) is given the priority below at
+the next young collection.
 """
 
 from __future__ import annotations
@@ -62,11 +64,14 @@ class ServoThread:
 
     def collect_if_idle(self, slack_ns: int) -> None:
         """Called once per tick with the time left before the next deadline: collect the young
-        generations every ``COLLECT_EVERY`` ticks if the period has room for it."""
+        generations every ``COLLECT_EVERY`` ticks if the period has room for it, and promote the
+        threads started since the last time."""
         self._ticks += 1
         if self.active and self._ticks >= COLLECT_EVERY and slack_ns > COLLECT_SLACK_NS:
             self._ticks = 0
             gc.collect(1)
+            if self.scheduler != "other":
+                self._promote_others()
 
     def _promote(self) -> None:
         if self.priority is None or not hasattr(os, "SCHED_FIFO"):
@@ -74,9 +79,13 @@ class ServoThread:
         if not self._set(0, self.priority):
             return  # not permitted here: ordinary threads, as before
         self.scheduler = f"fifo:{self.priority}"
-        me = threading.get_ident()
+        self._promote_others()
+
+    def _promote_others(self) -> None:
+        """The process's other Python threads not promoted yet: the priority below the servo thread's."""
+        me, promoted = threading.get_ident(), self._previous
         for thread in threading.enumerate():
-            if thread.ident != me and thread.native_id is not None:
+            if thread.ident != me and thread.native_id is not None and thread.native_id not in promoted:
                 self._set(thread.native_id, max(1, self.priority - 1))
 
     def _set(self, tid: int, priority: int) -> bool:

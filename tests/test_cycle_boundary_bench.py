@@ -1,0 +1,40 @@
+"""``benchmarks/realtime.py --cycle-seconds``: the figure can include cycle ends, and its JSON shows them; a bad
+value is one line and exit 2 before any work; without it a run is one cycle, as before."""
+
+from __future__ import annotations
+
+import importlib.util
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+BENCH = Path(__file__).resolve().parents[1] / "benchmarks"
+
+
+def _realtime():
+    spec = importlib.util.spec_from_file_location("bench_realtime", BENCH / "realtime.py")
+    realtime = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(realtime)
+    return realtime
+
+
+@pytest.mark.parametrize("cycle_seconds, cycles", [(None, 1), (0.5, 3)])
+def test_a_run_of_cycles_shows_its_cycle_ends(tmp_path, cycle_seconds, cycles):
+    run = _realtime().one_run(200.0, "sway", "thread", 1.5, tmp_path / "unused.onnx", 0, tmp_path / "run",
+                              cycle_seconds=cycle_seconds)
+    assert "refused" not in run, run
+    assert run["cycles"] == cycles and run["cycle_seconds"] == (cycle_seconds or 1.5)
+    assert run["between_cycles_ms"]["count"] == cycles - 1
+    assert "pauses_between_stretches" in run
+
+
+@pytest.mark.parametrize("value", ["0", "-1", "nan", "inf", "30"])
+def test_a_cycle_length_outside_the_run_is_refused_in_one_line(tmp_path, value):
+    done = subprocess.run([sys.executable, str(BENCH / "realtime.py"), "--seconds", "20", "--cycle-seconds", value],
+                          cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2 and done.stdout == ""
+    assert done.stderr.strip().splitlines()[-1].endswith(f"--cycle-seconds: more than 0 and at most --seconds (20), "
+                                                         f"got {float(value):g}")
+    assert list(tmp_path.iterdir()) == []
