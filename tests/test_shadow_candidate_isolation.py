@@ -45,7 +45,7 @@ class _Wrong:
 
 def _shadow_run(tmp_path, monkeypatch, spoil):
     real = shadow.make_policy
-    monkeypatch.setattr(shadow, "make_policy", lambda spec, cell: _Wrong(real(spec, cell), spoil))
+    monkeypatch.setattr(shadow, "make_policy", lambda spec, cell, **kw: _Wrong(real(spec, cell, **kw), spoil))
     scenario = parse_scenario({"cell": CELL, "seed": 3, "policy": "scripted", "acceptance_cycles": 1,
                                "production_cycles": 0})
     run = shadow.ShadowRun(scenario, "scripted", GuardConfig())

@@ -23,6 +23,7 @@ import numpy as np
 
 from cellguard.errors import CellguardError, ConfigError
 from cellguard.embodiment.action_map import ActionMap, load_action_map, parse_action_map
+from cellguard.embodiment.profile import SOFT_MARGIN
 from cellguard.options import bounded_float
 from cellguard.options import split_options as _split
 from cellguard.policy.chunk import ActionChunk
@@ -144,9 +145,11 @@ def map_document(amap: ActionMap, joint_names: tuple[str, ...]) -> dict:
 
 
 class MappedPolicy:
-    """A backend behind the ``Policy`` protocol, mapped onto ``cell`` by ``action_map``."""
+    """A backend behind the ``Policy`` protocol, mapped onto ``cell`` by ``action_map`` (its IK inside the soft limits
+    of the guard's ``soft_margin``)."""
 
-    def __init__(self, backend: Backend, action_map: ActionMap, cell, source: str, dt_s: float, task: str = ""):
+    def __init__(self, backend: Backend, action_map: ActionMap, cell, source: str, dt_s: float, task: str = "",
+                 soft_margin: float = SOFT_MARGIN):
         self.backend, self.action_map, self.source, self.task = backend, action_map, source, task
         self.dt_ns = round(dt_s * 1e9)
         self.map_document = map_document(action_map, cell.profile.joint_names)
@@ -154,7 +157,7 @@ class MappedPolicy:
         if action_map.ik is not None:
             from cellguard.policy.ik import IkSolver
 
-            self.solver = IkSolver(copy.deepcopy(cell.model), cell.profile, action_map.ik)
+            self.solver = IkSolver(copy.deepcopy(cell.model), cell.profile, action_map.ik, soft_margin)
         self.latencies_ns: list[int] = []
         self._t0_ns: int | None = None
 

@@ -2,10 +2,11 @@
 
 Runs off the servo path, once per chunk: each step starts from the previous step's solution, so a chunk of H
 poses costs H short solves. Joints outside ``IkSpec.joints`` (the gripper, a free part) are frozen; the guard's
-soft limits bound the solution (bounded by the model's wider ranges, a target past them was "reached" and the
-guard held the joint at its soft limit: the tool missed, no failure named). A step the site does not reach
-within ``REACH_TOLERANCE`` refuses the whole chunk: the solver's best effort for an unreachable target flipped
-between two joint solutions step after step and moved the tool away from it. The solver is local (it follows on
+soft limits bound the solution, at the run's ``guard.soft_margin`` (bounded by the model's wider ranges, or by the
+default margin under a scenario's wider one, a target past them was "reached" and the guard held the joint at its
+soft limit: the tool missed, no failure named). A step the site does not reach within ``REACH_TOLERANCE`` refuses
+the whole chunk: the solver's best effort for an unreachable target flipped between two joint solutions step after
+step and moved the tool away from it. The solver is local (it follows on
 from the current pose, so a chunk stays continuous): a miss says the target was not reached from there, not that
 no joint pose reaches it (one far behind the base can need the base turned further than a local solve finds;
 re-seeding it would give a jump the guard refuses anyway).
@@ -17,6 +18,7 @@ import mujoco
 import numpy as np
 
 from cellguard.embodiment import Profile
+from cellguard.embodiment.profile import SOFT_MARGIN
 from cellguard.errors import ConfigError
 from cellguard.embodiment.action_map import EE_AXES, IkSpec
 from cellguard.policy.adapter import InferenceError
@@ -37,9 +39,10 @@ def _mink():
 
 
 class IkSolver:
-    """Solves site poses (H, 6: x y z [m], roll pitch yaw [rad]) into joints ``spec.joints``."""
+    """Solves site poses (H, 6: x y z [m], roll pitch yaw [rad]) into joints ``spec.joints``, inside the soft limits
+    ``soft_margin`` (the guard's, a fraction of each joint's range) inside the profile's."""
 
-    def __init__(self, model: mujoco.MjModel, profile: Profile, spec: IkSpec):
+    def __init__(self, model: mujoco.MjModel, profile: Profile, spec: IkSpec, soft_margin: float = SOFT_MARGIN):
         mink = self._mink = _mink()
         if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, spec.site) < 0:
             sites = [model.site(i).name for i in range(model.nsite)]
@@ -59,7 +62,7 @@ class IkSolver:
         cost = spec.orientation_cost * (np.ones(3) if spec.full_orientation else np.array([1.0, 1.0, 0.0]))
         self._task = mink.FrameTask(spec.site, "site", position_cost=1.0, orientation_cost=cost)
         self._posture = mink.PostureTask(model, cost=1e-3)
-        lo, hi = (limit[self.joint_index] for limit in profile.soft_limits())  # the guard's default soft limits
+        lo, hi = (limit[self.joint_index] for limit in profile.soft_limits(soft_margin))  # where the guard brakes
         self._box = _JointBox(mink, model.nv, [int(model.jnt_dofadr[jids[i]]) for i in self.joint_index],
                               self._qadr[self.joint_index], lo, hi)
         self._limits = [self._box]

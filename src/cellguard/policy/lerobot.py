@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from cellguard.embodiment.profile import SOFT_MARGIN
 from cellguard.errors import ConfigError
 from cellguard.policy.adapter import MappedPolicy, PolicyInputs, resolve_map, split_options, step_period
 
@@ -83,11 +84,11 @@ def load_backend(folder: Path) -> LeRobotBackend:
     return LeRobotBackend(policy, pre, post, digest.hexdigest())
 
 
-def make_lerobot_policy(arg: str, cell) -> MappedPolicy:
+def make_lerobot_policy(arg: str, cell, soft_margin: float = SOFT_MARGIN) -> MappedPolicy:
     """``lerobot:DIR?dt=0.0333[&map=FILE&task=...]`` for ``cell``."""
     target, options = split_options(arg, OPTIONS, "lerobot")
     backend = load_backend(Path(target))
     source = f"lerobot:{target}"
     amap = resolve_map(backend, cell, options.get("map"), source)
     dt = step_period(backend, options, source)
-    return MappedPolicy(backend, amap, cell, source, dt, task=options.get("task", ""))
+    return MappedPolicy(backend, amap, cell, source, dt, task=options.get("task", ""), soft_margin=soft_margin)

@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from cellguard.embodiment.profile import SOFT_MARGIN
 from cellguard.errors import ConfigError
 from cellguard.policy.adapter import (InferenceError, MappedPolicy, PolicyInputs, resolve_map, split_options, stated_dt,
                                       step_period)
@@ -193,13 +194,13 @@ def _tensors(message):
             yield from _tensors(item)
 
 
-def make_onnx_policy(arg: str, cell) -> MappedPolicy:
+def make_onnx_policy(arg: str, cell, soft_margin: float = SOFT_MARGIN) -> MappedPolicy:
     """``onnx:FILE[?map=MAP.yaml&dt=0.02]`` for ``cell``."""
     target, options = split_options(arg, OPTIONS, "onnx")
     backend = OnnxBackend(Path(target), tuple(cell.observe().measurements))
     source = f"onnx:{target}"
     amap = resolve_map(backend, cell, options.get("map"), source)
-    policy = MappedPolicy(backend, amap, cell, source, step_period(backend, options, source))
+    policy = MappedPolicy(backend, amap, cell, source, step_period(backend, options, source), soft_margin=soft_margin)
     observation = cell.observe()
     backend.check_widths({"state": amap.to_policy_state(observation.q, policy.solver).size, "time_s": 1,
                           **{k: np.size(v) for k, v in observation.measurements.items()}}, source)

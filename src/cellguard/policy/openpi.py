@@ -21,6 +21,7 @@ from urllib.parse import urlsplit
 
 import numpy as np
 
+from cellguard.embodiment.profile import SOFT_MARGIN
 from cellguard.errors import ConfigError
 from cellguard.policy.adapter import (DT_RANGE_S, TIMEOUT_RANGE_S, InferenceError, MappedPolicy, PolicyInputs,
                                       option_float, resolve_map, split_options, stated_dt, step_period)
@@ -173,7 +174,7 @@ def decode_reply(reply: bytes | str, uri: str) -> np.ndarray:
     return actions
 
 
-def make_openpi_policy(arg: str, cell) -> MappedPolicy:
+def make_openpi_policy(arg: str, cell, soft_margin: float = SOFT_MARGIN) -> MappedPolicy:
     """``openpi:ws://HOST:PORT?dt=0.0667[&map=FILE&timeout=1&api_key_env=VAR&prompt=...&retries=1]`` (``dt`` unless
     the server's metadata gives ``dt_s``)."""
     target, options = split_options(arg, OPTIONS, "openpi")
@@ -194,4 +195,4 @@ def make_openpi_policy(arg: str, cell) -> MappedPolicy:
     source = f"openpi:{target}"
     amap = resolve_map(backend, cell, options.get("map"), source)
     dt = step_period(backend, options, source)
-    return MappedPolicy(backend, amap, cell, source, dt, task=options.get("prompt", ""))
+    return MappedPolicy(backend, amap, cell, source, dt, task=options.get("prompt", ""), soft_margin=soft_margin)

@@ -1,20 +1,23 @@
 """Policy sources by scheme: ``scripted``, ``replay:FILE``, and the adapters' schemes.
 
-``make_policy(spec, cell)`` parses the scenario's ``policy:`` string; an unknown scheme lists
+``make_policy(spec, cell, soft_margin)`` parses the scenario's ``policy:`` string; an unknown scheme lists
 the known ones. ``scripted`` is the cell's taught program: a plugin cell's comes from the entry-point
 group ``cellguard.scripted_policies`` of its package.
 
-A source is a module: its factory ``(arg, cell) -> Policy`` and what it takes, ``OPTIONS`` (its ``?name=``
-options, ``map`` among them for one that takes an action map) and ``TAKES_FILE`` (its argument names a file or
-folder, which a release freezes by its absolute path). A new source is a new module and its line in ``SCHEMES``.
+A source is a module: its factory ``(arg, cell) -> Policy`` (one that solves end-effector actions by IK takes the
+keyword ``soft_margin`` too: the guard's, whose soft limits the IK keeps inside) and what it takes, ``OPTIONS`` (its
+``?name=`` options, ``map`` among them for one that takes an action map) and ``TAKES_FILE`` (its argument names a file
+or folder, which a release freezes by its absolute path). A new source is a new module and its line in ``SCHEMES``.
 """
 
 from __future__ import annotations
 
+import inspect
 from collections.abc import Callable
 from importlib import import_module
 from types import ModuleType
 
+from cellguard.embodiment.profile import SOFT_MARGIN
 from cellguard.errors import ConfigError, UnknownNameError
 from cellguard.policy.protocol import Policy
 from cellguard.robot.registry import from_plugin, load_plugin, plugins
@@ -81,8 +84,12 @@ def source(scheme: str) -> ModuleType:
                           f"(pip install 'cellguard[{scheme}]')") from None
 
 
-def make_policy(spec: str, cell) -> Policy:
-    """Build the policy named by ``spec`` (``scheme`` or ``scheme:argument``) for ``cell``."""
+def make_policy(spec: str, cell, soft_margin: float = SOFT_MARGIN) -> Policy:
+    """Build the policy named by ``spec`` (``scheme`` or ``scheme:argument``) for ``cell``, its IK (if any) inside the
+    soft limits of the run's ``guard.soft_margin`` (at the default one, a wider margin's guard held the joint short of
+    a target the IK had reached: the tool missed)."""
     scheme, _, arg = spec.partition(":")
     factory = getattr(source(scheme), SCHEMES[scheme].partition(":")[2])
+    if "soft_margin" in inspect.signature(factory).parameters:
+        return factory(arg, cell, soft_margin=soft_margin)
     return factory(arg, cell)

@@ -122,13 +122,13 @@ def _distance(a, b) -> float | None:
     return worst
 
 
-def _built_unseen(candidate: str, cell):
+def _built_unseen(candidate: str, cell, soft_margin: float):
     """The candidate's policy, built without a trace in the live run: a simulated cell's noise generator is put back
     as it was (an ONNX adapter observes the cell to learn its inputs: two draws of camera noise, and every
     measurement of the incumbent's run after them differed from the run without a shadow)."""
     rng = getattr(cell, "rng", None)
     state = None if rng is None else rng.bit_generator.state
-    policy = make_policy(candidate, cell)
+    policy = make_policy(candidate, cell, soft_margin=soft_margin)
     if rng is not None:
         rng.bit_generator.state = state
     return policy
@@ -144,7 +144,8 @@ class ShadowRun(Run):
         super().__init__(scenario)
         try:  # at rest where the live guard is: measured again, a draw of the cell's noise changed the live run
             shadow_guard = build_guard(self.cell, candidate_guard, q0=self.guard.reference)
-            self.policy = ShadowedPolicy(self.policy, _built_unseen(candidate, self.cell), shadow_guard,
+            candidate_policy = _built_unseen(candidate, self.cell, candidate_guard.soft_margin)
+            self.policy = ShadowedPolicy(self.policy, candidate_policy, shadow_guard,
                                          self.cell.dt_ns, lambda: self.cycles.total, candidate_guard.watchdog_s)
         except BaseException:  # the incumbent's policy and a bridge are open: close them
             self.close()

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 from functools import partial
 
 from cellguard.embodiment import Profile
-from cellguard.embodiment.profile import calibrated_profile
+from cellguard.embodiment.profile import SOFT_MARGIN, calibrated_profile
 from cellguard.errors import ScenarioError
 from cellguard.robot.registry import make_cell
 from cellguard.robot.state import Observation
@@ -66,17 +66,20 @@ def _policy_again(run):
     from, as the run's process saw the bridge (its name need not be a cell's, its servo rate and seed may differ from
     a cell built by that name; its link is the run's alone)."""
     if run.simulated:
-        return partial(policy_in_process, run.scenario.policy, run.cell.name, run.scenario.seed)
+        return partial(policy_in_process, run.scenario.policy, run.cell.name, run.scenario.seed,
+                       run.scenario.guard.soft_margin)
     from cellguard.policy.registry import make_policy
 
-    return partial(make_policy, run.scenario.policy, BridgeSeen.of(run.cell))
+    return partial(make_policy, run.scenario.policy, BridgeSeen.of(run.cell),
+                   soft_margin=run.scenario.guard.soft_margin)
 
 
-def policy_in_process(spec: str, cell_name: str, seed: int):
-    """Build policy ``spec`` for the registered cell ``cell_name`` (run in the inference process)."""
+def policy_in_process(spec: str, cell_name: str, seed: int, soft_margin: float = SOFT_MARGIN):
+    """Build policy ``spec`` for the registered cell ``cell_name`` (run in the inference process), its IK inside the
+    guard's ``soft_margin``."""
     from cellguard.policy.registry import make_policy
 
-    return make_policy(spec, make_cell(cell_name, seed=seed))
+    return make_policy(spec, make_cell(cell_name, seed=seed), soft_margin=soft_margin)
 
 
 @dataclass(frozen=True)

@@ -92,7 +92,8 @@ class Run(TransitionPlay):
         scenario = self.scenario = scenario.model_copy(update={"realtime": limits})
         # a policy_factory (picklable, for the process worker) replaces the scenario's policy source
         self.policy_factory = policy_factory
-        self.policy = policy_factory() if policy_factory is not None else make_policy(scenario.policy, self.cell)
+        self.policy = (policy_factory() if policy_factory is not None
+                       else make_policy(scenario.policy, self.cell, soft_margin=scenario.guard.soft_margin))
         make_cycle_source(scenario.cycle, self.cell, self.policy)  # refused here, before the record starts; the
         # source itself is built at the first cycle, for the policy then in place
         self.guard = build_guard(self.cell, scenario.guard)
