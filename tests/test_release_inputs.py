@@ -99,3 +99,17 @@ def test_map_on_a_policy_that_takes_none_names_map(tmp_path, policy):
                            "it takes no action map") and "?map=" not in said
     bogus = cli("create", "--policy", "bogus", "--map", str(amap), "--profile", CELL, "--site", str(tmp_path / "s"))
     assert "unknown policy source 'bogus';" in _one_line(bogus) and "?map=" not in bogus.stderr
+
+
+@pytest.mark.parametrize(("stage", "says"), [
+    ("    shadow: yes\n", "stages.sim.shadow: Input should be a valid boolean (got 'yes': text to YAML 1.2; write true"),
+    ("    gates:\n      - {metric: success_rate, min: 1.0, hard: no}\n",
+     "stages.sim.gates[0].hard: Input should be a valid boolean (got 'no': text to YAML 1.2; write true or false"),
+])
+def test_a_plan_boolean_written_yes_or_no_says_to_write_true_or_false(tmp_path, stage, says):
+    """YAML 1.1's yes/no are text to the loader (YAML 1.2): a plan that used them was refused without a word why."""
+    plan = tmp_path / "plan.yaml"
+    plan.write_text("stages:\n  sim:\n" + stage)
+    with pytest.raises(GateError) as refused:
+        load_plan(plan)
+    assert says in str(refused.value)

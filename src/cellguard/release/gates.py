@@ -19,6 +19,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from cellguard.release.errors import GateError
 from cellguard.release.evidence import RunEvidence
 from cellguard.release.metrics import METRICS, Measure, Metric
+from cellguard.yaml_file import yaml_bool_text
 
 PASS, FAIL, INCONCLUSIVE = "pass", "fail", "inconclusive"
 NO_DATA = Measure(None, 0)
@@ -172,9 +173,18 @@ def gate_error(where: str, exc) -> GateError:
     msg = "unknown key" if err["type"] == "extra_forbidden" else err["msg"].removeprefix("Value error, ")
     got = err.get("input")
     if isinstance(got, str | bool | int | float) and err["type"] != "extra_forbidden":
-        msg += f" (got {got!r}" + (": text to YAML; write the number unquoted)"
-                                    if isinstance(got, str) and _number_as_text(got) else ")")
+        msg += f" (got {got!r}" + _as_text(got, err["type"]) + ")"
     return GateError(f"{where}{'.' + loc if loc else ''}: {msg}")
+
+
+def _as_text(got, kind: str) -> str:
+    """What to write where a number or a boolean was given as text (a quoted number; YAML 1.1's ``yes``, ``off``,
+    which the loader reads as text): else nothing."""
+    if isinstance(got, str) and kind == "bool_type" and yaml_bool_text(got):
+        return ": text to YAML 1.2; write true or false, unquoted"
+    if isinstance(got, str) and _number_as_text(got):
+        return ": text to YAML; write the number unquoted"
+    return ""
 
 
 def _number_as_text(text: str) -> bool:
