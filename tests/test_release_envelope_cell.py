@@ -19,8 +19,8 @@ def _create(tmp_path, text: str, cell: str = CELL):
 
 @pytest.mark.parametrize(("text", "cell", "says"), [
     ("box: [[-45, -45, 0.5], [45, 45, 55]]", CELL,
-     "guard.box: [[-45.0, -45.0, 0.5], [45.0, 45.0, 55.0]] m: z up to 55 m lies 54.33 m beyond the tool of "
-     "arm-pick-place"),
+     "guard.box: [[-45.0, -45.0, 0.5], [45.0, 45.0, 55.0]] m: z up to 55 m lies 54.24 m beyond where the tool "
+     "of arm-pick-place gets"),
     ("soft_margin: 0.2", CELL, "guard.soft_margin: 0.2 puts the soft limits of elbow at [-1.5, 1.5] rad, leaving out "
      "its home pose 1.9 rad"),
     ("box: [[0.3, -0.3, 0.0], [0.6, 0.3, 0.5]]", CELL, "m leaves out the home pose's tool point"),

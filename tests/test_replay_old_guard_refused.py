@@ -35,7 +35,7 @@ def _replay(record, tmp_path):
     ({"box": [[-300.0, -300.0, 0.0], [300.0, 300.0, 500.0]]},
      "guard.box: Value error, [[-300.0, -300.0, 0.0], [300.0, 300.0, 500.0]] reaches beyond 100 m"),
     ({"box": [[-45.0, -45.0, 0.5], [45.0, 45.0, 55.0]]},
-     "guard.box: [[-45.0, -45.0, 0.5], [45.0, 45.0, 55.0]] m: z up to 55 m lies 54.33 m beyond the tool"),
+     "guard.box: [[-45.0, -45.0, 0.5], [45.0, 45.0, 55.0]] m: z up to 55 m lies 54.24 m beyond where the tool"),
     ({"soft_margin": 0.2}, "guard.soft_margin: 0.2 puts the soft limits of elbow at [-1.5, 1.5] rad"),
 ])
 def test_a_guard_this_cellguard_refuses_is_one_line_naming_the_record(record, tmp_path, monkeypatch, guard, says):

@@ -10,6 +10,7 @@ from cellguard.control.reach import MARGIN
 from cellguard.errors import ConfigError
 
 REACH_SAMPLES = 256  # poses sampled over the joint ranges to find the reach (about 2 ms on the arm)
+REACH_WALLS = 2  # a wall may lie this many reaches beyond where the tool gets (a fence drawn round the cell)
 
 
 def build_guard(cell, settings: GuardConfig | None = None, q0: np.ndarray | None = None) -> Guard:
@@ -59,26 +60,29 @@ def check_home(cell, config: GuardConfig, tool) -> None:
 
 
 def check_box_reach(box, cell, tool) -> None:
-    """Refuse a box with a wall more than the tool's reach beyond the farthest the tool gets along that axis: a wall
-    the tool never comes near guards nothing, and the workspace check was off with no word. Such a box is mostly one
-    written in millimetres or centimetres and read as metres (``[[-45, -45, 0.5], [45, 45, 55]]``, centimetres, on a
-    0.69 m arm); ten times the tool's distance from the origin, the bound before, took a box in decimetres, and a
-    10 m box on a decimetre-scale arm. Where the tool gets: ``REACH_SAMPLES`` poses over the joint ranges, and the
-    cell's own box; its reach: half the widest span of those, raised by ``reach.MARGIN`` (no sample lands on the
-    farthest pose). A box up to about twice the tool's reach from its base in each axis (a fence drawn round the
-    cell) passes."""
+    """Refuse a box with a wall more than ``REACH_WALLS`` reaches beyond the farthest the tool gets along that axis: a
+    wall the tool never comes near guards nothing, and the workspace check was off with no word. Such a box is mostly
+    one written in millimetres, centimetres or decimetres and read as metres (``[[-45, -45, 0.5], [45, 45, 55]]``,
+    centimetres, on a 0.69 m arm); ten times the tool's distance from the origin, the bound before, took a box in
+    decimetres, and a 10 m box on a decimetre-scale arm. Where the tool gets: ``REACH_SAMPLES`` poses over the joint
+    ranges and the cell's own box, widened by ``reach.MARGIN`` (no sample lands on the farthest pose); its reach: half
+    the widest span of those. A fence drawn round the cell in metres (1.5 m round the 0.69 m arm, 1 m round the
+    SO-101) passes."""
     profile = cell.profile
     poses = np.random.default_rng(0).uniform(profile.q_min, profile.q_max, (REACH_SAMPLES, profile.dof))
     points = np.array([tool(q) for q in poses] + list(getattr(cell, "workspace_box", None) or ()), dtype=np.float64)
     lo, hi = points.min(axis=0), points.max(axis=0)
-    reach = MARGIN * float((hi - lo).max()) / 2
+    widen = (MARGIN - 1) * (hi - lo) / 2
+    lo, hi = lo - widen, hi + widen
+    reach = float((hi - lo).max()) / 2
     walls = np.asarray(box, dtype=np.float64)
     beyond = np.concatenate([lo - walls[0], walls[1] - hi])  # how far each wall lies out from where the tool gets
     worst = int(np.argmax(beyond))
-    if beyond[worst] <= reach:
+    if beyond[worst] <= REACH_WALLS * reach:
         return
     axis, side = "xyz"[worst % 3], ("down", "up")[worst // 3]
     raise ConfigError(f"guard.box: {walls.tolist()} m: {axis} {side} to {walls[worst // 3][worst % 3]:g} m lies "
-                      f"{beyond[worst]:.2f} m beyond the tool of {profile.robot} ({axis} from {lo[worst % 3]:.2f} to "
-                      f"{hi[worst % 3]:.2f} m), over its reach of {reach:.2f} m; the box is in metres, not millimetres "
-                      "or centimetres")
+                      f"{beyond[worst]:.2f} m beyond where the tool of {profile.robot} gets ({axis} from "
+                      f"{lo[worst % 3]:.2f} to {hi[worst % 3]:.2f} m), over {REACH_WALLS} times its reach of "
+                      f"{reach:.2f} m: a wall it never comes near guards nothing (a box in millimetres, centimetres "
+                      "or decimetres read as metres?)")
