@@ -104,3 +104,13 @@ def test_a_relative_path_names_the_file_the_system_opens(tmp_path_factory, segme
     taken = files_beside(parse_scenario({"cell": "arm-pick-place", "calibration": name}), folder).calibration
     assert taken.is_absolute() and not {".", ".."} & set(taken.parts) and taken.is_relative_to(root)
     assert os.path.samefile(taken, folder / name)
+
+
+def test_a_missing_folder_on_the_way_is_not_resolved_away(tmp_path):
+    """``gone/../cal/p.yaml`` is no file the system opens (``gone`` is missing): resolved, it named ``cal/p.yaml``
+    and a mistyped folder went unnoticed. It stays as written, and reading it fails naming it."""
+    path = _site(tmp_path, "calibration: gone/../cal/p.yaml\n")
+    (tmp_path / "site" / "cellA" / "cal" / "p.yaml").write_text("robot: arm\n")
+    scenario = load_scenario(path)
+    assert scenario.calibration == tmp_path / "site" / "cellA" / "gone" / ".." / "cal" / "p.yaml"
+    assert not os.path.exists(scenario.calibration)

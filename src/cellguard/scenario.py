@@ -278,7 +278,14 @@ def beside(folder: Path, name: str | Path, key: str) -> Path:
     them); an absolute ``name`` is resolved alike."""
     if "\0" in str(name):  # realpath's ValueError: no file has the name
         raise ScenarioError(f"{key}: {str(name)!r} holds a NUL, which no file name has")
-    return Path(os.path.realpath(Path(folder) / name))
+    path = Path(folder) / name
+    for resolved in (path, path.parent):  # a missing file: its folder resolved, the name as written
+        try:
+            real = Path(os.path.realpath(resolved, strict=True))
+        except OSError:
+            continue
+        return real if resolved == path else real / path.name
+    return path  # its folder missing too: as written (``gone/../x`` resolved is a file the system would not open)
 
 
 # a bridge's options that name a file (its other options are the robot's own, passed on as written)

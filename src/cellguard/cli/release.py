@@ -144,11 +144,15 @@ def run_stage(
         plans, in_force = _plans(site, plan, cell)
         runs = None
         if scenario is not None:
+            from cellguard.errors import ScenarioError
             from cellguard.scenario import robot_beside, scenario_folder
 
             run = read_yaml(scenario, "run", GateError)
             if isinstance(run, dict) and isinstance(run.get("robot"), str):  # its files beside the run's file
-                run = {**run, "robot": robot_beside(run["robot"], scenario_folder(scenario))}
+                try:
+                    run = {**run, "robot": robot_beside(run["robot"], scenario_folder(scenario))}
+                except ScenarioError as exc:
+                    raise GateError(f"{scenario}: {exc}") from None
             runs = [run]
             check_run(runs[0], str(scenario))
         result = do(_store(site), plans[check_stage(stage)], cell, stage, runs,
