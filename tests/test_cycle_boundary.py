@@ -1,6 +1,7 @@
 """On wall time a run's cycles are one stretch of ticks: a cycle's end is work inside the period grid (a late tick
 where it is slow, never a pause hidden from the figures), the servo thread stays real-time across it, and the
-retreat after the cycles keeps stretches of its own. Timing is not asserted: only where time is counted."""
+retreat's brake from motion is played in that stretch too; its way home, checked at rest, follows a pause. Timing
+is not asserted: only where time is counted."""
 
 from __future__ import annotations
 
@@ -45,9 +46,19 @@ def _run(**cycle) -> Run:
                realtime=True)
 
 
-def test_the_cycles_of_a_run_on_wall_time_are_one_stretch_and_the_retreat_its_own():
+def test_the_cycles_of_a_run_on_wall_time_and_the_retreats_brake_are_one_stretch():
+    """A time cycle of the taught program ends mid-motion: the retreat brakes the command to rest in the cycles'
+    stretch (begun after a pause, the robot held its last setpoint at speed: 0.7 to 3.9 ms at 1 kHz), then plans and
+    checks its way home at rest (a pause)."""
     run = _run()
-    seen = []
+    seen, plays = [], []
+    play = run._play
+
+    def watched(plan, name, *args, **kwargs):
+        plays.append((name, plan.settles or plan.brakes, run.clock._servo is not None and run.clock._servo.active))
+        return play(plan, name, *args, **kwargs)
+
+    run._play = watched
     try:
         run.run_cycles(lambda outcome: seen.append((run.clock._servo.active, gc.isenabled())))
     finally:
@@ -57,6 +68,8 @@ def test_the_cycles_of_a_run_on_wall_time_are_one_stretch_and_the_retreat_its_ow
     assert timing["between_cycles_ms"]["count"] == 2
     assert not run.clock._servo.active and gc.isenabled()
     assert run.events.has("retreat_done")
+    braking = [active for name, brakes, active in plays if name == "retreat" and brakes]
+    assert braking == [True], plays  # the brake from motion, played inside the cycles' stretch
 
 
 def test_a_cycle_monitor_on_wall_time_is_a_pause_not_a_late_tick():

@@ -600,15 +600,16 @@ class Run(TransitionPlay):
     def run_cycles(self, on_cycle: Callable[[dict], None] | None = None) -> None:
         """Every cycle of the scenario, until a stop; then the retreat to the home pose."""
         with self.operator:
-            with self.clock.one_stretch():  # wall time: a cycle's end is ticks on the grid, not a pause
+            # wall time: a cycle's end, and the retreat's brake from a cycle that ended mid-motion, are ticks on the
+            # grid, not a pause (the retreat's way home is checked at rest: a pause there, ``retreat``)
+            with self.clock.one_stretch():
                 for _ in range(self.scenario.total_cycles):
                     outcome = self.cycle()
                     if on_cycle is not None:
                         on_cycle(outcome)
                     if self.stopped:
                         break
-            # the retreat's stretches of its own: its way home is planned and checked at rest, 15 to 100 ms
-            self.retreat()
+                self.retreat()
             self._at_rest()
             self.operator.motion_over()
         if self.operator.count:  # a signal during the last retreat stops the run too

@@ -48,6 +48,7 @@ class TransitionPlay:
         if plan is None:
             return
         outside = self._leaves_box(plan)
+        self.clock.regrid()  # the way home planned and checked at rest (15 to 100 ms): a pause, no late tick
         if outside is not None:  # not played: the robot holds where it stopped, at rest
             self._retreat_not_played(outside, begun)
             return
