@@ -10,9 +10,12 @@ from cellguard.control.events import EventKind
 from cellguard.record.lerobot_export import export_lerobot
 from cellguard.record.reader import open_record
 
+# overrun_budget: the loop raises it as a robot link fault (runtime.loop _overrun); startup_refused: StartupRefused
+# propagates out of the run. Not watchdog_no_first_chunk: a late first chunk starts the run, and a stop that removes
+# a bridged robot's power ends it whatever asked the stop.
 ENDING = {"operator_stop", "policy_lost", "record_failed", "run_process_lost", "robot_read_failed",
           "robot_read_timeout", "robot_state_stale", "robot_packets_dropped", "robot_write_failed",
-          "robot_server_gone"}
+          "robot_server_gone", "overrun_budget", "startup_refused"}
 TICKS_PER_CYCLE = 200
 
 

@@ -52,16 +52,19 @@ class EventKind(StrEnum):
     INFERENCE_FAILED = "inference_failed"
     # its process ended, a call hung or every answer before a chunk refused: the run ends
     POLICY_LOST = "policy_lost", False, None, True
-    STARTUP_REFUSED = "startup_refused"  # a start-up check refused to move (or the warm-up never answered)
+    # a start-up check refused to move (or the warm-up never answered): StartupRefused ends the run
+    STARTUP_REFUSED = "startup_refused", False, None, True
     RECORD_FAILED = "record_failed", False, 2, True
     RECORD_QUEUE_FULL = "record_queue_full"
+    # the run goes on (a late first chunk starts it); a stop that removes a bridged robot's power ends it, whatever
+    # asked it (power_removed, as a limit's stop does)
     WATCHDOG_NO_FIRST_CHUNK = "watchdog_no_first_chunk"
     OPERATOR_STOP = "operator_stop", False, 2, True  # Ctrl-C, SIGTERM or SIGHUP while the cycles run
     # written by the recorder alone: the run's process died (SIGKILL, OOM)
     RUN_PROCESS_LOST = "run_process_lost", False, None, True
     # the real-time loop: ticks later than one period, and the budget that stops the cell
     OVERRUN = "overrun"
-    OVERRUN_BUDGET = "overrun_budget"
+    OVERRUN_BUDGET = "overrun_budget", False, None, True  # a robot link fault (the loop's _overrun): the run ends
     # safe transitions: the approach to the policy's first target, the retreat to home
     APPROACH_BEGIN = "approach_begin", True
     APPROACH_DONE = "approach_done", True

@@ -26,7 +26,8 @@ Contract (fields may be added, not renamed)::
                                      #   effort, current (n, dof) float64; rate="decimated" | "full" | "all";
                                      #   cycle is NO_CYCLE (-1) for a tick between cycles (a retreat, a settling)
     rec.tick_parts("all", rows)      # the same ticks of the whole record, about `rows` values a field at a time
-    rec.cycle_spans()                # {cycle: (t_start_ns, t_end_ns or None: its end not recorded)}, as marked
+    rec.cycle_spans()                # {cycle: (t_start_ns, t_end_ns or None: its end not recorded)}: the index's
+                                     #   row, else the markers; of a cycle marked twice the last
     rec.chunks()                     # RecordedChunk: the policy's chunks as received
     rec.measurements()               # Measurement: t_ns, cycle, names, values (n,) of the readings the policy saw
     rec.health()                     # Health: finished, truncated, chunks ok/damaged, sequence gaps, writing
@@ -130,7 +131,7 @@ class Measurement:
 @dataclass(frozen=True)
 class Ticks:
     """Ticks in time order; arrays (n,) and (n, dof), SI, float64. ``cycle``: the cycle each tick lies in, by its
-    markers' times, else ``NO_CYCLE`` (the recorder stamps a tick with the cycle begun last, so the retreat or a
+    span (``cycle_spans``), else ``NO_CYCLE`` (the recorder stamps a tick with the cycle begun last, so the retreat or a
     stop's settling after a cycle's end carried that cycle's number)."""
 
     joints: tuple[str, ...]
@@ -261,6 +262,7 @@ class Record:
         topics = {c.topic: c.id for c in layout.channels.values()}
         self._ids = {topic: topics.get(topic, spec.id) for topic, spec in BY_TOPIC.items()}
         self._contexts: list[ContextChange] | None = None
+        self._indexed: dict[int, tuple[int, int | None]] | None = None  # the cycle index's spans, read once
         self._spans: dict[int, tuple[int, int | None]] | None = None  # cycle_spans(), read once
         self.context_loss: str | None = None
         self._facts_note: str | None = None  # the metadata record disagrees with the context (which is used)
@@ -387,12 +389,35 @@ class Record:
 
     def cycle_spans(self) -> dict[int, tuple[int, int | None]]:
         """Each cycle the record marks: (t_start_ns, t_end_ns) on the record's clock, t_end_ns None where no end marker
-        is read (the run was killed in it, or its chunk was lost). From the markers, a malformed one skipped; of a
-        cycle marked twice, the last marker read."""
+        is read (the run was killed in it, or its chunk was lost). The index's row where the index has the cycle, else
+        the markers (a malformed one skipped); of a cycle marked twice, the last row or marker read. ``ticks(cycle=)``
+        and each tick's cycle take the same span."""
+        return dict(self._all_spans())
+
+    def _all_spans(self) -> dict[int, tuple[int, int | None]]:
+        """``cycle_spans()``, read once: every /cycles marker (nearly every chunk of the file), the index over them."""
         if self._spans is None:
-            self._spans = {d["cycle"]: (d["t_start_ns"], d.get("t_end_ns"))
-                           for _, d in self._json(self.messages(["/cycles"]), "/cycles", _cycle_marker)}
-        return dict(self._spans)
+            marked = {d["cycle"]: (d["t_start_ns"], d.get("t_end_ns"))
+                      for _, d in self._json(self.messages(["/cycles"]), "/cycles", _cycle_marker)}
+            self._spans = {**marked, **self._index_spans()}
+        return self._spans
+
+    def _span(self, cycle: int) -> tuple[int, int | None] | None:
+        """``cycle_spans().get(cycle)``, the markers read only where the index does not have the cycle: a read of a
+        window or a cycle costs about the window's, not the whole file's."""
+        span = self._index_spans().get(cycle)
+        return span if span is not None else self._all_spans().get(cycle)
+
+    def _index_spans(self) -> dict[int, tuple[int, int | None]]:
+        """The spans of the cycle index beside the record (``INDEX_DIR/cycles``), every part read once; a part that
+        indexes another run or cannot be read is left out (the record's own markers still say)."""
+        if self._indexed is None:
+            self._indexed = {}
+            index = self.file.parent / INDEX_DIR / "cycles"
+            if self.file.name == RECORD_FILE and index.is_dir():
+                for part in sorted(index.glob("day=*/*.parquet")):
+                    self._indexed.update(_index_part(part, self.record_id))
+        return self._indexed
 
     def measurements(self) -> Iterator[Measurement]:
         """The readings in time order; one whose names or sizes differ from the first one's is skipped as
@@ -439,12 +464,12 @@ class Record:
         topics = _tick_topics(rate)
         if cycle is not None:
             start_ns, end_ns = self._cycle_span(cycle)
-        spans = self.cycle_spans() if cycle is None else {cycle: (start_ns, end_ns)}
+        span = self._span if cycle is None else {cycle: (start_ns, end_ns)}.get  # ticks of other stamps are left out
         lo = None if start_ns is None else start_ns - self._batch_span_ns()
         hi = {"/ticks/decimated": end_ns,  # a pre-trigger backlog is logged up to one window after its ticks
               "/ticks/full": None if end_ns is None else end_ns + self._backlog_ns()}
         joints, streams = self._named_streams({topic: self.messages([topic], lo, hi[topic]) for topic in topics})
-        merge = _TickMerge(joints, spans, cycle, start_ns, end_ns)
+        merge = _TickMerge(joints, span, cycle, start_ns, end_ns)
         for rank, batches in enumerate(streams):  # each read through before the next: malformed ones noted in order
             for batch in batches:
                 merge.add(rank, batch)
@@ -459,7 +484,7 @@ class Record:
         held."""
         topics = _tick_topics(rate)
         joints, streams = self._named_streams({topic: self.messages([topic]) for topic in topics})
-        merge, heads = _TickMerge(joints, self.cycle_spans()), [next(stream, None) for stream in streams]
+        merge, heads = _TickMerge(joints, self._span), [next(stream, None) for stream in streams]
         handed, given = None, False  # handed: every tick before it was handed on
         while True:
             live = [(int(head["t_ns"].min()), i) for i, head in enumerate(heads) if head is not None]
@@ -500,13 +525,8 @@ class Record:
                 yield batch
 
     def _cycle_span(self, cycle: int) -> tuple[int, int | None]:
-        """Where a cycle lies in time: from the index if there is one, else from the cycle markers."""
-        index = self.file.parent / INDEX_DIR / "cycles"
-        if self.file.name == RECORD_FILE and index.is_dir():
-            for part in sorted(index.glob("day=*/*.parquet")):
-                if (span := _index_span(part, cycle, self.record_id)) is not None:
-                    return span
-        span = self.cycle_spans().get(cycle)
+        """Where a cycle lies in time (``_span``); RecordError if the record does not mark it."""
+        span = self._span(cycle)
         if span is None:
             raise RecordError(f"cycle: {cycle} is not in {self.file}")
         return span
@@ -731,20 +751,21 @@ def _saved_context(saved: dict[str, str]) -> tuple[ContextChange, dict] | None:
             {key: value for key, value in stated.items() if value is not None} | {"record_id": saved.get("record_id")})
 
 
-def _index_span(part: Path, cycle: int, record_id: str | None) -> tuple[int, int] | None:
-    """(t_start_ns, t_end_ns) of ``cycle`` in one part of the cycle index; None if it is not there, the part indexes
-    another run or cannot be read (the record's own markers still say). Opened by handle: pyarrow takes a path only
-    as UTF-8 text, and a FIFO is never opened."""
+def _index_part(part: Path, record_id: str | None) -> dict[int, tuple[int, int | None]]:
+    """{cycle: (t_start_ns, t_end_ns)} of one part of the cycle index, of a cycle in it twice the last row; none if
+    the part indexes another run or cannot be read. Opened by handle: pyarrow takes a path only as UTF-8 text, and a
+    FIFO is never opened."""
     if not part.is_file():
-        return None
+        return {}
     try:
         with pa.OSFile(os.fsencode(part)) as f:
-            table = pq.read_table(f, columns=["t_start_ns", "t_end_ns"], filters=[("cycle", "=", cycle)])
+            table = pq.read_table(f, columns=["cycle", "t_start_ns", "t_end_ns"])
     except (pa.ArrowException, OSError):
-        return None
-    if not table.num_rows or foreign_run(table.schema, record_id) is not None:
-        return None
-    return table["t_start_ns"][0].as_py(), table["t_end_ns"][0].as_py()
+        return {}
+    if foreign_run(table.schema, record_id) is not None:
+        return {}
+    columns = (table[name].to_pylist() for name in ("cycle", "t_start_ns", "t_end_ns"))
+    return {cycle: (start, end) for cycle, start, end in zip(*columns) if None not in (cycle, start)}
 
 
 def _overlaps(ref: ChunkRef, wanted: set[int], start_ns: int | None, end_ns: int | None) -> bool:
@@ -766,11 +787,11 @@ class _TickMerge:
     """Tick batches merged into one series by time, held until handed on. Of ticks at one time the decimated
     stream's (rank 0), then the one added first, is kept; ticks outside ``cycle`` (or else the span) are left out
     before that, so a copy of a tick in another cycle does not hide the one in it. A tick's cycle is its stamp where
-    it lies in that cycle's span (``spans``: ``cycle_spans``), else ``NO_CYCLE``."""
+    it lies in that cycle's span (``span(stamp)``: ``Record._span``), else ``NO_CYCLE``."""
 
-    def __init__(self, joints: tuple[str, ...], spans: dict[int, tuple[int, int | None]], cycle: int | None = None,
-                 start_ns: int | None = None, end_ns: int | None = None):
-        self.joints, self._spans, self._cycle, self._span = joints, spans, cycle, (start_ns, end_ns)
+    def __init__(self, joints: tuple[str, ...], span: Callable[[int], tuple[int, int | None] | None],
+                 cycle: int | None = None, start_ns: int | None = None, end_ns: int | None = None):
+        self.joints, self._span_of, self._cycle, self._span = joints, span, cycle, (start_ns, end_ns)
         self._pending: list[tuple[np.ndarray, ...]] = []  # (t, order, cycle, *fields (n, dof) as written)
         self._added = [0] * len(_TICK_TOPICS)  # ticks added of each rank: with the rank, their order at equal times
         self.held = 0  # ticks held
@@ -791,7 +812,7 @@ class _TickMerge:
             return Ticks(self.joints, np.zeros(0, np.int64), np.zeros(0, np.int64),
                          **{f: np.zeros((0, dof)) for f in TICK_FIELDS})
         t, order, cycle, *values = (np.concatenate(column) for column in zip(*self._pending))
-        cycle = _placed(t, cycle, self._spans)
+        cycle = _placed(t, cycle, self._span_of)
         keep = self._keep(t, cycle)
         if keep is not None:
             t, order, cycle, values = t[keep], order[keep], cycle[keep], [v[keep] for v in values]
@@ -816,17 +837,16 @@ class _TickMerge:
         return (t >= (-_INT64 if start is None else start)) & (t <= (_INT64 - 1 if end is None else end))
 
 
-def _placed(t: np.ndarray, stamps: np.ndarray, spans: dict[int, tuple[int, int | None]]) -> np.ndarray:
+def _placed(t: np.ndarray, stamps: np.ndarray, span: Callable[[int], tuple[int, int | None] | None]) -> np.ndarray:
     """Each tick's cycle (int64): its stamp, or ``NO_CYCLE`` where it lies outside the span of the cycle it is stamped
-    with (a stamp with no span, its markers lost, is kept: nothing says otherwise)."""
+    with (a stamp with no span, its markers lost, is kept: nothing says otherwise). Each distinct stamp is looked up
+    once and its bounds spread to its ticks by ``np.unique``'s inverse: O(n log n), not a pass per stamp."""
     placed = stamps.astype(np.int64)
-    for stamp in np.unique(placed):
-        span = spans.get(int(stamp))
-        if span is not None:
-            start, end = span
-            outside = t < start if end is None else (t < start) | (t > end)
-            placed[(placed == stamp) & outside] = NO_CYCLE
-    return placed
+    distinct, which = np.unique(placed, return_inverse=True)
+    spans = [span(int(stamp)) or (-_INT64, None) for stamp in distinct]
+    start = np.array([lo for lo, _ in spans], np.int64)[which]
+    end = np.array([_INT64 - 1 if hi is None else hi for _, hi in spans], np.int64)[which]
+    return np.where((t < start) | (t > end), NO_CYCLE, placed)
 
 
 def _tick_batch(data: bytes) -> dict:
