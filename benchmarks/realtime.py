@@ -27,8 +27,10 @@ win that back), and, where the sim-server ended during the run, its last line (`
 
 ``--cycle-seconds S`` splits each run into time cycles of S seconds (default: one cycle of the whole run), so the
 figure includes cycle ends: the cycles run in one stretch of ticks, a cycle's end is work inside the period grid
-(``between_cycles_ms``: its wall time; a longer one shows as compute time, late ticks and overruns), and the
-retreat's start after the last cycle is a pause (``pauses_between_stretches``).
+(``between_cycles_ms``: its wall time; a longer one shows as compute time, late ticks and overruns), as is the
+retreat's brake after the last cycle (its plan from motion: late ticks); the retreat's way home, checked at rest,
+follows a pause (``pauses_between_stretches``). ``inference_ms`` covers every cycle (``wall_ms_p99``: the worst
+cycle's).
 
 Usage: ``python benchmarks/realtime.py --seconds 300`` (the figure), ``--seconds 20`` (CI),
 ``--seconds 300 --cycle-seconds 10`` (30 cycle ends among the ticks).
@@ -66,6 +68,7 @@ HOME = np.array([0.0, -0.3, 1.9, 1.55, 0.0, 0.025])
 JOINTS = "shoulder_pan,shoulder_lift,elbow,wrist_flex,wrist_roll,gripper"
 HORIZON, DT_S = 50, 0.02  # a 1 s chunk, like ACT / pi0 chunks of 50
 CELL = "arm-pick-place"
+MAX_CYCLES = 100_000  # the most time cycles --cycle-seconds may split a run into
 WEEK_S = 7 * 24 * 3600  # the longest --seconds (the sim-server's own bound on --duration-s)
 READ_AFTER_END_S = 5.0  # how long its output is read once it has ended (a child of its own could hold the pipe)
 START_S = 60.0  # [s] for its start line: 1.1 s measured on a quiet 2-core host, up to 24 s with six busy processes
@@ -220,12 +223,21 @@ def one_run(rate_hz: float, policy: str, worker: str, seconds: float, onnx_path:
         ended = server.ended_during_run()
     finally:
         server.stop()
-    cycle = summary["cycles"][0] if summary["cycles"] else {}
     events = Counter(e["kind"] for e in summary["events"])
     return {"rate_hz": rate_hz, "policy": policy, "worker": worker, "recording": recording, "seconds": seconds,
             "cycles": len(summary["cycles"]), "cycle_seconds": cycle_s, **summary["timing"],
-            "inference_ms": cycle.get("inference"), "events": dict(events),
+            "inference_ms": inference_over(summary["cycles"]), "events": dict(events),
             "stopped": summary.get("stopped"), **ended, "host_steal_ms": stolen(steal_before)}
+
+
+def inference_over(cycles: list[dict]) -> dict | None:
+    """The cycles' inference latencies as one: chunks, their mean, the worst cycle's p99, the longest [ms]."""
+    each = [c["inference"] for c in cycles if c.get("inference", {}).get("chunks")]
+    if not each:
+        return cycles[0].get("inference") if cycles else None
+    chunks = sum(i["chunks"] for i in each)
+    return {"chunks": chunks, "wall_ms_mean": sum(i["wall_ms_mean"] * i["chunks"] for i in each) / chunks,
+            "wall_ms_p99": max(i["wall_ms_p99"] for i in each), "wall_ms_max": max(i["wall_ms_max"] for i in each)}
 
 
 class SimServerProcess:
@@ -341,9 +353,11 @@ def main() -> None:
     for option, value in (("--seconds", args.seconds), ("--floor-seconds", args.floor_seconds)):
         if not 0 < value <= WEEK_S:  # NaN and infinity included (inf ran for ever, 1e308 overflowed)
             parser.error(f"{option}: more than 0 and at most {WEEK_S} s (a week), got {value:g}")
-    if args.cycle_seconds is not None and not 0 < args.cycle_seconds <= args.seconds:
-        parser.error(f"--cycle-seconds: more than 0 and at most --seconds ({args.seconds:g}), "
-                     f"got {args.cycle_seconds:g}")
+    if args.cycle_seconds is not None and not (0 < args.cycle_seconds <= args.seconds and MAX_CYCLES >= round(
+            args.seconds / args.cycle_seconds) * (1 - 1e-9) and abs(args.seconds / args.cycle_seconds - round(
+            args.seconds / args.cycle_seconds)) < 1e-6):
+        parser.error(f"--cycle-seconds: a whole fraction of --seconds ({args.seconds:g}), at most {MAX_CYCLES} "
+                     f"cycles, got {args.cycle_seconds:g}")
     try:
         rates = [float(r) for r in args.rates.split(",")]
     except ValueError:

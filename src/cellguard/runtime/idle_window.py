@@ -8,8 +8,9 @@ the writer running whenever it liked, 13 and 10 µs with this window. So the wal
 window while the servo thread sleeps (from the end of a tick's work to shortly before the next
 deadline) and closes it when the servo thread wakes; the recorder's feeder thread (which pickles its
 messages for the writer process, ``record.session``) starts a piece of work only inside
-a window with time left for it. Outside a stretch of ticks (between cycles, in simulated time) the
-window stays open.
+a window with time left for it. Outside a stretch of ticks (in simulated time; on wall time before a run's first
+cycle and after its retreat) the window stays open; a run's cycles and retreat are one stretch, so a cycle's end
+keeps it closed.
 """
 
 from __future__ import annotations
