@@ -1,6 +1,6 @@
 """A tenant's role is named from its id, checked as every other reader of a tenant id checks it: an id past 40
-characters made a role name past PostgreSQL's 63 bytes, which it cut short without a word, so two tenants sharing
-their first 40 characters got one role (and each other's rows)."""
+characters made a role name past PostgreSQL's 63 bytes, which it cut short, so such a tenant was added yet could never
+push (a signature refuses its id), and a second sharing its first 40 characters failed with a raw DuplicateObject."""
 
 from __future__ import annotations
 
@@ -29,7 +29,7 @@ def test_a_role_is_named_only_for_an_id_the_pattern_takes(tenant):
             STORE.tenant_role(tenant)
 
 
-def test_two_ids_sharing_their_first_40_characters_are_refused_not_merged():
+def test_ids_past_40_characters_are_refused_by_name_not_cut_short():
     stem = "t" * 40
     assert len(STORE.tenant_role(stem).encode()) == 63
     for long in (stem + "1", stem + "2"):

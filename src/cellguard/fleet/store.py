@@ -192,8 +192,9 @@ class FleetStore:
 
     def tenant_role(self, tenant_id: str) -> str:
         """The tenant's login role. Its id is checked as every other reader of a tenant id checks it (``ID_PATTERN``,
-        at most 40): a longer one made a role name past PostgreSQL's 63 bytes, which it cut short without a word, so
-        two tenants whose ids share their first 40 characters got one role, and each other's rows."""
+        at most 40): a longer one made a role name past PostgreSQL's 63 bytes, which it cut short, so a tenant was
+        added that could never push (a signature refuses its id), and a second sharing its first 40 characters failed
+        with the driver's raw "role ... already exists"."""
         if not isinstance(tenant_id, str) or not re.fullmatch(ID_PATTERN, tenant_id):
             raise ConfigError(f"tenant: expected an opaque id matching {ID_PATTERN}, got {tenant_id!r}")
         return f"{self.database}_t_{tenant_id}"
