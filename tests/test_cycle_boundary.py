@@ -20,6 +20,7 @@ from cellguard.runtime.clock import WallClock
 from cellguard.runtime.loop import _wall_latency
 from cellguard.runtime.servo_thread import COLLECT_EVERY, PRIORITY, ServoThread
 from cellguard.scenario import parse_scenario
+from test_runtime_servo_thread import _fifo_permitted
 
 MS = 1_000_000
 
@@ -94,16 +95,6 @@ def test_the_callers_work_at_a_cycles_end_is_a_pause_not_an_overrun():
         run.close()
     assert run.clock.timing.pauses >= 3 and run.clock.timing.max_pause_ns >= 25 * MS
     assert run.clock.timing.max_late_ns < 25 * MS
-
-
-def _fifo_permitted() -> bool:
-    try:
-        before = (os.sched_getscheduler(0), os.sched_getparam(0))
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
-        os.sched_setscheduler(0, *before)
-        return True
-    except (AttributeError, OSError):
-        return False
 
 
 @pytest.mark.skipif(not _fifo_permitted(), reason="SCHED_FIFO not permitted here")

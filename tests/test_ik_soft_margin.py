@@ -20,13 +20,8 @@ from cellguard.policy.onnx_export import Mlp, save_mlp_onnx  # noqa: E402
 from cellguard.policy.registry import make_policy  # noqa: E402
 from cellguard.robot.arm_cell import ArmPickPlace  # noqa: E402
 from cellguard.scenario import parse_scenario  # noqa: E402
+from test_ik_soft_limits import XYZ_MAP  # noqa: E402
 
-XYZ_MAP = {"robot": "arm-pick-place",
-           "actions": [{"name": "x", "ee": "x", "unit": "m"}, {"name": "y", "ee": "y", "unit": "m"},
-                       {"name": "z", "ee": "z", "unit": "m"}],
-           "hold": {"wrist_roll": "0 rad", "gripper": "0.025 m"},
-           "ik": {"site": "tcp", "joints": ["shoulder_pan", "shoulder_lift", "elbow", "wrist_flex"],
-                  "mode": "absolute"}}
 
 
 @pytest.fixture(scope="module")
