@@ -107,3 +107,38 @@ def test_placed_is_the_stamp_where_the_tick_lies_in_its_span(ticks, spans):
                 else NO_CYCLE for tt, s in ticks]
     placed = _placed(t, stamps, spans.get)
     assert placed.dtype == np.int64 and placed.tolist() == expected
+
+
+def _rewrite_index(folder, edit) -> None:
+    """Each part of ``folder``'s cycle index rewritten as ``edit(table)`` returns it."""
+    import pyarrow.parquet as pq
+
+    for part in (folder / "index" / "cycles").glob("day=*/*.parquet"):
+        pq.write_table(edit(pq.read_table(part)), part)
+
+
+def test_an_index_part_that_names_no_run_or_holds_bad_rows_is_left_to_the_markers(tmp_path):
+    """An unnamed part beside a record with an id (an older run's, left by a killed ``--overwrite``) put cycles the
+    record never had in every read; a part's rows are checked as markers are (an end before its start, a null end)."""
+    import pyarrow as pa
+
+    plan = [("begin", 0, 0), ("ticks", 0, 0, 100), ("end", 0, 100), ("begin", 1, 120), ("ticks", 1, 120, 220),
+            ("end", 1, 220)]
+
+    def foreign(table):  # another run's spans: every cycle 10 ms long, five of them, no run named
+        n = 5
+        return pa.table({"cycle": pa.array(range(n), pa.int64()), "t_start_ns": pa.array([0] * n, pa.int64()),
+                         "t_end_ns": pa.array([10 * MS] * n, pa.int64())})
+
+    def reversed_or_open(table):  # the record's own id kept: ends before starts, or null
+        ends = [None if i % 2 else start - 1 for i, start in enumerate(table["t_start_ns"].to_pylist())]
+        return table.set_column(table.schema.get_field_index("t_end_ns"), "t_end_ns", pa.array(ends, pa.int64()))
+
+    for edit in (foreign, reversed_or_open):
+        folder = make(tmp_path / edit.__name__, plan)[0]
+        with open_record(folder) as rec:
+            marked = rec.cycle_spans()
+        _rewrite_index(folder, edit)
+        with open_record(folder) as rec:
+            assert rec.cycle_spans() == marked, edit.__name__
+            agree(rec)

@@ -63,7 +63,7 @@ from mcap.records import Message
 
 from cellguard.errors import RecordError
 from cellguard.record import folder_lock
-from cellguard.record.index import foreign_run
+from cellguard.record.index import indexed_run
 from cellguard.record.json_values import loads
 from cellguard.record.scan import ChunkRef, Layout, open_buffer, read_chunk, scan
 from cellguard.record.schemas import BY_TOPIC, CHUNK, TICK_FIELDS, TICKS
@@ -389,8 +389,8 @@ class Record:
 
     def cycle_spans(self) -> dict[int, tuple[int, int | None]]:
         """Each cycle the record marks: (t_start_ns, t_end_ns) on the record's clock, t_end_ns None where no end marker
-        is read (the run was killed in it, or its chunk was lost). The index's row where the index has the cycle, else
-        the markers (a malformed one skipped); of a cycle marked twice, the last row or marker read. ``ticks(cycle=)``
+        is read (the run was killed in it, or its chunk was lost). The index's row where the index has the cycle (over
+        any marker of it), else the markers (a malformed one skipped); of a cycle in either twice, its last. ``ticks(cycle=)``
         and each tick's cycle take the same span."""
         return dict(self._all_spans())
 
@@ -753,8 +753,10 @@ def _saved_context(saved: dict[str, str]) -> tuple[ContextChange, dict] | None:
 
 def _index_part(part: Path, record_id: str | None) -> dict[int, tuple[int, int | None]]:
     """{cycle: (t_start_ns, t_end_ns)} of one part of the cycle index, of a cycle in it twice the last row; none if
-    the part indexes another run or cannot be read. Opened by handle: pyarrow takes a path only as UTF-8 text, and a
-    FIFO is never opened."""
+    the part cannot be read or is not this record's: a record with an id takes only parts that name it (both writers
+    name it; an unnamed part beside it, an older run's left by a killed ``--overwrite``, put cycles it never had in
+    every read). A row is checked as a marker is (a count, stamps, an end not before its start: a row is written at
+    its cycle's end); one that is not is left to the markers. Opened by handle: pyarrow takes a path only as UTF-8 text, and a FIFO is never opened."""
     if not part.is_file():
         return {}
     try:
@@ -762,10 +764,11 @@ def _index_part(part: Path, record_id: str | None) -> dict[int, tuple[int, int |
             table = pq.read_table(f, columns=["cycle", "t_start_ns", "t_end_ns"])
     except (pa.ArrowException, OSError):
         return {}
-    if foreign_run(table.schema, record_id) is not None:
+    if record_id and indexed_run(table.schema) != record_id:
         return {}
     columns = (table[name].to_pylist() for name in ("cycle", "t_start_ns", "t_end_ns"))
-    return {cycle: (start, end) for cycle, start, end in zip(*columns) if None not in (cycle, start)}
+    return {cycle: (start, end) for cycle, start, end in zip(*columns)
+            if _is_count(cycle) and _is_stamp(start) and _is_stamp(end) and end >= start}
 
 
 def _overlaps(ref: ChunkRef, wanted: set[int], start_ns: int | None, end_ns: int | None) -> bool:
