@@ -45,20 +45,23 @@ def _child_server(deadline: float) -> tuple[int, int] | None:
     return None
 
 
-def _fill(pid: int) -> int:
-    """Fill the pipe the server writes its output to, as a long run's notes left it; the bytes written."""
+def _fill(pid: int, within_s: float = 1.0) -> int:
+    """Fill the pipe the server writes its output to, as a long run's notes left it; the bytes written. The run's
+    reader drains it meanwhile: the filling stops after ``within_s`` where it never stays full (on a busy host
+    it wrote 133 MB, the 5 s run ended meanwhile and the server's counters could not be read)."""
     fd = os.open(f"/proc/{pid}/fd/1", os.O_WRONLY | os.O_NONBLOCK)
-    written = 0
+    written, until = 0, time.monotonic() + within_s
     try:
-        while True:
+        while time.monotonic() < until:
             try:
                 written += os.write(fd, b"sim-server: an earlier note of a long run\n")
             except OSError as exc:
                 if exc.errno != errno.EAGAIN:
                     raise
-                return written
+                break
     finally:
         os.close(fd)
+    return written
 
 
 def _run_meddled(tmp_path, meddle) -> dict:
