@@ -3,21 +3,11 @@ value is one line and exit 2 before any work; without it a run is one cycle, as 
 
 from __future__ import annotations
 
-import importlib.util
 import subprocess
 import sys
-from pathlib import Path
 
 import pytest
-
-BENCH = Path(__file__).resolve().parents[1] / "benchmarks"
-
-
-def _realtime():
-    spec = importlib.util.spec_from_file_location("bench_realtime", BENCH / "realtime.py")
-    realtime = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(realtime)
-    return realtime
+from test_bench_scripts_server_output import BENCH, _realtime
 
 
 @pytest.mark.parametrize("cycle_seconds, cycles", [(None, 1), (0.5, 3)])
