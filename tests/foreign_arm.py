@@ -48,7 +48,6 @@ def assert_ran_inside_the_limits(run, outcomes: list[dict]) -> None:
     setpoint inside the profile's position limits, no chunk refused."""
     assert all(o["success"] for o in outcomes), outcomes
     assert all(o["inference"]["chunks"] > 10 and o["inference"]["wall_ms_max"] > 0 for o in outcomes)
-    n = run.ticks.n
-    assert (run.ticks.setpoint[:n] >= run.cell.profile.q_min).all()
-    assert (run.ticks.setpoint[:n] <= run.cell.profile.q_max).all()
+    assert (run.ticks.rows("setpoint") >= run.cell.profile.q_min).all()
+    assert (run.ticks.rows("setpoint") <= run.cell.profile.q_max).all()
     assert not any(e.kind == "chunk_rejected" for e in run.events)

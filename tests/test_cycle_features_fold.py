@@ -117,7 +117,7 @@ def test_the_end_reads_only_the_rows_after_the_last_whole_block_and_the_carry_wi
     for k in range(whole // BLOCK):
         if k not in edges:
             for name in ("setpoint", "q", "qd", "effort", "current"):
-                getattr(buffer, name)[k * BLOCK:(k + 1) * BLOCK] = np.nan
+                buffer.block(name, k)[:] = np.nan
     expected = _reference(_profile(4).joint_names, *rows, outcome)
     got = cycle_features(_profile(4), buffer, outcome, [], [])
     _same({k: v for k, v in got.items() if "." in k}, expected)

@@ -36,13 +36,12 @@ def test_act_policy_runs_the_arm_cell_through_the_tick_path(act_dir):
     run = Run(scenario)
     outcome = run.cycle()
     assert outcome["inference"]["chunks"] > 50 and outcome["inference"]["wall_ms_mean"] > 0
-    n = run.ticks.n
-    assert n > 0
-    assert (run.ticks.setpoint[:n] >= run.cell.profile.q_min).all()
-    assert (run.ticks.setpoint[:n] <= run.cell.profile.q_max).all()
+    assert run.ticks.n > 0
+    assert (run.ticks.rows("setpoint") >= run.cell.profile.q_min).all()
+    assert (run.ticks.rows("setpoint") <= run.cell.profile.q_max).all()
     assert not any(e.kind == "chunk_rejected" for e in run.events)
     # Random weights around home: the arm stays within a few degrees of home, mapped from the foreign units.
-    assert np.abs(run.ticks.setpoint[:n, :5] - run.cell.q_home[:5]).max() < 0.2
+    assert np.abs(run.ticks.rows("setpoint")[:, :5] - run.cell.q_home[:5]).max() < 0.2
 
 
 def test_a_chunk_comes_back_in_robot_joints_and_stamped(act_dir):

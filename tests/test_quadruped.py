@@ -141,8 +141,8 @@ def test_left_and_right_turns_are_different_motions(gait):
 def test_gait_respects_the_profile_limits_so_the_guard_leaves_it_alone(healthy):
     profile, ticks = healthy.cell.profile, healthy.ticks
     dt = healthy.cell.dt_ns * 1e-9
-    reference = ticks.reference[:ticks.n]
-    np.testing.assert_allclose(ticks.setpoint[:ticks.n], reference, atol=1e-9)
+    reference = ticks.rows("reference")
+    np.testing.assert_allclose(ticks.rows("setpoint"), reference, atol=1e-9)
     assert (reference >= profile.q_min).all() and (reference <= profile.q_max).all()
     rates = np.diff(reference, axis=0) / dt
     for limit in ("velocity", "acceleration", "jerk"):

@@ -178,7 +178,7 @@ def test_an_operator_hold_longer_than_the_cycle_time_out_is_held_whole_and_ends_
     home = np.asarray(run.cell.q_home)
     assert np.abs(run.guard.reference[:-1] - home[:-1]).max() < 1e-3  # the next cycle starts at home
     ticks = run.ticks  # the cycle's features cover all of it, not its first 12 s
-    assert (ticks.t_ns[ticks.n - 1] - ticks.t_ns[0]) * 1e-9 > hold_s + 2.0 and not first["timed_out"]
+    assert (ticks.stamp(ticks.n - 1) - ticks.stamp(0)) * 1e-9 > hold_s + 2.0 and not first["timed_out"]
     second = run.cycle()
     assert not any(e.kind == "tracker_failed" for e in run.events), "the next cycle started off its pose"
     assert second["recovery_log"][0]["behaviour"] == "retry_grasp"

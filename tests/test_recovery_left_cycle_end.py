@@ -92,5 +92,5 @@ def test_an_attempt_the_cells_task_ended_with_no_failed_check_resumed_the_cell()
     assert operator.behaviour == "operator" and operator.outcome == "resumed"
     assert not outcome["timed_out"] and not any(e.category is not None and "hand-over" not in e.reason
                                                 for e in run.events)  # no stop but the hold's own
-    end, last_tick = [e for e in run.events if e.kind == "recovery_end"][-1], run.ticks.t_ns[run.ticks.n - 1]
+    end, last_tick = [e for e in run.events if e.kind == "recovery_end"][-1], run.ticks.stamp(run.ticks.n - 1)
     assert last_tick - end.t_ns <= run.cell.dt_ns  # ended by the cycle's end, not by its plan running out

@@ -38,9 +38,8 @@ def test_a_failing_policy_becomes_events_and_a_watchdog_stop():
     assert "ConnectionError: inference server went away" in next(e.reason for e in run.events
                                                                  if e.kind == "inference_failed")
     assert not outcome["success"]
-    n = run.ticks.n
-    assert np.isfinite(run.ticks.setpoint[:n]).all()
-    assert abs(run.ticks.qd[n - 1]).max() < 0.05  # the arm came to rest
+    assert np.isfinite(run.ticks.rows("setpoint")).all()
+    assert abs(run.ticks.rows("qd")[-1]).max() < 0.05  # the arm came to rest
 
 
 def test_the_watchdog_arms_at_start_when_no_chunk_ever_comes():
@@ -51,8 +50,7 @@ def test_the_watchdog_arms_at_start_when_no_chunk_ever_comes():
     assert first.category == 2
     assert first.t_ns <= 0.3e9 + 2 * run.cell.dt_ns  # the guard's watchdog time after the start
     assert "protective_stop" in [e.kind for e in run.events]
-    n = run.ticks.n
-    assert abs(run.ticks.qd[n - 1]).max() < 0.05  # nothing moved on
+    assert abs(run.ticks.rows("qd")[-1]).max() < 0.05  # nothing moved on
 
 
 def test_the_loop_closes_the_policy_at_the_end_of_the_run(tmp_path):

@@ -231,10 +231,8 @@ def watch(run, monitor: ResidualMonitor) -> None:
     outcome as ``residual`` (so in the record's cycle channel, where diagnosis reads it)."""
 
     def window(ticks, outcome: dict) -> None:
-        n = ticks.n
-        keep = slice(0, n)
         labels = [str(outcome[k]) for k in LABELS if isinstance(outcome.get(k), str)]
-        outcome["residual"] = monitor.update(ticks.q[keep], ticks.qd[keep], ticks.current[keep],
+        outcome["residual"] = monitor.update(ticks.rows("q"), ticks.rows("qd"), ticks.rows("current"),
                                              "/".join(labels) if labels else None)
 
     run.cycle_monitors.append(window)

@@ -64,7 +64,7 @@ def _friction_torques(f: dict[str, float], profile: Profile, ticks: CycleBuffer,
     if not n:
         return
     travel, work = sums[:, TRAVEL].sum(axis=0), sums[:, WORK].sum(axis=0)
-    dt = (ticks.t_ns[n - 1] - ticks.t_ns[0]) * 1e-9 / max(n - 1, 1)
+    dt = (ticks.stamp(n - 1) - ticks.stamp(0)) * 1e-9 / max(n - 1, 1)
     for j, name in enumerate(profile.joint_names):
         if travel[j] * dt >= MIN_TRAVEL:
             f[f"friction_torque.{name}"] = float(work[j] / travel[j])
@@ -90,17 +90,16 @@ def _split_current_sq(ticks: CycleBuffer, grasp: float, release: float) -> tuple
     """(sum of current² [A²] per joint, ticks) inside ``grasp <= t < release`` [s from the first tick] and outside:
     a block wholly on one side by its sums, a block the window's edges cut (two, the stamps in order) by its rows.
     ``fold_rest`` has run."""
-    n, t0, nb = ticks.n, ticks.t_ns[0], ticks.blocks
+    n, t0, nb = ticks.n, ticks.stamp(0), ticks.blocks
     sums, (lo, hi) = ticks.sums[:nb, CURRENT_SQ], ((ticks.t_range[:nb] - t0) * 1e-9).T
     rows = np.minimum(BLOCK, n - np.arange(nb) * BLOCK)
     inside, outside = (lo >= grasp) & (hi < release), (hi < grasp) | (lo >= release)
     carry_sq, free_sq = sums[inside].sum(axis=0), sums[outside].sum(axis=0)
     carried, free = int(rows[inside].sum()), int(rows[outside].sum())
     for k in np.flatnonzero(~inside & ~outside):
-        a, b = k * BLOCK, k * BLOCK + rows[k]
-        t = (ticks.t_ns[a:b] - t0) * 1e-9
+        t = (ticks.block("t_ns", k) - t0) * 1e-9
         carry = (t >= grasp) & (t < release)
-        square = ticks.current[a:b] ** 2
+        square = ticks.block("current", k) ** 2
         carry_sq, free_sq = carry_sq + square[carry].sum(axis=0), free_sq + square[~carry].sum(axis=0)
         carried, free = carried + int(carry.sum()), free + int((~carry).sum())
     return (carry_sq, carried), (free_sq, free)
