@@ -45,7 +45,7 @@ from cellguard.runtime.inference import NOMINAL_INFERENCE_S
 from cellguard.runtime.link import RobotLink
 from cellguard.runtime.operator_stop import OperatorStop
 from cellguard.runtime.recovery import RecoveryRunner
-from cellguard.runtime.startup import StartupRefused, check_startup
+from cellguard.runtime.startup import StartupRefused, check_startup, starts_outside_box
 from cellguard.runtime.transition_play import TransitionPlay
 from cellguard.runtime.transitions import Transition, longest_brake_s
 from cellguard.scenario import Scenario
@@ -109,7 +109,7 @@ class Run(TransitionPlay):
                               stale_ns=round(rt.stale_s * 1e9) if self.clock.realtime else None,
                               drop_budget=rt.drop_budget)
         self.recovery = RecoveryRunner(scenario.recovery, self.cell, self.events) if scenario.recovery else None
-        # a cycle's ticks up to its time-out fit from the start (a 60 s time cycle doubled the buffer mid-cycle)
+        # chunks sized to a cycle's ticks up to its time-out (at most 33 s at 1 kHz in one); a longer one adds chunks
         self.ticks = CycleBuffer(self.cell.profile.dof, round(_limit_s(scenario.cycle) * 1e9 / self.cell.dt_ns) + 1)
         self.recording: RunRecording | None = None  # set by run_scenario, fed every tick
         # called at each cycle end with the cycle's ticks and its outcome, before it is recorded; may add keys
@@ -419,9 +419,20 @@ class Run(TransitionPlay):
         return None
 
     def _outside(self, chunk: ActionChunk) -> str | None:
-        """Why the run's first chunk may not start it: its target outside the workspace box."""
-        outside = self.guard.envelope.target_problem(self._first_target(chunk))
-        return None if outside is None else f"first target: {outside}; nothing approached"
+        """Why the run's first chunk may not start it: its target outside the workspace box, the tool point inside
+        it (the policy's answer refused). A tool point outside it now is brought back, or the start refused with
+        the box named (``starts_outside_box``): every chunk refused there, the run read as "policy lost"."""
+        guard = self.guard
+        target = self._first_target(chunk)
+        outside = guard.envelope.target_problem(target)
+        if outside is None:
+            return None
+        try:
+            if starts_outside_box(guard.config.box, guard.tool(self.link.last_sent), guard.tool(target)):
+                return None
+        except StartupRefused as exc:
+            self._refuse(str(exc))
+        return f"first target: {outside}; nothing approached"
 
     def _first_target(self, chunk: ActionChunk) -> np.ndarray:
         """The pose an approach goes to: the chunk's first action inside the soft limits, where the guard keeps
@@ -526,8 +537,8 @@ class Run(TransitionPlay):
         """No chunk within the watchdog (of its arming or the last chunk taken) and every answer since refused, two
         at least (one late bad answer of a slow policy whose next is good is no loss): every call failed (a
         server that answers only errors, a model that raises on every observation), or the guard rejected its
-        chunk (not finite, beyond the limits, the wrong shape, its first target outside the box) or it came stale
-        (all its steps past: it can never move the robot). The policy is
+        chunk (not finite, beyond the limits, the wrong shape, its first target outside the box from inside it) or
+        it came stale (all its steps past: it can never move the robot). The policy is
         lost: the run went on asking it, one event per request, every cycle waited out its time-out, failed, and
         it ended clean, exit 0. A cold one that answers within the watchdog is not, nor one
         whose chunks a stop in force held back (the moment's refusal, not the policy's)."""

@@ -18,6 +18,11 @@ blend at most half the horizon); a next chunk that arrives within the blend time
 shortens the blend (continuous still, and guarded). The same spacing refuses a policy watchdog
 (``guard.watchdog_s``) no longer than the time between chunks: the default 300 ms stopped the robot at every
 chunk of a 1 s chunk policy on a worker (asked again half a chunk in), a stop and a resume each time.
+
+A tool point that starts outside the workspace box (a robot left there, a sim-server cell posed there) is brought
+back: a first target no further out is taken, as the approach (``Transition.leaves_box``) and the guard's look-ahead
+let a motion from outside do; one further out refuses the start (``starts_outside_box``). Refused as the policy's
+answer, every first chunk of a policy that held there or moved back in read as "policy lost".
 """
 
 from __future__ import annotations
@@ -27,6 +32,7 @@ from collections.abc import Mapping
 import numpy as np
 
 from cellguard.errors import ConfigError
+from cellguard.runtime.transitions import SLACK, box_excess
 
 STATS_MARGIN = 0.1  # fraction of q99 - q01 allowed outside the statistics' range
 
@@ -79,6 +85,25 @@ def check_startup(policy, observation, chunk, latency_ns: int, period_ns: int, s
                              f"{spacing_ns * 1e-6:.0f} ms after this one's observation, taken up to one servo period "
                              f"late): the watchdog would stop the robot at every chunk; set guard.watchdog_s above "
                              f"{gap_ns * 1e-6:.0f} ms; not moving")
+
+
+def starts_outside_box(box, start, target) -> bool:
+    """Does the tool point start outside ``box`` (``start`` [m]) with the first ``target`` [m] no further out, ``SLACK``
+    allowed: the approach brings it back? False where it starts inside (a target outside is then the policy's answer
+    refused); StartupRefused naming the wall and both distances where it starts outside and the target lies further
+    out (nothing the guard would play, and not the policy's doing that the tool is out there)."""
+    lo, hi = (np.asarray(corner, dtype=np.float64) for corner in box)
+    came, wall = box_excess(np.asarray(start, dtype=np.float64), lo, hi)
+    if came <= 0.0:
+        return False
+    goes, to = box_excess(np.asarray(target, dtype=np.float64), lo, hi)
+    if goes <= came + SLACK:
+        return True
+    corners = [list(map(float, corner)) for corner in box]
+    raise StartupRefused(f"start-up: the tool point starts {came * 1e3:.0f} mm outside the workspace box {corners} "
+                         f"past its {wall} (at {np.round(start, 3).tolist()} m) and the first target lies further out, "
+                         f"{goes * 1e3:.0f} mm past its {to} (at {np.round(target, 3).tolist()} m); bring the robot "
+                         "into the box or have the policy start where it is; not moving")
 
 
 def _checked_stats(name: str, pair, value: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

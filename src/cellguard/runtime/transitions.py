@@ -79,6 +79,15 @@ def longest_brake_s(profile: Profile, period_ns: int) -> float:
     return (0.0 if stop is None else stop.duration_s) + BRAKE_SLACK_S
 
 
+def box_excess(point: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[float, str]:
+    """How far ``point`` [m] lies outside the box ``lo``..``hi`` on its worst axis [m] (below 0 inside: minus the
+    distance to the nearest wall), and that wall ("z max")."""
+    below, above = lo - point, point - hi
+    out = np.maximum(below, above)
+    axis = int(np.argmax(out))
+    return float(out[axis]), f"{'xyz'[axis]} {'min' if below[axis] > above[axis] else 'max'}"
+
+
 @dataclass(frozen=True)
 class Transition:
     """Planned trajectories played one after the other; ``setpoints()`` yields one position (dof,) per servo period."""
@@ -159,10 +168,8 @@ class Transition:
         while k <= steps:
             t = min(k * dt, self.duration_s)
             tip = np.asarray(tool(np.asarray(self.state_at(t)[0], dtype=np.float64)), dtype=np.float64)
-            out = np.maximum(lo - tip, tip - hi)  # per axis: > 0 outside
-            excess = float(out.max())  # < 0 inside: minus the distance to the nearest wall
-            axis = int(np.argmax(out))
-            here = (excess, t, f"{'xyz'[axis]} {'min' if lo[axis] > tip[axis] else 'max'}", tip)
+            excess, wall = box_excess(tip, lo, hi)
+            here = (excess, t, wall, tip)
             if allowed is None:  # the start
                 allowed = excess + SLACK if excess > 0.0 else 0.0
             elif left is not None:
