@@ -29,7 +29,9 @@ def _ended_by_signals() -> Iterator[None]:
     143 for SIGTERM), so that its clean-up runs: killed outright, an export left its hidden temporary file or
     staging folder beside the target for good. A run's operator stop (``runtime.operator_stop``) takes both over
     while it runs; either signal in a forked child ends the process at once as before (no exception mid-tick).
-    Installed only on the main thread (Python delivers signals there), restored after."""
+    Installed only on the main thread (Python delivers signals there), restored after. A signal ignored when the
+    command starts stays ignored (``nohup``'s SIGHUP: a closed terminal ended a run the user had asked to outlive
+    it), as a shell or a daemon keeps an inherited SIG_IGN."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
@@ -42,7 +44,8 @@ def _ended_by_signals() -> Iterator[None]:
             return
         raise SystemExit(128 + signum)
 
-    previous = {signum: signal.signal(signum, end) for signum in ENDING}
+    previous = {signum: signal.signal(signum, end) for signum in ENDING
+                if signal.getsignal(signum) is not signal.SIG_IGN}
     try:
         yield
     finally:

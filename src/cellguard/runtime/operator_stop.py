@@ -12,7 +12,9 @@ command at rest (``at_rest``). A held Ctrl-C repeats about 30 times a second: it
 of a brake at 2.1 rad/s, a dead stop for a drive holding its last setpoint. Past ``brake_s`` a signal raises at
 once, so a hung program still ends.
 
-Handlers are installed only on the main thread (Python delivers signals there) and restored on exit.
+Handlers are installed only on the main thread (Python delivers signals there) and restored on exit. A signal
+ignored when the block starts stays ignored: under ``nohup`` (SIGHUP ignored) a closed terminal stopped the run the
+user had asked to outlive it; a shell or a daemon keeps an inherited SIG_IGN too.
 ``with`` nests: the handlers stay until the outermost block ends, which ``run_scenario`` keeps open while
 the record closes and the summary is written (a second quick Ctrl-C there met Python's own handler:
 exit 130 and no summary.json; a SIGTERM killed the process without a word).
@@ -53,7 +55,8 @@ class OperatorStop:
         self._depth += 1
         if self._depth == 1 and threading.current_thread() is threading.main_thread():
             for signum in SIGNALS:
-                self._previous[signum] = signal.signal(signum, self._received)
+                if signal.getsignal(signum) is not signal.SIG_IGN:
+                    self._previous[signum] = signal.signal(signum, self._received)
         return self
 
     def __exit__(self, *exc) -> None:
