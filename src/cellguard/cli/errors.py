@@ -25,12 +25,15 @@ def fail(exc: CellguardError) -> None:
 
 
 STOP_EFFECTS = frozenset({"protective_stop", "power_removed", "approach_aborted", "retreat_aborted"})
+# with no record, or no link (each link fault's kind is robot_*), the loop moves nothing: no retreat home
+NO_RETREAT = ("record_failed", "overrun_budget", "robot_")
 
 
 def exit_if_stopped(summary: dict, out: Path) -> None:
     """A run the loop stopped (record failure, robot link fault, overrun budget): one line on stderr and exit 1;
     stopped by the operator (Ctrl-C, SIGTERM): one line and exit 130; a record that failed only at its close (its
-    summary or its index could not be written: the cycles ran, the record is not whole): one line and exit 1."""
+    summary or its index could not be written: the cycles ran, the record is not whole): one line and exit 1. A
+    stopped run's line says where the robot was left (``_robot_left``)."""
     from cellguard.runtime.operator_stop import by_operator
 
     stopped = summary.get("stopped")
@@ -38,13 +41,13 @@ def exit_if_stopped(summary: dict, out: Path) -> None:
         failed = summary.get("record_failed")
         fail(OperatorStopped(f"{stopped}; the record in {out} " + (f"is not whole ({failed}): `cellguard record "
                                                                    f"recover` writes a finished copy" if failed
-                                                                   else "is complete")))
+                                                                   else "is complete")
+                             + f"; {_robot_left(summary['events'])}"))
     if stopped:
-        causes = [e["kind"] for e in summary["events"]  # the cause, not the stop carrying it out
-                  if e.get("category") is not None and e["kind"] not in STOP_EFFECTS]
-        # the one ``stopped`` names (a stale state, then the server gone: the first); else the last
-        kind = next((k for k in causes if k in stopped), causes[-1] if causes else "stop")
+        cause = _cause(summary["events"], stopped)
+        kind = cause["kind"] if cause else "stop"
         sys.stderr.write(f"error: {printable(f'the cell was stopped ({kind}): {stopped}')}; "
+                         f"{printable(_robot_left(summary['events']))}; "
                          f"{printable(out / 'summary.json')} says what ran\n")
         raise typer.Exit(1)
     failed = summary.get("record_failed")
@@ -53,3 +56,48 @@ def exit_if_stopped(summary: dict, out: Path) -> None:
                          f"`cellguard record recover {printable(out)} -o NEW_DIR` writes a finished copy with its "
                          f"index\n")
         raise typer.Exit(1)
+
+
+def _cause(events: list[dict], stopped: str) -> dict | None:
+    """The event that stopped the run, not the stop carrying it out: the one ``stopped`` names (a stale state, then
+    the server gone: the first), else the last."""
+    causes = [e for e in events if _stops(e)]
+    return next((e for e in causes if e["kind"] in stopped), causes[-1] if causes else None)
+
+
+def _stops(event: dict) -> bool:
+    """Whether ``event`` may be why a run stopped: a stop's cause, the safety controller's own protective stop (its
+    input has no event of its own: a power-off read "(stop)"), or a retreat not played (no stop at all)."""
+    from cellguard.control.checks.safety_input import ASKED_BY_LOOP
+
+    kind, category = event["kind"], event.get("category")
+    if kind == "protective_stop":
+        return category is not None and not event.get("reason", "").startswith(ASKED_BY_LOOP)
+    if kind == "retreat_aborted":
+        return category is None
+    return category is not None and kind not in STOP_EFFECTS
+
+
+def _robot_left(events: list[dict]) -> str:
+    """Where a stopped run left the robot, from its last events since any reset: home by its retreat, held away
+    from home (a retreat aborted or not played), where the stop left it (power removed, or no motion after a link
+    fault or a failed record), or no retreat played (home already, or no home pose): the line said only "stopped"."""
+    for e in reversed(events):
+        kind = e["kind"]
+        if kind == "reset":  # power came back: what came before does not say where the robot is now
+            break
+        if kind == "retreat_done":
+            return "robot: home (retreat_done)"
+        if kind in ("retreat_aborted", "power_removed"):
+            where = "held away from home, power on" if kind == "retreat_aborted" else \
+                "left where it stopped, power off, not retreated home"
+            return f"robot: {where} ({_named(e)})"
+        if kind.startswith(NO_RETREAT):
+            return f"robot: held where it stopped, not retreated home (no motion after {_named(e)})"
+    return "robot: no retreat played (home already, or no home pose)"
+
+
+def _named(event: dict) -> str:
+    """An event's kind, and its stop category if it has one."""
+    category = event.get("category")
+    return event["kind"] + ("" if category is None else f", category {category}")
