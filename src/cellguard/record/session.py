@@ -126,7 +126,11 @@ class RunRecording:
             self.pages_copied = copy_shared_pages() if self._realtime else None
             if self._realtime:
                 feeder = threading.Thread(target=self._feed, name="cellguard-record-feeder", daemon=True)
-                feeder.start()
+                try:
+                    feeder.start()
+                except RuntimeError as exc:  # the OS refused a thread (its limit, memory): a traceback before
+                    raise RecordError(f"{self.name}: cannot start the record (its feeder thread: {exc}); nothing was "
+                                      "run") from None
                 self._feeder = feeder  # started: ``close`` sends through it and joins it
             recorder.place()  # the old record, if any, stays whole until now
         except BaseException:  # the writer, told to end, discards the record never placed; the lock is start's
