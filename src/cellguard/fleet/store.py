@@ -58,6 +58,9 @@ SIGNATURE_COLUMNS = ("signature_id", "tenant_id", "site_id", "created_date", "ca
                      "cell_type", "onset_cycle", "detection_delay_cycles", "policy_version", "calibration_version",
                      "cellguard_version", "recovery", "recovery_outcome", "schema_version")
 SERVER_DATE = "(now() AT TIME ZONE 'UTC')::date"  # the store's UTC date, as sites count theirs
+# a store made for one run and dropped at its end: cg, 8 base-36 characters naming the run, _ and what it is for (a
+# benchmark's, a test session's: tests/fleet_server.py); the only name ``FleetStore.drop`` takes
+RUN_STORE = re.compile(r"cg[0-9a-z]{8}_[0-9a-z_]{1,9}")
 RELATIONS = {"signatures": "fleet.signatures", "effects": "fleet.effects",  # never a name pg_temp could shadow
              "probe": "unnest(%(features)s::text[], %(effects)s::double precision[]) AS probe (feature, effect)"}
 
@@ -209,9 +212,7 @@ class FleetStore:
             con.autocommit = True
             exists = con.execute("SELECT 1 FROM pg_database WHERE datname = %s", (self.database,)).fetchone()
             if reset or not exists:
-                con.execute(sql.SQL("DROP DATABASE IF EXISTS {} WITH (FORCE)").format(db))
-                for role in self._roles(con):
-                    con.execute(sql.SQL("DROP ROLE {}").format(sql.Identifier(role)))
+                self._drop(con)
                 for role in (self.owner, self.agg, self.app):
                     con.execute(sql.SQL("CREATE ROLE {} NOLOGIN NOINHERIT").format(sql.Identifier(role)))
                 con.execute(sql.SQL("CREATE DATABASE {}").format(db))
@@ -226,6 +227,27 @@ class FleetStore:
                 for q in QUERIES.values():
                     if q.cross_customer:
                         con.execute(self._function_sql(q))
+
+    def drop(self) -> list[str]:
+        """Drop this store's database and roles (its own three and its tenants'), as a store made for one run (a
+        benchmark's, a test session's: ``RUN_STORE``) ends; any other name is refused, a fleet's store is dropped by
+        hand. What is not there is passed over: a second drop drops nothing. Returns the names dropped."""
+        if not RUN_STORE.fullmatch(self.database):
+            raise ConfigError(f"database: {self.database!r} is not a store made for one run (expected "
+                              f"{RUN_STORE.pattern}); drop refuses it")
+        with connect(self.admin_dsn) as con:
+            con.autocommit = True
+            return self._drop(con)
+
+    def _drop(self, con) -> list[str]:
+        """Drop the database (its sessions ended) and then this store's roles on ``con``; the names dropped."""
+        from psycopg import sql
+        there = con.execute("SELECT datname FROM pg_database WHERE datname = %s", (self.database,)).fetchall()
+        con.execute(sql.SQL("DROP DATABASE IF EXISTS {} WITH (FORCE)").format(sql.Identifier(self.database)))
+        roles = self._roles(con)
+        for role in roles:
+            con.execute(sql.SQL("DROP ROLE {}").format(sql.Identifier(role)))
+        return [d for (d,) in there] + roles
 
     def _roles(self, con) -> list[str]:
         """This store's roles, by exact name: its own three and its tenants' (members of its app role);

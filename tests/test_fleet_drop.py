@@ -1,0 +1,68 @@
+"""``FleetStore.drop``: a store made for one run (a benchmark's, a test session's) is dropped at its end, database and
+roles, on the real PostgreSQL server; any other name is refused before the server is reached. The fleet benchmark's
+store had one fixed name, reset as each run began: a second benchmark (or a CI run beside a developer's) dropped the
+first's database mid-run, and the last one's stayed on the server."""
+
+from __future__ import annotations
+
+import pytest
+
+psycopg = pytest.importorskip("psycopg", reason="the fleet store tests need psycopg: pip install 'cellguard[fleet]'")
+
+from cellguard.errors import ConfigError  # noqa: E402
+from cellguard.fleet.store import FleetStore, TenantStore  # noqa: E402
+from fleet_server import admin_dsn_or_skip, store_name  # noqa: E402
+
+CLOSED = "host=127.0.0.1 port=1 user=postgres dbname=postgres"  # nothing listens: a refusal must not need the server
+
+
+def _there(admin: str, name: str) -> list[str]:
+    """The databases and roles on the server named ``name`` or starting ``name_``."""
+    with psycopg.connect(admin, autocommit=True) as con:
+        return [n for (n,) in con.execute("SELECT datname FROM pg_database WHERE datname = %(n)s OR starts_with("
+                                          "datname, %(p)s) UNION ALL SELECT rolname FROM pg_roles WHERE rolname = %(n)s"
+                                          " OR starts_with(rolname, %(p)s)", {"n": name, "p": name + "_"}).fetchall()]
+
+
+def _installed(name: str, tenants: tuple[str, ...]) -> tuple[FleetStore, list[str]]:
+    store = FleetStore(admin_dsn_or_skip(), store_name(name))
+    store.install()
+    return store, [store.add_tenant(t) for t in tenants]
+
+
+def test_drop_removes_the_database_and_every_role_it_made_with_a_tenant_still_connected():
+    store, (alpha, _) = _installed("drop", ("t-alpha", "t-beta"))
+    assert TenantStore(alpha).run("frequency", scope="own") == []
+    held = TenantStore(alpha).connection()  # a tenant session open: ended, not waited for
+    try:
+        made = _there(store.admin_dsn, store.database)
+        assert sorted(store.drop()) == sorted(made) and len(made) == 6  # database, its 3 roles, 2 tenants
+        assert _there(store.admin_dsn, store.database) == []
+    finally:
+        held.close()
+
+
+def test_a_second_drop_drops_nothing_and_says_so():
+    store, _ = _installed("drop2", ("t-alpha",))
+    assert store.drop() and store.drop() == []
+    assert _there(store.admin_dsn, store.database) == []
+
+
+def test_drop_leaves_another_store_of_the_same_run_as_it_was():
+    """Two benchmarks' stores on one server: one's end does not touch the other's database, roles or rows."""
+    gone, _ = _installed("dropa", ("t-alpha",))
+    kept, (dsn,) = _installed("dropa_b", ("t-alpha",))  # its name starts with the other's
+    before = _there(kept.admin_dsn, kept.database)
+    gone.drop()
+    assert _there(kept.admin_dsn, kept.database) == before
+    assert TenantStore(dsn).run("frequency", scope="own") == []
+    kept.drop()
+
+
+@pytest.mark.parametrize("name", ["cellguard_fleet", "cgbench_fleet", "cg1234567_x", "cg12345678", "cg12345678_",
+                                  "xcg12345678_bench"])
+def test_drop_refuses_a_store_not_made_for_one_run_before_it_reaches_the_server(name):
+    with pytest.raises(ConfigError) as refused:
+        FleetStore(CLOSED, name).drop()
+    said = str(refused.value)
+    assert said.startswith(f"database: {name!r} is not a store made for one run") and "\n" not in said, said
