@@ -136,7 +136,7 @@ def run_stage(
     plan in force's (the site's plan, else the packaged one); one on --scenario's run never does."""
     from cellguard.release import run_stage as do
     from cellguard.release.errors import GateError
-    from cellguard.release.plan import check_run
+    from cellguard.release.plan import check_run, run_beside
     from cellguard.release.store import check_stage
     from cellguard.yaml_file import read_yaml
 
@@ -144,16 +144,10 @@ def run_stage(
         plans, in_force = _plans(site, plan, cell)
         runs = None
         if scenario is not None:
-            from cellguard.errors import ScenarioError
-            from cellguard.scenario import robot_beside, scenario_folder
+            from cellguard.scenario import scenario_folder
 
-            run = read_yaml(scenario, "run", GateError)
-            if isinstance(run, dict) and isinstance(run.get("robot"), str):  # its files beside the run's file
-                try:
-                    run = {**run, "robot": robot_beside(run["robot"], scenario_folder(scenario))}
-                except ScenarioError as exc:
-                    raise GateError(f"{scenario}: {exc}") from None
-            runs = [run]
+            # its files beside the run's file
+            runs = [run_beside(read_yaml(scenario, "run", GateError), scenario_folder(scenario), str(scenario))]
             check_run(runs[0], str(scenario))
         result = do(_store(site), plans[check_stage(stage)], cell, stage, runs,
                     on_run=None if as_json else err.print, in_force=in_force[stage])

@@ -16,7 +16,9 @@ stages:
 ```
 
 A run entry is a scenario without ``cell``, ``policy``, ``guard`` and ``calibration``: those come
-from the release; ``production_cycles`` defaults to 0. Read with the project's YAML loader; an unknown metric, key or stage is one line.
+from the release; ``production_cycles`` defaults to 0. A file its ``robot`` names (``?units=``) is the one beside
+the plan file, as a scenario's files are beside it, from whatever folder the release runs (``run_beside``). Read with
+the project's YAML loader; an unknown metric, key or stage is one line.
 The file is checked on no cell when it is read; ``check_cell`` checks a stage against its cell (the faults it can
 simulate, the metrics it reports) at ``promote`` and before the stage's first run. The packaged plan is one per kind
 of cell (``default_plan``): a pick-place cell's, with a moved fixture and the place error, and one for every other.
@@ -36,7 +38,7 @@ from cellguard.release.gates import Gate, gate_error
 from cellguard.release.metrics import METRICS, PICK_PLACE
 from cellguard.release.store import STAGES
 from cellguard.robot.registry import make_cell
-from cellguard.scenario import Scenario, parse_scenario
+from cellguard.scenario import Scenario, parse_scenario, robot_beside, scenario_folder
 from cellguard.yaml_file import read_yaml, reject_unknown_keys
 
 PLANS = Path(__file__).parents[1] / "scenarios"
@@ -80,7 +82,7 @@ def load_plan(path: Path) -> dict[str, StagePlan]:
         raise GateError(f"{path}: stages: expected a mapping of stage name to its runs and gates")
     reject_unknown_keys(raw, ["stages"], f"{path}: ", GateError)
     reject_unknown_keys(raw["stages"], STAGES, f"{path}: stages.", GateError)
-    plans = {}
+    plans, folder = {}, scenario_folder(path)
     for stage in STAGES:
         spec = raw["stages"].get(stage)
         spec = {} if spec is None else spec  # ``sim:`` left empty; ``sim: false`` is no mapping
@@ -94,9 +96,11 @@ def load_plan(path: Path) -> dict[str, StagePlan]:
             except ValidationError as exc:
                 raise gate_error(f"{where}.gates[{i}]", exc) from None
         try:
-            plans[stage] = StagePlan.model_validate(spec)
+            plan = StagePlan.model_validate(spec)
         except ValidationError as exc:
             raise gate_error(where, exc) from None
+        plans[stage] = plan.model_copy(update={"runs": [run_beside(run, folder, f"{where}.runs[{i}]")
+                                                        for i, run in enumerate(plan.runs)]})
         for i, run in enumerate(plans[stage].runs):
             check_run(run, f"{where}.runs[{i}]")
         for i, gate in enumerate(plans[stage].gates):
@@ -106,6 +110,19 @@ def load_plan(path: Path) -> dict[str, StagePlan]:
         if plans[stage].runs and not plans[stage].gates:
             raise GateError(f"{where}: runs but no gates; they could only end inconclusive")
     return plans
+
+
+def run_beside(run: object, folder: Path, where: str) -> object:
+    """``run`` with the files its ``robot`` names taken from ``folder`` (``robot_beside``): a plan's runs from the
+    plan file's real folder (``scenario_folder``), as ``release run --scenario FILE`` takes its run's from FILE's.
+    From the working folder, a plan started elsewhere read another units map, or none. Anything but a run with a
+    robot spec is returned as it is, for ``check_run`` to refuse or pass."""
+    if not (isinstance(run, dict) and isinstance(run.get("robot"), str)):
+        return run
+    try:
+        return {**run, "robot": robot_beside(run["robot"], folder)}
+    except ScenarioError as exc:
+        raise GateError(f"{where}: {exc}") from None
 
 
 def check_run(run: dict, where: str) -> None:
