@@ -46,7 +46,7 @@ def _units(path: Path, joint: str) -> Path:
 
 
 def _units_option(plan: Path, stage: str = "sim") -> str:
-    robot = load_plan(plan)[stage].runs[0]["robot"]
+    robot = load_plan(plan)[stage].runs_beside()[0]["robot"]
     return split_options(robot.partition(":")[2], None, "robot", "")[1]["units"]
 
 
@@ -101,7 +101,7 @@ def test_a_linked_plan_takes_its_files_beside_its_target_and_keeps_the_other_opt
     link = tmp_path / "elsewhere" / "plan.yaml"
     link.symlink_to(plan)
     monkeypatch.chdir(tmp_path / "elsewhere")
-    robot = load_plan(Path("plan.yaml"))["sim"].runs[0]["robot"]
+    robot = load_plan(Path("plan.yaml"))["sim"].runs_beside()[0]["robot"]
     target, options = split_options(robot.partition(":")[2], None, "robot", "")
     assert (target, options) == ("so101_follower", {"port": "/dev/ttyACM0", "units": str(plan.parent / "u.yaml"),
                                                     "id": "arm 1"})
@@ -112,7 +112,22 @@ def test_an_absolute_units_map_is_normalised_and_a_run_on_the_cell_is_left_as_wr
     plan = _plan(tmp_path / "plan.yaml", [_run(f"lerobot:so101_follower?units={tmp_path}/a/../u.yaml")],
                  bench={"runs": [_run("sim")], "gates": GATES})
     assert _units_option(plan) == str(tmp_path / "u.yaml")
-    assert load_plan(plan)["bench"].runs[0]["robot"] == "sim"
+    assert load_plan(plan)["bench"].runs_beside()[0]["robot"] == "sim"
+
+
+def test_a_plan_is_hashed_as_written_wherever_its_file_lies(tmp_path):
+    """The plan's hash and its runs' key are of the plan as written: the units map resolved to its real path made a
+    plan logged before (or moved with its site, or copied to another folder) another plan, its runs no longer
+    counted and its promotion refused."""
+    from cellguard.release.plan import StagePlan
+    from cellguard.release.promotion import plan_hash, runs_key
+
+    runs = [_run("lerobot:so101_follower?port=/dev/ttyACM0&units=u.yaml")]
+    written = StagePlan.model_validate({"runs": runs, "gates": GATES})
+    for site in ("a", "b"):
+        plan = load_plan(_plan(tmp_path / site / "plan.yaml", runs))["sim"]
+        assert (plan_hash(plan), runs_key(plan)) == (plan_hash(written), runs_key(written))
+        assert plan.runs == runs and _units_option(tmp_path / site / "plan.yaml") == str(tmp_path / site / "u.yaml")
 
 
 def test_a_nul_in_a_plans_units_map_is_one_line_naming_the_plan_the_run_and_the_option(tmp_path):

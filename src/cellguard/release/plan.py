@@ -17,7 +17,8 @@ stages:
 
 A run entry is a scenario without ``cell``, ``policy``, ``guard`` and ``calibration``: those come
 from the release; ``production_cycles`` defaults to 0. A file its ``robot`` names (``?units=``) is the one beside
-the plan file, as a scenario's files are beside it, from whatever folder the release runs (``run_beside``). Read with
+the plan file, as a scenario's files are beside it, from whatever folder the release runs (``run_beside``); the plan
+is hashed as written (a site's logged plan stays the same plan wherever its file lies). Read with
 the project's YAML loader; an unknown metric, key or stage is one line.
 The file is checked on no cell when it is read; ``check_cell`` checks a stage against its cell (the faults it can
 simulate, the metrics it reports) at ``promote`` and before the stage's first run. The packaged plan is one per kind
@@ -30,7 +31,7 @@ import re
 from pathlib import Path
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationError
 
 from cellguard.errors import ScenarioError
 from cellguard.release.errors import GateError
@@ -56,6 +57,16 @@ class StagePlan(BaseModel):
     shadow: bool = False
     runs: list[dict] = Field(default_factory=list)
     gates: list[Gate] = Field(default_factory=list)
+    # the plan file's real folder: its runs' robot files are taken beside it (``runs_beside``), never hashed (a plan
+    # logged, then moved with its site, or one in two folders, is the same plan)
+    _folder: Path | None = PrivateAttr(default=None)
+
+    def runs_beside(self) -> list[dict]:
+        """The runs as they are run: the files their robots name taken beside the plan file (``run_beside``); as
+        written for a plan not read from a file."""
+        if self._folder is None:
+            return self.runs
+        return [run_beside(run, self._folder, f"runs[{i}]") for i, run in enumerate(self.runs)]
 
 
 def default_plan(cell: str) -> Path:
@@ -96,13 +107,12 @@ def load_plan(path: Path) -> dict[str, StagePlan]:
             except ValidationError as exc:
                 raise gate_error(f"{where}.gates[{i}]", exc) from None
         try:
-            plan = StagePlan.model_validate(spec)
+            plans[stage] = StagePlan.model_validate(spec)
         except ValidationError as exc:
             raise gate_error(where, exc) from None
-        plans[stage] = plan.model_copy(update={"runs": [run_beside(run, folder, f"{where}.runs[{i}]")
-                                                        for i, run in enumerate(plan.runs)]})
+        plans[stage]._folder = folder
         for i, run in enumerate(plans[stage].runs):
-            check_run(run, f"{where}.runs[{i}]")
+            check_run(run_beside(run, folder, f"{where}.runs[{i}]"), f"{where}.runs[{i}]")
         for i, gate in enumerate(plans[stage].gates):
             if METRICS[gate.metric].shadow and not plans[stage].shadow:
                 raise GateError(f"{where}.gates[{i}].metric: {gate.metric} is measured on shadow runs only and this "
@@ -145,7 +155,7 @@ def check_cell(plan: StagePlan, cell: str, stage: str, runs: list[dict] | None =
     from cellguard.runtime.cycles import make_cycle_source
 
     robot = make_cell(cell)
-    for run in plan.runs if runs is None else runs:
+    for run in plan.runs_beside() if runs is None else runs:
         name = run.get("name", "run")
         scenario = scenario_for(run, cell, "scripted", {}, origin=f"{stage} run {name!r}")
         try:

@@ -185,7 +185,7 @@ def run_stage(store: Store, plan: StagePlan, cell: str, stage: str, runs: list[d
     bundle = store.bundle(current)
     verify_bundle(bundle)
     incumbent = _incumbent(store, cell) if plan.shadow else None
-    entries = runs if runs is not None else plan.runs
+    entries = runs if runs is not None else plan.runs_beside()
     if not entries:
         raise StageError(f"--stage {stage}: the plan has no runs for {stage}")
     if not plan.gates:
