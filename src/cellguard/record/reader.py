@@ -66,7 +66,7 @@ from cellguard.record import folder_lock
 from cellguard.record.index import indexed_run
 from cellguard.record.json_values import loads
 from cellguard.record.scan import ChunkRef, Layout, open_buffer, read_chunk, scan
-from cellguard.record.schemas import BY_TOPIC, CHUNK, TICK_FIELDS, TICKS
+from cellguard.record.schemas import CHUNK, TICK_FIELDS, TICKS, file_ids, not_cellguard
 from cellguard.record.writer import INDEX_DIR, RECORD_FILE, RECORD_VERSION
 
 RATES = ("decimated", "full", "all")
@@ -225,7 +225,11 @@ def open_record(path: Path | str, strict: bool = False) -> Record:
     # before the scan: a run lets go of its folder once the file is finished, so a file read after that is whole
     real = file.resolve()  # a link to a run's record (cell1-latest.mcap): the run holds the folder it is in
     writing = folder_lock.holder(real.parent) if real.name == RECORD_FILE else None
-    record = Record(file, scan(file), writing)
+    layout = scan(file)
+    foreign = not_cellguard(file, layout.topics)
+    if foreign:
+        raise RecordError(foreign)
+    record = Record(file, layout, writing)
     if not record.layout.chunks and record.writing:
         raise RecordError(f"{file}: still being written by {record.writing}, no chunk of it yet; wait for its first "
                           f"chunk or for the run to end")
@@ -259,8 +263,7 @@ class Record:
         self._buf = open_buffer(file)
         self._late_damage: dict[int, str] = {}
         self._off_schema: dict[str, set[tuple[int, int]]] = {}  # topic -> (log time, sequence) of each bad message
-        topics = {c.topic: c.id for c in layout.channels.values()}
-        self._ids = {topic: topics.get(topic, spec.id) for topic, spec in BY_TOPIC.items()}
+        self._ids = file_ids(layout.topics)  # topic -> id, None: not in the file
         self._contexts: list[ContextChange] | None = None
         self._indexed: dict[int, tuple[int, int | None]] | None = None  # the cycle index's spans, read once
         self._spans: dict[int, tuple[int, int | None]] | None = None  # cycle_spans(), read once
@@ -564,7 +567,7 @@ class Record:
         In file order, a chunk at a time: none of it needs time order, and a merge by time holds every chunk that
         overlaps another (a record whose chunks were written twice held all of them). Only the messages checked are
         taken out of a chunk; the others are counted by their heads."""
-        names = {i: t for t, i in self._ids.items()}
+        names = {i: t for t, i in self._ids.items() if i is not None}
         last: dict[int, int] = {}
         gaps: dict[str, list[tuple[int, int]]] = {t: [] for t in self._ids}
         counts = dict.fromkeys(self._ids, 0)
@@ -613,6 +616,10 @@ class Record:
                       repeats, self.writing)
 
     # -- raw messages ---------------------------------------------------------------------
+    def channel_id(self, topic: str) -> int | None:
+        """The id of ``topic``'s channel in this file, by its own channel records (``file_ids``); None: not in it."""
+        return self._ids[topic]
+
     def messages(self, topics: list[str], start_ns: int | None = None, end_ns: int | None = None
                  ) -> Iterator[Message]:
         """Raw MCAP messages of ``topics`` from every readable chunk overlapping the span (record clock), by log time.
@@ -633,7 +640,7 @@ class Record:
         """The messages by log time, holding only those not yet due: chunks are opened in order of their first
         time, and a message is passed on once no chunk still to open can hold an earlier one (a record's chunks
         follow each other, so that is one chunk or two, however long the record)."""
-        wanted = {self._ids[t] for t in topics}
+        wanted = {self._ids[t] for t in topics} - {None}
         refs = sorted((ref for ref in self.layout.chunks if _overlaps(ref, wanted, start_ns, end_ns)),
                       key=lambda ref: (ref.start_ns, ref.offset))
         pending: list[Message] = []  # by log time; file order within equal times
@@ -670,7 +677,8 @@ class _Checks:
                     lambda data: _measurement(loads(data)), _recorded_chunk, _tick_batch, _tick_batch)
         self._by_id: dict[int, list[tuple[str, Callable[[bytes], object]]]] = {}
         for topic, decode in zip(self._TOPICS, decoders):
-            self._by_id.setdefault(ids[topic], []).append((topic, decode))
+            if ids[topic] is not None:
+                self._by_id.setdefault(ids[topic], []).append((topic, decode))
         self.channels = set(self._by_id)  # the channel ids of the messages to check
         self._bad: dict[str, list[tuple[int, int]]] = {topic: [] for topic in self._TOPICS}  # (log time, sequence)
         self._names: tuple[str, ...] | None = None  # the first reading's

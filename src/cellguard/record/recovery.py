@@ -1,18 +1,18 @@
 """Rewrite a truncated or damaged record as a finished file, with a fresh summary and index.
 
-The original is never modified: the recovered copy goes to another folder. Every message that
-passed its chunk CRC is copied with its original times and sequence numbers (so the gaps stay
-visible), into chunks of the usual span and size; the Parquet index is rebuilt from the cycle
-markers and events that survived (a malformed one is left out of it, as the reader skips it). A
-metadata record (``RECOVERED``) says what the source was, so the copy never reads as a whole run (a
-record cut at its end has no gap to show: its copy read as complete). The copy is of its source's format, stated
-in its ``cellguard`` metadata, with that format's channels: a format-1 record (no metadata, log times on the run
-clock) stays format 1. The target must be a new or empty folder; the copy is made in a hidden folder of its own
-inside it and moved into place once whole: a recovery that fails leaves nothing. The staging folder is locked
-(``folder_lock``) while its process lives, so a second recovery into the same folder sees a live one (refused) or
-the leftovers of a killed one (removed); the final move happens under the target's lock, after the target is
-checked again, and links each file into place (never a rename over one): two recoveries started together both
-ended 0, one copy replaced.
+The original is never modified: the recovered copy goes to another folder. Every message that passed its chunk CRC is
+copied with its original times and sequence numbers (so the gaps stay visible), under its topic's channel numbered as
+the recorder numbers it (not the source's id: a record rewritten by another MCAP writer numbers its channels
+otherwise, and its copy filed every message under another topic), into chunks of the usual span and size; the Parquet
+index is rebuilt from the cycle markers and events that survived (a malformed one is left out of it, as the reader
+skips it). A metadata record (``RECOVERED``) says what the source was, so the copy never reads as a whole run (a
+record cut at its end has no gap to show: its copy read as complete). The copy is of its source's format, stated in
+its ``cellguard`` metadata, with that format's channels: a format-1 record (no metadata, log times on the run clock)
+stays format 1. The target must be a new or empty folder; the copy is made in a hidden folder of its own inside it and
+moved into place once whole: a recovery that fails leaves nothing. The staging folder is locked (``folder_lock``)
+while its process lives, so a second recovery into the same folder sees a live one (refused) or the leftovers of a
+killed one (removed); the final move happens under the target's lock, after the target is checked again, and links
+each file into place (never a rename over one): two recoveries started together both ended 0, one copy replaced.
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ from cellguard.output import refuse_filled_folder
 from cellguard.record import folder_lock, staged
 from cellguard.record.index import IndexWriter, cycle_row, event_row
 from cellguard.record.reader import Health, open_record
-from cellguard.record.schemas import BY_TOPIC, CHANNELS, ChannelSpec
+from cellguard.record.schemas import CHANNELS, OWN_TOPICS, ChannelSpec
 from cellguard.record.writer import CHUNK_BYTES, INDEX_DIR, PROFILE, RECORD_FILE
 
 CHUNK_SPAN_NS = 100_000_000  # recovered chunks hold this much log time
@@ -150,10 +150,10 @@ def _copy_messages(record, stream, recovered: dict[str, str]) -> None:
         data = record.attachment(name)
         if data is not None:
             writer.add_attachment(record.start_wall_ns, record.start_wall_ns, name, "application/xml", data)
-    channels = _channels(record.version)
+    channels, ids = _channels(record.version), {}  # ids: the source's channel id -> the copy's, by topic
     for c in channels:
         schema = writer.register_schema(c.schema_name, c.schema_encoding, c.schema_text.encode())
-        writer.register_channel(c.topic, c.message_encoding, schema)
+        ids[record.channel_id(c.topic)] = writer.register_channel(c.topic, c.message_encoding, schema)
     chunk_end, size = None, 0
     for m in record.messages([c.topic for c in channels]):
         if chunk_end is not None and (m.log_time >= chunk_end or size >= CHUNK_BYTES):  # a backlog shares one time
@@ -161,7 +161,7 @@ def _copy_messages(record, stream, recovered: dict[str, str]) -> None:
             chunk_end, size = None, 0
         if chunk_end is None:
             chunk_end = m.log_time + CHUNK_SPAN_NS
-        writer.add_message(m.channel_id, m.log_time, m.data, m.publish_time, m.sequence)
+        writer.add_message(ids[m.channel_id], m.log_time, m.data, m.publish_time, m.sequence)
         size += len(m.data)
     writer.finish()
 
@@ -169,7 +169,7 @@ def _copy_messages(record, stream, recovered: dict[str, str]) -> None:
 def _channels(version: int) -> tuple[ChannelSpec, ...]:
     """The channels of a record of format ``version``: the ROS 2 ones, from ``/joint_states`` on, came with format 2
     (the reader takes them for its sign), so a format-1 copy has cellguard's own channels only, as its source."""
-    return CHANNELS if version >= 2 else tuple(c for c in CHANNELS if c.id < BY_TOPIC["/joint_states"].id)
+    return CHANNELS if version >= 2 else tuple(c for c in CHANNELS if c.topic in OWN_TOPICS)
 
 
 def _rebuild_index(record, folder: Path) -> None:

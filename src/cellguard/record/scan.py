@@ -82,6 +82,11 @@ class Layout:
     metadata: dict[str, dict[str, str]] = field(default_factory=dict)  # name -> key/values (the last of a name)
     attachments: dict[str, tuple[int, int]] = field(default_factory=dict)  # name -> (offset, length) of the record
 
+    @property
+    def topics(self) -> dict[int, str]:
+        """Channel id -> topic, as the channel records read state them."""
+        return {i: c.topic for i, c in self.channels.items()}
+
 
 def scan(path: Path) -> Layout:
     """The layout of ``path``: from its summary if that is sound, else by a linear scan."""

@@ -1,14 +1,16 @@
 """The channels of a cellguard record and the schema each one declares.
 
 High-rate data (ticks, action chunks) is CDR with a ``ros2msg`` schema; low-rate data (context,
-events, cycle markers, camera and fixture measurements) is JSON with a ``jsonschema``. Channels
-are registered in this order, so channel ids are fixed (1..7): a reader can still name the
-messages of a file whose first chunk, the one that holds the channel records, was damaged.
+events, cycle markers, camera and fixture measurements) is JSON with a ``jsonschema``. The recorder
+registers the channels in this order, so its channel ids are fixed (1..13); a reader names a channel by the file's
+own channel records (``file_ids``: a record rewritten by another MCAP writer numbers them otherwise) and falls back
+on the fixed ids only where those records were lost (a record's first chunk holds them).
 """
 
 from __future__ import annotations
 
 import json
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 from cellguard.record import ros2
@@ -142,3 +144,22 @@ CHANNELS: tuple[ChannelSpec, ...] = (
     _ros2(13, "/events/log", ros2.LOG),  # every event, level by stop category
 )
 BY_TOPIC = {c.topic: c for c in CHANNELS}
+OWN_TOPICS = frozenset(c.topic for c in CHANNELS[:7])  # cellguard's own channels, in every record format
+
+
+def file_ids(topics: Mapping[int, str]) -> dict[str, int | None]:
+    """Each cellguard topic's channel id in a file whose channel records state ``topics`` (id -> topic): its own
+    record's (of a topic recorded twice the lowest id), else the fixed id where no record claims that id (the chunk
+    holding the records was lost), else None: not in the file."""
+    own = {topic: i for i, topic in sorted(topics.items(), reverse=True)}
+    return {topic: own.get(topic, None if spec.id in topics else spec.id) for topic, spec in BY_TOPIC.items()}
+
+
+def not_cellguard(path: object, topics: Mapping[int, str]) -> str | None:
+    """Why a file whose channel records state ``topics`` is no cellguard record (it has channels, none of cellguard's
+    own: read as one, a foreign file was a damaged record with invented details), else None."""
+    names = sorted(set(topics.values()))
+    if not names or OWN_TOPICS & set(names):
+        return None
+    shown = ", ".join(names[:10]) + (f", ... ({len(names)} topics)" if len(names) > 10 else "")
+    return f"{path}: not a cellguard record (no /context channel; its topics: {shown})"
