@@ -15,6 +15,7 @@ into ``./.tmp``) and the configuration locked (no ``SET`` gives any of it back).
 
 from __future__ import annotations
 
+import datetime as dt
 import json
 import math
 import multiprocessing
@@ -30,7 +31,8 @@ import duckdb
 from cellguard.errors import RecordError
 from cellguard.record.index import TABLES, connect, first_line
 from cellguard.record.json_values import plain
-from cellguard.record.scan import require_regular, stated_record_id
+from cellguard.record.scan import require_regular, scan, stated_record_id
+from cellguard.record.schemas import not_cellguard
 from cellguard.record.writer import INDEX_DIR, RECORD_FILE
 
 ALLOWED_STATEMENTS = (duckdb.StatementType.SELECT, duckdb.StatementType.EXPLAIN)
@@ -140,16 +142,28 @@ def _explains_a_select(sql: str, parse: Callable[[str], list]) -> None:
 
 def index_folder(path: Path) -> Path:
     """The index folder of ``path``: a run folder's index/ (the folder of a .mcap file, as ``record info`` takes
-    the file), else ``path`` itself (an index folder)."""
+    the file), else ``path`` itself (an index folder); RecordError if there is no index/ and the record there is
+    another tool's MCAP file."""
     path = Path(path)
     try:
         if not path.exists():
             raise RecordError(f"{path}: no such folder; pass a run folder (holding record.mcap and index/) or its "
                               f"index folder")
         run = path.parent if path.is_file() else path
-        return run / INDEX_DIR if (run / INDEX_DIR).is_dir() else run
+        if (run / INDEX_DIR).is_dir():
+            return run / INDEX_DIR
+        record = path if path.is_file() else run / RECORD_FILE
     except OSError as exc:  # a name too long, a link loop: one line
         raise RecordError(f"{path}: cannot be read ({exc.strerror or exc})") from None
+    foreign = None
+    if record.is_file():  # another tool's file: its "no index" pointed at `record recover`, which refuses it
+        try:
+            foreign = not_cellguard(record, scan(record).topics)
+        except RecordError:
+            pass  # an empty or unreadable record: the missing index is said below
+    if foreign:
+        raise RecordError(foreign)
+    return run
 
 
 def run_query(folder: Path, sql: str, timeout_s: float = DEFAULT_TIMEOUT_S) -> tuple[list[str], Iterator[tuple]]:
@@ -355,9 +369,19 @@ def _message(exc: BaseException) -> str:
 
 
 def json_line(names: list[str], row: tuple) -> str:
-    """One row as a JSON object, valid JSON always: NaN and infinities (JSON has no word for them) are null,
-    a map's keys are strings; anything else JSON has no type for is its text."""
+    """One row as a JSON object, valid JSON always: NaN and infinities (JSON has no word for them) are null, infinite
+    dates and timestamps too, a map's keys are strings; anything else JSON has no type for is its text."""
     try:
-        return json.dumps({name: plain(value) for name, value in zip(names, row)}, default=str, allow_nan=False)
+        return json.dumps({name: plain(value) for name, value in zip(names, row)}, default=_text, allow_nan=False)
     except RecursionError:
         raise RecordError("sql: a value of the result is nested too deeply to write as JSON") from None
+
+
+_ENDS = (dt.date.min, dt.date.max, dt.datetime.min, dt.datetime.max)  # how DuckDB hands Python -infinity and infinity
+
+
+def _text(value: object) -> str | None:
+    """A value JSON has no type for as its text; an infinite date or timestamp null, as an infinite number is. DuckDB
+    hands infinity over as Python's last date ('infinity'::TIMESTAMP printed 9999-12-31 23:59:59.999999, a date
+    never recorded), so Python's first and last dates themselves read as null too: the row cannot tell them apart."""
+    return None if isinstance(value, dt.date) and value in _ENDS else str(value)
