@@ -85,8 +85,12 @@ def export_lerobot(rec: Record, output: Path, fps: int | None = None, task: str 
     episodes, kept = [], []
     cycles, stops = list(rec.cycles()), [(e.t_ns, e.kind) for e in rec.events() if e.kind in RUN_STOPS]
     # marked but not ended (its end marker lost in a damaged chunk or malformed, or the run was killed in it): no
-    # outcome, no end, so no episode; named, not dropped unsaid
-    skipped = [(n, "its end was lost") for n in sorted(set(rec.cycle_spans()) - {c.cycle for c in cycles})]
+    # outcome, no end, so no episode; named, not dropped unsaid. The last one marked in a record still being written
+    # is running: its end was not lost, it is yet to come
+    marked = set(rec.cycle_spans())
+    running = max(marked) if rec.writing and marked else None
+    skipped = [(n, f"still running (the record is still being written by {rec.writing})" if n == running
+                else "its end was lost") for n in sorted(marked - {c.cycle for c in cycles})]
     joints: tuple[str, ...] = ()
     for cycle in cycles:
         if success_only and not cycle.success:
