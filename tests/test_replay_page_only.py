@@ -1,6 +1,6 @@
-"""``replay -o`` replaces only a replay page (or an empty file): a record made with a calibrated profile is replayed in
-that profile, found by its sha256, so its file, its calibrated MJCF and the kept old profile are all read without
-being named, and ``-o`` naming one of them wrote the page over it (exit 0; the next run failed on the profile)."""
+"""``replay -o`` replaces only a page cellguard wrote (or an empty file): a record made with a calibrated profile is
+replayed in that profile, found by its sha256, so its file, its calibrated MJCF and the kept old profile are all read
+without being named, and ``-o`` naming one of them wrote the page over it (exit 0; the next run failed on it)."""
 
 from __future__ import annotations
 
@@ -47,8 +47,8 @@ def test_the_page_never_replaces_the_profile_the_replay_reads_its_mjcf_or_its_ke
     target = next((site / "cal").glob(name))
     before = digests(site / "cal")
     line = one_error(runner.invoke(app, ["replay", str(site / "run"), "--cycle", "0", "-o", str(target)]))
-    assert line == (f"error: -o {target}: exists and is not a page cellguard replay wrote; replay replaces only its "
-                    "own pages: choose another path, or remove the file first"), line
+    assert line == (f"error: -o {target}: exists and is not an HTML page cellguard wrote; cellguard replaces only its "
+                    "own (or an empty file): choose another path, or remove the file first"), line
     assert digests(site / "cal") == before
 
 
@@ -56,12 +56,12 @@ def test_any_other_file_is_kept_as_well(site, tmp_path):
     notes = tmp_path / "notes.html"
     notes.write_text("<!doctype html><p>the technician's notes</p>\n")
     line = one_error(runner.invoke(app, ["replay", str(site / "run"), "--cycle", "0", "-o", str(notes)]))
-    assert "is not a page cellguard replay wrote" in line
+    assert "is not an HTML page cellguard wrote" in line
     assert notes.read_text() == "<!doctype html><p>the technician's notes</p>\n"
 
 
 def test_an_earlier_replay_page_and_an_empty_file_are_replaced(site, tmp_path):
-    """The page replay renders begins as ``REPLAY_PAGE`` says: a second replay to the same page is not refused."""
+    """The page replay renders begins as ``PAGE_HEAD`` says: a second replay to the same page is not refused."""
     page, empty = tmp_path / "page.html", tmp_path / "empty.html"
     empty.touch()  # as ``mktemp`` leaves it
     for out in (page, page, empty):

@@ -67,11 +67,13 @@ def _signal(proc: subprocess.Popen, signum: int) -> str:
 def test_a_signal_during_record_export_leaves_the_earlier_file_and_no_temporary_one(run, tmp_path, signum):
     out = tmp_path / "ex"
     out.mkdir()
-    (out / "t.csv").write_text("old\n")
+    earlier = runner.invoke(app, ["record", "export", str(run), "--cycle", "0", "-o", str(out / "t.csv")])
+    assert earlier.exit_code == 0, earlier.output  # an earlier export: the one kind of file export replaces
+    old = (out / "t.csv").read_bytes()
     proc = _held(CSV_WRITE, tmp_path, "record", "export", run, "-o", out / "t.csv")
     assert [p.name for p in out.iterdir() if p.name.startswith(".t.csv.")]  # the temporary file, written
     stderr = _signal(proc, signum)
-    assert os.listdir(out) == ["t.csv"] and (out / "t.csv").read_text() == "old\n"
+    assert os.listdir(out) == ["t.csv"] and (out / "t.csv").read_bytes() == old
     assert proc.returncode == 128 + signum and "Traceback" not in stderr, stderr
 
 

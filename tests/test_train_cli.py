@@ -7,11 +7,13 @@ from __future__ import annotations
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 from typer.testing import CliRunner
 
 from cellguard.calibrate.excitation import excitation_scenario, excite
 from cellguard.cli import app
+from cellguard.policy.onnx_export import save_mlp_onnx, trajectory_mlp
 
 runner = CliRunner()
 QUICK = ["--cycles", "2", "--random-features", "0"]
@@ -41,10 +43,10 @@ def test_a_refused_output_is_refused_before_any_training(excited, tmp_path):
 
 def test_overwrite_replaces_a_model_and_the_path_prints_as_given(tmp_path):
     out = tmp_path / "[bold]demo[red]\x1b[2J.onnx"
-    out.write_bytes(b"old")
+    old = save_mlp_onnx(trajectory_mlp(np.array([0.0, 1.0]), np.zeros((2, 6)), 2, 0.05), out, {}).read_bytes()
     result = runner.invoke(app, ["train-demo-policy", *QUICK, "-o", str(out), "--overwrite"])
     assert result.exit_code == 0, result.output
-    assert out.read_bytes()[:4] != b"old" and len(out.read_bytes()) > 1000
+    assert out.read_bytes() != old and len(out.read_bytes()) > 1000
     shown = str(out).replace("\x1b", "\\x1b")
     assert f"written to {shown}; run it with policy: onnx:{shown}\n" in result.stdout
 

@@ -163,10 +163,6 @@ def _whole_for_write(write: Path | None, healths: list) -> None:
                                    "only from whole records (identify without --write reports the fit)")
 
 
-# how every page report/replay.py renders begins (since the first): the one kind of file replay replaces
-REPLAY_PAGE = b"<!doctype html><html lang=en><head><meta charset=utf-8><title>cellguard replay</title>"
-
-
 @app.command()
 def replay(
     record: Path = typer.Argument(..., help="A record folder or its .mcap file."),
@@ -180,8 +176,8 @@ def replay(
     vary: str | None = typer.Option(None, "--vary", help="PARAM:JOINT=LOW..HIGH, e.g. friction:elbow=0.8..1.6: "
                                     "search the factor that best reproduces the recorded cycle."),
     out: Path | None = typer.Option(None, "-o", "--out", help="HTML page (default: replay-cycle-N.html in the "
-                                   "record's folder); a file there is replaced only if it is a replay page (or "
-                                   "empty): never the record, a profile, an MJCF or any other file."),
+                                   "record's folder); a file there is replaced only if it is a page cellguard "
+                                   "wrote (or empty): never the record, a profile, an MJCF or any other file."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),
 ) -> None:
     """Re-run a recorded cycle's chunks in the simulator from its recorded start; overlay simulated and recorded.
@@ -192,7 +188,7 @@ def replay(
     from cellguard.calibrate.replay import replay as run_replay
     from cellguard.cli.record import warn_if_damaged
     from cellguard.record.beside import guarded, pinned
-    from cellguard.record.outputs import refuse_output
+    from cellguard.record.outputs import PAGE, refuse_output
     from cellguard.record.reader import record_file
     from cellguard.record.writer import REPLAY_PAGES
     from cellguard.report.replay import write_replay
@@ -201,9 +197,9 @@ def replay(
         if profile is not None and model != "calibrated":
             raise CalibrationError(f"--profile: only with --model calibrated; the {model} model reads no profile")
         page = out or record_file(record).parent / f"replay-cycle-{cycle}.html"
-        # before the simulation: never over the record, its run folder's files or the --profile read
-        refuse_output(page, record, inputs=[("--profile file", profile)], own=(REPLAY_PAGES,))
-        _refuse_other_file(page)
+        # before the simulation: never over the record, its run folder's files, the --profile read, nor any file
+        # but a page (the profile replay reads is found by its sha256 wherever the run read it: no list names it)
+        refuse_output(page, record, inputs=[("--profile file", profile)], own=(REPLAY_PAGES,), kind=PAGE)
         with pinned(record, "replayed") as pin:  # nothing beside a record replaced meanwhile (``record.beside``)
             result = run_replay(record, cycle, model=model, profile=profile, vary=vary)
             with guarded(pin, page, "replayed"):
@@ -227,22 +223,3 @@ def replay(
             err=False)
     say(f"  {page}", err=False)
     raise typer.Exit(damaged)
-
-
-def _refuse_other_file(page: Path) -> None:
-    """The page replaces only an earlier replay page (or an empty file): the profile a replay reads is found by its
-    sha256 wherever the record's run read it, so no list of inputs covers every name (a profile, its calibrated
-    MJCF and a kept copy were replaced by the page, and the next run failed on it)."""
-    from cellguard.errors import RecordError
-
-    try:
-        with open(page, "rb") as f:
-            head = f.read(len(REPLAY_PAGE))
-    except FileNotFoundError:
-        return
-    except OSError as exc:
-        raise RecordError(f"-o {page}: cannot be read to tell whether it is a replay page ({exc.strerror}); "
-                          "choose another path") from None
-    if head and head != REPLAY_PAGE:
-        raise RecordError(f"-o {page}: exists and is not a page cellguard replay wrote; replay replaces only its "
-                          "own pages: choose another path, or remove the file first")

@@ -58,26 +58,28 @@ def diagnose(
 @app.command()
 def report(
     folder: Path = typer.Argument(..., help="A run folder holding the record (record.mcap), or that record.mcap."),
-    out: Path | None = typer.Option(None, "-o", "--out", help="HTML file to write (default FOLDER/report.html)."),
+    out: Path | None = typer.Option(None, "-o", "--out", help="HTML file to write (default FOLDER/report.html); a "
+                                   "file there is replaced only if it is a page cellguard wrote (or empty)."),
     acceptance: Path | None = typer.Option(None, "--acceptance", help="Take the baseline from this record instead."),
     fleet: bool | None = typer.Option(None, "--fleet/--no-fleet", help=FLEET_HELP),
 ) -> None:
     """Write a self-contained HTML report: timeline, last good versus faulted, drift, asymmetry, context."""
     from cellguard.diagnose.from_record import diagnose_record
     from cellguard.record.beside import pinned
-    from cellguard.record.outputs import refuse_output
-    from cellguard.report.from_record import report_path, write_report
+    from cellguard.record.outputs import PAGE, refuse_output
+    from cellguard.record.writer import RECORD_FILE
+    from cellguard.report.from_record import REPORT_FILE, report_path, write_report
 
     try:
         with pinned(folder, "reported") as pin:  # before the first read: nothing goes beside a record replaced since
             health = record_health(folder)
-            if out is not None:  # the default, FOLDER/report.html, is the one file a report writes in a run folder
-                refuse_output(out, folder)
-            elif health.writing:  # left beside the finished record, it said "still being written" of it
+            out = out or report_path(folder)
+            # FOLDER/report.html, named or not, is the one file a report writes in a run folder
+            refuse_output(out, folder, own=(REPORT_FILE,), kind=PAGE)
+            if health.writing and (out.resolve().parent / RECORD_FILE).exists():  # it said "still being written"
                 raise RecordError(f"{folder}: still being written by {health.writing}; a report beside it would "
-                                  "describe a part of it: give -o FILE, or report once the run has ended")
-            else:
-                out = report_path(folder)
+                                  "describe a part of it: give -o FILE outside the run folder, or report once the "
+                                  "run has ended")
             baseline_health = record_health(acceptance) if acceptance is not None else None
             unkept: list[str] = []
             diagnosis = diagnose_record(folder, acceptance=acceptance, fleet=fleet_advice(fleet), unkept=unkept,

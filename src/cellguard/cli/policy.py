@@ -7,6 +7,7 @@ import os
 import sys
 import tempfile
 from pathlib import Path
+from typing import BinaryIO
 
 import typer
 
@@ -17,13 +18,23 @@ from cellguard.cli.text import say
 from cellguard.errors import CellguardError, ConfigError, OutputError
 
 SEED_MAX = 2**32 - 1  # the seed seeds numpy; the range of sim-server's --seed
+# how an ONNX model cellguard saves begins (``policy.onnx_export``): field 1 (ir_version, one byte), then field 2
+# (producer_name) "cellguard"; --overwrite replaces only such a model
+ONNX_PRODUCER = b"\x12\x09cellguard"
+
+
+def _cellguard_onnx(f: BinaryIO) -> bool:
+    """Whether ``f`` begins as an ONNX model cellguard saved."""
+    head = f.read(2 + len(ONNX_PRODUCER))
+    return head[:1] == b"\x08" and head[2:] == ONNX_PRODUCER
 
 
 @app.command("train-demo-policy")
 def train_demo_policy(
     out: Path = typer.Option(Path("demo-policy.onnx"), "--out", "-o", help="ONNX file to write (a new file, "
                              "unless --overwrite)."),
-    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing ONNX file at --out."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing ONNX model at --out that "
+                                   "cellguard wrote (or an empty file); any other file is kept."),
     cycles: int = typer.Option(10, min=2, max=500, help="Scripted demonstration cycles to record."),
     random_features: int = typer.Option(64, min=0, max=4096, help="Random tanh units beside the time basis."),
     seed: int = typer.Option(0, min=0, help="Seed of the demonstrations and the initial weights (0 to 2^32-1)."),
@@ -34,15 +45,15 @@ def train_demo_policy(
     """Clone the scripted arm program into a small MLP on the CPU; run it with `policy: onnx:FILE`."""
     from dataclasses import asdict
 
-    from cellguard.record.outputs import refuse_output
+    from cellguard.record.outputs import OwnKind, refuse_output
     from cellguard.train.demo_policy import train_demo_policy as train
 
     try:
         # before the demonstrations are recorded: never over a record, into a run folder, or over a model
-        # (one a release may have hashed) unless --overwrite
+        # (one a release may have hashed) unless --overwrite, and then only over a model cellguard saved
         if seed > SEED_MAX:
             raise ConfigError(f"--seed: must be in 0..{SEED_MAX}, got {seed}")
-        refuse_output(out, None, replace=overwrite)
+        refuse_output(out, None, replace=overwrite, kind=OwnKind("an ONNX model", _cellguard_onnx))
         _refuse_unwritable(out)
         report = train(out, cycles=cycles, random_features=random_features, seed=seed, fixture_dx_mm=fixture_dx_mm,
                        overwrite=overwrite)

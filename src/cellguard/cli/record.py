@@ -122,12 +122,13 @@ def _print_info(doc: dict) -> None:
 def export(
     folder: Path = typer.Argument(..., help="Run folder (holding record.mcap) or the .mcap file."),
     fmt: str = typer.Option("csv", "--format", help="csv or parquet."),
-    output: Path = typer.Option(..., "-o", "--output", help="File to write."),
+    output: Path = typer.Option(..., "-o", "--output", help="File to write; a file there is replaced only if it is "
+                                "an export of that format cellguard wrote (or empty)."),
     rate: str = typer.Option("all", "--rate", help="all (full rate where kept, else decimated), decimated, full."),
     cycle: int | None = typer.Option(None, "--cycle", help="Only this cycle."),
 ) -> None:
     """Ticks as rows: t_ns, cycle, joint, q_ref, q_cmd, q_meas, qd_meas, effort, current."""
-    from cellguard.record.export import check_format, write_ticks
+    from cellguard.record.export import OWN_KINDS, check_format, write_ticks
     from cellguard.record.outputs import refuse_output
     from cellguard.record.reader import RATES, open_record
 
@@ -136,7 +137,8 @@ def export(
             raise RecordError(f"--rate: {rate!r} is not one of {', '.join(RATES)}")
         if cycle is not None and not 0 <= cycle < 2**63:
             raise RecordError(f"--cycle: {cycle} is outside [0, 2^63); cycles are numbered from 0")
-        refuse_output(output, folder)  # first: a record or a run's file there is the graver mistake
+        # first: a record or a run's file there is the graver mistake; an unknown --format is refused next
+        refuse_output(output, folder, kind=OWN_KINDS.get(fmt))
         check_format(output, fmt)
         with open_record(folder) as rec:
             rows = write_ticks(rec, output, fmt, rate=rate, cycle=cycle)

@@ -279,7 +279,8 @@ def verify(
 @release_app.command()
 def report(
     release: str = typer.Argument(..., help="Release id (a unique prefix is enough)."),
-    output: Path = typer.Option(Path("release.html"), "--out", "-o", help="HTML file to write."),
+    output: Path = typer.Option(Path("release.html"), "--out", "-o", help="HTML file to write; a file there is "
+                                "replaced only if it is a page cellguard wrote (or empty)."),
     site: Path = SITE,
 ) -> None:
     """The release page: gates per stage with their evidence, against last_good's figures."""

@@ -17,11 +17,28 @@ import pyarrow.parquet as pq
 
 from cellguard.errors import RecordError
 from cellguard.output import atomic_file
+from cellguard.record.outputs import OwnKind, starts_with
 from cellguard.record.reader import NO_CYCLE, RATES, Record, Ticks, UnorderedTicks
 from cellguard.record.schemas import TICK_FIELDS
 
 SUFFIXES = {"csv": (".csv",), "parquet": (".parquet", ".pq")}  # the formats written, and the file names that say them
 PART_ROWS = 1 << 16  # rows handed to the writer at a time: about 4.5 MB of table, one Parquet row group
+COLUMNS = ("t_ns", "cycle", "joint", *TICK_FIELDS)
+PARQUET_MARK = {b"cellguard": b"ticks export"}  # in a Parquet export's schema metadata: ``-o`` replaces only those
+
+
+def _parquet_export(f: BinaryIO) -> bool:
+    """Whether ``f`` is a Parquet file whose schema metadata carries ``PARQUET_MARK``."""
+    try:
+        metadata = pq.read_schema(f).metadata or {}
+    except pa.ArrowException:  # not Parquet
+        return False
+    return all(metadata.get(k) == v for k, v in PARQUET_MARK.items())
+
+
+# what ``-o`` of each format replaces: a CSV that begins with the export's header, a Parquet file marked as one
+OWN_KINDS = {"csv": OwnKind("a CSV ticks export", starts_with(",".join(f'"{c}"' for c in COLUMNS).encode() + b"\n")),
+             "parquet": OwnKind("a Parquet ticks export", _parquet_export)}
 
 
 def check_format(output: Path, fmt: str) -> None:
@@ -90,7 +107,8 @@ def _writer(f: BinaryIO, fmt: str, schema: pa.Schema) -> Iterator[Callable[[pa.T
     """``write(table)`` appending to ``f``: CSV's header before the first table, Parquet's footer after the last."""
     if fmt == "parquet":  # dictionary pages only where values repeat: on the floats, each part's row group
         # started a dictionary anew and a 178 MB record's file grew from 106 MB (one whole table) to 149 MB (89 MB now)
-        with pq.ParquetWriter(f, schema, compression="zstd", use_dictionary=["joint", "cycle"]) as writer:
+        with pq.ParquetWriter(f, schema.with_metadata(PARQUET_MARK), compression="zstd",
+                              use_dictionary=["joint", "cycle"]) as writer:
             yield writer.write_table
         return
     header = True

@@ -9,7 +9,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from cellguard.output import write_output
-from cellguard.record.outputs import refuse_output
+from cellguard.record.outputs import PAGE, refuse_output
 from cellguard.release import log
 from cellguard.release.promotion import in_force_hashes
 from cellguard.release.store import STAGES, STORE_FILE
@@ -41,8 +41,9 @@ def render_release_page(store, release: str) -> str:
 
 def write_release_page(store, release: str, out: Path) -> Path:
     """Write the page to ``out`` (beside it under a temporary name of this process, then renamed); refused first
-    if ``out`` is the store read, any store, a record or in a run folder (a page must never replace them)."""
-    refuse_output(Path(out), None, inputs=[("release store", store.site / STORE_FILE)])
+    if ``out`` is the store read, any store, a record, in a run folder, or any file but a page (a page must never
+    replace them: ``-o`` over the release's frozen policy left a release that could never run again)."""
+    refuse_output(Path(out), None, inputs=[("release store", store.site / STORE_FILE)], kind=PAGE)
     return write_output(Path(out), render_release_page(store, release), "release page")
 
 
