@@ -183,12 +183,12 @@ def make_openpi_policy(arg: str, cell, soft_margin: float = SOFT_MARGIN) -> Mapp
         key = os.environ.get(options["api_key_env"])
         if not key:
             raise ConfigError(f"policy: openpi: api_key_env: environment variable {options['api_key_env']!r} is not set")
-    try:
-        retries = int(options.get("retries", 1))
-    except ValueError:
-        raise ConfigError(f"policy: openpi: option retries={options['retries']!r} is not an integer") from None
-    if not 0 <= retries <= 5:
-        raise ConfigError(f"policy: openpi: option retries must be in [0, 5], got {retries}")
+    written = options.get("retries", "1")
+    if not (written.isascii() and written.isdigit()):  # int() read '٣' as 3, which failed only on connecting
+        raise ConfigError(f"policy: openpi: option retries={written!r} is not an integer (ASCII digits 0-9)")
+    if len(written.lstrip("0")) > 1 or int(written) > 5:  # two digits are out of range; int() refuses 4300
+        raise ConfigError(f"policy: openpi: option retries must be in [0, 5], got {written}")
+    retries = int(written)
     if "dt" in options:  # checked before connecting: with the server down, a bad ?dt= read as its absence
         option_float(options, "dt", 0.0, "openpi", DT_RANGE_S)
     backend = OpenpiBackend(target, key, option_float(options, "timeout", 2.0, "openpi", TIMEOUT_RANGE_S), retries)

@@ -24,8 +24,7 @@ from cellguard.robot.registry import from_plugin, load_plugin, plugins
 
 
 def _scripted(arg: str, cell) -> Policy:
-    if arg:
-        raise ConfigError(f"policy: 'scripted' takes no argument, got 'scripted:{arg}'")
+    """The cell's taught program; ``arg`` is empty (``make_policy`` refuses one: this source takes none)."""
     if cell.name in SCRIPTED:
         return SCRIPTED[cell.name](cell)
     factory = load_plugin(SCRIPTED_PLUGINS, cell.name, "scripted policy for cell")
@@ -88,8 +87,13 @@ def make_policy(spec: str, cell, soft_margin: float = SOFT_MARGIN) -> Policy:
     """Build the policy named by ``spec`` (``scheme`` or ``scheme:argument``) for ``cell``, its IK (if any) inside the
     soft limits of the run's ``guard.soft_margin`` (at the default one, a wider margin's guard held the joint short of
     a target the IK had reached: the tool missed)."""
-    scheme, _, arg = spec.partition(":")
-    factory = getattr(source(scheme), SCHEMES[scheme].partition(":")[2])
+    scheme, colon, arg = spec.partition(":")
+    module = source(scheme)
+    # a source that takes nothing (no options, no file: scripted) refuses even an empty argument: 'scripted:' ran as
+    # 'scripted', and a release took it for another policy
+    if colon and not module.OPTIONS and not module.TAKES_FILE:
+        raise ConfigError(f"policy: {scheme!r} takes no argument, got {spec!r}; write {scheme!r}")
+    factory = getattr(module, SCHEMES[scheme].partition(":")[2])
     if "soft_margin" in inspect.signature(factory).parameters:
         return factory(arg, cell, soft_margin=soft_margin)
     return factory(arg, cell)

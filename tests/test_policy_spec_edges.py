@@ -1,0 +1,68 @@
+"""Edges of a ``policy:`` spec: ``scripted:`` (an empty argument) ran as ``scripted`` and a release took it for
+another policy; openpi's ``retries=٣`` (non-ASCII digits) passed the checks and failed only on connecting."""
+
+from __future__ import annotations
+
+import socket
+from urllib.parse import quote
+
+import pytest
+import yaml
+from cli_util import one_error
+from hypothesis import assume, given, settings
+from hypothesis import strategies as st
+from release_helpers import CELL, cli
+from typer.testing import CliRunner
+
+from cellguard.cli import app
+from cellguard.errors import ConfigError
+from cellguard.policy.registry import make_policy
+from cellguard.robot.registry import make_cell
+
+ARM = make_cell(CELL)
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.text(max_size=20))
+def test_scripted_takes_no_argument_not_even_an_empty_one(arg):
+    with pytest.raises(ConfigError, match=r"^policy: 'scripted' takes no argument, got "):
+        make_policy(f"scripted:{arg}", ARM)
+
+
+def test_a_release_of_scripted_colon_is_refused(tmp_path):
+    """It was stored as a second, "new" release of the same program."""
+    from cellguard.release import Store
+
+    site = tmp_path / "site"
+    assert cli("create", "--policy", "scripted", "--profile", CELL, "--site", str(site)).exit_code == 0
+    line = one_error(cli("create", "--policy", "scripted:", "--profile", CELL, "--site", str(site)))
+    assert line.endswith("policy: 'scripted' takes no argument, got 'scripted:'; write 'scripted'"), line
+    assert len(Store(site).bundle_ids()) == 1
+
+
+def test_a_run_of_scripted_colon_is_refused(tmp_path):
+    scenario = tmp_path / "s.yaml"
+    scenario.write_text(yaml.safe_dump({"cell": CELL, "policy": "scripted:", "acceptance_cycles": 1,
+                                           "production_cycles": 0}))
+    line = one_error(CliRunner().invoke(app, ["run", str(scenario), "--out", str(tmp_path / "out")]))
+    assert "'scripted' takes no argument" in line
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.text(st.characters(categories=["Nd"]), max_size=4) | st.text(max_size=6))
+def test_retries_is_ascii_digits_in_range_before_connecting(retries):
+    assume(not (retries.isascii() and retries.isdigit() and int(retries) <= 5))  # those connect
+    with pytest.raises(ConfigError, match=r"^policy: openpi: option retries"):
+        make_policy(f"openpi:ws://127.0.0.1:{_free_port()}?dt=0.02&retries={quote(retries, safe='')}", ARM)
+
+
+@pytest.mark.parametrize("retries", ["٣", "３", "1٠"])
+def test_non_ascii_digits_are_named(retries):
+    with pytest.raises(ConfigError, match=f"^policy: openpi: option retries='{retries}' is not an integer"):
+        make_policy(f"openpi:ws://127.0.0.1:{_free_port()}?dt=0.02&retries={retries}", ARM)
