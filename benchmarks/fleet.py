@@ -9,9 +9,10 @@ every shared query on 10^6 signatures resampled from the real ones. Each phase's
 seconds (Spark's JVM included) go to stderr as it ends; query timings are also given as
 multiples of one ``mj_step`` of the arm cell measured in the same run; never asserted.
 
-The store is this run's own (``cg<run>_bench``, the tests' per-session names, lock and tags: ``tests/fleet_server.py``)
-and dropped at its end: two benchmarks, or a benchmark and the tests, on one server leave each other's store alone,
-and a killed run's is dropped by the next run or test session to use the server.
+The store is this run's own (``cg<run>_bench``, tagged as a benchmark's: ``cellguard.fleet.run_stores``, as the tests'
+stores) and dropped at its end: two benchmarks, or a benchmark and the tests, on one server leave each other's store
+alone, and a killed run's is dropped by the next benchmark or test session to use the server. A server that cannot
+be reached, before or during the run, ends it with one line (exit 1); its work folder is removed in every case.
 
     .ci/fleet.sh && python benchmarks/fleet.py [--runs DIR] [--rows 1000000] [--no-spark]
 """
@@ -31,17 +32,16 @@ from pathlib import Path
 import pyarrow.parquet as pq
 
 sys.path.insert(0, str(Path(__file__).parent))
-sys.path.insert(1, str(Path(__file__).parents[1] / "tests"))
 
-import fleet_server  # noqa: E402
 from fleet_runs import DEFAULT_DIR, TENANTS, make_fleet  # noqa: E402
 
 from cellguard.fleet.policy import DataPolicy  # noqa: E402
 from cellguard.fleet.push import push  # noqa: E402
 from cellguard.fleet.queries import QUERIES  # noqa: E402
+from cellguard.fleet.run_stores import RunStores  # noqa: E402
 from cellguard.fleet.similar import similar  # noqa: E402
-from cellguard.fleet.store import (FleetStore, RefusedAggregate, StoreUnavailable, TenantStore,  # noqa: E402
-                                   ci_admin_dsn, connect)
+from cellguard.fleet.store import (FleetStore, RefusedAggregate, StoreError, StoreUnavailable,  # noqa: E402
+                                   TenantStore, ci_admin_dsn, connect)
 from cellguard.fleet.synthetic import rows_of, synthetic_fleet, write_fleet  # noqa: E402
 
 POLICIES = {  # tenant -> its data policy (sites s-<tenant>-<j>)
@@ -68,15 +68,16 @@ def mj_step_s() -> float:
     return sorted(times)[len(times) // 2]
 
 
-def build_fleet(runs: dict, store: FleetStore, site_root: Path, lake: Path) -> dict:
-    """Push every site's signatures under its tenant's policy; what each policy let through."""
+def build_fleet(runs: dict, store: FleetStore, stores: RunStores, site_root: Path, lake: Path) -> dict:
+    """Push every site's signatures under its tenant's policy (each tenant's role tagged as ``stores``'); what each
+    policy let through."""
     by_site: dict[tuple[str, str], list] = {}
     for run, sigs in runs["site"].values():
         by_site.setdefault((run.tenant, run.site), []).extend(sigs)
     out = {}
     for tenant in TENANTS:
         dsn = store.add_tenant(tenant)
-        fleet_server.tag_session_stores()  # its role too: a run killed from here on leaves nothing untagged
+        stores.tag_stores()  # its role too: a run killed from here on leaves nothing untagged
         sites = sorted(s for t, s in by_site if t == tenant)
         found = sent = withheld = 0
         for site in sites:
@@ -232,20 +233,27 @@ def main() -> None:
     if admin is None:
         sys.exit("no fleet store server: run .ci/fleet.sh first")
     try:
-        connect(admin).close()
-    except StoreUnavailable as exc:
-        sys.exit(f"{exc}: run .ci/fleet.sh first")
-    runs = make_fleet(args.runs)
-    lap("runs_made_and_diagnosed")
-    ref = mj_step_s()
+        connect(admin).close()  # before the runs are made: minutes, wasted on a server not there
+        runs = make_fleet(args.runs)
+        lap("runs_made_and_diagnosed")
+        ref = mj_step_s()
+        bench(args, admin, runs, ref, lap, phases, t0, load0)
+    except StoreError as exc:  # a server gone meanwhile too: one line, the store dropped and the folder removed
+        sys.exit(f"{exc}: run .ci/fleet.sh first" if isinstance(exc, StoreUnavailable) else str(exc))
+
+
+def bench(args, admin: str, runs: dict, ref: float, lap, phases: dict, t0: float, load0: tuple) -> None:
+    """The store's and the lake's phases, on this run's own store (dropped at the end, as its work folder is removed
+    whatever ends the run); prints the JSON document."""
+    stores = RunStores("benchmark", "cellguard fleet benchmark")
     work = Path(tempfile.mkdtemp(prefix="cellguard-fleet-"))
-    fleet_server.admin_dsn_or_skip()  # this run's lock held to its end; killed runs' stores swept
-    store = FleetStore(admin, fleet_server.store_name("bench"))
     try:
+        stores.open(admin)  # this run's lock held to its end; killed runs' stores swept
+        store = FleetStore(admin, stores.name("bench"))
         store.install()
-        fleet_server.tag_session_stores()  # tagged as made: a killed run's is dropped by the next to use the server
+        stores.tag_stores()  # tagged as made: a killed run's is dropped by the next to use the server
         lake = work / "lake"
-        tenants = build_fleet(runs, store, work / "sites", lake)
+        tenants = build_fleet(runs, store, stores, work / "sites", lake)
         lap("store_installed_and_24_sites_pushed")
         contents = store_contents(store)
         alpha = tenants["t-alpha"].pop("dsn")
@@ -295,12 +303,9 @@ def main() -> None:
         }, indent=1, default=str))
     finally:
         shutil.rmtree(work, ignore_errors=True)
-        try:
-            store.drop()
-        finally:
-            left = fleet_server.drop_session_stores()  # frees the lock; names what is left, for the next to drop
-            if left:
-                print(left, file=sys.stderr)
+        left = stores.close()  # drops this run's store and frees the lock; names what is left, for the next to drop
+        if left:
+            print(left, file=sys.stderr)
 
 
 if __name__ == "__main__":

@@ -1,17 +1,24 @@
 """``FleetStore.drop``: a store made for one run (a benchmark's, a test session's) is dropped at its end, database and
 roles, on the real PostgreSQL server; any other name is refused before the server is reached. The fleet benchmark's
 store had one fixed name, reset as each run began: a second benchmark (or a CI run beside a developer's) dropped the
-first's database mid-run, and the last one's stayed on the server."""
+first's database mid-run, and the last one's stayed on the server. The benchmark's run stores are the tests' own
+machinery (``cellguard.fleet.run_stores``), tagged as a benchmark's: a killed one's are swept by the next benchmark or
+test session, and the benchmark no longer imports the tests' helpers (nor pytest with them)."""
 
 from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
 
 import pytest
 
 psycopg = pytest.importorskip("psycopg", reason="the fleet store tests need psycopg: pip install 'cellguard[fleet]'")
 
 from cellguard.errors import ConfigError  # noqa: E402
+from cellguard.fleet.run_stores import RunStores  # noqa: E402
 from cellguard.fleet.store import FleetStore, TenantStore  # noqa: E402
-from fleet_server import admin_dsn_or_skip, store_name  # noqa: E402
+from fleet_server import admin_dsn_or_skip, store_name, sweep  # noqa: E402
 
 CLOSED = "host=127.0.0.1 port=1 user=postgres dbname=postgres"  # nothing listens: a refusal must not need the server
 
@@ -66,3 +73,60 @@ def test_drop_refuses_a_store_not_made_for_one_run_before_it_reaches_the_server(
         FleetStore(CLOSED, name).drop()
     said = str(refused.value)
     assert said.startswith(f"database: {name!r} is not a store made for one run") and "\n" not in said, said
+
+
+KILLED = """
+import os, sys
+from cellguard.fleet.run_stores import RunStores
+from cellguard.fleet.store import FleetStore
+
+stores = RunStores("benchmark", "cellguard fleet benchmark")
+stores.open(sys.argv[1])
+store = FleetStore(sys.argv[1], stores.name("bench"))
+store.install()
+store.add_tenant("t-alpha")
+stores.tag_stores()
+print(stores.run, flush=True)
+os._exit(9)  # killed: its store neither dropped nor its lock freed by it
+"""
+
+
+def _killed_benchmark(admin: str) -> str:
+    """A benchmark's run, killed after it made and tagged its store and a tenant; its run's name."""
+    done = subprocess.run([sys.executable, "-c", KILLED, admin], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 9, done.stderr
+    run = done.stdout.strip()
+    assert _there(admin, run + "_bench"), "the killed benchmark made no store"
+    return run
+
+
+def test_a_killed_benchmarks_store_is_tagged_as_a_benchmarks_and_swept_by_the_next_test_session():
+    admin = admin_dsn_or_skip()
+    run = _killed_benchmark(admin)
+    with psycopg.connect(admin, autocommit=True) as con:
+        tags = {t for (t,) in con.execute("SELECT shobj_description(oid, 'pg_database') FROM pg_database WHERE "
+                                          "datname = %s", (run + "_bench",)).fetchall()}
+        assert tags == {f"cellguard benchmark {run}"}
+        assert run + "_bench" in sweep(con)
+    assert _there(admin, run + "_bench") == []  # its database, its three roles and its tenant's
+
+
+def test_a_killed_benchmarks_store_is_swept_by_the_next_benchmark_and_that_ones_by_its_close():
+    admin = admin_dsn_or_skip()
+    run = _killed_benchmark(admin)
+    nxt = RunStores("benchmark", "cellguard fleet benchmark")
+    try:
+        nxt.open(admin)
+        assert _there(admin, run + "_bench") == []
+        FleetStore(admin, nxt.name("bench")).install()
+    finally:
+        assert nxt.close() is None
+    assert _there(admin, nxt.name("bench")) == []
+
+
+def test_the_fleet_benchmark_imports_no_pytest():
+    root = Path(__file__).parents[1]
+    code = "import sys; sys.path.insert(0, 'benchmarks'); import fleet; print(sorted(m for m in sys.modules " \
+           "if m.split('.')[0] in ('pytest', '_pytest', 'fleet_server')))"
+    done = subprocess.run([sys.executable, "-c", code], cwd=root, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0 and done.stdout.strip() == "[]", done.stdout + done.stderr

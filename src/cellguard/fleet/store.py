@@ -59,7 +59,7 @@ SIGNATURE_COLUMNS = ("signature_id", "tenant_id", "site_id", "created_date", "ca
                      "cellguard_version", "recovery", "recovery_outcome", "schema_version")
 SERVER_DATE = "(now() AT TIME ZONE 'UTC')::date"  # the store's UTC date, as sites count theirs
 # a store made for one run and dropped at its end: cg, 8 base-36 characters naming the run, _ and what it is for (a
-# benchmark's, a test session's: tests/fleet_server.py); the only name ``FleetStore.drop`` takes
+# benchmark's, a test session's: ``run_stores``); the only name ``FleetStore.drop`` takes
 RUN_STORE = re.compile(r"cg[0-9a-z]{8}_[0-9a-z_]{1,9}")
 RELATIONS = {"signatures": "fleet.signatures", "effects": "fleet.effects",  # never a name pg_temp could shadow
              "probe": "unnest(%(features)s::text[], %(effects)s::double precision[]) AS probe (feature, effect)"}
