@@ -25,6 +25,7 @@ import numpy as np
 from cellguard.errors import ConfigError
 from cellguard.policy.chunk import ActionChunk
 from cellguard.policy.protocol import Policy
+from cellguard.threads import start_thread
 from cellguard.robot.state import Observation
 
 RESULTS_KEPT = 1000  # newest results kept in memory; the record holds every chunk
@@ -164,7 +165,11 @@ class AsyncInference:
         self._closed = False
         self._set_queue(np.zeros(0, dtype=np.int64))  # step times of the newest chunk taken [ns]
         self._thread = threading.Thread(target=self._work, name="cellguard-inference", daemon=True)
-        self._thread.start()
+        self._unstarted = start_thread(self._thread)  # the warm-up answers at once; ``ended`` says why
+        if self._unstarted is not None:
+            self._unstarted = f"the policy's inference worker: {self._unstarted}"
+            if self._remote is not None:
+                self._remote.close(0.0)
 
     def remaining_steps(self, t_ns: int) -> int:
         """Steps of the newest taken chunk that still lie after ``t_ns`` (the queue depth)."""
@@ -220,8 +225,8 @@ class AsyncInference:
 
     @property
     def ended(self) -> str | None:
-        """Why the policy answers no more: its process ended (a thread worker never says so)."""
-        return None if self._remote is None else self._remote.ended
+        """Why the policy answers no more: its worker thread never started, its process ended."""
+        return self._unstarted or (None if self._remote is None else self._remote.ended)
 
     def warm_up(self, observation: Observation, timeout_s: float, stop: Callable[[], bool] = lambda: False) -> bool:
         """One call before the loop starts (loads, compiles, fills caches), on the worker; its chunk is dropped.
@@ -229,6 +234,8 @@ class AsyncInference:
         a policy hung in it hung the run, deaf to SIGTERM). True once answered, a failure too (the loop's first
         request reports it; a policy its process could not build ends the worker: ``ended``); False: given up, the
         call still in flight."""
+        if self._unstarted is not None:
+            return True
         self.submit(observation)
         deadline = time.monotonic() + timeout_s
         with self._lock:
@@ -256,6 +263,8 @@ class AsyncInference:
         with self._wake:
             self._closed = True
             self._wake.notify()
+        if self._unstarted is not None:
+            return  # no thread to join; its process, if any, killed as the thread was refused
         self._thread.join(timeout_s)
         if self._remote is not None:
             self._remote.close(0.0 if self._thread.is_alive() else timeout_s)

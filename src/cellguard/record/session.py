@@ -65,6 +65,7 @@ from cellguard.record.json_values import MAX_DEPTH, deeper, plain
 from cellguard.record.shared_pages import copy_shared_pages
 from cellguard.record.urdf import describe
 from cellguard.record.writer import RECORD_FILE, RecordConfig, Recorder, refuse_existing
+from cellguard.threads import start_thread
 
 POLL_S = 0.002  # how often the writer checks the loop's process, and the feeder and the loop's waits poll [s]
 WRITER_NICE = 10  # the writer process yields the CPU to the loop and the policy
@@ -126,11 +127,9 @@ class RunRecording:
             self.pages_copied = copy_shared_pages() if self._realtime else None
             if self._realtime:
                 feeder = threading.Thread(target=self._feed, name="cellguard-record-feeder", daemon=True)
-                try:
-                    feeder.start()
-                except RuntimeError as exc:  # the OS refused a thread (its limit, memory): a traceback before
-                    raise RecordError(f"{self.name}: cannot start the record (its feeder thread: {exc}); nothing was "
-                                      "run") from None
+                refused = start_thread(feeder)
+                if refused is not None:
+                    raise RecordError(f"{self.name}: cannot start the record ({refused}); nothing was run")
                 self._feeder = feeder  # started: ``close`` sends through it and joins it
             recorder.place()  # the old record, if any, stays whole until now
         except BaseException:  # the writer, told to end, discards the record never placed; the lock is start's

@@ -65,3 +65,4 @@ def make_bridge(text: str, scenario):
         if callable(close):
             close()
         raise
+

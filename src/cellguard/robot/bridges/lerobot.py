@@ -40,6 +40,7 @@ from typing import TYPE_CHECKING
 from cellguard.embodiment import Profile, load_profile
 from cellguard.errors import CellguardError, ConfigError, ScenarioError
 from cellguard.options import bounded_float, split_options
+from cellguard.threads import start_thread
 from cellguard.robot.protocol import RobotLinkError, SafetyInputs
 from cellguard.robot.state import Observation, State
 
@@ -106,7 +107,9 @@ class RobotCalls:
         self.name, self.timeout_ns = name, round(timeout_s * 1e9)
         self._asked = threading.Condition()
         self._call: _Call | None = None
-        threading.Thread(target=self._serve, name=f"lerobot {name}", daemon=True).start()
+        refused = start_thread(threading.Thread(target=self._serve, name=f"lerobot {name}", daemon=True))
+        if refused is not None:  # before the robot is connected: nothing to undo
+            raise BridgeError(f"lerobot {name}: cannot drive the robot: {refused}; not connected")
 
     def __call__(self, what: str, fn: Callable, *args):
         """``fn(*args)``'s result; its exception as is; ``TimeoutError`` naming the call that hangs."""
