@@ -56,6 +56,7 @@ def test_vary_finds_the_injected_friction_factor(faulted, tmp_path):
     (["--cycle", "1", "--vary", "friction:knee=0.8..1.6"], "'knee' is not a joint"),
     (["--cycle", "1", "--vary", "mass:elbow=0.8..1.6"], "allowed: friction, damping, armature"),
     (["--cycle", "1", "--vary", "friction:elbow=1.6..0.8"], "0 < LOW < HIGH"),
+    (["--cycle", "1", "--vary", "friction:elbow=1e-9..1e9"], "0 < LOW < HIGH"),  # the form is right: the range is not
     (["--cycle", "1", "--model", "ideal"], "--model: 'ideal'"),
 ])
 def test_bad_replay_input_is_one_line_and_exit_2(faulted, args, words):

@@ -66,3 +66,14 @@ def test_retries_is_ascii_digits_in_range_before_connecting(retries):
 def test_non_ascii_digits_are_named(retries):
     with pytest.raises(ConfigError, match=f"^policy: openpi: option retries='{retries}' is not an integer"):
         make_policy(f"openpi:ws://127.0.0.1:{_free_port()}?dt=0.02&retries={retries}", ARM)
+
+
+@given(st.text(min_size=1, max_size=12).filter(lambda text: not text.isascii()))
+def test_a_number_in_a_spec_is_ascii_digits_only(text):
+    """Every number a spec or metadata gives as text (``?dt=``, ``?hz=``): ``float`` reads other scripts' digits
+    (``٠.٠٢`` is 0.02), which no file of cellguard's writes and no other option took."""
+    from cellguard.options import bounded_float
+
+    with pytest.raises(ConfigError, match="ASCII digits"):
+        bounded_float(text, "dt", 0.0, 1e9)
+    assert bounded_float("0.02", "dt", 0.0, 1.0) == 0.02

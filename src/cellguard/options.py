@@ -35,6 +35,8 @@ def bounded_float(value: object, field: str, lo: float, hi: float) -> float:
     """
     if isinstance(value, bool) or not isinstance(value, (str, int, float)):
         raise ConfigError(f"{field}: expected a number in [{lo:g}, {hi:g}], got {value!r}")
+    if isinstance(value, str) and not value.isascii():  # float() reads other scripts' digits ("٠.٠٢"); no file does
+        raise ConfigError(f"{field}: {value!r} is not written in ASCII digits; expected a number in [{lo:g}, {hi:g}]")
     try:
         number = float(value)
     except (ValueError, OverflowError):

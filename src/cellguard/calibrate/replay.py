@@ -35,7 +35,8 @@ GRID = 5  # factors tried across the range before the bounded search
 DOCUMENT = "the record's own document"  # where the profile's terms came from when its file is gone
 _TERMS = ("torque", "force", "damping", "inertia", "mass")  # the dimensions of friction, damping and armature
 XTOL = 0.01  # the search stops when the factor is known to this [1]
-_VARY = re.compile(r"^(?P<param>\w+):(?P<joint>\w+)=(?P<low>[0-9.]+)\.\.(?P<high>[0-9.]+)$")
+_FACTOR = r"[0-9]*\.?[0-9]+(?:[eE][-+]?[0-9]+)?"  # ASCII digits, an exponent allowed (1e-1): its range is checked apart
+_VARY = re.compile(rf"^(?P<param>\w+):(?P<joint>\w+)=(?P<low>{_FACTOR})\.\.(?P<high>{_FACTOR})$")
 
 
 @dataclass(frozen=True)
