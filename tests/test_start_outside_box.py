@@ -1,8 +1,9 @@
 """A run whose tool point starts outside the workspace box (a robot left there, a sim-server cell posed there) ended
 "policy lost: the guard rejected every chunk": each first chunk's target lay outside the box and was refused as the
 policy's answer, whether the policy held the tool there or brought it back in. A first target no further out than
-the tool is now taken (the approach and the guard's look-ahead bring the tool back, as they let any motion from
-outside do); one further out refuses the start with the box, the wall and both distances named."""
+the tool is now taken to (as the approach and the guard's look-ahead let any motion from outside go); one further
+out is rejected as a chunk (the next may be fine), and where every one is, the policy-lost line names the box, the
+wall and both distances."""
 
 from __future__ import annotations
 
@@ -11,7 +12,6 @@ import time
 
 import mujoco
 import numpy as np
-import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 from sim_server_util import HOME, served
@@ -23,25 +23,28 @@ from cellguard.control.settings import build_guard
 from cellguard.record.reader import open_record
 from cellguard.robot.bridges.sim_server import SimServerRobot
 from cellguard.runtime import Run, run_scenario
-from cellguard.runtime.startup import StartupRefused
 from cellguard.scenario import parse_scenario
 
 BOX = [[-0.45, -0.45, 0.005], [0.45, 0.45, 0.25]]  # holds the arm's home tool point (z 0.194 m)
 OUT = np.array([0.0, -0.3, 1.5, 1.55, 0.0, 0.025])  # its tool point at z 0.283 m: 33 mm over the box
 FURTHER = OUT + [0.0, 0.0, -0.3, 0.0, 0.0, 0.0]  # z 0.357 m: 107 mm over
 LOST = ("policy_lost", "chunk_rejected", "startup_refused")
-REFUSED = (r"^start-up: the tool point starts 33 mm outside the workspace box \[\[-0.45, -0.45, 0.005\], \[0.45, "
-           r"0.45, 0.25\]\] past its z max \(at \[0.175, 0.0, 0.283\] m\) and the first target lies further out, "
-           r"107 mm past its z max \(at \[0.181, 0.0, 0.357\] m\); .*; not moving$")
+START = (r"the tool point starts 33 mm outside the workspace box \[\[-0.45, -0.45, 0.005\], \[0.45, 0.45, 0.25\]\] past "
+         r"its z max \(at \[0.175, 0.0, 0.283\] m\)")
+REJECTED = (rf"^first target: {START} and the first target lies further out, 107 mm past its z max \(at \[0.181, 0.0, "
+            r"0.357\] m\); nothing approached$")
+LOST_LINE = rf"^{START}, every first target further out, none taken \(the last: first target: {START} and .*\)"
 
 
 def _policy(tmp_path, way: str):
-    """A replay policy (a chunk every 100 ms, 25 steps of 20 ms) that holds ``OUT``, holds ``FURTHER``, or brings
-    the tool from ``OUT`` home in 1.5 s ("back")."""
+    """A replay policy (a chunk every 100 ms, 25 steps of 20 ms) that holds ``OUT``, holds ``FURTHER``, brings
+    the tool from ``OUT`` home in 1.5 s ("back"), or answers ``FURTHER`` first and holds ``OUT`` after ("jitter")."""
     steps = np.arange(60)[:, None] * 0.1 + np.arange(25)[None, :] * 0.02
     x = np.clip(steps / 1.5, 0.0, 1.0)[:, :, None]
-    ends = {"hold": (OUT, OUT), "further": (FURTHER, FURTHER), "back": (OUT, HOME)}[way]
+    ends = {"hold": (OUT, OUT), "further": (FURTHER, FURTHER), "back": (OUT, HOME), "jitter": (OUT, OUT)}[way]
     actions = ends[0] + (ends[1] - ends[0]) * x * x * (3 - 2 * x)
+    if way == "jitter":
+        actions[0] = FURTHER
     np.savez(tmp_path / f"{way}.npz", t=np.arange(60) * 0.1, actions=actions, dt=np.float64(0.02))
     return tmp_path / f"{way}.npz"
 
@@ -83,15 +86,23 @@ def test_a_policy_that_brings_the_tool_back_into_the_box_runs_and_ends_inside(tm
     assert at_end[0] < -0.05  # the policy brought it home, 56 mm under the ceiling
 
 
-def test_a_first_target_further_out_refuses_the_start_naming_the_box_not_the_policy(tmp_path):
+def test_a_first_target_further_out_is_rejected_and_the_lost_line_names_the_box_not_the_policy(tmp_path):
     run = _posed_run(tmp_path, "further")
-    start = run.cell.read().q
-    with pytest.raises(StartupRefused, match=REFUSED):
-        run_scenario(run.scenario, tmp_path / "out", run=run)
-    assert run.events[-1].kind == "startup_refused" and re.match(REFUSED, run.events[-1].reason)
+    summary = run_scenario(run.scenario, tmp_path / "out", run=run)
+    assert re.match(LOST_LINE, run.policy_lost), run.policy_lost
+    rejected = [e for e in run.events if e.kind == "chunk_rejected"]
+    assert len(rejected) > 1 and all(re.match(REJECTED, e.reason) for e in rejected), rejected[0].reason
     with open_record(tmp_path / "out") as rec:
-        assert [e.kind for e in rec.events()] == ["startup_refused"]
-    assert np.abs(run.cell.read().q - start).max() < 1e-3  # nothing moved
+        kinds = [e.kind for e in rec.events()]
+    assert "approach_begin" not in kinds and "policy_lost" in kinds and summary["stopped"].startswith("policy lost")
+
+
+def test_one_first_target_further_out_then_one_that_holds_runs(tmp_path):
+    run = _posed_run(tmp_path, "jitter")
+    summary = run_scenario(run.scenario, tmp_path / "out", run=run)
+    kinds = [e["kind"] for e in summary["events"]]
+    assert "stopped" not in summary and kinds[-2:] == ["retreat_begin", "retreat_done"], summary.get("stopped")
+    assert kinds[:-2] and set(kinds[:-2]) == {"chunk_rejected"}, kinds  # the first answers only (was exit 2)
 
 
 def _leave_outside(port: int) -> None:
@@ -108,7 +119,7 @@ def _leave_outside(port: int) -> None:
         robot.close()
 
 
-def test_a_served_arm_left_outside_the_box_runs_and_a_first_target_further_out_is_one_line_exit_2(tmp_path):
+def test_a_served_arm_left_outside_the_box_runs_and_a_first_target_further_out_is_one_line_naming_it(tmp_path):
     with served() as port:
         _leave_outside(port)
         hold = {**served_scenario(port, _policy(tmp_path, "hold")), "guard": {"box": BOX}}
@@ -123,11 +134,13 @@ def test_a_served_arm_left_outside_the_box_runs_and_a_first_target_further_out_i
             "cycle: {source: time, seconds: 2}\nrealtime: {stale_s: 0.25, read_timeout_s: 0.1, "
             "overrun_budget: 1000000}\nguard: {box: [[-0.45, -0.45, 0.005], [0.45, 0.45, 0.25]]}\n")
         result = CliRunner().invoke(app, ["run", str(tmp_path / "s.yaml"), "--out", str(tmp_path / "further")])
-    assert result.exit_code == 2, result.output
-    assert result.stderr.startswith("error: start-up: the tool point starts 33 mm outside the workspace box ")
-    assert "107 mm past its z max" in result.stderr and "policy" not in result.stderr.split(";")[0]
+    assert result.exit_code == 1, result.output  # the cell stopped: the policy lost, the box start named
+    assert ("\nerror: the cell was stopped (policy_lost): policy lost: the tool point starts 33 mm outside the "
+            "workspace box ") in result.stderr, result.stderr
+    assert "every first target further out" in result.stderr and "107 mm past its z max" in result.stderr
     with open_record(tmp_path / "further") as rec:
-        assert [e.kind for e in rec.events()] == ["startup_refused"]
+        kinds = [e.kind for e in rec.events()]
+    assert "approach_begin" not in kinds and {"chunk_rejected", "policy_lost"} <= set(kinds)
 
 
 _coordinate = st.floats(-2.0, 2.0, allow_nan=False)
@@ -136,7 +149,7 @@ _coordinate = st.floats(-2.0, 2.0, allow_nan=False)
 @given(st.tuples(_coordinate, _coordinate, _coordinate), st.tuples(_coordinate, _coordinate, _coordinate),
        st.tuples(*[st.floats(0.01, 1.0)] * 3), st.tuples(_coordinate, _coordinate, _coordinate))
 def test_box_excess_is_positive_exactly_outside_and_names_a_wall_the_point_is_past(point, lo, size, probe):
-    from cellguard.runtime.transitions import box_excess  # here: without it the module's other tests still run
+    from cellguard.control.checks.workspace import box_excess  # here: without it the module's other tests still run
 
     hi = tuple(a + s for a, s in zip(lo, size))
     for p in (point, probe, tuple(a + 0.5 * s for a, s in zip(lo, size))):

@@ -228,7 +228,9 @@ def watch_scenario(run) -> None:
 
 def watch(run, monitor: ResidualMonitor) -> None:
     """Feed ``monitor`` each cycle of ``run`` (a ``runtime.loop.Run``); the window lands in the cycle's
-    outcome as ``residual`` (so in the record's cycle channel, where diagnosis reads it)."""
+    outcome as ``residual`` (so in the record's cycle channel, where diagnosis reads it). ``update`` takes whole
+    columns (rate differences across ticks, one least-squares fit over the window): a cycle longer than one of
+    the buffer's chunks is joined here, at its end (``CycleBuffer.rows``)."""
 
     def window(ticks, outcome: dict) -> None:
         labels = [str(outcome[k]) for k in LABELS if isinstance(outcome.get(k), str)]

@@ -45,7 +45,7 @@ from cellguard.runtime.inference import NOMINAL_INFERENCE_S
 from cellguard.runtime.link import RobotLink
 from cellguard.runtime.operator_stop import OperatorStop
 from cellguard.runtime.recovery import RecoveryRunner
-from cellguard.runtime.startup import StartupRefused, check_startup, starts_outside_box
+from cellguard.runtime.startup import BoxStart, StartupRefused, check_startup
 from cellguard.runtime.transition_play import TransitionPlay
 from cellguard.runtime.transitions import Transition, longest_brake_s
 from cellguard.scenario import Scenario
@@ -230,7 +230,10 @@ class Run(TransitionPlay):
                 if state is None:  # the link failed before its first state: nothing to record or to hold
                     self.stopped = self.stopped or f"robot link: {link.reason}"
                     break
-                ticks.add(guard.reference, sent, state)
+                if not ticks.add(guard.reference, sent, state) and ticks.dropped == 1:  # once a cycle
+                    events.append(Event(t, EventKind.CYCLE_BUFFER_FULL, f"no memory for more of the cycle's ticks "
+                                        f"{(t - start) * 1e-9:.0f} s in: its features cover those before, the "
+                                        "record every tick"))
                 if rec is not None:
                     usage = slow.before() if slow is not None else None
                     began = perf_ns()
@@ -269,6 +272,8 @@ class Run(TransitionPlay):
             outcome.update(recovery.end_cycle(t_end, stopped=self.stopped is not None))
         outcome["inference"] = _wall_latency(self._wall_ns)
         outcome["features"] = cycle_features(cell.profile, ticks, outcome, self._latencies, events.since(first_event))
+        if ticks.dropped:  # the buffer could not grow (``cycle_buffer_full``): the features are of its first rows
+            outcome["features_cover_s"] = round((ticks.stamp(ticks.n - 1) - start) * 1e-9, 3)
         for monitor in self.cycle_monitors:
             monitor(ticks, outcome)
         if self.cycle_monitors:  # a simulated cell's replay of the cycle (wall time: tens of ms): a pause, no tick
@@ -291,12 +296,13 @@ class Run(TransitionPlay):
             self._wall_ns.append(arrival.wall_ns)
             self._refusal(t_ns, "failed", arrival.error)
             return False
+        box_start = None  # a tool point outside the box whose first target lies further out: the refusal's cause
         if not self._started:
             if arrival.prepared is None:  # simulated time: checked here, as the worker would have
                 arrival = dataclasses.replace(arrival, prepared=self.guard.executor.prepare(arrival.chunk))
             if arrival.prepared.problem is None:
                 held = self._held()
-                why = held or self._outside(arrival.chunk)
+                why, box_start = (held, None) if held else self._outside(arrival.chunk)
                 if why is not None:  # refused as a malformed chunk is: the next one is the first
                     arrival = dataclasses.replace(arrival, prepared=PreparedChunk(0, 0, problem=why))
                 if held is not None:  # refused for the moment, not for what it says: the policy answered
@@ -319,7 +325,7 @@ class Run(TransitionPlay):
         self._latencies.append(arrival.latency_ns)
         self._wall_ns.append(arrival.wall_ns)
         if pushed and pushed[0].kind in _REFUSED_BY:  # a stale chunk can never move the robot: refused as well
-            self._refusal(t_ns, _REFUSED_BY[pushed[0].kind], pushed[0].reason)
+            self._refusal(t_ns, _REFUSED_BY[pushed[0].kind], pushed[0].reason, box_start)
         return False
 
     def _request(self, t_ns: int) -> None:
@@ -418,21 +424,20 @@ class Run(TransitionPlay):
                    "nothing approached"
         return None
 
-    def _outside(self, chunk: ActionChunk) -> str | None:
+    def _outside(self, chunk: ActionChunk) -> tuple[str | None, BoxStart | None]:
         """Why the run's first chunk may not start it: its target outside the workspace box, the tool point inside
-        it (the policy's answer refused). A tool point outside it now is brought back, or the start refused with
-        the box named (``starts_outside_box``): every chunk refused there, the run read as "policy lost"."""
+        it (the policy's answer refused); and the tool point's start where it lies outside the box and the target
+        further out (``BoxStart``: a target no further out is taken to). Both refused as a malformed chunk is."""
         guard = self.guard
         target = self._first_target(chunk)
         outside = guard.envelope.target_problem(target)
         if outside is None:
-            return None
-        try:
-            if starts_outside_box(guard.config.box, guard.tool(self.link.last_sent), guard.tool(target)):
-                return None
-        except StartupRefused as exc:
-            self._refuse(str(exc))
-        return f"first target: {outside}; nothing approached"
+            return None, None
+        start = BoxStart.of(guard.config.box, guard.tool(self.link.last_sent))
+        if start is None:
+            return f"first target: {outside}; nothing approached", None
+        further = start.further(guard.tool(target))
+        return (None, None) if further is None else (f"first target: {further}; nothing approached", start)
 
     def _first_target(self, chunk: ActionChunk) -> np.ndarray:
         """The pose an approach goes to: the chunk's first action inside the soft limits, where the guard keeps
@@ -517,17 +522,23 @@ class Run(TransitionPlay):
         no-first-chunk watchdog runs from then, and the answers refused count from then on (``_refusal``)."""
         self._armed_at, self._answers, self._refused = t_ns, {}, 0
 
-    def _refusal(self, t_ns: int, kind: str, why: str) -> None:
+    def _refusal(self, t_ns: int, kind: str, why: str, box_start: BoxStart | None = None) -> None:
         """An answer not taken (``kind``: "failed", "rejected" or "stale"), weighed with those since the arming or
         the last chunk the guard took, whichever came later (the policy's or a recovery's). Once a chunk has been
         taken, the guard's watchdog holds the robot after ``watchdog_s`` without one, and a refused answer then,
         every one since refused, loses the policy (``_never_answered``): a policy that turned bad after it started
         (a NaN in every chunk, every answer later than its own horizon) was asked on, every cycle waited out its
-        time-out and the run exited 0. Before the first chunk ``_stop_input`` weighs them at the watchdog."""
+        time-out and the run exited 0. Before the first chunk ``_stop_input`` weighs them at the watchdog.
+        ``box_start``: the tool point's start outside the box, which the first target lay further out than; kept
+        while every answer refused is such a one (``_never_answered`` names it)."""
         last = self.guard.executor.last_chunk_ns
         if last is not None and last > self._armed_at:  # taken since: the count starts again from it
             self._arm(last)
         self._answers[kind] = why
+        if box_start is None or (self._refused and "box" not in self._answers):
+            self._answers.pop("box", None)
+        else:
+            self._answers["box"] = str(box_start)
         self._refused += 1
         if (last is not None and self._refused > 1 and not self.policy_lost
                 and t_ns - self._armed_at > self.scenario.guard.watchdog_s * 1e9):
@@ -537,8 +548,9 @@ class Run(TransitionPlay):
         """No chunk within the watchdog (of its arming or the last chunk taken) and every answer since refused, two
         at least (one late bad answer of a slow policy whose next is good is no loss): every call failed (a
         server that answers only errors, a model that raises on every observation), or the guard rejected its
-        chunk (not finite, beyond the limits, the wrong shape, its first target outside the box from inside it) or
-        it came stale (all its steps past: it can never move the robot). The policy is
+        chunk (not finite, beyond the limits, the wrong shape, its first target outside the box from inside it, or
+        further out than a tool point that starts outside it: the line names that start) or it came stale (all its
+        steps past: it can never move the robot). The policy is
         lost: the run went on asking it, one event per request, every cycle waited out its time-out, failed, and
         it ended clean, exit 0. A cold one that answers within the watchdog is not, nor one
         whose chunks a stop in force held back (the moment's refusal, not the policy's)."""
@@ -549,7 +561,9 @@ class Run(TransitionPlay):
         none = "none taken" if last is None else f"none taken since t = {self._armed_at * 1e-9:.3f} s"
         kinds = [kind for kind in _REFUSALS if kind in answers]
         chunks = " or ".join(kind for kind in kinds if kind != "failed")
-        if kinds == ["failed"]:
+        if "box" in answers:  # not the policy alone: where the tool is
+            lead = f"{answers['box']}, every first target further out, {none}"
+        elif kinds == ["failed"]:
             lead = "every call failed before the first chunk" if last is None else f"every call failed, {none}"
         elif kinds == ["rejected"]:
             lead = f"the guard rejected every chunk, {none}"

@@ -19,20 +19,23 @@ shortens the blend (continuous still, and guarded). The same spacing refuses a p
 (``guard.watchdog_s``) no longer than the time between chunks: the default 300 ms stopped the robot at every
 chunk of a 1 s chunk policy on a worker (asked again half a chunk in), a stop and a resume each time.
 
-A tool point that starts outside the workspace box (a robot left there, a sim-server cell posed there) is brought
-back: a first target no further out is taken, as the approach (``Transition.leaves_box``) and the guard's look-ahead
-let a motion from outside do; one further out refuses the start (``starts_outside_box``). Refused as the policy's
-answer, every first chunk of a policy that held there or moved back in read as "policy lost".
+A tool point that starts outside the workspace box (a robot left there, a sim-server cell posed there) is taken to
+the first target, no further out: one inside the box grown wall by wall to hold the start (``BoxStart``, the
+guard's ``grown_box``, as the approach's ``Transition.leaves_box`` and the guard's look-ahead let a motion from
+outside do). A first target further out is refused as a chunk is (a learned policy's next may be fine), and where
+every one is, the policy-lost line names the box start. Refused as the policy's answer, every first chunk of a
+policy that held there or moved back in read as "policy lost: the guard rejected every chunk".
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
+from dataclasses import dataclass
 
 import numpy as np
 
+from cellguard.control.checks.workspace import at, box_excess, grown_box, mm
 from cellguard.errors import ConfigError
-from cellguard.runtime.transitions import SLACK, box_excess
 
 STATS_MARGIN = 0.1  # fraction of q99 - q01 allowed outside the statistics' range
 
@@ -87,23 +90,42 @@ def check_startup(policy, observation, chunk, latency_ns: int, period_ns: int, s
                              f"{gap_ns * 1e-6:.0f} ms; not moving")
 
 
-def starts_outside_box(box, start, target) -> bool:
-    """Does the tool point start outside ``box`` (``start`` [m]) with the first ``target`` [m] no further out, ``SLACK``
-    allowed: the approach brings it back? False where it starts inside (a target outside is then the policy's answer
-    refused); StartupRefused naming the wall and both distances where it starts outside and the target lies further
-    out (nothing the guard would play, and not the policy's doing that the tool is out there)."""
-    lo, hi = (np.asarray(corner, dtype=np.float64) for corner in box)
-    came, wall = box_excess(np.asarray(start, dtype=np.float64), lo, hi)
-    if came <= 0.0:
-        return False
-    goes, to = box_excess(np.asarray(target, dtype=np.float64), lo, hi)
-    if goes <= came + SLACK:
-        return True
-    corners = [list(map(float, corner)) for corner in box]
-    raise StartupRefused(f"start-up: the tool point starts {came * 1e3:.0f} mm outside the workspace box {corners} "
-                         f"past its {wall} (at {np.round(start, 3).tolist()} m) and the first target lies further out, "
-                         f"{goes * 1e3:.0f} mm past its {to} (at {np.round(target, 3).tolist()} m); bring the robot "
-                         "into the box or have the policy start where it is; not moving")
+@dataclass(frozen=True)
+class BoxStart:
+    """A tool point that starts outside the workspace ``box``: ``tip`` [m], ``excess`` [m] past its ``wall`` (its
+    worst), and the box ``grown`` wall by wall to hold it (``grown_box``), where its first target may lie."""
+
+    box: tuple
+    tip: tuple
+    excess: float
+    wall: str
+    grown: tuple
+
+    @classmethod
+    def of(cls, box, tip) -> BoxStart | None:
+        """The start at tool point ``tip`` [m], or None where it lies inside ``box``."""
+        lo, hi = box
+        grown = grown_box(tip, lo, hi)
+        return None if grown is None else cls(box, tuple(map(float, tip)), *box_excess(tip, lo, hi), grown)
+
+    def __str__(self) -> str:
+        """The start, as a refusal and the policy-lost line name it."""
+        corners = [list(map(float, corner)) for corner in self.box]
+        return (f"the tool point starts {mm(self.excess)} mm outside the workspace box {corners} past its "
+                f"{self.wall} (at {at(self.tip, *self.box)} m)")
+
+    def further(self, target) -> str | None:
+        """Why a first target at tool point ``target`` [m] is refused (past a wall the tool is inside of, or further
+        past one than the tool is, ``SLACK`` allowed), or None where it is taken: the approach goes there."""
+        beyond, wall = box_excess(target, *self.grown)
+        if beyond <= 0.0:
+            return None
+        axis, (lo, hi) = "xyz".index(wall[0]), self.box
+        past = lo[axis] - target[axis] if wall.endswith("min") else target[axis] - hi[axis]
+        inside = lo[axis] <= self.tip[axis] <= hi[axis]
+        how = f"{mm(past)} mm past its {wall}, a wall the tool is inside of" if inside else \
+            f"further out, {mm(past)} mm past its {wall}"
+        return f"{self} and the first target lies {how} (at {at(target, lo, hi)} m)"
 
 
 def _checked_stats(name: str, pair, value: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -28,16 +28,17 @@ from dataclasses import dataclass
 import numpy as np
 import ruckig
 
-from cellguard.control.checks import SpeedCap, Tick
+from cellguard.control.checks import SpeedCap, Tick, workspace
 from cellguard.control.checks.safety_input import ReducedSpeedInput
 from cellguard.control.checks.tool_speed import ToolSpeedCap
+from cellguard.control.checks.workspace import at, box_excess, grown_box, mm
 from cellguard.control.config import GuardConfig
 from cellguard.embodiment import Profile
 from cellguard.robot.protocol import SafetyInputs
 
 TOLERANCE = 0.01  # [rad] or [m]: closer than this, no transition is played
 AT_REST = 1e-9  # [unit/s], [unit/s²]: slower than this, a transition is at rest
-SLACK = 0.002  # [m] a transition that starts outside the box may go no further out than its start, plus this
+SLACK = workspace.SLACK  # [m] a transition that starts past a wall may pass it no further than it starts, plus this
 BRAKE_SLACK_S = 1.0  # [s] wall time a brake may take beyond its own (a simulated cell's runs on a busy host's CPU)
 
 
@@ -77,15 +78,6 @@ def longest_brake_s(profile: Profile, period_ns: int) -> float:
     stop = Transition._stop(profile, np.zeros(profile.dof), profile.array("velocity"), profile.array("acceleration"),
                             period_ns)
     return (0.0 if stop is None else stop.duration_s) + BRAKE_SLACK_S
-
-
-def box_excess(point: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[float, str]:
-    """How far ``point`` [m] lies outside the box ``lo``..``hi`` on its worst axis [m] (below 0 inside: minus the
-    distance to the nearest wall), and that wall ("z max")."""
-    below, above = lo - point, point - hi
-    out = np.maximum(below, above)
-    axis = int(np.argmax(out))
-    return float(out[axis]), f"{'xyz'[axis]} {'min' if below[axis] > above[axis] else 'max'}"
 
 
 @dataclass(frozen=True)
@@ -157,35 +149,40 @@ class Transition:
         """Where this transition's tool point leaves ``box`` [m] on the way (why it may not be played), or None.
         Every setpoint is checked, one servo period apart (the tool moves at most sum_j reach_j v_j dt between two,
         ``reach``: ``max_reach``'s); those the tool cannot reach a wall by from a checked one are skipped. One that
-        starts outside the box may go no further out than it starts (it brings the tool back, as the guard lets a
-        motion do), and once inside it stays inside. None without a box or a tool model."""
+        starts outside the box keeps to the box grown to hold its start (``grown_box``, as the guard lets a motion
+        do): past no wall further than it starts, shrinking as it comes in, and a wall it is inside of stays one.
+        None without a box or a tool model."""
         if box is None or tool is None or reach is None:
             return None
-        lo, hi = np.asarray(box[0], dtype=np.float64), np.asarray(box[1], dtype=np.float64)
+        lo, hi = tuple(map(float, box[0])), tuple(map(float, box[1]))
         dt = self.period_ns * 1e-9
         per_step = float(np.dot(reach, profile.array("velocity"))) * dt  # [m] the tool's most in one period
-        steps, k, allowed, left, worst = math.ceil(self.duration_s / dt), 0, None, None, None
+        steps, k, grown, left, worst = math.ceil(self.duration_s / dt), 0, None, None, None
+        allowed = (lo, hi)  # where the tool point may go: the box, grown while it is outside
         while k <= steps:
             t = min(k * dt, self.duration_s)
             tip = np.asarray(tool(np.asarray(self.state_at(t)[0], dtype=np.float64)), dtype=np.float64)
-            excess, wall = box_excess(tip, lo, hi)
-            here = (excess, t, wall, tip)
-            if allowed is None:  # the start
-                allowed = excess + SLACK if excess > 0.0 else 0.0
+            excess = box_excess(tip, lo, hi)[0]
+            if k == 0:  # the start
+                grown = grown_box(tip, lo, hi)
             elif left is not None:
-                worst = max(worst, here, key=lambda w: w[0])
-            elif excess > allowed:
-                left = worst = here
+                worst = max(worst, (*box_excess(tip, *allowed), t, tip), key=lambda w: w[0])
             else:
-                allowed = min(allowed, excess + SLACK) if excess > 0.0 else 0.0
+                allowed = grown or (lo, hi)
+                beyond, wall = box_excess(tip, *allowed)
+                if beyond > 0.0:
+                    left = worst = (beyond, wall, t, tip)
+                elif grown is not None:  # once inside, it stays inside
+                    grown = grown_box(tip, lo, hi, grown) if excess > 0.0 else None
             k += max(1, int(-excess / per_step)) if excess < 0.0 and per_step > 0.0 else 1
         if left is None:
             return None
+        out = "outside" if allowed == (lo, hi) else "past where it may go"  # from outside: past the grown box
         said = (f"its tool point leaves the workspace box {[list(map(float, corner)) for corner in box]} past its "
-                f"{left[2]} {left[1]:.2f} s in (at {np.round(left[3], 3).tolist()} m)")
+                f"{left[1]} {left[2]:.2f} s in (at {at(left[3], lo, hi)} m)")
         if worst is left:
-            return f"{said}, {left[0] * 1e3:.0f} mm outside at worst"
-        return f"{said}; {worst[0] * 1e3:.0f} mm outside at worst, past its {worst[2]} {worst[1]:.2f} s in"
+            return f"{said}, {mm(left[0])} mm {out} at worst"
+        return f"{said}; {mm(worst[0])} mm {out} at worst, past its {worst[1]} {worst[2]:.2f} s in"
 
     def slowed(self, profile: Profile, steps: int, cap: SpeedCap | None,
                reach: list[float] | None) -> Transition | None:

@@ -14,9 +14,11 @@ stopping distance skip all that while the tool is far from the walls.
 
 Outside the box (a reset at a pose outside it, a stop that ended outside), motion that brings the
 tool back is allowed and motion further out is not: on the first tick of motion the box is grown
-to hold the tool point with ``SLACK`` to spare, and it shrinks back as the tool point comes in;
-there only where a stop would end is checked. Before tracking, a workspace stop is held until the
-way on leads the tool back in (``WorkspaceHold``), so one excursion is at most one stop.
+wall by wall to hold the tool point with ``SLACK`` to spare (``grown_box``: a wall the tool is inside
+of stays a wall), and it shrinks back as the tool point comes in; there only where a stop would end
+is checked. The approach and the start-up's first target (``runtime``) keep to the same grown box.
+Before tracking, a workspace stop is held until the way on leads the tool back in (``WorkspaceHold``), so one
+excursion is at most one stop.
 """
 
 from __future__ import annotations
@@ -44,9 +46,42 @@ RESUME_INSIDE = 0.01  # [m] a workspace stop holds until the reference's tool po
 PROBE_STEP = 1e-3  # [rad or m] the step toward the reference that shows where the recovery leads the tool
 
 
-def _excess(point, lo, hi) -> float:
-    """How far ``point`` lies outside the box [m] (0 inside)."""
-    return math.sqrt(sum(max(a - p, p - b, 0.0) ** 2 for p, a, b in zip(point, lo, hi)))
+def grown_box(point, lo, hi, grown=None) -> tuple[tuple, tuple] | None:
+    """The box ``lo``..``hi`` [m] grown wall by wall to hold ``point`` [m], a tool point found outside it: a wall the
+    point is past moves out to it plus ``SLACK``, a wall it is inside of stays (every wall pushed out by how far the
+    point was out let a tool over the ceiling swing past a side wall). None where the point is inside every wall.
+    ``grown``: the box grown so before, shrunk to hold ``point`` as it comes in: a wall moved out moves back to
+    ``SLACK`` past it, or past the wall itself where the point is inside it (the caller drops the grown box)."""
+    if grown is not None:
+        return (tuple(g if g == a else max(g, min(p, a) - SLACK) for p, a, g in zip(point, lo, grown[0])),
+                tuple(g if g == b else min(g, max(p, b) + SLACK) for p, b, g in zip(point, hi, grown[1])))
+    out_lo = tuple(float(p) - SLACK if p < a else float(a) for p, a in zip(point, lo))
+    out_hi = tuple(float(p) + SLACK if p > b else float(b) for p, b in zip(point, hi))
+    return None if out_lo == tuple(map(float, lo)) and out_hi == tuple(map(float, hi)) else (out_lo, out_hi)
+
+
+def box_excess(point, lo, hi) -> tuple[float, str]:
+    """How far ``point`` [m] lies outside the box ``lo``..``hi`` on its worst axis [m] (below 0 inside: minus the
+    distance to the nearest wall), and that wall ("z max")."""
+    excess, axis, side = max(((max(a - p, p - b), k, "min" if a - p > p - b else "max")
+                              for k, (p, a, b) in enumerate(zip(point, lo, hi))), key=lambda e: e[0])
+    return float(excess), f"{'xyz'[axis]} {side}"
+
+
+def mm(distance: float) -> str:
+    """A distance [m] in mm: one decimal under 1 mm (a tool a fraction of a mm out read "0 mm outside")."""
+    return f"{distance * 1e3:.1f}" if abs(distance) < 1e-3 else f"{distance * 1e3:.0f}"
+
+
+def at(point, lo, hi) -> list[float]:
+    """``point`` [m] to the mm, each coordinate with as many more digits as show which side of its walls it lies."""
+    shown = []
+    for p, a, b in zip(map(float, point), lo, hi):
+        digits = 3
+        while digits < 9 and ((p < a) != (round(p, digits) < a) or (p > b) != (round(p, digits) > b)):
+            digits += 1
+        shown.append(round(p, digits) + 0.0)  # no -0.0
+    return shown
 
 
 def _depth(point, lo, hi) -> float:
@@ -71,18 +106,17 @@ class WorkspaceLookahead(Check):
         self._reach = reach.norm
         self._moving = tuple(j for j, k in enumerate(reach.norm) if k > 1e-6)  # the joints that move the tool point
         self._axis_reach = [tuple(axis[j] for axis in reach.axes) for j in self._moving]  # (x, y, z) per joint
-        self._grown = 0.0  # [m] how far the box is grown to hold a tool point found outside it
+        self._grown: tuple[tuple, tuple] | None = None  # the box grown to hold a tool point found outside it
         self._still = True  # the tracker starts this tick from standstill (construction, reset, resume)
 
     def request(self, tick: Tick) -> Stop | None:
         tip, tracker = tick.tip, self._tracker
         if self._still or tick.stop_kind is not None:  # moving from standstill: a tool point outside is taken as is
-            out = _excess(tip, self._lo, self._hi)
-            self._grown, self._still = (out + SLACK if out else 0.0), False
+            self._grown, self._still = grown_box(tip, self._lo, self._hi), False
         elif self._grown:
-            self._grown = min(self._grown, _excess(tip, self._lo, self._hi) + SLACK)
+            self._grown = grown_box(tip, self._lo, self._hi, self._grown)
         if self._path_fits(tip, tracker):
-            self._grown = 0.0
+            self._grown = None
             return None
         return None if self._grown and self._end_fits(tracker) else STOP
 
@@ -125,13 +159,11 @@ class WorkspaceLookahead(Check):
         return x0 + rx <= x <= x1 - rx and y0 + ry <= y <= y1 - ry and z0 + rz <= z <= z1 - rz
 
     def _end_fits(self, tracker: Tracker) -> bool:
-        """Outside the box: does a stop from the setpoint end inside the grown box (no further out than the
+        """Outside the box: does a stop from the setpoint end inside the grown box (past no wall further than the
         tool point was, ``SLACK`` allowed for the path between)?"""
         plan = tracker.stop_plan()
         end = tracker.samples[0] if plan is None else plan.at(plan.duration)
-        grown = self._grown
-        return _inside(self._tool(np.asarray(end)).tolist(), tuple(x - grown for x in self._lo),
-                       tuple(x + grown for x in self._hi), 0.0)
+        return _inside(self._tool(np.asarray(end)).tolist(), *self._grown, 0.0)
 
 
 class WorkspaceHold(Check):
