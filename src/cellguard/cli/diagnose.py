@@ -42,7 +42,7 @@ def diagnose(
         health = record_health(folder)
         baseline_health = record_health(acceptance) if acceptance is not None else None
     except CellguardError as exc:
-        fail(exc)
+        fail(_with_health(exc, folder))
     out = diagnosis.to_dict()
     out["record"] = {"ok": health.ok, "status": health.describe(), **out["record"]}
     if baseline_health is not None:
@@ -87,7 +87,7 @@ def report(
             path = write_report(folder, out, diagnosis=diagnosis, health=health, pin=pin)
         stdout.written(path)
     except CellguardError as exc:
-        fail(exc)
+        fail(_with_health(exc, folder))
     say(f"report: {path}", err=False)
     raise typer.Exit(max(_warn(health, folder, baseline_health, acceptance), warn_if_unsteady(diagnosis.baseline),
                          warn_if_unkept(unkept)))
@@ -138,6 +138,22 @@ def fleet_advice(use: bool | None) -> list[dict]:
     except StoreUnavailable as exc:
         say(f"warning: no advice from the fleet: {exc}")
         return []
+
+
+def _with_health(exc: CellguardError, folder: Path) -> CellguardError:
+    """``exc`` saying also what the record's health says where the record is not whole: a run killed after 2 of 5
+    acceptance cycles read only "baseline: needs at least 5 acceptance cycles, got 2", a live one "no production
+    cycles", where `record info` said truncated (and `recover`) or still being written."""
+    try:
+        health = record_health(folder)
+    except CellguardError:  # the record itself is the error (missing, foreign, unreadable): said already
+        return exc
+    if health.ok:
+        return exc
+    hint = (f"; `cellguard record recover {folder} -o NEW_DIR` writes a finished copy"
+            if health.recoverable and not health.writing else "")
+    exc.args = (f"{exc} (the record is {health.describe()}{hint})",)
+    return exc
 
 
 def record_health(folder: Path):
