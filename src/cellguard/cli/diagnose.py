@@ -141,14 +141,14 @@ def fleet_advice(use: bool | None) -> list[dict]:
 
 
 def _with_health(exc: CellguardError, folder: Path) -> CellguardError:
-    """``exc`` saying also what the record's health says where the record is not whole: a run killed after 2 of 5
+    """``exc`` saying also what the record's health says where the record was cut short: a run killed after 2 of 5
     acceptance cycles read only "baseline: needs at least 5 acceptance cycles, got 2", a live one "no production
     cycles", where `record info` said truncated (and `recover`) or still being written."""
     try:
         health = record_health(folder)
     except CellguardError:  # the record itself is the error (missing, foreign, unreadable): said already
         return exc
-    if health.ok:
+    if not (health.truncated or health.writing):  # damage within a whole record: the error names what it lacks
         return exc
     hint = (f"; `cellguard record recover {folder} -o NEW_DIR` writes a finished copy"
             if health.recoverable and not health.writing else "")
