@@ -5,26 +5,23 @@ is inside of stays a wall. Before, every wall was pushed out by how far out the 
 
 from __future__ import annotations
 
-import mujoco
 import numpy as np
 from hypothesis import given
 from hypothesis import strategies as st
+from test_start_outside_box import OUT, posed_run
 
 from cellguard.control.checks.workspace import SLACK
 from cellguard.control.config import GuardConfig
 from cellguard.control.guard import Guard
 from cellguard.control.reach import max_reach
-from cellguard.control.settings import build_guard
 from cellguard.policy.chunk import ActionChunk
 from cellguard.robot.registry import make_cell
-from cellguard.runtime import Run, run_scenario
+from cellguard.runtime import run_scenario
 from cellguard.runtime.transitions import Transition
-from cellguard.scenario import parse_scenario
 
 CELL = make_cell("arm-pick-place")
 PROFILE, TOOL, MS = CELL.profile, CELL.tool_point, 1_000_000
 BOX = ((-0.45, -0.02, 0.005), (0.45, 0.02, 0.25))  # a narrow box: the base's swing crosses its y max wall
-OUT = np.array([0.0, -0.3, 1.5, 1.55, 0.0, 0.025])  # tool point (0.175, 0.0, 0.283): 33 mm over the ceiling
 SWING = OUT + [0.3, 0.0, 0.0, 0.0, 0.0, 0.0]  # the same height, 32 mm past y max
 
 
@@ -40,6 +37,21 @@ def test_a_guarded_swing_from_over_the_ceiling_stops_at_the_side_wall():
     assert kinds == ["workspace_stop"]
 
 
+def test_stops_between_chunks_do_not_let_a_tool_outside_the_box_creep_further_out():
+    """A policy that asks each chunk a little higher, its chunks further apart than the watchdog: every watchdog stop
+    regrew the box from where the tool then was, and the tool crept 33 -> 70 mm over the ceiling in 20 s."""
+    guard = Guard(PROFILE, OUT, MS, GuardConfig(watchdog_s=0.1, box=BOX), tool=TOOL)
+    start, highest = TOOL(OUT)[2], 0.0
+    for k in range(8000):
+        t = (k + 1) * MS
+        if k % 400 == 0:
+            target = OUT + [0.0, 0.0, -0.003 * (k // 400 + 1), 0.0, 0.0, 0.0]
+            guard.push(ActionChunk(np.broadcast_to(target, (25, 6)).copy(), t - MS, 20 * MS), t)
+        setpoint, _ = guard.tick(t)
+        highest = max(highest, TOOL(setpoint)[2])
+    assert highest <= start + SLACK + 1e-6, (highest - start) * 1e3
+
+
 def test_an_approach_from_over_the_ceiling_past_a_side_wall_leaves_the_box():
     plan = Transition.plan(PROFILE, OUT, SWING, MS)
     why = plan.leaves_box(PROFILE, TOOL, BOX, max_reach(TOOL, PROFILE.q_min, PROFILE.q_max).norm)
@@ -51,14 +63,7 @@ def test_an_approach_from_over_the_ceiling_past_a_side_wall_leaves_the_box():
 def test_a_first_target_past_a_side_wall_is_rejected_and_the_lost_line_names_the_start(tmp_path):
     np.savez(tmp_path / "p.npz", t=np.arange(60) * 0.1, actions=np.broadcast_to(SWING, (60, 25, 6)).copy(),
              dt=np.float64(0.02))
-    run = Run(parse_scenario({"cell": "arm-pick-place", "seed": 1, "policy": f"replay:{tmp_path / 'p.npz'}",
-                              "acceptance_cycles": 1, "production_cycles": 0, "guard": {"box": [*map(list, BOX)]},
-                              "cycle": {"source": "time", "seconds": 3}}))
-    cell = run.cell
-    cell.data.qpos[cell.drives.qadr] = OUT
-    cell.write(OUT)
-    mujoco.mj_forward(cell.model, cell.data)
-    run.guard = build_guard(cell, run.scenario.guard)
+    run = posed_run(tmp_path / "p.npz", BOX)
     tips = []
     summary = run_scenario(run.scenario, tmp_path / "out", run=run,
                            on_cycle=lambda _: tips.append(run.guard.tool(run.link.state.q)))

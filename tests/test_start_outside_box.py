@@ -49,17 +49,24 @@ def _policy(tmp_path, way: str):
     return tmp_path / f"{way}.npz"
 
 
-def _posed_run(tmp_path, way: str) -> Run:
-    """A 3 s time cycle on the simulated arm, posed at ``OUT`` before the run (as a robot left there)."""
-    run = Run(parse_scenario({"cell": "arm-pick-place", "seed": 1, "policy": f"replay:{_policy(tmp_path, way)}",
-                              "acceptance_cycles": 1, "production_cycles": 0, "guard": {"box": BOX},
+def posed_run(policy, box) -> Run:
+    """A 3 s time cycle of replay file ``policy`` on the simulated arm inside ``box``, the arm posed at ``OUT`` before
+    the run (as a robot left there)."""
+    run = Run(parse_scenario({"cell": "arm-pick-place", "seed": 1, "policy": f"replay:{policy}",
+                              "acceptance_cycles": 1, "production_cycles": 0, "guard": {"box": [*map(list, box)]},
                               "cycle": {"source": "time", "seconds": 3}}))
     cell = run.cell
     cell.data.qpos[cell.drives.qadr] = OUT
     cell.write(OUT)
     mujoco.mj_forward(cell.model, cell.data)
     run.guard = build_guard(cell, run.scenario.guard)
-    assert round(_over_ceiling(run, cell.read().q), 3) == 0.033
+    return run
+
+
+def _posed_run(tmp_path, way: str) -> Run:
+    """``posed_run`` of the policy ``way`` (``_policy``), its tool point 33 mm over the box."""
+    run = posed_run(_policy(tmp_path, way), BOX)
+    assert round(_over_ceiling(run, run.cell.read().q), 3) == 0.033
     return run
 
 
