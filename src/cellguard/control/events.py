@@ -56,8 +56,9 @@ class EventKind(StrEnum):
     STARTUP_REFUSED = "startup_refused", False, None, True
     RECORD_FAILED = "record_failed", False, 2, True
     RECORD_QUEUE_FULL = "record_queue_full"
-    # the cycle's tick buffer could not grow (out of memory): its features cover the ticks before; the run goes on
-    CYCLE_BUFFER_FULL = "cycle_buffer_full"
+    # the cycle's tick buffer could not grow (out of memory): the cycle has no tick features; the run goes on. The
+    # host's, no safety event and no intervention: routine (no full-rate window opened where memory ran out)
+    CYCLE_BUFFER_FULL = "cycle_buffer_full", True
     # the run goes on (a late first chunk starts it); a stop that removes a bridged robot's power ends it, whatever
     # asked it (power_removed, as a limit's stop does)
     WATCHDOG_NO_FIRST_CHUNK = "watchdog_no_first_chunk"
@@ -90,9 +91,8 @@ class EventKind(StrEnum):
 
 ROUTINE_EVENTS = frozenset(k.value for k in EventKind if k.routine)  # kinds that are normal bookkeeping
 # kinds that are no intervention of the guard's: a chunk that ran out is the policy's timing, told beside the braking
-# that follows it (counted too, it doubled interventions_per_hour and the interventions feature for the same motion);
-# a full cycle buffer is the host's memory
-NO_INTERVENTION = ROUTINE_EVENTS | {EventKind.CHUNK_RAN_OUT.value, EventKind.CYCLE_BUFFER_FULL.value}
+# that follows it (counted too, it doubled interventions_per_hour and the interventions feature for the same motion)
+NO_INTERVENTION = ROUTINE_EVENTS | {EventKind.CHUNK_RAN_OUT.value}
 
 
 @dataclass(frozen=True)

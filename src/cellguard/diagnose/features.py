@@ -25,11 +25,29 @@ def cycle_features(
     latencies_ns: list[int],
     events: list[Event],
 ) -> dict[str, float]:
-    """Flat name -> value features of one cycle (SI unless the name says ``_mm`` or ``_ms``)."""
-    n = ticks.n
+    """Flat name -> value features of one cycle (SI unless the name says ``_mm`` or ``_ms``). A cycle whose ticks
+    the buffer could not all hold (``ticks.dropped``: out of memory) has none from its ticks (no reading, NaN in the
+    diagnosis): read from its start only, a healthy cell's currents were a load change."""
     ticks.fold_rest()
     sums = ticks.sums[:ticks.blocks]
     f: dict[str, float] = {}
+    if not ticks.dropped:
+        _tick_features(f, profile, ticks, sums)
+    f["latency_mean_ms"] = float(np.mean(latencies_ns)) * 1e-6 if latencies_ns else 0.0
+    f["latency_max_ms"] = float(np.max(latencies_ns)) * 1e-6 if latencies_ns else 0.0
+    f["interventions"] = float(sum(e.kind not in NO_INTERVENTION for e in events))
+    f["chunks_rejected"] = float(sum(e.kind == EventKind.CHUNK_REJECTED for e in events))
+    f["stale_chunks"] = float(sum(e.kind in (EventKind.CHUNK_STEPS_DROPPED, EventKind.CHUNK_STALE) for e in events))
+    for key, value in outcome.items():
+        _flatten(f, key, value, profile)
+    if not ticks.dropped:
+        _carry_currents(f, profile, ticks, outcome)
+    return f
+
+
+def _tick_features(f: dict[str, float], profile: Profile, ticks: CycleBuffer, sums: np.ndarray) -> None:
+    """Each joint's current and tracking peaks and RMS, and its friction torque, from the block sums."""
+    n = ticks.n
     if n:
         peak, tracking_max = sums[:, CURRENT_PEAK].max(axis=0), sums[:, ERROR_MAX].max(axis=0)
         current_rms = np.sqrt(sums[:, CURRENT_SQ].sum(axis=0) / n)
@@ -40,15 +58,6 @@ def cycle_features(
         f[f"tracking_rms.{name}"] = float(tracking_rms[j]) if n else 0.0
         f[f"tracking_max.{name}"] = float(tracking_max[j]) if n else 0.0
     _friction_torques(f, profile, ticks, sums)
-    f["latency_mean_ms"] = float(np.mean(latencies_ns)) * 1e-6 if latencies_ns else 0.0
-    f["latency_max_ms"] = float(np.max(latencies_ns)) * 1e-6 if latencies_ns else 0.0
-    f["interventions"] = float(sum(e.kind not in NO_INTERVENTION for e in events))
-    f["chunks_rejected"] = float(sum(e.kind == EventKind.CHUNK_REJECTED for e in events))
-    f["stale_chunks"] = float(sum(e.kind in (EventKind.CHUNK_STEPS_DROPPED, EventKind.CHUNK_STALE) for e in events))
-    for key, value in outcome.items():
-        _flatten(f, key, value, profile)
-    _carry_currents(f, profile, ticks, outcome)
-    return f
 
 
 MIN_TRAVEL = 0.05  # [rad] a joint that moved less than this in a cycle has no friction estimate

@@ -232,8 +232,8 @@ class Run(TransitionPlay):
                     break
                 if not ticks.add(guard.reference, sent, state) and ticks.dropped == 1:  # once a cycle
                     events.append(Event(t, EventKind.CYCLE_BUFFER_FULL, f"no memory for more of the cycle's ticks "
-                                        f"{(t - start) * 1e-9:.0f} s in: its features cover those before, the "
-                                        "record every tick"))
+                                        f"{(t - start) * 1e-9:.0f} s in: the cycle has no tick features (not "
+                                        "compared in diagnosis), the record holds every tick"))
                 if rec is not None:
                     usage = slow.before() if slow is not None else None
                     began = perf_ns()
@@ -272,9 +272,9 @@ class Run(TransitionPlay):
             outcome.update(recovery.end_cycle(t_end, stopped=self.stopped is not None))
         outcome["inference"] = _wall_latency(self._wall_ns)
         outcome["features"] = cycle_features(cell.profile, ticks, outcome, self._latencies, events.since(first_event))
-        if ticks.dropped:  # the buffer could not grow (``cycle_buffer_full``): the features are of its first rows
+        if ticks.dropped:  # the buffer could not grow (``cycle_buffer_full``): no tick features, no monitor's reading
             outcome["features_cover_s"] = round((ticks.stamp(ticks.n - 1) - start) * 1e-9, 3)
-        for monitor in self.cycle_monitors:
+        for monitor in self.cycle_monitors if not ticks.dropped else ():  # joining its columns would need more still
             monitor(ticks, outcome)
         if self.cycle_monitors:  # a simulated cell's replay of the cycle (wall time: tens of ms): a pause, no tick
             clock.regrid()
