@@ -12,13 +12,19 @@ from cellguard.robot.arm_cell import ArmPickPlace
 
 
 def pytest_configure(config):
-    """The stop signals at their defaults in the test process (an xdist worker too) and so in every process it starts:
-    cellguard keeps a signal it finds ignored (``nohup``'s SIGHUP, a background job's SIGINT), so a suite started
-    under nohup or with ``&`` from a script failed the tests that stop a run by a signal. The ignored case is tested on
-    purpose (test_nohup.py)."""
-    signal.signal(signal.SIGINT, signal.default_int_handler)
-    for signum in (signal.SIGTERM, signal.SIGHUP):
-        signal.signal(signum, signal.SIG_DFL)
+    """No stop signal ignored in the test process (an xdist worker too), so none in the programs it starts: cellguard
+    keeps a signal it finds ignored (``nohup``'s SIGHUP, a background job's SIGINT), and a suite started under nohup
+    or with ``&`` from a script failed the tests that stop a run by a signal. An ignored one becomes a handler that
+    does nothing: the suite itself still outlives the hangup nohup was for (a program started by exec gets the
+    default, as a handler is not inherited), and cellguard's own handlers take over where a test installs them. The
+    ignored case is tested on purpose (test_nohup.py)."""
+    for signum in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+        if signal.getsignal(signum) is signal.SIG_IGN:
+            signal.signal(signum, _ignored)
+
+
+def _ignored(signum, frame) -> None:
+    """A signal the suite was started ignoring, still without effect on it."""
 
 
 @pytest.fixture
