@@ -25,8 +25,8 @@ import numpy as np
 from cellguard.errors import ConfigError
 from cellguard.policy.chunk import ActionChunk
 from cellguard.policy.protocol import Policy
-from cellguard.threads import start_thread
 from cellguard.robot.state import Observation
+from cellguard.threads import start_thread
 
 RESULTS_KEPT = 1000  # newest results kept in memory; the record holds every chunk
 WAIT_S = 0.1  # a warm-up waiting for its answer asks whether to stop this often [s] (an operator's Ctrl-C)

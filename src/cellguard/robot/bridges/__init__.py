@@ -65,4 +65,3 @@ def make_bridge(text: str, scenario):
         if callable(close):
             close()
         raise
-

@@ -40,9 +40,9 @@ from typing import TYPE_CHECKING
 from cellguard.embodiment import Profile, load_profile
 from cellguard.errors import CellguardError, ConfigError, ScenarioError
 from cellguard.options import bounded_float, split_options
-from cellguard.threads import start_thread
 from cellguard.robot.protocol import RobotLinkError, SafetyInputs
 from cellguard.robot.state import Observation, State
+from cellguard.threads import start_thread
 
 OPTIONS = {"units": "units map YAML (default: the embodiment's LeRobot units map)",
            "embodiment": "profile to guard with (default from the robot type)",
