@@ -31,6 +31,9 @@ BOX_BACK_IN = f"{WORKSPACE}::test_a_tool_found_outside_the_box_comes_back_in_wit
 BOX_RANDOM = f"{WORKSPACE}::test_random_chunks_never_take_the_tool_out_of_the_box"
 BOX_TURNING = f"{WORKSPACE}::test_a_joint_whose_stop_is_said_not_to_turn_back_moves_one_way"
 BOX_MARGIN = f"{WORKSPACE}::test_the_travel_between_two_samples_is_never_less_than_their_gaps"
+PER_WALL = "tests/test_box_per_wall.py"
+BOX_SIDE_WALL = f"{PER_WALL}::test_a_guarded_swing_from_over_the_ceiling_stops_at_the_side_wall"
+BOX_NO_CREEP = f"{PER_WALL}::test_stops_between_chunks_do_not_let_a_tool_outside_the_box_creep_further_out"
 REAL_TIME_CAP = f"{ENV}::test_a_speed_cap_holds_the_sent_setpoints_of_a_policy_that_answers_in_real_time"
 SOFT_5MS = f"{LIM}::test_a_joint_stops_inside_its_soft_limits_at_a_5_ms_servo_period"
 SPEEDS_UP = f"{LIM}::test_a_reference_that_speeds_up_past_the_velocity_limit_is_held_at_it"
@@ -106,6 +109,14 @@ MUTATIONS = (
              (POSITION, SOFT_5MS, LIMITS)),
     Mutation("box_excursion_refused", "tool box: a tool found outside may come back in", f"{CHECKS}/workspace.py",
              "return None if self._grown and self._end_fits(tracker) else STOP", "return STOP", (BOX_BACK_IN,)),
+    Mutation("box_every_wall_grown", "tool box: from outside, a wall the tool is inside of stays a wall",
+             f"{CHECKS}/workspace.py",
+             "out_hi = tuple(float(p) + SLACK if p > b else float(b) for p, b in zip(point, hi))",
+             "out_hi = tuple(float(b) + (max(q - c for q, c in zip(point, hi)) + SLACK if any(q > c for q, c in "
+             "zip(point, hi)) else 0.0) for b in hi)", (BOX_SIDE_WALL,)),
+    Mutation("box_regrown_at_stops", "tool box: from outside, a stop lets the tool no further out",
+             f"{CHECKS}/workspace.py", "if self._still or (tick.stop_kind is not None and self._grown is None):",
+             "if self._still or tick.stop_kind is not None:", (BOX_NO_CREEP,)),
     Mutation("box_resume_flood", "tool box: no stop flood where the way on leads out", f"{CHECKS}/workspace.py",
              "return None if _depth(tool(step).tolist(), lo, hi) > depth else STOP", "return None",
              (BOX_LEAVES,)),
