@@ -186,9 +186,10 @@ def make_openpi_policy(arg: str, cell, soft_margin: float = SOFT_MARGIN) -> Mapp
     written = options.get("retries", "1")
     if not (written.isascii() and written.isdigit()):  # int() read '٣' as 3, which failed only on connecting
         raise ConfigError(f"policy: openpi: option retries={written!r} is not an integer (ASCII digits 0-9)")
-    if len(written.lstrip("0")) > 1 or int(written) > 5:  # two digits are out of range; int() refuses 4300
-        raise ConfigError(f"policy: openpi: option retries must be in [0, 5], got {written}")
-    retries = int(written)
+    digits = written.lstrip("0") or "0"  # int() refuses over 4300 digits, leading zeros too
+    if len(digits) > 1 or int(digits) > 5:
+        raise ConfigError(f"policy: openpi: option retries must be in [0, 5], got {written[:20]}")
+    retries = int(digits)
     if "dt" in options:  # checked before connecting: with the server down, a bad ?dt= read as its absence
         option_float(options, "dt", 0.0, "openpi", DT_RANGE_S)
     backend = OpenpiBackend(target, key, option_float(options, "timeout", 2.0, "openpi", TIMEOUT_RANGE_S), retries)

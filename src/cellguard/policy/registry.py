@@ -24,7 +24,8 @@ from cellguard.robot.registry import from_plugin, load_plugin, plugins
 
 
 def _scripted(arg: str, cell) -> Policy:
-    """The cell's taught program; ``arg`` is empty (``make_policy`` refuses one: this source takes none)."""
+    """The cell's taught program; ``arg`` is empty (``make_policy`` refuses one: this source takes none; ``scripted:``
+    is ``scripted``, as a release stores it: ``takes_nothing``)."""
     if cell.name in SCRIPTED:
         return SCRIPTED[cell.name](cell)
     factory = load_plugin(SCRIPTED_PLUGINS, cell.name, "scripted policy for cell")
@@ -83,15 +84,20 @@ def source(scheme: str) -> ModuleType:
                           f"(pip install 'cellguard[{scheme}]')") from None
 
 
+def takes_nothing(module) -> bool:
+    """Whether a policy source takes no argument (no options, no file: scripted): its ``scheme:`` with nothing after
+    the colon is the scheme alone (a release stores it so: ``scripted:`` made a second release of the same program,
+    and releases an earlier version stored as ``scripted:`` still run)."""
+    return not module.OPTIONS and not module.TAKES_FILE
+
+
 def make_policy(spec: str, cell, soft_margin: float = SOFT_MARGIN) -> Policy:
     """Build the policy named by ``spec`` (``scheme`` or ``scheme:argument``) for ``cell``, its IK (if any) inside the
     soft limits of the run's ``guard.soft_margin`` (at the default one, a wider margin's guard held the joint short of
     a target the IK had reached: the tool missed)."""
     scheme, colon, arg = spec.partition(":")
     module = source(scheme)
-    # a source that takes nothing (no options, no file: scripted) refuses even an empty argument: 'scripted:' ran as
-    # 'scripted', and a release took it for another policy
-    if colon and not module.OPTIONS and not module.TAKES_FILE:
+    if arg and takes_nothing(module):
         raise ConfigError(f"policy: {scheme!r} takes no argument, got {spec!r}; write {scheme!r}")
     factory = getattr(module, SCHEMES[scheme].partition(":")[2])
     if "soft_margin" in inspect.signature(factory).parameters:

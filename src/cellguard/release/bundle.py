@@ -300,10 +300,15 @@ def _envelope(path: Path | None, cell) -> GuardConfig:
 
 def _absolute_spec(spec: str) -> str:
     """A policy file named relative to here is frozen by its absolute path (its source declares ``TAKES_FILE``); a
-    FIFO, device or socket there is refused before its adapter waits on it or calls it missing."""
+    FIFO, device or socket there is refused before its adapter waits on it or calls it missing; a source that takes
+    nothing is stored without its empty argument."""
+    from cellguard.policy.registry import takes_nothing
+
     scheme, sep, arg = spec.partition(":")
     source = _source(scheme)
     _refuse_map_option(source, scheme, arg)
+    if sep and not arg and takes_nothing(source):  # ``scripted:`` is ``scripted``: one release of one program
+        return scheme
     if source.TAKES_FILE and sep:
         target, q, query = arg.partition("?")
         path = Path(target).resolve()
