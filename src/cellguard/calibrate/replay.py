@@ -35,7 +35,7 @@ GRID = 5  # factors tried across the range before the bounded search
 DOCUMENT = "the record's own document"  # where the profile's terms came from when its file is gone
 _TERMS = ("torque", "force", "damping", "inertia", "mass")  # the dimensions of friction, damping and armature
 XTOL = 0.01  # the search stops when the factor is known to this [1]
-_FACTOR = r"[0-9]*\.?[0-9]+(?:[eE][-+]?[0-9]+)?"  # ASCII digits, an exponent allowed (1e-1): its range is checked apart
+_FACTOR = r"(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][-+]?[0-9]+)?"  # 2, 2., .5, 8e-1: the range is checked apart
 _VARY = re.compile(rf"^(?P<param>\w+):(?P<joint>\w+)=(?P<low>{_FACTOR})\.\.(?P<high>{_FACTOR})$")
 
 
@@ -61,10 +61,7 @@ def parse_vary(text: str, cell) -> Vary:
     if joint not in joints:
         raise CalibrationError(f"--vary: {joint!r} is not a joint of the {cell.name} model; "
                                f"allowed: {', '.join(joints)}")
-    try:
-        low, high = float(m["low"]), float(m["high"])
-    except ValueError:
-        raise CalibrationError(f"--vary: range {m['low']}..{m['high']} is not two numbers") from None
+    low, high = float(m["low"]), float(m["high"])  # ``_FACTOR``: each a number float() reads
     if not 0.0 < low < high <= 20.0:
         raise CalibrationError(f"--vary: range {low}..{high} must satisfy 0 < LOW < HIGH <= 20")
     return Vary(param, joint, low, high)
