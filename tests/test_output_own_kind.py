@@ -21,6 +21,7 @@ from typer.testing import CliRunner
 from cellguard.cli import app
 from cellguard.errors import RecordError
 from cellguard.policy.onnx_export import save_mlp_onnx, trajectory_mlp
+from cellguard.record.export import OWN_KINDS
 from cellguard.record.outputs import refuse_output
 from cellguard.robot.arm_cell import ASSETS
 from cellguard.runtime.loop import run_scenario
@@ -36,8 +37,8 @@ def digest(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
-def refused(result, path: Path, what: str = "an HTML page") -> None:
-    assert one_error(result) == f"error: -o {path}: " + REFUSED.format(what=what)
+def refused(result, path: Path, what: str = "an HTML page", hint: str = "") -> None:
+    assert one_error(result) == f"error: -o {path}: " + REFUSED.format(what=what) + hint
 
 
 def record(folder: Path) -> Path:
@@ -126,7 +127,8 @@ def test_export_replaces_only_its_own_export(run, tmp_path, fmt, name, what):
     else:  # a Parquet file with the export's very columns, not written by cellguard
         pq.write_table(pq.read_table(out).replace_schema_metadata(None), foreign)
     before = digest(foreign)
-    refused(runner.invoke(app, ["record", "export", str(run), "--format", fmt, "-o", str(foreign)]), foreign, what)
+    refused(runner.invoke(app, ["record", "export", str(run), "--format", fmt, "-o", str(foreign)]), foreign, what,
+            OWN_KINDS[fmt].hint)
     assert digest(foreign) == before
 
 
@@ -167,3 +169,13 @@ def test_a_page_replaces_only_a_page_or_nothing(tmp_path_factory, data):
             refuse_output(out, None, kind=PAGE)
     assert out.read_bytes() == data
 
+
+
+def test_a_damaged_parquet_file_is_refused_as_not_an_export_not_as_unreadable(run, tmp_path):
+    """pyarrow raises OSError for a footer it cannot decode: read as a read failure, "cannot be read"."""
+    bad = tmp_path / "bad.parquet"
+    bad.write_bytes(b"PAR1" + b"\x07" * 64 + (64).to_bytes(4, "little") + b"PAR1")
+    before = digest(bad)
+    line = one_error(runner.invoke(app, ["record", "export", str(run), "--format", "parquet", "-o", str(bad)]))
+    assert "exists and is not a Parquet ticks export cellguard wrote" in line and "before November 2026" in line, line
+    assert digest(bad) == before

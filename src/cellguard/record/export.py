@@ -31,14 +31,15 @@ def _parquet_export(f: BinaryIO) -> bool:
     """Whether ``f`` is a Parquet file whose schema metadata carries ``PARQUET_MARK``."""
     try:
         metadata = pq.read_schema(f).metadata or {}
-    except pa.ArrowException:  # not Parquet
+    except (pa.ArrowException, OSError):  # not Parquet (a damaged footer raises OSError: "Couldn't deserialize")
         return False
     return all(metadata.get(k) == v for k, v in PARQUET_MARK.items())
 
 
 # what ``-o`` of each format replaces: a CSV that begins with the export's header, a Parquet file marked as one
 OWN_KINDS = {"csv": OwnKind("a CSV ticks export", starts_with(",".join(f'"{c}"' for c in COLUMNS).encode() + b"\n")),
-             "parquet": OwnKind("a Parquet ticks export", _parquet_export)}
+             "parquet": OwnKind("a Parquet ticks export", _parquet_export,
+                                "; one by a cellguard before November 2026 carries no mark and is refused too")}
 
 
 def check_format(output: Path, fmt: str) -> None:

@@ -27,6 +27,7 @@ class OwnKind:
 
     what: str
     ours: Callable[[BinaryIO], bool]
+    hint: str = ""  # said after a refusal: how an earlier file of this kind may fail ``ours``
 
 
 def starts_with(head: bytes) -> Callable[[BinaryIO], bool]:
@@ -110,7 +111,7 @@ def _refuse_other_kind(output: Path, kind: OwnKind, name: str) -> None:
                           "choose another path") from None
     if not mine:
         raise RecordError(f"{name}: exists and is not {kind.what} cellguard wrote; cellguard replaces only its own "
-                          "(or an empty file): choose another path, or remove the file first")
+                          f"(or an empty file): choose another path, or remove the file first{kind.hint}")
 
 
 def _own_page(target: Path, run: Path, source: Path | None, own: tuple[str, ...]) -> bool:
