@@ -150,6 +150,8 @@ def _with_health(exc: CellguardError, folder: Path) -> CellguardError:
         return exc
     if not (health.truncated or health.writing):  # damage within a whole record: the error names what it lacks
         return exc
+    if health.writing and str(health.writing) in str(exc):  # the refusal of a live record says so itself
+        return exc
     hint = (f"; `cellguard record recover {folder} -o NEW_DIR` writes a finished copy"
             if health.recoverable and not health.writing else "")
     exc.args = (f"{exc} (the record is {health.describe()}{hint})",)
