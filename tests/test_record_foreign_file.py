@@ -16,18 +16,21 @@ from cellguard.record.reader import open_record
 from cellguard.record.scan import scan
 
 runner = CliRunner()
-LINE = "not a cellguard record (no /context channel; its topics: /foo)"
+LINE = "not a cellguard record (no cellguard channel; its topics: /foo)"
 
 
-def foreign(folder: Path, chunk_size: int = 1 << 20) -> Path:
-    """``folder/record.mcap``: one /foo channel (id 1, as /context's), ten messages, written by mcap's Writer."""
+def foreign(folder: Path, chunk_size: int = 1 << 20, topics: tuple[str, ...] = ("/foo",)) -> Path:
+    """``folder/record.mcap``: a channel of each of ``topics`` (the first id 1, as /context's), another tool's schema,
+    ten messages each, written by mcap's Writer."""
     folder.mkdir(parents=True, exist_ok=True)
     with open(folder / "record.mcap", "wb") as f:
         writer = Writer(f, chunk_size=chunk_size)
         writer.start(profile="", library="other tool")
-        channel = writer.register_channel("/foo", "json", writer.register_schema("foo", "jsonschema", b"{}"))
+        schema = writer.register_schema("other.Message", "jsonschema", b"{}")
+        channels = [writer.register_channel(topic, "json", schema) for topic in topics]
         for i in range(10):
-            writer.add_message(channel, i * 1000, b'{"t_ns": 0}', i * 1000)
+            for channel in channels:
+                writer.add_message(channel, i * 1000, b'{"t_ns": 0}', i * 1000)
         writer.finish()
     return folder
 
@@ -58,3 +61,12 @@ def test_a_foreign_file_without_its_summary_is_refused_by_its_channel_records(tm
     (tmp_path / "cut" / "record.mcap").write_bytes(data[:last.offset + last.length])
     with pytest.raises(RecordError, match=LINE.replace("(", r"\(").replace(")", r"\)")):
         open_record(tmp_path / "cut")
+
+
+def test_a_foreign_file_with_a_context_topic_of_its_own_is_no_cellguard_record(tmp_path):
+    """Another tool's /context (its own schema) beside its /camera: the topic's name alone made it a damaged cellguard
+    record, "5 /context message(s) malformed", and `record recover` wrote a copy."""
+    run = foreign(tmp_path / "run", topics=("/context", "/camera"))
+    with pytest.raises(RecordError, match=r"not a cellguard record \(no cellguard channel; its topics: /camera, "
+                                          r"/context\)"):
+        open_record(run)

@@ -158,7 +158,8 @@ def index_folder(path: Path) -> Path:
     foreign = None
     if record.is_file():  # another tool's file: its "no index" pointed at `record recover`, which refuses it
         try:
-            foreign = not_cellguard(record, scan(record).topics)
+            layout = scan(record)
+            foreign = not_cellguard(record, layout.topics, layout.schema_names)
         except RecordError:
             pass  # an empty or unreadable record: the missing index is said below
     if foreign:

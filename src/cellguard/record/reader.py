@@ -226,7 +226,7 @@ def open_record(path: Path | str, strict: bool = False) -> Record:
     real = file.resolve()  # a link to a run's record (cell1-latest.mcap): the run holds the folder it is in
     writing = folder_lock.holder(real.parent) if real.name == RECORD_FILE else None
     layout = scan(file)
-    foreign = not_cellguard(file, layout.topics)
+    foreign = not_cellguard(file, layout.topics, layout.schema_names)
     if foreign:
         raise RecordError(foreign)
     record = Record(file, layout, writing)

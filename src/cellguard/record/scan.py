@@ -87,6 +87,11 @@ class Layout:
         """Channel id -> topic, as the channel records read state them."""
         return {i: c.topic for i, c in self.channels.items()}
 
+    @property
+    def schema_names(self) -> dict[int, str]:
+        """Channel id -> the name of the schema it declares, where that schema's record was read."""
+        return {i: self.schemas[c.schema_id].name for i, c in self.channels.items() if c.schema_id in self.schemas}
+
 
 def scan(path: Path) -> Layout:
     """The layout of ``path``: from its summary if that is sound, else by a linear scan."""

@@ -155,11 +155,15 @@ def file_ids(topics: Mapping[int, str]) -> dict[str, int | None]:
     return {topic: own.get(topic, None if spec.id in topics else spec.id) for topic, spec in BY_TOPIC.items()}
 
 
-def not_cellguard(path: object, topics: Mapping[int, str]) -> str | None:
-    """Why a file whose channel records state ``topics`` is no cellguard record (it has channels, none of cellguard's
-    own: read as one, a foreign file was a damaged record with invented details), else None."""
+def not_cellguard(path: object, topics: Mapping[int, str], schema_names: Mapping[int, str] = {}) -> str | None:
+    """Why a file whose channel records state ``topics`` is no cellguard record (none of cellguard's own channels:
+    read as one, a foreign file was a damaged record with invented details), else None. ``schema_names``: channel id
+    -> the name of the schema it declares, where known: a channel with one of cellguard's topics and another tool's
+    schema (its own /context) is not cellguard's; every schema cellguard has written is named ``cellguard...``."""
     names = sorted(set(topics.values()))
-    if not names or OWN_TOPICS & set(names):
+    ours = [i for i, topic in topics.items()
+            if topic in OWN_TOPICS and schema_names.get(i, "cellguard").startswith("cellguard")]
+    if not names or ours:
         return None
     shown = ", ".join(names[:10]) + (f", ... ({len(names)} topics)" if len(names) > 10 else "")
-    return f"{path}: not a cellguard record (no /context channel; its topics: {shown})"
+    return f"{path}: not a cellguard record (no cellguard channel; its topics: {shown})"
