@@ -326,7 +326,7 @@ def test_a_push_interrupted_while_the_store_never_answers_leaves_its_batch_queue
 
 
 def counts(n: int) -> list[Signature]:
-    return [sig("ta", "sk-box", HOST_TODAY) for _ in range(n)]
+    return [sig("ta", "sk-box", HOST_TODAY, n=i) for i in range(n)]
 
 
 AGGREGATES = DataPolicy("ta", "sk-box", export="aggregates_only", min_group_size=2)

@@ -32,8 +32,8 @@ def fleet():
     return store, dsn, TenantStore(dsn).today()
 
 
-def sig(site: str, day: dt.date, cause: str) -> Signature:
-    return Signature("ta", site, day.isoformat(), cause, 0.8, "arm5", "arm-pick-place", {"current_rms.elbow": 6.0})
+def sig(site: str, day: dt.date, cause: str, n: int = 0) -> Signature:
+    return Signature("ta", site, day.isoformat(), cause, 0.8, "arm5", "arm-pick-place", {"current_rms.elbow": 6.0 + n})
 
 
 def stored(store: FleetStore, site: str) -> dict[str, list]:
@@ -80,7 +80,7 @@ def test_a_queued_batch_of_counts_at_the_retention_edge_is_held_whole(fleet, tmp
     first_kept = (today - dt.timedelta(days=DAYS)).replace(day=1)  # the first day of the oldest month kept now
     then = first_kept + dt.timedelta(days=DAYS - 1)  # queued when the month before was still kept
     old, fresh = first_kept - dt.timedelta(days=1), today - dt.timedelta(days=DAYS)
-    queued_on(tmp_path, policy, [sig("s-agg", d, "friction") for d in (old, old, fresh, fresh)], then)
+    queued_on(tmp_path, policy, [sig("s-agg", d, "friction", i) for i, d in enumerate((old, old, fresh, fresh))], then)
     result = push([], policy, tmp_path, TenantStore(dsn))
     assert (result.sent_batches, result.queued, len(result.held), result.trimmed) == (0, 1, 1, ())
     assert stored(store, "s-agg") == {"signatures": [], "aggregates": []}

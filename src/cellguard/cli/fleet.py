@@ -49,7 +49,8 @@ def push(
     Queued batches go only as the policy in force allows; one it does not, or one that cannot be read or
     that the store refuses, stays queued and is named on stderr (exit 1 for the last two); a run whose diagnosis
     files cannot be kept beside it (read-only storage) is pushed, with one warning line each (exit 1); a run whose
-    record is not whole (truncated, damaged, still being written) is not: one warning line each (exit 1)."""
+    record is not whole (truncated, damaged, still being written) or has too few cycles to diagnose is not: one
+    warning line each (exit 1). A record met twice (a link, a copy) is read once."""
     from cellguard.cli.diagnose import warn_if_unkept
     from cellguard.fleet.from_record import site_signatures
     from cellguard.fleet.lake import check_lake
@@ -66,17 +67,20 @@ def push(
         check_key_history(site_dir, pol)
         unkept: list[str] = []
         skipped: list[str] = []
-        sigs = site_signatures(folder, pol, acceptance, unkept, skipped) if pol.export != "nothing" else []
+        copies: list[str] = []  # folders holding a record already read (a link, a backup copy): diagnosed once
+        sigs = (site_signatures(folder, pol, acceptance, unkept, skipped, copies=copies)
+                if pol.export != "nothing" else [])
         result = do_push(sigs, pol, site_dir, tenant_store, lake)
         stdout.written(f"batch {result.batch.batch_id} in the audit log of {site_dir}")
     except CellguardError as exc:
         fail(exc)
     if as_json:
-        sys.stdout.write(json.dumps(result.to_dict()) + "\n")
+        sys.stdout.write(json.dumps({**result.to_dict(), "copies_skipped": len(copies)}) + "\n")
     else:
         b = result.batch
         say(f"fleet push: {b.export}, {b.rows} row(s) exported, {b.withheld_rows} kept at the site "
             f"(policy {b.policy_version}); {result.new_rows} new, {result.duplicate_rows} already in the store; "
+            f"{len(copies)} copies of records already read skipped; "
             f"{result.retention_removed} row(s) deleted by retention; {result.queued} batch(es) queued", err=False)
     # the lake takes what the store took: a user with a lake and no store read the README's line as "the lake gets them"
     landed = f"; nothing landed in {lake}: it takes what the store took" if lake is not None else ""
@@ -96,7 +100,8 @@ def push(
 
 
 def _warn_if_skipped(skipped: list[str]) -> int:
-    """One warning line per run left out because its record is not whole; the exit code: 1 then, else 0."""
+    """One warning line per run left out (its record not whole, or too short to diagnose); the exit code: 1 then,
+    else 0."""
     for line in skipped:
         say(f"warning: {line}")
     return 1 if skipped else 0

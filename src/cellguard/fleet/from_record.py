@@ -32,7 +32,7 @@ def run_folders(folder: Path) -> list[Path]:
 
 def site_signatures(folder: Path, policy: DataPolicy, acceptance: Path | None = None,
                     unkept: list[str] | None = None, skipped: list[str] | None = None,
-                    stored: bool = True) -> list[Signature]:
+                    stored: bool = True, copies: list[str] | None = None) -> list[Signature]:
     """Every finding of every whole run under ``folder``, as signatures of the policy's tenant and site;
     ``acceptance``: the record folder whose acceptance cycles are the baseline of every run; ``unkept``: as
     ``diagnose_record``'s (a run on read-only storage is pushed, the files its diagnosis keeps beside it named).
@@ -41,18 +41,21 @@ def site_signatures(folder: Path, policy: DataPolicy, acceptance: Path | None = 
     they would be pooled again once it is whole. Nor, when the signatures are to be ``stored`` (a push; not the
     probes of ``fleet similar``, which the store keeps nowhere), is a run that started after tomorrow by this
     host's date (``export.newest_kept``): no export may send its findings with that date, nor one whose record was
-    replaced while it was diagnosed (``record.beside``). Each is named in
-    ``skipped``, one line each; with no list to name it in, RecordError."""
+    replaced while it was diagnosed (``record.beside``), nor one with too few cycles to diagnose (an excitation
+    record: ``_lacks_cycles``). Each is named in ``skipped``, one line each; with no list to name it in, RecordError.
+    A record met again (its record id, or its file where it has none: a ``latest`` link, a backup copy) is diagnosed
+    once: each folder holding it again is named in ``copies``."""
     from cellguard.diagnose.from_record import diagnose_record
     from cellguard.record.beside import Replaced
     from cellguard.record.reader import open_record
 
-    out, newest = [], newest_kept()
+    out, newest, read = [], newest_kept(), set()
     for run in run_folders(folder):
         try:
             with open_record(run) as rec:
                 epoch_ns = rec.start_wall_ns if rec.epoch_wall_ns else 0  # stated in the context messages too
                 health = rec.health()
+                same = rec.record_id or str(rec.file.resolve())
             day = utc_day(epoch_ns) if epoch_ns > 0 else utc_today()  # no epoch stated: the day of export
             problem = (_not_whole(run, health) if not health.ok
                        else _ahead(run, day, newest) if stored and day > newest else None)
@@ -63,6 +66,11 @@ def site_signatures(folder: Path, policy: DataPolicy, acceptance: Path | None = 
                 raise RecordError(problem)
             skipped.append(problem)
             continue
+        if same in read:
+            if copies is not None:
+                copies.append(str(run))
+            continue
+        read.add(same)
         try:
             diagnosis = diagnose_record(run, acceptance=acceptance, unkept=unkept)
         except Replaced as exc:  # a run --overwrite replaced it meanwhile: the next push takes the new one
@@ -70,8 +78,30 @@ def site_signatures(folder: Path, policy: DataPolicy, acceptance: Path | None = 
                 raise
             skipped.append(f"{exc}; its findings were left out")
             continue
+        except RecordError as exc:  # names the run and what it lacks
+            if skipped is None or not _lacks_cycles(run, acceptance):
+                raise
+            skipped.append(f"{exc}; its findings were left out")
+            continue
         out.extend(signatures_of(diagnosis.to_dict(), diagnosis.context, policy.tenant, policy.site, day))
     return out
+
+
+def _lacks_cycles(run: Path, acceptance: Path | None) -> bool:
+    """Whether ``run``'s record has too few cycles to be diagnosed: none finished or, its own acceptance cycles the
+    baseline, too few of them or no production cycle. Such a record (``cellguard excite``'s: one cycle) beside the
+    ordinary runs is left out like a damaged one; it ended the whole push, nothing sent."""
+    from cellguard.diagnose.baseline import too_few
+    from cellguard.diagnose.cycles import as_cycles
+    from cellguard.diagnose.recovery import policy_cycles
+    from cellguard.record.reader import open_record
+
+    with open_record(run) as rec:
+        cycles = as_cycles(rec.cycles())
+    own = [c for c in cycles if c.phase == "acceptance"]
+    if acceptance is not None or not cycles:
+        return not cycles
+    return too_few(policy_cycles(own)) is not None or len(own) == len(cycles)
 
 
 def _not_whole(run: Path, health) -> str:
