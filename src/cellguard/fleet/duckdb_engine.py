@@ -43,7 +43,7 @@ class DuckDBEngine:
         try:
             for rel, schema in (("signatures", SIGNATURES), ("effects", EFFECTS)):  # only what the caller may read
                 source = self.con.from_arrow(schema.empty_table())
-                for tenant, found, shared in read_groups(allowed.paths(self.lake, rel)):
+                for tenant, found, shared in read_groups(allowed.paths(self.lake, rel), schema):
                     rows = self.con.read_parquet(found, hive_partitioning=False).filter(
                         duckdb.ColumnExpression("tenant_id") == duckdb.ConstantExpression(tenant))
                     source = source.union(rows.distinct() if shared else rows)

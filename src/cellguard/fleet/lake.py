@@ -135,10 +135,13 @@ def paths(lake: Path, relation: str, tenant: str | None = None) -> list[str]:
     return sorted(str(p) for p in Path(lake).glob(f"{root}/{relation}/date=*/*.parquet") if _plain(p))
 
 
-def read_groups(found: Iterable[str]) -> list[tuple[str, list[str], bool]]:
+def read_groups(found: Iterable[str], schema: pa.Schema) -> list[tuple[str, list[str], bool]]:
     """The files to read, as (tenant, files, with DISTINCT): an engine keeps only the rows of each group
     that name its tenant, the folder's. A row can be repeated only within its partition (its date and
-    tenant are part of its id), in a folder holding more than one file: those are read with DISTINCT."""
+    tenant are part of its id), in a folder holding more than one file: those are read with DISTINCT.
+    Each file's columns are checked against ``schema``, the relation's, first (``check_schema``)."""
+    found = list(found)
+    check_schema(found, schema)
     by_folder: dict[str, list[str]] = defaultdict(list)
     for f in found:
         by_folder[os.path.dirname(f)].append(f)
@@ -146,6 +149,38 @@ def read_groups(found: Iterable[str]) -> list[tuple[str, list[str], bool]]:
     for folder in by_folder.values():
         groups[(tenant_of(folder[0]), len(folder) > 1)].extend(folder)
     return [(tenant, listed, shared) for (tenant, shared), listed in sorted(groups.items())]
+
+
+def check_schema(found: Iterable[str], schema: pa.Schema) -> None:
+    """ConfigError naming the first of the lake files ``found`` whose columns (names, order, types, read from its
+    footer) are not ``schema``'s. The engines read a relation's files as one table: DuckDB by position (an extra
+    column failed with no file named, a column of another type was read and its rows counted), Spark by the schema
+    given (it refused the other type); checked here, both refuse the same file. A file whose footer cannot be read
+    is left to the engine, which names it damaged."""
+    want = [(f.name, f.type) for f in schema]
+    for path in found:
+        try:
+            have = [(f.name, f.type) for f in pq.read_schema(path)]
+        except (OSError, pa.ArrowException):
+            continue
+        if have != want:
+            raise ConfigError(f"lake file {path}: {_difference(have, want)}; every file of its relation must have "
+                              f"the lake's columns ({', '.join(n for n, _ in want)}): move it out of the lake")
+
+
+def _difference(have: list[tuple[str, pa.DataType]], want: list[tuple[str, pa.DataType]]) -> str:
+    """The first way the columns ``have`` differ from ``want``, in words."""
+    types = dict(want)
+    extra = [n for n, _ in have if n not in types]
+    if extra:
+        return f"column {extra[0]} is not one of the lake's"
+    missing = [n for n in types if n not in dict(have)]
+    if missing:
+        return f"it has no column {missing[0]}"
+    wrong = [(n, t) for n, t in have if t != types[n]]
+    if wrong:
+        return f"column {wrong[0][0]} is {wrong[0][1]}, the lake's is {types[wrong[0][0]]}"
+    return "its columns are in another order (or repeated)"
 
 
 def has_data(lake: Path) -> bool:

@@ -83,7 +83,7 @@ class SparkEngine:
                 # as DuckDB reads them: each row once, and only the rows that name their folder's tenant; the
                 # schema given (no footer read to infer it, no partition column added from the path)
                 source = self.spark.createDataFrame([], _ddl(schema))
-                for tenant, found, shared in read_groups(allowed.paths(self.lake, rel)):
+                for tenant, found, shared in read_groups(allowed.paths(self.lake, rel), schema):
                     rows = self.spark.read.schema(_ddl(schema)).parquet(*found).filter(col("tenant_id") == lit(tenant))
                     source = source.unionByName(rows.distinct() if shared else rows)
                 source.createOrReplaceTempView(rel)
