@@ -12,7 +12,8 @@ multiples of one ``mj_step`` of the arm cell measured in the same run; never ass
 The store is this run's own (``cg<run>_bench``, tagged as a benchmark's: ``cellguard.fleet.run_stores``, as the tests'
 stores) and dropped at its end: two benchmarks, or a benchmark and the tests, on one server leave each other's store
 alone, and a killed run's is dropped by the next benchmark or test session to use the server. A server that cannot
-be reached, before or during the run, ends it with one line (exit 1); its work folder is removed in every case.
+be reached, before or during the run, ends it with one line (exit 1); its work folder is removed and its store
+dropped on an error, Ctrl-C, SIGTERM or SIGHUP (exit 128 + the signal), not on SIGKILL.
 
     .ci/fleet.sh && python benchmarks/fleet.py [--runs DIR] [--rows 1000000] [--no-spark]
 """
@@ -24,6 +25,7 @@ import json
 import os
 import resource
 import shutil
+import signal
 import sys
 import tempfile
 import time
@@ -208,6 +210,25 @@ def equal(a: list[dict], b: list[dict]) -> bool:
     return True
 
 
+def end_by_signals() -> None:
+    """SIGTERM and SIGHUP end the benchmark as Ctrl-C does, by SystemExit (128 + the signal), so that its ``finally``
+    removes its work folder and drops its store (killed outright, both were left). One found ignored (``nohup``'s
+    SIGHUP) stays so; a forked process is ended at once, as before (a pool worker's SIGTERM is ``fleet_runs``' own).
+    ``cellguard.cli.app`` does the same for commands, but importing it loads the whole CLI."""
+    pid = os.getpid()
+
+    def end(signum: int, frame) -> None:
+        if os.getpid() != pid:
+            signal.signal(signum, signal.SIG_DFL)
+            os.kill(os.getpid(), signum)
+            return
+        raise SystemExit(128 + signum)
+
+    for signum in (signal.SIGTERM, signal.SIGHUP):
+        if signal.getsignal(signum) is not signal.SIG_IGN:
+            signal.signal(signum, end)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--runs", type=Path, default=DEFAULT_DIR)
@@ -216,6 +237,7 @@ def main() -> None:
     ap.add_argument("--spark-on-fleet-lake", action="store_true",
                     help="also compare Spark on the 24-site lake (a minute more; Spark is compared at scale anyway)")
     args = ap.parse_args()
+    end_by_signals()
     t0, load0 = time.perf_counter(), os.getloadavg()
     phases: dict[str, dict] = {}
     last = [t0, cpu_s()]

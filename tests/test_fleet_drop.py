@@ -3,10 +3,12 @@ roles, on the real PostgreSQL server; any other name is refused before the serve
 store had one fixed name, reset as each run began: a second benchmark (or a CI run beside a developer's) dropped the
 first's database mid-run, and the last one's stayed on the server. The benchmark's run stores are the tests' own
 machinery (``cellguard.fleet.run_stores``), tagged as a benchmark's: a killed one's are swept by the next benchmark or
-test session, and the benchmark no longer imports the tests' helpers (nor pytest with them)."""
+test session, and the benchmark no longer imports the tests' helpers (nor pytest with them). SIGTERM or SIGHUP
+ends the benchmark through its ``finally`` (exit 143 left its work folder behind)."""
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -86,17 +88,20 @@ store = FleetStore(sys.argv[1], stores.name("bench"))
 store.install()
 store.add_tenant("t-alpha")
 stores.tag_stores()
-print(stores.run, flush=True)
+tag = stores.held().execute("SELECT shobj_description(oid, 'pg_database') FROM pg_database WHERE datname = %s",
+                            (store.database,)).fetchone()[0]  # read while it lives: once killed, any run may sweep it
+print(stores.run)
+print(tag, flush=True)
 os._exit(9)  # killed: its store neither dropped nor its lock freed by it
 """
 
 
 def _killed_benchmark(admin: str) -> str:
-    """A benchmark's run, killed after it made and tagged its store and a tenant; its run's name."""
+    """A benchmark's run, killed after it made its store and a tenant, tagged as a benchmark's; its run's name."""
     done = subprocess.run([sys.executable, "-c", KILLED, admin], capture_output=True, text=True, timeout=120)
     assert done.returncode == 9, done.stderr
-    run = done.stdout.strip()
-    assert _there(admin, run + "_bench"), "the killed benchmark made no store"
+    run, tag = done.stdout.splitlines()
+    assert tag == f"cellguard benchmark {run}"
     return run
 
 
@@ -104,10 +109,7 @@ def test_a_killed_benchmarks_store_is_tagged_as_a_benchmarks_and_swept_by_the_ne
     admin = admin_dsn_or_skip()
     run = _killed_benchmark(admin)
     with psycopg.connect(admin, autocommit=True) as con:
-        tags = {t for (t,) in con.execute("SELECT shobj_description(oid, 'pg_database') FROM pg_database WHERE "
-                                          "datname = %s", (run + "_bench",)).fetchall()}
-        assert tags == {f"cellguard benchmark {run}"}
-        assert run + "_bench" in sweep(con)
+        sweep(con)  # or a run that opened the server meanwhile (another xdist worker's) swept it first
     assert _there(admin, run + "_bench") == []  # its database, its three roles and its tenant's
 
 
@@ -130,3 +132,33 @@ def test_the_fleet_benchmark_imports_no_pytest():
            "if m.split('.')[0] in ('pytest', '_pytest', 'fleet_server')))"
     done = subprocess.run([sys.executable, "-c", code], cwd=root, capture_output=True, text=True, timeout=120)
     assert done.returncode == 0 and done.stdout.strip() == "[]", done.stdout + done.stderr
+
+
+SIGNALLED = """
+import argparse, os, signal, sys, tempfile
+sys.path.insert(0, 'benchmarks')
+import fleet
+
+
+class Signalled(dict):
+    '''The runs, read once the work folder and the store are made: where SIGTERM comes.'''
+    def __getitem__(self, key):
+        print(os.listdir(tempfile.gettempdir()), flush=True)
+        os.kill(os.getpid(), signal.SIGTERM)
+
+
+fleet.end_by_signals()
+fleet.bench(argparse.Namespace(no_spark=True, rows=10, spark_on_fleet_lake=False), sys.argv[1], Signalled(), 1.0,
+            lambda name: None, {}, 0.0, (0.0, 0.0, 0.0))
+"""
+
+
+def test_a_benchmark_ended_by_sigterm_removes_its_work_folder(tmp_path):
+    admin = admin_dsn_or_skip()
+    root = Path(__file__).parents[1]
+    env = {**os.environ, "TMPDIR": str(tmp_path)}
+    done = subprocess.run([sys.executable, "-c", SIGNALLED, admin], cwd=root, env=env, capture_output=True,
+                          text=True, timeout=120)
+    assert done.returncode == 143, (done.returncode, done.stderr[-2000:])
+    assert done.stdout.startswith("['cellguard-fleet-"), done.stdout  # it was there when the signal came
+    assert list(tmp_path.iterdir()) == []  # removed by its finally, which drops its store too

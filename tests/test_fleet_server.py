@@ -119,10 +119,10 @@ def test_a_session_drops_what_it_made_and_a_killed_sessions_tagged_leftovers_onl
                            "cg0000" + secrets.token_hex(2))  # 0000: a name that reads as of the hour 0
     with psycopg.connect(dsn, autocommit=True) as con:
         try:
-            made = {dead: leftover(con, dead, f"cellguard test session {dead}"),
+            con.execute("SELECT pg_advisory_lock(%s)", (session_key(held),))  # live before its store is: no sweep
+            made = {dead: leftover(con, dead, f"cellguard test session {dead}"),  # between (another worker's) takes it
                     held: leftover(con, held, f"cellguard test session {held}"),  # a session that is live: its lock
                     foreign: leftover(con, foreign, None)}  # a server's own store its admin named so: no tag
-            con.execute("SELECT pg_advisory_lock(%s)", (session_key(held),))
             _, child = run_child(tmp_path)
             assert stores(dsn, child) == {}  # its database and its three roles and its tenant's: dropped at its end
             assert stores(dsn, dead) == {}  # a killed session's: dropped by the next session to start

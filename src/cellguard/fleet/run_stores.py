@@ -5,7 +5,9 @@ drop each other's databases: a run's stores are named ``cg`` + 8 random base-36 
 (``store.RUN_STORE``, the only names ``FleetStore.drop`` takes). What a run makes it tags as its own (a COMMENT naming
 the run and its kind) and drops at its end; a killed run's tagged stores are dropped by the next run to open the
 server. A run is live while it holds its advisory lock (the run's characters read as one number) from before its
-first store to after its last is dropped: no clock decides, and a name nobody tagged is never dropped.
+first store to after its last is dropped: no clock decides, and a name nobody tagged is never dropped. Advisory locks
+are per database, so every run takes its lock and sweeps on ``LOCKS_DB`` whatever database its DSN names; a run whose
+lock connection is lost has lost its lock with it, and says so at its next use (``RunStores.held``).
 """
 
 from __future__ import annotations
@@ -16,11 +18,14 @@ import string
 
 from cellguard.errors import ConfigError
 from cellguard.fleet.queries import first_line
-from cellguard.fleet.store import StoreError, _psycopg, _where, connect
+from cellguard.fleet.store import StoreError, _psycopg, _where, check_dsn, connect
 
 _DIGITS = string.digits + string.ascii_lowercase
 KINDS = ("test session", "benchmark")  # what a run is, as its tag says: ``tag_of``
 _TAGGED = re.compile(r"cellguard (?:" + "|".join(KINDS) + r") (cg[0-9a-z]{8})")
+LOCKS_DB = "postgres"  # the database every run's lock is on (a lock on another is free whatever run holds it here)
+# a dead server or network under the lock connection is found in about a minute, not at the next use hours later
+_KEEPALIVES = dict(keepalives=1, keepalives_idle=30, keepalives_interval=10, keepalives_count=3)
 _STORES = ("SELECT * FROM (SELECT 'DATABASE' AS kind, datname AS name, shobj_description(oid, 'pg_database') AS tag "
            "FROM pg_database UNION ALL SELECT 'ROLE', rolname, shobj_description(oid, 'pg_authid') FROM pg_roles) s ")
 
@@ -69,6 +74,7 @@ class RunStores:
         self.kind, self.who, self.tag = kind, who, tag_of(kind, self.run)
         self.dsn: str | None = None
         self._lock = None  # the admin connection holding the run's advisory lock, once opened
+        self._loss = ""  # why the lock connection was lost, once it was
 
     def name(self, purpose: str) -> str:
         """A database name for ``purpose`` in this run only (a store takes at most 20 characters: purpose <= 9)."""
@@ -76,11 +82,19 @@ class RunStores:
 
     def open(self, dsn: str) -> None:
         """Hold this run's lock on the server (once), then drop the stores of killed runs. StoreUnavailable when the
-        server cannot be reached; StoreError when the lock is another's or the server fails meanwhile."""
+        server cannot be reached; StoreError when the lock is another's or the server fails meanwhile, and once open,
+        when ``dsn`` is not the one it opened (its stores there would be neither tagged nor dropped) or the lock
+        was lost."""
         if self._lock is not None:
+            if dsn != self.dsn:
+                raise StoreError(f"fleet store {_where(dsn)}: run {self.run} holds its lock on {_where(self.dsn)}, "
+                                 "and makes its stores there only")
+            self.held()
             return
         psycopg = _psycopg()
-        con = connect(dsn)
+        from psycopg.conninfo import make_conninfo
+
+        con = connect(make_conninfo(check_dsn(dsn), dbname=LOCKS_DB, **_KEEPALIVES))
         try:
             con.autocommit = True
             con.execute("SELECT set_config('application_name', %s, false)", (self.tag,))
@@ -96,7 +110,11 @@ class RunStores:
 
     def sweep(self, con) -> list[str]:
         """Drop the tagged stores of every other run whose lock is free (a killed one), holding that lock meanwhile
-        so that no other run sweeps them at once; return the names dropped."""
+        so that no other run sweeps them at once; return the names dropped. ``con`` is on ``LOCKS_DB`` (else
+        StoreError): on another database every run's lock reads as free."""
+        if con.info.dbname != LOCKS_DB:
+            raise StoreError(f"fleet store sweep on database {con.info.dbname!r}: runs hold their locks on "
+                             f"{LOCKS_DB!r}, and on another database every one reads as free")
         runs: dict[str, list[tuple[str, str]]] = {}
         for kind, name, tag in con.execute(_STORES).fetchall():
             if owner(name, tag) not in (None, self.run):
@@ -113,12 +131,28 @@ class RunStores:
     def _own(self, con) -> list[tuple[str, str, str | None]]:
         return con.execute(_STORES + "WHERE starts_with(name, %s)", (self.run + "_",)).fetchall()
 
+    def held(self):
+        """The connection holding this run's lock, checked on the server; StoreError once it is lost (a server
+        restart, an idle or an administrator's termination, a dead peer its keepalives found): the lock went with it,
+        and the next run to open the server may have dropped this run's stores."""
+        psycopg = _psycopg()
+        try:
+            if not self._lock.broken:
+                self._lock.execute("SELECT 1")
+        except psycopg.Error as exc:
+            self._loss = first_line(exc)
+        if self._lock.broken:
+            raise StoreError(f"fleet store {_where(self.dsn)}: the lock of run {self.run} was lost "
+                             f"({self._loss or 'connection broken'}); the next run to open the server may have "
+                             "dropped its stores")
+        return self._lock
+
     def tag_stores(self) -> None:
-        """Tag what this run has made so far as its own, so that should it be killed the next run drops it.
-        Best-effort: on a lost connection nothing is tagged (the run's end still drops what it made)."""
-        con = self._lock
-        if con is None or con.broken:
+        """Tag what this run has made so far as its own, so that should it be killed the next run drops it (nothing
+        before ``open``). A store dropped meanwhile is passed over; a lost lock is a StoreError (``held``)."""
+        if self._lock is None:
             return
+        con = self.held()
         psycopg = _psycopg()
         from psycopg import sql
 
@@ -127,17 +161,25 @@ class RunStores:
                 if tag != self.tag:
                     con.execute(sql.SQL("COMMENT ON {} {} IS {}").format(sql.SQL(kind), sql.Identifier(name),
                                                                          sql.Literal(self.tag)))
-        except psycopg.Error:
-            pass  # the server gone, or a store dropped meanwhile: a later pass or the run's end sees to it
+        except psycopg.Error as exc:
+            if con.broken:
+                self._loss = first_line(exc)
+                self.held()  # raises: the lock went with the connection
+            # else a store dropped meanwhile: a later pass or the run's end sees to it
 
     def close(self) -> str | None:
         """At the run's end: drop what it made (nothing, and no connection, when it never opened the server), then
-        free its lock. Never raises: return one warning line naming what was left (a server gone, another suite's
-        ``.ci/fleet.sh stop``), which stays tagged for the next run to drop, or None."""
+        free its lock. Return one warning line naming what was left (a server gone, another suite's ``.ci/fleet.sh
+        stop``), which stays tagged for the next run to drop, or None; when the lock was lost meanwhile (``held``),
+        a StoreError saying so, and what was left, once all that is done."""
         if self._lock is None:
             return None
         psycopg = _psycopg()
-        self.tag_stores()
+        lost = None
+        try:
+            self.tag_stores()
+        except StoreError as exc:
+            lost = exc
         try:
             with psycopg.connect(self.dsn, autocommit=True, connect_timeout=3) as con:
                 left = _drop(con, [(kind, name) for kind, name, _ in self._own(con)])[1]
@@ -146,5 +188,7 @@ class RunStores:
         finally:
             self._lock.close()
             self._lock = None
+        if lost is not None:
+            raise StoreError(f"{self.who}: {lost}" + (f"; left on the server: {', '.join(left)}" if left else ""))
         return f"{self.who}: fleet stores left on {_where(self.dsn)} for the next run to drop: {', '.join(left)}" \
             if left else None
