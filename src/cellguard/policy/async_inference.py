@@ -26,7 +26,7 @@ from cellguard.errors import ConfigError
 from cellguard.policy.chunk import ActionChunk
 from cellguard.policy.protocol import Policy
 from cellguard.robot.state import Observation
-from cellguard.threads import start_thread
+from cellguard.threads import start_process, start_thread
 
 RESULTS_KEPT = 1000  # newest results kept in memory; the record holds every chunk
 WAIT_S = 0.1  # a warm-up waiting for its answer asks whether to stop this often [s] (an operator's Ctrl-C)
@@ -56,7 +56,7 @@ class PolicyProcess:
     the servo thread. ``infer`` sends the observation over a pipe and waits for the chunk (the
     waiting thread releases the GIL); an exception in the child comes back as a RuntimeError.
     ``ended`` says why once the process is found gone, or holds no policy it may run (one it could not build, or
-    not the run's): it answers no more.
+    not the run's), or the OS refused to start it: it answers no more.
     """
 
     def __init__(self, factory: Callable[[], Policy], sha256: str | None = None):
@@ -64,9 +64,8 @@ class PolicyProcess:
         self._conn, child = ctx.Pipe()
         self._process = ctx.Process(target=_serve_policy, args=(child, factory, sha256), name="cellguard-policy",
                                     daemon=True)
-        self._process.start()
+        self.ended: str | None = start_process(self._process)  # EAGAIN was a traceback through here
         child.close()
-        self.ended: str | None = None
 
     def reset(self) -> None:
         try:
@@ -100,6 +99,9 @@ class PolicyProcess:
 
     def close(self, timeout_s: float = 5.0) -> None:
         """Ask the process to close its policy; killed if it has not ended after ``timeout_s``."""
+        if self._process.pid is None:  # never started (``ended``): nothing to ask, join or kill
+            self._conn.close()
+            return
         try:
             self._conn.send(("close", None))
         except OSError:
@@ -165,7 +167,8 @@ class AsyncInference:
         self._closed = False
         self._set_queue(np.zeros(0, dtype=np.int64))  # step times of the newest chunk taken [ns]
         self._thread = threading.Thread(target=self._work, name="cellguard-inference", daemon=True)
-        self._unstarted = start_thread(self._thread)  # the warm-up answers at once; ``ended`` says why
+        # its process or thread refused: the warm-up answers at once; ``ended`` says why
+        self._unstarted = (self._remote and self._remote.ended) or start_thread(self._thread)
         if self._unstarted is not None:
             self._unstarted = f"the policy's inference worker: {self._unstarted}"
             if self._remote is not None:
@@ -225,7 +228,7 @@ class AsyncInference:
 
     @property
     def ended(self) -> str | None:
-        """Why the policy answers no more: its worker thread never started, its process ended."""
+        """Why the policy answers no more: its worker thread or process never started, its process ended."""
         return self._unstarted or (None if self._remote is None else self._remote.ended)
 
     def warm_up(self, observation: Observation, timeout_s: float, stop: Callable[[], bool] = lambda: False) -> bool:
@@ -264,7 +267,7 @@ class AsyncInference:
             self._closed = True
             self._wake.notify()
         if self._unstarted is not None:
-            return  # no thread to join; its process, if any, killed as the thread was refused
+            return  # no thread to join; its process, if any, never started or killed as the thread was refused
         self._thread.join(timeout_s)
         if self._remote is not None:
             self._remote.close(0.0 if self._thread.is_alive() else timeout_s)
