@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 from hypothesis import given
 from hypothesis import strategies as st
-from test_start_outside_box import OUT, posed_run
+from test_start_outside_box import NEAR, OUT, posed_run
 
 from cellguard.control.checks.workspace import SLACK
 from cellguard.control.config import GuardConfig
@@ -60,6 +60,17 @@ def test_an_approach_from_over_the_ceiling_past_a_side_wall_leaves_the_box():
     assert down.leaves_box(PROFILE, TOOL, BOX, max_reach(TOOL, PROFILE.q_min, PROFILE.q_max).norm) is None
 
 
+def test_an_approach_from_outside_the_box_says_how_far_past_where_it_may_go_not_that_it_leaves_the_box():
+    """A tool that was never inside the box does not "leave" it: the approach from 33 mm over the ceiling to a target
+    34.8 mm over it (35.2 mm allowed) goes 1 mm past that on the way."""
+    plan = Transition.plan(PROFILE, OUT, NEAR, MS)
+    wide = ((-0.45, -0.45, 0.005), (0.45, 0.45, 0.25))
+    why = plan.leaves_box(PROFILE, TOOL, wide, max_reach(TOOL, PROFILE.q_min, PROFILE.q_max).norm)
+    assert why == ("its tool point goes 1 mm past where it may go from its start outside the workspace box "
+                   "[[-0.45, -0.45, 0.005], [0.45, 0.45, 0.25]] (past no wall further than there, 2 mm spare), first "
+                   "past its z max 0.06 s in (at [0.181, 0.0, 0.285] m), the most past its z max 0.09 s in"), why
+
+
 def test_a_first_target_past_a_side_wall_is_rejected_and_the_lost_line_names_the_start(tmp_path):
     np.savez(tmp_path / "p.npz", t=np.arange(60) * 0.1, actions=np.broadcast_to(SWING, (60, 25, 6)).copy(),
              dt=np.float64(0.02))
@@ -71,7 +82,7 @@ def test_a_first_target_past_a_side_wall_is_rejected_and_the_lost_line_names_the
     assert "approach_begin" not in kinds and "chunk_rejected" in kinds, kinds
     assert summary["stopped"].startswith("policy lost: the tool point starts 33 mm outside the workspace box "), \
         summary["stopped"]
-    assert "every first target further out" in summary["stopped"]
+    assert "every first target or the way to it further out" in summary["stopped"]
     assert "32 mm past its y max, a wall the tool is inside of" in summary["stopped"]
     assert tips[0][1] <= BOX[1][1]  # held where it started (31.7 mm past y max all cycle before)
 

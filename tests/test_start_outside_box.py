@@ -28,23 +28,27 @@ from cellguard.scenario import parse_scenario
 BOX = [[-0.45, -0.45, 0.005], [0.45, 0.45, 0.25]]  # holds the arm's home tool point (z 0.194 m)
 OUT = np.array([0.0, -0.3, 1.5, 1.55, 0.0, 0.025])  # its tool point at z 0.283 m: 33 mm over the box
 FURTHER = OUT + [0.0, 0.0, -0.3, 0.0, 0.0, 0.0]  # z 0.357 m: 107 mm over
+# z 0.285 m: 34.8 mm over, no further out than OUT (35.2 mm allowed); the approach there from OUT goes 1 mm further
+NEAR = np.array([-0.001, -0.108, 1.347, 1.504, -0.354, 0.025])
 LOST = ("policy_lost", "chunk_rejected", "startup_refused")
 START = (r"the tool point starts 33 mm outside the workspace box \[\[-0.45, -0.45, 0.005\], \[0.45, 0.45, 0.25\]\] past "
          r"its z max \(at \[0.175, 0.0, 0.283\] m\)")
 REJECTED = (rf"^first target: {START} and the first target lies further out, 107 mm past its z max \(at \[0.181, 0.0, "
             r"0.357\] m\); nothing approached$")
-LOST_LINE = rf"^{START}, every first target further out, none taken \(the last: first target: {START} and .*\)"
+LOST_LINE = (rf"^{START}, every first target or the way to it further out, none taken \(the last: the first target "
+             r"lies further out, 107 mm past its z max \(at \[0.181, 0.0, 0.357\] m\)\)$")
 
 
 def _policy(tmp_path, way: str):
     """A replay policy (a chunk every 100 ms, 25 steps of 20 ms) that holds ``OUT``, holds ``FURTHER``, brings
-    the tool from ``OUT`` home in 1.5 s ("back"), or answers ``FURTHER`` first and holds ``OUT`` after ("jitter")."""
+    the tool from ``OUT`` home in 1.5 s ("back"), or answers ``FURTHER`` ("jitter") or ``NEAR`` ("near") first and
+    holds ``OUT`` after."""
     steps = np.arange(60)[:, None] * 0.1 + np.arange(25)[None, :] * 0.02
     x = np.clip(steps / 1.5, 0.0, 1.0)[:, :, None]
-    ends = {"hold": (OUT, OUT), "further": (FURTHER, FURTHER), "back": (OUT, HOME), "jitter": (OUT, OUT)}[way]
+    ends = {"hold": (OUT, OUT), "further": (FURTHER, FURTHER), "back": (OUT, HOME)}.get(way, (OUT, OUT))
     actions = ends[0] + (ends[1] - ends[0]) * x * x * (3 - 2 * x)
-    if way == "jitter":
-        actions[0] = FURTHER
+    if way in ("jitter", "near"):
+        actions[0] = FURTHER if way == "jitter" else NEAR
     np.savez(tmp_path / f"{way}.npz", t=np.arange(60) * 0.1, actions=actions, dt=np.float64(0.02))
     return tmp_path / f"{way}.npz"
 
@@ -112,6 +116,23 @@ def test_one_first_target_further_out_then_one_that_holds_runs(tmp_path):
     assert kinds[:-2] and set(kinds[:-2]) == {"chunk_rejected"}, kinds  # the first answers only (was exit 2)
 
 
+def test_a_first_target_no_further_out_whose_approach_goes_further_on_the_way_is_rejected_not_a_refused_start(
+        tmp_path):
+    """The target lies inside the grown box, the joint-space approach there 1 mm past it: the start was refused
+    (StartupRefused, exit 2), saying the approach "leaves" a box the tool was never inside, where a target further
+    out was only a rejected chunk."""
+    run = _posed_run(tmp_path, "near")
+    summary = run_scenario(run.scenario, tmp_path / "out", run=run)
+    kinds = [e["kind"] for e in summary["events"]]
+    assert "stopped" not in summary and kinds[-2:] == ["retreat_begin", "retreat_done"], summary.get("stopped")
+    assert kinds[:-2] and set(kinds[:-2]) == {"chunk_rejected"}, kinds  # the first answers only; held OUT after
+    why = summary["events"][0]["reason"]
+    assert re.match(rf"^first target: {START} and the approach to the first target \[-0.001, -0.108, 1.347, 1.504, "
+                    r"-0.354, 0.025\]: its tool point goes 1 mm past where it may go from its start outside the "
+                    r"workspace box .* first past its z max 0.06 s in .*; nothing approached$", why), why
+    assert "leaves" not in why
+
+
 def _leave_outside(port: int) -> None:
     """Another client drives the served arm to ``OUT`` over 1.5 s and leaves it there."""
     robot = SimServerRobot(("127.0.0.1", port), read_timeout_s=1.0)  # a busy host: a slow read is no fault here
@@ -144,7 +165,8 @@ def test_a_served_arm_left_outside_the_box_runs_and_a_first_target_further_out_i
     assert result.exit_code == 1, result.output  # the cell stopped: the policy lost, the box start named
     assert ("\nerror: the cell was stopped (policy_lost): policy lost: the tool point starts 33 mm outside the "
             "workspace box ") in result.stderr, result.stderr
-    assert "every first target further out" in result.stderr and "107 mm past its z max" in result.stderr
+    assert "every first target or the way to it further out" in result.stderr
+    assert "107 mm past its z max" in result.stderr
     with open_record(tmp_path / "further") as rec:
         kinds = [e.kind for e in rec.events()]
     assert "approach_begin" not in kinds and {"chunk_rejected", "policy_lost"} <= set(kinds)

@@ -128,8 +128,9 @@ class Run(TransitionPlay):
         self._armed_at = 0
         # the answers not taken since the watchdog was armed or the guard last took a chunk, by how each was refused
         # ("failed", "rejected" for what its chunk says, "stale" for a chunk whose steps had all passed, "held" for a
-        # stop in force): the last reason of each, and how many failed or were rejected or stale (``_refusal``)
-        self._answers: dict[str, str] = {}
+        # stop in force; "box": the start outside the box and what went further, while that refused each): the last
+        # reason of each, and how many failed or were rejected or stale (``_refusal``)
+        self._answers: dict[str, str | tuple[str, str]] = {}
         self._refused = 0
         self._first_observation = None
         # the cycle in progress: its start [ns], chunk latencies [ns], wall time per call [ns], a pending NaN fault
@@ -296,13 +297,14 @@ class Run(TransitionPlay):
             self._wall_ns.append(arrival.wall_ns)
             self._refusal(t_ns, "failed", arrival.error)
             return False
-        box_start = None  # a tool point outside the box whose first target lies further out: the refusal's cause
+        box = None  # a tool point outside the box, and its first target or the way there further out: the cause
         if not self._started:
             if arrival.prepared is None:  # simulated time: checked here, as the worker would have
                 arrival = dataclasses.replace(arrival, prepared=self.guard.executor.prepare(arrival.chunk))
             if arrival.prepared.problem is None:
                 held = self._held()
-                why, box_start = (held, None) if held else self._outside(arrival.chunk)
+                approach = None if held else self._approach(arrival.chunk)
+                why, box = (held, None) if held else self._outside(arrival.chunk, approach)
                 if why is not None:  # refused as a malformed chunk is: the next one is the first
                     arrival = dataclasses.replace(arrival, prepared=PreparedChunk(0, 0, problem=why))
                 if held is not None:  # refused for the moment, not for what it says: the policy answered
@@ -312,7 +314,7 @@ class Run(TransitionPlay):
             if arrival.prepared.problem is None:
                 self._check_startup(arrival)
                 if self.guard.executor.stale(arrival.prepared, t_ns) is None:
-                    arrival = self._start(arrival)
+                    arrival = self._start(arrival, approach)
                 if arrival is None:  # an approach was played; a fresh request follows
                     return True
         if self.recording is not None:
@@ -325,7 +327,7 @@ class Run(TransitionPlay):
         self._latencies.append(arrival.latency_ns)
         self._wall_ns.append(arrival.wall_ns)
         if pushed and pushed[0].kind in _REFUSED_BY:  # a stale chunk can never move the robot: refused as well
-            self._refusal(t_ns, _REFUSED_BY[pushed[0].kind], pushed[0].reason, box_start)
+            self._refusal(t_ns, _REFUSED_BY[pushed[0].kind], pushed[0].reason, box)
         return False
 
     def _request(self, t_ns: int) -> None:
@@ -370,23 +372,18 @@ class Run(TransitionPlay):
                 self.link.fault(self.clock.now(), EventKind(exc.kind), str(exc))
                 self.link.lost = self.link.lost or exc.lost
 
-    def _start(self, arrival):
-        """The run's first chunk, its start-up checks passed (``_check_startup``): the approach if needed.
+    def _start(self, arrival, approach: Transition | None):
+        """The run's first chunk, its start-up checks passed (``_check_startup``): its ``approach`` if needed.
 
         Returns the arrival to push, or None when an approach was played (the chunk answered the
         pose before it; a fresh request follows).
         """
         self._started = True
-        chunk = arrival.chunk
-        # from where the robot was commanded to be (the measured pose lags it: planning from there stepped the command)
-        approach = Transition.plan(self.cell.profile, self.link.last_sent, self._first_target(chunk),
-                                   self.clock.period_ns, **self._commanded_motion(), **self._cap(self.cell.safety()))
         if approach is None:
             return arrival
-        outside = self._leaves_box(approach)
+        outside = self._leaves_box(approach)  # from outside the box, checked already (``_outside``)
         if outside is not None:  # planned in joint space: no path inside the box to the first target is sought
-            self._refuse(f"start-up: the approach to the first target {np.round(approach.target, 3).tolist()}: "
-                         f"{outside}; not moving")
+            self._refuse(f"start-up: {_approach_to(approach)}: {outside}; not moving")
         held = self._play(approach, "approach", self.clock.now())
         if self.guard.power:  # else a category 0/1 stop aborted it: the guard holds there, power removed
             self.guard = build_guard(self.cell, self.scenario.guard, q0=held)  # where the commands left the robot
@@ -424,20 +421,30 @@ class Run(TransitionPlay):
                    "nothing approached"
         return None
 
-    def _outside(self, chunk: ActionChunk) -> tuple[str | None, BoxStart | None]:
+    def _outside(self, chunk: ActionChunk, approach: Transition | None) -> tuple[str | None, tuple[str, str] | None]:
         """Why the run's first chunk may not start it: its target outside the workspace box, the tool point inside
-        it (the policy's answer refused); and the tool point's start where it lies outside the box and the target
-        further out (``BoxStart``: a target no further out is taken to). Both refused as a malformed chunk is."""
+        it (the policy's answer refused); or, the tool point starting outside it (``BoxStart``), its target or its
+        ``approach`` on the way further out, with that start and what went further (a target no further out is taken
+        to: an approach further out on the way refused the start, exit 2, where a target further out was a rejected
+        chunk). Each refused as a malformed chunk is."""
         guard = self.guard
-        target = self._first_target(chunk)
-        outside = guard.envelope.target_problem(target)
-        if outside is None:
-            return None, None
-        start = BoxStart.of(guard.config.box, guard.tool(self.link.last_sent))
+        box, tool, target = guard.config.box, guard.tool, self._first_target(chunk)
+        start = None if box is None or tool is None else BoxStart.of(box, tool(self.link.last_sent))
         if start is None:
-            return f"first target: {outside}; nothing approached", None
-        further = start.further(guard.tool(target))
-        return (None, None) if further is None else (f"first target: {further}; nothing approached", start)
+            outside = guard.envelope.target_problem(target)
+            return (None if outside is None else f"first target: {outside}; nothing approached"), None
+        what = start.further(tool(target))
+        if what is None and approach is not None:
+            path = self._leaves_box(approach)
+            self.clock.regrid()  # that check (3 ms for a 0.24 s approach), at rest before the first chunk, is no tick
+            what = None if path is None else f"{_approach_to(approach)}: {path}"
+        return (None, None) if what is None else (start.refused(what), (str(start), what))
+
+    def _approach(self, chunk: ActionChunk) -> Transition | None:
+        """The approach to ``chunk``'s first target from where the robot was commanded to be (the measured pose lags
+        it: planning from there stepped the command), or None where it is there."""
+        return Transition.plan(self.cell.profile, self.link.last_sent, self._first_target(chunk),
+                               self.clock.period_ns, **self._commanded_motion(), **self._cap(self.cell.safety()))
 
     def _first_target(self, chunk: ActionChunk) -> np.ndarray:
         """The pose an approach goes to: the chunk's first action inside the soft limits, where the guard keeps
@@ -522,23 +529,23 @@ class Run(TransitionPlay):
         no-first-chunk watchdog runs from then, and the answers refused count from then on (``_refusal``)."""
         self._armed_at, self._answers, self._refused = t_ns, {}, 0
 
-    def _refusal(self, t_ns: int, kind: str, why: str, box_start: BoxStart | None = None) -> None:
+    def _refusal(self, t_ns: int, kind: str, why: str, box: tuple[str, str] | None = None) -> None:
         """An answer not taken (``kind``: "failed", "rejected" or "stale"), weighed with those since the arming or
         the last chunk the guard took, whichever came later (the policy's or a recovery's). Once a chunk has been
         taken, the guard's watchdog holds the robot after ``watchdog_s`` without one, and a refused answer then,
         every one since refused, loses the policy (``_never_answered``): a policy that turned bad after it started
         (a NaN in every chunk, every answer later than its own horizon) was asked on, every cycle waited out its
         time-out and the run exited 0. Before the first chunk ``_stop_input`` weighs them at the watchdog.
-        ``box_start``: the tool point's start outside the box, which the first target lay further out than; kept
-        while every answer refused is such a one (``_never_answered`` names it)."""
+        ``box``: the tool point's start outside the box, and what of the first target went further out (``_outside``);
+        kept while every answer refused is such a one (``_never_answered`` names the start once)."""
         last = self.guard.executor.last_chunk_ns
         if last is not None and last > self._armed_at:  # taken since: the count starts again from it
             self._arm(last)
         self._answers[kind] = why
-        if box_start is None or (self._refused and "box" not in self._answers):
+        if box is None or (self._refused and "box" not in self._answers):
             self._answers.pop("box", None)
         else:
-            self._answers["box"] = str(box_start)
+            self._answers["box"] = box
         self._refused += 1
         if (last is not None and self._refused > 1 and not self.policy_lost
                 and t_ns - self._armed_at > self.scenario.guard.watchdog_s * 1e9):
@@ -548,8 +555,9 @@ class Run(TransitionPlay):
         """No chunk within the watchdog (of its arming or the last chunk taken) and every answer since refused, two
         at least (one late bad answer of a slow policy whose next is good is no loss): every call failed (a
         server that answers only errors, a model that raises on every observation), or the guard rejected its
-        chunk (not finite, beyond the limits, the wrong shape, its first target outside the box from inside it, or
-        further out than a tool point that starts outside it: the line names that start) or it came stale (all its
+        chunk (not finite, beyond the limits, the wrong shape, its first target outside the box from inside it, or,
+        from a tool point that starts outside it, the target or the way there further out: the line names that start
+        once, the last refusal after it without it; 430 characters named it twice) or it came stale (all its
         steps past: it can never move the robot). The policy is
         lost: the run went on asking it, one event per request, every cycle waited out its time-out, failed, and
         it ended clean, exit 0. A cold one that answers within the watchdog is not, nor one
@@ -561,9 +569,12 @@ class Run(TransitionPlay):
         none = "none taken" if last is None else f"none taken since t = {self._armed_at * 1e-9:.3f} s"
         kinds = [kind for kind in _REFUSALS if kind in answers]
         chunks = " or ".join(kind for kind in kinds if kind != "failed")
-        if "box" in answers:  # not the policy alone: where the tool is
-            lead = f"{answers['box']}, every first target further out, {none}"
-        elif kinds == ["failed"]:
+        if "box" in answers:  # where the tool is, not the policy alone: every answer refused since was such a one
+            start, what = answers["box"]
+            self._lose_policy(t_ns, f"{start}, every first target or the way to it further out, {none} (the last: "
+                                    f"{what})")
+            return
+        if kinds == ["failed"]:
             lead = "every call failed before the first chunk" if last is None else f"every call failed, {none}"
         elif kinds == ["rejected"]:
             lead = f"the guard rejected every chunk, {none}"
@@ -728,6 +739,11 @@ def _close(thing) -> None:
     close = getattr(thing, "close", None)
     if callable(close):
         close()
+
+
+def _approach_to(approach: Transition) -> str:
+    """The approach named in a refusal: by its first target's pose."""
+    return f"the approach to the first target {np.round(approach.target, 3).tolist()}"
 
 
 def _with_nan(chunk: ActionChunk) -> ActionChunk:

@@ -22,9 +22,11 @@ chunk of a 1 s chunk policy on a worker (asked again half a chunk in), a stop an
 A tool point that starts outside the workspace box (a robot left there, a sim-server cell posed there) is taken to
 the first target, no further out: one inside the box grown wall by wall to hold the start (``BoxStart``, the
 guard's ``grown_box``, as the approach's ``Transition.leaves_box`` and the guard's look-ahead let a motion from
-outside do). A first target further out is refused as a chunk is (a learned policy's next may be fine), and where
-every one is, the policy-lost line names the box start. Refused as the policy's answer, every first chunk of a
-policy that held there or moved back in read as "policy lost: the guard rejected every chunk".
+outside do). A first target further out, or one whose approach goes further out on the way, is refused as a chunk is
+(a learned policy's next may be fine; the approach refused the start, exit 2, for a target 34.8 mm over the ceiling
+where 35.2 mm was allowed), and where every one is, the policy-lost line names the box start. Refused as the policy's
+answer, every first chunk of a policy that held there or moved back in read as "policy lost: the guard rejected every
+chunk".
 """
 
 from __future__ import annotations
@@ -116,7 +118,8 @@ class BoxStart:
 
     def further(self, target) -> str | None:
         """Why a first target at tool point ``target`` [m] is refused (past a wall the tool is inside of, or further
-        past one than the tool is, ``SLACK`` allowed), or None where it is taken: the approach goes there."""
+        past one than the tool is, ``SLACK`` allowed), or None where it is taken: the approach goes there. Said
+        after the start (``refused``)."""
         beyond, wall = box_excess(target, *self.grown)
         if beyond <= 0.0:
             return None
@@ -125,7 +128,11 @@ class BoxStart:
         inside = lo[axis] <= self.tip[axis] <= hi[axis]
         how = f"{mm(past)} mm past its {wall}, a wall the tool is inside of" if inside else \
             f"further out, {mm(past)} mm past its {wall}"
-        return f"{self} and the first target lies {how} (at {at(target, lo, hi)} m)"
+        return f"the first target lies {how} (at {at(target, lo, hi)} m)"
+
+    def refused(self, what: str) -> str:
+        """A first chunk refused for ``what`` (``further``'s, or its approach's way further out), after the start."""
+        return f"first target: {self} and {what}; nothing approached"
 
 
 def _checked_stats(name: str, pair, value: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -177,12 +177,16 @@ class Transition:
             k += max(1, int(-excess / per_step)) if excess < 0.0 and per_step > 0.0 else 1
         if left is None:
             return None
-        out = "outside" if allowed == (lo, hi) else "past where it may go"  # from outside: past the grown box
-        said = (f"its tool point leaves the workspace box {[list(map(float, corner)) for corner in box]} past its "
-                f"{left[1]} {left[2]:.2f} s in (at {at(left[3], lo, hi)} m)")
+        corners = [list(map(float, corner)) for corner in box]
+        first = f"past its {left[1]} {left[2]:.2f} s in (at {at(left[3], lo, hi)} m)"
+        if allowed != (lo, hi):  # from outside, never inside: past the grown box, which it never "leaves"
+            said = (f"its tool point goes {mm(worst[0])} mm past where it may go from its start outside the workspace "
+                    f"box {corners} (past no wall further than there, {mm(SLACK)} mm spare), first {first}")
+            return said if worst is left else f"{said}, the most past its {worst[1]} {worst[2]:.2f} s in"
+        said = f"its tool point leaves the workspace box {corners} {first}"
         if worst is left:
-            return f"{said}, {mm(left[0])} mm {out} at worst"
-        return f"{said}; {mm(worst[0])} mm {out} at worst, past its {worst[1]} {worst[2]:.2f} s in"
+            return f"{said}, {mm(left[0])} mm outside at worst"
+        return f"{said}; {mm(worst[0])} mm outside at worst, past its {worst[1]} {worst[2]:.2f} s in"
 
     def slowed(self, profile: Profile, steps: int, cap: SpeedCap | None,
                reach: list[float] | None) -> Transition | None:
