@@ -25,7 +25,6 @@ import json
 import os
 import resource
 import shutil
-import signal
 import sys
 import tempfile
 import time
@@ -37,6 +36,7 @@ sys.path.insert(0, str(Path(__file__).parent))
 
 from fleet_runs import DEFAULT_DIR, TENANTS, make_fleet  # noqa: E402
 
+from cellguard.ending import ended_by_signals  # noqa: E402
 from cellguard.fleet.policy import DataPolicy  # noqa: E402
 from cellguard.fleet.push import push  # noqa: E402
 from cellguard.fleet.queries import QUERIES  # noqa: E402
@@ -210,25 +210,6 @@ def equal(a: list[dict], b: list[dict]) -> bool:
     return True
 
 
-def end_by_signals() -> None:
-    """SIGTERM and SIGHUP end the benchmark as Ctrl-C does, by SystemExit (128 + the signal), so that its ``finally``
-    removes its work folder and drops its store (killed outright, both were left). One found ignored (``nohup``'s
-    SIGHUP) stays so; a forked process is ended at once, as before (a pool worker's SIGTERM is ``fleet_runs``' own).
-    ``cellguard.cli.app`` does the same for commands, but importing it loads the whole CLI."""
-    pid = os.getpid()
-
-    def end(signum: int, frame) -> None:
-        if os.getpid() != pid:
-            signal.signal(signum, signal.SIG_DFL)
-            os.kill(os.getpid(), signum)
-            return
-        raise SystemExit(128 + signum)
-
-    for signum in (signal.SIGTERM, signal.SIGHUP):
-        if signal.getsignal(signum) is not signal.SIG_IGN:
-            signal.signal(signum, end)
-
-
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--runs", type=Path, default=DEFAULT_DIR)
@@ -237,7 +218,6 @@ def main() -> None:
     ap.add_argument("--spark-on-fleet-lake", action="store_true",
                     help="also compare Spark on the 24-site lake (a minute more; Spark is compared at scale anyway)")
     args = ap.parse_args()
-    end_by_signals()
     t0, load0 = time.perf_counter(), os.getloadavg()
     phases: dict[str, dict] = {}
     last = [t0, cpu_s()]
@@ -331,4 +311,5 @@ def bench(args, admin: str, runs: dict, ref: float, lap, phases: dict, t0: float
 
 
 if __name__ == "__main__":
-    main()
+    with ended_by_signals():  # SIGTERM, SIGHUP: the work folder removed and the store dropped, as on Ctrl-C
+        main()

@@ -147,9 +147,11 @@ class Signalled(dict):
         os.kill(os.getpid(), signal.SIGTERM)
 
 
-fleet.end_by_signals()
-fleet.bench(argparse.Namespace(no_spark=True, rows=10, spark_on_fleet_lake=False), sys.argv[1], Signalled(), 1.0,
-            lambda name: None, {}, 0.0, (0.0, 0.0, 0.0))
+from cellguard.ending import ended_by_signals
+
+with ended_by_signals():
+    fleet.bench(argparse.Namespace(no_spark=True, rows=10, spark_on_fleet_lake=False), sys.argv[1], Signalled(), 1.0,
+                lambda name: None, {}, 0.0, (0.0, 0.0, 0.0))
 """
 
 

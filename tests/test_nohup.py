@@ -14,7 +14,7 @@ import time
 import pytest
 import yaml
 
-from cellguard.cli.app import _ended_by_signals
+from cellguard.ending import ended_by_signals
 from cellguard.runtime.operator_stop import OperatorStop
 
 CYCLES = {"cell": "arm-pick-place", "acceptance_cycles": 1, "production_cycles": 8}
@@ -55,7 +55,7 @@ def test_without_the_ignore_a_hangup_still_stops_the_run(tmp_path):
     assert json.loads((tmp_path / "run" / "summary.json").read_text())["stopped"] == "operator stop (SIGHUP)"
 
 
-@pytest.mark.parametrize("block", [_ended_by_signals, OperatorStop])
+@pytest.mark.parametrize("block", [ended_by_signals, OperatorStop])
 def test_an_ignored_signal_stays_ignored_inside_each_handler_block_and_the_others_are_handled(block):
     before = {signum: signal.getsignal(signum) for signum in (signal.SIGHUP, signal.SIGTERM)}
     signal.signal(signal.SIGHUP, signal.SIG_IGN)
