@@ -66,8 +66,8 @@ def test_bad_replay_input_is_one_line_and_exit_2(faulted, args, words):
     assert not list(faulted.glob("replay-*.html"))
 
 
-@pytest.mark.parametrize("text, low, high", [("friction:elbow=8e-1..1.6", 0.8, 1.6), ("friction:elbow=.5..2.", 0.5, 2.0),
-                                             ("friction:elbow=1...5", 1.0, 5.0)])
+@pytest.mark.parametrize("text, low, high", [("friction:elbow=8e-1..1.6", 0.8, 1.6),
+                                             ("friction:elbow=.5..2.", 0.5, 2.0), ("friction:elbow=1...5", 1.0, 5.0)])
 def test_a_vary_range_is_read_in_every_way_a_number_is_written(text, low, high):
     from cellguard.calibrate.replay import parse_vary
     from cellguard.robot.registry import make_cell

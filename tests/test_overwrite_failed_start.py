@@ -186,7 +186,8 @@ def test_a_failure_after_the_fork_leaves_no_writer_behind(old):
     try:
         threading.Thread.start = no_feeder
         try:
-            with pytest.raises(RecordError, match="'cellguard-record-feeder' could not start \\(can't start new thread"):
+            with pytest.raises(RecordError,
+                               match="'cellguard-record-feeder' could not start \\(can't start new thread"):
                 RunRecording.start(out, run, replace=True)
         finally:
             threading.Thread.start = start

@@ -8,7 +8,6 @@ from urllib.parse import quote
 
 import pytest
 import yaml
-from cli_util import one_error
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 from release_helpers import CELL, cli

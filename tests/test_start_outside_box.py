@@ -31,8 +31,8 @@ FURTHER = OUT + [0.0, 0.0, -0.3, 0.0, 0.0, 0.0]  # z 0.357 m: 107 mm over
 # z 0.285 m: 34.8 mm over, no further out than OUT (35.2 mm allowed); the approach there from OUT goes 1 mm further
 NEAR = np.array([-0.001, -0.108, 1.347, 1.504, -0.354, 0.025])
 LOST = ("policy_lost", "chunk_rejected", "startup_refused")
-START = (r"the tool point starts 33 mm outside the workspace box \[\[-0.45, -0.45, 0.005\], \[0.45, 0.45, 0.25\]\] past "
-         r"its z max \(at \[0.175, 0.0, 0.283\] m\)")
+START = (r"the tool point starts 33 mm outside the workspace box \[\[-0.45, -0.45, 0.005\], \[0.45, 0.45, 0.25\]\] "
+         r"past its z max \(at \[0.175, 0.0, 0.283\] m\)")
 REJECTED = (rf"^first target: {START} and the first target lies further out, 107 mm past its z max \(at \[0.181, 0.0, "
             r"0.357\] m\); nothing approached$")
 LOST_LINE = (rf"^{START}, every first target or the way to it further out, none taken \(the last: the first target "
