@@ -183,25 +183,18 @@ def dated_ahead(signatures: Sequence[Signature], today: dt.date) -> list[str]:
     return sorted(s.created_date for s in signatures if dt.date.fromisoformat(s.created_date) > newest)
 
 
-def distinct(signatures: Sequence[Signature], key: bytes) -> list[Signature]:
-    """Each finding once, by its signature id under the site's ``key``, first seen first: a runs folder holding a run
-    twice (a ``latest`` link, a backup copy) counted its findings twice, so one finding passed ``min_group_size: 2``
-    and a signature batch sent it twice (the second "already in the store")."""
-    return list({s.signature_id(key): s for s in signatures}.values())
-
-
 def export_batch(signatures: Sequence[Signature], policy: DataPolicy, today: dt.date | None = None, *,
                  key: bytes) -> Batch:
     """The batch ``policy`` lets leave the site, from the site's ``signatures``; ``key`` is the site's
     secret the signature ids are keyed with; ``today``: the date retention counts from, whose tomorrow is the
     latest a signature sent may be dated (default: this host's UTC date). A signature of another tenant or site,
-    whatever its date, is refused (PolicyError): it is not this site's to send, to count, or to say it kept. Each
-    finding is counted and sent once, however many copies of it ``signatures`` holds (``distinct``)."""
+    whatever its date, is refused (PolicyError): it is not this site's to send, to count, or to say it kept. Two runs
+    of one finding count twice (the same finding of two runs is two findings); a record held twice in the runs
+    folder is read once (``from_record.site_signatures``)."""
     for s in signatures:
         if (s.tenant_id, s.site_id) != (policy.tenant, policy.site):
             raise PolicyError(f"signature.tenant_id/site_id: {s.tenant_id}/{s.site_id} is not the policy's "
                               f"{policy.tenant}/{policy.site}")
-    signatures = distinct(signatures, key)
     today = today or utc_today()
     oldest, newest = oldest_kept(policy, today), newest_kept(today)
     live = [s for s in signatures if oldest <= dt.date.fromisoformat(s.created_date) <= newest]

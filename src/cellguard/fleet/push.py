@@ -71,8 +71,8 @@ from cellguard.dates import utc_today
 from cellguard.errors import ConfigError, OutputError
 from cellguard.fleet.audit import (append_audit, append_retention, check_log, check_site_dir,
                                    refuse_links, scan_audit)
-from cellguard.fleet.export import (AHEAD, Batch, dated_ahead, distinct, export_batch, newest_kept, oldest_kept,
-                                    refusal, within_retention)
+from cellguard.fleet.export import (AHEAD, Batch, dated_ahead, export_batch, newest_kept, oldest_kept, refusal,
+                                    within_retention)
 from cellguard.fleet.lake import check_lake, forget, newest, write_signatures
 from cellguard.fleet.outbox import OUTBOX, Outbox
 from cellguard.fleet.policy import DataPolicy
@@ -130,8 +130,7 @@ def push(signatures: list[Signature], policy: DataPolicy, site_dir: Path, store:
             _queue(again, outbox, site_dir, destination, local, reason=f"recounted on the store's date: replaces "
                                                                           f"batch {batch.batch_id}")
             batch = again
-    clock = "the fleet store" if local == server else "this host"
-    ahead = _kept_ahead(distinct(signatures, key), policy, local, clock)  # each finding once, as the export counts
+    ahead = _kept_ahead(signatures, policy, local, "the fleet store" if local == server else "this host")
     queued, unreadable = outbox.read()
     failed = [f"{path}: {why}; it stays queued" for path, why in unreadable]
     held: list[str] = []
