@@ -12,7 +12,7 @@
 Subclasses that belong to one part live beside its code: under ``ConfigError`` the release's
 ``ReleaseError`` (``BundleMismatch``, ``StageError``, ``GateError``), ``CalibrationError``,
 ``StartupRefused``, the policy's ``StepPeriodUnstated``, the fleet's ``SignatureError``, ``PolicyError`` and
-``AuditError``; under
+``AuditError``; under ``RecordError`` the diagnosis's ``TooFewCycles``; under
 ``CellguardError`` the robot's ``RobotLinkError`` and ``BridgeError``, the policy's ``WireError`` and
 ``InferenceError``, the fleet's ``RefusedAggregate`` and ``StoreError`` (``StoreUnavailable``), and
 ``plugins.PluginError`` (a plugin module that cannot be imported or takes a name twice).

@@ -45,6 +45,16 @@ WINSORISE_FROM = 10  # acceptance cycles: fewer, and one odd cycle is as likely 
 SIGMA_LEVEL = 0.05  # a scale from few cycles reads below the true sigma this seldom
 
 
+
+class TooFewCycles(RecordError):
+    """A record with too few cycles to diagnose: too few acceptance cycles for a baseline (``baseline``), or no
+    production cycle to compare with it (an excitation record's one cycle). A pooling of many records leaves such a
+    one out, not one whose baseline is another record's (every run's is that one)."""
+
+    def __init__(self, message: str, baseline: bool = False):
+        super().__init__(message)
+        self.baseline = baseline
+
 @dataclass(frozen=True)
 class MotionStats:
     """Statistics of the acceptance cycles of one motion; arrays are per feature of the baseline."""
@@ -126,7 +136,7 @@ class Baseline:
         """Baseline of ``cycles`` (the acceptance phase); at least MIN_CYCLES per motion."""
         why = too_few(cycles)
         if why is not None:
-            raise RecordError(f"baseline: {why}")
+            raise TooFewCycles(f"baseline: {why}", baseline=True)
         names = sorted({k for c in cycles for k in c.features} - NOT_MONITORED)
         motions, most, at = {}, {}, {}
         for label in sorted({c.label or "" for c in cycles}):

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field, replace
 
 from cellguard.control.events import ROUTINE_EVENTS, EventKind
 from cellguard.diagnose.asymmetry import Asymmetry, asymmetry_onset, mirror_map, mirrored_asymmetry
-from cellguard.diagnose.baseline import OWN_SOURCE, Baseline
+from cellguard.diagnose.baseline import OWN_SOURCE, Baseline, TooFewCycles
 from cellguard.diagnose.cause import (CONCURRENT, MATERIAL, Finding, intermittent_findings, name_causes, told,
                                      tracking_rises)
 from cellguard.diagnose.compare import FeatureChange, changes, last_good_and_faulted
@@ -104,7 +104,7 @@ def diagnose(rows: Iterable[object], events: Iterable[object] = (), context: Map
     else:
         watched = [c for c in cycles if c.phase != "acceptance"] or list(cycles)
     if not watched:
-        raise RecordError("diagnose: the record has no production cycles to compare with the baseline")
+        raise TooFewCycles("diagnose: the record has no production cycles to compare with the baseline")
     z, notes = condition(baseline, watched, baseline.residuals(watched), declared(context))
     z = without_recovery_motion(baseline.names, watched, z)
     found = find_intermittent(baseline.names, watched, z)

@@ -10,7 +10,7 @@ import os
 from collections.abc import Callable
 from pathlib import Path
 
-from cellguard.diagnose.baseline import METHOD, OWN_SOURCE, Baseline, check_same_robot
+from cellguard.diagnose.baseline import METHOD, OWN_SOURCE, Baseline, TooFewCycles, check_same_robot
 from cellguard.diagnose.cycles import as_cycles
 from cellguard.diagnose.diagnosis import Diagnosis, diagnose
 from cellguard.diagnose.recovery import acceptance_attempts, policy_cycles
@@ -76,7 +76,9 @@ def _diagnosed(path: Path, acceptance: Path | None, fleet: list[dict] | tuple, u
     try:
         result = diagnose(cycles, events, {**context, "process": declared}, baseline=baseline,
                           symmetry=symmetry_of(context), history=[*past, *fleet], reference=reference)
-    except RecordError as exc:  # too few acceptance cycles, no production: say which record
+    except TooFewCycles as exc:  # too few acceptance cycles, no production: say which record
+        raise TooFewCycles(f"{path}: {exc}", exc.baseline) from None
+    except RecordError as exc:
         raise RecordError(f"{path}: {exc}") from None
     if baseline is None:  # as a stored baseline is judged when read again, so the first diagnosis agrees
         result.baseline.check_fits(as_cycles(cycles), f"{path} (its own acceptance cycles)")
@@ -92,7 +94,7 @@ def _has_cycles(cycles: list, path: Path) -> None:
     baseline is judged against it: every feature of the baseline is missing from a record of none, which read as a
     baseline of another cell."""
     if not cycles:
-        raise RecordError(f"{path}: the record has no finished cycle to diagnose")
+        raise TooFewCycles(f"{path}: the record has no finished cycle to diagnose")
 
 
 def _keep(save: Callable[[], object], target: Path, pin: Pin, unkept: list[str] | None) -> None:

@@ -42,9 +42,10 @@ def site_signatures(folder: Path, policy: DataPolicy, acceptance: Path | None = 
     probes of ``fleet similar``, which the store keeps nowhere), is a run that started after tomorrow by this
     host's date (``export.newest_kept``): no export may send its findings with that date, nor one whose record was
     replaced while it was diagnosed (``record.beside``), nor one with too few cycles to diagnose (an excitation
-    record: ``_lacks_cycles``). Each is named in ``skipped``, one line each; with no list to name it in, RecordError.
+    record: ``TooFewCycles``). Each is named in ``skipped``, one line each; with no list to name it in, RecordError.
     A record met again (its record id, or its file where it has none: a ``latest`` link, a backup copy) is diagnosed
     once: each folder holding it again is named in ``copies``."""
+    from cellguard.diagnose.baseline import TooFewCycles
     from cellguard.diagnose.from_record import diagnose_record
     from cellguard.record.beside import Replaced
     from cellguard.record.reader import open_record
@@ -78,30 +79,13 @@ def site_signatures(folder: Path, policy: DataPolicy, acceptance: Path | None = 
                 raise
             skipped.append(f"{exc}; its findings were left out")
             continue
-        except RecordError as exc:  # names the run and what it lacks
-            if skipped is None or not _lacks_cycles(run, acceptance):
+        except TooFewCycles as exc:  # names the run and what it lacks (an excitation record's one cycle)
+            if skipped is None or (exc.baseline and acceptance is not None):  # --acceptance's: every run's baseline
                 raise
             skipped.append(f"{exc}; its findings were left out")
             continue
         out.extend(signatures_of(diagnosis.to_dict(), diagnosis.context, policy.tenant, policy.site, day))
     return out
-
-
-def _lacks_cycles(run: Path, acceptance: Path | None) -> bool:
-    """Whether ``run``'s record has too few cycles to be diagnosed: none finished or, its own acceptance cycles the
-    baseline, too few of them or no production cycle. Such a record (``cellguard excite``'s: one cycle) beside the
-    ordinary runs is left out like a damaged one; it ended the whole push, nothing sent."""
-    from cellguard.diagnose.baseline import too_few
-    from cellguard.diagnose.cycles import as_cycles
-    from cellguard.diagnose.recovery import policy_cycles
-    from cellguard.record.reader import open_record
-
-    with open_record(run) as rec:
-        cycles = as_cycles(rec.cycles())
-    own = [c for c in cycles if c.phase == "acceptance"]
-    if acceptance is not None or not cycles:
-        return not cycles
-    return too_few(policy_cycles(own)) is not None or len(own) == len(cycles)
 
 
 def _not_whole(run: Path, health) -> str:
