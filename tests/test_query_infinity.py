@@ -11,6 +11,8 @@ from record_synth import record
 from typer.testing import CliRunner
 
 from cellguard.cli import app
+from cellguard.errors import RecordError
+from cellguard.record.query import run_query
 
 runner = CliRunner()
 
@@ -32,3 +34,18 @@ def test_infinite_dates_and_timestamps_are_null_at_any_depth_and_finite_ones_tex
     row = json.loads(result.stdout)
     assert row == {"t": None, "t0": None, "d": None, "d0": None, "tz": None, "ns": None, "l": [None, "2026-01-02"],
                    "s": {"a": None}, "x": None, "ok": "2026-01-02", "day": "2026-09-21"}
+
+
+def test_a_query_process_the_os_refuses_is_one_line(run, monkeypatch):
+    """The query's worker process refused (EAGAIN from the fork: the process limit) was a traceback."""
+    import errno
+    import multiprocessing.util
+    import os
+
+    def refused(*_):
+        raise BlockingIOError(errno.EAGAIN, "Resource temporarily unavailable")
+
+    monkeypatch.setattr(os, "fork", refused)
+    monkeypatch.setattr(multiprocessing.util, "spawnv_passfds", refused)
+    with pytest.raises(RecordError, match=r"^query: cannot run it: its process 'cellguard-query' could not start"):
+        run_query(run, "SELECT 1 AS x")

@@ -19,14 +19,15 @@ runner = CliRunner()
 LINE = "not a cellguard record (no cellguard channel; its topics: /foo)"
 
 
-def foreign(folder: Path, chunk_size: int = 1 << 20, topics: tuple[str, ...] = ("/foo",)) -> Path:
-    """``folder/record.mcap``: a channel of each of ``topics`` (the first id 1, as /context's), another tool's schema,
-    ten messages each, written by mcap's Writer."""
+def foreign(folder: Path, chunk_size: int = 1 << 20, topics: tuple[str, ...] = ("/foo",),
+            schema_name: str | None = "other.Message") -> Path:
+    """``folder/record.mcap``: a channel of each of ``topics`` (the first id 1, as /context's), another tool's schema
+    (None: none, id 0, as MCAP allows for JSON), ten messages each, written by mcap's Writer."""
     folder.mkdir(parents=True, exist_ok=True)
     with open(folder / "record.mcap", "wb") as f:
         writer = Writer(f, chunk_size=chunk_size)
         writer.start(profile="", library="other tool")
-        schema = writer.register_schema("other.Message", "jsonschema", b"{}")
+        schema = 0 if schema_name is None else writer.register_schema(schema_name, "jsonschema", b"{}")
         channels = [writer.register_channel(topic, "json", schema) for topic in topics]
         for i in range(10):
             for channel in channels:
@@ -63,10 +64,11 @@ def test_a_foreign_file_without_its_summary_is_refused_by_its_channel_records(tm
         open_record(tmp_path / "cut")
 
 
-def test_a_foreign_file_with_a_context_topic_of_its_own_is_no_cellguard_record(tmp_path):
-    """Another tool's /context (its own schema) beside its /camera: the topic's name alone made it a damaged cellguard
-    record, "5 /context message(s) malformed", and `record recover` wrote a copy."""
-    run = foreign(tmp_path / "run", topics=("/context", "/camera"))
+@pytest.mark.parametrize("schema_name", ["other.Message", None, "cellguardian.Foo"])
+def test_a_foreign_file_with_a_context_topic_of_its_own_is_no_cellguard_record(tmp_path, schema_name):
+    """Another tool's /context (its own schema, or none) beside its /camera: the topic's name alone made it a damaged
+    cellguard record, "5 /context message(s) malformed", and `record recover` wrote a copy."""
+    run = foreign(tmp_path / "run", topics=("/context", "/camera"), schema_name=schema_name)
     with pytest.raises(RecordError, match=r"not a cellguard record \(no cellguard channel; its topics: /camera, "
                                           r"/context\)"):
         open_record(run)

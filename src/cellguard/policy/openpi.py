@@ -188,7 +188,8 @@ def make_openpi_policy(arg: str, cell, soft_margin: float = SOFT_MARGIN) -> Mapp
         raise ConfigError(f"policy: openpi: option retries={written!r} is not an integer (ASCII digits 0-9)")
     digits = written.lstrip("0") or "0"  # int() refuses over 4300 digits, leading zeros too
     if len(digits) > 1 or int(digits) > 5:
-        raise ConfigError(f"policy: openpi: option retries must be in [0, 5], got {written[:20]}")
+        raise ConfigError(f"policy: openpi: option retries must be in [0, 5], got {digits[:20]}"
+                          f"{'...' if len(digits) > 20 else ''}")
     retries = int(digits)
     if "dt" in options:  # checked before connecting: with the server down, a bad ?dt= read as its absence
         option_float(options, "dt", 0.0, "openpi", DT_RANGE_S)

@@ -34,6 +34,7 @@ from cellguard.record.json_values import plain
 from cellguard.record.scan import require_regular, scan, stated_record_id
 from cellguard.record.schemas import not_cellguard
 from cellguard.record.writer import INDEX_DIR, RECORD_FILE
+from cellguard.threads import start_process
 
 ALLOWED_STATEMENTS = (duckdb.StatementType.SELECT, duckdb.StatementType.EXPLAIN)
 MEMORY_LIMIT = "1GB"  # what a query's process may allocate once DuckDB is started (Linux); a query needing more fails
@@ -187,8 +188,11 @@ def run_query(folder: Path, sql: str, timeout_s: float = DEFAULT_TIMEOUT_S) -> t
         except (AttributeError, OSError, ValueError):
             pass
     child = ctx.Process(target=_serve, args=(index, sql, timeout_s, sender), name="cellguard-query", daemon=True)
-    child.start()
+    refused = start_process(child)
     sender.close()  # the child's end: when the child dies, the parent reads the end of the pipe
+    if refused is not None:  # the OS's process limit, memory (EAGAIN): a traceback before
+        receiver.close()
+        raise RecordError(f"query: cannot run it: {refused}")
     try:
         _, names = _receive(child, receiver, deadline, timeout_s)
     except BaseException:

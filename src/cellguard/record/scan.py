@@ -89,8 +89,9 @@ class Layout:
 
     @property
     def schema_names(self) -> dict[int, str]:
-        """Channel id -> the name of the schema it declares, where that schema's record was read."""
-        return {i: self.schemas[c.schema_id].name for i, c in self.channels.items() if c.schema_id in self.schemas}
+        """Channel id -> the name of the schema it declares, where that schema's record was read ("": none, id 0)."""
+        return {i: self.schemas[c.schema_id].name if c.schema_id else "" for i, c in self.channels.items()
+                if not c.schema_id or c.schema_id in self.schemas}
 
 
 def scan(path: Path) -> Layout:

@@ -158,11 +158,12 @@ def file_ids(topics: Mapping[int, str]) -> dict[str, int | None]:
 def not_cellguard(path: object, topics: Mapping[int, str], schema_names: Mapping[int, str] = {}) -> str | None:
     """Why a file whose channel records state ``topics`` is no cellguard record (none of cellguard's own channels:
     read as one, a foreign file was a damaged record with invented details), else None. ``schema_names``: channel id
-    -> the name of the schema it declares, where known: a channel with one of cellguard's topics and another tool's
-    schema (its own /context) is not cellguard's; every schema cellguard has written is named ``cellguard...``."""
+    -> the name of the schema it declares ("" for none), where known: a channel with one of cellguard's topics and
+    another schema, or none (another tool's own /context), is not cellguard's; each topic's schema has kept its name
+    since the first record. A channel whose schema record was lost is taken by its topic."""
     names = sorted(set(topics.values()))
     ours = [i for i, topic in topics.items()
-            if topic in OWN_TOPICS and schema_names.get(i, "cellguard").startswith("cellguard")]
+            if topic in OWN_TOPICS and schema_names.get(i, BY_TOPIC[topic].schema_name) == BY_TOPIC[topic].schema_name]
     if not names or ours:
         return None
     shown = ", ".join(names[:10]) + (f", ... ({len(names)} topics)" if len(names) > 10 else "")
