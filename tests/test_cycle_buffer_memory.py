@@ -60,7 +60,7 @@ def test_a_run_whose_buffer_cannot_grow_goes_on_with_one_event_a_cycle_and_recor
     full = [e for e in run.events if e.kind == "cycle_buffer_full"]
     assert len(full) == 2 and "no tick features" in full[0].reason, full
     for outcome in run.cycles:
-        assert outcome["features_cover_s"] < 0.52 and "current_rms.shoulder_pan" not in outcome["features"]
+        assert outcome["buffer_full_after_s"] < 0.52 and "current_rms.shoulder_pan" not in outcome["features"]
         assert "monitored" not in outcome and outcome["features"]["latency_mean_ms"] >= 0.0
     with open_record(tmp_path / "out") as rec:
         ticks = rec.ticks(rate="all")

@@ -274,7 +274,7 @@ class Run(TransitionPlay):
         outcome["inference"] = _wall_latency(self._wall_ns)
         outcome["features"] = cycle_features(cell.profile, ticks, outcome, self._latencies, events.since(first_event))
         if ticks.dropped:  # the buffer could not grow (``cycle_buffer_full``): no tick features, no monitor's reading
-            outcome["features_cover_s"] = round((ticks.stamp(ticks.n - 1) - start) * 1e-9, 3)
+            outcome["buffer_full_after_s"] = round((ticks.stamp(ticks.n - 1) - start) * 1e-9, 3)
         for monitor in self.cycle_monitors if not ticks.dropped else ():  # joining its columns would need more still
             monitor(ticks, outcome)
         if self.cycle_monitors:  # a simulated cell's replay of the cycle (wall time: tens of ms): a pause, no tick
