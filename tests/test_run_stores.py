@@ -98,3 +98,4 @@ def test_an_open_run_refuses_another_server_before_it_reaches_it(run):
         a.open(CLOSED)
     said = str(refused.value)
     assert said.startswith(f"fleet store 127.0.0.1:1/postgres: run {a.run} holds its lock on ") and "\n" not in said
+    a.open(" ".join(reversed(admin_dsn_or_skip().split())))  # the same server, its parameters in another order

@@ -86,7 +86,7 @@ class RunStores:
         when ``dsn`` is not the one it opened (its stores there would be neither tagged nor dropped) or the lock
         was lost."""
         if self._lock is not None:
-            if dsn != self.dsn:
+            if _place(dsn) != _place(self.dsn):
                 raise StoreError(f"fleet store {_where(dsn)}: run {self.run} holds its lock on {_where(self.dsn)}, "
                                  "and makes its stores there only")
             self.held()
@@ -192,3 +192,11 @@ class RunStores:
             raise StoreError(f"{self.who}: {lost}" + (f"; left on the server: {', '.join(left)}" if left else ""))
         return f"{self.who}: fleet stores left on {_where(self.dsn)} for the next run to drop: {', '.join(left)}" \
             if left else None
+
+
+def _place(dsn: str) -> tuple:
+    """The server a DSN names (host, port, database), however its parameters are ordered or spelt."""
+    from psycopg.conninfo import conninfo_to_dict
+
+    given = conninfo_to_dict(dsn)
+    return tuple(str(given.get(key, "")) for key in ("host", "hostaddr", "port", "dbname"))
