@@ -55,7 +55,7 @@ def test_a_bad_setting_is_refused_naming_its_key(key, value):
 def test_event_kinds_keep_their_record_strings():
     assert EventKind.WATCHDOG_STOP == "watchdog_stop" and str(EventKind.CHUNK_STEPS_DROPPED) == "chunk_steps_dropped"
     assert ROUTINE_EVENTS == {"chunk_steps_dropped", "approach_begin", "approach_done", "retreat_begin", "retreat_done",
-                              "recovery_start", "recovery_end"}
+                              "recovery_start", "recovery_end", "cycle_buffer_full"}
     assert EventKind.REFERENCE_INVALID.category == 2 and EventKind.PROTECTIVE_STOP.category is None
     assert all(EventKind(f"{k}_cleared") for k in (EventKind.REDUCED_SPEED_INPUT, EventKind.UNCERTAINTY_GATE))
 
