@@ -13,7 +13,7 @@ from rich.console import Console
 from cellguard.cli import stdout
 from cellguard.cli.app import app
 from cellguard.cli.errors import fail
-from cellguard.cli.record import warn_if_damaged
+from cellguard.cli.record import recover_hint, warn_if_damaged
 from cellguard.cli.text import printable_tree, say
 from cellguard.errors import CellguardError, ConfigError, RecordError
 
@@ -152,9 +152,7 @@ def _with_health(exc: CellguardError, folder: Path) -> CellguardError:
         return exc
     if health.writing and str(health.writing) in str(exc):  # the refusal of a live record says so itself
         return exc
-    hint = (f"; `cellguard record recover {folder} -o NEW_DIR` writes a finished copy"
-            if health.recoverable and not health.writing else "")
-    exc.args = (f"{exc} (the record is {health.describe()}{hint})",)
+    exc.args = (f"{exc} (the record is {health.describe()}{recover_hint(health, folder)})",)
     return exc
 
 

@@ -35,10 +35,15 @@ def warn_if_damaged(health, folder: Path) -> int:
     if health.writing and health.intact:
         say(f"note: {folder}: {health.describe()}; read it again once its run has ended for the whole record")
         return 0
-    hint = (f"; `cellguard record recover {folder} -o NEW_DIR` writes a finished copy"
-            if health.recoverable and not health.writing else "")
-    say(f"warning: {folder}: {health.describe()}{hint}")
+    say(f"warning: {folder}: {health.describe()}{recover_hint(health, folder)}")
     return 1
+
+
+def recover_hint(health, folder: Path) -> str:
+    """How to get a finished copy of a record not whole, where ``record recover`` can make one ("": none)."""
+    if health.recoverable and not health.writing:
+        return f"; `cellguard record recover {folder} -o NEW_DIR` writes a finished copy"
+    return ""
 
 
 @record_app.command()

@@ -381,7 +381,8 @@ class Run(TransitionPlay):
         self._started = True
         if approach is None:
             return arrival
-        outside = self._leaves_box(approach)  # from outside the box, checked already (``_outside``)
+        # from a tool point outside the box, checked already against the box grown to hold it (``_outside``)
+        outside = self._leaves_box(approach) if self._box_start() is None else None
         if outside is not None:  # planned in joint space: no path inside the box to the first target is sought
             self._refuse(f"start-up: {_approach_to(approach)}: {outside}; not moving")
         held = self._play(approach, "approach", self.clock.now())
@@ -427,18 +428,22 @@ class Run(TransitionPlay):
         ``approach`` on the way further out, with that start and what went further (a target no further out is taken
         to: an approach further out on the way refused the start, exit 2, where a target further out was a rejected
         chunk). Each refused as a malformed chunk is."""
-        guard = self.guard
-        box, tool, target = guard.config.box, guard.tool, self._first_target(chunk)
-        start = None if box is None or tool is None else BoxStart.of(box, tool(self.link.last_sent))
+        target, start = self._first_target(chunk), self._box_start()
         if start is None:
-            outside = guard.envelope.target_problem(target)
+            outside = self.guard.envelope.target_problem(target)
             return (None if outside is None else f"first target: {outside}; nothing approached"), None
-        what = start.further(tool(target))
+        what = start.further(self.guard.tool(target))
         if what is None and approach is not None:
             path = self._leaves_box(approach)
             self.clock.regrid()  # that check (3 ms for a 0.24 s approach), at rest before the first chunk, is no tick
             what = None if path is None else f"{_approach_to(approach)}: {path}"
         return (None, None) if what is None else (start.refused(what), (str(start), what))
+
+    def _box_start(self) -> BoxStart | None:
+        """The tool point's start where it lies outside the workspace box (None: inside it, or no box or tool model),
+        from where the robot was last commanded to be."""
+        box, tool = self.guard.config.box, self.guard.tool
+        return None if box is None or tool is None else BoxStart.of(box, tool(self.link.last_sent))
 
     def _approach(self, chunk: ActionChunk) -> Transition | None:
         """The approach to ``chunk``'s first target from where the robot was commanded to be (the measured pose lags

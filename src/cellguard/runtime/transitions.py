@@ -28,17 +28,16 @@ from dataclasses import dataclass
 import numpy as np
 import ruckig
 
-from cellguard.control.checks import SpeedCap, Tick, workspace
+from cellguard.control.checks import SpeedCap, Tick
 from cellguard.control.checks.safety_input import ReducedSpeedInput
 from cellguard.control.checks.tool_speed import ToolSpeedCap
-from cellguard.control.checks.workspace import at, box_excess, grown_box, mm
+from cellguard.control.checks.workspace import SLACK, at, box_excess, grown_box, mm
 from cellguard.control.config import GuardConfig
 from cellguard.embodiment import Profile
 from cellguard.robot.protocol import SafetyInputs
 
 TOLERANCE = 0.01  # [rad] or [m]: closer than this, no transition is played
 AT_REST = 1e-9  # [unit/s], [unit/s²]: slower than this, a transition is at rest
-SLACK = workspace.SLACK  # [m] a transition that starts past a wall may pass it no further than it starts, plus this
 BRAKE_SLACK_S = 1.0  # [s] wall time a brake may take beyond its own (a simulated cell's runs on a busy host's CPU)
 
 
