@@ -165,7 +165,7 @@ def record_health(folder: Path):
 
 
 def print_diagnosis(d) -> None:
-    from cellguard.diagnose.diagnosis import unwatched_words
+    from cellguard.diagnose.diagnosis import no_tick_words, unwatched_words
 
     console = Console(highlight=False)
     data = printable_tree(d.to_dict())  # joint and signal names come from the record
@@ -183,6 +183,8 @@ def print_diagnosis(d) -> None:
             console.print(f"    - {line}", markup=False)
     if d.unwatched:
         console.print(f"  note: {unwatched_words(d.unwatched, d.cycles)}", markup=False)
+    if d.no_tick_features:
+        console.print(f"  note: {no_tick_words(d.no_tick_features, d.cycles)}", markup=False)
     if data.get("recoveries"):
         tally: dict[tuple[str, str], int] = {}
         for r in data["recoveries"]:

@@ -42,12 +42,12 @@ def exit_if_stopped(summary: dict, out: Path) -> None:
         fail(OperatorStopped(f"{stopped}; the record in {out} " + (f"is not whole ({failed}): `cellguard record "
                                                                    f"recover` writes a finished copy" if failed
                                                                    else "is complete")
-                             + f"; {_robot_left(summary['events'])}"))
+                             + f"; {_robot_left(summary)}"))
     if stopped:
         cause = _cause(summary["events"], stopped)
         kind = cause["kind"] if cause else "stop"
         sys.stderr.write(f"error: {printable(f'the cell was stopped ({kind}): {stopped}')}; "
-                         f"{printable(_robot_left(summary['events']))}; "
+                         f"{printable(_robot_left(summary))}; "
                          f"{printable(out / 'summary.json')} says what ran\n")
         raise typer.Exit(1)
     failed = summary.get("record_failed")
@@ -78,11 +78,12 @@ def _stops(event: dict) -> bool:
     return category is not None and kind not in STOP_EFFECTS
 
 
-def _robot_left(events: list[dict]) -> str:
+def _robot_left(summary: dict) -> str:
     """Where a stopped run left the robot, from its last events since any reset: home by its retreat, held away
     from home (a retreat aborted or not played), where the stop left it (power removed, or no motion after a link
-    fault or a failed record), or no retreat played (home already, or no home pose): the line said only "stopped"."""
-    for e in reversed(events):
+    fault or a failed record); with no such event, how far its last measured pose lies from home (``from_home``;
+    a summary written before it: home already, or no home pose): the line said only "stopped"."""
+    for e in reversed(summary["events"]):
         kind = e["kind"]
         if kind == "reset":  # power came back: what came before does not say where the robot is now
             break
@@ -94,7 +95,21 @@ def _robot_left(events: list[dict]) -> str:
             return f"robot: {where} ({_named(e)})"
         if kind.startswith(NO_RETREAT):
             return f"robot: held where it stopped, not retreated home (no motion after {_named(e)})"
-    return "robot: no retreat played (home already, or no home pose)"
+    if "from_home" not in summary:  # an older summary, or a robot never read
+        return "robot: no retreat played (home already, or no home pose)"
+    far = summary["from_home"]
+    if far is None:
+        return "robot: no retreat played (no home pose for this robot)"
+    return (f"robot: {_distance(far['distance'], far['unit'])} from home ({far['joint']} the farthest; no retreat "
+            "played)")
+
+
+def _distance(value: float, unit: str) -> str:
+    """A joint's distance in its SI unit (rad, m), in thousandths under a tenth: ``1.2 rad``, ``0.3 mrad``, ``under
+    0.01 mm`` (6e-06 mm read as a number format, not as home)."""
+    if value >= 0.1:
+        return f"{value:.3g} {unit}"
+    return f"under 0.01 m{unit}" if value < 1e-5 else f"{value * 1e3:.3g} m{unit}"
 
 
 def _named(event: dict) -> str:

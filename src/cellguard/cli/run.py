@@ -29,10 +29,11 @@ DEMO_SCENARIO = Path(__file__).parents[1] / "scenarios" / "demo.yaml"
 def _run(scenario: Scenario, out: Path, quiet: bool, realtime: bool = False, overwrite: bool = False,
          lock: int | None = None) -> dict:
     from cellguard.calibrate.residual import watch_scenario
-    from cellguard.record.writer import refuse_existing
+    from cellguard.record.writer import RECORD_FILE, refuse_existing
     from cellguard.runtime import Run, run_scenario
 
     refuse_existing(out, overwrite)  # a run never overwrites a record unless asked
+    replacing = overwrite and (out / RECORD_FILE).exists()  # once the new record started, the old one is gone
     run = Run(scenario, realtime=realtime)  # every check (cell, faults, policy) before anything is created or printed
     try:
         watch_scenario(run)
@@ -58,7 +59,7 @@ def _run(scenario: Scenario, out: Path, quiet: bool, realtime: bool = False, ove
             _remove_if_empty(out, created)
             raise
         rec = run.recording
-        left = _record_left(rec, out)
+        left = _record_left(rec, out, replacing)
         if isinstance(exc, OutputError) and (rec.finished or rec.failed):  # the record closed; summary.json failed
             progress.stop()  # its last line before the error's
             sys.stderr.write(f"error: {printable(f'{exc}; {left}')}\n")
@@ -72,17 +73,19 @@ def _run(scenario: Scenario, out: Path, quiet: bool, realtime: bool = False, ove
             progress.stop()
 
 
-def _record_left(rec, out: Path) -> str:
+def _record_left(rec, out: Path, replaced: bool) -> str:
     """What a run that raised left in ``out``, by how its record closed (a start-up refusal mid-tick closes it
     whole, and was called partial), and whether its summary.json was written (a third Ctrl-C as the run closed
-    raised after it: the line said it had none)."""
+    raised after it: the line said it had none); ``replaced``: its record took the place of one already there
+    (--overwrite), which the line did not say (a start-up refusal left only its ``startup_refused`` event)."""
+    record = f"the record in {out}" + (", which replaced the previous one (--overwrite)," if replaced else "")
     if rec.finished and (out / "summary.json").is_file():
-        return f"the record in {out} is finished and whole, its summary.json written"
+        return f"{record} is finished and whole, its summary.json written"
     if rec.finished:
-        return f"the record in {out} is finished and whole; it has no summary.json"
+        return f"{record} is finished and whole; it has no summary.json"
     if rec.failed:
-        return f"the record in {out} failed ({rec.failed}); it has no summary.json"
-    return f"the record in {out} is partial (no summary.json)"
+        return f"{record} failed ({rec.failed}); it has no summary.json"
+    return f"{record} is partial (no summary.json)"
 
 
 def _print_summary(summary: dict, out: Path, as_json: bool) -> None:

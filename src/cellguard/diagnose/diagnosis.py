@@ -29,6 +29,10 @@ from cellguard.errors import RecordError
 from cellguard.robot.recovery.outcome import RecoveryOutcome
 
 
+# why a cycle has no tick features (its joint currents, tracking, friction: NaN, so compared on none of them)
+NO_TICK_FEATURES = ("the tick buffer filled (cycle_buffer_full: no memory for more of a cycle's ticks): joint "
+                    "currents, tracking and friction not compared there; the record holds every tick")
+
 
 @dataclass(frozen=True)
 class Diagnosis:
@@ -49,6 +53,7 @@ class Diagnosis:
     fixes: tuple[dict, ...] = ()  # per finding and behaviour: cycles it ran in and fixed (for the site's history)
     advice: tuple[dict, ...] = ()  # per finding: what fixed the same cause before at this site
     unwatched: tuple[int, ...] = ()  # watched cycles of another load: their joint currents and tracking unwatched
+    no_tick_features: tuple[int, ...] = ()  # cycles whose tick buffer filled: compared on none of their tick features
 
     def to_dict(self) -> dict:
         """The JSON of DESIGN.md (``cycles`` ... ``safety_events``) plus detail fields."""
@@ -62,6 +67,8 @@ class Diagnosis:
             "baseline_trends": dict(self.baseline.trends),
             "baseline_steps": None if self.baseline.steps is None else dict(self.baseline.steps),
             "load_features_unwatched_cycles": list(self.unwatched),
+            "cycles_without_tick_features": {"count": len(self.no_tick_features), "cycles": list(self.no_tick_features),
+                                             "why": NO_TICK_FEATURES if self.no_tick_features else None},
             "safety_events": list(self.safety_events),
             "changes": [c.to_dict() for c in self.changes],
             "asymmetry": self.asymmetry.to_dict() if self.asymmetry is not None else None,
@@ -143,7 +150,7 @@ def diagnose(rows: Iterable[object], events: Iterable[object] = (), context: Map
         safety_events=tuple(_safety(e) for e in evs if e.get("kind") not in ROUTINE_EVENTS),
         asymmetry=asym, context=dict(context or {}), process=notes,
         recoveries=tuple({"cycle": c, **o.to_dict()} for c, o in attempts), fixes=tuple(own), advice=tuple(advised),
-        unwatched=tuple(baseline.other_load(watched)))
+        unwatched=tuple(baseline.other_load(watched)), no_tick_features=_without_tick_features(cycles, evs))
 
 
 def record_facts(context: Mapping) -> dict:
@@ -158,12 +165,27 @@ def unwatched_words(unwatched: Sequence[int], cycles: Sequence[Cycle] = ()) -> s
     """The notice for watched cycles whose load-dependent features went unwatched, in one line. Each is named by its
     phase among ``cycles`` (the diagnosed ones): against another record's acceptance this record's acceptance cycles
     are watched too, and one was called a production cycle."""
+    return (f"joint currents and tracking unwatched on {_by_phase(unwatched, cycles)} cycle(s) that carried another "
+            f"load than the baseline's acceptance (no part grasped): a joint fault there is not seen (cycles "
+            f"{_shown(unwatched)})")
+
+
+def _by_phase(indices: Sequence[int], cycles: Sequence[Cycle]) -> str:
+    """How many of ``indices`` are acceptance and production cycles among ``cycles``: ``2 production``."""
     acceptance = {c.index for c in cycles if c.phase == "acceptance"}
-    count = Counter("acceptance" if c in acceptance else "production" for c in unwatched)
-    which = " and ".join(f"{n} {phase}" for phase, n in sorted(count.items()))
-    shown = ", ".join(str(c) for c in unwatched[:8]) + (" ..." if len(unwatched) > 8 else "")
-    return (f"joint currents and tracking unwatched on {which} cycle(s) that carried another load than the "
-            f"baseline's acceptance (no part grasped): a joint fault there is not seen (cycles {shown})")
+    count = Counter("acceptance" if c in acceptance else "production" for c in indices)
+    return " and ".join(f"{n} {phase}" for phase, n in sorted(count.items()))
+
+
+def _shown(indices: Sequence[int]) -> str:
+    """Cycle indices in a line: the first 8, then ``...``."""
+    return ", ".join(str(c) for c in indices[:8]) + (" ..." if len(indices) > 8 else "")
+
+
+def no_tick_words(no_tick: Sequence[int], cycles: Sequence[Cycle] = ()) -> str:
+    """The notice for cycles with no tick features, in one line, each counted by its phase among ``cycles``: the
+    comparison left them out of its joint features, and a shorter comparison is no healthier one."""
+    return f"{_by_phase(no_tick, cycles)} cycle(s) without tick features: {NO_TICK_FEATURES} (cycles {_shown(no_tick)})"
 
 
 def trend_words(baseline: Baseline, names: Sequence[str]) -> str:
@@ -363,6 +385,14 @@ def _cycle_of(t_ns: int, spans: list[tuple[int, int, int]]) -> int | None:
         if start <= t_ns <= end:
             return index
     return None
+
+
+def _without_tick_features(cycles: Sequence[Cycle], events: list[dict]) -> tuple[int, ...]:
+    """The cycles whose tick buffer filled (a ``cycle_buffer_full`` event in them): their tick features are NaN,
+    and the comparison silently left them out."""
+    indices = {c.index for c in cycles}
+    return tuple(sorted({e["cycle"] for e in events
+                         if e.get("kind") == EventKind.CYCLE_BUFFER_FULL and e.get("cycle") in indices}))
 
 
 def _rejections(watched: Sequence[Cycle], events: list[dict]) -> list[tuple[int, str]]:

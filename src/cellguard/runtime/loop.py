@@ -31,6 +31,7 @@ from cellguard.control.reach import max_reach
 from cellguard.control.settings import build_guard
 from cellguard.diagnose.cycle_buffer import CycleBuffer
 from cellguard.diagnose.features import cycle_features
+from cellguard.embodiment.profile import SI_UNITS
 from cellguard.output import make_folder, write_output
 from cellguard.policy.chunk import ActionChunk
 from cellguard.policy.registry import make_policy
@@ -671,6 +672,8 @@ class Run(TransitionPlay):
             "ground_truth": {"faults": [f.model_dump(mode="json") for f in self.scenario.faults],
                              "process_changes": [c.model_dump(mode="json") for c in self.scenario.process_changes]},
         }
+        if self.link.state is not None or getattr(self.cell, "q_home", None) is None:  # else nothing was measured
+            summary["from_home"] = self._from_home()
         if self.clock.realtime:
             between = np.asarray(self._between_ns, dtype=np.float64) * 1e-6
             summary["timing"] = {**self.clock.timing.summary(), "scheduler": self.clock.scheduler,
@@ -687,6 +690,17 @@ class Run(TransitionPlay):
                                  # shared copy-on-write with the recorder's writer, copied before the ticks
                                  "pages_copied_after_fork": getattr(self.recording, "pages_copied", None)}
         return summary
+
+    def _from_home(self) -> dict | None:
+        """How far the robot's last measured pose lies from its home pose: the joint farthest from it (joint-space max
+        abs, each joint in its SI unit), or None where the robot has no home pose. A stopped run with no retreat
+        event could not tell a robot already home from one with no home to go to (``cli.errors``)."""
+        home = getattr(self.cell, "q_home", None)
+        if home is None:
+            return None
+        gap = np.abs(np.asarray(self.link.state.q, dtype=np.float64) - np.asarray(home, dtype=np.float64))
+        joint = self.cell.profile.joints[int(np.argmax(gap))]
+        return {"joint": joint.name, "distance": float(gap.max()), "unit": SI_UNITS[joint.kind]["position"]}
 
 
 def run_scenario(scenario: Scenario, out: Path, on_cycle: Callable[[dict], None] | None = None,
