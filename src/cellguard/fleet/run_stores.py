@@ -5,9 +5,11 @@ drop each other's databases: a run's stores are named ``cg`` + 8 random base-36 
 (``store.RUN_STORE``, the only names ``FleetStore.drop`` takes). What a run makes it tags as its own (a COMMENT naming
 the run and its kind) and drops at its end; a killed run's tagged stores are dropped by the next run to open the
 server. A run is live while it holds its advisory lock (the run's characters read as one number) from before its
-first store to after its last is dropped: no clock decides, and a name nobody tagged is never dropped. Advisory locks
-are per database, so every run takes its lock and sweeps on ``LOCKS_DB`` whatever database its DSN names; a run whose
-lock connection is lost has lost its lock with it, and says so at its next use (``RunStores.held``).
+first store to after its last is dropped: no clock decides, and a name nobody tagged is never dropped. A run takes its
+lock on ``LOCKS_DB`` whatever database its DSN names, where every run looks for it, or, on a server without that
+database or that refuses the DSN's role there, on the DSN's own; a sweep finds a lock held on any database
+(``pg_locks``). A run whose lock connection is lost has lost its lock with it, and says so at its next use
+(``RunStores.held``).
 """
 
 from __future__ import annotations
@@ -18,16 +20,19 @@ import string
 
 from cellguard.errors import ConfigError
 from cellguard.fleet.queries import first_line
-from cellguard.fleet.store import StoreError, _psycopg, _where, check_dsn, connect
+from cellguard.fleet.store import StoreError, StoreUnavailable, _psycopg, _reason, _where, check_dsn
 
 _DIGITS = string.digits + string.ascii_lowercase
 KINDS = ("test session", "benchmark")  # what a run is, as its tag says: ``tag_of``
 _TAGGED = re.compile(r"cellguard (?:" + "|".join(KINDS) + r") (cg[0-9a-z]{8})")
-LOCKS_DB = "postgres"  # the database every run's lock is on (a lock on another is free whatever run holds it here)
+LOCKS_DB = "postgres"  # the database a run's lock is on where the server lets it (older runs sweep from there only)
 # a dead server or network under the lock connection is found in about a minute, not at the next use hours later
 _KEEPALIVES = dict(keepalives=1, keepalives_idle=30, keepalives_interval=10, keepalives_count=3)
 _STORES = ("SELECT * FROM (SELECT 'DATABASE' AS kind, datname AS name, shobj_description(oid, 'pg_database') AS tag "
            "FROM pg_database UNION ALL SELECT 'ROLE', rolname, shobj_description(oid, 'pg_authid') FROM pg_roles) s ")
+# another session's hold on a run's lock, on any database (an advisory lock on a bigint: its halves, objsubid 1)
+_HELD_ELSEWHERE = ("SELECT EXISTS (SELECT FROM pg_locks WHERE locktype = 'advisory' AND objsubid = 1 AND granted "
+                   "AND (classid::bigint << 32 | objid::bigint) = %s AND pid IS DISTINCT FROM pg_backend_pid())")
 
 
 def tag_of(kind: str, run: str) -> str:
@@ -82,9 +87,9 @@ class RunStores:
 
     def open(self, dsn: str) -> None:
         """Hold this run's lock on the server (once), then drop the stores of killed runs. StoreUnavailable when the
-        server cannot be reached; StoreError when the lock is another's or the server fails meanwhile, and once open,
-        when ``dsn`` is not the one it opened (its stores there would be neither tagged nor dropped) or the lock
-        was lost."""
+        server cannot be reached (``_lock_connection``); StoreError when the lock is another's or the server fails
+        meanwhile, and once open, when ``dsn`` is not the one it opened (its stores there would be neither tagged nor
+        dropped) or the lock was lost."""
         if self._lock is not None:
             if _place(dsn) != _place(self.dsn):
                 raise StoreError(f"fleet store {_where(dsn)}: run {self.run} holds its lock on {_where(self.dsn)}, "
@@ -92,9 +97,7 @@ class RunStores:
             self.held()
             return
         psycopg = _psycopg()
-        from psycopg.conninfo import make_conninfo
-
-        con = connect(make_conninfo(check_dsn(dsn), dbname=LOCKS_DB, **_KEEPALIVES))
+        con = _lock_connection(check_dsn(dsn))
         try:
             con.autocommit = True
             con.execute("SELECT set_config('application_name', %s, false)", (self.tag,))
@@ -110,11 +113,8 @@ class RunStores:
 
     def sweep(self, con) -> list[str]:
         """Drop the tagged stores of every other run whose lock is free (a killed one), holding that lock meanwhile
-        so that no other run sweeps them at once; return the names dropped. ``con`` is on ``LOCKS_DB`` (else
-        StoreError): on another database every run's lock reads as free."""
-        if con.info.dbname != LOCKS_DB:
-            raise StoreError(f"fleet store sweep on database {con.info.dbname!r}: runs hold their locks on "
-                             f"{LOCKS_DB!r}, and on another database every one reads as free")
+        so that no other run sweeps them at once; return the names dropped. A lock is per database: one held on
+        any database (the run's, or another sweep's on its own) leaves the run's stores alone."""
         runs: dict[str, list[tuple[str, str]]] = {}
         for kind, name, tag in con.execute(_STORES).fetchall():
             if owner(name, tag) not in (None, self.run):
@@ -123,7 +123,8 @@ class RunStores:
         for run, stores in runs.items():
             if con.execute("SELECT pg_try_advisory_lock(%s)", (run_key(run),)).fetchone()[0]:
                 try:
-                    dropped += _drop(con, stores)[0]
+                    if not con.execute(_HELD_ELSEWHERE, (run_key(run),)).fetchone()[0]:
+                        dropped += _drop(con, stores)[0]
                 finally:
                     con.execute("SELECT pg_advisory_unlock(%s)", (run_key(run),))
         return dropped
@@ -192,6 +193,21 @@ class RunStores:
             raise StoreError(f"{self.who}: {lost}" + (f"; left on the server: {', '.join(left)}" if left else ""))
         return f"{self.who}: fleet stores left on {_where(self.dsn)} for the next run to drop: {', '.join(left)}" \
             if left else None
+
+
+def _lock_connection(dsn: str):
+    """A connection on which to hold a run's lock: on ``LOCKS_DB``, else (a server without it, or refusing the DSN's
+    role there) on the DSN's own database; StoreUnavailable naming each database that could not be reached."""
+    psycopg = _psycopg()
+    from psycopg.conninfo import conninfo_to_dict, make_conninfo
+
+    tried = []
+    for db in dict.fromkeys((LOCKS_DB, conninfo_to_dict(dsn).get("dbname") or LOCKS_DB)):
+        try:
+            return psycopg.connect(make_conninfo(dsn, dbname=db, connect_timeout=3, **_KEEPALIVES))
+        except psycopg.OperationalError as exc:
+            tried.append(f"database {db!r}: {_reason(exc, dsn)}")
+    raise StoreUnavailable(f"fleet store {_where(dsn)} unreachable for the run's lock ({'; '.join(tried)})")
 
 
 def _place(dsn: str) -> tuple:
