@@ -10,7 +10,6 @@ from pathlib import Path
 import typer
 from rich.console import Console
 
-from cellguard.calibrate.write import IDENTIFIED
 from cellguard.cli.app import app
 from cellguard.cli.errors import fail
 from cellguard.errors import CellguardError
@@ -101,6 +100,8 @@ def print_profile(profile) -> None:
 def _calibration(profile) -> str:
     """Where the profile's measured values come from: its calibration, else typed in, or identified by an older
     identify --write (it wrote no calibration block: such a profile read as typed in)."""
+    from cellguard.calibrate.write import IDENTIFIED  # here: identification imports scipy (a second of every command)
+
     c = profile.calibration
     if c is not None:
         return (f"calibration: {c.version} of {c.date} from {', '.join(c.records)} (MJCF {c.mjcf}, "

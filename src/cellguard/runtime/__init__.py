@@ -16,6 +16,14 @@
     sim_server   ``cellguard sim-server``: a simulated cell served as a robot on wall time
 """
 
-from cellguard.runtime.loop import Run, run_scenario
-
 __all__ = ["Run", "run_scenario"]
+
+
+def __getattr__(name: str):
+    """``Run`` and ``run_scenario`` from ``loop`` on first use: a module of the runtime imported alone (the
+    sim-server's, the clock) does not pull in the loop and its diagnosis (scipy: a second of every server start)."""
+    if name in __all__:
+        from cellguard.runtime import loop
+
+        return getattr(loop, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
