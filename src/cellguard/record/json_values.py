@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Callable
 
 import numpy as np
 
@@ -40,14 +41,15 @@ def deeper(value, limit: int) -> bool:
     return bool(level)
 
 
-def plain(value):
-    """``value`` as plain JSON values, every non-finite float null."""
+def plain(value, text: Callable[[object], str] = str):
+    """``value`` as plain JSON values, every non-finite float null; ``text``: how a map's key that JSON has no type
+    for is spelled."""
     if isinstance(value, dict):
-        return {_key(k): plain(v) for k, v in value.items()}
+        return {_key(k, text): plain(v, text) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
-        return [plain(v) for v in value]
+        return [plain(v, text) for v in value]
     if isinstance(value, np.ndarray):
-        return plain(value.tolist())
+        return plain(value.tolist(), text)
     if isinstance(value, np.generic):
         value = value.item()
     if isinstance(value, float) and not math.isfinite(value):
@@ -55,11 +57,11 @@ def plain(value):
     return value
 
 
-def _key(key):
+def _key(key, text: Callable[[object], str]):
     if isinstance(key, np.generic):
         key = key.item()
     if isinstance(key, float) and not math.isfinite(key):
         return json.dumps(key)  # NaN, Infinity: a key, not a value, so it keeps its name
     if key is None or isinstance(key, (str, int, float)):
         return key  # json.dumps spells these keys itself
-    return str(key)
+    return text(key)

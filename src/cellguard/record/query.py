@@ -375,14 +375,17 @@ def _message(exc: BaseException) -> str:
 
 def json_line(names: list[str], row: tuple) -> str:
     """One row as a JSON object, valid JSON always: NaN and infinities (JSON has no word for them) are null, infinite
-    dates and timestamps too, a map's keys are strings; anything else JSON has no type for is its text."""
+    dates and timestamps too, a map's keys are strings (an infinite one named: ``_key_text``); anything else JSON has
+    no type for is its text."""
     try:
-        return json.dumps({name: plain(value) for name, value in zip(names, row)}, default=_text, allow_nan=False)
+        return json.dumps({name: plain(value, _key_text) for name, value in zip(names, row)}, default=_text,
+                          allow_nan=False)
     except RecursionError:
         raise RecordError("sql: a value of the result is nested too deeply to write as JSON") from None
 
 
-_ENDS = (dt.date.min, dt.date.max, dt.datetime.min, dt.datetime.max)  # how DuckDB hands Python -infinity and infinity
+# how DuckDB hands Python -infinity and infinity, and DuckDB's own text for them ('infinity'::DATE::VARCHAR)
+_ENDS = {dt.date.min: "-infinity", dt.date.max: "infinity", dt.datetime.min: "-infinity", dt.datetime.max: "infinity"}
 
 
 def _text(value: object) -> str | None:
@@ -390,3 +393,10 @@ def _text(value: object) -> str | None:
     hands infinity over as Python's last date ('infinity'::TIMESTAMP printed 9999-12-31 23:59:59.999999, a date
     never recorded), so Python's first and last dates themselves read as null too: the row cannot tell them apart."""
     return None if isinstance(value, dt.date) and value in _ENDS else str(value)
+
+
+def _key_text(key: object) -> str:
+    """A map's key that JSON has no type for as its text, an infinite date or timestamp as DuckDB writes it
+    (``infinity``, ``-infinity``), as a NaN or infinite number key keeps its name (``NaN``, ``Infinity``): a key
+    cannot be null (two such keys would be one), and 9999-12-31 is a date never recorded."""
+    return _ENDS.get(key) or str(key)  # a key is hashable; a date and a datetime are never equal

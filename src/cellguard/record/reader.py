@@ -21,7 +21,7 @@ Contract (fields may be added, not renamed)::
         c.success, c.features        #   bool, {name: float} computed at cycle end (NaN where not finite)
         c.outcome, c.versions        #   the cell's outcome (SI), {policy_version, calibration_version, ...}
     for e in rec.events():           # EventRecord, in time order: t_ns, kind, category (0/1/2 or None),
-        ...                          #   joint, asked, sent, reason, cycle
+        ...                          #   joint, asked, sent, reason, cycle (None: between cycles, as a tick's)
     rec.ticks(cycle=12)              # Ticks: t_ns (n,), cycle (n,), joints, q_ref, q_cmd, q_meas, qd_meas,
                                      #   effort, current (n, dof) float64; rate="decimated" | "full" | "all";
                                      #   cycle is NO_CYCLE (-1) for a tick between cycles (a retreat, a settling)
@@ -53,7 +53,7 @@ import itertools
 import math
 import os
 from collections.abc import Callable, Iterable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -387,14 +387,20 @@ class Record:
                 yield cycle
 
     def events(self) -> Iterator[EventRecord]:
+        """The events; ``cycle`` None for one outside the span of the cycle it is stamped with, as a tick's: the
+        recorder stamps an event with the cycle begun last, so the retreat's after the last cycle's end (records
+        written so) were counted against that cycle."""
         for _, event in self._json(self.messages(["/events"]), "/events", _event_record):
+            span = None if event.cycle is None else self._span(event.cycle)
+            if span is not None and not span[0] <= event.t_ns <= (_INT64 if span[1] is None else span[1]):
+                event = replace(event, cycle=None)
             yield event
 
     def cycle_spans(self) -> dict[int, tuple[int, int | None]]:
         """Each cycle the record marks: (t_start_ns, t_end_ns) on the record's clock, t_end_ns None where no end marker
         is read (the run was killed in it, or its chunk was lost). The index's row where the index has the cycle (over
         any marker of it), else the markers (a malformed one skipped); of a cycle in either twice, its last. ``ticks(cycle=)``
-        and each tick's cycle take the same span."""
+        and each tick's and event's cycle take the same span."""
         return dict(self._all_spans())
 
     def _all_spans(self) -> dict[int, tuple[int, int | None]]:

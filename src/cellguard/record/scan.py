@@ -5,8 +5,11 @@ chunk it points at is still checked against its own CRC when read). When the sum
 missing (a crash, a full disk) or wrong, a linear scan walks the records from the start the way
 ``mcap.stream_reader.StreamReader`` does, but does not stop at the first bad record: a chunk
 whose CRC, compression or length is wrong is noted as damage, and the scan resynchronises on the
-next chunk header it can find (``0x06``, length, times, ``zstd``). Every chunk it keeps has
-passed its CRC. Messages carry per-channel sequence numbers, so a lost chunk shows as a gap.
+next chunk header it can find (``0x06``, length, times, ``zstd``). A chunk followed by sound message
+indexes naming channels already declared is laid out from them, not decompressed (a cut record of
+2,700 chunks was decompressed whole at open, for a window of a few), and checked against its CRC
+when it is read (``Record`` notes it as damage then); every other chunk it keeps has passed its CRC.
+Messages carry per-channel sequence numbers, so a lost chunk shows as a gap.
 
 A chunk is decompressed only up to the size it declares, and one that declares more than
 ``MAX_CHUNK_BYTES`` is damage: the recorder's chunks hold about 1 MiB, and a few kilobytes of zstd
@@ -26,6 +29,7 @@ from io import BytesIO
 from pathlib import Path
 
 import lz4.frame
+import numpy as np
 import zstandard
 from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
@@ -44,6 +48,8 @@ _FOOTER = struct.Struct("<BQQQI")  # opcode, length, summary_start, summary_offs
 _CHUNK_INDEX = struct.Struct("<QQQQI")  # start, end, chunk offset, chunk length, bytes of channel offsets
 _RECORD = struct.Struct("<BQ")  # opcode, length of the record that follows
 _MESSAGE = struct.Struct("<HIQQ")  # channel id, sequence, log time, publish time; then the data
+_CHUNK_SIZE = struct.Struct("<Q")  # a chunk's uncompressed size, after opcode, length and its two times
+_INDEX_HEAD = struct.Struct("<QHI")  # a message index: record length, channel id, bytes of (log time, offset) pairs
 MAX_CHUNK_BYTES = 16 * CHUNK_BYTES  # [bytes] the most a chunk may hold uncompressed, and so any one message
 FAULT_AROUND = 64 << 10  # [bytes] Linux maps up to this many bytes around a page fault (fault_around_bytes)
 _THREAD = threading.local()  # what each thread keeps for itself (its zstd decompressor)
@@ -360,6 +366,15 @@ def _attachment_name(buf, pos: int) -> str | None:
 
 
 def _check_chunk(buf, pos: int, length: int, layout: Layout) -> ChunkRef | None:
+    """The chunk at ``pos`` as a ChunkRef (in ``layout``), its channels and times from the message indexes after it
+    where they are sound and name known channels (nothing decompressed: a window read of a cut record decompressed
+    every chunk of it at open; such a chunk's CRC is checked when it is read), else from its records (which also
+    declare the schemas and channels); None if it is damaged (noted)."""
+    indexed = _indexed(buf, pos, length, layout)
+    if indexed is not None:
+        ref = ChunkRef(pos, 9 + length, *indexed)
+        layout.chunks.append(ref)
+        return ref
     _, _, start, end = _HEAD.unpack_from(buf, pos)
     ref = ChunkRef(pos, 9 + length, start, end)
     try:
@@ -379,6 +394,45 @@ def _check_chunk(buf, pos: int, length: int, layout: Layout) -> ChunkRef | None:
     ref = ChunkRef(pos, 9 + length, min(times, default=start), max(times, default=end), frozenset(channels))
     layout.chunks.append(ref)
     return ref
+
+
+def _indexed(buf, pos: int, length: int, layout: Layout) -> tuple[int, int, frozenset[int]] | None:
+    """(first, last log time, channel ids) of the chunk at ``pos`` by the message index records that follow it, or
+    None: the chunk's head is not a whole chunk of a known compression and size, no index follows (a file cut
+    there), an index runs past the file or points past the chunk's records, or names a channel not yet declared."""
+    end = pos + 9 + length
+    if length < 40:  # times, size, CRC, an empty compression and the records' length
+        return None
+    uncompressed, compression = _CHUNK_SIZE.unpack_from(buf, pos + 25)[0], _string(buf, pos + 37, end)
+    if compression not in ("zstd", "lz4", "") or uncompressed > MAX_CHUNK_BYTES:
+        return None
+    records_at = pos + 41 + len(compression)
+    if records_at + 8 > end or records_at + 8 + int.from_bytes(buf[records_at:records_at + 8], "little") != end:
+        return None
+    channels, pairs, at = set(), [], end
+    while at + 15 <= len(buf) and buf[at] == Opcode.MESSAGE_INDEX:
+        size, channel, entries = _INDEX_HEAD.unpack_from(buf, at + 1)
+        if size != 6 + entries or entries % 16 or at + 9 + size > len(buf) or channel not in layout.channels:
+            return None
+        if entries:
+            channels.add(channel)
+            pairs.append(buf[at + 15:at + 15 + entries])
+        at += 9 + size
+    if not pairs:
+        return None
+    times, offsets = np.frombuffer(b"".join(pairs), "<u8").reshape(-1, 2).T  # (log time, offset) each
+    return None if offsets.max() >= uncompressed else (int(times.min()), int(times.max()), frozenset(channels))
+
+
+def _string(buf, at: int, end: int) -> str | None:
+    """The MCAP string (u32 length, UTF-8) at ``at``, None if it runs past ``end`` or is not UTF-8."""
+    if at + 4 > end:
+        return None
+    size = int.from_bytes(buf[at:at + 4], "little")
+    try:
+        return bytes(buf[at + 4:at + 4 + size]).decode() if at + 4 + size <= end else None
+    except UnicodeDecodeError:
+        return None
 
 
 def _resync(buf, start: int, tried: set[int]) -> int:

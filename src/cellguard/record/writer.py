@@ -303,7 +303,7 @@ class Recorder:
         fields = _event_fields(event)
         routine = event.kind in self.config.routine_events
         self._guard(self._json, 5, event.t_ns, {k: v for k, v in {"cycle": cycle, **fields}.items() if v is not None})
-        level = _LOG_LEVEL.get(event.category, ros2.DEBUG if routine else ros2.INFO)
+        level = _log_level(event, routine)
         self._guard(self._add, 13, event.t_ns, ros2.log_message(self.epoch_wall_ns + event.t_ns, level,
                                                                 "cellguard", _log_text(fields, cycle)))
         if self._index is not None:
@@ -550,7 +550,19 @@ def _utc(wall_ns: int) -> str:
 def _log_text(fields: dict, cycle: int | None) -> str:
     where = f" joint {fields['joint']}" if fields.get("joint") else ""
     stop = f" (stop category {fields['category']})" if fields.get("category") is not None else ""
-    return f"[{fields['kind']}] cycle {cycle}{where}{stop}: {fields['reason']}"
+    when = "between cycles" if cycle is None else f"cycle {cycle}"  # before the first, after a cycle's end
+    return f"[{fields['kind']}] {when}{where}{stop}: {fields['reason']}"
+
+
+def _log_level(event: Event, routine: bool) -> int:
+    """The event's ROS log level: by its stop category; a recovery attempt that ended other than ``resumed``
+    (failed, escalated, gave_up, cut_off) WARN, routine as its kind is: a technician must see it among the warnings
+    in Foxglove's Log panel, not in the DEBUG lines filtered away; else INFO, DEBUG if routine."""
+    if event.category in _LOG_LEVEL:
+        return _LOG_LEVEL[event.category]
+    if event.kind == EventKind.RECOVERY_END and (event.recovery or {}).get("outcome", "resumed") != "resumed":
+        return ros2.WARN
+    return ros2.DEBUG if routine else ros2.INFO
 
 
 def _event_fields(event: Event) -> dict:
