@@ -146,6 +146,7 @@ def test_a_lock_that_can_be_taken_nowhere_names_each_database_tried(own_role, ru
         runs().open(dsn.rsplit("dbname=", 1)[0] + f"dbname={fenced}")
     said = str(refused.value)
     assert f"/{fenced} unreachable for the run's lock (database 'cgf2_no_such_database': " in said, said
+    assert "the DSN's own: " in said, said
     assert 'database "cgf2_no_such_database" does not exist' in said and "\n" not in said, said
     assert f'permission denied for database "{fenced}"' in said and "f2-secret" not in said, said
 
@@ -202,3 +203,16 @@ def test_a_trimmed_batch_is_sent_and_logged_under_the_id_of_what_was_sent(tmp_pa
     assert sent["batch_id"] == what_was_sent.batch_id != queued.batch_id
     assert [p.stem for p in (tmp_path / "lake").rglob("signatures/*/*.parquet")] == [sent["batch_id"]]
     store.drop()
+
+
+def test_a_server_that_does_not_answer_keeps_the_lock_off_any_other_database():
+    """Only a server's "no such database" or "permission denied" moves the lock off LOCKS_DB: a timeout or a refused
+    connection that moved it would leave it where a sweep looking on LOCKS_DB alone (an older cellguard's) finds
+    it free, and drops a live run's stores."""
+    from cellguard.fleet.run_stores import RunStores
+    from cellguard.fleet.store import StoreUnavailable
+
+    with pytest.raises(StoreUnavailable) as refused:
+        RunStores("benchmark", "a test's run").open("host=127.0.0.1 port=1 user=postgres dbname=elsewhere")
+    said = str(refused.value)
+    assert "unreachable for the run's lock (database 'postgres': " in said and "the DSN's own" not in said and "database 'elsewhere'" not in said, said

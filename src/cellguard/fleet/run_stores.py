@@ -31,6 +31,8 @@ _KEEPALIVES = dict(keepalives=1, keepalives_idle=30, keepalives_interval=10, kee
 _STORES = ("SELECT * FROM (SELECT 'DATABASE' AS kind, datname AS name, shobj_description(oid, 'pg_database') AS tag "
            "FROM pg_database UNION ALL SELECT 'ROLE', rolname, shobj_description(oid, 'pg_authid') FROM pg_roles) s ")
 # another session's hold on a run's lock, on any database (an advisory lock on a bigint: its halves, objsubid 1)
+# the server's answers that move a run's lock off ``LOCKS_DB`` (libpq gives no SQLSTATE for a refused connection)
+_NO_LOCKS_DB = re.compile(r'database "[^"]*" does not exist|permission denied for database')
 _HELD_ELSEWHERE = ("SELECT EXISTS (SELECT FROM pg_locks WHERE locktype = 'advisory' AND objsubid = 1 AND granted "
                    "AND (classid::bigint << 32 | objid::bigint) = %s AND pid IS DISTINCT FROM pg_backend_pid())")
 
@@ -196,18 +198,25 @@ class RunStores:
 
 
 def _lock_connection(dsn: str):
-    """A connection on which to hold a run's lock: on ``LOCKS_DB``, else (a server without it, or refusing the DSN's
-    role there) on the DSN's own database; StoreUnavailable naming each database that could not be reached."""
+    """A connection on which to hold a run's lock: on ``LOCKS_DB``, else, where the server says that database does
+    not exist or refuses the DSN's role there (nothing else: a run's lock moved by a passing timeout would be free
+    to a sweep that looks on ``LOCKS_DB`` only, an older cellguard's), on the database the DSN itself connects to;
+    StoreUnavailable naming each database tried."""
     psycopg = _psycopg()
-    from psycopg.conninfo import conninfo_to_dict, make_conninfo
+    from psycopg.conninfo import make_conninfo
 
-    tried = []
-    for db in dict.fromkeys((LOCKS_DB, conninfo_to_dict(dsn).get("dbname") or LOCKS_DB)):
-        try:
-            return psycopg.connect(make_conninfo(dsn, dbname=db, connect_timeout=3, **_KEEPALIVES))
-        except psycopg.OperationalError as exc:
-            tried.append(f"database {db!r}: {_reason(exc, dsn)}")
-    raise StoreUnavailable(f"fleet store {_where(dsn)} unreachable for the run's lock ({'; '.join(tried)})")
+    try:
+        return psycopg.connect(make_conninfo(dsn, dbname=LOCKS_DB, connect_timeout=3, **_KEEPALIVES))
+    except psycopg.OperationalError as exc:
+        why = _reason(exc, dsn)
+        if not _NO_LOCKS_DB.search(why):
+            raise StoreUnavailable(f"fleet store {_where(dsn)} unreachable for the run's lock (database "
+                                   f"{LOCKS_DB!r}: {why})") from None
+    try:
+        return psycopg.connect(make_conninfo(dsn, connect_timeout=3, **_KEEPALIVES))
+    except psycopg.OperationalError as exc:
+        raise StoreUnavailable(f"fleet store {_where(dsn)} unreachable for the run's lock (database {LOCKS_DB!r}: "
+                               f"{why}; the DSN's own: {_reason(exc, dsn)})") from None
 
 
 def _place(dsn: str) -> tuple:
