@@ -48,10 +48,10 @@ def _held_at_home(tmp_path, *, home: bool) -> Run:
     return run
 
 
-def _stopped_line(summary: dict, out, capsys) -> str:
+def _stopped_line(summary: dict, out, capsys, replaced: bool = False) -> str:
     capsys.readouterr()
     with pytest.raises(typer.Exit) as ended:
-        exit_if_stopped(summary, out)
+        exit_if_stopped(summary, out, replaced)
     assert ended.value.exit_code == 130
     return capsys.readouterr().err.strip()
 
@@ -148,3 +148,16 @@ def test_diagnose_says_how_many_cycles_had_no_tick_features_and_why(tmp_path, mo
     text = " ".join(CliRunner().invoke(app, ["diagnose", str(out)]).stdout.split())  # as rich wraps it
     assert "note: 2 production cycle(s) without tick features: the tick buffer filled (cycle_buffer_full" in text
     assert "(cycles 6, 7)" in text
+
+
+def test_a_stopped_run_that_replaced_a_record_says_so(tmp_path, capsys):
+    """--overwrite and a stop (Ctrl-C here): the previous record is gone; the line said only "the record in DIR"."""
+    from cellguard.cli.run import replaces
+
+    out = tmp_path / "run"
+    run = _held_at_home(tmp_path, home=True)
+    assert not replaces(out, True)
+    summary = run_scenario(run.scenario, out, run=run)
+    assert replaces(out, True) and not replaces(out, False)
+    assert "which replaced the previous one (--overwrite), is complete" in _stopped_line(summary, out, capsys, True)
+    assert "replaced" not in _stopped_line(summary, out, capsys)

@@ -29,17 +29,24 @@ STOP_EFFECTS = frozenset({"protective_stop", "power_removed", "approach_aborted"
 NO_RETREAT = ("record_failed", "overrun_budget", "robot_")
 
 
-def exit_if_stopped(summary: dict, out: Path) -> None:
+def record_in(out: Path, replaced: bool) -> str:
+    """How a run's line names its record: ``replaced``, it took the place of one already there (--overwrite), which
+    the line did not say (the previous record is gone, however the run ended)."""
+    return f"the record in {out}" + (", which replaced the previous one (--overwrite)," if replaced else "")
+
+
+def exit_if_stopped(summary: dict, out: Path, replaced: bool = False) -> None:
     """A run the loop stopped (record failure, robot link fault, overrun budget): one line on stderr and exit 1;
     stopped by the operator (Ctrl-C, SIGTERM): one line and exit 130; a record that failed only at its close (its
     summary or its index could not be written: the cycles ran, the record is not whole): one line and exit 1. A
-    stopped run's line says where the robot was left (``_robot_left``)."""
+    stopped run's line says where the robot was left (``_robot_left``), and its record whether it replaced one
+    (``record_in``)."""
     from cellguard.runtime.operator_stop import by_operator
 
     stopped = summary.get("stopped")
     if by_operator(stopped):
         failed = summary.get("record_failed")
-        fail(OperatorStopped(f"{stopped}; the record in {out} " + (f"is not whole ({failed}): `cellguard record "
+        fail(OperatorStopped(f"{stopped}; {record_in(out, replaced)} " + (f"is not whole ({failed}): `cellguard record "
                                                                    f"recover` writes a finished copy" if failed
                                                                    else "is complete")
                              + f"; {_robot_left(summary)}"))
@@ -48,11 +55,12 @@ def exit_if_stopped(summary: dict, out: Path) -> None:
         kind = cause["kind"] if cause else "stop"
         sys.stderr.write(f"error: {printable(f'the cell was stopped ({kind}): {stopped}')}; "
                          f"{printable(_robot_left(summary))}; "
-                         f"{printable(out / 'summary.json')} says what ran\n")
+                         f"{printable(out / 'summary.json')} says what ran"
+                         + ("; the record replaced the previous one (--overwrite)" if replaced else "") + "\n")
         raise typer.Exit(1)
     failed = summary.get("record_failed")
     if failed:
-        sys.stderr.write(f"error: {printable(f'the record in {out} failed at its close: {failed}')}; "
+        sys.stderr.write(f"error: {printable(f'{record_in(out, replaced)} failed at its close: {failed}')}; "
                          f"`cellguard record recover {printable(out)} -o NEW_DIR` writes a finished copy with its "
                          f"index\n")
         raise typer.Exit(1)

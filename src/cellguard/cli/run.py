@@ -15,7 +15,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from cellguard.cli import stdout
 from cellguard.cli.app import app
 from cellguard.cli.diagnose import print_diagnosis
-from cellguard.cli.errors import exit_if_stopped, fail
+from cellguard.cli.errors import exit_if_stopped, fail, record_in
 from cellguard.cli.text import printable, say
 from cellguard.errors import CellguardError, OutputError
 from cellguard.output import make_folder
@@ -29,11 +29,11 @@ DEMO_SCENARIO = Path(__file__).parents[1] / "scenarios" / "demo.yaml"
 def _run(scenario: Scenario, out: Path, quiet: bool, realtime: bool = False, overwrite: bool = False,
          lock: int | None = None) -> dict:
     from cellguard.calibrate.residual import watch_scenario
-    from cellguard.record.writer import RECORD_FILE, refuse_existing
+    from cellguard.record.writer import refuse_existing
     from cellguard.runtime import Run, run_scenario
 
     refuse_existing(out, overwrite)  # a run never overwrites a record unless asked
-    replacing = overwrite and (out / RECORD_FILE).exists()  # once the new record started, the old one is gone
+    replacing = replaces(out, overwrite)
     run = Run(scenario, realtime=realtime)  # every check (cell, faults, policy) before anything is created or printed
     try:
         watch_scenario(run)
@@ -73,12 +73,20 @@ def _run(scenario: Scenario, out: Path, quiet: bool, realtime: bool = False, ove
             progress.stop()
 
 
+def replaces(out: Path, overwrite: bool) -> bool:
+    """Whether a run into ``out`` replaces a record already there (--overwrite): once the new record has started,
+    the old one is gone, however the run ends."""
+    from cellguard.record.writer import RECORD_FILE
+
+    return overwrite and (out / RECORD_FILE).exists()
+
+
 def _record_left(rec, out: Path, replaced: bool) -> str:
     """What a run that raised left in ``out``, by how its record closed (a start-up refusal mid-tick closes it
     whole, and was called partial), and whether its summary.json was written (a third Ctrl-C as the run closed
     raised after it: the line said it had none); ``replaced``: its record took the place of one already there
     (--overwrite), which the line did not say (a start-up refusal left only its ``startup_refused`` event)."""
-    record = f"the record in {out}" + (", which replaced the previous one (--overwrite)," if replaced else "")
+    record = record_in(out, replaced)
     if rec.finished and (out / "summary.json").is_file():
         return f"{record} is finished and whole, its summary.json written"
     if rec.finished:
@@ -124,6 +132,7 @@ def run(
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace a record already in --out (never by default)."),
 ) -> None:
     """Run a scenario file on its simulated cell or robot bridge (the robot picks the clock)."""
+    replaced = replaces(out, overwrite)
     try:
         sc = load_scenario(scenario)
         summary = _run(sc, out, quiet=as_json, realtime=realtime, overwrite=overwrite)
@@ -131,7 +140,7 @@ def run(
         fail(exc)
     _print_summary(summary, out, as_json)
     _warn_short_acceptance(sc, summary)
-    exit_if_stopped(summary, out)
+    exit_if_stopped(summary, out, replaced)
 
 
 @contextmanager
@@ -177,8 +186,9 @@ def demo(
         sc = load_scenario(DEMO_SCENARIO)
         with _held(out, overwrite) as lock:  # until the report is written: a run started there after the record closed had
             # the demo's report, of the demo's record, written beside its own
+            replaced = replaces(out, overwrite)
             summary = _run(sc, out, quiet=as_json, overwrite=overwrite, lock=lock)
-            exit_if_stopped(summary, out)  # a stopped shift is not diagnosed, nor one whose record is not whole
+            exit_if_stopped(summary, out, replaced)  # a stopped shift is not diagnosed, nor one whose record is not whole
             diagnosis = diagnose_record(out)
             report_path = write_report(out, diagnosis=diagnosis)
     except CellguardError as exc:
