@@ -2,8 +2,8 @@
 (braked to rest, then on under the cap) was played unchecked, 2 mm past the box's y max on the way to a first target
 inside it, approach_done, no event. Now the way on is checked from rest where the brake left the robot, and one that
 leaves the box is not played, as a transition's that leaves it from the start: the approach refuses the start, the
-retreat ends the run stopped, the robot held where it braked. A brake itself is never checked (the shortest stop:
-nothing shorter is left), and it may leave the box (each joint stopping on its own)."""
+retreat ends the run stopped, the robot held where it braked. The brake itself is one the transition was checked for
+before it was played (``Transition.leaves_box``: a brake from any of its setpoints keeps inside)."""
 
 from __future__ import annotations
 
@@ -29,9 +29,11 @@ CELL = make_cell("arm-pick-place")
 PROFILE, HOME = CELL.profile, np.asarray(CELL.q_home, dtype=np.float64)
 SOFT_LO, SOFT_HI = PROFILE.soft_limits(GuardConfig().soft_margin)
 LONGEST_STOP_S = longest_brake_s(PROFILE, CELL.dt_ns) - BRAKE_SLACK_S  # the longest brake under the limits [s]
-# an approach inside the default box whose way on, slowed 0.09 s in, went 2 mm past its y max
+# an approach inside the default box whose way on, slowed 0.09 s in, went 2 mm past its y max; played in the box with
+# a floor 55 mm lower (a brake of it at full speed goes 31 mm under the default floor: not played there)
 START, FIRST = (np.array([-1.0444, 0.7696, -0.6019, -1.7699, -1.6269, 0.025]),
                 np.array([-0.9661, -1.5909, -0.2227, -0.152, -0.6529, 0.025]))
+LOWER_FLOOR = [[-0.45, -0.45, -0.05], [0.45, 0.45, 0.55]]
 # an approach inside the default box whose brake 0.4 s in (each joint stopping on its own) goes 18 mm past it
 BRAKED_FROM, BRAKED_TO = (np.array([0.2709, -0.3851, -1.1154, 1.4486, 2.0708, 0.025]),
                           np.array([0.9084, -1.628, 1.9883, -1.1936, 1.3336, 0.025]))
@@ -102,7 +104,7 @@ def _reduced_from(on: float) -> Callable[[float | None], SafetyInputs]:
 
 
 def test_an_approach_whose_slowed_way_on_leaves_the_box_is_braked_inside_it_and_refuses_the_start(tmp_path):
-    played = Played(tmp_path, START, FIRST, _reduced_from(0.09))
+    played = Played(tmp_path, START, FIRST, _reduced_from(0.09), box=LOWER_FLOOR)
     assert played.refused is not None and played.refused.startswith(
         "start-up: the approach to the first target [-0.966, -1.591, -0.223, -0.152, -0.653, 0.025], slowed down by "
         "the reduced-speed input: its tool point leaves the workspace box")
@@ -129,7 +131,8 @@ def test_a_retreat_whose_slowed_way_home_leaves_the_box_is_not_played_beyond_its
 
 
 def test_a_slowed_way_on_that_keeps_to_the_box_is_played_to_the_target_under_the_cap(tmp_path):
-    """Its brake takes the tool 18 mm out (not checked); the way on from there comes back in by the box's rule."""
+    """Its brake took the tool 18 mm out at full speed (the approach is now played slower, its brakes inside); the
+    way on from there keeps to the box's rule."""
     played = Played(tmp_path, BRAKED_FROM, BRAKED_TO, _reduced_from(0.4))
     kinds = played.kinds()
     assert played.refused is None and "approach_done" in kinds

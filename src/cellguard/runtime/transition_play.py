@@ -105,9 +105,10 @@ class TransitionPlay:
         return {"velocity": [x + y * half_dt for x, y in zip(v, a)], "acceleration": a}
 
     def _cap(self, safety: SafetyInputs) -> dict:
-        """The guard's tool-speed cap in force with these inputs (``transitions.speed_cap``) and the tool's reach:
-        what a transition goes under."""
-        return {"cap": speed_cap(self.guard.config, safety), "reach": self._reach}
+        """The guard's tool-speed cap in force with these inputs (``transitions.speed_cap``), the tool's reach, its
+        model and the workspace box: what a transition goes under (slower where its brakes would leave the box)."""
+        return {"cap": speed_cap(self.guard.config, safety), "reach": self._reach, "box": self.guard.config.box,
+                "tool": self.guard.tool}
 
     def _play(self, plan: Transition, name: str, t0: int, signals: int | None = None, begun: bool = False
               ) -> np.ndarray:
@@ -172,16 +173,18 @@ class TransitionPlay:
     def _slow_down(self, slower: Transition, name: str, signals: int
                    ) -> tuple[np.ndarray, tuple[int, str | None] | None]:
         """The rest of a transition a reduced-speed input slowed (``Transition.slowed``), as ``_ticks``: its brake,
-        then its new way on from rest there, checked against the box first (played unchecked, it took the tool up to
-        9 mm out; checked before the brake, the moving command would hold its setpoint the 5 to 150 ms the check
-        takes). A way on that leaves the box is not played, as a transition's that does from the start: the approach
-        refuses the start, the retreat ends the run stopped, the robot held where it braked (returned as a category 2
-        stop)."""
+        then its new way on from rest there, kept in the box (slower where its brakes would leave it) and checked
+        against it first (played unchecked, it took the tool up to 9 mm out; checked before the brake, the moving
+        command would hold its setpoint the 5 to 150 ms the check takes). A way on that leaves the box is not
+        played, as a transition's that does from the start: the approach refuses the start, the retreat ends the run
+        stopped, the robot held where it braked (returned as a category 2 stop)."""
         brake = slower.braking()
         held, stop = (slower.start, None) if brake is None else self._ticks(brake, name, signals)
         rest = None if stop is not None else slower.after_braking()
         if rest is None:
             return held, stop
+        if brake is not None:  # planned from motion: kept in the box from rest here (``Transition.plan``)
+            rest = rest.kept_in_box(self.cell.profile, self.guard.tool, self.guard.config.box, self._reach)
         outside = self._leaves_box(rest)
         self.clock.regrid()  # that check, at rest, is no late tick
         if outside is None:

@@ -10,8 +10,12 @@ the same limits (``brake``) from where it is.
 
 A transition keeps the tool point inside the guard's workspace box (``leaves_box``: every setpoint it would send is
 checked before it is played; one that leaves the box is not played at all). Planned in joint space, the approach to
-a first target 18 mm above the table dived 145 mm under it on the way, with no event. A brake is never checked: it is
-the shortest stop there is (``brake``).
+a first target 18 mm above the table dived 145 mm under it on the way, with no event. So does the brake an abort
+plays from any of its setpoints (``brake``: the shortest stop there is, so the stopping distance is the motion's to
+keep inside, as a safeguarded space allows for it): 25 of 7,904 brakes sampled along the built-in arms' approaches
+and retreats took the tool up to 14 mm out. A transition whose brakes would leave the box is replanned slower
+(``SLOWER``: a slower motion stops shorter) and played as the first such plan whose brakes all stay inside; where
+none does, it is not played, as one whose path leaves the box.
 
 A transition obeys the guard's tool-speed cap (``speed_cap``: the reduced-speed input's, the guard's
 ``tool_speed_max``) through its joint velocity limits (``velocity_limits``), lowered so that no motion
@@ -23,7 +27,7 @@ reduced-speed input (0.25 m/s) held; the replanned rest, unchecked, went up to 9
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import ruckig
@@ -36,9 +40,14 @@ from cellguard.control.config import GuardConfig
 from cellguard.embodiment import Profile
 from cellguard.robot.protocol import SafetyInputs
 
+# where a transition from outside the box may go (``leaves_box``): the box is named by its start (``startup.BoxStart``)
+_FROM_OUTSIDE = (f"where it may go from its start outside the workspace box (past no wall further than there, "
+                 f"{mm(SLACK)} mm spare)")
 TOLERANCE = 0.01  # [rad] or [m]: closer than this, no transition is played
 AT_REST = 1e-9  # [unit/s], [unit/s²]: slower than this, a transition is at rest
 BRAKE_SLACK_S = 1.0  # [s] wall time a brake may take beyond its own (a simulated cell's runs on a busy host's CPU)
+SLOWER = (0.5, 0.25, 0.125)  # the velocity limits' scales a transition whose brakes leave the box is replanned under
+WINDOW = 32  # [setpoints] brakes bounded together (``_brake_leaves``), halved near a wall down to one
 
 
 def speed_cap(config: GuardConfig, safety: SafetyInputs) -> SpeedCap | None:
@@ -71,6 +80,37 @@ def velocity_limits(profile: Profile, travel: np.ndarray, cap: SpeedCap | None,
     return np.minimum(limits, cap.cap * travel / along) if along > 0.0 else limits
 
 
+class _Brake:
+    """A brake's trajectory (``Transition._stop``'s) at its setpoints, ``dt`` [s] apart, and its joints' extrema
+    between its ends."""
+
+    def __init__(self, trajectory, dt: float):
+        self._at, self._dt, self.duration = trajectory.at_time, dt, trajectory.duration
+        self._turns = [(j, x.min, x.t_min, x.max, x.t_max) for j, x in enumerate(trajectory.position_extrema)
+                       if 0.0 < x.t_min < self.duration or 0.0 < x.t_max < self.duration]
+        self._positions: dict[int, list[float]] = {}  # setpoint -> joint positions, each a span's end or two
+
+    def over(self, i: int, j: int) -> tuple[list[float], list[float]]:
+        """Each joint's lowest and highest position from setpoint ``i`` to ``j`` of the brake (held at its end):
+        between its positions there and an extremum it reaches between. A joint's brake turns back at most once
+        (its velocity changes sign at most once before it rests), so it has no other."""
+        a, b = self._position(i), self._position(j)
+        low, high = [min(x, y) for x, y in zip(a, b)], [max(x, y) for x, y in zip(a, b)]
+        t1, t2 = i * self._dt, j * self._dt
+        for k, least, t_least, most, t_most in self._turns:
+            if t1 <= t_least <= t2:
+                low[k] = min(low[k], least)
+            if t1 <= t_most <= t2:
+                high[k] = max(high[k], most)
+        return low, high
+
+    def _position(self, k: int) -> list[float]:
+        position = self._positions.get(k)
+        if position is None:
+            position = self._positions[k] = self._at(min(k * self._dt, self.duration))[0]
+        return position
+
+
 def longest_brake_s(profile: Profile, period_ns: int) -> float:
     """The longest a brake to a standstill takes under the profile's limits (each joint from its velocity and
     acceleration limits), plus ``BRAKE_SLACK_S``: how long a stop signal's brake may run [s]."""
@@ -89,6 +129,9 @@ class Transition:
     settles: bool = False  # only brakes a command to rest, within tolerance of the target: no transition to tell
     cap: float = math.inf  # the tool-speed cap it goes to the target under [m/s]
     brakes: bool = False  # its first trajectory brakes a moving command to rest (``braking``)
+    limits: tuple = ()  # the joint velocity limits its way from rest to the target was planned under [unit/s]
+    # (tool, box, reach) it was found inside of (``kept_in_box``): ``leaves_box`` with the same is not run twice
+    inside: tuple = field(default=(), compare=False, repr=False)
 
     @property
     def duration_s(self) -> float:
@@ -97,10 +140,13 @@ class Transition:
     @classmethod
     def plan(cls, profile: Profile, start: np.ndarray, target: np.ndarray, period_ns: int,
              tolerance: float = TOLERANCE, velocity=None, acceleration=None, cap: SpeedCap | None = None,
-             reach: list[float] | None = None) -> Transition | None:
+             reach: list[float] | None = None, box=None, tool=None) -> Transition | None:
         """The transition from ``start`` (moving at ``velocity``, ``acceleration``: default at rest) to
         ``target`` (clipped into the limits) under the tool-speed ``cap`` (``velocity_limits``; default none),
-        or None if already there at rest or a state is not finite (ruckig raises on NaN)."""
+        or None if already there at rest or a state is not finite (ruckig raises on NaN). From rest, with the
+        guard's ``box`` and ``tool`` model, slower where its brakes would leave the box (``kept_in_box``). One from
+        motion is not (a check while the command moves holds it): the retreat and a slowed transition keep their
+        way on in the box from rest where the brake leaves the command; ``leaves_box`` checks it whole."""
         target = np.clip(np.asarray(target, dtype=np.float64), profile.q_min, profile.q_max)
         start = np.asarray(start, dtype=np.float64)
         moving = [np.zeros_like(start) if x is None else np.asarray(x, dtype=np.float64) for x in (velocity, acceleration)]
@@ -117,14 +163,31 @@ class Transition:
             first, start = stop.trajectories, stop.target
         if float(np.abs(target - start).max()) < tolerance:
             return cls(first, start, int(period_ns), settles=True, brakes=True) if first else None
-        dof = profile.dof
-        otg, inp, traj = ruckig.Ruckig(dof), ruckig.InputParameter(dof), ruckig.Trajectory(dof)
-        inp.current_position, inp.target_position = start.tolist(), target.tolist()
-        inp.current_velocity = inp.current_acceleration = [0.0] * dof
-        inp.target_velocity = inp.target_acceleration = [0.0] * dof
-        rest = cls._solve(profile, otg, inp, traj, period_ns, velocity_limits(profile, target - start, cap, reach))
-        return None if rest is None else cls(first + rest.trajectories, rest.target, int(period_ns),
-                                             cap=math.inf if cap is None else cap.cap, brakes=bool(first))
+        rest = cls._from_rest(profile, start, target, period_ns, velocity_limits(profile, target - start, cap, reach))
+        if rest is None:
+            return None
+        made = cls(first + rest.trajectories, rest.target, int(period_ns), cap=math.inf if cap is None else cap.cap,
+                   brakes=bool(first), limits=rest.limits)
+        return made if first else made.kept_in_box(profile, tool, box, reach)
+
+    def kept_in_box(self, profile: Profile, tool, box, reach: list[float] | None) -> Transition:
+        """This transition (from rest), or where its path keeps inside ``box`` but a brake from one of its setpoints
+        would not, the first replan of it under lower velocity limits (``SLOWER``) whose path and brakes all keep
+        inside; where none does, this one, which ``leaves_box`` then refuses. Without a box or a tool model, this."""
+        if box is None or tool is None or reach is None or not self.limits or self.brakes:
+            return self
+        lo, hi = tuple(map(float, box[0])), tuple(map(float, box[1]))
+        if self._path_leaves(profile, tool, lo, hi, reach) is not None:
+            return self
+        if self._brake_leaves(profile, tool, lo, hi, reach) is None:
+            return replace(self, inside=(tool, box, reach))
+        for scale in SLOWER:
+            slower = self._from_rest(profile, self.start, self.target, self.period_ns, np.asarray(self.limits) * scale)
+            if slower is None:
+                return self
+            if slower.leaves_box(profile, tool, box, reach) is None:
+                return replace(slower, cap=self.cap, inside=(tool, box, reach))
+        return self
 
     def braking(self) -> Transition | None:
         """Only the brake this transition starts with (a moving command brought to rest), or None if it starts at
@@ -142,18 +205,37 @@ class Transition:
             return None
         if not self.brakes:
             return self
-        return Transition(self.trajectories[1:], self.target, self.period_ns, cap=self.cap)
+        return Transition(self.trajectories[1:], self.target, self.period_ns, cap=self.cap, limits=self.limits)
 
     def leaves_box(self, profile: Profile, tool, box, reach: list[float] | None) -> str | None:
-        """Where this transition's tool point leaves ``box`` [m] on the way (why it may not be played), or None.
-        Every setpoint is checked, one servo period apart (the tool moves at most sum_j reach_j v_j dt between two,
-        ``reach``: ``max_reach``'s); those the tool cannot reach a wall by from a checked one are skipped. One that
-        starts outside the box keeps to the box grown to hold its start (``grown_box``, as the guard lets a motion
-        do): past no wall further than it starts, shrinking as it comes in, and a wall it is inside of stays one.
-        None without a box or a tool model."""
-        if box is None or tool is None or reach is None:
+        """Where this transition's tool point leaves ``box`` [m] on the way, or on a brake from one of its setpoints
+        (``brake``, an abort's), why it may not be played; or None. One that starts outside the box keeps to the box
+        grown to hold its start (``grown_box``, as the guard lets a motion do): past no wall further than it starts,
+        a wall it is inside of staying one. None without a box or a tool model."""
+        if box is None or tool is None or reach is None or self._kept_in(tool, box, reach):
             return None
         lo, hi = tuple(map(float, box[0])), tuple(map(float, box[1]))
+        said = self._path_leaves(profile, tool, lo, hi, reach)
+        if said is not None:
+            return said
+        brake = self._brake_leaves(profile, tool, lo, hi, reach)
+        if brake is None:
+            return None
+        excess, wall, tip, t = brake
+        where = f"out of the workspace box {[list(map(float, corner)) for corner in box]}" if \
+            grown_box(tool(self.start), lo, hi) is None else f"past {_FROM_OUTSIDE}"
+        return (f"a brake from its setpoint {t:.2f} s in (an abort there) would take its tool point {where}, "
+                f"{mm(excess)} mm past its {wall} (at {at(tip, lo, hi)} m)")
+
+    def _kept_in(self, tool, box, reach) -> bool:
+        """Was this transition found inside ``box`` with this ``tool`` model and ``reach`` (``kept_in_box``)?"""
+        return bool(self.inside) and self.inside[0] is tool and self.inside[1] == box and self.inside[2] is reach
+
+    def _path_leaves(self, profile: Profile, tool, lo: tuple, hi: tuple, reach: list[float]) -> str | None:
+        """Where this transition's own path leaves the box ``lo``..``hi`` (``leaves_box``), or None. Every setpoint
+        is checked, one servo period apart (the tool moves at most sum_j reach_j v_j dt between two, ``reach``:
+        ``max_reach``'s); those the tool cannot reach a wall by from a checked one are skipped. From outside, the
+        grown box shrinks as the tool comes in; once inside, it stays inside."""
         dt = self.period_ns * 1e-9
         per_step = float(np.dot(reach, profile.array("velocity"))) * dt  # [m] the tool's most in one period
         steps, k, grown, left, worst = math.ceil(self.duration_s / dt), 0, None, None, None
@@ -176,36 +258,95 @@ class Transition:
             k += max(1, int(-excess / per_step)) if excess < 0.0 and per_step > 0.0 else 1
         if left is None:
             return None
-        corners = [list(map(float, corner)) for corner in box]
         first = f"past its {left[1]} {left[2]:.2f} s in (at {at(left[3], lo, hi)} m)"
-        if allowed != (lo, hi):  # from outside, never inside: past the grown box, which it never "leaves"
-            said = (f"its tool point goes {mm(worst[0])} mm past where it may go from its start outside the workspace "
-                    f"box {corners} (past no wall further than there, {mm(SLACK)} mm spare), first {first}")
+        if allowed != (lo, hi):  # from outside, never inside: past the grown box, which it never "leaves" (the
+            # box itself is named once, by the start a refusal names with it: ``startup.BoxStart``)
+            said = f"its tool point goes {mm(worst[0])} mm past {_FROM_OUTSIDE}, first {first}"
             return said if worst is left else f"{said}, the most past its {worst[1]} {worst[2]:.2f} s in"
-        said = f"its tool point leaves the workspace box {corners} {first}"
+        said = f"its tool point leaves the workspace box {[[*lo], [*hi]]} {first}"
         if worst is left:
             return f"{said}, {mm(left[0])} mm outside at worst"
         return f"{said}; {mm(worst[0])} mm outside at worst, past its {worst[1]} {worst[2]:.2f} s in"
 
-    def slowed(self, profile: Profile, steps: int, cap: SpeedCap | None,
-               reach: list[float] | None) -> Transition | None:
+    def _brake_leaves(self, profile: Profile, tool, lo: tuple, hi: tuple, reach: list[float]) -> tuple | None:
+        """The first brake (``brake``) from one of this transition's setpoints that takes the tool point out of the
+        box ``lo``..``hi`` (grown to hold a start outside it), as (excess [m], wall, tool point at its worst, its
+        setpoint's time [s]); or None.
+
+        A brake from each of thousands of setpoints (ruckig, then the tool along it) took 190 ms a transition, so
+        the brakes are bounded a ``WINDOW`` of setpoints at a time. A joint's brake from any state of the window
+        lies, at each time into it, between its brakes from the window's lowest and from its highest velocity and
+        acceleration (a time-optimal stop never falls behind one from a lower state: its test is in
+        test_transition_brake_box.py), offset by the window's lowest and highest position; the tool point over
+        those joint ranges lies within sum_j reach_j half-range of the tool point at their middle. A window whose
+        bound leaves the box is halved, down to one setpoint: its own brake, exactly."""
+        dt = self.period_ns * 1e-9
+        states = np.array([self.state_at(k * dt) for k in range(math.ceil(self.duration_s / dt))])  # (N, 3, D)
+        box = grown_box(tool(self.start), lo, hi) or (lo, hi)
+        windows = [(i, min(i + WINDOW, len(states))) for i in range(0, len(states), WINDOW)][::-1]
+        while windows:
+            i, j = windows.pop()
+            out = self._brakes_out(profile, tool, box, reach, states[i:j])
+            if out is not None and j - i == 1:
+                excess, tip = out
+                return excess, box_excess(tip, *box)[1], tip, i * dt
+            if out is not None:
+                windows += [((i + j) // 2, j), (i, (i + j) // 2)]  # the earlier half first
+        return None
+
+    def _brakes_out(self, profile: Profile, tool, box: tuple, reach: list[float], states: np.ndarray
+                    ) -> tuple | None:
+        """Where the brakes from ``states`` (n, 3, D: position, velocity, acceleration) may take the tool point out
+        of ``box`` (``_brake_leaves``' bound; exact for one state): (excess [m], tool point) at the worst brake
+        setpoint found, or None where none can. A span of the brakes' setpoints is bounded whole (each joint
+        between its lowest and highest position over it, ``_Brake.over``), halved where that bound leaves the box:
+        only near a wall is the tool point needed at every setpoint. Plain floats: a handful of joints."""
+        low, high = states.min(axis=0), states.max(axis=0)
+        zero, exact = np.zeros(profile.dof), len(states) == 1
+        brakes = [self._stop(profile, zero, *side[1:], self.period_ns) for side in (low, high)]
+        if None in brakes:  # ruckig refuses a state: one setpoint's brake holds there (``brake``), a bound is none
+            return None if exact else (math.inf, None)
+        dt = self.period_ns * 1e-9
+        lower, upper = (_Brake(brake.trajectories[0], dt) for brake in brakes)
+        (x0, y0, z0), (x1, y1, z1) = box
+        low, high = low[0].tolist(), high[0].tolist()
+        worst, spans = None, [(0, math.ceil(max(lower.duration, upper.duration) / dt))]
+        while spans:
+            i, j = spans.pop()
+            near, far = lower.over(i, j)[0], upper.over(i, j)[1]
+            near, far = [q + p for q, p in zip(low, near)], [q + p for q, p in zip(high, far)]
+            x, y, z = tool(np.array([0.5 * (a + b) for a, b in zip(near, far)])).tolist()
+            excess = max(x0 - x, x - x1, y0 - y, y - y1, z0 - z, z - z1) + 0.5 * sum(
+                k * (b - a) for k, a, b in zip(reach, near, far))
+            if excess <= 0.0:
+                continue
+            if i < j:
+                spans += [((i + j) // 2 + 1, j), (i, (i + j) // 2)]  # the earlier half first
+            elif not exact:
+                return excess, (x, y, z)
+            elif worst is None or excess > worst[0]:
+                worst = excess, (x, y, z)
+        return worst
+
+    def slowed(self, profile: Profile, steps: int, cap: SpeedCap | None, reach: list[float] | None, box=None,
+               tool=None) -> Transition | None:
         """The rest of this transition from its ``steps``-th setpoint under a lower tool-speed ``cap`` (one came on):
         braked to a standstill under the profile's limits, then on to the target under the cap. None where the cap
         is no lower (or the transition only brakes: it slows down anyway). Its way on from the brake
-        (``after_braking``) is a new path: check it (``leaves_box``) before it is played."""
+        (``after_braking``) is a new path: keep it in the box (``kept_in_box``) and check it (``leaves_box``) from
+        rest before it is played."""
         if cap is None or cap.cap >= self.cap or self.settles:
             return None
         position, velocity, acceleration = self.state_at(steps * self.period_ns * 1e-9)
         return self.plan(profile, position, self.target, self.period_ns, velocity=velocity,
-                         acceleration=acceleration, cap=cap, reach=reach)
+                         acceleration=acceleration, cap=cap, reach=reach, box=box, tool=tool)
 
     def brake(self, profile: Profile, steps: int) -> Transition | None:
         """A standstill from this transition's ``steps``-th setpoint (its position, velocity and acceleration)
         under the profile's limits, or None if it is at rest there. Stopping the setpoints dead at full speed
-        stepped the command 63 mrad in one 1 ms tick. Not checked against the box: it is the shortest stop, and
-        checked while the command moves it would hold its setpoint for the check (a dead stop), or leave it moving
-        on; where it takes the tool out of the box (``_stop``: 22 of 2,988 sampled brakes, up to 18 mm) nothing
-        shorter is left."""
+        stepped the command 63 mrad in one 1 ms tick. Not checked here: checked while the command moves, it would
+        hold its setpoint for the check (a dead stop), or leave it moving on; the transition was checked for it
+        before it was played (``leaves_box``)."""
         position, velocity, acceleration = self.state_at(steps * self.period_ns * 1e-9)
         if max(map(abs, [*velocity, *acceleration])) < AT_REST:  # the first tick too: the command may be moving
             return None
@@ -216,7 +357,8 @@ class Transition:
         """Each joint to a standstill as soon as it can: the shortest stop in every joint (time synchronisation
         raised for some brakes). Stopping the joints together (phase synchronisation) kept the tool on its path, out
         of the box in 3 of 2,988 sampled brakes instead of 22, but let a joint run on up to 222 ms and 157 mrad
-        further, the tool up to 72 mm (the worst of 1,000 stops 294 mm against 245)."""
+        further, the tool up to 72 mm (the worst of 1,000 stops 294 mm against 245): the transition keeps these
+        brakes inside instead (``leaves_box``, ``kept_in_box``)."""
         dof = profile.dof
         otg, inp, traj = ruckig.Ruckig(dof), ruckig.InputParameter(dof), ruckig.Trajectory(dof)
         inp.control_interface = ruckig.ControlInterface.Velocity
@@ -225,6 +367,19 @@ class Transition:
             np.asarray(x, dtype=np.float64).tolist() for x in (position, velocity, acceleration))
         inp.target_velocity = inp.target_acceleration = [0.0] * dof
         return cls._solve(profile, otg, inp, traj, period_ns)
+
+    @classmethod
+    def _from_rest(cls, profile: Profile, start: np.ndarray, target: np.ndarray, period_ns: int,
+                   max_velocity: np.ndarray) -> Transition | None:
+        """From ``start`` at rest to ``target`` at rest under the joint velocity limits ``max_velocity``."""
+        dof = profile.dof
+        otg, inp, traj = ruckig.Ruckig(dof), ruckig.InputParameter(dof), ruckig.Trajectory(dof)
+        inp.current_position, inp.target_position = start.tolist(), target.tolist()
+        inp.current_velocity = inp.current_acceleration = [0.0] * dof
+        inp.target_velocity = inp.target_acceleration = [0.0] * dof
+        made = cls._solve(profile, otg, inp, traj, period_ns, max_velocity)
+        return None if made is None else cls(made.trajectories, made.target, int(period_ns),
+                                             limits=tuple(map(float, max_velocity)))
 
     @classmethod
     def _solve(cls, profile: Profile, otg, inp, traj, period_ns: int, max_velocity=None) -> Transition | None:
