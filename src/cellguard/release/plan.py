@@ -18,7 +18,8 @@ stages:
 A run entry is a scenario without ``cell``, ``policy``, ``guard`` and ``calibration``: those come
 from the release; ``production_cycles`` defaults to 0. A file its ``robot`` names (``?units=``) is the one beside
 the plan file, as a scenario's files are beside it, from whatever folder the release runs (``run_beside``); the plan
-is hashed as written (a site's logged plan stays the same plan wherever its file lies). Read with
+is hashed as written (a site's logged plan stays the same plan wherever its file lies), and what makes its runs with
+what those files hold (``robot_files``: the same plan beside another units map makes other runs). Read with
 the project's YAML loader; an unknown metric, key or stage is one line.
 The file is checked on no cell when it is read; ``check_cell`` checks a stage against its cell (the faults it can
 simulate, the metrics it reports) at ``promote`` and before the stage's first run. The packaged plan is one per kind
@@ -27,8 +28,10 @@ of cell (``default_plan``): a pick-place cell's, with a moved fixture and the pl
 
 from __future__ import annotations
 
+import hashlib
 import re
 from pathlib import Path
+from urllib.parse import parse_qsl
 from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationError
@@ -39,8 +42,8 @@ from cellguard.release.gates import Gate, gate_error
 from cellguard.release.metrics import METRICS, PICK_PLACE
 from cellguard.release.store import STAGES
 from cellguard.robot.registry import make_cell
-from cellguard.scenario import Scenario, parse_scenario, robot_beside, scenario_folder
-from cellguard.yaml_file import read_yaml, reject_unknown_keys
+from cellguard.scenario import BRIDGE_FILE_OPTIONS, Scenario, parse_scenario, robot_beside, scenario_folder
+from cellguard.yaml_file import read_bounded, read_yaml, reject_unknown_keys
 
 PLANS = Path(__file__).parents[1] / "scenarios"
 PICK_PLACE_PLAN = PLANS / "release-plan.yaml"
@@ -58,7 +61,7 @@ class StagePlan(BaseModel):
     runs: list[dict] = Field(default_factory=list)
     gates: list[Gate] = Field(default_factory=list)
     # the plan file's real folder: its runs' robot files are taken beside it (``runs_beside``), never hashed (a plan
-    # logged, then moved with its site, or one in two folders, is the same plan)
+    # logged, then moved with its site, or one in two folders, is the same plan); what they hold is (``robot_files``)
     _folder: Path | None = PrivateAttr(default=None)
 
     def runs_beside(self) -> list[dict]:
@@ -67,6 +70,27 @@ class StagePlan(BaseModel):
         if self._folder is None:
             return self.runs
         return [run_beside(run, self._folder, f"runs[{i}]") for i, run in enumerate(self.runs)]
+
+
+def robot_files(runs: list[dict]) -> list[list]:
+    """[run index, option, sha256] of each file the robots of ``runs`` (as run: ``runs_beside``) name (a bridge's
+    ``?units=``): what those runs are made with besides the plan's text. A file that cannot be read is left out: no
+    run is made without it (its bridge refuses it, naming it), and a plan read where it is absent is keyed by its
+    text, as before."""
+    files = []
+    for i, run in enumerate(runs):
+        spec = run.get("robot") if isinstance(run, dict) else None
+        if not isinstance(spec, str):
+            continue
+        scheme, _, arg = spec.partition(":")
+        for option, value in parse_qsl(arg.partition("?")[2], keep_blank_values=True):
+            if option in BRIDGE_FILE_OPTIONS.get(scheme, ()) and value:
+                try:
+                    data = read_bounded(Path(value), option, GateError)
+                except GateError:
+                    continue
+                files.append([i, option, hashlib.sha256(data).hexdigest()])
+    return files
 
 
 def default_plan(cell: str) -> Path:

@@ -33,7 +33,7 @@ from cellguard.release.evidence import RunEvidence, counted_run, record_id
 from cellguard.release.gates import FAIL, INCONCLUSIVE, PASS, GateResult, evaluate, verdict
 from cellguard.release.kept import Kept
 from cellguard.release.loops import CLOCKS
-from cellguard.release.plan import StagePlan, check_cell, plan_in_force, scenario_for
+from cellguard.release.plan import StagePlan, check_cell, plan_in_force, robot_files, scenario_for
 from cellguard.release.store import STAGES, RunRow, Store, check_stage
 
 INCUMBENT_FALLBACK = "scripted"  # the cell's taught program: what a cell runs before any release
@@ -325,7 +325,8 @@ def evaluate_stage(store: Store, plan: StagePlan, cell: str, stage: str, folders
     logged = log.entries(store)
     key, under, shadows = runs_key(plan, runs), log.counted_under(logged), log.counted_shadows(logged)
     kept = Kept(store, logged)
-    same = {key} if runs is not None else {key, log.WHOLE_PLAN + plan_hash(plan)}  # counted by an older cellguard
+    same = {key, runs_key(plan, runs, files=False)}  # and as an older cellguard keyed them: by the text alone
+    same |= set() if runs is not None else {log.WHOLE_PLAN + plan_hash(plan)}  # or by the whole plan
     every = _bound(store.runs(cell, stage, start.current, start.move_seq), shadows)
     rows = [r for r in every if under.get(r.seq, r.runs) in same]
     taken, refused = _evidence(store, rows, kept)
@@ -384,15 +385,20 @@ def plan_hash(plan: StagePlan) -> str:
     return hashlib.sha256(canonical_json(plan.model_dump(mode="json"))).hexdigest()
 
 
-def runs_key(plan: StagePlan, runs: list[dict] | None = None) -> str:
+def runs_key(plan: StagePlan, runs: list[dict] | None = None, files: bool = True) -> str:
     """What makes a stage's runs, noted on each run's row and logged with its gates (``log.RUNS``), and so the runs
     an evaluation counts: the sha256 of ``plan`` but its gates (its runs, clock, shadow: all that decides how they
-    run), or for ``runs`` given in place of its runs (``--scenario``) ``log.SCENARIO`` and that of the plan with
-    those runs. Runs of an ad-hoc plan padded the next verdict under the plan in force; keyed by the whole plan, a
-    gate added dropped every run of last_good, and with them the rollback. An evaluation takes a run as the log's
-    first gates entry counting it says (``log.counted_under``), else as its row."""
+    run) with what the files its runs' robots name hold (``plan.robot_files``; ``files`` False: without, as an older
+    cellguard keyed them, and as any plan naming none is keyed), or for ``runs`` given in place of its runs
+    (``--scenario``) ``log.SCENARIO`` and that of the plan with those runs. Runs of an ad-hoc plan padded the next
+    verdict under the plan in force; keyed by the whole plan, a gate added dropped every run of last_good, and with
+    them the rollback; keyed by the text alone, the same plan beside another units map (or that map edited) counted
+    runs in other units as its own. An evaluation takes a run as the log's first gates entry counting it says
+    (``log.counted_under``), else as its row."""
     made = plan if runs is None else plan.model_copy(update={"runs": runs})
-    digest = hashlib.sha256(canonical_json(made.model_dump(mode="json", exclude={"gates"}))).hexdigest()
+    written = made.model_dump(mode="json", exclude={"gates"})
+    read = robot_files(plan.runs_beside() if runs is None else runs) if files else []
+    digest = hashlib.sha256(canonical_json({**written, "files": read} if read else written)).hexdigest()
     return digest if runs is None else f"{log.SCENARIO}:{digest}"
 
 
