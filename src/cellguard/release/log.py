@@ -103,6 +103,13 @@ def _rows(store) -> list[tuple]:
                             "ORDER BY seq").fetchall()
 
 
+def _matches(prev: str, text: str, body: dict, digest: str) -> bool:
+    """Whether the entry matches its hash: its text as cellguard wrote it (canonical JSON) hashed as stored, else
+    its body made canonical (a hand edit that kept the content). Hashing the text saves re-encoding every body."""
+    return (hashlib.sha256(prev.encode() + text.encode()).hexdigest() == digest
+            or entry_hash(prev, body) == digest)
+
+
 def _body(text: str) -> dict | None:
     """The entry's body, or None when it is not a JSON object (edited outside cellguard)."""
     try:
@@ -115,11 +122,17 @@ def _body(text: str) -> dict | None:
 def entries(store) -> list[LogEntry]:
     """Every entry; ReleaseError naming the first that is not a JSON object, does not match its hash or does not
     follow the entry before it (a command never acts on an edited entry, nor reads a key an edit removed, nor
-    on a log with an entry deleted or moved from the middle: each entry alone still matched its own hash)."""
-    out, prev_hash = [], GENESIS
-    for seq, text, prev, digest in _rows(store):
-        body = _body(text)
-        if body is None or entry_hash(prev, body) != digest:
+    on a log with an entry deleted or moved from the middle: each entry alone still matched its own hash).
+
+    An entry this ``store`` read and checked before, still stored exactly as it was then (the same seq, text and
+    hashes), is taken as checked: each command read and hashed the whole log three to ten times, a promotion at
+    4,000 entries about 0.5 s. Only a new or changed row is parsed and hashed again."""
+    out, prev_hash, seen, checked = [], GENESIS, store.log_seen, {}
+    for row in _rows(store):
+        seq, text, prev, digest = row
+        entry = seen.get(row)
+        body = entry.body if entry else _body(text)
+        if entry is None and (body is None or not _matches(prev, text, body, digest)):
             what = "not a JSON object" if body is None else "content does not match its hash"
         elif seq != len(out) + 1 or prev != prev_hash:
             what = f"does not follow entry {len(out)} (an entry before it was deleted or moved)"
@@ -128,8 +141,10 @@ def entries(store) -> list[LogEntry]:
         if what is not None:
             raise ReleaseError(f"log entry {seq}: {what} (edited outside cellguard); release verify lists every "
                                f"break; nothing moved")
-        out.append(LogEntry(seq, body, prev, digest))
+        checked[row] = entry or LogEntry(seq, body, prev, digest)
+        out.append(checked[row])
         prev_hash = digest
+    store.log_seen = checked
     return out
 
 
@@ -414,7 +429,7 @@ def verify_log(store, expect_head: str | None = None) -> list[str]:
             problems.append(f"entry {seq}: not a JSON object (edited)")
         else:
             readable.append(LogEntry(seq, body, prev_hash, digest))
-            if entry_hash(prev_hash, body) != digest:
+            if not _matches(prev_hash, text, body, digest):
                 problems.append(f"entry {seq}: content does not match its hash (edited)")
         prev, expected_seq = digest, seq + 1
     count = store.meta("log_count") or "0"

@@ -90,6 +90,7 @@ class Store:
         if not create and not path.exists():
             raise ReleaseError(f"--site {site}: no release store there ({STORE_FILE}); release create makes one")
         self.site = make_folder(Path(site), "--site")
+        self.log_seen: dict = {}  # each log row as stored -> its entry, as ``log.entries`` last checked it
         try:
             self.db = sqlite3.connect(self.site / STORE_FILE, isolation_level=None, timeout=LOCK_WAIT_S)
             self.db.text_factory = _text
@@ -272,13 +273,19 @@ class Store:
 
     def keep(self, bodies: dict[str, str]) -> bool:
         """Keep each record sha256's evidence body (inside the caller's transaction, with the entry signing them);
-        False, keeping none, where the table is misshapen (``kept_misshapen``: every ``release run`` failed on it)."""
+        False, keeping none, where the table is misshapen (``kept_misshapen``: every ``release run`` failed on it).
+        Every body no live release can read is dropped (it grew with every run ever counted): one whose record is no
+        counted run of a release current or last_good at that run's cell and stage. A release that is neither counts
+        its runs again only once promoted there anew; its records are then read, and kept, again."""
         if self.kept_misshapen() is not None:
             return False
         self.write(f"CREATE TABLE IF NOT EXISTS {KEPT_TABLE} ({KEPT_COLUMNS[0]} TEXT PRIMARY KEY, "
                    f"{KEPT_COLUMNS[1]} TEXT NOT NULL)")
         for digest, body in bodies.items():
             self.write(f"INSERT OR REPLACE INTO {KEPT_TABLE} VALUES (?, ?)", (digest, body))
+        self.write(f"DELETE FROM {KEPT_TABLE} WHERE substr({KEPT_COLUMNS[0]}, 1, 16) NOT IN (SELECT r.record_id FROM "
+                   f"runs r JOIN pointers p ON r.cell = p.cell AND r.stage = p.stage AND r.release IN (p.current, "
+                   f"p.last_good))")
         return True
 
     def _kept(self, sql: str, args: tuple = ()) -> list[tuple]:
