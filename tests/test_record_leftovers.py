@@ -78,7 +78,8 @@ def test_a_cut_record_is_laid_out_from_its_message_indexes_not_by_decompressing_
     monkeypatch.setattr(scan_module, "read_chunk", lambda *a, **k: reads.append(a[1]) or read_chunk(*a, **k))
     layout = scan(cut)
     assert layout.truncated and len(layout.chunks) > 40
-    assert len(reads) <= 1  # the first chunk, which declares the channels; before: every chunk
+    # the first chunk, which declares the channels, and the last, cut right after its indexes; before: every chunk
+    assert {ref.offset for ref in reads} <= {layout.chunks[0].offset, layout.chunks[-1].offset}
     monkeypatch.undo()
     with open(cut, "rb") as f:
         buf = f.read()
@@ -105,6 +106,55 @@ def test_a_damaged_chunk_of_a_cut_record_is_still_found_and_skipped(tmp_path):
         ticks = rec.ticks(rate="decimated")
     assert health.chunks_damaged == 1 and any(f"chunk at byte {ref.offset}" in d for d in health.damage)
     assert 0 < len(ticks) and not health.ok
+
+
+@pytest.mark.parametrize("into", [0, 7, 14])
+def test_a_record_cut_inside_a_chunks_message_indexes_reads_every_message_of_that_chunk(tmp_path, into):
+    """Cut between two of the last chunk's indexes (or 7, 14 bytes into the next), it was laid out from the indexes
+    read so far: the unindexed topics' messages of that chunk were skipped, with no damage said. It is decompressed."""
+    whole = _write(tmp_path / "whole")
+    data, last = whole.read_bytes(), scan(whole).chunks[-1]
+    at = last.offset + last.length
+    at += 9 + int.from_bytes(data[at + 1:at + 9], "little")  # past its first index
+    (tmp_path / "cut").mkdir()
+    cut = tmp_path / "cut" / "record.mcap"
+    cut.write_bytes(data[:at + into])
+    with open_record(whole.parent) as full, open_record(cut.parent) as rec:
+        assert rec.layout.chunks[-1].offset == last.offset
+        assert rec.layout.chunks[-1].channels == full.layout.chunks[-1].channels
+        assert len(rec.ticks()) == len(full.ticks())
+
+
+def test_an_index_whose_times_lie_outside_its_chunks_own_is_not_trusted(tmp_path):
+    """A flipped bit in an index's log time moved a chunk out of a window read: one tick missing, no damage said."""
+    cut = _cut(_write(tmp_path / "whole"), tmp_path / "cut")
+    layout, data = scan(cut), bytearray(cut.read_bytes())
+    ref = layout.chunks[len(layout.chunks) // 2]
+    index = ref.offset + ref.length
+    data[index + 15 + 7] ^= 0x40  # the top byte of its first entry's log time
+    cut.write_bytes(bytes(data))
+    assert (scan(cut).chunks[len(layout.chunks) // 2].start_ns, scan(cut).chunks[len(layout.chunks) // 2].end_ns) == (
+        ref.start_ns, ref.end_ns)
+
+
+def test_a_foreign_files_channels_declared_in_a_chunk_with_none_of_their_messages_are_found(tmp_path):
+    """mcap's own Writer declares a channel in the chunk where it is registered, which may hold no message of it (so
+    no index says so): that chunk laid out from its indexes lost the channel, and its topic with it."""
+    from mcap.writer import CompressionType, Writer
+
+    with open(tmp_path / "x.mcap", "wb") as f:
+        w = Writer(f, chunk_size=2000, compression=CompressionType.ZSTD)
+        w.start("x", "another tool")
+        a = w.register_channel("/a", "json", w.register_schema("A", "jsonschema", b"{}"))
+        for i in range(50):
+            w.add_message(a, i, b'{"v": 1}' * 10, i)
+        b = w.register_channel("/b", "json", w.register_schema("B", "jsonschema", b"{}"))
+        for i in range(50, 150):
+            w.add_message(a if i < 100 else b, i, b'{"v": 1}' * 10, i)
+        w.finish()
+    data = (tmp_path / "x.mcap").read_bytes()
+    (tmp_path / "x.mcap").write_bytes(data[:data.rfind(bytes([0x0F, 4, 0, 0, 0, 0, 0, 0, 0]))])  # cut at DataEnd
+    assert scan(tmp_path / "x.mcap").topics == {1: "/a", 2: "/b"}
 
 
 # 2. an infinite date as a map key
@@ -196,3 +246,12 @@ def test_a_runs_retreat_events_after_its_last_cycle_are_recorded_in_no_cycle(tmp
     assert all("cycle" not in d for d in written if d["t_ns"] > last_end)
     names, rows = query.run_query(tmp_path / "run", f"SELECT cycle FROM events WHERE t_ns > {last_end}")
     assert [r[0] for r in rows] == [None] * len(after)
+
+
+@pytest.mark.parametrize("reason", ["retry_grasp: attempt 2 cannot be planned", "no recovery left (2 attempts): home, "
+                                    "the cycle fails"])
+def test_a_recovery_end_with_no_attempt_is_logged_at_warn(tmp_path, reason):
+    """An attempt that could not be planned, and no recovery left, end with no attempt's fields: read as resumed,
+    they were DEBUG, and a recovery that never ran left no warning in the log panel."""
+    file = _write(tmp_path / "r", [(Event(400 * MS, EventKind.RECOVERY_END, reason), 0)])
+    assert {text.split("]")[0].lstrip("["): value for text, value in _levels(file).items()} == {"recovery_end": WARN}

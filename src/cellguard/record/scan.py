@@ -37,7 +37,7 @@ from mcap.records import AttachmentIndex, Channel, Chunk, Message, Metadata, Met
 from mcap.stream_reader import breakup_chunk, get_chunk_data_stream
 
 from cellguard.errors import RecordError
-from cellguard.record.writer import CHUNK_BYTES
+from cellguard.record.writer import CHUNK_BYTES, LIBRARY
 
 MAGIC = b"\x89MCAP0\r\n"
 _VALID_OPCODES = {int(op) for op in Opcode}
@@ -83,6 +83,7 @@ class Layout:
     damage: list[Damage] = field(default_factory=list)
     finished: bool = False  # a footer and a usable summary were found
     truncated: bool = False  # the file ends inside a record or without a footer
+    own: bool = False  # its header names cellguard's recorder as the library that wrote it (``_indexed``)
     schemas: dict[int, Schema] = field(default_factory=dict)
     channels: dict[int, Channel] = field(default_factory=dict)
     metadata: dict[str, dict[str, str]] = field(default_factory=dict)  # name -> key/values (the last of a name)
@@ -333,6 +334,9 @@ def _linear(path: Path, size: int, magic_ok: bool) -> Layout:
                 floor = end
             elif op == Opcode.METADATA:
                 _metadata(buf, pos, layout)
+            elif op == Opcode.HEADER:
+                library_at = pos + 13 + int.from_bytes(buf[pos + 9:pos + 13], "little")  # after its profile
+                layout.own = _string(buf, library_at, end) == LIBRARY
             elif op == Opcode.ATTACHMENT:
                 name = _attachment_name(buf, pos)
                 if name is not None:
@@ -399,9 +403,13 @@ def _check_chunk(buf, pos: int, length: int, layout: Layout) -> ChunkRef | None:
 def _indexed(buf, pos: int, length: int, layout: Layout) -> tuple[int, int, frozenset[int]] | None:
     """(first, last log time, channel ids) of the chunk at ``pos`` by the message index records that follow it, or
     None: the chunk's head is not a whole chunk of a known compression and size, no index follows (a file cut
-    there), an index runs past the file or points past the chunk's records, or names a channel not yet declared."""
+    there), an index runs past the file or points past the chunk's records, or names a channel not yet declared, its
+    times lie outside the chunk's own, or the file ends in or right after them (an index of the chunk may be missing).
+    Only in cellguard's own records (``layout.own``): its recorder declares every channel in its first chunk, which
+    is decompressed (its indexes name channels not declared yet); mcap's own Writer declares a channel in the chunk
+    where it is registered, which may hold no message of it, and so no index that would say so."""
     end = pos + 9 + length
-    if length < 40:  # times, size, CRC, an empty compression and the records' length
+    if length < 40 or not layout.own:  # times, size, CRC, an empty compression and the records' length
         return None
     uncompressed, compression = _CHUNK_SIZE.unpack_from(buf, pos + 25)[0], _string(buf, pos + 37, end)
     if compression not in ("zstd", "lz4", "") or uncompressed > MAX_CHUNK_BYTES:
@@ -418,10 +426,13 @@ def _indexed(buf, pos: int, length: int, layout: Layout) -> tuple[int, int, froz
             channels.add(channel)
             pairs.append(buf[at + 15:at + 15 + entries])
         at += 9 + size
-    if not pairs:
-        return None
+    if not pairs or at + 9 > len(buf) or buf[at] == Opcode.MESSAGE_INDEX or buf[at] not in _VALID_OPCODES:
+        return None  # cut in or right after them: an index of the chunk may be missing
     times, offsets = np.frombuffer(b"".join(pairs), "<u8").reshape(-1, 2).T  # (log time, offset) each
-    return None if offsets.max() >= uncompressed else (int(times.min()), int(times.max()), frozenset(channels))
+    _, _, first, last = _HEAD.unpack_from(buf, pos)
+    if offsets.max() >= uncompressed or times.min() < first or times.max() > last:  # the chunk's head disagrees
+        return None
+    return int(times.min()), int(times.max()), frozenset(channels)
 
 
 def _string(buf, at: int, end: int) -> str | None:

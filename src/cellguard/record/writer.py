@@ -72,6 +72,7 @@ DESCRIPTION_FILE = "robot_description.urdf"
 # (diagnose), report (report), shadow (release); named here, below those layers
 RUN_OUTPUTS = ("summary.json", "baseline.json", "fixes.json", "report.html", "shadow.json")
 REPLAY_PAGES = "replay-cycle-*.html"  # ``cellguard replay``'s pages in a run folder: made from its record too
+LIBRARY = "cellguard"  # the MCAP header's library: a record of this recorder's (``scan`` trusts its chunk layout)
 _LOG_LEVEL = {0: ros2.FATAL, 1: ros2.ERROR, 2: ros2.WARN}  # stop category -> log level; else INFO (routine: DEBUG)
 CHUNK_BYTES = 1 << 20  # [bytes] a long backlog is split into chunks of about this many bytes (messages)
 # The pre-trigger ring is allocated before the first tick and holds, at the servo rate, the pre-trigger window, four
@@ -373,7 +374,7 @@ class Recorder:
 
     def _start(self, context: dict) -> None:
         self._writer = Writer(self._stream, chunk_size=1 << 30, compression=CompressionType.ZSTD, enable_crcs=True)
-        self._writer.start(profile=PROFILE, library="cellguard")
+        self._writer.start(profile=PROFILE, library=LIBRARY)
         self._writer.add_metadata("foxglove", _foxglove_metadata(context, self.record_id))
         self._writer.add_metadata("cellguard", self._facts(context))
         start, began = self.start_ns, self.epoch_wall_ns + self.start_ns
@@ -555,12 +556,13 @@ def _log_text(fields: dict, cycle: int | None) -> str:
 
 
 def _log_level(event: Event, routine: bool) -> int:
-    """The event's ROS log level: by its stop category; a recovery attempt that ended other than ``resumed``
-    (failed, escalated, gave_up, cut_off) WARN, routine as its kind is: a technician must see it among the warnings
-    in Foxglove's Log panel, not in the DEBUG lines filtered away; else INFO, DEBUG if routine."""
+    """The event's ROS log level: by its stop category; a recovery that ended other than ``resumed`` (failed,
+    escalated, gave_up, cut_off; an attempt that could not be planned, or no recovery left: no attempt's fields)
+    WARN, routine as its kind is: a technician must see it among the warnings in Foxglove's Log panel, not in the
+    DEBUG lines filtered away; else INFO, DEBUG if routine."""
     if event.category in _LOG_LEVEL:
         return _LOG_LEVEL[event.category]
-    if event.kind == EventKind.RECOVERY_END and (event.recovery or {}).get("outcome", "resumed") != "resumed":
+    if event.kind == EventKind.RECOVERY_END and (event.recovery or {}).get("outcome") != "resumed":
         return ros2.WARN
     return ros2.DEBUG if routine else ros2.INFO
 
