@@ -256,24 +256,42 @@ def verify(
                                                                  "earlier verify): the log must still hold it."),
     as_json: bool = typer.Option(False, "--json"),
 ) -> None:
-    """Check the promotion log's hash chain and the bundles; exit 1 naming each edited or deleted entry."""
+    """Check the promotion log's hash chain, the bundles, and the files (policy, action map, calibration) and profile
+    that each release current or last_good at a stage froze; exit 1 naming each edited or deleted entry and each
+    input changed since create. A served policy is not contacted; a release neither current nor last_good is not
+    checked (its files may be gone)."""
     from cellguard.release import verify_log
+    from cellguard.release.bundle import check_live_inputs
     from cellguard.release.log import head, size
 
     try:
         store = _store(site)
         problems, n, last = verify_log(store, expect_head), size(store), head(store)
+        inputs = check_live_inputs(store)
     except CellguardError as exc:
         fail(exc)
+    problems += [str(c) for c in inputs.changed]
     if as_json:
-        sys.stdout.write(json.dumps({"entries": n, "head": last, "ok": not problems, "problems": problems}) + "\n")
-    elif problems:
-        for p in problems:
-            out.print(f"broken: {p}")
+        sys.stdout.write(json.dumps({"entries": n, "head": last, "ok": not problems, "problems": problems,
+                                     "inputs": inputs.to_dict()}) + "\n")
     else:
-        out.print(f"log whole: {n} entries, chain verified; head {last} (keep it elsewhere: --expect-head)")
+        for p in problems:
+            out.print(f"broken: {p}", markup=False, soft_wrap=True)
+        if not problems:
+            out.print(f"log whole: {n} entries, chain verified; head {last} (keep it elsewhere: --expect-head)")
+        _print_inputs(inputs)
     if problems:
         raise typer.Exit(1)
+
+
+def _print_inputs(inputs) -> None:
+    """What ``verify`` checked of the releases' files, and what it did not, each in one line."""
+    changed = f"{len(inputs.changed)} changed since create" if inputs.changed else "whole"
+    out.print(f"files of the releases current or last_good at a stage ({len(inputs.releases)} checked: policy, action "
+              f"map, profile, calibration): {changed}; releases neither current nor last_good: {inputs.idle}, not "
+              f"checked", markup=False, soft_wrap=True)
+    for line in inputs.unchecked:
+        out.print(line, markup=False, soft_wrap=True)
 
 
 @release_app.command()

@@ -14,6 +14,7 @@ from __future__ import annotations
 import hashlib
 import json
 import shlex
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -128,22 +129,126 @@ def verify_bundle(bundle: Bundle, policy=None, profile=None, calibration: bool =
     that runs on another's (the incumbent in a shadow run, on the candidate's)."""
     if release_id(bundle.manifest) != bundle.id:
         raise BundleMismatch(f"release {bundle.id}: manifest edited (hashes to {release_id(bundle.manifest)})")
+    changed = next(_changes(bundle, policy, profile, calibration), None)
+    if changed is not None:
+        raise changed.error
+
+
+@dataclass(frozen=True)
+class Changed:
+    """A frozen input that no longer hashes as ``release create`` froze it: ``error`` is what ``verify_bundle``
+    raises for it, naming it and both hashes (``now`` None: it cannot be read, and the error says why)."""
+
+    release: str
+    input: str  # "action map", "profile", "calibration" or "policy"
+    what: str  # the input in words, with its file, cell or policy spec
+    frozen: str
+    now: str | None
+    error: ReleaseError
+
+    def __str__(self) -> str:
+        """The error as one line that names the release and the frozen hash, which a file's own error does not."""
+        line = str(self.error)
+        line = line if line.startswith(f"release {self.release}") else f"release {self.release}: {line}"
+        return line if self.frozen[:12] in line else f"{line} (frozen sha256 {self.frozen[:12]})"
+
+    def to_dict(self) -> dict:
+        return {"release": self.release, "input": self.input, "what": self.what, "sha256": self.now,
+                "frozen": self.frozen, "problem": str(self)}
+
+
+@dataclass(frozen=True)
+class InputsChecked:
+    """What ``release verify`` found of the files frozen by the releases a stage can run (current or last_good)."""
+
+    releases: tuple[str, ...]  # checked
+    changed: tuple[Changed, ...]
+    unchecked: tuple[str, ...]  # each input not checked here, in words (a served policy)
+    idle: int  # releases neither current nor last_good anywhere: not checked (their files may be gone, rightly)
+
+    def to_dict(self) -> dict:
+        return {"checked": list(self.releases), "changed": [c.to_dict() for c in self.changed],
+                "not_checked": list(self.unchecked), "idle_not_checked": self.idle}
+
+
+def check_live_inputs(store) -> InputsChecked:
+    """Hash again, here and contacting nothing, what each release current or last_good at some stage froze (a
+    rollback or the line runs it: ``promote`` and ``run`` re-hash only the release they take, so a policy file
+    swapped under production's release showed nowhere). A bundle edited or gone is ``verify_log``'s to name."""
+    named = {rid for p in store.all_pointers() for rid in (p.current, p.last_good) if rid is not None}
+    stored = store.bundle_ids()
+    checked, changed, unchecked = [], [], []
+    for rid in sorted(named & stored):
+        try:
+            bundle = store.bundle(rid)
+        except ReleaseError:  # edited: verify_log names it
+            continue
+        served = _unchecked_policy(bundle)
+        checked.append(rid)
+        changed += _offline_changes(bundle, served is not None)
+        unchecked += [served] if served else []
+    return InputsChecked(tuple(checked), tuple(changed), tuple(unchecked), len(stored - named))
+
+
+def _offline_changes(bundle: Bundle, served: bool) -> list[Changed]:
+    """Every input of ``bundle`` that changed, not the first only; its cell not loading (a plugin's, uninstalled)
+    is one, as its profile cannot be hashed."""
+    found = []
+    try:
+        for changed in _changes(bundle, served=served):
+            found.append(changed)
+    except CellguardError as exc:
+        error = ReleaseError(f"release {bundle.id}: its cell {bundle.cell!r} does not load: {exc}")
+        found.append(Changed(bundle.id, "profile", f"profile of {bundle.cell!r}", bundle.manifest["profile"]["sha256"],
+                             None, error))
+    return found
+
+
+def _unchecked_policy(bundle: Bundle) -> str | None:
+    """Why ``release verify`` does not hash the release's policy, in words, or None: a served policy (its source takes
+    an address, neither a file nor nothing) hashes what its server sends, and a source whose extra is not installed
+    here cannot load it."""
+    from cellguard.policy.registry import source, takes_nothing
+
+    spec = bundle.manifest["policy"]["spec"]
+    try:
+        module = source(spec.partition(":")[0])
+    except CellguardError as exc:
+        return f"release {bundle.id}: policy {spec}: not checked here ({exc})"
+    if module.TAKES_FILE or takes_nothing(module):
+        return None
+    return f"release {bundle.id}: policy {spec}: not checked offline (served policy)"
+
+
+def _changes(bundle: Bundle, policy=None, profile=None, calibration: bool = True,
+             served: bool = False) -> Iterator[Changed]:
+    """Each frozen input that no longer hashes as frozen, in ``verify_bundle``'s order, lazily (it stops at the
+    first); ``served``: the policy is not loaded (its server is not contacted)."""
     m = bundle.manifest
     if m["action_map"] is not None:
-        now = yaml_sha256(Path(m["action_map"]["path"]), "action map")
-        if now != m["action_map"]["sha256"]:
-            raise BundleMismatch(f"release {bundle.id}: action map {m['action_map']['path']} changed since create "
-                                 f"(sha256 {now[:12]}, frozen {m['action_map']['sha256'][:12]})")
+        path = m["action_map"]["path"]
+        yield from _compare(bundle, "action map", f"action map {path}", m["action_map"]["sha256"],
+                            lambda: yaml_sha256(Path(path), "action map"))
     cell = make_cell(bundle.cell)
-    if cell.profile.sha256 != m["profile"]["sha256"]:
-        raise BundleMismatch(f"release {bundle.id}: profile of {bundle.cell!r} changed since create "
-                             f"(sha256 {cell.profile.sha256[:12]}, frozen {m['profile']['sha256'][:12]})")
+    yield from _compare(bundle, "profile", f"profile of {bundle.cell!r}", m["profile"]["sha256"],
+                        lambda: cell.profile.sha256)
     if calibration:
-        _verify_calibration(bundle, profile)
-    now = policy_hash(bundle, cell) if policy is None else policy.content_hash()
-    if now != m["policy"]["sha256"]:
-        raise BundleMismatch(f"release {bundle.id}: policy {m['policy']['spec']} changed since create "
-                             f"(sha256 {now[:12]}, frozen {m['policy']['sha256'][:12]})")
+        yield from _calibration_changes(bundle, profile)
+    if not served:
+        yield from _compare(bundle, "policy", f"policy {m['policy']['spec']}", m["policy"]["sha256"],
+                            lambda: policy_hash(bundle, cell) if policy is None else policy.content_hash())
+
+
+def _compare(bundle: Bundle, kind: str, what: str, frozen: str, sha256) -> Iterator[Changed]:
+    """``what`` as a Changed when ``sha256()``, its hash now, is not ``frozen``, or cannot be had (its error)."""
+    try:
+        now = sha256()
+    except ReleaseError as exc:
+        yield Changed(bundle.id, kind, what, frozen, None, exc)
+        return
+    if now != frozen:
+        yield Changed(bundle.id, kind, what, frozen, now, BundleMismatch(
+            f"release {bundle.id}: {what} changed since create (sha256 {now[:12]}, frozen {frozen[:12]})"))
 
 
 def policy_hash(bundle: Bundle, cell=None) -> str:
@@ -250,18 +355,21 @@ def _held(path: Path) -> tuple[str | None, str]:
     return sha256, f"{path}: sha256 {sha256[:12]}"
 
 
-def _verify_calibration(bundle: Bundle, loaded) -> None:
-    """BundleMismatch if the calibrated profile the release binds is not what ``create`` hashed (``loaded``: the
+def _calibration_changes(bundle: Bundle, loaded) -> Iterator[Changed]:
+    """The calibrated profile the release binds as a Changed if it is not what ``create`` hashed (``loaded``: the
     profile a run's robot took; else the file that holds it is looked for again), as for the action map and the
     policy."""
     frozen = bundle.manifest.get("calibration")
     if frozen is None:
         return
-    if loaded is None:
+    what = f"calibration {frozen['path']}"
+    if loaded is not None:
+        yield from _compare(bundle, "calibration", what, frozen["sha256"], lambda: loaded.sha256)
+        return
+    try:
         calibration_file(bundle)
-    elif loaded.sha256 != frozen["sha256"]:
-        raise BundleMismatch(f"release {bundle.id}: calibration {frozen['path']} changed since create "
-                             f"(sha256 {loaded.sha256[:12]}, frozen {frozen['sha256'][:12]})")
+    except BundleMismatch as exc:
+        yield Changed(bundle.id, "calibration", what, frozen["sha256"], _held(Path(frozen["path"]))[0], exc)
 
 
 def _resolve_profile(profile: str) -> tuple[str, Path | None]:
