@@ -11,7 +11,7 @@ from cellguard.errors import ScenarioError
 from cellguard.robot.registry import make_cell
 from cellguard.robot.state import Observation
 from cellguard.runtime.clock import LockStepClock, SimClock, WallClock
-from cellguard.runtime.inference import SimulatedInference, WorkerInference
+from cellguard.runtime.inference import NOMINAL_INFERENCE_S, SimulatedInference, WorkerInference
 
 
 def make_robot(scenario):
@@ -44,6 +44,15 @@ def make_clock(robot, realtime: bool):
     if getattr(robot, "lockstep", False) and not realtime:
         return LockStepClock(robot)
     return WallClock(robot.dt_ns)
+
+
+def first_chunk_ns(clock) -> int | None:
+    """How long after a cycle's start its first chunk is taken at the soonest, where the scenario says it [ns]:
+    simulated inference answers the request at the cycle's first tick ``NOMINAL_INFERENCE_S`` later (a fault only
+    adds), taken at the first tick from then; None on wall time (the policy's own latency, measured)."""
+    if clock.realtime:
+        return None
+    return -(-round(NOMINAL_INFERENCE_S * 1e9) // clock.period_ns) * clock.period_ns
 
 
 def make_inference(run):

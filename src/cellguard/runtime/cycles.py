@@ -112,11 +112,18 @@ class PolicyEpisodeEnd(_Timed):
 class FixedTime(_Timed):
     """The cycle ends ``seconds`` after it began."""
 
-    def __init__(self, seconds: float, period_ns: int):
+    def __init__(self, seconds: float, period_ns: int, first_chunk_ns: int | None = None):
+        """``first_chunk_ns``: how long after a cycle's start its first chunk is taken at the soonest, where known
+        (``build.first_chunk_ns``): a cycle that ended before it had its request dropped and the policy reset as
+        the next one began, cycle after cycle, and the robot never moved."""
         if seconds * 1e9 < 2 * period_ns:  # a cycle must hold at least a tick of motion
             raise ScenarioError(f"cycle.seconds: {seconds:g} s is shorter than two servo periods "
                                 f"({2 * period_ns * 1e-9:g} s) of this robot")
         self._ns = round(seconds * 1e9)
+        if first_chunk_ns is not None and self._ns <= first_chunk_ns:
+            raise ScenarioError(f"cycle.seconds: {seconds:g} s ends every cycle before its first chunk, taken "
+                                f"{first_chunk_ns * 1e-6:g} ms after the cycle's start (simulated inference): the "
+                                f"robot would never move; give more than {first_chunk_ns * 1e-9:g} s")
 
     def finished(self, state) -> bool:
         self._done = state.t_ns - self._t0 >= self._ns
@@ -140,8 +147,9 @@ class OnSimulatedCell:
         return {**judged, **ended, "success": bool(judged["success"] and ended["success"])}
 
 
-def make_cycle_source(settings, robot, policy):
-    """The source the scenario's ``cycle:`` section names, for this robot and policy."""
+def make_cycle_source(settings, robot, policy, first_chunk_ns: int | None = None):
+    """The source the scenario's ``cycle:`` section names, for this robot and policy (``first_chunk_ns``: see
+    ``FixedTime``)."""
     source = settings.source
     simulated = hasattr(robot, "cycle_finished")
     if source == "task":
@@ -159,5 +167,5 @@ def make_cycle_source(settings, robot, policy):
     elif source == "policy":
         made = PolicyEpisodeEnd(policy)
     else:
-        made = FixedTime(settings.seconds, robot.dt_ns)
+        made = FixedTime(settings.seconds, robot.dt_ns, first_chunk_ns)
     return OnSimulatedCell(made, robot) if simulated else made

@@ -9,7 +9,7 @@ simulated cell's concern only: it is applied when the robot is a simulated cell.
 Start-up (the first request of the run): the checks of ``startup`` may refuse to move; a first
 target far from the measured pose is approached with a limit-respecting trajectory first. A policy
 that answers no more (its process ended, a call hung), or whose every answer was refused (failed, rejected,
-stale) while the watchdog held the robot for want of a chunk, stops the run.
+stale, or dropped unanswered at a cycle's end) while the watchdog held the robot for want of a chunk, stops the run.
 """
 
 from __future__ import annotations
@@ -32,6 +32,7 @@ from cellguard.control.settings import build_guard
 from cellguard.diagnose.cycle_buffer import CycleBuffer
 from cellguard.diagnose.features import cycle_features
 from cellguard.embodiment.profile import SI_UNITS
+from cellguard.errors import ScenarioError
 from cellguard.output import make_folder, write_output
 from cellguard.policy.chunk import ActionChunk
 from cellguard.policy.registry import make_policy
@@ -39,14 +40,14 @@ from cellguard.record.session import RunRecording
 from cellguard.record.writer import RecordConfig
 from cellguard.robot.protocol import RobotLinkError, SafetyInputs
 from cellguard.robot.world_changes import apply_world_changes
-from cellguard.runtime.build import make_clock, make_inference, make_robot
+from cellguard.runtime.build import first_chunk_ns, make_clock, make_inference, make_robot
 from cellguard.runtime.cycles import make_cycle_source
 from cellguard.runtime.history import CycleWindow, EventLog
-from cellguard.runtime.inference import NOMINAL_INFERENCE_S
+from cellguard.runtime.inference import NOMINAL_INFERENCE_S, SimulatedInference
 from cellguard.runtime.link import RobotLink
 from cellguard.runtime.operator_stop import OperatorStop
 from cellguard.runtime.recovery import RecoveryRunner
-from cellguard.runtime.startup import BoxStart, StartupRefused, check_startup
+from cellguard.runtime.startup import BoxStart, StartupRefused, check_startup, duration, watchdog_refusal
 from cellguard.runtime.transition_play import TransitionPlay
 from cellguard.runtime.transitions import Transition, longest_brake_s
 from cellguard.scenario import Scenario
@@ -68,7 +69,7 @@ WARM_UP_TIMEOUT_S = 300.0
 # the guard's refusals of an answer, by how the policy-lost rule names them (``_refusal``)
 _REFUSED_BY = {EventKind.CHUNK_REJECTED: "rejected", EventKind.CHUNK_STALE: "stale"}
 # each refusal's last one, as the policy-lost reason names it among others
-_REFUSALS = {"failed": "failure", "rejected": "rejection", "stale": "stale chunk"}
+_REFUSALS = {"failed": "failure", "rejected": "rejection", "stale": "stale chunk", "dropped": "dropped request"}
 
 
 class Run(TransitionPlay):
@@ -91,12 +92,14 @@ class Run(TransitionPlay):
         # a robot that counts lost packets streams its states
         limits = scenario.realtime.for_robot(self.cell.dt_ns, streams=hasattr(self.cell, "dropped"))
         scenario = self.scenario = scenario.model_copy(update={"realtime": limits})
+        _check_watchdog(scenario, self.cell.dt_ns)
         # a policy_factory (picklable, for the process worker) replaces the scenario's policy source
         self.policy_factory = policy_factory
         self.policy = (policy_factory() if policy_factory is not None
                        else make_policy(scenario.policy, self.cell, soft_margin=scenario.guard.soft_margin))
-        make_cycle_source(scenario.cycle, self.cell, self.policy)  # refused here, before the record starts; the
-        # source itself is built at the first cycle, for the policy then in place
+        self.clock = make_clock(self.cell, realtime)
+        self._cycle_source()  # refused here, before the record starts; the source itself is built at the first
+        # cycle, for the policy then in place
         self.guard = build_guard(self.cell, scenario.guard)
         profile, tool = self.cell.profile, self.guard.tool
         # each joint's largest reach by the guard's tool model, for the transitions' tool-speed cap: computed here,
@@ -104,7 +107,6 @@ class Run(TransitionPlay):
         self._reach = None if tool is None else max_reach(tool, profile.q_min, profile.q_max).norm
         self.events = EventLog()
         self.cycles = CycleWindow()
-        self.clock = make_clock(self.cell, realtime)
         rt = scenario.realtime
         self.link = RobotLink(self.cell, self.events, rt.stop_category,
                               stale_ns=round(rt.stale_s * 1e9) if self.clock.realtime else None,
@@ -134,6 +136,7 @@ class Run(TransitionPlay):
         self._answers: dict[str, str | tuple[str, str]] = {}
         self._refused = 0
         self._first_observation = None
+        self._asked_at: int | None = None  # the request waiting for its answer, if any: when it was asked [ns]
         # the cycle in progress: its start [ns], chunk latencies [ns], wall time per call [ns], a pending NaN fault
         self._cycle_start, self._latencies, self._wall_ns, self._corrupt = 0, [], [], False
         # wall time from one cycle's last tick to the next one's first (its end, the next one's start) [ns each]
@@ -145,7 +148,7 @@ class Run(TransitionPlay):
         """Run the next cycle; return its outcome (success, timing, measured poses)."""
         if self.inference is None:
             self.inference = make_inference(self)
-            self.source = make_cycle_source(self.scenario.cycle, self.cell, self.policy)
+            self.source = self._cycle_source()
         index = self.cycles.total
         cell, clock, link, inference, events = self.cell, self.clock, self.link, self.inference, self.events
         if clock.realtime and not self._clock_started:
@@ -171,6 +174,8 @@ class Run(TransitionPlay):
         if rec is not None:
             rec.begin_cycle(index, self._phase(index), start)
         timeout = start + round(_limit_s(self.scenario.cycle) * 1e9)
+        if self._asked_at is not None and isinstance(inference, SimulatedInference):  # dropped by begin_cycle
+            self._dropped(start)
         inference.begin_cycle(start)
         first_event, self._latencies, self._wall_ns = events.total, [], []
         ticks = self.ticks
@@ -287,9 +292,15 @@ class Run(TransitionPlay):
         self.cycles.append(outcome)
         return outcome
 
+    def _cycle_source(self):
+        """The scenario's cycle source for this robot and policy, a time cycle no shorter than the first chunk
+        where that is known (simulated inference: ``first_chunk_ns``)."""
+        return make_cycle_source(self.scenario.cycle, self.cell, self.policy, first_chunk_ns(self.clock))
+
     def _arrived(self, arrival, t_ns: int) -> bool:
         """A finished request: its chunk to the guard (the run's first one after the start-up checks), or
         its failure as an event. True when an approach was played (the clock moved on meanwhile)."""
+        self._asked_at = None
         if arrival.chunk is None:
             if arrival.lost:  # for good: one event, not one a request
                 self._lose_policy(t_ns, arrival.error)
@@ -340,6 +351,7 @@ class Run(TransitionPlay):
             self._wall_ns.append(failed.wall_ns)
             self._refusal(t_ns, "failed", failed.error)
             return
+        self._asked_at = t_ns
         self._first_observation = self._first_observation or observation
         if self.recording is not None:
             self.recording.request(t_ns, observation)
@@ -536,12 +548,12 @@ class Run(TransitionPlay):
         self._armed_at, self._answers, self._refused = t_ns, {}, 0
 
     def _refusal(self, t_ns: int, kind: str, why: str, box: tuple[str, str] | None = None) -> None:
-        """An answer not taken (``kind``: "failed", "rejected" or "stale"), weighed with those since the arming or
-        the last chunk the guard took, whichever came later (the policy's or a recovery's). Once a chunk has been
-        taken, the guard's watchdog holds the robot after ``watchdog_s`` without one, and a refused answer then,
-        every one since refused, loses the policy (``_never_answered``): a policy that turned bad after it started
-        (a NaN in every chunk, every answer later than its own horizon) was asked on, every cycle waited out its
-        time-out and the run exited 0. Before the first chunk ``_stop_input`` weighs them at the watchdog.
+        """An answer not taken (``kind``: "failed", "rejected", "stale" or "dropped": ``_dropped``), weighed with those
+        since the arming or the last chunk the guard took, whichever came later (the policy's or a recovery's). Once a
+        chunk has been taken, the guard's watchdog holds the robot after ``watchdog_s`` without one, and a refused
+        answer then, every one since refused, loses the policy (``_never_answered``): a policy that turned bad after
+        it started (a NaN in every chunk, every answer later than its own horizon) was asked on, every cycle waited out
+        its time-out and the run exited 0. Before the first chunk ``_stop_input`` weighs them at the watchdog.
         ``box``: the tool point's start outside the box, and what of the first target went further out (``_outside``);
         kept while every answer refused is such a one (``_never_answered`` names the start once)."""
         last = self.guard.executor.last_chunk_ns
@@ -556,6 +568,15 @@ class Run(TransitionPlay):
         if (last is not None and self._refused > 1 and not self.policy_lost
                 and t_ns - self._armed_at > self.scenario.guard.watchdog_s * 1e9):
             self._never_answered(t_ns)
+
+    def _dropped(self, t_ns: int) -> None:
+        """The cycle ended with its request unanswered: simulated inference drops it as the next cycle begins and
+        resets the policy (a worker's call in flight arrives late). Weighed as a refused answer: with cycles shorter
+        than the answer (2 ms ones, a 10 ms latency) every request was dropped, none refused, and the run counted
+        every cycle with the robot held by the watchdog and exited 0, never having moved."""
+        asked, self._asked_at = self._asked_at, None
+        self._refusal(t_ns, "dropped", f"the cycle ended {(t_ns - asked) * 1e-6:.0f} ms after the request, whose "
+                                       f"answer takes {self.inference.latency_ns * 1e-6:.0f} ms")
 
     def _never_answered(self, t_ns: int) -> None:
         """No chunk within the watchdog (of its arming or the last chunk taken) and every answer since refused, two
@@ -584,6 +605,8 @@ class Run(TransitionPlay):
             lead = "every call failed before the first chunk" if last is None else f"every call failed, {none}"
         elif kinds == ["rejected"]:
             lead = f"the guard rejected every chunk, {none}"
+        elif kinds == ["dropped"]:
+            lead = f"every cycle ended before the policy's answer came, {none}"
         elif "failed" in kinds:
             lead = f"every call failed or its chunk was {chunks}, {none}"
         else:
@@ -746,6 +769,20 @@ def _write_summary(run: Run, out: Path) -> dict:
         summary["record_failed"] = run.recording.failed
     write_output(out / "summary.json", json.dumps(summary, indent=1), "summary")
     return summary
+
+
+def _check_watchdog(scenario: Scenario, servo_ns: int) -> None:
+    """ScenarioError where ``guard.watchdog_s`` is no longer than the least time between chunks, the policy's period
+    plus one servo period (a chunk is taken at the next tick): known before the run, refused before its record
+    starts (the start-up check refused it once the record had replaced an old one under ``--overwrite``); the
+    start-up check adds what the measured latency shows."""
+    period_ns = round(1e9 / scenario.policy_hz)
+    why = watchdog_refusal(scenario.guard.watchdog_s, period_ns + servo_ns,
+                           f"at least {(period_ns + servo_ns) * 1e-6:.0f} ms (the policy's period "
+                           f"{duration(period_ns * 1e-9)} at policy_hz {scenario.policy_hz:g}, each chunk taken up "
+                           f"to one servo period, {duration(servo_ns * 1e-9)}, late)")
+    if why is not None:
+        raise ScenarioError(why)
 
 
 def _limit_s(cycle) -> float:

@@ -17,7 +17,10 @@ refuses what the latency alone could not fit (latency at or over the horizon les
 blend at most half the horizon); a next chunk that arrives within the blend time of the end only
 shortens the blend (continuous still, and guarded). The same spacing refuses a policy watchdog
 (``guard.watchdog_s``) no longer than the time between chunks: the default 300 ms stopped the robot at every
-chunk of a 1 s chunk policy on a worker (asked again half a chunk in), a stop and a resume each time.
+chunk of a 1 s chunk policy on a worker (asked again half a chunk in), a stop and a resume each time. Its floor,
+the policy's period plus one servo period, is known from the scenario and refused as the run is built, before its
+record starts (``watchdog_refusal``): refused here only, an old record under ``--overwrite`` was replaced by one
+holding the refusal alone.
 
 A tool point that starts outside the workspace box (a robot left there, a sim-server cell posed there) is taken to
 the first target, no further out: one inside the box grown wall by wall to hold the start (``BoxStart``, the
@@ -84,12 +87,30 @@ def check_startup(policy, observation, chunk, latency_ns: int, period_ns: int, s
                              f"past its horizon {horizon_ns * 1e-6:.0f} ms: the robot would run out of steps; "
                              f"not moving")
     gap_ns = spacing_ns + period_ns  # from one chunk taken to the next, taken up to one period late
-    if watchdog_ns is not None and gap_ns >= watchdog_ns:
-        raise StartupRefused(f"start-up: guard.watchdog_s {watchdog_ns * 1e-6:.0f} ms is not longer than the time "
-                             f"between chunks, up to {gap_ns * 1e-6:.0f} ms (the next asked for "
-                             f"{spacing_ns * 1e-6:.0f} ms after this one's observation, taken up to one servo period "
-                             f"late): the watchdog would stop the robot at every chunk; set guard.watchdog_s above "
-                             f"{gap_ns * 1e-6:.0f} ms; not moving")
+    why = None if watchdog_ns is None else watchdog_refusal(
+        watchdog_ns * 1e-9, gap_ns, f"up to {gap_ns * 1e-6:.0f} ms (the next asked for {spacing_ns * 1e-6:.0f} ms "
+                                    "after this one's observation, taken up to one servo period late)")
+    if why is not None:
+        raise StartupRefused(f"start-up: {why}")
+
+
+def watchdog_refusal(watchdog_s: float, gap_ns: int, gap: str) -> str | None:
+    """Why the policy watchdog ``watchdog_s`` [s] would stop the robot at every chunk: it is no longer than
+    ``gap_ns``, the time between chunks (``gap``: that time and what makes it up, as the line says it); None where
+    it is longer."""
+    if round(watchdog_s * 1e9) > gap_ns:
+        return None
+    return (f"guard.watchdog_s {duration(watchdog_s)} is not longer than the time between chunks, {gap}: the "
+            f"watchdog would stop the robot at every chunk; set guard.watchdog_s above {gap_ns * 1e-6:.0f} ms; "
+            "not moving")
+
+
+def duration(seconds: float) -> str:
+    """``seconds`` as it reads: whole ms from 1 ms, whole µs below, the value in s under 1 µs (a watchdog of 1e-25 s,
+    taken by the scenario, read "0 ms")."""
+    if seconds >= 1e-3:
+        return f"{seconds * 1e3:.0f} ms"
+    return f"{seconds * 1e6:.0f} µs" if seconds >= 1e-6 else f"{seconds:g} s"
 
 
 @dataclass(frozen=True)
