@@ -66,13 +66,14 @@ def test_a_units_map_edited_in_place_starts_other_runs(tmp_path):
     assert runs_key(_units_plan(tmp_path / "a", "unit: rad\n")) != before
 
 
-def test_runs_logged_by_the_older_cellguard_for_a_plan_with_a_units_map_are_still_counted(tmp_path):
-    """A row keyed as 5ef966b keyed it (the plan's text) counts under that plan as before, and its logged plan
-    reads the same: an upgrade neither drops an existing site's runs nor refuses its passes."""
+def test_runs_logged_by_the_older_cellguard_for_a_plan_with_a_units_map_count_no_more(tmp_path):
+    """A row keyed as 5ef966b keyed it (the plan's text alone) was made under some units map, which one unknown: it
+    counts no more under a plan naming one (counted, a map edited since let runs in other units pass its gates);
+    its logged plan reads the same (its passes still stand)."""
     plan = _units_plan(tmp_path / "a", "unit: deg\n")
     store, release, folder = _site_with_a_record(tmp_path)
     older = _count_as(store, release, folder, "older", HEAD_RUNS_SHA256)
-    assert older in _counted(store, plan)
+    assert older not in _counted(store, plan)
     assert plan_hash(plan) == HEAD_PLAN_SHA256
 
 

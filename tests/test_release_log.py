@@ -78,3 +78,27 @@ def test_a_last_entry_deleted_with_the_head_moved_back_is_found_only_against_a_h
     assert cli("verify", "--site", str(site), "--expect-head", prev).exit_code == 0  # an older head: still held
     bad = cli("verify", "--site", str(site), "--expect-head", "xyz")
     assert bad.exit_code == 2 and bad.stderr.count("\n") == 1 and "not a hash" in bad.stderr
+
+
+def test_an_entry_edited_between_two_reads_of_one_store_is_refused_at_the_second(tmp_path):
+    """A store keeps each row it checked (``log.entries``): one edited meanwhile from another connection, even
+    re-hashed over its stored text, is checked again and refused; put back, it reads again."""
+    import hashlib
+
+    import pytest
+
+    from cellguard.release import log
+    from cellguard.release.errors import ReleaseError
+
+    store = Store(_site_with_entries(tmp_path))
+    assert len(log.entries(store)) == 3
+    db = sqlite3.connect(store.site / STORE_FILE)
+    text, prev = db.execute("SELECT body, prev_hash FROM log WHERE seq=2").fetchone()
+    forged = text.replace('"to":', '"to":"elsewhere","to":', 1)  # a duplicate key, its text hashed as stored
+    assert forged != text
+    db.execute("UPDATE log SET body=?, hash=? WHERE seq=2",
+               (forged, hashlib.sha256(prev.encode() + forged.encode()).hexdigest()))
+    db.commit()
+    with pytest.raises(ReleaseError, match="log entry 2: content does not match its hash"):
+        log.entries(store)
+    assert any(p.startswith("entry 2: content does not match its hash") for p in verify_log(store))

@@ -103,13 +103,6 @@ def _rows(store) -> list[tuple]:
                             "ORDER BY seq").fetchall()
 
 
-def _matches(prev: str, text: str, body: dict, digest: str) -> bool:
-    """Whether the entry matches its hash: its text as cellguard wrote it (canonical JSON) hashed as stored, else
-    its body made canonical (a hand edit that kept the content). Hashing the text saves re-encoding every body."""
-    return (hashlib.sha256(prev.encode() + text.encode()).hexdigest() == digest
-            or entry_hash(prev, body) == digest)
-
-
 def _body(text: str) -> dict | None:
     """The entry's body, or None when it is not a JSON object (edited outside cellguard)."""
     try:
@@ -132,7 +125,7 @@ def entries(store) -> list[LogEntry]:
         seq, text, prev, digest = row
         entry = seen.get(row)
         body = entry.body if entry else _body(text)
-        if entry is None and (body is None or not _matches(prev, text, body, digest)):
+        if entry is None and (body is None or entry_hash(prev, body) != digest):
             what = "not a JSON object" if body is None else "content does not match its hash"
         elif seq != len(out) + 1 or prev != prev_hash:
             what = f"does not follow entry {len(out)} (an entry before it was deleted or moved)"
@@ -429,7 +422,7 @@ def verify_log(store, expect_head: str | None = None) -> list[str]:
             problems.append(f"entry {seq}: not a JSON object (edited)")
         else:
             readable.append(LogEntry(seq, body, prev_hash, digest))
-            if not _matches(prev_hash, text, body, digest):
+            if entry_hash(prev_hash, body) != digest:
                 problems.append(f"entry {seq}: content does not match its hash (edited)")
         prev, expected_seq = digest, seq + 1
     count = store.meta("log_count") or "0"

@@ -325,8 +325,9 @@ def evaluate_stage(store: Store, plan: StagePlan, cell: str, stage: str, folders
     logged = log.entries(store)
     key, under, shadows = runs_key(plan, runs), log.counted_under(logged), log.counted_shadows(logged)
     kept = Kept(store, logged)
-    same = {key, runs_key(plan, runs, files=False)}  # and as an older cellguard keyed them: by the text alone
-    same |= set() if runs is not None else {log.WHOLE_PLAN + plan_hash(plan)}  # or by the whole plan
+    # or as an older cellguard keyed them, by the whole plan (runs it keyed by the text alone are ``key`` where the
+    # plan names no file)
+    same = {key} if runs is not None else {key, log.WHOLE_PLAN + plan_hash(plan)}
     every = _bound(store.runs(cell, stage, start.current, start.move_seq), shadows)
     rows = [r for r in every if under.get(r.seq, r.runs) in same]
     taken, refused = _evidence(store, rows, kept)
@@ -385,19 +386,19 @@ def plan_hash(plan: StagePlan) -> str:
     return hashlib.sha256(canonical_json(plan.model_dump(mode="json"))).hexdigest()
 
 
-def runs_key(plan: StagePlan, runs: list[dict] | None = None, files: bool = True) -> str:
+def runs_key(plan: StagePlan, runs: list[dict] | None = None) -> str:
     """What makes a stage's runs, noted on each run's row and logged with its gates (``log.RUNS``), and so the runs
     an evaluation counts: the sha256 of ``plan`` but its gates (its runs, clock, shadow: all that decides how they
-    run) with what the files its runs' robots name hold (``plan.robot_files``; ``files`` False: without, as an older
-    cellguard keyed them, and as any plan naming none is keyed), or for ``runs`` given in place of its runs
-    (``--scenario``) ``log.SCENARIO`` and that of the plan with those runs. Runs of an ad-hoc plan padded the next
+    run) with what the files its runs' robots name hold (``plan.robot_files``: runs an older cellguard keyed by
+    the text alone, their units unknown, count no more under a plan naming a file), or for ``runs`` given in place
+    of its runs (``--scenario``) ``log.SCENARIO`` and that of the plan with those runs. Runs of an ad-hoc plan padded the next
     verdict under the plan in force; keyed by the whole plan, a gate added dropped every run of last_good, and with
     them the rollback; keyed by the text alone, the same plan beside another units map (or that map edited) counted
     runs in other units as its own. An evaluation takes a run as the log's first gates entry counting it says
     (``log.counted_under``), else as its row."""
     made = plan if runs is None else plan.model_copy(update={"runs": runs})
     written = made.model_dump(mode="json", exclude={"gates"})
-    read = robot_files(plan.runs_beside() if runs is None else runs) if files else []
+    read = robot_files(plan.runs_beside() if runs is None else runs)
     digest = hashlib.sha256(canonical_json({**written, "files": read} if read else written)).hexdigest()
     return digest if runs is None else f"{log.SCENARIO}:{digest}"
 
