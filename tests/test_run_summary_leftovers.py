@@ -62,17 +62,19 @@ def test_a_stop_with_no_retreat_says_how_far_from_home_the_robot_was_measured(tm
     assert not any(e["kind"].startswith("retreat") for e in summary["events"])  # nothing told where it was
     far = summary["from_home"]
     gap = np.abs(run.link.state.q - HOME)
-    assert far == {"joint": run.cell.profile.joint_names[int(np.argmax(gap))], "distance": float(gap.max()),
-                   "unit": "rad" if far["joint"] != "gripper" else "m"}
-    assert far["distance"] < 0.01  # held at home: a tracking error's worth
+    arm = int(np.argmax(gap[:5]))  # five hinges (rad), then the gripper's slide (m): each unit's farthest
+    assert far == [{"joint": run.cell.profile.joint_names[arm], "distance": float(gap[arm]), "unit": "rad"},
+                   {"joint": "gripper", "distance": float(gap[5]), "unit": "m"}]
+    assert max(f["distance"] for f in far) < 0.01  # held at home: a tracking error's worth
     assert json.loads((tmp_path / "run" / "summary.json").read_text())["from_home"] == far
     line = _stopped_line(summary, tmp_path / "run", capsys)
-    shown = re.search(r"robot: (under )?([0-9.]+) m(rad|m) from home \((\w+) the farthest; no retreat played\)$",
-                      line)
+    shown = re.search(r"robot: (\w+) (under )?([0-9.]+) mrad, gripper (under )?([0-9.]+) mm from home \(the farthest "
+                      r"joint of each unit; no retreat played\)$", line)
     assert shown is not None, line
-    assert shown[3] == far["unit"] and shown[4] == far["joint"]
-    milli = far["distance"] * 1e3
-    assert milli < 0.01 if shown[1] else float(shown[2]) == pytest.approx(milli, rel=1e-2)
+    assert shown[1] == far[0]["joint"]
+    for under, value, f in ((shown[2], shown[3], far[0]), (shown[4], shown[5], far[1])):
+        milli = f["distance"] * 1e3
+        assert milli < 0.01 if under else float(value) == pytest.approx(milli, rel=1e-2)
 
 
 def test_a_stop_on_a_robot_with_no_home_pose_says_so(tmp_path, capsys):
@@ -84,13 +86,15 @@ def test_a_stop_on_a_robot_with_no_home_pose_says_so(tmp_path, capsys):
 
 
 @pytest.mark.parametrize("far, said", [
-    ({"joint": "elbow", "distance": 1.23, "unit": "rad"}, "1.23 rad from home (elbow the farthest"),
-    ({"joint": "elbow", "distance": 3e-4, "unit": "rad"}, "0.3 mrad from home (elbow the farthest"),
-    ({"joint": "gripper", "distance": 6e-9, "unit": "m"}, "under 0.01 mm from home (gripper the farthest"),
+    ([{"joint": "elbow", "distance": 1.23, "unit": "rad"}], "elbow 1.23 rad"),
+    ([{"joint": "elbow", "distance": 3e-4, "unit": "rad"}, {"joint": "gripper", "distance": 0.017, "unit": "m"}],
+     "elbow 0.3 mrad, gripper 17 mm"),  # a closed gripper's 17 mm no longer hides the arm
+    ([{"joint": "gripper", "distance": 6e-9, "unit": "m"}], "gripper under 0.01 mm"),
 ])
 def test_the_distance_from_home_is_said_in_its_joints_unit(tmp_path, capsys, far, said):
     summary = {"stopped": "operator stop (SIGINT)", "events": [], "from_home": far}
-    assert f"; robot: {said}; no retreat played)" in _stopped_line(summary, tmp_path, capsys)
+    assert f"; robot: {said} from home (the farthest joint of each unit; no retreat played)" in _stopped_line(
+        summary, tmp_path, capsys)
 
 
 def test_an_old_summary_without_the_distance_still_reads(tmp_path, capsys):

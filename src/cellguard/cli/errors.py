@@ -108,8 +108,8 @@ def _robot_left(summary: dict) -> str:
     far = summary["from_home"]
     if far is None:
         return "robot: no retreat played (no home pose for this robot)"
-    return (f"robot: {_distance(far['distance'], far['unit'])} from home ({far['joint']} the farthest; no retreat "
-            "played)")
+    said = ", ".join(f"{f['joint']} {_distance(f['distance'], f['unit'])}" for f in far)
+    return f"robot: {said} from home (the farthest joint of each unit; no retreat played)"
 
 
 def _distance(value: float, unit: str) -> str:
