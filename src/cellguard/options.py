@@ -3,7 +3,7 @@ and one range check for policy sources and robot bridges alike (a shared leaf: b
 
 from __future__ import annotations
 
-from urllib.parse import parse_qsl
+from urllib.parse import unquote
 
 from cellguard.errors import ConfigError
 
@@ -14,7 +14,7 @@ def split_options(arg: str, allowed: dict[str, str] | None, where: str, usage: s
     refused (the last silently won), and so is a missing target (``usage`` says how to write it)."""
     target, _, query = arg.partition("?")
     options: dict[str, str] = {}
-    for key, value in parse_qsl(query, keep_blank_values=True):
+    for key, value in parse_query(query):
         if allowed is not None and key not in allowed:
             known = ", ".join(f"{k} ({v})" for k, v in allowed.items())
             raise ConfigError(f"{where}: unknown option {key!r}; options: {known}")
@@ -24,6 +24,13 @@ def split_options(arg: str, allowed: dict[str, str] | None, where: str, usage: s
     if not target:
         raise ConfigError(f"{where}: missing target, write {usage}")
     return target, options
+
+
+def parse_query(query: str) -> list[tuple[str, str]]:
+    """``k=v&k2=v2`` -> [(k, v), (k2, v2)], percent-decoded, and only that: ``parse_qsl``'s form decoding read a
+    ``+`` as a space, so ``?map=a+b.yaml`` named a file ``a b.yaml``. A key without ``=`` has the value ''."""
+    pairs = (part.partition("=") for part in query.split("&") if part)
+    return [(unquote(key), unquote(value)) for key, _, value in pairs]
 
 
 def bounded_float(value: object, field: str, lo: float, hi: float) -> float:

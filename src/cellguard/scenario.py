@@ -15,7 +15,7 @@ import json
 import math
 import os
 from pathlib import Path
-from urllib.parse import parse_qsl, urlencode
+from urllib.parse import quote, urlencode
 
 from typing import Literal
 
@@ -23,6 +23,7 @@ from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationError,
 
 from cellguard.control.config import GuardConfig
 from cellguard.errors import CellguardError, ScenarioError
+from cellguard.options import parse_query
 from cellguard.robot.faults import FAULTS, AnyFault
 from cellguard.robot.process import PROCESS_CHANGES, AnyProcessChange, declared_changes
 from cellguard.robot.recovery import RECOVERIES, RecoveryPolicy
@@ -326,10 +327,10 @@ def _spec_beside(spec: str, folder: Path, takes_file: bool, file_options: tuple[
     target, q, query = arg.partition("?")
     if takes_file and target:
         target = str(beside(folder, target, key))
-    pairs = parse_qsl(query, keep_blank_values=True)
-    if any(k in file_options for k, _ in pairs):
+    pairs = parse_query(query)
+    if any(k in file_options for k, _ in pairs):  # written back percent-encoded (a space as %20: a + is a +)
         query = urlencode([(k, str(beside(folder, v, f"{key} option {k}")) if k in file_options and v else v)
-                           for k, v in pairs], safe="/")
+                           for k, v in pairs], safe="/", quote_via=quote)
     return f"{scheme}:{target}{q}{query}"
 
 

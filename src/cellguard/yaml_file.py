@@ -7,9 +7,11 @@ than ``MAX_DEPTH`` (a recursive alias included), a document whose aliases expand
 ``MAX_VALUES`` values (a few hundred bytes of aliases expand to gigabytes once validated), a file
 over ``MAX_BYTES`` (``/dev/zero`` is never read past the limit), and a path that is a FIFO or a
 socket (refused before it is read: opening one waits for a writer) are each one error that names
-the file and what is wrong. A date is text, as it was written (``measured: 2026-10-14`` is the string
-"2026-10-14"): PyYAML's timestamps made a ``datetime.date`` that JSON cannot write, and an impossible
-date (``2026-02-30``) a ValueError in every reader; a field that must hold a date checks the text.
+the file and what is wrong. A merge key (``<<: *defaults``) merges as YAML 1.1 says: a mapping's own keys
+override merged ones, and of ``<<: [*a, *b]`` the earlier mapping the later. A date is text, as it was written
+(``measured: 2026-10-14`` is the string "2026-10-14"): PyYAML's timestamps made a ``datetime.date`` that JSON
+cannot write, and an impossible date (``2026-02-30``) a ValueError in every reader; a field that must hold a date
+checks the text.
 A number in exponent form without a dot (``5e-1``, ``1e300``) is a number, as in YAML 1.2: PyYAML's
 YAML 1.1 read it as the text "5e-1", which a number field then refused with a puzzling message.
 A whole number is YAML 1.2's too: ``020`` is 20 (YAML 1.1 read it as octal 16, so ``production_cycles: 010`` ran 8
@@ -45,6 +47,8 @@ class _Refused(yaml.YAMLError):
 
 
 _TIMESTAMP = "tag:yaml.org,2002:timestamp"
+_MERGE = "tag:yaml.org,2002:merge"
+_MERGE_KEY = object()  # a merge key ``<<`` among a mapping's keys (a quoted '<<' is the text)
 _FLOAT = "tag:yaml.org,2002:float"
 _INT = "tag:yaml.org,2002:int"
 _DIGITS = "[0-9]+(?:_[0-9]+)*"  # ASCII digits, ``_`` only between two of them
@@ -85,20 +89,51 @@ class _StrictLoader(yaml.SafeLoader):
         finally:
             self._depth -= 1
 
-    def construct_mapping(self, node, deep=False):
-        if not isinstance(node, yaml.MappingNode):  # ``!!set [1]``: PyYAML's own error, not a TypeError below
-            return super().construct_mapping(node, deep=deep)
-        seen: set = set()
-        for key_node, _ in node.value:
-            key = self.construct_object(key_node, deep=True)
-            try:
-                duplicate = key in seen
-            except TypeError:  # an unhashable key: let PyYAML refuse it with its own error
-                break
-            if duplicate:
-                raise _Refused(f"line {key_node.start_mark.line + 1}: key {key!r} appears twice in one mapping")
-            seen.add(key)
-        return super().construct_mapping(node, deep=deep)
+    def flatten_mapping(self, node):
+        """Merge into ``node`` the mappings its merge key ``<<`` names (YAML 1.1's merge key): its own keys override
+        merged ones, and of a list ``<<: [*a, *b]`` the earlier mapping overrides the later. A key written twice in
+        ``node`` (``<<`` too) is refused first. PyYAML's own merge told keys apart by object identity, so the later
+        mapping of a list won for a long key and the earlier for a one-letter one, and a node merged twice kept a key
+        that its own had overridden."""
+        done, busy = self.__dict__.setdefault("_merged", set()), self.__dict__.setdefault("_merging", set())
+        if id(node) in done:
+            return
+        if id(node) in busy:
+            raise _Refused(f"line {node.start_mark.line + 1}: a mapping merges itself (<< names its own anchor)")
+        busy.add(id(node))
+        own, sources, seen = [], [], set()
+        for key_node, value_node in node.value:
+            merge = key_node.tag == _MERGE
+            key = _MERGE_KEY if merge else self.construct_object(key_node, deep=True)
+            if _taken(key, seen):
+                raise _Refused(f"line {key_node.start_mark.line + 1}: key {'<<' if merge else key!r} appears twice "
+                               f"in one mapping{'; merge several with <<: [*a, *b]' if merge else ''}")
+            if not merge:
+                own.append((key_node, value_node))
+                continue
+            sources = value_node.value if isinstance(value_node, yaml.SequenceNode) else [value_node]
+            if not all(isinstance(source, yaml.MappingNode) for source in sources):
+                raise yaml.constructor.ConstructorError(  # at the ``<<``: an alias's mark is its anchor's
+                    "while constructing a mapping", node.start_mark,
+                    "expected a mapping or list of mappings for merging", key_node.start_mark)
+        merged = []
+        for source in sources:
+            self.flatten_mapping(source)
+            merged += [pair for pair in source.value if not _taken(self.construct_object(pair[0], deep=True), seen)]
+        node.value = merged + own
+        busy.discard(id(node))
+        done.add(id(node))
+
+
+def _taken(key, seen: set) -> bool:
+    """Whether ``key`` is in ``seen``; it is added if not. An unhashable key never is: PyYAML refuses it, naming it."""
+    try:
+        if key in seen:
+            return True
+        seen.add(key)
+    except TypeError:
+        pass
+    return False
 
 
 def _construct_int(loader, node) -> int:

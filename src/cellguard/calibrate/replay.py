@@ -59,8 +59,11 @@ def parse_vary(text: str, cell) -> Vary:
     if param not in VARIED:
         raise CalibrationError(f"--vary: {param!r} is not a parameter replay can vary; allowed: {', '.join(VARIED)}")
     if joint not in joints:
-        raise CalibrationError(f"--vary: {joint!r} is not a joint of the {cell.name} model; "
-                               f"allowed: {', '.join(joints)}")
+        kinds = {j.name: j.kind for j in cell.profile.joints}
+        what = (f"is a {kinds[joint]} joint of the {cell.name} model; replay varies hinge joints only (the joints "
+                f"identify measures, whose currents the replay compares)" if joint in kinds
+                else f"is not a joint of the {cell.name} model")
+        raise CalibrationError(f"--vary: {joint!r} {what}; allowed: {', '.join(joints)}")
     low, high = float(m["low"]), float(m["high"])  # ``_FACTOR``: each a number float() reads
     if not 0.0 < low < high <= 20.0:
         raise CalibrationError(f"--vary: range {low}..{high} must satisfy 0 < LOW < HIGH <= 20")

@@ -97,13 +97,16 @@ def resolve_map(backend: Backend, cell, map_path: str | None, source: str) -> Ac
     """The action map for ``backend`` on ``cell``: a file, else the model's own, else by joint name. Unnamed
     actions with no map are refused: taken as the joints in order, in SI, a policy in degrees ran as radians."""
     profile = cell.profile
+    names = backend.action_names
+    if names and len(names) != backend.action_dim:  # was read as names not of the robot's joints: give a map, it said
+        raise ConfigError(f"policy: {source} names {len(names)} actions but outputs {backend.action_dim} per step; "
+                          f"its action names and its output must agree")
     if map_path:
         amap = load_action_map(Path(map_path), profile)
     elif backend.embedded_map:
         amap = parse_action_map(parse_yaml(backend.embedded_map, f"{source} (embedded map)"), profile,
                                 origin=f"{source} (embedded map)")
     else:
-        names = backend.action_names
         if not names:
             raise ConfigError(f"policy: {source} names none of its {backend.action_dim} actions and carries no "
                               f"action map: give one, ?map=FILE (which joint each action drives, in which unit)")

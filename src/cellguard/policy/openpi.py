@@ -14,8 +14,6 @@ for each camera measurement, and ``prompt``.
 from __future__ import annotations
 
 import contextlib
-import hashlib
-import json
 import os
 from urllib.parse import urlsplit
 
@@ -25,6 +23,7 @@ from cellguard.embodiment.profile import SOFT_MARGIN
 from cellguard.errors import ConfigError
 from cellguard.policy.adapter import (DT_RANGE_S, TIMEOUT_RANGE_S, InferenceError, MappedPolicy, PolicyInputs,
                                       option_float, resolve_map, split_options, stated_dt, step_period)
+from cellguard.policy.metadata_hash import metadata_sha256
 from cellguard.policy.wire import WireError, packb, unpackb
 
 OPTIONS = {"map": "action map YAML file", "dt": "step period [s]", "timeout": "receive timeout [s]",
@@ -65,6 +64,7 @@ class OpenpiBackend:
         self.embedded_map = None
         # openpi's own servers send no dt_s: the source gives ?dt=
         self.dt_s = stated_dt(self.metadata, "dt_s", f"policy: openpi:{uri}: server metadata")
+        self._hash = metadata_sha256(uri, self.metadata)  # at connect: metadata it cannot hash is refused before a run
 
     def _connect(self) -> dict:
         from websockets.exceptions import InvalidHandshake, WebSocketException
@@ -120,8 +120,7 @@ class OpenpiBackend:
         """The protocol has no reset message; the server's policy keeps no episode state here."""
 
     def content_hash(self) -> str:
-        meta = {k: v for k, v in self.metadata.items() if isinstance(v, (str, int, float, list, bool))}
-        return hashlib.sha256(json.dumps({"uri": self.uri, "metadata": meta}, sort_keys=True).encode()).hexdigest()
+        return self._hash
 
     def close(self) -> None:
         if self._ws is not None:
