@@ -104,3 +104,24 @@ def test_kept_evidence_no_live_release_can_read_is_dropped(tmp_path):
     kept = {digest[:16] for digest, _ in store.kept_bodies()}
     assert kept == set(records[1:]), (kept, records)
     assert log.verify_log(store) == []
+
+
+def test_a_frozen_action_maps_path_reads_back_as_written_in_the_policy_spec():
+    """The release's ?map= was joined unencoded: a path holding '&', '%', '#' or '+' named another file, or options."""
+    from cellguard.options import split_options
+    from cellguard.release.bundle import Bundle
+
+    for path in ("/m/a&b=c.yaml", "/m/50%.yaml", "/m/a+b #1.yaml"):
+        for spec in ("onnx:/p/model.onnx", "onnx:/p/model.onnx?dt=0.02"):
+            bundle = Bundle("0" * 16, {"policy": {"spec": spec}, "action_map": {"path": path}})
+            target, options = split_options(bundle.policy_spec.partition(":")[2], None, "policy", "")
+            assert target == "/p/model.onnx" and options["map"] == path, bundle.policy_spec
+
+
+def test_a_units_file_with_a_plus_in_its_name_is_part_of_the_plans_key(tmp_path):
+    """Read form-decoded, ?units=a+b.yaml named 'a b.yaml', unreadable: the plan was keyed by its text alone."""
+    from cellguard.release.plan import robot_files
+
+    (tmp_path / "a+b.yaml").write_text("unit: deg\n")
+    files = robot_files([{"robot": f"lerobot:so101_follower?port=/dev/null&units={tmp_path / 'a+b.yaml'}"}])
+    assert [f[:2] for f in files] == [[0, "units"]]

@@ -17,6 +17,7 @@ import shlex
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from urllib.parse import quote
 
 from cellguard import __version__
 from cellguard.control.config import GuardConfig
@@ -68,7 +69,7 @@ class Bundle:
         spec, amap = self.manifest["policy"]["spec"], self.manifest["action_map"]
         if amap is None:
             return spec
-        return f"{spec}{'&' if '?' in spec else '?'}map={amap['path']}"
+        return f"{spec}{'&' if '?' in spec else '?'}map={quote(amap['path'])}"  # a path's & % # kept as written
 
     @property
     def calibration(self) -> str | None:

@@ -31,12 +31,12 @@ from __future__ import annotations
 import hashlib
 import re
 from pathlib import Path
-from urllib.parse import parse_qsl
 from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationError
 
 from cellguard.errors import ScenarioError
+from cellguard.options import parse_query
 from cellguard.release.errors import GateError
 from cellguard.release.gates import Gate, gate_error
 from cellguard.release.metrics import METRICS, PICK_PLACE
@@ -83,7 +83,7 @@ def robot_files(runs: list[dict]) -> list[list]:
         if not isinstance(spec, str):
             continue
         scheme, _, arg = spec.partition(":")
-        for option, value in parse_qsl(arg.partition("?")[2], keep_blank_values=True):
+        for option, value in parse_query(arg.partition("?")[2]):
             if option in BRIDGE_FILE_OPTIONS.get(scheme, ()) and value:
                 try:
                     data = read_bounded(Path(value), option, GateError)
