@@ -152,6 +152,10 @@ def test_diagnose_says_how_many_cycles_had_no_tick_features_and_why(tmp_path, mo
     text = " ".join(CliRunner().invoke(app, ["diagnose", str(out)]).stdout.split())  # as rich wraps it
     assert "note: 2 production cycle(s) without tick features: the tick buffer filled (cycle_buffer_full" in text
     assert "(cycles 6, 7)" in text
+    from cellguard.report.from_record import write_report
+
+    page = write_report(out).read_text()  # the report says it too: a shorter comparison read as a healthy one
+    assert "2 production cycle(s) without tick features" in page and "(cycles 6, 7)" in page
 
 
 def test_a_stopped_run_that_replaced_a_record_says_so(tmp_path, capsys):

@@ -51,7 +51,7 @@ def diagnose(
         sys.stdout.write(json.dumps(out) + "\n")
     else:
         print_diagnosis(diagnosis)
-    raise typer.Exit(max(_warn(health, folder, baseline_health, acceptance), warn_if_unsteady(diagnosis.baseline),
+    raise typer.Exit(max(_warn(health, folder, baseline_health, acceptance), warn_of_diagnosis(diagnosis),
                          warn_if_unkept(unkept)))
 
 
@@ -89,7 +89,7 @@ def report(
     except CellguardError as exc:
         fail(_with_health(exc, folder))
     say(f"report: {path}", err=False)
-    raise typer.Exit(max(_warn(health, folder, baseline_health, acceptance), warn_if_unsteady(diagnosis.baseline),
+    raise typer.Exit(max(_warn(health, folder, baseline_health, acceptance), warn_of_diagnosis(diagnosis),
                          warn_if_unkept(unkept)))
 
 
@@ -100,6 +100,34 @@ def _warn(health, folder: Path, baseline_health, acceptance: Path | None) -> int
     if baseline_health is not None:
         code = max(code, warn_if_damaged(baseline_health, acceptance))
     return code
+
+
+def warn_of_diagnosis(d) -> int:
+    """The warning lines of diagnosis ``d`` itself (``warn_if_unsteady``, ``warn_if_from_start``,
+    ``warn_if_unexplained_stop``), each once; the exit code: 1 if any, else 0."""
+    return max(warn_if_unsteady(d.baseline), warn_if_from_start(d), warn_if_unexplained_stop(d))
+
+
+def warn_if_from_start(d) -> int:
+    """One warning line when the first finding was there in the record's own acceptance cycles (its baseline holds
+    the fault, and no cycle is a good one); the exit code: 1 then, else 0, as for an unsteady acceptance."""
+    if d.from_start is None:
+        return 0
+    say(f"warning: baseline: {d.from_start}: take the baseline from a record without it with --acceptance DIR")
+    return 1
+
+
+def warn_if_unexplained_stop(d) -> int:
+    """One warning line when the run ended in a stop no finding begun by then explains (an operator's stop, a
+    killed process need none: ``run_end.NOT_THE_CELL``); the exit code: 1 then, else 0: a run stopped by its cell is
+    never "no fault found" and exit 0."""
+    from cellguard.diagnose.run_end import explained
+
+    if explained(d.findings, d.run_end):
+        return 0
+    say(f"warning: the run ended in a stop no finding explains ({d.run_end.words()}): its safety events say "
+        "what the guard saw")
+    return 1
 
 
 def warn_if_unsteady(baseline) -> int:
@@ -165,22 +193,31 @@ def record_health(folder: Path):
 
 
 def print_diagnosis(d) -> None:
-    from cellguard.diagnose.diagnosis import no_tick_words, unwatched_words
+    from cellguard.diagnose.diagnosis import FROM_START, no_tick_words, unwatched_words
+    from cellguard.diagnose.run_end import CUT_SHORT
 
     console = Console(highlight=False)
     data = printable_tree(d.to_dict())  # joint and signal names come from the record
     good, bad = data["last_good_cycle"], data["first_faulted_cycle"]
-    faulted = ("" if bad is None else f", first faulted cycle {bad} (no good cycle before it)" if good is None
+    none_before = FROM_START if data["present_from_start"] else "no good cycle before it"
+    faulted = ("" if bad is None else f", first faulted cycle {bad} ({none_before})" if good is None
                else f", last good cycle {good}, first faulted cycle {bad}")
     console.print(f"diagnosis: {data['cycles']} cycles, baseline {data['baseline_cycles']}, "
                   f"{len(data['drift_alarms'])} drift alarm(s){faulted}", markup=False)
+    end = data["run_end"]
+    if end is not None:  # the operator's stop, a policy lost, a killed process: named, with its cycle and category
+        console.print(f"  the run ended: {d.run_end.words()}", markup=False)
     if not data["findings"]:
-        console.print("  no fault found", markup=False)
+        stopped = end is not None and end["needs_cause"]
+        console.print("  no cause found for the stop that ended the run" if stopped else "  no fault found",
+                      markup=False)
     for f in data["findings"]:
         joints = f" ({', '.join(f['joints'])})" if f.get("joints") else ""
         console.print(f"  {f['cause']}{joints} from cycle {f['cycle']}, confidence {f['confidence']:.2f}", markup=False)
         for line in f["evidence"]:
             console.print(f"    - {line}", markup=False)
+    if d.cut_short:
+        console.print(f"  note: cycle {', '.join(map(str, d.cut_short))} {CUT_SHORT}", markup=False)
     if d.unwatched:
         console.print(f"  note: {unwatched_words(d.unwatched, d.cycles)}", markup=False)
     if d.no_tick_features:

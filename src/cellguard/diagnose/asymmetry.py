@@ -167,10 +167,17 @@ def asymmetry_onset(cycles: Sequence[Cycle], asym: Asymmetry, pairs: Sequence[Sy
     onset = cycles[k].index
     if onset <= first:
         return first
-    before = mirrored_asymmetry([c for c in cycles if c.index < onset], pairs)
-    if before is not None and before.side == asym.side:
+    if held_before(cycles, asym, pairs, onset):
         return first  # the cycles before hold it already: it was there from the start
     return onset
+
+
+def held_before(cycles: Sequence[Cycle], asym: Asymmetry, pairs: Sequence[SymmetryPair], cycle: int) -> bool:
+    """Whether the cycles of ``cycles`` before ``cycle`` differ on the side of ``asym`` already. Before the first
+    watched cycle (an acceptance of its own record): the asymmetry is there from the first cycle recorded, and no
+    cycle of the record is a good one to compare with."""
+    before = mirrored_asymmetry([c for c in cycles if c.index < cycle], pairs)
+    return before is not None and before.side == asym.side
 
 
 def _side_series(cycles: Sequence[Cycle], name: str, turn: str) -> np.ndarray:

@@ -11,7 +11,7 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 
 from cellguard.control.events import ROUTINE_EVENTS, EventKind
-from cellguard.diagnose.asymmetry import Asymmetry, asymmetry_onset, mirror_map, mirrored_asymmetry
+from cellguard.diagnose.asymmetry import Asymmetry, asymmetry_onset, held_before, mirror_map, mirrored_asymmetry
 from cellguard.diagnose.baseline import OWN_SOURCE, Baseline, TooFewCycles
 from cellguard.diagnose.cause import (CONCURRENT, MATERIAL, Finding, intermittent_findings, name_causes, told,
                                      tracking_rises)
@@ -24,6 +24,7 @@ from cellguard.diagnose.process import ProcessNote, condition, declared
 from cellguard.diagnose.recovery import (advice, advice_lines, attempts_of, fixes, policy_cycles, recovery_finding,
                                         with_running_again, without_recovery_motion)
 from cellguard.diagnose.residual import residual_alarms, with_residual
+from cellguard.diagnose.run_end import CUT_SHORT, RunEnd, cut_short, run_end, with_stop_cause
 from cellguard.embodiment.profile import SymmetryPair
 from cellguard.errors import RecordError
 from cellguard.robot.recovery.outcome import RecoveryOutcome
@@ -32,6 +33,9 @@ from cellguard.robot.recovery.outcome import RecoveryOutcome
 # why a cycle has no tick features (its joint currents, tracking, friction: NaN, so compared on none of them)
 NO_TICK_FEATURES = ("the tick buffer filled (cycle_buffer_full: no memory for more of a cycle's ticks): joint "
                     "currents, tracking and friction not compared there; the record holds every tick")
+# why a fault present in the acceptance cycles of the record has no last good cycle
+FROM_START = ("present from the first cycle recorded: no good cycle in this record; diagnose against another "
+              "record's acceptance")
 
 
 @dataclass(frozen=True)
@@ -54,6 +58,9 @@ class Diagnosis:
     advice: tuple[dict, ...] = ()  # per finding: what fixed the same cause before at this site
     unwatched: tuple[int, ...] = ()  # watched cycles of another load: their joint currents and tracking unwatched
     no_tick_features: tuple[int, ...] = ()  # cycles whose tick buffer filled: compared on none of their tick features
+    run_end: RunEnd | None = None  # the event that ended the run (a stop, the operator's, a lost process), if any
+    cut_short: tuple[int, ...] = ()  # cycles the run's end cut short: left out of the monitors
+    from_start: str | None = None  # the first finding, there from the first cycle recorded (``FROM_START``)
 
     def to_dict(self) -> dict:
         """The JSON of DESIGN.md (``cycles`` ... ``safety_events``) plus detail fields."""
@@ -70,6 +77,9 @@ class Diagnosis:
             "cycles_without_tick_features": {"count": len(self.no_tick_features), "cycles": list(self.no_tick_features),
                                              "why": NO_TICK_FEATURES if self.no_tick_features else None},
             "safety_events": list(self.safety_events),
+            "run_end": self.run_end.to_dict() if self.run_end is not None else None,
+            "cut_short_cycles": {"cycles": list(self.cut_short), "why": CUT_SHORT if self.cut_short else None},
+            "present_from_start": self.from_start,
             "changes": [c.to_dict() for c in self.changes],
             "asymmetry": self.asymmetry.to_dict() if self.asymmetry is not None else None,
             "process": [n.to_dict() for n in self.process],
@@ -101,35 +111,42 @@ def diagnose(rows: Iterable[object], events: Iterable[object] = (), context: Map
     """
     rows = list(rows)
     cycles = as_cycles(rows)
-    other = None  # the recovery attempts of the baseline's acceptance where that is another record's
-    if baseline is None:
-        acceptance = [c for c in cycles if c.phase == "acceptance"]
-        baseline = Baseline.from_cycles(policy_cycles(acceptance))
-        watched = [c for c in cycles if c.phase != "acceptance"]
-    elif baseline.source != OWN_SOURCE:  # from another record: this one's acceptance cycles are watched too
-        watched, other = list(cycles), reference
-    else:
-        watched = [c for c in cycles if c.phase != "acceptance"] or list(cycles)
-    if not watched:
-        raise TooFewCycles("diagnose: the record has no production cycles to compare with the baseline")
-    z, notes = condition(baseline, watched, baseline.residuals(watched), declared(context))
-    z = without_recovery_motion(baseline.names, watched, z)
-    found = find_intermittent(baseline.names, watched, z)
-    drift = detect_drift(baseline, watched, config, residuals=without_outliers(baseline.names, watched, z, found))
     evs = [_event_dict(e) for e in events]
     spans = _cycle_spans(cycles)
     for e in evs:
         if e.get("cycle") is None:
             e["cycle"] = _cycle_of(e["t_ns"], spans)
-    rejected = _rejections(watched, evs)
+    end, cut = run_end(evs), cut_short(cycles, evs)
+    whole = [c for c in cycles if c.index not in cut]
+    other = None  # the recovery attempts of the baseline's acceptance where that is another record's
+    if baseline is None:
+        acceptance = [c for c in whole if c.phase == "acceptance"]
+        baseline = Baseline.from_cycles(policy_cycles(acceptance))
+        watched = [c for c in whole if c.phase != "acceptance"]
+    elif baseline.source != OWN_SOURCE:  # from another record: this one's acceptance cycles are watched too
+        watched, other = list(whole), reference
+    else:
+        watched = [c for c in whole if c.phase != "acceptance"] or list(whole)
+    if not watched:
+        ended = f" (cycle {', '.join(map(str, cut))} {CUT_SHORT}, by {end.words()})" if cut and end else ""
+        raise TooFewCycles(f"diagnose: the record has no production cycles to compare with the baseline{ended}")
+    z, notes = condition(baseline, watched, baseline.residuals(watched), declared(context))
+    z = without_recovery_motion(baseline.names, watched, z)
+    found = find_intermittent(baseline.names, watched, z)
+    drift = detect_drift(baseline, watched, config, residuals=without_outliers(baseline.names, watched, z, found))
+    rejected = _rejections([*watched, *(c for c in cycles if c.index in cut)], evs)  # events tell of a cut cycle
     findings = intermittent_findings(baseline, watched, z, found,
                                      name_causes(baseline, watched, drift.z, drift.alarms, rejected))
     findings = with_residual(findings, residual_alarms(rows))  # the calibration's residual monitor, if it ran
+    findings = with_stop_cause(findings, end, cycles, baseline, evs)
     asym = mirrored_asymmetry(watched, symmetry)
     if asym is not None and asym.significant:
         findings = _fold_compensation(findings, asym, symmetry)
         if not any(set(f.joints) & set(asym.joints) for f in findings):
-            findings = _with_asymmetry(findings, asym, asymmetry_onset(cycles, asym, symmetry, watched[0].index))
+            began = asymmetry_onset(whole, asym, symmetry, watched[0].index)
+            # in the cycles before the watched ones (the acceptance) too: there from the first cycle recorded
+            held = began == watched[0].index and held_before(whole, asym, symmetry, began)
+            findings = _with_asymmetry(findings, asym, began, FROM_START if held else None)
     attempts = attempts_of(rows, evs)  # evs: for the cycle a killed run left with no row
     late = recovery_finding(cycles, attempts, other)
     findings += [late] if late is not None else []
@@ -142,7 +159,10 @@ def diagnose(rows: Iterable[object], events: Iterable[object] = (), context: Map
                 for f in with_running_again(findings, own)]
     findings = _on_a_trend(findings, baseline)
     first = findings[0].cycle if findings else None
+    from_start = f"{findings[0].cause} from cycle {first}: {FROM_START}" if first is not None and \
+        FROM_START in findings[0].evidence else None
     good, faulted = last_good_and_faulted(cycles, first)
+    good = None if from_start else good
     return Diagnosis(
         cycles=tuple(cycles), baseline=baseline, drift=drift, findings=tuple(findings),
         changes=tuple(changes(baseline, drift.alarms, good, faulted, watched, _not_before(findings, first))),
@@ -150,7 +170,8 @@ def diagnose(rows: Iterable[object], events: Iterable[object] = (), context: Map
         safety_events=tuple(_safety(e) for e in evs if e.get("kind") not in ROUTINE_EVENTS),
         asymmetry=asym, context=dict(context or {}), process=notes,
         recoveries=tuple({"cycle": c, **o.to_dict()} for c, o in attempts), fixes=tuple(own), advice=tuple(advised),
-        unwatched=tuple(baseline.other_load(watched)), no_tick_features=_without_tick_features(cycles, evs))
+        unwatched=tuple(baseline.other_load(watched)), no_tick_features=_without_tick_features(cycles, evs),
+        run_end=end, cut_short=cut, from_start=from_start)
 
 
 def record_facts(context: Mapping) -> dict:
@@ -334,13 +355,15 @@ def _fold_compensation(findings: list[Finding], asym: Asymmetry, pairs: Sequence
     return [merged if f is head else f for f in findings if f not in folded]
 
 
-def _with_asymmetry(findings: list[Finding], asym: Asymmetry, began: int) -> list[Finding]:
+def _with_asymmetry(findings: list[Finding], asym: Asymmetry, began: int, since: str | None = None) -> list[Finding]:
     """An asymmetry no joint finding explains, from cycle ``began``: a late policy that began with it
     (within ``CONCURRENT`` cycles; one long before does not) explains it (a stale plan on a turning robot tells its sides apart), so it is told in
-    that finding's evidence; else it is a finding of its own."""
+    that finding's evidence; else it is a finding of its own, with ``since`` (``FROM_START``) where it was there before
+    ``began``, the first watched cycle."""
     late = next((f for f in findings if f.cause == "policy_latency" and abs(f.cycle - began) <= CONCURRENT), None)
     if late is None:
-        return findings + [_asymmetry_finding(asym, began)]
+        own = _asymmetry_finding(asym, began)
+        return findings + [told(own, (since,)) if since else own]
     note = (f"mirrored motions differ {asym.where} from cycle {began} "
             f"({', '.join(asym.what[:5])}): the late chunks, not a joint",)
     return [told(f, note, [d.feature for d in asym.significant]) if f is late else f for f in findings]

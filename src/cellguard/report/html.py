@@ -9,7 +9,8 @@ import html
 import json
 from collections.abc import Callable, Mapping
 
-from cellguard.diagnose.diagnosis import Diagnosis, record_facts, unwatched_words
+from cellguard.diagnose.diagnosis import FROM_START, Diagnosis, no_tick_words, record_facts, unwatched_words
+from cellguard.diagnose.run_end import CUT_SHORT
 from cellguard.report import plots
 
 FOLD_CHARS = 600  # a context entry longer than this is folded in the report (click to open)
@@ -65,6 +66,16 @@ def _findings(d: Diagnosis) -> str:
     notes = "".join(f"<div class=ok>{_e(n.text)}</div>" for n in d.process)  # declared process changes
     if d.unwatched:
         notes += f"<div class=ok>{_e(unwatched_words(d.unwatched, d.cycles))}</div>"
+    if d.no_tick_features:  # a shorter comparison is no healthier one
+        notes += f"<div class=ok>{_e(no_tick_words(d.no_tick_features, d.cycles))}</div>"
+    if d.cut_short:
+        notes += f"<div class=ok>Cycle {_e(', '.join(map(str, d.cut_short)))} {_e(CUT_SHORT)}.</div>"
+    if d.run_end is not None:  # named as the text names it; a stop of the cell's with no finding is no "all clear"
+        stopped = d.run_end.needs_cause and not d.findings
+        notes += (f"<div class={'finding' if stopped else 'ok'} id=run-end>The run ended: {_e(d.run_end.words())}"
+                  f"{'. No cause found for this stop in the record.' if stopped else ''}</div>")
+        if stopped:
+            return notes
     if not d.findings:
         return notes + "<div class=ok>No drift, fault or asymmetry found against the baseline.</div>"
     out = [notes]
@@ -80,7 +91,8 @@ def _last_good(d: Diagnosis, trace: Callable[[int], Trace | None] | None) -> str
     if d.first_faulted_cycle is None:
         return "<p>No faulted cycle.</p>"
     good, bad = d.last_good_cycle, d.first_faulted_cycle
-    head = (f"<p>First faulted cycle <b>{bad}</b> (no good cycle before it).</p>" if good is None else
+    none_before = FROM_START if d.from_start else "no good cycle before it"
+    head = (f"<p>First faulted cycle <b>{bad}</b> ({_e(none_before)}).</p>" if good is None else
             f"<p>Last good cycle <b>{good}</b>, first faulted cycle <b>{bad}</b>.</p>")
     labels = ("no good cycle" if good is None else f"cycle {good} (last good)", f"cycle {bad} (first faulted)")
     joints = sorted({k.split(".", 1)[1] for c in d.cycles[:1] for k in c.features if k.startswith("current_rms.")},
