@@ -11,7 +11,6 @@ from collections.abc import Callable
 
 import mujoco
 import numpy as np
-import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
