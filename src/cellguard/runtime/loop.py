@@ -398,6 +398,8 @@ class Run(TransitionPlay):
         outside = self._leaves_box(approach) if self._box_start() is None else None
         if outside is not None:  # planned in joint space: no path inside the box to the first target is sought
             self._refuse(f"start-up: {_approach_to(approach)}: {outside}; not moving")
+        self.clock.regrid()  # planned and checked at rest (slowed where its brakes would leave the box: up to a few
+        # hundred ms): a pause before the approach, no late tick (it woke 30 ms late)
         held = self._play(approach, "approach", self.clock.now())
         if self.guard.power:  # else a category 0/1 stop aborted it: the guard holds there, power removed
             self.guard = build_guard(self.cell, self.scenario.guard, q0=held)  # where the commands left the robot

@@ -46,7 +46,8 @@ _FROM_OUTSIDE = (f"where it may go from its start outside the workspace box (pas
 TOLERANCE = 0.01  # [rad] or [m]: closer than this, no transition is played
 AT_REST = 1e-9  # [unit/s], [unit/s²]: slower than this, a transition is at rest
 BRAKE_SLACK_S = 1.0  # [s] wall time a brake may take beyond its own (a simulated cell's runs on a busy host's CPU)
-SLOWER = (0.5, 0.25, 0.125)  # the velocity limits' scales a transition whose brakes leave the box is replanned under
+SLOWER = (0.5, 0.25, 0.125)  # the time scales a transition whose brakes leave the box is replanned at (``kept_in_box``)
+_BRAKE = "a brake from its setpoint"  # how ``leaves_box`` names a brake that leaves the box
 WINDOW = 32  # [setpoints] brakes bounded together (``_brake_leaves``), halved near a wall down to one
 
 
@@ -130,8 +131,9 @@ class Transition:
     cap: float = math.inf  # the tool-speed cap it goes to the target under [m/s]
     brakes: bool = False  # its first trajectory brakes a moving command to rest (``braking``)
     limits: tuple = ()  # the joint velocity limits its way from rest to the target was planned under [unit/s]
-    # (tool, box, reach) it was found inside of (``kept_in_box``): ``leaves_box`` with the same is not run twice
-    inside: tuple = field(default=(), compare=False, repr=False)
+    scale: float = 1.0  # its way from rest time-scaled: velocity, acceleration and jerk limits by scale, ², ³
+    # (tool, box, reach, what ``leaves_box`` said): the check with the same is not run twice (``kept_in_box``)
+    checked: tuple = field(default=(), compare=False, repr=False)
 
     @property
     def duration_s(self) -> float:
@@ -172,22 +174,26 @@ class Transition:
 
     def kept_in_box(self, profile: Profile, tool, box, reach: list[float] | None) -> Transition:
         """This transition (from rest), or where its path keeps inside ``box`` but a brake from one of its setpoints
-        would not, the first replan of it under lower velocity limits (``SLOWER``) whose path and brakes all keep
-        inside; where none does, this one, which ``leaves_box`` then refuses. Without a box or a tool model, this."""
+        would not, the first replan of it slower (``SLOWER``) whose brakes all keep inside; where none does, this
+        one, which ``leaves_box`` then refuses (its check kept: not run again). Without a box or a tool model, this.
+        A replan is the same motion time-scaled (velocity, acceleration and jerk limits by s, s², s³: the same path,
+        s times the speed), and its brakes, at the profile's full limits, stop shorter: slowed by its velocity
+        limits alone, a motion took another path (up to 37 mm off at 1/8), and one near a wall, speeding up at full
+        acceleration, was refused at every speed."""
         if box is None or tool is None or reach is None or not self.limits or self.brakes:
             return self
-        lo, hi = tuple(map(float, box[0])), tuple(map(float, box[1]))
-        if self._path_leaves(profile, tool, lo, hi, reach) is not None:
-            return self
-        if self._brake_leaves(profile, tool, lo, hi, reach) is None:
-            return replace(self, inside=(tool, box, reach))
+        said = self.leaves_box(profile, tool, box, reach)
+        checked = replace(self, checked=(tool, box, reach, said))
+        if said is None or not said.startswith(_BRAKE):
+            return checked
         for scale in SLOWER:
-            slower = self._from_rest(profile, self.start, self.target, self.period_ns, np.asarray(self.limits) * scale)
+            slower = self._from_rest(profile, self.start, self.target, self.period_ns, np.asarray(self.limits),
+                                     self.scale * scale)
             if slower is None:
-                return self
-            if slower.leaves_box(profile, tool, box, reach) is None:
-                return replace(slower, cap=self.cap, inside=(tool, box, reach))
-        return self
+                break
+            if slower._brake_leaves(profile, tool, *_corners(box), reach) is None:  # its path: this one's
+                return replace(slower, cap=self.cap, checked=(tool, box, reach, None))
+        return checked
 
     def braking(self) -> Transition | None:
         """Only the brake this transition starts with (a moving command brought to rest), or None if it starts at
@@ -212,9 +218,11 @@ class Transition:
         (``brake``, an abort's), why it may not be played; or None. One that starts outside the box keeps to the box
         grown to hold its start (``grown_box``, as the guard lets a motion do): past no wall further than it starts,
         a wall it is inside of staying one. None without a box or a tool model."""
-        if box is None or tool is None or reach is None or self._kept_in(tool, box, reach):
+        if box is None or tool is None or reach is None:
             return None
-        lo, hi = tuple(map(float, box[0])), tuple(map(float, box[1]))
+        if self.checked and self.checked[0] is tool and self.checked[1] == box and self.checked[2] is reach:
+            return self.checked[3]
+        lo, hi = _corners(box)
         said = self._path_leaves(profile, tool, lo, hi, reach)
         if said is not None:
             return said
@@ -224,12 +232,8 @@ class Transition:
         excess, wall, tip, t = brake
         where = f"out of the workspace box {[list(map(float, corner)) for corner in box]}" if \
             grown_box(tool(self.start), lo, hi) is None else f"past {_FROM_OUTSIDE}"
-        return (f"a brake from its setpoint {t:.2f} s in (an abort there) would take its tool point {where}, "
+        return (f"{_BRAKE} {t:.2f} s in (an abort there) would take its tool point {where}, "
                 f"{mm(excess)} mm past its {wall} (at {at(tip, lo, hi)} m)")
-
-    def _kept_in(self, tool, box, reach) -> bool:
-        """Was this transition found inside ``box`` with this ``tool`` model and ``reach`` (``kept_in_box``)?"""
-        return bool(self.inside) and self.inside[0] is tool and self.inside[1] == box and self.inside[2] is reach
 
     def _path_leaves(self, profile: Profile, tool, lo: tuple, hi: tuple, reach: list[float]) -> str | None:
         """Where this transition's own path leaves the box ``lo``..``hi`` (``leaves_box``), or None. Every setpoint
@@ -282,10 +286,11 @@ class Transition:
         bound leaves the box is halved, down to one setpoint: its own brake, exactly."""
         dt = self.period_ns * 1e-9
         states = np.array([self.state_at(k * dt) for k in range(math.ceil(self.duration_s / dt))])  # (N, 3, D)
-        box = grown_box(tool(self.start), lo, hi) or (lo, hi)
+        boxes = _boxes_in_force(tool, lo, hi, states[:, 0])
         windows = [(i, min(i + WINDOW, len(states))) for i in range(0, len(states), WINDOW)][::-1]
         while windows:
             i, j = windows.pop()
+            box = boxes[j - 1]  # the window's smallest: boxes only shrink
             out = self._brakes_out(profile, tool, box, reach, states[i:j])
             if out is not None and j - i == 1:
                 excess, tip = out
@@ -370,22 +375,24 @@ class Transition:
 
     @classmethod
     def _from_rest(cls, profile: Profile, start: np.ndarray, target: np.ndarray, period_ns: int,
-                   max_velocity: np.ndarray) -> Transition | None:
-        """From ``start`` at rest to ``target`` at rest under the joint velocity limits ``max_velocity``."""
+                   max_velocity: np.ndarray, scale: float = 1.0) -> Transition | None:
+        """From ``start`` at rest to ``target`` at rest under the joint velocity limits ``max_velocity`` and the
+        profile's acceleration and jerk limits, all time-scaled by ``scale`` (s, s², s³)."""
         dof = profile.dof
         otg, inp, traj = ruckig.Ruckig(dof), ruckig.InputParameter(dof), ruckig.Trajectory(dof)
         inp.current_position, inp.target_position = start.tolist(), target.tolist()
         inp.current_velocity = inp.current_acceleration = [0.0] * dof
         inp.target_velocity = inp.target_acceleration = [0.0] * dof
-        made = cls._solve(profile, otg, inp, traj, period_ns, max_velocity)
+        made = cls._solve(profile, otg, inp, traj, period_ns, max_velocity * scale, scale)
         return None if made is None else cls(made.trajectories, made.target, int(period_ns),
-                                             limits=tuple(map(float, max_velocity)))
+                                             limits=tuple(map(float, max_velocity)), scale=scale)
 
     @classmethod
-    def _solve(cls, profile: Profile, otg, inp, traj, period_ns: int, max_velocity=None) -> Transition | None:
+    def _solve(cls, profile: Profile, otg, inp, traj, period_ns: int, max_velocity=None,
+               scale: float = 1.0) -> Transition | None:
         inp.max_velocity = (profile.array("velocity") if max_velocity is None else max_velocity).tolist()
-        inp.max_acceleration = profile.array("acceleration").tolist()
-        inp.max_jerk = profile.array("jerk").tolist()
+        inp.max_acceleration = (profile.array("acceleration") * scale ** 2).tolist()
+        inp.max_jerk = (profile.array("jerk") * scale ** 3).tolist()
         try:
             result = otg.calculate(inp, traj)
         except ruckig.RuckigError:  # some states raise instead of returning an error result
@@ -414,3 +421,25 @@ class Transition:
         for k in range(1, steps + 1):
             position, _, _ = self.state_at(min(k * dt, self.duration_s))
             yield np.asarray(position, dtype=np.float64)
+
+
+def _corners(box) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """The box's (lower, upper) corners as plain floats [m]."""
+    return tuple(map(float, box[0])), tuple(map(float, box[1]))
+
+
+def _boxes_in_force(tool, lo: tuple, hi: tuple, positions: np.ndarray) -> list[tuple]:
+    """The box a brake from each of ``positions`` (joint setpoints from the start) must keep inside: ``lo``..``hi``,
+    or from a start outside it the box grown to hold the tool point there, shrinking as it comes in (``grown_box``)
+    and the box itself once it is in, as the path is held (``_path_leaves``). Checked against the start's grown box
+    throughout, a brake 90 ms after the tool came in went 9 mm past the ceiling it had come in under."""
+    grown = grown_box(tool(positions[0]), lo, hi) if len(positions) else None
+    if grown is None:
+        return [(lo, hi)] * len(positions)
+    boxes = []
+    for q in positions:
+        if grown is not None:
+            tip = tool(q)
+            grown = grown_box(tip, lo, hi, grown) if box_excess(tip, lo, hi)[0] > 0.0 else None
+        boxes.append(grown or (lo, hi))
+    return boxes
