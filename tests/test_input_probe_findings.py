@@ -20,6 +20,7 @@ from cellguard.calibrate.identify import CalibrationError
 from cellguard.calibrate.replay import parse_vary
 from cellguard.errors import ConfigError
 from cellguard.options import split_options
+from cellguard.policy.metadata_hash import MAX_DEPTH
 from cellguard.policy.registry import make_policy
 from cellguard.robot.arm_cell import ArmPickPlace
 from cellguard.scenario import load_scenario
@@ -145,7 +146,7 @@ def _nested(depth: int) -> list:
 
 @FAST
 @given(st.dictionaries(st.text(max_size=4), _VALUES, max_size=3),
-       st.sampled_from([msgpack.ExtType(5, b"ab"), msgpack.Timestamp(1, 2), _nested(65)]))
+       st.sampled_from([msgpack.ExtType(5, b"ab"), msgpack.Timestamp(1, 2), _nested(MAX_DEPTH + 1)]))
 def test_a_value_with_no_canonical_form_is_the_one_clear_error(metadata, bad):
     with pytest.raises(ConfigError, match=r"^policy: openpi:ws://127\.0\.0\.1:\d+: server metadata 'bad' holds "):
         _arrived({**metadata, "bad": [bad]})
@@ -189,6 +190,20 @@ def test_an_onnx_model_naming_two_of_its_six_actions_is_one_line_exit_2(tmp_path
 def test_a_merge_key_merges_and_an_explicit_key_overrides_it():
     text = "defaults: &d {seed: 3, cell: a}\nrun:\n  <<: *d\n  cell: b\n"
     assert parse_yaml(text, "s.yaml") == {"defaults": {"seed": 3, "cell": "a"}, "run": {"seed": 3, "cell": "b"}}
+
+
+@pytest.mark.parametrize("lines", [
+    # a chain, each merging the one before and adding a key: quadratically many copies (143 kB: 12 s, 316 MB)
+    ["m0: &m0 {k0: 0}"] + [f"m{i}: &m{i} {{<<: *m{i - 1}, k{i}: 0}}" for i in range(1, 4000)],
+    # each merging the one before twice, its unhashable key never one twice: doubling (700 bytes: 5 s, 76 MB; 30
+    # levels: 20 minutes)
+    ["defs:", "  d:", "    base: &m0 {? [1] : x}"] + [f"    m{i}: &m{i} {{<<: [*m{i - 1}, *m{i - 1}]}}"
+                                                     for i in range(1, 40)] + ["use: {<<: *m39}"],
+], ids=["chain", "doubling"])
+def test_merge_keys_that_copy_past_the_value_limit_are_refused_as_they_copy(lines):
+    """The document's value limit was checked once it was built: merges copied first."""
+    with pytest.raises(ConfigError, match="merge keys copy more than 1000000 keys"):
+        parse_yaml("\n".join(lines) + "\n", "bomb")
 
 
 def test_a_scenario_shares_a_fault_through_a_merge_key(tmp_path):
@@ -251,9 +266,11 @@ def test_vary_on_the_gripper_says_replay_varies_hinge_joints_only():
 
 # 5. a + in an option is a +
 
-def test_a_plus_in_an_option_is_kept_and_percent_escapes_are_decoded():
-    assert split_options("x?map=a+b.yaml&prompt=pick%20it%2B", None, "policy: x", "x:T")[1] == {
-        "map": "a+b.yaml", "prompt": "pick it+"}
+def test_a_plus_in_a_file_name_is_kept_and_in_text_a_space_as_before():
+    """A file's name is percent-decoded only; a prompt or task keeps form decoding (``pick+up`` is "pick up"): a
+    release frozen with ``prompt=pick+the+cube`` would have run with other words, and no hash would have said so."""
+    assert split_options("x?map=a+b.yaml&prompt=pick+the%20cube%2B&units=c+d.yaml", None, "policy: x", "x:T")[1] == {
+        "map": "a+b.yaml", "prompt": "pick the cube+", "units": "c+d.yaml"}
 
 
 @pytest.mark.parametrize("name", ["a+b.yaml", "a b.yaml"])

@@ -3,7 +3,7 @@ and one range check for policy sources and robot bridges alike (a shared leaf: b
 
 from __future__ import annotations
 
-from urllib.parse import unquote
+from urllib.parse import unquote, unquote_plus
 
 from cellguard.errors import ConfigError
 
@@ -26,11 +26,15 @@ def split_options(arg: str, allowed: dict[str, str] | None, where: str, usage: s
     return target, options
 
 
+FILE_OPTIONS = frozenset({"map", "units"})  # options whose value names a file (a policy's action map, a bridge's units)
+
+
 def parse_query(query: str) -> list[tuple[str, str]]:
-    """``k=v&k2=v2`` -> [(k, v), (k2, v2)], percent-decoded, and only that: ``parse_qsl``'s form decoding read a
-    ``+`` as a space, so ``?map=a+b.yaml`` named a file ``a b.yaml``. A key without ``=`` has the value ''."""
-    pairs = (part.partition("=") for part in query.split("&") if part)
-    return [(unquote(key), unquote(value)) for key, _, value in pairs]
+    """``k=v&k2=v2`` -> [(k, v), (k2, v2)] as ``parse_qsl`` reads them (a ``+`` is a space: ``prompt=pick+up``), but
+    a file's name (``FILE_OPTIONS``) percent-decoded only: ``?map=a+b.yaml`` named a file ``a b.yaml``. A key
+    without ``=`` has the value ''."""
+    pairs = ((unquote_plus(key), value) for key, _, value in (part.partition("=") for part in query.split("&") if part))
+    return [(key, (unquote if key in FILE_OPTIONS else unquote_plus)(value)) for key, value in pairs]
 
 
 def bounded_float(value: object, field: str, lo: float, hi: float) -> float:

@@ -120,6 +120,10 @@ class _StrictLoader(yaml.SafeLoader):
         for source in sources:
             self.flatten_mapping(source)
             merged += [pair for pair in source.value if not _taken(self.construct_object(pair[0], deep=True), seen)]
+        copied = self.__dict__.get("_copied", 0) + len(merged)  # each merge copies its pairs: counted as they go
+        if copied > MAX_VALUES:  # (a chain of merges copied quadratically many, a doubling one exponentially)
+            raise _Refused(f"line {node.start_mark.line + 1}: merge keys copy more than {MAX_VALUES} keys")
+        self._copied = copied
         node.value = merged + own
         busy.discard(id(node))
         done.add(id(node))

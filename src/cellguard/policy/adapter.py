@@ -98,9 +98,6 @@ def resolve_map(backend: Backend, cell, map_path: str | None, source: str) -> Ac
     actions with no map are refused: taken as the joints in order, in SI, a policy in degrees ran as radians."""
     profile = cell.profile
     names = backend.action_names
-    if names and len(names) != backend.action_dim:  # was read as names not of the robot's joints: give a map, it said
-        raise ConfigError(f"policy: {source} names {len(names)} actions but outputs {backend.action_dim} per step; "
-                          f"its action names and its output must agree")
     if map_path:
         amap = load_action_map(Path(map_path), profile)
     elif backend.embedded_map:
@@ -110,6 +107,9 @@ def resolve_map(backend: Backend, cell, map_path: str | None, source: str) -> Ac
         if not names:
             raise ConfigError(f"policy: {source} names none of its {backend.action_dim} actions and carries no "
                               f"action map: give one, ?map=FILE (which joint each action drives, in which unit)")
+        if len(names) != backend.action_dim:  # read as names not of the robot's joints: give a map, it said
+            raise ConfigError(f"policy: {source} names {len(names)} actions but outputs {backend.action_dim} per "
+                              f"step; its action names and its output must agree")
         joints = tuple(n.removesuffix(".pos") for n in names)
         if sorted(joints) != sorted(profile.joint_names) or backend.action_dim != profile.dof:
             raise ConfigError(f"policy: {source} outputs {backend.action_dim} actions ({', '.join(names)}), which "

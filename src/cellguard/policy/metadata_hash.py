@@ -18,7 +18,7 @@ import numpy as np
 
 from cellguard.errors import ConfigError
 
-MAX_DEPTH = 64  # nested lists and maps in one metadata value; json.dumps overflowed Python's stack near 1,000
+MAX_DEPTH = 400  # nested lists and maps in one metadata value; json.dumps overflowed Python's stack near 1,000
 _KEPT = (str, int, float, list, bool)  # the top-level values hashed; the rest were left out, and still are
 _PLAIN = {str, int, float, bool, type(None)}
 
@@ -59,9 +59,10 @@ def _text(value, depth: int) -> str:
     if isinstance(value, bytes):
         return _text({"__bytes__": value.hex()}, depth)
     if isinstance(value, np.generic):
-        item = value.item()  # a long double's item is itself: its text, which is its value
-        return _text({"__npgeneric__": value.dtype.newbyteorder("<").str,
-                      "data": repr(item) if isinstance(item, np.generic) else item}, depth)
+        item = value.item()  # a long double's item is itself: its bytes (its repr differs between numpy versions)
+        little = np.asarray(value, dtype=value.dtype.newbyteorder("<"))
+        return _text({"__npgeneric__": little.dtype.str,
+                      "data": little.tobytes().hex() if isinstance(item, np.generic) else item}, depth)
     if isinstance(value, np.ndarray):
         little = np.ascontiguousarray(value, dtype=value.dtype.newbyteorder("<"))
         return _text({"__ndarray__": little.dtype.str, "shape": list(little.shape),
