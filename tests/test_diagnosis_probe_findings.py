@@ -120,3 +120,56 @@ def test_a_cycle_cut_short_by_sigterm_is_left_out_of_the_monitors(records):
     assert "0 drift alarm(s)" in text and "note: cycle 15 cut short by the run's end" in text
     assert "no fault found" in text and code == 0  # the operator's stop is no fault of the cell
     assert "Cycle 15 cut short by the run" in page and "No drift, fault or asymmetry found" in page
+
+
+def _lost_to(tmp_path: Path, answer, from_cycle: int) -> Path:
+    """A run whose every answer from production cycle ``from_cycle`` on is ``answer(call, chunk)``'s (a NaN chunk, a
+    failed call): the policy is lost in that cycle (8 acceptance cycles first)."""
+    from test_runtime_rejected_answers import _Answers
+
+    scenario = parse_scenario({**HEALTHY, "production_cycles": 4, "realtime": {"overrun_budget": 1_000_000}})
+    cycle = [0]
+    run = Run(scenario, policy_factory=lambda: _Answers(lambda call, chunk: answer(call, chunk)
+                                                        if cycle[0] >= from_cycle else None))
+    run_scenario(scenario, tmp_path / "run", run=run, on_cycle=lambda _: cycle.__setitem__(0, cycle[0] + 1))
+    return tmp_path / "run"
+
+
+def test_a_policy_lost_to_nan_chunks_or_failed_calls_is_not_named_latency(tmp_path):
+    """Every loss after a first chunk has a watchdog stop in its cycle: read as lateness, a NaN in every chunk came
+    out policy_latency first (confidence 0.9), and failing calls policy_latency alone."""
+    from test_runtime_rejected_answers import _nan
+
+    def failed(call, chunk):
+        return RuntimeError("server error: connection reset")
+
+    for name, answer in (("nan", _nan), ("failed", failed)):
+        data, text, code, _ = _diagnosed(_lost_to(tmp_path / name, answer, 10))
+        assert data["run_end"]["kind"] == "policy_lost" and data["run_end"]["cycle"] == 10, data["run_end"]
+        causes = [f["cause"] for f in data["findings"]]
+        assert "policy_latency" not in causes, (name, causes)
+        assert causes == (["policy_output"] if name == "nan" else []), (name, causes)
+        assert code == (0 if name == "nan" else 1)  # a stop no finding explains is a warning
+
+
+def test_a_run_lost_in_its_first_production_cycle_is_still_diagnosed(tmp_path):
+    """Its one production cycle, cut short, was left out: 'no production cycles', exit 2, and the run's findings
+    were left out of the fleet's push."""
+    from test_runtime_rejected_answers import _nan
+
+    data, text, code, _ = _diagnosed(_lost_to(tmp_path, _nan, 8))
+    assert [(f["cause"], f["cycle"]) for f in data["findings"]] == [("policy_output", 8)], data["findings"]
+    assert code == 0 and data["cut_short_cycles"]["cycles"] == []
+
+
+def test_a_stop_after_the_one_that_ended_the_run_does_not_hide_it(records):
+    """A Ctrl-C during the retreat after a lost policy was taken as the run's end: the operator's, no cause to
+    find, "no fault found"."""
+    from cellguard.control.events import Event, EventKind
+
+    with open_record(records["late"]) as rec:
+        rows, events, context = list(rec.cycles()), list(rec.events()), dict(rec.context)
+    later = max(e.t_ns for e in events) + 200_000_000
+    d = diagnose(rows, [*events, Event(later, EventKind.OPERATOR_STOP, "SIGINT during the retreat", category=2)],
+                 context)
+    assert d.run_end.kind == "policy_lost" and [(f.cause, f.cycle) for f in d.findings] == [("policy_latency", 10)]

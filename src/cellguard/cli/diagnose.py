@@ -113,7 +113,7 @@ def warn_if_from_start(d) -> int:
     the fault, and no cycle is a good one); the exit code: 1 then, else 0, as for an unsteady acceptance."""
     if d.from_start is None:
         return 0
-    say(f"warning: baseline: {d.from_start}: take the baseline from a record without it with --acceptance DIR")
+    say(f"warning: baseline: {d.from_start} (--acceptance DIR)")
     return 1
 
 

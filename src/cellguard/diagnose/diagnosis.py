@@ -118,6 +118,8 @@ def diagnose(rows: Iterable[object], events: Iterable[object] = (), context: Map
             e["cycle"] = _cycle_of(e["t_ns"], spans)
     end, cut = run_end(evs), cut_short(cycles, evs)
     whole = [c for c in cycles if c.index not in cut]
+    if not any(c.phase != "acceptance" for c in whole):  # the run ended in its first production cycle: watched as
+        whole, cut = list(cycles), ()  # before, part of a cycle (left out, the record could not be diagnosed at all)
     other = None  # the recovery attempts of the baseline's acceptance where that is another record's
     if baseline is None:
         acceptance = [c for c in whole if c.phase == "acceptance"]

@@ -20,7 +20,9 @@ from cellguard.diagnose.intermittent import OUTLIER
 
 # the operator's stop, a lost process (killed, out of memory): the operator's and the host's, no fault of the cell
 NOT_THE_CELL = (EventKind.OPERATOR_STOP, EventKind.RUN_PROCESS_LOST)
-LATE = (EventKind.CHUNK_STALE, EventKind.WATCHDOG_STOP)  # the policy answered too late to be followed
+# how the guard refused a policy's answers: a chunk too late (stale), a chunk it could not follow (rejected), a call
+# that failed; the watchdog stops for want of a chunk whatever the reason (every loss after a first chunk has one)
+REFUSED = (EventKind.CHUNK_STALE, EventKind.CHUNK_REJECTED, EventKind.INFERENCE_FAILED)
 CUT_SHORT = "cut short by the run's end: left out of the monitors"
 
 
@@ -54,11 +56,13 @@ def _ends_run(kind: object) -> bool:
 
 
 def run_end(events: Sequence[dict]) -> RunEnd | None:
-    """The last ``ends_run`` event of ``events`` (dicts with their cycle), None where the run ended of itself."""
+    """The first ``ends_run`` event of ``events`` (dicts with their cycle), None where the run ended of itself. One
+    after it (a Ctrl-C during the retreat that followed a lost policy) is no end of the run: taken as its end, the
+    operator's stop hid the loss, "no fault found"."""
     ends = [e for e in events if _ends_run(e.get("kind"))]
     if not ends:
         return None
-    e = max(ends, key=lambda e: e["t_ns"])
+    e = min(ends, key=lambda e: e["t_ns"])
     return RunEnd(str(e["kind"]), e.get("cycle"), e.get("category"), str(e.get("reason", "")),
                   round(e["t_ns"] * 1e-9, 3))
 
@@ -77,15 +81,18 @@ def with_stop_cause(findings: list[Finding], end: RunEnd | None, cycles: Sequenc
     policy lost to rejected chunks is ``policy_output``'s, from the events)."""
     if end is None or end.kind != EventKind.POLICY_LOST or end.cycle is None:
         return findings
-    late = [e for e in events if e.get("cycle") == end.cycle and e.get("kind") in LATE]
+    mine = [e for e in events if e.get("cycle") == end.cycle]
+    refused = [e for e in mine if e.get("kind") in REFUSED]
+    if refused and refused[-1].get("kind") != EventKind.CHUNK_STALE:  # lost to rejected chunks or failed calls:
+        return findings  # policy_output's, or the server's (a NaN in every chunk read as latency: the watchdog)
     cut = next((c for c in cycles if c.index == end.cycle), None)
     latency = _latency_words(cut, baseline)
-    if not late and latency is None:
+    stale = len(refused)
+    if not stale and latency is None:
         return findings
-    stale = sum(e.get("kind") == EventKind.CHUNK_STALE for e in late)
     evidence = ((latency,) if latency else ()) + (
         (f"{stale} chunk(s) came stale in cycle {end.cycle} (every step past before it arrived)",) if stale else ()
-    ) + tuple(f"{e['kind']}: {e.get('reason', '')}" for e in late if e.get("kind") == EventKind.WATCHDOG_STOP) + (
+    ) + tuple(f"{e['kind']}: {e.get('reason', '')}" for e in mine if e.get("kind") == EventKind.WATCHDOG_STOP) + (
         f"the policy was lost in cycle {end.cycle} ({end.kind}, the run's end): its chunks came too late to follow",)
     begun = next((f for f in findings if f.cause == "policy_latency" and f.cycle <= end.cycle), None)
     if begun is not None:

@@ -137,6 +137,7 @@ class Run(TransitionPlay):
         self._refused = 0
         self._first_observation = None
         self._asked_at: int | None = None  # the request waiting for its answer, if any: when it was asked [ns]
+        self._asked_latency_ns = 0  # and how long its answer takes (simulated inference) [ns]
         # the cycle in progress: its start [ns], chunk latencies [ns], wall time per call [ns], a pending NaN fault
         self._cycle_start, self._latencies, self._wall_ns, self._corrupt = 0, [], [], False
         # wall time from one cycle's last tick to the next one's first (its end, the next one's start) [ns each]
@@ -351,7 +352,7 @@ class Run(TransitionPlay):
             self._wall_ns.append(failed.wall_ns)
             self._refusal(t_ns, "failed", failed.error)
             return
-        self._asked_at = t_ns
+        self._asked_at, self._asked_latency_ns = t_ns, getattr(self.inference, "latency_ns", None)
         self._first_observation = self._first_observation or observation
         if self.recording is not None:
             self.recording.request(t_ns, observation)
@@ -576,9 +577,9 @@ class Run(TransitionPlay):
         resets the policy (a worker's call in flight arrives late). Weighed as a refused answer: with cycles shorter
         than the answer (2 ms ones, a 10 ms latency) every request was dropped, none refused, and the run counted
         every cycle with the robot held by the watchdog and exited 0, never having moved."""
-        asked, self._asked_at = self._asked_at, None
+        asked, self._asked_at = self._asked_at, None  # and its latency then: the next cycle's may differ (a fault's)
         self._refusal(t_ns, "dropped", f"the cycle ended {(t_ns - asked) * 1e-6:.0f} ms after the request, whose "
-                                       f"answer takes {self.inference.latency_ns * 1e-6:.0f} ms")
+                                       f"answer takes {self._asked_latency_ns * 1e-6:.0f} ms")
 
     def _never_answered(self, t_ns: int) -> None:
         """No chunk within the watchdog (of its arming or the last chunk taken) and every answer since refused, two
@@ -609,6 +610,9 @@ class Run(TransitionPlay):
             lead = f"the guard rejected every chunk, {none}"
         elif kinds == ["dropped"]:
             lead = f"every cycle ended before the policy's answer came, {none}"
+        elif "dropped" in kinds:  # a dropped request had no chunk: not "every chunk was ... or dropped"
+            lead = f"every answer was refused ({', '.join(k for k in kinds if k != 'dropped')}) or came after its " \
+                   f"cycle ended, {none}"
         elif "failed" in kinds:
             lead = f"every call failed or its chunk was {chunks}, {none}"
         else:
