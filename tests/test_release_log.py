@@ -29,8 +29,8 @@ def test_a_whole_log_verifies(tmp_path):
     result = cli("verify", "--site", str(site), "--json")
     assert result.exit_code == 0
     doc = json.loads(result.stdout)
-    assert {k: doc[k] for k in ("entries", "head", "ok", "problems")} == {"entries": 3, "head": head(Store(site)),
-                                                                          "ok": True, "problems": []}
+    assert {k: doc[k] for k in ("entries", "head", "ok", "log_ok", "problems")} == {
+        "entries": 3, "head": head(Store(site)), "ok": True, "log_ok": True, "problems": []}
     assert doc["inputs"]["changed"] == []  # the live releases' files too (test_release_verify_files.py)
 
 
@@ -43,6 +43,9 @@ def test_an_edited_entry_is_detected(tmp_path):
     db.commit()
     result = cli("verify", "--site", str(site))
     assert result.exit_code == 1 and "entry 2: content does not match its hash (edited)" in result.stdout
+    assert "log whole" not in result.stdout and "calibration): whole;" in result.stdout  # the files' own result
+    doc = json.loads(cli("verify", "--site", str(site), "--json").stdout)
+    assert not doc["log_ok"] and not doc["ok"] and doc["inputs"]["changed"] == []
 
 
 def test_a_deleted_entry_is_detected_in_the_middle_and_at_the_end(tmp_path):

@@ -258,7 +258,8 @@ def verify(
 ) -> None:
     """Check the promotion log's hash chain, the bundles, and the files (policy, action map, calibration) and profile
     that each release current or last_good at a stage froze; exit 1 naming each edited or deleted entry and each
-    input changed since create. A served policy is not contacted; a release neither current nor last_good is not
+    input changed since create, unreadable, or hashed by another cellguard version. A served policy is not contacted,
+    one needing an extra not installed here is said not checked; a release neither current nor last_good is not
     checked (its files may be gone)."""
     from cellguard.release import verify_log
     from cellguard.release.bundle import check_live_inputs
@@ -270,26 +271,32 @@ def verify(
         inputs = check_live_inputs(store)
     except CellguardError as exc:
         fail(exc)
-    problems += [str(c) for c in inputs.changed]
+    files = [str(c) for c in inputs.changed]
     if as_json:
-        sys.stdout.write(json.dumps({"entries": n, "head": last, "ok": not problems, "problems": problems,
+        sys.stdout.write(json.dumps({"entries": n, "head": last, "ok": not (problems or files),
+                                     "problems": problems + files, "log_ok": not problems,
                                      "inputs": inputs.to_dict()}) + "\n")
     else:
-        for p in problems:
+        for p in problems:  # the chain's result, then the files' (_print_inputs): each said whatever the other's
             out.print(f"broken: {p}", markup=False, soft_wrap=True)
         if not problems:
-            out.print(f"log whole: {n} entries, chain verified; head {last} (keep it elsewhere: --expect-head)")
+            out.print(f"log whole: {n} entries, chain verified; head {last} (keep it elsewhere: --expect-head)",
+                      soft_wrap=True)
         _print_inputs(inputs)
-    if problems:
+    if problems or files:
         raise typer.Exit(1)
 
 
 def _print_inputs(inputs) -> None:
-    """What ``verify`` checked of the releases' files, and what it did not, each in one line."""
-    changed = f"{len(inputs.changed)} changed since create" if inputs.changed else "whole"
+    """What ``verify`` found of the releases' files (each problem), checked and did not, each in one line."""
+    from cellguard.release.bundle import REASONS
+
+    for changed in inputs.changed:
+        out.print(f"broken: {changed}", markup=False, soft_wrap=True)
+    found = [f"{len(inputs.by_reason(r))} {words}" for r, words in REASONS.items() if inputs.by_reason(r)]
     out.print(f"files of the releases current or last_good at a stage ({len(inputs.releases)} checked: policy, action "
-              f"map, profile, calibration): {changed}; releases neither current nor last_good: {inputs.idle}, not "
-              f"checked", markup=False, soft_wrap=True)
+              f"map, profile, calibration): {', '.join(found) or 'whole'}; releases neither current nor last_good: "
+              f"{inputs.idle}, not checked", markup=False, soft_wrap=True)
     for line in inputs.unchecked:
         out.print(line, markup=False, soft_wrap=True)
 

@@ -13,9 +13,11 @@ from __future__ import annotations
 
 import hashlib
 import json
+import re
 import shlex
 from collections.abc import Iterator
 from dataclasses import dataclass
+from importlib.metadata import PackageNotFoundError, distribution
 from pathlib import Path
 from urllib.parse import quote
 
@@ -23,10 +25,10 @@ from cellguard import __version__
 from cellguard.control.config import GuardConfig
 from cellguard.control.settings import build_guard
 from cellguard.embodiment.profile import calibrated_profile, kept_copy
-from cellguard.errors import CellguardError, ConfigError, ProfileError, ScenarioError
+from cellguard.errors import CellguardError, ConfigError, ProfileError, ScenarioError, UnknownNameError
 from cellguard.output import not_regular
 from cellguard.release.errors import BundleMismatch, ReleaseError
-from cellguard.robot.registry import cell_names, make_cell
+from cellguard.robot.registry import CELLS, cell_names, make_cell
 from cellguard.scenario import parse_scenario
 from cellguard.yaml_file import read_bounded, read_yaml
 
@@ -137,8 +139,10 @@ def verify_bundle(bundle: Bundle, policy=None, profile=None, calibration: bool =
 
 @dataclass(frozen=True)
 class Changed:
-    """A frozen input that no longer hashes as ``release create`` froze it: ``error`` is what ``verify_bundle``
-    raises for it, naming it and both hashes (``now`` None: it cannot be read, and the error says why)."""
+    """A frozen input that does not hash now as ``release create`` froze it: ``error`` is what ``verify_bundle``
+    raises for it, naming it and both hashes. ``reason``: "changed" (tampering, or an edit), "upgraded" (a hash
+    cellguard computes from its own code, made by another version: not tampering) or "unreadable" (``now`` None;
+    ``cause`` says why)."""
 
     release: str
     input: str  # "action map", "profile", "calibration" or "policy"
@@ -146,16 +150,22 @@ class Changed:
     frozen: str
     now: str | None
     error: ReleaseError
+    reason: str = "changed"
+    cause: str = ""
 
     def __str__(self) -> str:
-        """The error as one line that names the release and the frozen hash, which a file's own error does not."""
-        line = str(self.error)
-        line = line if line.startswith(f"release {self.release}") else f"release {self.release}: {line}"
-        return line if self.frozen[:12] in line else f"{line} (frozen sha256 {self.frozen[:12]})"
+        """One line naming the release, the input, why, and the frozen hash."""
+        if self.reason == "unreadable":
+            return (f"release {self.release}: {self.what} cannot be read ({self.cause}; frozen sha256 "
+                    f"{self.frozen[:12]})")
+        return str(self.error)
 
     def to_dict(self) -> dict:
         return {"release": self.release, "input": self.input, "what": self.what, "sha256": self.now,
                 "frozen": self.frozen, "problem": str(self)}
+
+
+REASONS = {"changed": "changed since create", "unreadable": "cannot be read", "upgraded": "made by another cellguard"}
 
 
 @dataclass(frozen=True)
@@ -163,12 +173,15 @@ class InputsChecked:
     """What ``release verify`` found of the files frozen by the releases a stage can run (current or last_good)."""
 
     releases: tuple[str, ...]  # checked
-    changed: tuple[Changed, ...]
-    unchecked: tuple[str, ...]  # each input not checked here, in words (a served policy)
+    changed: tuple[Changed, ...]  # each a problem, whatever its reason
+    unchecked: tuple[str, ...]  # each input not checked here, in words (a served policy, an extra not installed)
     idle: int  # releases neither current nor last_good anywhere: not checked (their files may be gone, rightly)
 
+    def by_reason(self, reason: str) -> list[Changed]:
+        return [c for c in self.changed if c.reason == reason]
+
     def to_dict(self) -> dict:
-        return {"checked": list(self.releases), "changed": [c.to_dict() for c in self.changed],
+        return {"checked": list(self.releases), **{r: [c.to_dict() for c in self.by_reason(r)] for r in REASONS},
                 "not_checked": list(self.unchecked), "idle_not_checked": self.idle}
 
 
@@ -186,28 +199,62 @@ def check_live_inputs(store) -> InputsChecked:
             continue
         served = _unchecked_policy(bundle)
         checked.append(rid)
-        changed += _offline_changes(bundle, served is not None)
+        found, missing = _offline_changes(bundle, served is not None)
+        changed += found
         unchecked += [served] if served else []
+        unchecked += missing
     return InputsChecked(tuple(checked), tuple(changed), tuple(unchecked), len(stored - named))
 
 
-def _offline_changes(bundle: Bundle, served: bool) -> list[Changed]:
-    """Every input of ``bundle`` that changed, not the first only; its cell not loading (a plugin's, uninstalled)
-    is one, as its profile cannot be hashed."""
-    found = []
+def _offline_changes(bundle: Bundle, served: bool) -> tuple[list[Changed], list[str]]:
+    """Every input of ``bundle`` that does not hash as frozen, not the first only, and, in words, each that cannot
+    be hashed here for want of what is not installed: its cell's plugin (the profile and the policy need the cell),
+    or the extra its policy's source imports (``lerobot`` without ``cellguard[lerobot]``). Those are not problems:
+    the release runs where they are installed."""
+    found, missing, spec = [], [], bundle.manifest["policy"]["spec"]
     try:
         for changed in _changes(bundle, served=served):
             found.append(changed)
+    except UnknownNameError as exc:  # a plugin's cell, its plugin not installed here
+        found += _calibration_changes(bundle, None)
+        missing.append(f"release {bundle.id}: profile of {bundle.cell!r}{'' if served else f' and policy {spec}'}: "
+                       f"not checked here (needs the plugin of cell {bundle.cell!r}: {exc})")
     except CellguardError as exc:
-        error = ReleaseError(f"release {bundle.id}: its cell {bundle.cell!r} does not load: {exc}")
+        found += _calibration_changes(bundle, None)
         found.append(Changed(bundle.id, "profile", f"profile of {bundle.cell!r}", bundle.manifest["profile"]["sha256"],
-                             None, error))
-    return found
+                             None, ReleaseError(str(exc)), "unreadable", f"its cell does not load: {exc}"))
+    unread = [c for c in found if c.input == "policy" and c.reason == "unreadable"]
+    needs = _not_installed(spec.partition(":")[0]) if unread else []
+    if needs:  # the policy did not load, and its source's extra is not installed here
+        found.remove(unread[0])
+        missing.append(f"release {bundle.id}: policy {spec}: not checked here (needs {', '.join(needs)}, not installed "
+                       f"here: {unread[0].cause})")
+    return found, missing
+
+
+def _not_installed(extra: str) -> list[str]:
+    """The packages of ``cellguard[extra]`` (a policy source's extra is named as its scheme) not installed here, as
+    cellguard's own metadata lists them; none when cellguard is not installed as a package."""
+    try:
+        requires = distribution("cellguard").requires or []
+    except PackageNotFoundError:
+        return []
+    names = [re.match(r"[A-Za-z0-9._-]+", r).group() for r in requires
+             if re.search(rf"extra\s*==\s*['\"]{re.escape(extra)}['\"]", r)]
+    return [name for name in names if not _installed(name)]
+
+
+def _installed(name: str) -> bool:
+    try:
+        distribution(name)
+    except PackageNotFoundError:
+        return False
+    return True
 
 
 def _unchecked_policy(bundle: Bundle) -> str | None:
     """Why ``release verify`` does not hash the release's policy, in words, or None: a served policy (its source takes
-    an address, neither a file nor nothing) hashes what its server sends, and a source whose extra is not installed
+    an address, neither a file nor nothing) hashes what its server sends, and a source whose module does not import
     here cannot load it."""
     from cellguard.policy.registry import source, takes_nothing
 
@@ -231,25 +278,48 @@ def _changes(bundle: Bundle, policy=None, profile=None, calibration: bool = True
         yield from _compare(bundle, "action map", f"action map {path}", m["action_map"]["sha256"],
                             lambda: yaml_sha256(Path(path), "action map"))
     cell = make_cell(bundle.cell)
+    built_in = bundle.cell in CELLS  # its profile ships with cellguard
     yield from _compare(bundle, "profile", f"profile of {bundle.cell!r}", m["profile"]["sha256"],
-                        lambda: cell.profile.sha256)
+                        lambda: cell.profile.sha256, built_in)
     if calibration:
         yield from _calibration_changes(bundle, profile)
     if not served:
         yield from _compare(bundle, "policy", f"policy {m['policy']['spec']}", m["policy"]["sha256"],
-                            lambda: policy_hash(bundle, cell) if policy is None else policy.content_hash())
+                            lambda: policy_hash(bundle, cell) if policy is None else policy.content_hash(),
+                            built_in and _taught(m["policy"]["spec"]))
 
 
-def _compare(bundle: Bundle, kind: str, what: str, frozen: str, sha256) -> Iterator[Changed]:
-    """``what`` as a Changed when ``sha256()``, its hash now, is not ``frozen``, or cannot be had (its error)."""
+def _taught(spec: str) -> bool:
+    """Whether the policy ``spec`` is a cell's taught program (a source taking nothing: ``scripted``), whose hash is
+    of its code; False for a source that does not load here (its hash cannot be had either)."""
+    from cellguard.policy.registry import source, takes_nothing
+
+    try:
+        return takes_nothing(source(spec.partition(":")[0]))
+    except CellguardError:
+        return False
+
+
+def _compare(bundle: Bundle, kind: str, what: str, frozen: str, sha256, own_code: bool = False) -> Iterator[Changed]:
+    """``what`` as a Changed when ``sha256()``, its hash now, is not ``frozen``, or cannot be had (its error, whose
+    cause is the input's own words). ``own_code``: the hash is of cellguard's own code or files, so another
+    version's is not tampering: an upgrade since create is said as such (the release is still refused)."""
     try:
         now = sha256()
     except ReleaseError as exc:
-        yield Changed(bundle.id, kind, what, frozen, None, exc)
+        cause = str(exc.__cause__ or exc).removeprefix(f"release {bundle.id}: ")
+        yield Changed(bundle.id, kind, what, frozen, None, exc, "unreadable", cause)
         return
-    if now != frozen:
+    if now == frozen:
+        return
+    hashes, made_by = f"(sha256 {now[:12]}, frozen {frozen[:12]})", bundle.manifest.get("cellguard")
+    if own_code and made_by != __version__:
         yield Changed(bundle.id, kind, what, frozen, now, BundleMismatch(
-            f"release {bundle.id}: {what} changed since create (sha256 {now[:12]}, frozen {frozen[:12]})"))
+            f"release {bundle.id}: {what}: cellguard upgraded ({made_by} -> {__version__}) since create: re-create "
+            f"the release {hashes}"), "upgraded")
+        return
+    yield Changed(bundle.id, kind, what, frozen, now, BundleMismatch(
+        f"release {bundle.id}: {what} changed since create {hashes}"))
 
 
 def policy_hash(bundle: Bundle, cell=None) -> str:
@@ -263,7 +333,7 @@ def policy_hash(bundle: Bundle, cell=None) -> str:
         if not bundle.id:
             raise ReleaseError(f"--policy: {exc}") from None
         raise ReleaseError(f"release {bundle.id}: its policy (create a new release to change it): "
-                           f"{_frozen(bundle, exc)}") from None
+                           f"{_frozen(bundle, exc)}") from exc  # its cause: the policy's own words (verify)
     try:
         return policy.content_hash()
     finally:
@@ -370,7 +440,9 @@ def _calibration_changes(bundle: Bundle, loaded) -> Iterator[Changed]:
     try:
         calibration_file(bundle)
     except BundleMismatch as exc:
-        yield Changed(bundle.id, "calibration", what, frozen["sha256"], _held(Path(frozen["path"]))[0], exc)
+        now, held = _held(Path(frozen["path"]))
+        yield Changed(bundle.id, "calibration", what, frozen["sha256"], now, exc, "changed" if now else "unreadable",
+                      held)
 
 
 def _resolve_profile(profile: str) -> tuple[str, Path | None]:
