@@ -77,3 +77,20 @@ def test_show_refuses_an_extra_joint_or_another_symmetry_in_a_runs_words_and_sho
     shown = _show("arm-pick-place", path)
     assert shown.exit_code == 0, shown.output
     assert [line.split()[0] for line in shown.output.splitlines() if ".." in line][:3] == list(SWAPPED[:3])
+
+
+@pytest.mark.parametrize("command", [["embodiment", "show", "so101-pick-place", "--profile"],
+                                     ["replay-profile-check"]])
+def test_another_robots_profile_is_refused_as_such_before_its_limits(tmp_path, command):
+    """The arm's profile on the SO-101 (their joints share names) was refused for a joint's range lying outside the
+    model's, not for being another robot's."""
+    from cellguard.calibrate.torque_model import JointTerms
+
+    arm = ASSETS / "arm_profile.yaml"
+    if command == ["replay-profile-check"]:
+        with pytest.raises(ProfileError, match=r"is a profile of robot 'arm-pick-place'; the robot is 'so101'"):
+            JointTerms.from_profile(make_cell("so101-pick-place"), arm)
+        return
+    result = CliRunner().invoke(app, [*command, str(arm)])
+    assert result.exit_code == 2
+    assert result.stderr.strip() == f"error: {arm}: is a profile of robot 'arm-pick-place'; the robot is 'so101'"

@@ -277,7 +277,7 @@ def model_terms(rc: RecordedCycle, cell, model: str, profile: Path | None) -> tu
     if profile is None:
         profile, looked = _record_profile(rc, cell)
         if profile is not None:  # the record's own file: its payload as the document's, a missing MJCF noted
-            found = load_profile(cell.model, profile)
+            found = load_profile(cell.model, profile, cell.profile.robot)
             payload, note = _payload([profile], found, cell, "the record's profile file was found")
             return JointTerms.of_profile(cell, found, payload), replace(UsedProfile.of(found, str(profile), recorded),
                                                                        note=note)
@@ -288,7 +288,7 @@ def model_terms(rc: RecordedCycle, cell, model: str, profile: Path | None) -> tu
             return (JointTerms.of_profile(cell, document, payload),
                     replace(UsedProfile.of(document, DOCUMENT, recorded), note=note))
     terms = JointTerms.from_profile(cell, profile)
-    prof = cell.profile if profile is None else load_profile(cell.model, profile)
+    prof = cell.profile if profile is None else load_profile(cell.model, profile, cell.profile.robot)
     used = UsedProfile.of(prof, None if profile is None else str(profile), recorded)
     if used.is_records or not recorded:
         return terms, used

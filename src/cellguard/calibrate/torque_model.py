@@ -98,16 +98,13 @@ class JointTerms:
         """The calibrated terms: the measured friction, damping and armature of the profile at ``path``
         (``identify --write``'s, given as ``option``; default the cell's own) over the nominal model, and the
         payload its calibration put into the calibrated MJCF."""
-        from cellguard.calibrate.identify import CalibrationError
         from cellguard.calibrate.mjcf import calibrated_payload
         from cellguard.embodiment import load_profile
 
         if path is None:
             return cls.of_profile(cell, cell.profile)
-        profile = load_profile(cell.model, path)
-        if profile.robot != cell.profile.robot:
-            raise CalibrationError(f"{option}: {path} is a profile of robot {profile.robot!r}; the model is of "
-                                   f"{cell.profile.robot!r}")
+        # another robot's is refused as such before its limits are checked against this model
+        profile = load_profile(cell.model, path, cell.profile.robot)
         return cls.of_profile(cell, profile, calibrated_payload(path, profile, cell.model, option))
 
     @classmethod

@@ -37,7 +37,8 @@ def embodiment_show(
 
     try:
         robot = make_cell(cell)
-        profile = robot.profile if profile_path is None else load_profile(robot.model, profile_path)
+        profile = (robot.profile if profile_path is None
+                   else load_profile(robot.model, profile_path, robot.profile.robot))
         # a run's check but for order and limits (a profile of this robot, shown as replay runs one): an extra
         # joint or another symmetry was shown, exit 0, and refused by a run only
         why = mismatch(profile, robot.profile, exact=False)

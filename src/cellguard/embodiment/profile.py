@@ -201,9 +201,10 @@ class Profile:
         }
 
 
-def load_profile(model: mujoco.MjModel, path: Path) -> Profile:
-    """Read ``path`` and check it against ``model``; raise ProfileError naming the bad field."""
-    return parse_profile(model, read_bounded(path, "profile", ProfileError), str(path))
+def load_profile(model: mujoco.MjModel, path: Path, robot: str | None = None) -> Profile:
+    """Read ``path`` and check it against ``model`` (and, given, the ``robot`` it must be of: checked first); raise
+    ProfileError naming the bad field."""
+    return parse_profile(model, read_bounded(path, "profile", ProfileError), str(path), robot)
 
 
 def kept_copy(path: Path, version: str) -> Path:
@@ -220,7 +221,7 @@ def calibrated_profile(model: mujoco.MjModel, current: Profile, path: Path) -> P
     robot with the same joints, order, limits and symmetry; only what was measured (and the calibration) may differ.
     The refusal names the first difference (it said "other joints or limits", for joints in another order too)."""
     try:
-        new = load_profile(model, Path(path))
+        new = load_profile(model, Path(path), current.robot)
     except ProfileError as exc:
         raise ProfileError(f"calibration: {exc}") from None
     why = mismatch(new, current)
@@ -262,10 +263,15 @@ def _si(value: float | tuple[float, float], unit: str) -> str:
     return f"[{value[0]!r}, {value[1]!r}] {unit}" if isinstance(value, tuple) else f"{value!r} {unit}"
 
 
-def parse_profile(model: mujoco.MjModel, raw_bytes: bytes, path: str = "profile") -> Profile:
+def parse_profile(model: mujoco.MjModel, raw_bytes: bytes, path: str = "profile", robot: str | None = None) -> Profile:
     """Check the YAML text ``raw_bytes`` (from ``path``) against ``model``; its sha256 is the profile's.
-    A ProfileError names ``path`` and the field: a profile may come from a file the user named."""
+    A ProfileError names ``path`` and the field: a profile may come from a file the user named. Given the ``robot``
+    it must be of, a profile of another is refused as such first: the arm's on the SO-101, whose joints share its
+    names, was refused for a joint's range, not for being another robot's."""
     raw = parse_yaml(raw_bytes, path, ProfileError)
+    named = raw.get("robot") if isinstance(raw, dict) else None
+    if robot is not None and isinstance(named, str) and named != robot:
+        raise ProfileError(f"{path}: is a profile of robot {named!r}; the robot is {robot!r}")
     try:
         return _profile(model, raw, hashlib.sha256(raw_bytes).hexdigest())
     except ProfileError as exc:
