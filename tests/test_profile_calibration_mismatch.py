@@ -93,4 +93,5 @@ def test_another_robots_profile_is_refused_as_such_before_its_limits(tmp_path, c
         return
     result = CliRunner().invoke(app, [*command, str(arm)])
     assert result.exit_code == 2
-    assert result.stderr.strip() == f"error: {arm}: is a profile of robot 'arm-pick-place'; the robot is 'so101'"
+    assert result.stderr.strip() == f"error: --profile: {arm}: is a profile of robot 'arm-pick-place'; the robot is " \
+                                    "'so101'"

@@ -31,14 +31,17 @@ def embodiment_show(
     and how), symmetry pairs and the calibration. Limits are SI, shown rounded inward; with --json the limits are
     SI and each measured value is in the unit it names (as written in the profile)."""
     from cellguard.embodiment import load_profile
-    from cellguard.embodiment.profile import mismatch
+    from cellguard.embodiment.profile import OtherRobot, mismatch
     from cellguard.errors import ProfileError
     from cellguard.robot.registry import make_cell
 
     try:
         robot = make_cell(cell)
-        profile = (robot.profile if profile_path is None
-                   else load_profile(robot.model, profile_path, robot.profile.robot))
+        try:
+            profile = (robot.profile if profile_path is None
+                       else load_profile(robot.model, profile_path, robot.profile.robot))
+        except OtherRobot as exc:
+            raise ProfileError(f"--profile: {exc}") from None
         # a run's check but for order and limits (a profile of this robot, shown as replay runs one): an extra
         # joint or another symmetry was shown, exit 0, and refused by a run only
         why = mismatch(profile, robot.profile, exact=False)

@@ -201,6 +201,10 @@ class Profile:
         }
 
 
+class OtherRobot(ProfileError):
+    """A profile of another robot than the one it was given for (``parse_profile``'s ``robot``)."""
+
+
 def load_profile(model: mujoco.MjModel, path: Path, robot: str | None = None) -> Profile:
     """Read ``path`` and check it against ``model`` (and, given, the ``robot`` it must be of: checked first); raise
     ProfileError naming the bad field."""
@@ -271,7 +275,7 @@ def parse_profile(model: mujoco.MjModel, raw_bytes: bytes, path: str = "profile"
     raw = parse_yaml(raw_bytes, path, ProfileError)
     named = raw.get("robot") if isinstance(raw, dict) else None
     if robot is not None and isinstance(named, str) and named != robot:
-        raise ProfileError(f"{path}: is a profile of robot {named!r}; the robot is {robot!r}")
+        raise OtherRobot(f"{path}: is a profile of robot {named!r}; the robot is {robot!r}")
     try:
         return _profile(model, raw, hashlib.sha256(raw_bytes).hexdigest())
     except ProfileError as exc:
