@@ -192,12 +192,28 @@ def _refit(segments, cell, pairs, model, terms) -> dict:
         nominal = float(_nominal(cell.model, param, cell.drives.dadr[i]))
         one_way = param != "armature" and not moves_both_ways(np.concatenate([s.qd[:-1, i] for s in segments]))
         estimates.append(Fitted(param, joint, value, np.inf if one_way else float(np.sqrt(cov[0, 0])), nominal))
-    rows = [e.to_dict() for e in with_intervals(estimates)]
+    final = with_intervals(estimates)
+    rows = [e.to_dict() for e in final]
     return {"robot": cell.name, "records": sorted({s.record_id for s in segments}),
             "samples": int(sum(len(s.q) for s in segments)),
             "method": "re-fit of one term on the residual of the profile's model (mj_inverse)",
             "payload_held_kg": float(terms.payload_kg),  # the calibration's, in the model and in --write's MJCF
-            "interval": interval_note(estimates), "estimates": rows, "warnings": negative_warnings(rows)}
+            "interval": interval_note(estimates), "estimates": rows,
+            "warnings": unexcited_warnings(final, cell) + negative_warnings(rows)}
+
+
+def unexcited_warnings(estimates: list[Estimate], cell) -> list[str]:
+    """One warning naming each term the records do not excite, joint by joint (a list of parameter names alone read
+    as every joint's, while ``--write`` stored the other joints' values), and what ``--write`` does with them."""
+    terms: dict[str | None, list[str]] = {}
+    for e in estimates:
+        if not e.identifiable:
+            terms.setdefault(e.joint, []).append(e.parameter)
+    if not terms:
+        return []
+    named = "; ".join(f"{joint} {', '.join(params)}" if joint else ", ".join(params) for joint, params in terms.items())
+    return [f"{named}: not excited by these records (production cycles rarely are): not identified, and --write keeps "
+            f"the profile's values for them; `cellguard excite {cell.name}` records a trajectory that excites them"]
 
 
 NON_NEGATIVE = ("friction", "damping", "armature")  # a value below zero is no physical joint term
@@ -279,15 +295,16 @@ def load_segments(paths: list[Path], cell, cycle: int | None = None) -> list[Seg
     return load_records(paths, cell, cycle)[0]
 
 
-def load_records(paths: list[Path], cell, cycle: int | None = None) -> tuple[list[Segment], list[tuple[Path, object]],
-                                                                         list[str]]:
+def load_records(paths: list[Path], cell, cycle: int | None = None,
+                 write: bool = False) -> tuple[list[Segment], list[tuple[Path, object]], list[str]]:
     """Each record's full-rate ticks (of ``cycle`` only, if given), checked to be of ``cell``'s robot and
     to carry motor current on every joint fitted (a gripper's may be missing), split where a tick is missing; each
     record's ``Health`` (what a full read found), for the caller to warn about a record that is not whole; and one
     warning per record whose ticks were left out for a fitted joint's current it did not report (``left_out``).
     A record given twice (its id, or for a record without one its file, under any spelling) is refused: it would
     count its ticks twice and shrink every interval. So is one that started after tomorrow (``refuse_ahead``), and
-    one holding a value no measurement gives (``refuse_unmeasured``)."""
+    one holding a value no measurement gives (``refuse_unmeasured``). A record whose servo-rate ticks are only the
+    windows kept around its events (``event_windows``) is refused for ``write`` and warned about otherwise."""
     from cellguard.record.reader import open_record, record_file
 
     segments, healths, warnings, seen = [], [], [], {}
@@ -309,6 +326,7 @@ def load_records(paths: list[Path], cell, cycle: int | None = None) -> tuple[lis
                              "would be dated after today; record again with the clock set (NTP)")
             ticks = rec.ticks(cycle=cycle, rate="all")
             on_stand = rec.context.get("mount") == "stand"
+            windows = event_windows(path, record_id, rec.context, cell)
             healths.append((path, rec.health()))
         if tuple(ticks.joints) != tuple(cell.profile.joint_names):
             raise CalibrationError(f"{path}: joints {list(ticks.joints)}; the model has "
@@ -331,9 +349,25 @@ def load_records(paths: list[Path], cell, cycle: int | None = None) -> tuple[lis
         if not own:
             raise CalibrationError(f"{path}: no stretch of {MIN_TICKS} ticks at the servo rate; " + (
                 said[0].removeprefix(f"{path}: ") if said else "record at full rate (`cellguard excite` does)"))
+        if windows and write:
+            raise CalibrationError(f"--write: {windows} (nothing written)")
         segments += own
-        warnings += said
+        warnings += said + ([f"{windows} (the fit's values and intervals do not hold)"] if windows else [])
     return segments, healths, warnings
+
+
+def event_windows(path: Path, record_id: str, context: dict, cell) -> str | None:
+    """Why a record's servo-rate ticks cannot be fitted, or None: a run record decimated below the servo rate keeps
+    them only in windows around its events and failed cycles, which are contact, stops and recoveries, and the fit's
+    model is free motion without contact (a pick-and-place run's windows fitted wrist_flex armature 0.04988 [0.04982,
+    0.04995], truth 0.05; leaving out 1.5 s around each stop did not help: the contact is in every cycle). A record at
+    the servo rate throughout (``excite``'s) is fitted whole."""
+    hz = (context.get("record") or {}).get("decimated_hz")
+    if not isinstance(hz, (int, float)) or hz * cell.dt_ns >= 1e9 * (1.0 - 1e-9):
+        return None
+    return (f"{path}: run {record_id} is decimated to {hz:g} Hz; a run record's full-rate windows surround events "
+            f"(contact, stops), which the fit's model (free motion) does not describe: identify from "
+            f"`cellguard excite {cell.name}` records")
 
 
 # the tick fields the fit reads, in words (position, velocity and setpoint enter every joint's inverse dynamics)
@@ -435,10 +469,8 @@ def _identify(segments: list[Segment], cell, params: tuple[str, ...]) -> dict:
     note = interval_note(estimates) + (BIAS_NOTE if held else "; no bias check (the base moved freely)")
     biases = {(e.parameter, e.joint): e.bias for e in estimates if isinstance(e, Fitted)}
     estimates = with_intervals(estimates)
-    unexcited = sorted({e.parameter for e in estimates if not e.identifiable})
-    if unexcited and not warnings:
-        warnings.append(f"{', '.join(unexcited)}: not excited by these records (production cycles rarely are); "
-                        f"`cellguard excite {cell.name}` records a trajectory that excites them")
+    if not warnings:
+        warnings += unexcited_warnings(estimates, cell)
     rows = []
     for e in estimates:
         row = e.to_dict()

@@ -184,7 +184,10 @@ def _write(path: Path, cell, result: dict, date: str, basis: bytes | None) -> Wr
     _refuse_edited_version(path, str(raw.get("version", "unversioned")), old_bytes)
     new = [e for e in result["estimates"] if e["parameter"] in WRITTEN and e["interval"] is not None]
     if not new:
-        raise CalibrationError(f"--write: nothing identified to write (of {', '.join(WRITTEN)})")
+        unexcited = [f"{e['joint']} {e['parameter']}" for e in result["estimates"] if e["parameter"] in WRITTEN]
+        why = f": {', '.join(unexcited)} not excited by these records" if unexcited else ""
+        raise CalibrationError(f"--write: nothing identified to write (of {', '.join(WRITTEN)}){why}; {path} not "
+                               "written")
     negative = negative_values(new)
     if negative:
         raise CalibrationError(f"--write: {'; '.join(describe_value(e) for e in negative)}: below zero, which no "

@@ -98,7 +98,7 @@ def identify(
             pairs = parse_only(only, cell)
             basis = read_bounded(write, "profile", ProfileError) if write is not None else None
             terms = JointTerms.from_profile(cell, write, "--write")
-            segments, healths, left_out = load_records(records, cell)
+            segments, healths, left_out = load_records(records, cell, write=write is not None)
             _whole_for_write(write, healths)
             result = refit(segments, cell, pairs, terms)
             result["warnings"][:0] = left_out  # ticks the fit went on without, and why
@@ -108,7 +108,7 @@ def identify(
                 from cellguard.calibrate.write import refuse_dropped_payload
 
                 refuse_dropped_payload(write, cell, wanted)
-            segments, healths, left_out = load_records(records, cell)
+            segments, healths, left_out = load_records(records, cell, write=write is not None)
             _whole_for_write(write, healths)
             result = fit(segments, cell, wanted)
             result["warnings"][:0] = left_out
