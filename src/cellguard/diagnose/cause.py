@@ -51,6 +51,7 @@ from cellguard.diagnose.baseline import MIN_CYCLES, Baseline, feature_matrix
 from cellguard.diagnose.cycles import Cycle
 from cellguard.diagnose.drift import DriftAlarm
 from cellguard.diagnose.feature_kinds import kind_of, member_of
+from cellguard.diagnose.intermittent import AT_ZERO
 
 CAUSES = ("fixture_shift", "friction", "servo", "camera_shift", "tool_slip", "policy_latency", "policy_output",
           "unknown", "load_change", "part_misplaced", "foot_contact", "recovery")
@@ -107,7 +108,7 @@ class _Window:
 
     def __init__(self, baseline: Baseline, cycles: Sequence[Cycle], z: np.ndarray):
         self.baseline, self.cycles, self.z = baseline, cycles, z
-        self.level: tuple[int, int] | None = None  # (first, last) cycle changes are read from, if not the baseline
+        self.level: tuple[str, str] | None = None  # where changes are read from, if not the baseline: (place, why)
         centre, _ = baseline.centre_and_scale(cycles)
         self._d = feature_matrix(cycles, baseline.names) - centre  # change from the motion's baseline
 
@@ -136,7 +137,16 @@ class _Window:
         the baseline: a second step is measured on its own (a camera that moved after the fixture moved the part
         seen back toward its acceptance place)."""
         w = self._rows(np.array([c.index >= since for c in self.cycles]))
-        rows, w.level = np.array([c.index < start for c in w.cycles]), (since, start - 1)
+        return w.read_from(np.array([c.index < start for c in w.cycles]), (
+            f"where it sat on cycles {since} to {start - 1}",
+            f"each change read from where the change from cycle {since} left it (cycles {since} to {start - 1}), "
+            "not from acceptance"))
+
+    def read_from(self, rows: np.ndarray, level: tuple[str, str]) -> _Window:
+        """This window with each feature's change read from its median over the cycles ``rows`` marks (the
+        baseline where they hold no reading); ``level`` says where that is, and why, in words."""
+        w = self._rows(np.ones(len(self.cycles), dtype=bool))
+        w.level = level
         for j in range(len(w.baseline.names)):
             read = rows & ~np.isnan(w.z[:, j])
             if read.any():
@@ -414,9 +424,8 @@ def _geometry(w: _Window, alarms: list[DriftAlarm], outcome: list[DriftAlarm]) -
     off = np.zeros(2) if off is None else off
     real = tcp + off  # where the part really sat at grasp, relative to acceptance
     current = _unchanged_currents(w, start)
-    place = "its acceptance place" if w.level is None else f"where it sat on cycles {w.level[0]} to {w.level[1]}"
-    tail = [f"each change read from where the change from cycle {w.level[0]} left it (cycles {w.level[0]} to "
-            f"{w.level[1]}), not from acceptance"] if w.level is not None else []
+    place = "its acceptance place" if w.level is None else w.level[0]
+    tail = [w.level[1]] if w.level is not None else []
     tail += [current] if current else []
     tail += [f"success fell to {np.mean([c.success for c in w.cycles if c.index >= start]):.0%} of cycles"
              ] if any(a.signal in ("success", "grasped") for a in outcome) else []
@@ -697,21 +706,42 @@ def intermittent_finding(baseline: Baseline, cycles: Sequence[Cycle], z: np.ndar
         "unknown", found.first, 0.3, (f"{', '.join(found.signals[:4])} off on some cycles",), found.signals)
     watched = len(cycles) - next(i for i, c in enumerate(cycles) if c.index == found.first)
     head = (f"intermittent: {len(found.cycles)} of {watched} cycles from cycle {found.first} on ({found.rate:.0%}), "
-            f"{_hit_cycles(found)}",)
+            f"{_hit_cycles(found)}",) if not found.clean else _at_acceptance_words(baseline, found)
     # the drives are watched on the cycles between its hits: a hit that dropped the part says nothing of them
     evidence = tuple(e for e in named.evidence if not e.startswith(DRIVES_UNWATCHED))
     return Finding(named.cause, found.first, named.confidence, head + evidence, named.signals, rate=found.rate)
 
 
+def _at_acceptance_words(baseline: Baseline, found) -> tuple[str, ...]:
+    """The head of a finding for an intermittent fault the baseline holds (``intermittent._at_acceptance``)."""
+    held = ", ".join(f"{baseline.median(s):+.1f} mm in {s.removeprefix(AT_ZERO)[0]}" for s in found.signals)
+    return (f"intermittent, present at acceptance: {len(found.cycles)} of {len(found.cycles) + len(found.clean)} "
+            f"cycles ({found.rate:.0%}), {_hit_cycles(found)}",
+            f"the acceptance baseline holds it: part-to-tool offset at grasp {held} there, where a tool that holds "
+            f"its place reads 0; the other cycles were back at 0 (cycles {_shown(found.clean)}), the fault absent, "
+            "not a new change")
+
+
 def _on_hits(baseline: Baseline, cycles: Sequence[Cycle], z: np.ndarray, found) -> tuple[_Window, list[DriftAlarm]]:
-    """The window over an intermittent pattern's hit cycles, and its features as alarms from its first."""
-    rows = [i for i, c in enumerate(cycles) if c.index in set(found.cycles)]
-    w = _Window(baseline, [cycles[i] for i in rows], z[rows])
+    """The window over an intermittent pattern's hit cycles, and its features as alarms from its first. Where the
+    baseline holds the fault, the hits are read from the clean cycles' level: the baseline is the fault's."""
+    rows = np.array([c.index in set(found.cycles) for c in cycles])
+    w = _Window(baseline, cycles, z)
+    if found.clean:
+        w = w.read_from(np.array([c.index in set(found.clean) for c in cycles]), (
+            "where it sat on the cycles the fault spared",
+            f"each change read from the cycles the fault spared (cycles {_shown(found.clean)}), not from acceptance, "
+            "which held it"))
+    w = w._rows(rows)
     return w, [DriftAlarm(s, found.first, 0.0, found.first, 0) for s in _off_on_hits(w, found)]
 
 
+def _shown(cycles: Sequence[int]) -> str:
+    return f"{', '.join(str(i) for i in cycles[:8])}{' ...' if len(cycles) > 8 else ''}"
+
+
 def _hit_cycles(found) -> str:
-    return f"cycles {', '.join(str(i) for i in found.cycles[:8])}{' ...' if len(found.cycles) > 8 else ''}"
+    return f"cycles {_shown(found.cycles)}"
 
 
 def _off_on_hits(w: _Window, found) -> tuple[str, ...]:
