@@ -11,16 +11,14 @@ def _shadow(runs) -> list[tuple[dict, RunEvidence]]:
 
 
 def shadow_distance_p95(runs) -> Measure:
-    """Candidate against incumbent per chunk: what its guard would send against what the incumbent's sent, max over
-    joints as the chunk's span ends, p95 [mrad] (its raw chunk alike reads 0 under an envelope that slows it)."""
+    """Candidate against incumbent per chunk: max joint distance over the shared steps, p95 [mrad]."""
     rows = [(s, r) for s, r in _shadow(runs) if s["distance_rad"] is not None]
     return percentile(runs, [(s["distance_rad"] * 1e3, f"{r.label(s['cycle'])} chunk at t={s['t_ns'] * 1e-9:.3f} s")
                               for s, r in rows], 95, "mrad") if rows else Measure(None, 0)
 
 
 def shadow_would_clamp(runs) -> Measure:
-    """Fraction of the candidate's chunks the envelope would have clamped (a limit intervention, or its playback
-    slowed by a speed cap, which raises no event)."""
+    """Fraction of the candidate's chunks the envelope would have clamped (a limit intervention)."""
     rows = _shadow(runs)
     hits = [f"{r.label(s['cycle'])} t={s['t_ns'] * 1e-9:.3f} s: {', '.join(s['events'])}" for s, r in rows if s["clamped"]]
     return Measure(len(hits) / len(rows) if rows else None, cycles_in(runs) if rows else 0, tuple(hits[:10]))
