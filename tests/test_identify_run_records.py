@@ -21,7 +21,7 @@ from cellguard.scenario import Scenario
 
 runner = CliRunner()
 LIFT = "shoulder_lift"
-WINDOWS = "a run record's full-rate windows surround events (contact, stops)"
+WINDOWS = "keeps the servo rate only in windows around its events (contact, stops, recoveries)"
 
 
 @pytest.fixture(scope="module")
@@ -83,3 +83,14 @@ def test_only_warns_the_same(one_way, profile):  # noqa: F811 (fixture)
     lines = written.output.strip().splitlines()
     assert written.exit_code == 2 and len(lines) == 1, written.output  # nothing to write, and why
     assert lines[0].startswith("error: --write: nothing identified") and f"{LIFT} friction not excited" in lines[0]
+
+
+def test_a_decimated_rate_the_writer_keeps_every_tick_at_is_fitted_whole():
+    """The writer keeps every tick of a 1 kHz arm from about 667 Hz up (``decimation_stride``); 900 Hz was refused."""
+    from cellguard.calibrate.identify import event_windows
+    from cellguard.robot.registry import make_cell
+
+    cell = make_cell(ARM)
+    assert event_windows("r", "id", {"record": {"decimated_hz": 900}}, cell) is None
+    assert event_windows("r", "id", {"record": {"decimated_hz": 1000}}, cell) is None
+    assert WINDOWS in event_windows("r", "id", {"record": {"decimated_hz": 50}}, cell)

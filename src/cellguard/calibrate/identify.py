@@ -360,14 +360,17 @@ def event_windows(path: Path, record_id: str, context: dict, cell) -> str | None
     """Why a record's servo-rate ticks cannot be fitted, or None: a run record decimated below the servo rate keeps
     them only in windows around its events and failed cycles, which are contact, stops and recoveries, and the fit's
     model is free motion without contact (a pick-and-place run's windows fitted wrist_flex armature 0.04988 [0.04982,
-    0.04995], truth 0.05; leaving out 1.5 s around each stop did not help: the contact is in every cycle). A record at
-    the servo rate throughout (``excite``'s) is fitted whole."""
+    0.04995], truth 0.05; leaving out 1.5 s around each stop did not help: the contact is in every cycle). A record
+    that keeps every tick (``excite``'s; a decimated rate the writer's rule takes every tick at,
+    ``decimation_stride``) is fitted whole."""
+    from cellguard.record.writer import decimation_stride
+
     hz = (context.get("record") or {}).get("decimated_hz")
-    if not isinstance(hz, (int, float)) or hz * cell.dt_ns >= 1e9 * (1.0 - 1e-9):
+    if not isinstance(hz, (int, float)) or isinstance(hz, bool) or hz <= 0 or decimation_stride(cell.dt_ns, hz) == 1:
         return None
-    return (f"{path}: run {record_id} is decimated to {hz:g} Hz; a run record's full-rate windows surround events "
-            f"(contact, stops), which the fit's model (free motion) does not describe: identify from "
-            f"`cellguard excite {cell.name}` records")
+    return (f"{path}: run {record_id} is decimated to {hz:g} Hz and keeps the servo rate only in windows around its "
+            f"events (contact, stops, recoveries), chosen by what went wrong, which the fit's model (free motion) "
+            f"does not describe: identify from `cellguard excite {cell.name}` records")
 
 
 # the tick fields the fit reads, in words (position, velocity and setpoint enter every joint's inverse dynamics)
