@@ -216,6 +216,8 @@ def print_diagnosis(d) -> None:
         console.print(f"  {f['cause']}{joints} from cycle {f['cycle']}, confidence {f['confidence']:.2f}", markup=False)
         for line in f["evidence"]:
             console.print(f"    - {line}", markup=False)
+    if d.slip_gone is not None:
+        console.print(f"  note: {d.slip_gone.words()}", markup=False)
     if d.cut_short:
         console.print(f"  note: cycle {', '.join(map(str, d.cut_short))} {CUT_SHORT}", markup=False)
     if d.unwatched:

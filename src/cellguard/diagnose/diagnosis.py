@@ -25,6 +25,7 @@ from cellguard.diagnose.recovery import (advice, advice_lines, attempts_of, fixe
                                         with_running_again, without_recovery_motion)
 from cellguard.diagnose.residual import residual_alarms, with_residual
 from cellguard.diagnose.run_end import CUT_SHORT, RunEnd, cut_short, run_end, with_stop_cause
+from cellguard.diagnose.slip_gone import SlipGone, read_from_zero, slip_gone
 from cellguard.embodiment.profile import SymmetryPair
 from cellguard.errors import RecordError
 from cellguard.robot.recovery.outcome import RecoveryOutcome
@@ -61,6 +62,7 @@ class Diagnosis:
     run_end: RunEnd | None = None  # the event that ended the run (a stop, the operator's, a lost process), if any
     cut_short: tuple[int, ...] = ()  # cycles the run's end cut short: left out of the monitors
     from_start: str | None = None  # the first finding, there from the first cycle recorded (``FROM_START``)
+    slip_gone: SlipGone | None = None  # a slip the baseline holds, gone in the watched cycles: no fault of this run
 
     def to_dict(self) -> dict:
         """The JSON of DESIGN.md (``cycles`` ... ``safety_events``) plus detail fields."""
@@ -80,6 +82,7 @@ class Diagnosis:
             "run_end": self.run_end.to_dict() if self.run_end is not None else None,
             "cut_short_cycles": {"cycles": list(self.cut_short), "why": CUT_SHORT if self.cut_short else None},
             "present_from_start": self.from_start,
+            "baseline_slip_gone": self.slip_gone.to_dict() if self.slip_gone is not None else None,
             "changes": [c.to_dict() for c in self.changes],
             "asymmetry": self.asymmetry.to_dict() if self.asymmetry is not None else None,
             "process": [n.to_dict() for n in self.process],
@@ -134,6 +137,8 @@ def diagnose(rows: Iterable[object], events: Iterable[object] = (), context: Map
         raise TooFewCycles(f"diagnose: the record has no production cycles to compare with the baseline{ended}")
     z, notes = condition(baseline, watched, baseline.residuals(watched), declared(context))
     z = without_recovery_motion(baseline.names, watched, z)
+    gone = slip_gone(baseline, watched, z)
+    z = read_from_zero(baseline, watched, z, gone)
     found = find_intermittent(baseline.names, watched, z)
     drift = detect_drift(baseline, watched, config, residuals=without_outliers(baseline.names, watched, z, found))
     rejected = _rejections([*watched, *(c for c in cycles if c.index in cut)], evs)  # events tell of a cut cycle
@@ -173,7 +178,7 @@ def diagnose(rows: Iterable[object], events: Iterable[object] = (), context: Map
         asymmetry=asym, context=dict(context or {}), process=notes,
         recoveries=tuple({"cycle": c, **o.to_dict()} for c, o in attempts), fixes=tuple(own), advice=tuple(advised),
         unwatched=tuple(baseline.other_load(watched)), no_tick_features=_without_tick_features(cycles, evs),
-        run_end=end, cut_short=cut, from_start=from_start)
+        run_end=end, cut_short=cut, from_start=from_start, slip_gone=gone)
 
 
 def record_facts(context: Mapping) -> dict:

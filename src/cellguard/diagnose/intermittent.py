@@ -108,7 +108,7 @@ def _at_acceptance(names: Sequence[str], cycles: Sequence[Cycle], z: np.ndarray)
         return []
     x, level = x[:, [i for i, _ in counts]], np.array([v for _, v in counts])
     seen = ~np.isnan(x).any(axis=1)
-    hit = seen & (np.sum((x - level) ** 2, axis=1) < np.sum(x ** 2, axis=1))
+    hit = seen & nearer_level(x, level)
     clean = seen & ~hit
     index = np.array([c.index for c in cycles])
     if not hit.any() or not clean.any() or index[hit][-1] < index[clean][0]:  # all hits before the clean: a step
@@ -116,6 +116,12 @@ def _at_acceptance(names: Sequence[str], cycles: Sequence[Cycle], z: np.ndarray)
     signals = tuple(sorted(names[cols[i]] for i, _ in counts))
     return [Intermittent("geometry", tuple(int(i) for i in index[hit]), float(hit.sum() / seen.sum()), signals,
                          tuple(int(i) for i in index[clean]))]
+
+
+def nearer_level(x: np.ndarray, level: np.ndarray) -> np.ndarray:
+    """Per cycle, whether offsets ``x`` (Shape (cycles, features)) sit nearer ``level`` (Shape (features,) or that of
+    ``x``) than zero, their clean level, summed over the features."""
+    return np.sum((x - level) ** 2, axis=1) < np.sum(x ** 2, axis=1)
 
 
 def _within(*residuals: np.ndarray, name: str) -> float:

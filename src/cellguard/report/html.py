@@ -68,6 +68,8 @@ def _findings(d: Diagnosis) -> str:
         notes += f"<div class=ok>{_e(unwatched_words(d.unwatched, d.cycles))}</div>"
     if d.no_tick_features:  # a shorter comparison is no healthier one
         notes += f"<div class=ok>{_e(no_tick_words(d.no_tick_features, d.cycles))}</div>"
+    if d.slip_gone is not None:  # "no fault" against a baseline that held a slip says why
+        notes += f"<div class=ok>{_e(d.slip_gone.words())}</div>"
     if d.cut_short:
         notes += f"<div class=ok>Cycle {_e(', '.join(map(str, d.cut_short)))} {_e(CUT_SHORT)}.</div>"
     if d.run_end is not None:  # named as the text names it; a stop of the cell's with no finding is no "all clear"
