@@ -5,7 +5,10 @@ from __future__ import annotations
 import shutil
 from pathlib import Path
 
+import pytest
+
 from cellguard.release import Store, create_bundle, evaluate_stage, load_plan, log, promote, run_stage
+from cellguard.release.errors import GateError
 from cellguard.release.promotion import plan_hash, runs_key
 from release_helpers import CELL, ONE, write_plan
 
@@ -82,11 +85,13 @@ def test_a_plan_naming_no_file_keeps_the_key_the_older_cellguard_gave_it(tmp_pat
     assert runs_key(plan) == "f80ffe8be61457178cc2a13dc062c2f12a981b3f3a08fd82f0705b4b946e7a70"  # 5ef966b's
 
 
-def test_a_units_map_gone_leaves_the_plan_keyed_by_its_text(tmp_path):
-    """No run is made without its units map (the bridge refuses it), so none is keyed by one that is gone."""
+def test_a_units_map_gone_is_one_error_naming_it(tmp_path):
+    """No run is made without its units map (the bridge refuses it), so a plan whose map is gone keys no runs: it was
+    keyed by its text alone, silently, its runs then mixing units."""
     plan = _units_plan(tmp_path / "a", "unit: deg\n")
     (tmp_path / "a" / "u.yaml").unlink()
-    assert runs_key(plan) == HEAD_RUNS_SHA256
+    with pytest.raises(GateError, match=str(tmp_path / "a" / "u.yaml")):
+        runs_key(plan)
 
 
 def test_kept_evidence_no_live_release_can_read_is_dropped(tmp_path):

@@ -115,7 +115,7 @@ def test_an_absolute_units_map_is_normalised_and_a_run_on_the_cell_is_left_as_wr
     assert load_plan(plan)["bench"].runs_beside()[0]["robot"] == "sim"
 
 
-def test_a_plan_is_hashed_as_written_wherever_its_file_lies(tmp_path):
+def test_a_plan_is_hashed_as_written_wherever_its_file_lies(tmp_path, monkeypatch):
     """The plan's hash and its runs' key are of the plan as written: the units map resolved to its real path made a
     plan logged before (or moved with its site, or copied to another folder) another plan, its runs no longer
     counted and its promotion refused."""
@@ -123,6 +123,10 @@ def test_a_plan_is_hashed_as_written_wherever_its_file_lies(tmp_path):
     from cellguard.release.promotion import plan_hash, runs_key
 
     runs = [_run("lerobot:so101_follower?port=/dev/ttyACM0&units=u.yaml")]
+    for folder in ("a", "b", "."):  # the same map beside each plan and the written one: its key holds what it holds
+        (tmp_path / folder).mkdir(exist_ok=True)
+        (tmp_path / folder / "u.yaml").write_text("unit: deg\n")
+    monkeypatch.chdir(tmp_path)
     written = StagePlan.model_validate({"runs": runs, "gates": GATES})
     for site in ("a", "b"):
         plan = load_plan(_plan(tmp_path / site / "plan.yaml", runs))["sim"]

@@ -3,7 +3,8 @@
     CellguardError
     ├── ConfigError          bad input in a file or argument (profile, scenario, action map)
     │   ├── ProfileError     an embodiment profile that disagrees with its model
-    │   └── ScenarioError    a scenario file with an unknown key, wrong type or impossible value
+    │   ├── ScenarioError    a scenario file with an unknown key, wrong type or impossible value
+    │   └── ExtraMissing     a built-in cell, robot bridge or policy source whose optional package is not installed
     ├── UnknownNameError     a registry lookup that failed; lists the names that exist
     ├── RecordError          a record that cannot be written or read
     ├── OutputError          another output file or folder that cannot be written
@@ -38,6 +39,15 @@ class ProfileError(ConfigError):
 
 class ScenarioError(ConfigError):
     """A scenario file that cannot run."""
+
+
+class ExtraMissing(ConfigError):
+    """A built-in cell, bridge or policy source needs ``cellguard[extra]``, not installed here: not bad input where it
+    is installed (``release verify`` says such a release not checked here, as for a plugin's cell)."""
+
+    def __init__(self, extra: str, message: str):
+        self.extra = extra
+        super().__init__(message)
 
 
 class UnknownNameError(CellguardError, KeyError):

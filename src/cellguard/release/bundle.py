@@ -25,7 +25,7 @@ from cellguard import __version__
 from cellguard.control.config import GuardConfig
 from cellguard.control.settings import build_guard
 from cellguard.embodiment.profile import calibrated_profile, kept_copy
-from cellguard.errors import CellguardError, ConfigError, ProfileError, ScenarioError, UnknownNameError
+from cellguard.errors import CellguardError, ConfigError, ExtraMissing, ProfileError, ScenarioError, UnknownNameError
 from cellguard.output import not_regular
 from cellguard.release.errors import BundleMismatch, ReleaseError
 from cellguard.robot.registry import CELLS, cell_names, make_cell
@@ -208,17 +208,18 @@ def check_live_inputs(store) -> InputsChecked:
 
 def _offline_changes(bundle: Bundle, served: bool) -> tuple[list[Changed], list[str]]:
     """Every input of ``bundle`` that does not hash as frozen, not the first only, and, in words, each that cannot
-    be hashed here for want of what is not installed: its cell's plugin (the profile and the policy need the cell),
-    or the extra its policy's source imports (``lerobot`` without ``cellguard[lerobot]``). Those are not problems:
-    the release runs where they are installed."""
+    be hashed here for want of what is not installed: its cell's plugin or extra (the profile and the policy need
+    the cell: the SO-101's model without ``cellguard[so101]``), or the extra its policy's source imports (``lerobot``
+    without ``cellguard[lerobot]``). Those are not problems: the release runs where they are installed."""
     found, missing, spec = [], [], bundle.manifest["policy"]["spec"]
     try:
         for changed in _changes(bundle, served=served):
             found.append(changed)
-    except UnknownNameError as exc:  # a plugin's cell, its plugin not installed here
+    except (UnknownNameError, ExtraMissing) as exc:  # a plugin's cell, its plugin not installed here; or its extra
+        needs = f"cellguard[{exc.extra}]" if isinstance(exc, ExtraMissing) else f"the plugin of cell {bundle.cell!r}"
         found += _calibration_changes(bundle, None)
         missing.append(f"release {bundle.id}: profile of {bundle.cell!r}{'' if served else f' and policy {spec}'}: "
-                       f"not checked here (needs the plugin of cell {bundle.cell!r}: {exc})")
+                       f"not checked here (needs {needs}: {exc})")
     except CellguardError as exc:
         found += _calibration_changes(bundle, None)
         found.append(Changed(bundle.id, "profile", f"profile of {bundle.cell!r}", bundle.manifest["profile"]["sha256"],

