@@ -118,6 +118,11 @@ class Run(TransitionPlay):
         # called at each cycle end with the cycle's ticks and its outcome, before it is recorded; may add keys
         # to the outcome (the calibration's residual monitor adds ``residual``)
         self.cycle_monitors: list[Callable[[CycleBuffer, dict], None]] = []
+        # called on each tick of the cycles after the guard's, with what it was given and what it gave: (t_ns, state,
+        # safety, guard, setpoint, events, driving: a recovery feeds the guard, fed: the recovery's chunk pushed on
+        # this tick or None); a shadow guard follows the live one with it (``release.shadow``). Never on a
+        # transition's ticks. None: one compare a tick
+        self.tick_observer: Callable[..., None] | None = None
         self.stopped: str | None = None  # why the run stopped early, if it did
         # why the policy answers no more (its process ended, a call hung, every answer refused: ``_never_answered``)
         self.policy_lost: str | None = None
@@ -197,6 +202,7 @@ class Run(TransitionPlay):
         # The ticks: what runs every servo period is inline; what runs at the policy's cadence is a call.
         now, advance, timing, finished, operator = clock.now, clock.advance, clock.timing, self.source.finished, self.operator
         slow = timing.recorder_slow  # wall time: why a slow recorder call was slow
+        observe = self.tick_observer
         t = now()
         if self._ticks_ended is not None:
             self._between_ns.append(perf_ns() - self._ticks_ended)
@@ -230,6 +236,8 @@ class Run(TransitionPlay):
                     if not guard.power:
                         self._power_off(t)
                 sent = link.write(t, setpoint)
+                if observe is not None:  # after the write: an observer never delays what the robot is sent
+                    observe(t, state, safety, guard, setpoint, new, driving, chunk if driving else None)
                 advance()
                 if timing.new_overrun:
                     self._overrun(t)

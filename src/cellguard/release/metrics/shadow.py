@@ -10,15 +10,22 @@ def _shadow(runs) -> list[tuple[dict, RunEvidence]]:
     return [(s, r) for r in runs for s in (r.shadow or ())]
 
 
+def _distance(row: dict) -> float | None:
+    """A chunk's distance [rad]: between what the two guards commanded over its span (``command_distance_rad``),
+    or in a file written before that was kept, the raw chunks' over their shared steps (``distance_rad``)."""
+    return row["command_distance_rad"] if "command_distance_rad" in row else row["distance_rad"]
+
+
 def shadow_distance_p95(runs) -> Measure:
-    """Candidate against incumbent per chunk: max joint distance over the shared steps, p95 [mrad]."""
-    rows = [(s, r) for s, r in _shadow(runs) if s["distance_rad"] is not None]
-    return percentile(runs, [(s["distance_rad"] * 1e3, f"{r.label(s['cycle'])} chunk at t={s['t_ns'] * 1e-9:.3f} s")
-                              for s, r in rows], 95, "mrad") if rows else Measure(None, 0)
+    """Candidate against incumbent per chunk: max joint distance of the commands over its span, p95 [mrad]."""
+    rows = [(d, s, r) for s, r in _shadow(runs) if (d := _distance(s)) is not None]
+    return percentile(runs, [(d * 1e3, f"{r.label(s['cycle'])} chunk at t={s['t_ns'] * 1e-9:.3f} s")
+                             for d, s, r in rows], 95, "mrad") if rows else Measure(None, 0)
 
 
 def shadow_would_clamp(runs) -> Measure:
-    """Fraction of the candidate's chunks the envelope would have clamped (a limit intervention)."""
+    """Fraction of the candidate's chunks its envelope would have clamped (a limit intervention, or its playback
+    slowed where the live one's was not), the live guard's own interventions left out."""
     rows = _shadow(runs)
     hits = [f"{r.label(s['cycle'])} t={s['t_ns'] * 1e-9:.3f} s: {', '.join(s['events'])}" for s, r in rows if s["clamped"]]
     return Measure(len(hits) / len(rows) if rows else None, cycles_in(runs) if rows else 0, tuple(hits[:10]))
