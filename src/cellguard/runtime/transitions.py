@@ -240,26 +240,19 @@ class Transition:
         is checked, one servo period apart (the tool moves at most sum_j reach_j v_j dt between two, ``reach``:
         ``max_reach``'s); those the tool cannot reach a wall by from a checked one are skipped. From outside, the
         grown box shrinks as the tool comes in; once inside, it stays inside."""
-        dt = self.period_ns * 1e-9
+        dt, duration = self.period_ns * 1e-9, self.duration_s
         per_step = float(np.dot(reach, profile.array("velocity"))) * dt  # [m] the tool's most in one period
-        steps, k, grown, left, worst = math.ceil(self.duration_s / dt), 0, None, None, None
+        left, worst = None, None
         allowed = (lo, hi)  # where the tool point may go: the box, grown while it is outside
-        while k <= steps:
-            t = min(k * dt, self.duration_s)
-            tip = np.asarray(tool(np.asarray(self.state_at(t)[0], dtype=np.float64)), dtype=np.float64)
-            excess = box_excess(tip, lo, hi)[0]
-            if k == 0:  # the start
-                grown = grown_box(tip, lo, hi)
-            elif left is not None:
+        for k, tip, grown in _walk(tool, lo, hi, lambda k: self.state_at(min(k * dt, duration))[0],
+                                   math.ceil(duration / dt) + 1, per_step):
+            t = min(k * dt, duration)
+            if left is not None:
                 worst = max(worst, (*box_excess(tip, *allowed), t, tip), key=lambda w: w[0])
+            elif k > 0 and (out := box_excess(tip, *allowed))[0] > 0.0:  # past the box in force at the setpoint before
+                left = worst = (*out, t, tip)
             else:
                 allowed = grown or (lo, hi)
-                beyond, wall = box_excess(tip, *allowed)
-                if beyond > 0.0:
-                    left = worst = (beyond, wall, t, tip)
-                elif grown is not None:  # once inside, it stays inside
-                    grown = grown_box(tip, lo, hi, grown) if excess > 0.0 else None
-            k += max(1, int(-excess / per_step)) if excess < 0.0 and per_step > 0.0 else 1
         if left is None:
             return None
         first = f"past its {left[1]} {left[2]:.2f} s in (at {at(left[3], lo, hi)} m)"
@@ -428,18 +421,32 @@ def _corners(box) -> tuple[tuple[float, ...], tuple[float, ...]]:
     return tuple(map(float, box[0])), tuple(map(float, box[1]))
 
 
+def _walk(tool, lo: tuple, hi: tuple, position, n: int, per_step: float = 0.0):
+    """The box in force at each of a transition's setpoints 0 to ``n`` - 1 from its start (``position(k)``: joint
+    positions), one walk for its path's check and its brakes' alike: (k, tool point there, the box ``lo``..``hi``
+    grown to hold a start outside it, or None: the box itself). The grown box shrinks as the tool point comes in
+    (``grown_box``) and is the box itself from the first setpoint inside it on, as the guard's look-ahead holds a
+    motion from outside. ``per_step`` [m]: the most the tool point moves from one setpoint to the next; setpoints it
+    cannot reach a wall by from one inside the box are skipped (0: none)."""
+    k, grown = 0, None
+    while k < n:
+        tip = np.asarray(tool(np.asarray(position(k), dtype=np.float64)), dtype=np.float64)
+        excess = box_excess(tip, lo, hi)[0]
+        if k == 0:
+            grown = grown_box(tip, lo, hi)
+        elif grown is not None:
+            grown = grown_box(tip, lo, hi, grown) if excess > 0.0 else None
+        yield k, tip, grown
+        k += max(1, int(-excess / per_step)) if excess < 0.0 and per_step > 0.0 else 1
+
+
 def _boxes_in_force(tool, lo: tuple, hi: tuple, positions: np.ndarray) -> list[tuple]:
-    """The box a brake from each of ``positions`` (joint setpoints from the start) must keep inside: ``lo``..``hi``,
-    or from a start outside it the box grown to hold the tool point there, shrinking as it comes in (``grown_box``)
-    and the box itself once it is in, as the path is held (``_path_leaves``). Checked against the start's grown box
-    throughout, a brake 90 ms after the tool came in went 9 mm past the ceiling it had come in under."""
-    grown = grown_box(tool(positions[0]), lo, hi) if len(positions) else None
-    if grown is None:
-        return [(lo, hi)] * len(positions)
-    boxes = []
-    for q in positions:
-        if grown is not None:
-            tip = tool(q)
-            grown = grown_box(tip, lo, hi, grown) if box_excess(tip, lo, hi)[0] > 0.0 else None
-        boxes.append(grown or (lo, hi))
+    """The box a brake from each of ``positions`` (joint setpoints from the start) must keep inside: the one the path
+    is held to there (``_walk``). Checked against the start's grown box throughout, a brake 90 ms after the tool came
+    in went 9 mm past the ceiling it had come in under."""
+    boxes = [(lo, hi)] * len(positions)
+    for k, _, grown in _walk(tool, lo, hi, positions.__getitem__, len(positions)):
+        if grown is None:  # the box itself from here on
+            break
+        boxes[k] = grown
     return boxes
