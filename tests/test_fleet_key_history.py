@@ -16,7 +16,7 @@ from cellguard.errors import ConfigError
 from cellguard.fleet.audit import AUDIT_FILE, append_audit
 from cellguard.fleet.export import export_batch
 from cellguard.fleet.policy import DataPolicy
-from cellguard.fleet.push import push
+from cellguard.fleet.push import check_key_history, push
 from cellguard.fleet.signature import Signature
 from cellguard.fleet.site_key import KEY_FILE
 from cellguard.fleet.store import FleetStore, TenantStore
@@ -50,12 +50,20 @@ def test_a_push_into_a_folder_that_sent_before_its_key_is_refused_and_makes_noth
     assert (tmp_path / AUDIT_FILE).read_text() == log
 
 
-def test_another_site_or_a_queued_batch_in_the_folder_is_no_reason_to_refuse(tmp_path):
-    sent_before_the_key(tmp_path, DataPolicy("t-a", "s-other"))  # another site's rows: none of s-1's repeat
+def test_a_queued_batch_in_the_folder_is_no_reason_to_refuse(tmp_path):
     batch = export_batch(sigs("t-a", "s-1"), DataPolicy("t-a", "s-1"), TODAY, key=OLD_IDS)
     append_audit(tmp_path, batch, "queued", "db")  # never left: held at the push (its ids are not keyed)
     result = push(sigs("t-a", "s-1"), DataPolicy("t-a", "s-1"), tmp_path, None, today=TODAY)
     assert result.new_key == str(tmp_path / KEY_FILE)
+
+
+def test_another_sites_batches_are_no_reason_to_withdraw_this_one(tmp_path):
+    """The key history is the site's: another site's rows make no findings of s-1 repeat (the folder is refused for
+    naming another site, ``check_same_site``, not for its key)."""
+    sent_before_the_key(tmp_path, DataPolicy("t-a", "s-other"))
+    check_key_history(tmp_path, DataPolicy("t-a", "s-1"))
+    with pytest.raises(ConfigError, match="batches of site s-other .* the policy names site s-1"):
+        push(sigs("t-a", "s-1"), DataPolicy("t-a", "s-1"), tmp_path, None, today=TODAY)
 
 
 def test_cli_push_is_refused_before_the_diagnosis_in_one_line(tmp_path):

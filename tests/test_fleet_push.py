@@ -295,7 +295,7 @@ def test_cli_withdraw_deletes_what_the_site_pooled_from_the_store_and_the_lake(f
     store, dsns = fleet
     lake = tmp_path / "lake"
     push(sigs("ta", "s9-x"), DataPolicy("ta", "s9-x"), tmp_path / "site", TenantStore(dsns["ta"]), lake)
-    push(sigs("ta", "s9-y"), DataPolicy("ta", "s9-y"), tmp_path / "site", TenantStore(dsns["ta"]), lake)
+    push(sigs("ta", "s9-y"), DataPolicy("ta", "s9-y"), tmp_path / "site-y", TenantStore(dsns["ta"]), lake)
     policy = tmp_path / "p.yaml"
     policy.write_text("tenant: ta\nsite: s9-x\nexport: nothing\n")
     result = CliRunner().invoke(app, ["fleet", "withdraw", "--policy", str(policy), "--store", dsns["ta"],

@@ -7,7 +7,6 @@ printed through ``say``: as written, never wrapped (scripts read them), control 
 from __future__ import annotations
 
 import json
-import os
 import sys
 from pathlib import Path
 
@@ -55,7 +54,7 @@ def push(
     from cellguard.fleet.from_record import site_signatures
     from cellguard.fleet.lake import check_lake
     from cellguard.fleet.policy import load_policy
-    from cellguard.fleet.push import check_key_history, check_site
+    from cellguard.fleet.push import check_history, check_site
     from cellguard.fleet.push import push as do_push
 
     try:
@@ -64,7 +63,7 @@ def push(
         if lake is not None:  # holds a link, a site that must withdraw first: refused before the diagnosis
             check_lake(lake)
         check_site(site_dir)
-        check_key_history(site_dir, pol)
+        check_history(site_dir, pol)
         unkept: list[str] = []
         skipped: list[str] = []
         copies: list[str] = []  # folders holding a record already read (a link, a backup copy): diagnosed once
@@ -164,7 +163,7 @@ def query(
 def similar(
     target: str = typer.Argument(..., help="A run folder (its findings) or one of your signature ids."),
     policy: Path | None = typer.Option(None, "--policy", help="For a run folder: this site's data policy."),
-    limit: int = typer.Option(5, "--limit", help="Neighbours per finding."),
+    limit: int = typer.Option(5, "--limit", help="Neighbours per finding (1..1000000)."),
     acceptance: Path | None = ACCEPTANCE,
     store: str | None = STORE,
     site_dir: Path = SITE_DIR,
@@ -178,10 +177,12 @@ def similar(
     from cellguard.errors import ConfigError
     from cellguard.fleet import similar as sim
     from cellguard.fleet.audit import check_log, check_site_dir
+    from cellguard.fleet.queries import checked, named
 
     unkept: list[str] = []  # a run folder on read-only storage: its diagnosis's files not kept beside it
     skipped: list[str] = []  # a run whose record is not whole
     try:
+        checked(named("similar"), "limit", limit)  # every option before anything is diagnosed, logged or sent
         if not store:
             raise ConfigError("--store: no fleet store DSN (or CELLGUARD_FLEET_DSN)")
         st = _store(store)
@@ -322,13 +323,12 @@ def _withdrawn_so_far(exc: CellguardError, site: str, in_lake: int | None, in_st
 def _key_after_withdrawal(site_dir: Path) -> None:
     """Make the site key of ``site_dir`` if it has none (noted): the site's rows are gone from the store, so ids
     keyed from now on repeat nothing there (``push.check_key_history``)."""
-    from cellguard.fleet.site_key import KEY_FILE, site_key
+    from cellguard.fleet.site_key import KEY_FILE, make_key, site_key
 
-    path = Path(site_dir) / KEY_FILE
-    if os.path.lexists(path):
-        return
     try:
+        made = make_key(site_dir)
         site_key(site_dir)
     except CellguardError as exc:
         fail(exc)
-    _new_key_note(str(path))
+    if made:
+        _new_key_note(str(Path(site_dir) / KEY_FILE))

@@ -8,8 +8,11 @@ tenant's whose folder holds it: one that names another tenant is not read (a ten
 otherwise invent customers, and a group under k would pass), and a link is never followed (it
 could lead into another tenant's folder).
 
-Each batch is one file per partition, named by the batch's content hash and written beside its
-target then renamed; its signatures are then taken out of the partition's other files, so each
+Each batch is one file per partition, named by the batch's content hash. It is written under a staged
+name (``Landing``) before the store commits the batch and renamed into place only once the commit
+succeeded (removed when the store refused it), so the lake gets what the store took; files a push left
+staged (the server lost mid-commit, the push killed) are brought to what the store holds by the next
+push that reaches it (``reconcile``). Its signatures are then taken out of the partition's other files, so each
 signature is in the lake once, as last sent: re-sending a batch replaces its file with the same
 rows, a growing folder pushed again moves its signatures into its latest file, and a signature
 sent again with fields the policy now withholds loses them. The engines read a row once even
@@ -21,10 +24,12 @@ site's rows out (its retention, its consent withdrawn). DuckDB (``duckdb_engine`
 from __future__ import annotations
 
 import datetime as dt
+import fcntl
 import os
 import re
+import secrets
 from collections import defaultdict
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
 
 import pyarrow as pa
@@ -33,7 +38,7 @@ import pyarrow.parquet as pq
 
 from cellguard.errors import ConfigError, OutputError
 from cellguard.fleet.signature import ID_PATTERN
-from cellguard.output import atomic_file
+from cellguard.output import UNLOCKABLE, atomic_file, make_folder
 
 SIGNATURES = pa.schema([
     ("signature_id", pa.string()), ("tenant_id", pa.string()), ("site_id", pa.string()),
@@ -47,29 +52,187 @@ EFFECTS = pa.schema([("tenant_id", pa.string()), ("signature_id", pa.string()), 
                      ("effect", pa.float64())])
 
 
-def write_signatures(lake: Path, rows: Iterable[Mapping], name: str) -> int:
-    """Write sent signature rows (``withhold``'s) into their partitions as ``name``.parquet, then take them
-    out of the partition's other files (the row last sent is the one kept). Returns the signatures that
-    were not in the lake before."""
+STAGED = ".staged"  # a batch's lake file not yet visible (``NAME.TOKEN.staged``): no reader lists it
+
+
+class Unpublished(OutputError):
+    """The store took a batch but its staged lake files could not all be made visible; ``taken``: the store's
+    (rows new or changed, rows already there), set by the store."""
+
+    taken: tuple[int, int] = (0, 0)
+
+
+class Landing:
+    """A batch's lake files, written under staged names before the store commits the batch, each signatures file
+    ``flock``ed by this process: ``publish`` makes them visible once the commit succeeded, ``discard`` removes them
+    when the store refused it. ``release`` leaves them (the commit's outcome is not known: the server was lost, the
+    push stopped) for ``reconcile`` to bring to what the store holds; a killed push leaves them the same way."""
+
+    def __init__(self) -> None:
+        self.parts: list[tuple[Path, Path, list[str], int | None]] = []  # (staged signatures, final, ids, lock)
+        self.new = 0  # signatures not in the lake before
+
+    def publish(self) -> int:
+        """Rename each staged pair into place (effects first: an effect alone is never read), then take its
+        signatures out of the partition's other files. Returns the signatures new to the lake."""
+        try:
+            for staged, target, ids, _ in self.parts:
+                os.replace(_effects_of(staged), _effects_of(target))
+                os.replace(staged, target)
+                others = [(o, _read(o)) for o in _partition(target) if o != target]
+                for other, table in others:
+                    _take_out(other, table, pc.is_in(table["signature_id"], value_set=pa.array(ids, pa.string())))
+        except (OSError, OutputError) as exc:
+            raise Unpublished(f"lake {staged.parents[3]}: the store took batch {target.stem} but its lake files "
+                              f"could not all be made visible ({getattr(exc, 'strerror', None) or exc}); the next "
+                              f"push that reaches the store lands what is left") from None
+        finally:
+            self.release()
+        return self.new
+
+    def discard(self) -> None:
+        """Remove the staged files: the store did not take the batch."""
+        for staged, _, _, _ in self.parts:
+            for path in (_effects_of(staged), staged):
+                path.unlink(missing_ok=True)
+        self.release()
+
+    def release(self) -> None:
+        """Unlock the staged files, leaving them where they are."""
+        for *_, fd in self.parts:
+            if fd is not None:
+                os.close(fd)
+        self.parts = [(staged, target, ids, None) for staged, target, ids, _ in self.parts]
+
+
+def stage_signatures(lake: Path, rows: Iterable[Mapping], name: str) -> Landing:
+    """Write sent signature rows (``withhold``'s) into their partitions under staged names, to become ``name``.parquet
+    (``Landing.publish``); each partition's files are read first (one unreadable: nothing staged). What was staged
+    before an error is removed."""
     parts: dict[tuple[str, str], list[Mapping]] = defaultdict(list)
     for r in rows:
-        parts[(r["created_date"], r["tenant_id"])].append(r)
-    n = 0
-    for (date, tenant), group in sorted(parts.items()):
-        group = list({r["signature_id"]: r for r in group}.values())
-        target = _file(lake, tenant, "signatures", date, name)
-        there = set(_read(target).column("signature_id").to_pylist()) if _plain(target) else set()  # a retry's
-        others = [(o, _read(o)) for o in _partition(target) if o != target]  # one unreadable: nothing written
-        sig = {f.name: [_value(r, f.name) for r in group] for f in SIGNATURES}
-        eff = [(r["tenant_id"], r["signature_id"], k, float(v)) for r in group for k, v in (r.get("effects") or {}).items()]
-        _atomic(pa.Table.from_pydict(sig, schema=SIGNATURES), target)
-        _atomic(pa.Table.from_pydict({c: [e[i] for e in eff] for i, c in enumerate(EFFECTS.names)}, schema=EFFECTS),
-                _file(lake, tenant, "effects", date, name))
-        ids = pa.array([r["signature_id"] for r in group], pa.string())
-        for other, table in others:
-            there |= _take_out(other, table, pc.is_in(table["signature_id"], value_set=ids))
-        n += len({r["signature_id"] for r in group} - there)
-    return n
+        parts[(str(r["created_date"]), r["tenant_id"])].append(r)
+    landing = Landing()
+    try:
+        for (date, tenant), group in sorted(parts.items()):
+            group = list({r["signature_id"]: r for r in group}.values())
+            ids = [r["signature_id"] for r in group]
+            target = _file(lake, tenant, "signatures", date, name)
+            _file(lake, tenant, "effects", date, name)  # a link on the effects side is refused too
+            there = set(_read(target).column("signature_id").to_pylist()) if _plain(target) else set()  # a retry's
+            for other in _partition(target):
+                if other != target:
+                    there |= set(_read(other, ["signature_id"]).column("signature_id").to_pylist()) & set(ids)
+            sig = pa.Table.from_pydict({f.name: [_value(r, f.name) for r in group] for f in SIGNATURES},
+                                       schema=SIGNATURES)
+            eff = [(r["tenant_id"], r["signature_id"], k, float(v)) for r in group
+                   for k, v in (r.get("effects") or {}).items()]
+            staged = target.with_name(f"{name}.{secrets.token_hex(4)}{STAGED}")
+            landing.parts.append((staged, target, ids, _write_locked(sig, staged)))
+            _atomic(pa.Table.from_pydict({c: [e[i] for e in eff] for i, c in enumerate(EFFECTS.names)},
+                                         schema=EFFECTS), _effects_of(staged))
+            landing.new += len(set(ids) - there)
+    except BaseException:
+        landing.discard()
+        raise
+    return landing
+
+
+def write_signatures(lake: Path, rows: Iterable[Mapping], name: str) -> int:
+    """Write sent signature rows into their partitions as ``name``.parquet, then take them out of the partition's
+    other files (the row last sent is the one kept): staged and published at once, with no store to wait for.
+    Returns the signatures that were not in the lake before."""
+    return stage_signatures(lake, rows, name).publish()
+
+
+def reconcile(lake: Path, tenant: str, held: Callable[[list[str]], Mapping[str, Mapping]]) -> int:
+    """Bring the staged files a push left in ``tenant``'s folder (the store lost mid-commit, the push killed) to what
+    the store holds: their rows the store holds as staged (``held``: signature id -> the stored row with its
+    ``effects``) are published, the others dropped. A staged file another push holds locked is left to it. Returns
+    the signatures published."""
+    refuse_links(lake, tenant)
+    published = 0
+    for staged in sorted(tenant_dir(lake, tenant).glob(f"signatures/date=*/*{STAGED}")):
+        fd = _lock_left(staged)
+        if fd is None:
+            continue
+        try:
+            rows = _staged_rows(staged)
+            stored = held([r["signature_id"] for r in rows]) if rows else {}
+            kept = [r for r in rows if stored.get(r["signature_id"]) == r]
+            if kept:
+                published += len(kept)
+                write_signatures(lake, kept, staged.name.removesuffix(STAGED).rsplit(".", 1)[0])
+            for path in (_effects_of(staged), staged):
+                path.unlink(missing_ok=True)
+        finally:
+            os.close(fd)
+    return published
+
+
+def _staged_rows(staged: Path) -> list[dict]:
+    """The rows of a staged signatures file, each with its ``effects``; none when a killed push left it unreadable."""
+    try:
+        rows = _read(staged).to_pylist()
+        effects = _read(_effects_of(staged)).to_pylist() if _effects_of(staged).is_file() else []
+    except OutputError:
+        return []
+    by_id: dict[str, dict[str, float]] = defaultdict(dict)
+    for e in effects:
+        by_id[e["signature_id"]][e["feature"]] = e["effect"]
+    return [{**r, "effects": by_id.get(r["signature_id"], {})} for r in rows]
+
+
+def _write_locked(table: pa.Table, path: Path) -> int | None:
+    """Write ``table`` to the new file ``path``, locked before a byte is written (``reconcile`` leaves it alone);
+    the open, locked descriptor (None where the filesystem offers no locks)."""
+    make_folder(path.parent, "lake folder")
+    try:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC, 0o600)
+    except OSError as exc:
+        raise OutputError(f"lake file {path}: cannot write ({exc.strerror or exc.__class__.__name__})") from None
+    locked = True
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX)
+        except OSError as exc:
+            if exc.errno not in UNLOCKABLE:
+                raise
+            locked = False
+        with os.fdopen(os.dup(fd), "wb") as f:
+            pq.write_table(table, f, compression="zstd")
+            f.flush()
+            os.fsync(f.fileno())
+    except (OSError, pa.ArrowException) as exc:
+        os.close(fd)
+        path.unlink(missing_ok=True)
+        raise OutputError(f"lake file {path}: cannot write ({getattr(exc, 'strerror', None) or exc})") from None
+    if not locked:
+        os.close(fd)
+        return None
+    return fd
+
+
+def _lock_left(staged: Path) -> int | None:
+    """A descriptor holding ``staged``'s lock if no live push holds it (the push that wrote it was lost or
+    killed), else None (also where no locks are offered: a live push cannot be told from a dead one)."""
+    try:
+        fd = os.open(staged, os.O_RDWR | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
+    except OSError:
+        return None
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        if os.path.exists(staged):  # not published or discarded meanwhile
+            return fd
+    except OSError:
+        pass
+    os.close(fd)
+    return None
+
+
+def _effects_of(sig_file: Path) -> Path:
+    """The effects file paired with the signatures file ``sig_file`` (same partition, same name)."""
+    return sig_file.parents[2] / "effects" / sig_file.parent.name / sig_file.name
 
 
 def forget(lake: Path, tenant: str, site: str, before: dt.date | None = None) -> int:
@@ -259,7 +422,7 @@ def _take_out(sig_file: Path, table: pa.Table, which: pa.ChunkedArray) -> set[st
     gone = table.filter(mask).column("signature_id")
     if not len(gone):
         return set()
-    effects_file = sig_file.parents[2] / "effects" / sig_file.parent.name / sig_file.name
+    effects_file = _effects_of(sig_file)
     _keep(sig_file, table.filter(pc.invert(mask)))  # the signatures first: an effect left alone is never read
     if _plain(effects_file):
         effects = _read(effects_file)

@@ -27,9 +27,13 @@ rows old. A batch with every signature past the retention, or a batch of counts 
 would replace a newer one), is held whole (a policy that keeps rows longer lets it go).
 
 A queued batch the store refuses (another tenant's, say) or a file that cannot be read stays
-queued too, named in one line; the other batches go on. With ``lake``, a batch lands in the lake
-before the store commits it: a lake that cannot take it leaves the store as it was, and the batch
-queued.
+queued too, named in one line; the other batches go on. With ``lake``, a batch is staged in the lake
+before the store commits it and made visible only once the commit succeeded (``lake.Landing``): a lake
+that cannot take it leaves the store as it was, and the batch queued; one the store refuses at its commit
+leaves the lake as it was. What a push left staged (the store lost mid-commit, the push killed) is brought
+to what the store holds by the next push that reaches it. A folder whose audit log names another site
+(or tenant) the store took batches of is refused (``check_same_site``): the same findings would be stored
+again under the new id.
 
 What the export keeps and what a queued batch may take out are counted on the store's UTC date, as its retention
 is: the batch is built and queued on this host's date (the order above), and once the store's date is read and is
@@ -63,21 +67,22 @@ through a link (a link to nothing took the audit log outside the site).
 from __future__ import annotations
 
 import datetime as dt
+from collections import defaultdict
 from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
 
 from cellguard.dates import utc_today
 from cellguard.errors import ConfigError, OutputError
-from cellguard.fleet.audit import (append_audit, append_retention, check_log, check_site_dir,
+from cellguard.fleet.audit import (append_audit, append_retention, check_log, check_site_dir, destination_of,
                                    refuse_links, scan_audit)
 from cellguard.fleet.export import (AHEAD, Batch, dated_ahead, export_batch, newest_kept, oldest_kept, refusal,
                                     within_retention)
-from cellguard.fleet.lake import check_lake, forget, newest, write_signatures
+from cellguard.fleet.lake import Unpublished, check_lake, forget, newest, reconcile, stage_signatures
 from cellguard.fleet.outbox import OUTBOX, Outbox
 from cellguard.fleet.policy import DataPolicy
 from cellguard.fleet.signature import Signature
-from cellguard.fleet.site_key import KEY_FILE, fingerprint, site_key
+from cellguard.fleet.site_key import KEY_FILE, fingerprint, make_key, site_key
 from cellguard.fleet.store import StoreError, StoreUnavailable, TenantStore
 
 
@@ -112,8 +117,8 @@ def push(signatures: list[Signature], policy: DataPolicy, site_dir: Path, store:
     if lake is not None:
         check_lake(lake)  # before anything is queued or sent
     check_site(site_dir)
-    made = None if (Path(site_dir) / KEY_FILE).exists() else str(Path(site_dir) / KEY_FILE)
-    check_key_history(site_dir, policy)
+    check_history(site_dir, policy)
+    made = str(Path(site_dir) / KEY_FILE) if make_key(site_dir) else None
     key = site_key(site_dir)
     local = today or utc_today()
     batch = export_batch(signatures, policy, local, key=key)
@@ -138,6 +143,8 @@ def push(signatures: list[Signature], policy: DataPolicy, site_dir: Path, store:
     sent = new = dup = 0
     removed, lost, doubt = _apply_retention(policy, site_dir, store, lake, local, server, failed)
     unavailable = unavailable or lost
+    if lake is not None and server is not None and unavailable is None:
+        unavailable = _reconcile_lake(lake, policy.tenant, store, failed)
     if doubt:
         sends = f"nothing is sent ({len(queued)} batch(es) stay queued) and " if server is not None else ""
         failed.append(f"{doubt}: {sends}the retention of {policy.retention_days} days deletes nothing this push")
@@ -155,9 +162,9 @@ def push(signatures: list[Signature], policy: DataPolicy, site_dir: Path, store:
             held.append(f"{path}: held at the site, " + (f"the policy in force ({policy.version}) does not allow it: "
                                                          f"{why}" if why else unkeyed))
             continue
-        land = partial(write_signatures, lake, going.signatures, going.batch_id) if lake is not None else None
+        land = partial(stage_signatures, lake, going.signatures, going.batch_id) if lake is not None else None
         try:
-            n, d = store.push(going, then=land)
+            n, d = store.push(going, stage=land)
         except StoreUnavailable as exc:
             unavailable = str(exc)
             break
@@ -165,6 +172,9 @@ def push(signatures: list[Signature], policy: DataPolicy, site_dir: Path, store:
             append_audit(site_dir, waiting, "refused", destination, reason=str(exc), policy_in_force=policy.version)
             failed.append(f"{path}: {exc}; it stays queued")
             continue
+        except Unpublished as exc:  # the store took it: sent, the lake catches up on the next push
+            failed.append(str(exc))
+            n, d = exc.taken
         except OutputError as exc:  # the lake could not take it: the store rolled back
             failed.append(f"{path}: {exc}; it stays queued")
             continue
@@ -187,6 +197,40 @@ def check_site(site_dir: Path, must_exist: bool = False) -> None:
     check_site_dir(site_dir, missing_ok=not must_exist)
     check_log(site_dir)
     refuse_links(site_dir, KEY_FILE, OUTBOX)
+
+
+def check_history(site_dir: Path, policy: DataPolicy) -> None:
+    """ConfigError if the audit log of ``site_dir`` says a push of ``policy`` would store findings a second time
+    (``check_key_history``, ``check_same_site``)."""
+    check_key_history(site_dir, policy)
+    check_same_site(site_dir, policy)
+
+
+def check_same_site(site_dir: Path, policy: DataPolicy) -> None:
+    """ConfigError if the audit log says batches of another tenant or site went to a store from ``site_dir`` and were
+    not withdrawn from it since. The site key and the runs are the folder's, so the same findings would be stored
+    again under the policy's new ids (a site renamed in the policy counted each cause at two sites). Refused, not
+    renamed: a withdrawal cannot be undone, and a policy copied from another site should not delete this one's rows."""
+    site_dir = Path(site_dir)
+    if not site_dir.is_dir():
+        return
+    stored: dict[tuple[str, str], set[str | None]] = defaultdict(set)
+    for e in scan_audit(site_dir)[0]:
+        was = (e.get("tenant_id"), e.get("site_id"))
+        if None in was or was == (policy.tenant, policy.site):
+            continue
+        if e["status"] in ("sent", "duplicate"):
+            stored[was].add(destination_of(e))
+        elif e["status"] == "withdrawn":
+            stored[was].discard(destination_of(e))
+    for (tenant, site), where in sorted(stored.items()):
+        if where:
+            raise ConfigError(
+                f"--site-dir {site_dir}: batches of site {site} (tenant {tenant}) went to {sorted(map(str, where))[0]} "
+                f"from here, but the policy names site {policy.site} (tenant {policy.tenant}); with this folder's "
+                f"key and runs a push would store every finding again under the new id: to rename the site, run "
+                f"`cellguard fleet withdraw --policy OLD_POLICY --site-dir {site_dir}` (with --lake if they landed "
+                f"in one) under the policy naming {site}, then push; for another site, give it a new --site-dir")
 
 
 def check_key_history(site_dir: Path, policy: DataPolicy) -> None:
@@ -281,6 +325,19 @@ def _apply_retention(policy: DataPolicy, site_dir: Path, store: TenantStore | No
             append_retention(site_dir, policy, n, where, before=before.isoformat())
         removed += n
     return removed, None, None
+
+
+def _reconcile_lake(lake: Path, tenant: str, store: TenantStore, failed: list[str]) -> str | None:
+    """Bring what earlier pushes left staged in ``lake`` (the store lost mid-commit, a push killed) to what
+    ``store`` holds (``lake.reconcile``), adding a line to ``failed`` where the lake refuses; why the store was
+    lost meanwhile, or None."""
+    try:
+        reconcile(lake, tenant, store.held)
+    except StoreUnavailable as exc:
+        return str(exc)
+    except (OutputError, StoreError) as exc:
+        failed.append(f"{exc}; what earlier pushes left staged in the lake stays staged")
+    return None
 
 
 def _distrust(local: dt.date, server: dt.date | None, policy: DataPolicy, lake: Path | None) -> str | None:

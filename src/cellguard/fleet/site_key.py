@@ -29,8 +29,7 @@ def site_key(site_dir: Path) -> bytes:
     """The site's key, made (mode 0600, written beside and linked into place) if it is not there yet;
     ConfigError naming the file when it is not a key only its owner can read."""
     path = Path(site_dir) / KEY_FILE
-    if not os.path.lexists(path):
-        _create(path)
+    make_key(site_dir)
     try:
         st = os.lstat(path)
         if not stat.S_ISREG(st.st_mode):
@@ -52,9 +51,16 @@ def fingerprint(key: bytes) -> str:
     return hmac.new(key, b"cellguard site key", hashlib.sha256).hexdigest()[:16]
 
 
-def _create(path: Path) -> None:
-    """A fresh key at ``path``; one made meanwhile by another push is kept (linking never overwrites). The
-    temporary file is removed only once made: removing it from a folder that could not be made raised past the
+def make_key(site_dir: Path) -> bool:
+    """Make the site's key if it is not there; whether this process made it (of two first pushes at once, the one
+    whose link won: only it says a new key was made)."""
+    path = Path(site_dir) / KEY_FILE
+    return False if os.path.lexists(path) else _create(path)
+
+
+def _create(path: Path) -> bool:
+    """A fresh key at ``path``, True; one made meanwhile by another push is kept (linking never overwrites), False.
+    The temporary file is removed only once made: removing it from a folder that could not be made raised past the
     error that names the key."""
     tmp = path.with_name(f"{KEY_FILE}.{secrets.token_hex(4)}.tmp")
     made = False
@@ -68,7 +74,8 @@ def _create(path: Path) -> None:
         try:
             os.link(tmp, path)
         except FileExistsError:
-            pass
+            return False
+        return True
     except OSError as exc:
         raise OutputError(f"site key {path}: cannot write ({exc.strerror or exc.__class__.__name__})") from None
     finally:

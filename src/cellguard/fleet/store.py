@@ -47,12 +47,16 @@ import secrets
 from collections.abc import Callable, Mapping, Sequence
 from contextlib import contextmanager
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from cellguard.errors import CellguardError, ConfigError
+from cellguard.errors import CellguardError, ConfigError, OutputError
 from cellguard.fleet.export import Batch
 from cellguard.fleet.signature import ID_PATTERN
 from cellguard.fleet.queries import (MIN_CUSTOMERS, QUERIES, RefusedAggregate, checked, first_line, named, plain,
                                      render)
+
+if TYPE_CHECKING:
+    from cellguard.fleet.lake import Landing
 
 SIGNATURE_COLUMNS = ("signature_id", "tenant_id", "site_id", "created_date", "cause", "confidence", "robot_model",
                      "cell_type", "onset_cycle", "detection_delay_cycles", "policy_version", "calibration_version",
@@ -408,30 +412,44 @@ class TenantStore:
         con.commit()
         return con
 
-    def push(self, batch: Batch, then: Callable[[], object] | None = None) -> tuple[int, int]:
+    def push(self, batch: Batch, stage: Callable[[], Landing] | None = None) -> tuple[int, int]:
         """Insert the batch's rows in one transaction, each replacing its earlier copy: (rows new or
-        changed, rows already there as they are). ``then`` (the lake's write) runs before the commit: if
-        it fails, nothing is committed, and the store and the lake stay the same."""
-        with self._writing(f"refused the batch of tenant {batch.tenant_id}") as cur:
-            new = 0
-            for s in batch.signatures:
-                effects = sorted((s.get("effects") or {}).items())
-                inserted = _replace(cur, "signatures", {c: s.get(c) for c in SIGNATURE_COLUMNS},
-                                    ("tenant_id", "signature_id"), same=_SAME_EFFECTS, has_effects=bool(effects))
-                if inserted:
-                    cur.executemany("INSERT INTO fleet.effects (tenant_id, signature_id, feature, effect) "
-                                    "VALUES (%s, %s, %s, %s)",
-                                    [(s["tenant_id"], s["signature_id"], f, e) for f, e in effects])
-                new += inserted
-            groups = [{"tenant_id": batch.tenant_id, "site_id": batch.site_id, "month": r["month"], "cause": r["cause"],
-                       "robot_model": r["robot_model"], "cell_type": r["cell_type"]} for r in batch.aggregates]
-            _drop_other_groups(cur, batch.site_id, groups)
-            for r, row in zip(batch.aggregates, groups):
-                new += _replace(cur, "aggregates", {"row_id": _group_key(row), **row, "signatures": r["signatures"],
-                                                    "policy_version": batch.policy_version}, tuple(row))
-            if then is not None:
-                then()
+        changed, rows already there as they are). ``stage`` (the lake's write) runs before the commit: if
+        it fails, nothing is committed. What it staged is published only once the commit succeeded and
+        discarded when the store refused the batch (at the commit too: a deferred constraint); where the
+        commit's outcome is not known (the server lost, the push stopped) it is left for the next push to
+        bring to what the store holds (``lake.reconcile``)."""
+        landing = None
+        try:
+            with self._writing(f"refused the batch of tenant {batch.tenant_id}") as cur:
+                new = _insert(cur, batch)
+                landing = stage() if stage is not None else None
+        except BaseException as exc:
+            if landing is not None:
+                refused = isinstance(exc, StoreError) and not isinstance(exc, StoreUnavailable)
+                landing.discard() if refused else landing.release()
+            raise
+        if landing is not None:
+            try:
+                landing.publish()
+            except OutputError as exc:  # ``lake.Unpublished``: committed, so the caller counts it as taken
+                exc.taken = (new, batch.rows - new)
+                raise
         return new, batch.rows - new
+
+    def held(self, signature_ids: Sequence[str]) -> dict[str, dict]:
+        """This tenant's stored signatures among ``signature_ids``, each with its ``effects``: what a lake's staged
+        rows are reconciled with (``lake.reconcile``)."""
+        with self.connection() as con, self._mapped("could not read its signatures"):
+            ids = list(signature_ids)
+            rows = con.execute(f"SELECT {', '.join(SIGNATURE_COLUMNS)} FROM fleet.signatures "
+                               "WHERE signature_id = ANY(%s)", (ids,)).fetchall()
+            effects = con.execute("SELECT signature_id, feature, effect FROM fleet.effects "
+                                  "WHERE signature_id = ANY(%s)", (ids,)).fetchall()
+        out = {r[0]: {**dict(zip(SIGNATURE_COLUMNS, r)), "effects": {}} for r in rows}
+        for sid, feature, effect in effects:
+            out[sid]["effects"][feature] = effect
+        return out
 
     def forget(self, site_id: str, keep_days: int | None = None) -> int:
         """Delete this tenant's signatures of ``site_id`` more than ``keep_days`` old (its retention) and its
@@ -504,6 +522,27 @@ class TenantStore:
         limit = (f"lock_timeout {self.lock_timeout_s:g} s" if isinstance(exc, _psycopg().errors.LockNotAvailable)
                  else f"statement_timeout {self.statement_timeout_s:g} s")
         return f"fleet store {self.where} busy: gave up after its {limit} ({_reason(exc, self.dsn)})"
+
+
+def _insert(cur, batch: Batch) -> int:
+    """Insert ``batch``'s rows, each replacing its earlier copy; the rows new or changed."""
+    new = 0
+    for s in batch.signatures:
+        effects = sorted((s.get("effects") or {}).items())
+        inserted = _replace(cur, "signatures", {c: s.get(c) for c in SIGNATURE_COLUMNS},
+                            ("tenant_id", "signature_id"), same=_SAME_EFFECTS, has_effects=bool(effects))
+        if inserted:
+            cur.executemany("INSERT INTO fleet.effects (tenant_id, signature_id, feature, effect) "
+                            "VALUES (%s, %s, %s, %s)",
+                            [(s["tenant_id"], s["signature_id"], f, e) for f, e in effects])
+        new += inserted
+    groups = [{"tenant_id": batch.tenant_id, "site_id": batch.site_id, "month": r["month"], "cause": r["cause"],
+               "robot_model": r["robot_model"], "cell_type": r["cell_type"]} for r in batch.aggregates]
+    _drop_other_groups(cur, batch.site_id, groups)
+    for r, row in zip(batch.aggregates, groups):
+        new += _replace(cur, "aggregates", {"row_id": _group_key(row), **row, "signatures": r["signatures"],
+                                            "policy_version": batch.policy_version}, tuple(row))
+    return new
 
 
 _DROP = {"signatures": ("drop_signature", "signature_id"), "aggregates": ("drop_aggregate", "row_id")}
