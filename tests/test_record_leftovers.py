@@ -229,7 +229,8 @@ def test_an_event_stamped_with_a_cycle_that_ended_before_it_reads_in_no_cycle(tm
 
 
 def test_a_runs_retreat_events_after_its_last_cycle_are_recorded_in_no_cycle(tmp_path):
-    """The session stamps them so: the record's events and the index's rows (``record query``) agree."""
+    """The session stamps them so, the first at the last cycle's very end (the time cycle ends mid-motion and the
+    retreat brakes from there): the record's events and the index's rows (``record query``) agree."""
     home = np.array(make_cell("arm-pick-place").read().q, dtype=np.float64)
     t = np.arange(0.0, 3.0, 0.1)
     actions = np.array([[home + np.array([0.5 * (s + k * 0.02), 0, 0, 0, 0, 0]) for k in range(1, 26)] for s in t])
@@ -239,12 +240,12 @@ def test_a_runs_retreat_events_after_its_last_cycle_are_recorded_in_no_cycle(tmp
                                  "cycle": {"source": "time", "seconds": 1.0}}), tmp_path / "run")
     with open_record(tmp_path / "run") as rec:
         last_end = rec.cycle_spans()[1][1]
-        after = [e for e in rec.events() if e.t_ns > last_end]
-        assert after and all(e.cycle is None for e in after)
+        after = [e for e in rec.events() if e.t_ns >= last_end]
+        assert after[0].t_ns == last_end and all(e.cycle is None for e in after)
         with open(rec.file, "rb") as f:  # as written, not only as read
             written = [json.loads(m.data) for _, _, m in make_reader(f).iter_messages(topics=["/events"])]
-    assert all("cycle" not in d for d in written if d["t_ns"] > last_end)
-    names, rows = query.run_query(tmp_path / "run", f"SELECT cycle FROM events WHERE t_ns > {last_end}")
+    assert all("cycle" not in d for d in written if d["t_ns"] >= last_end)
+    names, rows = query.run_query(tmp_path / "run", f"SELECT cycle FROM events WHERE t_ns >= {last_end}")
     assert [r[0] for r in rows] == [None] * len(after)
 
 

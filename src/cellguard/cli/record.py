@@ -81,7 +81,7 @@ def info(
         "events": dict(Counter(e.kind for e in events)),
         "stops": [{"t_s": e.t_ns * 1e-9, "kind": e.kind, "category": e.category, "reason": e.reason}
                   for e in events if e.category is not None],
-        "run_lost": [{"t_s": e.t_ns * 1e-9, "reason": e.reason}
+        "run_lost": [{"t_s": e.t_ns * 1e-9, "cycle": e.cycle, "reason": e.reason}
                      for e in events if e.kind == EventKind.RUN_PROCESS_LOST],
     }
     if as_json:
@@ -118,7 +118,8 @@ def _print_info(doc: dict) -> None:
         out.print(f"stop     t={stop['t_s']:.3f} s {stop['kind']} (category {stop['category']}): {stop['reason']}",
                   markup=False)
     for lost in doc["run_lost"]:
-        out.print(f"ended    t={lost['t_s']:.3f} s, not by the run: {lost['reason']}", markup=False)
+        when = "between cycles" if lost["cycle"] is None else f"in cycle {lost['cycle']}"
+        out.print(f"ended    t={lost['t_s']:.3f} s {when}, not by the run: {lost['reason']}", markup=False)
     for change in doc["context_changes"]:
         out.print(f"context  changed at t={change['t_s']:.3f} s: {', '.join(change['changed'])}", markup=False)
 

@@ -351,6 +351,7 @@ def _confine(con: duckdb.DuckDBPyConnection, index: Path, sql: str) -> None:
             con.execute(f"CREATE TABLE {table}_copy AS SELECT * FROM {table}")
             con.unregister(table)
             con.execute(f"ALTER TABLE {table}_copy RENAME TO {table}")
+        con.execute(_OUT_OF_SPAN)
     except duckdb.OutOfMemoryException:
         raise RecordError(f"{index}: the index needs more than {MEMORY_LIMIT} of memory; query a shorter "
                           f"record") from None
@@ -358,6 +359,17 @@ def _confine(con: duckdb.DuckDBPyConnection, index: Path, sql: str) -> None:
         raise RecordError(f"{index}: the index cannot be read ({first_line(exc)}); "
                           f"`cellguard record recover` rebuilds it from the record") from None
     con.execute("SET lock_configuration = true")
+
+
+# An event lies in no cycle where it lies outside the span of the cycle it is stamped with, as ``Record.events``
+# reads it: spans closed, a cycle's last row (in part and row order) of those whose end is not before their start. A
+# record written before the recorder stamped events after a cycle's end with none has that cycle in its index rows.
+_OUT_OF_SPAN = """
+UPDATE events SET cycle = NULL
+FROM (SELECT cycle, arg_max(t_start_ns, rowid) AS t_start_ns, arg_max(t_end_ns, rowid) AS t_end_ns
+      FROM cycles WHERE t_end_ns >= t_start_ns GROUP BY cycle) AS span
+WHERE events.cycle = span.cycle AND (events.t_ns < span.t_start_ns OR events.t_ns > span.t_end_ns)
+"""
 
 
 def _message(exc: BaseException) -> str:

@@ -47,6 +47,7 @@ as it is written: its unfinished end is no damage, and ``health()`` says who is 
 from __future__ import annotations
 
 import bisect
+import collections
 import datetime as dt
 import hashlib
 import itertools
@@ -262,6 +263,7 @@ class Record:
         self.writing = None if layout.finished else writing  # finished: only its index or summary is being written
         self._buf = open_buffer(file)
         self._late_damage: dict[int, str] = {}
+        self._unindexed: dict[int, str] = {}  # chunk offset -> its messages its message indexes leave out (``health``)
         self._off_schema: dict[str, set[tuple[int, int]]] = {}  # topic -> (log time, sequence) of each bad message
         self._ids = file_ids(layout.topics)  # topic -> id, None: not in the file
         self._contexts: list[ContextChange] | None = None
@@ -387,9 +389,10 @@ class Record:
                 yield cycle
 
     def events(self) -> Iterator[EventRecord]:
-        """The events; ``cycle`` None for one outside the span of the cycle it is stamped with, as a tick's: the
-        recorder stamps an event with the cycle begun last, so the retreat's after the last cycle's end (records
-        written so) were counted against that cycle."""
+        """The events; ``cycle`` None for one outside the span of the cycle it is stamped with, as a tick's. Spans are
+        closed: a cycle's last tick, and a stop read on it, lie at its end. The recorder stamps an event raised after a
+        cycle's end with none, whatever its time (the retreat's first lies at the end); before, it stamped each with the
+        cycle begun last, and such a record reads as written but for an event after its cycle's end time."""
         for _, event in self._json(self.messages(["/events"]), "/events", _event_record):
             span = None if event.cycle is None else self._span(event.cycle)
             if span is not None and not span[0] <= event.t_ns <= (_INT64 if span[1] is None else span[1]):
@@ -567,8 +570,8 @@ class Record:
 
     # -- health ---------------------------------------------------------------------------
     def health(self) -> Health:
-        """Read every chunk once: CRCs, sequence gaps per channel, message counts, and each message checked as its
-        reader takes it (``_Checks``).
+        """Read every chunk once: CRCs, sequence gaps per channel, message counts, each message checked as its
+        reader takes it (``_Checks``), and messages a chunk's message indexes leave out (``_unindex``).
 
         In file order, a chunk at a time: none of it needs time order, and a merge by time holds every chunk that
         overlaps another (a record whose chunks were written twice held all of them). Only the messages checked are
@@ -582,14 +585,14 @@ class Record:
         self.contexts  # noqa: B018 - read first, so that a lost context is known
         offset = self._offset or 0
         checks, every = _Checks(self._ids), set(names)
-        for ref in self.layout.chunks:
+        for i, ref in enumerate(self.layout.chunks):
             if not _overlaps(ref, every, None, None):
                 continue
             heads: list[tuple[int, int, int, int]] = []
-            # decoded where a reader reads them: a channel the chunk's index leaves out, no reader takes from it
-            listed = checks.channels if ref.channels is None else checks.channels & ref.channels
-            for m in self._chunk_messages(ref, listed, heads):
+            for m in self._chunk_messages(ref, checks.channels, heads):
                 checks.check(m)
+            if ref.channels is not None and not {head[0] for head in heads} <= ref.channels:
+                self._unindex(i, heads, names)  # and read by the readers too from now on, as checked here
             for channel, sequence, log_time, _ in heads:
                 topic = names.get(channel)
                 if topic is None:
@@ -609,7 +612,7 @@ class Record:
         for topic, keys in checks.malformed().items():  # noted once, however often read
             self._off_schema.setdefault(topic, set()).update(keys)
         damage = ([d.why for d in self.layout.damage if not (self.writing and d.at_end)]  # its end, not written yet
-                  + list(self._late_damage.values())
+                  + list(self._late_damage.values()) + list(self._unindexed.values())
                   + [f"{len(bad)} {topic} message(s) off their schema, skipped"
                      for topic, bad in self._off_schema.items()]
                   + [f"{n} {topic} message(s) repeat an earlier sequence number" for topic, n in repeats.items()])
@@ -620,6 +623,18 @@ class Record:
                       {topic: len(bad) for topic, bad in self._off_schema.items()},
                       self.layout.metadata.get("cellguard.recovered", {}).get("source_health"), self._facts_note,
                       repeats, self.writing)
+
+    def _unindex(self, i: int, heads: list[tuple[int, int, int, int]], names: dict[int, str]) -> None:
+        """Chunk ``i`` holds messages of channels its message indexes leave out (an index removed from an edited or
+        cut file): every read, the mcap package's too, skipped them, and ``health`` counted them as sound. Noted as
+        damage, and the chunk read for them from now on (a recovered copy holds them)."""
+        ref = self.layout.chunks[i]
+        left = collections.Counter(names.get(channel, f"channel {channel}") for channel, *_ in heads
+                                   if channel not in ref.channels)
+        said = ", ".join(f"{n} {topic}" for topic, n in left.items())
+        self._unindexed[ref.offset] = (f"chunk at byte {ref.offset}: its message indexes leave out {said} "
+                                       f"message(s), which reads before this one skipped")
+        self.layout.chunks[i] = replace(ref, channels=ref.channels | {channel for channel, *_ in heads})
 
     # -- raw messages ---------------------------------------------------------------------
     def channel_id(self, topic: str) -> int | None:

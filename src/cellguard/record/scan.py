@@ -282,8 +282,8 @@ def _from_summary(path: Path, size: int) -> Layout | None:
                 entries = buf[pos + 45:pos + 45 + ids_length]  # (channel id u16, offset u64) each
                 key = (entries[0::10], entries[1::10])  # the ids' low and high bytes, without the offsets
                 ids = id_sets.get(key)
-                if ids is None:
-                    ids = id_sets[key] = frozenset(low | high << 8 for low, high in zip(*key))
+                if ids is None:  # none: a file written without message indexes, its channels unknown (MCAP spec)
+                    ids = id_sets[key] = frozenset(low | high << 8 for low, high in zip(*key)) or None
                 layout.chunks.append(ChunkRef(offset, chunk_length, t0, t1, ids))
                 pos += 9 + length
                 continue

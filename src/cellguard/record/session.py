@@ -94,7 +94,7 @@ class RunRecording:
         self._software = software_versions()
         self._config = recorder.config
         self._cycle = 0  # the cycle begun last: each tick's stamp
-        self._span_ns: tuple[int, int | None] | None = None  # its (begin, end or None) [ns]; None before the first
+        self._begun_ns: int | None = None  # its begin [ns]; None before the first
         self._ring = ring = recorder.ring  # made shared (``Recorder``'s ``slack``) by ``start``
         self._slack = ring.capacity - ring.keep
         # ticks between "take the ticks" messages: a chunk's worth, and often enough that the writer hears of a
@@ -197,7 +197,8 @@ class RunRecording:
 
     # -- the loop's thread ---------------------------------------------------------------------
     def begin_cycle(self, cycle: int, phase: str, t_ns: int) -> None:
-        self._cycle, self._span_ns = cycle, (t_ns, None)
+        self.events()  # raised before this begin: not in this cycle
+        self._cycle, self._begun_ns = cycle, t_ns
         self._put("set_context", self._context(self.run, self._config, self._software, cycle), t_ns)
         self._put("cycle_begin", cycle, phase, t_ns)
 
@@ -239,15 +240,15 @@ class RunRecording:
 
     def end_cycle(self, outcome: dict, t_ns: int) -> None:
         self.events()
-        self._span_ns = (self._span_ns[0], t_ns) if self._span_ns else None
         self._send("cycle_end", outcome, t_ns)
 
     def events(self) -> None:
-        """Queue the run's events not recorded yet, each with the cycle begun last if it lies in that cycle's span,
-        else with none (before the first cycle, or after a cycle's end: the retreat's were the last cycle's)."""
-        events, span = self.run.events, self._span_ns
+        """Queue the run's events not recorded yet, each with the cycle begun last if it is not before that cycle's
+        begin, else with none (before the first cycle); one queued after the cycle's end lies in none (the
+        recorder's ``event``: the retreat's were the last cycle's)."""
+        events, begun = self.run.events, self._begun_ns
         for event in events[self._events_seen:]:
-            inside = span is not None and span[0] <= event.t_ns and (span[1] is None or event.t_ns <= span[1])
+            inside = begun is not None and begun <= event.t_ns
             self._put("event", event, self._cycle if inside else None)
         self._events_seen = len(events)
 

@@ -175,6 +175,7 @@ class Recorder:
         self._versions: dict[str, str] = {}
         self._where: dict[str, str | None] = {}
         self._cycle_start: dict[int, int] = {}
+        self._ended: tuple[int, int] | None = None  # the cycle whose end marker was written last, and that end [ns]
         self._guard(self._start, context)
 
     @classmethod
@@ -279,11 +280,16 @@ class Recorder:
                 self._guard(self._flush, int(t_ns[i % capacity]))
 
     def run_lost(self, why: str) -> None:
-        """The run's process is gone before it finished the run: say so at the last tick taken, since a file
-        the writer finishes alone would otherwise read as a run that ended."""
+        """The run's process is gone before it finished the run: say so, since a file the writer finishes alone
+        would otherwise read as a run that ended. At the last tick taken, in its cycle; where that cycle had ended
+        (killed between cycles), in none (``event``) and 1 ns past its end, which the live process wrote: at the end,
+        a reader that places an unstamped event by time (``diagnose``, closed spans) read the cycle as cut short."""
         ring = self._ring
         cycle = int(ring.cycle[(ring.n - 1) % ring.capacity]) if ring.n else None
-        self.event(Event(max(0, ring.last_t_ns()), EventKind.RUN_PROCESS_LOST, why), cycle)
+        t_ns = max(0, ring.last_t_ns())
+        if self._ended is not None and cycle == self._ended[0]:
+            t_ns = max(t_ns, self._ended[1] + 1)
+        self.event(Event(t_ns, EventKind.RUN_PROCESS_LOST, why), cycle)
 
     # -- lower-rate streams ----------------------------------------------------------------
     def chunk(self, chunk, t_received_ns: int, latency_ns: int) -> None:
@@ -300,7 +306,11 @@ class Recorder:
         self._guard(self._json, 7, t_ns, {"t_ns": t_ns, "cycle": cycle, "measurements": values})
 
     def event(self, event: Event, cycle: int | None = None) -> None:
-        """An event (JSON and log line); anything not routine opens a full-rate window around it."""
+        """An event (JSON and log line); anything not routine opens a full-rate window around it. ``cycle``: the
+        cycle begun last (``RunRecording``); none once that cycle's end is written, whatever the event's time: spans
+        are closed (the cycle's last tick, and a stop read on it, lie at its end), and the retreat's first event, after
+        the end, lies at that time too."""
+        cycle = None if self._ended is not None and cycle == self._ended[0] else cycle
         fields = _event_fields(event)
         routine = event.kind in self.config.routine_events
         self._guard(self._json, 5, event.t_ns, {k: v for k, v in {"cycle": cycle, **fields}.items() if v is not None})
@@ -330,6 +340,7 @@ class Recorder:
     def cycle_end(self, outcome: dict, t_ns: int) -> None:
         """The cycle's outcome and its features (computed at cycle end); also one index row."""
         cycle = int(outcome["cycle"])
+        self._ended = (cycle, t_ns)
         features = {k: _finite(v) for k, v in outcome.get("features", {}).items()}
         base = {"cycle": cycle, "phase": outcome["phase"], "t_start_ns": self._cycle_start.pop(cycle, t_ns),
                 "t_end_ns": t_ns, "success": bool(outcome["success"])}
