@@ -222,7 +222,7 @@ def test_status_and_report_judge_a_pass_by_the_plan_in_force_now(tmp_path):
     said = " ".join(cli("status", "--site", str(site)).stdout.split())
     assert f"{CELL}: the plan in force does not load, so nothing is promoted or run there until it does: {plan}" in said
     whole = (site.parent / "page.html").read_text()
-    assert "<p class=finding>the plan in force does not load, so no pass counts: " in whole
+    assert "<p class=finding>the plan in force does not load, so no pass counts there: " in whole
 
 
 def test_a_gate_added_to_the_plan_in_force_keeps_last_goods_runs_compared(tmp_path):

@@ -5,6 +5,7 @@ one units map does not promote under an edited one; logs an older cellguard wrot
 
 from __future__ import annotations
 
+import hashlib
 import importlib.util
 import json
 import os
@@ -16,6 +17,7 @@ from pathlib import Path
 import pytest
 
 from cellguard.release import Store, create_bundle, evaluate_stage, load_plan, log, promote
+from cellguard.release.bundle import canonical_json
 from cellguard.release.promotion import plan_hash, runs_key
 from release_helpers import CELL, ONE, cli, write_plan
 
@@ -86,8 +88,9 @@ def test_a_pass_under_a_units_file_edited_since_makes_its_release_no_rollback_ta
     promoted = cli("promote", third.id, "--cell", CELL, "--to", "sim", "--site", str(site))
     assert promoted.exit_code == 0, promoted.output
     assert Store(site).pointers(CELL, "sim").last_good == first
-    said = " ".join(promoted.stdout.split())
-    assert f"last_good {first}, not {second.id}: its pass there ran another plan" in said, said
+    said, want = ("".join(text.split()) for text in (promoted.stdout, f"last_good {first}, not {second.id}: its pass "
+                  f"there ran this plan as written, but {site / 'u.yaml'} held other contents then"))
+    assert want in said, promoted.stdout  # the console wraps anywhere in a long path
 
 
 @pytest.mark.parametrize("gone", ["missing", "unreadable"])
@@ -113,20 +116,22 @@ def test_a_units_file_that_cannot_be_read_is_one_error_naming_it(tmp_path, gone)
 
 
 def test_a_log_an_older_cellguard_wrote_verifies_whole_and_its_plain_passes_still_count(tmp_path):
-    """Entries as an older cellguard logged them (the plan as written, no ``log.PLAN``): ``verify`` is whole, a
-    pass on a plan naming no file still promotes, and one on a plan naming a units map is said to lack it."""
+    """Entries as an older cellguard logged them (the plan as written, what made its runs, no ``log.PLAN``):
+    ``verify`` is whole, a pass on a plan naming no file still promotes, and one on a plan naming a units map
+    whose runs were keyed by its text alone (before c40742b) is said to lack it (tests/test_release_units_upgrade.py:
+    one keyed with the map promotes)."""
     site, rid = _site(tmp_path)
     store = Store(site)
     plans = load_plan(site / "release-plan.yaml")
     with store.transaction():
         log.append(store, {"kind": "gates", "cell": CELL, "stage": "sim", "release": rid, "verdict": "pass",
                            "gates": [], "evidence": [], "plan_sha256": plan_hash(plans["sim"]),
-                           log.RUNS: "0" * 64, log.IN_FORCE: plan_hash(plans["sim"])})
+                           log.RUNS: _text_only(plans["sim"]), log.IN_FORCE: plan_hash(plans["sim"])})
         store.set_pointers(CELL, "sim", rid, rid)
     verified = cli("verify", "--site", str(site))
     assert verified.exit_code == 0 and "log whole" in verified.stdout, verified.output
     refused = cli("promote", rid, "--cell", CELL, "--to", "bench", "--site", str(site))
-    _one_line_error(refused, f"what {site / 'u.yaml'} held was not logged (an older cellguard)")
+    _one_line_error(refused, f"what {site / 'u.yaml'} held then was not logged (an older cellguard)")
     plain = write_plan(tmp_path / "plain.yaml", {s: {"runs": [ONE], "gates": GATES} for s in ("sim", "bench")})
     with store.transaction():
         log.append(store, {"kind": "gates", "cell": CELL, "stage": "sim", "release": rid, "verdict": "pass",
@@ -134,6 +139,11 @@ def test_a_log_an_older_cellguard_wrote_verifies_whole_and_its_plain_passes_stil
     promoted = cli("promote", rid, "--cell", CELL, "--to", "bench", "--plan", str(plain), "--site", str(site))
     assert promoted.exit_code == 0, promoted.output
     assert cli("verify", "--site", str(site)).exit_code == 0
+
+
+def _text_only(plan) -> str:
+    """``runs_sha256`` as a cellguard before c40742b logged it: the plan but its gates, without what u.yaml held."""
+    return hashlib.sha256(canonical_json(plan.model_dump(mode="json", exclude={"gates"}))).hexdigest()
 
 
 BLOCKED = ("import sys\n"

@@ -4,7 +4,7 @@
     ├── ConfigError          bad input in a file or argument (profile, scenario, action map)
     │   ├── ProfileError     an embodiment profile that disagrees with its model
     │   ├── ScenarioError    a scenario file with an unknown key, wrong type or impossible value
-    │   └── ExtraMissing     a built-in cell, robot bridge or policy source whose optional package is not installed
+    │   └── ExtraMissing     a built-in cell whose optional package is not installed (the SO-101's model)
     ├── UnknownNameError     a registry lookup that failed; lists the names that exist
     ├── RecordError          a record that cannot be written or read
     ├── OutputError          another output file or folder that cannot be written
@@ -42,12 +42,16 @@ class ScenarioError(ConfigError):
 
 
 class ExtraMissing(ConfigError):
-    """A built-in cell, bridge or policy source needs ``cellguard[extra]``, not installed here: not bad input where it
-    is installed (``release verify`` says such a release not checked here, as for a plugin's cell)."""
+    """A built-in cell needs ``cellguard[extra]``, not installed here: not bad input where it is installed
+    (``release verify`` says such a release not checked here, as for a plugin's cell; a policy source's extra it
+    finds by cellguard's own metadata)."""
 
     def __init__(self, extra: str, message: str):
         self.extra = extra
         super().__init__(message)
+
+    def __reduce__(self):  # both arguments: a worker process's error crosses back whole, not as a TypeError
+        return type(self), (self.extra, str(self))
 
 
 class UnknownNameError(CellguardError, KeyError):

@@ -245,8 +245,9 @@ def status(site: Path = SITE, as_json: bool = typer.Option(False, "--json")) -> 
         if r["plan_error"]:
             broken.setdefault(r["plan_error"], {})[r["cell"]] = None
     for error, cells in broken.items():
-        out.print(f"{', '.join(cells)}: the plan in force does not load, so nothing is promoted or run there until it "
-                  f"does: {error}", markup=False, soft_wrap=True)
+        where = " for the stages named" if error.startswith("stage ") else ""  # a units file gone stops its stage
+        out.print(f"{', '.join(cells)}: the plan in force does not load{where}, so nothing is promoted or run there "
+                  f"until it does: {error}", markup=False, soft_wrap=True)
 
 
 @release_app.command()

@@ -19,7 +19,7 @@ import numpy as np
 
 from cellguard.embodiment import Profile
 from cellguard.embodiment.profile import SOFT_MARGIN
-from cellguard.errors import ConfigError, ExtraMissing
+from cellguard.errors import ConfigError
 from cellguard.embodiment.action_map import EE_AXES, IkSpec
 from cellguard.policy.adapter import InferenceError
 
@@ -33,8 +33,8 @@ def _mink():
     try:
         import mink
     except ImportError:  # pragma: no cover - depends on the environment
-        raise ExtraMissing("ik", "action map: end-effector actions need mink; install it with "
-                           "pip install 'cellguard[ik]'") from None
+        raise ConfigError("action map: end-effector actions need mink; install it with "
+                          "pip install 'cellguard[ik]'") from None
     return mink
 
 

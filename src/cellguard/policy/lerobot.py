@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from cellguard.embodiment.profile import SOFT_MARGIN
-from cellguard.errors import ConfigError, ExtraMissing
+from cellguard.errors import ConfigError
 from cellguard.policy.adapter import MappedPolicy, PolicyInputs, resolve_map, split_options, step_period
 
 OPTIONS = {"map": "action map YAML file", "dt": "step period [s]", "task": "task text for language-conditioned policies"}
@@ -66,8 +66,8 @@ def load_backend(folder: Path) -> LeRobotBackend:
         from lerobot.configs.policies import PreTrainedConfig
         from lerobot.policies.factory import get_policy_class, make_pre_post_processors
     except ImportError:
-        raise ExtraMissing("lerobot", "policy: lerobot: needs LeRobot; install it with pip install "
-                           "'cellguard[lerobot]' (several GB: it brings torch)") from None
+        raise ConfigError("policy: lerobot: needs LeRobot; install it with pip install 'cellguard[lerobot]' "
+                          "(several GB: it brings torch)") from None
     folder = Path(folder)
     if not (folder / "config.json").is_file():
         raise ConfigError(f"policy: lerobot:{folder}: no config.json; expected a folder written by save_pretrained")

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from cellguard.embodiment.profile import SOFT_MARGIN
-from cellguard.errors import ConfigError, ExtraMissing
+from cellguard.errors import ConfigError
 from cellguard.policy.adapter import (InferenceError, MappedPolicy, PolicyInputs, resolve_map, split_options, stated_dt,
                                       step_period)
 from cellguard.policy.chunk import MAX_HORIZON
@@ -39,8 +39,7 @@ class OnnxBackend:
         try:
             import onnxruntime as ort
         except ImportError:  # pragma: no cover - depends on the environment
-            raise ExtraMissing("onnx", "policy: onnx: needs onnxruntime; install it with pip install "
-                               "'cellguard[onnx]'") from None
+            raise ConfigError("policy: onnx: needs onnxruntime; install it with pip install 'cellguard[onnx]'") from None
         path = Path(path)
         size = _model_file(path).st_size
         if size > MAX_MODEL_BYTES:  # refused by its size: reading it whole to hash it took 3.3 GB for a 3 GB file

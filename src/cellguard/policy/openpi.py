@@ -20,7 +20,7 @@ from urllib.parse import urlsplit
 import numpy as np
 
 from cellguard.embodiment.profile import SOFT_MARGIN
-from cellguard.errors import ConfigError, ExtraMissing
+from cellguard.errors import ConfigError
 from cellguard.policy.adapter import (DT_RANGE_S, TIMEOUT_RANGE_S, InferenceError, MappedPolicy, PolicyInputs,
                                       option_float, resolve_map, split_options, stated_dt, step_period)
 from cellguard.policy.metadata_hash import metadata_sha256
@@ -41,8 +41,7 @@ class OpenpiBackend:
         try:
             import websockets.sync.client  # noqa: F401
         except ImportError:  # pragma: no cover - depends on the environment
-            raise ExtraMissing("openpi", "policy: openpi: needs websockets and msgpack; pip install "
-                               "'cellguard[openpi]'") from None
+            raise ConfigError("policy: openpi: needs websockets and msgpack; pip install 'cellguard[openpi]'") from None
         check_address(uri)
         self.uri, self.timeout_s, self.retries = uri, timeout_s, retries
         self._headers = {"Authorization": f"Api-Key {api_key}"} if api_key else None

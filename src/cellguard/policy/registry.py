@@ -18,7 +18,7 @@ from importlib import import_module
 from types import ModuleType
 
 from cellguard.embodiment.profile import SOFT_MARGIN
-from cellguard.errors import ConfigError, ExtraMissing, UnknownNameError
+from cellguard.errors import ConfigError, UnknownNameError
 from cellguard.policy.protocol import Policy
 from cellguard.robot.registry import from_plugin, load_plugin, plugins
 
@@ -80,8 +80,8 @@ def source(scheme: str) -> ModuleType:
     try:
         return import_module(module)
     except ModuleNotFoundError as exc:  # an adapter's extra is not installed: a traceback named only the module
-        raise ExtraMissing(scheme, f"policy source {scheme}: needs the Python package {exc.name!r}, which is not "
-                           f"installed (pip install 'cellguard[{scheme}]')") from None
+        raise ConfigError(f"policy source {scheme}: needs the Python package {exc.name!r}, which is not installed "
+                          f"(pip install 'cellguard[{scheme}]')") from None
 
 
 def takes_nothing(module) -> bool:

@@ -15,7 +15,7 @@ from __future__ import annotations
 import hashlib
 import json
 import re
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from datetime import datetime, timezone
 
@@ -27,8 +27,9 @@ GENESIS = "0" * 64
 MOVES = ("promote", "rollback")  # the entries that move a stage's current
 IN_FORCE = "plan_in_force_sha256"  # a gates or promote entry's key: the stage's part of the plan in force then
 # a gates entry's key: the plan it ran with what the files its runs name held (``promotion.plan_key``), as ``IN_FORCE``
-# is; absent in an older cellguard's entries, which ``plan_sha256`` (the plan as written) judges (``ran``)
+# is; absent in an older cellguard's entries, judged by what they logged (``ran``)
 PLAN = "plan_files_sha256"
+UNREAD = "unread"  # ``IN_FORCE`` (and ``PLAN``) of a verdict that cannot act, its plan's files not read: no plan's key
 RUNS = "runs_sha256"  # a gates entry's key: what made the runs it counted (``promotion.runs_key``), not its gates
 SCENARIO = "scenario"  # what runs given with ``release run --scenario`` were made under (``counted_under``)
 WHOLE_PLAN = "plan:"  # ``counted_under``'s prefix for runs an entry without ``RUNS`` counted: its whole plan's hash
@@ -153,17 +154,27 @@ def passed(body: dict, in_force: str | None) -> bool:
 
 
 def ran_plan(body: dict, in_force: str | None) -> bool:
-    """The gates entry's runs and gates were ``in_force`` (the sha256 of the stage's part of the plan in force;
-    None: no plan checked, as entries logged before it was recorded were acted on). Another plan's pass (``release
-    run --plan``, one cycle and ``success_rate min: 0``) defines nothing, and an entry that logged no plan (an older
+    """The gates entry's runs and gates were ``in_force`` (the key of the stage's part of the plan in force; None:
+    no plan checked, as entries logged before it was recorded were acted on). Another plan's pass (``release run
+    --plan``, one cycle and ``success_rate min: 0``) defines nothing, and an entry that logged no plan (an older
     cellguard) cannot show it ran this one."""
-    return in_force is None or ran(body) == in_force
+    return in_force is None or in_force in ran(body)
 
 
-def ran(body: dict) -> str | None:
-    """The plan a gates entry ran, as ``IN_FORCE`` names plans: its ``PLAN``, else (an older cellguard) its
-    ``plan_sha256``, which is that for a plan naming no file."""
-    return body.get(PLAN, body.get("plan_sha256"))
+def ran(body: dict) -> set[str]:
+    """Each key the plan a gates entry ran goes by, as ``IN_FORCE`` names plans: its ``PLAN``, else (an older
+    cellguard) its ``plan_sha256``, that for a plan naming no file; and ``files_key`` of that and its ``RUNS``, that
+    for a plan naming files, which an older cellguard's ``RUNS`` already held (its pass promoted after an upgrade)."""
+    written, runs = body.get("plan_sha256"), body.get(RUNS)
+    keys = {body.get(PLAN, written)} | ({files_key(written, runs)} if written and runs else set())
+    return keys - {None, UNREAD}
+
+
+def files_key(written: str, runs: str) -> str:
+    """The key of a plan naming files (``promotion.plan_key``): of its text as written (``plan_sha256``, its gates
+    with it) and what made its runs (``RUNS``: its text but its gates, with what those files hold), both of which
+    every gates entry logs, so an entry is judged by what it logged, whichever cellguard logged it."""
+    return hashlib.sha256(f"files:{written}:{runs}".encode()).hexdigest()
 
 
 def not_counted(body: dict, in_force: str | None) -> str | None:
@@ -183,7 +194,7 @@ def not_counted(body: dict, in_force: str | None) -> str | None:
         return "no plan logged"
     if IN_FORCE not in body:  # an older cellguard logged no plan in force: an ad-hoc plan or an edit since
         return "plan differs from the one in force"
-    return "plan edited since" if body[IN_FORCE] == ran(body) else "other plan"
+    return "plan edited since" if body[IN_FORCE] in ran(body) else "other plan"
 
 
 class Judged:
@@ -208,7 +219,8 @@ class Judged:
         key = (b.get("cell"), b.get("stage"), b.get("release"))
         self._last[key] = b
         if not b.get("scenario"):
-            self._latest[(*key, ran(b))] = self._latest[(*key, self.ANY)] = entry
+            for plan in (*ran(b), self.ANY):
+                self._latest[(*key, plan)] = entry
 
     def last(self, cell: str, stage: str, release: str | None) -> dict:
         """The body of ``release``'s latest gates entry at (cell, stage) of any plan or kind ({}: none)."""
@@ -218,9 +230,11 @@ class Judged:
         """The latest gates entry of ``release`` at (cell, stage) that ran ``in_force`` (None: any plan)."""
         return self._latest.get((cell, stage, release, self.ANY if in_force is None else in_force))
 
-    def why_not(self, cell: str, stage: str, release: str | None, in_force: str | None) -> str | None:
+    def why_not(self, cell: str, stage: str, release: str | None, in_force: str | None,
+                edit: Callable[[dict], str | None] | None = None) -> str | None:
         """None when ``release``'s latest gates at (cell, stage) under ``in_force`` passed (it may be last_good
-        there), else why not, in words."""
+        there), else why not, in words; ``edit``: what a file the plan in force names held, for an entry that ran
+        that plan as written (``promotion.files_edit``, as a refusal to promote says it), else None."""
         entry = self.under(cell, stage, release, in_force)
         if entry is not None:
             if passed(entry.body, in_force):
@@ -233,8 +247,11 @@ class Judged:
         what = "its pass" if b.get("verdict") == "pass" else f"its gates ({b.get('verdict')})"
         if not b.get("plan_sha256"):
             return f"{what} there logged no plan (an older cellguard; log entry {latest.seq})"
-        return (f"{what} there ran another plan ({ran(b)[:12]}, log entry {latest.seq}; the plan in force "
-                f"has {in_force[:12]})")
+        edited = edit(b) if edit else None
+        if edited:
+            return f"{what} there ran this plan as written, but {edited} (log entry {latest.seq})"
+        return (f"{what} there ran another plan ({b.get(PLAN, b['plan_sha256'])[:12]}, log entry {latest.seq}; the "
+                f"plan in force has {in_force[:12]})")
 
 
 def counted_under(log_entries: list[LogEntry]) -> dict[int, str | None]:

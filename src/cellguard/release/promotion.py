@@ -22,13 +22,14 @@ from __future__ import annotations
 import hashlib
 from collections.abc import Callable
 from dataclasses import dataclass, replace
+from functools import partial
 from pathlib import Path
 
 from cellguard.errors import CellguardError, OperatorStopped, OutputError, RecordError
 from cellguard.output import make_folder
 from cellguard.release import log
 from cellguard.release.bundle import Bundle, calibration_file, canonical_json, verify_bundle
-from cellguard.release.errors import BundleMismatch, ReleaseError, StageError
+from cellguard.release.errors import BundleMismatch, GateError, ReleaseError, StageError
 from cellguard.release.evidence import RunEvidence, counted_run, record_id
 from cellguard.release.gates import FAIL, INCONCLUSIVE, PASS, GateResult, evaluate, verdict
 from cellguard.release.kept import Kept
@@ -140,21 +141,32 @@ def _check_plan(evaluation: log.LogEntry, plan: StagePlan, to: str) -> None:
     whole file: a later stage's edit changes nothing its runs showed, and is checked when that stage is left. An
     entry without the hash (an older cellguard) cannot show its plan: refused as well. The plan as written with
     what the files its runs name hold (``plan_key``): a pass under one units map did not define the stage under an
-    edited one; such a refusal names the files."""
+    edited one; such a refusal names the files (``files_edit``)."""
     b, now = evaluation.body, plan_key(plan)
     if log.ran_plan(b, now):
         return
-    logged, where = b.get("plan_sha256"), f"the gates of {b['stage']} for release {b['release']} passed"
-    if logged == plan_hash(plan):  # the plan as written: what a file it names holds is not as then
-        files = ", ".join(robot_file_paths(plan.runs_beside()))
-        held = (f"{files} held other contents" if log.PLAN in b else
-                f"what {files} held was not logged (an older cellguard)")
-        raise StageError(f"--to {to}: {where} on this plan as written (log entry {evaluation.seq}), but {held} then; "
-                         f"its runs define the stage: run {b['stage']} again with what it holds now; nothing moved")
+    where = f"--to {to}: the gates of {b['stage']} for release {b['release']} passed"
+    edited = files_edit(plan, b)
+    if edited:
+        raise StageError(f"{where} on this plan as written (log entry {evaluation.seq}), but {edited}; its runs "
+                         f"define the stage: run {b['stage']} again with what its files hold now; nothing moved")
+    logged = b.get("plan_sha256")
     ran = f"plan {str(logged)[:12]}" if logged else "a plan it did not log (an older cellguard)"
-    raise StageError(f"--to {to}: {where} on {ran} for {b['stage']} (log entry {evaluation.seq}); the plan in force "
-                     f"has {now[:12]} there, and its runs define the stage: run {b['stage']} with it first; nothing "
-                     f"moved")
+    raise StageError(f"{where} on {ran} for {b['stage']} (log entry {evaluation.seq}); the plan in force has "
+                     f"{now[:12]} there, and its runs define the stage: run {b['stage']} with it first; nothing moved")
+
+
+def files_edit(plan: StagePlan, body: dict) -> str | None:
+    """Why the gates entry ``body``, which ran ``plan`` as written, did not run it (``plan_key``), in words: what
+    the files its runs name held then; None where it ran another text. Every file is named: an entry logs what
+    they held together, so which one changed is not known."""
+    paths = robot_file_paths(plan.runs_beside())
+    if body.get("plan_sha256") != plan_hash(plan) or not paths:
+        return None
+    text_only = _with_files(plan.model_dump(mode="json", exclude={"gates"}), [])  # RUNS before c40742b: no files
+    if body.get(log.RUNS) in (None, text_only):
+        return f"what {' and '.join(paths)} held then was not logged (an older cellguard)"
+    return f"{' or '.join(paths)} held other contents then"
 
 
 def rollback(store: Store, cell: str, stage: str, reason: str = "operator", automatic: bool = False,
@@ -200,7 +212,7 @@ def run_stage(store: Store, plan: StagePlan, cell: str, stage: str, runs: list[d
     if not plan.gates:
         raise StageError(f"--stage {stage}: the plan has no gates for {stage}; its runs could only end inconclusive")
     check_cell(plan, cell, stage, entries)  # every run, before the first starts
-    _judged_by(plan, runs, in_force)  # a units map unreadable: refused before the first run, not after the last
+    _judged_by(plan, runs, in_force)  # a units map its runs need unreadable: refused before the first run
     moved = log.last_pointer_move(store, cell, stage)
     start = Start(current, last_good, moved.seq if moved else 0)
     context = {"id": bundle.id, "cell": cell, "stage": stage, **bundle.short(),
@@ -394,8 +406,21 @@ def acts(body: dict) -> bool:
 
 def _judged_by(plan: StagePlan, runs: list[dict] | None, in_force: StagePlan | None) -> tuple[str, str, str]:
     """(``runs_key``, ``plan_key`` of ``plan``, ``plan_key`` of ``in_force``, default ``plan``) of an evaluation: a
-    GateError naming a file their runs name that cannot be read (``robot_files``)."""
-    return runs_key(plan, runs), plan_key(plan), plan_key(plan if in_force is None else in_force)
+    GateError naming a file the runs it makes name that cannot be read (``robot_files``). Of a verdict that cannot
+    act (on runs given with ``--scenario``, or on another plan than the one in force) a plan whose file cannot be
+    read is ``log.UNREAD``: such a verdict is logged, as before, and judged by no plan."""
+    key, ran = runs_key(plan, runs), _key(plan, acts=runs is None)
+    return key, ran, ran if in_force is None or in_force is plan else _key(in_force, acts=False)
+
+
+def _key(plan: StagePlan, acts: bool) -> str:
+    """``plan_key`` of ``plan``; ``log.UNREAD`` where a file it names cannot be read and the verdict cannot act."""
+    try:
+        return plan_key(plan)
+    except GateError:
+        if acts:
+            raise
+        return log.UNREAD
 
 
 def plan_hash(plan: StagePlan) -> str:
@@ -404,10 +429,12 @@ def plan_hash(plan: StagePlan) -> str:
 
 
 def plan_key(plan: StagePlan) -> str:
-    """The stage's plan a pass is judged by (``log.PLAN``, ``log.IN_FORCE``): ``plan_hash`` with what the files its
-    runs' robots name hold (``plan.robot_files``), as ``runs_key``; a pass under one units map promoted under an
-    edited one. For a plan naming no file it is ``plan_hash``, so what an older cellguard logged still judges."""
-    return _with_files(plan.model_dump(mode="json"), plan.runs_beside())
+    """The stage's plan a pass is judged by (``log.PLAN``, ``log.IN_FORCE``): for a plan naming files, its text as
+    written and what they hold (``log.files_key`` of ``plan_hash`` and ``runs_key``): a pass under one units map
+    promoted under an edited one. Made of what every gates entry logs, an older cellguard's too, whose pass on it
+    still promotes; for a plan naming no file it is ``plan_hash``, as an older cellguard judged it."""
+    written = plan_hash(plan)
+    return log.files_key(written, runs_key(plan)) if robot_file_paths(plan.runs_beside()) else written
 
 
 def runs_key(plan: StagePlan, runs: list[dict] | None = None) -> str:
@@ -528,29 +555,42 @@ def status(store: Store) -> list[dict]:
             out.append({"cell": cell, "stage": stage, "current": p.current, "last_good": p.last_good,
                         "verdict": ev.body["verdict"] if ev else None,
                         "not_counted": log.not_counted(ev.body, in_force.get(stage)) if ev else None,
-                        "plan_error": error})
+                        "plan_error": None if stage in in_force else error})
     return out
 
 
 def in_force_hashes(store: Store, cell: str) -> tuple[dict[str, str], str | None]:
-    """(stage -> the hash of its part of the plan in force now at ``store``'s site for ``cell``, None), or ({},
-    why it does not load): what a pass is judged by, as ``run`` and ``promote`` judge it. A command that only reads
-    (status, report) still answers when it does not load."""
+    """(stage -> the key of its part of the plan in force now at ``store``'s site for ``cell``, None), or (the
+    stages that have one, why the others do not, naming each): what a pass is judged by, as ``run`` and ``promote``
+    judge it. A command that only reads (status, report) still answers when it does not load; a units file one
+    stage's runs name, gone, leaves the other stages judged."""
     try:
-        return {stage: plan_key(plan) for stage, plan in plan_in_force(store.site, cell).items()}, None
+        plans = plan_in_force(store.site, cell)
     except CellguardError as exc:
         return {}, str(exc)
+    keys, errors = {}, []
+    for stage, plan in plans.items():
+        try:
+            keys[stage] = plan_key(plan)
+        except CellguardError as exc:
+            errors.append(f"stage {stage}: {exc}")
+    return keys, "; ".join(errors) or None
 
 
 def last_good_note(store: Store, entry: log.LogEntry) -> str:
     """Who is last_good at a promotion's stage after ``entry`` and, where the outgoing release was not made so,
     why (``log.Judged``): a pass an older cellguard logged without its plan stopped making its release last_good
-    after an upgrade, and nothing said so."""
+    after an upgrade, and nothing said so. A pass on the plan in force as written under files edited since says so,
+    as a refusal to promote does (``files_edit``)."""
     b = entry.body
     last_good = store.pointers(b["cell"], b["stage"]).last_good
     outgoing = b.get("from")
     if outgoing is None or outgoing == last_good:
         return f"last_good {last_good or 'none'}"
-    why = log.Judged(log.entries(store)).why_not(b["cell"], b["stage"], outgoing, b.get(log.IN_FORCE))
+    try:
+        plan = plan_in_force(store.site, b["cell"])[b["stage"]]
+        edit = partial(files_edit, plan) if plan_key(plan) == b.get(log.IN_FORCE) else None
+    except CellguardError:  # the plan in force unread since: the reason without the files
+        edit = None
+    why = log.Judged(log.entries(store)).why_not(b["cell"], b["stage"], outgoing, b.get(log.IN_FORCE), edit)
     return f"last_good {last_good or 'none'}, not {outgoing}: {why}"
-

@@ -28,7 +28,9 @@ def render_release_page(store, release: str) -> str:
              f"<p class=muted>{_e(bundle.manifest['policy']['spec'])} on {_e(bundle.cell)}; "
              f"{_e(bundle.manifest.get('note', ''))}</p>", "<h2>Stages</h2>", _pointers(store, bundle)]
     if error:
-        parts.append(f"<p class=finding>the plan in force does not load, so no pass counts: {_e(error)}</p>")
+        where = " for the stages named" if error.startswith("stage ") else ""  # a units file gone stops its stage
+        parts.append(f"<p class=finding>the plan in force does not load{where}, so no pass counts there: "
+                     f"{_e(error)}</p>")
     for stage in STAGES:
         evaluations = [e for e in entries if e.body.get("kind") == "gates" and e.body.get("stage") == stage
                        and e.body.get("release") == bundle.id]

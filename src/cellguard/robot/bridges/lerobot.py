@@ -38,7 +38,7 @@ import numpy as np
 from typing import TYPE_CHECKING
 
 from cellguard.embodiment import Profile, load_profile
-from cellguard.errors import CellguardError, ConfigError, ExtraMissing, ScenarioError
+from cellguard.errors import CellguardError, ConfigError, ScenarioError
 from cellguard.options import bounded_float, split_options
 from cellguard.robot.protocol import RobotLinkError, SafetyInputs
 from cellguard.robot.state import Observation, State
@@ -350,8 +350,8 @@ def lerobot_robot(robot_type: str, options: dict[str, str]):
         from lerobot.robots import RobotConfig, make_robot_from_config
         from lerobot.utils.import_utils import register_third_party_plugins
     except ImportError:
-        raise ExtraMissing("lerobot", "robot: lerobot: needs LeRobot; install it with pip install "
-                           "'cellguard[lerobot]' (several GB: it brings torch)") from None
+        raise ConfigError("robot: lerobot: needs LeRobot; install it with pip install 'cellguard[lerobot]' "
+                          "(several GB: it brings torch)") from None
     register_third_party_plugins()
     if robot_type not in RobotConfig.get_known_choices():
         _import_builtin_robots()
