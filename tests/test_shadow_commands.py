@@ -142,3 +142,34 @@ def test_a_shadow_file_written_before_command_distances_is_read_by_the_metrics(t
     assert METRICS["shadow_distance_p95_mrad"].compute([evidence]).value == pytest.approx(0.95 * (n - 1), rel=1e-9)
     assert METRICS["shadow_would_clamp"].compute([evidence]).value == pytest.approx(len(range(0, n, 4)) / n)
     assert METRICS["shadow_would_stop"].compute([evidence]).value == 0.0
+
+
+def _stop(category: int, begin_s: float, end_s: float | None = None):
+    """The controller's stop input of ``category`` from ``begin_s`` on, till ``end_s`` (None: held to the end)."""
+    def safety(t_ns: int) -> SafetyInputs:
+        held = begin_s * 1e9 <= t_ns and (end_s is None or t_ns < end_s * 1e9)
+        return SafetyInputs(stop=category if held else None)
+    return safety
+
+
+@pytest.mark.parametrize("cell, category, begin_s, end_s", [
+    ("arm-pick-place", 0, 1.5, 1.8), ("arm-pick-place", 1, 1.5, 1.8), ("arm-pick-place", 1, 4.0, None),
+    ("quadruped-turns", 0, 1.5, 1.8)])
+def test_a_twin_reads_zero_after_a_stop_that_removed_power(tmp_path, cell, category, begin_s, end_s):
+    """Its guard stays unpowered while the live one does, reset only with it (reset on each candidate chunk taken
+    after the stop, it drove on while the robot stood: 214 to 1100 mrad, 4 to 156 would-stops)."""
+    summary, rows, values = _shadow(tmp_path / "stop", _scenario(cell), safety=_stop(category, begin_s, end_s))
+    kinds = [e["kind"] for e in summary["events"]]
+    assert "power_removed" in kinds  # the live guard removed power mid-cycle
+    assert ("reset" in kinds) == (end_s is not None)  # the next cycle's reset, none while the input is held
+    assert values == TWIN
+    assert max(_commands_measured(rows)) == 0.0
+
+
+def test_a_stale_chunk_the_live_guard_refused_too_is_no_clamp_of_the_candidates(tmp_path):
+    """The incumbent answers 600 ms late: the live guard refuses its chunks as stale, and the candidate's, taken on
+    the same tick, alike (counted as the candidate's clamp, would_clamp read 0.022)."""
+    scenario = _scenario(faults=[{"kind": "policy_latency", "at_cycle": 1, "ms": 600}])
+    summary, _, values = _shadow(tmp_path / "stale", scenario)
+    assert "chunk_stale" in [e["kind"] for e in summary["events"]]
+    assert values == TWIN

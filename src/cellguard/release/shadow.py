@@ -5,16 +5,23 @@ observation; its answer goes into a guard of its own (``cellguard.control.guard.
 with the candidate's envelope settings) on the tick the loop takes the incumbent's, and that guard
 follows the live one tick by tick (``Run.tick_observer``): the same measured state and safety inputs
 (reduced speed, stops; not the loop's stops for the incumbent's own silence), a recovery's chunks while
-one drives (the live guard goes on from them), rebuilt after the approach and reset with it after a stop
-removed power. It never writes to the robot. Per candidate chunk we keep ``command_distance_rad``: the largest gap between
-what the two guards command over the chunk's span of ticks (max over joints [rad]), where the
-candidate's envelope shows (a tool-speed cap slows its playback: its raw chunk is the incumbent's);
-``distance_rad``, the raw chunks' distance as before; and whether its guard clamped it (a limit
+one drives (the live guard goes on from them), rebuilt after the approach, unpowered while it is after a stop
+removed power and reset with it. It never writes to the robot. Per candidate chunk we keep
+``command_distance_rad``: the largest gap between what the two guards command over the chunk's span of
+ticks (max over joints [rad]), where the candidate's envelope shows (a tool-speed cap slows its playback:
+its raw chunk is the incumbent's); ``distance_rad``, the raw chunks' distance as before; and whether its guard clamped it (a limit
 intervention, or its playback slowed where the live one's was not) or stopped it (a stop of any
 category) in that span. An intervention the live guard made on the same tick for the same reason is
 not the candidate's. The loop's watchdog before the first chunk lives in the loop, not in a guard, so
 the shadow keeps its own: a candidate whose chunks the guard never takes (every one NaN) would be
 stopped live within ``watchdog_s`` (it counted 0 stops). Written to ``shadow.json`` beside the record.
+
+On wall time the shadow guard's tick runs on the servo thread after the tick's command was written and before the
+wait for the next deadline: it never delays what the robot is sent, it spends the tick's slack (a 1 kHz arm or
+SO-101 cell: about 30 us a tick at p50, 60-70 us at p99; the tick's compute p50 rose 25-30 us, p99 30-80 us, no more
+overruns). Kept there: it reads the live guard as it is on that tick (its power, speed scale, a guard rebuilt); on
+another thread each tick's would be copied and queued. The candidate is asked after the incumbent, in its call: a
+slow candidate's time is charged to the incumbent's latency, and its own is not measured (nor a stale answer's).
 """
 
 from __future__ import annotations
@@ -59,7 +66,8 @@ class ShadowedPolicy:
         self.map_document = getattr(incumbent, "map_document", None)  # the record's map is the incumbent's
         self.rows: list[dict] = []
         self._pending: tuple[dict, ActionChunk | None] | None = None  # the candidate's answer, till the loop takes
-        self._taking: tuple[dict, ActionChunk | None] | None = None  # taken by the loop on this tick
+        # taken by the loop on this tick, with the live guard's events on taking the incumbent's
+        self._taking: tuple[dict, ActionChunk | None, list] | None = None
         self._open: dict | None = None  # the row of the candidate chunk now in the shadow guard
         self._live: Guard | None = None  # the live guard the shadow's follows (another: the approach rebuilt it)
         self._live_power = True
@@ -91,10 +99,12 @@ class ShadowedPolicy:
         self._pending = row, candidate  # one the loop drops (a new cycle's start) is never taken
         return chunk
 
-    def taken(self, approached: bool) -> None:
-        """The loop took the incumbent's answer on this tick: the candidate's goes into its guard on it (``tick``),
-        unless an approach was played instead (then neither is: a fresh request follows)."""
-        self._taking, self._pending = (None if approached else self._pending), None
+    def taken(self, approached: bool, pushed: list) -> None:
+        """The loop took the incumbent's answer on this tick, the live guard raising ``pushed`` (a chunk it refused:
+        stale, NaN): the candidate's goes into its guard on it (``tick``), a refusal the live guard made alike not
+        the candidate's, unless an approach was played instead (then neither is: a fresh request follows)."""
+        pending, self._pending = self._pending, None
+        self._taking = None if approached or pending is None else (*pending, pushed)
 
     def tick(self, t_ns: int, state, safety: SafetyInputs, live: Guard, setpoint: np.ndarray, live_events,
              driving: bool, fed: ActionChunk | None) -> None:
@@ -109,12 +119,12 @@ class ShadowedPolicy:
             if fed is not None:
                 guard.push(fed, t_ns)
         elif taking is not None:
-            row, candidate = taking
+            row, candidate, pushed = taking
             self._open = row
-            if not guard.power:  # the candidate's guard stopped with power removed: reset on the measured state
-                guard.reset(state.q)
+            if not guard.power and live.power:  # its own stop removed power, not the live guard's: reset on the
+                guard.reset(state.q)  # measured state (with the live one unpowered it holds as that does: ``_follow``)
             if candidate is not None:  # one the guard refuses (NaN, another action dimension) is its rejection
-                self._note(row, guard.push(candidate, t_ns), live, ())
+                self._note(row, guard.push(candidate, t_ns), live, pushed)
         if safety.asked_by in _INCUMBENTS:
             safety = self.cell.safety()
         own, events = guard.tick(t_ns, state, safety)
@@ -226,9 +236,11 @@ class ShadowRun(Run):
             raise
 
     def _arrived(self, arrival, t_ns: int) -> bool:
-        """The loop's; the candidate's answer is taken on the same tick (``ShadowedPolicy.taken``)."""
+        """The loop's; the candidate's answer is taken on the same tick (``ShadowedPolicy.taken``) with the events
+        the live side raised taking the incumbent's (read by index: the log's window is not walked on the tick)."""
+        events, before = self.events, self.events.total
         approached = super()._arrived(arrival, t_ns)
-        self.policy.taken(approached)
+        self.policy.taken(approached, [events[i] for i in range(before, events.total)])
         return approached
 
     def write_shadow(self, folder: Path) -> str:
