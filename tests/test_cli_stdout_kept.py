@@ -130,7 +130,7 @@ def _fleet_push(tmp_path, recorded):
 
 
 def _fleet_withdraw(tmp_path, recorded):
-    from cellguard.fleet.lake import write_signatures
+    from cellguard.fleet.landing import write_signatures
     from cellguard.fleet.synthetic import rows_of, synthetic_fleet
 
     seed = {"cause": "friction", "robot_model": "arm5", "cell_type": CELL, "confidence": 0.8, "onset_cycle": 7,

@@ -29,7 +29,7 @@ from cellguard import dates
 from cellguard.cli import app
 from cellguard.fleet.audit import read_audit
 from cellguard.fleet.export import export_batch
-from cellguard.fleet.lake import write_signatures
+from cellguard.fleet.landing import write_signatures
 from cellguard.fleet.outbox import Outbox
 from cellguard.fleet.policy import DataPolicy
 from cellguard.fleet.push import push

@@ -1,7 +1,11 @@
 """The lake gets what the store took, decided at the store's COMMIT: a batch's lake files are staged before it and
 made visible only after it. A batch refused at the commit (a deferred constraint) leaves nothing in the lake, and
 lands once when a later push is taken; a push killed while the server committed leaves its files staged, and the
-next push that reaches the store lands what the store holds (under ``export: nothing`` too), nothing more.
+next push that reaches the store lands what the store holds (under ``export: nothing`` too), nothing more; so does
+a batch half published (its effects moved, its signatures not). A partition file that cannot be read leaves the
+batch queued and the store as it was; a reconcile never takes a file a live push is writing; staged files a lake
+without locks cannot reconcile are named; a withdrawal takes the site out of staged files too, and one made with
+another tenant's store credentials is refused and clears nothing.
 Also: `fleet similar --limit 0` is refused before anything is logged; a site dir whose audit log names another site
 is refused a push until that site is withdrawn (it stored every finding twice); only the push that made a site key
 says so."""
@@ -9,10 +13,13 @@ says so."""
 from __future__ import annotations
 
 import datetime as dt
+import errno
+import fcntl
 import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 
 import pyarrow.parquet as pq
@@ -23,7 +30,10 @@ psycopg = pytest.importorskip("psycopg", reason="the fleet store tests need psyc
 
 from cellguard.cli import app  # noqa: E402
 from cellguard.errors import ConfigError  # noqa: E402
+from cellguard.fleet.audit import append_withdrawal  # noqa: E402
 from cellguard.fleet.duckdb_engine import DuckDBEngine  # noqa: E402
+from cellguard.fleet.lake import STAGED, effects_of, forget  # noqa: E402
+from cellguard.fleet.landing import reconcile, stage_signatures  # noqa: E402
 from cellguard.fleet.policy import DataPolicy  # noqa: E402
 from cellguard.fleet.push import push  # noqa: E402
 from cellguard.fleet.signature import Signature  # noqa: E402
@@ -163,8 +173,114 @@ def test_a_site_renamed_in_the_policy_is_refused_until_the_old_one_is_withdrawn(
 
 
 def test_only_the_push_that_made_the_site_key_says_so(tmp_path):
-    from cellguard.fleet.site_key import KEY_FILE, make_key
+    site, results, start = tmp_path / "site", [], threading.Barrier(2)
 
-    assert [make_key(tmp_path), make_key(tmp_path)] == [True, False]
-    from cellguard.fleet import site_key
-    assert site_key._create(tmp_path / KEY_FILE) is False  # lost the race to the link: another push made it
+    def first_push() -> None:
+        start.wait()
+        results.append(push(sigs("tc", "s-key"), DataPolicy("tc", "s-key"), site, None))
+
+    threads = [threading.Thread(target=first_push) for _ in range(2)]
+    [t.start() for t in threads]
+    [t.join() for t in threads]
+    assert sorted(r.new_key is not None for r in results) == [False, True]
+
+
+def test_withdraw_under_another_tenants_store_is_refused_and_clears_nothing(fleet, tmp_path):
+    store, dsn = fleet
+    other, site = store.add_tenant("td"), tmp_path / "site"
+    assert push(sigs("tc", "s-t"), DataPolicy("tc", "s-t"), site, TenantStore(dsn)).new_rows == 2
+    (tmp_path / "old.yaml").write_text("tenant: tc\nsite: s-t\nexport: signatures\n")
+    out = CliRunner().invoke(app, ["fleet", "withdraw", "--policy", str(tmp_path / "old.yaml"), "--store", other,
+                                   "--site-dir", str(site)])
+    assert out.exit_code == 2 and len(out.output.strip().splitlines()) == 1, out.output
+    assert "tenant td's, the policy's tenant is tc: nothing withdrawn" in out.output and stored(store) == 2
+    assert "withdrawn" not in (site / "audit.jsonl").read_text()
+    append_withdrawal(site, DataPolicy("tc", "s-t"), 0, TenantStore(dsn).where)  # as 51f2774 logged it: unchecked
+    with pytest.raises(ConfigError, match="store credentials of tenant tc"):
+        push(sigs("td", "s-t"), DataPolicy("td", "s-t"), site, TenantStore(other))
+    assert stored(store) == 2
+
+
+def test_a_damaged_partition_file_leaves_the_batch_queued_and_the_store_untouched(fleet, tmp_path):
+    store, dsn = fleet
+    lake, site, policy = tmp_path / "lake", tmp_path / "site", DataPolicy("tc", "s-dmg")
+    assert push(sigs("tc", "s-dmg")[:1], policy, site, TenantStore(dsn), lake).new_rows == 1
+    damage_column(next(lake.glob("tenant=tc/signatures/date=*/*.parquet")), "cause")
+    again = push(sigs("tc", "s-dmg"), policy, site, TenantStore(dsn), lake)
+    assert (again.sent_batches, again.queued, stored(store)) == (0, 1, 1)
+    assert "cannot read it" in again.failed[0] and again.failed[0].endswith("it stays queued")
+    assert not list(lake.rglob(f"*{STAGED}"))  # nothing staged
+
+
+def damage_column(path, column: str) -> None:
+    """Flip the last bytes of ``column``'s data page: the file's other columns still read."""
+    meta = pq.ParquetFile(path).metadata.row_group(0)
+    chunk = next(meta.column(i) for i in range(meta.num_columns) if meta.column(i).path_in_schema == column)
+    data = bytearray(path.read_bytes())
+    end = chunk.data_page_offset + chunk.total_compressed_size
+    data[end - 6:end] = bytes(b ^ 0xFF for b in data[end - 6:end])
+    path.write_bytes(bytes(data))
+    pq.read_table(path, columns=["signature_id"])
+    with pytest.raises(OSError):
+        pq.read_table(path)
+
+
+def test_a_half_published_batch_is_landed_by_the_next_push(fleet, tmp_path, monkeypatch):
+    store, dsn = fleet
+    lake, site, policy = tmp_path / "lake", tmp_path / "site", DataPolicy("tc", "s-half")
+    real = os.replace
+
+    def signatures_rename_fails(src, dst):  # the effects moved, the signatures not (or the push killed between)
+        if str(src).endswith(STAGED) and "/signatures/" in str(src):
+            raise OSError(errno.EIO, "Input/output error")
+        return real(src, dst)
+
+    monkeypatch.setattr(os, "replace", signatures_rename_fails)
+    first = push(sigs("tc", "s-half"), policy, site, TenantStore(dsn), lake)
+    monkeypatch.undo()
+    assert (first.sent_batches, first.queued, stored(store)) == (1, 0, 2)
+    push([], policy, site, TenantStore(dsn), lake)
+    assert in_lake(lake) == (2, 4, [])  # what the store holds, effects too
+    assert "1 of its lake file(s) stay staged" in first.failed[0]
+
+
+def test_a_reconcile_between_a_staged_files_creation_and_its_lock_leaves_it(tmp_path, monkeypatch):
+    lake, real, seen = tmp_path / "lake", fcntl.flock, []
+
+    def reconcile_first(fd, op):  # another push's reconcile runs just before this push takes its lock
+        if not op & fcntl.LOCK_NB and not seen:
+            seen.append(reconcile(lake, "tc", lambda ids: {}))
+        return real(fd, op)
+
+    monkeypatch.setattr(fcntl, "flock", reconcile_first)
+    landing = stage_signatures(lake, ROWS, "b" * 32)
+    assert len(seen) == 1 and landing.publish() == 1
+    assert in_lake(lake) == (1, 1, [])
+
+
+def test_staged_files_a_lake_without_locks_cannot_reconcile_are_named(fleet, tmp_path, monkeypatch):
+    _, dsn = fleet
+
+    def no_locks(fd, op):
+        raise OSError(errno.ENOLCK, "No locks available")
+
+    monkeypatch.setattr(fcntl, "flock", no_locks)
+    lake = tmp_path / "lake"
+    stage_signatures(lake, ROWS, "b" * 32).release()  # as a push killed after its commit left it
+    staged = next(lake.glob(f"tenant=tc/signatures/date=*/*{STAGED}"))
+    held = push([], DataPolicy("tc", "s-lock", export="nothing"), tmp_path / "site", TenantStore(dsn), lake)
+    assert [f for f in held.failed if str(staged) in f and "no file locks" in f]
+
+
+def test_withdrawing_from_the_lake_takes_the_site_out_of_staged_files_too(tmp_path):
+    lake = tmp_path / "lake"
+    other = {**ROWS[0], "signature_id": "c" * 32, "site_id": "s-other"}
+    stage_signatures(lake, [*ROWS, other], "b" * 32).release()  # as a push killed after its commit left it
+    assert forget(lake, "tc", "s-w") == 1
+    staged = next(lake.glob(f"tenant=tc/signatures/date=*/*{STAGED}"))
+    assert pq.read_table(staged).column("site_id").to_pylist() == ["s-other"]
+    assert pq.read_table(effects_of(staged)).column("signature_id").to_pylist() == ["c" * 32]
+
+
+ROWS = [{"signature_id": "a" * 32, "tenant_id": "tc", "site_id": "s-w", "created_date": TODAY.isoformat(),
+         "cause": "friction", "schema_version": 1, "effects": {"current_rms.elbow": 1.0}}]

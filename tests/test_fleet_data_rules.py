@@ -22,7 +22,7 @@ from cellguard.scenario import parse_scenario
 psycopg = pytest.importorskip("psycopg", reason="the fleet store tests need psycopg: pip install 'cellguard[fleet]'")
 
 from cellguard.fleet.duckdb_engine import DuckDBEngine  # noqa: E402
-from cellguard.fleet.lake import write_signatures  # noqa: E402
+from cellguard.fleet.landing import write_signatures  # noqa: E402
 from cellguard.fleet.store import FleetStore, RefusedAggregate, TenantStore  # noqa: E402
 from fleet_server import admin_dsn_or_skip, store_name  # noqa: E402
 

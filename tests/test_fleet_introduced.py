@@ -7,7 +7,7 @@ from __future__ import annotations
 import pytest
 
 from cellguard.fleet.duckdb_engine import DuckDBEngine
-from cellguard.fleet.lake import write_signatures
+from cellguard.fleet.landing import write_signatures
 from cellguard.fleet.signature import Signature
 
 KEY = b"site-secret-of-the-tests"

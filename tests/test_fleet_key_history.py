@@ -96,6 +96,23 @@ def test_withdraw_then_push_stores_each_finding_once(tmp_path):
     assert _rows(store, "s-up") == 2  # each finding once, keyed
 
 
+def test_withdraw_with_a_key_it_did_not_make_ends_with_its_summary(tmp_path):
+    from fleet_server import admin_dsn_or_skip, store_name
+
+    store = FleetStore(admin_dsn_or_skip(), store_name("keyperm"))
+    store.install(reset=True)
+    dsn = store.add_tenant("ta")
+    site = tmp_path / "site"
+    assert push(sigs("ta", "s-perm"), DataPolicy("ta", "s-perm"), site, TenantStore(dsn), today=TODAY).new_rows == 2
+    (site / KEY_FILE).chmod(0o644)  # the push's to refuse, not the withdrawal's: its rows are gone already
+    (tmp_path / "p.yaml").write_text("tenant: ta\nsite: s-perm\nexport: signatures\n")
+    withdrawn = CliRunner().invoke(app, ["fleet", "withdraw", "--policy", str(tmp_path / "p.yaml"), "--store", dsn,
+                                         "--site-dir", str(site)])
+    assert withdrawn.exit_code == 0, withdrawn.output
+    assert "fleet withdraw: site s-perm of ta: 2 row(s) deleted from the store" in withdrawn.stdout
+    assert _rows(store, "s-perm") == 0
+
+
 def _rows(store: FleetStore, site: str) -> int:
     with store.admin() as con:
         return con.execute("SELECT count(*) FROM fleet.signatures WHERE site_id = %s", (site,)).fetchone()[0]

@@ -15,7 +15,8 @@ from typer.testing import CliRunner
 from cellguard.cli import app
 from cellguard.errors import ConfigError
 from cellguard.fleet.duckdb_engine import DuckDBEngine
-from cellguard.fleet.lake import EFFECTS, SIGNATURES, tenants, write_signatures, write_tables
+from cellguard.fleet.lake import EFFECTS, SIGNATURES, tenants, write_tables
+from cellguard.fleet.landing import write_signatures
 from cellguard.fleet.signature import Signature
 from cellguard.fleet.synthetic import rows_of, synthetic_fleet, write_fleet
 

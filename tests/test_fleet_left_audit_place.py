@@ -20,7 +20,7 @@ from cellguard.cli import app
 from cellguard.errors import CellguardError
 from cellguard.fleet.audit import AUDIT_FILE
 from cellguard.fleet.export import export_batch
-from cellguard.fleet.lake import write_signatures
+from cellguard.fleet.landing import write_signatures
 from cellguard.fleet.policy import DataPolicy
 from cellguard.fleet.push import push
 from cellguard.fleet.signature import Signature

@@ -15,7 +15,7 @@ from cellguard.cli import app
 from cellguard.errors import ConfigError, OutputError
 from cellguard.fleet.audit import append_audit, read_audit
 from cellguard.fleet.export import export_batch
-from cellguard.fleet.lake import write_signatures
+from cellguard.fleet.landing import write_signatures
 from cellguard.fleet.policy import PolicyError, load_policy
 from cellguard.fleet.push import push
 from cellguard.fleet.signature import Signature

@@ -289,12 +289,13 @@ def withdraw(
         if tenant_store is None and lake is None:
             raise ConfigError("--store: no fleet store DSN (or CELLGUARD_FLEET_DSN); or give --lake")
         check_site(site_dir, must_exist=True)
+        as_tenant = _store_tenant(tenant_store, pol.tenant) if tenant_store is not None else None
         if lake is not None:
             in_lake = forget(check_lake(lake), pol.tenant, pol.site)
             append_withdrawal(site_dir, pol, in_lake, str(lake))
         if tenant_store is not None:
             in_store = tenant_store.forget(pol.site)
-            append_withdrawal(site_dir, pol, in_store, tenant_store.where)
+            append_withdrawal(site_dir, pol, in_store, tenant_store.where, store_tenant=as_tenant)
         stdout.written(f"the withdrawal of site {pol.site} ({in_store or 0} row(s) from the store, {in_lake or 0} "
                        f"signature(s) from the lake) in the audit log of {site_dir}")
     except CellguardError as exc:
@@ -309,6 +310,19 @@ def withdraw(
     else:
         say(f"fleet withdraw: site {pol.site} of {pol.tenant}: {in_store or 0} row(s) deleted from the store, "
             f"{in_lake or 0} signature(s) from the lake", err=False)
+
+
+def _store_tenant(tenant_store, tenant: str) -> str:
+    """``tenant`` if the store's credentials log in as it, else ConfigError before anything is deleted: as another
+    tenant the store deletes none of its rows, and the withdrawal would be logged as done."""
+    from cellguard.errors import ConfigError
+
+    as_tenant = tenant_store.tenant()
+    if as_tenant != tenant:
+        raise ConfigError(f"--store: its credentials are {f'tenant {as_tenant}' if as_tenant else 'no tenant'}'s, "
+                          f"the policy's tenant is {tenant}: nothing withdrawn; give the store credentials of "
+                          f"tenant {tenant}")
+    return as_tenant
 
 
 def _withdrawn_so_far(exc: CellguardError, site: str, in_lake: int | None, in_store: int | None,
@@ -327,7 +341,8 @@ def _key_after_withdrawal(site_dir: Path) -> None:
 
     try:
         made = make_key(site_dir)
-        site_key(site_dir)
+        if made:  # a key already there is the push's to check: the withdrawal's summary is not held up by it
+            site_key(site_dir)
     except CellguardError as exc:
         fail(exc)
     if made:

@@ -75,9 +75,12 @@ def append_retention(site_dir: Path, policy: DataPolicy, removed: int, destinati
                             retention_days=policy.retention_days, **more)
 
 
-def append_withdrawal(site_dir: Path, policy: DataPolicy, removed: int, destination: str) -> dict:
-    """Append that ``fleet withdraw`` deleted ``removed`` rows, all the site's, from ``destination``."""
-    return _append_deletion(site_dir, policy, "withdrawn", removed, destination)
+def append_withdrawal(site_dir: Path, policy: DataPolicy, removed: int, destination: str,
+                      store_tenant: str | None = None) -> dict:
+    """Append that ``fleet withdraw`` deleted ``removed`` rows, all the site's, from ``destination``; from a store,
+    ``store_tenant``: the tenant its credentials logged in as (only its own rows could be deleted)."""
+    more = {"store_tenant": store_tenant} if store_tenant is not None else {}
+    return _append_deletion(site_dir, policy, "withdrawn", removed, destination, **more)
 
 
 def _append_deletion(site_dir: Path, policy: DataPolicy, status: str, removed: int, destination: str,
@@ -195,7 +198,9 @@ def check_log(site_dir: Path) -> None:
 def check_site_dir(site_dir: Path, missing_ok: bool = False) -> None:
     """AuditError unless ``site_dir`` is a folder (or, ``missing_ok``, nothing yet: a push makes it)."""
     site_dir = Path(site_dir)
-    if not site_dir.is_dir() and not (missing_ok and not os.path.lexists(site_dir)):
+    if missing_ok and not os.path.lexists(site_dir):  # looked at first: one made meanwhile is then seen a folder
+        return
+    if not site_dir.is_dir():
         raise AuditError(f"--site-dir {site_dir}: " + ("not a folder" if site_dir.exists() else "no such folder"))
 
 

@@ -8,17 +8,14 @@ tenant's whose folder holds it: one that names another tenant is not read (a ten
 otherwise invent customers, and a group under k would pass), and a link is never followed (it
 could lead into another tenant's folder).
 
-Each batch is one file per partition, named by the batch's content hash. It is written under a staged
-name (``Landing``) before the store commits the batch and renamed into place only once the commit
-succeeded (removed when the store refused it), so the lake gets what the store took; files a push left
-staged (the server lost mid-commit, the push killed) are brought to what the store holds by the next
-push that reaches it (``reconcile``). Its signatures are then taken out of the partition's other files, so each
-signature is in the lake once, as last sent: re-sending a batch replaces its file with the same
-rows, a growing folder pushed again moves its signatures into its latest file, and a signature
-sent again with fields the policy now withholds loses them. The engines read a row once even
+Each batch is one file per partition, named by the batch's content hash, landed as the store commits it
+(``landing``: staged under ``NAME.TOKEN.staged`` until then, which no reader lists). Its signatures are then
+taken out of the partition's other files, so each signature is in the lake once, as last sent: re-sending a
+batch replaces its file with the same rows, a growing folder pushed again moves its signatures into its latest
+file, and a signature sent again with fields the policy now withholds loses them. The engines read a row once even
 where a lake written before this rule holds it twice (``read_groups``). ``forget`` takes a
-site's rows out (its retention, its consent withdrawn). DuckDB (``duckdb_engine``) and Spark
-(``spark_engine``) read the same files.
+site's rows out (its retention, its consent withdrawn), from the staged files no live push holds
+too. DuckDB (``duckdb_engine``) and Spark (``spark_engine``) read the same files.
 """
 
 from __future__ import annotations
@@ -27,9 +24,8 @@ import datetime as dt
 import fcntl
 import os
 import re
-import secrets
 from collections import defaultdict
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 
 import pyarrow as pa
@@ -38,7 +34,7 @@ import pyarrow.parquet as pq
 
 from cellguard.errors import ConfigError, OutputError
 from cellguard.fleet.signature import ID_PATTERN
-from cellguard.output import UNLOCKABLE, atomic_file, make_folder
+from cellguard.output import UNLOCKABLE, atomic_file
 
 SIGNATURES = pa.schema([
     ("signature_id", pa.string()), ("tenant_id", pa.string()), ("site_id", pa.string()),
@@ -50,172 +46,40 @@ SIGNATURES = pa.schema([
 ])
 EFFECTS = pa.schema([("tenant_id", pa.string()), ("signature_id", pa.string()), ("feature", pa.string()),
                      ("effect", pa.float64())])
-
-
 STAGED = ".staged"  # a batch's lake file not yet visible (``NAME.TOKEN.staged``): no reader lists it
+NO_LOCKS = -1  # ``lock_left``: the filesystem offers no locks, so a live push's staged file looks like a dead one's
 
 
-class Unpublished(OutputError):
-    """The store took a batch but its staged lake files could not all be made visible; ``taken``: the store's
-    (rows new or changed, rows already there), set by the store."""
-
-    taken: tuple[int, int] = (0, 0)
+def effects_of(sig_file: Path) -> Path:
+    """The effects file paired with the signatures file ``sig_file`` (same partition, same name)."""
+    return sig_file.parents[2] / "effects" / sig_file.parent.name / sig_file.name
 
 
-class Landing:
-    """A batch's lake files, written under staged names before the store commits the batch, each signatures file
-    ``flock``ed by this process: ``publish`` makes them visible once the commit succeeded, ``discard`` removes them
-    when the store refused it. ``release`` leaves them (the commit's outcome is not known: the server was lost, the
-    push stopped) for ``reconcile`` to bring to what the store holds; a killed push leaves them the same way."""
-
-    def __init__(self) -> None:
-        self.parts: list[tuple[Path, Path, list[str], int | None]] = []  # (staged signatures, final, ids, lock)
-        self.new = 0  # signatures not in the lake before
-
-    def publish(self) -> int:
-        """Rename each staged pair into place (effects first: an effect alone is never read), then take its
-        signatures out of the partition's other files. Returns the signatures new to the lake."""
-        try:
-            for staged, target, ids, _ in self.parts:
-                os.replace(_effects_of(staged), _effects_of(target))
-                os.replace(staged, target)
-                others = [(o, _read(o)) for o in _partition(target) if o != target]
-                for other, table in others:
-                    _take_out(other, table, pc.is_in(table["signature_id"], value_set=pa.array(ids, pa.string())))
-        except (OSError, OutputError) as exc:
-            raise Unpublished(f"lake {staged.parents[3]}: the store took batch {target.stem} but its lake files "
-                              f"could not all be made visible ({getattr(exc, 'strerror', None) or exc}); the next "
-                              f"push that reaches the store lands what is left") from None
-        finally:
-            self.release()
-        return self.new
-
-    def discard(self) -> None:
-        """Remove the staged files: the store did not take the batch."""
-        for staged, _, _, _ in self.parts:
-            for path in (_effects_of(staged), staged):
-                path.unlink(missing_ok=True)
-        self.release()
-
-    def release(self) -> None:
-        """Unlock the staged files, leaving them where they are."""
-        for *_, fd in self.parts:
-            if fd is not None:
-                os.close(fd)
-        self.parts = [(staged, target, ids, None) for staged, target, ids, _ in self.parts]
-
-
-def stage_signatures(lake: Path, rows: Iterable[Mapping], name: str) -> Landing:
-    """Write sent signature rows (``withhold``'s) into their partitions under staged names, to become ``name``.parquet
-    (``Landing.publish``); each partition's files are read first (one unreadable: nothing staged). What was staged
-    before an error is removed."""
-    parts: dict[tuple[str, str], list[Mapping]] = defaultdict(list)
-    for r in rows:
-        parts[(str(r["created_date"]), r["tenant_id"])].append(r)
-    landing = Landing()
-    try:
-        for (date, tenant), group in sorted(parts.items()):
-            group = list({r["signature_id"]: r for r in group}.values())
-            ids = [r["signature_id"] for r in group]
-            target = _file(lake, tenant, "signatures", date, name)
-            _file(lake, tenant, "effects", date, name)  # a link on the effects side is refused too
-            there = set(_read(target).column("signature_id").to_pylist()) if _plain(target) else set()  # a retry's
-            for other in _partition(target):
-                if other != target:
-                    there |= set(_read(other, ["signature_id"]).column("signature_id").to_pylist()) & set(ids)
-            sig = pa.Table.from_pydict({f.name: [_value(r, f.name) for r in group] for f in SIGNATURES},
-                                       schema=SIGNATURES)
-            eff = [(r["tenant_id"], r["signature_id"], k, float(v)) for r in group
-                   for k, v in (r.get("effects") or {}).items()]
-            staged = target.with_name(f"{name}.{secrets.token_hex(4)}{STAGED}")
-            landing.parts.append((staged, target, ids, _write_locked(sig, staged)))
-            _atomic(pa.Table.from_pydict({c: [e[i] for e in eff] for i, c in enumerate(EFFECTS.names)},
-                                         schema=EFFECTS), _effects_of(staged))
-            landing.new += len(set(ids) - there)
-    except BaseException:
-        landing.discard()
-        raise
-    return landing
-
-
-def write_signatures(lake: Path, rows: Iterable[Mapping], name: str) -> int:
-    """Write sent signature rows into their partitions as ``name``.parquet, then take them out of the partition's
-    other files (the row last sent is the one kept): staged and published at once, with no store to wait for.
-    Returns the signatures that were not in the lake before."""
-    return stage_signatures(lake, rows, name).publish()
-
-
-def reconcile(lake: Path, tenant: str, held: Callable[[list[str]], Mapping[str, Mapping]]) -> int:
-    """Bring the staged files a push left in ``tenant``'s folder (the store lost mid-commit, the push killed) to what
-    the store holds: their rows the store holds as staged (``held``: signature id -> the stored row with its
-    ``effects``) are published, the others dropped. A staged file another push holds locked is left to it. Returns
-    the signatures published."""
+def forget(lake: Path, tenant: str, site: str, before: dt.date | None = None) -> int:
+    """Take ``site``'s signatures made before ``before`` (its retention; all of them when None, its consent
+    withdrawn) out of ``tenant``'s folder, staged files no live push holds included (a push killed after its
+    commit left them). Returns the signatures taken out; OutputError, nothing taken out, where a link in the
+    folder would hide files from it or a file cannot be read (every file is read before one is changed)."""
     refuse_links(lake, tenant)
-    published = 0
-    for staged in sorted(tenant_dir(lake, tenant).glob(f"signatures/date=*/*{STAGED}")):
-        fd = _lock_left(staged)
-        if fd is None:
-            continue
-        try:
-            rows = _staged_rows(staged)
-            stored = held([r["signature_id"] for r in rows]) if rows else {}
-            kept = [r for r in rows if stored.get(r["signature_id"]) == r]
-            if kept:
-                published += len(kept)
-                write_signatures(lake, kept, staged.name.removesuffix(STAGED).rsplit(".", 1)[0])
-            for path in (_effects_of(staged), staged):
-                path.unlink(missing_ok=True)
-        finally:
+    oldest = f"date={before.isoformat()}" if before else "date=9999"
+    found = [Path(f) for f in paths(lake, "signatures", tenant) if Path(f).parent.name < oldest]
+    locks = []
+    try:
+        for staged in sorted(tenant_dir(lake, tenant).glob(f"signatures/date=*/*{STAGED}")):
+            fd = lock_left(staged) if staged.parent.name < oldest else None
+            if fd is not None and fd != NO_LOCKS:
+                locks.append(fd)
+                found.append(staged)
+        tables = [(f, read_table(f)) for f in found]
+        return sum(len(take_out(f, table, pc.equal(table["site_id"], site))) for f, table in tables)
+    finally:
+        for fd in locks:
             os.close(fd)
-    return published
 
 
-def _staged_rows(staged: Path) -> list[dict]:
-    """The rows of a staged signatures file, each with its ``effects``; none when a killed push left it unreadable."""
-    try:
-        rows = _read(staged).to_pylist()
-        effects = _read(_effects_of(staged)).to_pylist() if _effects_of(staged).is_file() else []
-    except OutputError:
-        return []
-    by_id: dict[str, dict[str, float]] = defaultdict(dict)
-    for e in effects:
-        by_id[e["signature_id"]][e["feature"]] = e["effect"]
-    return [{**r, "effects": by_id.get(r["signature_id"], {})} for r in rows]
-
-
-def _write_locked(table: pa.Table, path: Path) -> int | None:
-    """Write ``table`` to the new file ``path``, locked before a byte is written (``reconcile`` leaves it alone);
-    the open, locked descriptor (None where the filesystem offers no locks)."""
-    make_folder(path.parent, "lake folder")
-    try:
-        fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC, 0o600)
-    except OSError as exc:
-        raise OutputError(f"lake file {path}: cannot write ({exc.strerror or exc.__class__.__name__})") from None
-    locked = True
-    try:
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX)
-        except OSError as exc:
-            if exc.errno not in UNLOCKABLE:
-                raise
-            locked = False
-        with os.fdopen(os.dup(fd), "wb") as f:
-            pq.write_table(table, f, compression="zstd")
-            f.flush()
-            os.fsync(f.fileno())
-    except (OSError, pa.ArrowException) as exc:
-        os.close(fd)
-        path.unlink(missing_ok=True)
-        raise OutputError(f"lake file {path}: cannot write ({getattr(exc, 'strerror', None) or exc})") from None
-    if not locked:
-        os.close(fd)
-        return None
-    return fd
-
-
-def _lock_left(staged: Path) -> int | None:
+def lock_left(staged: Path) -> int | None:
     """A descriptor holding ``staged``'s lock if no live push holds it (the push that wrote it was lost or
-    killed), else None (also where no locks are offered: a live push cannot be told from a dead one)."""
+    killed); None if one does or it is gone; ``NO_LOCKS`` where no locks are offered."""
     try:
         fd = os.open(staged, os.O_RDWR | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
     except OSError:
@@ -224,32 +88,19 @@ def _lock_left(staged: Path) -> int | None:
         fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         if os.path.exists(staged):  # not published or discarded meanwhile
             return fd
-    except OSError:
-        pass
+    except OSError as exc:
+        if exc.errno in UNLOCKABLE:
+            os.close(fd)
+            return NO_LOCKS
     os.close(fd)
     return None
-
-
-def _effects_of(sig_file: Path) -> Path:
-    """The effects file paired with the signatures file ``sig_file`` (same partition, same name)."""
-    return sig_file.parents[2] / "effects" / sig_file.parent.name / sig_file.name
-
-
-def forget(lake: Path, tenant: str, site: str, before: dt.date | None = None) -> int:
-    """Take ``site``'s signatures made before ``before`` (its retention; all of them when None, its consent
-    withdrawn) out of ``tenant``'s folder. Returns the signatures taken out; OutputError, nothing taken out,
-    where a link in the folder would hide files from it."""
-    refuse_links(lake, tenant)
-    oldest = f"date={before.isoformat()}" if before else "date=9999"
-    found = [(Path(f), _read(Path(f))) for f in paths(lake, "signatures", tenant) if Path(f).parent.name < oldest]
-    return sum(len(_take_out(f, table, pc.equal(table["site_id"], site))) for f, table in found)
 
 
 def newest(lake: Path, tenant: str, site: str) -> dt.date | None:
     """The date of ``site``'s newest signature in ``tenant``'s folder, or None: with no store's clock to check a
     retention's date against, the lake's own data is what it is checked with."""
     for f in reversed(paths(lake, "signatures", tenant)):  # the newest date's partition first
-        if site in _read(Path(f), ["site_id"]).column("site_id").to_pylist():
+        if site in read_table(Path(f), ["site_id"]).column("site_id").to_pylist():
             return dt.date.fromisoformat(Path(f).parent.name.removeprefix("date="))
     return None
 
@@ -270,8 +121,8 @@ def write_tables(lake: Path, signatures: pa.Table, effects: pa.Table, name: str)
     """Bulk form for large fleets: arrow tables already in the lake's schemas, one date and tenant."""
     date = signatures.column("created_date")[0].as_py().isoformat()
     tenant = signatures.column("tenant_id")[0].as_py()
-    _atomic(signatures.cast(SIGNATURES), _file(lake, tenant, "signatures", date, name))
-    _atomic(effects.cast(EFFECTS), _file(lake, tenant, "effects", date, name))
+    write_file(signatures.cast(SIGNATURES), lake_file(lake, tenant, "signatures", date, name))
+    write_file(effects.cast(EFFECTS), lake_file(lake, tenant, "effects", date, name))
 
 
 def tenant_dir(lake: Path, tenant: str) -> Path:
@@ -385,7 +236,8 @@ def refuse_links(lake: Path, tenant: str) -> None:
                           f"another tenant's files): make it a folder or file of its own")
 
 
-def _file(lake: Path, tenant: str, relation: str, date: str, name: str) -> Path:
+def lake_file(lake: Path, tenant: str, relation: str, date: str, name: str) -> Path:
+    """The path of ``name``.parquet in a partition, its tenant's folder made; OutputError naming a link on the way."""
     own = tenant_dir(lake, tenant)
     target = own / relation / f"date={date}" / f"{name}.parquet"
     if _linked(target):
@@ -409,12 +261,12 @@ def _linked(p: Path) -> bool:
     return any(q.is_symlink() for q in (p, *list(p.parents)[:3]))
 
 
-def _partition(target: Path) -> list[Path]:
+def partition_files(target: Path) -> list[Path]:
     """The files of ``target``'s partition folder, links left out."""
     return sorted(p for p in target.parent.glob("*.parquet") if _plain(p)) if target.parent.is_dir() else []
 
 
-def _take_out(sig_file: Path, table: pa.Table, which: pa.ChunkedArray) -> set[str]:
+def take_out(sig_file: Path, table: pa.Table, which: pa.ChunkedArray) -> set[str]:
     """Remove the rows ``which`` picks (a boolean mask over ``table``, the file's) from a signatures file
     and their effects from its effects file (same partition, same name); a file left empty is deleted.
     Returns the signature ids taken out."""
@@ -422,15 +274,16 @@ def _take_out(sig_file: Path, table: pa.Table, which: pa.ChunkedArray) -> set[st
     gone = table.filter(mask).column("signature_id")
     if not len(gone):
         return set()
-    effects_file = _effects_of(sig_file)
+    effects_file = effects_of(sig_file)
     _keep(sig_file, table.filter(pc.invert(mask)))  # the signatures first: an effect left alone is never read
     if _plain(effects_file):
-        effects = _read(effects_file)
+        effects = read_table(effects_file)
         _keep(effects_file, effects.filter(pc.invert(pc.is_in(effects["signature_id"], value_set=gone))))
     return set(gone.to_pylist())
 
 
-def _read(path: Path, columns: list[str] | None = None) -> pa.Table:
+def read_table(path: Path, columns: list[str] | None = None) -> pa.Table:
+    """A lake file's rows (``columns`` of them), or OutputError naming the file."""
     try:
         return pq.read_table(path, columns=columns, partitioning=None)
     except (OSError, pa.ArrowException) as exc:
@@ -440,7 +293,7 @@ def _read(path: Path, columns: list[str] | None = None) -> pa.Table:
 def _keep(path: Path, table: pa.Table) -> None:
     """``table`` in place of the file at ``path``, or no file when it is empty."""
     if table.num_rows:
-        _atomic(table, path)
+        write_file(table, path)
         return
     try:
         path.unlink()
@@ -448,11 +301,13 @@ def _keep(path: Path, table: pa.Table) -> None:
         raise OutputError(f"lake file {path}: cannot remove ({exc.strerror or exc.__class__.__name__})") from None
 
 
-def _value(row: Mapping, name: str):
+def row_value(row: Mapping, name: str):
+    """A sent row's ``name`` field as the lake stores it (a date, not its ISO text)."""
     v = row.get(name)
     return dt.date.fromisoformat(v) if name == "created_date" and isinstance(v, str) else v
 
 
-def _atomic(table: pa.Table, path: Path) -> None:
+def write_file(table: pa.Table, path: Path) -> None:
+    """``table`` as the file ``path``, whole or not at all."""
     with atomic_file(path, "lake file") as f:
         pq.write_table(table, f, compression="zstd")

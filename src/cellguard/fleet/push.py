@@ -28,7 +28,7 @@ would replace a newer one), is held whole (a policy that keeps rows longer lets 
 
 A queued batch the store refuses (another tenant's, say) or a file that cannot be read stays
 queued too, named in one line; the other batches go on. With ``lake``, a batch is staged in the lake
-before the store commits it and made visible only once the commit succeeded (``lake.Landing``): a lake
+before the store commits it and made visible only once the commit succeeded (``landing.Landing``): a lake
 that cannot take it leaves the store as it was, and the batch queued; one the store refuses at its commit
 leaves the lake as it was. What a push left staged (the store lost mid-commit, the push killed) is brought
 to what the store holds by the next push that reaches it. A folder whose audit log names another site
@@ -78,7 +78,8 @@ from cellguard.fleet.audit import (append_audit, append_retention, check_log, ch
                                    refuse_links, scan_audit)
 from cellguard.fleet.export import (AHEAD, Batch, dated_ahead, export_batch, newest_kept, oldest_kept, refusal,
                                     within_retention)
-from cellguard.fleet.lake import Unpublished, check_lake, forget, newest, reconcile, stage_signatures
+from cellguard.fleet.lake import check_lake, forget, newest
+from cellguard.fleet.landing import Unpublished, reconcile, stage_signatures
 from cellguard.fleet.outbox import OUTBOX, Outbox
 from cellguard.fleet.policy import DataPolicy
 from cellguard.fleet.signature import Signature
@@ -208,7 +209,8 @@ def check_history(site_dir: Path, policy: DataPolicy) -> None:
 
 def check_same_site(site_dir: Path, policy: DataPolicy) -> None:
     """ConfigError if the audit log says batches of another tenant or site went to a store from ``site_dir`` and were
-    not withdrawn from it since. The site key and the runs are the folder's, so the same findings would be stored
+    not withdrawn from it since (by a withdrawal logged as made with that tenant's store credentials: another
+    tenant's delete none of its rows). The site key and the runs are the folder's, so the same findings would be stored
     again under the policy's new ids (a site renamed in the policy counted each cause at two sites). Refused, not
     renamed: a withdrawal cannot be undone, and a policy copied from another site should not delete this one's rows."""
     site_dir = Path(site_dir)
@@ -221,7 +223,7 @@ def check_same_site(site_dir: Path, policy: DataPolicy) -> None:
             continue
         if e["status"] in ("sent", "duplicate"):
             stored[was].add(destination_of(e))
-        elif e["status"] == "withdrawn":
+        elif e["status"] == "withdrawn" and e.get("store_tenant") == was[0]:  # deleted as that tenant: really gone
             stored[was].discard(destination_of(e))
     for (tenant, site), where in sorted(stored.items()):
         if where:
@@ -229,8 +231,9 @@ def check_same_site(site_dir: Path, policy: DataPolicy) -> None:
                 f"--site-dir {site_dir}: batches of site {site} (tenant {tenant}) went to {sorted(map(str, where))[0]} "
                 f"from here, but the policy names site {policy.site} (tenant {policy.tenant}); with this folder's "
                 f"key and runs a push would store every finding again under the new id: to rename the site, run "
-                f"`cellguard fleet withdraw --policy OLD_POLICY --site-dir {site_dir}` (with --lake if they landed "
-                f"in one) under the policy naming {site}, then push; for another site, give it a new --site-dir")
+                f"`cellguard fleet withdraw --policy OLD_POLICY --store OLD_DSN --site-dir {site_dir}` (with --lake "
+                f"if they landed in one) with the old policy naming {site} and the store credentials of tenant "
+                f"{tenant}, then push; for another site, give it a new --site-dir")
 
 
 def check_key_history(site_dir: Path, policy: DataPolicy) -> None:
@@ -329,10 +332,10 @@ def _apply_retention(policy: DataPolicy, site_dir: Path, store: TenantStore | No
 
 def _reconcile_lake(lake: Path, tenant: str, store: TenantStore, failed: list[str]) -> str | None:
     """Bring what earlier pushes left staged in ``lake`` (the store lost mid-commit, a push killed) to what
-    ``store`` holds (``lake.reconcile``), adding a line to ``failed`` where the lake refuses; why the store was
-    lost meanwhile, or None."""
+    ``store`` holds (``landing.reconcile``), adding a line to ``failed`` where the lake refuses and one per staged
+    file it leaves (no locks, unreadable); why the store was lost meanwhile, or None."""
     try:
-        reconcile(lake, tenant, store.held)
+        failed.extend(reconcile(lake, tenant, store.held)[1])
     except StoreUnavailable as exc:
         return str(exc)
     except (OutputError, StoreError) as exc:

@@ -56,7 +56,7 @@ from cellguard.fleet.queries import (MIN_CUSTOMERS, QUERIES, RefusedAggregate, c
                                      render)
 
 if TYPE_CHECKING:
-    from cellguard.fleet.lake import Landing
+    from cellguard.fleet.landing import Landing
 
 SIGNATURE_COLUMNS = ("signature_id", "tenant_id", "site_id", "created_date", "cause", "confidence", "robot_model",
                      "cell_type", "onset_cycle", "detection_delay_cycles", "policy_version", "calibration_version",
@@ -418,7 +418,7 @@ class TenantStore:
         it fails, nothing is committed. What it staged is published only once the commit succeeded and
         discarded when the store refused the batch (at the commit too: a deferred constraint); where the
         commit's outcome is not known (the server lost, the push stopped) it is left for the next push to
-        bring to what the store holds (``lake.reconcile``)."""
+        bring to what the store holds (``landing.reconcile``)."""
         landing = None
         try:
             with self._writing(f"refused the batch of tenant {batch.tenant_id}") as cur:
@@ -432,14 +432,20 @@ class TenantStore:
         if landing is not None:
             try:
                 landing.publish()
-            except OutputError as exc:  # ``lake.Unpublished``: committed, so the caller counts it as taken
+            except OutputError as exc:  # ``landing.Unpublished``: committed, so the caller counts it as taken
                 exc.taken = (new, batch.rows - new)
                 raise
         return new, batch.rows - new
 
+    def tenant(self) -> str | None:
+        """The tenant these credentials log in as (``fleet.session_tenant()``; None: a role that is no tenant's):
+        what a withdrawal checks the policy's tenant against, as it can delete no other tenant's rows."""
+        with self.connection() as con, self._mapped("could not read its tenant"):
+            return con.execute("SELECT fleet.session_tenant()").fetchone()[0]
+
     def held(self, signature_ids: Sequence[str]) -> dict[str, dict]:
         """This tenant's stored signatures among ``signature_ids``, each with its ``effects``: what a lake's staged
-        rows are reconciled with (``lake.reconcile``)."""
+        rows are reconciled with (``landing.reconcile``)."""
         with self.connection() as con, self._mapped("could not read its signatures"):
             ids = list(signature_ids)
             rows = con.execute(f"SELECT {', '.join(SIGNATURE_COLUMNS)} FROM fleet.signatures "
