@@ -106,11 +106,12 @@ def family(signal: str) -> str:
 class _Window:
     """Changes over the faulted cycles of one episode: median minus baseline, in units and scales."""
 
-    def __init__(self, baseline: Baseline, cycles: Sequence[Cycle], z: np.ndarray):
+    def __init__(self, baseline: Baseline, cycles: Sequence[Cycle], z: np.ndarray, shift: np.ndarray | None = None):
         self.baseline, self.cycles, self.z = baseline, cycles, z
         self.level: tuple[str, str] | None = None  # where changes are read from, if not the baseline: (place, why)
         centre, _ = baseline.centre_and_scale(cycles)
-        self._d = feature_matrix(cycles, baseline.names) - centre  # change from the motion's baseline
+        # change from the motion's baseline, moved by ``shift`` (Shape of ``z``) where ``z`` reads from elsewhere
+        self._d = feature_matrix(cycles, baseline.names) - centre - (0.0 if shift is None else shift)
 
     def delta(self, name: str, start: int, plus: Sequence[str] = (), minus: Sequence[str] = (),
               end: int | None = None) -> float:
@@ -229,12 +230,14 @@ class _Window:
 
 
 def name_causes(baseline: Baseline, cycles: Sequence[Cycle], z: np.ndarray, alarms: Sequence[DriftAlarm],
-                rejected: Sequence[tuple[int, str]] = ()) -> list[Finding]:
+                rejected: Sequence[tuple[int, str]] = (), shift: np.ndarray | None = None) -> list[Finding]:
     """Findings from the drift alarms over ``cycles`` (those after the baseline), earliest first.
 
-    ``rejected`` lists (cycle, reason) of chunks the guard refused (non-finite or malformed output).
+    ``rejected`` lists (cycle, reason) of chunks the guard refused (non-finite or malformed output). ``shift``
+    (Shape of ``z``, [unit]): how far the centre ``z`` reads each feature from has moved off the baseline's (a slip
+    the baseline holds, gone: ``slip_gone.centre_shift``); the changes are read from there too.
     """
-    w = _Window(baseline, cycles, z)
+    w = _Window(baseline, cycles, z, shift)
     groups: dict[str, list[DriftAlarm]] = {}
     for a in alarms:
         if a.signal != "multivariate":
@@ -699,9 +702,11 @@ def _feet(w: _Window, alarms: list[DriftAlarm]) -> list[Finding]:
     return out
 
 
-def intermittent_finding(baseline: Baseline, cycles: Sequence[Cycle], z: np.ndarray, found) -> Finding:
-    """Name an intermittent pattern from its hit cycles alone, the way a persistent one is named."""
-    w, alarms = _on_hits(baseline, cycles, z, found)
+def intermittent_finding(baseline: Baseline, cycles: Sequence[Cycle], z: np.ndarray, found,
+                         shift: np.ndarray | None = None) -> Finding:
+    """Name an intermittent pattern from its hit cycles alone, the way a persistent one is named (``shift``: as
+    ``name_causes``'s)."""
+    w, alarms = _on_hits(baseline, cycles, z, found, shift)
     named = _geometry(w, alarms, []) if found.family == "geometry" else Finding(
         "unknown", found.first, 0.3, (f"{', '.join(found.signals[:4])} off on some cycles",), found.signals)
     watched = len(cycles) - next(i for i, c in enumerate(cycles) if c.index == found.first)
@@ -722,11 +727,12 @@ def _at_acceptance_words(baseline: Baseline, found) -> tuple[str, ...]:
             "not a new change")
 
 
-def _on_hits(baseline: Baseline, cycles: Sequence[Cycle], z: np.ndarray, found) -> tuple[_Window, list[DriftAlarm]]:
+def _on_hits(baseline: Baseline, cycles: Sequence[Cycle], z: np.ndarray, found,
+             shift: np.ndarray | None = None) -> tuple[_Window, list[DriftAlarm]]:
     """The window over an intermittent pattern's hit cycles, and its features as alarms from its first. Where the
     baseline holds the fault, the hits are read from the clean cycles' level: the baseline is the fault's."""
     rows = np.array([c.index in set(found.cycles) for c in cycles])
-    w = _Window(baseline, cycles, z)
+    w = _Window(baseline, cycles, z, shift)
     if found.clean:
         w = w.read_from(np.array([c.index in set(found.clean) for c in cycles]), (
             "where it sat on the cycles the fault spared",
@@ -756,13 +762,14 @@ def _off_on_hits(w: _Window, found) -> tuple[str, ...]:
 
 
 def intermittent_findings(baseline: Baseline, cycles: Sequence[Cycle], z: np.ndarray, found: Sequence,
-                          findings: Sequence[Finding] = ()) -> list[Finding]:
+                          findings: Sequence[Finding] = (), shift: np.ndarray | None = None) -> list[Finding]:
     """``findings`` (the persistent ones) and each intermittent pattern named (``intermittent_finding``); a
     pattern with no known cause whose cycles are all cycles of a named one (the place error off on the cycles
     the tool slipped), or of a geometry one, is that fault seen again, told in its evidence. A geometry pattern
     where only the grasp moved is told in a concurrent finding of how the arm moves, as a persistent one is
-    (``_with_grasp``: a latency on a few cycles closes the tool elsewhere on just those)."""
-    named = [(f, intermittent_finding(baseline, cycles, z, f)) for f in found]
+    (``_with_grasp``: a latency on a few cycles closes the tool elsewhere on just those). ``shift``: as
+    ``name_causes``'s."""
+    named = [(f, intermittent_finding(baseline, cycles, z, f, shift)) for f in found]
     hosts = {id(f): next((g for g, other in named if (other.cause != "unknown" or g.family == "geometry")
                           and g is not f and set(f.cycles) <= set(g.cycles)), None)
              if finding.cause == "unknown" else None for f, finding in named}
@@ -775,7 +782,7 @@ def intermittent_findings(baseline: Baseline, cycles: Sequence[Cycle], z: np.nda
                       "cycles" for f in same)
         finding = told(finding, words, [s for f in same for s in f.signals])
         if g.family == "geometry":
-            w, alarms = _on_hits(baseline, cycles, z, g)
+            w, alarms = _on_hits(baseline, cycles, z, g, shift)
             out = _with_grasp(w, finding, alarms, out, when=f"on {_hit_cycles(g)}")
         else:
             out.append(finding)

@@ -25,7 +25,7 @@ from cellguard.diagnose.recovery import (advice, advice_lines, attempts_of, fixe
                                         with_running_again, without_recovery_motion)
 from cellguard.diagnose.residual import residual_alarms, with_residual
 from cellguard.diagnose.run_end import CUT_SHORT, RunEnd, cut_short, run_end, with_stop_cause
-from cellguard.diagnose.slip_gone import SlipGone, read_from_zero, slip_gone
+from cellguard.diagnose.slip_gone import SlipGone, centre_shift, read_from_zero, slip_gone
 from cellguard.embodiment.profile import SymmetryPair
 from cellguard.errors import RecordError
 from cellguard.robot.recovery.outcome import RecoveryOutcome
@@ -138,12 +138,13 @@ def diagnose(rows: Iterable[object], events: Iterable[object] = (), context: Map
     z, notes = condition(baseline, watched, baseline.residuals(watched), declared(context))
     z = without_recovery_motion(baseline.names, watched, z)
     gone = slip_gone(baseline, watched, z)
-    z = read_from_zero(baseline, watched, z, gone)
+    z, shift = read_from_zero(baseline, watched, z, gone), centre_shift(baseline, watched, gone)
     found = find_intermittent(baseline.names, watched, z)
     drift = detect_drift(baseline, watched, config, residuals=without_outliers(baseline.names, watched, z, found))
     rejected = _rejections([*watched, *(c for c in cycles if c.index in cut)], evs)  # events tell of a cut cycle
     findings = intermittent_findings(baseline, watched, z, found,
-                                     name_causes(baseline, watched, drift.z, drift.alarms, rejected))
+                                     name_causes(baseline, watched, drift.z, drift.alarms, rejected, shift), shift)
+    findings, gone = _slipped_again(findings, gone)
     findings = with_residual(findings, residual_alarms(rows))  # the calibration's residual monitor, if it ran
     findings = with_stop_cause(findings, end, cycles, baseline, evs)
     asym = mirrored_asymmetry(watched, symmetry)
@@ -180,6 +181,15 @@ def diagnose(rows: Iterable[object], events: Iterable[object] = (), context: Map
         unwatched=tuple(baseline.other_load(watched)), no_tick_features=_without_tick_features(cycles, evs),
         run_end=end, cut_short=cut, from_start=from_start, slip_gone=gone)
 
+
+
+def _slipped_again(findings: list[Finding], gone: SlipGone | None) -> tuple[list[Finding], SlipGone | None]:
+    """A slip found from the cycle the baseline's slip was gone on: no "the slip is gone" note beside it; its
+    evidence says its change is read from 0, not from the baseline's slipped tool."""
+    if gone is None or not any(f.cause == "tool_slip" and f.cycle >= gone.cycle for f in findings):
+        return findings, gone
+    return [told(f, (gone.read_words(),)) if f.cause == "tool_slip" and f.cycle >= gone.cycle else f
+            for f in findings], None
 
 def record_facts(context: Mapping) -> dict:
     """What dates and names the diagnosed run, from its context: record id, start (UTC, ISO 8601) and embodiment
