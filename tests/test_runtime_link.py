@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from cellguard.control.envelope import StaleState
 from cellguard.robot.registry import make_cell
 from cellguard.runtime.link import RobotLink
 from cellguard.runtime.transitions import Transition
@@ -35,7 +36,9 @@ def test_a_state_that_is_not_finite_is_a_read_fault_and_the_last_good_state_stan
     events = []
     link = RobotLink(_Bus(corrupt), events, stop_category=1)
     good = link.read(0)
-    assert link.read(1_000_000) is good and link.read(2_000_000) is good
+    for stand_in in (link.read(1_000_000), link.read(2_000_000)):  # its values, marked stale: no standstill read
+        assert isinstance(stand_in, StaleState) and stand_in.t_ns == good.t_ns
+        assert all(np.array_equal(getattr(stand_in, f), getattr(good, f)) for f in ("q", "qd", "effort"))
     assert [(e.kind, e.category) for e in events] == [("robot_read_failed", 1)] and link.stop == 1
     assert "not finite" in events[0].reason
 

@@ -6,9 +6,9 @@ acceleration and jerk limits; an effort limit on the measured joint efforts; a C
 for the tool point with its own look-ahead; a tool-speed cap, lowered to the reduced speed
 (250 mm/s, ISO 10218-1) when the safety controller asks for it or the policy is unsure; a
 watchdog on policy silence; and stops of IEC 60204-1 categories 0, 1 and 2. A category 1 stop removes
-power once the machine has stopped: the setpoint at rest and every measured joint speed under ``STANDSTILL``,
-or one stopping time of the profile (at least ``SETTLE_MIN_NS``) after the setpoint came to rest whatever
-the joints read.
+power once the machine has stopped: the setpoint at rest and every joint speed of a fresh measured state under
+``STANDSTILL`` (a ``StaleState`` shows none: the link could not vouch for it), or one stopping time of the profile
+(at least ``SETTLE_MIN_NS``) after the setpoint came to rest whatever the joints read.
 
 Speed is lowered by slowing the executor's playback clock (``scale``), which keeps the path
 and stretches time. ``scale`` moves with bounded rate and rate of rate, so the slow-down itself
@@ -45,6 +45,7 @@ from cellguard.control.reach import ToolCap, reach_at
 from cellguard.control.tracker import PASS, STOP, Tracker
 from cellguard.embodiment import Profile
 from cellguard.robot.protocol import SafetyInputs
+from cellguard.robot.state import State
 
 NO_INPUTS = SafetyInputs()
 INTERVENTION_QUIET_NS = 200_000_000  # a joint's intervention is a new event after this long untouched
@@ -52,6 +53,14 @@ STANDSTILL = 0.05  # every measured joint speed below this: the machine has stop
 # A category 1 stop waits at least this long after its setpoint rests for the joints to read still [ns]: a drive
 # follows with a lag of its own (the quadruped's loaded legs read still 0.4 to 0.5 s after a 40 ms stopping time)
 SETTLE_MIN_NS = 1_000_000_000
+
+
+class StaleState(State):
+    """A measured state its link could not vouch for: stamped out of date (a frozen bus or server) or ahead of the
+    loop, or the last good one standing in for a read that failed. Its speeds are no standstill: a category 1 stop
+    waits for a fresh state (``runtime.link`` marks them)."""
+
+    __slots__ = ()
 
 
 def stopping_time_ns(profile: Profile) -> int:
@@ -87,6 +96,7 @@ class Envelope:
         self.stop_reason: str | None = None
         self.power = True
         self._rest_ns: int | None = None  # when the setpoint of the category 1 stop in force came to rest
+        self._stale_since: int | None = None  # when that stop at rest first met a stale state (``StaleState``)
         # then how long the measured joints may take to follow it
         self._settle_ns = max(stopping_time_ns(profile), SETTLE_MIN_NS)
         self._active: dict[EventKind, str] = {}  # lasting conditions already reported, with their reason
@@ -190,7 +200,7 @@ class Envelope:
         self.tracker.reset(q)
         self.stop_category = self.stop_kind = self.stop_reason = None
         self.power = True
-        self._rest_ns = None
+        self._rest_ns = self._stale_since = None
         self._active.clear()
         for check in self._all:
             check.reset()
@@ -237,10 +247,12 @@ class Envelope:
             events.append(Event(t_ns, EventKind.POWER_REMOVED, f"category 0 stop: {stop.reason}", category=0))
 
     def _end_category_1(self, t_ns: int, state, events: list[Event]) -> None:
-        """With the setpoint at rest, power off once the machine has stopped (IEC 60204-1 category 1): every
-        measured joint speed below ``STANDSTILL``, or ``_settle_ns`` later whatever they read (a robot that never
-        reads still must not keep power). The event names the fastest joint, its speed (asked) and the threshold
-        (sent). Without a measured state (benchmarks) the setpoint at rest is all there is to go by."""
+        """With the setpoint at rest, power off once the machine has stopped (IEC 60204-1 category 1): every joint
+        speed of a fresh measured state below ``STANDSTILL``, or ``_settle_ns`` later whatever they read (a robot that
+        never reads still, or whose link gives only stale states, must not keep power). A ``StaleState`` never shows
+        standstill: a frozen link's last speeds are no measurement of now (a lost link is the link's category 0).
+        The event names the fastest joint, its speed (asked) and the threshold (sent), and the stale states passed
+        over. Without a measured state (benchmarks) the setpoint at rest is all there is to go by."""
         reason = f"category 1 stop complete: {self.stop_reason}"
         if state is None:
             self.power = False
@@ -248,17 +260,24 @@ class Envelope:
             return
         if self._rest_ns is None:
             self._rest_ns = t_ns
+        stale, waited = isinstance(state, StaleState), t_ns - self._rest_ns
+        if stale and self._stale_since is None:
+            self._stale_since = t_ns
         speeds = np.abs(state.qd)
         j = int(speeds.argmax())
-        speed, waited = float(speeds[j]), t_ns - self._rest_ns
-        if not speed < STANDSTILL:  # a speed that reads NaN is no standstill either
+        speed = math.nan if stale else float(speeds[j])
+        if not speed < STANDSTILL:  # a speed that reads NaN (or none read: stale) is no standstill either
             if waited < self._settle_ns:
                 return
-            reason = (f"category 1 stop: still moving {waited * 1e-6:.0f} ms after the setpoint came to rest, "
-                      f"power removed anyway: {self.stop_reason}")
+            reason = (f"category 1 stop: {'no fresh state to read standstill from' if stale else 'still moving'} "
+                      f"{waited * 1e-6:.0f} ms after the setpoint came to rest, power removed anyway: "
+                      f"{self.stop_reason}")
+        elif self._stale_since is not None:
+            reason += (f"; standstill read from a fresh state after {(t_ns - self._stale_since) * 1e-6:.0f} ms of "
+                       "stale ones")
         self.power = False
-        events.append(Event(t_ns, EventKind.POWER_REMOVED, reason, joint=self._names[j], asked=speed,
-                            sent=STANDSTILL, category=1))
+        events.append(Event(t_ns, EventKind.POWER_REMOVED, reason, joint=None if stale else self._names[j],
+                            asked=None if stale else speed, sent=None if stale else STANDSTILL, category=1))
 
     # -- speed -----------------------------------------------------------------------------
     def _update_scale(self, tick: Tick, speed_ahead: Callable[[], float | None] | None,

@@ -3,7 +3,9 @@
 A read that raises, times out, returns a stale stamp (a dead bus reads as a frozen but healthy
 robot) or one from the future (a clock that jumped), or a state that is not finite, a write that
 fails, and more lost packets than the budget each raise one named event and ask the guard for the
-scenario's stop category; a state that is not finite is never used (the last good one stands in).
+scenario's stop category; a state that is not finite is never used (the last good one stands in). A state read
+stale and one standing in after a failed read are handed over as ``StaleState``: the guard reads no standstill from
+them (a category 1 stop waits for a fresh one).
 A setpoint that is not finite never reaches the robot: the last finite one is sent again and the
 refusal is an event.
 """
@@ -14,6 +16,7 @@ import math
 
 import numpy as np
 
+from cellguard.control.envelope import StaleState
 from cellguard.control.events import Event, EventKind
 from cellguard.robot.protocol import RobotLinkError
 
@@ -35,28 +38,29 @@ class RobotLink:
         self._raised: set[str] = set()
 
     def read(self, t_ns: int):
-        """The measured state; after a failure the last good one (and a stop request)."""
+        """The measured state; after a failure the last good one, stale (and a stop request)."""
         try:
             state = self.robot.read()
         except RobotLinkError as exc:
             self.fault(t_ns, EventKind(exc.kind), str(exc))  # the bridge names one of the link kinds
             self.lost = self.lost or exc.lost
-            return self.state
+            return self._stand_in()
         except Exception as exc:  # noqa: BLE001 - a bridge bug must stop the robot, not kill the loop
             self.fault(t_ns, EventKind.ROBOT_READ_FAILED, f"{type(exc).__name__}: {exc}")
-            return self.state
+            return self._stand_in()
         q, qd, effort = state.q, state.qd, state.effort
         with np.errstate(over="ignore", invalid="ignore"):  # refused below by name: no numpy warning on top
             squares = q.dot(q) + qd.dot(qd) + effort.dot(effort)
         if not math.isfinite(squares):  # NaN, inf or absurd (a square beyond the float range) anywhere
             self.fault(t_ns, EventKind.ROBOT_READ_FAILED, "the robot reported a position, velocity or effort that "
                        "is not finite; the last good state stands in")
-            return self.state
+            return self._stand_in()
         if self.stale_ns is not None and abs(t_ns - state.t_ns) > self.stale_ns:
             age = (t_ns - state.t_ns) * 1e-6
             self.fault(t_ns, EventKind.ROBOT_STATE_STALE, (f"state stamp {age:.1f} ms old" if age > 0 else
                         f"state stamp {-age:.1f} ms ahead of the loop's clock") +
                        f" (limit {self.stale_ns * 1e-6:.0f} ms)")
+            state = StaleState(*state)
         if self.drop_budget is not None and self.robot.dropped > self.drop_budget:
             self.fault(t_ns, EventKind.ROBOT_PACKETS_DROPPED, f"{self.robot.dropped} packets lost "
                         f"(budget {self.drop_budget})")
@@ -64,6 +68,12 @@ class RobotLink:
         if self.last_sent is None:
             self.last_sent = np.array(state.q, dtype=np.float64)
         return state
+
+    def _stand_in(self):
+        """The last good state, standing in for one not read: stale from now on (None before any)."""
+        if self.state is not None and not isinstance(self.state, StaleState):
+            self.state = StaleState(*self.state)
+        return self.state
 
     def write(self, t_ns: int, setpoint: np.ndarray) -> np.ndarray:
         """Send ``setpoint`` if every value is finite, else the last finite one; return what was sent."""

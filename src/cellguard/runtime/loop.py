@@ -24,7 +24,7 @@ from typing import NoReturn
 import numpy as np
 
 from cellguard.control.checks.safety_input import RECOVERY_HOLD
-from cellguard.control.envelope import STANDSTILL
+from cellguard.control.envelope import STANDSTILL, StaleState
 from cellguard.control.events import Event, EventKind
 from cellguard.control.executor import PreparedChunk
 from cellguard.control.reach import max_reach
@@ -268,7 +268,8 @@ class Run(TransitionPlay):
                     break
                 if self.stopped and not guard.power:  # a robot behind a bridge lost its power (above)
                     break
-                if operator.count and guard.envelope.tracker.stopped and np.abs(state.qd).max() < STANDSTILL:
+                if operator.count and guard.envelope.tracker.stopped and np.abs(state.qd).max() < STANDSTILL \
+                        and not isinstance(state, StaleState):  # a stale state's speeds are no standstill
                     self._operator_stop(t)  # already held still (a hand-over hold): the signal came this tick
                     self.stopped = self.stopped or operator.reason
                     break
@@ -766,25 +767,32 @@ def run_scenario(scenario: Scenario, out: Path, on_cycle: Callable[[dict], None]
             try:
                 run.run_cycles(on_cycle)
             finally:
+                if run.operator.count:  # a signal after the run's motion, the record still open: it says so too
+                    run._operator_stop(run.clock.now(), " after the run's motion had ended")
+                    run.stopped = run.stopped or run.operator.reason
                 run.recording.events()
                 run.recording.close(keep_folder=True)
         finally:
             run.close()
         try:
             summary = _write_summary(run, out)
-            if run.operator.count and not run.stopped:  # a signal while the record closed or the summary was written
-                run.stopped = run.operator.reason  # is the operator's stop all the same (a release ran its next run)
-                summary = _write_summary(run, out)
+            if run.operator.count and not run.stopped:  # a signal once the record had closed (or as the summary was
+                # written) is the operator's stop all the same (a release ran its next run), in no event of the record
+                run.stopped = run.operator.reason
+                summary = _write_summary(run, out, after_record=True)
         finally:
             run.recording.release_folder()
     return summary
 
 
-def _write_summary(run: Run, out: Path) -> dict:
-    """``out/summary.json``: the run's summary, why it stopped, whether its record is whole; returned."""
+def _write_summary(run: Run, out: Path, after_record: bool = False) -> dict:
+    """``out/summary.json``: the run's summary, why it stopped, whether its record is whole; returned.
+    ``after_record``: the stop came once the record had closed, every cycle run: no event of the record tells it."""
     summary = run.summary()
     if run.stopped:
         summary["stopped"] = run.stopped
+    if after_record:
+        summary["stopped_after_record"] = True
     if run.recording.failed:  # mid-run (the cell was stopped), or only at close: the record is not whole
         summary["record_failed"] = run.recording.failed
     write_output(out / "summary.json", json.dumps(summary, indent=1), "summary")
