@@ -203,14 +203,13 @@ def test_a_chunk_whose_message_index_for_events_was_removed_is_damage_and_its_ev
     total = _record_without_indexes(tmp_path / "r", {n: {"/events"} for n in range(1, 40, 2)})
     if cut:
         _cut(tmp_path / "r")
-    with open_record(tmp_path / "r") as rec:
-        skipped = len(list(rec.events()))
+    with open_record(tmp_path / "r") as rec:  # events() finds them without health(): diagnose never runs it
+        first = [e.reason for e in rec.events()]
         health = rec.health()
         after = [e.reason for e in rec.events()]
-    assert skipped < total  # what a read by the indexes alone sees
     notes = [d for d in health.damage if "message indexes leave out" in d]
     assert notes and all("/events message(s)" in d for d in notes) and not health.ok
-    assert len(after) == total == len(set(after))  # once found, read from the chunk itself
+    assert first == after and len(after) == total == len(set(after))  # read from the chunks themselves
     copy = tmp_path / "copy"
     recover(tmp_path / "r", copy)
     with open_record(copy) as rec:
@@ -255,3 +254,96 @@ def test_no_removed_message_index_loses_messages_silently(drop, cut):
     assert named <= set().union(*drop.values())
     assert before == want or named
     assert cut or health.ok == (not notes)
+
+
+# 5. review of aac5016: left-out events read by every reader, an index part of another run, a cycle begun again,
+# a lost run in a cycle the record never marks, a summary without chunk indexes
+
+
+def test_diagnose_reads_the_events_a_chunks_message_indexes_leave_out(tmp_path):
+    """``diagnose`` reads events in an ``open_record`` of its own, without ``health``: it read none of them."""
+    from record_synth import record
+    from test_record_health_chunk_index import _leave_out
+
+    ticks = (130, 330, 530, 730)
+    record(tmp_path / "r", cycles=10, ticks_per_cycle=100, events=dict.fromkeys(ticks, "limit_intervention"))
+    path = tmp_path / "r" / "record.mcap"
+    with open_record(path) as rec:
+        channel = rec.channel_id("/events")
+    for ref in scan(path).chunks:
+        if channel in ref.channels:
+            _leave_out(path, channel, ref.offset)
+    assert not any(channel in ref.channels for ref in scan(path).chunks)
+    result = CliRunner().invoke(app, ["diagnose", str(tmp_path / "r"), "--json"])
+    assert len(json.loads(result.stdout)["safety_events"]) == len(ticks), result.output
+
+
+def test_record_query_places_events_by_this_records_index_parts_only(tmp_path):
+    """A part naming no record id (an older run's, left by a killed ``--overwrite``) is not this record's:
+    ``events()`` takes no span from it, nor does ``record query``."""
+    import pyarrow.parquet as pq
+
+    for name, start in (("run", 0), ("other", 200)):
+        rec = _recorder(tmp_path / name)
+        rec.cycle_begin(0, "acceptance", start * MS)
+        _ticks(rec, 0, 400, 0)
+        rec.event(Event((start + 50) * MS, EventKind.LIMIT_INTERVENTION, name, joint="a", asked=1.0, sent=0.5), 0)
+        rec.cycle_end({"cycle": 0, "phase": "acceptance", "success": True}, (start + 100) * MS)
+        rec.close()
+    for part in (tmp_path / "other/index/cycles").glob("day=*/*.parquet"):
+        left = tmp_path / "run/index/cycles" / part.parent.name / "part-99999999.parquet"
+        left.parent.mkdir(parents=True, exist_ok=True)
+        pq.write_table(pq.read_table(part).replace_schema_metadata(None), left)
+    with open_record(tmp_path / "run") as rec:
+        assert {e.reason: e.cycle for e in rec.events()} == {"run": 0}
+    assert _index_events(tmp_path / "run") == {"run": 0}
+
+
+def test_a_cycle_number_begun_again_holds_its_events(tmp_path):
+    rec = _recorder(tmp_path / "r")
+    for n, start in enumerate((0, 200)):
+        rec.cycle_begin(0, "acceptance", start * MS)
+        _ticks(rec, start, start + 100, 0)
+        rec.event(Event((start + 50) * MS, EventKind.LIMIT_INTERVENTION, f"run {n}", joint="a", asked=1.0, sent=0.5), 0)
+        rec.cycle_end({"cycle": 0, "phase": "acceptance", "success": True}, (start + 100) * MS)
+    rec.close()
+    with open_record(tmp_path / "r") as rec:
+        assert {e.reason: e.cycle for e in rec.events()} == {"run 0": None, "run 1": 0}  # the span is the last's
+    assert _index_events(tmp_path / "r") == {"run 0": None, "run 1": 0}
+    with open_record(tmp_path / "r") as rec:  # the record's own stamp, before any span is applied
+        stamps = {json.loads(m.data)["reason"]: json.loads(m.data).get("cycle") for m in rec.messages(["/events"])}
+    assert stamps == {"run 0": 0, "run 1": 0}
+
+
+@pytest.mark.parametrize("begun", [False, True])
+def test_a_lost_run_is_placed_only_in_a_cycle_the_record_marks(tmp_path, begun):
+    """Killed on the next cycle's first tick, its begin still queued in the dead process (``begun``), or ticking
+    with no cycle begun: ``record info`` named a cycle the record never marks."""
+    rec = _recorder(tmp_path / "r")
+    if begun:
+        rec.cycle_begin(0, "acceptance", 0)
+        _ticks(rec, 0, 100, 0)
+        rec.cycle_end({"cycle": 0, "phase": "acceptance", "success": True}, 100 * MS)
+    _ticks(rec, 101, 101, 1 if begun else 0)  # stamped with a cycle whose begin the writer never got
+    rec.run_lost("killed")
+    rec.close()
+    with open_record(tmp_path / "r") as rec:
+        assert [(e.cycle, e.t_ns) for e in rec.events()] == [(None, 101 * MS)]
+    info = " ".join(CliRunner().invoke(app, ["record", "info", str(tmp_path / "r")]).output.split())
+    assert f"ended t=0.101 s{' between cycles' if begun else ''}, not by the run: killed" in info
+
+
+def test_a_summary_without_chunk_indexes_reads_by_a_scan(tmp_path, monkeypatch):
+    """Chunk indexes are optional (MCAP spec): mcap's Writer leaves them out with IndexType.NONE; nothing was read."""
+    import functools
+
+    import record_synth
+    from mcap.writer import IndexType, Writer
+
+    record_synth.record(tmp_path / "source", cycles=4, ticks_per_cycle=100, events={150: "limit_intervention"})
+    monkeypatch.setattr(record_synth, "Writer", functools.partial(Writer, index_types=IndexType.NONE))
+    record_synth.rewrite(tmp_path / "source", tmp_path / "copy", chunk_size=16 << 10)
+    with open_record(tmp_path / "source") as a, open_record(tmp_path / "copy") as b:
+        assert b.layout.finished and len(b.layout.chunks) > 1
+        assert list(b.events()) == list(a.events()) and list(b.cycles()) == list(a.cycles())
+        assert b.health().ok

@@ -1,6 +1,6 @@
 """A crafted summary whose chunk index leaves a channel out: every read by the indexes (cellguard's, the mcap
 package's) skips that channel's messages in the chunk. ``health()`` says so as damage and checks them (c526a15 checked
-only the listed channels, so the loss went unsaid), and from then on the readers read them too."""
+only the listed channels, so the loss went unsaid), and the readers read them too."""
 
 from __future__ import annotations
 
@@ -94,8 +94,10 @@ def test_a_channel_a_chunk_index_leaves_out_is_damage_and_checked(tmp_path):
         health = rec.health()
         assert health.off_schema == {"/events": 1}  # the one it left out, malformed
         assert [why for why in health.damage if "leave out" in why] == [
-            f"chunk at byte {bad_chunk}: its message indexes leave out 1 /events message(s), which reads before this "
-            f"one skipped"]
+            f"chunk at byte {bad_chunk}: its message indexes leave out 1 /events message(s), which a read by the "
+            f"indexes alone skips (read from the chunk itself here)"]
+        assert health.unindexed == {"/events": 1}
+        assert "1 /events message(s) missing from their chunks' message indexes" in health.describe()
         read = list(rec.events())
         assert [e.t_ns // DT_NS for e in read] == [k for k in EVENT_TICKS if k != BAD_TICK]
         assert rec.health().off_schema == {"/events": 1}  # noted once, however often read

@@ -60,6 +60,7 @@ def info(
             contexts = rec.contexts
             cycles = list(rec.cycles())
             events = list(rec.events())
+            marked = rec.cycle_spans()  # an older recorder stamped a lost run with a cycle whose begin it never wrote
     except CellguardError as exc:
         fail(exc)
     context = contexts[0].context if contexts else {}
@@ -81,7 +82,7 @@ def info(
         "events": dict(Counter(e.kind for e in events)),
         "stops": [{"t_s": e.t_ns * 1e-9, "kind": e.kind, "category": e.category, "reason": e.reason}
                   for e in events if e.category is not None],
-        "run_lost": [{"t_s": e.t_ns * 1e-9, "cycle": e.cycle, "reason": e.reason}
+        "run_lost": [{"t_s": e.t_ns * 1e-9, "cycle": e.cycle if e.cycle in marked else None, "reason": e.reason}
                      for e in events if e.kind == EventKind.RUN_PROCESS_LOST],
     }
     if as_json:
@@ -118,8 +119,9 @@ def _print_info(doc: dict) -> None:
         out.print(f"stop     t={stop['t_s']:.3f} s {stop['kind']} (category {stop['category']}): {stop['reason']}",
                   markup=False)
     for lost in doc["run_lost"]:
-        when = "between cycles" if lost["cycle"] is None else f"in cycle {lost['cycle']}"
-        out.print(f"ended    t={lost['t_s']:.3f} s {when}, not by the run: {lost['reason']}", markup=False)
+        when = (f" in cycle {lost['cycle']}" if lost["cycle"] is not None  # only what the record marks
+                else " between cycles" if any(stats["cycles"] for stats in doc["cycles"].values()) else "")
+        out.print(f"ended    t={lost['t_s']:.3f} s{when}, not by the run: {lost['reason']}", markup=False)
     for change in doc["context_changes"]:
         out.print(f"context  changed at t={change['t_s']:.3f} s: {', '.join(change['changed'])}", markup=False)
 

@@ -27,10 +27,12 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import duckdb
+import pyarrow as pa
 
 from cellguard.errors import RecordError
 from cellguard.record.index import TABLES, connect, first_line
 from cellguard.record.json_values import plain
+from cellguard.record.reader import index_spans
 from cellguard.record.scan import require_regular, scan, stated_record_id
 from cellguard.record.schemas import not_cellguard
 from cellguard.record.writer import INDEX_DIR, RECORD_FILE
@@ -345,13 +347,14 @@ def _confine(con: duckdb.DuckDBPyConnection, index: Path, sql: str) -> None:
         for part in (index / table).glob("day=*/*.parquet"):
             require_regular(part, "an index part")
     record = index.parent / RECORD_FILE  # a run folder's index/ is checked against the run's record id
-    connect(index, con, stated_record_id(record) if index.name == INDEX_DIR and record.is_file() else None)
+    record_id = stated_record_id(record) if index.name == INDEX_DIR and record.is_file() else None
+    connect(index, con, record_id)
     try:
         for table in TABLES:  # copy the views' rows in, so that the query reads memory only
             con.execute(f"CREATE TABLE {table}_copy AS SELECT * FROM {table}")
             con.unregister(table)
             con.execute(f"ALTER TABLE {table}_copy RENAME TO {table}")
-        con.execute(_OUT_OF_SPAN)
+        _out_of_span(con, index, record_id)
     except duckdb.OutOfMemoryException:
         raise RecordError(f"{index}: the index needs more than {MEMORY_LIMIT} of memory; query a shorter "
                           f"record") from None
@@ -361,15 +364,19 @@ def _confine(con: duckdb.DuckDBPyConnection, index: Path, sql: str) -> None:
     con.execute("SET lock_configuration = true")
 
 
-# An event lies in no cycle where it lies outside the span of the cycle it is stamped with, as ``Record.events``
-# reads it: spans closed, a cycle's last row (in part and row order) of those whose end is not before their start. A
-# record written before the recorder stamped events after a cycle's end with none has that cycle in its index rows.
-_OUT_OF_SPAN = """
-UPDATE events SET cycle = NULL
-FROM (SELECT cycle, arg_max(t_start_ns, rowid) AS t_start_ns, arg_max(t_end_ns, rowid) AS t_end_ns
-      FROM cycles WHERE t_end_ns >= t_start_ns GROUP BY cycle) AS span
-WHERE events.cycle = span.cycle AND (events.t_ns < span.t_start_ns OR events.t_ns > span.t_end_ns)
-"""
+def _out_of_span(con: duckdb.DuckDBPyConnection, index: Path, record_id: str | None) -> None:
+    """An event lies in no cycle where it lies outside the span of the cycle it is stamped with, as ``Record.events``
+    reads it, by the same spans (``index_spans``: only parts naming this record, spans closed; an unnamed part an
+    older run left beside it is in the cycles table, not in these). A record written before the recorder stamped
+    events after a cycle's end with none has that cycle in its index rows."""
+    spans = index_spans(index, record_id)
+    if not spans:
+        return
+    starts, ends = zip(*spans.values())
+    con.register("span", pa.table({"cycle": list(spans), "t_start_ns": starts, "t_end_ns": ends}))
+    con.execute("UPDATE events SET cycle = NULL FROM span WHERE events.cycle = span.cycle "
+                "AND (events.t_ns < span.t_start_ns OR events.t_ns > span.t_end_ns)")
+    con.unregister("span")
 
 
 def _message(exc: BaseException) -> str:

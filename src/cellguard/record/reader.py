@@ -176,6 +176,7 @@ class Health:
     facts: str | None = None  # the metadata record states another format, epoch or start than the context
     repeats: dict[str, int] = field(default_factory=dict)  # topic -> messages whose sequence number is not new
     writing: str | None = None  # the unfinished file's run still holds its folder: who ("a running process (pid N)")
+    unindexed: dict[str, int] = field(default_factory=dict)  # topic -> messages their chunks' message indexes leave out
 
     @property
     def ok(self) -> bool:
@@ -205,6 +206,8 @@ class Health:
         notes = "".join(f"; {note}" for note in (self.context_loss, self.facts) if note)
         notes += "".join(f"; {n} {topic} message(s) malformed, skipped" for topic, n in self.off_schema.items())
         notes += "".join(f"; {n} {topic} message(s) repeat a sequence number" for topic, n in self.repeats.items())
+        notes += "".join(f"; {n} {topic} message(s) missing from their chunks' message indexes (read from the chunks)"
+                         for topic, n in self.unindexed.items())
         lost = sum(b - a + 1 for g in self.gaps.values() for a, b in g)
         span = ("" if self.span_ns is None
                 else f", readable {self.span_ns[0] * 1e-9:.3f} s to {self.span_ns[1] * 1e-9:.3f} s")
@@ -263,7 +266,8 @@ class Record:
         self.writing = None if layout.finished else writing  # finished: only its index or summary is being written
         self._buf = open_buffer(file)
         self._late_damage: dict[int, str] = {}
-        self._unindexed: dict[int, str] = {}  # chunk offset -> its messages its message indexes leave out (``health``)
+        self._unindexed: dict[int, collections.Counter] = {}  # chunk offset -> topic -> messages its indexes leave out
+        self._sought: set[int] = set()  # channels whose chunks were all read for messages their indexes leave out
         self._off_schema: dict[str, set[tuple[int, int]]] = {}  # topic -> (log time, sequence) of each bad message
         self._ids = file_ids(layout.topics)  # topic -> id, None: not in the file
         self._contexts: list[ContextChange] | None = None
@@ -384,7 +388,7 @@ class Record:
 
     # -- cycles, events, chunks -----------------------------------------------------------
     def cycles(self) -> Iterator[CycleRecord]:
-        for _, cycle in self._json(self.messages(["/cycles"]), "/cycles", _cycle_record):
+        for _, cycle in self._json(self._whole("/cycles"), "/cycles", _cycle_record):
             if cycle is not None:  # None: a cycle's begin marker
                 yield cycle
 
@@ -393,7 +397,7 @@ class Record:
         closed: a cycle's last tick, and a stop read on it, lie at its end. The recorder stamps an event raised after a
         cycle's end with none, whatever its time (the retreat's first lies at the end); before, it stamped each with the
         cycle begun last, and such a record reads as written but for an event after its cycle's end time."""
-        for _, event in self._json(self.messages(["/events"]), "/events", _event_record):
+        for _, event in self._json(self._whole("/events"), "/events", _event_record):
             span = None if event.cycle is None else self._span(event.cycle)
             if span is not None and not span[0] <= event.t_ns <= (_INT64 if span[1] is None else span[1]):
                 event = replace(event, cycle=None)
@@ -410,7 +414,7 @@ class Record:
         """``cycle_spans()``, read once: every /cycles marker (nearly every chunk of the file), the index over them."""
         if self._spans is None:
             marked = {d["cycle"]: (d["t_start_ns"], d.get("t_end_ns"))
-                      for _, d in self._json(self.messages(["/cycles"]), "/cycles", _cycle_marker)}
+                      for _, d in self._json(self._whole("/cycles"), "/cycles", _cycle_marker)}
             self._spans = {**marked, **self._index_spans()}
         return self._spans
 
@@ -424,11 +428,8 @@ class Record:
         """The spans of the cycle index beside the record (``INDEX_DIR/cycles``), every part read once; a part that
         indexes another run or cannot be read is left out (the record's own markers still say)."""
         if self._indexed is None:
-            self._indexed = {}
-            index = self.file.parent / INDEX_DIR / "cycles"
-            if self.file.name == RECORD_FILE and index.is_dir():
-                for part in sorted(index.glob("day=*/*.parquet")):
-                    self._indexed.update(_index_part(part, self.record_id))
+            index = self.file.parent / INDEX_DIR
+            self._indexed = index_spans(index, self.record_id) if self.file.name == RECORD_FILE else {}
         return self._indexed
 
     def measurements(self) -> Iterator[Measurement]:
@@ -612,7 +613,11 @@ class Record:
         for topic, keys in checks.malformed().items():  # noted once, however often read
             self._off_schema.setdefault(topic, set()).update(keys)
         damage = ([d.why for d in self.layout.damage if not (self.writing and d.at_end)]  # its end, not written yet
-                  + list(self._late_damage.values()) + list(self._unindexed.values())
+                  + list(self._late_damage.values())
+                  + [f"chunk at byte {at}: its message indexes leave out "
+                     f"{', '.join(f'{n} {topic}' for topic, n in left.items())} message(s), which a read by the "
+                     f"indexes alone skips (read from the chunk itself here)"
+                     for at, left in self._unindexed.items()]
                   + [f"{len(bad)} {topic} message(s) off their schema, skipped"
                      for topic, bad in self._off_schema.items()]
                   + [f"{n} {topic} message(s) repeat an earlier sequence number" for topic, n in repeats.items()])
@@ -622,19 +627,39 @@ class Record:
                       None if last_t < 0 else (first_t - offset, last_t - offset), self.context_loss,
                       {topic: len(bad) for topic, bad in self._off_schema.items()},
                       self.layout.metadata.get("cellguard.recovered", {}).get("source_health"), self._facts_note,
-                      repeats, self.writing)
+                      repeats, self.writing, dict(sum(self._unindexed.values(), collections.Counter())))
 
     def _unindex(self, i: int, heads: list[tuple[int, int, int, int]], names: dict[int, str]) -> None:
         """Chunk ``i`` holds messages of channels its message indexes leave out (an index removed from an edited or
-        cut file): every read, the mcap package's too, skipped them, and ``health`` counted them as sound. Noted as
-        damage, and the chunk read for them from now on (a recovered copy holds them)."""
+        cut file): every read by the indexes, the mcap package's too, skips them. Noted as damage, and the chunk read
+        for them from now on (a recovered copy holds them)."""
         ref = self.layout.chunks[i]
-        left = collections.Counter(names.get(channel, f"channel {channel}") for channel, *_ in heads
-                                   if channel not in ref.channels)
-        said = ", ".join(f"{n} {topic}" for topic, n in left.items())
-        self._unindexed[ref.offset] = (f"chunk at byte {ref.offset}: its message indexes leave out {said} "
-                                       f"message(s), which reads before this one skipped")
+        self._unindexed[ref.offset] = collections.Counter(names.get(channel, f"channel {channel}")
+                                                          for channel, *_ in heads if channel not in ref.channels)
         self.layout.chunks[i] = replace(ref, channels=ref.channels | {channel for channel, *_ in heads})
+
+    def _whole(self, topic: str) -> list[Message]:
+        """Every message of a small topic (/events, /cycles) by log time. Where fewer are read than the file holds (its
+        statistics' count, else the highest sequence number read: the writer numbers each channel 1, 2, 3, ...), the
+        chunks whose indexes do not list the topic are read once for messages they leave out (``_unindex``): every
+        reader of the events, not only one that ran ``health``, reads them. A record read whole costs a few ms more."""
+        messages = list(self.messages([topic]))
+        channel = self._ids[topic]
+        if channel is None or channel in self._sought:
+            return messages
+        self._sought.add(channel)
+        held = max((self.layout.counts or {}).get(channel, 0), max((m.sequence for m in messages), default=0))
+        if len({m.sequence for m in messages}) >= held:
+            return messages
+        names, found = {i: t for t, i in self._ids.items() if i is not None}, False
+        for i, ref in enumerate(self.layout.chunks):
+            if ref.channels is not None and channel not in ref.channels:
+                heads: list[tuple[int, int, int, int]] = []
+                self._chunk_messages(ref, set(), heads)
+                if channel in {head[0] for head in heads}:
+                    self._unindex(i, heads, names)
+                    found = True
+        return list(self.messages([topic])) if found else messages
 
     # -- raw messages ---------------------------------------------------------------------
     def channel_id(self, topic: str) -> int | None:
@@ -780,7 +805,17 @@ def _saved_context(saved: dict[str, str]) -> tuple[ContextChange, dict] | None:
             {key: value for key, value in stated.items() if value is not None} | {"record_id": saved.get("record_id")})
 
 
-def _index_part(part: Path, record_id: str | None) -> dict[int, tuple[int, int | None]]:
+def index_spans(index: Path, record_id: str | None) -> dict[int, tuple[int, int]]:
+    """{cycle: (t_start_ns, t_end_ns)} of the cycle index in ``index`` (a run folder's ``INDEX_DIR``), its parts in
+    name order (``_index_part``): the spans ``Record.events`` and ``record query`` place events by."""
+    spans: dict[int, tuple[int, int]] = {}
+    if (index / "cycles").is_dir():
+        for part in sorted((index / "cycles").glob("day=*/*.parquet")):
+            spans.update(_index_part(part, record_id))
+    return spans
+
+
+def _index_part(part: Path, record_id: str | None) -> dict[int, tuple[int, int]]:
     """{cycle: (t_start_ns, t_end_ns)} of one part of the cycle index, of a cycle in it twice the last row; none if
     the part cannot be read or is not this record's: a record with an id takes only parts that name it (both writers
     name it; an unnamed part beside it, an older run's left by a killed ``--overwrite``, put cycles it never had in

@@ -33,7 +33,7 @@ import numpy as np
 import zstandard
 from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
-from mcap.records import AttachmentIndex, Channel, Chunk, Message, Metadata, MetadataIndex, Schema
+from mcap.records import AttachmentIndex, Channel, Chunk, Message, Metadata, MetadataIndex, Schema, Statistics
 from mcap.stream_reader import breakup_chunk, get_chunk_data_stream
 
 from cellguard.errors import RecordError
@@ -88,6 +88,7 @@ class Layout:
     channels: dict[int, Channel] = field(default_factory=dict)
     metadata: dict[str, dict[str, str]] = field(default_factory=dict)  # name -> key/values (the last of a name)
     attachments: dict[str, tuple[int, int]] = field(default_factory=dict)  # name -> (offset, length) of the record
+    counts: dict[int, int] | None = None  # channel id -> messages in the file, by the summary's statistics (None: none)
 
     @property
     def topics(self) -> dict[int, str]:
@@ -118,6 +119,9 @@ def scan(path: Path) -> Layout:
     except Exception:  # noqa: BLE001 - a summary that parses badly despite its CRC: scan the file instead
         layout = None
     try:
+        if layout is not None and not layout.chunks:  # chunk indexes are optional (MCAP spec; mcap's Writer with
+            # IndexType.NONE): the chunks of a finished file found by a scan
+            return replace(_linear(path, size, magic_ok=True), finished=True, counts=layout.counts)
         return layout if layout is not None else _linear(path, size, magic_ok=data == MAGIC)
     except (OSError, ValueError, struct.error) as exc:
         raise RecordError(f"{path}: cannot be read ({type(exc).__name__}: {exc})") from None
@@ -300,6 +304,8 @@ def _from_summary(path: Path, size: int) -> Layout | None:
             elif op == Opcode.ATTACHMENT_INDEX:
                 entry = AttachmentIndex.read(ReadDataStream(BytesIO(body)))
                 layout.attachments[entry.name] = (entry.offset, entry.length)
+            elif op == Opcode.STATISTICS:
+                layout.counts = Statistics.read(ReadDataStream(BytesIO(body))).channel_message_counts
             pos += 9 + length
     layout.chunks.sort(key=lambda r: r.offset)
     return layout

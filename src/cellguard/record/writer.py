@@ -175,7 +175,8 @@ class Recorder:
         self._versions: dict[str, str] = {}
         self._where: dict[str, str | None] = {}
         self._cycle_start: dict[int, int] = {}
-        self._ended: tuple[int, int] | None = None  # the cycle whose end marker was written last, and that end [ns]
+        self._begun: tuple[int, int] | None = None  # the cycle whose begin marker was written last, and that begin [ns]
+        self._ended: tuple[int, int] | None = None  # that cycle and its end [ns] once its end marker is written
         self._guard(self._start, context)
 
     @classmethod
@@ -281,14 +282,16 @@ class Recorder:
 
     def run_lost(self, why: str) -> None:
         """The run's process is gone before it finished the run: say so, since a file the writer finishes alone
-        would otherwise read as a run that ended. At the last tick taken, in its cycle; where that cycle had ended
-        (killed between cycles), in none (``event``) and 1 ns past its end, which the live process wrote: at the end,
-        a reader that places an unstamped event by time (``diagnose``, closed spans) read the cycle as cut short."""
-        ring = self._ring
-        cycle = int(ring.cycle[(ring.n - 1) % ring.capacity]) if ring.n else None
-        t_ns = max(0, ring.last_t_ns())
-        if self._ended is not None and cycle == self._ended[0]:
+        would otherwise read as a run that ended. At the last tick taken, in the cycle whose begin marker was written
+        last; where that cycle had ended (killed between cycles), in none and 1 ns past its end, which the live
+        process wrote: at the end, a reader that places an unstamped event by time (``diagnose``, closed spans) read
+        the cycle as cut short. Never in a cycle the record does not mark (a tick stamped with a cycle whose begin was
+        still queued when the process died), nor in one before any cycle begun."""
+        t_ns, cycle = max(0, self._ring.last_t_ns()), None
+        if self._ended is not None:
             t_ns = max(t_ns, self._ended[1] + 1)
+        elif self._begun is not None:
+            cycle, t_ns = self._begun[0], max(t_ns, self._begun[1])
         self.event(Event(t_ns, EventKind.RUN_PROCESS_LOST, why), cycle)
 
     # -- lower-rate streams ----------------------------------------------------------------
@@ -334,6 +337,7 @@ class Recorder:
 
     def cycle_begin(self, cycle: int, phase: str, t_ns: int) -> None:
         self._cycle_start[cycle] = t_ns
+        self._begun, self._ended = (cycle, t_ns), None  # a cycle number begun again is open again
         self._guard(self._json, 6, t_ns, {"marker": "begin", "cycle": cycle, "phase": phase, "t_start_ns": t_ns,
                                           **self._versions})
 
