@@ -117,7 +117,7 @@ def diagnose(rows: Iterable[object], events: Iterable[object] = (), context: Map
     evs = [_event_dict(e) for e in events]
     spans = _cycle_spans(cycles)
     for e in evs:
-        if e.get("cycle") is None:
+        if not e.pop(_STAMPED, False) and e.get("cycle") is None:  # a record's own "in no cycle" stands
             e["cycle"] = _cycle_of(e["t_ns"], spans)
     end, cut = run_end(evs), cut_short(cycles, evs)
     whole = [c for c in cycles if c.index not in cut]
@@ -399,8 +399,16 @@ def _asymmetry_finding(asym: Asymmetry, cycle: int) -> Finding:
                    tuple(sorted({d.feature for d in sig})), asym.joints)
 
 
+_STAMPED = "_stamped"  # an event read from a record, whose recorder placed it in a cycle or in none
+
+
 def _event_dict(e: object) -> dict:
+    """``e`` as a dict. A record's event keeps its cycle, None included: the recorder knows whether it came after
+    the cycle's end marker, which time alone cannot tell at the end's own time (the retreat's first event, a stop
+    there); events given as mappings without one (a summary's) are placed by time."""
     d = dict(e) if isinstance(e, Mapping) else {k: v for k, v in vars(e).items() if v is not None}
+    if not isinstance(e, Mapping) and hasattr(e, "cycle"):
+        d[_STAMPED] = True
     if "t_ns" not in d:
         raise RecordError(f"event: needs 't_ns', got keys {sorted(d)}")
     return d
