@@ -30,8 +30,7 @@ METRICS = (Metric("cycles_seen", "", cycles_seen),)
 '''
 BUILT_IN = ["chunk_seam_jump_max_mrad", "cycle_time_p95_s", "drift_alarms", "inference_latency_p99_ms",
             "interventions_per_hour", "limit_violations", "place_error_p95_mm", "protective_stops",
-            "shadow_distance_p95_mrad", "shadow_latency_p95_ms", "shadow_would_clamp", "shadow_would_stop",
-            "success_rate"]
+            "shadow_distance_p95_mrad", "shadow_would_clamp", "shadow_would_stop", "success_rate"]
 
 
 @contextmanager

@@ -20,15 +20,8 @@ On wall time the shadow guard's tick runs on the servo thread after the tick's c
 wait for the next deadline: it never delays what the robot is sent, it spends the tick's slack (a 1 kHz arm or
 SO-101 cell: about 30 us a tick at p50, 60-70 us at p99; the tick's compute p50 rose 25-30 us, p99 30-80 us, no more
 overruns). Kept there: it reads the live guard as it is on that tick (its power, speed scale, a guard rebuilt); on
-another thread each tick's would be copied and queued.
-
-Each candidate call is timed (``candidate_latency_s`` per chunk) and its chunk goes into its guard when its own answer
-would arrive, by the loop's rule for that clock. Simulated time charges no policy its wall time (the incumbent's answer
-comes the simulated latency after its request, a fault's included): the candidate's comes on the same tick. On wall
-time (a robot behind a bridge) the candidate runs on an inference worker of its own, asked with the incumbent when it
-is not still in a call (live, a busy policy is not asked), and its chunk is taken on the first tick after it is done:
-its guard judges a late answer stale and a silence by its watchdog, as the live guard would; the incumbent's latency
-no longer carries the candidate's call (it did when the candidate was asked in the incumbent's call).
+another thread each tick's would be copied and queued. The candidate is asked after the incumbent, in its call: a
+slow candidate's time is charged to the incumbent's latency, and its own is not measured (nor a stale answer's).
 """
 
 from __future__ import annotations
@@ -36,7 +29,6 @@ from __future__ import annotations
 import hashlib
 import json
 from pathlib import Path
-from time import perf_counter_ns
 
 import numpy as np
 
@@ -46,14 +38,12 @@ from cellguard.control.config import GuardConfig
 from cellguard.control.settings import build_guard
 from cellguard.errors import ConfigError
 from cellguard.output import write_output
-from cellguard.policy.async_inference import AsyncInference
 from cellguard.policy.chunk import ActionChunk
 from cellguard.policy.registry import make_policy
 from cellguard.release.evidence import SHADOW_FILE
 from cellguard.release.reductions import action_at
 from cellguard.robot.protocol import SafetyInputs
 from cellguard.runtime import Run
-from cellguard.runtime.loop import WARM_UP_TIMEOUT_S
 from cellguard.scenario import Scenario
 
 SPEED_SCALED = "speed_scaled"  # the candidate's playback slowed where the live one's was not: no event of the guard's
@@ -67,16 +57,11 @@ DISTANCES = ("distance_rad", "command_distance_rad")
 
 class ShadowedPolicy:
     """The incumbent behind the Policy protocol, with the candidate computed beside it; ``tick`` follows the live
-    guard (the run's ``tick_observer``). ``worker``: the candidate's own inference worker on wall time (None: asked
-    in the incumbent's call, simulated time)."""
+    guard (the run's ``tick_observer``)."""
 
-    def __init__(self, incumbent, candidate, cell, config: GuardConfig, guard: Guard, cycle,
-                 worker: AsyncInference | None = None):
+    def __init__(self, incumbent, candidate, cell, config: GuardConfig, guard: Guard, cycle):
         self.incumbent, self.candidate, self.cell, self.config, self.guard = incumbent, candidate, cell, config, guard
-        self.cycle, self.worker = cycle, worker
-        self.warming = False  # the loop's warm-up call (wall time): the candidate's first call waited for, no row
-        self._asked: tuple[dict, object] | None = None  # wall time: the call in flight: its row, the incumbent's chunk
-        self._live_pushed: list = []  # wall time: the live guard's events taking the incumbent's answer this tick
+        self.cycle = cycle
         self.source = incumbent.source
         self.map_document = getattr(incumbent, "map_document", None)  # the record's map is the incumbent's
         self.rows: list[dict] = []
@@ -95,86 +80,29 @@ class ShadowedPolicy:
 
     def reset(self) -> None:
         self.incumbent.reset()
-        if self.worker is None:
-            self.candidate.reset()
-        else:  # on its own thread before its next call (a call in flight arrives late, as the live worker's)
-            self.worker.discard()
-
-    def close(self) -> None:
-        """The candidate's worker stopped (a call in flight not waited for long), both policies' connections closed."""
-        if self.worker is not None:
-            self.worker.close(timeout_s=1.0)
-        for policy in (self.candidate, self.incumbent):
-            close = getattr(policy, "close", None)
-            if callable(close):
-                close()
+        self.candidate.reset()
 
     def infer(self, observation):
         chunk = self.incumbent.infer(observation)  # what drives; a failure here is the run's event
-        if self.worker is not None:
-            self._ask(chunk, observation)
-            return chunk
-        row = self._row(observation)
-        began = perf_counter_ns()
+        row = {"t_ns": int(observation.t_ns), "cycle": int(self.cycle()), "distance_rad": None,
+               "command_distance_rad": None, "events": [], "clamped": False, "stopped": False}
+        candidate = None
         try:  # the whole candidate side: whatever it answers, it never fails the incumbent's inference
             candidate = self.candidate.infer(observation)
+            if not isinstance(candidate, ActionChunk):
+                raise TypeError(f"the candidate answered {type(candidate).__name__}, not an ActionChunk")
+            row["distance_rad"] = _distance(chunk, candidate)
         except Exception as exc:  # noqa: BLE001 - a failing candidate is a would-be stop, never the incumbent's
-            candidate = exc
-        row["candidate_latency_s"] = (perf_counter_ns() - began) * 1e-9
-        self._pending = row, self._answer(row, chunk, candidate)  # one the loop drops (a new cycle's start) is never
-        return chunk  # taken
-
-    def _row(self, observation) -> dict:
-        """A new candidate chunk's row, kept."""
-        row = {"t_ns": int(observation.t_ns), "cycle": int(self.cycle()), "distance_rad": None,
-               "command_distance_rad": None, "candidate_latency_s": None, "events": [], "clamped": False,
-               "stopped": False}
+            row.update(events=[f"inference_failed: {type(exc).__name__}"], stopped=True)
+            candidate = None
         self.rows.append(row)
-        return row
-
-    @staticmethod
-    def _answer(row: dict, chunk, candidate) -> ActionChunk | None:
-        """The candidate's answer (an exception: its call failed) checked and put on ``row``: its chunk, or None
-        for a failure (a would-be stop)."""
-        if not isinstance(candidate, (ActionChunk, Exception)):
-            candidate = TypeError(f"the candidate answered {type(candidate).__name__}, not an ActionChunk")
-        if isinstance(candidate, Exception):
-            row["events"].append(f"inference_failed: {type(candidate).__name__}")
-            row["stopped"] = True
-            return None
-        row["distance_rad"] = _distance(chunk, candidate)
-        return candidate
-
-    def _ask(self, chunk, observation) -> None:
-        """Wall time: the candidate asked the incumbent's observation on its own worker, unless it is still in a call
-        (live it would not be asked then: no row); at the warm-up, its first call off the clock, waited for."""
-        worker = self.worker
-        if self.warming:
-            worker.warm_up(observation, WARM_UP_TIMEOUT_S)
-            return
-        if not worker.wants_observation(observation.t_ns):  # in flight (threshold 1: no queue to wait for)
-            return
-        self._asked = self._row(observation), chunk
-        worker.submit(observation)
-
-    def _arrival(self) -> tuple[dict, ActionChunk | None, list] | None:
-        """Wall time: the candidate's answer done by this tick, taken (its row, its chunk, the live guard's events
-        if it took the incumbent's on this tick too)."""
-        result = self.worker.take()
-        if result is None or self._asked is None:  # none, or a warm-up call given up that answered since
-            return None
-        (row, chunk), self._asked = self._asked, None
-        row["candidate_latency_s"] = result.latency_ns * 1e-9
-        answer = self._answer(row, chunk, RuntimeError(result.error) if result.chunk is None else result.chunk)
-        return row, None if answer is None else result.prepared or answer, self._live_pushed
+        self._pending = row, candidate  # one the loop drops (a new cycle's start) is never taken
+        return chunk
 
     def taken(self, approached: bool, pushed: list) -> None:
         """The loop took the incumbent's answer on this tick, the live guard raising ``pushed`` (a chunk it refused:
         stale, NaN): the candidate's goes into its guard on it (``tick``), a refusal the live guard made alike not
         the candidate's, unless an approach was played instead (then neither is: a fresh request follows)."""
-        if self.worker is not None:  # the candidate's answer comes on its own tick (``_arrival``)
-            self._live_pushed = pushed
-            return
         pending, self._pending = self._pending, None
         self._taking = None if approached or pending is None else (*pending, pushed)
 
@@ -186,8 +114,6 @@ class ShadowedPolicy:
         into the live one, counted for no candidate chunk: the live guard goes on from them, so does the shadow's."""
         self._follow(live, t_ns, state)
         guard, taking, self._taking = self.guard, self._taking, None
-        if self.worker is not None and not driving:  # taken as the loop takes an answer: not while a recovery drives
-            taking, self._live_pushed = self._arrival(), []
         if driving:
             self._open = None
             if fed is not None:
@@ -292,35 +218,22 @@ def _built_unseen(candidate: str, cell, soft_margin: float):
 
 
 class ShadowRun(Run):
-    """A run of the incumbent (``scenario.policy``) with ``candidate`` in shadow mode (``realtime``: a simulated cell
-    on wall time, as ``Run``'s)."""
+    """A run of the incumbent (``scenario.policy``) with ``candidate`` in shadow mode."""
 
-    def __init__(self, scenario: Scenario, candidate: str, candidate_guard: GuardConfig, realtime: bool = False):
+    def __init__(self, scenario: Scenario, candidate: str, candidate_guard: GuardConfig):
         if scenario.realtime.inference == "process":  # the process would run the incumbent alone
             raise ConfigError("shadow mode runs the candidate beside the incumbent in the loop's process: "
                               "realtime.inference must be 'thread'")
-        super().__init__(scenario, realtime=realtime)
+        super().__init__(scenario)
         try:  # at rest where the live guard is: measured again, a draw of the cell's noise changed the live run
             shadow_guard = build_guard(self.cell, candidate_guard, q0=self.guard.reference)
             candidate_policy = _built_unseen(candidate, self.cell, candidate_guard.soft_margin)
-            worker = None
-            if self.clock.realtime:  # checked and fitted on its worker, as the live one's (the shadow guard's)
-                worker = AsyncInference(candidate_policy, threshold=1.0,
-                                        prepare=lambda chunk: self.policy.guard.executor.prepare(chunk))
             self.policy = ShadowedPolicy(self.policy, candidate_policy, self.cell, candidate_guard, shadow_guard,
-                                         lambda: self.cycles.total, worker)
+                                         lambda: self.cycles.total)
             self.tick_observer = self.policy.tick
         except BaseException:  # the incumbent's policy and a bridge are open: close them
             self.close()
             raise
-
-    def _warm_up(self) -> None:
-        """The loop's; the candidate's first call waited for in it, off the clock too (``ShadowedPolicy._ask``)."""
-        self.policy.warming = True
-        try:
-            super()._warm_up()
-        finally:
-            self.policy.warming = False
 
     def _arrived(self, arrival, t_ns: int) -> bool:
         """The loop's; the candidate's answer is taken on the same tick (``ShadowedPolicy.taken``) with the events

@@ -38,16 +38,8 @@ def shadow_would_stop(runs) -> Measure:
     return Measure(float(len(hits)) if rows else None, cycles_in(runs) if rows else 0, tuple(hits[:10]))
 
 
-def shadow_latency_p95(runs) -> Measure:
-    """The candidate's own calls, p95 [ms]: timed apart from the incumbent's (a file written before keeps none)."""
-    rows = [(s["candidate_latency_s"] * 1e3, f"{r.label(s['cycle'])} chunk at t={s['t_ns'] * 1e-9:.3f} s")
-            for s, r in _shadow(runs) if s.get("candidate_latency_s") is not None]
-    return percentile(runs, rows, 95, "ms") if rows else Measure(None, 0)
-
-
 METRICS = (
     Metric("shadow_distance_p95_mrad", "mrad", shadow_distance_p95, shadow=True),
-    Metric("shadow_latency_p95_ms", "ms", shadow_latency_p95, shadow=True),
     Metric("shadow_would_clamp", "", shadow_would_clamp, most=1.0, shadow=True),
     Metric("shadow_would_stop", "", shadow_would_stop, hard=True, shadow=True),
 )
