@@ -198,3 +198,20 @@ def _run_until_killed(folder: Path, progress: Path) -> None:
 
 if __name__ == "__main__":
     _run_until_killed(Path(sys.argv[1]), Path(sys.argv[2]))
+
+
+def away_from_home_run(folder: Path, acceptance_cycles: int, production_cycles: int) -> Path:
+    """A real run (1 s time cycles) whose replayed policy leaves the arm away from home, so its retreat begins at the
+    last cycle's very end: ``folder``/run."""
+    from cellguard.robot.registry import make_cell
+    from cellguard.runtime import run_scenario
+    from cellguard.scenario import parse_scenario
+
+    home = np.array(make_cell("arm-pick-place").read().q, dtype=np.float64)
+    t = np.arange(0.0, 3.0, 0.1)
+    actions = np.array([[home + np.array([0.5 * (s + k * 0.02), 0, 0, 0, 0, 0]) for k in range(1, 26)] for s in t])
+    np.savez(folder / "turn.npz", t=t, actions=actions, dt=np.float64(0.02))
+    run_scenario(parse_scenario({"cell": "arm-pick-place", "policy": f"replay:{folder / 'turn.npz'}",
+                                 "acceptance_cycles": acceptance_cycles, "production_cycles": production_cycles,
+                                 "cycle": {"source": "time", "seconds": 1.0}}), folder / "run")
+    return folder / "run"

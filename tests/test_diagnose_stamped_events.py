@@ -9,31 +9,15 @@ from __future__ import annotations
 
 import json
 
-import numpy as np
-from record_synth import rewrite
+from record_synth import away_from_home_run, rewrite
 from typer.testing import CliRunner
 
 from cellguard.cli import app
 from cellguard.record.reader import open_record
-from cellguard.robot.registry import make_cell
-from cellguard.runtime import run_scenario
-from cellguard.scenario import parse_scenario
-
-
-def _away_from_home(folder):
-    """A run whose policy leaves the arm away from home: its retreat begins at the last cycle's end."""
-    home = np.array(make_cell("arm-pick-place").read().q, dtype=np.float64)
-    t = np.arange(0.0, 3.0, 0.1)
-    actions = np.array([[home + np.array([0.5 * (s + k * 0.02), 0, 0, 0, 0, 0]) for k in range(1, 26)] for s in t])
-    np.savez(folder / "turn.npz", t=t, actions=actions, dt=np.float64(0.02))
-    run_scenario(parse_scenario({"cell": "arm-pick-place", "policy": f"replay:{folder / 'turn.npz'}",
-                                 "acceptance_cycles": 5, "production_cycles": 2,
-                                 "cycle": {"source": "time", "seconds": 1.0}}), folder / "run")
-    return folder / "run"
 
 
 def test_a_stop_after_a_cycles_end_at_its_end_time_does_not_cut_it_short(tmp_path):
-    run = _away_from_home(tmp_path)
+    run = away_from_home_run(tmp_path, 5, 2)
     with open_record(run / "record.mcap") as rec:
         last = max(rec.cycle_spans().items())
         begin = [e for e in rec.events() if e.kind == "retreat_begin"]

@@ -22,10 +22,8 @@ from cellguard.record.reader import open_record
 from cellguard.record.ros2 import DEBUG, INFO, WARN
 from cellguard.record.scan import read_chunk, scan
 from cellguard.record.writer import RecordConfig, Recorder
-from cellguard.robot.registry import make_cell
 from cellguard.robot.state import State
-from cellguard.runtime import run_scenario
-from cellguard.scenario import parse_scenario
+from record_synth import away_from_home_run
 
 JOINTS = ("a", "b")
 MS = 1_000_000
@@ -231,14 +229,7 @@ def test_an_event_stamped_with_a_cycle_that_ended_before_it_reads_in_no_cycle(tm
 def test_a_runs_retreat_events_after_its_last_cycle_are_recorded_in_no_cycle(tmp_path):
     """The session stamps them so, the first at the last cycle's very end (the time cycle ends mid-motion and the
     retreat brakes from there): the record's events and the index's rows (``record query``) agree."""
-    home = np.array(make_cell("arm-pick-place").read().q, dtype=np.float64)
-    t = np.arange(0.0, 3.0, 0.1)
-    actions = np.array([[home + np.array([0.5 * (s + k * 0.02), 0, 0, 0, 0, 0]) for k in range(1, 26)] for s in t])
-    np.savez(tmp_path / "turn.npz", t=t, actions=actions, dt=np.float64(0.02))
-    run_scenario(parse_scenario({"cell": "arm-pick-place", "policy": f"replay:{tmp_path / 'turn.npz'}",
-                                 "acceptance_cycles": 2, "production_cycles": 0,
-                                 "cycle": {"source": "time", "seconds": 1.0}}), tmp_path / "run")
-    with open_record(tmp_path / "run") as rec:
+    with open_record(away_from_home_run(tmp_path, 2, 0)) as rec:
         last_end = rec.cycle_spans()[1][1]
         after = [e for e in rec.events() if e.t_ns >= last_end]
         assert after[0].t_ns == last_end and all(e.cycle is None for e in after)
