@@ -1,13 +1,12 @@
 """Advice: a fault seen before at this site names the recovery that fixed it, with its counts.
 
-One simulated run (intermittent slip, retry_grasp), its record copied beside it as a second run of
+One simulated run (intermittent slip, retry_grasp) and the same scenario run again beside it, a second run of
 the same site: diagnosing the first writes what fixed each cause; the second is advised from it.
 """
 
 from __future__ import annotations
 
 import json
-import shutil
 
 import pytest
 from typer.testing import CliRunner
@@ -27,8 +26,7 @@ SCENARIO = {"cell": "arm-pick-place", "seed": 4, "acceptance_cycles": 5, "produc
 def site(tmp_path_factory):
     root = tmp_path_factory.mktemp("site")
     summary = run_scenario(parse_scenario(SCENARIO), root / "run-1")
-    (root / "run-2").mkdir()
-    shutil.copy(root / "run-1" / "record.mcap", root / "run-2" / "record.mcap")
+    run_scenario(parse_scenario(SCENARIO), root / "run-2")  # a copy of run-1's record is the same incident, not a second
     return root, summary
 
 

@@ -176,8 +176,9 @@ def replay(
     vary: str | None = typer.Option(None, "--vary", help="PARAM:JOINT=LOW..HIGH, e.g. friction:elbow=0.8..1.6: "
                                     "search the factor that best reproduces the recorded cycle."),
     out: Path | None = typer.Option(None, "-o", "--out", help="HTML page (default: replay-cycle-N.html in the "
-                                   "record's folder); a file there is replaced only if it is a page cellguard "
-                                   "wrote (or empty): never the record, a profile, an MJCF or any other file."),
+                                   "record's run folder; needed for an .mcap file outside one, as report's); a file "
+                                   "there is replaced only if it is a page cellguard wrote (or empty): never the "
+                                   "record, a profile, an MJCF or any other file."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),
 ) -> None:
     """Re-run a recorded cycle's chunks in the simulator from its recorded start; overlay simulated and recorded.
@@ -189,21 +190,22 @@ def replay(
     from cellguard.cli.record import warn_if_damaged
     from cellguard.record.beside import guarded, pinned
     from cellguard.record.outputs import PAGE, refuse_output
-    from cellguard.record.reader import record_file
     from cellguard.record.writer import REPLAY_PAGES
+    from cellguard.report.from_record import report_path
     from cellguard.report.replay import write_replay
 
     try:
         if profile is not None and model != "calibrated":
             raise CalibrationError(f"--profile: only with --model calibrated; the {model} model reads no profile")
-        page = out or record_file(record).parent / f"replay-cycle-{cycle}.html"
+        # a loose .mcap has no run folder: its page beside it would be another loose record's (report refuses too)
+        page = out or report_path(record).with_name(f"replay-cycle-{cycle}.html")
         # before the simulation: never over the record, its run folder's files, the --profile read, nor any file
         # but a page (the profile replay reads is found by its sha256 wherever the run read it: no list names it)
         refuse_output(page, record, inputs=[("--profile file", profile)], own=(REPLAY_PAGES,), kind=PAGE)
         with pinned(record, "replayed") as pin:  # nothing beside a record replaced meanwhile (``record.beside``)
             result = run_replay(record, cycle, model=model, profile=profile, vary=vary)
             with guarded(pin, page, "replayed"):
-                write_replay(result, page)
+                write_replay(result, page, record)
         stdout.written(f"the replay page {page}")
     except CellguardError as exc:
         fail(exc)

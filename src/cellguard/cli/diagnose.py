@@ -30,6 +30,7 @@ def diagnose(
 ) -> None:
     """Read a record, find drift and faults against the acceptance baseline, name probable causes."""
     from cellguard.diagnose.from_record import BASELINE_FILE, diagnose_record, run_folder
+    from cellguard.record.json_values import plain
 
     try:
         beside = run_folder(folder)  # where fixes.json (and the record's own baseline) are written; None: nowhere
@@ -48,7 +49,7 @@ def diagnose(
     if baseline_health is not None:
         out["acceptance_record"] = {"ok": baseline_health.ok, "status": baseline_health.describe()}
     if as_json:  # a stdout that cannot take it (`| head`, full, closed) ends the command: cli.stdout
-        sys.stdout.write(json.dumps(out) + "\n")
+        sys.stdout.write(json.dumps(plain(out), allow_nan=False) + "\n")  # strict JSON: a missing value is null
     else:
         print_diagnosis(diagnosis)
     raise typer.Exit(max(_warn(health, folder, baseline_health, acceptance), warn_of_diagnosis(diagnosis),

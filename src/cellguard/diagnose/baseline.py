@@ -40,7 +40,7 @@ LOAD_FEATURE = "grasped"
 METHOD = 2
 OWN_SOURCE = "acceptance cycles of this record"
 MIN_CYCLES = 5
-BINDING_KEYS = ("robot", "profile_sha256", "record_id")
+BINDING_KEYS = ("robot", "profile_sha256", "record_id", "epoch_wall_ns")  # the epoch: a record without an id's
 WINSORISE_FROM = 10  # acceptance cycles: fewer, and one odd cycle is as likely honest as not
 SIGMA_LEVEL = 0.05  # a scale from few cycles reads below the true sigma this seldom
 
@@ -92,9 +92,10 @@ class Baseline:
 
     def check_binding(self, context: Mapping, path: object) -> None:
         """Refuse to apply this baseline to a record other than the one it came from (robot, profile,
-        record id). A key the record lacks, as in records written before it existed, is not compared;
-        one the record has must be the baseline's too: a baseline that does not say where it came from
-        (edited, or written before baselines were bound) is refused."""
+        record id; for a format-1 record, which has no id, its run's epoch). A key the record lacks, as in records
+        written before it existed, is not compared; one the record has must be the baseline's too: a baseline that
+        does not say where it came from (edited, or written before baselines were bound) is refused, but for the
+        epoch (``unbound_epoch``: the caller checks such a baseline against the record's own acceptance)."""
         mine = binding_of(context)
         advice = "delete it to rebuild it from this record's acceptance cycles, or pass --acceptance DIR"
         for key in BINDING_KEYS:
@@ -102,10 +103,22 @@ class Baseline:
             if mine[key] is not None and value is not None and mine[key] != value:
                 raise RecordError(f"{path}: baseline is bound to {key} {value!r}, this record has {mine[key]!r}; "
                                   f"{advice}")
-        unbound = [k for k in BINDING_KEYS if mine[k] is not None and self.bound_to.get(k) is None]
+        unbound = [k for k in BINDING_KEYS[:-1] if mine[k] is not None and self.bound_to.get(k) is None]
         if unbound:
             raise RecordError(f"{path}: baseline does not name the {' and '.join(unbound)} it came from (edited, or "
                               f"written before baselines were bound to their record); {advice}")
+
+    def unbound_epoch(self, context: Mapping) -> bool:
+        """Whether this baseline of a format-1 record (no record id) does not name the run's epoch: one written
+        before baselines did, of this record or of any other run of the same robot and profile."""
+        return binding_of(context)["epoch_wall_ns"] is not None and self.bound_to.get("epoch_wall_ns") is None
+
+    def same_acceptance(self, other: Baseline) -> bool:
+        """Whether ``other`` was taken from the same acceptance cycles: the same cycles, features and medians (the
+        scales are not compared: an earlier ``method`` took them otherwise from the same cycles)."""
+        return (self.names, self.cycles, self.n, set(self.motions)) == (other.names, other.cycles, other.n,
+                                                                       set(other.motions)) and all(
+            np.allclose(m.median, other.motions[k].median, rtol=1e-9, atol=0) for k, m in self.motions.items())
 
     def check_fits(self, cycles: Sequence[Cycle], path: object) -> None:
         """Refuse a baseline that cannot watch these cycles: most of its features absent from them (or most
@@ -397,12 +410,15 @@ def check_same_robot(acceptance: Mapping, context: Mapping, path: object, record
 
 
 def binding_of(context: Mapping) -> dict[str, str | None]:
-    """What ties a baseline to its record: robot, embodiment profile hash and record id (None when
-    the context does not carry it)."""
+    """What ties a baseline to its record: robot, embodiment profile hash and record id, or where a record has
+    none (format 1) its run's epoch (``epoch_wall_ns``, wall clock at its start, kept by a copy); None when the
+    context does not carry it."""
     emb = context.get("embodiment") if isinstance(context.get("embodiment"), Mapping) else {}
     rec = context.get("record") if isinstance(context.get("record"), Mapping) else {}
     record_id = context.get("record_id") or rec.get("record_id") or rec.get("id")
-    values = {"robot": emb.get("robot"), "profile_sha256": emb.get("sha256"), "record_id": record_id}
+    epoch = None if record_id else context.get("epoch_wall_ns") or None  # 0: lost
+    values = {"robot": emb.get("robot"), "profile_sha256": emb.get("sha256"), "record_id": record_id,
+              "epoch_wall_ns": epoch}
     return {k: (None if v is None else str(v)) for k, v in values.items()}
 
 

@@ -48,9 +48,10 @@ def _diagnosed(path: Path, acceptance: Path | None, fleet: list[dict] | tuple, u
     with open_record(path) as rec:
         cycles, events = list(rec.cycles()), list(rec.events())
         context = {**rec.context, "record_id": rec.record_id, "start_utc": rec.start_utc, "start_ns": rec.start_ns}
+        bound = {**context, "epoch_wall_ns": rec.epoch_wall_ns}  # what a baseline of it is bound to
         writing = rec.writing  # a run still writes it: nothing is kept beside it, it would describe a part
         declared = rec.contexts[-1].context.get("process", [])  # process changes declared up to the end
-    baseline, reference = None, ()
+    baseline, reference, unchecked = None, (), None
     if acceptance is not None:
         with open_record(acceptance) as acc:
             accepted = list(acc.cycles())
@@ -67,26 +68,40 @@ def _diagnosed(path: Path, acceptance: Path | None, fleet: list[dict] | tuple, u
         baseline.check_fits(as_cycles(cycles), f"--acceptance {acceptance}")
     elif folder is not None and (folder / BASELINE_FILE).is_file():
         baseline = Baseline.load(folder / BASELINE_FILE)
-        baseline.check_binding(context, folder / BASELINE_FILE)
-        if baseline.method < METHOD and baseline.source == OWN_SOURCE:  # an earlier version's, from this record:
+        baseline.check_binding(bound, folder / BASELINE_FILE)
+        if baseline.unbound_epoch(bound):  # a format-1 record's, from before baselines named its epoch: taken
+            unchecked, baseline = baseline, None  # again from its acceptance, kept only where the same (and rebound)
+        elif baseline.method < METHOD and baseline.source == OWN_SOURCE:  # an earlier version's, from this record:
             baseline = None  # taken again from its acceptance cycles and written again (its scales read too low)
         else:
             baseline.check_fits(as_cycles(cycles), folder / BASELINE_FILE)
-    past = site_history(folder, context.get("site")) if folder is not None else []
+    past = site_history(folder, context.get("site"), context.get("record_id")) if folder is not None else []
     try:
         result = diagnose(cycles, events, {**context, "process": declared}, baseline=baseline,
                           symmetry=symmetry_of(context), history=[*past, *fleet], reference=reference)
     except TooFewCycles as exc:  # too few acceptance cycles, no production: say which record
+        if unchecked is not None and exc.baseline:
+            raise _not_its_own(folder / BASELINE_FILE) from None
         raise TooFewCycles(f"{path}: {exc}", exc.baseline) from None
     except RecordError as exc:
         raise RecordError(f"{path}: {exc}") from None
+    if unchecked is not None and not unchecked.same_acceptance(result.baseline):
+        raise _not_its_own(folder / BASELINE_FILE)
     if baseline is None:  # as a stored baseline is judged when read again, so the first diagnosis agrees
         result.baseline.check_fits(as_cycles(cycles), f"{path} (its own acceptance cycles)")
     if baseline is None and folder is not None and not writing:  # first: a baseline.json refused (a FIFO there) leaves nothing
-        _keep(lambda: result.baseline.bind(context).save(folder / BASELINE_FILE), folder / BASELINE_FILE, pin, unkept)
+        _keep(lambda: result.baseline.bind(bound).save(folder / BASELINE_FILE), folder / BASELINE_FILE, pin, unkept)
     if folder is not None and not writing:
         _keep(lambda: save_fixes(folder, context, result.fixes), folder / FIXES_FILE, pin, unkept)
     return result
+
+
+def _not_its_own(path: Path) -> RecordError:
+    """The refusal of a baseline at ``path`` that names no epoch (written before baselines of format-1 records were
+    bound) and that was not taken from the record's own acceptance cycles: another run's, copied beside it."""
+    return RecordError(f"{path}: baseline is not this record's: it names no epoch_wall_ns and was not taken "
+                       "from this record's acceptance cycles; delete it to rebuild it from them, or pass "
+                       "--acceptance DIR")
 
 
 def _has_cycles(cycles: list, path: Path) -> None:

@@ -3,7 +3,9 @@
 A site keeps its run folders side by side (``site/run-0001/record.mcap`` ...). Diagnosing one
 writes ``fixes.json`` beside its record: per finding and recovery behaviour, the cycles it ran in
 and those it fixed. The advice for a record is read from its siblings' files of the same site
-(records never diagnosed add nothing: the site learns from the incidents it looked at).
+(records never diagnosed add nothing: the site learns from the incidents it looked at). A sibling with the
+record's own ``record_id`` (a ``record recover`` copy, a backup) is the same incident, never an earlier one; of
+several siblings with one ``record_id`` the first by name speaks for it, so no incident counts twice.
 
 A sibling's file is another run's, not this record's business: one that cannot be read, or whose
 ``record_id`` is not text, is skipped, and so is each row that is not one cellguard writes (a
@@ -29,12 +31,14 @@ def save_fixes(folder: Path, context: Mapping, fixes) -> None:
     keep_output(Path(folder) / FIXES_FILE, json.dumps(body, indent=1), "fixes")
 
 
-def site_history(folder: Path, site: str | None) -> list[dict]:
-    """Rows of ``fixes`` from the other records of ``site`` beside ``folder``, each with its ``record``."""
+def site_history(folder: Path, site: str | None, record_id: str | None = None) -> list[dict]:
+    """Rows of ``fixes`` from the other records of ``site`` beside ``folder``, each with its ``record``: none of
+    ``record_id`` (the record diagnosed, under any folder name), one folder per other record."""
     folder = Path(folder).resolve()
     rows: list[dict] = []
     if site is None or not folder.parent.is_dir():
         return rows
+    seen = {record_id} - {None}
     for other in sorted(folder.parent.iterdir()):
         if other == folder or not (other / FIXES_FILE).is_file():
             continue
@@ -42,7 +46,10 @@ def site_history(folder: Path, site: str | None) -> list[dict]:
             body = json.loads((other / FIXES_FILE).read_text())
         except (OSError, ValueError, RecursionError):  # RecursionError: nested deeper than json can read
             continue
-        rows += site_rows(body, site, other.name)
+        found = site_rows(body, site, other.name)
+        if found and found[0]["record"] not in seen:
+            seen.add(found[0]["record"])
+            rows += found
     return rows
 
 

@@ -7,8 +7,10 @@ from __future__ import annotations
 
 import html
 import json
+import math
 from collections.abc import Callable, Mapping
 
+from cellguard.diagnose.compare import last_good_and_faulted
 from cellguard.diagnose.diagnosis import FROM_START, Diagnosis, no_tick_words, record_facts, unwatched_words
 from cellguard.diagnose.run_end import CUT_SHORT
 from cellguard.report import plots
@@ -90,17 +92,28 @@ def _findings(d: Diagnosis) -> str:
 
 
 def _last_good(d: Diagnosis, trace: Callable[[int], Trace | None] | None) -> str:
+    """The last good cycle against the first faulted, and the latest; where the cell has motions, all three of the
+    first faulted one's motion (a right turn beside a left one differs by the turn), named in the labels."""
     if d.first_faulted_cycle is None:
         return "<p>No faulted cycle.</p>"
     good, bad = d.last_good_cycle, d.first_faulted_cycle
     none_before = FROM_START if d.from_start else "no good cycle before it"
     head = (f"<p>First faulted cycle <b>{bad}</b> ({_e(none_before)}).</p>" if good is None else
             f"<p>Last good cycle <b>{good}</b>, first faulted cycle <b>{bad}</b>.</p>")
-    labels = ("no good cycle" if good is None else f"cycle {good} (last good)", f"cycle {bad} (first faulted)")
+    motion, same = _motion_of(d, bad)
+    if motion:
+        kept = None if good is None else last_good_and_faulted(same, bad)[0]
+        good = None if kept is None else kept.index
+        head += (f"<p>Overlaid: cycles of the first faulted one's motion, {_e(motion)}; its last good cycle is "
+                 f"{'none' if good is None else f'<b>{good}</b>'}.</p>")
+    of = f", {motion}" if motion else ""
+    labels = (f"no good cycle{of}" if good is None else f"cycle {good} (last good{of})",
+              f"cycle {bad} (first faulted{of})")
     joints = sorted({k.split(".", 1)[1] for c in d.cycles[:1] for k in c.features if k.startswith("current_rms.")},
                     key=lambda j: [k for k in d.cycles[0].features].index(f"current_rms.{j}"))
-    latest = d.cycles[-1].index
-    wanted = [(good, labels[0]), (bad, labels[1])] + ([(latest, f"cycle {latest} (latest)")] if latest > bad else [])
+    latest = same[-1].index
+    wanted = [(good, labels[0]), (bad, labels[1])] + ([(latest, f"cycle {latest} (latest{of})")] if latest > bad
+                                                      else [])
     traces = [(trace(c), label) for c, label in wanted if c is not None] if trace is not None else []
     traces = [(t, label) for t, label in traces if t is not None]
     if traces:
@@ -110,15 +123,31 @@ def _last_good(d: Diagnosis, trace: Callable[[int], Trace | None] | None) -> str
         _figure("overlay", plots.feature_bars(joints, by.get(good, {}), by.get(bad, {}), labels))
 
 
+def _motion_of(d: Diagnosis, cycle: int) -> tuple[str, list]:
+    """The motion of ``cycle`` and the cycles of that motion, in order, where the cell has several; "" and all the
+    cycles where it has one."""
+    groups = plots.by_motion(d)
+    if len(groups) > 1:
+        for label, cycles in groups.items():
+            if any(c.index == cycle for c in cycles):
+                return label, cycles
+    return "", list(d.cycles)
+
+
 def _changes(d: Diagnosis) -> str:
     if not d.changes:
         return ""
-    rows = "".join(f"<tr><td>{_e(c.signal)}</td><td>{c.onset}</td><td>{c.alarm_cycle}</td><td>{c.baseline:.4g}</td>"
-                   f"<td>{c.last_good:.4g}</td><td>{c.first_faulted:.4g}</td><td>{c.at_alarm:.4g}</td>"
-                   f"<td>{c.change:+.4g}</td><td>{c.scales:+.1f}</td></tr>" for c in d.changes)
+    rows = "".join(f"<tr><td>{_e(c.signal)}</td><td>{c.onset}</td><td>{c.alarm_cycle}</td><td>{_num(c.baseline)}</td>"
+                   f"<td>{_num(c.last_good)}</td><td>{_num(c.first_faulted)}</td><td>{_num(c.at_alarm)}</td>"
+                   f"<td>{_num(c.change, '+.4g')}</td><td>{_num(c.scales, '+.1f')}</td></tr>" for c in d.changes)
     return ("<p>What changed, in the order it began:</p><table><tr><th>feature</th><th>onset</th><th>alarm</th>"
             "<th>baseline</th><th>last good</th><th>first faulted</th><th>at alarm</th><th>change</th>"
             f"<th>scales</th></tr>{rows}</table>")
+
+
+def _num(v: float, spec: str = ".4g") -> str:
+    """A table's number; a dash where there is none (no good cycle before the fault: NaN, which read "nan")."""
+    return f"{v:{spec}}" if math.isfinite(v) else "-"
 
 
 def _asymmetry(d: Diagnosis) -> str:

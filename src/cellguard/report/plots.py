@@ -14,9 +14,11 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from cellguard.diagnose.cycles import Cycle  # noqa: E402
 from cellguard.diagnose.diagnosis import Diagnosis  # noqa: E402
 
 GOOD, BAD, ALARM, BASE = "#2a9d8f", "#e63946", "#f4a261", "#8d99ae"
+MOTION_COLOURS = ("#264653", "#e76f51", "#6a4c93", "#2a9d8f")  # the first: a one-motion cell's values, as before
 
 
 def _svg(fig) -> str:
@@ -57,20 +59,38 @@ def timeline(d: Diagnosis) -> str:
     return _svg(fig)
 
 
+def by_motion(d: Diagnosis) -> dict[str, list[Cycle]]:
+    """The cycles per motion the baseline keeps statistics for (a cell's left and right turns), in order; all in one
+    group where it keeps one set (a cell of one motion)."""
+    if len(d.baseline.motions) == 1:
+        return {next(iter(d.baseline.motions)): list(d.cycles)}
+    return {label: [c for c in d.cycles if (c.label or "") == label] for label in d.baseline.motions}
+
+
 def drift_charts(d: Diagnosis, limit: int = 6) -> str:
-    """Per alarmed feature: its value per cycle against the baseline band, and its CUSUM."""
+    """The drift charts of ``d`` as SVG (``drift_figure``)."""
+    return _svg(drift_figure(d, limit))
+
+
+def drift_figure(d: Diagnosis, limit: int = 6):
+    """Per alarmed feature: its value per cycle against the baseline band, and its CUSUM. A cell of several motions
+    gets one band per motion, each motion's values in its band's colour: the diagnosis reads each cycle against its
+    own motion's statistics, and their average is a band no turn lies in."""
     # features with a baseline band; the pooled per-joint channels and the multivariate statistic have none
     names = list(dict.fromkeys(a.signal for a in d.drift.alarms if a.signal in d.baseline.names))[:limit]
     rows = len(names) + 1
     fig, axes = plt.subplots(rows, 2, figsize=(11, 2.0 * rows), squeeze=False)
     watched = np.array(d.drift.cycles)
+    groups = by_motion(d)
     for r, name in enumerate(names):
         ax, cx = axes[r]
-        x = [c.index for c in d.cycles]
-        y = [c.features.get(name, np.nan) for c in d.cycles]
-        med, sc = d.baseline.median(name), d.baseline.scale(name)
-        ax.axhspan(med - 3 * sc, med + 3 * sc, color=BASE, alpha=0.25)
-        ax.plot(x, y, ".-", color="#264653", ms=3, lw=0.8)
+        j = d.baseline.names.index(name)
+        for k, (label, cycles) in enumerate(groups.items()):
+            stats, colour = d.baseline.motions[label], MOTION_COLOURS[k % len(MOTION_COLOURS)]
+            med, sc = stats.median[j], stats.scale[j]
+            ax.axhspan(med - 3 * sc, med + 3 * sc, color=BASE if len(groups) == 1 else colour, alpha=0.25)
+            ax.plot([c.index for c in cycles], [c.features.get(name, np.nan) for c in cycles], ".-", color=colour,
+                    ms=3, lw=0.8, **({"label": f"{label}: value and band"} if len(groups) > 1 else {}))
         ax.set_title(name, fontsize=9, loc="left")
         up, lo = d.drift.series(name)
         cx.plot(watched, up, color=BAD, lw=1, label="CUSUM up")
@@ -87,8 +107,10 @@ def drift_charts(d: Diagnosis, limit: int = 6) -> str:
     cx.set_xlabel("cycle")
     if names:
         axes[0][1].legend(fontsize=7)
+        if len(groups) > 1:
+            axes[0][0].legend(fontsize=7)
     fig.tight_layout()
-    return _svg(fig)
+    return fig
 
 
 OVERLAY_ROWS = (("current", "current [A]"), ("error", "tracking error [rad or m]"))

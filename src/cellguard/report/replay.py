@@ -13,18 +13,20 @@ import numpy as np
 
 from cellguard.calibrate.replay import ReplayResult
 from cellguard.output import write_output
-from cellguard.report.html import _CSS, _e, _figure
+from cellguard.record.reader import open_record, record_file
+from cellguard.report.html import _CSS, _e, _figure, _run
 from cellguard.report.plots import BAD, BASE, _svg, overlay, plt
 
 
-def render_replay(r: ReplayResult) -> str:
+def render_replay(r: ReplayResult, record: Path) -> str:
+    """The page of ``r``, replayed from ``record`` (a run folder or an .mcap file), which it names."""
     d = r.to_dict()
     m = d["mismatch"]
     title = f"cellguard incident replay: {_e(r.rc.cell)}, cycle {r.rc.cycle}"
     hinge = [r.rc.joints.index(name) for name in m["joints"]]
     rows = "".join(f"<tr><td>{_e(r.rc.joints[j])}</td><td>{a:.3f}</td><td>{b * 1e3:.3f}</td><td>{c * 1e3:.3f}</td></tr>"
                    for j, a, b, c in zip(hinge, m["current_nrmse"], m["position_rms"], m["setpoint_max_gap"]))
-    parts = [f"<h1>{title}</h1>",
+    parts = [f"<h1>{title}</h1>", _record(record),
              *([f"<div class=damaged id=profile-note>{_e(r.profile.note)}</div>"] if r.profile.note else []),
              f"<p class=muted>{d['ticks']} recorded ticks replayed from the recorded start state in the "
              f"{_e(r.profile.model(r.model))}; the chunks recorded in the cycle went through a fresh guard.</p>",
@@ -56,9 +58,17 @@ def _profile_table(d: dict) -> str:
     return f"<table id=profile>{body}</table>"
 
 
-def write_replay(r: ReplayResult, out: Path) -> Path:
-    """Write the page to ``out`` (beside it, then renamed)."""
-    write_output(Path(out), render_replay(r), "replay report")
+def _record(record: Path) -> str:
+    """The record replayed, by id, start and file: a page of a loose .mcap, or one copied away, is traced on its own
+    (pages of records side by side are told apart)."""
+    with open_record(record) as rec:
+        ctx = {**rec.context, "record_id": rec.record_id, "start_utc": rec.start_utc}
+    return _run(ctx) + f"<p id=record-file>Record file <code>{_e(record_file(record).absolute())}</code></p>"
+
+
+def write_replay(r: ReplayResult, out: Path, record: Path) -> Path:
+    """Write the page of ``r``, replayed from ``record``, to ``out`` (beside it, then renamed)."""
+    write_output(Path(out), render_replay(r, record), "replay report")
     return Path(out)
 
 
