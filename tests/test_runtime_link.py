@@ -1,6 +1,9 @@
-"""The robot link: a state that is not finite or stamped ahead of the loop is a named fault, never used."""
+"""The robot link: a state that is not finite is a named fault, never used; one stamped ahead of the loop is a fault
+whose data is used; one stamped out of date is handed over marked stale."""
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 import pytest
@@ -43,13 +46,40 @@ def test_a_state_that_is_not_finite_is_a_read_fault_and_the_last_good_state_stan
     assert "not finite" in events[0].reason
 
 
-def test_a_state_stamped_ahead_of_the_loop_is_stale_too():
+def test_a_state_stamped_ahead_of_the_loop_is_a_fault_but_its_data_is_fresh():
     events = []
     link = RobotLink(_Bus(lambda s: s._replace(t_ns=s.t_ns + 500_000_000), bad_from=0), events,
                      stop_category=2, stale_ns=20_000_000)
-    link.read(0)
+    state = link.read(0)
     assert [e.kind for e in events] == ["robot_state_stale"] and "ahead of the loop's clock" in events[0].reason
     assert link.stop == 2
+    assert not isinstance(state, StaleState)  # newer than the tick: a category 1 stop may read standstill from it
+
+
+@dataclass
+class _Reading:
+    """A bridge's own state object: the State's fields by name, in another order, no tuple."""
+
+    current: np.ndarray
+    effort: np.ndarray
+    qd: np.ndarray
+    q: np.ndarray
+    t_ns: int
+
+
+def test_a_state_like_object_read_stale_or_standing_in_is_marked_by_its_fields_names():
+    def reading(state):
+        return _Reading(state.current, state.effort, state.qd + 1.0, state.q, state.t_ns)
+
+    bus = _Bus(reading, bad_from=0)
+    link = RobotLink(bus, [], stop_category=1, stale_ns=20_000_000)
+    fresh = link.read(0)
+    stale = link.read(50_000_000)  # the same stamp, 50 ms on
+    assert isinstance(stale, StaleState) and stale.t_ns == fresh.t_ns
+    assert np.array_equal(stale.qd, fresh.qd) and np.array_equal(stale.q, fresh.q)
+    bus.read = lambda: {}["no state"]  # a bridge bug: the last good one stands in, marked by name too
+    stand_in = link.read(51_000_000)
+    assert isinstance(stand_in, StaleState) and np.array_equal(stand_in.effort, fresh.effort)
 
 
 def test_no_transition_is_planned_from_a_pose_that_is_not_finite():

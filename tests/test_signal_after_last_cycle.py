@@ -62,3 +62,23 @@ def test_a_sigterm_once_the_record_closed_says_so_in_the_summary(tmp_path):
     assert summary["stopped_after_record"] is True and "operator_stop" not in kinds
     assert summary["stopped"] == "operator stop (SIGTERM)"  # as before: a release's stage stops on it
     assert code == 130 and len(summary["cycles"]) == 2
+
+
+class _StoppedThenSignalled(Run):
+    """A run that ended stopped for its own cause with no stop event (its retreat not played), then a SIGTERM after
+    its motion, the record still open."""
+
+    def run_cycles(self, on_cycle=None) -> None:
+        super().run_cycles(on_cycle)
+        self.stopped = "the retreat home was not played: (the test's cause); the robot is held where it stopped"
+        signal.raise_signal(signal.SIGTERM)
+
+
+def test_a_sigterm_after_a_run_stopped_for_its_own_cause_writes_no_stop_into_its_record(tmp_path):
+    """The record holds the run's stops: an ``operator_stop`` (category 2) after the run ended counted in a
+    release's protective stops and could fail its hard gate."""
+    run = _StoppedThenSignalled(parse_scenario(SCENARIO))
+    summary = run_scenario(run.scenario, tmp_path / "out", run=run)
+    with open_record(tmp_path / "out") as record:
+        stops = [e.kind for e in record.events() if e.category is not None]
+    assert stops == [] and summary["stopped"].startswith("the retreat home was not played"), stops

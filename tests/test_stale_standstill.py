@@ -20,6 +20,7 @@ from sim_server_util import scenario, server_counters, start_server, sway_file
 from cellguard.control.envelope import SETTLE_MIN_NS, STANDSTILL, Envelope, StaleState, stopping_time_ns
 from cellguard.robot.protocol import RobotLinkError, SafetyInputs
 from cellguard.robot.registry import make_cell
+from cellguard.robot.state import State
 from cellguard.runtime import Run, run_scenario
 from cellguard.runtime.link import RobotLink
 from cellguard.scenario import parse_scenario
@@ -140,4 +141,108 @@ def test_a_sim_server_stopped_mid_cycle_keeps_power_until_its_states_are_fresh_a
     removed = next(e for e in events if e["kind"] == "power_removed")
     assert stale["category"] == 1 and stale["t_ns"] <= removed["t_ns"], events
     assert continued and removed["t_ns"] >= continued[0], events  # not on the frozen state
-    assert removed["category"] == 1 and "standstill read from a fresh state" in removed["reason"], events
+    # read from a fresh state (a stale one never completes it; the first fresh ones may still move)
+    assert removed["category"] == 1 and removed["reason"].startswith("category 1 stop complete"), events
+
+
+def _envelope_power_off(states, stop: int = 1):
+    """Feed the real envelope ``states(k, q0)`` at rest under a category ``stop`` stop; the tick power went and its
+    event."""
+    cell = make_cell("arm-pick-place")
+    q0 = cell.read().q
+    envelope = Envelope(cell.profile, q0, MS)
+    for k in range(3000):
+        _, new = envelope.apply(k * MS, q0, states(k, q0), SafetyInputs(stop=stop))
+        removed = [e for e in new if e.kind == "power_removed"]
+        if removed:
+            return k, removed[0]
+    raise AssertionError("power never removed")
+
+
+def test_a_state_stamped_ahead_of_the_loop_reads_standstill_at_once():
+    """A bridge that stamps after its 25 ms bus read: every state 25 ms 'ahead' (limit 20 ms). A fault, but its data
+    is fresh: the arm at rest stops at once, not after the settle time."""
+    cell = make_cell("arm-pick-place")
+    zero = np.zeros(cell.profile.dof)
+    events = []
+
+    class Bus:
+        t = 0
+
+        def read(self):
+            return cell.read()._replace(t_ns=self.t + 25 * MS, qd=zero)
+
+        def write(self, q):
+            return q
+
+    bus = Bus()
+    link = RobotLink(bus, events, stop_category=1, stale_ns=STALE_NS)
+
+    def states(k, _):
+        bus.t = k * MS
+        return link.read(k * MS)
+
+    k, removed = _envelope_power_off(states)
+    assert k == 0 and removed.reason.startswith("category 1 stop complete"), removed.reason
+    assert any(e.kind == "robot_state_stale" and "ahead" in e.reason for e in events)
+
+
+def test_fresh_states_end_the_stale_stretch_the_power_off_event_names():
+    """Stale for 5 ms, then fresh ones that still move for 500 ms: standstill read then is no 'after 505 ms of stale
+    ones'."""
+    zero = np.zeros(make_cell("arm-pick-place").profile.dof)
+
+    def states(k, q0):
+        qd = zero.copy()
+        qd[0] = 0.2 if 5 <= k < 505 else 0.0
+        state = StaleState(k * MS, q0, qd, zero, zero)
+        return state if k < 5 else State(*state)
+
+    k, removed = _envelope_power_off(states)
+    assert k == 505 and removed.reason.startswith("category 1 stop complete")
+    assert "stale ones" not in removed.reason, removed.reason
+
+
+class _FailingFrom(Run):
+    """The arm cell whose reads time out from ``fail_from`` s on; SIGTERM ``signal_at`` s in (None: none)."""
+
+    def __init__(self, spec: dict, fail_from: float, fail_to: float, signal_at: float | None = None):
+        super().__init__(parse_scenario(spec))
+        read, self.signalled = self.link.robot.read, False
+
+        def failing():
+            t = self.cell.t_ns * 1e-9
+            if signal_at is not None and t >= signal_at and not self.signalled:
+                self.signalled = True
+                signal.raise_signal(signal.SIGTERM)
+            if fail_from <= t < fail_to:
+                raise RobotLinkError("robot_read_timeout", "no state from the bus")
+            return read()
+
+        self.link.robot.read = failing
+
+
+ONE_CYCLE = {"cell": "arm-pick-place", "seed": 3, "policy": "scripted", "acceptance_cycles": 1, "production_cycles": 0}
+
+
+def test_an_operator_signal_during_a_link_category_1_stop_leaves_the_run_with_power_off(tmp_path):
+    """The review's case: a read time-out 1.25 s in (category 1), SIGTERM 10 ms later, reads back at 1.45 s. The
+    operator's standstill check ended the cycle on the first fresh state, before the guard's tick; the retreat is not
+    played after a link fault: power stayed on."""
+    run = _FailingFrom(ONE_CYCLE, 1.25, 1.45, signal_at=1.26)
+    summary = run_scenario(run.scenario, tmp_path / "out", run=run)
+    kinds = [e["kind"] for e in summary["events"]]
+    assert "operator_stop" in kinds and "power_removed" in kinds, kinds
+    assert not run.guard.power
+    assert summary["stopped"].startswith("robot link")  # the stop in force ended the cycle, not the operator's
+
+
+def test_a_cycle_that_ends_during_a_category_1_stop_removes_power(tmp_path):
+    """The cycle's source ends it 13 ms after a read time-out asked a category 1 stop, the arm still moving; no
+    fresh state comes again. The retreat is not played after a link fault: power stayed on for good."""
+    run = _FailingFrom(ONE_CYCLE, 4.43, 1e9)
+    summary = run_scenario(run.scenario, tmp_path / "out", run=run)
+    removed = [e for e in summary["events"] if e["kind"] == "power_removed"]
+    assert not run.guard.power and len(removed) == 1, summary["events"]
+    assert removed[0]["category"] == 1 and "no fresh state to read standstill from" in removed[0]["reason"]
+    assert summary["stopped"].startswith("robot link")

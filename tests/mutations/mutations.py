@@ -38,6 +38,7 @@ REAL_TIME_CAP = f"{ENV}::test_a_speed_cap_holds_the_sent_setpoints_of_a_policy_t
 SOFT_5MS = f"{LIM}::test_a_joint_stops_inside_its_soft_limits_at_a_5_ms_servo_period"
 SPEEDS_UP = f"{LIM}::test_a_reference_that_speeds_up_past_the_velocity_limit_is_held_at_it"
 INWARD = "tests/test_tracker_inward.py"
+STALE = "tests/test_stale_standstill.py"
 
 
 @dataclass(frozen=True)
@@ -157,6 +158,13 @@ MUTATIONS = (
              ENVELOPE, "if waited < self._settle_ns:", "if True:",
              (f"{STOP_POWER}::test_power_is_removed_one_stopping_time_after_the_setpoint_rests_on_a_robot_that_never_"
               "reads_still",)),
+    Mutation("category1_standstill_from_stale_state", "stop category 1: standstill read only from a fresh state",
+             ENVELOPE, "speed = math.nan if stale else float(speeds[j])", "speed = float(speeds[j])",
+             (f"{STALE}::test_a_category_1_stop_waits_for_a_fresh_state_to_read_standstill_from",)),
+    Mutation("category1_ended_by_operator_standstill", "stop category 1: power removed before an operator's "
+             "standstill ends the cycle", "src/cellguard/runtime/loop.py",
+             " and not guard.envelope.removing_power:", ":",
+             (f"{STALE}::test_an_operator_signal_during_a_link_category_1_stop_leaves_the_run_with_power_off",)),
     Mutation("stop_never_reaches_zero", "stop categories 1/2: zero velocity within the bound", TRACKER,
              "self._stop_in.target_velocity = np.zeros(dof)", "self._stop_in.target_velocity = np.full(dof, 0.05)",
              (STOP, STOPS)),

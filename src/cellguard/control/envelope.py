@@ -56,11 +56,16 @@ SETTLE_MIN_NS = 1_000_000_000
 
 
 class StaleState(State):
-    """A measured state its link could not vouch for: stamped out of date (a frozen bus or server) or ahead of the
-    loop, or the last good one standing in for a read that failed. Its speeds are no standstill: a category 1 stop
+    """A measured state its link could not vouch for: stamped out of date (a frozen bus or server), or the last good
+    one standing in for a read that failed. Its speeds are no standstill: a category 1 stop
     waits for a fresh state (``runtime.link`` marks them)."""
 
     __slots__ = ()
+
+    @classmethod
+    def of(cls, state) -> StaleState:
+        """``state`` marked stale, its fields taken by name: a bridge may hand over any object with them."""
+        return cls._make(getattr(state, name) for name in State._fields)
 
 
 def stopping_time_ns(profile: Profile) -> int:
@@ -96,7 +101,7 @@ class Envelope:
         self.stop_reason: str | None = None
         self.power = True
         self._rest_ns: int | None = None  # when the setpoint of the category 1 stop in force came to rest
-        self._stale_since: int | None = None  # when that stop at rest first met a stale state (``StaleState``)
+        self._stale_since: int | None = None  # since when that stop at rest has met only stale states (``StaleState``)
         # then how long the measured joints may take to follow it
         self._settle_ns = max(stopping_time_ns(profile), SETTLE_MIN_NS)
         self._active: dict[EventKind, str] = {}  # lasting conditions already reported, with their reason
@@ -236,6 +241,12 @@ class Envelope:
         stopped), or the setpoint of a category 2 stop at rest."""
         return not self.power or (self.stop_category == 2 and self.tracker.stopped)
 
+    @property
+    def removing_power(self) -> bool:
+        """A category 1 stop is in force, power still on: only its own end (``stop_complete``) may end a cycle or
+        a run, else nothing removes power."""
+        return self.stop_category == 1 and self.power
+
     def _begin_stop(self, t_ns: int, stop: Stop, events: list[Event]) -> None:
         category = stop.category
         if self.stop_category is not None and self.stop_category <= category:
@@ -261,7 +272,9 @@ class Envelope:
         if self._rest_ns is None:
             self._rest_ns = t_ns
         stale, waited = isinstance(state, StaleState), t_ns - self._rest_ns
-        if stale and self._stale_since is None:
+        if not stale:
+            stale_since, self._stale_since = self._stale_since, None  # a fresh state ends the stale stretch
+        elif self._stale_since is None:
             self._stale_since = t_ns
         speeds = np.abs(state.qd)
         j = int(speeds.argmax())
@@ -272,8 +285,8 @@ class Envelope:
             reason = (f"category 1 stop: {'no fresh state to read standstill from' if stale else 'still moving'} "
                       f"{waited * 1e-6:.0f} ms after the setpoint came to rest, power removed anyway: "
                       f"{self.stop_reason}")
-        elif self._stale_since is not None:
-            reason += (f"; standstill read from a fresh state after {(t_ns - self._stale_since) * 1e-6:.0f} ms of "
+        elif stale_since is not None:
+            reason += (f"; standstill read from a fresh state after {(t_ns - stale_since) * 1e-6:.0f} ms of "
                        "stale ones")
         self.power = False
         events.append(Event(t_ns, EventKind.POWER_REMOVED, reason, joint=None if stale else self._names[j],

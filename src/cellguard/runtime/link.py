@@ -3,9 +3,9 @@
 A read that raises, times out, returns a stale stamp (a dead bus reads as a frozen but healthy
 robot) or one from the future (a clock that jumped), or a state that is not finite, a write that
 fails, and more lost packets than the budget each raise one named event and ask the guard for the
-scenario's stop category; a state that is not finite is never used (the last good one stands in). A state read
-stale and one standing in after a failed read are handed over as ``StaleState``: the guard reads no standstill from
-them (a category 1 stop waits for a fresh one).
+scenario's stop category; a state that is not finite is never used (the last good one stands in). A state stamped
+out of date and one standing in after a failed read are handed over as ``StaleState``: the guard reads no standstill
+from them (a category 1 stop waits for a fresh one); one stamped ahead is a fault, but its data is fresh.
 A setpoint that is not finite never reaches the robot: the last finite one is sent again and the
 refusal is an event.
 """
@@ -60,7 +60,8 @@ class RobotLink:
             self.fault(t_ns, EventKind.ROBOT_STATE_STALE, (f"state stamp {age:.1f} ms old" if age > 0 else
                         f"state stamp {-age:.1f} ms ahead of the loop's clock") +
                        f" (limit {self.stale_ns * 1e-6:.0f} ms)")
-            state = StaleState(*state)
+            if age > 0:  # one stamped ahead (a clock that jumped, a bridge stamping after its read) is a fault, but
+                state = StaleState.of(state)  # its data is fresh: a category 1 stop may read standstill from it
         if self.drop_budget is not None and self.robot.dropped > self.drop_budget:
             self.fault(t_ns, EventKind.ROBOT_PACKETS_DROPPED, f"{self.robot.dropped} packets lost "
                         f"(budget {self.drop_budget})")
@@ -72,7 +73,7 @@ class RobotLink:
     def _stand_in(self):
         """The last good state, standing in for one not read: stale from now on (None before any)."""
         if self.state is not None and not isinstance(self.state, StaleState):
-            self.state = StaleState(*self.state)
+            self.state = StaleState.of(self.state)
         return self.state
 
     def write(self, t_ns: int, setpoint: np.ndarray) -> np.ndarray:

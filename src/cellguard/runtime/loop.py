@@ -269,7 +269,8 @@ class Run(TransitionPlay):
                 if self.stopped and not guard.power:  # a robot behind a bridge lost its power (above)
                     break
                 if operator.count and guard.envelope.tracker.stopped and np.abs(state.qd).max() < STANDSTILL \
-                        and not isinstance(state, StaleState):  # a stale state's speeds are no standstill
+                        and not isinstance(state, StaleState) and not guard.envelope.removing_power:  # a stale
+                    # state's speeds are no standstill; a category 1 stop in force ends the cycle itself (above)
                     self._operator_stop(t)  # already held still (a hand-over hold): the signal came this tick
                     self.stopped = self.stopped or operator.reason
                     break
@@ -278,6 +279,9 @@ class Run(TransitionPlay):
                 if t >= timeout and not (driving and recovery.attempting):
                     timed_out = True
                     break
+            if self.guard.envelope.removing_power:  # the cycle ended (its source, the time-out) during a category 1
+                # stop: power goes as the stop asks, here (the retreat is not played after it: nothing else removes it)
+                self._remove_power((1, self.guard.envelope.stop_reason), operator.count)
         self._ticks_ended = perf_ns()
         if not self.guard.power and cell.safety().stop is not None:
             self.stopped = self.stopped or self._still_held(self.guard.envelope)
@@ -767,7 +771,8 @@ def run_scenario(scenario: Scenario, out: Path, on_cycle: Callable[[dict], None]
             try:
                 run.run_cycles(on_cycle)
             finally:
-                if run.operator.count:  # a signal after the run's motion, the record still open: it says so too
+                if run.operator.count and run.stopped is None:  # a signal after the run's motion, the record still
+                    # open: it says so too, unless the run had stopped for its own cause (no protective stop of its)
                     run._operator_stop(run.clock.now(), " after the run's motion had ended")
                     run.stopped = run.stopped or run.operator.reason
                 run.recording.events()
