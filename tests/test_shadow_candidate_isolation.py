@@ -104,3 +104,20 @@ def test_two_chunks_of_one_motion_meet_without_a_seam():
     chunks = [Received(c.t_obs_ns, c.t_obs_ns + 10_000_000, 10_000_000, c.dt_ns, np.asarray(c.actions) + s)
               for c, s in ((a, 0.0), (b, shift))]
     assert METRICS["chunk_seam_jump_max_mrad"].compute([_Run(chunks)]).value == pytest.approx(0.0, abs=1e-9)
+
+
+def test_the_run_closes_the_candidate_it_built(tmp_path, monkeypatch):
+    """A shadow run's policy is the incumbent with the candidate beside it: the run closed neither (an openpi
+    candidate's connection stayed open till the process ended)."""
+    closed = []
+
+    class Closing(_Wrong):
+        def close(self):
+            closed.append(self.source)
+
+    real = shadow.make_policy
+    monkeypatch.setattr(shadow, "make_policy", lambda spec, cell, **kw: Closing(real(spec, cell, **kw), lambda c: c))
+    scenario = parse_scenario({"cell": CELL, "seed": 3, "policy": "scripted", "acceptance_cycles": 1,
+                               "production_cycles": 0})
+    run_scenario(scenario, tmp_path / "shadow", run=shadow.ShadowRun(scenario, "scripted", GuardConfig()))
+    assert closed == ["wrong"]

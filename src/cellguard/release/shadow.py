@@ -78,6 +78,13 @@ class ShadowedPolicy:
     def content_hash(self) -> str:
         return self.incumbent.content_hash()
 
+    def close(self) -> None:
+        """Both policies' connections (an openpi server's): the run closes the policy it drives, which is this one."""
+        try:
+            _close(self.candidate)
+        finally:
+            _close(self.incumbent)
+
     def reset(self) -> None:
         self.incumbent.reset()
         self.candidate.reset()
@@ -203,6 +210,12 @@ def _distance(a, b) -> float | None:
         d = np.abs(np.asarray(a.actions[k]) - other)
         worst = max(worst or 0.0, float(d.max()) if np.all(np.isfinite(d)) else float("inf"))
     return worst
+
+
+def _close(policy) -> None:
+    close = getattr(policy, "close", None)
+    if callable(close):
+        close()
 
 
 def _built_unseen(candidate: str, cell, soft_margin: float):
