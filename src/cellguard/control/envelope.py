@@ -276,9 +276,8 @@ class Envelope:
             stale_since, self._stale_since = self._stale_since, None  # a fresh state ends the stale stretch
         elif self._stale_since is None:
             self._stale_since = t_ns
-        speeds = np.abs(state.qd)
-        j = int(speeds.argmax())
-        speed = math.nan if stale else float(speeds[j])
+        j = None if stale else int(np.abs(state.qd).argmax())
+        speed = math.nan if stale else abs(float(state.qd[j]))
         if not speed < STANDSTILL:  # a speed that reads NaN (or none read: stale) is no standstill either
             if waited < self._settle_ns:
                 return
@@ -289,7 +288,7 @@ class Envelope:
             reason += (f"; standstill read from a fresh state after {(t_ns - stale_since) * 1e-6:.0f} ms of "
                        "stale ones")
         self.power = False
-        events.append(Event(t_ns, EventKind.POWER_REMOVED, reason, joint=None if stale else self._names[j],
+        events.append(Event(t_ns, EventKind.POWER_REMOVED, reason, joint=None if j is None else self._names[j],
                             asked=None if stale else speed, sent=None if stale else STANDSTILL, category=1))
 
     # -- speed -----------------------------------------------------------------------------

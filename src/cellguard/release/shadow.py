@@ -44,6 +44,7 @@ from cellguard.release.evidence import SHADOW_FILE
 from cellguard.release.reductions import action_at
 from cellguard.robot.protocol import SafetyInputs
 from cellguard.runtime import Run
+from cellguard.runtime.loop import close_if_any
 from cellguard.scenario import Scenario
 
 SPEED_SCALED = "speed_scaled"  # the candidate's playback slowed where the live one's was not: no event of the guard's
@@ -81,9 +82,9 @@ class ShadowedPolicy:
     def close(self) -> None:
         """Both policies' connections (an openpi server's): the run closes the policy it drives, which is this one."""
         try:
-            _close(self.candidate)
+            close_if_any(self.candidate)
         finally:
-            _close(self.incumbent)
+            close_if_any(self.incumbent)
 
     def reset(self) -> None:
         self.incumbent.reset()
@@ -210,12 +211,6 @@ def _distance(a, b) -> float | None:
         d = np.abs(np.asarray(a.actions[k]) - other)
         worst = max(worst or 0.0, float(d.max()) if np.all(np.isfinite(d)) else float("inf"))
     return worst
-
-
-def _close(policy) -> None:
-    close = getattr(policy, "close", None)
-    if callable(close):
-        close()
 
 
 def _built_unseen(candidate: str, cell, soft_margin: float):

@@ -81,7 +81,7 @@ class Run(TransitionPlay):
         try:
             self._set_up(scenario, realtime, policy_factory)
         except BaseException:  # a bridge says goodbye: the robot's server need not wait to give up on this client
-            _close(self.cell)
+            close_if_any(self.cell)
             raise
 
     def _set_up(self, scenario: Scenario, realtime: bool, policy_factory: Callable[[], object] | None) -> None:
@@ -678,8 +678,8 @@ class Run(TransitionPlay):
         """Stop the inference worker and close the policy's connections."""
         if self.inference is not None:
             self.inference.close()
-        _close(self.policy)
-        _close(self.cell)
+        close_if_any(self.policy)
+        close_if_any(self.cell)
 
     def run_cycles(self, on_cycle: Callable[[dict], None] | None = None) -> None:
         """Every cycle of the scenario, until a stop; then the retreat to the home pose."""
@@ -774,7 +774,7 @@ def run_scenario(scenario: Scenario, out: Path, on_cycle: Callable[[dict], None]
                 if run.operator.count and run.stopped is None:  # a signal after the run's motion, the record still
                     # open: it says so too, unless the run had stopped for its own cause (no protective stop of its)
                     run._operator_stop(run.clock.now(), " after the run's motion had ended")
-                    run.stopped = run.stopped or run.operator.reason
+                    run.stopped = run.operator.reason
                 run.recording.events()
                 run.recording.close(keep_folder=True)
         finally:
@@ -823,7 +823,7 @@ def _limit_s(cycle) -> float:
     return cycle.seconds + CYCLE_TIMEOUT_S if cycle.source == "time" else CYCLE_TIMEOUT_S
 
 
-def _close(thing) -> None:
+def close_if_any(thing) -> None:
     """Close a policy's connections or a robot bridge, if it has any."""
     close = getattr(thing, "close", None)
     if callable(close):
