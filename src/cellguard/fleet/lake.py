@@ -65,7 +65,7 @@ def forget(lake: Path, tenant: str, site: str, before: dt.date | None = None) ->
     found = [Path(f) for f in paths(lake, "signatures", tenant) if Path(f).parent.name < oldest]
     locks = []
     try:
-        for staged in sorted(tenant_dir(lake, tenant).glob(f"signatures/date=*/*{STAGED}")):
+        for staged in staged_files(lake, tenant):
             fd = lock_left(staged) if staged.parent.name < oldest else None
             if fd is not None and fd != NO_LOCKS:
                 locks.append(fd)
@@ -75,6 +75,11 @@ def forget(lake: Path, tenant: str, site: str, before: dt.date | None = None) ->
     finally:
         for fd in locks:
             os.close(fd)
+
+
+def staged_files(lake: Path, tenant: str) -> list[Path]:
+    """``tenant``'s signatures files a push staged and has not published or discarded (``landing``), in order."""
+    return sorted(tenant_dir(lake, tenant).glob(f"signatures/date=*/*{STAGED}"))
 
 
 def lock_left(staged: Path) -> int | None:

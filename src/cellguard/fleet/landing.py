@@ -25,8 +25,8 @@ import pyarrow.parquet as pq
 
 from cellguard.errors import OutputError
 from cellguard.fleet.lake import (EFFECTS, NO_LOCKS, SIGNATURES, STAGED, effects_of, lake_file, lock_left,
-                                  partition_files, read_table, refuse_links, row_value, take_out,
-                                  tenant_dir, write_file)
+                                  partition_files, read_table, refuse_links, row_value, staged_files, take_out,
+                                  write_file)
 from cellguard.output import UNLOCKABLE, make_folder
 
 WRITING = ".writing"  # a staged file being written: no reconcile lists it
@@ -138,7 +138,7 @@ def reconcile(lake: Path, tenant: str, held: Callable[[list[str]], Mapping[str, 
     locks to tell a live push's from a dead one's, or unreadable)."""
     refuse_links(lake, tenant)
     published, left = 0, []
-    for staged in sorted(tenant_dir(lake, tenant).glob(f"signatures/date=*/*{STAGED}")):
+    for staged in staged_files(lake, tenant):
         fd = lock_left(staged)
         if fd == NO_LOCKS:
             left.append(f"lake file {staged}: the lake offers no file locks, so a live push's file cannot be told "
