@@ -159,7 +159,8 @@ MUTATIONS = (
              (f"{STOP_POWER}::test_power_is_removed_one_stopping_time_after_the_setpoint_rests_on_a_robot_that_never_"
               "reads_still",)),
     Mutation("category1_standstill_from_stale_state", "stop category 1: standstill read only from a fresh state",
-             ENVELOPE, "speed = math.nan if stale else float(speeds[j])", "speed = float(speeds[j])",
+             ENVELOPE, "stale, waited = isinstance(state, StaleState), t_ns - self._rest_ns",
+             "stale, waited = False, t_ns - self._rest_ns",
              (f"{STALE}::test_a_category_1_stop_waits_for_a_fresh_state_to_read_standstill_from",)),
     Mutation("category1_ended_by_operator_standstill", "stop category 1: power removed before an operator's "
              "standstill ends the cycle", "src/cellguard/runtime/loop.py",
